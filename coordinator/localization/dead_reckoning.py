@@ -1,0 +1,32 @@
+"""Phase 1.1: preliminary configuration estimate from the motion commands (Eq. 17-19).
+
+With no odometry, the post-step estimate of robot i is its pre-step estimate moved by
+the command it was given, executed without error: for mobile robots this is
+hat u_i = x_di - hat x_t0i (Eq. 17), for anchors hat u_i = 0 (Eq. 18), and
+hat x_tui = hat x_t0i + hat u_i (Eq. 19). Body-frame commands are replayed on the
+estimated pose, which equals Eq. 17 when the commands were computed from that estimate.
+
+Its uncertainty delta_u (Section 5.1.1) propagates the prior covariance and the
+motion noise to first order (``runtime.motion.motion_covariance``). Anchors keep
+their prior uncertainty: delta_u(anchor) = prior delta (the paper leaves this open).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.motion import apply_motion, motion_covariance
+from runtime.state import StepCommands, SwarmEstimate
+
+
+def dead_reckon(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> SwarmEstimate:
+    """Post-step estimate hat C_tu with covariance, from the pre-step estimate and the commands."""
+    if not np.array_equal(prior.ids, step.ids):
+        raise SwarmInputError(
+            f"step commands are for robots {step.ids.tolist()}, the estimate for {prior.ids.tolist()}"
+        )
+    poses = np.where(step.moving[:, None], apply_motion(prior.poses, step.commands), prior.poses)
+    cov = np.where(step.moving[:, None, None], motion_covariance(prior.poses, prior.cov, step.commands, cfg), prior.cov)
+    return SwarmEstimate(prior.ids, poses, cov)

@@ -1,0 +1,45 @@
+"""Observability of the swarm from its observation graph (the connectivity of Section 5).
+
+The paper's localization applies "as long as the post-motion swarm configuration
+remains connected (i.e., each robot can be sensed by at least one neighbor)": every
+robot must be observed by another robot, and the observation graph (edges taken in
+both directions) must form one connected component.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from runtime.errors import LocalizationError
+
+
+def unobserved(n: int, observed: np.ndarray) -> np.ndarray:
+    """Indices of robots that no robot observed."""
+    return np.flatnonzero(np.bincount(observed, minlength=n) == 0)
+
+
+def components(n: int, observer: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """Connected-component label per robot of the undirected observation graph."""
+    adj = sp.coo_matrix((np.ones(len(observer)), (observer, observed)), shape=(n, n))
+    return connected_components(adj, directed=False)[1]
+
+
+def require_observable(ids: np.ndarray, observer: np.ndarray, observed: np.ndarray) -> None:
+    """Raise ``LocalizationError`` naming the robots that cannot be localized.
+
+    ``observer``/``observed`` are indices into ``ids``. Unobserved robots are reported
+    first; otherwise robots outside the largest connected component.
+    """
+    n = len(ids)
+    missing = unobserved(n, observed)
+    if missing.size:
+        raise LocalizationError("unobserved", ids[missing], "no robot observed them")
+    labels = components(n, observer, observed)
+    counts = np.bincount(labels)
+    if len(counts) > 1:
+        outside = labels != np.argmax(counts)
+        raise LocalizationError(
+            "disconnected", ids[outside], f"the observation graph splits into {len(counts)} groups"
+        )

@@ -1,0 +1,67 @@
+"""The paper's two-phase swarm localization (Section 5, Fig. 8).
+
+Phase 1.1 dead reckoning (Eq. 17-19) and Phase 1.2 topology estimation (Eq. 20,
+B1-B6) are computed independently, then Phase 2 superimposes the topology onto the
+dead-reckoning configuration with weights w_i = 1 / (delta_pi + delta_ui) (Eq. 21-22)
+and takes the midpoint of the two (Eq. 23).
+
+Decisions the paper leaves open (docs/localization.md):
+* Headings: the topology orientation of robot i rotated into the global frame, and
+  the dead-reckoning heading, are averaged like Eq. 23 (circular midpoint); a robot
+  that observes nobody keeps its dead-reckoning heading.
+* Uncertainty of the fused estimate: Eq. 23 averages two estimates, so its variance
+  is (delta_u^2 + delta_p^2) / 4 (positions) and (s_u^2 + s_p^2) / 4 (headings),
+  which is the prior uncertainty of the next step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.graph import require_observable
+from coordinator.localization.superimpose import fusion_weights, superimpose
+from coordinator.localization.topology import Topology, estimate_topology
+from runtime.config import ModelConfig
+from runtime.geometry import rotate, wrap_angle
+from runtime.state import Observations, StepCommands, SwarmEstimate
+
+
+class PaperLocalizer:
+    """Sequential localization of the paper: cluster the observations, then superimpose."""
+
+    name = "paper"
+
+    def __init__(self, cfg: ModelConfig, huber: float | None = None) -> None:
+        self.cfg = cfg
+        self.huber = huber  # metres; None = plain least squares of Eq. B3
+
+    def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
+        """Phase 1.2 alone: the topology in the reference robot's frame."""
+        ids = np.asarray(ids, dtype=np.int64)
+        i, j = obs.indexed(ids)
+        require_observable(ids, i, j)
+        return estimate_topology(
+            len(ids), i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=initial_poses, huber=self.huber
+        )
+
+    def localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
+        """Post-step estimate (Eq. 23) from the pre-step estimate, the commands and the observations."""
+        dr = dead_reckon(prior, step, self.cfg)  # Phase 1.1
+        topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
+        delta_u = dr.delta
+        theta, t = superimpose(topo.positions, dr.positions, fusion_weights(topo.delta_p, delta_u))  # Eq. 21-22
+        topo_global = rotate(theta, topo.positions) + t  # Eq. 15
+        positions = 0.5 * (topo_global + dr.positions)  # Eq. 23
+
+        has_heading = np.isfinite(topo.headings)
+        topo_heading = wrap_angle(np.where(has_heading, topo.headings, 0.0) + theta)
+        dr_heading = dr.poses[:, 2]
+        heading = np.where(has_heading, wrap_angle(dr_heading + 0.5 * wrap_angle(topo_heading - dr_heading)), dr_heading)
+
+        var_xy = (delta_u**2 + topo.delta_p**2) / 4.0
+        var_h = np.where(has_heading, (dr.cov[:, 2, 2] + np.where(has_heading, topo.heading_sigma, 0.0) ** 2) / 4.0, dr.cov[:, 2, 2])
+        cov = np.zeros((prior.n, 3, 3))
+        cov[:, 0, 0] = cov[:, 1, 1] = var_xy / 2.0
+        cov[:, 2, 2] = var_h
+        return SwarmEstimate(prior.ids, np.column_stack([positions, heading]), cov)

@@ -1,0 +1,84 @@
+"""Whitened residuals and Jacobians of the joint (Graph-SLAM-like) formulation (Section 5.3).
+
+Unknowns are robot poses (x, y, theta). Two kinds of residuals:
+
+* observation (i sees j): ((|x_j - x_i| - rho_ij) / s_r, wrap(atan2(x_j - x_i) - theta_i - phi_ij) / s_b)
+* prior: U_i (p_i - mu_i), U_i^T U_i = P_i^-1 (dead-reckoning mean and covariance)
+
+They are shared by the joint localizer and the Cramer-Rao bound, whose Fisher
+information is exactly J^T J of these residuals at the true poses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.localization.sparse_lm import PoseLayout, jacobian
+from runtime.config import ModelConfig
+from runtime.geometry import wrap_angle
+
+COV_FLOOR = 1e-12  # variance added to prior covariances so an exact prior stays invertible
+
+
+def sqrt_information(cov: np.ndarray) -> np.ndarray:
+    """Upper-triangular U (n, 3, 3) with U^T U = (cov + floor I)^-1."""
+    info = np.linalg.inv(cov + COV_FLOOR * np.eye(3))
+    info = 0.5 * (info + np.swapaxes(info, -1, -2))
+    return np.swapaxes(np.linalg.cholesky(info), -1, -2)
+
+
+def observation_terms(
+    poses: np.ndarray,
+    layout: PoseLayout,
+    observer: np.ndarray,
+    observed: np.ndarray,
+    range_m: np.ndarray,
+    bearing_rad: np.ndarray,
+    cfg: ModelConfig,
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets."""
+    s_r = max(cfg.range_sigma_m, 1e-9)
+    s_b = max(cfg.bearing_sigma_rad, 1e-9)
+    m = len(observer)
+    d = poses[observed, :2] - poses[observer, :2]
+    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+    r_range = (dist - range_m) / s_r
+    r_bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) / s_b
+    residual = np.stack([r_range, r_bearing], axis=1).ravel()
+    ux, uy = d[:, 0] / dist, d[:, 1] / dist  # d range / d x_j
+    bx, by = -d[:, 1] / dist**2, d[:, 0] / dist**2  # d bearing / d x_j
+    ci, cj = layout.cols[observer], layout.cols[observed]
+    rr, rb = 2 * np.arange(m), 2 * np.arange(m) + 1
+    rows = np.concatenate([rr, rr, rr, rr, rb, rb, rb, rb, rb])
+    cols = np.concatenate([ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 2]])
+    vals = np.concatenate([-ux / s_r, -uy / s_r, ux / s_r, uy / s_r, -bx / s_b, -by / s_b, bx / s_b, by / s_b, np.full(m, -1.0 / s_b)])
+    return residual, (rows, cols, vals)
+
+
+def prior_terms(
+    poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Residuals (3n,) U_i (p_i - mu_i) (heading difference wrapped) and COO triplets."""
+    n = len(poses)
+    diff = poses - mean
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    residual = np.einsum("nab,nb->na", sqrt_info, diff).ravel()
+    rows = np.repeat(np.arange(3 * n), 3)
+    cols = np.repeat(layout.cols, 3, axis=0).ravel()
+    return residual, (rows, cols, sqrt_info.reshape(-1))
+
+
+def stack_terms(
+    n_cols: int, *terms: tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, sp.csr_matrix]:
+    """Concatenate residual blocks and their Jacobian triplets into one system."""
+    residuals, rows, cols, vals = [], [], [], []
+    offset = 0
+    for r, (rw, cl, vl) in terms:
+        residuals.append(r)
+        rows.append(rw + offset)
+        cols.append(cl)
+        vals.append(vl)
+        offset += len(r)
+    return np.concatenate(residuals), jacobian(offset, n_cols, np.concatenate(rows), np.concatenate(cols), np.concatenate(vals))

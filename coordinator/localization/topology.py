@@ -1,0 +1,153 @@
+"""Phase 1.2: swarm-topology estimation in a local frame (Eq. 20, Appendix B, Eq. B1-B6).
+
+1. Each observation (rho_ij, phi_ij) becomes a Cartesian offset z_ij in i's body
+   frame (Eq. B1).
+2. The robots' local positions x_i and orientations theta_i minimise
+   Q = sum_ij lambda_ij / 2 |R(theta_i) z_ij + x_i - x_j|^2 (Eq. B2-B5), solved by
+   sparse Gauss-Newton/Levenberg-Marquardt with a fixed gauge: the reference robot
+   sits at the origin with heading 0. Without an initial guess the start point is the
+   linear relaxation of Q in (x_i, cos theta_i, sin theta_i).
+3. Every observation of robot j, transformed into the local frame (Eq. B4), forms
+   j's cluster; the cluster centroid is j's topology position and the cluster spread
+   its uncertainty delta_p (Eq. B6).
+
+Decisions the paper leaves open (documented in docs/localization.md):
+* Robots that observe nobody have no orientation in Q: their local heading is NaN.
+* delta_p uses the sample standard deviation (ddof=1) of each cluster axis, and is
+  never below half of one observation's expected spread sqrt(s_r^2 + (rho s_b)^2)
+  (a cluster of one point has exactly that spread), so a robot seen once or twice
+  cannot receive an unbounded weight in Eq. 22.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
+from runtime.config import ModelConfig
+from runtime.errors import LocalizationError
+from runtime.geometry import rotate, wrap_angle
+
+
+@dataclass(frozen=True)
+class Topology:
+    """Topology T (Eq. 14) in the local frame whose origin and x-axis are the reference robot's pose."""
+
+    positions: np.ndarray  # (n, 2) cluster centroids, Fig. B2 yellow (m)
+    solved_positions: np.ndarray  # (n, 2) minimiser of Eq. B2, Fig. B2 gray (m)
+    headings: np.ndarray  # (n,) local orientations (rad), NaN for robots observing nobody
+    delta_p: np.ndarray  # (n,) Eq. B6 (m)
+    heading_sigma: np.ndarray  # (n,) approx. s_b / sqrt(#observations made) (rad), inf if none
+    reference: int  # index of the gauge robot
+
+
+def observation_offsets(range_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndarray:
+    """Eq. B1: z_ij = (rho cos phi, rho sin phi) in the observer's body frame."""
+    return np.stack([range_m * np.cos(bearing_rad), range_m * np.sin(bearing_rad)], axis=-1)
+
+
+def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_heading: np.ndarray, ref: int) -> np.ndarray:
+    """Poses from the linear relaxation of Eq. B3 in (x, y, c, s) with the gauge fixed.
+
+    Replacing (cos theta_i, sin theta_i) by free (c_i, s_i) makes Q quadratic; the
+    reference robot's (x, y, c, s) = (0, 0, 1, 0). A tiny ridge keeps the system
+    solvable where the relaxation has more freedom than the original problem.
+    """
+    free = np.arange(n) != ref
+    present = np.stack([free, free, free & has_heading, free & has_heading], axis=1)
+    cols = np.where(present, np.cumsum(present.ravel()).reshape(n, 4) - 1, -1)
+    n_cols = int(present.sum())
+    m = len(i)
+    rx, ry = 2 * np.arange(m), 2 * np.arange(m) + 1
+    zx, zy, ones = z[:, 0], z[:, 1], np.ones(m)
+    ci, cj = cols[i], cols[j]
+    rows = np.concatenate([rx, rx, rx, rx, ry, ry, ry, ry])
+    col = np.concatenate([ci[:, 2], ci[:, 3], ci[:, 0], cj[:, 0], ci[:, 3], ci[:, 2], ci[:, 1], cj[:, 1]])
+    vals = np.concatenate([zx, -zy, ones, -ones, zx, zy, ones, -ones])
+    a = jacobian(2 * m, n_cols, rows, col, vals)
+    at_ref = i == ref  # the reference's known (c, s) = (1, 0) go to the right-hand side
+    b = np.zeros(2 * m)
+    b[rx[at_ref]] = -zx[at_ref]
+    b[ry[at_ref]] = -zy[at_ref]
+    ata = (a.T @ a).tocsr()
+    ridge = 1e-9 * max(float(ata.diagonal().max(initial=1.0)), 1.0)
+    sol = solve_normal(ata + sp.identity(n_cols) * ridge, a.T @ b)
+    full = np.zeros((n, 4))
+    full[:, 2] = 1.0
+    full[present] = sol[cols[present]]
+    return np.stack([full[:, 0], full[:, 1], np.arctan2(full[:, 3], full[:, 2])], axis=1)
+
+
+def _to_reference_frame(poses: np.ndarray, ref: int) -> np.ndarray:
+    """Express poses in the frame of robot ``ref`` (its pose becomes (0, 0, 0))."""
+    out = np.empty_like(poses)
+    out[:, :2] = rotate(-poses[ref, 2], poses[:, :2] - poses[ref, :2])
+    out[:, 2] = wrap_angle(poses[:, 2] - poses[ref, 2])
+    return out
+
+
+def estimate_topology(
+    n: int,
+    observer: np.ndarray,
+    observed: np.ndarray,
+    range_m: np.ndarray,
+    bearing_rad: np.ndarray,
+    cfg: ModelConfig,
+    *,
+    initial_poses: np.ndarray | None = None,
+    huber: float | None = None,
+) -> Topology:
+    """Estimate the topology of ``n`` robots from observations given as robot indices.
+
+    ``initial_poses`` (n, 3), e.g. dead reckoning, only seeds the solver; the result is
+    expressed in the reference robot's frame either way. ``huber`` (metres) switches the
+    loss of Eq. B3 to Huber beyond that residual norm to resist outliers in real data.
+    Callers check observability first (``graph.require_observable``).
+    """
+    has_heading = np.bincount(observer, minlength=n) > 0
+    ref = int(np.argmax(has_heading))
+    z = observation_offsets(range_m, bearing_rad)
+    start = _relaxed_start(n, observer, observed, z, has_heading, ref) if initial_poses is None else initial_poses
+    start = _to_reference_frame(np.asarray(start, float), ref)
+    start[~has_heading, 2] = 0.0
+    free = np.arange(n) != ref
+    layout = PoseLayout(free, free & has_heading)
+    m = len(observer)
+    rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
+    ci, cj = layout.cols[observer], layout.cols[observed]
+
+    def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        poses = layout.unpack(vec, start)
+        rz = rotate(poses[observer, 2], z)  # R(theta_i) z_ij
+        r = (rz + poses[observer, :2] - poses[observed, :2]).ravel()  # Eq. B4 minus x_j
+        ones = np.ones(m)
+        rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
+        cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
+        vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
+        return r, jacobian(2 * m, layout.size, rows, cols, vals)
+
+    result = levenberg_marquardt(residuals, layout.pack(start), huber=huber)
+    if not result.converged:
+        raise LocalizationError("no-convergence", [], "topology least squares did not converge")
+    poses = layout.unpack(result.x, start)
+    poses[:, 2] = wrap_angle(poses[:, 2])
+
+    # Eq. B4 for every observation: cluster points of the observed robots (Fig. B2 blue).
+    points = rotate(poses[observer, 2], z) + poses[observer, :2]
+    count = np.bincount(observed, minlength=n).astype(float)
+    safe = np.maximum(count, 1.0)
+    centroid = np.stack([np.bincount(observed, points[:, k], n) for k in range(2)], axis=1) / safe[:, None]
+    sq = np.stack([np.bincount(observed, points[:, k] ** 2, n) for k in range(2)], axis=1)
+    var = np.maximum(sq - count[:, None] * centroid**2, 0.0) / np.maximum(count - 1.0, 1.0)[:, None]
+    mean_range = np.bincount(observed, range_m, n) / safe
+    single = np.sqrt(cfg.range_sigma_m**2 + (mean_range * cfg.bearing_sigma_rad) ** 2)
+    b6 = np.sqrt(var.sum(axis=1))  # Eq. B6
+    delta_p = np.where(count >= 2, np.maximum(b6, 0.5 * single), single)
+    centroid = np.where(count[:, None] > 0, centroid, poses[:, :2])
+    made = np.bincount(observer, minlength=n)
+    heading_sigma = np.where(made > 0, cfg.bearing_sigma_rad / np.sqrt(np.maximum(made, 1)), np.inf)
+    headings = np.where(has_heading, poses[:, 2], np.nan)
+    return Topology(centroid, poses[:, :2].copy(), headings, delta_p, heading_sigma, ref)
