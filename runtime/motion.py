@@ -24,9 +24,11 @@ def apply_motion(
     """Poses (..., 3) after executing body-frame ``commands`` (..., 2) = (turn rad, drive m).
 
     The executed turn is ``turn + turn_noise``; the executed distance is
-    ``drive * (1 + drive_noise_frac)``. With zero noise this is dead reckoning (Eq. 17-19).
+    ``drive * (1 + drive_noise_frac)``; a zero command is no motion and adds no noise.
+    With zero noise this is dead reckoning (Eq. 17-19).
     """
-    heading = poses[..., 2] + commands[..., 0] + turn_noise
+    moved = (commands[..., 0] != 0.0) | (commands[..., 1] != 0.0)
+    heading = poses[..., 2] + commands[..., 0] + np.where(moved, turn_noise, 0.0)
     dist = commands[..., 1] * (1.0 + np.asarray(drive_noise_frac))
     out = np.empty(np.broadcast_shapes(poses.shape, commands.shape[:-1] + (3,)))
     out[..., 0] = poses[..., 0] + dist * np.cos(heading)

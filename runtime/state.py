@@ -19,7 +19,8 @@ import numpy as np
 from runtime.errors import SwarmInputError
 
 
-def _ids_array(ids: np.ndarray | list[int]) -> np.ndarray:
+def robot_ids(ids: np.ndarray | list[int]) -> np.ndarray:
+    """Validated int64 robot ids: 1-D, integers >= 0, no duplicates."""
     arr = np.asarray(ids)
     if arr.ndim != 1 or (arr.size and not np.issubdtype(arr.dtype, np.integer)):
         raise SwarmInputError(f"robot ids must be a 1-D list of integers, got {ids!r}")
@@ -64,7 +65,7 @@ class SwarmEstimate:
     cov: np.ndarray
 
     def __post_init__(self) -> None:
-        ids = _ids_array(self.ids)
+        ids = robot_ids(self.ids)
         poses = np.asarray(self.poses, dtype=float)
         cov = np.asarray(self.cov, dtype=float)
         if poses.shape != (len(ids), 3):
@@ -124,7 +125,7 @@ class StepCommands:
     moving: np.ndarray
 
     def __post_init__(self) -> None:
-        ids = _ids_array(self.ids)
+        ids = robot_ids(self.ids)
         commands = np.asarray(self.commands, dtype=float)
         moving = np.asarray(self.moving, dtype=bool)
         if commands.shape != (len(ids), 2) or moving.shape != (len(ids),):

@@ -43,3 +43,34 @@ def require_observable(ids: np.ndarray, observer: np.ndarray, observed: np.ndarr
         raise LocalizationError(
             "disconnected", ids[outside], f"the observation graph splits into {len(counts)} groups"
         )
+
+
+def observable_subset(ids: np.ndarray, observer: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
+    """Largest set of robots that can be localized, and why each other robot was left out.
+
+    Repeatedly drops observations touching excluded robots, robots nobody observes,
+    and robots outside the largest connected component, until nothing changes.
+    Returns (mask over ``ids`` of kept robots, {excluded id: reason}).
+    """
+    n = len(ids)
+    keep = np.ones(n, bool)
+    excluded: dict[int, str] = {}
+    while True:
+        live = keep[observer] & keep[observed]
+        o, d = observer[live], observed[live]
+        seen = np.bincount(d, minlength=n) > 0
+        newly = keep & ~seen
+        for k in np.flatnonzero(newly):
+            excluded[int(ids[k])] = "unobserved"
+        keep &= seen
+        if not keep.any():
+            return keep, excluded
+        labels = components(n, o, d)
+        counts = np.bincount(labels[keep])
+        main = np.argmax(counts)
+        outside = keep & (labels != main)
+        for k in np.flatnonzero(outside):
+            excluded[int(ids[k])] = "disconnected"
+        keep &= ~outside
+        if not newly.any() and not outside.any():
+            return keep, excluded

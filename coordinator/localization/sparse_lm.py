@@ -68,15 +68,19 @@ def levenberg_marquardt(
     residuals: Callable[[np.ndarray], tuple[np.ndarray, sp.csr_matrix]],
     x0: np.ndarray,
     *,
+    second_order: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     huber: float | None = None,
     max_iter: int = 100,
-    xtol: float = 1e-12,
-    ftol: float = 1e-15,
+    xtol: float = 1e-10,
+    ftol: float = 1e-12,
 ) -> LsqResult:
     """Minimise sum(rho(r_k(x))) with rho quadratic (or Huber beyond ``huber``, via IRLS).
 
     ``residuals(x)`` returns the residual vector and its sparse Jacobian; residuals
     should be whitened (unit variance) when ``huber`` is used, so the threshold is in sigmas.
+    ``second_order(x, r)``, if given, returns the diagonal of sum_k r_k d^2 r_k / dx^2,
+    the term Gauss-Newton drops; adding it (kept >= 10 % of the Gauss-Newton diagonal)
+    restores fast convergence where soft modes meet curved residuals (rotations).
     """
 
     def weighted(x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix, float]:
@@ -98,6 +102,8 @@ def levenberg_marquardt(
         a = (jac.T @ jac).tocsr()
         g = jac.T @ r
         diag = np.maximum(a.diagonal(), 1e-12)
+        if second_order is not None:
+            a = a + sp.diags(np.maximum(second_order(x, r), -0.9 * diag))
         while True:
             dx = solve_normal(a + sp.diags(mu * diag), -g)
             x_new = x + dx

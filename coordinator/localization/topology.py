@@ -104,7 +104,8 @@ def estimate_topology(
 
     ``initial_poses`` (n, 3), e.g. dead reckoning, only seeds the solver; the result is
     expressed in the reference robot's frame either way. ``huber`` (metres) switches the
-    loss of Eq. B3 to Huber beyond that residual norm to resist outliers in real data.
+    loss of Eq. B3 to Huber beyond that residual (per axis) to resist outliers in real data,
+    and leaves observations more than 2 x ``huber`` from the solution out of the clusters.
     Callers check observability first (``graph.require_observable``).
     """
     has_heading = np.bincount(observer, minlength=n) > 0
@@ -129,7 +130,17 @@ def estimate_topology(
         vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
         return r, jacobian(2 * m, layout.size, rows, cols, vals)
 
-    result = levenberg_marquardt(residuals, layout.pack(start), huber=huber)
+    def second_order(vec: np.ndarray, r: np.ndarray) -> np.ndarray:
+        """d^2 r / d theta_i^2 = -R(theta_i) z_ij: diagonal of sum r . d^2 r on heading columns."""
+        poses = layout.unpack(vec, start)
+        rz = rotate(poses[observer, 2], z)
+        term = -np.sum(r.reshape(m, 2) * rz, axis=1)
+        out = np.zeros(layout.size)
+        hc = ci[:, 2]
+        np.add.at(out, hc[hc >= 0], term[hc >= 0])
+        return out
+
+    result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber)
     if not result.converged:
         raise LocalizationError("no-convergence", [], "topology least squares did not converge")
     poses = layout.unpack(result.x, start)
@@ -137,12 +148,16 @@ def estimate_topology(
 
     # Eq. B4 for every observation: cluster points of the observed robots (Fig. B2 blue).
     points = rotate(poses[observer, 2], z) + poses[observer, :2]
-    count = np.bincount(observed, minlength=n).astype(float)
+    use = np.ones(m)
+    if huber is not None:  # robust mode: gross outliers leave the clusters (unless a robot has no other point)
+        inlier = np.hypot(*(points - poses[observed, :2]).T) <= 2.0 * huber
+        use = np.where(inlier | (np.bincount(observed, inlier, n)[observed] == 0), 1.0, 0.0)
+    count = np.bincount(observed, use, n)
     safe = np.maximum(count, 1.0)
-    centroid = np.stack([np.bincount(observed, points[:, k], n) for k in range(2)], axis=1) / safe[:, None]
-    sq = np.stack([np.bincount(observed, points[:, k] ** 2, n) for k in range(2)], axis=1)
+    centroid = np.stack([np.bincount(observed, use * points[:, k], n) for k in range(2)], axis=1) / safe[:, None]
+    sq = np.stack([np.bincount(observed, use * points[:, k] ** 2, n) for k in range(2)], axis=1)
     var = np.maximum(sq - count[:, None] * centroid**2, 0.0) / np.maximum(count - 1.0, 1.0)[:, None]
-    mean_range = np.bincount(observed, range_m, n) / safe
+    mean_range = np.bincount(observed, use * range_m, n) / safe
     single = np.sqrt(cfg.range_sigma_m**2 + (mean_range * cfg.bearing_sigma_rad) ** 2)
     b6 = np.sqrt(var.sum(axis=1))  # Eq. B6
     delta_p = np.where(count >= 2, np.maximum(b6, 0.5 * single), single)

@@ -1,0 +1,1 @@
+"""The ``swarm`` command line: the top layer, built on ``runtime``, ``robot_agent`` and ``coordinator``."""

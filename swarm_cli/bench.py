@@ -1,0 +1,16 @@
+"""``swarm bench ...``: benchmarks that print numbers (never timed tests)."""
+
+from __future__ import annotations
+
+import argparse
+
+from swarm_cli import bench_localize
+
+BENCHMARKS = (bench_localize,)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("bench", help="benchmarks (print numbers; --json for machines)")
+    inner = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
+    for module in BENCHMARKS:
+        module.register(inner)

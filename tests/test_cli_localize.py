@@ -1,0 +1,87 @@
+"""``swarm localize`` and ``swarm bench localize`` as a user runs them (real subprocesses)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "docs" / "examples"
+
+
+def swarm(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "swarm_cli.main", *args], capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+@pytest.mark.parametrize("localizer", ["paper", "joint"])
+def test_topology_without_prior(localizer):
+    out = swarm("localize", str(EXAMPLES / "localize-topology.json"), "--localizer", localizer)
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["frame"] == "local" and doc["reference"] == 11
+    assert doc["excluded"] == [{"id": 17, "reason": "unobserved"}]
+    assert "left out robot 17: unobserved" in out.stderr
+    robots = {r["id"]: r for r in doc["robots"]}
+    assert sorted(robots) == [11, 12, 13, 14, 15, 16]
+    assert robots[16]["heading"] is None  # 16 observed nobody in the example
+    assert abs(robots[11]["x"]) < 0.01 and abs(robots[11]["y"]) < 0.01
+
+
+def test_prior_gives_global_frame_and_resists_the_outlier():
+    out = swarm("localize", str(EXAMPLES / "localize-prior.json"))
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["frame"] == "global"
+    robots = {r["id"]: r for r in doc["robots"]}
+    # Robot 13's true position is (0.15, 0.30); the example holds a gross outlier about it.
+    assert abs(robots[13]["x"] - 0.15) < 0.03 and abs(robots[13]["y"] - 0.30) < 0.03
+    plain = json.loads(swarm("localize", str(EXAMPLES / "localize-prior.json"), "--no-robust").stdout.splitlines()[-1])
+    plain13 = {r["id"]: r for r in plain["robots"]}[13]
+    assert plain13["delta_p"] > robots[13]["delta_p"]
+
+
+def test_strict_names_the_robot_that_cannot_be_localized():
+    out = swarm("localize", str(EXAMPLES / "localize-topology.json"), "--strict")
+    assert out.returncode == 2
+    assert "unobserved: robots [17]" in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+@pytest.mark.parametrize(
+    "content,message",
+    [
+        ("{not json", "is not valid JSON"),
+        ('{"robots": [1, 2], "observations": [[1, 2, NaN, 0.1]]}', "observations[0][2] (range_m): expected a finite number"),
+        ('{"robots": [1, 2], "observations": [[1, 9, 0.2, 0.1]]}', "unknown robot ids in observations: [9]"),
+        ('{"robots": [1, 2], "observations": [[1, 2, 0.2]]}', "observations[0]: expected [observer, observed, range_m, bearing_rad]"),
+        ('{"robots": [1, 1], "observations": []}', "duplicate robot ids: [1]"),
+        ('{"robots": [1, 2], "observations": [[1, 2, -0.2, 0.0]]}', "negative ranges"),
+        ('{"robots": [1, 2], "observations": [[2, 1, 0.2, 0.0], [1, 2, 0.2, 3.1]], "prior": [{"id": 1, "x": 0, "y": 0, "heading": 0, "delta": 0.01, "sigma_heading": 0.1}]}', "missing [2]"),
+    ],
+)
+def test_bad_input_gets_a_clear_error(tmp_path, content, message):
+    path = tmp_path / "in.json"
+    path.write_text(content)
+    out = swarm("localize", str(path))
+    assert out.returncode == 2
+    assert message in out.stderr
+    assert "Traceback" not in out.stderr
+
+
+def test_missing_file_is_a_clear_error(tmp_path):
+    out = swarm("localize", str(tmp_path / "nope.json"))
+    assert out.returncode == 2 and "nope.json" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_bench_localize_json_contract():
+    out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert [r["n"] for r in doc["results"]] == [10, 30]
+    for r in doc["results"]:
+        assert r["ms_median"] > 0 and r["err_over_crlb"] > 0
+        assert r["joint"]["err_over_crlb"] < r["paper"]["err_over_crlb"]

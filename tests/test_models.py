@@ -1,0 +1,117 @@
+"""Motion and sensing models: known answers, statistics, seeding."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
+from runtime.rng import Stream, robot_rng, robot_rngs
+from runtime.sensing import measure, neighbours, sense_robot, sense_swarm
+
+
+def test_turn_then_drive_known_answer():
+    out = apply_motion(np.array([1.0, 2.0, 0.0]), np.array([math.pi / 2, 0.5]))
+    np.testing.assert_allclose(out, [1.0, 2.5, math.pi / 2], atol=1e-12)
+
+
+def test_command_towards_reaches_target_and_wraps():
+    pose = np.array([[0.0, 0.0, 3.0], [1.0, 1.0, -3.0]])
+    target = np.array([[-1.0, -0.01], [2.0, 1.0]])
+    cmd = command_towards(pose, target)
+    assert np.all(np.abs(cmd[:, 0]) <= math.pi)
+    np.testing.assert_allclose(apply_motion(pose, cmd)[:, :2], target, atol=1e-12)
+
+
+def test_zero_distance_command_does_not_turn():
+    cmd = command_towards(np.array([0.3, 0.3, 1.0]), np.array([0.3, 0.3]))
+    np.testing.assert_array_equal(cmd, [0.0, 0.0])
+
+
+def test_motion_noise_statistics(cfg):
+    turn, drive = draw_motion_noise(np.random.default_rng(0), (40000,), cfg)
+    assert abs(turn.std() / cfg.turn_sigma_rad - 1) < 0.03
+    assert abs(drive.std() / cfg.drive_sigma_frac - 1) < 0.03
+    assert abs(turn.mean()) < 3 * cfg.turn_sigma_rad / 200
+
+
+def test_motion_covariance_matches_monte_carlo(cfg):
+    rng = np.random.default_rng(1)
+    pose, cmd = np.array([0.1, -0.2, 0.7]), np.array([0.4, 0.3])
+    prior_cov = np.diag([1e-4, 2e-4, 1e-3])
+    k = 200000
+    starts = pose + rng.multivariate_normal(np.zeros(3), prior_cov, k)
+    turn, drive = draw_motion_noise(rng, (k,), cfg)
+    ends = apply_motion(starts, np.broadcast_to(cmd, (k, 2)), turn, drive)
+    empirical = np.cov(ends.T)
+    predicted = motion_covariance(pose, prior_cov, cmd, cfg)
+    np.testing.assert_allclose(np.diag(predicted), np.diag(empirical), rtol=0.05)
+
+
+def test_anchor_keeps_prior_covariance(cfg):
+    prior = np.diag([1e-4, 1e-4, 1e-3])
+    np.testing.assert_allclose(motion_covariance(np.zeros(3), prior, np.zeros(2), cfg), prior)
+
+
+def test_robot_streams_are_reproducible_and_distinct():
+    a = robot_rng(5, 3, Stream.MOTION).normal(size=4)
+    b = robot_rng(5, 3, Stream.MOTION).normal(size=4)
+    c = robot_rng(5, 4, Stream.MOTION).normal(size=4)
+    d = robot_rng(5, 3, Stream.SENSING).normal(size=4)
+    np.testing.assert_array_equal(a, b)
+    assert not np.allclose(a, c) and not np.allclose(a, d)
+
+
+def test_execute_command_is_a_pure_function_of_state_command_and_rng(cfg):
+    pose, cmd = np.array([0.0, 0.0, 0.2]), np.array([0.1, 0.2])
+    one = execute_command(pose, cmd, cfg, robot_rng(1, 0, Stream.MOTION))
+    two = execute_command(pose, cmd, cfg, robot_rng(1, 0, Stream.MOTION))
+    np.testing.assert_array_equal(one, two)
+
+
+def test_measure_known_answer_and_wrap():
+    rng, brg = measure(np.array([0.0, 0.0, math.pi - 0.1]), np.array([-1.0, -0.2]))
+    assert rng == pytest.approx(math.hypot(1.0, 0.2))
+    expected = (math.atan2(-0.2, -1.0) - (math.pi - 0.1) + math.pi) % (2 * math.pi) - math.pi
+    assert brg == pytest.approx(expected)
+    assert -math.pi <= brg < math.pi
+
+
+def test_sensing_respects_range_and_dropout():
+    poses = np.array([[0, 0, 0], [0.5, 0, 0], [0.51, 0, 0], [0.2, 0.2, 0]], float)
+    np.testing.assert_array_equal(neighbours(poses[:, :2], 0, 0.5), [1, 3])
+    cfg = ModelConfig(dropout_prob=0.3)
+    kept = [len(sense_robot(poses, 0, cfg, np.random.default_rng(s))[0]) for s in range(4000)]
+    assert abs(np.mean(kept) / 2 - 0.7) < 0.03
+
+
+def test_sensing_noise_statistics(cfg):
+    poses = np.array([[0, 0, 0.3], [0.3, 0.1, 0]], float)
+    rho0, phi0 = measure(poses[0], poses[1, :2])
+    draws = np.array([sense_robot(poses, 0, cfg, np.random.default_rng(s))[1:] for s in range(5000)])[:, :, 0]
+    assert abs(np.std(draws[:, 0]) / cfg.range_sigma_m - 1) < 0.05
+    assert abs(np.std(draws[:, 1] - phi0) / cfg.bearing_sigma_rad - 1) < 0.05
+    assert abs(np.mean(draws[:, 0]) - rho0) < 1e-3
+
+
+def test_swarm_sensing_equals_each_robot_sensing_alone(cfg):
+    rng = np.random.default_rng(2)
+    poses = np.column_stack([rng.uniform(0, 0.8, (8, 2)), rng.uniform(-3, 3, 8)])
+    ids = np.arange(10, 18)
+    obs = sense_swarm(poses, ids, cfg, robot_rngs(9, ids, Stream.SENSING))
+    for k, rid in enumerate(ids):
+        nb, rho, phi = sense_robot(poses, k, cfg, robot_rng(9, rid, Stream.SENSING))
+        mine = obs.observer == rid
+        np.testing.assert_array_equal(obs.observed[mine], ids[nb])
+        np.testing.assert_array_equal(obs.range_m[mine], rho)
+        np.testing.assert_array_equal(obs.bearing_rad[mine], phi)
+
+
+@pytest.mark.parametrize("field,value", [("turn_sigma_rad", float("nan")), ("range_sigma_m", -1.0), ("dropout_prob", 1.0), ("sensing_range_m", 0.0)])
+def test_config_rejects_bad_values(field, value):
+    with pytest.raises(SwarmInputError, match=field):
+        ModelConfig(**{field: value})
