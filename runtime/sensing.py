@@ -32,6 +32,18 @@ def neighbours(positions: np.ndarray, index: int, sensing_range: float) -> np.nd
     return np.flatnonzero(mask)
 
 
+def add_sensing_noise(
+    rho: np.ndarray, phi: np.ndarray, uniform: np.ndarray, z_range: np.ndarray, z_bearing: np.ndarray, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Noisy (range, bearing, kept) from noise-free ones and standard draws (uniform, normal, normal).
+
+    Ranges are clipped at 0 (a range sensor reports no negative distance); bearings wrap.
+    """
+    keep = uniform >= cfg.dropout_prob
+    noisy_rho = np.maximum(rho + z_range * cfg.range_sigma_m, 0.0)
+    return noisy_rho, wrap_angle(phi + z_bearing * cfg.bearing_sigma_rad), keep
+
+
 def noisy_observations(
     observer_poses: np.ndarray, target_positions: np.ndarray, cfg: ModelConfig, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -39,14 +51,13 @@ def noisy_observations(
 
     Draw order per call: k dropout uniforms, k range normals, k bearing normals,
     so the stream consumption does not depend on the dropout probability.
-    Ranges are clipped at 0 (a range sensor reports no negative distance).
     """
     k = target_positions.shape[0]
-    keep = rng.random(k) >= cfg.dropout_prob
-    e_range = rng.normal(0.0, 1.0, k) * cfg.range_sigma_m
-    e_bearing = rng.normal(0.0, 1.0, k) * cfg.bearing_sigma_rad
+    uniform = rng.random(k)
+    z_range = rng.normal(0.0, 1.0, k)
+    z_bearing = rng.normal(0.0, 1.0, k)
     rho, phi = measure(observer_poses, target_positions)
-    return np.maximum(rho + e_range, 0.0), wrap_angle(phi + e_bearing), keep
+    return add_sensing_noise(rho, phi, uniform, z_range, z_bearing, cfg)
 
 
 def sense_robot(

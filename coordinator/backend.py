@@ -1,0 +1,29 @@
+"""The swarm-backend interface: all the executor knows about the robots.
+
+The in-process simulator (``runtime.simulation.SimulatedSwarm``) implements it now; a
+distributed Zenoh backend implements it later, and the executor does not change.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from runtime.state import Observations, StepCommands
+
+
+class SwarmBackend(Protocol):
+    ids: np.ndarray
+
+    def execute(self, step: StepCommands) -> None:
+        """Have the mobile robots execute their commands; returns when all are done."""
+        ...
+
+    def observe(self) -> Observations:
+        """Collect every robot's observations of its neighbours."""
+        ...
+
+    def true_poses(self) -> np.ndarray | None:
+        """Ground truth (n, 3) for evaluation, or None where there is none (hardware)."""
+        ...

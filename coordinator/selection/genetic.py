@@ -1,0 +1,107 @@
+"""Inner optimisation loop (Section 4.2.2, Eq. 9): genetic search over ordered partitions.
+
+A candidate is a permutation of the robots cut into the plan's consecutive mobile
+groups. Order crossover (OX1) of two permutations is again a permutation, and a
+mutation swaps two robots of different groups, so every child is a valid partition.
+The population is seeded with the heuristic plan (Eq. 11-13) and random plans;
+the fitness is the Monte Carlo e_l on common random numbers, evaluated once per
+distinct partition (cached) and for a whole generation in one vectorised batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from coordinator.plan import Plan
+
+
+@dataclass(frozen=True)
+class GeneticConfig:
+    population: int = 12
+    generations: int = 8
+    patience: int = 3  # generations without improvement before stopping
+    elite: int = 2
+    mutation: float = 0.4  # probability that a child gets one swap
+
+
+def order_crossover(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """OX1: a slice of ``a`` kept in place, the rest filled in ``b``'s order."""
+    n = len(a)
+    i, j = sorted(rng.choice(n + 1, 2, replace=False))
+    child = np.full(n, -1)
+    child[i:j] = a[i:j]
+    rest = b[~np.isin(b, a[i:j])]
+    child[np.flatnonzero(child < 0)] = rest
+    return child
+
+
+def swap_mutation(order: np.ndarray, sizes: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
+    """Swap two robots that belong to different groups (no-op for a single group)."""
+    group_of = np.repeat(np.arange(len(sizes)), sizes)
+    if len(sizes) < 2:
+        return order
+    i = int(rng.integers(len(order)))
+    j = int(rng.choice(np.flatnonzero(group_of != group_of[i])))
+    out = order.copy()
+    out[i], out[j] = out[j], out[i]
+    return out
+
+
+def genetic_search(
+    evaluate: Callable[[list[Plan]], np.ndarray],
+    seeds: list[Plan],
+    feasible: Callable[[Plan], bool],
+    rng: np.random.Generator,
+    cfg: GeneticConfig = GeneticConfig(),
+) -> tuple[Plan | None, float, int]:
+    """Best plan found, its e_l, and the number of distinct plans evaluated.
+
+    ``evaluate`` maps plans to e_l (lower is better); infeasible plans get e_l = inf.
+    Returns (None, inf, k) when no feasible plan was found.
+    """
+    sizes = seeds[0].sizes
+    n = seeds[0].n_robots
+    cache: dict[tuple, float] = {}
+
+    def score(plans: list[Plan]) -> np.ndarray:
+        fresh, seen = [], set()
+        for p in plans:
+            key = p.key()
+            if key not in cache and key not in seen:
+                seen.add(key)
+                if feasible(p):
+                    fresh.append(p)
+                else:
+                    cache[key] = np.inf
+        if fresh:
+            for p, e in zip(fresh, evaluate(fresh)):
+                cache[p.key()] = float(e)
+        return np.array([cache[p.key()] for p in plans])
+
+    population = list(seeds)
+    while len(population) < cfg.population:
+        population.append(Plan(rng.permutation(n), sizes))
+    fitness = score(population)
+    best, stale = float(np.min(fitness)), 0
+    for _ in range(cfg.generations):
+        order = np.argsort(fitness, kind="stable")
+        children = [population[k] for k in order[: cfg.elite]]
+        while len(children) < cfg.population:
+            a, b = (population[min(rng.choice(len(population), 2, replace=False), key=lambda k: fitness[k])] for _ in range(2))
+            child = order_crossover(a.order, b.order, rng)
+            if rng.random() < cfg.mutation:
+                child = swap_mutation(child, sizes, rng)
+            children.append(Plan(child, sizes))
+        population, fitness = children, score(children)
+        current = float(np.min(fitness))
+        stale = 0 if current < best else stale + 1
+        best = min(best, current)
+        if stale >= cfg.patience:
+            break
+    k = int(np.argmin(fitness))
+    if not np.isfinite(fitness[k]):
+        return None, np.inf, len(cache)
+    return population[k], float(fitness[k]), len(cache)

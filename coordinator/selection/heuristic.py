@@ -1,0 +1,85 @@
+"""Heuristic initial guess for the anchors of every step (Section 4.2.3, Eq. 11-13).
+
+For step k the anchors R_ak should be spread out (distribution d_k, Eq. 11: mean
+distance of the anchors from their centroid) and close to the mobile robots
+(separation s_k, Eq. 12: distance between the anchor and mobile centroids), measured
+in the expected post-step configuration: mobile robots at their desired positions,
+robots that moved earlier at theirs, the others where they are estimated now. Each
+step's mobile group maximises p_ak = d_k + 1 / s_k (Eq. 13), step after step.
+Small choices are enumerated; large ones are improved by single swaps from the
+robots nearest the centroid.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from coordinator.plan import Plan
+
+ENUMERATE_LIMIT = 4000  # candidate groups evaluated exhaustively per step
+MIN_SEPARATION = 1e-9  # m, keeps 1 / s_k finite
+
+
+def step_score(groups: np.ndarray, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """p_ak (Eq. 13) for candidate mobile groups given as masks (C, n).
+
+    ``base`` (n, 2) holds the expected positions of robots that do not move in this step.
+    """
+    anchors = ~groups
+    n_a = np.maximum(anchors.sum(axis=1, keepdims=True), 1)
+    centroid_a = anchors @ base / n_a
+    d = np.sum(anchors * np.linalg.norm(base[None] - centroid_a[:, None], axis=-1), axis=1) / n_a[:, 0]  # Eq. 11
+    centroid_m = groups @ desired / np.maximum(groups.sum(axis=1, keepdims=True), 1)
+    s = np.linalg.norm(centroid_a - centroid_m, axis=1)  # Eq. 12
+    return d + 1.0 / np.maximum(s, MIN_SEPARATION)
+
+
+def _best_group(pool: np.ndarray, size: int, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    n = len(base)
+    if math.comb(len(pool), size) <= ENUMERATE_LIMIT:
+        combos = np.array(list(itertools.combinations(pool, size)), dtype=np.int64)
+        masks = np.zeros((len(combos), n), bool)
+        masks[np.arange(len(combos))[:, None], combos] = True
+        return combos[int(np.argmax(step_score(masks, base, desired)))]
+    centre = base.mean(axis=0)
+    group = pool[np.argsort(np.linalg.norm(desired[pool] - centre, axis=1), kind="stable")[:size]]
+    best = step_score(_mask(group, n), base, desired)[0]
+    for _ in range(4 * size):
+        outside = np.setdiff1d(pool, group)
+        swaps = np.array([(a, b) for a in range(size) for b in range(len(outside))])
+        masks = np.repeat(_mask(group, n), len(swaps), axis=0)
+        masks[np.arange(len(swaps)), group[swaps[:, 0]]] = False
+        masks[np.arange(len(swaps)), outside[swaps[:, 1]]] = True
+        scores = step_score(masks, base, desired)
+        k = int(np.argmax(scores))
+        if scores[k] <= best:
+            break
+        best = scores[k]
+        group = group.copy()
+        group[swaps[k, 0]] = outside[swaps[k, 1]]
+    return group
+
+
+def _mask(group: np.ndarray, n: int) -> np.ndarray:
+    m = np.zeros((1, n), bool)
+    m[0, group] = True
+    return m
+
+
+def heuristic_plan(current: np.ndarray, desired: np.ndarray, n_anchors: int) -> Plan:
+    """The heuristic plan for moving from ``current`` to ``desired`` positions (n, 2) with n_a anchors."""
+    n = len(current)
+    size = n - n_anchors
+    base = np.array(current, dtype=float)
+    pool = np.arange(n)
+    order = []
+    while len(pool) > size:
+        group = _best_group(pool, size, base, desired)
+        order.extend(sorted(group.tolist()))
+        base[group] = desired[group]
+        pool = np.setdiff1d(pool, group)
+    order.extend(pool.tolist())
+    return Plan.equal(np.array(order), n_anchors)

@@ -1,0 +1,94 @@
+"""Motion strategies behind the same executor: the paper's online selection and the baselines.
+
+Method names are those used in every output: ``inchworm`` (online n_a and anchors,
+Section 4), ``inchworm-equal-speed`` (the same search with n_a fixed to n_r / 2),
+``heuristic-fixed`` (n_a = n_r / 2, heuristic anchors, no search), ``ref57`` (two fixed
+random halves alternating, ref. [57]), ``no-anchors`` (everybody moves at once) and
+``one-at-a-time`` (n_a = n_r - 1, in id order, as ref. [56]).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Protocol
+
+import numpy as np
+
+from coordinator.plan import Plan
+from coordinator.selection.heuristic import heuristic_plan
+from coordinator.selection.selector import AnchorSelector, Selection, SelectionConfig
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.state import SwarmEstimate
+
+METHODS = ("inchworm", "inchworm-equal-speed", "heuristic-fixed", "ref57", "no-anchors", "one-at-a-time")
+
+
+class Strategy(Protocol):
+    name: str
+
+    def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
+        """The plan for moving from ``estimate`` to ``desired`` (n, 2), and the selection details if any."""
+        ...
+
+
+class SelectedStrategy:
+    """Anchors chosen online by Monte Carlo search (``inchworm``, ``inchworm-equal-speed``)."""
+
+    def __init__(self, name: str, selector: AnchorSelector) -> None:
+        self.name = name
+        self.selector = selector
+
+    def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
+        selection = self.selector.select(estimate, desired)
+        return selection.plan, selection
+
+
+class FixedPlanStrategy:
+    """The same plan at every configuration change (``ref57``, ``no-anchors``, ``one-at-a-time``)."""
+
+    def __init__(self, name: str, plan: Plan) -> None:
+        self.name = name
+        self.fixed = plan
+
+    def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
+        return self.fixed, None
+
+
+class HeuristicStrategy:
+    """Heuristic anchors (Eq. 11-13) with a fixed anchor count, no search (``heuristic-fixed``)."""
+
+    name = "heuristic-fixed"
+
+    def __init__(self, n_anchors: int) -> None:
+        self.n_anchors = n_anchors
+
+    def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
+        return heuristic_plan(estimate.positions, desired, self.n_anchors), None
+
+
+def half(n: int, method: str) -> int:
+    if n % 2:
+        raise SwarmInputError(f"{method} uses n_a = n_r / 2 and needs an even number of robots, got {n}")
+    return n // 2
+
+
+def make_strategy(
+    method: str, n: int, cfg: ModelConfig, localizer: str, selection: SelectionConfig, seed: int
+) -> Strategy:
+    """The strategy called ``method`` for ``n`` robots; ``seed`` fixes its own random choices."""
+    if method == "inchworm":
+        return SelectedStrategy(method, AnchorSelector(cfg, localizer, selection, seed))
+    if method == "inchworm-equal-speed":
+        fixed = replace(selection, anchor_counts=(half(n, method),))
+        return SelectedStrategy(method, AnchorSelector(cfg, localizer, fixed, seed))
+    if method == "heuristic-fixed":
+        return HeuristicStrategy(half(n, method))
+    if method == "ref57":
+        halves = np.random.default_rng([seed, 57]).permutation(n)
+        return FixedPlanStrategy(method, Plan.equal(halves, half(n, method)))
+    if method == "no-anchors":
+        return FixedPlanStrategy(method, Plan.equal(np.arange(n), 0))
+    if method == "one-at-a-time":
+        return FixedPlanStrategy(method, Plan.equal(np.arange(n), n - 1))
+    raise SwarmInputError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
