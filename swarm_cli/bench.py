@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from swarm_cli import bench_localize
+from swarm_cli import bench_localize, bench_select
 
-BENCHMARKS = (bench_localize,)
+BENCHMARKS = (bench_localize, bench_select)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -6,9 +6,9 @@ import argparse
 import sys
 
 from runtime.errors import LocalizationError, SwarmInputError
-from swarm_cli import bench, localize
+from swarm_cli import bench, compare, localize, sim, study
 
-COMMANDS = (localize, bench)
+COMMANDS = (sim, compare, study, localize, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -6,7 +6,10 @@ import argparse
 import json
 import math
 
+from coordinator.selection.genetic import GeneticConfig
+from coordinator.selection.selector import SelectionConfig
 from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
@@ -44,3 +47,25 @@ def add_json_option(parser: argparse.ArgumentParser) -> None:
 def print_json(obj: object) -> None:
     """The machine-readable result: one JSON object on one line."""
     print(json.dumps(obj, separators=(",", ":")), flush=True)
+
+
+def add_selection_options(parser: argparse.ArgumentParser) -> None:
+    """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
+    g = parser.add_argument_group("anchor selection (Section 4)")
+    g.add_argument("--w-v", type=float, default=0.5, help="speed weight w_v of Eq. 3 (w_l = 1 - w_v; default 0.5)")
+    g.add_argument("--samples", type=int, default=16, help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
+    g.add_argument("--population", type=int, default=12, help="genetic population (default 12)")
+    g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
+
+
+def selection_config(args: argparse.Namespace) -> SelectionConfig:
+    if not 0.0 <= args.w_v <= 1.0:
+        raise SwarmInputError(f"--w-v must be in [0, 1], got {args.w_v}")
+    if args.population < 2 or args.generations < 0:
+        raise SwarmInputError("--population must be >= 2 and --generations >= 0")
+    return SelectionConfig(
+        w_v=args.w_v,
+        w_l=1.0 - args.w_v,
+        samples=args.samples,
+        genetic=GeneticConfig(population=args.population, generations=args.generations),
+    )

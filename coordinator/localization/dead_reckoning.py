@@ -27,6 +27,18 @@ def dead_reckon(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> S
         raise SwarmInputError(
             f"step commands are for robots {step.ids.tolist()}, the estimate for {prior.ids.tolist()}"
         )
-    poses = np.where(step.moving[:, None], apply_motion(prior.poses, step.commands), prior.poses)
-    cov = np.where(step.moving[:, None, None], motion_covariance(prior.poses, prior.cov, step.commands, cfg), prior.cov)
+    poses, cov = dead_reckon_arrays(prior.poses, prior.cov, step.commands, step.moving, cfg)
     return SwarmEstimate(prior.ids, poses, cov)
+
+
+def dead_reckon_arrays(
+    poses: np.ndarray, cov: np.ndarray, commands: np.ndarray, moving: np.ndarray, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dead-reckoning poses (..., n, 3) and covariances (..., n, 3, 3), broadcasting over leading batch axes.
+
+    ``commands`` (..., n, 2) of robots that are not ``moving`` (..., n) are ignored, as in ``StepCommands``.
+    """
+    commands = np.where(moving[..., None], commands, 0.0)
+    out = np.where(moving[..., None], apply_motion(poses, commands), poses)
+    out_cov = np.where(moving[..., None, None], motion_covariance(poses, cov, commands, cfg), cov)
+    return out, out_cov

@@ -51,17 +51,38 @@ class PaperLocalizer:
         topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
         delta_u = dr.delta
         theta, t = superimpose(topo.positions, dr.positions, fusion_weights(topo.delta_p, delta_u))  # Eq. 21-22
-        topo_global = rotate(theta, topo.positions) + t  # Eq. 15
-        positions = 0.5 * (topo_global + dr.positions)  # Eq. 23
+        poses, cov = fuse(topo.positions, topo.headings, topo.delta_p, topo.heading_sigma, theta, t, dr.poses, dr.cov, delta_u)
+        return SwarmEstimate(prior.ids, poses, cov)
 
-        has_heading = np.isfinite(topo.headings)
-        topo_heading = wrap_angle(np.where(has_heading, topo.headings, 0.0) + theta)
-        dr_heading = dr.poses[:, 2]
-        heading = np.where(has_heading, wrap_angle(dr_heading + 0.5 * wrap_angle(topo_heading - dr_heading)), dr_heading)
 
-        var_xy = (delta_u**2 + topo.delta_p**2) / 4.0
-        var_h = np.where(has_heading, (dr.cov[:, 2, 2] + np.where(has_heading, topo.heading_sigma, 0.0) ** 2) / 4.0, dr.cov[:, 2, 2])
-        cov = np.zeros((prior.n, 3, 3))
-        cov[:, 0, 0] = cov[:, 1, 1] = var_xy / 2.0
-        cov[:, 2, 2] = var_h
-        return SwarmEstimate(prior.ids, np.column_stack([positions, heading]), cov)
+def fuse(
+    topo_positions: np.ndarray,
+    topo_headings: np.ndarray,
+    delta_p: np.ndarray,
+    heading_sigma: np.ndarray,
+    theta: np.ndarray,
+    t: np.ndarray,
+    dr_poses: np.ndarray,
+    dr_cov: np.ndarray,
+    delta_u: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Eq. 15 and 23: the topology mapped by (theta, t) averaged with dead reckoning, and the fused covariance.
+
+    Batched over leading axes: positions (..., n, 2), headings (..., n) (NaN = no heading), theta (...),
+    t (..., 2), dr_poses (..., n, 3), dr_cov (..., n, 3, 3), delta_u (..., n). Returns poses and covariances.
+    """
+    theta = np.asarray(theta)
+    topo_global = rotate(theta[..., None], topo_positions) + t[..., None, :]  # Eq. 15
+    positions = 0.5 * (topo_global + dr_poses[..., :2])  # Eq. 23
+
+    has_heading = np.isfinite(topo_headings)
+    topo_heading = wrap_angle(np.where(has_heading, topo_headings, 0.0) + theta[..., None])
+    dr_heading = dr_poses[..., 2]
+    heading = np.where(has_heading, wrap_angle(dr_heading + 0.5 * wrap_angle(topo_heading - dr_heading)), dr_heading)
+
+    var_xy = (delta_u**2 + delta_p**2) / 4.0
+    var_h = np.where(has_heading, (dr_cov[..., 2, 2] + np.where(has_heading, heading_sigma, 0.0) ** 2) / 4.0, dr_cov[..., 2, 2])
+    cov = np.zeros(dr_cov.shape)
+    cov[..., 0, 0] = cov[..., 1, 1] = var_xy / 2.0
+    cov[..., 2, 2] = var_h
+    return np.concatenate([positions, heading[..., None]], axis=-1), cov

@@ -28,6 +28,11 @@ def sqrt_information(cov: np.ndarray) -> np.ndarray:
     return np.swapaxes(np.linalg.cholesky(info), -1, -2)
 
 
+def sensor_sigmas(cfg: ModelConfig) -> tuple[float, float]:
+    """(range sigma m, bearing sigma rad) used for whitening, floored at 1e-9 for noise-free sensing."""
+    return max(cfg.range_sigma_m, 1e-9), max(cfg.bearing_sigma_rad, 1e-9)
+
+
 def observation_terms(
     poses: np.ndarray,
     layout: PoseLayout,
@@ -38,8 +43,7 @@ def observation_terms(
     cfg: ModelConfig,
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets."""
-    s_r = max(cfg.range_sigma_m, 1e-9)
-    s_b = max(cfg.bearing_sigma_rad, 1e-9)
+    s_r, s_b = sensor_sigmas(cfg)
     m = len(observer)
     d = poses[observed, :2] - poses[observer, :2]
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)

@@ -27,6 +27,17 @@ def superimpose(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     w = np.asarray(w, dtype=float)
     if np.any(~np.isfinite(w)) or np.any(w <= 0):
         raise LocalizationError("degenerate", [], "superimposition weights must be finite and > 0")
+    theta, t, spread = weighted_procrustes(p, q, w)
+    if np.any(spread <= MIN_SPREAD):
+        raise LocalizationError("degenerate", [], "all topology points coincide: rotation is undetermined")
+    return theta, t
+
+
+def weighted_procrustes(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``superimpose`` without the checks: (theta, t, weighted spread of p in m^2), vectorised.
+
+    The rotation is meaningless where the spread is <= ``MIN_SPREAD``; the caller decides.
+    """
     wn = w / w.sum(axis=-1, keepdims=True)
     pc = np.einsum("...i,...ik->...k", wn, p)
     qc = np.einsum("...i,...ik->...k", wn, q)
@@ -34,8 +45,6 @@ def superimpose(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray
     dot = np.einsum("...i,...i->...", wn, pp[..., 0] * qq[..., 0] + pp[..., 1] * qq[..., 1])
     cross = np.einsum("...i,...i->...", wn, pp[..., 0] * qq[..., 1] - pp[..., 1] * qq[..., 0])
     spread = np.einsum("...i,...i->...", wn, np.sum(pp**2, axis=-1))
-    if np.any(spread <= MIN_SPREAD):
-        raise LocalizationError("degenerate", [], "all topology points coincide: rotation is undetermined")
     theta = np.arctan2(cross, dot)
     t = qc - rotate(theta, pc)
-    return theta, t
+    return theta, t, spread

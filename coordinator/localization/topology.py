@@ -83,10 +83,39 @@ def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_head
 
 def _to_reference_frame(poses: np.ndarray, ref: int) -> np.ndarray:
     """Express poses in the frame of robot ``ref`` (its pose becomes (0, 0, 0))."""
+    return to_reference_frame(poses, poses[ref])
+
+
+def to_reference_frame(poses: np.ndarray, ref_pose: np.ndarray) -> np.ndarray:
+    """Poses (..., n, 3) expressed in the frame whose pose is ``ref_pose`` (..., 3), batched."""
     out = np.empty_like(poses)
-    out[:, :2] = rotate(-poses[ref, 2], poses[:, :2] - poses[ref, :2])
-    out[:, 2] = wrap_angle(poses[:, 2] - poses[ref, 2])
+    out[..., :2] = rotate(-ref_pose[..., None, 2], poses[..., :2] - ref_pose[..., None, :2])
+    out[..., 2] = wrap_angle(poses[..., 2] - ref_pose[..., None, 2])
     return out
+
+
+def reference_robot(made: np.ndarray) -> np.ndarray:
+    """The gauge: index of the lowest-indexed robot that observed someone (``made`` (..., n) observations made)."""
+    return np.argmax(made > 0, axis=-1)
+
+
+def cluster_delta_p(
+    count: np.ndarray, centroid: np.ndarray, sq: np.ndarray, mean_range: np.ndarray, cfg: ModelConfig
+) -> np.ndarray:
+    """Eq. B6 with the floors of the module docstring, from each cluster's moments (batched over leading axes).
+
+    ``count`` (..., n) points per cluster, ``centroid`` (..., n, 2), ``sq`` (..., n, 2) sums of squared
+    coordinates, ``mean_range`` (..., n) mean observed range of the cluster's observations.
+    """
+    var = np.maximum(sq - count[..., None] * centroid**2, 0.0) / np.maximum(count - 1.0, 1.0)[..., None]
+    single = np.sqrt(cfg.range_sigma_m**2 + (mean_range * cfg.bearing_sigma_rad) ** 2)
+    b6 = np.sqrt(var.sum(axis=-1))  # Eq. B6
+    return np.where(count >= 2, np.maximum(b6, 0.5 * single), single)
+
+
+def heading_sigmas(made: np.ndarray, cfg: ModelConfig) -> np.ndarray:
+    """Topology heading std s_b / sqrt(observations made) (rad), inf for robots that observed nobody."""
+    return np.where(made > 0, cfg.bearing_sigma_rad / np.sqrt(np.maximum(made, 1)), np.inf)
 
 
 def estimate_topology(
@@ -109,7 +138,7 @@ def estimate_topology(
     Callers check observability first (``graph.require_observable``).
     """
     has_heading = np.bincount(observer, minlength=n) > 0
-    ref = int(np.argmax(has_heading))
+    ref = int(reference_robot(has_heading))
     z = observation_offsets(range_m, bearing_rad)
     start = _relaxed_start(n, observer, observed, z, has_heading, ref) if initial_poses is None else initial_poses
     start = _to_reference_frame(np.asarray(start, float), ref)
@@ -156,13 +185,9 @@ def estimate_topology(
     safe = np.maximum(count, 1.0)
     centroid = np.stack([np.bincount(observed, use * points[:, k], n) for k in range(2)], axis=1) / safe[:, None]
     sq = np.stack([np.bincount(observed, use * points[:, k] ** 2, n) for k in range(2)], axis=1)
-    var = np.maximum(sq - count[:, None] * centroid**2, 0.0) / np.maximum(count - 1.0, 1.0)[:, None]
     mean_range = np.bincount(observed, use * range_m, n) / safe
-    single = np.sqrt(cfg.range_sigma_m**2 + (mean_range * cfg.bearing_sigma_rad) ** 2)
-    b6 = np.sqrt(var.sum(axis=1))  # Eq. B6
-    delta_p = np.where(count >= 2, np.maximum(b6, 0.5 * single), single)
+    delta_p = cluster_delta_p(count, centroid, sq, mean_range, cfg)
     centroid = np.where(count[:, None] > 0, centroid, poses[:, :2])
-    made = np.bincount(observer, minlength=n)
-    heading_sigma = np.where(made > 0, cfg.bearing_sigma_rad / np.sqrt(np.maximum(made, 1)), np.inf)
+    heading_sigma = heading_sigmas(np.bincount(observer, minlength=n), cfg)
     headings = np.where(has_heading, poses[:, 2], np.nan)
     return Topology(centroid, poses[:, :2].copy(), headings, delta_p, heading_sigma, ref)

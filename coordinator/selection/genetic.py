@@ -56,15 +56,18 @@ def genetic_search(
     feasible: Callable[[Plan], bool],
     rng: np.random.Generator,
     cfg: GeneticConfig = GeneticConfig(),
+    known: dict[tuple, float] | None = None,
 ) -> tuple[Plan | None, float, int]:
-    """Best plan found, its e_l, and the number of distinct plans evaluated.
+    """Best plan found, its e_l, and the number of distinct plans newly evaluated.
 
     ``evaluate`` maps plans to e_l (lower is better); infeasible plans get e_l = inf.
+    ``known`` holds e_l already computed on the same random numbers, by ``Plan.key()``.
     Returns (None, inf, k) when no feasible plan was found.
     """
     sizes = seeds[0].sizes
     n = seeds[0].n_robots
-    cache: dict[tuple, float] = {}
+    cache: dict[tuple, float] = dict(known or {})
+    preset = len(cache)
 
     def score(plans: list[Plan]) -> np.ndarray:
         fresh, seen = [], set()
@@ -103,5 +106,5 @@ def genetic_search(
             break
     k = int(np.argmin(fitness))
     if not np.isfinite(fitness[k]):
-        return None, np.inf, len(cache)
-    return population[k], float(fitness[k]), len(cache)
+        return None, np.inf, len(cache) - preset
+    return population[k], float(fitness[k]), len(cache) - preset

@@ -1,0 +1,499 @@
+"""Batched localization of many small swarms at once (the Monte Carlo planner of Eq. 8).
+
+The planner localizes B = (candidate plans x Monte Carlo samples) swarms per step. This
+module solves all of them together with numpy over a leading batch axis, with the same
+model and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointLocalizer``):
+
+* observations are dense (B, n, n) arrays: ``seen[b, i, j]`` means robot i observed robot j
+  in sample b, with ``ranges``/``bearings`` holding the measurement (ignored elsewhere);
+* per-pair residuals and 2x3 Jacobian blocks are formed on those dense pair arrays and the
+  normal matrix J^T J is assembled from them directly (no (B, 2 n^2, 3 n) Jacobian);
+* headings couple only with positions in J^T J (their block is diagonal), so each Newton
+  step eliminates them (Schur complement) and solves a (B, 2n, 2n) stack with
+  ``np.linalg.solve``;
+* the solver is the Levenberg-Marquardt of ``sparse_lm`` (same damping, clamped
+  second-order heading term for the paper's topology, same acceptance rule), run per
+  sample in lock-step, to a tighter tolerance; converged samples drop out of the work set.
+
+Pose unknowns the sparse code holds fixed (the reference robot of the paper's gauge, the
+heading of a robot that observed nobody) keep their column with an identity row, so
+they do not move and the other unknowns solve exactly the reduced system.
+
+A sample that cannot be localized (a robot nobody observed, a disconnected observation
+graph, invalid values, a degenerate topology, no convergence) gets ``ok = False`` and the
+dead-reckoning estimate, the runtime's fallback; no exception is raised for it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from coordinator.localization.dead_reckoning import dead_reckon_arrays
+from coordinator.localization.joint import EXACT_COV_LIMIT
+from coordinator.localization.paper import fuse
+from coordinator.localization.range_bearing import sensor_sigmas, sqrt_information
+from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
+from coordinator.localization.topology import (
+    cluster_delta_p,
+    heading_sigmas,
+    observation_offsets,
+    reference_robot,
+    to_reference_frame,
+)
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.geometry import wrap_angle
+
+METHODS = ("paper", "joint")
+# (xtol, ftol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
+# The joint problem converges linearly (Gauss-Newton), so this stops it up to ~3e-8 short of the exact
+# minimum; a tighter tolerance would be more accurate than JointLocalizer but then no longer agree with it.
+PAPER_TOL = (1e-10, 1e-12)
+JOINT_TOL = (1e-10, 1e-12)
+MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
+COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
+
+
+@dataclass(frozen=True)
+class BatchEstimate:
+    """Post-step estimates of B swarms of n robots."""
+
+    poses: np.ndarray  # (B, n, 3)
+    cov: np.ndarray  # (B, n, 3, 3)
+    ok: np.ndarray  # (B,) bool: False where the sample could not be localized (poses/cov = dead reckoning)
+
+
+def localize_batch(
+    method: str,
+    cfg: ModelConfig,
+    prior_poses: np.ndarray,
+    prior_cov: np.ndarray,
+    commands: np.ndarray,
+    moving: np.ndarray,
+    seen: np.ndarray,
+    ranges: np.ndarray,
+    bearings: np.ndarray,
+) -> BatchEstimate:
+    """Localize B swarms: ``make_localizer(method, cfg).localize`` applied to every sample.
+
+    ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
+    (turn rad, drive m), ``moving`` (B, n), ``seen`` (B, n, n) with ``seen[b, i, j]`` = robot i
+    observed robot j, ``ranges``/``bearings`` (B, n, n) (m, rad; only read where ``seen``).
+    """
+    if method not in METHODS:
+        raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
+    prior_poses = np.asarray(prior_poses, dtype=float)
+    if prior_poses.ndim != 3 or prior_poses.shape[2] != 3:
+        raise SwarmInputError(f"prior_poses must have shape (B, n, 3), got {prior_poses.shape}")
+    b, n = prior_poses.shape[:2]
+    prior_cov = _shaped(prior_cov, (b, n, 3, 3), "prior_cov", float)
+    commands = _shaped(commands, (b, n, 2), "commands", float)
+    moving = _shaped(moving, (b, n), "moving", bool)
+    seen = _shaped(seen, (b, n, n), "seen", bool) & ~np.eye(n, dtype=bool)
+    ranges = _shaped(ranges, (b, n, n), "ranges", float)
+    bearings = _shaped(bearings, (b, n, n), "bearings", float)
+
+    dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
+    ok = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) & observable(seen)
+
+    poses, cov = dr_poses.copy(), dr_cov.copy()
+    sel = np.flatnonzero(ok)
+    if sel.size:
+        pick = (lambda a: a) if sel.size == b else (lambda a: a[sel])
+        solve = _localize_paper if method == "paper" else _localize_joint
+        est, est_cov, good = solve(cfg, pick(dr_poses), pick(dr_cov), pick(seen), pick(ranges), pick(bearings))
+        poses[sel[good]] = est[good]
+        cov[sel[good]] = est_cov[good]
+        ok[sel[~good]] = False
+    return BatchEstimate(poses, cov, ok)
+
+
+def observable(seen: np.ndarray) -> np.ndarray:
+    """(B,) True where every robot was observed by another and the undirected observation graph is connected."""
+    b, n, _ = seen.shape
+    if n == 0:
+        return np.ones(b, bool)
+    observed = seen.any(axis=1).all(axis=1)
+    both = (seen | np.swapaxes(seen, 1, 2)).astype(float)
+    reach = np.zeros((b, 1, n))
+    reach[:, 0, 0] = 1.0
+    for _ in range(n):  # breadth-first search from robot 0 in every sample at once
+        grown = ((reach @ both) + reach > 0).astype(float)
+        if np.array_equal(grown, reach):
+            break
+        reach = grown
+    return observed & reach[:, 0, :].all(axis=1)
+
+
+def _shaped(values: np.ndarray, shape: tuple[int, ...], name: str, dtype: type) -> np.ndarray:
+    arr = np.asarray(values, dtype=dtype)
+    if arr.shape != shape:
+        raise SwarmInputError(f"{name} must have shape {shape}, got {arr.shape}")
+    return arr
+
+
+def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> np.ndarray:
+    """(B,) samples whose values the single-swarm constructors accept (finite, no negative drive or range)."""
+    cmd = np.where(moving[..., None], commands, 0.0)
+    with np.errstate(invalid="ignore"):
+        bad_obs = seen & ~((ranges >= 0.0) & (ranges < np.inf) & np.isfinite(bearings))
+        return (
+            np.isfinite(prior_poses).all(axis=(1, 2))
+            & np.isfinite(prior_cov).all(axis=(1, 2, 3))
+            & np.isfinite(cmd).all(axis=(1, 2))
+            & (cmd[..., 1] >= 0).all(axis=1)
+            & ~bad_obs.any(axis=(1, 2))
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Batched Levenberg-Marquardt (the algorithm of sparse_lm.levenberg_marquardt, per sample)
+
+
+def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
+
+    ``problem.evaluate(x)`` returns a dict of per-sample arrays including ``cost`` (B,);
+    ``problem.step(state, mu)`` the damped Newton step (B, n, 3) (zero on fixed unknowns);
+    ``problem.subset(index)`` the problem restricted to some samples. As in ``sparse_lm``:
+    damping mu diag(J^T J) starting at mu = 1e-8, a step is accepted if it does not raise
+    the cost (relative slack 1e-12), then mu /= 10, else mu *= 10 and the sample fails
+    beyond 1e10. A sample converges on a small step or a small cost decrease.
+    """
+    x = np.array(x0, dtype=float, copy=True)
+    converged = np.zeros(len(x), bool)
+    work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
+    xs, st = x, problem.evaluate(x)
+    mu = np.full(len(x), 1e-8)
+    iterations = np.zeros(len(x), np.int64)  # accepted steps
+    active = np.isfinite(st["cost"])
+    while True:  # ends: every sample converges, or fails after MAX_ITER steps or at mu > 1e10
+        n_active = int(active.sum())
+        if n_active == 0:
+            break
+        if n_active < COMPACT_BELOW * len(work):  # drop finished samples from the work set
+            keep = np.flatnonzero(active)
+            x[work] = xs
+            work, xs, mu, active, iterations = work[keep], xs[keep], mu[keep], active[keep], iterations[keep]
+            problem = problem.subset(keep)
+            st = {key: value[keep] for key, value in st.items()}
+        dx = problem.step(st, mu)
+        dx[~active] = 0.0
+        x_new = xs + dx
+        new = problem.evaluate(x_new)
+        cost, cost_new = st["cost"], new["cost"]
+        accept = np.isfinite(cost_new) & (cost_new <= cost * (1 + 1e-12) + 1e-300)
+        with np.errstate(invalid="ignore"):
+            small_step = np.max(np.abs(dx), axis=(1, 2)) <= xtol * (1.0 + np.max(np.abs(xs), axis=(1, 2)))
+            small_gain = cost - cost_new <= ftol * np.maximum(cost, 1e-300)
+        rejected = active & ~accept
+        # A rejected step that is already negligible: the sample sits at its minimum (rounding).
+        done = active & ((accept & (small_step | small_gain)) | (rejected & small_step))
+        converged[work[done]] = True
+        mu = np.where(accept, np.maximum(mu / 10.0, 1e-12), mu * 10.0)
+        iterations += accept
+        failed = active & ~done & ((rejected & (mu > 1e10)) | (iterations >= MAX_ITER))
+        back = np.flatnonzero(rejected)
+        if back.size:  # rejected samples keep their point and state
+            x_new[back] = xs[back]
+            for key, value in st.items():
+                new[key][back] = value[back]
+        xs, st = x_new, new
+        active &= ~done & ~failed
+    x[work] = xs
+    return x, converged
+
+
+class _Batched:
+    """A problem whose array attributes all have the batch as their first axis."""
+
+    def subset(self, index: np.ndarray):
+        out = object.__new__(type(self))
+        for key, value in vars(self).items():
+            setattr(out, key, value[index] if isinstance(value, np.ndarray) else value)
+        return out
+
+
+def _newton_step(lap2, diag_x, cm, d, g_xy, g_theta, mu) -> np.ndarray:
+    """Solve [[A + mu diag(diag_x), C], [C^T, diag(d)]] [dxy; dtheta] = -[g_xy; g_theta] per sample.
+
+    A (B, 2n, 2n) is the position block (row 2a + k = axis k of robot a), C (B, 2n, n) the
+    position-heading block, d (B, n) the (damped) heading diagonal. The headings are
+    eliminated: (A - C D^-1 C^T) dxy = C D^-1 g_theta - g_xy. Returns the step (B, n, 3).
+    """
+    b, n2, n = cm.shape
+    idx = np.arange(n2)
+    cd = cm / d[:, None, :]
+    s = np.matmul(cd, np.swapaxes(cm, 1, 2))
+    np.subtract(lap2, s, out=s)
+    s[:, idx, idx] += mu[:, None] * diag_x
+    rhs = np.matmul(cd, g_theta[:, :, None])[:, :, 0] - g_xy
+    dxy = _solve_stack(s, rhs)
+    dtheta = (-g_theta - np.matmul(dxy[:, None, :], cm)[:, 0, :]) / d
+    return np.concatenate([dxy.reshape(b, n, 2), dtheta[:, :, None]], axis=2)
+
+
+def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """Solve a (B, k, k) x = rhs (B, k); samples with a singular matrix get NaN (their step is then rejected)."""
+    try:
+        return np.linalg.solve(a, rhs[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.full(rhs.shape, np.nan)
+        for k in range(len(a)):  # rare path: find the singular samples
+            try:
+                out[k] = np.linalg.solve(a[k], rhs[k])
+            except np.linalg.LinAlgError:
+                pass
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# The paper's method: topology (Eq. B2-B6), superimposition (Eq. 21-22), midpoint (Eq. 23)
+
+
+class _TopologyProblem(_Batched):
+    """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j).
+
+    Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
+    """
+
+    def __init__(self, w: np.ndarray, zx: np.ndarray, zy: np.ndarray, ref: np.ndarray, has_heading: np.ndarray):
+        b, n, _ = w.shape
+        rows, diag = np.arange(b), np.arange(n)
+        self.w, self.zx, self.zy, self.ref = w, zx, zy, ref
+        self.free_head = has_heading.astype(float)
+        self.free_head[rows, ref] = 0.0
+        # J^T J of the positions does not depend on the unknowns: a graph Laplacian per axis.
+        both = w + np.swapaxes(w, 1, 2)
+        degree = np.einsum("bij->bi", both)
+        lap = -both
+        lap[:, diag, diag] = degree
+        lap[rows, ref, :] = 0.0  # the reference position is fixed: identity row and column
+        lap[rows, :, ref] = 0.0
+        lap[rows, ref, ref] = 1.0
+        lap2 = np.zeros((b, n, 2, n, 2))
+        lap2[:, :, 0, :, 0] = lap
+        lap2[:, :, 1, :, 1] = lap
+        self.lap2 = lap2.reshape(b, 2 * n, 2 * n)
+        diag_x = np.maximum(degree, 1e-12)  # damping scale, as sparse_lm: max(diag(J^T J), 1e-12)
+        diag_x[rows, ref] = 0.0
+        self.diag_x = np.repeat(diag_x, 2, axis=1)
+        self.h_theta = np.einsum("bij->bi", zx * zx + zy * zy)  # |d r_ij / d theta_i|^2 = rho_ij^2
+        self.diag_theta = np.maximum(self.h_theta, 1e-12)
+
+    def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
+        rzx = c * self.zx - s * self.zy  # R(theta_i) z_ij: zero where (i, j) unseen
+        rzy = s * self.zx + c * self.zy
+        rx = self.w * (rzx + x[:, :, None, 0] - x[:, None, :, 0])
+        ry = self.w * (rzy + x[:, :, None, 1] - x[:, None, :, 1])
+        cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
+        return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
+
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
+        rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
+        b, n, _ = rx.shape
+        rows, diag, fh = np.arange(b), np.arange(n), self.free_head
+        # Gradient J^T r; d r_ij / d theta_i = (-rzy, rzx), d / d x_i = I, d / d x_j = -I.
+        g_theta = fh * (np.einsum("bij,bij->bi", rzx, ry) - np.einsum("bij,bij->bi", rzy, rx))
+        g_xy = np.empty((b, n, 2))
+        g_xy[:, :, 0] = np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx)
+        g_xy[:, :, 1] = np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)
+        g_xy[rows, self.ref] = 0.0
+        # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm.
+        second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
+        d = self.h_theta + np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
+        d = fh * d + (1.0 - fh)
+        # Position-heading block C[(a, k), i] = delta_ai sum_j perp_ij,k - perp_ia,k (perp = d r / d theta).
+        cm = np.empty((b, n, 2, n))
+        cm[:, :, 0, :] = np.swapaxes(rzy, 1, 2)
+        cm[:, :, 1, :] = -np.swapaxes(rzx, 1, 2)
+        cm[:, diag, 0, diag] = -np.einsum("bij->bi", rzy)
+        cm[:, diag, 1, diag] = np.einsum("bij->bi", rzx)
+        cm[rows, self.ref] = 0.0  # fixed reference position and heading
+        cm[rows, :, :, self.ref] = 0.0
+        return _newton_step(self.lap2, self.diag_x, cm.reshape(b, 2 * n, n), d, g_xy.reshape(b, 2 * n), g_theta, mu)
+
+
+def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` where ``seen``, 0 elsewhere (values there may be NaN)."""
+    out = np.zeros(seen.shape)
+    out[seen] = values[seen]
+    return out
+
+
+def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings):
+    b, n, _ = dr_poses.shape
+    w = seen.astype(float)
+    made = np.einsum("bij->bi", w)
+    has_heading = made > 0
+    ref = reference_robot(made)
+    rho = _on_pairs(seen, ranges)
+    z = observation_offsets(rho[seen], bearings[seen])  # Eq. B1, seen pairs only
+    zx, zy = np.zeros(seen.shape), np.zeros(seen.shape)
+    zx[seen], zy[seen] = z[:, 0], z[:, 1]
+    start = to_reference_frame(dr_poses, dr_poses[np.arange(b), ref])
+    start[:, :, 2] *= has_heading
+    x, good = _levenberg_marquardt(_TopologyProblem(w, zx, zy, ref, has_heading), start, *PAPER_TOL)
+
+    # Eq. B4: cluster points R(theta_i) z_ij + x_i of the observed robots j; Eq. B6.
+    theta = wrap_angle(x[:, :, 2])
+    c, s = np.cos(theta)[:, :, None], np.sin(theta)[:, :, None]
+    px = w * (c * zx - s * zy + x[:, :, None, 0])
+    py = w * (s * zx + c * zy + x[:, :, None, 1])
+    count = np.einsum("bij->bj", w)
+    safe = np.maximum(count, 1.0)
+    centroid = np.stack([np.einsum("bij->bj", px), np.einsum("bij->bj", py)], axis=2) / safe[:, :, None]
+    sq = np.stack([np.einsum("bij,bij->bj", px, px), np.einsum("bij,bij->bj", py, py)], axis=2)
+    mean_range = np.einsum("bij->bj", rho) / safe
+    delta_p = cluster_delta_p(count, centroid, sq, mean_range, cfg)
+    centroid = np.where(count[:, :, None] > 0, centroid, x[:, :, :2])
+    headings = np.where(has_heading, theta, np.nan)
+
+    # Phase 2 (Eq. 21-23).
+    delta_u = np.sqrt(np.maximum(dr_cov[:, :, 0, 0] + dr_cov[:, :, 1, 1], 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        weights = fusion_weights(delta_p, delta_u)
+        good &= np.all(np.isfinite(weights) & (weights > 0), axis=1)
+        weights = np.where(good[:, None], weights, 1.0)
+        rot, t, spread = weighted_procrustes(centroid, dr_poses[:, :, :2], weights)
+        good &= spread > MIN_SPREAD
+    poses, cov = fuse(centroid, headings, delta_p, heading_sigmas(made, cfg), rot, t, dr_poses, dr_cov, delta_u)
+    return poses, cov, good
+
+
+# --------------------------------------------------------------------------------------------
+# Joint least squares: whitened dead-reckoning priors + range/bearing residuals
+
+
+class _JointProblem(_Batched):
+    """Whitened prior residuals U_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
+
+    The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
+    x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
+    """
+
+    def __init__(self, seen, ranges, bearings, mean, sqrt_info, s_r, s_b):
+        self.s_r, self.s_b = s_r, s_b
+        w = seen.astype(float)
+        self.w_sr, self.w_sb = w / s_r, w / s_b
+        self.wr, self.wb = w / s_r**2, w / s_b**2
+        self.rho = _on_pairs(seen, ranges)
+        phi = bearings[seen]
+        self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
+        self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
+        self.w, self.mean, self.sqrt_info = w, mean, sqrt_info
+        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # U^T U, as J^T J forms it
+        self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
+
+    def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        dx = x[:, None, :, 0] - x[:, :, None, 0]  # [b, i, j] = x_j - x_i
+        dy = x[:, None, :, 1] - x[:, :, None, 1]
+        dist = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-9)
+        r_range = self.w_sr * (dist - self.rho)
+        c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
+        ca = c * self.cphi - s * self.sphi  # cos(theta_i + phi_ij), 0 where unseen
+        sa = s * self.cphi + c * self.sphi
+        r_bearing = self.w_sb * np.arctan2(dy * ca - dx * sa, dx * ca + dy * sa)  # unseen: atan2(+-0, +-0) masked
+        diff = x - self.mean
+        diff[:, :, 2] = wrap_angle(diff[:, :, 2])
+        r_prior = np.einsum("bnij,bnj->bni", self.sqrt_info, diff)
+        cost = 0.5 * (
+            np.einsum("bni,bni->b", r_prior, r_prior)
+            + np.einsum("bij,bij->b", r_range, r_range)
+            + np.einsum("bij,bij->b", r_bearing, r_bearing)
+        )
+        return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": 1.0 / dist, "rr": r_range, "rb": r_bearing, "rp": r_prior}
+
+    def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """J^T J as (position block (B, 2n, 2n), position-heading block (B, 2n, n), heading diagonal (B, n)).
+
+        Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
+        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b^2.
+        """
+        inv_dist, info = st["inv_dist"], self.info
+        ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
+        b, n, _ = ux.shape
+        diag = np.arange(n)
+        beta = self.wb * inv_dist * inv_dist
+        lap = np.empty((b, n, 2, n, 2))
+        for row, col, a in (
+            (0, 0, self.wr * ux * ux + beta * uy * uy),
+            (0, 1, (self.wr - beta) * ux * uy),
+            (1, 1, self.wr * uy * uy + beta * ux * ux),
+        ):
+            a = a + np.swapaxes(a, 1, 2)  # robots a and c meet as observer and as observed
+            lap[:, :, row, :, col] = -a
+            lap[:, diag, row, diag, col] = np.einsum("bij->bi", a) + info[:, :, row, col]
+        lap[:, :, 1, :, 0] = lap[:, :, 0, :, 1]
+        cm = np.empty((b, n, 2, n))
+        for k, p in ((0, -beta * st["dy"]), (1, beta * st["dx"])):  # b / s_b^2 of each pair
+            cm[:, :, k, :] = -np.swapaxes(p, 1, 2)
+            cm[:, diag, k, diag] = np.einsum("bij->bi", p) + info[:, :, k, 2]
+        return lap.reshape(b, 2 * n, 2 * n), cm.reshape(b, 2 * n, n), self.d_theta
+
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
+        lap, cm, d = self.normal(st)
+        b, n2, n = cm.shape
+        inv_dist, rr, rb = st["inv_dist"], st["rr"] / self.s_r, st["rb"] / self.s_b
+        g_prior = np.einsum("bnji,bnj->bni", self.sqrt_info, st["rp"])
+        ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
+        g_xy = np.empty((b, n, 2))
+        for k, q in ((0, ux * rr - uy * inv_dist * rb), (1, uy * rr + ux * inv_dist * rb)):  # (d r / d x_j)^T r
+            g_xy[:, :, k] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
+        g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", rb)
+        idx = np.arange(n2)
+        diag_x = np.maximum(lap[:, idx, idx], 1e-12)
+        d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
+        return _newton_step(lap, diag_x, cm, d_damped, g_xy.reshape(b, n2), g_theta, mu)
+
+
+def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings):
+    s_r, s_b = sensor_sigmas(cfg)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, sqrt_information(dr_cov), s_r, s_b)
+    x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
+    cov = _joint_covariances(*problem.normal(problem.evaluate(x)))
+    x[:, :, 2] = wrap_angle(x[:, :, 2])
+    good &= np.isfinite(cov).all(axis=(1, 2, 3))
+    return x, cov, good
+
+
+def _joint_covariances(lap: np.ndarray, cm: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, cm], [cm^T, diag(d)]].
+
+    Exact up to ``EXACT_COV_LIMIT`` robots; above, each robot's 3x3 information block is
+    inverted alone, like ``joint.pose_covariances``.
+    """
+    b, n2, n = cm.shape
+    diag = np.arange(n)
+    cov = np.empty((b, n, 3, 3))
+    pos = lambda m: np.moveaxis(m.reshape(b, n, 2, n, 2)[:, diag, :, diag, :], 0, 1)  # (B, n, 2, 2) blocks
+    mixed = lambda m: np.moveaxis(m.reshape(b, n, 2, n)[:, diag, :, diag], 0, 1)  # (B, n, 2) robot's own
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if n > EXACT_COV_LIMIT:
+            cov[:, :, :2, :2], cov[:, :, :2, 2], cov[:, :, 2, 2] = pos(lap), mixed(cm), d
+            cov[:, :, 2, :2] = cov[:, :, :2, 2]
+            return _inv_stack(cov)
+        cd = cm / d[:, None, :]  # inverse by the Schur complement S = A - C D^-1 C^T
+        s_inv = _inv_stack(lap - np.matmul(cd, np.swapaxes(cm, 1, 2)))
+        e = np.matmul(s_inv, cd)  # S^-1 C D^-1 = -(position-heading block of the inverse)
+        cov[:, :, :2, :2], cov[:, :, :2, 2] = pos(s_inv), -mixed(e)
+        cov[:, :, 2, 2] = 1.0 / d + np.einsum("bri,bri->bi", cd, e)
+    cov[:, :, 2, :2] = cov[:, :, :2, 2]
+    return cov
+
+
+def _inv_stack(a: np.ndarray) -> np.ndarray:
+    """Inverse of each (k, k) matrix of a stack; NaN for singular ones."""
+    try:
+        return np.linalg.inv(a)
+    except np.linalg.LinAlgError:
+        out = np.full(a.shape, np.nan)
+        for k in range(len(a)):
+            try:
+                out[k] = np.linalg.inv(a[k])
+            except np.linalg.LinAlgError:
+                pass
+        return out

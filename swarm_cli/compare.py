@@ -1,0 +1,141 @@
+"""``swarm compare``: Table I/II of the paper for every method on the same random trajectories.
+
+Each trajectory is run by every method with the same seed, so the robots' noise
+streams are shared and the comparison is paired. P_f (Eq. 24) per run; per method the
+mean, standard deviation and a 97 % confidence interval of the mean (Table II), the
+p-value of the paired t-test against ``ref57``, the mean anchor count and the mean
+number of steps per configuration (speed). Runs are spread over the machine's cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+from scipy import stats
+
+from coordinator.selection.selector import SelectionConfig
+from coordinator.simulate import simulate
+from coordinator.strategies import METHODS
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.trajectory import random_trajectory
+from swarm_cli.options import (
+    add_json_option,
+    add_localizer_option,
+    add_model_options,
+    add_selection_options,
+    model_config,
+    print_json,
+    selection_config,
+)
+from swarm_cli.plots import plot_bars
+from swarm_cli.progress import Progress
+
+REFERENCE = "ref57"
+CONFIDENCE = 0.97  # Table II
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", help="Table I/II: P_f of every method on the same random trajectories")
+    p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
+    p.add_argument("--trajectories", type=int, default=6, help="random trajectories (default 6; the paper: 100)")
+    p.add_argument("--configs", type=int, default=8, help="configurations per trajectory n_d (default 8; the paper: 100)")
+    p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated methods (default: all: {','.join(METHODS)})")
+    p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
+    add_localizer_option(p)
+    add_selection_options(p)
+    add_model_options(p)
+    add_json_option(p)
+    p.set_defaults(run=run)
+
+
+def parse_methods(text: str) -> list[str]:
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise SwarmInputError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+    return methods
+
+
+def run_one(job: tuple[int, str, int, int, int, ModelConfig, str, SelectionConfig]) -> dict:
+    """One (trajectory, method) run; a top-level function so worker processes can import it."""
+    t, method, robots, configs, seed, cfg, localizer, selection = job
+    traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
+    result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
+    return {
+        "trajectory": t,
+        "method": method,
+        "pf": result.pf(),
+        "n_a_mean": float(result.anchor_counts().mean()),
+        "steps_mean": float(result.steps_per_config().mean()),
+        "e_l_final": float(result.localization_errors()[-1]),
+        "fallback_steps": sum(1 for s in result.steps if s.fallback),
+    }
+
+
+def summarise(rows: list[dict], methods: list[str]) -> dict:
+    """The JSON contract: per-method P_f statistics and p-values against ref57."""
+    out: dict = {"methods": {}, "p_values": {}}
+    by = {m: sorted((r for r in rows if r["method"] == m), key=lambda r: r["trajectory"]) for m in methods}
+    for m in methods:
+        pf = np.array([r["pf"] for r in by[m]])
+        half = stats.t.ppf(0.5 + CONFIDENCE / 2, len(pf) - 1) * pf.std(ddof=1) / np.sqrt(len(pf)) if len(pf) > 1 else float("nan")
+        out["methods"][m] = {
+            "pf_mean": float(pf.mean()),
+            "pf_std": float(pf.std(ddof=1)) if len(pf) > 1 else 0.0,
+            "pf_ci97": [float(pf.mean() - half), float(pf.mean() + half)],
+            "na_mean": float(np.mean([r["n_a_mean"] for r in by[m]])),
+            "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
+            "runs": len(pf),
+        }
+    if REFERENCE in by:
+        ref = np.array([r["pf"] for r in by[REFERENCE]])
+        for m in methods:
+            if m != REFERENCE and len(ref) > 1:
+                p = stats.ttest_rel(np.array([r["pf"] for r in by[m]]), ref).pvalue
+                out["p_values"][m] = float(p)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = model_config(args)
+    methods = parse_methods(args.methods)
+    if args.trajectories < 1 or args.configs < 1 or args.robots < 2:
+        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+    selection = selection_config(args)
+    jobs = [(t, m, args.robots, args.configs, args.seed, cfg, args.localizer, selection) for t in range(args.trajectories) for m in methods]
+    progress = Progress(len(jobs), "compare")
+    rows = []
+    with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
+        for row in pool.map(run_one, jobs):
+            rows.append(row)
+            progress(len(rows))
+    summary = summarise(rows, methods)
+    args.out.mkdir(parents=True, exist_ok=True)
+    with open(args.out / "runs.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    names = list(summary["methods"])
+    means = np.array([summary["methods"][m]["pf_mean"] for m in names])
+    errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])
+    png = plot_bars(names, means, errs, "P_f (Eq. 24)", f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots}", args.out / "pf.png")
+    print(f"{'method':<22} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'p vs ref57':>11}")
+    for m in names:
+        s = summary["methods"][m]
+        p = summary["p_values"].get(m)
+        print(f"{m:<22} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {('-' if p is None else f'{p:.3g}'):>11}")
+    if "inchworm-equal-speed" in summary["methods"] and REFERENCE in summary["methods"]:
+        a, b = summary["methods"]["inchworm-equal-speed"]["pf_mean"], summary["methods"][REFERENCE]["pf_mean"]
+        print(f"equal speed (n_a = n_r/2 for both): inchworm-equal-speed / ref57 = {a / b:.3f} (paper, Table I: 0.0477 / 0.0673 = 0.71)")
+    print(f"wrote {args.out / 'runs.csv'} and {png}")
+    if args.json:
+        print_json(summary)
+    return 0

@@ -1,0 +1,16 @@
+"""``swarm study ...``: the paper's parameter studies, with plots."""
+
+from __future__ import annotations
+
+import argparse
+
+from swarm_cli import study_anchors, study_noise
+
+STUDIES = (study_anchors, study_noise)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    parser = sub.add_parser("study", help="parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off)")
+    inner = parser.add_subparsers(dest="study", required=True, metavar="STUDY")
+    for module in STUDIES:
+        module.register(inner)

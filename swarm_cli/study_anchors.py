@@ -1,0 +1,391 @@
+"""``swarm study anchors``: the paper's anchor studies, Fig. 4, Fig. 5 (Section 4.1) and Fig. A1 (Appendix A).
+
+Every experiment moves a swarm of n_r robots from a random connected start (random
+headings) to a random desired configuration (one step of ``random_trajectory``), always
+from the same uncertain start estimate (position std 0.01 m, heading std 2 deg). All
+plans of an experiment are evaluated by one ``MonteCarlo`` estimator, i.e. on common
+random numbers (same initial-estimate error, motion noise and sensing noise draws), so
+their e_l (Eq. 8) differ only because of the plan.
+
+1. Fig. 4, number of anchors: a random plan for every feasible n_a (Eq. 7) -> e_l, and
+   e_l(n_a) / e_l(0).
+2. Fig. 5, choice of anchors (n_r even, n_a = n_r / 2): every ordered 2-group plan
+   (C(n_r, n_r/2) of them; 252 for n_r = 10) -> e_l with no anchors, random, worst and
+   best anchors. Skipped when there are more than ``EXHAUSTIVE_LIMIT`` plans.
+3. Appendix A: the heuristic plan (Eq. 11-13) against the random plan at the same n_a,
+   and the heuristic's percentile among all plans when part 2 ran.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import itertools
+import math
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from coordinator.plan import Plan, feasible_anchor_counts, n_steps  # noqa: E402
+from coordinator.selection.heuristic import heuristic_plan  # noqa: E402
+from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: E402
+from runtime.config import ModelConfig  # noqa: E402
+from runtime.errors import SwarmInputError  # noqa: E402
+from runtime.state import SwarmEstimate  # noqa: E402
+from runtime.trajectory import random_trajectory  # noqa: E402
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_json  # noqa: E402
+from swarm_cli.progress import Progress  # noqa: E402
+
+EXHAUSTIVE_LIMIT = 5000  # plans per experiment for part 2 (Fig. 5)
+CHUNK = 1024  # plans per MonteCarlo call (memory bound; common random numbers make chunks comparable)
+START_DELTA_M = 0.01  # position std of the uncertain start estimate (m)
+START_HEADING_DEG = 2.0  # heading std of the uncertain start estimate
+CHOICES = ("none", "random", "worst", "best")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("anchors", help="Fig. 4 (number of anchors), Fig. 5 (choice of anchors), Appendix A (heuristic vs random)")
+    p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
+    p.add_argument("--experiments", type=int, default=60, help="random experiments (default 60; the paper: 1000)")
+    p.add_argument("--samples", type=int, default=8, help="Monte Carlo samples per plan per experiment (default 8)")
+    p.add_argument("--seed", type=int, default=0, help="experiment e uses the seed [seed, e] (default 0)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--out", type=Path, default=Path("out/study-anchors"), help="folder for experiments.csv and the PNG plots")
+    add_localizer_option(p)
+    add_model_options(p)
+    add_json_option(p)
+    p.set_defaults(run=run)
+
+
+# ---------------------------------------------------------------------------- experiments
+
+
+@dataclass(frozen=True)
+class Job:
+    """One experiment; picklable so worker processes can run it."""
+
+    experiment: int
+    robots: int
+    samples: int
+    seed: int
+    cfg: ModelConfig
+    localizer: str
+    exhaustive: bool = True  # False: skip part 2 (Fig. 5) even when it applies
+
+
+def choice_anchor_count(n: int) -> int:
+    """n_a of parts 2 and 3: n_r / 2, or for odd n_r the feasible n_a > 0 nearest to it."""
+    if n % 2 == 0:
+        return n // 2
+    return min((k for k in feasible_anchor_counts(n) if k > 0), key=lambda k: (abs(k - n / 2), k))
+
+
+def exhaustive_count(n: int) -> int:
+    """Number of ordered 2-group plans with n_a = n_r / 2 (0 when n_r is odd: part 2 does not apply)."""
+    return math.comb(n, n // 2) if n % 2 == 0 else 0
+
+
+def exhaustive_plans(n: int) -> list[Plan]:
+    """Every plan with n_a = n_r / 2: first mobile group from ``combinations``, the second its complement."""
+    everyone = set(range(n))
+    return [Plan.equal(np.array([*first, *sorted(everyone - set(first))]), n // 2) for first in itertools.combinations(range(n), n // 2)]
+
+
+def evaluate(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan]) -> np.ndarray:
+    """e_l per plan, ``CHUNK`` plans per call (same step count required)."""
+    return np.concatenate([mc.localization_errors(estimate, desired, plans[i : i + CHUNK]) for i in range(0, len(plans), CHUNK)])
+
+
+def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndarray, SwarmEstimate, MonteCarlo]:
+    """The random start (n, 3), desired configuration (n, 2), start estimate and e_l estimator of an experiment."""
+    rng = np.random.default_rng([job.seed, job.experiment])
+    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m)
+    start, desired = traj.initial_poses, traj.configurations[0]
+    estimate = SwarmEstimate.isotropic(traj.ids, start, START_DELTA_M, math.radians(START_HEADING_DEG))
+    mc = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))
+    return rng, start, desired, estimate, mc
+
+
+def run_experiment(job: Job) -> dict:
+    """All three parts for one experiment: a flat row (e_l in m; NaN where a part does not apply).
+
+    When part 2 runs, the random and heuristic plans' e_l are read from the exhaustive
+    evaluation (common random numbers make them identical to a separate evaluation).
+    The ``*_fresh`` columns re-evaluate the plans of Fig. 5 and Appendix A with new
+    random numbers (an independent Monte Carlo seed): the best and worst of many noisy
+    estimates are biased (selection on noise), the fresh values are not.
+    """
+    n = job.robots
+    rng, start, desired, estimate, mc = experiment_setup(job)
+    counts = feasible_anchor_counts(n)
+    random_plans = {n_a: Plan.equal(rng.permutation(n), n_a) for n_a in counts}
+    fresh = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))
+    n_a_choice = choice_anchor_count(n)
+    heuristic = heuristic_plan(start[:, :2], desired, n_a_choice)
+    exhaustive = job.exhaustive and 0 < exhaustive_count(n) <= EXHAUSTIVE_LIMIT
+    nan = float("nan")
+
+    e_l: dict[int, float] = {}
+    if exhaustive:
+        plans = exhaustive_plans(n)
+        errors = evaluate(mc, estimate, desired, plans)
+        index = {p.key(): k for k, p in enumerate(plans)}
+        e_random, e_heuristic = (float(errors[index[p.key()]]) for p in (random_plans[n_a_choice], heuristic))
+        e_l[n_a_choice] = e_random
+    for n_a in counts:
+        if n_a not in e_l:
+            e_l[n_a] = float(evaluate(mc, estimate, desired, [random_plans[n_a]])[0])
+    if not exhaustive:
+        e_random = e_l[n_a_choice]
+        e_heuristic = float(evaluate(mc, estimate, desired, [heuristic])[0])
+    again = [random_plans[n_a_choice], heuristic]
+    if exhaustive:
+        best, worst = plans[int(np.argmin(errors))], plans[int(np.argmax(errors))]
+        again += [worst, best]
+    fresh_none = float(evaluate(fresh, estimate, desired, [random_plans[0]])[0])
+    fresh_random, fresh_heuristic, *fresh_worst_best = (float(v) for v in evaluate(fresh, estimate, desired, again))
+
+    row: dict = {"experiment": job.experiment, "distance_m": float(np.mean(np.linalg.norm(desired - start[:, :2], axis=1)))}
+    for n_a in counts:
+        row[f"e_l_na{n_a}"] = e_l[n_a]
+    for n_a in counts:
+        row[f"ratio_na{n_a}"] = e_l[n_a] / e_l[0] if e_l[0] > 0 else nan
+    row["choice_n_anchors"] = n_a_choice
+    row["choice_plans"] = len(plans) if exhaustive else 0
+    row["choice_plans_connected"] = (
+        sum(plan_keeps_connectivity(p, start[:, :2], desired, job.cfg.sensing_range_m) for p in plans) if exhaustive else 0
+    )
+    row["choice_none"] = e_l[0] if exhaustive else nan
+    row["choice_random"] = e_random if exhaustive else nan
+    row["choice_worst"] = float(errors.max()) if exhaustive else nan
+    row["choice_best"] = float(errors.min()) if exhaustive else nan
+    row["choice_none_fresh"] = fresh_none if exhaustive else nan
+    row["choice_random_fresh"] = fresh_random if exhaustive else nan
+    row["choice_worst_fresh"] = fresh_worst_best[0] if exhaustive else nan
+    row["choice_best_fresh"] = fresh_worst_best[1] if exhaustive else nan
+    row["best_first_movers"] = " ".join(map(str, best.groups[0].tolist())) if exhaustive else ""
+    row["heuristic_e_l"] = e_heuristic
+    row["heuristic_random_e_l"] = e_random
+    row["heuristic_beats_random"] = int(e_heuristic < e_random)
+    row["heuristic_e_l_fresh"] = fresh_heuristic
+    row["heuristic_random_e_l_fresh"] = fresh_random
+    row["heuristic_connected"] = int(plan_keeps_connectivity(heuristic, start[:, :2], desired, job.cfg.sensing_range_m))
+    # percentile 0 = best plan of the experiment, 100 = worst; a random plan averages about 50
+    row["heuristic_percentile"] = percentile(errors, e_heuristic) if exhaustive else nan
+    row["random_percentile"] = percentile(errors, e_random) if exhaustive else nan
+    return row
+
+
+def percentile(errors: np.ndarray, value: float) -> float:
+    """Share (%) of the other plans that are strictly better than ``value`` (0 = best, 100 = worst)."""
+    return 100.0 * float(np.sum(errors < value)) / max(len(errors) - 1, 1)
+
+
+# ---------------------------------------------------------------------------- summary
+
+
+def _mean(values: list[float]) -> float | None:
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else None
+
+
+def summarise(rows: list[dict], robots: int) -> dict:
+    """The JSON contract (e_l in m): per-n_a means and ratios, Fig. 5 means, heuristic vs random."""
+    counts = feasible_anchor_counts(robots)
+    e_mean = {str(k): _mean([r[f"e_l_na{k}"] for r in rows]) for k in counts}
+    out: dict = {
+        "robots": robots,
+        "experiments": len(rows),
+        "distance_mean": _mean([r["distance_m"] for r in rows]),
+        "e_l_mean": e_mean,
+        "e_l_ratio": {str(k): _mean([r[f"ratio_na{k}"] for r in rows]) for k in counts},  # mean of per-experiment ratios
+        "e_l_ratio_of_means": {str(k): (e_mean[str(k)] / e_mean["0"] if e_mean["0"] else None) for k in counts},
+        "choice_n_anchors": choice_anchor_count(robots),
+        "choice": None,
+    }
+    exhaustive = [r for r in rows if r["choice_plans"] > 0]
+    if exhaustive:
+        out["choice"] = {c: _mean([r[f"choice_{c}"] for r in exhaustive]) for c in CHOICES}
+        out["choice_fresh"] = {c: _mean([r[f"choice_{c}_fresh"] for r in exhaustive]) for c in CHOICES}
+        out["choice_plans"] = exhaustive[0]["choice_plans"]
+    out["heuristic"] = {
+        "n_anchors": choice_anchor_count(robots),
+        "e_l_mean": _mean([r["heuristic_e_l"] for r in rows]),
+        "random_e_l_mean": _mean([r["heuristic_random_e_l"] for r in rows]),
+        "e_l_mean_fresh": _mean([r["heuristic_e_l_fresh"] for r in rows]),
+        "random_e_l_mean_fresh": _mean([r["heuristic_random_e_l_fresh"] for r in rows]),
+        "beats_random_fraction": _mean([r["heuristic_beats_random"] for r in rows]),
+        "percentile_mean": _mean([r["heuristic_percentile"] for r in exhaustive]) if exhaustive else None,
+        "random_percentile_mean": _mean([r["random_percentile"] for r in exhaustive]) if exhaustive else None,
+        "connected_fraction": _mean([r["heuristic_connected"] for r in rows]),
+    }
+    return out
+
+
+def _std_mm(values: list[float]) -> float:
+    v = np.asarray(values, float)
+    return float(v.std(ddof=1)) * 1000 if len(v) > 1 else 0.0
+
+
+def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str:
+    """The human-readable tables (e_l in mm)."""
+    n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
+    dist = np.array([r["distance_m"] for r in rows])
+    mm = lambda v: "-" if v is None else f"{1000 * v:.2f}"  # noqa: E731
+    lines = [
+        f"swarm study anchors: n_r = {n}, {len(rows)} experiments, {samples} Monte Carlo samples per plan, localizer {localizer}",
+        f"average distance travelled: mean {dist.mean():.3f} m (min {dist.min():.3f}, max {dist.max():.3f})",
+        "",
+        "Fig. 4 - number of anchors (one random plan per n_a and experiment)",
+        f"{'n_a':>4} {'n_s':>4} {'P_v':>5} {'e_l mean (mm)':>14} {'std (mm)':>9} {'e_l/e_l(0) mean':>16} {'ratio of means':>15}",
+    ]
+    for k in counts:
+        lines.append(
+            f"{k:>4} {n_steps(n, k):>4} {1 / n_steps(n, k):>5.2f} {mm(summary['e_l_mean'][str(k)]):>14} "
+            f"{_std_mm([r[f'e_l_na{k}'] for r in rows]):>9.2f} {summary['e_l_ratio'][str(k)]:>16.3f} {summary['e_l_ratio_of_means'][str(k)]:>15.3f}"
+        )
+    lines.append("")
+    n_a = summary["choice_n_anchors"]
+    if summary["choice"] is None:
+        why = f"n_r = {n} is odd" if n % 2 else f"{exhaustive_count(n)} plans per experiment > {EXHAUSTIVE_LIMIT}"
+        lines.append(f"Fig. 5 - choice of anchors: skipped ({why})")
+    else:
+        exhaustive = [r for r in rows if r["choice_plans"] > 0]
+        connected = np.mean([r["choice_plans_connected"] / r["choice_plans"] for r in exhaustive])
+        lines.append(f"Fig. 5 - choice of anchors, n_a = {n_a}: all {summary['choice_plans']} plans per experiment ({100 * connected:.0f} % keep the swarm connected, Eq. 4)")
+        lines.append(f"{'anchors':<8} {'e_l mean (mm)':>14} {'std (mm)':>9} {'/ none':>7} {'fresh draws (mm)':>17} {'/ none':>7}")
+        none, none_fresh = summary["choice"]["none"], summary["choice_fresh"]["none"]
+        for c in CHOICES:
+            v, f = summary["choice"][c], summary["choice_fresh"][c]
+            lines.append(f"{c:<8} {mm(v):>14} {_std_mm([r[f'choice_{c}'] for r in exhaustive]):>9.2f} {v / none:>7.3f} {mm(f):>17} {f / none_fresh:>7.3f}")
+        lines.append("(fresh draws: the same plans re-evaluated with independent random numbers; best/worst of 252 noisy estimates are biased)")
+    lines.append("")
+    h = summary["heuristic"]
+    wins = sum(r["heuristic_beats_random"] for r in rows)
+    lines.append(f"Appendix A - heuristic (Eq. 11-13) vs random anchors, n_a = {n_a}")
+    lines.append(f"{'anchors':<10} {'e_l mean (mm)':>14} {'std (mm)':>9} {'fresh draws (mm)':>17}")
+    lines.append(f"{'heuristic':<10} {mm(h['e_l_mean']):>14} {_std_mm([r['heuristic_e_l'] for r in rows]):>9.2f} {mm(h['e_l_mean_fresh']):>17}")
+    lines.append(f"{'random':<10} {mm(h['random_e_l_mean']):>14} {_std_mm([r['heuristic_random_e_l'] for r in rows]):>9.2f} {mm(h['random_e_l_mean_fresh']):>17}")
+    diff = np.array([r["heuristic_e_l"] - r["heuristic_random_e_l"] for r in rows])
+    se = _std_mm(list(diff)) / math.sqrt(len(diff))
+    lines.append(
+        f"heuristic - random (paired): mean {1000 * diff.mean():+.3f} mm (standard error {se:.3f}, "
+        f"{100 * diff.mean() / h['random_e_l_mean']:+.1f} %); heuristic better in {wins}/{len(rows)} experiments ({100 * wins / len(rows):.0f} %)"
+    )
+    if h["percentile_mean"] is not None:
+        lines.append(f"percentile among all plans (0 = best, 100 = worst): heuristic {h['percentile_mean']:.1f}, random {h['random_percentile_mean']:.1f}")
+    lines.append(f"heuristic plans keeping the swarm connected (Eq. 4): {100 * h['connected_fraction']:.0f} %")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- plots
+
+
+def _scatter_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, title: str, path: Path) -> Path:
+    """One panel per (title, e_l (m) per experiment): e_l (mm) vs average distance travelled, shared axes."""
+    k = len(panels)
+    cols = 2 if k == 4 else k
+    rows = math.ceil(k / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.4 * rows), sharex=True, sharey=True, squeeze=False)
+    for ax, (label, values) in zip(axes.flat, panels):
+        ok = np.isfinite(values)
+        ax.scatter(distance[ok], 1000 * values[ok], s=10, alpha=0.7)
+        if ok.any():
+            ax.axhline(1000 * values[ok].mean(), color="tab:red", lw=1, ls="--", label=f"mean {1000 * values[ok].mean():.2f} mm")
+            ax.legend(loc="upper left", fontsize=8)
+        ax.set_title(label, fontsize=10)
+        ax.grid(alpha=0.3)
+    for ax in axes.flat[k:]:
+        ax.set_visible(False)
+    for ax in axes[-1]:
+        ax.set_xlabel("average distance travelled (m)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("localization error e_l (mm)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def write_outputs(rows: list[dict], summary: dict, out: Path) -> list[Path]:
+    """experiments.csv, fig4.png, fig5.png (when part 2 ran) and appendix_a.png."""
+    out.mkdir(parents=True, exist_ok=True)
+    n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
+    csv_path = out / "experiments.csv"
+    with open(csv_path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    written = [csv_path]
+    distance = np.array([r["distance_m"] for r in rows])
+    letters = "abcdefghijklmnopqrstuvwxyz"
+    col = lambda key: np.array([r[key] for r in rows], float)  # noqa: E731
+    panels = [(f"({letters[i % 26]}) {k} anchors", col(f"e_l_na{k}")) for i, k in enumerate(counts)]
+    written.append(_scatter_panels(panels, distance, f"Fig. 4: e_l vs number of anchors, n_r = {n}, {len(rows)} experiments", out / "fig4.png"))
+    n_a = summary["choice_n_anchors"]
+    if summary["choice"] is not None:
+        names = {"none": "zero anchors", "random": "random anchors", "worst": "global worst anchors", "best": "global best anchors"}
+        panels = [(f"({letters[i]}) {names[c]}", col(f"choice_{c}")) for i, c in enumerate(CHOICES)]
+        written.append(_scatter_panels(panels, distance, f"Fig. 5: choice of anchors, n_a = {n_a} of n_r = {n}", out / "fig5.png"))
+    panels = [("(a) anchors from the heuristic", col("heuristic_e_l")), ("(b) random anchors", col("heuristic_random_e_l"))]
+    written.append(_scatter_panels(panels, distance, f"Fig. A1: heuristic vs random anchors, n_a = {n_a} of n_r = {n}", out / "appendix_a.png"))
+    return written
+
+
+# ---------------------------------------------------------------------------- command
+
+
+def validate(args: argparse.Namespace) -> None:
+    if args.robots < 3:
+        raise SwarmInputError(f"--robots must be >= 3, got {args.robots}")
+    if args.experiments < 1:
+        raise SwarmInputError(f"--experiments must be >= 1, got {args.experiments}")
+    if args.samples < 1:
+        raise SwarmInputError(f"--samples must be >= 1, got {args.samples}")
+    if args.workers < 1:
+        raise SwarmInputError(f"--workers must be >= 1, got {args.workers}")
+
+
+def run_experiments(jobs: list[Job], workers: int, progress: Progress | None = None) -> list[dict]:
+    """``run_experiment`` over ``jobs`` (in order), in ``workers`` processes."""
+    rows: list[dict] = []
+    if workers == 1 or len(jobs) == 1:
+        for job in jobs:
+            rows.append(run_experiment(job))
+            if progress:
+                progress(len(rows))
+        return rows
+    with ProcessPoolExecutor(max_workers=min(workers, len(jobs))) as pool:
+        for row in pool.map(run_experiment, jobs):
+            rows.append(row)
+            if progress:
+                progress(len(rows))
+    return rows
+
+
+def run(args: argparse.Namespace) -> int:
+    validate(args)
+    cfg = model_config(args)
+    n = args.robots
+    if n % 2 == 0 and exhaustive_count(n) > EXHAUSTIVE_LIMIT:
+        print(f"note: Fig. 5 skipped: n_r = {n} has {exhaustive_count(n)} plans with n_a = {n // 2} per experiment (> {EXHAUSTIVE_LIMIT})")
+    elif n % 2:
+        print(f"note: Fig. 5 skipped: n_a = n_r / 2 is not feasible for odd n_r = {n}; Appendix A uses n_a = {choice_anchor_count(n)}")
+    jobs = [Job(e, n, args.samples, args.seed, cfg, args.localizer) for e in range(args.experiments)]
+    rows = run_experiments(jobs, args.workers, Progress(len(jobs), "study anchors"))
+    summary = summarise(rows, n)
+    print(report(rows, summary, args.samples, args.localizer))
+    written = write_outputs(rows, summary, args.out)
+    print("wrote " + ", ".join(str(p) for p in written))
+    if args.json:
+        print_json(summary)
+    return 0

@@ -1,0 +1,216 @@
+"""Batched localization (coordinator.localization.batch) against the single-swarm localizers."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from coordinator.localization import make_localizer
+from coordinator.localization.batch import localize_batch, observable
+from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.graph import require_observable
+from runtime.config import ModelConfig
+from runtime.errors import LocalizationError, SwarmInputError
+from runtime.geometry import transform_poses, wrap_angle
+from runtime.motion import apply_motion
+from runtime.rng import Stream, robot_rngs
+from runtime.scenarios import grid_configuration, random_step
+from runtime.sensing import sense_swarm
+from runtime.state import Observations, StepCommands, SwarmEstimate
+
+METHODS = ["paper", "joint"]
+
+
+def dense(obs: Observations, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(seen, ranges, bearings) (n, n) from observations of robots 0..n-1; NaN where unseen."""
+    seen = np.zeros((n, n), bool)
+    ranges, bearings = np.full((n, n), np.nan), np.full((n, n), np.nan)
+    seen[obs.observer, obs.observed] = True
+    ranges[obs.observer, obs.observed] = obs.range_m
+    bearings[obs.observer, obs.observed] = obs.bearing_rad
+    return seen, ranges, bearings
+
+
+def rotate_cov(cov: np.ndarray, theta: float) -> np.ndarray:
+    r = np.eye(3)
+    r[:2, :2] = [[math.cos(theta), -math.sin(theta)], [math.sin(theta), math.cos(theta)]]
+    return r @ cov @ r.T
+
+
+class Batch:
+    """Batch inputs, one sample per ``add``; ``single(k)`` rebuilds sample k for the single-swarm localizers."""
+
+    def __init__(self) -> None:
+        self.rows: list[tuple[np.ndarray, ...]] = []
+
+    def add(self, prior: SwarmEstimate, step: StepCommands, seen, ranges, bearings) -> None:
+        self.rows.append((prior.poses, prior.cov, step.commands, step.moving, seen, ranges, bearings))
+
+    def arrays(self) -> list[np.ndarray]:
+        return [np.stack(column) for column in zip(*self.rows)]
+
+    def single(self, k: int) -> tuple[SwarmEstimate, StepCommands, Observations]:
+        poses, cov, commands, moving, seen, ranges, bearings = self.rows[k]
+        ids = np.arange(len(poses))
+        i, j = np.nonzero(seen)  # ordered by (observer, observed)
+        return SwarmEstimate(ids, poses, cov), StepCommands(ids, commands, moving), Observations(i, j, ranges[i, j], bearings[i, j])
+
+
+def random_batch(n: int, size: int, cfg: ModelConfig, seed: int) -> Batch:
+    """Random steps with dropout; some samples with one-way observations, a heading at the +-pi seam,
+    an unobserved robot or a robot that observes nobody."""
+    batch = Batch()
+    for k in range(size):
+        rng = np.random.default_rng([seed, k])
+        case = random_step(n, cfg, rng, spacing=0.22, seed=seed + k)
+        prior = case.prior
+        seen, ranges, bearings = dense(case.observations, n)
+        kind = k % 4
+        if kind == 1:  # robot 2 observes nobody (others still observe it): one-way observations
+            seen[2, :] = False
+        elif kind == 2:  # rigid motion of the scene so that robot 1's estimated heading sits at the seam
+            theta = (math.pi - 1e-6) - prior.poses[1, 2]
+            prior = SwarmEstimate(prior.ids, transform_poses(prior.poses, theta, np.array([1.0, -2.0])), rotate_cov(prior.cov, theta))
+        elif kind == 3 and k % 8 == 7:  # nobody observes robot 0: not localizable
+            seen[:, 0] = False
+        seen &= rng.random((n, n)) >= 0.1  # extra dropout, different in every sample
+        batch.add(prior, case.step, seen, ranges, bearings)
+    return batch
+
+
+def assert_same_estimate(got_poses, got_cov, want: SwarmEstimate) -> None:
+    np.testing.assert_allclose(got_poses[:, :2], want.poses[:, :2], rtol=0, atol=1e-8)
+    np.testing.assert_allclose(wrap_angle(got_poses[:, 2] - want.poses[:, 2]), 0.0, atol=1e-8)
+    scale = np.abs(want.cov).max(axis=(1, 2), keepdims=True)
+    np.testing.assert_allclose(got_cov, want.cov, rtol=1e-6, atol=0)
+    assert np.all(np.abs(got_cov - want.cov) <= 1e-6 * scale)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize(("n", "size"), [(6, 16), (25, 8)])
+def test_batch_equals_single_swarm_localizer(method, n, size):
+    cfg = ModelConfig(dropout_prob=0.15)
+    batch = random_batch(n, size, cfg, seed=10 * n)
+    out = localize_batch(method, cfg, *batch.arrays())
+    assert out.poses.shape == (size, n, 3) and out.cov.shape == (size, n, 3, 3) and out.ok.shape == (size,)
+    localized = 0
+    for k in range(size):
+        prior, step, obs = batch.single(k)
+        try:
+            want = make_localizer(method, cfg).localize(prior, step, obs)
+        except LocalizationError as err:
+            assert err.reason in ("unobserved", "disconnected")
+            assert not out.ok[k]
+            dr = dead_reckon(prior, step, cfg)
+            np.testing.assert_array_equal(out.poses[k], dr.poses)
+            np.testing.assert_allclose(out.cov[k], dr.cov, rtol=1e-12, atol=0)
+            continue
+        assert out.ok[k], f"sample {k} not localized"
+        assert_same_estimate(out.poses[k], out.cov[k], want)
+        localized += 1
+    assert localized >= size - 3  # the batch mixes localizable and non-localizable samples
+    assert not out.ok.all()
+
+
+def two_groups(cfg: ModelConfig) -> tuple[SwarmEstimate, StepCommands, tuple[np.ndarray, ...]]:
+    """Six robots in two groups out of each other's sensing range."""
+    ids = np.arange(6)
+    poses = np.array([[0, 0, 0.1], [0.2, 0, 1.0], [0.1, 0.2, 2.0], [3, 3, -1.0], [3.2, 3, 0.3], [3.1, 3.2, 2.5]])
+    obs = sense_swarm(poses, ids, cfg, robot_rngs(0, ids, Stream.SENSING))
+    return SwarmEstimate.isotropic(ids, poses, 0.01, 0.01), StepCommands.stationary(ids), dense(obs, 6)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_non_observable_samples_fall_back_to_dead_reckoning(method):
+    cfg = ModelConfig()
+    case = random_step(6, cfg, np.random.default_rng(3), spacing=0.2)
+    seen, ranges, bearings = dense(case.observations, 6)
+    blind = seen.copy()
+    blind[:, 4] = False  # nobody observes robot 4
+    split_prior, split_step, split_obs = two_groups(cfg)
+    assert split_obs[0].any(axis=0).all()  # everyone is observed, but in two groups
+
+    batch = Batch()
+    batch.add(case.prior, case.step, seen, ranges, bearings)
+    batch.add(case.prior, case.step, blind, ranges, bearings)
+    batch.add(split_prior, split_step, *split_obs)
+    batch.add(case.prior, case.step, seen, ranges, bearings)
+    out = localize_batch(method, cfg, *batch.arrays())
+    np.testing.assert_array_equal(out.ok, [True, False, False, True])
+    for k, reason in ((1, "unobserved"), (2, "disconnected")):
+        prior, step, obs = batch.single(k)
+        with pytest.raises(LocalizationError, match=reason):
+            make_localizer(method, cfg).localize(prior, step, obs)
+        dr = dead_reckon(prior, step, cfg)
+        np.testing.assert_array_equal(out.poses[k], dr.poses)
+        np.testing.assert_allclose(out.cov[k], dr.cov, rtol=1e-12, atol=0)
+    alone = localize_batch(method, cfg, *[a[:1] for a in batch.arrays()])
+    want = make_localizer(method, cfg).localize(case.prior, case.step, case.observations)
+    for k in (0, 3):  # the localizable samples are unaffected by their neighbours in the batch
+        np.testing.assert_array_equal(out.poses[k], out.poses[0])
+        np.testing.assert_allclose(out.poses[k], alone.poses[0], rtol=0, atol=1e-12)
+        assert_same_estimate(out.poses[k], out.cov[k], want)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_noise_free_sensing_and_motion_recover_the_truth(method):
+    cfg = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    batch, truths = Batch(), []
+    for k in range(6):
+        rng = np.random.default_rng(40 + k)
+        n = 10
+        poses = grid_configuration(n, 0.22, rng)
+        poses[k % n, 2] = math.pi - 1e-4  # headings across the +-pi seam
+        poses[(k + 1) % n, 2] = -math.pi + 1e-4
+        ids = np.arange(n)
+        moving = rng.random(n) < 0.5
+        commands = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(0.05, 0.15, n)]) * moving[:, None]
+        after = np.where(moving[:, None], apply_motion(poses, commands), poses)  # executed exactly
+        obs = sense_swarm(after, ids, cfg, robot_rngs(k, ids, Stream.SENSING))
+        batch.add(SwarmEstimate.isotropic(ids, poses, 0.01, 0.02), StepCommands(ids, commands, moving), *dense(obs, n))
+        truths.append(after)
+    out = localize_batch(method, cfg, *batch.arrays())
+    assert out.ok.all()
+    truth = np.stack(truths)
+    np.testing.assert_allclose(out.poses[..., :2], truth[..., :2], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(out.poses[..., 2] - truth[..., 2]), 0.0, atol=1e-9)
+
+
+def test_values_of_unseen_pairs_are_ignored_and_bad_samples_are_flagged():
+    cfg = ModelConfig()
+    batch = random_batch(6, 3, cfg, seed=5)
+    poses, cov, commands, moving, seen, ranges, bearings = batch.arrays()
+    out = localize_batch("paper", cfg, poses, cov, commands, moving, seen, ranges, bearings)
+    garbage = np.where(seen, ranges, 123.0), np.where(seen, bearings, -7.0)
+    np.testing.assert_array_equal(localize_batch("paper", cfg, poses, cov, commands, moving, seen, *garbage).poses, out.poses)
+    i, j = np.argwhere(seen[1])[0]
+    ranges[1, i, j] = np.nan  # a seen pair without a value: the single-swarm input would be rejected
+    bad = localize_batch("paper", cfg, poses, cov, commands, moving, seen, ranges, bearings)
+    np.testing.assert_array_equal(bad.ok, [out.ok[0], False, out.ok[2]])
+    np.testing.assert_array_equal(bad.poses[[0, 2]], out.poses[[0, 2]])
+
+
+def test_observability_matches_the_single_swarm_rules():
+    rng = np.random.default_rng(0)
+    seen = rng.random((200, 7, 7)) < 0.22
+    got = observable(seen & ~np.eye(7, dtype=bool))
+    for k in range(200):
+        i, j = np.nonzero(seen[k] & ~np.eye(7, dtype=bool))
+        try:
+            require_observable(np.arange(7), i, j)
+            want = True
+        except LocalizationError:
+            want = False
+        assert got[k] == want
+    assert 0 < got.sum() < 200
+
+
+def test_bad_shapes_and_methods_are_rejected():
+    cfg = ModelConfig()
+    poses, cov, commands, moving, seen, ranges, bearings = random_batch(5, 2, cfg, seed=1).arrays()
+    with pytest.raises(SwarmInputError, match="unknown localizer"):
+        localize_batch("kalman", cfg, poses, cov, commands, moving, seen, ranges, bearings)
+    with pytest.raises(SwarmInputError, match="seen must have shape"):
+        localize_batch("paper", cfg, poses, cov, commands, moving, seen[:, :4], ranges, bearings)
