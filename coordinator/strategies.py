@@ -16,7 +16,7 @@ import numpy as np
 
 from coordinator.plan import Plan
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.selector import AnchorSelector, Selection, SelectionConfig
+from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, Selection, SelectionConfig
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
@@ -33,14 +33,25 @@ class Strategy(Protocol):
 
 
 class SelectedStrategy:
-    """Anchors chosen online by Monte Carlo search (``inchworm``, ``inchworm-equal-speed``)."""
+    """Anchors chosen online by Monte Carlo search (``inchworm``, ``inchworm-equal-speed``).
 
-    def __init__(self, name: str, selector: AnchorSelector) -> None:
+    With ``fallback_anchors`` set, a configuration change for which no plan of the
+    allowed anchor counts keeps the swarm connected uses the heuristic plan with that
+    many anchors instead of stopping the run (``inchworm-equal-speed`` must keep its speed).
+    """
+
+    def __init__(self, name: str, selector: AnchorSelector, fallback_anchors: int | None = None) -> None:
         self.name = name
         self.selector = selector
+        self.fallback_anchors = fallback_anchors
 
     def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
-        selection = self.selector.select(estimate, desired)
+        try:
+            selection = self.selector.select(estimate, desired)
+        except NoFeasiblePlanError:
+            if self.fallback_anchors is None:
+                raise
+            return heuristic_plan(estimate.positions, desired, self.fallback_anchors), None
         return selection.plan, selection
 
 
@@ -81,7 +92,7 @@ def make_strategy(
         return SelectedStrategy(method, AnchorSelector(cfg, localizer, selection, seed))
     if method == "inchworm-equal-speed":
         fixed = replace(selection, anchor_counts=(half(n, method),))
-        return SelectedStrategy(method, AnchorSelector(cfg, localizer, fixed, seed))
+        return SelectedStrategy(method, AnchorSelector(cfg, localizer, fixed, seed), fallback_anchors=half(n, method))
     if method == "heuristic-fixed":
         return HeuristicStrategy(half(n, method))
     if method == "ref57":

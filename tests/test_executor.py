@@ -72,3 +72,13 @@ def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
     strategy = make_strategy("ref57", traj.n, cfg, "paper", FAST, seed=0)
     run = InchwormExecutor(backend, make_localizer("paper", cfg), strategy, cfg).run(traj, initial_estimate(traj, 0, 0.01, 0.03))
     assert all(s.fallback and "unobserved: robots [0, 1, 2, 3, 4, 5]" in s.fallback for s in run.steps)
+
+
+def test_equal_speed_keeps_its_anchor_count_when_no_plan_keeps_connectivity():
+    from runtime.state import SwarmEstimate
+
+    strategy = make_strategy("inchworm-equal-speed", 4, ModelConfig(), "paper", FAST, seed=0)
+    estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.45, 0, 0], [0.9, 0, 0], [1.35, 0, 0]], float), 0.01, 0.02)
+    desired = np.array([[0, 0.1], [0.45, 0.1], [0.9, 0.1], [1.35, 0.1]]) + [[0, 0], [0.4, 0.0], [0.8, 0], [1.2, 0]]
+    plan, selection = strategy.plan(estimate, desired)
+    assert selection is None and plan.n_anchors == 2

@@ -216,23 +216,23 @@ class _Batched:
         return out
 
 
-def _newton_step(lap2, diag_x, cm, d, g_xy, g_theta, mu) -> np.ndarray:
+def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu) -> np.ndarray:
     """Solve [[A + mu diag(diag_x), C], [C^T, diag(d)]] [dxy; dtheta] = -[g_xy; g_theta] per sample.
 
-    A (B, 2n, 2n) is the position block (row 2a + k = axis k of robot a), C (B, 2n, n) the
-    position-heading block, d (B, n) the (damped) heading diagonal. The headings are
-    eliminated: (A - C D^-1 C^T) dxy = C D^-1 g_theta - g_xy. Returns the step (B, n, 3).
+    Positions are ordered x of every robot, then y (index k n + a). A (B, 2n, 2n) is the
+    position block, ``ct`` = C^T (B, n, 2n) the heading-position block, d (B, n) the (damped)
+    heading diagonal. The headings are eliminated: (A - C D^-1 C^T) dxy = C D^-1 g_theta - g_xy.
+    Returns the step (B, n, 3).
     """
-    b, n2, n = cm.shape
-    idx = np.arange(n2)
-    cd = cm / d[:, None, :]
-    s = np.matmul(cd, np.swapaxes(cm, 1, 2))
-    np.subtract(lap2, s, out=s)
-    s[:, idx, idx] += mu[:, None] * diag_x
-    rhs = np.matmul(cd, g_theta[:, :, None])[:, :, 0] - g_xy
+    b, n, n2 = ct.shape
+    ctd = ct / d[:, :, None]
+    s = np.matmul(np.swapaxes(ct, 1, 2), ctd)
+    np.subtract(lap, s, out=s)
+    s.reshape(b, n2 * n2)[:, :: n2 + 1] += mu[:, None] * diag_x
+    rhs = np.matmul(g_theta[:, None, :], ctd)[:, 0, :] - g_xy
     dxy = _solve_stack(s, rhs)
-    dtheta = (-g_theta - np.matmul(dxy[:, None, :], cm)[:, 0, :]) / d
-    return np.concatenate([dxy.reshape(b, n, 2), dtheta[:, :, None]], axis=2)
+    dtheta = (-g_theta - np.matmul(ct, dxy[:, :, None])[:, :, 0]) / d
+    return np.stack([dxy[:, :n], dxy[:, n:], dtheta], axis=2)
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -261,60 +261,70 @@ class _TopologyProblem(_Batched):
 
     def __init__(self, w: np.ndarray, zx: np.ndarray, zy: np.ndarray, ref: np.ndarray, has_heading: np.ndarray):
         b, n, _ = w.shape
-        rows, diag = np.arange(b), np.arange(n)
+        rows = np.arange(b)
         self.w, self.zx, self.zy, self.ref = w, zx, zy, ref
         self.free_head = has_heading.astype(float)
         self.free_head[rows, ref] = 0.0
         # J^T J of the positions does not depend on the unknowns: a graph Laplacian per axis.
         both = w + np.swapaxes(w, 1, 2)
         degree = np.einsum("bij->bi", both)
-        lap = -both
-        lap[:, diag, diag] = degree
-        lap[rows, ref, :] = 0.0  # the reference position is fixed: identity row and column
-        lap[rows, :, ref] = 0.0
-        lap[rows, ref, ref] = 1.0
-        lap2 = np.zeros((b, n, 2, n, 2))
-        lap2[:, :, 0, :, 0] = lap
-        lap2[:, :, 1, :, 1] = lap
-        self.lap2 = lap2.reshape(b, 2 * n, 2 * n)
+        lap = np.zeros((b, 2 * n, 2 * n))
+        for k in (0, n):
+            block = lap[:, k : k + n, k : k + n]
+            block -= both
+            _diagonal(block)[:] = degree
+            block[rows, ref, :] = 0.0  # the reference position is fixed: identity row and column
+            block[rows, :, ref] = 0.0
+            block[rows, ref, ref] = 1.0
+        self.lap = lap
         diag_x = np.maximum(degree, 1e-12)  # damping scale, as sparse_lm: max(diag(J^T J), 1e-12)
         diag_x[rows, ref] = 0.0
-        self.diag_x = np.repeat(diag_x, 2, axis=1)
+        self.diag_x = np.concatenate([diag_x, diag_x], axis=1)
         self.h_theta = np.einsum("bij->bi", zx * zx + zy * zy)  # |d r_ij / d theta_i|^2 = rho_ij^2
         self.diag_theta = np.maximum(self.h_theta, 1e-12)
 
     def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
-        rzx = c * self.zx - s * self.zy  # R(theta_i) z_ij: zero where (i, j) unseen
-        rzy = s * self.zx + c * self.zy
-        rx = self.w * (rzx + x[:, :, None, 0] - x[:, None, :, 0])
-        ry = self.w * (rzy + x[:, :, None, 1] - x[:, None, :, 1])
+        rzx = c * self.zx
+        rzx -= s * self.zy  # R(theta_i) z_ij: zero where (i, j) unseen
+        rzy = s * self.zx
+        rzy += c * self.zy
+        rx = x[:, :, None, 0] - x[:, None, :, 0]
+        rx += rzx
+        rx *= self.w
+        ry = x[:, :, None, 1] - x[:, None, :, 1]
+        ry += rzy
+        ry *= self.w
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
-        rows, diag, fh = np.arange(b), np.arange(n), self.free_head
-        # Gradient J^T r; d r_ij / d theta_i = (-rzy, rzx), d / d x_i = I, d / d x_j = -I.
+        rows, fh, ref = np.arange(b), self.free_head, self.ref
+        # Gradient J^T r; d r_ij / d theta_i = perp_ij = (-rzy, rzx), d / d x_i = I, d / d x_j = -I.
         g_theta = fh * (np.einsum("bij,bij->bi", rzx, ry) - np.einsum("bij,bij->bi", rzy, rx))
-        g_xy = np.empty((b, n, 2))
-        g_xy[:, :, 0] = np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx)
-        g_xy[:, :, 1] = np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)
-        g_xy[rows, self.ref] = 0.0
+        g_xy = np.concatenate(
+            [np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx), np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)], axis=1
+        )
+        g_xy[rows, ref] = g_xy[rows, n + ref] = 0.0
         # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm.
         second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
         d = self.h_theta + np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
-        # Position-heading block C[(a, k), i] = delta_ai sum_j perp_ij,k - perp_ia,k (perp = d r / d theta).
-        cm = np.empty((b, n, 2, n))
-        cm[:, :, 0, :] = np.swapaxes(rzy, 1, 2)
-        cm[:, :, 1, :] = -np.swapaxes(rzx, 1, 2)
-        cm[:, diag, 0, diag] = -np.einsum("bij->bi", rzy)
-        cm[:, diag, 1, diag] = np.einsum("bij->bi", rzx)
-        cm[rows, self.ref] = 0.0  # fixed reference position and heading
-        cm[rows, :, :, self.ref] = 0.0
-        return _newton_step(self.lap2, self.diag_x, cm.reshape(b, 2 * n, n), d, g_xy.reshape(b, 2 * n), g_theta, mu)
+        # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
+        ct = np.concatenate([rzy, -rzx], axis=2)
+        _diagonal(ct[:, :, :n])[:] = -np.einsum("bij->bi", rzy)
+        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", rzx)
+        ct[rows, :, ref] = ct[rows, :, n + ref] = 0.0  # fixed reference position
+        ct[rows, ref, :] = 0.0  # fixed reference heading
+        return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu)
+
+
+def _diagonal(a: np.ndarray) -> np.ndarray:
+    """Writable view of the diagonals (B, n) of a stack of square matrices (B, n, n) (a may be a column slice)."""
+    b, n, _ = a.shape
+    return np.lib.stride_tricks.as_strided(a, (b, n), (a.strides[0], a.strides[1] + a.strides[2]), writeable=True)
 
 
 def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -369,7 +379,7 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings):
 
 
 class _JointProblem(_Batched):
-    """Whitened prior residuals U_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
+    """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
 
     The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
     x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
@@ -385,7 +395,7 @@ class _JointProblem(_Batched):
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
         self.w, self.mean, self.sqrt_info = w, mean, sqrt_info
-        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # U^T U, as J^T J forms it
+        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # W^T W, as J^T J forms it
         self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
 
     def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
@@ -408,7 +418,7 @@ class _JointProblem(_Batched):
         return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": 1.0 / dist, "rr": r_range, "rb": r_bearing, "rp": r_prior}
 
     def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """J^T J as (position block (B, 2n, 2n), position-heading block (B, 2n, n), heading diagonal (B, n)).
+        """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
 
         Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
         so the position block of the pair is u u^T / s_r^2 + b b^T / s_b^2.
@@ -416,38 +426,38 @@ class _JointProblem(_Batched):
         inv_dist, info = st["inv_dist"], self.info
         ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
         b, n, _ = ux.shape
-        diag = np.arange(n)
         beta = self.wb * inv_dist * inv_dist
-        lap = np.empty((b, n, 2, n, 2))
+        lap = np.empty((b, 2 * n, 2 * n))
         for row, col, a in (
             (0, 0, self.wr * ux * ux + beta * uy * uy),
             (0, 1, (self.wr - beta) * ux * uy),
             (1, 1, self.wr * uy * uy + beta * ux * ux),
         ):
-            a = a + np.swapaxes(a, 1, 2)  # robots a and c meet as observer and as observed
-            lap[:, :, row, :, col] = -a
-            lap[:, diag, row, diag, col] = np.einsum("bij->bi", a) + info[:, :, row, col]
-        lap[:, :, 1, :, 0] = lap[:, :, 0, :, 1]
-        cm = np.empty((b, n, 2, n))
+            a += np.swapaxes(a, 1, 2).copy()  # robots a and c meet as observer and as observed
+            block = lap[:, row * n : row * n + n, col * n : col * n + n]
+            np.negative(a, out=block)
+            _diagonal(block)[:] = np.einsum("bij->bi", a) + info[:, :, row, col]
+        lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
+        ct = np.empty((b, n, 2 * n))
         for k, p in ((0, -beta * st["dy"]), (1, beta * st["dx"])):  # b / s_b^2 of each pair
-            cm[:, :, k, :] = -np.swapaxes(p, 1, 2)
-            cm[:, diag, k, diag] = np.einsum("bij->bi", p) + info[:, :, k, 2]
-        return lap.reshape(b, 2 * n, 2 * n), cm.reshape(b, 2 * n, n), self.d_theta
+            block = ct[:, :, k * n : k * n + n]
+            np.negative(p, out=block)
+            _diagonal(block)[:] = np.einsum("bij->bi", p) + info[:, :, k, 2]
+        return lap, ct, self.d_theta
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
-        lap, cm, d = self.normal(st)
-        b, n2, n = cm.shape
+        lap, ct, d = self.normal(st)
+        b, n, n2 = ct.shape
         inv_dist, rr, rb = st["inv_dist"], st["rr"] / self.s_r, st["rb"] / self.s_b
         g_prior = np.einsum("bnji,bnj->bni", self.sqrt_info, st["rp"])
         ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
-        g_xy = np.empty((b, n, 2))
+        g_xy = np.empty((b, n2))
         for k, q in ((0, ux * rr - uy * inv_dist * rb), (1, uy * rr + ux * inv_dist * rb)):  # (d r / d x_j)^T r
-            g_xy[:, :, k] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
+            g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
         g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", rb)
-        idx = np.arange(n2)
-        diag_x = np.maximum(lap[:, idx, idx], 1e-12)
+        diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
         d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
-        return _newton_step(lap, diag_x, cm, d_damped, g_xy.reshape(b, n2), g_theta, mu)
+        return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu)
 
 
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings):
@@ -460,29 +470,29 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings):
     return x, cov, good
 
 
-def _joint_covariances(lap: np.ndarray, cm: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, cm], [cm^T, diag(d)]].
+def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T).
 
     Exact up to ``EXACT_COV_LIMIT`` robots; above, each robot's 3x3 information block is
     inverted alone, like ``joint.pose_covariances``.
     """
-    b, n2, n = cm.shape
-    diag = np.arange(n)
+    b, n, n2 = ct.shape
+    i = np.arange(n)
     cov = np.empty((b, n, 3, 3))
-    pos = lambda m: np.moveaxis(m.reshape(b, n, 2, n, 2)[:, diag, :, diag, :], 0, 1)  # (B, n, 2, 2) blocks
-    mixed = lambda m: np.moveaxis(m.reshape(b, n, 2, n)[:, diag, :, diag], 0, 1)  # (B, n, 2) robot's own
     with np.errstate(divide="ignore", invalid="ignore"):
         if n > EXACT_COV_LIMIT:
-            cov[:, :, :2, :2], cov[:, :, :2, 2], cov[:, :, 2, 2] = pos(lap), mixed(cm), d
-            cov[:, :, 2, :2] = cov[:, :, :2, 2]
-            return _inv_stack(cov)
-        cd = cm / d[:, None, :]  # inverse by the Schur complement S = A - C D^-1 C^T
-        s_inv = _inv_stack(lap - np.matmul(cd, np.swapaxes(cm, 1, 2)))
-        e = np.matmul(s_inv, cd)  # S^-1 C D^-1 = -(position-heading block of the inverse)
-        cov[:, :, :2, :2], cov[:, :, :2, 2] = pos(s_inv), -mixed(e)
-        cov[:, :, 2, 2] = 1.0 / d + np.einsum("bri,bri->bi", cd, e)
-    cov[:, :, 2, :2] = cov[:, :, :2, 2]
-    return cov
+            m = lap
+        else:  # inverse by the Schur complement S = A - C D^-1 C^T
+            ctd = ct / d[:, :, None]
+            m = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))
+            e = np.matmul(m, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
+        for k in (0, 1):
+            for l in (0, 1):
+                cov[:, :, k, l] = m[:, k * n + i, l * n + i]
+            cov[:, :, k, 2] = ct[:, i, k * n + i] if n > EXACT_COV_LIMIT else -e[:, k * n + i, i]
+        cov[:, :, 2, 2] = d if n > EXACT_COV_LIMIT else 1.0 / d + np.einsum("bir,bri->bi", ctd, e)
+        cov[:, :, 2, :2] = cov[:, :, :2, 2]
+        return _inv_stack(cov) if n > EXACT_COV_LIMIT else cov
 
 
 def _inv_stack(a: np.ndarray) -> np.ndarray:

@@ -3,7 +3,7 @@
 Unknowns are robot poses (x, y, theta). Two kinds of residuals:
 
 * observation (i sees j): ((|x_j - x_i| - rho_ij) / s_r, wrap(atan2(x_j - x_i) - theta_i - phi_ij) / s_b)
-* prior: U_i (p_i - mu_i), U_i^T U_i = P_i^-1 (dead-reckoning mean and covariance)
+* prior: W_i (p_i - mu_i), W_i^T W_i = P_i^-1 (dead-reckoning mean and covariance)
 
 They are shared by the joint localizer and the Cramer-Rao bound, whose Fisher
 information is exactly J^T J of these residuals at the true poses.
@@ -18,14 +18,20 @@ from coordinator.localization.sparse_lm import PoseLayout, jacobian
 from runtime.config import ModelConfig
 from runtime.geometry import wrap_angle
 
-COV_FLOOR = 1e-12  # variance added to prior covariances so an exact prior stays invertible
+COV_FLOOR = 1e-12  # smallest prior variance, so an exact prior stays invertible
 
 
 def sqrt_information(cov: np.ndarray) -> np.ndarray:
-    """Upper-triangular U (n, 3, 3) with U^T U = (cov + floor I)^-1."""
-    info = np.linalg.inv(cov + COV_FLOOR * np.eye(3))
-    info = 0.5 * (info + np.swapaxes(info, -1, -2))
-    return np.swapaxes(np.linalg.cholesky(info), -1, -2)
+    """W (n, 3, 3) with W^T W = cov^-1, eigenvalues of cov floored at ``COV_FLOOR``.
+
+    W = diag(lambda^-1/2) V^T from the eigendecomposition of the symmetrised covariance,
+    so covariances that are singular (an exact prior) or slightly indefinite after
+    numerical propagation still whiten.
+    """
+    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    lam, vec = np.linalg.eigh(sym)
+    lam = np.maximum(lam, COV_FLOOR)
+    return np.swapaxes(vec, -1, -2) / np.sqrt(lam)[..., :, None]
 
 
 def sensor_sigmas(cfg: ModelConfig) -> tuple[float, float]:
@@ -63,7 +69,7 @@ def observation_terms(
 def prior_terms(
     poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Residuals (3n,) U_i (p_i - mu_i) (heading difference wrapped) and COO triplets."""
+    """Residuals (3n,) W_i (p_i - mu_i) (heading difference wrapped) and COO triplets."""
     n = len(poses)
     diff = poses - mean
     diff[:, 2] = wrap_angle(diff[:, 2])
