@@ -28,7 +28,7 @@ from coordinator.localization.dead_reckoning import dead_reckon
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.scenarios import StepCase, random_step
-from swarm_cli.options import add_json_option, add_model_options, model_config, print_json
+from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("paper", "joint")
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
@@ -51,17 +51,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_model_options(parser)
     add_json_option(parser)
     parser.set_defaults(run=run)
-
-
-def parse_sizes(text: str) -> list[int]:
-    """Swarm sizes from ``"10,100,1000"``; each must be an integer >= 2."""
-    try:
-        sizes = [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise SwarmInputError(f"--sizes must be comma-separated integers, got {text!r}") from None
-    if not sizes or any(n < 2 for n in sizes):
-        raise SwarmInputError(f"--sizes must list swarm sizes >= 2, got {text!r}")
-    return sizes
 
 
 def load_gtsam() -> Any | None:
@@ -220,7 +209,7 @@ def print_table(results: list[dict[str, Any]], gtsam_used: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
-    sizes = parse_sizes(args.sizes)
+    sizes = parse_list(args.sizes, "--sizes", int, 2)
     if args.trials < 1 or args.repeats < 1:
         raise SwarmInputError(f"--trials and --repeats must be >= 1, got {args.trials} and {args.repeats}")
     gtsam = None if args.no_gtsam else load_gtsam()

@@ -21,7 +21,7 @@ from coordinator.selection.selector import AnchorSelector
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, model_config, parse_list, print_json, selection_config
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -30,20 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--repeats", type=int, default=3, help="selections per size, each on a new random step (default 3)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--all-cores", action="store_true", help="do not pin the process to one core")
-    add_localizer_option(p)
-    add_selection_options(p)
-    add_model_options(p)
-    add_json_option(p)
+    add_simulation_options(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
-    except ValueError:
-        raise SwarmInputError(f"--sizes must be comma-separated integers, got {args.sizes!r}") from None
-    if not sizes or min(sizes) < 2 or args.repeats < 1:
-        raise SwarmInputError("--sizes must be integers >= 2 and --repeats >= 1")
+    sizes = parse_list(args.sizes, "--sizes", int, 2)
+    if args.repeats < 1:
+        raise SwarmInputError(f"--repeats must be >= 1, got {args.repeats}")
     if not args.all_cores and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     cfg, selection = model_config(args), selection_config(args)

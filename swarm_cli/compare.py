@@ -24,15 +24,7 @@ from coordinator.strategies import METHODS
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import (
-    add_json_option,
-    add_localizer_option,
-    add_model_options,
-    add_selection_options,
-    model_config,
-    print_json,
-    selection_config,
-)
+from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.plots import plot_bars
 from swarm_cli.progress import Progress
 
@@ -49,10 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
-    add_localizer_option(p)
-    add_selection_options(p)
-    add_model_options(p)
-    add_json_option(p)
+    add_simulation_options(p)
     p.set_defaults(run=run)
 
 

@@ -69,3 +69,23 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
     )
+
+
+def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:
+    """Values of a comma-separated option such as ``--sizes 10,100``; each must be >= ``minimum``."""
+    kind = "integers" if cast is int else "numbers"
+    try:
+        values = [cast(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise SwarmInputError(f"{option} must be comma-separated {kind}, got {text!r}") from None
+    if not values or any(v < minimum for v in values):
+        raise SwarmInputError(f"{option} must list {kind} >= {minimum:g}, got {text!r}")
+    return values
+
+
+def add_simulation_options(parser: argparse.ArgumentParser) -> None:
+    """Localizer, anchor selection, model and --json options of every simulating command."""
+    add_localizer_option(parser)
+    add_selection_options(parser)
+    add_model_options(parser)
+    add_json_option(parser)

@@ -10,15 +10,7 @@ import numpy as np
 from coordinator.simulate import simulate
 from coordinator.strategies import METHODS
 from runtime.trajectory import Trajectory, random_trajectory
-from swarm_cli.options import (
-    add_json_option,
-    add_localizer_option,
-    add_model_options,
-    add_selection_options,
-    model_config,
-    print_json,
-    selection_config,
-)
+from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.plots import plot_errors, plot_trajectory
 from swarm_cli.progress import Progress
 
@@ -31,10 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectory, noise and search (default 0)")
     p.add_argument("--out", type=Path, default=Path("out/sim"), help="folder for the PNG plots (default out/sim)")
-    add_localizer_option(p)
-    add_selection_options(p)
-    add_model_options(p)
-    add_json_option(p)
+    add_simulation_options(p)
     p.set_defaults(run=run)
 
 

@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 
 from runtime.errors import SwarmInputError  # noqa: E402
 from swarm_cli.compare import run_one  # noqa: E402
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, print_json, selection_config  # noqa: E402
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, print_json, selection_config  # noqa: E402
 from swarm_cli.progress import Progress  # noqa: E402
 
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
@@ -47,20 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def parse_floats(text: str, what: str) -> list[float]:
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise SwarmInputError(f"{what} must be comma-separated numbers, got {text!r}") from None
-    if not values or any(v < 0 for v in values):
-        raise SwarmInputError(f"{what} must be non-negative numbers, got {text!r}")
-    return values
-
-
 def run(args: argparse.Namespace) -> int:
     base = model_config(args)
-    motion = parse_floats(args.motion_scales, "--motion-scales")
-    sensing = parse_floats(args.sensing_scales, "--sensing-scales")
+    motion = parse_list(args.motion_scales, "--motion-scales", float)
+    sensing = parse_list(args.sensing_scales, "--sensing-scales", float)
     localizers = [x.strip() for x in args.localizers.split(",") if x.strip()]
     if not localizers or any(x not in ("paper", "joint") for x in localizers):
         raise SwarmInputError(f"--localizers must list paper and/or joint, got {args.localizers!r}")

@@ -10,7 +10,6 @@ import pytest
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
-from runtime.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.geometry import rotate, transform_poses, wrap_angle
 from runtime.rng import Stream, robot_rngs

@@ -53,6 +53,7 @@ METHODS = ("paper", "joint")
 PAPER_TOL = (1e-10, 1e-12)
 JOINT_TOL = (1e-10, 1e-12)
 MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
+CHUNK_PAIRS = 40_000  # samples x n^2 solved together
 COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
 
 
@@ -99,11 +100,13 @@ def localize_batch(
     ok = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) & observable(seen)
 
     poses, cov = dr_poses.copy(), dr_cov.copy()
-    sel = np.flatnonzero(ok)
-    if sel.size:
-        pick = (lambda a: a) if sel.size == b else (lambda a: a[sel])
-        solve = _localize_paper if method == "paper" else _localize_joint
-        est, est_cov, good = solve(cfg, pick(dr_poses), pick(dr_cov), pick(seen), pick(ranges), pick(bearings))
+    solve = _localize_paper if method == "paper" else _localize_joint
+    todo = np.flatnonzero(ok)
+    chunk = max(1, CHUNK_PAIRS // max(n * n, 1))
+    ws = _Workspace()  # shared by the chunks
+    for start in range(0, todo.size, chunk):  # chunks keep the working arrays small (cache, allocator)
+        sel = todo[start : start + chunk]
+        est, est_cov, good = solve(cfg, dr_poses[sel], dr_cov[sel], seen[sel], ranges[sel], bearings[sel], ws)
         poses[sel[good]] = est[good]
         cov[sel[good]] = est_cov[good]
         ok[sel[~good]] = False
@@ -155,21 +158,22 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> tuple[np.ndarray, np.ndarray]:
     """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
 
-    ``problem.evaluate(x)`` returns a dict of per-sample arrays including ``cost`` (B,);
-    ``problem.step(state, mu)`` the damped Newton step (B, n, 3) (zero on fixed unknowns);
-    ``problem.subset(index)`` the problem restricted to some samples. As in ``sparse_lm``:
-    damping mu diag(J^T J) starting at mu = 1e-8, a step is accepted if it does not raise
-    the cost (relative slack 1e-12), then mu /= 10, else mu *= 10 and the sample fails
-    beyond 1e10. A sample converges on a small step or a small cost decrease.
+    ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
+    held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu)`` the
+    damped Newton step (B, n, 3) (zero on fixed unknowns); ``problem.subset(index)`` the
+    problem restricted to some samples. As in ``sparse_lm``: damping mu diag(J^T J) starting
+    at mu = 1e-8; a step is accepted if it does not raise the cost (relative slack 1e-12),
+    then mu /= 10, else mu *= 10 and the sample fails beyond 1e10 or after MAX_ITER accepted
+    steps. A sample converges on a small step or a small cost decrease.
     """
     x = np.array(x0, dtype=float, copy=True)
     converged = np.zeros(len(x), bool)
     work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
-    xs, st = x, problem.evaluate(x)
+    xs, st, slot = x, problem.evaluate(x, 0), 1
     mu = np.full(len(x), 1e-8)
     iterations = np.zeros(len(x), np.int64)  # accepted steps
     active = np.isfinite(st["cost"])
-    while True:  # ends: every sample converges, or fails after MAX_ITER steps or at mu > 1e10
+    while True:  # ends: every sample converges or fails
         n_active = int(active.sum())
         if n_active == 0:
             break
@@ -182,7 +186,7 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
         dx = problem.step(st, mu)
         dx[~active] = 0.0
         x_new = xs + dx
-        new = problem.evaluate(x_new)
+        new = problem.evaluate(x_new, slot)
         cost, cost_new = st["cost"], new["cost"]
         accept = np.isfinite(cost_new) & (cost_new <= cost * (1 + 1e-12) + 1e-300)
         with np.errstate(invalid="ignore"):
@@ -200,23 +204,41 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
             x_new[back] = xs[back]
             for key, value in st.items():
                 new[key][back] = value[back]
-        xs, st = x_new, new
+        xs, st, slot = x_new, new, 1 - slot
         active &= ~done & ~failed
     x[work] = xs
     return x, converged
 
 
+class _Workspace:
+    """Scratch arrays reused across Newton iterations (fresh large arrays cost page faults every time)."""
+
+    def __init__(self) -> None:
+        self.arrays: dict[str, np.ndarray] = {}
+
+    def __call__(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
+        arr = self.arrays.get(name)
+        if arr is None or arr.shape != shape:
+            arr = self.arrays[name] = np.empty(shape)
+        return arr
+
+
 class _Batched:
-    """A problem whose array attributes all have the batch as their first axis."""
+    """A problem whose array attributes all have the batch as their first axis, with a workspace."""
 
     def subset(self, index: np.ndarray):
         out = object.__new__(type(self))
         for key, value in vars(self).items():
             setattr(out, key, value[index] if isinstance(value, np.ndarray) else value)
+        out.ws = _Workspace()
         return out
 
+    def _state(self, slot: int, names: tuple[str, ...], shape: tuple[int, ...]) -> list[np.ndarray]:
+        """The workspace arrays of state ``slot``."""
+        return [self.ws(f"{name}/{slot}", shape) for name in names]
 
-def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu) -> np.ndarray:
+
+def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, ws: _Workspace) -> np.ndarray:
     """Solve [[A + mu diag(diag_x), C], [C^T, diag(d)]] [dxy; dtheta] = -[g_xy; g_theta] per sample.
 
     Positions are ordered x of every robot, then y (index k n + a). A (B, 2n, 2n) is the
@@ -225,8 +247,8 @@ def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu) 
     Returns the step (B, n, 3).
     """
     b, n, n2 = ct.shape
-    ctd = ct / d[:, :, None]
-    s = np.matmul(np.swapaxes(ct, 1, 2), ctd)
+    ctd = np.divide(ct, d[:, :, None], out=ws("ctd", ct.shape))
+    s = np.matmul(np.swapaxes(ct, 1, 2), ctd, out=ws("schur", (b, n2, n2)))
     np.subtract(lap, s, out=s)
     s.reshape(b, n2 * n2)[:, :: n2 + 1] += mu[:, None] * diag_x
     rhs = np.matmul(g_theta[:, None, :], ctd)[:, 0, :] - g_xy
@@ -249,6 +271,19 @@ def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         return out
 
 
+def _diagonal(a: np.ndarray) -> np.ndarray:
+    """Writable view of the diagonals (B, n) of a stack of square matrices (B, n, n) (a may be a column slice)."""
+    b, n, _ = a.shape
+    return np.lib.stride_tricks.as_strided(a, (b, n), (a.strides[0], a.strides[1] + a.strides[2]), writeable=True)
+
+
+def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``values`` where ``seen``, 0 elsewhere (values there may be NaN)."""
+    out = np.zeros(seen.shape)
+    out[seen] = values[seen]
+    return out
+
+
 # --------------------------------------------------------------------------------------------
 # The paper's method: topology (Eq. B2-B6), superimposition (Eq. 21-22), midpoint (Eq. 23)
 
@@ -259,10 +294,10 @@ class _TopologyProblem(_Batched):
     Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
     """
 
-    def __init__(self, w: np.ndarray, zx: np.ndarray, zy: np.ndarray, ref: np.ndarray, has_heading: np.ndarray):
+    def __init__(self, w, zx, zy, ref: np.ndarray, has_heading: np.ndarray, ws: _Workspace):
         b, n, _ = w.shape
         rows = np.arange(b)
-        self.w, self.zx, self.zy, self.ref = w, zx, zy, ref
+        self.w, self.zx, self.zy, self.ref, self.ws = w, zx, zy, ref, ws
         self.free_head = has_heading.astype(float)
         self.free_head[rows, ref] = 0.0
         # J^T J of the positions does not depend on the unknowns: a graph Laplacian per axis.
@@ -271,7 +306,7 @@ class _TopologyProblem(_Batched):
         lap = np.zeros((b, 2 * n, 2 * n))
         for k in (0, n):
             block = lap[:, k : k + n, k : k + n]
-            block -= both
+            np.negative(both, out=block)
             _diagonal(block)[:] = degree
             block[rows, ref, :] = 0.0  # the reference position is fixed: identity row and column
             block[rows, :, ref] = 0.0
@@ -283,18 +318,18 @@ class _TopologyProblem(_Batched):
         self.h_theta = np.einsum("bij->bi", zx * zx + zy * zy)  # |d r_ij / d theta_i|^2 = rho_ij^2
         self.diag_theta = np.maximum(self.h_theta, 1e-12)
 
-    def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
+    def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
+        rzx, rzy, rx, ry = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
+        tmp = self.ws("tmp", self.w.shape)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
-        rzx = c * self.zx
-        rzx -= s * self.zy  # R(theta_i) z_ij: zero where (i, j) unseen
-        rzy = s * self.zx
-        rzy += c * self.zy
-        rx = x[:, :, None, 0] - x[:, None, :, 0]
-        rx += rzx
-        rx *= self.w
-        ry = x[:, :, None, 1] - x[:, None, :, 1]
-        ry += rzy
-        ry *= self.w
+        np.multiply(c, self.zx, out=rzx)  # R(theta_i) z_ij: zero where (i, j) unseen
+        rzx -= np.multiply(s, self.zy, out=tmp)
+        np.multiply(s, self.zx, out=rzy)
+        rzy += np.multiply(c, self.zy, out=tmp)
+        for k, r, rz in ((0, rx, rzx), (1, ry, rzy)):  # r_ij = (R z_ij + x_i - x_j) where seen
+            np.subtract(x[:, :, None, k], x[:, None, :, k], out=r)
+            r += rz
+            r *= self.w
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
@@ -313,28 +348,17 @@ class _TopologyProblem(_Batched):
         d = self.h_theta + np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
         # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
-        ct = np.concatenate([rzy, -rzx], axis=2)
+        ct = self.ws("ct", (b, n, 2 * n))
+        ct[:, :, :n] = rzy
+        np.negative(rzx, out=ct[:, :, n:])
         _diagonal(ct[:, :, :n])[:] = -np.einsum("bij->bi", rzy)
         _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", rzx)
         ct[rows, :, ref] = ct[rows, :, n + ref] = 0.0  # fixed reference position
         ct[rows, ref, :] = 0.0  # fixed reference heading
-        return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu)
+        return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu, self.ws)
 
 
-def _diagonal(a: np.ndarray) -> np.ndarray:
-    """Writable view of the diagonals (B, n) of a stack of square matrices (B, n, n) (a may be a column slice)."""
-    b, n, _ = a.shape
-    return np.lib.stride_tricks.as_strided(a, (b, n), (a.strides[0], a.strides[1] + a.strides[2]), writeable=True)
-
-
-def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """``values`` where ``seen``, 0 elsewhere (values there may be NaN)."""
-    out = np.zeros(seen.shape)
-    out[seen] = values[seen]
-    return out
-
-
-def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings):
+def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     b, n, _ = dr_poses.shape
     w = seen.astype(float)
     made = np.einsum("bij->bi", w)
@@ -346,7 +370,7 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings):
     zx[seen], zy[seen] = z[:, 0], z[:, 1]
     start = to_reference_frame(dr_poses, dr_poses[np.arange(b), ref])
     start[:, :, 2] *= has_heading
-    x, good = _levenberg_marquardt(_TopologyProblem(w, zx, zy, ref, has_heading), start, *PAPER_TOL)
+    x, good = _levenberg_marquardt(_TopologyProblem(w, zx, zy, ref, has_heading, ws), start, *PAPER_TOL)
 
     # Eq. B4: cluster points R(theta_i) z_ij + x_i of the observed robots j; Eq. B6.
     theta = wrap_angle(x[:, :, 2])
@@ -379,14 +403,14 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings):
 
 
 class _JointProblem(_Batched):
-    """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
+    """Whitened prior residuals U_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
 
     The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
     x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
     """
 
-    def __init__(self, seen, ranges, bearings, mean, sqrt_info, s_r, s_b):
-        self.s_r, self.s_b = s_r, s_b
+    def __init__(self, seen, ranges, bearings, mean, sqrt_info, s_r: float, s_b: float, ws: _Workspace):
+        self.s_r, self.s_b, self.ws = s_r, s_b, ws
         w = seen.astype(float)
         self.w_sr, self.w_sb = w / s_r, w / s_b
         self.wr, self.wb = w / s_r**2, w / s_b**2
@@ -394,19 +418,34 @@ class _JointProblem(_Batched):
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
-        self.w, self.mean, self.sqrt_info = w, mean, sqrt_info
-        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # W^T W, as J^T J forms it
+        self.mean, self.sqrt_info = mean, sqrt_info
+        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # U^T U, as J^T J forms it
         self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
 
-    def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
-        dx = x[:, None, :, 0] - x[:, :, None, 0]  # [b, i, j] = x_j - x_i
-        dy = x[:, None, :, 1] - x[:, :, None, 1]
-        dist = np.maximum(np.sqrt(dx * dx + dy * dy), 1e-9)
-        r_range = self.w_sr * (dist - self.rho)
+    def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
+        shape, ws = self.rho.shape, self.ws
+        dx, dy, inv_dist, r_range, r_bearing = self._state(slot, ("dx", "dy", "inv_dist", "rr", "rb"), shape)
+        t1, t2, t3, t4 = ws("t1", shape), ws("t2", shape), ws("t3", shape), ws("t4", shape)
+        np.subtract(x[:, None, :, 0], x[:, :, None, 0], out=dx)  # [b, i, j] = x_j - x_i
+        np.subtract(x[:, None, :, 1], x[:, :, None, 1], out=dy)
+        dist = np.multiply(dx, dx, out=t1)
+        dist += np.multiply(dy, dy, out=t2)
+        np.sqrt(dist, out=dist)
+        np.maximum(dist, 1e-9, out=dist)
+        np.subtract(dist, self.rho, out=r_range)
+        r_range *= self.w_sr  # (|d| - rho) / s_r where seen
+        np.divide(1.0, dist, out=inv_dist)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
-        ca = c * self.cphi - s * self.sphi  # cos(theta_i + phi_ij), 0 where unseen
-        sa = s * self.cphi + c * self.sphi
-        r_bearing = self.w_sb * np.arctan2(dy * ca - dx * sa, dx * ca + dy * sa)  # unseen: atan2(+-0, +-0) masked
+        ca = np.multiply(c, self.cphi, out=t1)  # cos(theta_i + phi_ij), 0 where unseen
+        ca -= np.multiply(s, self.sphi, out=t2)
+        sa = np.multiply(s, self.cphi, out=t2)
+        sa += np.multiply(c, self.sphi, out=t3)
+        along = np.multiply(dx, ca, out=t3)
+        along += np.multiply(dy, sa, out=t4)
+        across = np.multiply(dy, ca, out=t4)
+        across -= np.multiply(dx, sa, out=t1)
+        np.arctan2(across, along, out=r_bearing)
+        r_bearing *= self.w_sb  # unseen pairs hold atan2(+-0, +-0): masked
         diff = x - self.mean
         diff[:, :, 2] = wrap_angle(diff[:, :, 2])
         r_prior = np.einsum("bnij,bnj->bni", self.sqrt_info, diff)
@@ -415,7 +454,7 @@ class _JointProblem(_Batched):
             + np.einsum("bij,bij->b", r_range, r_range)
             + np.einsum("bij,bij->b", r_bearing, r_bearing)
         )
-        return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": 1.0 / dist, "rr": r_range, "rb": r_bearing, "rp": r_prior}
+        return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": inv_dist, "rr": r_range, "rb": r_bearing, "rp": r_prior}
 
     def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
@@ -423,46 +462,71 @@ class _JointProblem(_Batched):
         Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
         so the position block of the pair is u u^T / s_r^2 + b b^T / s_b^2.
         """
-        inv_dist, info = st["inv_dist"], self.info
-        ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
-        b, n, _ = ux.shape
-        beta = self.wb * inv_dist * inv_dist
-        lap = np.empty((b, 2 * n, 2 * n))
-        for row, col, a in (
-            (0, 0, self.wr * ux * ux + beta * uy * uy),
-            (0, 1, (self.wr - beta) * ux * uy),
-            (1, 1, self.wr * uy * uy + beta * ux * ux),
-        ):
-            a += np.swapaxes(a, 1, 2).copy()  # robots a and c meet as observer and as observed
+        ws, inv_dist, info = self.ws, st["inv_dist"], self.info
+        b, n, _ = inv_dist.shape
+        shape = inv_dist.shape
+        ux = np.multiply(st["dx"], inv_dist, out=ws("ux", shape))
+        uy = np.multiply(st["dy"], inv_dist, out=ws("uy", shape))
+        beta = np.multiply(self.wb, inv_dist, out=ws("beta", shape))
+        beta *= inv_dist
+        t1, t2 = ws("n1", shape), ws("n2", shape)
+        lap = ws("lap", (b, 2 * n, 2 * n))
+        for row, col in ((0, 0), (0, 1), (1, 1)):
+            if row == col:  # wr u_k^2 + beta u_other^2
+                p, q = (ux, uy) if row == 0 else (uy, ux)
+                a = np.multiply(p, p, out=t1)
+                a *= self.wr
+                b2 = np.multiply(q, q, out=t2)
+                b2 *= beta
+                a += b2
+            else:  # (wr - beta) ux uy
+                a = np.subtract(self.wr, beta, out=t1)
+                a *= ux
+                a *= uy
+            both = np.add(a, np.swapaxes(a, 1, 2), out=t2)  # robots a and c meet as observer and as observed
             block = lap[:, row * n : row * n + n, col * n : col * n + n]
-            np.negative(a, out=block)
-            _diagonal(block)[:] = np.einsum("bij->bi", a) + info[:, :, row, col]
+            np.negative(both, out=block)
+            _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
         lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
-        ct = np.empty((b, n, 2 * n))
-        for k, p in ((0, -beta * st["dy"]), (1, beta * st["dx"])):  # b / s_b^2 of each pair
-            block = ct[:, :, k * n : k * n + n]
-            np.negative(p, out=block)
-            _diagonal(block)[:] = np.einsum("bij->bi", p) + info[:, :, k, 2]
+        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b^2 = beta (-d_y, d_x).
+        ct = ws("ct", (b, n, 2 * n))
+        beta_dy = np.multiply(beta, st["dy"], out=t1)
+        beta_dx = np.multiply(beta, st["dx"], out=t2)
+        ct[:, :, :n] = beta_dy
+        _diagonal(ct[:, :, :n])[:] = info[:, :, 0, 2] - np.einsum("bij->bi", beta_dy)
+        np.negative(beta_dx, out=ct[:, :, n:])
+        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
         return lap, ct, self.d_theta
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
+        ws = self.ws
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape
-        inv_dist, rr, rb = st["inv_dist"], st["rr"] / self.s_r, st["rb"] / self.s_b
+        shape = st["inv_dist"].shape
+        ux, uy = ws.arrays["ux"], ws.arrays["uy"]
+        rr = np.multiply(st["rr"], 1.0 / self.s_r, out=ws("n1", shape))  # range residual / s_r
+        rb = np.multiply(st["rb"], 1.0 / self.s_b, out=ws("n2", shape))
+        rb *= st["inv_dist"]  # bearing residual / (s_b |d|)
+        q, tmp = ws("beta", shape), ws("tmp", shape)
         g_prior = np.einsum("bnji,bnj->bni", self.sqrt_info, st["rp"])
-        ux, uy = st["dx"] * inv_dist, st["dy"] * inv_dist
         g_xy = np.empty((b, n2))
-        for k, q in ((0, ux * rr - uy * inv_dist * rb), (1, uy * rr + ux * inv_dist * rb)):  # (d r / d x_j)^T r
+        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b |d|)
+            np.multiply(ux if k == 0 else uy, rr, out=q)
+            np.multiply(uy if k == 0 else ux, rb, out=tmp)
+            if k == 0:
+                q -= tmp
+            else:
+                q += tmp
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
-        g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", rb)
+        g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", st["rb"]) / self.s_b
         diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
         d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
-        return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu)
+        return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
-def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings):
+def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     s_r, s_b = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, sqrt_information(dr_cov), s_r, s_b)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, sqrt_information(dr_cov), s_r, s_b, ws)
     x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
     cov = _joint_covariances(*problem.normal(problem.evaluate(x)))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
