@@ -1,7 +1,8 @@
 """``swarm study anchors``: the paper's anchor studies, Fig. 4, Fig. 5 (Section 4.1) and Fig. A1 (Appendix A).
 
 Every experiment moves a swarm of n_r robots from a random connected start (random
-headings) to a random desired configuration (one step of ``random_trajectory``), always
+headings) to a random desired configuration (one step of ``random_trajectory``, moved by
+a distance drawn from 0.1-0.6 m so the figures span a range of distances), always
 from the same uncertain start estimate (position std 0.01 m, heading std 2 deg). All
 plans of an experiment are evaluated by one ``MonteCarlo`` estimator, i.e. on common
 random numbers (same initial-estimate error, motion noise and sensing noise draws), so
@@ -46,6 +47,7 @@ from swarm_cli.progress import Progress  # noqa: E402
 EXHAUSTIVE_LIMIT = 5000  # plans per experiment for part 2 (Fig. 5)
 CHUNK = 1024  # plans per MonteCarlo call (memory bound; common random numbers make chunks comparable)
 START_DELTA_M = 0.01  # position std of the uncertain start estimate (m)
+STEP_RANGE_M = (0.1, 0.6)  # rigid move of the desired configuration, drawn per experiment
 START_HEADING_DEG = 2.0  # heading std of the uncertain start estimate
 CHOICES = ("none", "random", "worst", "best")
 
@@ -106,7 +108,8 @@ def evaluate(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans
 def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndarray, SwarmEstimate, MonteCarlo]:
     """The random start (n, 3), desired configuration (n, 2), start estimate and e_l estimator of an experiment."""
     rng = np.random.default_rng([job.seed, job.experiment])
-    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m)
+    step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
+    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step)
     start, desired = traj.initial_poses, traj.configurations[0]
     estimate = SwarmEstimate.isotropic(traj.ids, start, START_DELTA_M, math.radians(START_HEADING_DEG))
     mc = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))
