@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+import coordinator.localization.batch as batch_module
+import coordinator.localization.joint as joint_module
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import localize_batch, observable
 from coordinator.localization.dead_reckoning import dead_reckon
@@ -55,36 +57,46 @@ class Batch:
         poses, cov, commands, moving, seen, ranges, bearings = self.rows[k]
         ids = np.arange(len(poses))
         i, j = np.nonzero(seen)  # ordered by (observer, observed)
-        return SwarmEstimate(ids, poses, cov), StepCommands(ids, commands, moving), Observations(i, j, ranges[i, j], bearings[i, j])
+        obs = Observations(i, j, ranges[i, j], bearings[i, j])
+        return SwarmEstimate(ids, poses, cov), StepCommands(ids, commands, moving), obs
 
 
 def random_batch(n: int, size: int, cfg: ModelConfig, seed: int) -> Batch:
-    """Random steps with dropout; some samples with one-way observations, a heading at the +-pi seam,
-    an unobserved robot or a robot that observes nobody."""
+    """Random steps with dropout (different in every sample). Sample k % 4 == 1: a robot observes
+    nobody (one-way observations); 2: an anchor's heading at the +-pi seam; 3: exact priors for
+    the anchors (k % 8 == 3) or a robot nobody observes (k % 8 == 7, not localizable)."""
     batch = Batch()
     for k in range(size):
         rng = np.random.default_rng([seed, k])
         case = random_step(n, cfg, rng, spacing=0.22, seed=seed + k)
         prior = case.prior
         seen, ranges, bearings = dense(case.observations, n)
+        step = case.step
         kind = k % 4
         if kind == 1:  # robot 2 observes nobody (others still observe it): one-way observations
             seen[2, :] = False
-        elif kind == 2:  # rigid motion of the scene so that robot 1's estimated heading sits at the seam
+        elif kind == 2:  # rigid motion of the scene so that anchor 1's heading sits at the +-pi seam
             theta = (math.pi - 1e-6) - prior.poses[1, 2]
-            prior = SwarmEstimate(prior.ids, transform_poses(prior.poses, theta, np.array([1.0, -2.0])), rotate_cov(prior.cov, theta))
-        elif kind == 3 and k % 8 == 7:  # nobody observes robot 0: not localizable
+            moved = transform_poses(prior.poses, theta, np.array([1.0, -2.0]))
+            prior = SwarmEstimate(prior.ids, moved, rotate_cov(prior.cov, theta))
+            moving = step.moving.copy()
+            moving[1] = False
+            step = StepCommands(step.ids, step.commands, moving)
+        elif kind == 3 and k % 8 == 3:  # exact priors (zero covariance) for two anchors
+            cov = prior.cov.copy()
+            cov[~step.moving] = 0.0
+            prior = SwarmEstimate(prior.ids, prior.poses, cov)
+        elif kind == 3:  # nobody observes robot 0: not localizable
             seen[:, 0] = False
         seen &= rng.random((n, n)) >= 0.1  # extra dropout, different in every sample
-        batch.add(prior, case.step, seen, ranges, bearings)
+        batch.add(prior, step, seen, ranges, bearings)
     return batch
 
 
 def assert_same_estimate(got_poses, got_cov, want: SwarmEstimate) -> None:
     np.testing.assert_allclose(got_poses[:, :2], want.poses[:, :2], rtol=0, atol=1e-8)
     np.testing.assert_allclose(wrap_angle(got_poses[:, 2] - want.poses[:, 2]), 0.0, atol=1e-8)
-    scale = np.abs(want.cov).max(axis=(1, 2), keepdims=True)
-    np.testing.assert_allclose(got_cov, want.cov, rtol=1e-6, atol=0)
+    scale = np.abs(want.cov).max(axis=(1, 2), keepdims=True)  # relative to each robot's 3x3 block
     assert np.all(np.abs(got_cov - want.cov) <= 1e-6 * scale)
 
 
@@ -112,6 +124,30 @@ def test_batch_equals_single_swarm_localizer(method, n, size):
         localized += 1
     assert localized >= size - 3  # the batch mixes localizable and non-localizable samples
     assert not out.ok.all()
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_chunks_give_the_same_answer(method, monkeypatch):
+    cfg = ModelConfig(dropout_prob=0.15)
+    arrays = random_batch(6, 19, cfg, seed=3).arrays()
+    whole = localize_batch(method, cfg, *arrays)
+    monkeypatch.setattr(batch_module, "CHUNK_PAIRS", 1)  # chunks of MIN_CHUNK samples, the last one partial
+    chunked = localize_batch(method, cfg, *arrays)
+    np.testing.assert_array_equal(chunked.ok, whole.ok)
+    np.testing.assert_allclose(chunked.poses, whole.poses, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(chunked.cov, whole.cov, rtol=1e-10, atol=0)
+
+
+def test_joint_block_covariances_above_the_exact_limit(monkeypatch):
+    """Above EXACT_COV_LIMIT robots both compute conditional covariances from the 3x3 information blocks."""
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 4)
+    monkeypatch.setattr(batch_module, "EXACT_COV_LIMIT", 4)
+    cfg = ModelConfig()
+    batch = random_batch(6, 4, cfg, seed=77)
+    out = localize_batch("joint", cfg, *batch.arrays())
+    for k in np.flatnonzero(out.ok):
+        assert_same_estimate(out.poses[k], out.cov[k], make_localizer("joint", cfg).localize(*batch.single(k)))
+    assert out.ok.sum() >= 2
 
 
 def two_groups(cfg: ModelConfig) -> tuple[SwarmEstimate, StepCommands, tuple[np.ndarray, ...]]:

@@ -11,9 +11,14 @@ model and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointL
 * headings couple only with positions in J^T J (their block is diagonal), so each Newton
   step eliminates them (Schur complement) and solves a (B, 2n, 2n) stack with
   ``np.linalg.solve``;
-* the solver is the Levenberg-Marquardt of ``sparse_lm`` (same damping, clamped
-  second-order heading term for the paper's topology, same acceptance rule), run per
-  sample in lock-step, to a tighter tolerance; converged samples drop out of the work set.
+* the solver is the Levenberg-Marquardt of ``sparse_lm`` (same start, damping, clamped
+  second-order heading term for the paper's topology, acceptance and convergence tests),
+  run per sample in lock-step until each sample has converged or failed; converged samples
+  drop out of the work set. Every sample thus takes the steps the single-swarm solver takes:
+  the results agree to rounding (~1e-15 in poses; ~1e-9 on the rare samples where the
+  solver converges slowly and the stopping test fires one step apart);
+* the batch is processed in chunks of about ``CHUNK_PAIRS`` pair entries with reused work
+  arrays: large fresh numpy temporaries cost page faults on every Newton iteration.
 
 Pose unknowns the sparse code holds fixed (the reference robot of the paper's gauge, the
 heading of a robot that observed nobody) keep their column with an identity row, so
@@ -33,7 +38,7 @@ import numpy as np
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.joint import EXACT_COV_LIMIT
 from coordinator.localization.paper import fuse
-from coordinator.localization.range_bearing import sensor_sigmas, sqrt_information
+from coordinator.localization.range_bearing import COV_FLOOR, sensor_sigmas, sqrt_information
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     cluster_delta_p,
@@ -48,12 +53,14 @@ from runtime.geometry import wrap_angle
 
 METHODS = ("paper", "joint")
 # (xtol, ftol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
-# The joint problem converges linearly (Gauss-Newton), so this stops it up to ~3e-8 short of the exact
-# minimum; a tighter tolerance would be more accurate than JointLocalizer but then no longer agree with it.
+# Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
+# topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
+# would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
 PAPER_TOL = (1e-10, 1e-12)
 JOINT_TOL = (1e-10, 1e-12)
 MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
-CHUNK_PAIRS = 40_000  # samples x n^2 solved together
+CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
+MIN_CHUNK = 4  # samples
 COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
 
 
@@ -80,8 +87,11 @@ def localize_batch(
     """Localize B swarms: ``make_localizer(method, cfg).localize`` applied to every sample.
 
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
-    (turn rad, drive m), ``moving`` (B, n), ``seen`` (B, n, n) with ``seen[b, i, j]`` = robot i
-    observed robot j, ``ranges``/``bearings`` (B, n, n) (m, rad; only read where ``seen``).
+    (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
+    ``seen[b, i, j]`` = robot i observed robot j (the diagonal is ignored), ``ranges``/``bearings``
+    (B, n, n) (m, rad; only read where ``seen``). Where a sample could not be localized
+    (unobservable, values the single-swarm input types reject, degenerate, no convergence)
+    ``ok`` is False and its poses/covariances are those of dead reckoning.
     """
     if method not in METHODS:
         raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
@@ -97,12 +107,14 @@ def localize_batch(
     bearings = _shaped(bearings, (b, n, n), "bearings", float)
 
     dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
+    if n == 0:
+        return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
     ok = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) & observable(seen)
 
     poses, cov = dr_poses.copy(), dr_cov.copy()
     solve = _localize_paper if method == "paper" else _localize_joint
     todo = np.flatnonzero(ok)
-    chunk = max(1, CHUNK_PAIRS // max(n * n, 1))
+    chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
     for start in range(0, todo.size, chunk):  # chunks keep the working arrays small (cache, allocator)
         sel = todo[start : start + chunk]
@@ -116,8 +128,6 @@ def localize_batch(
 def observable(seen: np.ndarray) -> np.ndarray:
     """(B,) True where every robot was observed by another and the undirected observation graph is connected."""
     b, n, _ = seen.shape
-    if n == 0:
-        return np.ones(b, bool)
     observed = seen.any(axis=1).all(axis=1)
     both = (seen | np.swapaxes(seen, 1, 2)).astype(float)
     reach = np.zeros((b, 1, n))
@@ -403,13 +413,15 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
 
 
 class _JointProblem(_Batched):
-    """Whitened prior residuals U_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
+    """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
+
+    Only W^T W enters (cost, gradient, J^T J), so W itself is not needed.
 
     The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
     x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
     """
 
-    def __init__(self, seen, ranges, bearings, mean, sqrt_info, s_r: float, s_b: float, ws: _Workspace):
+    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, s_b: float, ws: _Workspace):
         self.s_r, self.s_b, self.ws = s_r, s_b, ws
         w = seen.astype(float)
         self.w_sr, self.w_sb = w / s_r, w / s_b
@@ -418,8 +430,7 @@ class _JointProblem(_Batched):
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
-        self.mean, self.sqrt_info = mean, sqrt_info
-        self.info = np.einsum("bnki,bnkj->bnij", sqrt_info, sqrt_info)  # U^T U, as J^T J forms it
+        self.mean, self.info = mean, info  # W^T W of the whitened prior residuals W (p - mu)
         self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
@@ -448,13 +459,13 @@ class _JointProblem(_Batched):
         r_bearing *= self.w_sb  # unseen pairs hold atan2(+-0, +-0): masked
         diff = x - self.mean
         diff[:, :, 2] = wrap_angle(diff[:, :, 2])
-        r_prior = np.einsum("bnij,bnj->bni", self.sqrt_info, diff)
+        g_prior = np.einsum("bnij,bnj->bni", self.info, diff)  # W^T W (p - mu): gradient of the prior terms
         cost = 0.5 * (
-            np.einsum("bni,bni->b", r_prior, r_prior)
+            np.einsum("bni,bni->b", diff, g_prior)
             + np.einsum("bij,bij->b", r_range, r_range)
             + np.einsum("bij,bij->b", r_bearing, r_bearing)
         )
-        return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": inv_dist, "rr": r_range, "rb": r_bearing, "rp": r_prior}
+        return {"cost": cost, "dx": dx, "dy": dy, "inv_dist": inv_dist, "rr": r_range, "rb": r_bearing, "gp": g_prior}
 
     def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
@@ -508,7 +519,7 @@ class _JointProblem(_Batched):
         rb = np.multiply(st["rb"], 1.0 / self.s_b, out=ws("n2", shape))
         rb *= st["inv_dist"]  # bearing residual / (s_b |d|)
         q, tmp = ws("beta", shape), ws("tmp", shape)
-        g_prior = np.einsum("bnji,bnj->bni", self.sqrt_info, st["rp"])
+        g_prior = st["gp"]
         g_xy = np.empty((b, n2))
         for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b |d|)
             np.multiply(ux if k == 0 else uy, rr, out=q)
@@ -526,12 +537,34 @@ class _JointProblem(_Batched):
 
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     s_r, s_b = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, sqrt_information(dr_cov), s_r, s_b, ws)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, s_b, ws)
     x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
     cov = _joint_covariances(*problem.normal(problem.evaluate(x)))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3))
     return x, cov, good
+
+
+def _prior_information(cov: np.ndarray) -> np.ndarray:
+    """W^T W (..., 3, 3) for the whitening W = ``range_bearing.sqrt_information(cov)``.
+
+    That is the inverse of the symmetrised covariance with its eigenvalues floored at
+    ``COV_FLOOR``. Where every eigenvalue is clearly above the floor (Sylvester's criterion
+    on sym - 2 floor I) the floor does nothing and a plain inverse gives the same matrix,
+    much faster than the eigendecompositions; the others go through ``sqrt_information``.
+    """
+    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    m = sym - 2.0 * COV_FLOOR * np.eye(3)
+    a, b, c, d, e, f = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], m[..., 0, 1], m[..., 0, 2], m[..., 1, 2]
+    minor2 = a * b - d * d
+    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+    clear = (a > 0) & (minor2 > 0) & (det > 0)
+    info = np.empty(cov.shape)
+    info[clear] = np.linalg.inv(sym[clear])
+    if not clear.all():
+        w = sqrt_information(cov[~clear])
+        info[~clear] = np.swapaxes(w, -1, -2) @ w
+    return 0.5 * (info + np.swapaxes(info, -1, -2))
 
 
 def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
@@ -544,19 +577,22 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
     i = np.arange(n)
     cov = np.empty((b, n, 3, 3))
     with np.errstate(divide="ignore", invalid="ignore"):
-        if n > EXACT_COV_LIMIT:
-            m = lap
-        else:  # inverse by the Schur complement S = A - C D^-1 C^T
-            ctd = ct / d[:, :, None]
-            m = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))
-            e = np.matmul(m, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
+        if n > EXACT_COV_LIMIT:  # conditional covariances
+            for k in (0, 1):
+                for l in (0, 1):
+                    cov[:, :, k, l] = lap[:, k * n + i, l * n + i]
+                cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
+            cov[:, :, 2, 2] = d
+            return _inv_stack(cov)
+        ctd = ct / d[:, :, None]  # inverse by the Schur complement S = A - C D^-1 C^T:
+        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
+        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
         for k in (0, 1):
             for l in (0, 1):
-                cov[:, :, k, l] = m[:, k * n + i, l * n + i]
-            cov[:, :, k, 2] = ct[:, i, k * n + i] if n > EXACT_COV_LIMIT else -e[:, k * n + i, i]
-        cov[:, :, 2, 2] = d if n > EXACT_COV_LIMIT else 1.0 / d + np.einsum("bir,bri->bi", ctd, e)
-        cov[:, :, 2, :2] = cov[:, :, :2, 2]
-        return _inv_stack(cov) if n > EXACT_COV_LIMIT else cov
+                cov[:, :, k, l] = s_inv[:, k * n + i, l * n + i]
+            cov[:, :, k, 2] = cov[:, :, 2, k] = -e[:, k * n + i, i]
+        cov[:, :, 2, 2] = 1.0 / d + np.einsum("bir,bri->bi", ctd, e)  # D^-1 + D^-1 C^T S^-1 C D^-1
+    return cov
 
 
 def _inv_stack(a: np.ndarray) -> np.ndarray:
