@@ -115,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
     names = list(summary["methods"])
     means = np.array([summary["methods"][m]["pf_mean"] for m in names])
     errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])
-    png = plot_bars(names, means, errs, "P_f (Eq. 24)", f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots}", args.out / "pf.png")
+    title = f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots} (bars: 97 % CI of the mean)"
+    png = plot_bars(names, means, errs, "P_f (Eq. 24)", title, args.out / "pf.png")
     print(f"{'method':<22} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'p vs ref57':>11}")
     for m in names:
         s = summary["methods"][m]
