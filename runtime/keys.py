@@ -1,0 +1,148 @@
+"""The Zenoh key space of a run (the contract is ``docs/protocol.md``).
+
+Every key starts with ``swarm/<run>``::
+
+    swarm/<run>/robot/<id>/cmd       MotionCommand      coordinator -> agent
+    swarm/<run>/robot/<id>/observe   ObserveRequest     coordinator -> agent
+    swarm/<run>/robot/<id>/status    Status             agent -> coordinator
+    swarm/<run>/robot/<id>/obs       ObservationReport  agent -> coordinator
+    swarm/<run>/coord/plan           PlanMessage        coordinator -> all
+    swarm/<run>/coord/estimate       EstimateMessage    coordinator -> all
+    swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> recorder
+    swarm/<run>/alive/robot/<id>     liveliness token of an agent
+    swarm/<run>/alive/coord          liveliness token of the coordinator
+
+Run ids are 1-64 characters of ``[A-Za-z0-9_.-]`` starting with a letter or digit,
+so they never hold a key separator or a Zenoh wildcard. Robot ids are integers in
+[0, 2^63 - 1] written in decimal without leading zeros, so each robot has one key.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import NamedTuple
+
+import numpy as np
+
+from runtime.errors import SwarmInputError
+
+ROOT = "swarm"
+RUN_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
+MAX_ROBOT_ID = 2**63 - 1
+ROBOT_LEAVES = ("cmd", "observe", "status", "obs")
+COORD_LEAVES = ("plan", "estimate")
+
+_RUN = re.compile(RUN_PATTERN)
+_ID = re.compile(r"0|[1-9][0-9]{0,18}")
+
+
+class KeyspaceError(SwarmInputError):
+    """A key, run id or robot id that is not part of the swarm key space."""
+
+
+class ParsedKey(NamedTuple):
+    """A swarm key split up: ``kind`` is robot, coord, sim or alive; ``robot`` is None for coordinator keys."""
+
+    run: str
+    kind: str
+    robot: int | None
+    leaf: str
+
+
+def validate_run(run: str) -> str:
+    """``run`` if it is a valid run id, else ``KeyspaceError`` saying why."""
+    if not isinstance(run, str) or not _RUN.fullmatch(run):
+        raise KeyspaceError(
+            f"run id {run!r} is invalid: use 1-64 characters of A-Z a-z 0-9 _ . - starting with a letter or digit"
+        )
+    return run
+
+
+def validate_robot_id(robot_id: int) -> int:
+    """``robot_id`` as an int if it is an integer in [0, 2^63 - 1]."""
+    if isinstance(robot_id, (bool, np.bool_)) or not isinstance(robot_id, (int, np.integer)):
+        raise KeyspaceError(f"robot id {robot_id!r} is not an integer")
+    if not 0 <= robot_id <= MAX_ROBOT_ID:
+        raise KeyspaceError(f"robot id {robot_id} is outside [0, 2^63 - 1]")
+    return int(robot_id)
+
+
+def robot_key(run: str, robot_id: int, leaf: str) -> str:
+    """``swarm/<run>/robot/<id>/<leaf>``, leaf one of ``ROBOT_LEAVES``."""
+    if leaf not in ROBOT_LEAVES:
+        raise KeyspaceError(f"robot key leaf {leaf!r} is not one of {ROBOT_LEAVES}")
+    return f"{ROOT}/{validate_run(run)}/robot/{validate_robot_id(robot_id)}/{leaf}"
+
+
+def coord_key(run: str, leaf: str) -> str:
+    """``swarm/<run>/coord/<leaf>``, leaf one of ``COORD_LEAVES``."""
+    if leaf not in COORD_LEAVES:
+        raise KeyspaceError(f"coordinator key leaf {leaf!r} is not one of {COORD_LEAVES}")
+    return f"{ROOT}/{validate_run(run)}/coord/{leaf}"
+
+
+def truth_key(run: str, robot_id: int) -> str:
+    """``swarm/<run>/sim/truth/<id>``: a simulated robot's true pose (simulation only)."""
+    return f"{ROOT}/{validate_run(run)}/sim/truth/{validate_robot_id(robot_id)}"
+
+
+def alive_key(run: str, robot_id: int) -> str:
+    """``swarm/<run>/alive/robot/<id>``: the liveliness token an agent declares while it runs."""
+    return f"{ROOT}/{validate_run(run)}/alive/robot/{validate_robot_id(robot_id)}"
+
+
+def coord_alive_key(run: str) -> str:
+    """``swarm/<run>/alive/coord``: the liveliness token the coordinator declares while it runs."""
+    return f"{ROOT}/{validate_run(run)}/alive/coord"
+
+
+def robot_wildcard(run: str, leaf: str) -> str:
+    """``swarm/<run>/robot/*/<leaf>``: one leaf of every robot (e.g. all observation reports)."""
+    if leaf not in ROBOT_LEAVES:
+        raise KeyspaceError(f"robot key leaf {leaf!r} is not one of {ROBOT_LEAVES}")
+    return f"{ROOT}/{validate_run(run)}/robot/*/{leaf}"
+
+
+def truth_wildcard(run: str) -> str:
+    """``swarm/<run>/sim/truth/*``: every simulated robot's true pose."""
+    return f"{ROOT}/{validate_run(run)}/sim/truth/*"
+
+
+def alive_wildcard(run: str) -> str:
+    """``swarm/<run>/alive/robot/*``: the liveliness tokens of every agent."""
+    return f"{ROOT}/{validate_run(run)}/alive/robot/*"
+
+
+def run_wildcard(run: str) -> str:
+    """``swarm/<run>/**``: everything of one run (e.g. for the recorder)."""
+    return f"{ROOT}/{validate_run(run)}/**"
+
+
+def _parse_id(chunk: str, key: str) -> int:
+    if not _ID.fullmatch(chunk) or int(chunk) > MAX_ROBOT_ID:
+        raise KeyspaceError(f"key {key!r}: robot id {chunk!r} is not a decimal integer in [0, 2^63 - 1] without leading zeros")
+    return int(chunk)
+
+
+def parse_key(key: str) -> ParsedKey:
+    """Split a concrete swarm key (no wildcards); anything else raises ``KeyspaceError``."""
+    if not isinstance(key, str):
+        raise KeyspaceError(f"key {key!r} is not a string")
+    parts = key.split("/")
+    if len(parts) < 4 or parts[0] != ROOT:
+        raise KeyspaceError(f"key {key!r} is not a swarm key (swarm/<run>/...)")
+    run = parts[1]
+    if not _RUN.fullmatch(run):
+        raise KeyspaceError(f"key {key!r}: run id {run!r} is invalid")
+    rest = parts[2:]
+    if len(rest) == 3 and rest[0] == "robot" and rest[2] in ROBOT_LEAVES:
+        return ParsedKey(run, "robot", _parse_id(rest[1], key), rest[2])
+    if len(rest) == 2 and rest[0] == "coord" and rest[1] in COORD_LEAVES:
+        return ParsedKey(run, "coord", None, rest[1])
+    if len(rest) == 3 and rest[:2] == ["sim", "truth"]:
+        return ParsedKey(run, "sim", _parse_id(rest[2], key), "truth")
+    if len(rest) == 3 and rest[:2] == ["alive", "robot"]:
+        return ParsedKey(run, "alive", _parse_id(rest[2], key), "alive")
+    if rest == ["alive", "coord"]:
+        return ParsedKey(run, "alive", None, "alive")
+    raise KeyspaceError(f"key {key!r} is not in the swarm key space (see docs/protocol.md)")

@@ -1,0 +1,619 @@
+"""Messages between the swarm processes: typed, versioned, msgpack-encoded (contract: docs/protocol.md).
+
+Every message is a frozen dataclass with a ``TYPE`` name, a major ``VERSION`` and the
+header ``run``, ``step`` (global step counter), ``stamp_ns`` (wall-clock publish time,
+ns), then its own fields in SI units. On the wire it is a msgpack map
+``{"type": TYPE, "v": VERSION, <field>: <value>, ...}`` with arrays as plain lists.
+
+Each field's ``Wire`` spec (kind, shape, unit, limits) is the one source of truth: it
+validates construction and decoding and generates ``json_schema``. Building a message
+with bad values raises ``MessageError`` at the producer; ``decode`` raises nothing but
+``MessageError`` for any input, and ``decode_or_drop`` turns that into a counted,
+logged drop so a bad message never kills a process.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import threading
+import time
+from collections.abc import Collection, Iterable, Iterator
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, TypeVar, overload
+
+import msgpack
+import numpy as np
+
+from runtime.errors import SwarmInputError
+from runtime.keys import COORD_LEAVES, MAX_ROBOT_ID, ROBOT_LEAVES, RUN_PATTERN, KeyspaceError, coord_key, parse_key, robot_key, truth_key
+from runtime.state import Observations, SwarmEstimate
+
+MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
+MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
+MAX_TEXT = 2_000  # longest string field (characters)
+MAX_MESSAGE_BYTES = 32 * 2**20
+ANGLE_SLACK = 1e-9  # rad tolerated beyond [-pi, pi] for bearings
+STATES = ("accepted", "done", "refused")
+REASONS = (
+    "undecodable",
+    "not-a-map",
+    "unknown-type",
+    "unexpected-type",
+    "version",
+    "missing-field",
+    "wrong-type",
+    "non-finite",
+    "out-of-range",
+    "size",
+    "invalid",
+    "unknown-id",
+    "wrong-key",
+)
+
+_log = logging.getLogger(__name__)
+
+
+class MessageError(SwarmInputError):
+    """A message that cannot be built or decoded; the text names the field and what is wrong.
+
+    ``where`` is the field (``"ObservationReport.ranges[3]"``) or ``"message"``/``"key"``;
+    ``reason`` is one of ``REASONS`` (for drop counters); after ``decode``, ``header``
+    holds the header fields that could be read (type, run, step, robot), so an agent
+    can refuse a command it cannot decode (``refusal_status``).
+    """
+
+    def __init__(self, where: str, problem: str, reason: str) -> None:
+        super().__init__(f"{where}: {problem}")
+        self.where = where
+        self.reason = reason
+        self.header: dict[str, Any] = {}
+
+
+@dataclass(frozen=True)
+class Wire:
+    """How one field travels: element ``kind``, list ``shape``, ``unit``, limits and meaning.
+
+    ``kind`` is ``"int"`` (integer in [0, 2^63 - 1]), ``"id"`` (a robot id, same range),
+    ``"float"`` (finite; ints accepted) or ``"str"``. ``shape`` has one entry per list
+    level: an int is a fixed length, a letter a length shared by every field of the
+    message using that letter, None any length (up to ``MAX_ITEMS``).
+    """
+
+    kind: str
+    doc: str
+    unit: str = ""
+    shape: tuple[int | str | None, ...] = ()
+    minimum: float | None = None
+    maximum: float | None = None
+    slack: float = 0.0
+    choices: tuple[str, ...] = ()
+    pattern: str | None = None
+    max_length: int = MAX_TEXT
+
+
+def _wire(kind: str, doc: str, **spec: Any) -> Any:
+    return field(metadata={"wire": Wire(kind, doc, **spec)})
+
+
+def _show(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _scalar(x: Any, wire: Wire, path: str) -> Any:
+    if wire.kind == "str":
+        if not isinstance(x, str):
+            raise MessageError(path, f"{_show(x)} is a {type(x).__name__}, expected a string", "wrong-type")
+        if len(x) > wire.max_length:
+            raise MessageError(path, f"{len(x)} characters, at most {wire.max_length} allowed", "size")
+        if wire.choices and x not in wire.choices:
+            raise MessageError(path, f"{_show(x)} is not one of {', '.join(wire.choices)}", "out-of-range")
+        if wire.pattern and not re.fullmatch(wire.pattern, x):
+            raise MessageError(path, f"{_show(x)} does not match {wire.pattern}", "out-of-range")
+        return str(x)
+    expected = "a number" if wire.kind == "float" else "an integer"
+    numeric = (int, float, np.integer, np.floating) if wire.kind == "float" else (int, np.integer)
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, numeric):
+        raise MessageError(path, f"{_show(x)} is a {type(x).__name__}, expected {expected}", "wrong-type")
+    if wire.kind != "float":
+        if not 0 <= x <= MAX_INT:
+            raise MessageError(path, f"{_show(x)} is outside [0, 2^63 - 1]", "out-of-range")
+        return int(x)
+    try:
+        v = float(x)
+    except OverflowError:
+        raise MessageError(path, f"{_show(x)} is too large for a float", "out-of-range") from None
+    if not math.isfinite(v):
+        raise MessageError(path, f"{v!r} is not finite", "non-finite")
+    lo = -math.inf if wire.minimum is None else wire.minimum - wire.slack
+    hi = math.inf if wire.maximum is None else wire.maximum + wire.slack
+    if not lo <= v <= hi:
+        problem = "is negative" if wire.minimum == 0 and wire.maximum is None else f"is outside [{lo:.10g}, {hi:.10g}]"
+        raise MessageError(path, f"{v!r} {problem}", "out-of-range")
+    return v
+
+
+def _plain_leaves(values: list | tuple, wire: Wire) -> tuple | None:
+    """``values`` as a tuple if all are plain valid floats (or ints), the common case; else None."""
+    if wire.kind == "float":
+        if not all(type(v) is float for v in values):
+            return None
+        lo = -math.inf if wire.minimum is None else wire.minimum - wire.slack
+        hi = math.inf if wire.maximum is None else wire.maximum + wire.slack
+        ok = not values or (math.isfinite(sum(values)) and lo <= min(values) and max(values) <= hi)
+    else:
+        plain = wire.kind != "str" and all(type(v) is int for v in values)
+        ok = plain and (not values or 0 <= min(values) and max(values) <= MAX_INT)
+    return tuple(values) if ok else None
+
+
+def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]], depth: int = 0) -> Any:
+    """``value`` validated and normalised to Python scalars and nested tuples."""
+    if depth == len(wire.shape):
+        return _scalar(value, wire, path)
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)):
+        raise MessageError(path, f"{_show(value)} is a {type(value).__name__}, expected a list", "wrong-type")
+    n, dim = len(value), wire.shape[depth]
+    if n > MAX_ITEMS:
+        raise MessageError(path, f"{n} items, at most {MAX_ITEMS} allowed", "size")
+    if isinstance(dim, int) and n != dim:
+        raise MessageError(path, f"{n} items, expected {dim}", "size")
+    if isinstance(dim, str):
+        first, where = dims.setdefault(dim, (n, path))
+        if n != first:
+            raise MessageError(path, f"{n} items, but {where} has {first}", "size")
+    if depth == len(wire.shape) - 1:
+        plain = _plain_leaves(value, wire)
+        if plain is not None:
+            return plain
+    return tuple(_convert(v, wire, f"{path}[{i}]", dims, depth + 1) for i, v in enumerate(value))
+
+
+def _leaves(value: Any, path: str, depth: int) -> Iterator[tuple[str, Any]]:
+    if depth == 0:
+        yield path, value
+    else:
+        for i, v in enumerate(value):
+            yield from _leaves(v, f"{path}[{i}]", depth - 1)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Message:
+    """Header of every message; ``stamp_ns`` defaults to the construction time."""
+
+    TYPE: ClassVar[str] = ""
+    VERSION: ClassVar[int] = 1
+    LEAF: ClassVar[str] = ""  # last key chunk this type travels on (runtime.keys)
+
+    run: str = _wire("str", "run id", pattern=RUN_PATTERN, max_length=64)
+    step: int = _wire("int", "global step counter of the run: 0 = initial localization, motion steps from 1")
+    stamp_ns: int = field(
+        default_factory=time.time_ns, metadata={"wire": Wire("int", "wall-clock publish time since the Unix epoch", unit="ns")}
+    )
+
+    def __post_init__(self) -> None:
+        dims: dict[str, tuple[int, str]] = {}
+        for f in fields(self):
+            value = _convert(getattr(self, f.name), f.metadata["wire"], f"{self.TYPE}.{f.name}", dims)
+            object.__setattr__(self, f.name, value)
+        self._check()
+
+    def _check(self) -> None:
+        """Rules across fields (overridden where a type has some)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class MotionCommand(Message):
+    """Coordinator -> agent: in the body frame, turn by ``turn_rad``, then drive ``drive_m`` straight."""
+
+    TYPE: ClassVar[str] = "MotionCommand"
+    LEAF: ClassVar[str] = "cmd"
+
+    robot: int = _wire("id", "the robot that moves")
+    config: int = _wire("int", "desired configuration the step heads for: k for C_dk (1-based, as in the paper)")
+    turn_rad: float = _wire("float", "turn before driving, counter-clockwise positive; agents refuse abs(turn) > their limit", unit="rad")
+    drive_m: float = _wire("float", "straight distance after the turn; agents refuse < 0 or > their limit", unit="m")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObserveRequest(Message):
+    """Coordinator -> agent: publish your neighbour observations for ``step``."""
+
+    TYPE: ClassVar[str] = "ObserveRequest"
+    LEAF: ClassVar[str] = "observe"
+
+    robot: int = _wire("id", "the robot asked")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Status(Message):
+    """Agent -> coordinator: the state of the robot's command for ``step``."""
+
+    TYPE: ClassVar[str] = "Status"
+    LEAF: ClassVar[str] = "status"
+
+    robot: int = _wire("id", "the robot reporting")
+    state: str = _wire("str", "accepted (executing), done (executed) or refused (not executed)", choices=STATES)
+    reason: str = _wire("str", "why the command was refused; empty unless refused")
+
+    def _check(self) -> None:
+        if (self.state == "refused") != bool(self.reason):
+            problem = "is empty for a refusal" if self.reason == "" else f"{_show(self.reason)} given with state {self.state!r}"
+            raise MessageError("Status.reason", f"{problem} (a reason is required iff state is 'refused')", "invalid")
+
+
+@dataclass(frozen=True, kw_only=True)
+class ObservationReport(Message):
+    """Agent -> coordinator: what ``robot`` observed after ``step`` (Eq. 20, its body frame)."""
+
+    TYPE: ClassVar[str] = "ObservationReport"
+    LEAF: ClassVar[str] = "obs"
+
+    robot: int = _wire("id", "the observer")
+    observed: tuple[int, ...] = _wire("id", "robots observed", shape=("n",))
+    ranges: tuple[float, ...] = _wire("float", "distance to each observed robot", unit="m", shape=("n",), minimum=0.0)
+    bearings: tuple[float, ...] = _wire(
+        "float",
+        "bearing of each observed robot in the observer's body frame",
+        unit="rad",
+        shape=("n",),
+        minimum=-math.pi,
+        maximum=math.pi,
+        slack=ANGLE_SLACK,
+    )
+
+    def _check(self) -> None:
+        if self.robot in self.observed:
+            i = self.observed.index(self.robot)
+            raise MessageError(f"ObservationReport.observed[{i}]", f"robot {self.robot} observes itself", "invalid")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PlanMessage(Message):
+    """Coordinator -> all: the plan of a configuration; ``groups[k]`` moves at step ``step + k``."""
+
+    TYPE: ClassVar[str] = "PlanMessage"
+    LEAF: ClassVar[str] = "plan"
+
+    config: int = _wire("int", "desired configuration planned for: k for C_dk (1-based)")
+    n_anchors: int = _wire("int", "anchors of the largest step (robots minus the smallest group)")
+    groups: tuple[tuple[int, ...], ...] = _wire(
+        "id", "ordered mobile groups, at least one, each non-empty, no robot twice", shape=(None, None)
+    )
+
+    def _check(self) -> None:
+        seen: set[int] = set()
+        if not self.groups:
+            raise MessageError("PlanMessage.groups", "a plan needs at least one group", "invalid")
+        for g, group in enumerate(self.groups):
+            if not group:
+                raise MessageError(f"PlanMessage.groups[{g}]", "empty group", "invalid")
+            for i, robot in enumerate(group):
+                if robot in seen:
+                    raise MessageError(f"PlanMessage.groups[{g}][{i}]", f"robot {robot} is in two groups", "invalid")
+                seen.add(robot)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EstimateMessage(Message):
+    """Coordinator -> all: the fused estimate after ``step`` (runtime.state.SwarmEstimate)."""
+
+    TYPE: ClassVar[str] = "EstimateMessage"
+    LEAF: ClassVar[str] = "estimate"
+
+    ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
+    poses: tuple[tuple[float, ...], ...] = _wire("float", "[x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
+    cov: tuple[tuple[tuple[float, ...], ...], ...] = _wire(
+        "float", "3x3 covariance of (x, y, heading) per robot", unit="m^2, m*rad, rad^2", shape=("n", 3, 3)
+    )
+
+    def _check(self) -> None:
+        if not self.ids:
+            raise MessageError("EstimateMessage.ids", "an estimate needs at least one robot", "invalid")
+        seen: set[int] = set()
+        for i, robot in enumerate(self.ids):
+            if robot in seen:
+                raise MessageError(f"EstimateMessage.ids[{i}]", f"robot {robot} appears twice", "invalid")
+            seen.add(robot)
+
+    @classmethod
+    def from_estimate(cls, estimate: SwarmEstimate, *, run: str, step: int, stamp_ns: int | None = None) -> EstimateMessage:
+        """The message of ``estimate`` (stamped now unless ``stamp_ns`` is given)."""
+        stamp = time.time_ns() if stamp_ns is None else stamp_ns
+        return cls(run=run, step=step, stamp_ns=stamp, ids=estimate.ids, poses=estimate.poses, cov=estimate.cov)
+
+    def to_estimate(self) -> SwarmEstimate:
+        """The ``SwarmEstimate`` this message carries."""
+        return SwarmEstimate(np.array(self.ids, dtype=np.int64), np.array(self.poses, float), np.array(self.cov, float))
+
+
+@dataclass(frozen=True, kw_only=True)
+class TruthMessage(Message):
+    """Simulated agent -> recorder (simulation only): the robot's true pose after ``step``."""
+
+    TYPE: ClassVar[str] = "TruthMessage"
+    LEAF: ClassVar[str] = "truth"
+
+    robot: int = _wire("id", "the simulated robot")
+    pose: tuple[float, ...] = _wire("float", "true [x, y, heading]", unit="m, m, rad", shape=(3,))
+
+
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    MotionCommand,
+    ObserveRequest,
+    Status,
+    ObservationReport,
+    PlanMessage,
+    EstimateMessage,
+    TruthMessage,
+)
+_BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
+_BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
+M = TypeVar("M", bound=Message)
+
+
+def message_key(msg: Message) -> str:
+    """The key ``msg`` is published on (runtime.keys)."""
+    if msg.LEAF in ROBOT_LEAVES:
+        return robot_key(msg.run, msg.robot, msg.LEAF)  # type: ignore[attr-defined]
+    if msg.LEAF in COORD_LEAVES:
+        return coord_key(msg.run, msg.LEAF)
+    return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
+
+
+def type_for_key(key: str) -> type[Message]:
+    """The one message type travelling on ``key``; ``KeyspaceError`` for foreign and liveliness keys."""
+    leaf = parse_key(key).leaf
+    if leaf not in _BY_LEAF:
+        raise KeyspaceError(f"key {key!r} is a liveliness token and carries no messages")
+    return _BY_LEAF[leaf]
+
+
+def encode(msg: Message) -> bytes:
+    """The msgpack map ``{"type", "v", fields...}`` of a (validated) message."""
+    body: dict[str, Any] = {"type": msg.TYPE, "v": msg.VERSION}
+    body.update((f.name, getattr(msg, f.name)) for f in fields(msg))
+    return msgpack.packb(body)
+
+
+def _unpack(data: Any) -> Any:
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise MessageError("message", f"is a {type(data).__name__}, expected bytes", "undecodable")
+    size = memoryview(data).nbytes
+    if size > MAX_MESSAGE_BYTES:
+        raise MessageError("message", f"{size} bytes, at most {MAX_MESSAGE_BYTES} allowed", "undecodable")
+    limit = 4 * MAX_TEXT
+    try:
+        return msgpack.unpackb(
+            data, raw=False, max_str_len=limit, max_bin_len=limit, max_ext_len=limit, max_array_len=MAX_ITEMS, max_map_len=64
+        )
+    except Exception as e:  # msgpack raises several exception types for bad input; none may escape
+        raise MessageError("message", f"not valid msgpack ({type(e).__name__}: {_show(str(e))})", "undecodable") from None
+
+
+def _message_class(raw: Any, expected: type[Message] | None) -> type[Message]:
+    if not isinstance(raw, dict):
+        raise MessageError("message", f"is a msgpack {type(raw).__name__}, expected a map", "not-a-map")
+    if "type" not in raw:
+        raise MessageError("message.type", "missing", "missing-field")
+    name = raw["type"]
+    if not isinstance(name, str):
+        raise MessageError("message.type", f"{_show(name)} is a {type(name).__name__}, expected a string", "wrong-type")
+    if name not in _BY_TYPE:
+        raise MessageError("message.type", f"{_show(name)} is unknown (known: {', '.join(_BY_TYPE)})", "unknown-type")
+    cls = _BY_TYPE[name]
+    if expected is not None and cls is not expected:
+        raise MessageError("message.type", f"{name} where {expected.TYPE} was expected", "unexpected-type")
+    if "v" not in raw:
+        raise MessageError(f"{name}.v", "missing", "missing-field")
+    v = raw["v"]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise MessageError(f"{name}.v", f"{_show(v)} is a {type(v).__name__}, expected an integer", "wrong-type")
+    if v != cls.VERSION:
+        raise MessageError(f"{name}.v", f"version {v} is not supported (this decoder reads version {cls.VERSION})", "version")
+    return cls
+
+
+def _readable_header(cls: type[Message], raw: dict) -> dict[str, Any]:
+    header: dict[str, Any] = {"type": cls.TYPE}
+    for f in fields(cls):
+        if f.name in ("run", "step", "robot") and f.name in raw:
+            try:
+                header[f.name] = _convert(raw[f.name], f.metadata["wire"], f.name, {})
+            except MessageError:
+                pass
+    return header
+
+
+def _check_known(msg: Message, known: Collection[int]) -> None:
+    for f in fields(msg):
+        wire = f.metadata["wire"]
+        if wire.kind == "id":
+            for path, robot in _leaves(getattr(msg, f.name), f"{msg.TYPE}.{f.name}", len(wire.shape)):
+                if robot not in known:
+                    raise MessageError(path, f"robot {robot} is not one of the run's {len(known)} robots", "unknown-id")
+
+
+@overload
+def decode(data: bytes, expected: type[M], known_ids: Collection[int] | None = None, *, key: str | None = None) -> M: ...
+
+
+@overload
+def decode(data: bytes, expected: None = None, known_ids: Collection[int] | None = None, *, key: str | None = None) -> Message: ...
+
+
+def decode(
+    data: bytes, expected: type[Message] | None = None, known_ids: Collection[int] | None = None, *, key: str | None = None
+) -> Message:
+    """The message in ``data``, fully validated; any problem raises ``MessageError``.
+
+    ``expected``: the type required. ``known_ids``: every robot id must be one of them.
+    ``key``: the key the data arrived on; the message must belong there (type, run,
+    robot) and, without ``expected``, its type is the key's type. With a key, the
+    error's ``header`` is kept only if its run and robot match the key.
+    """
+    parsed = None
+    if key is not None:
+        try:
+            parsed = parse_key(key)
+            expected = expected or type_for_key(key)
+        except KeyspaceError as e:
+            raise MessageError("key", str(e), "wrong-key") from None
+    raw = _unpack(data)
+    cls = _message_class(raw, expected)
+    try:
+        for f in fields(cls):
+            if f.name not in raw:
+                raise MessageError(f"{cls.TYPE}.{f.name}", "missing", "missing-field")
+        msg = cls(**{f.name: raw[f.name] for f in fields(cls)})
+        if known_ids is not None:
+            known = known_ids if isinstance(known_ids, (set, frozenset)) else frozenset(int(i) for i in known_ids)
+            _check_known(msg, known)
+        if key is not None and message_key(msg) != key:
+            raise MessageError("key", f"arrived on {key!r}, belongs on {message_key(msg)!r}", "wrong-key")
+    except MessageError as e:
+        e.header = _readable_header(cls, raw)
+        if parsed is not None and (e.header.get("run"), e.header.get("robot")) != (parsed.run, parsed.robot):
+            e.header = {"type": cls.TYPE}  # not for this key: nobody may answer on its behalf
+        raise
+    return msg
+
+
+def refusal_status(error: MessageError, stamp_ns: int | None = None) -> Status | None:
+    """The refusal an agent publishes for a MotionCommand it could not decode, if its header says whose it is."""
+    header = error.header
+    if header.get("type") != MotionCommand.TYPE or not {"run", "step", "robot"} <= header.keys():
+        return None
+    stamp = time.time_ns() if stamp_ns is None else stamp_ns
+    reason = str(error)[:MAX_TEXT]
+    return Status(run=header["run"], step=header["step"], stamp_ns=stamp, robot=header["robot"], state="refused", reason=reason)
+
+
+@dataclass(frozen=True)
+class CommandLimits:
+    """What an agent executes: |turn| <= ``max_turn_rad`` (rad), 0 <= drive <= ``max_drive_m`` (m)."""
+
+    max_drive_m: float = 1.0
+    max_turn_rad: float = math.pi
+
+    def __post_init__(self) -> None:
+        for name in ("max_drive_m", "max_turn_rad"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise SwarmInputError(f"CommandLimits.{name} must be a finite number > 0, got {value!r}")
+
+    def refusal(self, cmd: MotionCommand) -> str | None:
+        """Why ``cmd`` must be refused, or None when it is within the limits."""
+        if abs(cmd.turn_rad) > self.max_turn_rad:
+            return f"turn_rad {cmd.turn_rad:.6g} exceeds the limit |turn| <= {self.max_turn_rad:.6g} rad"
+        if cmd.drive_m < 0:
+            return f"drive_m {cmd.drive_m:.6g} is negative"
+        if cmd.drive_m > self.max_drive_m:
+            return f"drive_m {cmd.drive_m:.6g} exceeds the limit {self.max_drive_m:.6g} m"
+        return None
+
+
+class DropCounter:
+    """Dropped messages counted by (source, reason); each drop is logged as one warning line.
+
+    ``source`` is the key the message arrived on (or its type); ``reason`` one of
+    ``REASONS``. Thread-safe: Zenoh callbacks may run concurrently.
+    """
+
+    def __init__(self, logger: logging.Logger = _log) -> None:
+        self._logger = logger
+        self._counts: dict[tuple[str, str], int] = {}
+        self._lock = threading.Lock()
+
+    def drop(self, source: str, error: MessageError) -> None:
+        with self._lock:
+            self._counts[source, error.reason] = self._counts.get((source, error.reason), 0) + 1
+        self._logger.warning("dropped message on %s (%s): %s", source, error.reason, error)
+
+    @property
+    def total(self) -> int:
+        with self._lock:
+            return sum(self._counts.values())
+
+    def snapshot(self) -> dict[str, dict[str, int]]:
+        """Counts so far as ``{source: {reason: count}}``."""
+        out: dict[str, dict[str, int]] = {}
+        with self._lock:
+            for (source, reason), count in sorted(self._counts.items()):
+                out.setdefault(source, {})[reason] = count
+        return out
+
+
+def decode_or_drop(
+    data: bytes, counter: DropCounter, key: str, expected: type[M] | None = None, known_ids: Collection[int] | None = None
+) -> Message | None:
+    """``decode(data, expected, known_ids, key=key)``, or None after counting and logging the drop."""
+    try:
+        return decode(data, expected, known_ids, key=key)
+    except MessageError as e:
+        counter.drop(key, e)
+        return None
+
+
+def observations_from_reports(reports: Iterable[ObservationReport]) -> Observations:
+    """All reports' observations as one ``Observations`` (rows in report order)."""
+    reports = list(reports)
+    if not reports:
+        return Observations.empty()
+    return Observations(
+        np.concatenate([np.full(len(r.observed), r.robot, np.int64) for r in reports]),
+        np.concatenate([np.array(r.observed, np.int64) for r in reports]),
+        np.concatenate([np.array(r.ranges, float) for r in reports]),
+        np.concatenate([np.array(r.bearings, float) for r in reports]),
+    )
+
+
+def _field_schema(wire: Wire) -> dict[str, Any]:
+    if wire.kind == "str":
+        node: dict[str, Any] = {"type": "string", "maxLength": wire.max_length}
+        if wire.choices:
+            node["enum"] = list(wire.choices)
+        if wire.pattern:
+            node["pattern"] = f"^{wire.pattern}$"
+    elif wire.kind == "float":
+        node = {"type": "number"}
+        if wire.minimum is not None:
+            node["minimum"] = wire.minimum - wire.slack
+        if wire.maximum is not None:
+            node["maximum"] = wire.maximum + wire.slack
+    else:
+        node = {"type": "integer", "minimum": 0, "maximum": MAX_INT}
+    for dim in reversed(wire.shape):
+        sizes = {"minItems": dim, "maxItems": dim} if isinstance(dim, int) else {"maxItems": MAX_ITEMS}
+        node = {"type": "array", "items": node, **sizes}
+    shared = [d for d in wire.shape if isinstance(d, str)]
+    node["description"] = wire.doc + (f" [{wire.unit}]" if wire.unit else "") + (
+        f" (length {shared[0]}: equal for every length-{shared[0]} field)" if shared else ""
+    )
+    return node
+
+
+def json_schema(message_type: type[Message]) -> dict[str, Any]:
+    """JSON schema (draft 2020-12) of the encoded map of ``message_type``, from its field specs.
+
+    Unknown extra fields are allowed (and ignored by ``decode``): see the versioning rule.
+    """
+    properties: dict[str, Any] = {
+        "type": {"const": message_type.TYPE, "description": "message type"},
+        "v": {"const": message_type.VERSION, "description": "major schema version"},
+    }
+    for f in fields(message_type):
+        properties[f.name] = _field_schema(f.metadata["wire"])
+    return {
+        "$schema": "https://json-schema.org/draft/2020-12/schema",
+        "title": message_type.TYPE,
+        "description": (message_type.__doc__ or "").strip(),
+        "type": "object",
+        "properties": properties,
+        "required": list(properties),
+        "additionalProperties": True,
+    }
