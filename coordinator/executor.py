@@ -6,8 +6,9 @@ computed from the latest estimate, (iii) only those robots move, (iv) the swarm 
 re-localized from the new observations; after the last step C_c = the estimate.
 The executor talks to the robots only through a ``SwarmBackend``.
 
-If localization is impossible after a step (a robot unobserved, the swarm split), the
-step keeps the dead-reckoning estimate and the step record says why, naming the robots.
+If some robots cannot be localized after a step (unobserved, or cut off from the rest),
+the largest observable group is localized and those robots keep their dead-reckoning
+estimate; the step record names them and says why.
 """
 
 from __future__ import annotations
@@ -19,12 +20,12 @@ import numpy as np
 
 from coordinator.backend import SwarmBackend
 from coordinator.localization import Localizer
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
 from runtime.config import ModelConfig
-from runtime.errors import LocalizationError, SwarmInputError
+from runtime.errors import SwarmInputError
 from runtime.metrics import localization_error, trajectory_following_performance
 from runtime.motion import command_towards
 from runtime.state import StepCommands, SwarmEstimate
@@ -141,11 +142,10 @@ class InchwormExecutor:
         cmd = StepCommands(estimate.ids, commands, moving)
         self.backend.execute(cmd)  # (iii)
         observations = self.backend.observe()
+        new, excluded = localize_observable(self.localizer, estimate, cmd, observations, self.cfg)  # (iv)
         fallback = None
-        try:
-            new = self.localizer.localize(estimate, cmd, observations)  # (iv)
-        except LocalizationError as exc:
-            new = dead_reckon(estimate, cmd, self.cfg)
-            fallback = str(exc)
+        if excluded:
+            reasons = sorted(set(excluded.values()))
+            fallback = f"dead reckoning kept for robots {sorted(excluded)} ({', '.join(reasons)})"
         result.steps.append(StepRecord(config, step, moving, commands, new, self.backend.true_poses(), fallback))
         return new

@@ -35,7 +35,7 @@ def robot_ids(ids: np.ndarray | list[int]) -> np.ndarray:
 
 def _bad_rows(values: np.ndarray) -> np.ndarray:
     """Indices of rows holding NaN or inf."""
-    flat = values.reshape(values.shape[0], -1)
+    flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))
     return np.flatnonzero(~np.all(np.isfinite(flat), axis=1))
 
 

@@ -137,16 +137,19 @@ def random_trajectory(
     step: float = 0.3,
     turn: float = math.radians(30.0),
     reshape: float = 0.06,
+    margin: float = 0.9,
 ) -> Trajectory:
     """A random trajectory as in Section 7: pose and topology change at every configuration.
 
     Each desired configuration is the previous one moved rigidly (translation ``step``
     m in a random direction, rotation up to ``turn`` rad about its centroid) and
     reshaped (each robot displaced by N(0, ``reshape``) m); draws are repeated until the
-    configuration is connected within ``sensing_range`` and no two robots are closer
-    than a quarter of ``spacing``. The swarm starts at a random connected configuration.
+    configuration is connected within ``margin`` x ``sensing_range`` (so that motion
+    errors rarely break the sensing graph) and no two robots are closer than a quarter
+    of ``spacing``. The swarm starts at a random configuration connected the same way.
     """
-    start = random_configuration(n, rng, spacing, sensing_range)
+    reach = margin * sensing_range
+    start = random_configuration(n, rng, spacing, reach)
     configs = []
     prev = start
     for _ in range(n_configs):
@@ -156,7 +159,7 @@ def random_trajectory(
             c = prev.mean(axis=0)
             r = np.array([[math.cos(rot), -math.sin(rot)], [math.sin(rot), math.cos(rot)]])
             nxt = (prev - c) @ r.T + c + step * np.array([math.cos(ang), math.sin(ang)]) + rng.normal(0, reshape, (n, 2))
-            if is_connected(nxt, sensing_range) and min_separation(nxt) >= 0.25 * spacing:
+            if is_connected(nxt, reach) and min_separation(nxt) >= 0.25 * spacing:
                 break
         configs.append(nxt)
         prev = nxt

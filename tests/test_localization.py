@@ -193,3 +193,23 @@ def test_localization_is_deterministic(method, cfg):
     b = make_localizer(method, cfg).localize(case.prior, case.step, case.observations)
     np.testing.assert_array_equal(a.poses, b.poses)
     np.testing.assert_array_equal(a.cov, b.cov)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_partial_localization_keeps_dead_reckoning_only_for_the_lost_robot(method, cfg):
+    from coordinator.localization.partial import localize_observable
+
+    case = random_step(10, cfg, np.random.default_rng(11), spacing=0.2)
+    obs = case.observations
+    keep = (obs.observed != 7) & (obs.observer != 7)  # robot 7 is out of everyone's sight
+    lost = Observations(obs.observer[keep], obs.observed[keep], obs.range_m[keep], obs.bearing_rad[keep])
+    loc = make_localizer(method, cfg)
+    est, excluded = localize_observable(loc, case.prior, case.step, lost, cfg)
+    assert excluded == {7: "unobserved"}
+    dr = dead_reckon(case.prior, case.step, cfg)
+    np.testing.assert_array_equal(est.poses[7], dr.poses[7])
+    others = np.arange(10) != 7
+    assert not np.allclose(est.poses[others], dr.poses[others])
+    full, none = localize_observable(loc, case.prior, case.step, obs, cfg)
+    assert none == {}
+    np.testing.assert_array_equal(full.poses, loc.localize(case.prior, case.step, obs).poses)
