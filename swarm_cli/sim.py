@@ -1,8 +1,9 @@
-"""``swarm sim``: one simulated run of a trajectory, with a summary and Fig. 13/14/17-style plots."""
+"""``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv`` and Fig. 13/14/17-style plots."""
 
 from __future__ import annotations
 
 import argparse
+import csv
 from pathlib import Path
 
 import numpy as np
@@ -44,10 +45,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
         rows.append({"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
                      "following_error": float(follow[c]), "travelled": float(travelled[c])})
+    with open(args.out / "configs.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
     fallbacks = [s for s in result.steps if s.fallback]
     for s in fallbacks:
         print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
-    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); plots: {', '.join(plots)}")
+    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
                     "configs": rows, "fallback_steps": len(fallbacks), "plots": plots})

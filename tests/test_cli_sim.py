@@ -1,0 +1,49 @@
+"""``swarm sim`` and ``swarm compare`` as a user runs them (real subprocesses, small sizes)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def swarm(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "swarm_cli.main", *args], capture_output=True, text=True, timeout=300, cwd=ROOT)
+
+
+def test_sim_writes_plots_csv_and_json(tmp_path):
+    out = swarm("sim", "--robots", "6", "--configs", "2", "--samples", "4", "--generations", "2", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["method"] == "inchworm" and len(doc["configs"]) == 2 and doc["pf"] > 0
+    for name in ("trajectory.png", "errors.png", "configs.csv"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_sim_rejects_a_disconnected_trajectory(tmp_path):
+    path = tmp_path / "t.json"
+    path.write_text(json.dumps({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.2, 0, 0]], "configurations": [[[0, 0], [3, 0]]]}))
+    out = swarm("sim", "--trajectory", str(path), "--out", str(tmp_path))
+    assert out.returncode == 2
+    assert "configuration 1 is not connected" in out.stderr and "Traceback" not in out.stderr
+
+
+def test_compare_json_contract(tmp_path):
+    out = swarm("compare", "--robots", "6", "--trajectories", "2", "--configs", "2", "--methods", "ref57,no-anchors,heuristic-fixed",
+                "--workers", "1", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert set(doc["methods"]) == {"ref57", "no-anchors", "heuristic-fixed"}
+    for stats in doc["methods"].values():
+        assert {"pf_mean", "pf_std", "na_mean", "steps_mean"} <= set(stats)
+    assert doc["methods"]["ref57"]["na_mean"] == 3 and doc["methods"]["no-anchors"]["steps_mean"] == 1
+    assert set(doc["p_values"]) == {"no-anchors", "heuristic-fixed"}
+    assert (tmp_path / "runs.csv").exists() and (tmp_path / "pf.png").exists()
+
+
+def test_compare_rejects_unknown_methods():
+    out = swarm("compare", "--methods", "inchworm,teleport")
+    assert out.returncode == 2 and "unknown methods ['teleport']" in out.stderr
