@@ -6,9 +6,9 @@ import argparse
 import sys
 
 from runtime.errors import LocalizationError, SwarmInputError
-from swarm_cli import bench, compare, localize, sim, study
+from swarm_cli import agent, bench, compare, coordinator_cmd, launch, localize, sim, study
 
-COMMANDS = (sim, compare, study, localize, bench)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,230 @@
+"""The agent process of one robot: executes commands through its driver and reports observations.
+
+One ``Agent`` per robot opens a Zenoh *client* session to the run's hub, declares its
+liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
+
+* ``MotionCommand`` on ``.../robot/<id>/cmd``: decoded with the run's ids (a bad message
+  is dropped and counted, never fatal; if its header still names this robot's run and
+  step, the refusal ``refusal_status`` is published too). A command for a new, higher
+  step is checked against ``CommandLimits`` (``Status refused`` with the reason), else
+  ``Status accepted``, executed through the driver, ``Status done``. The same step again
+  (a re-send) re-publishes the last ``Status`` and never executes twice; a lower step is
+  refused as stale.
+* ``ObserveRequest`` on ``.../robot/<id>/observe``: answered with an
+  ``ObservationReport`` for that step; a duplicate step re-publishes the same report
+  (no new sensing, so random streams stay aligned with the in-process simulator).
+
+Synchronisation of simulated sensing (``driver.simulated``): sensing needs every
+robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
+
+1. first publishes its own ``TruthMessage(step=s)`` on ``swarm/<run>/sim/truth/<id>``,
+2. then waits (while still serving other messages) until it holds a ``TruthMessage``
+   with ``step=s`` from every robot of the run (the ids given on the command line),
+3. then senses and publishes its ``ObservationReport(step=s)``.
+
+Truths for later steps that arrive early are kept until needed. A simulated agent also
+publishes its current truth (step 0 before any observation) at start and whenever the
+coordinator's liveliness token ``swarm/<run>/alive/coord`` appears, so a coordinator
+learns the initial true poses for evaluation without any sensing (which would consume
+the sensing stream).
+
+The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
+by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from collections.abc import Collection
+
+import numpy as np
+
+from robot_agent.driver import Driver
+from runtime.keys import alive_key, coord_alive_key, robot_key, truth_wildcard
+from runtime.messages import (
+    CommandLimits,
+    DropCounter,
+    MessageError,
+    MotionCommand,
+    ObservationReport,
+    ObserveRequest,
+    Status,
+    TruthMessage,
+    decode,
+    decode_or_drop,
+    encode,
+    message_key,
+    refusal_status,
+)
+from runtime.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+
+_log = logging.getLogger(__name__)
+_COORD = "__coord_alive__"
+MAX_PENDING_TRUTH_STEPS = 64  # early truths kept for at most this many future steps
+
+
+class Agent:
+    """Robot ``robot`` of the run ``run`` with robots ``ids``, driving ``driver``."""
+
+    def __init__(
+        self,
+        settings: ZenohSettings,
+        run: str,
+        robot: int,
+        ids: Collection[int],
+        driver: Driver,
+        limits: CommandLimits = CommandLimits(),
+    ) -> None:
+        self.settings = settings
+        self.run_id = run
+        self.robot = int(robot)
+        self.ids = sorted(int(i) for i in ids)
+        self.known = frozenset(self.ids)
+        self.driver = driver
+        self.limits = limits
+        self.drops = DropCounter(_log)
+        self.executed = 0  # commands executed (for tests and logs)
+        self._stop = threading.Event()
+        self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self._last_cmd_step = -1
+        self._last_status: Status | None = None
+        self._last_obs_step = -1
+        self._last_report: ObservationReport | None = None
+        self._last_truth: TruthMessage | None = None
+        self._pending: int | None = None  # step of an ObserveRequest waiting for truths
+        self._truths: dict[int, dict[int, np.ndarray]] = {}
+        self._session = None
+        self._cmd_key = robot_key(run, self.robot, "cmd")
+        self._observe_key = robot_key(run, self.robot, "observe")
+
+    def stop(self) -> None:
+        """Ask the loop to end (safe from a signal handler or another thread)."""
+        self._stop.set()
+
+    def run(self) -> int:
+        """Serve until ``stop()``; returns 0. The session is closed on return."""
+        with open_session(self.settings) as session:
+            self._session = session
+            enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
+            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue)]
+            if self.driver.simulated:
+                subs.append(subscribe(session, truth_wildcard(self.run_id), enqueue))
+                subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+            token = declare_token(session, alive_key(self.run_id, self.robot))
+            if self.driver.simulated:
+                self._publish_truth(0)
+            _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
+            while not self._stop.is_set():
+                try:
+                    key, payload = self._inbox.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                try:
+                    self._handle(key, payload)
+                except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
+                    _log.exception("robot %d: error handling a message on %s", self.robot, key)
+            token.undeclare()
+            for sub in subs:
+                sub.undeclare()
+            self._session = None
+        if self.drops.total:
+            _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
+        return 0
+
+    # -- message handling (loop thread only) --------------------------------------------
+
+    def _send(self, msg) -> None:
+        publish(self._session, message_key(msg), encode(msg))
+
+    def _handle(self, key: str, payload: bytes) -> None:
+        if key == _COORD:
+            self._publish_truth(max(self._last_obs_step, 0) if self._last_truth is None else self._last_truth.step)
+        elif key == self._cmd_key:
+            self._on_command(key, payload)
+        elif key == self._observe_key:
+            msg = decode_or_drop(payload, self.drops, key, ObserveRequest, self.known)
+            if msg is not None:
+                self._on_observe(msg)
+        else:
+            msg = decode_or_drop(payload, self.drops, key, TruthMessage, self.known)
+            if msg is not None:
+                self._on_truth(msg)
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        try:
+            cmd = decode(payload, MotionCommand, self.known, key=key)
+        except MessageError as e:
+            self.drops.drop(key, e)
+            refusal = refusal_status(e)
+            if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot:
+                self._send(refusal)  # not remembered as handled: a valid command for that step still runs
+            return
+        if cmd.step < self._last_cmd_step:
+            reason = f"stale step {cmd.step}: step {self._last_cmd_step} was already handled"
+            self._send(Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason))
+            return
+        if cmd.step == self._last_cmd_step and self._last_status is not None:
+            self._send(self._last_status)  # duplicate: never execute twice
+            return
+        self._last_cmd_step = cmd.step
+        reason = self.limits.refusal(cmd)
+        if reason is not None:
+            self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason)
+            self._send(self._last_status)
+            return
+        self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="accepted", reason="")
+        self._send(self._last_status)
+        self.driver.execute(cmd)
+        self.executed += 1
+        self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="done", reason="")
+        self._send(self._last_status)
+
+    def _on_observe(self, req: ObserveRequest) -> None:
+        if req.step == self._last_obs_step and self._last_report is not None:
+            if self._last_truth is not None and self._last_truth.step == req.step:
+                self._send(self._last_truth)
+            self._send(self._last_report)
+            return
+        if req.step < self._last_obs_step or (self._pending is not None and req.step < self._pending):
+            _log.warning("robot %d: ignoring ObserveRequest for old step %d", self.robot, req.step)
+            return
+        self._pending = req.step
+        if self.driver.simulated:
+            self._publish_truth(req.step)
+        self._try_report()
+
+    def _on_truth(self, msg: TruthMessage) -> None:
+        if msg.step < max(self._last_obs_step, 0) and msg.step != 0:
+            return
+        self._truths.setdefault(msg.step, {})[msg.robot] = np.array(msg.pose, dtype=float)
+        while len(self._truths) > MAX_PENDING_TRUTH_STEPS:  # bounded, whatever arrives
+            del self._truths[max(self._truths)]
+        self._try_report()
+
+    def _publish_truth(self, step: int) -> None:
+        pose = self.driver.true_pose()
+        self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=pose)
+        self._truths.setdefault(step, {})[self.robot] = np.array(self._last_truth.pose)
+        self._send(self._last_truth)
+
+    def _try_report(self) -> None:
+        step = self._pending
+        if step is None:
+            return
+        peers = None
+        if self.driver.simulated:
+            have = self._truths.get(step, {})
+            if not self.known <= have.keys():
+                return
+            peers = {i: have[i] for i in self.ids}
+        observed, ranges, bearings = self.driver.sense(peers)
+        report = ObservationReport(
+            run=self.run_id, step=step, robot=self.robot, observed=observed, ranges=ranges, bearings=bearings
+        )
+        self._pending = None
+        self._last_obs_step, self._last_report = step, report
+        for old in [s for s in self._truths if s < step]:
+            del self._truths[old]
+        self._send(report)

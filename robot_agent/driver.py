@@ -1,0 +1,84 @@
+"""Drivers: what an agent moves and senses with, behind one ``Driver`` interface.
+
+``SimDriver`` is a simulated robot: it holds its own true pose, moves with the motion
+model (``runtime.motion.execute_command``, noise from ``robot_rng(seed, id, MOTION)``)
+and senses with the sensing model (``runtime.sensing.sense_robot``, noise from
+``robot_rng(seed, id, SENSING)``), so an agent process draws exactly the numbers the
+in-process ``runtime.simulation.SimulatedSwarm`` draws for that robot with that seed.
+Sensing needs the neighbours' true poses: the agent hands them to ``sense`` (simulated
+agents exchange ``TruthMessage``s, see ``robot_agent.agent``). A hardware driver
+implements the same interface and ignores ``peers``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+import numpy as np
+
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.messages import MotionCommand
+from runtime.motion import execute_command
+from runtime.rng import Stream, robot_rng
+from runtime.sensing import sense_robot
+
+
+class Driver(Protocol):
+    """One robot's actuators and sensors."""
+
+    simulated: bool  # True: the agent publishes TruthMessages and passes peers' true poses to sense()
+
+    def execute(self, command: MotionCommand) -> np.ndarray | None:
+        """Turn ``command.turn_rad`` then drive ``command.drive_m`` (body frame); the new true pose (3,) if known, else None."""
+        ...
+
+    def true_pose(self) -> np.ndarray | None:
+        """The true pose (3,) (simulation), or None (hardware)."""
+        ...
+
+    def sense(self, peers: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(observed ids, ranges m, bearings rad in the body frame) of the neighbours now.
+
+        ``peers``: every robot's true pose by id (own included), for simulated drivers.
+        """
+        ...
+
+
+class SimDriver:
+    """A simulated robot ``robot`` of the run ``ids``, starting at ``pose``, seeded with ``seed``."""
+
+    simulated = True
+
+    def __init__(self, robot: int, ids: list[int], pose: np.ndarray, cfg: ModelConfig, seed: int, motion_time_s: float = 0.0) -> None:
+        if robot not in ids:
+            raise SwarmInputError(f"robot {robot} is not one of the run's robots {ids}")
+        self.robot = int(robot)
+        self.ids = [int(i) for i in ids]
+        self._pose = np.array(pose, dtype=float).reshape(3)
+        if not np.all(np.isfinite(self._pose)):
+            raise SwarmInputError(f"initial pose of robot {robot} must be finite, got {self._pose.tolist()}")
+        self.cfg = cfg
+        self.motion_time_s = float(motion_time_s)  # wall time a motion takes (to make runs observable)
+        self._motion = robot_rng(seed, robot, Stream.MOTION)
+        self._sensing = robot_rng(seed, robot, Stream.SENSING)
+
+    def execute(self, command: MotionCommand) -> np.ndarray:
+        self._pose = execute_command(self._pose, np.array([command.turn_rad, command.drive_m], dtype=float), self.cfg, self._motion)
+        if self.motion_time_s > 0:
+            time.sleep(self.motion_time_s)
+        return self._pose.copy()
+
+    def true_pose(self) -> np.ndarray:
+        return self._pose.copy()
+
+    def sense(self, peers: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        if peers is None or set(peers) != set(self.ids):
+            missing = sorted(set(self.ids) - set(peers or {}))
+            raise SwarmInputError(f"simulated sensing of robot {self.robot} needs every robot's true pose; missing {missing}")
+        poses = np.array([peers[i] for i in self.ids], dtype=float)
+        index = self.ids.index(self.robot)
+        poses[index] = self._pose
+        nb, rho, phi = sense_robot(poses, index, self.cfg, self._sensing)
+        return np.array(self.ids, dtype=np.int64)[nb], rho, phi

@@ -1,0 +1,72 @@
+"""``swarm agent``: one robot's agent process (simulated driver) in a distributed run.
+
+    swarm agent --id 3 --ids 0,1,2,3 --run demo --hub tcp/127.0.0.1:7447 --seed 0 --pose 0.1,0.2,1.57
+
+Connects as a Zenoh client to the hub, serves commands and observation requests until
+SIGTERM/SIGINT (see ``robot_agent.agent``), then closes its session and exits 0.
+``python -m swarm_cli.agent ...`` is the same command with a lighter start (the launcher uses it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import signal
+import sys
+
+from robot_agent.agent import Agent
+from robot_agent.driver import SimDriver
+from runtime.errors import SwarmInputError
+from runtime.messages import CommandLimits
+from runtime.transport import ZenohSettings
+from swarm_cli.options import add_model_options, model_config, parse_list
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("agent", help="run one robot's agent process (simulated driver) of a distributed run")
+    add_arguments(p)
+    p.set_defaults(run=run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--id", type=int, required=True, help="this robot's id")
+    p.add_argument("--ids", required=True, help="every robot id of the run, comma-separated (e.g. 0,1,2)")
+    p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
+    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
+    p.add_argument("--pose", required=True, help="initial true pose x,y,heading (m, m, rad)")
+    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
+    p.add_argument("--max-drive", type=float, default=CommandLimits().max_drive_m, help="refuse drives longer than this (m, default 1)")
+    p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad), help="refuse turns larger than this (default 180)")
+    add_model_options(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    ids = parse_list(args.ids, "--ids")
+    pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)
+    if len(pose) != 3:
+        raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
+    logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
+    settings = ZenohSettings("client", connect=(args.hub,))
+    driver = SimDriver(args.id, ids, pose, model_config(args), args.seed, args.motion_time)
+    limits = CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg))
+    agent = Agent(settings, args.run_id, args.id, ids, driver, limits)
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: agent.stop())
+    return agent.run()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="swarm agent")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (SwarmInputError, OSError) as exc:
+        print(f"swarm agent: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,143 @@
+"""``swarm coordinator``: the coordinator process of a distributed run.
+
+    swarm coordinator --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0 --method inchworm
+
+Connects as a Zenoh client to the hub, waits for every robot's agent, then runs the
+same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` and prints
+the per-configuration summary. Exit status: 0 done, 3 an agent was lost, refused or
+did not answer (the message names the robots), 2 bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import sys
+from pathlib import Path
+
+from coordinator.executor import InchwormExecutor, RunResult
+from coordinator.localization import make_localizer
+from coordinator.simulate import initial_estimate
+from coordinator.strategies import METHODS, make_strategy
+from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
+from runtime.errors import SwarmInputError
+from runtime.trajectory import Trajectory, validate_connected
+from runtime.transport import ZenohSettings, open_session
+from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+
+EXIT_AGENT = 3
+INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
+INITIAL_HEADING_SIGMA = math.radians(2.0)
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("coordinator", help="run the coordinator of a distributed run (agents started separately)")
+    add_arguments(p)
+    p.set_defaults(run=run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON (docs/trajectory.md)")
+    p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
+    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run: initial estimate and search (default 0)")
+    p.add_argument("--start-timeout", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
+    p.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for the answers of a step (default 5)")
+    p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
+    add_simulation_options(p)
+
+
+def result_json(result: RunResult) -> dict:
+    """Every step's estimate (and truth, when known) as plain JSON."""
+    def truth(t):
+        return None if t is None else t.tolist()
+
+    return {
+        "method": result.method,
+        "ids": result.initial_estimate.ids.tolist(),
+        "initial_estimate": result.initial_estimate.poses.tolist(),
+        "initial_truth": truth(result.initial_truth),
+        "steps": [
+            {"config": s.config, "step": s.step, "moving": s.moving.tolist(), "commands": s.commands.tolist(),
+             "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
+            for s in result.steps
+        ],
+        "final": result.configs[-1].estimate.poses.tolist() if result.configs else None,
+    }
+
+
+def print_summary(result: RunResult, args: argparse.Namespace) -> None:
+    """The per-configuration table of ``swarm sim``."""
+    rows = []
+    if result.has_truth:
+        e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
+    print(f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}")
+    for c, rec in enumerate(result.configs):
+        if result.has_truth:
+            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
+            rows.append({"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+                         "following_error": float(follow[c]), "travelled": float(travelled[c])})
+        else:
+            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    fallbacks = [s for s in result.steps if s.fallback]
+    for s in fallbacks:
+        print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
+    pf = result.pf() if result.has_truth else None
+    print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
+    if args.json:
+        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
+                    "fallback_steps": len(fallbacks)})
+
+
+def _interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
+    signal.signal(signal.SIGTERM, _interrupt)
+    cfg = model_config(args)
+    traj = Trajectory.load(args.trajectory)
+    validate_connected(traj, cfg.sensing_range_m)
+    selection = selection_config(args)
+    strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
+    settings = ZenohSettings("client", connect=(args.hub,))
+    with open_session(settings) as session:
+        backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
+        try:
+            backend.wait_for_agents()
+            print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
+            progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
+            executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress)
+            result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+        except AgentError as exc:
+            print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
+            return EXIT_AGENT
+        finally:
+            backend.close()
+    if args.result:
+        args.result.write_text(json.dumps(result_json(result)))
+    print_summary(result, args)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="swarm coordinator")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except SwarmInputError as exc:
+        print(f"swarm coordinator: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("swarm coordinator: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

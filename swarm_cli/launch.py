@@ -1,0 +1,128 @@
+"""``swarm launch`` and ``swarm demo``: a whole distributed run on this host.
+
+The launcher opens the run's Zenoh router hub itself on a free loopback port, writes
+the trajectory to a temporary file if it generated it, starts one ``swarm agent``
+process per robot (initial true pose from the trajectory), then ``swarm coordinator``,
+and waits for the coordinator, whose summary appears on stdout. On exit, error or
+Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
+period), so no process outlives it. Exit status: the coordinator's.
+
+``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
+(``random_trajectory(10, 3, seed 0)``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from coordinator.strategies import METHODS
+from runtime.errors import SwarmInputError
+from runtime.trajectory import Trajectory, random_trajectory
+from runtime.transport import free_tcp_port, loopback_hub, open_session
+from swarm_cli.options import add_simulation_options, model_config
+
+GRACE_S = 3.0
+MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("launch", help="run agents + coordinator as processes on this host (Zenoh on loopback)")
+    p.add_argument("-n", "--robots", type=int, default=10, help="robots of the random trajectory (default 10)")
+    p.add_argument("--trajectory", type=Path, help="trajectory JSON (docs/trajectory.md); default: a random one")
+    p.add_argument("--configs", type=int, default=3, help="configurations of the random trajectory (default 3)")
+    add_run_options(p)
+    p.set_defaults(run=run)
+    d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory")
+    add_run_options(d)
+    d.set_defaults(run=run_demo, trajectory=None, robots=10, configs=3)
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise, initial estimate and search (default 0)")
+    p.add_argument("--run", dest="run_id", default=None, help="run id (default launch-<pid>)")
+    p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
+    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
+    p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    add_simulation_options(p)
+
+
+def run_demo(args: argparse.Namespace) -> int:
+    return run(args)
+
+
+def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
+    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
+    return [f"--{name.replace('_', '-')}={getattr(args, name)!r}".replace("'", "") for name in names]
+
+
+def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
+    """SIGTERM every child still running, SIGKILL those still running after ``grace_s``; reap all."""
+    for p in procs:
+        if p.poll() is None:
+            try:
+                p.send_signal(signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def _raise_interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = model_config(args)
+    if args.trajectory:
+        traj = Trajectory.load(args.trajectory)
+    else:
+        if args.robots < 2 or args.configs < 1:
+            raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
+        seed = 0 if args.command == "demo" else args.seed
+        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
+    run_id = args.run_id or f"launch-{os.getpid()}"
+    port = free_tcp_port()
+    hub_settings, _ = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    ids = ",".join(str(int(i)) for i in traj.ids)
+    py = sys.executable
+    procs: list[subprocess.Popen] = []
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings):
+            traj_file = Path(tmp) / "trajectory.json"
+            traj.save(traj_file)
+            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *_forward(args, MODEL_OPTIONS)]
+            for robot, pose in zip(traj.ids, traj.initial_poses):
+                cmd = [py, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}", f"--pose={','.join(repr(float(v)) for v in pose)}",
+                       f"--motion-time={args.motion_time!r}", *common]
+                procs.append(subprocess.Popen(cmd))
+            cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
+                   f"--step-timeout={args.step_timeout!r}", *common, *_forward(args, COORD_OPTIONS)]
+            if args.result:
+                cmd.append(f"--result={args.result}")
+            if args.json:
+                cmd.append("--json")
+            print(f"swarm {args.command}: {traj.n} agents + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            coordinator = subprocess.Popen(cmd)
+            procs.append(coordinator)
+            return coordinator.wait()
+    finally:
+        stop_all(procs)
+        signal.signal(signal.SIGTERM, previous)

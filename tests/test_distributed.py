@@ -1,0 +1,243 @@
+"""The distributed runtime with real processes on loopback: agents + coordinator over a Zenoh hub.
+
+Every child is started here and stopped by its pid in ``finally`` (swarm_cli.launch.stop_all).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from coordinator.simulate import simulate
+from runtime.keys import coord_key, robot_key, truth_key
+from runtime.messages import MotionCommand, ObservationReport, Status, TruthMessage, decode, encode, message_key
+from runtime.trajectory import Trajectory, random_trajectory
+from runtime.transport import free_tcp_port, loopback_hub, open_session, publish
+from swarm_cli.launch import stop_all
+from swarm_cli.main import build_parser
+from swarm_cli.options import model_config
+
+REPO = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+class Run:
+    """A hub (this process), one agent process per robot and the coordinator process."""
+
+    def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0) -> None:
+        self.traj, self.method, self.seed = traj, method, seed
+        self.run_id = f"t{uuid.uuid4().hex[:10]}"
+        port = free_tcp_port()
+        self.hub_settings, self.member = loopback_hub(port)
+        self.hub = f"tcp/127.0.0.1:{port}"
+        self.traj_file = tmp / "traj.json"
+        traj.save(self.traj_file)
+        self.result_file = tmp / "result.json"
+        self.tmp, self.motion_time = tmp, motion_time
+        self.agents: dict[int, subprocess.Popen] = {}
+        self.coordinator: subprocess.Popen | None = None
+        self.stderr: list[str] = []
+        self.stdout: list[str] = []
+        self._readers: list[threading.Thread] = []
+        self.session = None
+
+    def start(self) -> None:
+        self.session = open_session(self.hub_settings)
+        ids = ",".join(str(int(i)) for i in self.traj.ids)
+        common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}"]
+        for robot, pose in zip(self.traj.ids, self.traj.initial_poses):
+            log = open(self.tmp / f"agent{robot}.log", "w")
+            self.agents[int(robot)] = subprocess.Popen(
+                [sys.executable, "-m", "swarm_cli.agent", f"--id={robot}", f"--ids={ids}", f"--motion-time={self.motion_time}",
+                 f"--pose={','.join(repr(float(v)) for v in pose)}", *common],
+                stdout=log, stderr=subprocess.STDOUT, cwd=REPO, env=ENV,
+            )
+        self.coordinator = subprocess.Popen(
+            [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={self.traj_file}", f"--method={self.method}",
+             f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", *common],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
+        )
+        for stream, lines in ((self.coordinator.stdout, self.stdout), (self.coordinator.stderr, self.stderr)):
+            self._readers.append(threading.Thread(target=lambda s=stream, l=lines: l.extend(s), daemon=True))
+            self._readers[-1].start()
+
+    def finish(self, timeout_s: float) -> str:
+        """The coordinator's stdout once it exited."""
+        self.coordinator.wait(timeout=timeout_s)
+        for reader in self._readers:
+            reader.join(timeout=5)
+        return "".join(self.stdout)
+
+    def wait_stderr(self, text: str, timeout_s: float) -> None:
+        deadline = time.monotonic() + timeout_s
+        while not any(text in line for line in self.stderr):
+            assert self.coordinator.poll() is None, f"coordinator exited: {''.join(self.stderr)}"
+            assert time.monotonic() < deadline, f"no {text!r} from the coordinator: {''.join(self.stderr)}"
+            time.sleep(0.02)
+
+    def children(self) -> list[subprocess.Popen]:
+        return [*self.agents.values(), *([self.coordinator] if self.coordinator else [])]
+
+    def stop(self) -> None:
+        try:
+            stop_all(self.children())
+        finally:
+            if self.session is not None:
+                self.session.close()
+
+
+def _alive_with(run_id: str) -> list[int]:
+    """Pids of processes (zombies excluded) whose command line mentions ``run_id``."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if run_id in (entry / "cmdline").read_bytes().decode(errors="replace") and "Z" != (entry / "stat").read_text().split()[2]:
+                    pids.append(int(entry.name))
+            except OSError:
+                pass
+    return pids
+
+
+def _in_process(traj: Trajectory, method: str, seed: int):
+    args = build_parser().parse_args(["coordinator", "--trajectory=x", "--run=x", "--hub=tcp/127.0.0.1:1"])
+    return simulate(traj, method, model_config(args), localizer=args.localizer, seed=seed)
+
+
+def _assert_same_as_in_process(run: Run) -> None:
+    got = json.loads(run.result_file.read_text())
+    ref = _in_process(run.traj, run.method, run.seed)
+    assert len(got["steps"]) == len(ref.steps) > 0
+    np.testing.assert_allclose(got["initial_truth"], ref.initial_truth, rtol=0, atol=1e-9)
+    for s, r in zip(got["steps"], ref.steps):
+        np.testing.assert_allclose(s["poses"], r.estimate.poses, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(s["cov"], r.estimate.cov, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(s["truth"], r.truth, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["final"], ref.configs[-1].estimate.poses, rtol=0, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def completed(tmp_path_factory):
+    """One short distributed run: 3 robots, 2 configurations, no-anchors."""
+    seed = 4
+    traj = random_trajectory(3, 2, np.random.default_rng(seed))
+    run = Run(tmp_path_factory.mktemp("dist"), traj, "no-anchors", seed)
+    try:
+        run.start()
+        out = run.finish(60)
+        agents_running = all(p.poll() is None for p in run.agents.values())
+    finally:
+        run.stop()
+    return run, out, agents_running
+
+
+def test_agents_and_coordinator_complete_a_run(completed):
+    run, out, agents_running = completed
+    assert run.coordinator.returncode == 0, "".join(run.stderr)
+    assert agents_running, "an agent exited during the run"
+    assert "P_f = " in out and "distributed" in out
+    assert len([line for line in out.splitlines() if line.strip().startswith(("1 ", "2 "))]) == 2
+    assert [p.returncode for p in run.agents.values()] == [0, 0, 0]  # SIGTERM: clean exit, session closed
+    assert _alive_with(run.run_id) == []
+
+
+def test_distributed_equals_in_process(completed):
+    run, _, _ = completed
+    _assert_same_as_in_process(run)
+
+
+def test_killed_agent_is_reported_lost(tmp_path):
+    traj = random_trajectory(4, 4, np.random.default_rng(1))
+    run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3)
+    try:
+        run.start()
+        run.wait_stderr("agents alive", 30)
+        time.sleep(0.5)
+        victim = run.agents[1]
+        victim.send_signal(signal.SIGKILL)
+        killed = time.monotonic()
+        run.coordinator.wait(timeout=10)
+        elapsed = time.monotonic() - killed
+        run.finish(5)
+        err = "".join(run.stderr)
+        assert run.coordinator.returncode == 3, err
+        assert "robot 1 lost (liveliness token gone)" in err
+        assert elapsed < 2.0, f"lost after {elapsed:.2f} s"
+    finally:
+        run.stop()
+    assert all(p.returncode is not None for p in run.children())
+    assert _alive_with(run.run_id) == []
+
+
+def _garbage(run: Run) -> list[tuple[str, bytes]]:
+    """Malformed, truncated and wrong-typed messages on every key of the run."""
+    r, robots = run.run_id, [int(i) for i in run.traj.ids]
+    big = 10**6  # steps the run never reaches: a refusal of these must not disturb it
+    good = [
+        encode(MotionCommand(run=r, step=big, robot=0, config=1, turn_rad=0.1, drive_m=0.1)),
+        encode(ObservationReport(run=r, step=big, robot=0, observed=[1], ranges=[0.2], bearings=[0.1])),
+        encode(TruthMessage(run=r, step=big, robot=0, pose=[0.0, 0.0, 0.0])),
+        encode(Status(run=r, step=big, robot=0, state="done", reason="")),
+    ]
+    payloads = [b"", b"\xc1", b"\x93\x01", msgpack.packb([1, 2, 3]), msgpack.packb("hello"), *[g[: len(g) // 2] for g in good]]
+    payloads += [
+        msgpack.packb({"type": "MotionCommand", "v": 1, "run": r, "step": big, "stamp_ns": 1, "robot": 0, "config": 1,
+                       "turn_rad": "left", "drive_m": 0.1}),
+        msgpack.packb({"type": "ObservationReport", "v": 1, "run": r, "step": "1", "stamp_ns": 1, "robot": 0,
+                       "observed": [1], "ranges": [float("nan")], "bearings": [0.0]}),
+        msgpack.packb({"type": "TruthMessage", "v": 2, "run": r, "step": 1, "stamp_ns": 1, "robot": 0, "pose": [0, 0, 0]}),
+        msgpack.packb({"type": "Status", "v": 1, "run": r, "step": True, "stamp_ns": 1, "robot": 0, "state": "done", "reason": ""}),
+        *good,  # valid messages, but on the wrong keys for most of them
+    ]
+    keys = [coord_key(r, "plan"), coord_key(r, "estimate")]
+    for robot in robots:
+        keys += [robot_key(r, robot, leaf) for leaf in ("cmd", "observe", "status", "obs")] + [truth_key(r, robot)]
+    own = {message_key(decode(g)): g for g in good}  # a valid message on its own key is not garbage
+    return [(k, p) for k in keys for p in payloads if own.get(k) != p]
+
+
+def test_bad_messages_do_not_disturb_a_run(tmp_path):
+    seed = 4
+    traj = random_trajectory(3, 2, np.random.default_rng(seed))
+    run = Run(tmp_path, traj, "no-anchors", seed, motion_time=0.05)
+    stop = threading.Event()
+    try:
+        run.start()
+        run.wait_stderr("agents alive", 30)
+        garbage = _garbage(run)
+        fuzz = open_session(run.member)
+
+        def spam() -> None:
+            while not stop.is_set():
+                for key, payload in garbage:
+                    publish(fuzz, key, payload)
+                time.sleep(0.05)
+
+        spammer = threading.Thread(target=spam, daemon=True)
+        spammer.start()
+        try:
+            run.finish(60)
+        finally:
+            stop.set()
+            spammer.join(timeout=5)
+            fuzz.close()
+        assert run.coordinator.returncode == 0, "".join(run.stderr)
+        assert all(p.poll() is None for p in run.agents.values()), "an agent died"
+        assert "dropped message" in "".join(run.stderr)
+        _assert_same_as_in_process(run)  # the garbage changed nothing
+    finally:
+        stop.set()
+        run.stop()
+    assert all(p.returncode is not None for p in run.children())
+    assert _alive_with(run.run_id) == []
