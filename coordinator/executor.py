@@ -9,12 +9,22 @@ The executor talks to the robots only through a ``SwarmBackend``.
 If some robots cannot be localized after a step (unobserved, or cut off from the rest),
 the largest observable group is localized and those robots keep their dead-reckoning
 estimate; the step record names them and says why.
+
+An optional ``ExecutorListener`` is told what the executor decided, without changing
+what it does: ``on_estimate(0, initial)`` at the start, ``on_plan(c, first_step, plan,
+selection)`` when configuration ``c`` (0-based) is planned, before its first command,
+and ``on_estimate(step, estimate)`` after every step. Steps are numbered globally over
+the run, motion steps from 1 (docs/protocol.md), so the first step of configuration c
+is 1 + the steps of all earlier configurations. A distributed backend uses it to
+publish plans and estimates and to stamp its commands with their configuration; the
+in-process runs pass none.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
@@ -100,6 +110,18 @@ class RunResult:
         return np.array([c.plan.n_steps for c in self.configs])
 
 
+class ExecutorListener(Protocol):
+    """Observer of a run (see the module doc); called on the executor's thread."""
+
+    def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
+        """Configuration ``config_index`` (0-based) is planned; its steps are ``first_step`` .. ``first_step + plan.n_steps - 1``."""
+        ...
+
+    def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
+        """The estimate after global step ``step`` (0: the initial estimate)."""
+        ...
+
+
 class InchwormExecutor:
     """Follows a trajectory with a strategy, a localizer and a backend."""
 
@@ -110,12 +132,14 @@ class InchwormExecutor:
         strategy: Strategy,
         cfg: ModelConfig,
         progress: Callable[[int, int], None] | None = None,
+        listener: ExecutorListener | None = None,
     ) -> None:
         self.backend = backend
         self.localizer = localizer
         self.strategy = strategy
         self.cfg = cfg
         self.progress = progress
+        self.listener = listener
 
     def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunResult:
         if not np.array_equal(trajectory.ids, self.backend.ids) or not np.array_equal(initial_estimate.ids, trajectory.ids):
@@ -126,8 +150,12 @@ class InchwormExecutor:
         result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
         estimate = initial_estimate
         total = len(trajectory.configurations)
+        if self.listener is not None:
+            self.listener.on_estimate(0, initial_estimate)
         for c, desired in enumerate(trajectory.configurations):
             plan, selection = self.strategy.plan(estimate, desired)  # (i)
+            if self.listener is not None:
+                self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
             for k in range(plan.n_steps):
                 estimate = self._step(result, c, k, plan.moving(k), estimate, desired)  # (ii)-(v)
             result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses()))
@@ -148,4 +176,6 @@ class InchwormExecutor:
             reasons = sorted(set(excluded.values()))
             fallback = f"dead reckoning kept for robots {sorted(excluded)} ({', '.join(reasons)})"
         result.steps.append(StepRecord(config, step, moving, commands, new, self.backend.true_poses(), fallback))
+        if self.listener is not None:
+            self.listener.on_estimate(len(result.steps), new)
         return new

@@ -11,10 +11,17 @@
   returns the observations in the order of ``ids`` (the in-process simulator's order).
 * ``true_poses()``: the latest truths of all robots (simulation), or None.
 
+It is also the executor's ``ExecutorListener`` (pass it as ``listener=``):
+``on_plan`` publishes ``PlanMessage`` on ``swarm/<run>/coord/plan`` (``config`` 1-based,
+``step`` the plan's first step, groups as robot ids) and makes the following
+``MotionCommand``s carry that ``config``; ``on_estimate`` publishes ``EstimateMessage``
+on ``swarm/<run>/coord/estimate`` (step 0: the initial estimate, then after every step).
+Without a listener call the commands carry ``config`` 0.
+
 Lost agents: a liveliness subscriber on ``swarm/<run>/alive/robot/*`` notes every token
 that disappears; every wait checks it each 50 ms and raises ``AgentLost``
 ("robot 3 lost (liveliness token gone)"); a robot that does not answer within
-``timeouts.step_s`` raises ``AgentLost`` ("robot 3 did not answer step 12 within 5.0 s").
+``timeouts.step_s`` raises ``AgentLost`` ("robot 3 did not answer the command of step 12 within 5.0 s").
 Each command or request is re-sent once at half the timeout (agents are idempotent).
 All Zenoh callbacks only enqueue or set flags; the waiting happens on the caller's thread.
 """
@@ -34,9 +41,11 @@ from runtime.errors import SwarmInputError
 from runtime.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
 from runtime.messages import (
     DropCounter,
+    EstimateMessage,
     MotionCommand,
     ObservationReport,
     ObserveRequest,
+    PlanMessage,
     Status,
     TruthMessage,
     decode_or_drop,
@@ -44,7 +53,7 @@ from runtime.messages import (
     message_key,
     observations_from_reports,
 )
-from runtime.state import Observations, StepCommands
+from runtime.state import Observations, StepCommands, SwarmEstimate
 from runtime.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
@@ -90,6 +99,7 @@ class ZenohSwarmBackend:
         self.timeouts = timeouts
         self.simulated = simulated
         self.step = 0  # last global step number used
+        self.config = 0  # 1-based configuration of the current plan (0 before on_plan)
         self.drops = DropCounter(_log)
         self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self._lock = threading.Lock()
@@ -212,7 +222,7 @@ class ZenohSwarmBackend:
         for k in np.flatnonzero(step.moving):
             robot = self._id_list[k]
             turn, drive = step.commands[k]
-            cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=0, turn_rad=float(turn), drive_m=float(drive))
+            cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn), drive_m=float(drive))
 
         def send(robots) -> None:
             for robot in robots:
@@ -246,6 +256,20 @@ class ZenohSwarmBackend:
         send(self._id_list)
         self._wait(f"the observation request of step {s}", missing, send)
         return observations_from_reports(self._reports[r] for r in self._id_list)
+
+    # -- ExecutorListener ---------------------------------------------------------------
+
+    def on_plan(self, config_index: int, first_step: int, plan, selection) -> None:
+        """Publish the plan of configuration ``config_index`` (0-based) as ``PlanMessage`` (``config`` 1-based)."""
+        self.config = config_index + 1
+        groups = [[self._id_list[int(k)] for k in group] for group in plan.groups]
+        msg = PlanMessage(run=self.run, step=first_step, config=self.config, n_anchors=plan.n_anchors, groups=groups)
+        publish(self.session, message_key(msg), encode(msg))
+
+    def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
+        """Publish the estimate after ``step`` as ``EstimateMessage``."""
+        msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
+        publish(self.session, message_key(msg), encode(msg))
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self.known <= self._truth.keys():

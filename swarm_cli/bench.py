@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from swarm_cli import bench_localize, bench_select
+from swarm_cli import bench_localize, bench_runtime, bench_select
 
-BENCHMARKS = (bench_localize, bench_select)
+BENCHMARKS = (bench_localize, bench_select, bench_runtime)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -3,8 +3,10 @@
     swarm coordinator --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0 --method inchworm
 
 Connects as a Zenoh client to the hub, waits for every robot's agent, then runs the
-same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` and prints
-the per-configuration summary. Exit status: 0 done, 3 an agent was lost, refused or
+same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` (which also
+publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
+per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
+13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there, as ``swarm sim`` does. Exit status: 0 done, 3 an agent was lost, refused or
 did not answer (the message names the robots), 2 bad input.
 """
 
@@ -48,6 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start-timeout", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for the answers of a step (default 5)")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
+    p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
     add_simulation_options(p)
 
 
@@ -70,7 +73,18 @@ def result_json(result: RunResult) -> dict:
     }
 
 
-def print_summary(result: RunResult, args: argparse.Namespace) -> None:
+def write_plots(result: RunResult, out: Path) -> list[str]:
+    """``trajectory.png`` (Fig. 13/14) and, with ground truth, ``errors.png`` (Fig. 17) in ``out``."""
+    from swarm_cli.plots import plot_errors, plot_trajectory  # matplotlib only when plotting
+
+    out.mkdir(parents=True, exist_ok=True)
+    plots = [str(plot_trajectory(result, out / "trajectory.png"))]
+    if result.has_truth:
+        plots.append(str(plot_errors(result, out / "errors.png")))
+    return plots
+
+
+def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None) -> None:
     """The per-configuration table of ``swarm sim``."""
     rows = []
     if result.has_truth:
@@ -88,9 +102,11 @@ def print_summary(result: RunResult, args: argparse.Namespace) -> None:
         print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
     pf = result.pf() if result.has_truth else None
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
+    if plots:
+        print(f"wrote {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
-                    "fallback_steps": len(fallbacks)})
+                    "fallback_steps": len(fallbacks), "plots": plots or []})
 
 
 def _interrupt(*_) -> None:
@@ -112,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
             backend.wait_for_agents()
             print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
             progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-            executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress)
+            executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend)
             result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
         except AgentError as exc:
             print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
@@ -121,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
             backend.close()
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
-    print_summary(result, args)
+    plots = write_plots(result, args.out) if args.out and result.configs else None
+    print_summary(result, args, plots)
     return 0
 
 

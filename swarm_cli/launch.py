@@ -3,12 +3,17 @@
 The launcher opens the run's Zenoh router hub itself on a free loopback port, writes
 the trajectory to a temporary file if it generated it, starts one ``swarm agent``
 process per robot (initial true pose from the trajectory), then ``swarm coordinator``,
-and waits for the coordinator, whose summary appears on stdout. On exit, error or
+and waits for the coordinator, whose summary appears on stdout; the coordinator writes
+the Fig. 13/14/17 plots to ``--out`` (default ``out/demo`` or ``out/launch``) and prints
+their paths. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
 period), so no process outlives it. Exit status: the coordinator's.
 
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
 (``random_trajectory(10, 3, seed 0)``).
+
+``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
+``swarm bench runtime``).
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the noise, initial estimate and search (default 0)")
     p.add_argument("--run", dest="run_id", default=None, help="run id (default launch-<pid>)")
     p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
+    p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
     add_simulation_options(p)
@@ -64,6 +70,30 @@ def run_demo(args: argparse.Namespace) -> int:
 def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
     """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
     return [f"--{name.replace('_', '-')}={getattr(args, name)!r}".replace("'", "") for name in names]
+
+
+def agent_command(
+    robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
+) -> list[str]:
+    """The command line of robot ``robot``'s agent process (``ids`` comma-separated, ``pose`` x, y, heading)."""
+    return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
+            f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
+            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
+
+
+def start_agents(
+    traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
+    procs: list[subprocess.Popen] | None = None, **popen_kwargs,
+) -> list[subprocess.Popen]:
+    """One agent process per robot of ``traj`` (initial true pose from it), appended to ``procs`` as each starts.
+
+    Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
+    """
+    procs = [] if procs is None else procs
+    ids = ",".join(str(int(i)) for i in traj.ids)
+    for robot, pose in zip(traj.ids, traj.initial_poses):
+        procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
+    return procs
 
 
 def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
@@ -100,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    ids = ",".join(str(int(i)) for i in traj.ids)
+    out = args.out or Path("out") / args.command
     py = sys.executable
     procs: list[subprocess.Popen] = []
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
@@ -108,13 +138,11 @@ def run(args: argparse.Namespace) -> int:
         with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings):
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *_forward(args, MODEL_OPTIONS)]
-            for robot, pose in zip(traj.ids, traj.initial_poses):
-                cmd = [py, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}", f"--pose={','.join(repr(float(v)) for v in pose)}",
-                       f"--motion-time={args.motion_time!r}", *common]
-                procs.append(subprocess.Popen(cmd))
+            model = _forward(args, MODEL_OPTIONS)
+            start_agents(traj, run_id, hub, args.seed, args.motion_time, model, procs)
+            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
-                   f"--step-timeout={args.step_timeout!r}", *common, *_forward(args, COORD_OPTIONS)]
+                   f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
             if args.result:
                 cmd.append(f"--result={args.result}")
             if args.json:

@@ -20,10 +20,20 @@ import numpy as np
 import pytest
 
 from coordinator.simulate import simulate
-from runtime.keys import coord_key, robot_key, truth_key
-from runtime.messages import MotionCommand, ObservationReport, Status, TruthMessage, decode, encode, message_key
+from runtime.keys import coord_key, robot_key, robot_wildcard, truth_key
+from runtime.messages import (
+    EstimateMessage,
+    MotionCommand,
+    ObservationReport,
+    PlanMessage,
+    Status,
+    TruthMessage,
+    decode,
+    encode,
+    message_key,
+)
 from runtime.trajectory import Trajectory, random_trajectory
-from runtime.transport import free_tcp_port, loopback_hub, open_session, publish
+from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
 from swarm_cli.launch import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
@@ -35,7 +45,7 @@ ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 class Run:
     """A hub (this process), one agent process per robot and the coordinator process."""
 
-    def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0) -> None:
+    def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0, out: Path | None = None) -> None:
         self.traj, self.method, self.seed = traj, method, seed
         self.run_id = f"t{uuid.uuid4().hex[:10]}"
         port = free_tcp_port()
@@ -51,9 +61,13 @@ class Run:
         self.stdout: list[str] = []
         self._readers: list[threading.Thread] = []
         self.session = None
+        self.out = out
+        self.heard: list[tuple[str, bytes]] = []  # what the coordinator published on coord/* and robot/*/cmd
 
     def start(self) -> None:
         self.session = open_session(self.hub_settings)
+        for key_expr in (coord_key(self.run_id, "plan"), coord_key(self.run_id, "estimate"), robot_wildcard(self.run_id, "cmd")):
+            subscribe(self.session, key_expr, lambda key, payload: self.heard.append((key, payload)))
         ids = ",".join(str(int(i)) for i in self.traj.ids)
         common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}"]
         for robot, pose in zip(self.traj.ids, self.traj.initial_poses):
@@ -65,7 +79,8 @@ class Run:
             )
         self.coordinator = subprocess.Popen(
             [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={self.traj_file}", f"--method={self.method}",
-             f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", *common],
+             f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", *common,
+             *([f"--out={self.out}"] if self.out else [])],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
         )
         for stream, lines in ((self.coordinator.stdout, self.stdout), (self.coordinator.stderr, self.stderr)):
@@ -132,7 +147,8 @@ def completed(tmp_path_factory):
     """One short distributed run: 3 robots, 2 configurations, no-anchors."""
     seed = 4
     traj = random_trajectory(3, 2, np.random.default_rng(seed))
-    run = Run(tmp_path_factory.mktemp("dist"), traj, "no-anchors", seed)
+    tmp = tmp_path_factory.mktemp("dist")
+    run = Run(tmp, traj, "no-anchors", seed, out=tmp / "plots")
     try:
         run.start()
         out = run.finish(60)
@@ -155,6 +171,35 @@ def test_agents_and_coordinator_complete_a_run(completed):
 def test_distributed_equals_in_process(completed):
     run, _, _ = completed
     _assert_same_as_in_process(run)
+
+
+def test_coordinator_writes_the_plots(completed):
+    run, out, _ = completed
+    for name in ("trajectory.png", "errors.png"):
+        path = run.out / name
+        assert path.stat().st_size > 1000
+        assert str(path) in out
+
+
+def test_coordinator_publishes_plans_estimates_and_configs(completed):
+    run, _, _ = completed
+    got = json.loads(run.result_file.read_text())
+    heard = [(key, decode(payload, key=key)) for key, payload in list(run.heard)]
+    plans = [m for _, m in heard if isinstance(m, PlanMessage)]
+    estimates = [m for _, m in heard if isinstance(m, EstimateMessage)]
+    commands = [m for _, m in heard if isinstance(m, MotionCommand)]
+    ids = [int(i) for i in run.traj.ids]
+    # no-anchors: one step per configuration, everyone moves
+    assert [(p.config, p.step, p.n_anchors, p.groups) for p in plans] == [(1, 1, 0, (tuple(ids),)), (2, 2, 0, (tuple(ids),))]
+    assert sorted(m.step for m in estimates) == [0, 1, 2]  # the initial estimate, then one per step
+    by_step = {m.step: m for m in estimates}
+    np.testing.assert_array_equal(by_step[0].to_estimate().poses, np.array(got["initial_estimate"]))
+    for s in got["steps"]:
+        est = by_step[s["config"] + s["step"] + 1].to_estimate()  # one step per configuration
+        assert est.ids.tolist() == ids
+        np.testing.assert_array_equal(est.poses, np.array(s["poses"]))
+        np.testing.assert_array_equal(est.cov, np.array(s["cov"]))
+    assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 2)}
 
 
 def test_killed_agent_is_reported_lost(tmp_path):

@@ -82,3 +82,35 @@ def test_equal_speed_keeps_its_anchor_count_when_no_plan_keeps_connectivity():
     desired = np.array([[0, 0.1], [0.45, 0.1], [0.9, 0.1], [1.35, 0.1]]) + [[0, 0], [0.4, 0.0], [0.8, 0], [1.2, 0]]
     plan, selection = strategy.plan(estimate, desired)
     assert selection is None and plan.n_anchors == 2
+
+
+class Recorder:
+    def __init__(self) -> None:
+        self.events = []
+
+    def on_plan(self, config_index, first_step, plan, selection) -> None:
+        self.events.append(("plan", config_index, first_step, plan.n_steps))
+
+    def on_estimate(self, step, estimate) -> None:
+        self.events.append(("estimate", step, estimate.poses.copy()))
+
+
+def test_listener_sees_plans_and_estimates_with_global_steps_and_changes_nothing(traj):
+    cfg = ModelConfig()
+
+    def run(listener):
+        backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed=5)
+        strategy = make_strategy("ref57", traj.n, cfg, "paper", FAST, seed=5)
+        return InchwormExecutor(backend, make_localizer("paper", cfg), strategy, cfg, listener=listener).run(
+            traj, initial_estimate(traj, 5, 0.01, 0.03))
+
+    rec = Recorder()
+    plain, heard = run(None), run(rec)
+    assert [e[:4] for e in rec.events if e[0] == "plan"] == [("plan", 0, 1, 2), ("plan", 1, 3, 2), ("plan", 2, 5, 2)]
+    estimates = [e for e in rec.events if e[0] == "estimate"]
+    assert [e[1] for e in estimates] == list(range(7))
+    np.testing.assert_array_equal(estimates[0][2], heard.initial_estimate.poses)
+    for e, s, p in zip(estimates[1:], heard.steps, plain.steps):
+        np.testing.assert_array_equal(e[2], s.estimate.poses)
+        np.testing.assert_array_equal(s.estimate.poses, p.estimate.poses)
+    assert rec.events.index(("plan", 1, 3, 2)) == 4  # after the estimates 0, 1, 2 and before step 3's

@@ -1,0 +1,210 @@
+"""``swarm bench runtime``: coordination overhead of the distributed runtime per step.
+
+For each swarm size N (``--agents 10,50``) the benchmark starts, on this host, a Zenoh
+router hub in its own process and N ``swarm agent`` processes (as ``swarm launch`` does,
+simulated drivers, no motion delay), then runs the coordinator in process: a
+``ZenohSwarmBackend`` (a client of the hub, like ``swarm coordinator``) under the same
+``InchwormExecutor``, with a fixed plan (``--method no-anchors``: everybody moves every
+step, or ``ref57``) along a random trajectory of ``--steps`` steps. A step's time runs
+from the end of the previous step (or of the plan) to the published fused estimate:
+commands out, every ``Status done`` back, observation requests out, every report (and
+simulated truth) back, localization, ``EstimateMessage`` published. No simulated motion
+time is included (``--motion-time`` 0). Reported per N:
+
+* ``step_ms_median``: median step time (ms);
+* ``zenoh_rtt_ms``: the raw Zenoh round trip between two client sessions through the
+  same hub (``runtime.transport.round_trip_ms``, median), measured in the same run with
+  the agents alive, and the step time as a multiple of it;
+* beside them (table only): the median of the command round (``execute``: commands out,
+  every ``done`` back) and of the observation round (``observe``: requests out, every
+  report and truth back); the rest of a step is localization and publishing;
+* ``agent_rss_mb``: resident memory of the largest agent process after the run
+  (``VmRSS`` of ``/proc/<pid>/status``, MB = 2^20 bytes).
+
+Every process started is stopped by its own pid at the end, on error and on Ctrl-C.
+Targets (issue): N = 10 under 20 ms, N = 50 under 100 ms per step, agents under 80 MB.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from coordinator.executor import InchwormExecutor
+from coordinator.localization import make_localizer
+from coordinator.selection.selector import SelectionConfig
+from coordinator.simulate import initial_estimate
+from coordinator.strategies import make_strategy
+from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
+from runtime.errors import SwarmInputError
+from runtime.trajectory import random_trajectory
+from runtime.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms
+from swarm_cli.launch import MODEL_OPTIONS, _forward, start_agents, stop_all
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
+
+METHODS = ("no-anchors", "ref57")
+EXIT_AGENT = 3
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("runtime", help="per-step coordination overhead with 10 and 50 agent processes, agent memory, Zenoh RTT")
+    p.add_argument("--agents", default="10,50", help="comma-separated numbers of agent processes (default 10,50)")
+    p.add_argument("--steps", type=int, default=20, help="steps timed per swarm size (default 20)")
+    p.add_argument("--method", choices=METHODS, default="no-anchors", help="fixed plan (default no-anchors: all move each step)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the trajectory and the noise (default 0)")
+    p.add_argument("--rtt-count", type=int, default=200, help="pings of the raw Zenoh round trip (default 200)")
+    p.add_argument("--start-timeout", type=float, default=120.0, help="seconds to wait for all agents (default 120)")
+    p.add_argument("--step-timeout", type=float, default=10.0, help="seconds to wait for a step's answers (default 10)")
+    add_localizer_option(p)
+    add_model_options(p)
+    add_json_option(p)
+    p.set_defaults(run=run)
+
+
+class StepTimer:
+    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.mark: float | None = None
+        self.seconds: list[float] = []
+
+    def on_plan(self, config_index, first_step, plan, selection) -> None:
+        self.inner.on_plan(config_index, first_step, plan, selection)
+        self.mark = time.perf_counter()
+
+    def on_estimate(self, step, estimate) -> None:
+        self.inner.on_estimate(step, estimate)
+        now = time.perf_counter()
+        if step > 0 and self.mark is not None:
+            self.seconds.append(now - self.mark)
+        self.mark = now
+
+
+class TimedBackend:
+    """The backend with its ``execute`` and ``observe`` calls timed (seconds)."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.ids = inner, inner.ids
+        self.execute_s: list[float] = []
+        self.observe_s: list[float] = []
+
+    def execute(self, step) -> None:
+        t = time.perf_counter()
+        self.inner.execute(step)
+        self.execute_s.append(time.perf_counter() - t)
+
+    def observe(self):
+        t = time.perf_counter()
+        obs = self.inner.observe()
+        self.observe_s.append(time.perf_counter() - t)
+        return obs
+
+    def true_poses(self):
+        return self.inner.true_poses()
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of process ``pid`` in MB (VmRSS), or None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _say(text: str) -> None:
+    print(f"bench runtime: {text}", file=sys.stderr, flush=True)
+
+
+def _raise_interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def measure(n: int, args: argparse.Namespace) -> dict:
+    """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row."""
+    cfg = model_config(args)
+    strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
+    per_config = strategy.fixed.n_steps
+    configs = math.ceil(args.steps / per_config)
+    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
+    run_id = f"bench-runtime-{os.getpid()}-{n}"
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings):
+            t0 = time.monotonic()
+            _say(f"{n} agents: starting (run {run_id}, hub {hub})")
+            start_agents(traj, run_id, hub, args.seed, 0.0, _forward(args, MODEL_OPTIONS), procs, stdout=subprocess.DEVNULL)
+            with open_session(member) as session:
+                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
+                try:
+                    backend.wait_for_agents()
+                    _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")
+                    rtt = round_trip_ms(member, member, args.rtt_count)["median_ms"]
+                    _say(f"{n} agents: round trip {rtt:.3f} ms; timing {configs * per_config} steps ({args.method})")
+                    timer = StepTimer(backend)
+                    progress = lambda done, total: _say(f"{n} agents: configuration {done}/{total} (step {backend.step})")  # noqa: E731
+                    timed = TimedBackend(backend)
+                    executor = InchwormExecutor(timed, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=timer)
+                    executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
+                finally:
+                    backend.close()
+            rss = [rss_mb(p.pid) for p in procs]
+            dead = [int(r) for r, p in zip(traj.ids, procs) if p.poll() is not None]
+            if dead or None in rss:
+                raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
+    finally:
+        stop_all(procs)
+    left = [p.pid for p in procs if p.poll() is None]
+    if left:
+        raise RuntimeError(f"agent processes {left} are still running")
+    step_ms = [s * 1e3 for s in timer.seconds]
+    return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
+            "agent_rss_mb": round(max(rss), 1), "_steps": len(step_ms), "_step_ms_p90": _p90(step_ms),
+            "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
+
+
+def _p90(values: list[float]) -> float:
+    return round(statistics.quantiles(values, n=10)[-1], 3) if len(values) >= 2 else round(values[0], 3)
+
+
+def run(args: argparse.Namespace) -> int:
+    sizes = parse_list(args.agents, "--agents", int, 2)
+    if args.steps < 1:
+        raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")
+    if args.rtt_count < 2:
+        raise SwarmInputError(f"--rtt-count must be >= 2, got {args.rtt_count}")
+    if args.method == "ref57" and any(n % 2 for n in sizes):
+        raise SwarmInputError("--method ref57 needs even numbers of agents")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    rows = []
+    try:
+        for n in sizes:
+            try:
+                rows.append(measure(n, args))
+            except AgentError as exc:
+                print(f"swarm bench runtime: error: {n} agents: {exc}", file=sys.stderr, flush=True)
+                return EXIT_AGENT
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print(f"{'agents':>6} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} {'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'agent RSS MB (max)':>18}")
+    for r in rows:
+        print(f"{r['agents']:>6} {r['_steps']:>5} {r['step_ms_median']:>16.2f} {r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
+              f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {r['_execute_ms']:>11.2f} {r['_observe_ms']:>10.2f} {r['agent_rss_mb']:>18.1f}")
+    if args.json:
+        print_json({"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]})
+    return 0

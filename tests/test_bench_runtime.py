@@ -1,0 +1,47 @@
+"""``swarm bench runtime`` on a tiny swarm: the JSON contract, and no agent process left behind."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _alive_with(text: str) -> list[int]:
+    """Pids of processes (zombies excluded) whose command line mentions ``text``."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text in (entry / "cmdline").read_bytes().decode(errors="replace") and (entry / "stat").read_text().split()[2] != "Z":
+                    pids.append(int(entry.name))
+            except OSError:
+                pass
+    return pids
+
+
+def test_bench_runtime_json_contract_and_cleanup():
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "swarm_cli.main", "bench", "runtime", "--agents", "3", "--steps", "3", "--rtt-count", "20", "--json"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
+    )
+    try:
+        stdout, stderr = proc.communicate(timeout=180)
+    finally:
+        if proc.poll() is None:
+            proc.kill()  # its agents would then be orphans: the check below names them
+            proc.wait()
+    assert proc.returncode == 0, stderr
+    last = json.loads(stdout.strip().splitlines()[-1])
+    assert list(last) == ["results"] and len(last["results"]) == 1
+    row = last["results"][0]
+    assert list(row) == ["agents", "step_ms_median", "zenoh_rtt_ms", "agent_rss_mb"]
+    assert row["agents"] == 3
+    assert row["step_ms_median"] > 0 and row["zenoh_rtt_ms"] > 0 and 10 < row["agent_rss_mb"] < 1000
+    assert "3 agents: all alive" in stderr
+    assert _alive_with(f"bench-runtime-{proc.pid}-") == []
