@@ -1,0 +1,78 @@
+"""One robot agent on a real loopback Zenoh hub: refusals, idempotency, bad input (in-process thread)."""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from robot_agent.agent import Agent
+from robot_agent.driver import SimDriver
+from runtime.config import ModelConfig
+from runtime.keys import alive_wildcard, robot_key
+from runtime.messages import MotionCommand, Status, decode, encode
+from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+
+RUN = "agent-test"
+
+
+@pytest.fixture
+def agent_on_hub():
+    hub_settings, member = loopback_hub(free_tcp_port())
+    with open_session(hub_settings) as hub:
+        agent = Agent(member, RUN, 0, [0, 1], SimDriver(0, [0, 1], np.zeros(3), ModelConfig(), seed=1))
+        thread = threading.Thread(target=agent.run, daemon=True)
+        thread.start()
+        _, statuses = subscribe_queue(hub, robot_key(RUN, 0, "status"))
+        deadline = time.monotonic() + 5
+        while not alive_now(hub, alive_wildcard(RUN)) and time.monotonic() < deadline:
+            time.sleep(0.02)
+        try:
+            yield hub, agent, statuses
+        finally:
+            agent.stop()
+            thread.join(timeout=5)
+
+
+def next_status(statuses: queue.Queue, timeout: float = 3.0) -> Status:
+    _, payload = statuses.get(timeout=timeout)
+    return decode(payload, Status)
+
+
+def send(hub, step: int, turn: float, drive: float) -> None:
+    publish(hub, robot_key(RUN, 0, "cmd"), encode(MotionCommand(run=RUN, step=step, robot=0, config=1, turn_rad=turn, drive_m=drive)))
+
+
+def test_command_beyond_limits_is_refused_with_a_reason_and_not_executed(agent_on_hub):
+    hub, agent, statuses = agent_on_hub
+    send(hub, 1, 0.1, 5.0)  # the default limit is 1 m
+    status = next_status(statuses)
+    assert status.state == "refused" and "drive" in status.reason
+    assert agent.executed == 0
+
+
+def test_duplicate_command_is_not_executed_twice(agent_on_hub):
+    hub, agent, statuses = agent_on_hub
+    send(hub, 1, 0.2, 0.1)
+    assert [next_status(statuses).state for _ in range(2)] == ["accepted", "done"]
+    send(hub, 1, 0.2, 0.1)
+    assert next_status(statuses).state == "done"  # the last status again
+    assert agent.executed == 1
+    send(hub, 0, 0.2, 0.1)
+    stale = next_status(statuses)
+    assert stale.state == "refused" and "stale" in stale.reason
+
+
+def test_garbage_on_the_command_key_is_dropped_and_counted(agent_on_hub):
+    hub, agent, statuses = agent_on_hub
+    for junk in (b"", b"\xc1", b"\x92\x01\x02", encode(MotionCommand(run=RUN, step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1))[:-3]):
+        publish(hub, robot_key(RUN, 0, "cmd"), junk)
+    deadline = time.monotonic() + 3
+    while agent.drops.total < 4 and time.monotonic() < deadline:
+        time.sleep(0.02)
+    assert agent.drops.total == 4
+    send(hub, 2, 0.0, 0.1)  # still serving
+    assert next_status(statuses).state == "accepted"
