@@ -7,8 +7,9 @@ import sys
 
 from runtime.errors import LocalizationError, SwarmInputError
 from swarm_cli import agent, bench, compare, coordinator_cmd, launch, localize, sim, study
+from swarm_cli import info, record, recover
 
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,97 @@
+"""``swarm record``: record every message of a run to an MCAP file (runtime.recording, docs/recording.md).
+
+    swarm record --run demo --hub tcp/127.0.0.1:7447 [--out recordings/demo.mcap]
+
+Connects as a Zenoh client to the run's hub, subscribes to ``swarm/<run>/**`` and writes
+until SIGINT or SIGTERM, then finishes the file and prints its path and message count.
+"Recording ..." on stderr means the subscription is declared (messages published
+earlier are not recorded). Exit status 0, 2 on bad input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from runtime.errors import SwarmInputError
+from runtime.keys import run_wildcard, validate_run
+from runtime.recording import record_run
+from runtime.transport import ZenohSettings
+from swarm_cli.options import print_json
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("record", help="record every message of a run to an MCAP file until Ctrl-C / SIGTERM")
+    add_arguments(p)
+    p.set_defaults(run=run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--run", dest="run_id", required=True, help="run id (records swarm/<run>/**)")
+    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    p.add_argument("--out", type=Path, default=None, help="MCAP file to write (default recordings/<run>.mcap)")
+    p.add_argument("--seed", type=int, default=None, help="seed of the run, stored in the run metadata")
+    p.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON of the run, stored in the run metadata")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="extra run metadata (repeatable; VALUE parsed as JSON when it is JSON)")
+    p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+
+
+def _metadata(args: argparse.Namespace) -> dict:
+    meta: dict = {"hub": args.hub, "command": " ".join(sys.argv)}
+    if args.seed is not None:
+        meta["seed"] = args.seed
+    if args.trajectory is not None:
+        try:
+            meta["trajectory"] = json.loads(args.trajectory.read_text())
+        except (OSError, ValueError) as exc:
+            raise SwarmInputError(f"trajectory {args.trajectory}: cannot read it as JSON: {exc}") from None
+    params = {}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
+        try:
+            params[key] = json.loads(value)
+        except ValueError:
+            params[key] = value
+    if params:
+        meta["parameters"] = params
+    return meta
+
+
+def run(args: argparse.Namespace) -> int:
+    validate_run(args.run_id)
+    settings = ZenohSettings("client", connect=(args.hub,))
+    out = args.out or Path("recordings") / f"{args.run_id}.mcap"
+    meta = _metadata(args)
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {args.hub} to {rec.path}",  # noqa: E731
+                              file=sys.stderr, flush=True)
+    result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)
+    print(f"wrote {result['path']}: {result['messages']} messages on {result['channels']} channels"
+          + (f" ({result['undecodable']} undecodable)" if result["undecodable"] else ""), flush=True)
+    if args.json:
+        print_json(result)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="swarm record")
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except (SwarmInputError, OSError) as exc:
+        print(f"swarm record: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
