@@ -3,6 +3,10 @@
 Layout: one channel per key (topic = the Zenoh key, message encoding ``msgpack``); one
 ``jsonschema`` schema per message type (name = the type, data = ``json_schema(cls)``),
 shared by every channel of that type; keys without a message type get schema id 0.
+Unless ``foxglove=False``, derived Foxglove channels are written too (``runtime.foxglove_scene``:
+``/foxglove/estimated``, ``/foxglove/true``, ``/foxglove/desired``, message encoding ``json``,
+schema ``foxglove.SceneUpdate``), each derived message right after the raw one it comes from;
+the raw channels are unchanged (same topics, schemas, payloads, times and sequence numbers).
 Metadata record ``run`` (string -> string; structured values JSON-encoded) is written
 first, ``recorder`` (message counts, clean stop) at ``close()``. Chunks are zstd-compressed,
 at most ``CHUNK_BYTES`` uncompressed, and a chunk is closed at least every ``FLUSH_S``
@@ -31,6 +35,7 @@ from importlib import metadata as _pkg_metadata
 from pathlib import Path
 from typing import Any
 
+import msgpack
 from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
@@ -45,6 +50,15 @@ try:
 except ImportError:  # mcap's zstd support is optional; without it nothing raises this
     class _ZstdError(Exception):
         pass
+from runtime.foxglove_scene import (
+    DERIVED_TYPES,
+    SCENE_UPDATE_SCHEMA_BYTES,
+    SceneDeriver,
+    encode_json,
+)
+from runtime.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
+from runtime.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
+from runtime.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
 from runtime.keys import KeyspaceError, run_wildcard, validate_run
 from runtime.messages import MessageError, decode, json_schema, type_for_key
 
@@ -100,6 +114,16 @@ def _metadata_values(data: dict[str, str]) -> dict[str, Any]:
     return out
 
 
+def peek_stamp(payload: bytes) -> int | None:
+    """``stamp_ns`` (ns) of an encoded message without validating the rest; None if absent or malformed."""
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except (ValueError, TypeError, RecursionError, msgpack.UnpackException):
+        return None
+    stamp = obj.get("stamp_ns") if isinstance(obj, dict) else None
+    return stamp if isinstance(stamp, int) and not isinstance(stamp, bool) and stamp >= 0 else None
+
+
 class McapRecorder:
     """Writes ``(key, payload, publish_time_ns, log_time_ns)`` messages to an MCAP file.
 
@@ -107,13 +131,25 @@ class McapRecorder:
     context manager or call ``close()``, which drains the queue and finishes the file
     (summary and indexes). ``metadata`` is stored as the ``run`` metadata record together
     with the run id and ``software_versions()``.
+
+    ``foxglove`` (default True): also write the derived ``foxglove.SceneUpdate`` channels
+    (module docstring); the desired positions need ``metadata["trajectory"]`` (the
+    trajectory JSON object). Derivation errors never stop the recording (counted in
+    ``derived_errors``).
     """
 
     def __init__(self, path: str | os.PathLike, run: str, metadata: dict[str, Any] | None = None, *,
-                 chunk_bytes: int = CHUNK_BYTES, flush_s: float = FLUSH_S) -> None:
+                 chunk_bytes: int = CHUNK_BYTES, flush_s: float = FLUSH_S, foxglove: bool = True) -> None:
         self.path = Path(path)
         self.run = validate_run(run)
         self.flush_s = float(flush_s)
+        self.foxglove = bool(foxglove)
+        self._deriver = SceneDeriver((metadata or {}).get("trajectory")) if self.foxglove else None
+        self._derived_types: dict[str, bool] = {}  # key -> whether its type feeds the derived channels
+        self._derived_channels: dict[str, int] = {}
+        self._derived_schema = 0
+        self._derived_counts: dict[str, int] = {}
+        self.derived_errors = 0
         if self.path.parent and not self.path.parent.exists():
             self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self.path, "wb")
@@ -154,8 +190,14 @@ class McapRecorder:
         with self._lock:
             return dict(self._counts)
 
+    def derived_counts(self) -> dict[str, int]:
+        """Per derived topic, messages written so far."""
+        with self._lock:
+            return dict(self._derived_counts)
+
     def bad_counts(self) -> dict[str, int]:
-        """Per key, messages of a typed key that did not decode (recorded anyway)."""
+        """Per key, messages of a typed key that are malformed (no msgpack map with a stamp, or, for the keys
+        the Foxglove views derive from, not valid); recorded anyway. ``swarm info`` validates every message."""
         with self._lock:
             return dict(self._bad)
 
@@ -177,22 +219,50 @@ class McapRecorder:
             self._channels[key] = channel_id
             if schema_id:
                 self._typed.add(key)
+            self._derived_types[key] = cls is not None and issubclass(cls, DERIVED_TYPES)
         return channel_id
 
     def _write_now(self, key: str, payload: bytes, publish_time: int | None, log_time: int) -> None:
         channel_id = self._channel(key)
         bad = False
-        if publish_time is None:
+        msg = None
+        derive = self._deriver is not None and self._derived_types[key]
+        if derive:  # the derived views need the validated message
             try:
-                publish_time = decode(payload, key=key).stamp_ns
+                msg = decode(payload, key=key)
             except MessageError:
-                publish_time, bad = log_time, key in self._typed
+                bad = key in self._typed
+        if publish_time is None:
+            # Only the stamp is needed: a cheap peek; the full validation of every message is swarm info's.
+            stamp = msg.stamp_ns if msg is not None else (None if derive else peek_stamp(payload))
+            bad = bad or (stamp is None and not derive and key in self._typed)
+            publish_time = log_time if stamp is None else stamp
         with self._lock:
             self._counts[key] = self._counts.get(key, 0) + 1
             seq = self._counts[key]
             if bad:
                 self._bad[key] = self._bad.get(key, 0) + 1
         self._writer.add_message(channel_id, log_time, payload, int(publish_time), sequence=seq & 0xFFFFFFFF)
+        if derive and msg is not None:
+            self._write_derived(msg, log_time)
+
+    def _write_derived(self, msg, log_time: int) -> None:
+        try:
+            scenes = [(topic, encode_json(scene)) for topic, scene in self._deriver.derive(msg)]
+        except (ValueError, TypeError, KeyError, IndexError):  # a view must never stop the recording
+            self.derived_errors += 1
+            return
+        for topic, data in scenes:
+            channel_id = self._derived_channels.get(topic)
+            if channel_id is None:
+                if not self._derived_schema:
+                    self._derived_schema = self._writer.register_schema(DERIVED_SCHEMA, SCHEMA_ENCODING, SCENE_UPDATE_SCHEMA_BYTES)
+                channel_id = self._writer.register_channel(topic, DERIVED_ENCODING, self._derived_schema,
+                                                           {"derived_from": run_wildcard(self.run)})
+                self._derived_channels[topic] = channel_id
+            with self._lock:
+                seq = self._derived_counts[topic] = self._derived_counts.get(topic, 0) + 1
+            self._writer.add_message(channel_id, log_time, data, msg.stamp_ns, sequence=seq & 0xFFFFFFFF)
 
     def _loop(self) -> None:
         last_flush = time.monotonic()
@@ -226,6 +296,7 @@ class McapRecorder:
             if self._error is None:
                 with self._lock:
                     stats = {"messages": sum(self._counts.values()), "undecodable": sum(self._bad.values()),
+                             "derived_messages": sum(self._derived_counts.values()), "derived_errors": self.derived_errors,
                              "stopped_ns": time.time_ns(), "clean_stop": True}
                 self._writer.add_metadata("recorder", _metadata_map(stats))
                 self._writer.finish()
@@ -458,15 +529,24 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
             yield record
 
 
-def read_messages(path: str | os.PathLike) -> Iterator[tuple[str, bytes, int, int]]:
-    """``(topic, payload, log_time_ns, publish_time_ns)`` of every message, in file order.
+def is_derived(topic: str) -> bool:
+    """Whether ``topic`` is a derived Foxglove channel (``/foxglove/...``), not a Zenoh key of the run."""
+    return topic.startswith(DERIVED_PREFIX)
 
+
+def read_messages(path: str | os.PathLike, derived: bool = False) -> Iterator[tuple[str, bytes, int, int]]:
+    """``(topic, payload, log_time_ns, publish_time_ns)`` of every message of the run, in file order.
+
+    The derived Foxglove channels (``is_derived``) are skipped unless ``derived`` is True,
+    so what is yielded is exactly what was received on ``swarm/<run>/**``.
     Works on unfinished (killed) recordings: they end at the last complete chunk.
     """
     status = RecordingStatus()
     for record in _records(path, status):
         if isinstance(record, Message):
-            yield status.channels[record.channel_id].topic, record.data, record.log_time, record.publish_time
+            topic = status.channels[record.channel_id].topic
+            if derived or not is_derived(topic):
+                yield topic, record.data, record.log_time, record.publish_time
 
 
 def recording_info(path: str | os.PathLike) -> dict[str, Any]:
@@ -480,7 +560,8 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
             schema = status.schemas.get(record.schema_id)
             channels.setdefault(record.id, {"topic": record.topic, "type": schema.name if schema else None,
                                             "message_encoding": record.message_encoding, "messages": 0,
-                                            "first_ns": None, "last_ns": None, "undecodable": 0, "reasons": {}})
+                                            "first_ns": None, "last_ns": None, "undecodable": 0, "reasons": {},
+                                            "derived": is_derived(record.topic)})
         elif isinstance(record, Metadata):
             meta[record.name] = _metadata_values(record.metadata)
         elif isinstance(record, Attachment):
@@ -491,7 +572,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
             t = record.log_time
             ch["first_ns"] = t if ch["first_ns"] is None else min(ch["first_ns"], t)
             ch["last_ns"] = t if ch["last_ns"] is None else max(ch["last_ns"], t)
-            if ch["type"] is not None:
+            if ch["type"] is not None and ch["message_encoding"] == MESSAGE_ENCODING:
                 try:
                     decode(record.data, key=ch["topic"])
                 except MessageError as e:
@@ -510,6 +591,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
         "problem": status.problem,
         "library": status.library,
         "messages": sum(c["messages"] for c in channels.values()),
+        "derived_messages": sum(c["messages"] for c in channels.values() if c["derived"]),
         "undecodable": sum(c["undecodable"] for c in channels.values()),
         "first_ns": first,
         "last_ns": last,

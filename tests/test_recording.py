@@ -60,9 +60,10 @@ def sample_messages() -> list[tuple[str, bytes]]:
     return out
 
 
-def write_sample(path: Path) -> list[tuple[str, bytes, int]]:
+def write_sample(path: Path, foxglove: bool = True) -> list[tuple[str, bytes, int]]:
     written = []
-    with McapRecorder(path, RUN, {"seed": 7, "parameters": {"w_v": 0.5}, "trajectory": {"ids": [0, 1, 2]}}) as rec:
+    meta = {"seed": 7, "parameters": {"w_v": 0.5}, "trajectory": {"ids": [0, 1, 2]}}
+    with McapRecorder(path, RUN, meta, foxglove=foxglove) as rec:
         for i, (key, payload) in enumerate(sample_messages()):
             log_time = 1_700_000_000_000_000_000 + i * 1_000_000
             rec.write(key, payload, log_time_ns=log_time)
@@ -72,7 +73,7 @@ def write_sample(path: Path) -> list[tuple[str, bytes, int]]:
 
 def test_round_trip_seeking_and_stream_reader(tmp_path):
     path = tmp_path / "run.mcap"
-    written = write_sample(path)
+    written = write_sample(path, foxglove=False)  # the raw layout only; derived channels: tests/test_foxglove.py
     expected = [(k, p, t) for k, p, t in written]
 
     with open(path, "rb") as f:

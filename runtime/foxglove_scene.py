@@ -1,0 +1,363 @@
+"""Foxglove views of a run: ``foxglove.SceneUpdate`` messages derived from the raw ones (docs/recording.md).
+
+Pure Python, no foxglove-sdk needed: the recorder (``runtime.recording``) writes these
+scenes as extra ``json`` channels next to the raw ``msgpack`` ones, and
+``runtime.foxglove_live.LiveView`` sends the same dicts to the Foxglove app live.
+
+Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
+
+* ``/foxglove/estimated``: per ``EstimateMessage``, one entity per robot (id
+  ``estimated/<robot>``): a green sphere at the estimated position and the robot id as a
+  label; a robot that is an anchor in the estimate's step (not in the moving group of
+  the current ``PlanMessage`` for that step) is dark green and has a dark ring around it.
+* ``/foxglove/true``: per ``TruthMessage``, that robot's entity (``true/<robot>``): a blue sphere.
+* ``/foxglove/desired``: per ``PlanMessage``, the configuration it plans for, taken from
+  the trajectory (``{"robots", "configurations"}``, docs/trajectory.md): one entity per
+  robot (``desired/<robot>``), a red sphere and the id.
+
+Entities with the same id replace the previous ones, so each message costs O(its robots).
+Every returned dict is fresh (no shared sub-dicts), so callers may modify a scene.
+``SceneDeriver`` holds the little state needed (the trajectory and the latest plan).
+The JSON schema is the official one (``SCENE_UPDATE_SCHEMA``, see ``_SCENE_UPDATE_SCHEMA_TEXT``).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from runtime.messages import EstimateMessage, Message, PlanMessage, TruthMessage
+
+SCHEMA_NAME = "foxglove.SceneUpdate"
+SCHEMA_ENCODING = "jsonschema"
+MESSAGE_ENCODING = "json"
+FRAME = "world"
+TOPIC_PREFIX = "/foxglove/"
+TOPIC_ESTIMATED = "/foxglove/estimated"
+TOPIC_TRUE = "/foxglove/true"
+TOPIC_DESIRED = "/foxglove/desired"
+TOPICS = (TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED)
+
+# colours (r, g, b, a in [0, 1]) and sizes (m): the paper's figures use desired red, estimated green, true blue
+GREEN = {"r": 0.1, "g": 0.75, "b": 0.2, "a": 0.9}
+DARK_GREEN = {"r": 0.0, "g": 0.35, "b": 0.1, "a": 1.0}
+BLUE = {"r": 0.15, "g": 0.35, "b": 0.95, "a": 0.9}
+RED = {"r": 0.9, "g": 0.1, "b": 0.1, "a": 0.6}
+WHITE = {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0}
+SPHERE_M = 0.05
+TRUE_SPHERE_M = 0.04
+ANCHOR_SPHERE_M = 0.065
+RING_RADIUS_M = 0.05
+RING_THICKNESS_M = 0.006
+RING_POINTS = 16
+LABEL_PX = 12.0
+LABEL_DZ_M = 0.05
+
+# The official JSON schema of foxglove.SceneUpdate: foxglove/foxglove-sdk,
+# schemas/jsonschema/SceneUpdate.json at commit ca8a1ced73b2737d03e2e3f282b57359a1a4cb72,
+# with the "description" and "$comment" keys removed (structure, titles, enums and
+# required lists unchanged). foxglove-sdk itself ships only the protobuf schema.
+_SCENE_UPDATE_SCHEMA_TEXT = (
+    '{"title":"foxglove.SceneUpdate","type":"object","properties":{"deletions":{"type":"array","items":{"'
+    'title":"foxglove.SceneEntityDeletion","type":"object","properties":{"timestamp":{"type":"object","ti'
+    'tle":"time","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,'
+    '"maximum":999999999}}},"type":{"title":"foxglove.SceneEntityDeletionType","oneOf":[{"title":"MATCHIN'
+    'G_ID","const":0},{"title":"ALL","const":1}]},"id":{"type":"string"}},"required":["timestamp","type",'
+    '"id"]}},"entities":{"type":"array","items":{"title":"foxglove.SceneEntity","type":"object","properti'
+    'es":{"timestamp":{"type":"object","title":"time","properties":{"sec":{"type":"integer","minimum":0},'
+    '"nsec":{"type":"integer","minimum":0,"maximum":999999999}}},"frame_id":{"type":"string"},"id":{"type'
+    '":"string"},"lifetime":{"type":"object","title":"duration","properties":{"sec":{"type":"integer"},"n'
+    'sec":{"type":"integer","minimum":0,"maximum":999999999}}},"frame_locked":{"type":"boolean"},"metadat'
+    'a":{"type":"array","items":{"title":"foxglove.KeyValuePair","type":"object","properties":{"key":{"ty'
+    'pe":"string"},"value":{"type":"string"}},"required":["key","value"]}},"arrows":{"type":"array","item'
+    's":{"title":"foxglove.ArrowPrimitive","type":"object","properties":{"pose":{"title":"foxglove.Pose",'
+    '"type":"object","properties":{"position":{"title":"foxglove.Vector3","type":"object","properties":{"'
+    'x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"orienta'
+    'tion":{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type"'
+    ':"number"},"z":{"type":"number"},"w":{"type":"number"}},"required":["x","y","z","w"]}},"required":["'
+    'position","orientation"]},"shaft_length":{"type":"number"},"shaft_diameter":{"type":"number"},"head_'
+    'length":{"type":"number"},"head_diameter":{"type":"number"},"color":{"title":"foxglove.Color","type"'
+    ':"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type'
+    '":"number"}},"required":["r","g","b","a"]}},"required":["pose","shaft_length","shaft_diameter","head'
+    '_length","head_diameter","color"]}},"cubes":{"type":"array","items":{"title":"foxglove.CubePrimitive'
+    '","type":"object","properties":{"pose":{"title":"foxglove.Pose","type":"object","properties":{"posit'
+    'ion":{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"nu'
+    'mber"},"z":{"type":"number"}},"required":["x","y","z"]},"orientation":{"title":"foxglove.Quaternion"'
+    ',"type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w"'
+    ':{"type":"number"}},"required":["x","y","z","w"]}},"required":["position","orientation"]},"size":{"t'
+    'itle":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"'
+    'z":{"type":"number"}},"required":["x","y","z"]},"color":{"title":"foxglove.Color","type":"object","p'
+    'roperties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type":"number"}}'
+    ',"required":["r","g","b","a"]}},"required":["pose","size","color"]}},"spheres":{"type":"array","item'
+    's":{"title":"foxglove.SpherePrimitive","type":"object","properties":{"pose":{"title":"foxglove.Pose"'
+    ',"type":"object","properties":{"position":{"title":"foxglove.Vector3","type":"object","properties":{'
+    '"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"orient'
+    'ation":{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type'
+    '":"number"},"z":{"type":"number"},"w":{"type":"number"}},"required":["x","y","z","w"]}},"required":['
+    '"position","orientation"]},"size":{"title":"foxglove.Vector3","type":"object","properties":{"x":{"ty'
+    'pe":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"color":{"title'
+    '":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"t'
+    'ype":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]}},"required":["pose","size","colo'
+    'r"]}},"cylinders":{"type":"array","items":{"title":"foxglove.CylinderPrimitive","type":"object","pro'
+    'perties":{"pose":{"title":"foxglove.Pose","type":"object","properties":{"position":{"title":"foxglov'
+    'e.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"nu'
+    'mber"}},"required":["x","y","z"]},"orientation":{"title":"foxglove.Quaternion","type":"object","prop'
+    'erties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}},"r'
+    'equired":["x","y","z","w"]}},"required":["position","orientation"]},"size":{"title":"foxglove.Vector'
+    '3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}},'
+    '"required":["x","y","z"]},"bottom_scale":{"type":"number"},"top_scale":{"type":"number"},"color":{"t'
+    'itle":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b"'
+    ':{"type":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]}},"required":["pose","size","'
+    'bottom_scale","top_scale","color"]}},"lines":{"type":"array","items":{"title":"foxglove.LinePrimitiv'
+    'e","type":"object","properties":{"type":{"title":"foxglove.LineType","oneOf":[{"title":"LINE_STRIP",'
+    '"const":0},{"title":"LINE_LOOP","const":1},{"title":"LINE_LIST","const":2}]},"pose":{"title":"foxglo'
+    've.Pose","type":"object","properties":{"position":{"title":"foxglove.Vector3","type":"object","prope'
+    'rties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]}'
+    ',"orientation":{"title":"foxglove.Quaternion","type":"object","properties":{"x":{"type":"number"},"y'
+    '":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}},"required":["x","y","z","w"]}},"req'
+    'uired":["position","orientation"]},"thickness":{"type":"number"},"scale_invariant":{"type":"boolean"'
+    '},"points":{"type":"array","items":{"title":"foxglove.Point3","type":"object","properties":{"x":{"ty'
+    'pe":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]}},"color":{"titl'
+    'e":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"'
+    'type":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]},"colors":{"type":"array","items'
+    '":{"title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"'
+    '},"b":{"type":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]}},"indices":{"type":"arr'
+    'ay","items":{"type":"integer","minimum":0}}},"required":["type","pose","thickness","scale_invariant"'
+    ',"points","color","colors","indices"]}},"triangles":{"type":"array","items":{"title":"foxglove.Trian'
+    'gleListPrimitive","type":"object","properties":{"pose":{"title":"foxglove.Pose","type":"object","pro'
+    'perties":{"position":{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"}'
+    ',"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"orientation":{"title":"foxg'
+    'love.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"typ'
+    'e":"number"},"w":{"type":"number"}},"required":["x","y","z","w"]}},"required":["position","orientati'
+    'on"]},"points":{"type":"array","items":{"title":"foxglove.Point3","type":"object","properties":{"x":'
+    '{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]}},"color":{"'
+    'title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b'
+    '":{"type":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]},"colors":{"type":"array","i'
+    'tems":{"title":"foxglove.Color","type":"object","properties":{"r":{"type":"number"},"g":{"type":"num'
+    'ber"},"b":{"type":"number"},"a":{"type":"number"}},"required":["r","g","b","a"]}},"indices":{"type":'
+    '"array","items":{"type":"integer","minimum":0}}},"required":["pose","points","color","colors","indic'
+    'es"]}},"texts":{"type":"array","items":{"title":"foxglove.TextPrimitive","type":"object","properties'
+    '":{"pose":{"title":"foxglove.Pose","type":"object","properties":{"position":{"title":"foxglove.Vecto'
+    'r3","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"}}'
+    ',"required":["x","y","z"]},"orientation":{"title":"foxglove.Quaternion","type":"object","properties"'
+    ':{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":"number"},"w":{"type":"number"}},"required'
+    '":["x","y","z","w"]}},"required":["position","orientation"]},"billboard":{"type":"boolean"},"font_si'
+    'ze":{"type":"number"},"scale_invariant":{"type":"boolean"},"color":{"title":"foxglove.Color","type":'
+    '"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"type"'
+    ':"number"}},"required":["r","g","b","a"]},"text":{"type":"string"}},"required":["pose","billboard","'
+    'font_size","scale_invariant","color","text"]}},"models":{"type":"array","items":{"title":"foxglove.M'
+    'odelPrimitive","type":"object","properties":{"pose":{"title":"foxglove.Pose","type":"object","proper'
+    'ties":{"position":{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y'
+    '":{"type":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"orientation":{"title":"foxglov'
+    'e.Quaternion","type":"object","properties":{"x":{"type":"number"},"y":{"type":"number"},"z":{"type":'
+    '"number"},"w":{"type":"number"}},"required":["x","y","z","w"]}},"required":["position","orientation"'
+    ']},"scale":{"title":"foxglove.Vector3","type":"object","properties":{"x":{"type":"number"},"y":{"typ'
+    'e":"number"},"z":{"type":"number"}},"required":["x","y","z"]},"color":{"title":"foxglove.Color","typ'
+    'e":"object","properties":{"r":{"type":"number"},"g":{"type":"number"},"b":{"type":"number"},"a":{"ty'
+    'pe":"number"}},"required":["r","g","b","a"]},"override_color":{"type":"boolean"},"url":{"type":"stri'
+    'ng"},"media_type":{"type":"string"},"data":{"type":"string","contentEncoding":"base64"}},"required":'
+    '["pose","scale","color","override_color","url","media_type","data"]}}},"required":["timestamp","fram'
+    'e_id","id","lifetime","frame_locked","metadata","arrows","cubes","spheres","cylinders","lines","tria'
+    'ngles","texts","models"]}}},"required":["deletions","entities"]}'
+)
+
+SCENE_UPDATE_SCHEMA: dict[str, Any] = json.loads(_SCENE_UPDATE_SCHEMA_TEXT)
+SCENE_UPDATE_SCHEMA_BYTES = _SCENE_UPDATE_SCHEMA_TEXT.encode()
+
+_IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+_ZERO_DURATION = {"sec": 0, "nsec": 0}
+_RING = [(math.cos(2 * math.pi * i / RING_POINTS), math.sin(2 * math.pi * i / RING_POINTS)) for i in range(RING_POINTS)]
+
+
+def stamp(ns: int) -> dict[str, int]:
+    """A ``time`` ({sec, nsec}) from nanoseconds since the epoch."""
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return {"sec": max(sec, 0), "nsec": nsec if sec >= 0 else 0}
+
+
+def _pose(x: float, y: float, z: float = 0.0) -> dict[str, Any]:
+    return {"position": {"x": float(x), "y": float(y), "z": float(z)}, "orientation": dict(_IDENTITY)}
+
+
+def sphere(x: float, y: float, diameter: float, color: Mapping[str, float]) -> dict[str, Any]:
+    return {"pose": _pose(x, y), "size": {"x": diameter, "y": diameter, "z": diameter}, "color": dict(color)}
+
+
+def label(x: float, y: float, text: str, color: Mapping[str, float] = WHITE) -> dict[str, Any]:
+    return {"pose": _pose(x, y, LABEL_DZ_M), "billboard": True, "font_size": LABEL_PX, "scale_invariant": True,
+            "color": dict(color), "text": text}
+
+
+def ring(x: float, y: float, radius: float, color: Mapping[str, float]) -> dict[str, Any]:
+    """A closed circle (LINE_LOOP) of ``radius`` around (x, y)."""
+    return {"type": 1, "pose": _pose(x, y), "thickness": RING_THICKNESS_M, "scale_invariant": False,
+            "points": [{"x": radius * c, "y": radius * s, "z": 0.0} for c, s in _RING],
+            "color": dict(color), "colors": [], "indices": []}
+
+
+def entity(entity_id: str, stamp_ns: int, *, spheres: list | None = None, texts: list | None = None,
+           lines: list | None = None, metadata: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """A ``foxglove.SceneEntity`` in frame ``world`` (every field the schema requires, unused primitives empty)."""
+    return {
+        "timestamp": stamp(stamp_ns), "frame_id": FRAME, "id": entity_id, "lifetime": dict(_ZERO_DURATION),
+        "frame_locked": False,
+        "metadata": [{"key": str(k), "value": str(v)} for k, v in (metadata or {}).items()],
+        "arrows": [], "cubes": [], "spheres": spheres or [], "cylinders": [], "lines": lines or [],
+        "triangles": [], "texts": texts or [], "models": [],
+    }
+
+
+def scene_update(entities: list[dict[str, Any]]) -> dict[str, Any]:
+    return {"deletions": [], "entities": entities}
+
+
+def moving_robots(plan: PlanMessage | None, step: int) -> frozenset[int] | None:
+    """The group of ``plan`` that moves at global step ``step``, or None when the plan does not cover it."""
+    if plan is None:
+        return None
+    k = step - plan.step
+    if 0 <= k < len(plan.groups):
+        return frozenset(plan.groups[k])
+    return None
+
+
+def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> dict[str, Any]:
+    """Green spheres and id labels at the estimated positions; anchors of ``msg.step`` dark green with a ring."""
+    moving = moving_robots(plan, msg.step)
+    entities = []
+    for robot, pose in zip(msg.ids, msg.poses):
+        x, y = pose[0], pose[1]
+        anchor = moving is not None and robot not in moving
+        entities.append(entity(
+            f"estimated/{robot}", msg.stamp_ns,
+            spheres=[sphere(x, y, ANCHOR_SPHERE_M if anchor else SPHERE_M, DARK_GREEN if anchor else GREEN)],
+            texts=[label(x, y, str(robot))],
+            lines=[ring(x, y, RING_RADIUS_M, DARK_GREEN)] if anchor else None,
+            metadata={"robot": robot, "step": msg.step, "anchor": "true" if anchor else "false" if moving is not None else "unknown"},
+        ))
+    return scene_update(entities)
+
+
+def true_scene(msg: TruthMessage) -> dict[str, Any]:
+    """One blue sphere at the robot's true position (replaces that robot's previous one)."""
+    x, y = msg.pose[0], msg.pose[1]
+    return scene_update([entity(f"true/{msg.robot}", msg.stamp_ns, spheres=[sphere(x, y, TRUE_SPHERE_M, BLUE)],
+                                metadata={"robot": msg.robot, "step": msg.step})])
+
+
+def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int) -> dict[str, Any]:
+    """Red spheres and id labels at the desired positions of configuration ``config`` (1-based)."""
+    return scene_update([
+        entity(f"desired/{robot}", stamp_ns, spheres=[sphere(x, y, SPHERE_M, RED)], texts=[label(x, y, str(robot), RED)],
+               metadata={"robot": robot, "config": config})
+        for robot, (x, y) in positions.items()
+    ])
+
+
+def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, float]]] | None:
+    """Per configuration (C_d1 first), robot -> desired (x, y), from a trajectory JSON object; None if unusable.
+
+    Lenient on purpose (the recorder must never fail on metadata): anything that is not a
+    trajectory object with matching lengths and finite numbers gives None.
+    """
+    if not isinstance(trajectory, Mapping):
+        return None
+    robots, configs = trajectory.get("robots"), trajectory.get("configurations")
+    if not isinstance(robots, list) or not isinstance(configs, list):
+        return None
+    out = []
+    try:
+        ids = [int(r) for r in robots]
+        for config in configs:
+            if len(config) != len(ids):
+                return None
+            rows = {}
+            for robot, xy in zip(ids, config):
+                x, y = float(xy[0]), float(xy[1])
+                if not (math.isfinite(x) and math.isfinite(y)):
+                    return None
+                rows[robot] = (x, y)
+            out.append(rows)
+    except (TypeError, ValueError, IndexError, KeyError):
+        return None
+    return out
+
+
+class SceneDeriver:
+    """Turns raw messages into ``(topic, SceneUpdate dict)`` pairs; keeps the trajectory and the latest plan.
+
+    Not thread-safe: call from one thread (the recorder's writer thread) or under a lock.
+    """
+
+    def __init__(self, trajectory: Any = None) -> None:
+        self.configurations = trajectory_configurations(trajectory)
+        self.plan: PlanMessage | None = None
+
+    def derive(self, msg: Message) -> list[tuple[str, dict[str, Any]]]:
+        if isinstance(msg, EstimateMessage):
+            return [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
+        if isinstance(msg, TruthMessage):
+            return [(TOPIC_TRUE, true_scene(msg))]
+        if isinstance(msg, PlanMessage):
+            self.plan = msg
+            if self.configurations is not None and 1 <= msg.config <= len(self.configurations):
+                return [(TOPIC_DESIRED, desired_scene(msg.config, self.configurations[msg.config - 1], msg.stamp_ns))]
+        return []
+
+
+DERIVED_TYPES = (EstimateMessage, TruthMessage, PlanMessage)
+"""Message types ``SceneDeriver.derive`` uses; every other type yields nothing."""
+
+
+def encode_json(scene: Mapping[str, Any]) -> bytes:
+    """The compact UTF-8 JSON of a scene (the payload of a ``json`` channel)."""
+    return json.dumps(scene, separators=(",", ":"), allow_nan=False).encode()
+
+
+_JSON_TYPES: dict[str, tuple[type, ...]] = {"object": (dict,), "array": (list,), "string": (str,), "boolean": (bool,),
+                                            "number": (int, float), "integer": (int,)}
+
+
+def schema_errors(value: Any, schema: Mapping[str, Any] = SCENE_UPDATE_SCHEMA, path: str = "$", *,
+                  strict: bool = True) -> list[str]:
+    """What in ``value`` breaks ``schema`` (the subset of JSON Schema the Foxglove schemas use), [] if nothing.
+
+    Checks type, required, properties, items, minimum/maximum and oneOf-const enums; with
+    ``strict``, properties the schema does not define are errors too (catches typos).
+    """
+    errors: list[str] = []
+    kind = schema.get("type")
+    if kind is not None:
+        ok = isinstance(value, _JSON_TYPES[kind]) and not (kind in ("number", "integer") and isinstance(value, bool))
+        if not ok:
+            return [f"{path}: {type(value).__name__} where {kind} is required"]
+    if "oneOf" in schema:
+        consts = [c.get("const") for c in schema["oneOf"]]
+        if value not in consts or isinstance(value, bool):
+            errors.append(f"{path}: {value!r} is not one of {consts}")
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            errors.append(f"{path}: {value!r} is not finite")
+        if "minimum" in schema and value < schema["minimum"]:
+            errors.append(f"{path}: {value!r} < {schema['minimum']}")
+        if "maximum" in schema and value > schema["maximum"]:
+            errors.append(f"{path}: {value!r} > {schema['maximum']}")
+    if isinstance(value, dict):
+        props = schema.get("properties", {})
+        errors += [f"{path}: missing {name!r}" for name in schema.get("required", ()) if name not in value]
+        for name, v in value.items():
+            if name in props:
+                errors += schema_errors(v, props[name], f"{path}.{name}", strict=strict)
+            elif strict and props:
+                errors.append(f"{path}: {name!r} is not in the schema")
+    if isinstance(value, list) and "items" in schema:
+        for i, v in enumerate(value):
+            errors += schema_errors(v, schema["items"], f"{path}[{i}]", strict=strict)
+    return errors
+
+
+def entity_ids(scene: Mapping[str, Any]) -> Iterable[str]:
+    """The entity ids of a scene (for tests and tools)."""
+    return [e["id"] for e in scene.get("entities", ())]

@@ -1,0 +1,184 @@
+"""Foxglove views: derived SceneUpdate scenes (runtime.foxglove_scene), their MCAP channels, the live view."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import socket
+import sys
+
+import pytest
+from mcap.reader import make_reader
+
+from runtime.errors import SwarmInputError
+from runtime.foxglove_scene import (
+    SCENE_UPDATE_SCHEMA,
+    TOPIC_DESIRED,
+    TOPIC_ESTIMATED,
+    TOPIC_TRUE,
+    SceneDeriver,
+    estimated_scene,
+    schema_errors,
+    trajectory_configurations,
+)
+from runtime.messages import EstimateMessage, PlanMessage, TruthMessage, encode, message_key
+from runtime.recording import McapRecorder, read_messages, recording_info, recover
+from tests.test_recording import RUN, sample_messages
+
+TRAJ = {"robots": [0, 1, 2], "initial_poses": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]],
+        "configurations": [[[0.3, 0.0], [0.5, 0.0], [0.3, 0.2]], [[0.6, 0.1], [0.8, 0.1], [0.6, 0.3]]]}
+COV = [[[1e-4, 0, 0], [0, 1e-4, 0], [0, 0, 1e-3]]] * 3
+
+
+def run_messages() -> list:
+    """Step 0 estimate, a plan for configuration 2 (groups [0], [1, 2] at steps 1, 2), truths and estimates."""
+    msgs = [EstimateMessage(run=RUN, step=0, ids=[0, 1, 2], poses=[[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]], cov=COV),
+            PlanMessage(run=RUN, step=1, config=2, n_anchors=2, groups=[[0], [1, 2]])]
+    for step in (1, 2):
+        msgs += [TruthMessage(run=RUN, step=step, robot=r, pose=[0.1 * step + r, 0.0, 0.0]) for r in range(3)]
+        msgs.append(EstimateMessage(run=RUN, step=step, ids=[0, 1, 2], poses=[[0.1 * step + r, 0.01, 0.0] for r in range(3)], cov=COV))
+    return msgs
+
+
+def test_scenes_follow_the_schema_and_mark_anchors():
+    deriver = SceneDeriver(TRAJ)
+    out = [pair for m in run_messages() for pair in deriver.derive(m)]
+    assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + ([TOPIC_TRUE] * 3 + [TOPIC_ESTIMATED]) * 2
+    for _topic, scene in out:
+        assert schema_errors(scene) == [], scene
+        assert json.loads(json.dumps(scene, allow_nan=False)) == scene
+        for e in scene["entities"]:
+            assert e["frame_id"] == "world" and set(e["timestamp"]) == {"sec", "nsec"}
+    # desired = configuration 2 of the trajectory, red, labelled
+    desired = out[1][1]["entities"]
+    assert [e["id"] for e in desired] == ["desired/0", "desired/1", "desired/2"]
+    assert [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired] == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
+    assert desired[0]["spheres"][0]["color"]["r"] > 0.5 and [e["texts"][0]["text"] for e in desired] == ["0", "1", "2"]
+    # step 0: no plan, nobody marked; step 1: robot 0 moves, 1 and 2 are anchors; step 2: 0 is the anchor
+    def anchors(scene):
+        return [e["id"] for e in scene["entities"] if e["lines"]]
+    assert anchors(out[0][1]) == []
+    assert anchors(out[5][1]) == ["estimated/1", "estimated/2"]
+    assert anchors(out[9][1]) == ["estimated/0"]
+    ring = out[5][1]["entities"][1]["lines"][0]
+    assert ring["type"] == 1 and len(ring["points"]) >= 8
+    # true positions: one blue entity per robot
+    true = out[2][1]["entities"]
+    assert [e["id"] for e in true] == ["true/0"] and true[0]["spheres"][0]["color"]["b"] > 0.5
+    # the validator does catch mistakes
+    bad = estimated_scene(run_messages()[0])
+    del bad["entities"][0]["frame_id"]
+    bad["entities"][1]["spheres"][0]["color"]["r"] = "red"
+    assert len(schema_errors(bad)) == 2
+    assert trajectory_configurations({"robots": [0], "configurations": [[[1.0]]]}) is None
+    assert trajectory_configurations(None) is None
+
+
+def _channels(path):
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        msgs = [(ch.topic, m.data, m.log_time, m.publish_time, m.sequence) for _s, ch, m in reader.iter_messages(log_time_order=False)]
+        return summary, msgs
+
+
+def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path):
+    msgs = [(message_key(m), encode(m)) for m in run_messages()] + sample_messages()
+    paths, recs = {}, {}
+    for foxglove in (True, False):
+        paths[foxglove] = tmp_path / f"fox{foxglove}.mcap"
+        with McapRecorder(paths[foxglove], RUN, {"trajectory": TRAJ}, foxglove=foxglove) as rec:
+            recs[foxglove] = rec
+            for i, (key, payload) in enumerate(msgs):
+                rec.write(key, payload, log_time_ns=1_700_000_000_000_000_000 + i * 1000)
+        assert rec.count == len(msgs)
+    summary, got = _channels(paths[True])
+    _, plain = _channels(paths[False])
+    raw = [m for m in got if not m[0].startswith("/foxglove/")]
+    assert raw == plain  # topics, payload bytes, log/publish times and sequence numbers unchanged
+    assert [(k, p) for k, p, *_ in raw] == msgs
+
+    derived = [m for m in got if m[0].startswith("/foxglove/")]
+    # 6 estimates, 15 truths, 4 plans (configurations 2 and 1 of TRAJ): one derived message each
+    topics = {t for t, *_ in derived}
+    assert topics == {TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED}
+    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 15, TOPIC_DESIRED: 4}
+    assert recs[True].derived_counts() == {t: sum(1 for m in derived if m[0] == t) for t in topics}
+    assert recs[False].derived_counts() == {} and recs[True].derived_errors == 0
+    schemas = {s.id: s for s in summary.schemas.values()}
+    for ch in summary.channels.values():
+        if ch.topic.startswith("/foxglove/"):
+            assert ch.message_encoding == "json"
+            assert schemas[ch.schema_id].name == "foxglove.SceneUpdate" and schemas[ch.schema_id].encoding == "jsonschema"
+            assert json.loads(schemas[ch.schema_id].data) == SCENE_UPDATE_SCHEMA
+    for topic, data, log_time, publish_time, _seq in derived:
+        scene = json.loads(data)
+        assert schema_errors(scene) == [], (topic, scene)
+        assert scene["entities"] and all(e["frame_id"] == "world" for e in scene["entities"])
+    # each derived message follows the raw one it comes from, with that message's log time
+    keys = [m[0] for m in got]
+    first_plan = keys.index(f"swarm/{RUN}/coord/plan")
+    assert keys[first_plan + 1] == TOPIC_DESIRED and got[first_plan + 1][2] == got[first_plan][2]
+
+    assert list(read_messages(paths[True])) == list(read_messages(paths[False]))
+    assert len(list(read_messages(paths[True], derived=True))) == len(got)
+    info = recording_info(paths[True])
+    assert info["undecodable"] == 1 and info["derived_messages"] == len(derived)
+    assert info["metadata"]["recorder"]["derived_messages"] == len(derived)
+    out = tmp_path / "copy.mcap"
+    assert recover(paths[True], out)["messages"] == len(got)
+    assert _channels(out)[1] == got
+
+
+def test_live_view_needs_the_extra(monkeypatch):
+    from runtime.foxglove_live import LiveView
+
+    monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove -> ImportError
+    with pytest.raises(SwarmInputError, match=r"pip install -e '\.\[foxglove\]'"):
+        LiveView(port=0)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_live_view_serves_a_websocket():
+    pytest.importorskip("foxglove")
+    from runtime.foxglove_live import LiveView
+
+    port = _free_port()
+    view = LiveView(port=port, host="127.0.0.1", trajectory=TRAJ)
+    try:
+        assert view.port == port and view.url == f"ws://127.0.0.1:{port}"
+        for m in run_messages():
+            view.handle(message_key(m), encode(m))
+        view.handle(f"swarm/{RUN}/coord/estimate", b"\xc1 not msgpack")
+        view.handle("not/a/swarm/key", b"")
+        assert view.handled == len(run_messages()) and view.dropped == 2
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as conn:
+            key = base64.b64encode(os.urandom(16)).decode()
+            conn.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                          "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+            reply = conn.recv(4096).decode(errors="replace")
+            assert reply.startswith("HTTP/1.1 101"), reply
+    finally:
+        view.close()
+    view.close()  # idempotent
+    view.handle(message_key(run_messages()[0]), encode(run_messages()[0]))  # ignored after close
+
+
+def test_bench_record_prints_json(capsys):
+    from swarm_cli.main import main
+
+    assert main(["bench", "record", "--robots", "4,6", "--steps", "3", "--repeats", "1", "--step-ms", "20,100", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    rows = out["results"]
+    assert [(r["robots"], r["derived"]) for r in rows] == [(4, False), (4, True), (6, False), (6, True)]
+    assert [r["step_ms"] for r in rows] == [20, 20, 100, 100]
+    for r in rows:
+        assert r["msgs_per_s"] > 0 and r["mb_per_s"] > 0 and r["overhead_pct"] > 0
+        assert (r["derived_msgs"] > 0) == r["derived"]
