@@ -8,16 +8,29 @@ publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
 per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
 13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there, as ``swarm sim`` does. Exit status: 0 done, 3 an agent was lost, refused or
 did not answer (the message names the robots), 2 bad input.
+
+Recording is on by default: before the run starts, a recorder (``runtime.recording.record_run``,
+its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
+writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
+to turn it off), with the run metadata ``swarm replay --check`` and ``swarm plot`` need (seed,
+method, localizer, model and selection configuration, trajectory). The coordinator waits until
+the recorder's subscription has reached the hub before it starts, and at the end (also after a
+failed or interrupted run) lets the last messages arrive, finishes the file and prints
+``recorded PATH: N messages on C channels``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
 import signal
 import sys
+import threading
+import time
+import uuid
 from pathlib import Path
 
 from coordinator.executor import InchwormExecutor, RunResult
@@ -26,6 +39,8 @@ from coordinator.simulate import initial_estimate
 from coordinator.strategies import METHODS, make_strategy
 from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
 from runtime.errors import SwarmInputError
+from runtime.keys import validate_run
+from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
@@ -51,7 +66,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for the answers of a step (default 5)")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
     p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
+    add_record_options(p)
     add_simulation_options(p)
+
+
+def add_record_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--record", type=Path, default=None, metavar="PATH",
+                   help="MCAP file recording every message of the run (default recordings/<run>.mcap)")
+    g.add_argument("--no-record", action="store_true", help="do not record the run")
+
+
+def default_recording(run_id: str) -> Path:
+    return Path("recordings") / f"{run_id}.mcap"
 
 
 def result_json(result: RunResult) -> dict:
@@ -84,7 +111,92 @@ def write_plots(result: RunResult, out: Path) -> list[str]:
     return plots
 
 
-def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None) -> None:
+def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> dict:
+    """What a recording needs to re-run the coordinator's decisions (``swarm replay --check``, ``swarm plot``)."""
+    return {
+        "source": "swarm coordinator",
+        "command": " ".join(sys.argv),
+        "hub": args.hub,
+        "seed": args.seed,
+        "method": args.method,
+        "localizer": args.localizer,
+        "model": cfg.to_dict(),
+        "selection": dataclasses.asdict(selection),
+        "trajectory": traj.to_json(),
+        "initial_delta_m": INITIAL_DELTA,
+        "initial_heading_sigma_rad": INITIAL_HEADING_SIGMA,
+        "step_timeout_s": args.step_timeout,
+    }
+
+
+class Recording:
+    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end."""
+
+    SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
+    SETTLE_MAX_S = 3.0  # ... or after this long
+
+    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0) -> None:
+        self.run_id, self.path = run_id, path
+        self.stop = threading.Event()
+        self._ready = threading.Event()
+        self.recorder: McapRecorder | None = None
+        self.result: dict = {}
+        self.error: BaseException | None = None
+
+        def target() -> None:
+            try:
+                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready))
+            except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+                self.error = exc
+            finally:
+                self._ready.set()
+
+        self.thread = threading.Thread(target=target, name="swarm-recorder", daemon=True)
+        self.thread.start()
+        if not self._ready.wait(timeout_s):
+            self.stop.set()
+            raise ConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
+        if self.error is not None:
+            raise self.error
+
+    def _on_ready(self, recorder: McapRecorder) -> None:
+        self.recorder = recorder
+        self._ready.set()
+
+    def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
+        """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
+        probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
+        try:
+            deadline = time.monotonic() + timeout_s
+            while not probe.matching_status.matching:
+                if time.monotonic() > deadline or self.error is not None:
+                    raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
+                time.sleep(0.005)
+        finally:
+            probe.undeclare()
+
+    def finish(self) -> dict:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``."""
+        if self.recorder is not None and self.thread.is_alive():
+            start = last_change = time.monotonic()
+            count = self.recorder.count
+            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < self.SETTLE_MAX_S:
+                time.sleep(0.05)
+                if self.recorder.count != count:
+                    count, last_change = self.recorder.count, time.monotonic()
+        self.stop.set()
+        self.thread.join(timeout=30)
+        if self.error is not None:
+            raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
+        return self.result
+
+
+def recording_line(rec: dict) -> str:
+    return (f"recorded {rec['path']}: {rec['messages']} messages on {rec['channels']} channels"
+            + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
+
+
+def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
     """The per-configuration table of ``swarm sim``."""
     rows = []
     if result.has_truth:
@@ -104,9 +216,11 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
     if plots:
         print(f"wrote {', '.join(plots)}")
+    if recording:
+        print(recording_line(recording))
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
-                    "fallback_steps": len(fallbacks), "plots": plots or []})
+                    "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
 
 
 def _interrupt(*_) -> None:
@@ -122,23 +236,39 @@ def run(args: argparse.Namespace) -> int:
     selection = selection_config(args)
     strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
     settings = ZenohSettings("client", connect=(args.hub,))
-    with open_session(settings) as session:
-        backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
-        try:
-            backend.wait_for_agents()
-            print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
-            progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-            executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend)
-            result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
-        except AgentError as exc:
-            print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
-            return EXIT_AGENT
-        finally:
-            backend.close()
+    validate_run(args.run_id)
+    recording = None
+    if not args.no_record:
+        path = args.record or default_recording(args.run_id)
+        recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
+        print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
+    recorded, completed = None, False
+    try:
+        with open_session(settings) as session:
+            if recording is not None:
+                recording.wait_subscribed(session)
+            backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
+            try:
+                backend.wait_for_agents()
+                print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
+                progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
+                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend)
+                result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                completed = True
+            except AgentError as exc:
+                print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
+                return EXIT_AGENT
+            finally:
+                backend.close()
+    finally:
+        if recording is not None:
+            recorded = recording.finish()
+            if not completed:  # failed or interrupted run: the summary below is not printed
+                print(recording_line(recorded), flush=True)
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
     plots = write_plots(result, args.out) if args.out and result.configs else None
-    print_summary(result, args, plots)
+    print_summary(result, args, plots, recorded)
     return 0
 
 
@@ -148,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return run(args)
-    except SwarmInputError as exc:
+    except (SwarmInputError, OSError) as exc:
         print(f"swarm coordinator: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -5,7 +5,9 @@ the trajectory to a temporary file if it generated it, starts one ``swarm agent`
 process per robot (initial true pose from the trajectory), then ``swarm coordinator``,
 and waits for the coordinator, whose summary appears on stdout; the coordinator writes
 the Fig. 13/14/17 plots to ``--out`` (default ``out/demo`` or ``out/launch``) and prints
-their paths. On exit, error or
+their paths. The coordinator records the run to ``recordings/<run>.mcap`` (``--record PATH``
+to choose, ``--no-record`` to turn it off) and prints the path; the launcher repeats it on
+stderr at the end. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
 period), so no process outlives it. Exit status: the coordinator's.
 
@@ -33,6 +35,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.trajectory import Trajectory, random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session
+from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.options import add_simulation_options, model_config
 
 GRACE_S = 3.0
@@ -60,6 +63,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    add_record_options(p)
     add_simulation_options(p)
 
 
@@ -145,12 +149,17 @@ def run(args: argparse.Namespace) -> int:
                    f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
             if args.result:
                 cmd.append(f"--result={args.result}")
+            recording = None if args.no_record else (args.record or default_recording(run_id))
+            cmd.append("--no-record" if recording is None else f"--record={recording}")
             if args.json:
                 cmd.append("--json")
             print(f"swarm {args.command}: {traj.n} agents + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             coordinator = subprocess.Popen(cmd)
             procs.append(coordinator)
-            return coordinator.wait()
+            status = coordinator.wait()
+            if recording is not None and Path(recording).exists():
+                print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
+            return status
     finally:
         stop_all(procs)
         signal.signal(signal.SIGTERM, previous)

@@ -7,9 +7,9 @@ import sys
 
 from runtime.errors import LocalizationError, SwarmInputError
 from swarm_cli import agent, bench, compare, coordinator_cmd, launch, localize, sim, study
-from swarm_cli import info, record, recover
+from swarm_cli import info, plot, record, recover, replay
 
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot)
 
 
 def build_parser() -> argparse.ArgumentParser:

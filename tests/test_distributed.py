@@ -32,6 +32,7 @@ from runtime.messages import (
     encode,
     message_key,
 )
+from runtime.recording import read_messages, recording_info
 from runtime.trajectory import Trajectory, random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
 from swarm_cli.launch import stop_all
@@ -63,6 +64,7 @@ class Run:
         self.session = None
         self.out = out
         self.heard: list[tuple[str, bytes]] = []  # what the coordinator published on coord/* and robot/*/cmd
+        self.recording = tmp / "run.mcap"  # never the repository's recordings/
 
     def start(self) -> None:
         self.session = open_session(self.hub_settings)
@@ -79,7 +81,7 @@ class Run:
             )
         self.coordinator = subprocess.Popen(
             [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={self.traj_file}", f"--method={self.method}",
-             f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", *common,
+             f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", f"--record={self.recording}", *common,
              *([f"--out={self.out}"] if self.out else [])],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
         )
@@ -202,6 +204,39 @@ def test_coordinator_publishes_plans_estimates_and_configs(completed):
     assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 2)}
 
 
+def test_coordinator_records_the_run(completed):
+    run, out, _ = completed
+    assert f"recorded {run.recording}: " in out
+    info = recording_info(run.recording)
+    assert info["complete"] and info["undecodable"] == 0
+    r, ids = run.run_id, [int(i) for i in run.traj.ids]
+    run_channels = [c for c in info["channels"] if c["topic"].startswith("swarm/")]  # not derived views (/foxglove/...)
+    counts = {c["topic"]: c["messages"] for c in run_channels}
+    types = {c["topic"]: c["type"] for c in run_channels}
+    # no-anchors, 3 robots, 2 configurations: 2 steps, everyone moves at each
+    assert counts[coord_key(r, "plan")] == 2 and counts[coord_key(r, "estimate")] == 3
+    for robot in ids:
+        for leaf in ("cmd", "observe", "obs"):
+            assert counts[robot_key(r, robot, leaf)] == 2, leaf
+        assert types[robot_key(r, robot, "cmd")] == "MotionCommand" and types[robot_key(r, robot, "observe")] == "ObserveRequest"
+        assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
+        assert counts[truth_key(r, robot)] >= 3  # steps 0, 1, 2
+    assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"),
+                           *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
+                           *[truth_key(r, i) for i in ids]}
+    meta = info["metadata"]["run"]
+    assert meta["seed"] == run.seed and meta["method"] == run.method and meta["localizer"] == "paper"
+    assert Trajectory.from_json(meta["trajectory"]).to_json() == run.traj.to_json()
+    assert meta["model"]["bearing_sigma_rad"] == model_config(build_parser().parse_args(
+        ["coordinator", "--trajectory=x", "--run=x", "--hub=tcp/127.0.0.1:1"])).bearing_sigma_rad
+    # what our own subscriber heard (plans, estimates, commands) was recorded with identical bytes, in the same order
+    recorded = [(k, p) for k, p, _t, _pub in read_messages(run.recording)]
+    heard = list(run.heard)
+    assert heard
+    for key in {k for k, _ in heard}:
+        assert [p for k, p in recorded if k == key] == [p for k, p in heard if k == key], key
+
+
 def test_killed_agent_is_reported_lost(tmp_path):
     traj = random_trajectory(4, 4, np.random.default_rng(1))
     run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3)
@@ -219,6 +254,10 @@ def test_killed_agent_is_reported_lost(tmp_path):
         assert run.coordinator.returncode == 3, err
         assert "robot 1 lost (liveliness token gone)" in err
         assert elapsed < 2.0, f"lost after {elapsed:.2f} s"
+        # the failed run's recording is finished and names its path
+        assert f"recorded {run.recording}: " in "".join(run.stdout)
+        info = recording_info(run.recording)
+        assert info["complete"] and info["metadata"]["recorder"]["clean_stop"] and info["messages"] > 0
     finally:
         run.stop()
     assert all(p.returncode is not None for p in run.children())

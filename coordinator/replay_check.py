@@ -1,0 +1,356 @@
+"""Re-running a recorded run's coordinator decisions (``swarm replay --check``) and rebuilding it (``swarm plot``).
+
+``load_recording(path)`` reads an MCAP recording (finished or not, ``runtime.recording``)
+into a ``RecordedRun``: the run metadata and the decoded messages by step (estimates,
+commands, observation reports, truths) and by configuration (plans); messages that do not
+decode are counted and left out, channels outside ``swarm/`` (derived views such as
+``/foxglove/...``) are ignored; a message repeated (a re-sent command or request) is kept once.
+
+``check(recorded, ...)`` re-runs, in the order the coordinator ran them,
+
+* the initial estimate (step 0) from the seed and the trajectory, when the metadata has them,
+* the anchor selection of every configuration (``make_strategy(method, n, cfg, localizer,
+  selection, seed).plan(estimate before the configuration, desired)``; the strategy is seeded
+  and stateful, so plans are re-run in order and stop at the first one whose input is missing),
+* every step's localization: ``localize_observable(make_localizer(localizer, cfg), estimate of
+  step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``,
+
+and compares each result with the recorded message exactly (float equality, no tolerance).
+It stops at the first divergence. ``rebuild_run(recorded)`` turns a recording into the
+executor's ``RunResult`` (for the plots of ``swarm sim``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coordinator.executor import ConfigRecord, RunResult, StepRecord
+from coordinator.localization import make_localizer
+from coordinator.localization.partial import localize_observable
+from coordinator.plan import Plan
+from coordinator.selection.genetic import GeneticConfig
+from coordinator.selection.selector import SelectionConfig
+from coordinator.simulate import initial_estimate
+from coordinator.strategies import make_strategy
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.keys import ROOT
+from runtime.messages import (
+    EstimateMessage,
+    MessageError,
+    MotionCommand,
+    ObservationReport,
+    PlanMessage,
+    TruthMessage,
+    decode,
+    observations_from_reports,
+)
+from runtime.recording import read_messages, recording_info
+from runtime.state import StepCommands, SwarmEstimate
+from runtime.trajectory import Trajectory
+
+
+@dataclass
+class RecordedRun:
+    """What a recording holds, decoded; every dict is keyed by the global step (plans: by configuration, 1-based)."""
+
+    path: Path
+    info: dict[str, Any]
+    meta: dict[str, Any]
+    estimates: dict[int, EstimateMessage] = field(default_factory=dict)
+    plans: dict[int, PlanMessage] = field(default_factory=dict)
+    commands: dict[int, dict[int, MotionCommand]] = field(default_factory=dict)
+    reports: dict[int, dict[int, ObservationReport]] = field(default_factory=dict)
+    truths: dict[int, dict[int, TruthMessage]] = field(default_factory=dict)
+    undecodable: int = 0
+    messages: int = 0
+
+    @property
+    def complete(self) -> bool:
+        return bool(self.info.get("complete"))
+
+    def trajectory(self, override: Path | None = None) -> Trajectory:
+        if override is not None:
+            return Trajectory.load(override)
+        data = self.meta.get("trajectory")
+        if data is None:
+            raise SwarmInputError(f"{self.path}: the recording has no trajectory in its run metadata "
+                                  "(record with swarm coordinator, or pass --trajectory FILE)")
+        return Trajectory.from_json(data)
+
+    def ids(self) -> np.ndarray:
+        if 0 in self.estimates:
+            return np.array(self.estimates[0].ids, dtype=np.int64)
+        if "trajectory" in self.meta:
+            return self.trajectory().ids
+        raise SwarmInputError(f"{self.path}: no initial estimate (step 0) and no trajectory: the robots are unknown")
+
+
+def load_recording(path: str | Path) -> RecordedRun:
+    """Decode a recording (``SwarmInputError`` for files that are not readable MCAP recordings)."""
+    path = Path(path)
+    info = recording_info(path)  # validates the whole file first: a damaged file fails here, before anything is used
+    meta = info["metadata"].get("run", {})
+    rec = RecordedRun(path, info, meta if isinstance(meta, dict) else {})
+    run = rec.meta.get("run")
+    for topic, payload, _log, _pub in read_messages(path):
+        if not topic.startswith(ROOT + "/"):
+            continue  # derived views (e.g. /foxglove/...), not messages of the run
+        rec.messages += 1
+        try:
+            msg = decode(payload, key=topic)
+        except MessageError:
+            rec.undecodable += 1
+            continue
+        if run is not None and msg.run != run:
+            continue
+        if isinstance(msg, EstimateMessage):
+            rec.estimates.setdefault(msg.step, msg)
+        elif isinstance(msg, PlanMessage):
+            rec.plans.setdefault(msg.config, msg)
+        elif isinstance(msg, MotionCommand):
+            rec.commands.setdefault(msg.step, {}).setdefault(msg.robot, msg)
+        elif isinstance(msg, ObservationReport):
+            rec.reports.setdefault(msg.step, {}).setdefault(msg.robot, msg)
+        elif isinstance(msg, TruthMessage):
+            rec.truths.setdefault(msg.step, {}).setdefault(msg.robot, msg)
+    return rec
+
+
+# ------------------------------------------------------------------ configuration
+
+
+MODEL_FIELDS = tuple(f for f in ModelConfig.__dataclass_fields__)
+
+
+def recorded_model(rec: RecordedRun, overrides: dict[str, float] | None = None) -> ModelConfig:
+    """The run's ``ModelConfig`` from the metadata (defaults where absent), fields in ``overrides`` replaced."""
+    stored = rec.meta.get("model") or {}
+    values = {k: float(v) for k, v in stored.items() if k in MODEL_FIELDS} if isinstance(stored, dict) else {}
+    values.update(overrides or {})
+    return ModelConfig(**values)
+
+
+def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None) -> SelectionConfig:
+    """The run's ``SelectionConfig`` from the metadata (defaults where absent), with ``overrides``
+    (``w_v`` (w_l = 1 - w_v), ``samples``, ``population``, ``generations``)."""
+    stored = rec.meta.get("selection") or {}
+    stored = dict(stored) if isinstance(stored, dict) else {}
+    genetic = GeneticConfig(**stored.pop("genetic", {}) or {})
+    counts = stored.pop("anchor_counts", None)
+    known = set(SelectionConfig.__dataclass_fields__) - {"genetic", "anchor_counts"}
+    sel = SelectionConfig(**{k: v for k, v in stored.items() if k in known}, genetic=genetic,
+                          anchor_counts=None if counts is None else tuple(int(c) for c in counts))
+    o = overrides or {}
+    if "w_v" in o:
+        sel = replace(sel, w_v=o["w_v"], w_l=1.0 - o["w_v"])
+    if "samples" in o:
+        sel = replace(sel, samples=o["samples"])
+    if "population" in o or "generations" in o:
+        sel = replace(sel, genetic=replace(sel.genetic, population=o.get("population", sel.genetic.population),
+                                           generations=o.get("generations", sel.genetic.generations)))
+    return sel
+
+
+# ------------------------------------------------------------------ check
+
+
+@dataclass
+class Divergence:
+    step: int
+    what: str  # "estimate", "plan", "initial estimate"
+    robot: int | None
+    field: str
+    recorded: Any
+    recomputed: Any
+
+    def __str__(self) -> str:
+        who = f", robot {self.robot}" if self.robot is not None else ""
+        return (f"divergence at step {self.step} ({self.what}{who}), {self.field}: "
+                f"recorded {self.recorded!r} vs recomputed {self.recomputed!r}")
+
+
+@dataclass
+class CheckResult:
+    estimates: int = 0
+    plans: int = 0
+    skipped: list[str] = field(default_factory=list)
+    divergence: Divergence | None = None
+    settings: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def passed(self) -> bool:
+        return self.divergence is None
+
+
+_AXES = ("x", "y", "heading")
+
+
+def compare_estimate(step: int, recorded: EstimateMessage, estimate: SwarmEstimate, what: str = "estimate") -> Divergence | None:
+    """The first robot and field where ``estimate`` differs from ``recorded`` (exact float comparison), or None."""
+    got = EstimateMessage.from_estimate(estimate, run=recorded.run, step=step, stamp_ns=recorded.stamp_ns)
+    if got.ids != recorded.ids:
+        return Divergence(step, what, None, "ids", list(recorded.ids), list(got.ids))
+    for k, robot in enumerate(recorded.ids):
+        for a in range(3):
+            r, c = recorded.poses[k][a], got.poses[k][a]
+            if r != c or math.copysign(1, r) != math.copysign(1, c):
+                return Divergence(step, what, robot, f"pose.{_AXES[a]}", r, c)
+        for a in range(3):
+            for b in range(3):
+                r, c = recorded.cov[k][a][b], got.cov[k][a][b]
+                if r != c or math.copysign(1, r) != math.copysign(1, c):
+                    return Divergence(step, what, robot, f"cov[{a}][{b}]", r, c)
+    return None
+
+
+def _plan_groups(plan: Plan, ids: np.ndarray) -> tuple[tuple[int, ...], ...]:
+    return tuple(tuple(int(ids[k]) for k in group) for group in plan.groups)
+
+
+def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, float] | None = None,
+          selection: dict[str, Any] | None = None, seed: int | None = None, method: str | None = None,
+          trajectory: Path | None = None) -> CheckResult:
+    """Re-run and compare (module doc); arguments given override the recorded settings."""
+    localizer = localizer or rec.meta.get("localizer") or "paper"
+    method = method or rec.meta.get("method")
+    seed = seed if seed is not None else rec.meta.get("seed")
+    cfg = recorded_model(rec, model)
+    result = CheckResult(settings={"localizer": localizer, "method": method, "seed": seed, "model": cfg.to_dict()})
+    if 0 not in rec.estimates:
+        raise SwarmInputError(f"{rec.path}: no initial estimate (EstimateMessage of step 0): nothing to check")
+    ids = np.array(rec.estimates[0].ids, dtype=np.int64)
+    traj = None
+    if trajectory is not None or "trajectory" in rec.meta:
+        traj = rec.trajectory(trajectory)
+        if not np.array_equal(traj.ids, ids):
+            raise SwarmInputError(f"{rec.path}: trajectory robots {traj.ids.tolist()} differ from the estimate's {ids.tolist()}")
+    loc = make_localizer(localizer, cfg)
+
+    # step 0: the initial estimate, drawn from the seed
+    if traj is not None and seed is not None and "initial_delta_m" in rec.meta:
+        est0 = initial_estimate(traj, int(seed), float(rec.meta["initial_delta_m"]), float(rec.meta["initial_heading_sigma_rad"]))
+        result.divergence = compare_estimate(0, rec.estimates[0], est0, "initial estimate")
+        if result.divergence:
+            return result
+        result.estimates += 1
+    else:
+        result.skipped.append("initial estimate (no seed, trajectory or initial uncertainty in the metadata)")
+
+    # plans, in configuration order (the seeded strategy is stateful)
+    strategy = None
+    if method is None or traj is None or seed is None:
+        result.skipped.append("plans (no method, trajectory or seed in the metadata)")
+    else:
+        strategy = make_strategy(method, len(ids), cfg, localizer, recorded_selection(rec, selection), int(seed))
+    plans_ok = strategy is not None
+    plan_at_step = {p.step: p for p in rec.plans.values()}
+    expected_config = 1
+
+    last = max(rec.estimates)
+    for step in range(0, last + 1):
+        plan_msg = plan_at_step.get(step)
+        if plan_msg is not None and plans_ok:
+            before = rec.estimates.get(step - 1)
+            if plan_msg.config != expected_config or before is None or plan_msg.config > len(traj.configurations):
+                result.skipped.append(f"plans from configuration {plan_msg.config} on (an earlier plan or the estimate "
+                                      f"of step {step - 1} is not in the recording)")
+                plans_ok = False
+            else:
+                plan, _ = strategy.plan(before.to_estimate(), traj.configurations[plan_msg.config - 1])
+                groups = _plan_groups(plan, ids)
+                if groups != plan_msg.groups:
+                    result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "groups",
+                                                   [list(g) for g in plan_msg.groups], [list(g) for g in groups])
+                    return result
+                if plan.n_anchors != plan_msg.n_anchors:
+                    result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "n_anchors",
+                                                   plan_msg.n_anchors, plan.n_anchors)
+                    return result
+                result.plans += 1
+                expected_config += 1
+        if step == 0 or step not in rec.estimates:
+            continue
+        prior = rec.estimates.get(step - 1)
+        commands = rec.commands.get(step, {})
+        reports = rec.reports.get(step, {})
+        missing = [int(r) for r in ids if r not in reports]
+        if prior is None or not commands or missing:
+            why = ("no estimate of the previous step" if prior is None else "no motion command" if not commands
+                   else f"no observation report from robots {missing}")
+            result.skipped.append(f"step {step} ({why})")
+            continue
+        index = {int(r): k for k, r in enumerate(ids)}
+        unknown = sorted(set(commands) - set(index))
+        if unknown:
+            raise SwarmInputError(f"{rec.path}: step {step} has commands for robots {unknown} outside the run")
+        moving = np.zeros(len(ids), bool)
+        cmds = np.zeros((len(ids), 2))
+        for robot, cmd in commands.items():
+            moving[index[robot]] = True
+            cmds[index[robot]] = (cmd.turn_rad, cmd.drive_m)
+        obs = observations_from_reports(reports[int(r)] for r in ids)
+        estimate, _excluded = localize_observable(loc, prior.to_estimate(), StepCommands(ids, cmds, moving), obs, cfg)
+        result.divergence = compare_estimate(step, rec.estimates[step], estimate)
+        if result.divergence:
+            return result
+        result.estimates += 1
+    return result
+
+
+# ------------------------------------------------------------------ rebuild for plots
+
+
+def rebuild_run(rec: RecordedRun, trajectory: Path | None = None) -> RunResult:
+    """The executor's ``RunResult`` of the configurations the recording completed (estimate and plan of each).
+
+    Truth (from ``TruthMessage``s) is attached when every robot's truth is recorded at step 0
+    and after every completed configuration; otherwise the result has no truth.
+    """
+    traj = rec.trajectory(trajectory)
+    ids = traj.ids
+    if 0 not in rec.estimates:
+        raise SwarmInputError(f"{rec.path}: no initial estimate (EstimateMessage of step 0): nothing to plot")
+    index = {int(r): k for k, r in enumerate(ids)}
+
+    def truth(step: int) -> np.ndarray | None:
+        got = rec.truths.get(step, {})
+        if not all(int(r) in got for r in ids):
+            return None
+        return np.array([got[int(r)].pose for r in ids], dtype=float)
+
+    result = RunResult(rec.meta.get("method") or "recorded", traj, rec.estimates[0].to_estimate(), truth(0))
+    have_truth = result.initial_truth is not None
+    for config in sorted(rec.plans):
+        msg = rec.plans[config]
+        if config != len(result.configs) + 1 or config > len(traj.configurations):
+            break
+        order = [index[r] for group in msg.groups for r in group]
+        if sorted(order) != list(range(len(ids))):
+            raise SwarmInputError(f"{rec.path}: the plan of configuration {config} does not move every robot once")
+        plan = Plan(np.array(order), tuple(len(g) for g in msg.groups))
+        steps = [msg.step + k for k in range(plan.n_steps)]
+        if not all(s in rec.estimates for s in steps):
+            break  # the recording ends inside this configuration
+        records = []
+        for k, s in enumerate(steps):
+            moving = plan.moving(k)
+            cmds = np.zeros((len(ids), 2))
+            for robot, cmd in rec.commands.get(s, {}).items():
+                if robot in index:
+                    cmds[index[robot]] = (cmd.turn_rad, cmd.drive_m)
+            t = truth(s)
+            have_truth = have_truth and (t is not None or k < len(steps) - 1)
+            records.append(StepRecord(config - 1, k, moving, cmds, rec.estimates[s].to_estimate(), t, None))
+        result.steps.extend(records)
+        result.configs.append(ConfigRecord(config - 1, plan, None, records[-1].estimate, records[-1].truth))
+    if not result.configs:
+        raise SwarmInputError(f"{rec.path}: the recording holds no completed configuration (plan and estimates of all its steps)")
+    if not have_truth:
+        result.initial_truth = None
+    return result

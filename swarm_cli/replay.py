@@ -1,0 +1,169 @@
+"""``swarm replay``: publish a recording again, or check that the coordinator reproduces it.
+
+    swarm replay FILE --publish [--speed X] [--hub tcp/127.0.0.1:PORT] [--wait S]
+    swarm replay FILE --check [--localizer L] [model / selection options] [--seed N] [--trajectory FILE]
+
+``--publish`` re-publishes every recorded message of the run (every channel under
+``swarm/``; derived channels such as ``/foxglove/...`` are not Zenoh messages and are left
+out; file order, bytes unchanged, on its recorded key) with the recorded relative timing (log time) divided by ``--speed``
+(default 1; ``0`` or ``inf``: as fast as possible). Without ``--hub`` it opens its own
+loopback hub (a Zenoh router on a free port) and prints ``swarm replay: hub
+tcp/127.0.0.1:PORT`` on stderr so a subscriber can connect; with ``--hub`` it joins that hub
+as a client. It waits up to ``--wait`` seconds (default 10) for a subscriber of any recorded
+key before it starts. Puts use Zenoh's blocking congestion control, so nothing is dropped.
+
+``--check`` re-runs the coordinator's localization (and, where the metadata allows, its
+initial estimate and seeded anchor selection) on the recorded inputs and compares every
+result with the recorded estimate / plan bit for bit (``coordinator.replay_check``); options
+given override the recorded settings. Prints ``check passed: N estimates, M plans
+reproduced`` (exit 0) or the first divergence (exit 1).
+
+Files that are not MCAP, damaged or cut inside the header: a message naming the file and
+the problem, exit 2. Unfinished (killed) recordings are read up to their last complete chunk.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+from coordinator.replay_check import check, load_recording
+from runtime.errors import SwarmInputError
+from runtime.keys import ROOT
+from runtime.recording import read_messages, recording_info
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
+
+EXIT_DIVERGED = 1
+MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
+    "turn_sigma_deg": ("turn_sigma_rad", math.radians),
+    "drive_sigma_frac": ("drive_sigma_frac", float),
+    "range_sigma": ("range_sigma_m", float),
+    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians),
+    "sensing_range": ("sensing_range_m", float),
+    "dropout": ("dropout_prob", float),
+}
+SELECTION_OPTIONS = ("w_v", "samples", "population", "generations")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("replay", help="re-publish a recording on Zenoh (--publish) or check that it is reproduced (--check)")
+    p.add_argument("file", type=Path, help="MCAP recording (swarm coordinator / swarm record)")
+    mode = p.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--publish", action="store_true", help="publish every recorded message again with its timing")
+    mode.add_argument("--check", action="store_true", help="re-run localization and anchor selection, compare bit for bit")
+    g = p.add_argument_group("--publish")
+    g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
+    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: open a loopback hub and print it)")
+    g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
+    c = p.add_argument_group("--check (options given override the recorded ones)")
+    c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
+    c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
+    add_localizer_option(p)
+    add_selection_options(p)
+    add_model_options(p)
+    add_json_option(p)
+    p.set_defaults(run=run, localizer=None, **{name: None for name in (*MODEL_OPTIONS, *SELECTION_OPTIONS)})
+
+
+def run(args: argparse.Namespace) -> int:
+    return run_check(args) if args.check else run_publish(args)
+
+
+# ------------------------------------------------------------------ --publish
+
+
+def run_publish(args: argparse.Namespace) -> int:
+    import zenoh  # only when publishing
+
+    from runtime.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session
+
+    speed = args.speed
+    if math.isnan(speed) or speed < 0:
+        raise SwarmInputError(f"--speed must be >= 0 (0 or inf: as fast as possible), got {speed}")
+    if args.wait < 0:
+        raise SwarmInputError(f"--wait must be >= 0, got {args.wait}")
+    info = recording_info(args.file)  # the whole file is validated before anything is published
+    everything = list(read_messages(args.file))
+    messages = [m for m in everything if m[0].startswith(ROOT + "/")]  # the run's Zenoh messages, not derived views
+    skipped = len(everything) - len(messages)
+    if not info["complete"]:
+        print(f"swarm replay: {args.file} is unfinished ({info['problem'] or 'no summary'}): replaying its "
+              f"{len(messages)} readable messages", file=sys.stderr, flush=True)
+    if args.hub:
+        settings, hub = ZenohSettings("client", connect=(args.hub,)), args.hub
+    else:
+        port = free_tcp_port()
+        settings, _ = loopback_hub(port)
+        hub = f"tcp/127.0.0.1:{port}"
+    with open_session(settings) as session:
+        publishers = {}
+        for topic, *_ in messages:
+            if topic not in publishers:
+                publishers[topic] = session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
+        print(f"swarm replay: hub {hub}, {len(messages)} messages on {len(publishers)} keys; "
+              f"waiting up to {args.wait:g} s for a subscriber", file=sys.stderr, flush=True)
+        deadline = time.monotonic() + args.wait
+        while publishers and not any(p.matching_status.matching for p in publishers.values()):
+            if time.monotonic() >= deadline:
+                print("swarm replay: no subscriber; publishing anyway", file=sys.stderr, flush=True)
+                break
+            time.sleep(0.01)
+        fast = speed == 0 or math.isinf(speed)
+        start = time.monotonic()
+        first = messages[0][2] if messages else 0
+        for topic, payload, log_time, _pub in messages:
+            if not fast:
+                wait = start + (log_time - first) / 1e9 / speed - time.monotonic()
+                if wait > 0:
+                    time.sleep(wait)
+            publishers[topic].put(payload)
+        elapsed = time.monotonic() - start
+        time.sleep(0.5)  # let the last samples leave before the session (and, own hub, the router) closes
+        for p in publishers.values():
+            p.undeclare()
+    span = (messages[-1][2] - first) / 1e9 if messages else 0.0
+    print(f"replayed {len(messages)} messages on {len(publishers)} keys in {elapsed:.3f} s "
+          f"(recorded span {span:.3f} s, speed {'max' if fast else f'{speed:g}'})"
+          + (f"; {skipped} messages of derived channels (outside {ROOT}/) not published" if skipped else ""), flush=True)
+    if args.json:
+        print_json({"messages": len(messages), "keys": len(publishers), "elapsed_s": elapsed, "recorded_s": span, "hub": hub,
+                    "skipped": skipped})
+    return 0
+
+
+# ------------------------------------------------------------------ --check
+
+
+def _overrides(args: argparse.Namespace) -> tuple[dict, dict]:
+    model = {field: convert(getattr(args, name)) for name, (field, convert) in MODEL_OPTIONS.items() if getattr(args, name) is not None}
+    selection = {name: getattr(args, name) for name in SELECTION_OPTIONS if getattr(args, name) is not None}
+    if "w_v" in selection and not 0.0 <= selection["w_v"] <= 1.0:
+        raise SwarmInputError(f"--w-v must be in [0, 1], got {selection['w_v']}")
+    return model, selection
+
+
+def run_check(args: argparse.Namespace) -> int:
+    model, selection = _overrides(args)
+    rec = load_recording(args.file)
+    if not rec.complete:
+        print(f"swarm replay: {args.file} is unfinished ({rec.info['problem'] or 'no summary'}): checking what it holds",
+              file=sys.stderr, flush=True)
+    result = check(rec, localizer=args.localizer, model=model, selection=selection, seed=args.seed, trajectory=args.trajectory)
+    s = result.settings
+    print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"
+          + (f", overriding {', '.join(sorted({**model, **selection}))}" if model or selection else ""), flush=True)
+    for what in result.skipped:
+        print(f"not checked: {what}", flush=True)
+    if result.divergence is not None:
+        print(f"check FAILED after {result.estimates} estimates and {result.plans} plans reproduced: {result.divergence}", flush=True)
+    else:
+        print(f"check passed: {result.estimates} estimates, {result.plans} plans reproduced", flush=True)
+    if args.json:
+        d = result.divergence
+        print_json({"passed": result.passed, "estimates": result.estimates, "plans": result.plans, "skipped": result.skipped,
+                    "divergence": None if d is None else {"step": d.step, "what": d.what, "robot": d.robot, "field": d.field,
+                                                          "recorded": d.recorded, "recomputed": d.recomputed}})
+    return 0 if result.passed else EXIT_DIVERGED
