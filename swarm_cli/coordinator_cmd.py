@@ -22,6 +22,7 @@ failed or interrupted run) lets the last messages arrive, finishes the file and 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import json
 import logging
@@ -31,6 +32,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Iterator
 from pathlib import Path
 
 from coordinator.executor import InchwormExecutor, RunResult
@@ -39,10 +41,11 @@ from coordinator.simulate import initial_estimate
 from coordinator.strategies import METHODS, make_strategy
 from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
 from runtime.errors import SwarmInputError
-from runtime.keys import validate_run
+from runtime.foxglove_live import LiveView
+from runtime.keys import run_wildcard, validate_run
 from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
-from runtime.transport import ZenohSettings, open_session
+from runtime.transport import ZenohSettings, open_session, subscribe
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 
 EXIT_AGENT = 3
@@ -75,6 +78,8 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--record", type=Path, default=None, metavar="PATH",
                    help="MCAP file recording every message of the run (default recordings/<run>.mcap)")
     g.add_argument("--no-record", action="store_true", help="do not record the run")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e '.[foxglove]')")
 
 
 def default_recording(run_id: str) -> Path:
@@ -223,6 +228,22 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
                     "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
 
 
+@contextlib.contextmanager
+def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[None]:
+    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs."""
+    if args.foxglove is None:
+        yield
+        return
+    view = LiveView(args.foxglove, trajectory=traj.to_json())
+    subscriber = subscribe(session, run_wildcard(args.run_id), view.handle)
+    print(f"coordinator: live view for the Foxglove app at {view.url}", file=sys.stderr, flush=True)
+    try:
+        yield
+    finally:
+        subscriber.undeclare()
+        view.close()
+
+
 def _interrupt(*_) -> None:
     raise KeyboardInterrupt
 
@@ -244,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
     recorded, completed = None, False
     try:
-        with open_session(settings) as session:
+        with open_session(settings) as session, live_view(args, traj, session):
             if recording is not None:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))

@@ -153,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
             cmd.append("--no-record" if recording is None else f"--record={recording}")
             if args.json:
                 cmd.append("--json")
+            if args.foxglove is not None:
+                cmd.append(f"--foxglove={args.foxglove}")
             print(f"swarm {args.command}: {traj.n} agents + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             coordinator = subprocess.Popen(cmd)
             procs.append(coordinator)

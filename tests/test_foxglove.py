@@ -182,3 +182,17 @@ def test_bench_record_prints_json(capsys):
     for r in rows:
         assert r["msgs_per_s"] > 0 and r["mb_per_s"] > 0 and r["overhead_pct"] > 0
         assert (r["derived_msgs"] > 0) == r["derived"]
+
+
+def test_demo_serves_the_live_view_while_it_runs(tmp_path):
+    import subprocess
+
+    pytest.importorskip("foxglove")
+    from runtime.transport import free_tcp_port
+
+    port = free_tcp_port()
+    out = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n", "3", "--configs", "1", "--method", "no-anchors",
+                          "--no-record", "--foxglove", str(port), "--out", str(tmp_path)],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert f"live view for the Foxglove app at ws://127.0.0.1:{port}" in out.stderr
