@@ -20,6 +20,7 @@ from robot_agent.driver import SimDriver
 from runtime.errors import SwarmInputError
 from runtime.messages import CommandLimits
 from runtime.transport import ZenohSettings
+from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_model_options, model_config, parse_list
 
 
@@ -58,14 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="swarm agent")
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (SwarmInputError, OSError) as exc:
-        print(f"swarm agent: error: {exc}", file=sys.stderr)
-        return 2
+    return run_standalone("swarm agent", add_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -40,12 +40,12 @@ from coordinator.localization import make_localizer
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import METHODS, make_strategy
 from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
-from runtime.errors import SwarmInputError
 from runtime.foxglove_live import LiveView
 from runtime.keys import run_wildcard, validate_run
 from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
+from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 
 EXIT_AGENT = 3
@@ -294,17 +294,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="swarm coordinator")
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (SwarmInputError, OSError) as exc:
-        print(f"swarm coordinator: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("swarm coordinator: interrupted", file=sys.stderr)
-        return 130
+    return run_standalone("swarm coordinator", add_arguments, run, argv)
 
 
 if __name__ == "__main__":

@@ -5,9 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from runtime.errors import LocalizationError, SwarmInputError
-from swarm_cli import agent, bench, compare, coordinator_cmd, launch, localize, sim, study
-from swarm_cli import info, plot, record, recover, replay
+from swarm_cli import agent, bench, compare, coordinator_cmd, info, launch, localize, plot, record, recover, replay, sim, study
+from swarm_cli.entry import guarded
 
 COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot)
 
@@ -22,14 +21,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    try:
-        return int(args.run(args) or 0)
-    except (SwarmInputError, LocalizationError, OSError) as exc:
-        print(f"swarm {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"swarm {args.command}: interrupted", file=sys.stderr)
-        return 130
+    return guarded(f"swarm {args.command}", lambda: args.run(args))
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from runtime.errors import SwarmInputError
 from runtime.keys import run_wildcard, validate_run
 from runtime.recording import record_run
 from runtime.transport import ZenohSettings
+from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 
 
@@ -83,14 +84,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="swarm record")
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return run(args)
-    except (SwarmInputError, OSError) as exc:
-        print(f"swarm record: error: {exc}", file=sys.stderr)
-        return 2
+    return run_standalone("swarm record", add_arguments, run, argv)
 
 
 if __name__ == "__main__":
