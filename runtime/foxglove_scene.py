@@ -10,14 +10,16 @@ Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
   ``estimated/<robot>``): a green sphere at the estimated position and the robot id as a
   label; a robot that is an anchor in the estimate's step (not in the moving group of
   the current ``PlanMessage`` for that step) is dark green and has a dark ring around it.
-* ``/foxglove/true``: per ``TruthMessage``, that robot's entity (``true/<robot>``): a blue sphere.
+* ``/foxglove/true``: per ``EstimateMessage``, the latest ``TruthMessage`` of every robot
+  (entities ``true/<robot>``): blue spheres. Truths arrive one robot at a time (n per
+  step); collecting them into one scene per step keeps the recorder's cost per step low.
 * ``/foxglove/desired``: per ``PlanMessage``, the configuration it plans for, taken from
   the trajectory (``{"robots", "configurations"}``, docs/trajectory.md): one entity per
   robot (``desired/<robot>``), a red sphere and the id.
 
 Entities with the same id replace the previous ones, so each message costs O(its robots).
 Every returned dict is fresh (no shared sub-dicts), so callers may modify a scene.
-``SceneDeriver`` holds the little state needed (the trajectory and the latest plan).
+``SceneDeriver`` holds the little state needed (the trajectory, the latest plan and truths).
 The JSON schema is the official one (``SCENE_UPDATE_SCHEMA``, see ``_SCENE_UPDATE_SCHEMA_TEXT``).
 """
 
@@ -240,11 +242,13 @@ def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> di
     return scene_update(entities)
 
 
-def true_scene(msg: TruthMessage) -> dict[str, Any]:
-    """One blue sphere at the robot's true position (replaces that robot's previous one)."""
-    x, y = msg.pose[0], msg.pose[1]
-    return scene_update([entity(f"true/{msg.robot}", msg.stamp_ns, spheres=[sphere(x, y, TRUE_SPHERE_M, BLUE)],
-                                metadata={"robot": msg.robot, "step": msg.step})])
+def true_scene(truths: Mapping[int, TruthMessage], stamp_ns: int) -> dict[str, Any]:
+    """One blue sphere per robot at its latest true position (replaces the previous ones)."""
+    return scene_update([
+        entity(f"true/{robot}", stamp_ns, spheres=[sphere(msg.pose[0], msg.pose[1], TRUE_SPHERE_M, BLUE)],
+               metadata={"robot": robot, "step": msg.step})
+        for robot, msg in sorted(truths.items())
+    ])
 
 
 def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int) -> dict[str, Any]:
@@ -294,12 +298,17 @@ class SceneDeriver:
     def __init__(self, trajectory: Any = None) -> None:
         self.configurations = trajectory_configurations(trajectory)
         self.plan: PlanMessage | None = None
+        self.truths: dict[int, TruthMessage] = {}
 
     def derive(self, msg: Message) -> list[tuple[str, dict[str, Any]]]:
         if isinstance(msg, EstimateMessage):
-            return [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
+            scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
+            if self.truths:
+                scenes.append((TOPIC_TRUE, true_scene(self.truths, msg.stamp_ns)))
+            return scenes
         if isinstance(msg, TruthMessage):
-            return [(TOPIC_TRUE, true_scene(msg))]
+            self.truths[msg.robot] = msg
+            return []
         if isinstance(msg, PlanMessage):
             self.plan = msg
             if self.configurations is not None and 1 <= msg.config <= len(self.configurations):

@@ -44,7 +44,7 @@ def run_messages() -> list:
 def test_scenes_follow_the_schema_and_mark_anchors():
     deriver = SceneDeriver(TRAJ)
     out = [pair for m in run_messages() for pair in deriver.derive(m)]
-    assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + ([TOPIC_TRUE] * 3 + [TOPIC_ESTIMATED]) * 2
+    assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_ESTIMATED, TOPIC_TRUE] * 2
     for _topic, scene in out:
         assert schema_errors(scene) == [], scene
         assert json.loads(json.dumps(scene, allow_nan=False)) == scene
@@ -59,13 +59,14 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     def anchors(scene):
         return [e["id"] for e in scene["entities"] if e["lines"]]
     assert anchors(out[0][1]) == []
-    assert anchors(out[5][1]) == ["estimated/1", "estimated/2"]
-    assert anchors(out[9][1]) == ["estimated/0"]
-    ring = out[5][1]["entities"][1]["lines"][0]
+    assert anchors(out[2][1]) == ["estimated/1", "estimated/2"]
+    assert anchors(out[4][1]) == ["estimated/0"]
+    ring = out[2][1]["entities"][1]["lines"][0]
     assert ring["type"] == 1 and len(ring["points"]) >= 8
-    # true positions: one blue entity per robot
-    true = out[2][1]["entities"]
-    assert [e["id"] for e in true] == ["true/0"] and true[0]["spheres"][0]["color"]["b"] > 0.5
+    # true positions: one blue entity per robot, the latest truths, with each estimate
+    true = out[5][1]["entities"]
+    assert [e["id"] for e in true] == ["true/0", "true/1", "true/2"] and true[0]["spheres"][0]["color"]["b"] > 0.5
+    assert [e["spheres"][0]["pose"]["position"]["x"] for e in true] == [0.2, 1.2, 2.2]
     # the validator does catch mistakes
     bad = estimated_scene(run_messages()[0])
     del bad["entities"][0]["frame_id"]
@@ -100,10 +101,11 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
     assert [(k, p) for k, p, *_ in raw] == msgs
 
     derived = [m for m in got if m[0].startswith("/foxglove/")]
-    # 6 estimates, 15 truths, 4 plans (configurations 2 and 1 of TRAJ): one derived message each
+    # 6 estimates, 4 plans (configurations 2 and 1 of TRAJ): one derived message each; the 15 truths
+    # appear in one true scene per estimate that follows a truth
     topics = {t for t, *_ in derived}
     assert topics == {TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED}
-    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 15, TOPIC_DESIRED: 4}
+    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 5, TOPIC_DESIRED: 4}
     assert recs[True].derived_counts() == {t: sum(1 for m in derived if m[0] == t) for t in topics}
     assert recs[False].derived_counts() == {} and recs[True].derived_errors == 0
     schemas = {s.id: s for s in summary.schemas.values()}
