@@ -48,6 +48,7 @@ from runtime.messages import (
     PlanMessage,
     Status,
     TruthMessage,
+    TruthSetMessage,
     decode_or_drop,
     encode,
     message_key,
@@ -106,6 +107,7 @@ class ZenohSwarmBackend:
         self._alive: set[int] = set()
         self._gone: set[int] = set()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
+        self._truths_sent = 0  # last step whose TruthSetMessage went out
         self._reports: dict[int, ObservationReport] = {}
         self._status: dict[int, Status] = {}
         enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
@@ -165,6 +167,7 @@ class ZenohSwarmBackend:
             old = self._truth.get(msg.robot)
             if old is None or msg.step >= old[0]:
                 self._truth[msg.robot] = (msg.step, np.array(msg.pose, dtype=float))
+            self._publish_truth_set()
         elif msg.step != self.step:
             return  # an answer to another step (late duplicate or foreign): not ours to use
         elif isinstance(msg, ObservationReport):
@@ -173,6 +176,18 @@ class ZenohSwarmBackend:
             old = self._status.get(msg.robot)
             if old is None or old.state == "accepted":
                 self._status[msg.robot] = msg
+
+    def _publish_truth_set(self, again: bool = False) -> None:
+        """Simulation: once every robot's truth of the current step is in, send them to the agents as one
+        ``TruthSetMessage`` (n messages per step instead of n^2); ``again`` re-sends it (a resend round)."""
+        s = self.step
+        if not self.simulated or s == 0 or (s <= self._truths_sent and not again):
+            return
+        if not self.known <= self._truth.keys() or any(self._truth[r][0] < s for r in self._id_list):
+            return
+        msg = TruthSetMessage(run=self.run, step=s, ids=self._id_list, poses=[self._truth[r][1] for r in self._id_list])
+        publish(self.session, message_key(msg), encode(msg))
+        self._truths_sent = s
 
     def _wait(self, what: str, missing, resend) -> None:
         """Pump until ``missing()`` is empty; re-send once at half the timeout; raise on loss or timeout."""
@@ -246,6 +261,7 @@ class ZenohSwarmBackend:
         def send(robots) -> None:
             for robot in robots:
                 publish(self.session, message_key(requests[robot]), encode(requests[robot]))
+            self._publish_truth_set(again=True)  # a resend round: agents may have missed it
 
         def missing() -> list[int]:
             left = [r for r in self._id_list if r not in self._reports]

@@ -18,11 +18,13 @@ Synchronisation of simulated sensing (``driver.simulated``): sensing needs every
 robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
 
 1. first publishes its own ``TruthMessage(step=s)`` on ``swarm/<run>/sim/truth/<id>``,
-2. then waits (while still serving other messages) until it holds a ``TruthMessage``
-   with ``step=s`` from every robot of the run (the ids given on the command line),
+2. then waits (while still serving other messages) for the coordinator's
+   ``TruthSetMessage(step=s)`` on ``swarm/<run>/sim/truths``, which the coordinator
+   sends once it holds the step-s truth of every robot of the run (one message per
+   agent and step instead of one per robot),
 3. then senses and publishes its ``ObservationReport(step=s)``.
 
-Truths for later steps that arrive early are kept until needed. A simulated agent also
+Truth sets for later steps that arrive early are kept until needed. A simulated agent also
 publishes its current truth (step 0 before any observation) at start and whenever the
 coordinator's liveliness token ``swarm/<run>/alive/coord`` appears, so a coordinator
 learns the initial true poses for evaluation without any sensing (which would consume
@@ -42,7 +44,7 @@ from collections.abc import Collection
 import numpy as np
 
 from robot_agent.driver import Driver
-from runtime.keys import alive_key, coord_alive_key, robot_key, truth_wildcard
+from runtime.keys import alive_key, coord_alive_key, robot_key, truths_key
 from runtime.messages import (
     CommandLimits,
     DropCounter,
@@ -52,6 +54,7 @@ from runtime.messages import (
     ObserveRequest,
     Status,
     TruthMessage,
+    TruthSetMessage,
     decode,
     decode_or_drop,
     encode,
@@ -110,7 +113,7 @@ class Agent:
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
             subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue)]
             if self.driver.simulated:
-                subs.append(subscribe(session, truth_wildcard(self.run_id), enqueue))
+                subs.append(subscribe(session, truths_key(self.run_id), enqueue))
                 subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
             token = declare_token(session, alive_key(self.run_id, self.robot))
             if self.driver.simulated:
@@ -148,9 +151,9 @@ class Agent:
             if msg is not None:
                 self._on_observe(msg)
         else:
-            msg = decode_or_drop(payload, self.drops, key, TruthMessage, self.known)
+            msg = decode_or_drop(payload, self.drops, key, TruthSetMessage, self.known)
             if msg is not None:
-                self._on_truth(msg)
+                self._on_truths(msg)
 
     def _on_command(self, key: str, payload: bytes) -> None:
         try:
@@ -195,10 +198,10 @@ class Agent:
             self._publish_truth(req.step)
         self._try_report()
 
-    def _on_truth(self, msg: TruthMessage) -> None:
-        if msg.step < max(self._last_obs_step, 0) and msg.step != 0:
+    def _on_truths(self, msg: TruthSetMessage) -> None:
+        if msg.step < max(self._last_obs_step, 0):
             return
-        self._truths.setdefault(msg.step, {})[msg.robot] = np.array(msg.pose, dtype=float)
+        self._truths.setdefault(msg.step, {}).update((r, np.array(p, dtype=float)) for r, p in zip(msg.ids, msg.poses))
         while len(self._truths) > MAX_PENDING_TRUTH_STEPS:  # bounded, whatever arrives
             del self._truths[max(self._truths)]
         self._try_report()

@@ -8,7 +8,8 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/robot/<id>/obs       ObservationReport  agent -> coordinator
     swarm/<run>/coord/plan           PlanMessage        coordinator -> all
     swarm/<run>/coord/estimate       EstimateMessage    coordinator -> all
-    swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> recorder
+    swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
+    swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
     swarm/<run>/alive/coord          liveliness token of the coordinator
 
@@ -103,6 +104,11 @@ def robot_wildcard(run: str, leaf: str) -> str:
     return f"{ROOT}/{validate_run(run)}/robot/*/{leaf}"
 
 
+def truths_key(run: str) -> str:
+    """``swarm/<run>/sim/truths``: every simulated robot's true pose after a step, in one message."""
+    return f"{ROOT}/{validate_run(run)}/sim/truths"
+
+
 def truth_wildcard(run: str) -> str:
     """``swarm/<run>/sim/truth/*``: every simulated robot's true pose."""
     return f"{ROOT}/{validate_run(run)}/sim/truth/*"
@@ -141,6 +147,8 @@ def parse_key(key: str) -> ParsedKey:
         return ParsedKey(run, "coord", None, rest[1])
     if len(rest) == 3 and rest[:2] == ["sim", "truth"]:
         return ParsedKey(run, "sim", _parse_id(rest[2], key), "truth")
+    if rest == ["sim", "truths"]:
+        return ParsedKey(run, "sim", None, "truths")
     if len(rest) == 3 and rest[:2] == ["alive", "robot"]:
         return ParsedKey(run, "alive", _parse_id(rest[2], key), "alive")
     if rest == ["alive", "coord"]:

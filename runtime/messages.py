@@ -27,7 +27,7 @@ import msgpack
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.keys import COORD_LEAVES, MAX_ROBOT_ID, ROBOT_LEAVES, RUN_PATTERN, KeyspaceError, coord_key, parse_key, robot_key, truth_key
+from runtime.keys import COORD_LEAVES, MAX_ROBOT_ID, ROBOT_LEAVES, RUN_PATTERN, KeyspaceError, coord_key, parse_key, robot_key, truth_key, truths_key
 from runtime.state import Observations, SwarmEstimate
 
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
@@ -342,6 +342,27 @@ class TruthMessage(Message):
     pose: tuple[float, ...] = _wire("float", "true [x, y, heading]", unit="m, m, rad", shape=(3,))
 
 
+@dataclass(frozen=True, kw_only=True)
+class TruthSetMessage(Message):
+    """Coordinator -> simulated agents (simulation only): every robot's true pose after ``step``.
+
+    The coordinator collects the agents' ``TruthMessage``s of a step and republishes them
+    as one message, so each simulated agent receives one message per step instead of n.
+    """
+
+    TYPE: ClassVar[str] = "TruthSetMessage"
+    LEAF: ClassVar[str] = "truths"
+
+    ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
+    poses: tuple[tuple[float, ...], ...] = _wire("float", "true [x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
+
+    def _check(self) -> None:
+        if not self.ids:
+            raise MessageError("TruthSetMessage.ids", "a truth set needs at least one robot", "invalid")
+        if len(set(self.ids)) != len(self.ids):
+            raise MessageError("TruthSetMessage.ids", "a robot appears twice", "invalid")
+
+
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     MotionCommand,
     ObserveRequest,
@@ -350,6 +371,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     PlanMessage,
     EstimateMessage,
     TruthMessage,
+    TruthSetMessage,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
 _BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
@@ -362,6 +384,8 @@ def message_key(msg: Message) -> str:
         return robot_key(msg.run, msg.robot, msg.LEAF)  # type: ignore[attr-defined]
     if msg.LEAF in COORD_LEAVES:
         return coord_key(msg.run, msg.LEAF)
+    if isinstance(msg, TruthSetMessage):
+        return truths_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
 
 

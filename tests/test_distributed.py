@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from coordinator.simulate import simulate
-from runtime.keys import coord_key, robot_key, robot_wildcard, truth_key
+from runtime.keys import coord_key, robot_key, robot_wildcard, truth_key, truths_key
 from runtime.messages import (
     EstimateMessage,
     MotionCommand,
@@ -221,7 +221,8 @@ def test_coordinator_records_the_run(completed):
         assert types[robot_key(r, robot, "cmd")] == "MotionCommand" and types[robot_key(r, robot, "observe")] == "ObserveRequest"
         assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
         assert counts[truth_key(r, robot)] >= 3  # steps 0, 1, 2
-    assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"),
+    assert counts[truths_key(r)] == 2  # one truth set per motion step
+    assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), truths_key(r),
                            *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
                            *[truth_key(r, i) for i in ids]}
     meta = info["metadata"]["run"]
@@ -284,7 +285,7 @@ def _garbage(run: Run) -> list[tuple[str, bytes]]:
         msgpack.packb({"type": "Status", "v": 1, "run": r, "step": True, "stamp_ns": 1, "robot": 0, "state": "done", "reason": ""}),
         *good,  # valid messages, but on the wrong keys for most of them
     ]
-    keys = [coord_key(r, "plan"), coord_key(r, "estimate")]
+    keys = [coord_key(r, "plan"), coord_key(r, "estimate"), truths_key(r)]
     for robot in robots:
         keys += [robot_key(r, robot, leaf) for leaf in ("cmd", "observe", "status", "obs")] + [truth_key(r, robot)]
     own = {message_key(decode(g)): g for g in good}  # a valid message on its own key is not garbage

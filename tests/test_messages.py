@@ -47,6 +47,7 @@ from runtime.messages import (
     PlanMessage,
     Status,
     TruthMessage,
+    TruthSetMessage,
     decode,
     decode_or_drop,
     encode,
@@ -77,6 +78,7 @@ def samples() -> list[Message]:
             SwarmEstimate.isotropic([1, 3, 4, 9], np.arange(12.0).reshape(4, 3) / 10, 0.01, 0.02), run="r1", step=7, stamp_ns=STAMP
         ),
         TruthMessage(**head, robot=3, pose=np.array([0.5, -0.25, 1.0])),
+        TruthSetMessage(**head, ids=[1, 3], poses=np.array([[0.5, -0.25, 1.0], [0.1, 0.2, -3.0]])),
     ]
 
 
@@ -534,6 +536,7 @@ def test_message_keys_and_key_checked_decoding():
         "PlanMessage": "plan",
         "EstimateMessage": "estimate",
         "TruthMessage": "truth",
+        "TruthSetMessage": "truths",
     }
     for msg in samples():
         assert type_for_key(message_key(msg)) is type(msg)
