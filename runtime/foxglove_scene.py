@@ -10,9 +10,9 @@ Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
   ``estimated/<robot>``): a green sphere at the estimated position and the robot id as a
   label; a robot that is an anchor in the estimate's step (not in the moving group of
   the current ``PlanMessage`` for that step) is dark green and has a dark ring around it.
-* ``/foxglove/true``: per ``EstimateMessage``, the latest ``TruthMessage`` of every robot
-  (entities ``true/<robot>``): blue spheres. Truths arrive one robot at a time (n per
-  step); collecting them into one scene per step keeps the recorder's cost per step low.
+* ``/foxglove/true``: per ``TruthSetMessage`` (one per step: every robot's true pose),
+  entities ``true/<robot>``: blue spheres. Without truth sets (a stream of single
+  ``TruthMessage``s), the latest truths are drawn with each ``EstimateMessage`` instead.
 * ``/foxglove/desired``: per ``PlanMessage``, the configuration it plans for, taken from
   the trajectory (``{"robots", "configurations"}``, docs/trajectory.md): one entity per
   robot (``desired/<robot>``), a red sphere and the id.
@@ -30,7 +30,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from runtime.messages import EstimateMessage, Message, PlanMessage, TruthMessage
+from runtime.messages import EstimateMessage, Message, PlanMessage, TruthMessage, TruthSetMessage
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 SCHEMA_ENCODING = "jsonschema"
@@ -242,12 +242,12 @@ def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> di
     return scene_update(entities)
 
 
-def true_scene(truths: Mapping[int, TruthMessage], stamp_ns: int) -> dict[str, Any]:
-    """One blue sphere per robot at its latest true position (replaces the previous ones)."""
+def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> dict[str, Any]:
+    """One blue sphere per robot at its true position ``poses[robot] = (x, y, heading)`` (replaces the previous ones)."""
     return scene_update([
-        entity(f"true/{robot}", stamp_ns, spheres=[sphere(msg.pose[0], msg.pose[1], TRUE_SPHERE_M, BLUE)],
-               metadata={"robot": robot, "step": msg.step})
-        for robot, msg in sorted(truths.items())
+        entity(f"true/{robot}", stamp_ns, spheres=[sphere(pose[0], pose[1], TRUE_SPHERE_M, BLUE)],
+               metadata={"robot": robot, "step": step})
+        for robot, pose in sorted(poses.items())
     ])
 
 
@@ -299,13 +299,18 @@ class SceneDeriver:
         self.configurations = trajectory_configurations(trajectory)
         self.plan: PlanMessage | None = None
         self.truths: dict[int, TruthMessage] = {}
+        self.truth_sets = False  # True once a TruthSetMessage was seen: it then draws the true scene
 
     def derive(self, msg: Message) -> list[tuple[str, dict[str, Any]]]:
         if isinstance(msg, EstimateMessage):
             scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
-            if self.truths:
-                scenes.append((TOPIC_TRUE, true_scene(self.truths, msg.stamp_ns)))
+            if self.truths and not self.truth_sets:
+                poses = {robot: t.pose for robot, t in self.truths.items()}
+                scenes.append((TOPIC_TRUE, true_scene(poses, msg.step, msg.stamp_ns)))
             return scenes
+        if isinstance(msg, TruthSetMessage):
+            self.truth_sets = True
+            return [(TOPIC_TRUE, true_scene(dict(zip(msg.ids, msg.poses)), msg.step, msg.stamp_ns))]
         if isinstance(msg, TruthMessage):
             self.truths[msg.robot] = msg
             return []
@@ -316,8 +321,8 @@ class SceneDeriver:
         return []
 
 
-DERIVED_TYPES = (EstimateMessage, TruthMessage, PlanMessage)
-"""Message types ``SceneDeriver.derive`` uses; every other type yields nothing."""
+DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage)
+"""Message types the recorder decodes for ``SceneDeriver.derive`` (single truths are only peeked there)."""
 
 
 def encode_json(scene: Mapping[str, Any]) -> bytes:

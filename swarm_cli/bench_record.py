@@ -3,7 +3,7 @@
 For each swarm size N (``--robots 10,50``) one realistic step's worth of encoded messages
 is built once (robots on a jittered 0.25 m grid, 0.5 m sensing, half of them moving):
 per moving robot a ``MotionCommand`` and two ``Status`` (accepted, done); per robot an
-``ObserveRequest``, a ``TruthMessage`` and an ``ObservationReport`` of its neighbours;
+``ObserveRequest``, a ``TruthMessage`` and an ``ObservationReport`` of its neighbours, one ``TruthSetMessage``;
 one ``EstimateMessage`` of all N robots; and one ``PlanMessage`` per configuration of
 ``--steps-per-config`` steps. ``--steps`` such steps are written through a fresh
 ``McapRecorder`` (zstd chunks, a file in a temporary folder), once with and once
@@ -46,6 +46,7 @@ from runtime.messages import (
     PlanMessage,
     Status,
     TruthMessage,
+    TruthSetMessage,
     encode,
     message_key,
 )
@@ -99,6 +100,7 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
                     for j in seen]
         msgs.append(ObservationReport(run=RUN, step=step, robot=r, observed=seen, ranges=[float(d[r, j]) for j in seen],
                                       bearings=bearings))
+    msgs.append(TruthSetMessage(run=RUN, step=step, ids=ids, poses=np.column_stack([xy, heading]).tolist()))
     cov = np.diag([1e-4, 1e-4, 1e-3]) + 1e-6
     msgs.append(EstimateMessage(run=RUN, step=step, ids=ids, poses=np.column_stack([xy, heading]).tolist(),
                                 cov=[cov.tolist()] * n))

@@ -22,7 +22,7 @@ from runtime.foxglove_scene import (
     schema_errors,
     trajectory_configurations,
 )
-from runtime.messages import EstimateMessage, PlanMessage, TruthMessage, encode, message_key
+from runtime.messages import EstimateMessage, PlanMessage, TruthMessage, TruthSetMessage, encode, message_key
 from runtime.recording import McapRecorder, read_messages, recording_info, recover
 from tests.test_recording import RUN, sample_messages
 
@@ -37,6 +37,7 @@ def run_messages() -> list:
             PlanMessage(run=RUN, step=1, config=2, n_anchors=2, groups=[[0], [1, 2]])]
     for step in (1, 2):
         msgs += [TruthMessage(run=RUN, step=step, robot=r, pose=[0.1 * step + r, 0.0, 0.0]) for r in range(3)]
+        msgs.append(TruthSetMessage(run=RUN, step=step, ids=[0, 1, 2], poses=[[0.1 * step + r, 0.0, 0.0] for r in range(3)]))
         msgs.append(EstimateMessage(run=RUN, step=step, ids=[0, 1, 2], poses=[[0.1 * step + r, 0.01, 0.0] for r in range(3)], cov=COV))
     return msgs
 
@@ -44,7 +45,7 @@ def run_messages() -> list:
 def test_scenes_follow_the_schema_and_mark_anchors():
     deriver = SceneDeriver(TRAJ)
     out = [pair for m in run_messages() for pair in deriver.derive(m)]
-    assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_ESTIMATED, TOPIC_TRUE] * 2
+    assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_TRUE, TOPIC_ESTIMATED] * 2
     for _topic, scene in out:
         assert schema_errors(scene) == [], scene
         assert json.loads(json.dumps(scene, allow_nan=False)) == scene
@@ -59,14 +60,18 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     def anchors(scene):
         return [e["id"] for e in scene["entities"] if e["lines"]]
     assert anchors(out[0][1]) == []
-    assert anchors(out[2][1]) == ["estimated/1", "estimated/2"]
-    assert anchors(out[4][1]) == ["estimated/0"]
-    ring = out[2][1]["entities"][1]["lines"][0]
+    assert anchors(out[3][1]) == ["estimated/1", "estimated/2"]
+    assert anchors(out[5][1]) == ["estimated/0"]
+    ring = out[3][1]["entities"][1]["lines"][0]
     assert ring["type"] == 1 and len(ring["points"]) >= 8
-    # true positions: one blue entity per robot, the latest truths, with each estimate
-    true = out[5][1]["entities"]
+    # true positions: one blue entity per robot, from each step's truth set
+    true = out[4][1]["entities"]
     assert [e["id"] for e in true] == ["true/0", "true/1", "true/2"] and true[0]["spheres"][0]["color"]["b"] > 0.5
     assert [e["spheres"][0]["pose"]["position"]["x"] for e in true] == [0.2, 1.2, 2.2]
+    # without truth sets (single truths only) the latest truths come with each estimate
+    lone = SceneDeriver(TRAJ)
+    out2 = [pair for m in run_messages() if not isinstance(m, TruthSetMessage) for pair in lone.derive(m)]
+    assert [t for t, _ in out2] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_ESTIMATED, TOPIC_TRUE] * 2
     # the validator does catch mistakes
     bad = estimated_scene(run_messages()[0])
     del bad["entities"][0]["frame_id"]
@@ -101,11 +106,11 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
     assert [(k, p) for k, p, *_ in raw] == msgs
 
     derived = [m for m in got if m[0].startswith("/foxglove/")]
-    # 6 estimates, 4 plans (configurations 2 and 1 of TRAJ): one derived message each; the 15 truths
-    # appear in one true scene per estimate that follows a truth
+    # 6 estimates, 2 truth sets, 4 plans (configurations 2 and 1 of TRAJ): one derived message each;
+    # single truths are not decoded by the recorder
     topics = {t for t, *_ in derived}
     assert topics == {TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED}
-    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 5, TOPIC_DESIRED: 4}
+    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 2, TOPIC_DESIRED: 4}
     assert recs[True].derived_counts() == {t: sum(1 for m in derived if m[0] == t) for t in topics}
     assert recs[False].derived_counts() == {} and recs[True].derived_errors == 0
     schemas = {s.id: s for s in summary.schemas.values()}
