@@ -112,6 +112,10 @@ class SwarmEstimate:
         """Heading standard deviation per robot (rad)."""
         return np.sqrt(np.maximum(self.cov[:, 2, 2], 0.0))
 
+    def select(self, mask: np.ndarray) -> SwarmEstimate:
+        """The estimate of the robots where ``mask`` (n,) is True."""
+        return SwarmEstimate(self.ids[mask], self.poses[mask], self.cov[mask])
+
 
 @dataclass(frozen=True)
 class StepCommands:
@@ -141,6 +145,10 @@ class StepCommands:
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "commands", commands)
         object.__setattr__(self, "moving", moving)
+
+    def select(self, mask: np.ndarray) -> StepCommands:
+        """The commands of the robots where ``mask`` (n,) is True."""
+        return StepCommands(self.ids[mask], self.commands[mask], self.moving[mask])
 
     @classmethod
     def stationary(cls, ids: np.ndarray | list[int]) -> StepCommands:
@@ -197,6 +205,10 @@ class Observations:
 
     def __len__(self) -> int:
         return len(self.observer)
+
+    def select(self, mask: np.ndarray) -> Observations:
+        """The rows where ``mask`` (one per observation) is True."""
+        return Observations(self.observer[mask], self.observed[mask], self.range_m[mask], self.bearing_rad[mask])
 
     def indexed(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(observer index, observed index) into ``ids``; unknown ids raise naming them."""

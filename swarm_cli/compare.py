@@ -10,7 +10,6 @@ number of steps per configuration (speed). Runs are spread over the machine's co
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
@@ -27,6 +26,7 @@ from runtime.trajectory import random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.plots import plot_bars
 from swarm_cli.progress import Progress
+from swarm_cli.summary import write_csv
 
 REFERENCE = "ref57"
 CONFIDENCE = 0.97  # Table II
@@ -107,11 +107,7 @@ def run(args: argparse.Namespace) -> int:
             rows.append(row)
             progress(len(rows))
     summary = summarise(rows, methods)
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "runs.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(args.out / "runs.csv", rows)
     names = list(summary["methods"])
     means = np.array([summary["methods"][m]["pf_mean"] for m in names])
     errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])

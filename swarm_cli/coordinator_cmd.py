@@ -46,6 +46,7 @@ from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
 from swarm_cli.entry import run_standalone
+from swarm_cli.summary import print_config_table, write_plots
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 
 EXIT_AGENT = 3
@@ -103,17 +104,6 @@ def result_json(result: RunResult) -> dict:
         ],
         "final": result.configs[-1].estimate.poses.tolist() if result.configs else None,
     }
-
-
-def write_plots(result: RunResult, out: Path) -> list[str]:
-    """``trajectory.png`` (Fig. 13/14) and, with ground truth, ``errors.png`` (Fig. 17) in ``out``."""
-    from swarm_cli.plots import plot_errors, plot_trajectory  # matplotlib only when plotting
-
-    out.mkdir(parents=True, exist_ok=True)
-    plots = [str(plot_trajectory(result, out / "trajectory.png"))]
-    if result.has_truth:
-        plots.append(str(plot_errors(result, out / "errors.png")))
-    return plots
 
 
 def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> dict:
@@ -202,21 +192,8 @@ def recording_line(rec: dict) -> str:
 
 
 def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
-    """The per-configuration table of ``swarm sim``."""
-    rows = []
-    if result.has_truth:
-        e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
-    print(f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}")
-    for c, rec in enumerate(result.configs):
-        if result.has_truth:
-            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
-            rows.append({"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
-                         "following_error": float(follow[c]), "travelled": float(travelled[c])})
-        else:
-            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
-    fallbacks = [s for s in result.steps if s.fallback]
-    for s in fallbacks:
-        print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
+    """The per-configuration table of ``swarm sim``, then the run's outcome."""
+    rows, fallbacks = print_config_table(result)
     pf = result.pf() if result.has_truth else None
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
     if plots:

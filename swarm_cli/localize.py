@@ -105,10 +105,9 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
         keep, excluded = observable_subset(ids, i, j)
         if not keep.any():
             raise SwarmInputError(f"no robot can be localized: {excluded}")
-        live = keep[i] & keep[j]
-        obs = Observations(obs.observer[live], obs.observed[live], obs.range_m[live], obs.bearing_rad[live])
+        obs = obs.select(keep[i] & keep[j])
         if prior is not None:
-            prior = SwarmEstimate(prior.ids[keep], prior.poses[keep], prior.cov[keep])
+            prior = prior.select(keep)
         ids = ids[keep]
     if localizer == "paper":
         huber = HUBER_SIGMAS * math.hypot(cfg.range_sigma_m, cfg.sensing_range_m * cfg.bearing_sigma_rad) if robust else None

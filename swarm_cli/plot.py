@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 
 from coordinator.replay_check import load_recording, rebuild_run
-from swarm_cli.coordinator_cmd import write_plots
+from swarm_cli.summary import write_plots
 from swarm_cli.options import add_json_option, print_json
 
 

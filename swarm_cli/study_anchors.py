@@ -20,7 +20,6 @@ their e_l (Eq. 8) differ only because of the plan.
 from __future__ import annotations
 
 import argparse
-import csv
 import itertools
 import math
 import os
@@ -43,6 +42,7 @@ from runtime.state import SwarmEstimate  # noqa: E402
 from runtime.trajectory import random_trajectory  # noqa: E402
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_json  # noqa: E402
 from swarm_cli.progress import Progress  # noqa: E402
+from swarm_cli.summary import write_csv
 
 EXHAUSTIVE_LIMIT = 5000  # plans per experiment for part 2 (Fig. 5)
 CHUNK = 1024  # plans per MonteCarlo call (memory bound; common random numbers make chunks comparable)
@@ -323,12 +323,7 @@ def write_outputs(rows: list[dict], summary: dict, out: Path) -> list[Path]:
     """experiments.csv, fig4.png, fig5.png (when part 2 ran) and appendix_a.png."""
     out.mkdir(parents=True, exist_ok=True)
     n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
-    csv_path = out / "experiments.csv"
-    with open(csv_path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    written = [csv_path]
+    written = [write_csv(out / "experiments.csv", rows)]
     distance = np.array([r["distance_m"] for r in rows])
     letters = "abcdefghijklmnopqrstuvwxyz"
     col = lambda key: np.array([r[key] for r in rows], float)  # noqa: E731

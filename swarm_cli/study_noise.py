@@ -10,7 +10,6 @@ and the P_f ratio against ref57. Heat maps per localizer show both.
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
@@ -26,6 +25,7 @@ from runtime.errors import SwarmInputError  # noqa: E402
 from swarm_cli.compare import run_one  # noqa: E402
 from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, print_json, selection_config  # noqa: E402
 from swarm_cli.progress import Progress  # noqa: E402
+from swarm_cli.summary import write_csv
 
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
 
@@ -79,11 +79,7 @@ def run(args: argparse.Namespace) -> int:
             "inchworm_over_ref57": pf["inchworm"] / pf["ref57"],
             "equal_speed_over_ref57": pf["inchworm-equal-speed"] / pf["ref57"],
         })
-    args.out.mkdir(parents=True, exist_ok=True)
-    with open(args.out / "runs.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
+    write_csv(args.out / "runs.csv", rows)
     png = plot_heatmaps(results, localizers, motion, sensing, args.out / "noise.png")
     print(f"{'localizer':<9} {'motion x':>8} {'sensing x':>9} {'n_a chosen':>10} {'P_f inchworm/ref57':>19} {'equal-speed/ref57':>18}")
     for r in results:

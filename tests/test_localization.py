@@ -120,7 +120,7 @@ def test_robot_observing_nobody_keeps_dead_reckoning_heading(cfg):
     case = random_step(8, cfg, np.random.default_rng(6), spacing=0.2)
     obs = case.observations
     keep = obs.observer != 3
-    one_way = Observations(obs.observer[keep], obs.observed[keep], obs.range_m[keep], obs.bearing_rad[keep])
+    one_way = obs.select(keep)
     loc = make_localizer("paper", cfg)
     assert np.isnan(loc.topology(case.prior.ids, one_way).headings[3])
     est = loc.localize(case.prior, case.step, one_way)
@@ -132,7 +132,7 @@ def test_unobserved_robot_is_named(method, cfg):
     case = random_step(8, cfg, np.random.default_rng(7), spacing=0.2)
     obs = case.observations
     keep = obs.observed != 5
-    blind = Observations(obs.observer[keep], obs.observed[keep], obs.range_m[keep], obs.bearing_rad[keep])
+    blind = obs.select(keep)
     with pytest.raises(LocalizationError, match=r"unobserved: robots \[5\]") as info:
         make_localizer(method, cfg).localize(case.prior, case.step, blind)
     assert info.value.robots == [5]
@@ -202,7 +202,7 @@ def test_partial_localization_keeps_dead_reckoning_only_for_the_lost_robot(metho
     case = random_step(10, cfg, np.random.default_rng(11), spacing=0.2)
     obs = case.observations
     keep = (obs.observed != 7) & (obs.observer != 7)  # robot 7 is out of everyone's sight
-    lost = Observations(obs.observer[keep], obs.observed[keep], obs.range_m[keep], obs.bearing_rad[keep])
+    lost = obs.select(keep)
     loc = make_localizer(method, cfg)
     est, excluded = localize_observable(loc, case.prior, case.step, lost, cfg)
     assert excluded == {7: "unobserved"}

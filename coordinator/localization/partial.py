@@ -28,12 +28,8 @@ def localize_observable(
     keep, excluded = observable_subset(prior.ids, i, j)
     if keep.sum() < 2 or not excluded:
         return dr, {int(r): failure.reason for r in prior.ids}
-    live = keep[i] & keep[j]
-    sub_obs = Observations(obs.observer[live], obs.observed[live], obs.range_m[live], obs.bearing_rad[live])
-    sub_prior = SwarmEstimate(prior.ids[keep], prior.poses[keep], prior.cov[keep])
-    sub_step = StepCommands(step.ids[keep], step.commands[keep], step.moving[keep])
     try:
-        sub = localizer.localize(sub_prior, sub_step, sub_obs)
+        sub = localizer.localize(prior.select(keep), step.select(keep), obs.select(keep[i] & keep[j]))
     except LocalizationError as exc:
         return dr, {int(r): exc.reason for r in prior.ids}
     poses, cov = dr.poses.copy(), dr.cov.copy()

@@ -1,0 +1,49 @@
+"""What ``swarm sim`` and ``swarm coordinator`` print and write about a finished run."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+from coordinator.executor import RunResult, StepRecord
+
+
+def print_config_table(result: RunResult) -> tuple[list[dict], list[StepRecord]]:
+    """Print the per-configuration table (n_a, steps, e_l, following error, distance) and the
+    steps that kept dead reckoning; return the table's rows (empty without ground truth) and those steps."""
+    rows = []
+    if result.has_truth:
+        e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
+    print(f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}")
+    for c, rec in enumerate(result.configs):
+        if result.has_truth:
+            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
+            rows.append({"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+                         "following_error": float(follow[c]), "travelled": float(travelled[c])})
+        else:
+            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    fallbacks = [s for s in result.steps if s.fallback]
+    for s in fallbacks:
+        print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
+    return rows, fallbacks
+
+
+def write_plots(result: RunResult, out: Path) -> list[str]:
+    """``trajectory.png`` (Fig. 13/14) and, with ground truth, ``errors.png`` (Fig. 17) in ``out``."""
+    from swarm_cli.plots import plot_errors, plot_trajectory  # matplotlib only when plotting
+
+    out.mkdir(parents=True, exist_ok=True)
+    plots = [str(plot_trajectory(result, out / "trajectory.png"))]
+    if result.has_truth:
+        plots.append(str(plot_errors(result, out / "errors.png")))
+    return plots
+
+
+def write_csv(path: Path, rows: list[dict]) -> Path:
+    """``rows`` (dicts with the same keys, in column order) as a CSV file with a header; creates the folder."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
