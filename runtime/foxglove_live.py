@@ -30,7 +30,6 @@ from runtime.foxglove_scene import (
     SCHEMA_NAME,
     TOPICS,
     SceneDeriver,
-    encode_json,
 )
 from runtime.keys import KeyspaceError
 from runtime.messages import MessageError, decode, type_for_key
@@ -94,7 +93,7 @@ class LiveView:
             if not scenes:
                 return
             for topic, scene in scenes:
-                self._channels[topic].log(encode_json(scene), log_time=msg.stamp_ns)
+                self._channels[topic].log(scene, log_time=msg.stamp_ns)
 
     def close(self) -> None:
         """Stop the server and close the channels (idempotent)."""

@@ -2,7 +2,7 @@
 
 Pure Python, no foxglove-sdk needed: the recorder (``runtime.recording``) writes these
 scenes as extra ``json`` channels next to the raw ``msgpack`` ones, and
-``runtime.foxglove_live.LiveView`` sends the same dicts to the Foxglove app live.
+``runtime.foxglove_live.LiveView`` sends the same JSON to the Foxglove app live.
 
 Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
 
@@ -18,13 +18,15 @@ Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
   robot (``desired/<robot>``), a red sphere and the id.
 
 Entities with the same id replace the previous ones, so each message costs O(its robots).
-Every returned dict is fresh (no shared sub-dicts), so callers may modify a scene.
+Scenes come out as compact UTF-8 JSON bytes, built from text fragments (cheap enough to
+derive two full-swarm scenes per step while recording); ``json.loads`` gives the dict.
 ``SceneDeriver`` holds the little state needed (the trajectory, the latest plan and truths).
 The JSON schema is the official one (``SCENE_UPDATE_SCHEMA``, see ``_SCENE_UPDATE_SCHEMA_TEXT``).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Iterable, Mapping
@@ -168,51 +170,82 @@ _SCENE_UPDATE_SCHEMA_TEXT = (
 SCENE_UPDATE_SCHEMA: dict[str, Any] = json.loads(_SCENE_UPDATE_SCHEMA_TEXT)
 SCENE_UPDATE_SCHEMA_BYTES = _SCENE_UPDATE_SCHEMA_TEXT.encode()
 
-_IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
-_ZERO_DURATION = {"sec": 0, "nsec": 0}
+_IDENTITY_JSON = '{"x":0.0,"y":0.0,"z":0.0,"w":1.0}'
 _RING = [(math.cos(2 * math.pi * i / RING_POINTS), math.sin(2 * math.pi * i / RING_POINTS)) for i in range(RING_POINTS)]
 
+# Scenes are written straight as JSON text from these fragments (no dicts, no json.dumps):
+# the recorder derives two full-swarm scenes per step, and this keeps that cheap
+# (docs/recording.md, ``swarm bench record``). Floats use ``repr``, as ``json`` does.
 
-def stamp(ns: int) -> dict[str, int]:
-    """A ``time`` ({sec, nsec}) from nanoseconds since the epoch."""
+
+def _num(value: float) -> str:
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"non-finite coordinate {value!r} in a scene")
+    return repr(v)
+
+
+def _color(c: Mapping[str, float]) -> str:
+    return f'{{"r":{_num(c["r"])},"g":{_num(c["g"])},"b":{_num(c["b"])},"a":{_num(c["a"])}}}'
+
+
+_PALETTE = {id(c): _color(c) for c in (GREEN, DARK_GREEN, BLUE, RED, WHITE)}
+
+
+def _color_json(c: Mapping[str, float]) -> str:
+    """The JSON of a colour; the module's own colours are encoded once."""
+    return _PALETTE.get(id(c)) or _color(c)
+
+
+def stamp(ns: int) -> str:
+    """A ``time`` ({sec, nsec}) from nanoseconds since the epoch (negative times clamp to 0)."""
     sec, nsec = divmod(int(ns), 1_000_000_000)
-    return {"sec": max(sec, 0), "nsec": nsec if sec >= 0 else 0}
+    return f'{{"sec":{max(sec, 0)},"nsec":{nsec if sec >= 0 else 0}}}'
 
 
-def _pose(x: float, y: float, z: float = 0.0) -> dict[str, Any]:
-    return {"position": {"x": float(x), "y": float(y), "z": float(z)}, "orientation": dict(_IDENTITY)}
+def _pose(x: str, y: str, z: str = "0.0") -> str:
+    return f'{{"position":{{"x":{x},"y":{y},"z":{z}}},"orientation":{_IDENTITY_JSON}}}'
 
 
-def sphere(x: float, y: float, diameter: float, color: Mapping[str, float]) -> dict[str, Any]:
-    return {"pose": _pose(x, y), "size": {"x": diameter, "y": diameter, "z": diameter}, "color": dict(color)}
+def sphere(x: str, y: str, diameter: float, color: Mapping[str, float]) -> str:
+    """A ``foxglove.SpherePrimitive`` at (x, y) (JSON numbers as text, from ``_num``), metres."""
+    d = _num(diameter)
+    return f'{{"pose":{_pose(x, y)},"size":{{"x":{d},"y":{d},"z":{d}}},"color":{_color_json(color)}}}'
 
 
-def label(x: float, y: float, text: str, color: Mapping[str, float] = WHITE) -> dict[str, Any]:
-    return {"pose": _pose(x, y, LABEL_DZ_M), "billboard": True, "font_size": LABEL_PX, "scale_invariant": True,
-            "color": dict(color), "text": text}
+def label(x: str, y: str, text: int, color: Mapping[str, float] = WHITE) -> str:
+    """A billboard ``foxglove.TextPrimitive`` showing the integer ``text`` just above (x, y)."""
+    return (f'{{"pose":{_pose(x, y, _num(LABEL_DZ_M))},"billboard":true,"font_size":{_num(LABEL_PX)},'
+            f'"scale_invariant":true,"color":{_color_json(color)},"text":"{int(text)}"}}')
 
 
-def ring(x: float, y: float, radius: float, color: Mapping[str, float]) -> dict[str, Any]:
-    """A closed circle (LINE_LOOP) of ``radius`` around (x, y)."""
-    return {"type": 1, "pose": _pose(x, y), "thickness": RING_THICKNESS_M, "scale_invariant": False,
-            "points": [{"x": radius * c, "y": radius * s, "z": 0.0} for c, s in _RING],
-            "color": dict(color), "colors": [], "indices": []}
+@functools.lru_cache(maxsize=8)
+def _ring_points(radius: float) -> str:
+    return "[" + ",".join(f'{{"x":{_num(radius * c)},"y":{_num(radius * s)},"z":0.0}}' for c, s in _RING) + "]"
 
 
-def entity(entity_id: str, stamp_ns: int, *, spheres: list | None = None, texts: list | None = None,
-           lines: list | None = None, metadata: Mapping[str, Any] | None = None) -> dict[str, Any]:
-    """A ``foxglove.SceneEntity`` in frame ``world`` (every field the schema requires, unused primitives empty)."""
-    return {
-        "timestamp": stamp(stamp_ns), "frame_id": FRAME, "id": entity_id, "lifetime": dict(_ZERO_DURATION),
-        "frame_locked": False,
-        "metadata": [{"key": str(k), "value": str(v)} for k, v in (metadata or {}).items()],
-        "arrows": [], "cubes": [], "spheres": spheres or [], "cylinders": [], "lines": lines or [],
-        "triangles": [], "texts": texts or [], "models": [],
-    }
+def ring(x: str, y: str, radius: float, color: Mapping[str, float]) -> str:
+    """A closed circle (``foxglove.LinePrimitive`` of type LINE_LOOP = 1) of ``radius`` (m) around (x, y)."""
+    return (f'{{"type":1,"pose":{_pose(x, y)},"thickness":{_num(RING_THICKNESS_M)},"scale_invariant":false,'
+            f'"points":{_ring_points(radius)},"color":{_color_json(color)},"colors":[],"indices":[]}}')
 
 
-def scene_update(entities: list[dict[str, Any]]) -> dict[str, Any]:
-    return {"deletions": [], "entities": entities}
+def entity(entity_id: str, stamp_json: str, *, spheres: str = "", texts: str = "", lines: str = "",
+           metadata: Mapping[str, Any] | None = None) -> str:
+    """A ``foxglove.SceneEntity`` in frame ``world``: every field the schema requires, unused primitives empty.
+
+    ``spheres``/``texts``/``lines``: comma-joined primitives (JSON text); ``entity_id`` and the
+    metadata keys and values must need no JSON escaping (ours are ids and numbers).
+    """
+    meta = ",".join(f'{{"key":"{k}","value":"{v}"}}' for k, v in (metadata or {}).items())
+    return (f'{{"timestamp":{stamp_json},"frame_id":"{FRAME}","id":"{entity_id}","lifetime":{{"sec":0,"nsec":0}},'
+            f'"frame_locked":false,"metadata":[{meta}],"arrows":[],"cubes":[],"spheres":[{spheres}],'
+            f'"cylinders":[],"lines":[{lines}],"triangles":[],"texts":[{texts}],"models":[]}}')
+
+
+def scene_update(entities: Iterable[str]) -> bytes:
+    """The UTF-8 JSON of a ``foxglove.SceneUpdate`` with these entities and no deletions."""
+    return ('{"deletions":[],"entities":[' + ",".join(entities) + "]}").encode()
 
 
 def moving_robots(plan: PlanMessage | None, step: int) -> frozenset[int] | None:
@@ -225,39 +258,44 @@ def moving_robots(plan: PlanMessage | None, step: int) -> frozenset[int] | None:
     return None
 
 
-def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> dict[str, Any]:
+def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> bytes:
     """Green spheres and id labels at the estimated positions; anchors of ``msg.step`` dark green with a ring."""
     moving = moving_robots(plan, msg.step)
+    t = stamp(msg.stamp_ns)
     entities = []
     for robot, pose in zip(msg.ids, msg.poses):
-        x, y = pose[0], pose[1]
+        x, y = _num(pose[0]), _num(pose[1])
         anchor = moving is not None and robot not in moving
         entities.append(entity(
-            f"estimated/{robot}", msg.stamp_ns,
-            spheres=[sphere(x, y, ANCHOR_SPHERE_M if anchor else SPHERE_M, DARK_GREEN if anchor else GREEN)],
-            texts=[label(x, y, str(robot))],
-            lines=[ring(x, y, RING_RADIUS_M, DARK_GREEN)] if anchor else None,
-            metadata={"robot": robot, "step": msg.step, "anchor": "true" if anchor else "false" if moving is not None else "unknown"},
+            f"estimated/{int(robot)}", t,
+            spheres=sphere(x, y, ANCHOR_SPHERE_M if anchor else SPHERE_M, DARK_GREEN if anchor else GREEN),
+            texts=label(x, y, robot),
+            lines=ring(x, y, RING_RADIUS_M, DARK_GREEN) if anchor else "",
+            metadata={"robot": int(robot), "step": int(msg.step),
+                      "anchor": "true" if anchor else "false" if moving is not None else "unknown"},
         ))
     return scene_update(entities)
 
 
-def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> dict[str, Any]:
+def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> bytes:
     """One blue sphere per robot at its true position ``poses[robot] = (x, y, heading)`` (replaces the previous ones)."""
-    return scene_update([
-        entity(f"true/{robot}", stamp_ns, spheres=[sphere(pose[0], pose[1], TRUE_SPHERE_M, BLUE)],
-               metadata={"robot": robot, "step": step})
+    t = stamp(stamp_ns)
+    return scene_update(
+        entity(f"true/{int(robot)}", t, spheres=sphere(_num(pose[0]), _num(pose[1]), TRUE_SPHERE_M, BLUE),
+               metadata={"robot": int(robot), "step": int(step)})
         for robot, pose in sorted(poses.items())
-    ])
+    )
 
 
-def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int) -> dict[str, Any]:
+def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int) -> bytes:
     """Red spheres and id labels at the desired positions of configuration ``config`` (1-based)."""
-    return scene_update([
-        entity(f"desired/{robot}", stamp_ns, spheres=[sphere(x, y, SPHERE_M, RED)], texts=[label(x, y, str(robot), RED)],
-               metadata={"robot": robot, "config": config})
-        for robot, (x, y) in positions.items()
-    ])
+    t = stamp(stamp_ns)
+    entities = []
+    for robot, (x, y) in positions.items():
+        xs, ys = _num(x), _num(y)
+        entities.append(entity(f"desired/{int(robot)}", t, spheres=sphere(xs, ys, SPHERE_M, RED), texts=label(xs, ys, robot, RED),
+                               metadata={"robot": int(robot), "config": int(config)}))
+    return scene_update(entities)
 
 
 def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, float]]] | None:
@@ -290,7 +328,7 @@ def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, fl
 
 
 class SceneDeriver:
-    """Turns raw messages into ``(topic, SceneUpdate dict)`` pairs; keeps the trajectory and the latest plan.
+    """Turns raw messages into ``(topic, SceneUpdate JSON bytes)`` pairs; keeps the trajectory and the latest plan.
 
     Not thread-safe: call from one thread (the recorder's writer thread) or under a lock.
     """
@@ -301,7 +339,7 @@ class SceneDeriver:
         self.truths: dict[int, TruthMessage] = {}
         self.truth_sets = False  # True once a TruthSetMessage was seen: it then draws the true scene
 
-    def derive(self, msg: Message) -> list[tuple[str, dict[str, Any]]]:
+    def derive(self, msg: Message) -> list[tuple[str, bytes]]:
         if isinstance(msg, EstimateMessage):
             scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
             if self.truths and not self.truth_sets:
@@ -323,11 +361,6 @@ class SceneDeriver:
 
 DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage)
 """Message types the recorder decodes for ``SceneDeriver.derive`` (single truths are only peeked there)."""
-
-
-def encode_json(scene: Mapping[str, Any]) -> bytes:
-    """The compact UTF-8 JSON of a scene (the payload of a ``json`` channel)."""
-    return json.dumps(scene, separators=(",", ":"), allow_nan=False).encode()
 
 
 _JSON_TYPES: dict[str, tuple[type, ...]] = {"object": (dict,), "array": (list,), "string": (str,), "boolean": (bool,),

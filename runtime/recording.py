@@ -54,7 +54,6 @@ from runtime.foxglove_scene import (
     DERIVED_TYPES,
     SCENE_UPDATE_SCHEMA_BYTES,
     SceneDeriver,
-    encode_json,
 )
 from runtime.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
 from runtime.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
@@ -248,7 +247,7 @@ class McapRecorder:
 
     def _write_derived(self, msg, log_time: int) -> None:
         try:
-            scenes = [(topic, encode_json(scene)) for topic, scene in self._deriver.derive(msg)]
+            scenes = self._deriver.derive(msg)
         except (ValueError, TypeError, KeyError, IndexError):  # a view must never stop the recording
             self.derived_errors += 1
             return

@@ -44,7 +44,7 @@ def run_messages() -> list:
 
 def test_scenes_follow_the_schema_and_mark_anchors():
     deriver = SceneDeriver(TRAJ)
-    out = [pair for m in run_messages() for pair in deriver.derive(m)]
+    out = [(topic, json.loads(data)) for m in run_messages() for topic, data in deriver.derive(m)]
     assert [t for t, _ in out] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_TRUE, TOPIC_ESTIMATED] * 2
     for _topic, scene in out:
         assert schema_errors(scene) == [], scene
@@ -73,7 +73,7 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     out2 = [pair for m in run_messages() if not isinstance(m, TruthSetMessage) for pair in lone.derive(m)]
     assert [t for t, _ in out2] == [TOPIC_ESTIMATED, TOPIC_DESIRED] + [TOPIC_ESTIMATED, TOPIC_TRUE] * 2
     # the validator does catch mistakes
-    bad = estimated_scene(run_messages()[0])
+    bad = json.loads(estimated_scene(run_messages()[0]))
     del bad["entities"][0]["frame_id"]
     bad["entities"][1]["spheres"][0]["color"]["r"] = "red"
     assert len(schema_errors(bad)) == 2
