@@ -19,9 +19,8 @@ from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.errors import SwarmInputError
 from runtime.messages import CommandLimits
-from runtime.transport import ZenohSettings
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import add_model_options, model_config, parse_list
+from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,7 +33,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--id", type=int, required=True, help="this robot's id")
     p.add_argument("--ids", required=True, help="every robot id of the run, comma-separated (e.g. 0,1,2)")
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
-    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    add_connection_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
     p.add_argument("--pose", required=True, help="initial true pose x,y,heading (m, m, rad)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
@@ -49,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     if len(pose) != 3:
         raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
-    settings = ZenohSettings("client", connect=(args.hub,))
+    settings = connection_settings(args)
     driver = SimDriver(args.id, ids, pose, model_config(args), args.seed, args.motion_time)
     limits = CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg))
     agent = Agent(settings, args.run_id, args.id, ids, driver, limits)

@@ -47,7 +47,7 @@ from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
 from swarm_cli.entry import run_standalone
 from swarm_cli.summary import print_config_table, write_plots
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 EXIT_AGENT = 3
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
@@ -63,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON (docs/trajectory.md)")
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
-    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    add_connection_options(p)
     p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
     p.add_argument("--seed", type=int, default=0, help="seed of the run: initial estimate and search (default 0)")
     p.add_argument("--start-timeout", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
@@ -111,7 +111,7 @@ def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> 
     return {
         "source": "swarm coordinator",
         "command": " ".join(sys.argv),
-        "hub": args.hub,
+        "hub": connection_label(args),
         "seed": args.seed,
         "method": args.method,
         "localizer": args.localizer,
@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
     validate_connected(traj, cfg.sensing_range_m)
     selection = selection_config(args)
     strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
-    settings = ZenohSettings("client", connect=(args.hub,))
+    settings = connection_settings(args)
     validate_run(args.run_id)
     recording = None
     if not args.no_record:

@@ -10,6 +10,7 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.transport import ZenohSettings
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
@@ -89,3 +90,30 @@ def add_simulation_options(parser: argparse.ArgumentParser) -> None:
     add_selection_options(parser)
     add_model_options(parser)
     add_json_option(parser)
+
+
+def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = True) -> None:
+    """How a process joins the run's Zenoh network: ``--hub ENDPOINT`` and/or ``--zenoh-config FILE``.
+
+    ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-client-tls.json5`` with
+    TLS certificates); ``--hub`` then overrides its connect endpoints. One of the two is
+    required unless ``required=False``.
+    """
+    g = parser.add_argument_group("Zenoh connection")
+    g.add_argument("--hub", default=None, help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file (TLS, access control; see deploy/README.md)")
+    parser.set_defaults(_connection_required=required)
+
+
+def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
+    """The client ``ZenohSettings`` of ``--hub`` / ``--zenoh-config``; None if neither is given and not required."""
+    if args.hub is None and args.zenoh_config is None:
+        if getattr(args, "_connection_required", True):
+            raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
+        return None
+    return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
+
+
+def connection_label(args: argparse.Namespace) -> str:
+    """What the connection options say, for logs and metadata."""
+    return args.hub or f"config {args.zenoh_config}"

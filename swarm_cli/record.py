@@ -20,9 +20,8 @@ from pathlib import Path
 from runtime.errors import SwarmInputError
 from runtime.keys import run_wildcard, validate_run
 from runtime.recording import record_run
-from runtime.transport import ZenohSettings
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import print_json
+from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -33,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", dest="run_id", required=True, help="run id (records swarm/<run>/**)")
-    p.add_argument("--hub", required=True, help="Zenoh endpoint of the run's hub, e.g. tcp/127.0.0.1:7447")
+    add_connection_options(p)
     p.add_argument("--out", type=Path, default=None, help="MCAP file to write (default recordings/<run>.mcap)")
     p.add_argument("--seed", type=int, default=None, help="seed of the run, stored in the run metadata")
     p.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON of the run, stored in the run metadata")
@@ -43,7 +42,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _metadata(args: argparse.Namespace) -> dict:
-    meta: dict = {"hub": args.hub, "command": " ".join(sys.argv)}
+    meta: dict = {"hub": connection_label(args), "command": " ".join(sys.argv)}
     if args.seed is not None:
         meta["seed"] = args.seed
     if args.trajectory is not None:
@@ -67,13 +66,13 @@ def _metadata(args: argparse.Namespace) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
-    settings = ZenohSettings("client", connect=(args.hub,))
+    settings = connection_settings(args)
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
     meta = _metadata(args)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {args.hub} to {rec.path}",  # noqa: E731
+    ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {connection_label(args)} to {rec.path}",  # noqa: E731
                               file=sys.stderr, flush=True)
     result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)
     print(f"wrote {result['path']}: {result['messages']} messages on {result['channels']} channels"
