@@ -6,6 +6,10 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/robot/<id>/observe   ObserveRequest     coordinator -> agent
     swarm/<run>/robot/<id>/status    Status             agent -> coordinator
     swarm/<run>/robot/<id>/obs       ObservationReport  agent -> coordinator
+    swarm/<run>/robot/<id>/linkreq   LinkRequest        gateway agent -> link process
+    swarm/<run>/robot/<id>/linkrep   LinkReply          link process -> gateway agent
+    swarm/<run>/link/<port>/stats    LinkStats          link process -> recorder, tools
+    swarm/<run>/estop                EmergencyStop      operator, launcher -> agents, links
     swarm/<run>/coord/plan           PlanMessage        coordinator -> all
     swarm/<run>/coord/estimate       EstimateMessage    coordinator -> all
     swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
@@ -13,7 +17,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
     swarm/<run>/alive/coord          liveliness token of the coordinator
 
-Run ids are 1-64 characters of ``[A-Za-z0-9_.-]`` starting with a letter or digit,
+Run ids and port names are 1-64 characters of ``[A-Za-z0-9_.-]`` starting with a letter or digit,
 so they never hold a key separator or a Zenoh wildcard. Robot ids are integers in
 [0, 2^63 - 1] written in decimal without leading zeros, so each robot has one key.
 """
@@ -30,7 +34,7 @@ from runtime.errors import SwarmInputError
 ROOT = "swarm"
 RUN_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
 MAX_ROBOT_ID = 2**63 - 1
-ROBOT_LEAVES = ("cmd", "observe", "status", "obs")
+ROBOT_LEAVES = ("cmd", "observe", "status", "obs", "linkreq", "linkrep")
 COORD_LEAVES = ("plan", "estimate")
 
 _RUN = re.compile(RUN_PATTERN)
@@ -42,7 +46,7 @@ class KeyspaceError(SwarmInputError):
 
 
 class ParsedKey(NamedTuple):
-    """A swarm key split up: ``kind`` is robot, coord, sim or alive; ``robot`` is None for coordinator keys."""
+    """A swarm key split up: ``kind`` is robot, coord, sim, link, estop or alive; ``robot`` is None where no robot is named."""
 
     run: str
     kind: str
@@ -85,6 +89,25 @@ def coord_key(run: str, leaf: str) -> str:
 def truth_key(run: str, robot_id: int) -> str:
     """``swarm/<run>/sim/truth/<id>``: a simulated robot's true pose (simulation only)."""
     return f"{ROOT}/{validate_run(run)}/sim/truth/{validate_robot_id(robot_id)}"
+
+
+def validate_port(port: str) -> str:
+    """``port`` if it is a valid link port name (same rule as run ids), else ``KeyspaceError``."""
+    if not isinstance(port, str) or not _RUN.fullmatch(port):
+        raise KeyspaceError(
+            f"port name {port!r} is invalid: use 1-64 characters of A-Z a-z 0-9 _ . - starting with a letter or digit"
+        )
+    return port
+
+
+def link_stats_key(run: str, port: str) -> str:
+    """``swarm/<run>/link/<port>/stats``: the statistics of the link process of one serial/radio port."""
+    return f"{ROOT}/{validate_run(run)}/link/{validate_port(port)}/stats"
+
+
+def estop_key(run: str) -> str:
+    """``swarm/<run>/estop``: emergency stop of every robot of the run."""
+    return f"{ROOT}/{validate_run(run)}/estop"
 
 
 def alive_key(run: str, robot_id: int) -> str:
@@ -135,7 +158,7 @@ def parse_key(key: str) -> ParsedKey:
     if not isinstance(key, str):
         raise KeyspaceError(f"key {key!r} is not a string")
     parts = key.split("/")
-    if len(parts) < 4 or parts[0] != ROOT:
+    if len(parts) < 3 or parts[0] != ROOT:
         raise KeyspaceError(f"key {key!r} is not a swarm key (swarm/<run>/...)")
     run = parts[1]
     if not _RUN.fullmatch(run):
@@ -151,6 +174,10 @@ def parse_key(key: str) -> ParsedKey:
         return ParsedKey(run, "sim", None, "truths")
     if len(rest) == 3 and rest[:2] == ["alive", "robot"]:
         return ParsedKey(run, "alive", _parse_id(rest[2], key), "alive")
+    if len(rest) == 3 and rest[0] == "link" and rest[2] == "stats" and _RUN.fullmatch(rest[1]):
+        return ParsedKey(run, "link", None, "stats")
+    if rest == ["estop"]:
+        return ParsedKey(run, "estop", None, "estop")
     if rest == ["alive", "coord"]:
         return ParsedKey(run, "alive", None, "alive")
     raise KeyspaceError(f"key {key!r} is not in the swarm key space (see docs/protocol.md)")

@@ -27,7 +27,20 @@ import msgpack
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.keys import COORD_LEAVES, MAX_ROBOT_ID, ROBOT_LEAVES, RUN_PATTERN, KeyspaceError, coord_key, parse_key, robot_key, truth_key, truths_key
+from runtime.keys import (
+    COORD_LEAVES,
+    MAX_ROBOT_ID,
+    ROBOT_LEAVES,
+    RUN_PATTERN,
+    KeyspaceError,
+    coord_key,
+    estop_key,
+    link_stats_key,
+    parse_key,
+    robot_key,
+    truth_key,
+    truths_key,
+)
 from runtime.state import Observations, SwarmEstimate
 
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
@@ -36,6 +49,8 @@ MAX_TEXT = 2_000  # longest string field (characters)
 MAX_MESSAGE_BYTES = 32 * 2**20
 ANGLE_SLACK = 1e-9  # rad tolerated beyond [-pi, pi] for bearings
 STATES = ("accepted", "done", "refused")
+LINK_REQUESTS = ("command", "observe", "estop", "reset")
+LINK_REPLIES = ("accepted", "done", "refused", "observation", "estopped", "reset", "lost")
 REASONS = (
     "undecodable",
     "not-a-map",
@@ -363,6 +378,79 @@ class TruthSetMessage(Message):
             raise MessageError("TruthSetMessage.ids", "a robot appears twice", "invalid")
 
 
+@dataclass(frozen=True, kw_only=True)
+class LinkRequest(Message):
+    """Gateway agent -> link process: send this request to robot ``robot`` over its port (docs/gateway-protocol.md).
+
+    ``command``: turn ``turn_rad`` then drive ``drive_m`` (already calibrated); ``observe``:
+    report the observations of ``step``; ``estop`` / ``reset``: emergency stop / clear it.
+    """
+
+    TYPE: ClassVar[str] = "LinkRequest"
+    LEAF: ClassVar[str] = "linkreq"
+
+    robot: int = _wire("id", "the robot behind the link")
+    kind: str = _wire("str", "command, observe, estop or reset", choices=LINK_REQUESTS)
+    turn_rad: float = _wire("float", "command only (else 0): turn before driving, counter-clockwise positive", unit="rad")
+    drive_m: float = _wire("float", "command only (else 0): straight distance after the turn", unit="m", minimum=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkReply(Message):
+    """Link process -> gateway agent: what robot ``robot`` answered to the request of ``step``, or that it is lost.
+
+    ``observation`` carries the raw (uncalibrated) measurements; ``refused`` and ``lost``
+    carry a ``reason``.
+    """
+
+    TYPE: ClassVar[str] = "LinkReply"
+    LEAF: ClassVar[str] = "linkrep"
+
+    robot: int = _wire("id", "the robot behind the link")
+    kind: str = _wire("str", "accepted, done, refused, observation, estopped, reset or lost", choices=LINK_REPLIES)
+    reason: str = _wire("str", "why (refused, lost); else empty")
+    observed: tuple[int, ...] = _wire("id", "observation only: robots observed", shape=("n",))
+    ranges: tuple[float, ...] = _wire("float", "observation only: distance to each, as measured", unit="m", shape=("n",), minimum=0.0)
+    bearings: tuple[float, ...] = _wire("float", "observation only: bearing of each in the body frame, as measured", unit="rad", shape=("n",))
+
+
+@dataclass(frozen=True, kw_only=True)
+class LinkStats(Message):
+    """Link process -> recorder, tools: counters of one serial/radio port since the link started (``step`` 0).
+
+    Published every ``stats_period_s`` of the gateway config and when the link stops.
+    Round-trip times are request sent -> first answer received, over the last 1000 answers.
+    """
+
+    TYPE: ClassVar[str] = "LinkStats"
+    LEAF: ClassVar[str] = "stats"
+
+    port: str = _wire("str", "port name from the gateway config", pattern=RUN_PATTERN, max_length=64)
+    robots: tuple[int, ...] = _wire("id", "robots behind the port", shape=(None,))
+    frames_sent: int = _wire("int", "frames written to the port, retransmissions included")
+    frames_received: int = _wire("int", "valid frames read from the port")
+    retransmissions: int = _wire("int", "requests sent again for want of an answer")
+    crc_errors: int = _wire("int", "frames rejected for their CRC")
+    length_errors: int = _wire("int", "false starts rejected for their length or given up on a quiet line")
+    skipped_bytes: int = _wire("int", "bytes skipped while resynchronising")
+    timeouts: int = _wire("int", "requests that exhausted their retries")
+    rtt_ms_median: float = _wire("float", "median round trip (0 before the first answer)", unit="ms", minimum=0.0)
+    rtt_ms_p90: float = _wire("float", "90th percentile round trip", unit="ms", minimum=0.0)
+    rtt_ms_max: float = _wire("float", "longest round trip", unit="ms", minimum=0.0)
+    lost: tuple[int, ...] = _wire("id", "robots that stopped answering", shape=(None,))
+
+
+@dataclass(frozen=True, kw_only=True)
+class EmergencyStop(Message):
+    """Operator or launcher -> every agent and link of the run: stop every robot now (latched on the robots)."""
+
+    TYPE: ClassVar[str] = "EmergencyStop"
+    LEAF: ClassVar[str] = "estop"
+
+    source: str = _wire("str", "who stopped the run (e.g. swarm estop, launcher)", max_length=200)
+    reason: str = _wire("str", "why, for the logs")
+
+
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     MotionCommand,
     ObserveRequest,
@@ -372,6 +460,10 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     EstimateMessage,
     TruthMessage,
     TruthSetMessage,
+    LinkRequest,
+    LinkReply,
+    LinkStats,
+    EmergencyStop,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
 _BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
@@ -386,6 +478,10 @@ def message_key(msg: Message) -> str:
         return coord_key(msg.run, msg.LEAF)
     if isinstance(msg, TruthSetMessage):
         return truths_key(msg.run)
+    if isinstance(msg, LinkStats):
+        return link_stats_key(msg.run, msg.port)
+    if isinstance(msg, EmergencyStop):
+        return estop_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
 
 

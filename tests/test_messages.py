@@ -39,6 +39,10 @@ from runtime.messages import (
     CommandLimits,
     DropCounter,
     EstimateMessage,
+    LinkReply,
+    LinkRequest,
+    LinkStats,
+    EmergencyStop,
     Message,
     MessageError,
     MotionCommand,
@@ -79,6 +83,11 @@ def samples() -> list[Message]:
         ),
         TruthMessage(**head, robot=3, pose=np.array([0.5, -0.25, 1.0])),
         TruthSetMessage(**head, ids=[1, 3], poses=np.array([[0.5, -0.25, 1.0], [0.1, 0.2, -3.0]])),
+        LinkRequest(**head, robot=3, kind="command", turn_rad=0.5, drive_m=0.1),
+        LinkReply(**head, robot=3, kind="observation", reason="", observed=[1, 4], ranges=[0.2, 0.31], bearings=[0.1, -2.0]),
+        LinkStats(**head, port="radio0", robots=[1, 3], frames_sent=10, frames_received=9, retransmissions=1, crc_errors=2,
+                  length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
+        EmergencyStop(**head, source="swarm estop", reason="operator pressed stop"),
     ]
 
 
@@ -537,7 +546,13 @@ def test_message_keys_and_key_checked_decoding():
         "EstimateMessage": "estimate",
         "TruthMessage": "truth",
         "TruthSetMessage": "truths",
+        "LinkRequest": "linkreq",
+        "LinkReply": "linkrep",
+        "LinkStats": "stats",
+        "EmergencyStop": "estop",
     }
+    assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
+    assert message_key(SAMPLES["EmergencyStop"]) == "swarm/r1/estop"
     for msg in samples():
         assert type_for_key(message_key(msg)) is type(msg)
     data = encode(SAMPLES["Status"])
