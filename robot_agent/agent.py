@@ -30,6 +30,15 @@ coordinator's liveliness token ``swarm/<run>/alive/coord`` appears, so a coordin
 learns the initial true poses for evaluation without any sensing (which would consume
 the sensing stream).
 
+Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` is forwarded to the driver at
+once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
+while the loop waits for a motion to finish); every later command is refused. Limits
+(``CommandLimits``: drive, turn, and the workspace checked against the robot's latest
+``EstimateMessage`` pose) are checked before the driver sees a command. A driver that
+raises ``DriverRefused`` gives ``Status refused`` with its reason; ``RobotLost`` drops the
+liveliness token (the coordinator reports the robot lost by id) and ends the loop
+(``run`` returns 3).
+
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
 """
@@ -43,11 +52,13 @@ from collections.abc import Collection
 
 import numpy as np
 
-from robot_agent.driver import Driver
-from runtime.keys import alive_key, coord_alive_key, robot_key, truths_key
+from robot_agent.driver import Driver, DriverRefused, RobotLost
+from runtime.keys import alive_key, coord_alive_key, coord_key, estop_key, robot_key, truths_key
 from runtime.messages import (
     CommandLimits,
     DropCounter,
+    EmergencyStop,
+    EstimateMessage,
     MessageError,
     MotionCommand,
     ObservationReport,
@@ -101,17 +112,29 @@ class Agent:
         self._session = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
+        self._estop_key = estop_key(run)
+        self._estimate_key = coord_key(run, "estimate")
+        self._estop = threading.Event()
+        self.estopped = False
+        self.lost_reason: str | None = None
+        self._pose: tuple[float, float, float] | None = None  # latest estimate, for the workspace check
 
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
         self._stop.set()
 
     def run(self) -> int:
-        """Serve until ``stop()``; returns 0. The session is closed on return."""
+        """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3). The session is closed on return."""
         with open_session(self.settings) as session:
             self._session = session
+            self.driver.attach(session)
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
-            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue)]
+            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
+                    subscribe(session, self._estop_key, self._on_estop)]
+            if self.limits.workspace is not None:
+                subs.append(subscribe(session, self._estimate_key, enqueue))
+            forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
+            forwarder.start()
             if self.driver.simulated:
                 subs.append(subscribe(session, truths_key(self.run_id), enqueue))
                 subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
@@ -126,15 +149,38 @@ class Agent:
                     continue
                 try:
                     self._handle(key, payload)
+                except RobotLost as e:
+                    self.lost_reason = str(e)
+                    _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
+                    break
                 except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
                     _log.exception("robot %d: error handling a message on %s", self.robot, key)
             token.undeclare()
             for sub in subs:
                 sub.undeclare()
+            self.driver.detach()
+            self._stop.set()
+            self._estop.set()  # wakes the forwarder, which sees _stop
+            forwarder.join(timeout=1.0)
             self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
-        return 0
+        return 3 if self.lost_reason is not None else 0
+
+    # -- emergency stop (Zenoh thread -> forwarder thread) -----------------------------------
+
+    def _on_estop(self, key: str, payload: bytes) -> None:
+        msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
+        if msg is not None:
+            self.estopped = True
+            self._estop.set()
+
+    def _forward_estop(self) -> None:
+        self._estop.wait()
+        if self._stop.is_set() and not self.estopped:
+            return
+        _log.warning("robot %d: emergency stop", self.robot)
+        self.driver.estop(max(self._last_cmd_step, 0))
 
     # -- message handling (loop thread only) --------------------------------------------
 
@@ -146,6 +192,10 @@ class Agent:
             self._publish_truth(max(self._last_obs_step, 0) if self._last_truth is None else self._last_truth.step)
         elif key == self._cmd_key:
             self._on_command(key, payload)
+        elif key == self._estimate_key:
+            msg = decode_or_drop(payload, self.drops, key, EstimateMessage, self.known)
+            if msg is not None and self.robot in msg.ids:
+                self._pose = tuple(msg.poses[msg.ids.index(self.robot)])
         elif key == self._observe_key:
             msg = decode_or_drop(payload, self.drops, key, ObserveRequest, self.known)
             if msg is not None:
@@ -172,14 +222,19 @@ class Agent:
             self._send(self._last_status)  # duplicate: never execute twice
             return
         self._last_cmd_step = cmd.step
-        reason = self.limits.refusal(cmd)
+        reason = "emergency stop" if self.estopped else self.limits.refusal(cmd, self._pose)
         if reason is not None:
             self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason)
             self._send(self._last_status)
             return
         self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="accepted", reason="")
         self._send(self._last_status)
-        self.driver.execute(cmd)
+        try:
+            self.driver.execute(cmd)
+        except DriverRefused as e:
+            self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=str(e) or "refused")
+            self._send(self._last_status)
+            return
         self.executed += 1
         self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="done", reason="")
         self._send(self._last_status)
@@ -222,7 +277,7 @@ class Agent:
             if not self.known <= have.keys():
                 return
             peers = {i: have[i] for i in self.ids}
-        observed, ranges, bearings = self.driver.sense(peers)
+        observed, ranges, bearings = self.driver.sense(peers, step)
         report = ObservationReport(
             run=self.run_id, step=step, robot=self.robot, observed=observed, ranges=ranges, bearings=bearings
         )

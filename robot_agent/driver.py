@@ -25,10 +25,34 @@ from runtime.rng import Stream, robot_rng
 from runtime.sensing import sense_robot
 
 
+class DriverRefused(Exception):
+    """The robot did not execute the command; the text is the reason."""
+
+
+class RobotLost(Exception):
+    """The robot stopped answering; the text says how."""
+
+
 class Driver(Protocol):
-    """One robot's actuators and sensors."""
+    """One robot's actuators and sensors (``SimDriver`` here, ``GatewayDriver`` for robots behind a link).
+
+    ``execute`` and ``sense`` may raise ``DriverRefused`` (not executed, with the reason) or
+    ``RobotLost`` (the robot stopped answering); ``estop`` may be called from any thread.
+    """
 
     simulated: bool  # True: the agent publishes TruthMessages and passes peers' true poses to sense()
+
+    def attach(self, session) -> None:
+        """The agent's Zenoh session is open (a driver that talks to a link process subscribes here)."""
+        ...
+
+    def detach(self) -> None:
+        """The session is about to close."""
+        ...
+
+    def estop(self, step: int = 0) -> None:
+        """Emergency stop: stop now and refuse every later command."""
+        ...
 
     def execute(self, command: MotionCommand) -> np.ndarray | None:
         """Turn ``command.turn_rad`` then drive ``command.drive_m`` (body frame); the new true pose (3,) if known, else None."""
@@ -38,8 +62,8 @@ class Driver(Protocol):
         """The true pose (3,) (simulation), or None (hardware)."""
         ...
 
-    def sense(self, peers: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(observed ids, ranges m, bearings rad in the body frame) of the neighbours now.
+    def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(observed ids, ranges m, bearings rad in the body frame) of the neighbours after ``step``.
 
         ``peers``: every robot's true pose by id (own included), for simulated drivers.
         """
@@ -63,8 +87,20 @@ class SimDriver:
         self.motion_time_s = float(motion_time_s)  # wall time a motion takes (to make runs observable)
         self._motion = robot_rng(seed, robot, Stream.MOTION)
         self._sensing = robot_rng(seed, robot, Stream.SENSING)
+        self.estopped = False
+
+    def attach(self, session) -> None:
+        """Nothing to connect: the simulated robot lives in this process."""
+
+    def detach(self) -> None:
+        """Nothing to disconnect."""
+
+    def estop(self, step: int = 0) -> None:
+        self.estopped = True
 
     def execute(self, command: MotionCommand) -> np.ndarray:
+        if self.estopped:
+            raise DriverRefused("emergency stop")
         self._pose = execute_command(self._pose, np.array([command.turn_rad, command.drive_m], dtype=float), self.cfg, self._motion)
         if self.motion_time_s > 0:
             time.sleep(self.motion_time_s)
@@ -73,7 +109,7 @@ class SimDriver:
     def true_pose(self) -> np.ndarray:
         return self._pose.copy()
 
-    def sense(self, peers: dict[int, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         if peers is None or set(peers) != set(self.ids):
             missing = sorted(set(self.ids) - set(peers or {}))
             raise SwarmInputError(f"simulated sensing of robot {self.robot} needs every robot's true pose; missing {missing}")

@@ -615,25 +615,44 @@ def refusal_status(error: MessageError, stamp_ns: int | None = None) -> Status |
 
 @dataclass(frozen=True)
 class CommandLimits:
-    """What an agent executes: |turn| <= ``max_turn_rad`` (rad), 0 <= drive <= ``max_drive_m`` (m)."""
+    """What an agent executes: |turn| <= ``max_turn_rad`` (rad), 0 <= drive <= ``max_drive_m`` (m), and,
+    with ``workspace`` = (x_min, y_min, x_max, y_max) (m), an end position inside it predicted from the
+    robot's latest estimated pose."""
 
     max_drive_m: float = 1.0
     max_turn_rad: float = math.pi
+    workspace: tuple[float, float, float, float] | None = None
 
     def __post_init__(self) -> None:
         for name in ("max_drive_m", "max_turn_rad"):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
                 raise SwarmInputError(f"CommandLimits.{name} must be a finite number > 0, got {value!r}")
+        if self.workspace is not None:
+            w = tuple(float(v) for v in self.workspace)
+            if len(w) != 4 or not all(math.isfinite(v) for v in w) or not (w[0] < w[2] and w[1] < w[3]):
+                raise SwarmInputError(f"CommandLimits.workspace must be finite (x_min, y_min, x_max, y_max) with min < max, got {self.workspace!r}")
+            object.__setattr__(self, "workspace", w)
 
-    def refusal(self, cmd: MotionCommand) -> str | None:
-        """Why ``cmd`` must be refused, or None when it is within the limits."""
+    def refusal(self, cmd: MotionCommand, pose: Iterable[float] | None = None) -> str | None:
+        """Why ``cmd`` must be refused, or None when it is within the limits.
+
+        ``pose``: the robot's latest estimated (x, y, heading); without it the workspace is not checked.
+        """
         if abs(cmd.turn_rad) > self.max_turn_rad:
             return f"turn_rad {cmd.turn_rad:.6g} exceeds the limit |turn| <= {self.max_turn_rad:.6g} rad"
         if cmd.drive_m < 0:
             return f"drive_m {cmd.drive_m:.6g} is negative"
         if cmd.drive_m > self.max_drive_m:
             return f"drive_m {cmd.drive_m:.6g} exceeds the limit {self.max_drive_m:.6g} m"
+        if self.workspace is not None and pose is not None:
+            x, y, heading = (float(v) for v in pose)
+            end_x = x + cmd.drive_m * math.cos(heading + cmd.turn_rad)
+            end_y = y + cmd.drive_m * math.sin(heading + cmd.turn_rad)
+            x0, y0, x1, y1 = self.workspace
+            if not (x0 <= end_x <= x1 and y0 <= end_y <= y1):
+                return (f"the move would end at ({end_x:.3f}, {end_y:.3f}) m, outside the workspace "
+                        f"x in [{x0:g}, {x1:g}], y in [{y0:g}, {y1:g}]")
         return None
 
 

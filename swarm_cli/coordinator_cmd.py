@@ -68,6 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the run: initial estimate and search (default 0)")
     p.add_argument("--start-timeout", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for the answers of a step (default 5)")
+    p.add_argument("--no-truth", action="store_true",
+                   help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
     p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
     add_record_options(p)
@@ -245,7 +247,8 @@ def run(args: argparse.Namespace) -> int:
         with open_session(settings) as session, live_view(args, traj, session):
             if recording is not None:
                 recording.wait_subscribed(session)
-            backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
+            backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
+                                        simulated=not args.no_truth)
             try:
                 backend.wait_for_agents()
                 print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)

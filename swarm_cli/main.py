@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli import agent, bench, compare, coordinator_cmd, info, launch, localize, plot, record, recover, replay, sim, study
+from swarm_cli import agent, bench, compare, coordinator_cmd, estop, info, launch, link, localize, plot, record, recover, replay, sim, study
 from swarm_cli.entry import guarded
 
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop)
 
 
 def build_parser() -> argparse.ArgumentParser:

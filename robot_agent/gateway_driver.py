@@ -1,0 +1,124 @@
+"""The gateway driver: a real (or emulated) robot reached through the link process of its port.
+
+Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it has.
+``execute`` publishes a ``LinkRequest`` ``command`` (drive corrected by the robot's
+``motion_scale``) on ``swarm/<run>/robot/<id>/linkreq`` and waits for the link's
+``LinkReply`` ``done``; ``sense`` asks for ``observe`` and corrects the raw measurements
+(range bias, bearing offset: ``runtime.gateway_config.Calibration``). A ``refused``
+answer raises ``DriverRefused``; ``lost`` (or no answer within the wait) raises
+``RobotLost``. ``estop`` / ``reset`` may be called from any thread: the emergency stop
+goes out at once and also ends a wait in progress (``DriverRefused``).
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+import time
+
+import numpy as np
+
+from robot_agent.driver import DriverRefused, RobotLost
+from runtime.gateway_config import Calibration, Timing
+from runtime.keys import robot_key
+from runtime.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
+from runtime.transport import publish, subscribe
+
+
+class GatewayDriver:
+    """Robot ``robot`` of run ``run`` behind a link process; ``attach(session)`` before use."""
+
+    simulated = False
+
+    def __init__(self, run: str, robot: int, calibration: Calibration = Calibration(), timing: Timing = Timing()) -> None:
+        self.run_id = run
+        self.robot = int(robot)
+        self.calibration = calibration
+        self.timing = timing
+        self._session = None
+        self._sub = None
+        self._replies: queue.Queue[LinkReply] = queue.Queue()
+        self._estopped = threading.Event()
+        self._req_key = robot_key(run, self.robot, "linkreq")
+        self._rep_key = robot_key(run, self.robot, "linkrep")
+        self.bad_replies = 0
+
+    def attach(self, session) -> None:
+        """Start talking to the link over ``session`` (the agent's)."""
+        self._session = session
+        self._sub = subscribe(session, self._rep_key, self._on_reply)
+
+    def detach(self) -> None:
+        if self._sub is not None:
+            self._sub.undeclare()
+            self._sub = None
+
+    def _on_reply(self, key: str, payload: bytes) -> None:  # Zenoh thread: decode and enqueue only
+        try:
+            self._replies.put(decode(payload, LinkReply, key=key))
+        except MessageError:
+            self.bad_replies += 1
+
+    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0) -> None:
+        msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m)
+        publish(self._session, self._req_key, encode(msg))
+
+    def _wait(self, step: int, final: tuple[str, ...], timeout_s: float) -> LinkReply:
+        """The first reply of ``step`` whose kind is in ``final``; raises on refusal, loss, stop or timeout."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            if self._estopped.is_set() and "estopped" not in final:
+                raise DriverRefused("emergency stop")
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise RobotLost(f"robot {self.robot}: no answer from the link within {timeout_s:.1f} s (is `swarm link` running?)")
+            try:
+                reply = self._replies.get(timeout=min(left, 0.05))
+            except queue.Empty:
+                continue
+            if reply.kind == "lost":
+                raise RobotLost(reply.reason)
+            if reply.step != step:
+                continue  # a late answer to an earlier request
+            if reply.kind == "refused":
+                raise DriverRefused(reply.reason)
+            if reply.kind in final:
+                return reply
+
+    def _budget_s(self, motion: bool) -> float:
+        t = self.timing
+        per_try = t.ack_timeout_s * (t.max_retries + 1)
+        return per_try + (t.motion_timeout_s * (t.max_retries + 1) if motion else 0.0) + 1.0
+
+    # -- Driver --------------------------------------------------------------------------------
+
+    def execute(self, command: MotionCommand) -> None:
+        if self._estopped.is_set():
+            raise DriverRefused("emergency stop")
+        drive = self.calibration.corrected_drive(command.drive_m)
+        self._request(command.step, "command", command.turn_rad, drive)
+        self._wait(command.step, ("done",), self._budget_s(motion=True))
+        return None
+
+    def true_pose(self) -> None:
+        return None
+
+    def sense(self, peers, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        self._request(step, "observe")
+        reply = self._wait(step, ("observation",), self._budget_s(motion=False))
+        c = self.calibration
+        ranges = np.array([c.corrected_range(r) for r in reply.ranges], dtype=float)
+        bearings = np.array([c.corrected_bearing(b) for b in reply.bearings], dtype=float)
+        return np.array(reply.observed, dtype=np.int64), ranges, bearings
+
+    def estop(self, step: int = 0) -> None:
+        """Forward an emergency stop to the robot at once (any thread)."""
+        self._estopped.set()
+        if self._session is not None:
+            self._request(step, "estop")
+
+    def reset(self, step: int = 0) -> None:
+        """Clear the emergency stop on the robot and in this driver."""
+        self._estopped.clear()
+        if self._session is not None:
+            self._request(step, "reset")

@@ -1,0 +1,413 @@
+"""The link process of one serial/radio port: the only owner of the device, shared by the agents over Zenoh.
+
+Agents of the robots behind the port (gateway driver) publish ``LinkRequest``s on
+``swarm/<run>/robot/<id>/linkreq``; the link turns each into a frame
+(docs/gateway-protocol.md), sends it with retransmission (same SEQ, at most
+``max_retries`` times, ``ack_timeout_s`` apart; ``motion_timeout_s`` after ACCEPTED),
+and publishes the robot's answers as ``LinkReply``s on ``.../linkrep``. It sends a
+HEARTBEAT to every robot each ``heartbeat_period_s`` and reports a robot ``lost`` when a
+request exhausted its retries or nothing came from it for ``robot_timeout_s``. An
+``EmergencyStop`` on ``swarm/<run>/estop`` is sent at once as a broadcast ESTOP and then to
+each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``.
+
+Threads: a reader (device -> frames, ``FrameDecoder`` with ``resync`` on a quiet line)
+and the engine (``run``), which owns every piece of state; Zenoh callbacks only enqueue.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import statistics
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from runtime.frames import (
+    BROADCAST,
+    EmptyBody,
+    Frame,
+    FrameDecoder,
+    FrameError,
+    FrameType,
+    HeartbeatBody,
+    MotionBody,
+    ObservationBody,
+    RefusalCode,
+    StepBody,
+    encode_frame,
+)
+from runtime.gateway_config import Port, Timing
+from runtime.keys import estop_key, robot_wildcard
+from runtime.messages import (
+    DropCounter,
+    EmergencyStop,
+    LinkReply,
+    LinkRequest,
+    LinkStats,
+    decode_or_drop,
+    encode,
+    message_key,
+)
+from runtime.transport import publish, subscribe
+
+_log = logging.getLogger(__name__)
+QUIET_S = 0.02  # a line quiet this long with a partial frame buffered: resync
+RTT_WINDOW = 1000
+
+
+class ByteLink(Protocol):
+    """A byte pipe to the robots: a serial port, a pty, an ANT channel."""
+
+    def read(self, timeout_s: float) -> bytes:
+        """Bytes available within ``timeout_s`` (b"" if none)."""
+        ...
+
+    def write(self, data: bytes) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class SerialLink:
+    """A serial device (or the pty of an emulator) through pyserial, 8N1, raw."""
+
+    def __init__(self, device: str, baud: int) -> None:
+        import serial  # noqa: PLC0415 - keeps pyserial off the import path of processes that never open a port
+
+        try:
+            self._serial = serial.Serial(device, baudrate=baud, timeout=0)
+        except (serial.SerialException, OSError) as exc:
+            raise ConnectionError(f"cannot open serial device {device}: {exc}") from None
+        self._lock = threading.Lock()
+
+    def read(self, timeout_s: float) -> bytes:
+        self._serial.timeout = timeout_s
+        data = self._serial.read(1)
+        if data and self._serial.in_waiting:
+            data += self._serial.read(self._serial.in_waiting)
+        return data
+
+    def write(self, data: bytes) -> None:
+        with self._lock:
+            self._serial.write(data)
+
+    def close(self) -> None:
+        self._serial.close()
+
+
+def open_link(port: Port) -> ByteLink:
+    """The ``ByteLink`` of a configured port (``transport`` serial, or ant through openant)."""
+    if port.transport == "ant":
+        from robot_agent.ant_link import AntLink  # noqa: PLC0415 - optional extra
+
+        return AntLink(port.device)
+    return SerialLink(port.device, port.baud)
+
+
+@dataclass
+class _Request:
+    """A request in flight to one robot."""
+
+    kind: str  # command, observe, estop, reset
+    step: int
+    seq: int
+    wire: bytes
+    sent_at: float
+    first_sent_at: float
+    retries: int = 0
+    accepted: bool = False
+    answered: bool = False
+    parts: dict[int, ObservationBody] = field(default_factory=dict)
+
+
+@dataclass
+class _Robot:
+    id: int
+    seq: int = 0
+    last_rx: float = 0.0
+    lost: bool = False
+    busy: _Request | None = None  # command or observe
+    control: _Request | None = None  # estop or reset
+    waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy``
+
+    def next_seq(self) -> int:
+        self.seq = self.seq % 0xFFFF + 1  # 1..65535, 0 never used by the gateway
+        return self.seq
+
+
+@dataclass
+class LinkCounters:
+    frames_sent: int = 0
+    retransmissions: int = 0
+    timeouts: int = 0
+    rtts_ms: deque = field(default_factory=lambda: deque(maxlen=RTT_WINDOW))
+
+
+class Link:
+    """The link engine of ``port`` for run ``run`` over ``device``, talking Zenoh on ``session``."""
+
+    def __init__(self, session, run: str, port: Port, timing: Timing, device: ByteLink) -> None:
+        self.session = session
+        self.run_id = run
+        self.port = port
+        self.timing = timing
+        self.device = device
+        self.decoder = FrameDecoder()
+        self.counters = LinkCounters()
+        self.drops = DropCounter(_log)
+        self.robots = {r: _Robot(r) for r in port.robots}
+        self._events: queue.Queue[tuple] = queue.Queue()
+        self._stop = threading.Event()
+        self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
+        self._broadcast_seq = 0
+        self._subs = []
+
+    # -- lifecycle ------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def run(self) -> int:
+        """Serve until ``stop()``; publishes final stats; returns 0."""
+        enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
+        self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
+                      subscribe(self.session, estop_key(self.run_id), enqueue)]
+        reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
+        reader.start()
+        now = time.monotonic()
+        for robot in self.robots.values():
+            robot.last_rx = now  # grace: robot_timeout_s from the start
+        next_beat = next_stats = now
+        try:
+            while not self._stop.is_set():
+                now = time.monotonic()
+                if now >= next_beat:
+                    self._heartbeat(now)
+                    next_beat = now + self.timing.heartbeat_period_s
+                if now >= next_stats:
+                    self._publish_stats()
+                    next_stats = now + self.timing.stats_period_s
+                self._check_timers(now)
+                wait = max(0.0, min(next_beat, next_stats, now + 0.01) - time.monotonic())
+                try:
+                    event = self._events.get(timeout=wait)
+                except queue.Empty:
+                    continue
+                self._handle(event)
+                while True:  # drain what is queued before the timers again
+                    try:
+                        self._handle(self._events.get_nowait())
+                    except queue.Empty:
+                        break
+        finally:
+            self._stop.set()
+            for sub in self._subs:
+                sub.undeclare()
+            reader.join(timeout=1.0)
+            self._publish_stats()
+        return 0
+
+    # -- device -----------------------------------------------------------------------------
+
+    def _read_loop(self) -> None:
+        quiet_since = time.monotonic()
+        while not self._stop.is_set():
+            try:
+                data = self.device.read(QUIET_S)
+            except OSError as exc:
+                _log.error("port %s: read failed (%s); the link stops", self.port.name, exc)
+                self._stop.set()
+                return
+            now = time.monotonic()
+            if data:
+                quiet_since = now
+                frames = self.decoder.feed(data)
+            elif self.decoder.pending and now - quiet_since >= QUIET_S:
+                frames = self.decoder.resync()
+                quiet_since = now
+            else:
+                continue
+            for frame in frames:
+                self._events.put(("frame", frame, now))
+
+    def _send(self, frame: Frame) -> bytes:
+        wire = encode_frame(frame)
+        self.device.write(wire)
+        self.counters.frames_sent += 1
+        return wire
+
+    # -- events (engine thread) ----------------------------------------------------------------
+
+    def _handle(self, event: tuple) -> None:
+        if event[0] == "frame":
+            self._on_frame(event[1], event[2])
+        else:
+            key, payload = event[1], event[2]
+            if key == estop_key(self.run_id):
+                msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
+                if msg is not None:
+                    self._estop_all(msg.step)
+            else:
+                msg = decode_or_drop(payload, self.drops, key, LinkRequest)
+                if msg is not None and msg.robot in self.robots:
+                    self._on_request(msg)
+
+    def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
+        entries = [e for p in parts or [] for e in p.entries]
+        msg = LinkReply(run=self.run_id, step=step, robot=robot, kind=kind, reason=reason,
+                        observed=[e[0] for e in entries], ranges=[max(float(e[1]), 0.0) for e in entries],
+                        bearings=[float(e[2]) for e in entries])
+        publish(self.session, message_key(msg), encode(msg))
+
+    def _on_request(self, req: LinkRequest) -> None:
+        robot = self.robots[req.robot]
+        if robot.lost:
+            self._reply(req.robot, req.step, "lost", f"robot {req.robot} stopped answering on port {self.port.name}")
+            return
+        if req.kind in ("estop", "reset"):
+            self._start_control(robot, req.kind, req.step)
+        elif robot.busy is None:
+            self._start(robot, req)
+        elif (robot.busy.kind, robot.busy.step) != (req.kind, req.step):  # a re-sent request is already in flight
+            robot.waiting.append(req)
+
+    def _start(self, robot: _Robot, req: LinkRequest) -> None:
+        seq = robot.next_seq()
+        if req.kind == "command":
+            frame = Frame.of(robot.id, seq, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
+        else:
+            frame = Frame.of(robot.id, seq, FrameType.OBSERVE, StepBody(req.step))
+        now = time.monotonic()
+        robot.busy = _Request(req.kind, req.step, seq, self._send(frame), now, now)
+
+    def _start_control(self, robot: _Robot, kind: str, step: int) -> None:
+        seq = robot.next_seq()
+        frame = Frame.of(robot.id, seq, FrameType.ESTOP if kind == "estop" else FrameType.RESET, EmptyBody())
+        now = time.monotonic()
+        robot.control = _Request(kind, step, seq, self._send(frame), now, now)
+
+    def _estop_all(self, step: int) -> None:
+        self._broadcast_seq = self._broadcast_seq % 0xFFFF + 1
+        self._send(Frame.of(BROADCAST, self._broadcast_seq, FrameType.ESTOP, EmptyBody()))
+        for robot in self.robots.values():
+            if not robot.lost:
+                self._start_control(robot, "estop", step)
+
+    def _heartbeat(self, now: float) -> None:
+        stamp = int(now * 1000) & 0xFFFFFFFF
+        for robot in self.robots.values():
+            seq = robot.next_seq()
+            self._send(Frame.of(robot.id, seq, FrameType.HEARTBEAT, HeartbeatBody(stamp)))
+            self._heartbeats[(robot.id, seq)] = now
+        if len(self._heartbeats) > 64 * len(self.robots):  # unanswered ones: keep the map bounded
+            for key in list(self._heartbeats)[: len(self._heartbeats) // 2]:
+                del self._heartbeats[key]
+
+    def _rtt(self, sent: float, now: float) -> None:
+        self.counters.rtts_ms.append((now - sent) * 1e3)
+
+    def _on_frame(self, frame: Frame, now: float) -> None:
+        robot = self.robots.get(frame.robot)
+        if robot is None:
+            return
+        robot.last_rx = now
+        try:
+            body = frame.body()
+        except FrameError as exc:
+            _log.warning("port %s: robot %d sent a bad frame (%s)", self.port.name, frame.robot, exc)
+            return
+        kind = frame.type
+        if kind == FrameType.HEARTBEAT_ACK:
+            sent = self._heartbeats.pop((robot.id, frame.seq), None)
+            if sent is not None:
+                self._rtt(sent, now)
+            return
+        control = robot.control
+        if control is not None and frame.seq == control.seq and kind in (FrameType.ESTOPPED, FrameType.RESET_ACK):
+            self._rtt(control.sent_at, now)
+            robot.control = None
+            self._reply(robot.id, control.step, "estopped" if kind == FrameType.ESTOPPED else "reset")
+            return
+        req = robot.busy
+        if req is None or frame.seq != req.seq:
+            return  # an answer to an older request (a late duplicate): already handled
+        if not req.answered:
+            self._rtt(req.sent_at, now)
+            req.answered = True
+        if kind == FrameType.ACCEPTED:
+            if not req.accepted:
+                req.accepted = True
+                req.sent_at = now  # from now on the motion timeout applies
+                self._reply(robot.id, req.step, "accepted")
+            return
+        if kind == FrameType.DONE:
+            self._finish(robot, "done")
+        elif kind == FrameType.REFUSED:
+            code = RefusalCode(body.code).name if body.code in set(RefusalCode) else str(body.code)
+            self._finish(robot, "refused", f"robot {robot.id} refused ({code}): {body.reason}")
+        elif kind == FrameType.ERROR:
+            self._finish(robot, "refused", f"robot {robot.id} reported error {body.code}: {body.text}")
+        elif kind == FrameType.OBSERVATION and req.kind == "observe":
+            req.parts[body.part] = body
+            if len(req.parts) == body.parts and all(p.parts == body.parts for p in req.parts.values()):
+                self._finish(robot, "observation", parts=[req.parts[i] for i in range(body.parts)])
+
+    def _finish(self, robot: _Robot, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
+        req = robot.busy
+        robot.busy = None
+        self._reply(robot.id, req.step, kind, reason, parts=parts)
+        while robot.busy is None and robot.waiting:
+            self._start(robot, robot.waiting.popleft())
+
+    def _check_timers(self, now: float) -> None:
+        t = self.timing
+        for robot in self.robots.values():
+            if robot.lost:
+                continue
+            for slot in ("busy", "control"):
+                req = getattr(robot, slot)
+                if req is None:
+                    continue
+                limit = t.motion_timeout_s if req.accepted else t.ack_timeout_s
+                if now - req.sent_at < limit:
+                    continue
+                if req.retries >= t.max_retries:
+                    self.counters.timeouts += 1
+                    self._lose(robot, f"robot {robot.id} did not answer the {req.kind} of step {req.step} "
+                                      f"after {req.retries} retransmissions on port {self.port.name}")
+                    break
+                self.device.write(req.wire)  # the same frame, same SEQ
+                self.counters.frames_sent += 1
+                self.counters.retransmissions += 1
+                req.retries += 1
+                req.sent_at = now
+            if not robot.lost and now - robot.last_rx > t.robot_timeout_s:
+                self._lose(robot, f"robot {robot.id} silent for {now - robot.last_rx:.1f} s on port {self.port.name}")
+
+    def _lose(self, robot: _Robot, reason: str) -> None:
+        _log.error("%s", reason)
+        robot.lost = True
+        step = max([r.step for r in (robot.busy, robot.control) if r is not None], default=0)
+        robot.busy = robot.control = None
+        robot.waiting.clear()
+        self._reply(robot.id, step, "lost", reason)
+
+    def stats(self) -> LinkStats:
+        rtts = list(self.counters.rtts_ms)
+        d = self.decoder.stats
+        return LinkStats(
+            run=self.run_id, step=0, port=self.port.name, robots=sorted(self.robots),
+            frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
+            crc_errors=d.crc_errors, length_errors=d.length_errors, skipped_bytes=d.skipped_bytes,
+            timeouts=self.counters.timeouts,
+            rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
+            rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
+            rtt_ms_max=max(rtts) if rtts else 0.0,
+            lost=sorted(r.id for r in self.robots.values() if r.lost),
+        )
+
+    def _publish_stats(self) -> None:
+        msg = self.stats()
+        publish(self.session, message_key(msg), encode(msg))

@@ -1,0 +1,69 @@
+"""``swarm link``: the link process of one serial/radio port of a gateway PC (docs/gateway-protocol.md).
+
+    swarm link --config /etc/swarm/gateway.json --port radio0 --run lab --hub tcp/127.0.0.1:7447
+
+Opens the port's device (the only process that does), then bridges the agents of the
+robots behind it (``LinkRequest`` / ``LinkReply`` over Zenoh) to the robots (frames with
+CRC, retransmission, heartbeats), forwards emergency stops and publishes ``LinkStats``.
+Runs until SIGTERM/SIGINT; exit 0. ``python -m swarm_cli.link`` is the same command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+from pathlib import Path
+
+from robot_agent.link import Link, open_link
+from runtime.gateway_config import GatewayConfig
+from runtime.keys import validate_run
+from runtime.transport import open_session
+from swarm_cli.entry import run_standalone
+from swarm_cli.options import add_connection_options, connection_settings
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("link", help="own one serial/radio port of the gateway and bridge its robots to their agents")
+    add_arguments(p)
+    p.set_defaults(run=run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, required=True, help="gateway config JSON (docs/gateway.md)")
+    p.add_argument("--port", required=True, help="name of the port in the config to serve")
+    p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
+    add_connection_options(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    logging.basicConfig(level=logging.WARNING, format=f"link {args.port}: %(levelname)s %(message)s", stream=sys.stderr)
+    config = GatewayConfig.load(args.config)
+    port = config.port(args.port)
+    validate_run(args.run_id)
+    settings = connection_settings(args)
+    device = open_link(port)
+    try:
+        with open_session(settings) as session:
+            link = Link(session, args.run_id, port, config.timing, device)
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                signal.signal(sig, lambda *_: link.stop())
+            print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
+                  f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
+            status = link.run()
+            stats = link.stats()
+            print(f"swarm link: port {port.name}: {stats.frames_sent} frames sent, {stats.frames_received} received, "
+                  f"{stats.retransmissions} retransmissions, {stats.crc_errors} CRC errors, "
+                  f"round trip median {stats.rtt_ms_median:.2f} ms", file=sys.stderr, flush=True)
+            return status
+    finally:
+        device.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_standalone("swarm link", add_arguments, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
