@@ -5,10 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli import agent, bench, compare, coordinator_cmd, estop, info, launch, link, localize, plot, record, recover, replay, sim, study
+from swarm_cli import (
+    agent, bench, certs, compare, coordinator_cmd, estop, info, launch, link, localize, plot, record, recover, replay, router, sim, study,
+)
 from swarm_cli.entry import guarded
 
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop, router, certs)
 
 
 def build_parser() -> argparse.ArgumentParser:

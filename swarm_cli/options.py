@@ -95,7 +95,7 @@ def add_simulation_options(parser: argparse.ArgumentParser) -> None:
 def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = True) -> None:
     """How a process joins the run's Zenoh network: ``--hub ENDPOINT`` and/or ``--zenoh-config FILE``.
 
-    ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-client-tls.json5`` with
+    ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-gateway-tls.json5`` with
     TLS certificates); ``--hub`` then overrides its connect endpoints. One of the two is
     required unless ``required=False``.
     """
