@@ -8,7 +8,9 @@ and publishes the robot's answers as ``LinkReply``s on ``.../linkrep``. It sends
 HEARTBEAT to every robot each ``heartbeat_period_s`` and reports a robot ``lost`` when a
 request exhausted its retries or nothing came from it for ``robot_timeout_s``. An
 ``EmergencyStop`` on ``swarm/<run>/estop`` is sent at once as a broadcast ESTOP and then to
-each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``.
+each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
+the coordinator's liveliness token appears or disappears (so a recording of the run holds
+the link's counters at its start and end) and when the link stops.
 
 Threads: a reader (device -> frames, ``FrameDecoder`` with ``resync`` on a quiet line)
 and the engine (``run``), which owns every piece of state; Zenoh callbacks only enqueue.
@@ -40,7 +42,7 @@ from runtime.frames import (
     encode_frame,
 )
 from runtime.gateway_config import Port, Timing
-from runtime.keys import estop_key, robot_wildcard
+from runtime.keys import coord_alive_key, estop_key, robot_wildcard
 from runtime.messages import (
     DropCounter,
     EmergencyStop,
@@ -51,7 +53,7 @@ from runtime.messages import (
     encode,
     message_key,
 )
-from runtime.transport import publish, subscribe
+from runtime.transport import publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 QUIET_S = 0.02  # a line quiet this long with a partial frame buffered: resync
@@ -173,7 +175,8 @@ class Link:
         """Serve until ``stop()``; publishes final stats; returns 0."""
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
-                      subscribe(self.session, estop_key(self.run_id), enqueue)]
+                      subscribe(self.session, estop_key(self.run_id), enqueue),
+                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("stats",)))]
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
         reader.start()
         now = time.monotonic()
@@ -243,6 +246,8 @@ class Link:
     def _handle(self, event: tuple) -> None:
         if event[0] == "frame":
             self._on_frame(event[1], event[2])
+        elif event[0] == "stats":
+            self._publish_stats()
         else:
             key, payload = event[1], event[2]
             if key == estop_key(self.run_id):

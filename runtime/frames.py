@@ -159,8 +159,7 @@ class RefusalBody:
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<IB")
 
     def pack(self) -> bytes:
-        text = self.reason.encode("utf-8")[:MAX_TEXT]
-        return _pack(self.FORMAT, self, self.step, self.code) + text
+        return _pack(self.FORMAT, self, self.step, self.code) + _utf8(self.reason)
 
     @classmethod
     def unpack(cls, payload: bytes) -> RefusalBody:
@@ -177,7 +176,7 @@ class ErrorBody:
     FORMAT: ClassVar[struct.Struct] = struct.Struct("<B")
 
     def pack(self) -> bytes:
-        return _pack(self.FORMAT, self, self.code) + self.text.encode("utf-8")[:MAX_TEXT]
+        return _pack(self.FORMAT, self, self.code) + _utf8(self.text)
 
     @classmethod
     def unpack(cls, payload: bytes) -> ErrorBody:
@@ -226,6 +225,11 @@ class ObservationBody:
             raise FrameError(f"ObservationBody: part {part} is not in [0, parts={parts})")
         entries = tuple(ENTRY.iter_unpack(payload[n:]))
         return cls(step, stamp, part, parts, entries)
+
+
+def _utf8(text: str) -> bytes:
+    """``text`` as UTF-8, cut to ``MAX_TEXT`` bytes without splitting a character."""
+    return text.encode("utf-8")[:MAX_TEXT].decode("utf-8", "ignore").encode("utf-8")
 
 
 def _pack(fmt: struct.Struct, body: object, *values: object) -> bytes:

@@ -34,7 +34,9 @@ import signal
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -47,7 +49,7 @@ from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms
-from swarm_cli.launch import MODEL_OPTIONS, _forward, start_agents, stop_all
+from swarm_cli.launch import MODEL_OPTIONS, _forward, default_gateway, start_agents, start_gateway, stop_all
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("no-anchors", "ref57")
@@ -132,23 +134,34 @@ def _raise_interrupt(*_) -> None:
     raise KeyboardInterrupt
 
 
-def measure(n: int, args: argparse.Namespace) -> dict:
-    """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row."""
+def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
+    """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row.
+
+    ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
+    (``swarm_cli.launch.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
+    """
     cfg = model_config(args)
     strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
-    run_id = f"bench-runtime-{os.getpid()}-{n}"
+    run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
     procs: list[subprocess.Popen] = []
     try:
-        with open_session(hub_settings):
+        with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="swarm-bench-") as tmp:
             t0 = time.monotonic()
-            _say(f"{n} agents: starting (run {run_id}, hub {hub})")
-            start_agents(traj, run_id, hub, args.seed, 0.0, _forward(args, MODEL_OPTIONS), procs, stdout=subprocess.DEVNULL)
+            _say(f"{n} agents ({driver} driver): starting (run {run_id}, hub {hub})")
+            model = _forward(args, MODEL_OPTIONS)
+            extra = list(model)
+            if driver == "gateway":
+                traj_file = Path(tmp) / "trajectory.json"
+                traj.save(traj_file)
+                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs)
+                extra += ["--driver=gateway", f"--gateway-config={live}"]
+            start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, stdout=subprocess.DEVNULL)
             with open_session(member) as session:
                 backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
                 try:
@@ -163,12 +176,15 @@ def measure(n: int, args: argparse.Namespace) -> dict:
                     executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
                 finally:
                     backend.close()
-            rss = [rss_mb(p.pid) for p in procs]
-            dead = [int(r) for r, p in zip(traj.ids, procs) if p.poll() is not None]
+            agents = procs[-n:]
+            rss = [rss_mb(p.pid) for p in agents]
+            dead = [int(r) for r, p in zip(traj.ids, agents) if p.poll() is not None]
             if dead or None in rss:
                 raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
     finally:
-        stop_all(procs)
+        emulators = 1 if driver == "gateway" else 0  # stopped last, after the links that read their ptys
+        stop_all(procs[emulators:])
+        stop_all(procs[:emulators])
     left = [p.pid for p in procs if p.poll() is None]
     if left:
         raise RuntimeError(f"agent processes {left} are still running")

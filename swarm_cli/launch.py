@@ -14,6 +14,14 @@ period), so no process outlives it. Exit status: the coordinator's.
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
 (``random_trajectory(10, 3, seed 0)``).
 
+``--driver gateway`` runs the hardware path end to end without hardware: the launcher
+starts ``swarm emulate-robots`` (robots speaking the frame protocol on ptys, true poses
+in the emulator, which publishes them like a motion-capture system), one ``swarm link``
+per port of the gateway config (``--gateway-config``, default: ports of 5 robots each),
+and the agents with the gateway driver; the coordinator and its command line are the
+same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``EmergencyStop``
+to the run, then stops every child.
+
 ``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
 ``swarm bench runtime``).
 """
@@ -33,9 +41,12 @@ import numpy as np
 
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
+from runtime.gateway_config import GatewayConfig, Limits, Port
+from runtime.messages import CommandLimits
 from runtime.trajectory import Trajectory, random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
+from swarm_cli.estop import send_estop
 from swarm_cli.options import add_simulation_options, model_config
 
 GRACE_S = 3.0
@@ -63,6 +74,11 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    p.add_argument("--driver", choices=("sim", "gateway"), default="sim",
+                   help="simulated agents, or agents driving emulated robots through link processes and ptys (default sim)")
+    p.add_argument("--gateway-config", type=Path, default=None,
+                   help="with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)")
+    p.add_argument("--emulator-events", type=Path, default=None, help="with --driver gateway: the emulator's JSON-lines event log")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -121,6 +137,46 @@ def _raise_interrupt(*_) -> None:
     raise KeyboardInterrupt
 
 
+ROBOTS_PER_PORT = 5
+GATEWAY_READY_S = 20.0
+
+
+def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
+    """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
+    trajectory's bounding box grown by ``margin_m``; devices are filled in by the emulator."""
+    ids = [int(i) for i in traj.ids]
+    ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
+                  for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
+    xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
+    lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
+
+
+def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
+                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None) -> Path:
+    """Start the robot emulators and one link process per port; the live gateway config (pty devices)."""
+    config = tmp / "gateway.json"
+    live = tmp / "gateway-live.json"
+    gateway.save(config)
+    cmd = [sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}", f"--seed={seed}",
+           f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", f"--write-config={live}", *model]
+    if events is not None:
+        cmd.append(f"--events={events}")
+    emulator = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+    procs.append(emulator)
+    deadline = time.monotonic() + GATEWAY_READY_S
+    while not live.exists():
+        if emulator.poll() is not None:
+            raise SwarmInputError(f"the robot emulator exited with status {emulator.returncode} before its ptys were ready")
+        if time.monotonic() > deadline:
+            raise SwarmInputError(f"the robot emulator did not write {live} within {GATEWAY_READY_S:.0f} s")
+        time.sleep(0.02)
+    for port in gateway.ports:
+        procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
+                                       f"--run={run_id}", f"--hub={hub}"]))
+    return live
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     if args.trajectory:
@@ -139,11 +195,20 @@ def run(args: argparse.Namespace) -> int:
     procs: list[subprocess.Popen] = []
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings):
+        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
-            start_agents(traj, run_id, hub, args.seed, args.motion_time, model, procs)
+            agent_extra = list(model)
+            if args.driver == "gateway":
+                gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj)
+                missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
+                if missing:
+                    raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
+                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, args.motion_time, model, procs,
+                                     args.emulator_events)
+                agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+            start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs)
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
                    f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
@@ -155,13 +220,21 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append("--json")
             if args.foxglove is not None:
                 cmd.append(f"--foxglove={args.foxglove}")
-            print(f"swarm {args.command}: {traj.n} agents + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
+            print(f"swarm {args.command}: {traj.n} {what} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             coordinator = subprocess.Popen(cmd)
             procs.append(coordinator)
-            status = coordinator.wait()
+            try:
+                status = coordinator.wait()
+            except KeyboardInterrupt:
+                send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
+                print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
+                raise
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status
     finally:
-        stop_all(procs)
+        emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
+        stop_all(procs[emulators:])
+        stop_all(procs[:emulators])
         signal.signal(signal.SIGTERM, previous)

@@ -6,11 +6,13 @@ import argparse
 import sys
 
 from swarm_cli import (
-    agent, bench, certs, compare, coordinator_cmd, estop, info, launch, link, localize, plot, record, recover, replay, router, sim, study,
+    agent, bench, certs, compare, coordinator_cmd, emulate, estop, info, launch, link, localize, plot, record, recover, replay, router, sim,
+    study,
 )
 from swarm_cli.entry import guarded
 
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop, router, certs)
+COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop, router, certs,
+            emulate)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,160 @@
+"""``swarm emulate-robots``: the robots of a gateway config, emulated on pseudo-terminals (docs/emulator.md).
+
+    swarm emulate-robots --config deploy/gateway.example.json --trajectory traj.json \\
+        --write-config out/gateway.pty.json [--events events.jsonl] [--hub tcp/127.0.0.1:7447 --run demo]
+
+One ``robot_agent.emulator.PortEmulator`` per port of the config, all in one
+``EmulatedWorld`` built from the trajectory's initial poses (every robot of the config must
+be in the trajectory). Prints ``port NAME: DEVICE (robots 0,1,2)`` per port, then writes
+the config with the pty device paths to ``--write-config`` (atomically, once the ptys are
+ready, so a launcher can wait for the file) and, with ``--json``, one line
+``{"ports": {name: device}, "config": OUT}``. Serves until SIGTERM/SIGINT, then closes
+everything and exits 0 (2 on bad input). ``python -m swarm_cli.emulate`` is the same.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import TextIO
+
+from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
+from runtime.errors import SwarmInputError
+from runtime.gateway_config import GatewayConfig
+from runtime.keys import validate_run
+from runtime.trajectory import Trajectory
+from runtime.transport import open_session
+from swarm_cli.entry import run_standalone
+from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, print_json
+
+PROG = "swarm emulate-robots"
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("emulate-robots", help="emulate the robots of a gateway config on pseudo-terminals (frame protocol)")
+    add_arguments(p)
+    p.set_defaults(run=run)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", type=Path, required=True, help="gateway config JSON: its ports and robots are emulated (docs/gateway.md)")
+    p.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots' initial true poses (docs/trajectory.md)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the run: motion and sensing noise as simulated agents, and random faults (default 0)")
+    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a motion takes; it is applied at its end (default 0)")
+    p.add_argument("--miscalibrate", action="store_true",
+                   help="give each robot the config's calibration as true deviations (drive x motion_scale, range + bias, bearing + offset)")
+    add_model_options(p)
+    g = p.add_argument_group("fault injection (per port; rx = frames from the gateway, tx = frames to it)")
+    g.add_argument("--drop", type=float, default=0.0, metavar="P", help="probability a frame is lost, both directions (default 0)")
+    g.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="probability one byte of an outgoing frame is flipped (default 0)")
+    g.add_argument("--delay", type=float, default=0.0, metavar="S", help="seconds every outgoing frame is delayed (default 0)")
+    g.add_argument("--drop-rx", default="", metavar="I,J", help="0-based indices of received frames to drop (e.g. 0,5)")
+    g.add_argument("--drop-tx", default="", metavar="I,J", help="0-based indices of sent frames to drop (e.g. 0 = the first answer)")
+    p.add_argument("--events", type=Path, default=None, metavar="FILE", help="write every notable event as a JSON line (flushed per line)")
+    p.add_argument("--write-config", type=Path, default=None, metavar="OUT", help="write the config with the pty device paths here, atomically")
+    add_connection_options(p, required=False)
+    p.add_argument("--run", dest="run_id", default=None, help="run id: with --hub/--zenoh-config, publish the true poses (TruthMessage)")
+    p.add_argument("--json", action="store_true", help='print {"ports": {name: device}, "config": OUT} as one JSON line when ready')
+
+
+class JsonLinesSink:
+    """An ``on_event`` callback writing each event as one JSON line, flushed (thread-safe)."""
+
+    def __init__(self, path: Path) -> None:
+        self._file: TextIO = open(path, "w", encoding="utf-8")
+        self._lock = threading.Lock()
+
+    def __call__(self, event: dict) -> None:
+        line = json.dumps(event, separators=(",", ":")) + "\n"
+        with self._lock:
+            if not self._file.closed:
+                self._file.write(line)
+                self._file.flush()
+
+    def close(self) -> None:
+        with self._lock:
+            self._file.close()
+
+
+def write_atomically(config: GatewayConfig, out: Path) -> None:
+    """``config`` to ``out`` via a temporary file and a rename: a reader sees no file or the whole file."""
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    try:
+        config.save(tmp)
+        os.replace(tmp, out)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+
+
+def _indices(text: str, option: str) -> frozenset[int]:
+    return frozenset(parse_list(text, option)) if text.strip() else frozenset()
+
+
+def run(args: argparse.Namespace) -> int:
+    config = GatewayConfig.load(args.config)
+    traj = Trajectory.load(args.trajectory)
+    ids = traj.ids.tolist()
+    missing = [r for r in config.robots if r not in ids]
+    if missing:
+        raise SwarmInputError(f"robots {missing} of the gateway config {args.config} are not in the trajectory "
+                              f"{args.trajectory} (its robots: {ids}); every emulated robot needs an initial pose")
+    settings = connection_settings(args)
+    if (settings is None) != (args.run_id is None):
+        raise SwarmInputError("give --run together with --hub/--zenoh-config (they publish the true poses), or neither")
+    if args.run_id is not None:
+        validate_run(args.run_id)
+    if not args.motion_time >= 0:
+        raise SwarmInputError(f"--motion-time must be >= 0 s, got {args.motion_time}")
+    faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
+                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"), seed=args.seed)
+    world = EmulatedWorld(ids, traj.initial_poses, model_config(args), args.seed,
+                          calibration=dict(config.calibration) if args.miscalibrate else None,
+                          motion_time_s=args.motion_time, heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    with contextlib.ExitStack() as stack:
+        sink = None
+        if args.events is not None:
+            sink = JsonLinesSink(args.events)
+            stack.callback(sink.close)
+        ports = [stack.enter_context(PortEmulator(world, p.name, p.robots, faults, on_event=sink)) for p in config.ports]
+        if settings is not None:
+            session = stack.enter_context(open_session(settings))
+            truth = stack.enter_context(TruthPublisher(world, session, args.run_id))
+            truth.start()
+        devices = {pe.port_name: pe.device for pe in ports}
+        for pe in ports:
+            print(f"port {pe.port_name}: {pe.device} (robots {','.join(map(str, pe.robots))})", flush=True)
+        if args.write_config is not None:
+            write_atomically(config.with_devices(devices), args.write_config)
+        if sink is not None:
+            sink({"event": "ready", "time_ns": time.time_ns(), "ports": devices, "config": None if args.write_config is None else str(args.write_config)})
+        if args.json:
+            print_json({"ports": devices, "config": None if args.write_config is None else str(args.write_config)})
+        print(f"{PROG}: {len(config.robots)} robots on {len(ports)} port(s); SIGTERM or Ctrl-C stops", file=sys.stderr, flush=True)
+        while not stop.wait(0.2):
+            pass
+        for pe in ports:
+            s = pe.stats()
+            print(f"{PROG}: port {pe.port_name}: {s.rx_frames} frames in, {s.tx_frames} out, executed {s.executed}, "
+                  f"dropped rx {s.rx_dropped} tx {s.tx_dropped}, corrupted {s.tx_corrupted}, CRC errors {s.crc_errors}",
+                  file=sys.stderr, flush=True)
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return run_standalone(PROG, add_arguments, run, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,275 @@
+"""The hardware path without hardware: link process, gateway driver and agents against robot emulators on ptys.
+
+In-process rigs (real Zenoh on loopback, a real pty, the link engine on its own thread)
+check the link's reliability; subprocess runs check the whole path as users run it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_agent.driver import RobotLost, SimDriver
+from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
+from robot_agent.gateway_driver import GatewayDriver
+from robot_agent.link import Link, SerialLink
+from runtime.config import ModelConfig
+from runtime.gateway_config import Calibration, GatewayConfig, Limits, Port, Timing
+from runtime.keys import alive_wildcard
+from runtime.messages import EmergencyStop, LinkReply, LinkStats, MotionCommand, Status, decode, encode, message_key
+from runtime.recording import read_messages
+from runtime.trajectory import random_trajectory
+from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+
+REPO = Path(__file__).resolve().parents[1]
+CFG = ModelConfig()
+POSES = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 1.0]])
+FAST = Timing(ack_timeout_s=0.05, max_retries=3, motion_timeout_s=2.0, heartbeat_period_s=5.0, heartbeat_timeout_s=10.0,
+              robot_timeout_s=20.0, stats_period_s=0.2)
+
+
+@dataclasses.dataclass
+class Rig:
+    emulator: PortEmulator
+    link: Link
+    driver: GatewayDriver
+    member: object
+
+
+@contextmanager
+def rig(faults: FaultPlan, timing: Timing = FAST, calibration: Calibration = Calibration(), run: str = "gw") -> Iterator[Rig]:
+    """Robot 0 (of a world of robots 0 and 1) on its own emulated port, a link engine and a gateway driver."""
+    world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s)
+    hub_settings, member = loopback_hub(free_tcp_port())
+    with PortEmulator(world, "radio0", [0], faults) as emulator, open_session(hub_settings), \
+            open_session(member) as link_session, open_session(member) as agent_session:
+        device = SerialLink(emulator.device, 115200)
+        link = Link(link_session, run, Port("radio0", emulator.device, (0,)), timing, device)
+        thread = threading.Thread(target=link.run, daemon=True)
+        thread.start()
+        driver = GatewayDriver(run, 0, calibration, timing)
+        driver.attach(agent_session)
+        try:
+            deadline = time.monotonic() + 5
+            while not link.counters.rtts_ms and faults.drop_prob < 1:  # the first heartbeat was answered: the path is up
+                assert time.monotonic() < deadline, "no heartbeat answer from the emulator"
+                time.sleep(0.005)
+            time.sleep(0.2)  # the driver's and link's subscriptions reach the hub
+            yield Rig(emulator, link, driver, member)
+        finally:
+            driver.detach()
+            link.stop()
+            thread.join(timeout=5)
+            device.close()
+
+
+def command(step: int, turn: float = 0.3, drive: float = 0.1) -> MotionCommand:
+    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive)
+
+
+def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) -> np.ndarray:
+    """Robot 0's pose after these commands in the simulated driver, with float32 values as on the wire."""
+    sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
+    for step, (turn, drive) in enumerate(turns_drives, 1):
+        sim.execute(MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=float(np.float32(turn)),
+                                  drive_m=float(np.float32(drive / scale)) * scale))
+    return sim.true_pose()
+
+
+# tx frame 0 is the answer to the first heartbeat; tx 1, 2 are ACCEPTED and DONE of the first command
+@pytest.mark.parametrize("faults,what", [
+    (FaultPlan(drop_tx=frozenset({1, 2})), "both answers lost"),
+    (FaultPlan(drop_rx=frozenset({1})), "the command frame lost"),
+])
+def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what):
+    with rig(faults) as r:
+        r.driver.execute(command(1))
+        assert r.link.counters.retransmissions == 1, what
+        assert r.emulator.executed(0) == 1, what
+        r.driver.execute(command(2, -0.2, 0.05))  # the next command goes through untouched
+        assert r.link.counters.retransmissions == 1 and r.emulator.executed(0) == 2
+        np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.3, 0.1), (-0.2, 0.05)]), atol=1e-12)
+
+
+def test_observations_and_calibration_through_the_link():
+    cal = Calibration(range_bias_m=0.02, bearing_offset_rad=0.1, motion_scale=0.9)
+    world_cal = {0: cal}
+    hub_settings, member = loopback_hub(free_tcp_port())
+    world = EmulatedWorld([0, 1], POSES, CFG, seed=3, calibration=world_cal)
+    sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
+    with PortEmulator(world, "radio0", [0, 1]) as emulator, open_session(hub_settings), \
+            open_session(member) as s1, open_session(member) as s2:
+        device = SerialLink(emulator.device, 115200)
+        link = Link(s1, "gw", Port("radio0", emulator.device, (0, 1)), FAST, device)
+        thread = threading.Thread(target=link.run, daemon=True)
+        thread.start()
+        driver = GatewayDriver("gw", 0, cal, FAST)
+        driver.attach(s2)
+        time.sleep(0.3)
+        try:
+            driver.execute(command(1, 0.0, 0.1))
+            observed, ranges, bearings = driver.sense(None, 1)
+        finally:
+            driver.detach()
+            link.stop()
+            thread.join(timeout=5)
+            device.close()
+    # the same robot simulated without miscalibration: the corrections undo the emulated deviations
+    sim.execute(MotionCommand(run="gw", step=1, robot=0, config=1, turn_rad=0.0, drive_m=float(np.float32(0.1 / 0.9)) * 0.9))
+    exp_ids, exp_r, exp_b = sim.sense({0: sim.true_pose(), 1: POSES[1]}, 1)
+    assert observed.tolist() == exp_ids.tolist() == [1]
+    np.testing.assert_allclose(ranges, exp_r, atol=1e-6)
+    np.testing.assert_allclose(bearings, exp_b, atol=1e-6)
+
+
+def test_a_silent_robot_is_reported_lost_by_id():
+    with rig(FaultPlan(drop_prob=1.0)) as r:
+        start = time.monotonic()
+        with pytest.raises(RobotLost, match=r"robot 0 did not answer the command of step 1 after 3 retransmissions"):
+            r.driver.execute(command(1))
+        assert time.monotonic() - start < 2.0
+        assert r.link.stats().lost == (0,) and r.link.counters.timeouts == 1 and r.emulator.executed(0) == 0
+
+
+def test_corrupted_answers_are_rejected_and_recovered():
+    with rig(FaultPlan(corrupt_prob=0.3, seed=1)) as r:
+        for step in range(1, 9):
+            r.driver.execute(command(step, 0.05, 0.02))
+        stats = r.link.stats()
+        assert r.emulator.executed(0) == 8
+        assert stats.crc_errors > 0 and stats.retransmissions > 0
+        assert r.emulator.stats().tx_corrupted >= stats.crc_errors
+
+
+# -- whole processes ----------------------------------------------------------------------------
+
+
+def _launch(tmp: Path, driver: str, traj_file: Path, run_id: str, record: Path | None) -> dict:
+    result = tmp / f"{driver}.json"
+    cmd = [sys.executable, "-m", "swarm_cli.main", "launch", f"--trajectory={traj_file}", f"--driver={driver}", "--seed=2",
+           f"--run={run_id}", f"--result={result}", f"--out={tmp / driver}", "--json"]
+    cmd += [f"--record={record}"] if record else ["--no-record"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(result.read_text())
+
+
+def test_gateway_run_equals_the_simulated_run_and_is_recorded(tmp_path):
+    traj = random_trajectory(4, 2, np.random.default_rng(5))
+    traj_file = tmp_path / "traj.json"
+    traj.save(traj_file)
+    recording = tmp_path / "gateway.mcap"
+    sim = _launch(tmp_path, "sim", traj_file, "eq-sim", None)
+    gw = _launch(tmp_path, "gateway", traj_file, "eq-gw", recording)
+    assert len(gw["steps"]) == len(sim["steps"]) > 0
+    for a, b in zip(gw["steps"], sim["steps"]):
+        assert a["moving"] == b["moving"]  # the same plans
+        # float32 on the wire (docs/gateway-protocol.md): equal to ~1e-7 m, not bit for bit
+        np.testing.assert_allclose(a["commands"], b["commands"], atol=1e-6)
+        np.testing.assert_allclose(a["poses"], b["poses"], atol=1e-6)
+        np.testing.assert_allclose(a["truth"], b["truth"], atol=1e-6)
+    keys = {}
+    for key, payload, *_ in read_messages(recording):
+        keys.setdefault(key, []).append(payload)
+    stats = [decode(p, LinkStats) for p in keys["swarm/eq-gw/link/radio0/stats"]]
+    assert stats[-1].frames_received > 0 and stats[-1].lost == ()
+    replies = [decode(p, LinkReply) for k, v in keys.items() if k.endswith("/linkrep") for p in v]
+    assert {"accepted", "done", "observation"} <= {r.kind for r in replies}
+
+
+def _wait_for(predicate, timeout_s: float, what: str):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        value = predicate()
+        if value:
+            return value
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_byte(tmp_path):
+    traj = random_trajectory(4, 1, np.random.default_rng(1))
+    traj_file, config, live, events = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json", tmp_path / "events.jsonl"
+    traj.save(traj_file)
+    ids = [int(i) for i in traj.ids]
+    GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))),
+                  limits=Limits(max_drive_m=0.3)).save(config)
+    run_id = "estop"
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    py = [sys.executable, "-m"]
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings), open_session(member) as session:
+            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
+                                                f"--write-config={live}", f"--events={events}"], stdout=subprocess.DEVNULL))
+            _wait_for(live.exists, 20, "the emulator's live config")
+            for name in ("radio0", "radio1"):
+                procs.append(subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", f"--port={name}", f"--run={run_id}", f"--hub={hub}"]))
+            for robot in ids:
+                procs.append(subprocess.Popen(py + ["swarm_cli.agent", f"--id={robot}", f"--ids={','.join(map(str, ids))}",
+                                                    f"--run={run_id}", f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"]))
+            _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
+            time.sleep(0.3)
+            _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
+
+            def status_of(robot: int, step: int) -> Status:
+                def find():
+                    while not statuses.empty():
+                        st = decode(statuses.get()[1], Status)
+                        found[(st.robot, st.step)] = st
+                    return found.get((robot, step))
+                return _wait_for(find, 10, f"the status of robot {robot} at step {step}")
+
+            found: dict = {}
+            # limits: a drive beyond max_drive_m is refused by the agent, no COMMAND frame reaches the robot
+            too_far = MotionCommand(run=run_id, step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.5)
+            publish(session, message_key(too_far), encode(too_far))
+            assert status_of(ids[0], 1).state == "refused" and "exceeds the limit 0.3 m" in status_of(ids[0], 1).reason
+            # emergency stop
+            t0 = time.time_ns()
+            stop = EmergencyStop(run=run_id, step=0, source="test", reason="test")
+            publish(session, message_key(stop), encode(stop))
+
+            def estops():
+                if not events.exists():
+                    return None
+                rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+                first = {}
+                for row in rows:
+                    if row.get("event") == "estop":
+                        first.setdefault(row["robot"], row["time_ns"])
+                return first if set(first) == set(ids) else None
+
+            first = _wait_for(estops, 5, "ESTOP at every emulated robot")
+            delays_ms = {robot: (t - t0) / 1e6 for robot, t in first.items()}
+            assert max(delays_ms.values()) < 100, delays_ms
+            rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+            assert not [r for r in rows if r.get("event") in ("accepted", "executed")], "a command reached a robot"
+            # after the stop every agent refuses commands
+            cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1)
+            publish(session, message_key(cmd), encode(cmd))
+            assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+    assert all(p.returncode is not None for p in procs)
