@@ -15,7 +15,8 @@ It is also the executor's ``ExecutorListener`` (pass it as ``listener=``):
 ``on_plan`` publishes ``PlanMessage`` on ``swarm/<run>/coord/plan`` (``config`` 1-based,
 ``step`` the plan's first step, groups as robot ids) and makes the following
 ``MotionCommand``s carry that ``config``; ``on_estimate`` publishes ``EstimateMessage``
-on ``swarm/<run>/coord/estimate`` (step 0: the initial estimate, then after every step).
+on ``swarm/<run>/coord/estimate`` (step 0: the initial estimate, then after every step)
+and makes the following commands carry the robot's estimated pose as ``start_pose``.
 Without a listener call the commands carry ``config`` 0.
 
 Lost agents: a liveliness subscriber on ``swarm/<run>/alive/robot/*`` notes every token
@@ -108,6 +109,7 @@ class ZenohSwarmBackend:
         self._gone: set[int] = set()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truths_sent = 0  # last step whose TruthSetMessage went out
+        self._estimate: dict[int, list[float]] | None = None  # latest published pose per robot: commands' start_pose
         self._reports: dict[int, ObservationReport] = {}
         self._status: dict[int, Status] = {}
         enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
@@ -237,7 +239,9 @@ class ZenohSwarmBackend:
         for k in np.flatnonzero(step.moving):
             robot = self._id_list[k]
             turn, drive = step.commands[k]
-            cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn), drive_m=float(drive))
+            start = () if self._estimate is None else self._estimate.get(robot, ())
+            cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
+                                        drive_m=float(drive), start_pose=start)
 
         def send(robots) -> None:
             for robot in robots:
@@ -286,6 +290,7 @@ class ZenohSwarmBackend:
         """Publish the estimate after ``step`` as ``EstimateMessage``."""
         msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
         publish(self.session, message_key(msg), encode(msg))
+        self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self.known <= self._truth.keys():

@@ -33,8 +33,8 @@ the sensing stream).
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` is forwarded to the driver at
 once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
 while the loop waits for a motion to finish); every later command is refused. Limits
-(``CommandLimits``: drive, turn, and the workspace checked against the robot's latest
-``EstimateMessage`` pose) are checked before the driver sees a command. A driver that
+(``CommandLimits``: drive, turn, and the workspace checked from the command's
+``start_pose``, the coordinator's estimate of the robot) are checked before the driver sees a command. A driver that
 raises ``DriverRefused`` gives ``Status refused`` with its reason; ``RobotLost`` drops the
 liveliness token (the coordinator reports the robot lost by id) and ends the loop
 (``run`` returns 3).
@@ -53,12 +53,11 @@ from collections.abc import Collection
 import numpy as np
 
 from robot_agent.driver import Driver, DriverRefused, RobotLost
-from runtime.keys import alive_key, coord_alive_key, coord_key, estop_key, robot_key, truths_key
+from runtime.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
 from runtime.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
-    EstimateMessage,
     MessageError,
     MotionCommand,
     ObservationReport,
@@ -113,11 +112,9 @@ class Agent:
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
         self._estop_key = estop_key(run)
-        self._estimate_key = coord_key(run, "estimate")
         self._estop = threading.Event()
         self.estopped = False
         self.lost_reason: str | None = None
-        self._pose: tuple[float, float, float] | None = None  # latest estimate, for the workspace check
 
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
@@ -131,8 +128,6 @@ class Agent:
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
             subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
                     subscribe(session, self._estop_key, self._on_estop)]
-            if self.limits.workspace is not None:
-                subs.append(subscribe(session, self._estimate_key, enqueue))
             forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
             forwarder.start()
             if self.driver.simulated:
@@ -192,10 +187,6 @@ class Agent:
             self._publish_truth(max(self._last_obs_step, 0) if self._last_truth is None else self._last_truth.step)
         elif key == self._cmd_key:
             self._on_command(key, payload)
-        elif key == self._estimate_key:
-            msg = decode_or_drop(payload, self.drops, key, EstimateMessage, self.known)
-            if msg is not None and self.robot in msg.ids:
-                self._pose = tuple(msg.poses[msg.ids.index(self.robot)])
         elif key == self._observe_key:
             msg = decode_or_drop(payload, self.drops, key, ObserveRequest, self.known)
             if msg is not None:
@@ -222,7 +213,7 @@ class Agent:
             self._send(self._last_status)  # duplicate: never execute twice
             return
         self._last_cmd_step = cmd.step
-        reason = "emergency stop" if self.estopped else self.limits.refusal(cmd, self._pose)
+        reason = "emergency stop" if self.estopped else self.limits.refusal(cmd)
         if reason is not None:
             self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason)
             self._send(self._last_status)

@@ -79,7 +79,7 @@ EventSink = Callable[[dict], None]
 TruthListener = Callable[[int, int, np.ndarray], None]  # (robot, step, true pose)
 
 QUIET_S = 0.020  # a partial frame is given up after 20 ms of quiet (gateway-protocol.md, Receiving)
-POLL_S = 0.005  # reader poll period: resolution of the quiet timer and of the heartbeat watchdog
+POLL_S = 0.01  # reader poll period: resolution of the quiet timer and of the heartbeat watchdog
 WRITE_TIMEOUT_S = 0.5  # a frame that cannot be written for this long (nobody reads the pty) is dropped
 MAX_PARTS = 255  # OBSERVATION ``parts`` is a u8
 

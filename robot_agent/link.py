@@ -4,8 +4,9 @@ Agents of the robots behind the port (gateway driver) publish ``LinkRequest``s o
 ``swarm/<run>/robot/<id>/linkreq``; the link turns each into a frame
 (docs/gateway-protocol.md), sends it with retransmission (same SEQ, at most
 ``max_retries`` times, ``ack_timeout_s`` apart; ``motion_timeout_s`` after ACCEPTED),
-and publishes the robot's answers as ``LinkReply``s on ``.../linkrep``. It sends a
-HEARTBEAT to every robot each ``heartbeat_period_s`` and reports a robot ``lost`` when a
+and publishes the robot's answers as ``LinkReply``s on ``.../linkrep`` (not ACCEPTED,
+which only restarts the timer: the agent waits for DONE). It sends a HEARTBEAT to every
+robot that got no other frame for ``heartbeat_period_s`` and reports a robot ``lost`` when a
 request exhausted its retries or nothing came from it for ``robot_timeout_s``. An
 ``EmergencyStop`` on ``swarm/<run>/estop`` is sent at once as a broadcast ESTOP and then to
 each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
@@ -19,7 +20,10 @@ and the engine (``run``), which owns every piece of state; Zenoh callbacks only 
 from __future__ import annotations
 
 import logging
+import math
+import os
 import queue
+import select
 import statistics
 import threading
 import time
@@ -73,7 +77,9 @@ class ByteLink(Protocol):
 
 
 class SerialLink:
-    """A serial device (or the pty of an emulator) through pyserial, 8N1, raw."""
+    """A serial device (or the pty of an emulator): pyserial opens and configures it (baud, 8N1, raw);
+    reads and writes then go straight to its file descriptor (pyserial's own calls cost a
+    select and, for read timeouts, a port reconfiguration each)."""
 
     def __init__(self, device: str, baud: int) -> None:
         import serial  # noqa: PLC0415 - keeps pyserial off the import path of processes that never open a port
@@ -82,18 +88,26 @@ class SerialLink:
             self._serial = serial.Serial(device, baudrate=baud, timeout=0)
         except (serial.SerialException, OSError) as exc:
             raise ConnectionError(f"cannot open serial device {device}: {exc}") from None
+        self._fd = self._serial.fileno()
         self._lock = threading.Lock()
 
     def read(self, timeout_s: float) -> bytes:
-        self._serial.timeout = timeout_s
-        data = self._serial.read(1)
-        if data and self._serial.in_waiting:
-            data += self._serial.read(self._serial.in_waiting)
+        ready, _, _ = select.select([self._fd], [], [], timeout_s)
+        if not ready:
+            return b""
+        data = os.read(self._fd, 4096)
+        if not data:
+            raise OSError(f"serial device {self._serial.port} closed")
         return data
 
     def write(self, data: bytes) -> None:
+        view = memoryview(data)
         with self._lock:
-            self._serial.write(data)
+            while view:
+                try:
+                    view = view[os.write(self._fd, view):]
+                except BlockingIOError:
+                    select.select([], [self._fd], [], 0.1)
 
     def close(self) -> None:
         self._serial.close()
@@ -129,6 +143,7 @@ class _Robot:
     id: int
     seq: int = 0
     last_rx: float = 0.0
+    last_tx: float = -math.inf
     lost: bool = False
     busy: _Request | None = None  # command or observe
     control: _Request | None = None  # estop or reset
@@ -182,18 +197,16 @@ class Link:
         now = time.monotonic()
         for robot in self.robots.values():
             robot.last_rx = now  # grace: robot_timeout_s from the start
-        next_beat = next_stats = now
+        next_stats = now
         try:
             while not self._stop.is_set():
                 now = time.monotonic()
-                if now >= next_beat:
-                    self._heartbeat(now)
-                    next_beat = now + self.timing.heartbeat_period_s
+                self._heartbeat(now)
                 if now >= next_stats:
                     self._publish_stats()
                     next_stats = now + self.timing.stats_period_s
                 self._check_timers(now)
-                wait = max(0.0, min(next_beat, next_stats, now + 0.01) - time.monotonic())
+                wait = max(0.0, min(self._next_deadline(), next_stats, now + 0.5) - time.monotonic())
                 try:
                     event = self._events.get(timeout=wait)
                 except queue.Empty:
@@ -239,7 +252,23 @@ class Link:
         wire = encode_frame(frame)
         self.device.write(wire)
         self.counters.frames_sent += 1
+        robot = self.robots.get(frame.robot)
+        if robot is not None:
+            robot.last_tx = time.monotonic()
         return wire
+
+    def _next_deadline(self) -> float:
+        """The earliest time a heartbeat, retransmission or loss check is due."""
+        t = self.timing
+        due = math.inf
+        for robot in self.robots.values():
+            if robot.lost:
+                continue
+            due = min(due, robot.last_tx + t.heartbeat_period_s, robot.last_rx + t.robot_timeout_s)
+            for req in (robot.busy, robot.control):
+                if req is not None:
+                    due = min(due, req.sent_at + (t.motion_timeout_s if req.accepted else t.ack_timeout_s))
+        return due
 
     # -- events (engine thread) ----------------------------------------------------------------
 
@@ -301,8 +330,11 @@ class Link:
                 self._start_control(robot, "estop", step)
 
     def _heartbeat(self, now: float) -> None:
+        """HEARTBEAT to every robot that got no frame for ``heartbeat_period_s`` (any frame is a sign of life)."""
         stamp = int(now * 1000) & 0xFFFFFFFF
         for robot in self.robots.values():
+            if now - robot.last_tx < self.timing.heartbeat_period_s:
+                continue
             seq = robot.next_seq()
             self._send(Frame.of(robot.id, seq, FrameType.HEARTBEAT, HeartbeatBody(stamp)))
             self._heartbeats[(robot.id, seq)] = now
@@ -342,10 +374,9 @@ class Link:
             self._rtt(req.sent_at, now)
             req.answered = True
         if kind == FrameType.ACCEPTED:
-            if not req.accepted:
+            if not req.accepted:  # not forwarded: the agent waits for DONE (one message less per command)
                 req.accepted = True
                 req.sent_at = now  # from now on the motion timeout applies
-                self._reply(robot.id, req.step, "accepted")
             return
         if kind == FrameType.DONE:
             self._finish(robot, "done")
@@ -385,6 +416,7 @@ class Link:
                     break
                 self.device.write(req.wire)  # the same frame, same SEQ
                 self.counters.frames_sent += 1
+                robot.last_tx = now
                 self.counters.retransmissions += 1
                 req.retries += 1
                 req.sent_at = now

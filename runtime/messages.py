@@ -14,6 +14,8 @@ logged drop so a bad message never kills a process.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import logging
 import math
 import re
@@ -93,7 +95,8 @@ class Wire:
     ``kind`` is ``"int"`` (integer in [0, 2^63 - 1]), ``"id"`` (a robot id, same range),
     ``"float"`` (finite; ints accepted) or ``"str"``. ``shape`` has one entry per list
     level: an int is a fixed length, a letter a length shared by every field of the
-    message using that letter, None any length (up to ``MAX_ITEMS``).
+    message using that letter, None any length (up to ``MAX_ITEMS``). An ``optional`` field
+    was added after its type's first version: a message without it decodes to the default.
     """
 
     kind: str
@@ -106,9 +109,12 @@ class Wire:
     choices: tuple[str, ...] = ()
     pattern: str | None = None
     max_length: int = MAX_TEXT
+    optional: bool = False
 
 
-def _wire(kind: str, doc: str, **spec: Any) -> Any:
+def _wire(kind: str, doc: str, default: Any = dataclasses.MISSING, **spec: Any) -> Any:
+    if default is not dataclasses.MISSING:
+        return field(default=default, metadata={"wire": Wire(kind, doc, optional=True, **spec)})
     return field(metadata={"wire": Wire(kind, doc, **spec)})
 
 
@@ -188,6 +194,12 @@ def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]]
     return tuple(_convert(v, wire, f"{path}[{i}]", dims, depth + 1) for i, v in enumerate(value))
 
 
+@functools.cache
+def _fields(cls: type) -> tuple:
+    """``dataclasses.fields(cls)``, computed once per message type (it is on every hot path)."""
+    return fields(cls)
+
+
 def _leaves(value: Any, path: str, depth: int) -> Iterator[tuple[str, Any]]:
     if depth == 0:
         yield path, value
@@ -212,7 +224,7 @@ class Message:
 
     def __post_init__(self) -> None:
         dims: dict[str, tuple[int, str]] = {}
-        for f in fields(self):
+        for f in _fields(type(self)):
             value = _convert(getattr(self, f.name), f.metadata["wire"], f"{self.TYPE}.{f.name}", dims)
             object.__setattr__(self, f.name, value)
         self._check()
@@ -232,6 +244,13 @@ class MotionCommand(Message):
     config: int = _wire("int", "desired configuration the step heads for: k for C_dk (1-based, as in the paper)")
     turn_rad: float = _wire("float", "turn before driving, counter-clockwise positive; agents refuse abs(turn) > their limit", unit="rad")
     drive_m: float = _wire("float", "straight distance after the turn; agents refuse < 0 or > their limit", unit="m")
+    start_pose: tuple[float, ...] = _wire(
+        "float", "optional: the coordinator's estimate [x, y, heading] of the robot before the move, "
+                 "for the agent's workspace check; [] if unknown", default=(), unit="m, m, rad", shape=(None,))
+
+    def _check(self) -> None:
+        if len(self.start_pose) not in (0, 3):
+            raise MessageError("MotionCommand.start_pose", f"{len(self.start_pose)} values, expected 3 or none", "size")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -496,7 +515,7 @@ def type_for_key(key: str) -> type[Message]:
 def encode(msg: Message) -> bytes:
     """The msgpack map ``{"type", "v", fields...}`` of a (validated) message."""
     body: dict[str, Any] = {"type": msg.TYPE, "v": msg.VERSION}
-    body.update((f.name, getattr(msg, f.name)) for f in fields(msg))
+    body.update((f.name, getattr(msg, f.name)) for f in _fields(type(msg)))
     return msgpack.packb(body)
 
 
@@ -586,10 +605,10 @@ def decode(
     raw = _unpack(data)
     cls = _message_class(raw, expected)
     try:
-        for f in fields(cls):
-            if f.name not in raw:
+        for f in _fields(cls):
+            if f.name not in raw and not f.metadata["wire"].optional:
                 raise MessageError(f"{cls.TYPE}.{f.name}", "missing", "missing-field")
-        msg = cls(**{f.name: raw[f.name] for f in fields(cls)})
+        msg = cls(**{f.name: raw[f.name] for f in _fields(cls) if f.name in raw})
         if known_ids is not None:
             known = known_ids if isinstance(known_ids, (set, frozenset)) else frozenset(int(i) for i in known_ids)
             _check_known(msg, known)
@@ -617,7 +636,7 @@ def refusal_status(error: MessageError, stamp_ns: int | None = None) -> Status |
 class CommandLimits:
     """What an agent executes: |turn| <= ``max_turn_rad`` (rad), 0 <= drive <= ``max_drive_m`` (m), and,
     with ``workspace`` = (x_min, y_min, x_max, y_max) (m), an end position inside it predicted from the
-    robot's latest estimated pose."""
+    command's ``start_pose``."""
 
     max_drive_m: float = 1.0
     max_turn_rad: float = math.pi
@@ -634,10 +653,11 @@ class CommandLimits:
                 raise SwarmInputError(f"CommandLimits.workspace must be finite (x_min, y_min, x_max, y_max) with min < max, got {self.workspace!r}")
             object.__setattr__(self, "workspace", w)
 
-    def refusal(self, cmd: MotionCommand, pose: Iterable[float] | None = None) -> str | None:
+    def refusal(self, cmd: MotionCommand) -> str | None:
         """Why ``cmd`` must be refused, or None when it is within the limits.
 
-        ``pose``: the robot's latest estimated (x, y, heading); without it the workspace is not checked.
+        The workspace is checked from ``cmd.start_pose`` (the coordinator's estimate of the
+        robot before the move); a command without it cannot be checked against the workspace.
         """
         if abs(cmd.turn_rad) > self.max_turn_rad:
             return f"turn_rad {cmd.turn_rad:.6g} exceeds the limit |turn| <= {self.max_turn_rad:.6g} rad"
@@ -645,8 +665,8 @@ class CommandLimits:
             return f"drive_m {cmd.drive_m:.6g} is negative"
         if cmd.drive_m > self.max_drive_m:
             return f"drive_m {cmd.drive_m:.6g} exceeds the limit {self.max_drive_m:.6g} m"
-        if self.workspace is not None and pose is not None:
-            x, y, heading = (float(v) for v in pose)
+        if self.workspace is not None and cmd.start_pose:
+            x, y, heading = cmd.start_pose
             end_x = x + cmd.drive_m * math.cos(heading + cmd.turn_rad)
             end_y = y + cmd.drive_m * math.sin(heading + cmd.turn_rad)
             x0, y0, x1, y1 = self.workspace
@@ -745,14 +765,17 @@ def json_schema(message_type: type[Message]) -> dict[str, Any]:
         "type": {"const": message_type.TYPE, "description": "message type"},
         "v": {"const": message_type.VERSION, "description": "major schema version"},
     }
+    required = list(properties)
     for f in fields(message_type):
         properties[f.name] = _field_schema(f.metadata["wire"])
+        if not f.metadata["wire"].optional:
+            required.append(f.name)
     return {
         "$schema": "https://json-schema.org/draft/2020-12/schema",
         "title": message_type.TYPE,
         "description": (message_type.__doc__ or "").strip(),
         "type": "object",
         "properties": properties,
-        "required": list(properties),
+        "required": required,
         "additionalProperties": True,
     }

@@ -190,7 +190,7 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
         raise RuntimeError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
     return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
-            "agent_rss_mb": round(max(rss), 1), "_steps": len(step_ms), "_step_ms_p90": _p90(step_ms),
+            "agent_rss_mb": round(max(rss), 1), "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
             "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
 
 

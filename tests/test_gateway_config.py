@@ -81,11 +81,14 @@ def test_calibration_undoes_the_robot_deviation():
 
 def test_workspace_limit_uses_the_predicted_end_position():
     limits = CommandLimits(max_drive_m=1.0, workspace=(0.0, 0.0, 1.0, 1.0))
-    cmd = MotionCommand(run="r", step=1, robot=0, config=1, turn_rad=math.pi / 2, drive_m=0.5)
-    assert limits.refusal(cmd, (0.5, 0.2, 0.0)) is None  # ends at (0.5, 0.7)
-    reason = limits.refusal(cmd, (0.5, 0.7, 0.0))  # would end at (0.5, 1.2)
+
+    def cmd(start):
+        return MotionCommand(run="r", step=1, robot=0, config=1, turn_rad=math.pi / 2, drive_m=0.5, start_pose=start)
+
+    assert limits.refusal(cmd((0.5, 0.2, 0.0))) is None  # ends at (0.5, 0.7)
+    reason = limits.refusal(cmd((0.5, 0.7, 0.0)))  # would end at (0.5, 1.2)
     assert reason is not None and "outside the workspace" in reason and "(0.500, 1.200)" in reason
-    assert limits.refusal(cmd, None) is None  # no estimate yet: the workspace is not checked
+    assert limits.refusal(cmd(())) is None  # no estimate: the workspace cannot be checked
     with pytest.raises(SwarmInputError, match="workspace"):
         CommandLimits(workspace=(0, 0, 0, 1))
 
