@@ -13,12 +13,15 @@ each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_
 the coordinator's liveliness token appears or disappears (so a recording of the run holds
 the link's counters at its start and end) and when the link stops.
 
-Threads: a reader (device -> frames, ``FrameDecoder`` with ``resync`` on a quiet line)
-and the engine (``run``), which owns every piece of state; Zenoh callbacks only enqueue.
+Threads, sharing the state under one lock: the reader (device -> frames, ``FrameDecoder``
+with ``resync`` on a quiet line) handles the robots' answers itself and publishes the
+replies; the engine (``run``) handles the agents' requests, emergency stops and timers
+(heartbeats, retransmissions, losses, stats). Zenoh callbacks only enqueue for the engine.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import os
@@ -176,6 +179,7 @@ class Link:
         self.drops = DropCounter(_log)
         self.robots = {r: _Robot(r) for r in port.robots}
         self._events: queue.Queue[tuple] = queue.Queue()
+        self._lock = threading.RLock()  # robots, counters, device writes: reader and engine
         self._stop = threading.Event()
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
@@ -199,30 +203,35 @@ class Link:
             robot.last_rx = now  # grace: robot_timeout_s from the start
         next_stats = now
         try:
+            # the reader may start a waiting request at any time: look at the timers at least this often
+            tick = self.timing.ack_timeout_s / 2
             while not self._stop.is_set():
                 now = time.monotonic()
-                self._heartbeat(now)
-                if now >= next_stats:
-                    self._publish_stats()
-                    next_stats = now + self.timing.stats_period_s
-                self._check_timers(now)
-                wait = max(0.0, min(self._next_deadline(), next_stats, now + 0.5) - time.monotonic())
+                with self._lock:
+                    self._heartbeat(now)
+                    if now >= next_stats:
+                        self._publish_stats()
+                        next_stats = now + self.timing.stats_period_s
+                    self._check_timers(now)
+                    wait = max(0.0, min(self._next_deadline(), next_stats, now + tick) - time.monotonic())
                 try:
                     event = self._events.get(timeout=wait)
                 except queue.Empty:
                     continue
-                self._handle(event)
-                while True:  # drain what is queued before the timers again
-                    try:
-                        self._handle(self._events.get_nowait())
-                    except queue.Empty:
-                        break
+                with self._lock:
+                    self._handle(event)
+                    while True:  # drain what is queued before the timers again
+                        try:
+                            self._handle(self._events.get_nowait())
+                        except queue.Empty:
+                            break
         finally:
             self._stop.set()
             for sub in self._subs:
                 sub.undeclare()
             reader.join(timeout=1.0)
-            self._publish_stats()
+            with self._lock:
+                self._publish_stats()
         return 0
 
     # -- device -----------------------------------------------------------------------------
@@ -245,8 +254,9 @@ class Link:
                 quiet_since = now
             else:
                 continue
-            for frame in frames:
-                self._events.put(("frame", frame, now))
+            with self._lock:
+                for frame in frames:
+                    self._on_frame(frame, now)
 
     def _send(self, frame: Frame) -> bytes:
         wire = encode_frame(frame)
@@ -273,9 +283,7 @@ class Link:
     # -- events (engine thread) ----------------------------------------------------------------
 
     def _handle(self, event: tuple) -> None:
-        if event[0] == "frame":
-            self._on_frame(event[1], event[2])
-        elif event[0] == "stats":
+        if event[0] == "stats":
             self._publish_stats()
         else:
             key, payload = event[1], event[2]
@@ -432,8 +440,11 @@ class Link:
         self._reply(robot.id, step, "lost", reason)
 
     def stats(self) -> LinkStats:
-        rtts = list(self.counters.rtts_ms)
-        d = self.decoder.stats
+        """The counters now (any thread)."""
+        with self._lock:
+            rtts = list(self.counters.rtts_ms)
+            d = dataclasses.replace(self.decoder.stats)
+            lost = sorted(r.id for r in self.robots.values() if r.lost)
         return LinkStats(
             run=self.run_id, step=0, port=self.port.name, robots=sorted(self.robots),
             frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
@@ -442,7 +453,7 @@ class Link:
             rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
             rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
             rtt_ms_max=max(rtts) if rtts else 0.0,
-            lost=sorted(r.id for r in self.robots.values() if r.lost),
+            lost=lost,
         )
 
     def _publish_stats(self) -> None:
