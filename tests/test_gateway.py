@@ -277,3 +277,47 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
                 p.kill()
                 p.wait()
     assert all(p.returncode is not None for p in procs)
+
+
+def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):
+    events = tmp_path / "events.jsonl"
+    launcher = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "launch", "--driver=gateway", "-n", "4", "--configs=4",
+                                 "--motion-time=0.3", f"--emulator-events={events}", "--no-record", f"--out={tmp_path}"],
+                                cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        def moving():
+            return events.exists() and '"event":"accepted"' in events.read_text()
+        _wait_for(moving, 60, "a robot moving")
+        launcher.send_signal(signal.SIGINT)
+        _, err = launcher.communicate(timeout=30)
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+    assert "emergency stop sent" in err, err[-2000:]
+    rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+    assert {r["robot"] for r in rows if r["event"] == "estop"} == {0, 1, 2, 3}
+    assert "Traceback" not in err
+
+
+def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path):
+    config = tmp_path / "gw.json"
+    GatewayConfig((Port("radio0", "/dev/null", (0,)),), timing=Timing(ack_timeout_s=0.05, max_retries=1, motion_timeout_s=0.5)).save(config)
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    with open_session(hub_settings), open_session(member) as session:
+        agent = subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=0", "--ids=0", "--run=nolink",
+                                  f"--hub=tcp/127.0.0.1:{port}", "--driver=gateway", f"--gateway-config={config}"],
+                                 stderr=subprocess.PIPE, text=True)
+        try:
+            _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
+            time.sleep(0.2)
+            cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1)
+            publish(session, message_key(cmd), encode(cmd))
+            assert agent.wait(timeout=20) == 3
+            assert alive_now(session, alive_wildcard("nolink")) == set()
+        finally:
+            if agent.poll() is None:
+                agent.kill()
+            _, err = agent.communicate(timeout=10)
+    assert "robot 0 lost: robot 0: no answer from the link" in err and "Traceback" not in err
