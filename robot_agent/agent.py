@@ -35,8 +35,8 @@ once by a thread of its own (``driver.estop``: a gateway driver sends it to its 
 while the loop waits for a motion to finish); every later command is refused. Limits
 (``CommandLimits``: drive, turn, and the workspace checked from the command's
 ``start_pose``, the coordinator's estimate of the robot) are checked before the driver sees a command. A driver that
-raises ``DriverRefused`` gives ``Status refused`` with its reason; ``RobotLost`` drops the
-liveliness token (the coordinator reports the robot lost by id) and ends the loop
+raises ``DriverRefused`` gives ``Status refused`` with its reason; ``RobotLost`` (during a
+command: after a ``Status refused`` "robot lost: ...") drops the liveliness token (the coordinator reports the robot lost by id) and ends the loop
 (``run`` returns 3).
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
@@ -226,6 +226,9 @@ class Agent:
             self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=str(e) or "refused")
             self._send(self._last_status)
             return
+        except RobotLost as e:  # say why in the command's status, then the loop drops the token
+            self._send(Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=f"robot lost: {e}"))
+            raise
         self.executed += 1
         self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="done", reason="")
         self._send(self._last_status)

@@ -312,10 +312,14 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
         try:
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             time.sleep(0.2)
+            _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
+            time.sleep(0.2)
             cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(cmd), encode(cmd))
             assert agent.wait(timeout=20) == 3
             assert alive_now(session, alive_wildcard("nolink")) == set()
+            states = [decode(statuses.get(timeout=2)[1], Status) for _ in range(2)]
+            assert [s.state for s in states] == ["accepted", "refused"] and states[1].reason.startswith("robot lost: robot 0")
         finally:
             if agent.poll() is None:
                 agent.kill()
