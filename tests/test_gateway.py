@@ -325,3 +325,13 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
                 agent.kill()
             _, err = agent.communicate(timeout=10)
     assert "robot 0 lost: robot 0: no answer from the link" in err and "Traceback" not in err
+
+
+def test_bench_gateway_json_contract(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "gateway", "--robots=2", "--steps=3", "--rounds=1",
+                           "--frames=2000", "--commands=5", "--json"], capture_output=True, text=True, timeout=180, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert set(result) == {"codec_frames_per_s", "pty_roundtrip_ms_median", "step_ms_median_gateway", "step_ms_median_sim"}
+    assert all(isinstance(v, (int, float)) and v > 0 for v in result.values())
+    assert "Traceback" not in proc.stderr
