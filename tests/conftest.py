@@ -3,8 +3,14 @@
 from __future__ import annotations
 
 import pytest
+from hypothesis import HealthCheck, settings
 
 from runtime.config import ModelConfig
+
+# Behaviour, not speed: no per-example deadline and no "input generation is slow" failure
+# (a busy 2-core machine can stall any draw for a second).
+settings.register_profile("behaviour", deadline=None, suppress_health_check=[HealthCheck.too_slow])
+settings.load_profile("behaviour")
 
 
 @pytest.fixture
