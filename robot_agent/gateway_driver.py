@@ -5,8 +5,9 @@ Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it
 ``motion_scale``) on ``swarm/<run>/robot/<id>/linkreq`` and waits for the link's
 ``LinkReply`` ``done``; ``sense`` asks for ``observe`` and corrects the raw measurements
 (range bias, bearing offset: ``runtime.gateway_config.Calibration``). A ``refused``
-answer raises ``DriverRefused``; ``lost`` (or no answer within the wait) raises
-``RobotLost``. ``estop`` / ``reset`` may be called from any thread: the emergency stop
+answer raises ``DriverRefused``; ``lost``, the disappearance of the liveliness token of the
+link process of ``port`` (``swarm/<run>/alive/link/<port>``), or no answer within the wait
+raises ``RobotLost``. ``estop`` / ``reset`` may be called from any thread: the emergency stop
 goes out at once and also ends a wait in progress (``DriverRefused``).
 """
 
@@ -20,9 +21,9 @@ import numpy as np
 
 from robot_agent.driver import DriverRefused, RobotLost
 from runtime.gateway_config import Calibration, Timing
-from runtime.keys import robot_key
+from runtime.keys import link_alive_key, robot_key
 from runtime.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
-from runtime.transport import publish, subscribe
+from runtime.transport import publish, subscribe, watch_liveliness
 
 
 class GatewayDriver:
@@ -30,7 +31,8 @@ class GatewayDriver:
 
     simulated = False
 
-    def __init__(self, run: str, robot: int, calibration: Calibration = Calibration(), timing: Timing = Timing()) -> None:
+    def __init__(self, run: str, robot: int, calibration: Calibration = Calibration(), timing: Timing = Timing(),
+                 port: str | None = None) -> None:
         self.run_id = run
         self.robot = int(robot)
         self.calibration = calibration
@@ -39,6 +41,10 @@ class GatewayDriver:
         self._sub = None
         self._replies: queue.Queue[LinkReply] = queue.Queue()
         self._estopped = threading.Event()
+        self.port = port
+        self._link_seen = threading.Event()  # the link's liveliness token appeared
+        self._link_gone = threading.Event()  # ... and disappeared since
+        self._watch = None
         self._req_key = robot_key(run, self.robot, "linkreq")
         self._rep_key = robot_key(run, self.robot, "linkrep")
         self.bad_replies = 0
@@ -47,11 +53,21 @@ class GatewayDriver:
         """Start talking to the link over ``session`` (the agent's)."""
         self._session = session
         self._sub = subscribe(session, self._rep_key, self._on_reply)
+        if self.port is not None:
+            self._watch = watch_liveliness(session, link_alive_key(self.run_id, self.port), self._on_link)
 
     def detach(self) -> None:
-        if self._sub is not None:
-            self._sub.undeclare()
-            self._sub = None
+        for sub in (self._sub, self._watch):
+            if sub is not None:
+                sub.undeclare()
+        self._sub = self._watch = None
+
+    def _on_link(self, key: str, alive: bool) -> None:  # Zenoh thread: flags only
+        if alive:
+            self._link_seen.set()
+            self._link_gone.clear()
+        elif self._link_seen.is_set():
+            self._link_gone.set()
 
     def _on_reply(self, key: str, payload: bytes) -> None:  # Zenoh thread: decode and enqueue only
         try:
@@ -69,6 +85,8 @@ class GatewayDriver:
         while True:
             if self._estopped.is_set() and "estopped" not in final:
                 raise DriverRefused("emergency stop")
+            if self._link_gone.is_set():
+                raise RobotLost(f"robot {self.robot}: the link process of port {self.port} is gone")
             left = deadline - time.monotonic()
             if left <= 0:
                 raise RobotLost(f"robot {self.robot}: no answer from the link within {timeout_s:.1f} s (is `swarm link` running?)")

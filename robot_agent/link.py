@@ -11,7 +11,9 @@ request exhausted its retries or nothing came from it for ``robot_timeout_s``. A
 ``EmergencyStop`` on ``swarm/<run>/estop`` is sent at once as a broadcast ESTOP and then to
 each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
 the coordinator's liveliness token appears or disappears (so a recording of the run holds
-the link's counters at its start and end) and when the link stops.
+the link's counters at its start and end) and when the link stops. While it runs it holds
+the liveliness token ``swarm/<run>/alive/link/<port>``: an agent whose link disappears
+reports its robot lost at once instead of waiting for a timeout.
 
 Threads, sharing the state under one lock: the reader (device -> frames, ``FrameDecoder``
 with ``resync`` on a quiet line) handles the robots' answers itself and publishes the
@@ -49,7 +51,7 @@ from runtime.frames import (
     encode_frame,
 )
 from runtime.gateway_config import Port, Timing
-from runtime.keys import coord_alive_key, estop_key, robot_wildcard
+from runtime.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
 from runtime.messages import (
     DropCounter,
     EmergencyStop,
@@ -60,7 +62,7 @@ from runtime.messages import (
     encode,
     message_key,
 )
-from runtime.transport import publish, subscribe, watch_liveliness
+from runtime.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 QUIET_S = 0.02  # a line quiet this long with a partial frame buffered: resync
@@ -196,6 +198,7 @@ class Link:
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("stats",)))]
+        token = declare_token(self.session, link_alive_key(self.run_id, self.port.name))  # agents notice a dead link at once
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
         reader.start()
         now = time.monotonic()
@@ -227,6 +230,7 @@ class Link:
                             break
         finally:
             self._stop.set()
+            token.undeclare()
             for sub in self._subs:
                 sub.undeclare()
             reader.join(timeout=1.0)

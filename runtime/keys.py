@@ -16,6 +16,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
     swarm/<run>/alive/coord          liveliness token of the coordinator
+    swarm/<run>/alive/link/<port>    liveliness token of the link process of a port
 
 Run ids and port names are 1-64 characters of ``[A-Za-z0-9_.-]`` starting with a letter or digit,
 so they never hold a key separator or a Zenoh wildcard. Robot ids are integers in
@@ -115,6 +116,11 @@ def alive_key(run: str, robot_id: int) -> str:
     return f"{ROOT}/{validate_run(run)}/alive/robot/{validate_robot_id(robot_id)}"
 
 
+def link_alive_key(run: str, port: str) -> str:
+    """``swarm/<run>/alive/link/<port>``: the liveliness token the link process of ``port`` declares while it runs."""
+    return f"{ROOT}/{validate_run(run)}/alive/link/{validate_port(port)}"
+
+
 def coord_alive_key(run: str) -> str:
     """``swarm/<run>/alive/coord``: the liveliness token the coordinator declares while it runs."""
     return f"{ROOT}/{validate_run(run)}/alive/coord"
@@ -179,5 +185,7 @@ def parse_key(key: str) -> ParsedKey:
     if rest == ["estop"]:
         return ParsedKey(run, "estop", None, "estop")
     if rest == ["alive", "coord"]:
+        return ParsedKey(run, "alive", None, "alive")
+    if len(rest) == 3 and rest[:2] == ["alive", "link"] and _RUN.fullmatch(rest[2]):
         return ParsedKey(run, "alive", None, "alive")
     raise KeyspaceError(f"key {key!r} is not in the swarm key space (see docs/protocol.md)")

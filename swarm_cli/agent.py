@@ -60,10 +60,10 @@ def make_driver(args: argparse.Namespace, ids: list[int]) -> tuple[Driver, Comma
         if args.gateway_config is None:
             raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
         gateway = GatewayConfig.load(args.gateway_config)
-        gateway.port_of(args.id)  # the robot must be behind a port of this gateway
+        port = gateway.port_of(args.id)  # the robot must be behind a port of this gateway
         lim = gateway.limits
         limits = CommandLimits(max_drive_m=lim.max_drive_m, max_turn_rad=lim.max_turn_rad, workspace=lim.workspace)
-        return GatewayDriver(args.run_id, args.id, gateway.calibration_of(args.id), gateway.timing), limits
+        return GatewayDriver(args.run_id, args.id, gateway.calibration_of(args.id), gateway.timing, port.name), limits
     if args.pose is None:
         raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose)")
     pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)

@@ -336,3 +336,51 @@ def test_bench_gateway_json_contract(tmp_path):
     assert set(result) == {"codec_frames_per_s", "pty_roundtrip_ms_median", "step_ms_median_gateway", "step_ms_median_sim"}
     assert all(isinstance(v, (int, float)) and v > 0 for v in result.values())
     assert "Traceback" not in proc.stderr
+
+
+def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tmp_path):
+    traj = random_trajectory(2, 1, np.random.default_rng(3))
+    traj_file, config, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
+    traj.save(traj_file)
+    ids = [int(i) for i in traj.ids]
+    GatewayConfig((Port("radio0", "emulated", tuple(ids)),), timing=Timing(motion_timeout_s=30.0)).save(config)
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    py = [sys.executable, "-m"]
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings), open_session(member) as session:
+            # motions of 20 s: the command is still running when the link dies
+            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
+                                                f"--write-config={live}", "--motion-time=20"], stdout=subprocess.DEVNULL))
+            _wait_for(live.exists, 20, "the emulator's live config")
+            link = subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", "--port=radio0", "--run=deadlink", f"--hub={hub}"])
+            procs.append(link)
+            agent = subprocess.Popen(py + ["swarm_cli.agent", f"--id={ids[0]}", f"--ids={','.join(map(str, ids))}", "--run=deadlink",
+                                           f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"], stderr=subprocess.PIPE, text=True)
+            procs.append(agent)
+            _wait_for(lambda: alive_now(session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{ids[0]}",
+                                                                                "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
+            _sub, statuses = subscribe_queue(session, f"swarm/deadlink/robot/{ids[0]}/status")
+            time.sleep(0.2)
+            cmd = MotionCommand(run="deadlink", step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.1)
+            publish(session, message_key(cmd), encode(cmd))
+            assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
+            time.sleep(0.3)
+            link.kill()  # SIGKILL: no goodbye from the link
+            killed = time.monotonic()
+            assert agent.wait(timeout=10) == 3
+            assert time.monotonic() - killed < 3.0  # not the 30 s motion timeout
+            refusal = decode(statuses.get(timeout=2)[1], Status)
+            assert refusal.state == "refused" and "the link process of port radio0 is gone" in refusal.reason
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
