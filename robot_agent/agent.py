@@ -48,6 +48,7 @@ from __future__ import annotations
 import logging
 import queue
 import threading
+import time
 from collections.abc import Collection
 
 import numpy as np
@@ -76,6 +77,7 @@ from runtime.transport import ZenohSettings, declare_token, open_session, publis
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
 MAX_PENDING_TRUTH_STEPS = 64  # early truths kept for at most this many future steps
+READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
 
 class Agent:
@@ -89,6 +91,7 @@ class Agent:
         ids: Collection[int],
         driver: Driver,
         limits: CommandLimits = CommandLimits(),
+        ready_timeout_s: float = READY_TIMEOUT_S,
     ) -> None:
         self.settings = settings
         self.run_id = run
@@ -97,6 +100,7 @@ class Agent:
         self.known = frozenset(self.ids)
         self.driver = driver
         self.limits = limits
+        self.ready_timeout_s = float(ready_timeout_s)
         self.drops = DropCounter(_log)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
@@ -125,6 +129,7 @@ class Agent:
         with open_session(self.settings) as session:
             self._session = session
             self.driver.attach(session)
+            self._wait_for_driver()
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
             subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
                     subscribe(session, self._estop_key, self._on_estop)]
@@ -161,6 +166,16 @@ class Agent:
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
         return 3 if self.lost_reason is not None else 0
+
+    def _wait_for_driver(self) -> None:
+        """Until the driver can reach the robot (a gateway driver: its link process is up), so the
+        liveliness token, declared next, means "this robot can be commanded"; at most ``ready_timeout_s``."""
+        deadline = time.monotonic() + self.ready_timeout_s
+        while not self._stop.is_set() and not self.driver.ready(0.1):
+            if time.monotonic() > deadline:
+                _log.warning("robot %d: its driver is not ready after %.1f s (no link process?); serving anyway",
+                             self.robot, self.ready_timeout_s)
+                return
 
     # -- emergency stop (Zenoh thread -> forwarder thread) -----------------------------------
 

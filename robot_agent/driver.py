@@ -50,6 +50,10 @@ class Driver(Protocol):
         """The session is about to close."""
         ...
 
+    def ready(self, timeout_s: float) -> bool:
+        """Whether the robot can be reached now, waiting up to ``timeout_s`` seconds."""
+        ...
+
     def estop(self, step: int = 0) -> None:
         """Emergency stop: stop now and refuse every later command."""
         ...
@@ -94,6 +98,9 @@ class SimDriver:
 
     def detach(self) -> None:
         """Nothing to disconnect."""
+
+    def ready(self, timeout_s: float) -> bool:
+        return True
 
     def estop(self, step: int = 0) -> None:
         self.estopped = True

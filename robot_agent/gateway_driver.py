@@ -62,6 +62,14 @@ class GatewayDriver:
                 sub.undeclare()
         self._sub = self._watch = None
 
+    def ready(self, timeout_s: float) -> bool:
+        """Whether the link process of the robot's port is up (its token seen), waiting up to ``timeout_s``.
+
+        The link declares its token after its subscriptions, so a request sent from now on reaches it.
+        Without a ``port`` there is nothing to wait for.
+        """
+        return self.port is None or self._link_seen.wait(timeout_s)
+
     def _on_link(self, key: str, alive: bool) -> None:  # Zenoh thread: flags only
         if alive:
             self._link_seen.set()
@@ -79,9 +87,17 @@ class GatewayDriver:
         msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m)
         publish(self._session, self._req_key, encode(msg))
 
-    def _wait(self, step: int, final: tuple[str, ...], timeout_s: float) -> LinkReply:
-        """The first reply of ``step`` whose kind is in ``final``; raises on refusal, loss, stop or timeout."""
-        deadline = time.monotonic() + timeout_s
+    def _wait(self, step: int, final: tuple[str, ...], timeout_s: float, resend) -> LinkReply:
+        """The first reply of ``step`` whose kind is in ``final``; raises on refusal, loss, stop or timeout.
+
+        ``resend()`` re-publishes the request whenever the link has been silent about it for
+        ``_resend_s`` (a request published before the link subscribed, or a lost reply): the link
+        ignores a copy of the request in flight, and the robot answers a repeated step from
+        memory (docs/gateway-protocol.md), so nothing runs twice.
+        """
+        start = time.monotonic()
+        deadline = start + timeout_s
+        next_resend = start + self._resend_s()
         while True:
             if self._estopped.is_set() and "estopped" not in final:
                 raise DriverRefused("emergency stop")
@@ -93,6 +109,9 @@ class GatewayDriver:
             try:
                 reply = self._replies.get(timeout=min(left, 0.05))
             except queue.Empty:
+                if time.monotonic() >= next_resend:
+                    resend()
+                    next_resend = time.monotonic() + self._resend_s()
                 continue
             if reply.kind == "lost":
                 raise RobotLost(reply.reason)
@@ -102,6 +121,11 @@ class GatewayDriver:
                 raise DriverRefused(reply.reason)
             if reply.kind in final:
                 return reply
+
+    def _resend_s(self) -> float:
+        """How long the link may stay silent about a request: its own retries plus a margin."""
+        t = self.timing
+        return t.ack_timeout_s * (t.max_retries + 1) + 0.5
 
     def _budget_s(self, motion: bool) -> float:
         t = self.timing
@@ -114,16 +138,18 @@ class GatewayDriver:
         if self._estopped.is_set():
             raise DriverRefused("emergency stop")
         drive = self.calibration.corrected_drive(command.drive_m)
-        self._request(command.step, "command", command.turn_rad, drive)
-        self._wait(command.step, ("done",), self._budget_s(motion=True))
+        send = lambda: self._request(command.step, "command", command.turn_rad, drive)  # noqa: E731
+        send()
+        self._wait(command.step, ("done",), self._budget_s(motion=True), send)
         return None
 
     def true_pose(self) -> None:
         return None
 
     def sense(self, peers, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        self._request(step, "observe")
-        reply = self._wait(step, ("observation",), self._budget_s(motion=False))
+        send = lambda: self._request(step, "observe")  # noqa: E731
+        send()
+        reply = self._wait(step, ("observation",), self._budget_s(motion=False), send)
         c = self.calibration
         ranges = np.array([c.corrected_range(r) for r in reply.ranges], dtype=float)
         bearings = np.array([c.corrected_bearing(b) for b in reply.bearings], dtype=float)

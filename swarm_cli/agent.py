@@ -22,7 +22,7 @@ import signal
 import sys
 from pathlib import Path
 
-from robot_agent.agent import Agent
+from robot_agent.agent import READY_TIMEOUT_S, Agent
 from robot_agent.driver import Driver, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
 from runtime.errors import SwarmInputError
@@ -47,6 +47,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
     p.add_argument("--driver", choices=("sim", "gateway"), default="sim", help="simulated robot, or a robot behind a link process (default sim)")
     p.add_argument("--gateway-config", type=Path, help="gateway config JSON (docs/gateway.md), required with --driver gateway")
+    p.add_argument("--ready-timeout", type=float, default=READY_TIMEOUT_S,
+                   help=f"seconds to wait for the robot's link process before declaring this agent alive (default {READY_TIMEOUT_S:g})")
     p.add_argument("--pose", help="initial true pose x,y,heading (m, m, rad), required with --driver sim")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--max-drive", type=float, default=CommandLimits().max_drive_m, help="refuse drives longer than this (m, default 1)")
@@ -79,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     settings = connection_settings(args)
     validate_run(args.run_id)
     driver, limits = make_driver(args, ids)
-    agent = Agent(settings, args.run_id, args.id, ids, driver, limits)
+    agent = Agent(settings, args.run_id, args.id, ids, driver, limits, args.ready_timeout)
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, lambda *_: agent.stop())
     return agent.run()

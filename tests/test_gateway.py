@@ -308,8 +308,8 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
     hub_settings, member = loopback_hub(port)
     with open_session(hub_settings), open_session(member) as session:
         agent = subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=0", "--ids=0", "--run=nolink",
-                                  f"--hub=tcp/127.0.0.1:{port}", "--driver=gateway", f"--gateway-config={config}"],
-                                 stderr=subprocess.PIPE, text=True)
+                                  f"--hub=tcp/127.0.0.1:{port}", "--driver=gateway", f"--gateway-config={config}",
+                                  "--ready-timeout=0.5"], stderr=subprocess.PIPE, text=True)
         try:
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             time.sleep(0.2)
@@ -374,6 +374,46 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
             assert time.monotonic() - killed < 3.0  # not the 30 s motion timeout
             refusal = decode(statuses.get(timeout=2)[1], Status)
             assert refusal.state == "refused" and "the link process of port radio0 is gone" in refusal.reason
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+
+
+def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
+    traj = random_trajectory(2, 1, np.random.default_rng(4))
+    traj_file, config, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
+    traj.save(traj_file)
+    ids = [int(i) for i in traj.ids]
+    GatewayConfig((Port("radio0", "emulated", tuple(ids)),)).save(config)
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    py = [sys.executable, "-m"]
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings), open_session(member) as session:
+            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
+                                                f"--write-config={live}"], stdout=subprocess.DEVNULL))
+            _wait_for(live.exists, 20, "the emulator's live config")
+            procs.append(subprocess.Popen(py + ["swarm_cli.agent", f"--id={ids[0]}", f"--ids={','.join(map(str, ids))}", "--run=late",
+                                                f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"]))
+            time.sleep(2.0)  # long enough for an agent to start; its link is not there yet
+            assert alive_now(session, alive_wildcard("late")) == set()
+            procs.append(subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", "--port=radio0", "--run=late", f"--hub={hub}"]))
+            _wait_for(lambda: alive_now(session, alive_wildcard("late")), 20, "the agent's token once the link is up")
+            _sub, statuses = subscribe_queue(session, f"swarm/late/robot/{ids[0]}/status")
+            time.sleep(0.2)
+            cmd = MotionCommand(run="late", step=1, robot=ids[0], config=1, turn_rad=0.1, drive_m=0.05)
+            publish(session, message_key(cmd), encode(cmd))
+            states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
+            assert states == ["accepted", "done"]
     finally:
         for p in procs:
             if p.poll() is None:
