@@ -31,8 +31,10 @@ from runtime.messages import EmergencyStop, LinkReply, LinkStats, MotionCommand,
 from runtime.recording import read_messages
 from runtime.trajectory import random_trajectory
 from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from swarm_cli.launch import stop_all
 
 REPO = Path(__file__).resolve().parents[1]
+PY = [sys.executable, "-m"]
 CFG = ModelConfig()
 POSES = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 1.0]])
 FAST = Timing(ack_timeout_s=0.05, max_retries=3, motion_timeout_s=2.0, heartbeat_period_s=5.0, heartbeat_timeout_s=10.0,
@@ -48,14 +50,17 @@ class Rig:
 
 
 @contextmanager
-def rig(faults: FaultPlan, timing: Timing = FAST, calibration: Calibration = Calibration(), run: str = "gw") -> Iterator[Rig]:
-    """Robot 0 (of a world of robots 0 and 1) on its own emulated port, a link engine and a gateway driver."""
-    world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s)
+def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Calibration = Calibration(),
+        port_robots: tuple[int, ...] = (0,), run: str = "gw") -> Iterator[Rig]:
+    """Robot 0 of a world of robots 0 and 1 (seed 3) behind an emulated port with ``port_robots``, a link
+    engine and robot 0's gateway driver correcting ``calibration``, which is also robot 0's true deviation."""
+    world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s,
+                          calibration={0: calibration})
     hub_settings, member = loopback_hub(free_tcp_port())
-    with PortEmulator(world, "radio0", [0], faults) as emulator, open_session(hub_settings), \
+    with PortEmulator(world, "radio0", port_robots, faults) as emulator, open_session(hub_settings), \
             open_session(member) as link_session, open_session(member) as agent_session:
         device = SerialLink(emulator.device, 115200)
-        link = Link(link_session, run, Port("radio0", emulator.device, (0,)), timing, device)
+        link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device)
         thread = threading.Thread(target=link.run, daemon=True)
         thread.start()
         driver = GatewayDriver(run, 0, calibration, timing)
@@ -104,28 +109,11 @@ def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what):
 
 def test_observations_and_calibration_through_the_link():
     cal = Calibration(range_bias_m=0.02, bearing_offset_rad=0.1, motion_scale=0.9)
-    world_cal = {0: cal}
-    hub_settings, member = loopback_hub(free_tcp_port())
-    world = EmulatedWorld([0, 1], POSES, CFG, seed=3, calibration=world_cal)
-    sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
-    with PortEmulator(world, "radio0", [0, 1]) as emulator, open_session(hub_settings), \
-            open_session(member) as s1, open_session(member) as s2:
-        device = SerialLink(emulator.device, 115200)
-        link = Link(s1, "gw", Port("radio0", emulator.device, (0, 1)), FAST, device)
-        thread = threading.Thread(target=link.run, daemon=True)
-        thread.start()
-        driver = GatewayDriver("gw", 0, cal, FAST)
-        driver.attach(s2)
-        time.sleep(0.3)
-        try:
-            driver.execute(command(1, 0.0, 0.1))
-            observed, ranges, bearings = driver.sense(None, 1)
-        finally:
-            driver.detach()
-            link.stop()
-            thread.join(timeout=5)
-            device.close()
+    with rig(calibration=cal, port_robots=(0, 1)) as r:
+        r.driver.execute(command(1, 0.0, 0.1))
+        observed, ranges, bearings = r.driver.sense(None, 1)
     # the same robot simulated without miscalibration: the corrections undo the emulated deviations
+    sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
     sim.execute(MotionCommand(run="gw", step=1, robot=0, config=1, turn_rad=0.0, drive_m=float(np.float32(0.1 / 0.9)) * 0.9))
     exp_ids, exp_r, exp_b = sim.sense({0: sim.true_pose(), 1: POSES[1]}, 1)
     assert observed.tolist() == exp_ids.tolist() == [1]
@@ -198,86 +186,110 @@ def _wait_for(predicate, timeout_s: float, what: str):
         time.sleep(0.02)
 
 
-def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_byte(tmp_path):
-    traj = random_trajectory(4, 1, np.random.default_rng(1))
-    traj_file, config, live, events = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json", tmp_path / "events.jsonl"
+@dataclasses.dataclass
+class Site:
+    """A loopback hub, emulated robots on ptys and the gateway processes a test starts (all stopped by pid at the end)."""
+
+    session: object
+    hub: str
+    ids: list[int]
+    live: Path  # the gateway config with the emulator's pty devices
+    procs: list[subprocess.Popen]
+
+    def link(self, run: str, port: str = "radio0") -> subprocess.Popen:
+        proc = subprocess.Popen(PY + ["swarm_cli.link", f"--config={self.live}", f"--port={port}", f"--run={run}", f"--hub={self.hub}"])
+        self.procs.append(proc)
+        return proc
+
+    def agent(self, robot: int, run: str, *extra: str, **popen: object) -> subprocess.Popen:
+        proc = subprocess.Popen(PY + ["swarm_cli.agent", f"--id={robot}", f"--ids={','.join(map(str, self.ids))}", f"--run={run}",
+                                      f"--hub={self.hub}", "--driver=gateway", f"--gateway-config={self.live}", *extra], **popen)
+        self.procs.append(proc)
+        return proc
+
+
+@contextmanager
+def emulated_site(tmp_path: Path, robots: int, seed: int, config, *emulator_args: str) -> Iterator[Site]:
+    """``robots`` emulated robots of a random trajectory, behind the ports ``config(ids)`` gives; a hub and a session."""
+    traj = random_trajectory(robots, 1, np.random.default_rng(seed))
+    traj_file, config_file, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
     traj.save(traj_file)
     ids = [int(i) for i in traj.ids]
-    GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))),
-                  limits=Limits(max_drive_m=0.3, workspace=(-5.0, -5.0, 5.0, 5.0))).save(config)
-    run_id = "estop"
+    config(ids).save(config_file)
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
-    hub = f"tcp/127.0.0.1:{port}"
-    py = [sys.executable, "-m"]
     procs: list[subprocess.Popen] = []
     try:
         with open_session(hub_settings), open_session(member) as session:
-            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                                f"--write-config={live}", f"--events={events}"], stdout=subprocess.DEVNULL))
+            procs.append(subprocess.Popen(PY + ["swarm_cli.emulate", f"--config={config_file}", f"--trajectory={traj_file}",
+                                                f"--write-config={live}", *emulator_args], stdout=subprocess.DEVNULL))
             _wait_for(live.exists, 20, "the emulator's live config")
-            for name in ("radio0", "radio1"):
-                procs.append(subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", f"--port={name}", f"--run={run_id}", f"--hub={hub}"]))
-            for robot in ids:
-                procs.append(subprocess.Popen(py + ["swarm_cli.agent", f"--id={robot}", f"--ids={','.join(map(str, ids))}",
-                                                    f"--run={run_id}", f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"]))
-            _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
-            time.sleep(0.3)
-            _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
-
-            def status_of(robot: int, step: int) -> Status:
-                def find():
-                    while not statuses.empty():
-                        st = decode(statuses.get()[1], Status)
-                        found[(st.robot, st.step)] = st
-                    return found.get((robot, step))
-                return _wait_for(find, 10, f"the status of robot {robot} at step {step}")
-
-            found: dict = {}
-            # limits: a drive beyond max_drive_m is refused by the agent, no COMMAND frame reaches the robot
-            too_far = MotionCommand(run=run_id, step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.5)
-            publish(session, message_key(too_far), encode(too_far))
-            assert status_of(ids[0], 1).state == "refused" and "exceeds the limit 0.3 m" in status_of(ids[0], 1).reason
-            # workspace: the move would leave [-5, 5]^2 from the coordinator's estimate of the robot
-            outside = MotionCommand(run=run_id, step=1, robot=ids[2], config=1, turn_rad=0.0, drive_m=0.2, start_pose=[4.9, 0.0, 0.0])
-            publish(session, message_key(outside), encode(outside))
-            assert status_of(ids[2], 1).state == "refused" and "outside the workspace" in status_of(ids[2], 1).reason
-            # emergency stop
-            t0 = time.time_ns()
-            stop = EmergencyStop(run=run_id, step=0, source="test", reason="test")
-            publish(session, message_key(stop), encode(stop))
-
-            def estops():
-                if not events.exists():
-                    return None
-                rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
-                first = {}
-                for row in rows:
-                    if row.get("event") == "estop":
-                        first.setdefault(row["robot"], row["time_ns"])
-                return first if set(first) == set(ids) else None
-
-            first = _wait_for(estops, 5, "ESTOP at every emulated robot")
-            delays_ms = {robot: (t - t0) / 1e6 for robot, t in first.items()}
-            print(f"estop delays ms: {delays_ms}")
-            assert max(delays_ms.values()) < 100, delays_ms
-            rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
-            assert not [r for r in rows if r.get("event") in ("accepted", "executed")], "a command reached a robot"
-            # after the stop every agent refuses commands
-            cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1)
-            publish(session, message_key(cmd), encode(cmd))
-            assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
+            yield Site(session, f"tcp/127.0.0.1:{port}", ids, live, procs)
     finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        stop_all(procs, grace_s=5.0)
     assert all(p.returncode is not None for p in procs)
+
+
+def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_byte(tmp_path):
+    events = tmp_path / "events.jsonl"
+    run_id = "estop"
+
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))),
+                             limits=Limits(max_drive_m=0.3, workspace=(-5.0, -5.0, 5.0, 5.0)))
+
+    with emulated_site(tmp_path, 4, 1, config, f"--events={events}") as site:
+        session, ids = site.session, site.ids
+        site.link(run_id, "radio0")
+        site.link(run_id, "radio1")
+        for robot in ids:
+            site.agent(robot, run_id)
+        _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
+        time.sleep(0.3)
+        _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
+
+        def status_of(robot: int, step: int) -> Status:
+            def find():
+                while not statuses.empty():
+                    st = decode(statuses.get()[1], Status)
+                    found[(st.robot, st.step)] = st
+                return found.get((robot, step))
+            return _wait_for(find, 10, f"the status of robot {robot} at step {step}")
+
+        found: dict = {}
+        # limits: a drive beyond max_drive_m is refused by the agent, no COMMAND frame reaches the robot
+        too_far = MotionCommand(run=run_id, step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.5)
+        publish(session, message_key(too_far), encode(too_far))
+        assert status_of(ids[0], 1).state == "refused" and "exceeds the limit 0.3 m" in status_of(ids[0], 1).reason
+        # workspace: the move would leave [-5, 5]^2 from the coordinator's estimate of the robot
+        outside = MotionCommand(run=run_id, step=1, robot=ids[2], config=1, turn_rad=0.0, drive_m=0.2, start_pose=[4.9, 0.0, 0.0])
+        publish(session, message_key(outside), encode(outside))
+        assert status_of(ids[2], 1).state == "refused" and "outside the workspace" in status_of(ids[2], 1).reason
+        # emergency stop
+        t0 = time.time_ns()
+        stop = EmergencyStop(run=run_id, step=0, source="test", reason="test")
+        publish(session, message_key(stop), encode(stop))
+
+        def estops():
+            if not events.exists():
+                return None
+            rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+            first = {}
+            for row in rows:
+                if row.get("event") == "estop":
+                    first.setdefault(row["robot"], row["time_ns"])
+            return first if set(first) == set(ids) else None
+
+        first = _wait_for(estops, 5, "ESTOP at every emulated robot")
+        delays_ms = {robot: (t - t0) / 1e6 for robot, t in first.items()}
+        print(f"estop delays ms: {delays_ms}")
+        assert max(delays_ms.values()) < 100, delays_ms
+        rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+        assert not [r for r in rows if r.get("event") in ("accepted", "executed")], "a command reached a robot"
+        # after the stop every agent refuses commands
+        cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1)
+        publish(session, message_key(cmd), encode(cmd))
+        assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
 
 
 def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):
@@ -339,88 +351,44 @@ def test_bench_gateway_json_contract(tmp_path):
 
 
 def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tmp_path):
-    traj = random_trajectory(2, 1, np.random.default_rng(3))
-    traj_file, config, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
-    traj.save(traj_file)
-    ids = [int(i) for i in traj.ids]
-    GatewayConfig((Port("radio0", "emulated", tuple(ids)),), timing=Timing(motion_timeout_s=30.0)).save(config)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    hub = f"tcp/127.0.0.1:{port}"
-    py = [sys.executable, "-m"]
-    procs: list[subprocess.Popen] = []
-    try:
-        with open_session(hub_settings), open_session(member) as session:
-            # motions of 20 s: the command is still running when the link dies
-            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                                f"--write-config={live}", "--motion-time=20"], stdout=subprocess.DEVNULL))
-            _wait_for(live.exists, 20, "the emulator's live config")
-            link = subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", "--port=radio0", "--run=deadlink", f"--hub={hub}"])
-            procs.append(link)
-            agent = subprocess.Popen(py + ["swarm_cli.agent", f"--id={ids[0]}", f"--ids={','.join(map(str, ids))}", "--run=deadlink",
-                                           f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"], stderr=subprocess.PIPE, text=True)
-            procs.append(agent)
-            _wait_for(lambda: alive_now(session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{ids[0]}",
-                                                                                "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
-            _sub, statuses = subscribe_queue(session, f"swarm/deadlink/robot/{ids[0]}/status")
-            time.sleep(0.2)
-            cmd = MotionCommand(run="deadlink", step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.1)
-            publish(session, message_key(cmd), encode(cmd))
-            assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
-            time.sleep(0.3)
-            link.kill()  # SIGKILL: no goodbye from the link
-            killed = time.monotonic()
-            assert agent.wait(timeout=10) == 3
-            assert time.monotonic() - killed < 3.0  # not the 30 s motion timeout
-            refusal = decode(statuses.get(timeout=2)[1], Status)
-            assert refusal.state == "refused" and "the link process of port radio0 is gone" in refusal.reason
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids)),), timing=Timing(motion_timeout_s=30.0))
+
+    # motions of 20 s: the command is still running when the link dies
+    with emulated_site(tmp_path, 2, 3, config, "--motion-time=20") as site:
+        robot = site.ids[0]
+        link = site.link("deadlink")
+        agent = site.agent(robot, "deadlink", stderr=subprocess.PIPE, text=True)
+        _wait_for(lambda: alive_now(site.session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{robot}",
+                                                                                 "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
+        _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
+        time.sleep(0.2)
+        cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1)
+        publish(site.session, message_key(cmd), encode(cmd))
+        assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
+        time.sleep(0.3)
+        link.kill()  # SIGKILL: no goodbye from the link
+        killed = time.monotonic()
+        assert agent.wait(timeout=10) == 3
+        assert time.monotonic() - killed < 3.0  # not the 30 s motion timeout
+        refusal = decode(statuses.get(timeout=2)[1], Status)
+        assert refusal.state == "refused" and "the link process of port radio0 is gone" in refusal.reason
 
 
 def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
-    traj = random_trajectory(2, 1, np.random.default_rng(4))
-    traj_file, config, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
-    traj.save(traj_file)
-    ids = [int(i) for i in traj.ids]
-    GatewayConfig((Port("radio0", "emulated", tuple(ids)),)).save(config)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    hub = f"tcp/127.0.0.1:{port}"
-    py = [sys.executable, "-m"]
-    procs: list[subprocess.Popen] = []
-    try:
-        with open_session(hub_settings), open_session(member) as session:
-            procs.append(subprocess.Popen(py + ["swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                                f"--write-config={live}"], stdout=subprocess.DEVNULL))
-            _wait_for(live.exists, 20, "the emulator's live config")
-            procs.append(subprocess.Popen(py + ["swarm_cli.agent", f"--id={ids[0]}", f"--ids={','.join(map(str, ids))}", "--run=late",
-                                                f"--hub={hub}", "--driver=gateway", f"--gateway-config={live}"]))
-            time.sleep(2.0)  # long enough for an agent to start; its link is not there yet
-            assert alive_now(session, alive_wildcard("late")) == set()
-            procs.append(subprocess.Popen(py + ["swarm_cli.link", f"--config={live}", "--port=radio0", "--run=late", f"--hub={hub}"]))
-            _wait_for(lambda: alive_now(session, alive_wildcard("late")), 20, "the agent's token once the link is up")
-            _sub, statuses = subscribe_queue(session, f"swarm/late/robot/{ids[0]}/status")
-            time.sleep(0.2)
-            cmd = MotionCommand(run="late", step=1, robot=ids[0], config=1, turn_rad=0.1, drive_m=0.05)
-            publish(session, message_key(cmd), encode(cmd))
-            states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
-            assert states == ["accepted", "done"]
-    finally:
-        for p in procs:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in procs:
-            try:
-                p.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids)),))
+
+    with emulated_site(tmp_path, 2, 4, config) as site:
+        robot = site.ids[0]
+        site.agent(robot, "late")
+        time.sleep(2.0)  # long enough for an agent to start; its link is not there yet
+        assert alive_now(site.session, alive_wildcard("late")) == set()
+        site.link("late")
+        _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
+        _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
+        time.sleep(0.2)
+        cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05)
+        publish(site.session, message_key(cmd), encode(cmd))
+        states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
+        assert states == ["accepted", "done"]
