@@ -78,7 +78,6 @@ _log = logging.getLogger(__name__)
 EventSink = Callable[[dict], None]
 TruthListener = Callable[[int, int, np.ndarray], None]  # (robot, step, true pose)
 
-QUIET_S = 0.020  # a partial frame is given up after 20 ms of quiet (gateway-protocol.md, Receiving)
 POLL_S = 0.01  # reader poll period: resolution of the quiet timer and of the heartbeat watchdog
 WRITE_TIMEOUT_S = 0.5  # a frame that cannot be written for this long (nobody reads the pty) is dropped
 MAX_PARTS = 255  # OBSERVATION ``parts`` is a u8
@@ -425,28 +424,20 @@ class PortEmulator:
     # -- reading (reader thread) -----------------------------------------------------------
 
     def _read_loop(self) -> None:
-        last_byte = time.monotonic()
         while not self._stop.is_set():
             try:
                 ready, _, _ = select.select([self._master], [], [], POLL_S)
             except (OSError, ValueError):
                 return  # fd closed
-            now = time.monotonic()
-            frames: list[Frame] = []
+            data = b""
             if ready:
                 try:
                     data = os.read(self._master, 4096)
                 except BlockingIOError:
-                    data = b""
+                    pass
                 except OSError:  # EIO when no slave is open: cannot happen while we hold the slave, but don't spin
                     time.sleep(POLL_S)
-                    data = b""
-                if data:
-                    last_byte = now
-                    frames = self._decoder.feed(data)
-            elif self._decoder.pending and now - last_byte >= QUIET_S:
-                while self._decoder.pending:  # give up on the waiting START(s), keep what follows
-                    frames.extend(self._decoder.resync())
+            frames = self._decoder.receive(data, time.monotonic())  # with the quiet-line rule
             try:
                 for frame in frames:
                     self._receive(frame)

@@ -45,6 +45,7 @@ from runtime.frames import (
     FrameType,
     HeartbeatBody,
     MotionBody,
+    QUIET_S,
     ObservationBody,
     RefusalCode,
     StepBody,
@@ -65,7 +66,6 @@ from runtime.messages import (
 from runtime.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
-QUIET_S = 0.02  # a line quiet this long with a partial frame buffered: resync
 RTT_WINDOW = 1000
 
 
@@ -241,7 +241,6 @@ class Link:
     # -- device -----------------------------------------------------------------------------
 
     def _read_loop(self) -> None:
-        quiet_since = time.monotonic()
         while not self._stop.is_set():
             try:
                 data = self.device.read(QUIET_S)
@@ -250,13 +249,8 @@ class Link:
                 self._stop.set()
                 return
             now = time.monotonic()
-            if data:
-                quiet_since = now
-                frames = self.decoder.feed(data)
-            elif self.decoder.pending and now - quiet_since >= QUIET_S:
-                frames = self.decoder.resync()
-                quiet_since = now
-            else:
+            frames = self.decoder.receive(data, now)
+            if not frames:
                 continue
             with self._lock:
                 for frame in frames:

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import binascii
 import enum
+import math
 import struct
 from dataclasses import dataclass, field
 from typing import ClassVar
@@ -33,6 +34,7 @@ OVERHEAD = HEADER.size + CRC.size  # 9 bytes around the payload
 BROADCAST = 0xFFFF
 MAX_ROBOT = 0xFFFE  # robot ids usable behind a port
 MAX_TEXT = 200  # bytes of UTF-8 reason/error text
+QUIET_S = 0.020  # a partial frame is given up after the line was quiet this long (s)
 
 
 class FrameError(ValueError):
@@ -324,14 +326,30 @@ class FrameDecoder:
     Resynchronisation: bytes before a START are skipped; a START whose LEN exceeds
     ``MAX_PAYLOAD`` or whose CRC fails is dropped as one skipped byte and the scan goes on
     from the next byte, so a valid frame hidden behind noise is still found. An incomplete
-    frame waits for more bytes (``pending`` of them are held); when the line goes quiet
-    with bytes pending (a corrupted LEN can promise up to 259 bytes that never come), the
-    reader calls ``resync()``, which gives up on that START and rescans the rest.
+    frame waits for more bytes (``pending`` of them are held). A corrupted LEN can promise
+    up to 259 bytes that never come: ``receive``, for readers that poll the line, applies
+    the protocol's quiet-line rule and gives up on such STARTs after ``QUIET_S`` of silence.
     """
 
     def __init__(self) -> None:
         self._buf = bytearray()
+        self._last_byte = -math.inf
         self.stats = DecoderStats()
+
+    def receive(self, data: bytes, now: float) -> list[Frame]:
+        """``feed(data)`` for a read at ``now`` (monotonic s; ``data`` empty when the read timed out).
+
+        When no byte came for ``QUIET_S`` and a partial frame is pending, every START still
+        waiting is given up (``resync``) and what follows them is rescanned.
+        """
+        if data:
+            self._last_byte = now
+            return self.feed(data)
+        frames: list[Frame] = []
+        if self._buf and now - self._last_byte >= QUIET_S:
+            while self._buf:
+                frames += self.resync()
+        return frames
 
     @property
     def pending(self) -> int:

@@ -159,6 +159,19 @@ def test_resync_after_corrupted_length():
     assert decoder.resync() == []  # nothing pending: nothing to give up
 
 
+def test_receive_gives_up_on_a_partial_frame_only_after_a_quiet_line():
+    from runtime.frames import QUIET_S
+
+    first = bytearray(encode_frame(Frame.of(1, 1, FrameType.DONE, StepBody(3))))
+    second = Frame.of(1, 2, FrameType.ACCEPTED, StepBody(4))
+    first[1] = 200
+    decoder = FrameDecoder()
+    assert decoder.receive(bytes(first) + encode_frame(second), now=10.0) == []
+    assert decoder.receive(b"", now=10.0 + QUIET_S / 2) == []  # not quiet long enough: still waiting
+    assert decoder.receive(b"", now=10.0 + 2 * QUIET_S) == [second]
+    assert decoder.pending == 0
+
+
 def test_body_size_errors_name_the_body_and_sizes():
     with pytest.raises(FrameError, match=r"StepBody: payload of 3 bytes, expected 4"):
         StepBody.unpack(b"\x00\x00\x00")
