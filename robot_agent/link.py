@@ -142,6 +142,10 @@ class _Request:
     answered: bool = False
     parts: dict[int, ObservationBody] = field(default_factory=dict)
 
+    def due(self, timing: Timing) -> float:
+        """When the answer is overdue: ``ack_timeout_s`` after sending, ``motion_timeout_s`` after ACCEPTED."""
+        return self.sent_at + (timing.motion_timeout_s if self.accepted else timing.ack_timeout_s)
+
 
 @dataclass
 class _Robot:
@@ -258,12 +262,16 @@ class Link:
 
     def _send(self, frame: Frame) -> bytes:
         wire = encode_frame(frame)
+        self._write(frame.robot, wire)
+        return wire
+
+    def _write(self, robot_id: int, wire: bytes) -> None:
+        """Put a frame on the port; it counts as a sign of life for robot ``robot_id``."""
         self.device.write(wire)
         self.counters.frames_sent += 1
-        robot = self.robots.get(frame.robot)
+        robot = self.robots.get(robot_id)
         if robot is not None:
             robot.last_tx = time.monotonic()
-        return wire
 
     def _next_deadline(self) -> float:
         """The earliest time a heartbeat, retransmission or loss check is due."""
@@ -275,7 +283,7 @@ class Link:
             due = min(due, robot.last_tx + t.heartbeat_period_s, robot.last_rx + t.robot_timeout_s)
             for req in (robot.busy, robot.control):
                 if req is not None:
-                    due = min(due, req.sent_at + (t.motion_timeout_s if req.accepted else t.ack_timeout_s))
+                    due = min(due, req.due(t))
         return due
 
     # -- events (engine thread) ----------------------------------------------------------------
@@ -313,20 +321,21 @@ class Link:
         elif (robot.busy.kind, robot.busy.step) != (req.kind, req.step):  # a re-sent request is already in flight
             robot.waiting.append(req)
 
-    def _start(self, robot: _Robot, req: LinkRequest) -> None:
+    def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body) -> _Request:
+        """Send a new request frame (next SEQ) to ``robot``; the ``_Request`` to track its answer."""
         seq = robot.next_seq()
-        if req.kind == "command":
-            frame = Frame.of(robot.id, seq, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
-        else:
-            frame = Frame.of(robot.id, seq, FrameType.OBSERVE, StepBody(req.step))
         now = time.monotonic()
-        robot.busy = _Request(req.kind, req.step, seq, self._send(frame), now, now)
+        return _Request(kind, step, seq, self._send(Frame.of(robot.id, seq, frame_type, body)), now, now)
+
+    def _start(self, robot: _Robot, req: LinkRequest) -> None:
+        if req.kind == "command":
+            robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
+        else:
+            robot.busy = self._request(robot, req.kind, req.step, FrameType.OBSERVE, StepBody(req.step))
 
     def _start_control(self, robot: _Robot, kind: str, step: int) -> None:
-        seq = robot.next_seq()
-        frame = Frame.of(robot.id, seq, FrameType.ESTOP if kind == "estop" else FrameType.RESET, EmptyBody())
-        now = time.monotonic()
-        robot.control = _Request(kind, step, seq, self._send(frame), now, now)
+        frame_type = FrameType.ESTOP if kind == "estop" else FrameType.RESET
+        robot.control = self._request(robot, kind, step, frame_type, EmptyBody())
 
     def _estop_all(self, step: int) -> None:
         self._broadcast_seq = self._broadcast_seq % 0xFFFF + 1
@@ -412,17 +421,14 @@ class Link:
                 req = getattr(robot, slot)
                 if req is None:
                     continue
-                limit = t.motion_timeout_s if req.accepted else t.ack_timeout_s
-                if now - req.sent_at < limit:
+                if now < req.due(t):
                     continue
                 if req.retries >= t.max_retries:
                     self.counters.timeouts += 1
                     self._lose(robot, f"robot {robot.id} did not answer the {req.kind} of step {req.step} "
                                       f"after {req.retries} retransmissions on port {self.port.name}")
                     break
-                self.device.write(req.wire)  # the same frame, same SEQ
-                self.counters.frames_sent += 1
-                robot.last_tx = now
+                self._write(robot.id, req.wire)  # the same frame, same SEQ
                 self.counters.retransmissions += 1
                 req.retries += 1
                 req.sent_at = now
