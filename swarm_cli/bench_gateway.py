@@ -20,7 +20,6 @@ under 1.5 x the simulated driver's.
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import subprocess
 import sys
@@ -45,7 +44,7 @@ from runtime.frames import (
 from runtime.gateway_config import GatewayConfig, Port
 from runtime.trajectory import random_trajectory
 from swarm_cli import bench_runtime
-from swarm_cli.launch import GATEWAY_READY_S, stop_all
+from swarm_cli.launch import start_emulator, stop_all
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, print_json
 
 TARGET_CODEC = 100_000
@@ -102,19 +101,12 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
         traj = random_trajectory(2, 1, np.random.default_rng(seed))
         traj.save(folder / "trajectory.json")
         GatewayConfig((Port("radio0", "emulated", tuple(int(i) for i in traj.ids)),)).save(folder / "gateway.json")
-        live = folder / "live.json"
-        proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={folder / 'gateway.json'}",
-                                 f"--trajectory={folder / 'trajectory.json'}", f"--seed={seed}", f"--write-config={live}"],
-                                stdout=subprocess.DEVNULL)
+        procs: list[subprocess.Popen] = []
         try:
-            deadline = time.monotonic() + GATEWAY_READY_S
-            while not live.exists():
-                if proc.poll() is not None or time.monotonic() > deadline:
-                    raise RuntimeError("the robot emulator did not start")
-                time.sleep(0.02)
-            port = json.loads(live.read_text())["ports"][0]
-            link = SerialLink(port["device"], port["baud"])
-            robot = port["robots"][0]
+            live = start_emulator(folder / "gateway.json", folder / "trajectory.json", folder / "live.json", [f"--seed={seed}"], procs)
+            port = GatewayConfig.load(live).ports[0]
+            link = SerialLink(port.device, port.baud)
+            robot = port.robots[0]
             decoder = FrameDecoder()
             times = []
             try:
@@ -130,7 +122,7 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
             finally:
                 link.close()
         finally:
-            stop_all([proc])
+            stop_all(procs)
     return times[10:] if len(times) > 20 else times  # without the warm-up
 
 

@@ -152,17 +152,11 @@ def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
     return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
 
 
-def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
-                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None) -> Path:
-    """Start the robot emulators and one link process per port; the live gateway config (pty devices)."""
-    config = tmp / "gateway.json"
-    live = tmp / "gateway-live.json"
-    gateway.save(config)
-    cmd = [sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}", f"--seed={seed}",
-           f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", f"--write-config={live}", *model]
-    if events is not None:
-        cmd.append(f"--events={events}")
-    emulator = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen]) -> Path:
+    """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
+    until it wrote ``live``, the same config with its pty devices; returns ``live``."""
+    emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
+                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL)
     procs.append(emulator)
     deadline = time.monotonic() + GATEWAY_READY_S
     while not live.exists():
@@ -171,6 +165,18 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
         if time.monotonic() > deadline:
             raise SwarmInputError(f"the robot emulator did not write {live} within {GATEWAY_READY_S:.0f} s")
         time.sleep(0.02)
+    return live
+
+
+def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
+                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None) -> Path:
+    """Start the robot emulators and one link process per port; the live gateway config (pty devices)."""
+    config = tmp / "gateway.json"
+    gateway.save(config)
+    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model]
+    if events is not None:
+        options.append(f"--events={events}")
+    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs)
     for port in gateway.ports:
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
                                        f"--run={run_id}", f"--hub={hub}"]))

@@ -31,7 +31,7 @@ from runtime.messages import EmergencyStop, LinkReply, LinkStats, MotionCommand,
 from runtime.recording import read_messages
 from runtime.trajectory import random_trajectory
 from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
-from swarm_cli.launch import stop_all
+from swarm_cli.launch import start_emulator, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -221,9 +221,7 @@ def emulated_site(tmp_path: Path, robots: int, seed: int, config, *emulator_args
     procs: list[subprocess.Popen] = []
     try:
         with open_session(hub_settings), open_session(member) as session:
-            procs.append(subprocess.Popen(PY + ["swarm_cli.emulate", f"--config={config_file}", f"--trajectory={traj_file}",
-                                                f"--write-config={live}", *emulator_args], stdout=subprocess.DEVNULL))
-            _wait_for(live.exists, 20, "the emulator's live config")
+            start_emulator(config_file, traj_file, live, list(emulator_args), procs)
             yield Site(session, f"tcp/127.0.0.1:{port}", ids, live, procs)
     finally:
         stop_all(procs, grace_s=5.0)
