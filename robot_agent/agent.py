@@ -34,10 +34,12 @@ Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` is forwarded to th
 once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
 while the loop waits for a motion to finish); every later command is refused. Limits
 (``CommandLimits``: drive, turn, and the workspace checked from the command's
-``start_pose``, the coordinator's estimate of the robot) are checked before the driver sees a command. A driver that
-raises ``DriverRefused`` gives ``Status refused`` with its reason; ``RobotLost`` (during a
-command: after a ``Status refused`` "robot lost: ...") drops the liveliness token (the coordinator reports the robot lost by id) and ends the loop
-(``run`` returns 3).
+``start_pose``, the coordinator's estimate of the robot) are checked before the driver
+sees a command. A driver that raises ``DriverRefused`` gives ``Status refused`` with its
+reason; ``RobotLost`` (during a command: after a ``Status refused`` "robot lost: ...")
+drops the liveliness token (the coordinator reports the robot lost by id) and ends the
+loop (``run`` returns 3). The token is declared only once ``driver.ready`` (a gateway
+driver: its link process is up), so "agent alive" means "robot reachable".
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
@@ -221,8 +223,7 @@ class Agent:
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
         if cmd.step < self._last_cmd_step:
-            reason = f"stale step {cmd.step}: step {self._last_cmd_step} was already handled"
-            self._send(Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason))
+            self._status(cmd.step, "refused", f"stale step {cmd.step}: step {self._last_cmd_step} was already handled", remember=False)
             return
         if cmd.step == self._last_cmd_step and self._last_status is not None:
             self._send(self._last_status)  # duplicate: never execute twice
@@ -230,23 +231,26 @@ class Agent:
         self._last_cmd_step = cmd.step
         reason = "emergency stop" if self.estopped else self.limits.refusal(cmd)
         if reason is not None:
-            self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=reason)
-            self._send(self._last_status)
+            self._status(cmd.step, "refused", reason)
             return
-        self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="accepted", reason="")
-        self._send(self._last_status)
+        self._status(cmd.step, "accepted")
         try:
             self.driver.execute(cmd)
         except DriverRefused as e:
-            self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=str(e) or "refused")
-            self._send(self._last_status)
+            self._status(cmd.step, "refused", str(e) or "refused")
             return
         except RobotLost as e:  # say why in the command's status, then the loop drops the token
-            self._send(Status(run=self.run_id, step=cmd.step, robot=self.robot, state="refused", reason=f"robot lost: {e}"))
+            self._status(cmd.step, "refused", f"robot lost: {e}", remember=False)
             raise
         self.executed += 1
-        self._last_status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state="done", reason="")
-        self._send(self._last_status)
+        self._status(cmd.step, "done")
+
+    def _status(self, step: int, state: str, reason: str = "", *, remember: bool = True) -> None:
+        """Publish this robot's ``Status`` for ``step``; ``remember`` it as the answer a re-sent command gets."""
+        status = Status(run=self.run_id, step=step, robot=self.robot, state=state, reason=reason)
+        if remember:
+            self._last_status = status
+        self._send(status)
 
     def _on_observe(self, req: ObserveRequest) -> None:
         if req.step == self._last_obs_step and self._last_report is not None:
