@@ -7,7 +7,7 @@ Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it
 (range bias, bearing offset: ``runtime.gateway_config.Calibration``). A ``refused``
 answer raises ``DriverRefused``; ``lost``, the disappearance of the liveliness token of the
 link process of ``port`` (``swarm/<run>/alive/link/<port>``), or no answer within the wait
-raises ``RobotLost``. ``estop`` / ``reset`` may be called from any thread: the emergency stop
+raises ``RobotLost``. ``estop`` may be called from any thread: the emergency stop
 goes out at once and also ends a wait in progress (``DriverRefused``).
 """
 
@@ -87,19 +87,23 @@ class GatewayDriver:
         msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m)
         publish(self._session, self._req_key, encode(msg))
 
-    def _wait(self, step: int, final: tuple[str, ...], timeout_s: float, resend) -> LinkReply:
-        """The first reply of ``step`` whose kind is in ``final``; raises on refusal, loss, stop or timeout.
+    def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0) -> LinkReply:
+        """Send the request, then wait for its reply of kind ``final``; raises on refusal, loss, stop or timeout.
 
-        ``resend()`` re-publishes the request whenever the link has been silent about it for
-        ``_resend_s`` (a request published before the link subscribed, or a lost reply): the link
-        ignores a copy of the request in flight, and the robot answers a repeated step from
-        memory (docs/gateway-protocol.md), so nothing runs twice.
+        The request is sent again whenever the link has been silent about it for ``_resend_s``
+        (a request published before the link subscribed, or a lost reply): the link ignores a
+        copy of the request in flight, and the robot answers a repeated step from memory
+        (docs/gateway-protocol.md), so nothing runs twice.
         """
+        t = self.timing
+        tries_s = t.ack_timeout_s * (t.max_retries + 1)  # the link's own retransmissions
+        resend_s = tries_s + 0.5
+        timeout_s = tries_s + (t.motion_timeout_s * (t.max_retries + 1) if motion else 0.0) + 1.0
+        self._request(step, kind, turn_rad, drive_m)
         start = time.monotonic()
-        deadline = start + timeout_s
-        next_resend = start + self._resend_s()
+        deadline, next_resend = start + timeout_s, start + resend_s
         while True:
-            if self._estopped.is_set() and "estopped" not in final:
+            if self._estopped.is_set():
                 raise DriverRefused("emergency stop")
             if self._link_gone.is_set():
                 raise RobotLost(f"robot {self.robot}: the link process of port {self.port} is gone")
@@ -110,8 +114,8 @@ class GatewayDriver:
                 reply = self._replies.get(timeout=min(left, 0.05))
             except queue.Empty:
                 if time.monotonic() >= next_resend:
-                    resend()
-                    next_resend = time.monotonic() + self._resend_s()
+                    self._request(step, kind, turn_rad, drive_m)
+                    next_resend = time.monotonic() + resend_s
                 continue
             if reply.kind == "lost":
                 raise RobotLost(reply.reason)
@@ -119,37 +123,22 @@ class GatewayDriver:
                 continue  # a late answer to an earlier request
             if reply.kind == "refused":
                 raise DriverRefused(reply.reason)
-            if reply.kind in final:
+            if reply.kind == final:
                 return reply
-
-    def _resend_s(self) -> float:
-        """How long the link may stay silent about a request: its own retries plus a margin."""
-        t = self.timing
-        return t.ack_timeout_s * (t.max_retries + 1) + 0.5
-
-    def _budget_s(self, motion: bool) -> float:
-        t = self.timing
-        per_try = t.ack_timeout_s * (t.max_retries + 1)
-        return per_try + (t.motion_timeout_s * (t.max_retries + 1) if motion else 0.0) + 1.0
 
     # -- Driver --------------------------------------------------------------------------------
 
     def execute(self, command: MotionCommand) -> None:
         if self._estopped.is_set():
             raise DriverRefused("emergency stop")
-        drive = self.calibration.corrected_drive(command.drive_m)
-        send = lambda: self._request(command.step, "command", command.turn_rad, drive)  # noqa: E731
-        send()
-        self._wait(command.step, ("done",), self._budget_s(motion=True), send)
+        self._exchange(command.step, "done", True, "command", command.turn_rad, self.calibration.corrected_drive(command.drive_m))
         return None
 
     def true_pose(self) -> None:
         return None
 
     def sense(self, peers, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        send = lambda: self._request(step, "observe")  # noqa: E731
-        send()
-        reply = self._wait(step, ("observation",), self._budget_s(motion=False), send)
+        reply = self._exchange(step, "observation", False, "observe")
         c = self.calibration
         ranges = np.array([c.corrected_range(r) for r in reply.ranges], dtype=float)
         bearings = np.array([c.corrected_bearing(b) for b in reply.bearings], dtype=float)
@@ -160,9 +149,3 @@ class GatewayDriver:
         self._estopped.set()
         if self._session is not None:
             self._request(step, "estop")
-
-    def reset(self, step: int = 0) -> None:
-        """Clear the emergency stop on the robot and in this driver."""
-        self._estopped.clear()
-        if self._session is not None:
-            self._request(step, "reset")
