@@ -65,7 +65,6 @@ from runtime.frames import (
     encode_frame,
 )
 from runtime.gateway_config import Calibration
-from runtime.geometry import wrap_angle
 from runtime.keys import coord_alive_key, validate_port, validate_run
 from runtime.messages import TruthMessage, encode, message_key
 from runtime.motion import execute_command
@@ -200,8 +199,7 @@ class EmulatedWorld:
     def move(self, robot: int, turn_rad: float, drive_m: float) -> np.ndarray:
         """Execute (turn, drive) with ``robot``'s motion stream and true ``motion_scale``; its new true pose (3,)."""
         i = self.index(robot)
-        scale = self.calibration.get(robot, Calibration()).motion_scale
-        command = np.array([turn_rad, drive_m * scale], dtype=float)
+        command = np.array([turn_rad, self.calibration.get(robot, Calibration()).driven(drive_m)], dtype=float)
         with self._lock:
             self._poses[i] = execute_command(self._poses[i], command, self.cfg, self._motion[robot])
             return self._poses[i].copy()
@@ -222,11 +220,7 @@ class EmulatedWorld:
             nb, rho, phi = sense_robot(self._poses, i, self.cfg, self._sensing[robot])
         for listener in listeners:
             listener(robot, int(step), pose)
-        if cal.range_bias_m:
-            rho = np.maximum(rho + cal.range_bias_m, 0.0)
-        if cal.bearing_offset_rad:
-            phi = wrap_angle(phi + cal.bearing_offset_rad)
-        return np.array(self.ids, dtype=np.int64)[nb], rho, phi
+        return np.array(self.ids, dtype=np.int64)[nb], cal.measured_ranges(rho), cal.measured_bearings(phi)
 
 
 @dataclass(frozen=True)

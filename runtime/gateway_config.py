@@ -24,7 +24,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from runtime.errors import SwarmInputError
+from runtime.geometry import wrap_angle
 from runtime.keys import KeyspaceError, validate_port
 
 TRANSPORTS = ("serial", "ant")
@@ -36,13 +39,25 @@ class Calibration:
     """How robot ``r``'s sensors and motion deviate; the gateway agent corrects for them.
 
     Measured range = true + ``range_bias_m``; measured bearing = true + ``bearing_offset_rad``;
-    driven distance = commanded x ``motion_scale``. The agent sends drive / motion_scale
-    and reports range - bias and bearing - offset (wrapped to [-pi, pi]).
+    driven distance = commanded x ``motion_scale`` (``driven``, ``measured_*``: the deviation,
+    as the robot emulator applies it). The agent sends drive / motion_scale and reports
+    range - bias and bearing - offset, wrapped to [-pi, pi] (``corrected_*``: its inverse).
     """
 
     range_bias_m: float = 0.0
     bearing_offset_rad: float = 0.0
     motion_scale: float = 1.0
+
+    def driven(self, drive_m: float) -> float:
+        return drive_m * self.motion_scale
+
+    def measured_ranges(self, ranges_m: np.ndarray) -> np.ndarray:
+        """The ranges the robot reports for true ``ranges_m`` (unchanged, bit for bit, without a bias)."""
+        return np.maximum(ranges_m + self.range_bias_m, 0.0) if self.range_bias_m else ranges_m
+
+    def measured_bearings(self, bearings_rad: np.ndarray) -> np.ndarray:
+        """The bearings the robot reports for true ``bearings_rad`` (unchanged without an offset)."""
+        return wrap_angle(bearings_rad + self.bearing_offset_rad) if self.bearing_offset_rad else bearings_rad
 
     def corrected_drive(self, drive_m: float) -> float:
         return drive_m / self.motion_scale

@@ -7,6 +7,7 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from robot_agent.ant_link import AntLink, parse_ant_device
@@ -77,6 +78,13 @@ def test_calibration_undoes_the_robot_deviation():
     assert c.corrected_range(0.32) == pytest.approx(0.30) and c.corrected_range(0.01) == 0.0
     assert c.corrected_bearing(math.pi - 0.05 + 0.1 - 2 * math.pi) == pytest.approx(math.pi - 0.05)
     assert c.corrected_bearing(-math.pi + 0.05) == pytest.approx(math.pi - 0.05)
+    # the deviation the emulator applies and the agent's correction are inverses
+    true_r, true_b = np.array([0.3, 0.0, 0.45]), np.array([0.2, math.pi - 0.05, -3.1])
+    assert [c.corrected_range(r) for r in c.measured_ranges(true_r)] == pytest.approx(true_r.tolist())
+    assert [c.corrected_bearing(b) for b in c.measured_bearings(true_b)] == pytest.approx(true_b.tolist())
+    assert c.corrected_drive(c.driven(0.2)) == pytest.approx(0.2)
+    ideal = Calibration()
+    assert ideal.measured_ranges(true_r) is true_r and ideal.measured_bearings(true_b) is true_b  # bit for bit
 
 
 def test_workspace_limit_uses_the_predicted_end_position():
