@@ -44,12 +44,19 @@ TOPIC_TRUE = "/foxglove/true"
 TOPIC_DESIRED = "/foxglove/desired"
 TOPICS = (TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED)
 
-# colours (r, g, b, a in [0, 1]) and sizes (m): the paper's figures use desired red, estimated green, true blue
-GREEN = {"r": 0.1, "g": 0.75, "b": 0.2, "a": 0.9}
-DARK_GREEN = {"r": 0.0, "g": 0.35, "b": 0.1, "a": 1.0}
-BLUE = {"r": 0.15, "g": 0.35, "b": 0.95, "a": 0.9}
-RED = {"r": 0.9, "g": 0.1, "b": 0.1, "a": 0.6}
-WHITE = {"r": 1.0, "g": 1.0, "b": 1.0, "a": 1.0}
+
+
+def color(r: float, g: float, b: float, a: float) -> str:
+    """The JSON of a ``foxglove.Color`` (each channel in [0, 1])."""
+    return f'{{"r":{float(r)!r},"g":{float(g)!r},"b":{float(b)!r},"a":{float(a)!r}}}'
+
+
+# colours and sizes (m): the paper's figures use desired red, estimated green, true blue
+GREEN = color(0.1, 0.75, 0.2, 0.9)
+DARK_GREEN = color(0.0, 0.35, 0.1, 1.0)
+BLUE = color(0.15, 0.35, 0.95, 0.9)
+RED = color(0.9, 0.1, 0.1, 0.6)
+WHITE = color(1.0, 1.0, 1.0, 1.0)
 SPHERE_M = 0.05
 TRUE_SPHERE_M = 0.04
 ANCHOR_SPHERE_M = 0.065
@@ -185,18 +192,6 @@ def _num(value: float) -> str:
     return repr(v)
 
 
-def _color(c: Mapping[str, float]) -> str:
-    return f'{{"r":{_num(c["r"])},"g":{_num(c["g"])},"b":{_num(c["b"])},"a":{_num(c["a"])}}}'
-
-
-_PALETTE = {id(c): _color(c) for c in (GREEN, DARK_GREEN, BLUE, RED, WHITE)}
-
-
-def _color_json(c: Mapping[str, float]) -> str:
-    """The JSON of a colour; the module's own colours are encoded once."""
-    return _PALETTE.get(id(c)) or _color(c)
-
-
 def stamp(ns: int) -> str:
     """A ``time`` ({sec, nsec}) from nanoseconds since the epoch (negative times clamp to 0)."""
     sec, nsec = divmod(int(ns), 1_000_000_000)
@@ -207,16 +202,16 @@ def _pose(x: str, y: str, z: str = "0.0") -> str:
     return f'{{"position":{{"x":{x},"y":{y},"z":{z}}},"orientation":{_IDENTITY_JSON}}}'
 
 
-def sphere(x: str, y: str, diameter: float, color: Mapping[str, float]) -> str:
+def sphere(x: str, y: str, diameter: float, color: str) -> str:
     """A ``foxglove.SpherePrimitive`` at (x, y) (JSON numbers as text, from ``_num``), metres."""
     d = _num(diameter)
-    return f'{{"pose":{_pose(x, y)},"size":{{"x":{d},"y":{d},"z":{d}}},"color":{_color_json(color)}}}'
+    return f'{{"pose":{_pose(x, y)},"size":{{"x":{d},"y":{d},"z":{d}}},"color":{color}}}'
 
 
-def label(x: str, y: str, text: int, color: Mapping[str, float] = WHITE) -> str:
+def label(x: str, y: str, text: int, color: str = WHITE) -> str:
     """A billboard ``foxglove.TextPrimitive`` showing the integer ``text`` just above (x, y)."""
     return (f'{{"pose":{_pose(x, y, _num(LABEL_DZ_M))},"billboard":true,"font_size":{_num(LABEL_PX)},'
-            f'"scale_invariant":true,"color":{_color_json(color)},"text":"{int(text)}"}}')
+            f'"scale_invariant":true,"color":{color},"text":"{int(text)}"}}')
 
 
 @functools.lru_cache(maxsize=8)
@@ -224,10 +219,10 @@ def _ring_points(radius: float) -> str:
     return "[" + ",".join(f'{{"x":{_num(radius * c)},"y":{_num(radius * s)},"z":0.0}}' for c, s in _RING) + "]"
 
 
-def ring(x: str, y: str, radius: float, color: Mapping[str, float]) -> str:
+def ring(x: str, y: str, radius: float, color: str) -> str:
     """A closed circle (``foxglove.LinePrimitive`` of type LINE_LOOP = 1) of ``radius`` (m) around (x, y)."""
     return (f'{{"type":1,"pose":{_pose(x, y)},"thickness":{_num(RING_THICKNESS_M)},"scale_invariant":false,'
-            f'"points":{_ring_points(radius)},"color":{_color_json(color)},"colors":[],"indices":[]}}')
+            f'"points":{_ring_points(radius)},"color":{color},"colors":[],"indices":[]}}')
 
 
 def entity(entity_id: str, stamp_json: str, *, spheres: str = "", texts: str = "", lines: str = "",
