@@ -55,13 +55,18 @@ class ParsedKey(NamedTuple):
     leaf: str
 
 
+def _name(value: str, what: str) -> str:
+    """``value`` if it is a valid name chunk (run id, port name), else ``KeyspaceError`` saying why."""
+    if not isinstance(value, str) or not _RUN.fullmatch(value):
+        raise KeyspaceError(
+            f"{what} {value!r} is invalid: use 1-64 characters of A-Z a-z 0-9 _ . - starting with a letter or digit"
+        )
+    return value
+
+
 def validate_run(run: str) -> str:
     """``run`` if it is a valid run id, else ``KeyspaceError`` saying why."""
-    if not isinstance(run, str) or not _RUN.fullmatch(run):
-        raise KeyspaceError(
-            f"run id {run!r} is invalid: use 1-64 characters of A-Z a-z 0-9 _ . - starting with a letter or digit"
-        )
-    return run
+    return _name(run, "run id")
 
 
 def validate_robot_id(robot_id: int) -> int:
@@ -94,11 +99,7 @@ def truth_key(run: str, robot_id: int) -> str:
 
 def validate_port(port: str) -> str:
     """``port`` if it is a valid link port name (same rule as run ids), else ``KeyspaceError``."""
-    if not isinstance(port, str) or not _RUN.fullmatch(port):
-        raise KeyspaceError(
-            f"port name {port!r} is invalid: use 1-64 characters of A-Z a-z 0-9 _ . - starting with a letter or digit"
-        )
-    return port
+    return _name(port, "port name")
 
 
 def link_stats_key(run: str, port: str) -> str:
