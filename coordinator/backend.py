@@ -27,3 +27,8 @@ class SwarmBackend(Protocol):
     def true_poses(self) -> np.ndarray | None:
         """Ground truth (n, 3) for evaluation, or None where there is none (hardware)."""
         ...
+
+    def take_lost(self) -> dict[int, str]:
+        """Robots lost since the last call, with why; the backend has stopped them and drops them
+        from ``ids`` (a backend that never loses robots returns {})."""
+        ...

@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from coordinator.plan import Plan
+from coordinator.plan import Plan, feasible_anchor_counts
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, Selection, SelectionConfig
 from runtime.config import ModelConfig
@@ -30,6 +30,16 @@ class Strategy(Protocol):
     def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
         """The plan for moving from ``estimate`` to ``desired`` (n, 2), and the selection details if any."""
         ...
+
+    def restrict(self, keep: np.ndarray) -> Strategy:
+        """The same method for the robots where ``keep`` (n,) is True (the others were lost)."""
+        ...
+
+
+def anchors_for_half(n: int) -> int:
+    """The anchor count of a half-anchored method for ``n`` robots: n / 2 (two steps) when n is even,
+    else the smallest feasible count above n / 2 (Eq. 7; e.g. 6 of 9 robots, three steps)."""
+    return min(k for k in feasible_anchor_counts(n) if 2 * k >= n)
 
 
 class SelectedStrategy:
@@ -54,6 +64,15 @@ class SelectedStrategy:
             return heuristic_plan(estimate.positions, desired, self.fallback_anchors), None
         return selection.plan, selection
 
+    def restrict(self, keep: np.ndarray) -> SelectedStrategy:
+        if self.fallback_anchors is None:  # every feasible count of whatever swarm it is given
+            return self
+        n_a = anchors_for_half(int(np.sum(keep)))
+        selector = AnchorSelector(self.selector.cfg, self.selector.localizer,
+                                  replace(self.selector.selection, anchor_counts=(n_a,)), self.selector.seed)
+        selector.calls = self.selector.calls  # the search's random stream goes on where it was
+        return SelectedStrategy(self.name, selector, fallback_anchors=n_a)
+
 
 class FixedPlanStrategy:
     """The same plan at every configuration change (``ref57``, ``no-anchors``, ``one-at-a-time``)."""
@@ -64,6 +83,13 @@ class FixedPlanStrategy:
 
     def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
         return self.fixed, None
+
+    def restrict(self, keep: np.ndarray) -> FixedPlanStrategy:
+        """The fixed groups without the lost robots (``ref57``'s halves may become unequal); empty groups dropped."""
+        new_index = np.cumsum(keep) - 1
+        groups = [new_index[g[keep[g]]] for g in self.fixed.groups]
+        groups = [g for g in groups if len(g)]
+        return FixedPlanStrategy(self.name, Plan(np.concatenate(groups), tuple(len(g) for g in groups)))
 
 
 class HeuristicStrategy:
@@ -76,6 +102,9 @@ class HeuristicStrategy:
 
     def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
         return heuristic_plan(estimate.positions, desired, self.n_anchors), None
+
+    def restrict(self, keep: np.ndarray) -> HeuristicStrategy:
+        return HeuristicStrategy(anchors_for_half(int(np.sum(keep))))
 
 
 def half(n: int, method: str) -> int:

@@ -1,15 +1,15 @@
 """The distributed swarm backend: the executor's ``SwarmBackend`` over Zenoh (docs/protocol.md).
 
-``ZenohSwarmBackend`` talks to one agent process per robot through an open session:
+``ZenohSwarmBackend`` talks to one agent per robot through an open session:
 
 * ``execute(step)``: the next global step number s (motion steps from 1);
-  ``MotionCommand`` (step s) to each moving robot, then waits until every one of them
-  answered ``Status done``. A ``refused`` answer raises ``AgentRefused`` naming the robot
-  and its reason (the executor's dead reckoning assumes the robot moved).
+  ``MotionCommand`` (step s, a fresh random ``cmd_id``) to each moving robot, then waits
+  until every one of them answered ``Status done`` carrying that ``cmd_id``.
 * ``observe()``: ``ObserveRequest`` (step s) to every robot; waits for every robot's
   ``ObservationReport`` of step s (and, for simulated agents, its ``TruthMessage``) and
   returns the observations in the order of ``ids`` (the in-process simulator's order).
-* ``true_poses()``: the latest truths of all robots (simulation), or None.
+* ``true_poses()``: the latest truths of the robots (simulation), or None.
+* ``take_lost()``: the robots lost since the last call (see below), dropped from ``ids``.
 
 It is also the executor's ``ExecutorListener`` (pass it as ``listener=``):
 ``on_plan`` publishes ``PlanMessage`` on ``swarm/<run>/coord/plan`` (``config`` 1-based,
@@ -19,11 +19,19 @@ on ``swarm/<run>/coord/estimate`` (step 0: the initial estimate, then after ever
 and makes the following commands carry the robot's estimated pose as ``start_pose``.
 Without a listener call the commands carry ``config`` 0.
 
-Lost agents: a liveliness subscriber on ``swarm/<run>/alive/robot/*`` notes every token
-that disappears; every wait checks it each 50 ms and raises ``AgentLost``
-("robot 3 lost (liveliness token gone)"); a robot that does not answer within
-``timeouts.step_s`` raises ``AgentLost`` ("robot 3 did not answer the command of step 12 within 5.0 s").
-Each command or request is re-sent once at half the timeout (agents are idempotent).
+Only answers to real commands count: a ``Status`` is used only if it is for the current
+step and carries the ``cmd_id`` sent to that robot; reports and truths only for the
+current step from robots still in the run. Everything else is dropped and counted
+(``drops``, reason ``foreign``), never acted on.
+
+Lost robots (docs/failure-model.md): a robot is lost when its liveliness token disappears
+(noticed at once, whatever the coordinator is doing: the Zenoh callback hands it to a
+stopper thread), when it has not answered a command or observation request of a step
+within ``timeouts.step_s`` (each is re-sent once at half that), or when it refuses its
+command. A lost robot gets an ``EmergencyStop`` naming it and a ``RobotEvent`` ``lost``
+at once; the waits stop waiting for it and the simulated truth sets leave it out; the
+executor learns of it through ``take_lost()``. ``lost_log`` keeps (robot, reason,
+detected, stopped) monotonic times for benchmarks.
 All Zenoh callbacks only enqueue or set flags; the waiting happens on the caller's thread.
 """
 
@@ -31,6 +39,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import secrets
 import threading
 import time
 from collections.abc import Collection
@@ -42,11 +51,14 @@ from runtime.errors import SwarmInputError
 from runtime.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
 from runtime.messages import (
     DropCounter,
+    EmergencyStop,
     EstimateMessage,
+    MessageError,
     MotionCommand,
     ObservationReport,
     ObserveRequest,
     PlanMessage,
+    RobotEvent,
     Status,
     TruthMessage,
     TruthSetMessage,
@@ -70,11 +82,7 @@ class AgentError(SwarmInputError):
 
 
 class AgentLost(AgentError):
-    """Agents whose liveliness token disappeared or that did not answer in time."""
-
-
-class AgentRefused(AgentError):
-    """An agent refused its command."""
+    """Agents that did not come up at the start of the run."""
 
 
 @dataclass(frozen=True)
@@ -95,23 +103,30 @@ class ZenohSwarmBackend:
     def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True) -> None:
         self.session = session
         self.run = run
-        self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)
+        self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
         self._id_list = self.ids.tolist()
-        self.known = frozenset(self._id_list)
+        self.known = frozenset(self._id_list)  # every robot of the run (decoding)
         self.timeouts = timeouts
         self.simulated = simulated
         self.step = 0  # last global step number used
         self.config = 0  # 1-based configuration of the current plan (0 before on_plan)
         self.drops = DropCounter(_log)
+        self.lost_log: list[tuple[int, str, float, float]] = []  # (robot, reason, detected, estop published), monotonic s
         self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self._lock = threading.Lock()
         self._alive: set[int] = set()
-        self._gone: set[int] = set()
+        self._started = False  # after wait_for_agents: a token that disappears is a lost robot
+        self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
+        self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
+        self._stops: queue.Queue[tuple[int, str, float] | None] = queue.Queue()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truths_sent = 0  # last step whose TruthSetMessage went out
         self._estimate: dict[int, list[float]] | None = None  # latest published pose per robot: commands' start_pose
+        self._cmds: dict[int, MotionCommand] = {}
         self._reports: dict[int, ObservationReport] = {}
         self._status: dict[int, Status] = {}
+        self._stopper = threading.Thread(target=self._stop_lost, name="coordinator-lost-robots", daemon=True)
+        self._stopper.start()
         enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
         self._subs = [
             subscribe(session, robot_wildcard(run, "status"), enqueue),
@@ -121,9 +136,9 @@ class ZenohSwarmBackend:
         ]
         self._token = declare_token(session, coord_alive_key(run))  # after the subscribers: agents answer it with truths
 
-    # -- liveliness (Zenoh thread) ------------------------------------------------------
+    # -- lost robots ------------------------------------------------------------------------
 
-    def _on_liveliness(self, key: str, alive: bool) -> None:
+    def _on_liveliness(self, key: str, alive: bool) -> None:  # Zenoh thread
         try:
             robot = parse_key(key).robot
         except Exception:
@@ -131,20 +146,56 @@ class ZenohSwarmBackend:
         with self._lock:
             if alive:
                 self._alive.add(robot)
-                self._gone.discard(robot)
-            else:
-                self._alive.discard(robot)
-                if robot in self.known:
-                    self._gone.add(robot)
+                return
+            self._alive.discard(robot)
+            started = self._started
+        if started:
+            self._declare_lost(robot, "liveliness token gone")
+
+    def _declare_lost(self, robot: int, reason: str) -> None:
+        """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread)."""
+        with self._lock:
+            if robot not in self.known or robot in self._lost:
+                return
+            self._lost[robot] = reason
+            self._untaken[robot] = reason
+        self._stops.put((robot, reason, time.monotonic()))
+
+    def _stop_lost(self) -> None:
+        """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order."""
+        while (item := self._stops.get()) is not None:
+            robot, reason, detected = item
+            try:
+                stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
+                                     robots=[robot])
+                publish(self.session, message_key(stop), encode(stop))
+                stopped = time.monotonic()
+                event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
+                publish(self.session, message_key(event), encode(event))
+            except Exception:  # a closed session at shutdown: the launcher's run-wide stop covers it
+                _log.exception("could not publish the emergency stop of lost robot %d", robot)
+                continue
+            self.lost_log.append((robot, reason, detected, stopped))
+            _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
 
     def lost(self) -> list[int]:
+        """Every robot lost so far."""
         with self._lock:
-            return sorted(self._gone)
+            return sorted(self._lost)
 
-    def _check_lost(self) -> None:
-        gone = self.lost()
-        if gone:
-            raise AgentLost(f"{_robots(gone)} lost (liveliness token gone)", gone)
+    def take_lost(self) -> dict[int, str]:
+        """The robots lost since the last call, with why; they leave ``ids``."""
+        with self._lock:
+            taken, self._untaken = self._untaken, {}
+        if taken:
+            self.ids = self.ids[~np.isin(self.ids, list(taken))]
+            self._id_list = self.ids.tolist()
+        return taken
+
+    def _present(self) -> list[int]:
+        """Robots of ``ids`` not lost meanwhile."""
+        with self._lock:
+            return [r for r in self._id_list if r not in self._lost]
 
     # -- inbox (caller's thread) --------------------------------------------------------
 
@@ -161,48 +212,64 @@ class ZenohSwarmBackend:
             except queue.Empty:
                 return
 
+    def _foreign(self, key: str, problem: str) -> None:
+        self.drops.drop(key, MessageError("message", problem, "foreign"))
+
     def _handle(self, key: str, payload: bytes) -> None:
         msg = decode_or_drop(payload, self.drops, key, None, self.known)
         if msg is None:
             return
+        if msg.step != self.step:
+            if msg.step > self.step:  # late answers to earlier steps are normal (re-sends); later steps are not
+                self._foreign(key, f"{msg.TYPE} for step {msg.step}, the run is at step {self.step}")
+            return
+        if msg.robot not in self._id_list:
+            self._foreign(key, f"{msg.TYPE} from robot {msg.robot}, which is not in the run")
+            return
         if isinstance(msg, TruthMessage):
-            old = self._truth.get(msg.robot)
-            if old is None or msg.step >= old[0]:
-                self._truth[msg.robot] = (msg.step, np.array(msg.pose, dtype=float))
+            self._truth[msg.robot] = (msg.step, np.array(msg.pose, dtype=float))
             self._publish_truth_set()
-        elif msg.step != self.step:
-            return  # an answer to another step (late duplicate or foreign): not ours to use
         elif isinstance(msg, ObservationReport):
             self._reports[msg.robot] = msg
         elif isinstance(msg, Status):
+            cmd = self._cmds.get(msg.robot)
+            if cmd is None or msg.cmd_id != cmd.cmd_id:
+                self._foreign(key, f"Status of robot {msg.robot} for step {msg.step} answers no command of this coordinator")
+                return
             old = self._status.get(msg.robot)
             if old is None or old.state == "accepted":
                 self._status[msg.robot] = msg
+            if msg.state == "refused":
+                self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}")
 
     def _publish_truth_set(self, again: bool = False) -> None:
-        """Simulation: once every robot's truth of the current step is in, send them to the agents as one
-        ``TruthSetMessage`` (n messages per step instead of n^2); ``again`` re-sends it (a resend round)."""
+        """Simulation: once every present robot's truth of the current step is in, send them to the agents as
+        one ``TruthSetMessage`` (n messages per step instead of n^2); ``again`` re-sends it (a resend round)."""
         s = self.step
         if not self.simulated or s == 0 or (s <= self._truths_sent and not again):
             return
-        if not self.known <= self._truth.keys() or any(self._truth[r][0] < s for r in self._id_list):
+        present = self._present()
+        if not present or any(r not in self._truth or self._truth[r][0] < s for r in present):
             return
-        msg = TruthSetMessage(run=self.run, step=s, ids=self._id_list, poses=[self._truth[r][1] for r in self._id_list])
+        msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present])
         publish(self.session, message_key(msg), encode(msg))
         self._truths_sent = s
 
     def _wait(self, what: str, missing, resend) -> None:
-        """Pump until ``missing()`` is empty; re-send once at half the timeout; raise on loss or timeout."""
+        """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
+        the timeout; at the timeout the robots still missing are lost."""
         start = time.monotonic()
         resent = False
         while True:
-            self._check_lost()
+            self._publish_truth_set()  # a robot lost meanwhile may complete the set
             left = missing()
             if not left:
                 return
             elapsed = time.monotonic() - start
             if elapsed > self.timeouts.step_s:
-                raise AgentLost(f"{_robots(left)} did not answer {what} within {self.timeouts.step_s:.1f} s", left)
+                for robot in left:
+                    self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
+                return
             if not resent and elapsed > self.timeouts.step_s / 2:
                 resend(left)
                 resent = True
@@ -217,9 +284,13 @@ class ZenohSwarmBackend:
         while True:
             with self._lock:
                 missing = sorted(self.known - self._alive)
-                self._gone.clear()  # an agent restarting before the run starts is fine
             no_truth = sorted(self.known - self._truth.keys()) if self.simulated else []
             if not missing and not no_truth:
+                with self._lock:
+                    self._started = True
+                    gone = sorted(self.known - self._alive)  # a token withdrawn since the check above
+                for robot in gone:
+                    self._declare_lost(robot, "liveliness token gone")
                 return
             if time.monotonic() > deadline:
                 if missing:
@@ -235,24 +306,25 @@ class ZenohSwarmBackend:
         self.step += 1
         s = self.step
         self._status = {}
-        cmds = {}
+        present = set(self._present())
+        self._cmds = {}
         for k in np.flatnonzero(step.moving):
             robot = self._id_list[k]
+            if robot not in present:
+                continue  # lost meanwhile: never command it again
             turn, drive = step.commands[k]
             start = () if self._estimate is None else self._estimate.get(robot, ())
-            cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
-                                        drive_m=float(drive), start_pose=start)
+            self._cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
+                                              drive_m=float(drive), start_pose=start, cmd_id=secrets.randbits(63) or 1)
+        cmds = self._cmds
 
         def send(robots) -> None:
             for robot in robots:
                 publish(self.session, message_key(cmds[robot]), encode(cmds[robot]))
 
         def missing() -> list[int]:
-            refused = sorted(r for r, st in self._status.items() if st.state == "refused")
-            if refused:
-                reasons = "; ".join(f"robot {r}: {self._status[r].reason}" for r in refused)
-                raise AgentRefused(f"{_robots(refused)} refused the command of step {s} ({reasons})", refused)
-            return sorted(r for r in cmds if r not in self._status or self._status[r].state != "done")
+            with self._lock:
+                return sorted(r for r in cmds if r not in self._lost and (r not in self._status or self._status[r].state != "done"))
 
         send(cmds)
         self._wait(f"the command of step {s}", missing, send)
@@ -260,7 +332,7 @@ class ZenohSwarmBackend:
     def observe(self) -> Observations:
         s = self.step
         self._reports = {}
-        requests = {r: ObserveRequest(run=self.run, step=s, robot=r) for r in self._id_list}
+        requests = {r: ObserveRequest(run=self.run, step=s, robot=r) for r in self._present()}
 
         def send(robots) -> None:
             for robot in robots:
@@ -268,14 +340,15 @@ class ZenohSwarmBackend:
             self._publish_truth_set(again=True)  # a resend round: agents may have missed it
 
         def missing() -> list[int]:
-            left = [r for r in self._id_list if r not in self._reports]
+            present = self._present()
+            left = [r for r in present if r not in self._reports]
             if self.simulated:
-                left += [r for r in self._id_list if r not in left and (r not in self._truth or self._truth[r][0] < s)]
+                left += [r for r in present if r not in left and (r not in self._truth or self._truth[r][0] < s)]
             return sorted(left)
 
-        send(self._id_list)
+        send(list(requests))
         self._wait(f"the observation request of step {s}", missing, send)
-        return observations_from_reports(self._reports[r] for r in self._id_list)
+        return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)
 
     # -- ExecutorListener ---------------------------------------------------------------
 
@@ -293,11 +366,14 @@ class ZenohSwarmBackend:
         self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
 
     def true_poses(self) -> np.ndarray | None:
-        if not self.simulated or not self.known <= self._truth.keys():
+        if not self.simulated or not set(self._id_list) <= self._truth.keys():
             return None
         return np.array([self._truth[r][1] for r in self._id_list])
 
     def close(self) -> None:
+        """Stop serving: the stopper thread finishes the stops it holds, then tokens and subscribers go."""
+        self._stops.put(None)
+        self._stopper.join(timeout=5.0)
         self._token.undeclare()
         for sub in self._subs:
             sub.undeclare()

@@ -67,6 +67,7 @@ REASONS = (
     "invalid",
     "unknown-id",
     "wrong-key",
+    "foreign",
 )
 
 _log = logging.getLogger(__name__)

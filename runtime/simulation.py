@@ -41,3 +41,7 @@ class SimulatedSwarm:
     def true_poses(self) -> np.ndarray:
         """Ground truth (n, 3), for evaluation only."""
         return self._poses.copy()
+
+    def take_lost(self) -> dict[int, str]:
+        """The in-process swarm never loses a robot."""
+        return {}

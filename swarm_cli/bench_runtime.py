@@ -113,6 +113,11 @@ class TimedBackend:
     def true_poses(self):
         return self.inner.true_poses()
 
+    def take_lost(self) -> dict[int, str]:
+        lost = self.inner.take_lost()
+        self.ids = self.inner.ids
+        return lost
+
 
 def rss_mb(pid: int) -> float | None:
     """Resident set size of process ``pid`` in MB (VmRSS), or None if it is gone."""

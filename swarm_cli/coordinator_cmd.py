@@ -6,8 +6,16 @@ Connects as a Zenoh client to the hub, waits for every robot's agent, then runs 
 same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` (which also
 publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
 per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
-13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there, as ``swarm sim`` does. Exit status: 0 done, 3 an agent was lost, refused or
-did not answer (the message names the robots), 2 bad input.
+13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there, as ``swarm sim`` does.
+
+Lost robots (docs/failure-model.md): with ``--on-lost continue`` (the default) a robot
+that is lost (liveliness token gone, silent through a step, or refusing its command) is
+stopped and the run goes on without it; the summary names it and P_f is over the robots
+that finished. ``--on-lost abort``, or fewer than ``--min-robots`` robots left, ends the
+run. Every abnormal end (an abort, an error, SIGTERM or Ctrl-C) first publishes a
+run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (also with
+lost robots), 3 the run was aborted or the agents did not come up (the message names the
+robots), 2 bad input.
 
 Recording is on by default: before the run starts, a recorder (``runtime.recording.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
@@ -27,6 +35,7 @@ import dataclasses
 import json
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -35,17 +44,19 @@ import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
-from coordinator.executor import InchwormExecutor, RunResult
+from coordinator.executor import InchwormExecutor, RunAborted, RunResult
 from coordinator.localization import make_localizer
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import METHODS, make_strategy
 from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
+from runtime.errors import SwarmInputError
 from runtime.foxglove_live import LiveView
 from runtime.keys import run_wildcard, validate_run
 from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
 from swarm_cli.entry import run_standalone
+from swarm_cli.estop import send_estop
 from swarm_cli.summary import print_config_table, write_plots
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
@@ -68,6 +79,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the run: initial estimate and search (default 0)")
     p.add_argument("--start-timeout", type=float, default=30.0, help="seconds to wait for all agents (default 30)")
     p.add_argument("--step-timeout", type=float, default=5.0, help="seconds to wait for the answers of a step (default 5)")
+    p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
+                   help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
+    p.add_argument("--min-robots", type=int, default=2,
+                   help="end the run when fewer robots than this are left (default 2, the least localization needs)")
     p.add_argument("--no-truth", action="store_true",
                    help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
@@ -99,8 +114,9 @@ def result_json(result: RunResult) -> dict:
         "ids": result.initial_estimate.ids.tolist(),
         "initial_estimate": result.initial_estimate.poses.tolist(),
         "initial_truth": truth(result.initial_truth),
+        "lost": [{"robot": r.robot, "step": r.step, "config": r.config + 1, "reason": r.reason} for r in result.lost],
         "steps": [
-            {"config": s.config, "step": s.step, "moving": s.moving.tolist(), "commands": s.commands.tolist(),
+            {"config": s.config, "step": s.step, "ids": s.estimate.ids.tolist(), "moving": s.moving.tolist(), "commands": s.commands.tolist(),
              "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
             for s in result.steps
         ],
@@ -196,14 +212,19 @@ def recording_line(rec: dict) -> str:
 def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
     """The per-configuration table of ``swarm sim``, then the run's outcome."""
     rows, fallbacks = print_config_table(result)
+    for lost in result.lost:
+        print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
     pf = result.pf() if result.has_truth else None
-    print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
+    over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
+    print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
     if plots:
         print(f"wrote {', '.join(plots)}")
     if recording:
         print(recording_line(recording))
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
+                    "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
+                    "finished_robots": len(result.finished_ids),
                     "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
 
 
@@ -233,6 +254,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     traj = Trajectory.load(args.trajectory)
     validate_connected(traj, cfg.sensing_range_m)
+    if not 2 <= args.min_robots <= traj.n:
+        raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     selection = selection_config(args)
     strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
     settings = connection_settings(args)
@@ -249,17 +272,26 @@ def run(args: argparse.Namespace) -> int:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
                                         simulated=not args.no_truth)
+            ended: BaseException | None = None
             try:
                 backend.wait_for_agents()
                 print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend)
+                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
+                                            on_lost=args.on_lost, min_robots=args.min_robots)
                 result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
                 completed = True
-            except AgentError as exc:
+            except (AgentError, RunAborted) as exc:
+                ended = exc
                 print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
                 return EXIT_AGENT
+            except BaseException as exc:
+                ended = exc
+                raise
             finally:
+                if not completed:  # whatever ended the run early: no robot may be left moving
+                    send_estop(session, args.run_id, f"swarm coordinator (pid {os.getpid()})",
+                               f"the run ended early ({type(ended).__name__}: {ended})"[:2000])
                 backend.close()
     finally:
         if recording is not None:

@@ -46,7 +46,8 @@ ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 class Run:
     """A hub (this process), one agent process per robot and the coordinator process."""
 
-    def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0, out: Path | None = None) -> None:
+    def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0, out: Path | None = None,
+                 extra: tuple[str, ...] = ()) -> None:
         self.traj, self.method, self.seed = traj, method, seed
         self.run_id = f"t{uuid.uuid4().hex[:10]}"
         port = free_tcp_port()
@@ -65,6 +66,7 @@ class Run:
         self.out = out
         self.heard: list[tuple[str, bytes]] = []  # what the coordinator published on coord/* and robot/*/cmd
         self.recording = tmp / "run.mcap"  # never the repository's recordings/
+        self.extra = list(extra)  # more coordinator options
 
     def start(self) -> None:
         self.session = open_session(self.hub_settings)
@@ -82,7 +84,7 @@ class Run:
         self.coordinator = subprocess.Popen(
             [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={self.traj_file}", f"--method={self.method}",
              f"--result={self.result_file}", "--step-timeout=5", "--start-timeout=30", f"--record={self.recording}", *common,
-             *([f"--out={self.out}"] if self.out else [])],
+             *([f"--out={self.out}"] if self.out else []), *self.extra],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
         )
         for stream, lines in ((self.coordinator.stdout, self.stdout), (self.coordinator.stderr, self.stderr)):
@@ -238,30 +240,64 @@ def test_coordinator_records_the_run(completed):
         assert [p for k, p in recorded if k == key] == [p for k, p in heard if k == key], key
 
 
-def test_killed_agent_is_reported_lost(tmp_path):
+def _wait_for_command(run: Run, timeout_s: float = 30.0) -> None:
+    """Until our subscriber heard the coordinator's first MotionCommand (the run is moving)."""
+    deadline = time.monotonic() + timeout_s
+    while not any(key.endswith("/cmd") for key, _ in list(run.heard)):
+        assert run.coordinator.poll() is None, "".join(run.stderr)
+        assert time.monotonic() < deadline, "no command heard"
+        time.sleep(0.01)
+
+
+def _recorded(run: Run) -> list:
+    return [decode(p) for _k, p, _t, _pub in read_messages(run.recording) if _k.startswith("swarm/")]
+
+
+def test_killed_agent_is_stopped_dropped_and_the_run_goes_on(tmp_path):
     traj = random_trajectory(4, 4, np.random.default_rng(1))
     run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3)
     try:
         run.start()
-        run.wait_stderr("agents alive", 30)
-        time.sleep(0.5)
-        victim = run.agents[1]
-        victim.send_signal(signal.SIGKILL)
-        killed = time.monotonic()
-        run.coordinator.wait(timeout=10)
-        elapsed = time.monotonic() - killed
-        run.finish(5)
+        _wait_for_command(run)
+        run.agents[1].send_signal(signal.SIGKILL)
+        out = run.finish(90)
         err = "".join(run.stderr)
-        assert run.coordinator.returncode == 3, err
-        assert "robot 1 lost (liveliness token gone)" in err
-        assert elapsed < 2.0, f"lost after {elapsed:.2f} s"
-        # the failed run's recording is finished and names its path
-        assert f"recorded {run.recording}: " in "".join(run.stdout)
+        assert run.coordinator.returncode == 0, err
+        assert "robot 1 lost (liveliness token gone): emergency stop sent" in err
+        assert "lost robot 1 after step" in out and "over the 3 robots that finished" in out
+        result = json.loads(run.result_file.read_text())
+        assert [r["robot"] for r in result["lost"]] == [1]
+        assert result["steps"][-1]["ids"] == [0, 2, 3]
+        msgs = _recorded(run)
+        event = next(i for i, m in enumerate(msgs) if type(m).__name__ == "RobotEvent")
+        assert (msgs[event].robot, msgs[event].kind) == (1, "lost")
+        stops = [m for m in msgs if type(m).__name__ == "EmergencyStop"]
+        assert [list(m.robots) for m in stops] == [[1]]  # only the lost robot was stopped; the run ended normally
+        assert not any(isinstance(m, MotionCommand) and m.robot == 1 for m in msgs[event:])  # never commanded again
         info = recording_info(run.recording)
-        assert info["complete"] and info["metadata"]["recorder"]["clean_stop"] and info["messages"] > 0
+        assert info["complete"] and info["metadata"]["recorder"]["clean_stop"]
     finally:
         run.stop()
     assert all(p.returncode is not None for p in run.children())
+    assert _alive_with(run.run_id) == []
+
+
+def test_on_lost_abort_ends_the_run_and_stops_every_robot(tmp_path):
+    traj = random_trajectory(4, 4, np.random.default_rng(1))
+    run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3, extra=("--on-lost=abort",))
+    try:
+        run.start()
+        _wait_for_command(run)
+        run.agents[2].send_signal(signal.SIGKILL)
+        run.finish(60)
+        err = "".join(run.stderr)
+        assert run.coordinator.returncode == 3, err
+        assert "lost robot 2 (liveliness token gone); --on-lost abort ends the run" in err
+        stops = [m for m in _recorded(run) if type(m).__name__ == "EmergencyStop"]
+        assert sorted(list(m.robots) for m in stops) == [[], [2]]  # the lost robot at once, and the whole run at the abort
+        assert f"recorded {run.recording}: " in "".join(run.stdout)
+    finally:
+        run.stop()
     assert _alive_with(run.run_id) == []
 
 
