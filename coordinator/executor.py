@@ -65,7 +65,7 @@ class StepRecord:
 
 @dataclass(frozen=True)
 class LostRobot:
-    """A robot dropped from the run: after global step ``step`` (0 = before any), during configuration ``config`` (0-based)."""
+    """A robot dropped from the run during or after global step ``step`` (0 = before any motion), in configuration ``config`` (0-based)."""
 
     robot: int
     step: int
@@ -194,6 +194,7 @@ class InchwormExecutor:
         self.listener = listener
         self.on_lost = on_lost
         self.min_robots = min_robots
+        self._executed = 0  # command rounds sent in the current run (the global step in progress)
 
     def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunResult:
         if not np.array_equal(trajectory.ids, self.backend.ids) or not np.array_equal(initial_estimate.ids, trajectory.ids):
@@ -202,6 +203,7 @@ class InchwormExecutor:
                 f"and estimate robots {initial_estimate.ids.tolist()} must be the same"
             )
         result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
+        self._executed = 0  # command rounds sent (the global step in progress)
         estimate = initial_estimate
         total = len(trajectory.configurations)
         if self.listener is not None:
@@ -238,7 +240,7 @@ class InchwormExecutor:
         if not lost:
             return estimate, None
         for robot, reason in sorted(lost.items()):
-            result.lost.append(LostRobot(int(robot), len(result.steps), config, reason))
+            result.lost.append(LostRobot(int(robot), self._executed, config, reason))
         keep = ~np.isin(estimate.ids, list(lost))
         names = ", ".join(f"robot {r} ({reason})" for r, reason in sorted(lost.items()))
         if self.on_lost == "abort":
@@ -254,6 +256,7 @@ class InchwormExecutor:
         desired = self._desired(trajectory, config, estimate.ids)
         commands = np.where(moving[:, None], command_towards(estimate.poses, desired), 0.0)
         cmd = StepCommands(estimate.ids, commands, moving)
+        self._executed += 1
         self.backend.execute(cmd)  # (iii)
         estimate, keep = self._drop_lost(result, config, estimate)
         if keep is not None:

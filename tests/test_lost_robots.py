@@ -1,0 +1,118 @@
+"""The executor without a lost robot: in-process, deterministic (the distributed path: tests/test_distributed.py).
+
+``LossySwarm`` is the in-process simulated swarm that loses chosen robots after chosen
+motion steps (or during planning), as the Zenoh backend reports lost agents: through
+``take_lost``, after which the robot is out of ``ids`` and never commanded again.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.executor import InchwormExecutor, RunAborted
+from coordinator.localization import make_localizer
+from coordinator.selection.genetic import GeneticConfig
+from coordinator.selection.selector import SelectionConfig
+from coordinator.simulate import initial_estimate
+from coordinator.strategies import METHODS, anchors_for_half, make_strategy
+from runtime.config import ModelConfig
+from runtime.metrics import trajectory_following_performance
+from runtime.simulation import SimulatedSwarm
+from runtime.state import StepCommands
+from runtime.trajectory import random_trajectory
+
+FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
+CFG = ModelConfig()
+
+
+class LossySwarm(SimulatedSwarm):
+    """Loses robot r after motion step ``lose[r]`` (0: at the first ``take_lost``, i.e. while the first plan is made)."""
+
+    def __init__(self, traj, seed: int, lose: dict[int, int]) -> None:
+        super().__init__(traj.ids, traj.initial_poses, CFG, seed)
+        self.lose, self.steps, self.calls = dict(lose), 0, 0
+        self.commanded: list[tuple[int, list[int]]] = []  # (step, robots moved)
+
+    def execute(self, step: StepCommands) -> None:
+        super().execute(step)
+        self.steps += 1
+        self.commanded.append((self.steps, step.ids[step.moving].tolist()))
+
+    def take_lost(self) -> dict[int, str]:
+        self.calls += 1
+        due = {r: f"lost after step {at}" for r, at in self.lose.items() if at <= self.steps and (at > 0 or self.calls > 1)}
+        for r in due:
+            del self.lose[r]
+        keep = ~np.isin(self.ids, list(due))
+        if due:
+            self.ids, self._poses = self.ids[keep], self._poses[keep]
+            self._motion = [g for g, k in zip(self._motion, keep) if k]
+            self._sensing = [g for g, k in zip(self._sensing, keep) if k]
+        return due
+
+
+def run(traj, method: str, lose: dict[int, int], seed: int = 3, **kw):
+    backend = LossySwarm(traj, seed, lose)
+    strategy = make_strategy(method, traj.n, CFG, "paper", FAST, seed)
+    executor = InchwormExecutor(backend, make_localizer("paper", CFG), strategy, CFG, **kw)
+    return executor.run(traj, initial_estimate(traj, seed, 0.01, 0.03)), backend
+
+
+@pytest.fixture(scope="module")
+def traj():
+    return random_trajectory(6, 3, np.random.default_rng(7))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_finishes_without_a_robot_lost_mid_run(traj, method):
+    result, backend = run(traj, method, {4: 1})
+    assert len(result.configs) == 3
+    assert [(r.robot, r.step) for r in result.lost] == [(4, 1)]
+    assert result.finished_ids.tolist() == [0, 1, 2, 3, 5]
+    assert all(4 not in moved for step, moved in backend.commanded if step > 1)
+    for rec in result.steps:
+        if rec.step > 0 or rec.config > 0:
+            assert 4 not in rec.estimate.ids
+    # P_f (Eq. 24) over the five robots that finished, from the raw records
+    rows = [0, 1, 2, 3, 5]
+    truths = np.stack([traj.initial_poses[rows, :2], *[c.truth[:, :2] for c in result.configs]])
+    expected = trajectory_following_performance(truths[-1], traj.configurations[-1][rows], truths)
+    assert result.pf() == pytest.approx(float(expected), rel=1e-12)
+
+
+def test_a_robot_lost_while_planning_is_planned_without(traj):
+    result, _ = run(traj, "ref57", {2: 0})
+    assert result.lost[0].step == 0 and result.lost[0].robot == 2
+    assert all(c.plan.n_robots == 5 for c in result.configs)
+    assert result.configs[0].plan.sizes in ((3, 2), (2, 3))  # ref57's halves without robot 2
+
+
+def test_remaining_groups_of_the_plan_keep_their_other_robots(traj):
+    """ref57 at n = 6: groups of 3 at steps 1, 2 of each configuration; losing a robot of the second
+    group after step 1 leaves that group with its two other robots, and the anchors never move."""
+    result, backend = run(traj, "ref57", {})
+    second = set(backend.commanded[1][1])
+    victim = min(second)
+    result, backend = run(traj, "ref57", {victim: 1})
+    assert set(backend.commanded[1][1]) == second - {victim}
+    before = None
+    for rec in result.steps:
+        if before is not None and np.array_equal(before[0], rec.estimate.ids):
+            moved = np.any(rec.truth != before[1], axis=1)
+            assert not np.any(moved & ~rec.moving)
+        before = (rec.estimate.ids, rec.truth)
+
+
+def test_abort_policy_and_minimum_robots(traj):
+    with pytest.raises(RunAborted, match=r"lost robot 4 \(lost after step 1\); --on-lost abort ends the run"):
+        run(traj, "no-anchors", {4: 1}, on_lost="abort")
+    with pytest.raises(RunAborted, match="4 robots left, fewer than the minimum 5"):
+        run(traj, "no-anchors", {4: 1, 5: 1}, min_robots=5)
+    result, _ = run(traj, "no-anchors", {4: 1, 5: 2}, min_robots=4)
+    assert result.finished_ids.tolist() == [0, 1, 2, 3]
+
+
+def test_half_anchored_methods_keep_at_least_half_anchored():
+    """n_a for n robots: n / 2 when even; else the smallest feasible count (Eq. 7) above n / 2."""
+    assert [anchors_for_half(n) for n in (2, 3, 5, 6, 7, 9, 10)] == [1, 2, 4, 3, 6, 6, 5]
