@@ -88,6 +88,12 @@ class ConfigRecord:
     selection: Selection | None
     estimate: SwarmEstimate
     truth: np.ndarray | None
+    planned_ids: np.ndarray | None = None  # the robots the plan's indices refer to (None: ``estimate.ids``; differs after a loss)
+
+    def anchor_ids(self, step: int = 0) -> np.ndarray:
+        """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
+        ids = self.estimate.ids if self.planned_ids is None else self.planned_ids
+        return ids[~self.plan.moving(step)]
 
 
 @dataclass
@@ -224,7 +230,7 @@ class InchwormExecutor:
                 moving = np.isin(estimate.ids, planned_ids[group])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
-            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses()))
+            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
             if self.progress:
                 self.progress(c + 1, total)
         return result

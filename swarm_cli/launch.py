@@ -20,7 +20,15 @@ in the emulator, which publishes them like a motion-capture system), one ``swarm
 per port of the gateway config (``--gateway-config``, default: ports of 5 robots each),
 and the agents with the gateway driver; the coordinator and its command line are the
 same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``EmergencyStop``
-to the run, then stops every child.
+to the run, then stops every child; so does a coordinator that ends with an error or is
+killed (any exit status but 0), so no robot is left moving.
+
+``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID as soon as the
+coordinator sends the first command of global step STEP (fault injection for demos,
+tests and ``swarm bench faults``); the launcher then times the coordinator's reaction
+(its targeted ``EmergencyStop``: detection = its stamp, arrival = when the launcher
+heard it) and prints it; with ``--json`` the last line is the coordinator's JSON object
+with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
 ``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
 ``swarm bench runtime``).
@@ -29,11 +37,13 @@ to the run, then stops every child.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -42,16 +52,17 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway_config import GatewayConfig, Limits, Port
-from runtime.messages import CommandLimits
+from runtime.keys import estop_key, robot_wildcard
+from runtime.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
 from runtime.trajectory import Trajectory, random_trajectory
-from runtime.transport import free_tcp_port, loopback_hub, open_session
+from runtime.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.estop import send_estop
-from swarm_cli.options import add_simulation_options, model_config
+from swarm_cli.options import add_simulation_options, model_config, print_json
 
 GRACE_S = 3.0
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -79,8 +90,81 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--gateway-config", type=Path, default=None,
                    help="with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)")
     p.add_argument("--emulator-events", type=Path, default=None, help="with --driver gateway: the emulator's JSON-lines event log")
+    p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
+                   help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
+    p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
+    p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
+                   help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
     add_record_options(p)
     add_simulation_options(p)
+
+
+def _kill_spec(text: str) -> tuple[int, int]:
+    """``ID@STEP`` -> (robot id, step >= 1)."""
+    robot, sep, step = text.partition("@")
+    try:
+        if not sep:
+            raise ValueError
+        robot_id, step_no = int(robot), int(step)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not ID@STEP (e.g. 3@2)") from None
+    if robot_id < 0 or step_no < 1:
+        raise argparse.ArgumentTypeError(f"{text!r}: the robot id must be >= 0 and the step >= 1")
+    return robot_id, step_no
+
+
+class RobotKiller:
+    """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
+    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
+
+    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
+        self.robot, self.step, self.process = robot, step, process
+        self.killed_ns: int | None = None
+        self.stop_stamp_ns: int | None = None
+        self.stop_heard_ns: int | None = None
+        self._subs = [subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command),
+                      subscribe(session, estop_key(run_id), self._on_estop)]
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        if self.killed_ns is not None:
+            return
+        try:
+            cmd = decode(payload, MotionCommand)
+        except MessageError:
+            return
+        if cmd.step >= self.step and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.killed_ns = time.time_ns()
+
+    def _on_estop(self, key: str, payload: bytes) -> None:
+        heard = time.time_ns()
+        try:
+            stop = decode(payload, EmergencyStop)
+        except MessageError:
+            return
+        if self.robot in stop.robots and self.stop_heard_ns is None:
+            self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
+
+    def report(self) -> dict | None:
+        """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
+        for sub in self._subs:
+            sub.undeclare()
+        if self.killed_ns is None:
+            return None
+        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
+        return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
+
+
+def _forward_output(stream, last_json: list[str]) -> None:
+    """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
+    held = None
+    for line in stream:
+        if held is not None:
+            sys.stdout.write(held)
+            sys.stdout.flush()
+        held = line
+    if held is not None:
+        last_json.append(held)
 
 
 def run_demo(args: argparse.Namespace) -> int:
@@ -192,6 +276,8 @@ def run(args: argparse.Namespace) -> int:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
         seed = 0 if args.command == "demo" else args.seed
         traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
+    if not 2 <= args.min_robots <= traj.n:
+        raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the run")
     run_id = args.run_id or f"launch-{os.getpid()}"
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
@@ -214,7 +300,9 @@ def run(args: argparse.Namespace) -> int:
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, args.motion_time, model, procs,
                                      args.emulator_events)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+            first = len(procs)
             start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs)
+            agent_procs = dict(zip((int(i) for i in traj.ids), procs[first:]))
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
                    f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
@@ -228,14 +316,43 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append(f"--foxglove={args.foxglove}")
             what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
             print(f"swarm {args.command}: {traj.n} {what} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
-            coordinator = subprocess.Popen(cmd)
+            killer = None
+            if args.kill_robot is not None:
+                robot, step = args.kill_robot
+                if robot not in [int(i) for i in traj.ids]:
+                    raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+                killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
+            json_hold = args.json and killer is not None
+            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
             procs.append(coordinator)
+            last: list[str] = []
+            forwarder = threading.Thread(target=_forward_output, args=(coordinator.stdout, last), daemon=True) if json_hold else None
+            if forwarder is not None:
+                forwarder.start()
             try:
                 status = coordinator.wait()
             except KeyboardInterrupt:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
                 print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
                 raise
+            if status != 0:  # an abort, an error or a killed coordinator: stop every robot
+                send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
+                print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
+                      file=sys.stderr, flush=True)
+            if forwarder is not None:
+                forwarder.join(timeout=10)
+            if killer is not None:
+                kill = killer.report()
+                if kill is not None:
+                    print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                          f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
+                if json_hold:
+                    try:
+                        summary = json.loads(last[0]) if last else {}
+                    except json.JSONDecodeError:  # the coordinator failed before its JSON line: pass it on as it was
+                        sys.stdout.write(last[0])
+                        summary = {}
+                    print_json({**summary, "kill": kill})
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status

@@ -22,7 +22,7 @@ def plot_trajectory(run: RunResult, path: Path) -> Path:
     each configuration's first step are ringed in black on the estimated positions.
     """
     k = len(run.configs)
-    desired = run.trajectory.configurations[:k]
+    desired = run.desired_configurations()
     estimated = run.estimated_configurations()
     fig, ax = plt.subplots(figsize=(7, 7))
     for label, color, configs in (("desired", DESIRED, desired), ("estimated", ESTIMATED, estimated[1:])):
@@ -35,7 +35,7 @@ def plot_trajectory(run: RunResult, path: Path) -> Path:
         for i in range(truths.shape[1]):
             ax.plot(truths[:, i, 0], truths[:, i, 1], color=TRUE, lw=0.5, alpha=0.4)
     for c in run.configs:
-        anchors = ~c.plan.moving(0)
+        anchors = np.isin(c.estimate.ids, c.anchor_ids(0))
         ax.scatter(*c.estimate.positions[anchors].T, s=90, facecolors="none", edgecolors="black", linewidths=0.6)
     ax.scatter(*run.initial_estimate.positions.T, s=30, marker="x", color="gray", label="start")
     ax.set_aspect("equal")
