@@ -17,9 +17,8 @@ liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
 * ``ObserveRequest`` on ``.../robot/<id>/observe``: answered with an
   ``ObservationReport`` for that step; a duplicate step re-publishes the same report
   (no new sensing, so random streams stay aligned with the in-process simulator). Only
-  the next step is sensed (any step for an agent that has not observed yet, e.g. one
-  rejoining a run); other steps are dropped and counted, so a forged or replayed request
-  never consumes a sensing draw.
+  the next step is sensed (step 1 first); other steps are dropped and counted, so a
+  forged or replayed request never consumes a sensing draw.
 
 Synchronisation of simulated sensing (``driver.simulated``): sensing needs every
 robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
@@ -269,11 +268,8 @@ class Agent:
                 self._send(self._last_truth)
             self._send(self._last_report)
             return
-        if self._pending is not None:
-            expected: int | None = self._pending
-        else:  # the step after the last observed one; any step for the first observation (start, rejoining a run)
-            expected = self._last_obs_step + 1 if self._last_obs_step >= 0 else None
-        if expected is not None and req.step != expected:
+        expected = self._pending if self._pending is not None else max(self._last_obs_step, 0) + 1
+        if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))
             return

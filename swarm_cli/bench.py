@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 
-from swarm_cli import bench_gateway, bench_localize, bench_record, bench_runtime, bench_select
+from swarm_cli import bench_faults, bench_gateway, bench_localize, bench_record, bench_runtime, bench_select
 
-BENCHMARKS = (bench_localize, bench_select, bench_runtime, bench_record, bench_gateway)
+BENCHMARKS = (bench_localize, bench_select, bench_runtime, bench_record, bench_gateway, bench_faults)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

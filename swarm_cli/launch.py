@@ -355,7 +355,7 @@ def run(args: argparse.Namespace) -> int:
                     print_json({**summary, "kill": kill})
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
-            return status
+            return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
         stop_all(procs[emulators:])

@@ -1,0 +1,126 @@
+"""Faults through the front door (docs/failure-model.md): ``swarm launch --kill-robot``, a coordinator that
+dies or is stopped, hostile messages on every key. Real processes on loopback, each stopped by its pid."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from runtime.messages import EmergencyStop, decode
+from runtime.recording import read_messages
+from swarm_cli.bench_faults import fuzz, lost_robot
+from swarm_cli.launch import stop_all
+
+REPO = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def _children_of(pid: int) -> list[int]:
+    """Pids of the live processes whose parent is ``pid``."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            fields = stat[stat.rindex(")") + 2:].split()
+            if int(fields[1]) == pid and fields[0] != "Z":
+                out.append(int(entry.name))
+    return out
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return (Path("/proc") / str(pid) / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+def launch(tmp: Path, *options: str, stderr=subprocess.PIPE) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "launch", "--no-record", f"--out={tmp}", *options],
+                            stdout=subprocess.PIPE, stderr=stderr, text=True, cwd=tmp, env=ENV)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_kill_robot_through_launch_completes_with_the_others(tmp_path, seed):
+    proc = launch(tmp_path, "-n=4", "--configs=2", f"--seed={seed}", "--kill-robot=2@2", "--motion-time=0.1", "--json")
+    try:
+        out, err = proc.communicate(timeout=180)
+    finally:
+        stop_all([proc])
+    assert proc.returncode == 0, err
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["finished_robots"] == 3 and len(summary["configs"]) == 2
+    assert [lost["robot"] for lost in summary["lost"]] == [2]
+    kill = summary["kill"]
+    assert (kill["robot"], kill["step"]) == (2, 2)
+    assert 0 < kill["detect_ms"] <= kill["estop_ms"]  # the stop is stamped before it is heard
+    assert "robot 2 lost (liveliness token gone): emergency stop sent" in err
+
+
+def test_a_coordinator_killed_under_launch_gets_every_robot_stopped(tmp_path):
+    log = tmp_path / "launch.log"
+    with open(log, "w") as stderr:
+        proc = launch(tmp_path, "-n=4", "--configs=6", "--motion-time=0.3", stderr=stderr)
+    try:
+        deadline = time.monotonic() + 60
+        coordinator = None
+        while coordinator is None:
+            assert time.monotonic() < deadline and proc.poll() is None, "no coordinator process"
+            coordinator = next((p for p in _children_of(proc.pid) if "coordinator_cmd" in _cmdline(p)), None)
+            time.sleep(0.05)
+        agents = [p for p in _children_of(proc.pid) if "swarm_cli.agent" in _cmdline(p)]
+        assert len(agents) == 4
+        while "config 1/6 done" not in log.read_text():  # the run is moving
+            assert time.monotonic() < deadline and proc.poll() is None, log.read_text()
+            time.sleep(0.05)
+        os.kill(coordinator, signal.SIGKILL)
+        proc.communicate(timeout=60)
+    finally:
+        stop_all([proc])
+    err = log.read_text()
+    assert proc.returncode == 128 + signal.SIGKILL
+    assert "the coordinator exited with status -9: emergency stop sent" in err
+    for robot in range(4):
+        assert f"robot {robot}: emergency stop" in err
+    assert all(_cmdline(p) == "" for p in agents)  # no process left behind
+
+
+def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
+    from test_distributed import Run, _wait_for_command
+
+    from runtime.trajectory import random_trajectory
+    import numpy as np
+
+    run = Run(tmp_path, random_trajectory(4, 6, np.random.default_rng(2)), "ref57", 2, motion_time=0.3)
+    try:
+        run.start()
+        _wait_for_command(run)
+        run.coordinator.send_signal(signal.SIGTERM)
+        run.finish(60)
+        stops = [decode(p) for k, p, _t, _pub in read_messages(run.recording) if k.endswith("/estop")]
+        assert [list(s.robots) for s in stops] == [[]] and all(isinstance(s, EmergencyStop) for s in stops)
+        assert "the run ended early (KeyboardInterrupt" in stops[0].reason
+    finally:
+        run.stop()
+
+
+def test_hostile_messages_on_every_key_change_nothing():
+    """2000 hostile messages (random bytes, wrong types, NaN/inf/huge values, future steps, unknown ids,
+    replays) during a run: no process dies and the table and P_f equal the in-process run's."""
+    result = fuzz(2000, seed=11)
+    assert result == {"sent": 2000, "process_deaths": 0, "completed": True, "identical": True}
+
+
+def test_bench_lost_robot_part():
+    result = lost_robot(1, robots=6, configs=2)
+    assert result["completed"] and result["runs_completed"] == 1
+    assert 0 < result["detect_ms_median"] <= result["estop_ms_max"]
