@@ -65,8 +65,9 @@ def _say(text: str) -> None:
 
 
 def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, step: int = 2) -> dict:
-    """``swarm launch --kill-robot victim@step`` for seeds 0..seeds-1: detection and stop times, completion."""
-    detect, estop, completed = [], [], 0
+    """``swarm launch --kill-robot victim@step`` for seeds 0..seeds-1: detection and stop times, completion;
+    ``summaries`` holds each run's JSON (the coordinator's, with the launcher's ``"kill"``) and ``"returncode"``."""
+    summaries = []
     progress = Progress(seeds, "lost robot")
     for seed in range(seeds):
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
@@ -74,16 +75,14 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
                 [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
                  f"--kill-robot={victim}@{step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
                 capture_output=True, text=True, cwd=tmp, timeout=600)
-        summary = _last_json(proc.stdout)
-        kill = summary.get("kill") or {}
-        if proc.returncode == 0 and len(summary.get("configs", [])) == configs and summary.get("finished_robots") == robots - 1:
-            completed += 1
-        if kill.get("detect_ms") is not None:
-            detect.append(kill["detect_ms"])
-            estop.append(kill["estop_ms"])
+        summaries.append({**_last_json(proc.stdout), "returncode": proc.returncode})
         progress(seed + 1)
-    return {"detect_ms_median": statistics.median(detect) if detect else None, "completed": completed == seeds,
-            "estop_ms_max": max(estop) if estop else None, "runs": seeds, "runs_completed": completed}
+    done = [s for s in summaries
+            if s["returncode"] == 0 and len(s.get("configs", [])) == configs and s.get("finished_robots") == robots - 1]
+    kills = [s["kill"] for s in summaries if s.get("kill") and s["kill"].get("detect_ms") is not None]
+    return {"detect_ms_median": statistics.median(k["detect_ms"] for k in kills) if kills else None,
+            "completed": len(done) == seeds, "estop_ms_max": max(k["estop_ms"] for k in kills) if kills else None,
+            "runs": seeds, "runs_completed": len(done), "summaries": summaries}
 
 
 def _last_json(stdout: str) -> dict:
