@@ -234,12 +234,15 @@ class Agent:
         if cmd.step == self._last_cmd_step and self._last_status is not None:
             self._send(self._last_status)  # duplicate: never execute twice
             return
+        if self.estopped:
+            self._status(cmd, "refused", "emergency stop", remember=False)
+            return
         expected = max(self._last_obs_step, 0) + 1
         if cmd.step != expected:
             self._status(cmd, "refused", f"out of sequence: step {cmd.step}, the next step of this robot is {expected}", remember=False)
             return
         self._last_cmd_step = cmd.step
-        reason = "emergency stop" if self.estopped else self.limits.refusal(cmd)
+        reason = self.limits.refusal(cmd)
         if reason is not None:
             self._status(cmd, "refused", reason)
             return
