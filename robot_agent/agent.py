@@ -43,6 +43,9 @@ driver: its link process is up), so "agent alive" means "robot reachable".
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
+``run(session)`` serves on a session its host opened instead (``robot_agent.host``: many
+agents in one process, one session); on the wire the agent is the same (its own keys,
+token, driver and random streams), and the host closes the session.
 """
 
 from __future__ import annotations
@@ -78,6 +81,7 @@ from runtime.transport import ZenohSettings, declare_token, open_session, publis
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
+_STOP = "__stop__"  # wakes the loop so it sees stop()
 MAX_PENDING_TRUTH_STEPS = 64  # early truths kept for at most this many future steps
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
@@ -106,7 +110,7 @@ class Agent:
         self.drops = DropCounter(_log)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
-        self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
         self._last_cmd_step = -1
         self._last_status: Status | None = None
         self._last_obs_step = -1
@@ -125,46 +129,56 @@ class Agent:
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
         self._stop.set()
+        self._inbox.put((_STOP, b""))
 
-    def run(self) -> int:
-        """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3). The session is closed on return."""
-        with open_session(self.settings) as session:
-            self._session = session
-            self.driver.attach(session)
-            self._wait_for_driver()
-            enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
-            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
-                    subscribe(session, self._estop_key, self._on_estop)]
-            forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
-            forwarder.start()
-            if self.driver.simulated:
-                subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-                subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
-            token = declare_token(session, alive_key(self.run_id, self.robot))
-            if self.driver.simulated:
-                self._publish_truth(0)
-            _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
-            while not self._stop.is_set():
-                try:
-                    key, payload = self._inbox.get(timeout=0.1)
-                except queue.Empty:
-                    continue
-                try:
-                    self._handle(key, payload)
-                except RobotLost as e:
-                    self.lost_reason = str(e)
-                    _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
-                    break
-                except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
-                    _log.exception("robot %d: error handling a message on %s", self.robot, key)
-            token.undeclare()
-            for sub in subs:
-                sub.undeclare()
-            self.driver.detach()
-            self._stop.set()
-            self._estop.set()  # wakes the forwarder, which sees _stop
-            forwarder.join(timeout=1.0)
-            self._session = None
+    def run(self, session=None) -> int:
+        """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
+
+        Without ``session`` the agent opens its own from ``settings`` and closes it on
+        return; with one (its host's, shared with other agents) it leaves it open.
+        """
+        if session is not None:
+            return self._serve(session)
+        with open_session(self.settings) as own:
+            return self._serve(own)
+
+    def _serve(self, session) -> int:
+        """Declare this robot on ``session``, serve its messages, undeclare everything on return."""
+        self._session = session
+        self.driver.attach(session)
+        self._wait_for_driver()
+        enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
+        subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
+                subscribe(session, self._estop_key, self._on_estop)]
+        forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
+        forwarder.start()
+        if self.driver.simulated:
+            subs.append(subscribe(session, truths_key(self.run_id), enqueue))
+            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+        token = declare_token(session, alive_key(self.run_id, self.robot))
+        if self.driver.simulated:
+            self._publish_truth(0)
+        _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
+        while not self._stop.is_set():
+            key, payload = self._inbox.get()
+            if key == _STOP:
+                continue
+            try:
+                self._handle(key, payload)
+            except RobotLost as e:
+                self.lost_reason = str(e)
+                _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
+                break
+            except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
+                _log.exception("robot %d: error handling a message on %s", self.robot, key)
+        token.undeclare()
+        for sub in subs:
+            sub.undeclare()
+        self.driver.detach()
+        self._stop.set()
+        self._estop.set()  # wakes the forwarder, which sees _stop
+        forwarder.join(timeout=1.0)
+        self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
         return 3 if self.lost_reason is not None else 0
