@@ -213,7 +213,9 @@ def random_trajectory(
     The swarm starts at a random configuration (``random_configuration``) connected within
     ``margin`` x ``sensing_range`` (so that motion errors rarely break the sensing graph).
     Each desired configuration is the previous one moved rigidly (translation ``step`` m
-    in a random direction, rotation up to ``turn`` rad about its centroid) and reshaped
+    in a random direction, rotation up to ``turn`` rad about its centroid, and at most
+    the angle that moves the farthest robot by ``step`` m, so that a large swarm's edge
+    does not swing by metres, beyond what one robot drives in a step) and reshaped
     (each robot displaced by N(0, ``reshape``) m); a robot whose displacement would cut the
     graph within ``margin`` x ``sensing_range`` or bring it closer than a quarter of
     ``spacing`` to another has its displacement halved until none does (no redrawing, so
@@ -231,8 +233,9 @@ def random_trajectory(
     prev = start
     for _ in range(n_configs):
         ang = rng.uniform(-math.pi, math.pi)
-        rot = rng.uniform(-turn, turn)
         c = prev.mean(axis=0)
+        swing = min(turn, step / max(float(np.max(np.linalg.norm(prev - c, axis=1))), 1e-9))
+        rot = rng.uniform(-swing, swing)
         r = np.array([[math.cos(rot), -math.sin(rot)], [math.sin(rot), math.cos(rot)]])
         rigid = (prev - c) @ r.T + c + step * np.array([math.cos(ang), math.sin(ang)])
         nxt = _reshape(rigid, rng.normal(0, reshape, (n, 2)), _spanning_edges(rigid, reach), reach, sep)

@@ -37,6 +37,8 @@ def test_random_trajectories_of_any_size_are_connected_and_kept_apart(n):
     assert np.all(np.abs(start) <= np.sqrt(n) * 0.2 / 2 + 1e-12)  # the start fills its square
     moved = np.linalg.norm(traj.configurations[0].mean(axis=0) - start.mean(axis=0))
     assert moved == pytest.approx(0.3, abs=0.06)  # the rigid step of 0.3 m (plus the mean of the reshaping)
+    travel = np.linalg.norm(np.diff(np.concatenate([start[None], traj.configurations]), axis=0), axis=2)
+    assert travel.max() < 0.3 + 0.3 + 5 * 0.06 * np.sqrt(2)  # step + rotation at the edge + reshaping: under 1 m, the agents' limit
     again = random_trajectory(n, 3, np.random.default_rng(n), sensing_range=0.5)
     np.testing.assert_array_equal(again.configurations, traj.configurations)
     np.testing.assert_array_equal(again.initial_poses, traj.initial_poses)
