@@ -50,6 +50,7 @@ token, driver and random streams), and the host closes the session.
 
 from __future__ import annotations
 
+import functools
 import logging
 import queue
 import threading
@@ -223,8 +224,10 @@ class Agent:
             if msg is not None:
                 self._on_observe(msg)
         else:
-            msg = decode_or_drop(payload, self.drops, key, TruthSetMessage, self.known)
-            if msg is not None:
+            msg = _decode_truths(payload, self.known, key)
+            if isinstance(msg, MessageError):
+                self.drops.drop(key, msg)
+            else:
                 self._on_truths(msg)
 
     def _on_command(self, key: str, payload: bytes) -> None:
@@ -313,3 +316,13 @@ class Agent:
         for old in [s for s in self._truths if s < step]:
             del self._truths[old]
         self._send(report)
+
+
+@functools.lru_cache(maxsize=4)
+def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> TruthSetMessage | MessageError:
+    """A ``TruthSetMessage`` (or why it is bad), decoded once per process: the agents a host runs
+    (``robot_agent.host``) all receive the same set of every robot's pose each step."""
+    try:
+        return decode(payload, TruthSetMessage, known, key=key)
+    except MessageError as e:
+        return e
