@@ -224,11 +224,11 @@ class Agent:
             if msg is not None:
                 self._on_observe(msg)
         else:
-            msg = _decode_truths(payload, self.known, key)
-            if isinstance(msg, MessageError):
-                self.drops.drop(key, msg)
+            decoded = _decode_truths(payload, self.known, key)
+            if isinstance(decoded, MessageError):
+                self.drops.drop(key, decoded)
             else:
-                self._on_truths(msg)
+                self._on_truths(*decoded)
 
     def _on_command(self, key: str, payload: bytes) -> None:
         try:
@@ -283,10 +283,11 @@ class Agent:
             self._publish_truth(req.step)
         self._try_report()
 
-    def _on_truths(self, msg: TruthSetMessage) -> None:
+    def _on_truths(self, msg: TruthSetMessage, poses: dict[int, np.ndarray]) -> None:
+        """The truth set ``msg`` with its ``poses`` by robot (shared read-only by the agents of a process)."""
         if msg.step < max(self._last_obs_step, 0):
             return
-        self._truths.setdefault(msg.step, {}).update((r, np.array(p, dtype=float)) for r, p in zip(msg.ids, msg.poses))
+        self._truths.setdefault(msg.step, {}).update(poses)
         while len(self._truths) > MAX_PENDING_TRUTH_STEPS:  # bounded, whatever arrives
             del self._truths[max(self._truths)]
         self._try_report()
@@ -319,10 +320,11 @@ class Agent:
 
 
 @functools.lru_cache(maxsize=4)
-def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> TruthSetMessage | MessageError:
-    """A ``TruthSetMessage`` (or why it is bad), decoded once per process: the agents a host runs
-    (``robot_agent.host``) all receive the same set of every robot's pose each step."""
+def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> tuple[TruthSetMessage, dict[int, np.ndarray]] | MessageError:
+    """A ``TruthSetMessage`` and its poses by robot (or why it is bad), decoded once per process: the agents a
+    host runs (``robot_agent.host``) all receive the same set of every robot's pose each step."""
     try:
-        return decode(payload, TruthSetMessage, known, key=key)
+        msg = decode(payload, TruthSetMessage, known, key=key)
     except MessageError as e:
         return e
+    return msg, {r: np.array(p, dtype=float) for r, p in zip(msg.ids, msg.poses)}
