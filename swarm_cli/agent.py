@@ -44,7 +44,7 @@ from swarm_cli.options import add_connection_options, add_model_options, connect
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("agent", help="run one robot's agent process (simulated driver) of a distributed run")
+    p = sub.add_parser("agent", help="run the agent process of one robot, or of many (--id 0-49), in a distributed run")
     add_arguments(p)
     p.set_defaults(run=run)
 
