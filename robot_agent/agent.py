@@ -50,6 +50,7 @@ token, driver and random streams), and the host closes the session.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import queue
@@ -138,48 +139,42 @@ class Agent:
         Without ``session`` the agent opens its own from ``settings`` and closes it on
         return; with one (its host's, shared with other agents) it leaves it open.
         """
-        if session is not None:
-            return self._serve(session)
-        with open_session(self.settings) as own:
-            return self._serve(own)
-
-    def _serve(self, session) -> int:
-        """Declare this robot on ``session``, serve its messages, undeclare everything on return."""
-        self._session = session
-        self.driver.attach(session)
-        self._wait_for_driver()
-        enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
-        subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
-                subscribe(session, self._estop_key, self._on_estop)]
-        forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
-        forwarder.start()
-        if self.driver.simulated:
-            subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
-        token = declare_token(session, alive_key(self.run_id, self.robot))
-        if self.driver.simulated:
-            self._publish_truth(0)
-        _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
-        while not self._stop.is_set():
-            key, payload = self._inbox.get()
-            if key == _STOP:
-                continue
-            try:
-                self._handle(key, payload)
-            except RobotLost as e:
-                self.lost_reason = str(e)
-                _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
-                break
-            except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
-                _log.exception("robot %d: error handling a message on %s", self.robot, key)
-        token.undeclare()
-        for sub in subs:
-            sub.undeclare()
-        self.driver.detach()
-        self._stop.set()
-        self._estop.set()  # wakes the forwarder, which sees _stop
-        forwarder.join(timeout=1.0)
-        self._session = None
+        with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
+            self._session = session
+            self.driver.attach(session)
+            self._wait_for_driver()
+            enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
+            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
+                    subscribe(session, self._estop_key, self._on_estop)]
+            forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
+            forwarder.start()
+            if self.driver.simulated:
+                subs.append(subscribe(session, truths_key(self.run_id), enqueue))
+                subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+            token = declare_token(session, alive_key(self.run_id, self.robot))
+            if self.driver.simulated:
+                self._publish_truth(0)
+            _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
+            while not self._stop.is_set():
+                key, payload = self._inbox.get()
+                if key == _STOP:
+                    continue
+                try:
+                    self._handle(key, payload)
+                except RobotLost as e:
+                    self.lost_reason = str(e)
+                    _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
+                    break
+                except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
+                    _log.exception("robot %d: error handling a message on %s", self.robot, key)
+            token.undeclare()
+            for sub in subs:
+                sub.undeclare()
+            self.driver.detach()
+            self._stop.set()
+            self._estop.set()  # wakes the forwarder, which sees _stop
+            forwarder.join(timeout=1.0)
+            self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
         return 3 if self.lost_reason is not None else 0
