@@ -57,6 +57,7 @@ MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_s
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
+START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -247,7 +248,8 @@ def run(args: argparse.Namespace) -> int:
             start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file)
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
-                   f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
+                   f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS),
+                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
             if args.result:
                 cmd.append(f"--result={args.result}")
             recording = None if args.no_record else (args.record or default_recording(run_id))
