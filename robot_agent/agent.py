@@ -50,10 +50,15 @@ driver: its link process is up), so "agent alive" means "robot reachable".
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
+``run(session)`` serves on a session its host opened instead (``robot_agent.host``: many
+agents in one process, one session); on the wire the agent is the same (its own keys,
+token, driver and random streams), and the host closes the session.
 """
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
 import queue
 import threading
@@ -85,6 +90,7 @@ from runtime.transport import ZenohSettings, declare_token, open_session, publis
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
+_STOP = "__stop__"  # wakes the loop so it sees stop()
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
 
@@ -112,7 +118,7 @@ class Agent:
         self.drops = DropCounter(_log)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
-        self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
+        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
         self._last_cmd_step = -1
         self._last_status: Status | None = None
         self._last_obs_step = -1
@@ -131,10 +137,15 @@ class Agent:
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
         self._stop.set()
+        self._inbox.put((_STOP, b""))
 
-    def run(self) -> int:
-        """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3). The session is closed on return."""
-        with open_session(self.settings) as session:
+    def run(self, session=None) -> int:
+        """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
+
+        Without ``session`` the agent opens its own from ``settings`` and closes it on
+        return; with one (its host's, shared with other agents) it leaves it open.
+        """
+        with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
             self._session = session
             self.driver.attach(session)
             self._wait_for_driver()
@@ -151,9 +162,8 @@ class Agent:
                 self._publish_truth(0)
             _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
             while not self._stop.is_set():
-                try:
-                    key, payload = self._inbox.get(timeout=0.1)
-                except queue.Empty:
+                key, payload = self._inbox.get()
+                if key == _STOP:
                     continue
                 try:
                     self._handle(key, payload)
@@ -215,9 +225,11 @@ class Agent:
             if msg is not None:
                 self._on_observe(msg)
         else:
-            msg = decode_or_drop(payload, self.drops, key, TruthSetMessage, self.known)
-            if msg is not None:
-                self._on_truths(msg)
+            decoded = _decode_truths(payload, self.known, key)
+            if isinstance(decoded, MessageError):
+                self.drops.drop(key, decoded)
+            else:
+                self._on_truths(*decoded)
 
     def _on_command(self, key: str, payload: bytes) -> None:
         try:
@@ -281,13 +293,14 @@ class Agent:
             self._publish_truth(req.step)
         self._try_report()
 
-    def _on_truths(self, msg: TruthSetMessage) -> None:
+    def _on_truths(self, msg: TruthSetMessage, poses: dict[int, np.ndarray]) -> None:
+        """The truth set ``msg`` with its ``poses`` by robot (shared read-only by the agents of a process)."""
         if msg.step != self._pending:
             if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
                 self.drops.drop(truths_key(self.run_id), MessageError(
                     "TruthSetMessage.step", f"{msg.step} is not the pending step {self._pending}", "out-of-range"))
             return
-        self._peers = {r: np.array(p, dtype=float) for r, p in zip(msg.ids, msg.poses)}
+        self._peers = poses
         self._try_report()
 
     def _publish_truth(self, step: int) -> None:
@@ -308,3 +321,14 @@ class Agent:
         self._pending, self._peers = None, None
         self._last_obs_step, self._last_report = step, report
         self._send(report)
+
+
+@functools.lru_cache(maxsize=4)
+def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> tuple[TruthSetMessage, dict[int, np.ndarray]] | MessageError:
+    """A ``TruthSetMessage`` and its poses by robot (or why it is bad), decoded once per process: the agents a
+    host runs (``robot_agent.host``) all receive the same set of every robot's pose each step."""
+    try:
+        msg = decode(payload, TruthSetMessage, known, key=key)
+    except MessageError as e:
+        return e
+    return msg, {r: np.array(p, dtype=float) for r, p in zip(msg.ids, msg.poses)}

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
 
 from runtime.errors import SwarmInputError
 from runtime.state import robot_ids
@@ -114,17 +115,85 @@ def validate_connected(traj: Trajectory, sensing_range: float) -> None:
 
 
 def random_configuration(n: int, rng: np.random.Generator, spacing: float, sensing_range: float) -> np.ndarray:
-    """A connected random configuration (n, 2) around the origin with mean spacing ``spacing`` (m)."""
-    side = math.sqrt(n) * spacing
-    while True:
-        xy = rng.uniform(-side / 2, side / 2, (n, 2))
-        if is_connected(xy, sensing_range) and min_separation(xy) >= 0.25 * spacing:
-            return xy
+    """A connected random configuration (n, 2) in a square of side sqrt(n) ``spacing`` (m) about the origin.
+
+    Grown one robot at a time: each new robot is placed at a random distance in
+    [``spacing`` / 4, ``sensing_range``] from a random robot already placed (area-uniform
+    in that annulus) and kept if it lies in the square and no closer than ``spacing`` / 4
+    to every other robot, so the cloud is connected by construction and no draw is
+    rejected as a whole (O(n^2) numpy work, ~10 ms for 1000 robots).
+    """
+    _check_random_options(n, 1, spacing, sensing_range)
+    half, sep = math.sqrt(n) * spacing / 2, MIN_SEPARATION * spacing
+    xy = np.empty((n, 2))
+    xy[0] = rng.uniform(-half, half, 2)
+    placed, tries = 1, 0
+    while placed < n:
+        tries += 1
+        if tries > 1000 * n:  # cannot happen with the checked options (the square holds ~16x more); never loop forever
+            raise SwarmInputError(f"could not place {n} robots {sep} m apart within {sensing_range} m of one another")
+        parent = xy[rng.integers(placed)]
+        r, a = math.sqrt(rng.uniform(sep**2, sensing_range**2)), rng.uniform(-math.pi, math.pi)
+        c = parent + r * np.array([math.cos(a), math.sin(a)])
+        if np.all(np.abs(c) <= half) and np.min(np.sum((xy[:placed] - c) ** 2, axis=1)) >= sep**2:
+            xy[placed] = c
+            placed += 1
+    return xy
+
+
+MIN_SEPARATION = 0.25  # of the spacing: no two robots of a random configuration are closer
 
 
 def min_separation(xy: np.ndarray) -> float:
-    d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
-    return float(np.min(d + np.eye(len(xy)) * 1e9))
+    """The smallest distance between two robots of ``xy`` (n, 2), in m."""
+    d, _ = cKDTree(xy).query(xy, k=2)
+    return float(d[:, 1].min())
+
+
+def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, **moves: float) -> None:
+    """Up front, with the command-line flag each value comes from: sizes, and a range that can connect robots kept apart."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise SwarmInputError(f"a random trajectory needs at least 2 robots (--robots), got {n}")
+    if isinstance(n_configs, bool) or not isinstance(n_configs, (int, np.integer)) or n_configs < 1:
+        raise SwarmInputError(f"a random trajectory needs at least 1 configuration (--configs), got {n_configs}")
+    for name, value in {"spacing": spacing, **moves}.items():
+        if not math.isfinite(value) or value < 0 or (name == "spacing" and value == 0):
+            raise SwarmInputError(f"random trajectory {name} must be a finite number > 0, got {value}")
+    sep = MIN_SEPARATION * spacing
+    if not reach > sep:
+        raise SwarmInputError(f"the sensing range (--sensing-range) is too small for a random trajectory: robots are kept {sep:g} m apart "
+                              f"and each must be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
+
+
+RANGE_MARGIN = 0.9  # random configurations are connected within this fraction of the sensing range
+
+
+def _spanning_edges(xy: np.ndarray, reach: float) -> np.ndarray:
+    """(m, 2) robot pairs of a minimum spanning forest of the graph 'within ``reach``' of ``xy``."""
+    mst = minimum_spanning_tree(cKDTree(xy).sparse_distance_matrix(cKDTree(xy), reach, output_type="coo_matrix").tocsr())
+    return np.column_stack(mst.nonzero())
+
+
+def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: float, sep: float) -> np.ndarray:
+    """``rigid`` + ``noise``, with the noise of robots that would break the configuration halved until none does.
+
+    ``rigid`` is connected along ``edges`` within ``reach`` and keeps robots ``sep`` apart, so
+    halving converges to it in the worst case. A robot breaks the configuration when it is
+    closer than ``sep`` to another, or when it ends a spanning edge of ``rigid`` that now joins
+    two parts of the graph 'within ``reach``' (there is one while the graph is cut).
+    """
+    scale = np.ones(len(rigid))
+    for _ in range(60):
+        xy = rigid + scale[:, None] * noise
+        tree = cKDTree(xy)
+        bad = tree.query_pairs(sep, output_type="ndarray").ravel()
+        if not len(bad):  # the (costlier) connectivity check only once robots are apart
+            parts, label = connected_components(tree.sparse_distance_matrix(tree, reach, output_type="coo_matrix"), directed=False)
+            if parts == 1:
+                return xy
+            bad = edges[label[edges[:, 0]] != label[edges[:, 1]]].ravel()
+        scale[bad] *= 0.5
+    return rigid
 
 
 def random_trajectory(
@@ -137,30 +206,39 @@ def random_trajectory(
     step: float = 0.3,
     turn: float = math.radians(30.0),
     reshape: float = 0.06,
-    margin: float = 0.9,
+    margin: float = RANGE_MARGIN,
 ) -> Trajectory:
     """A random trajectory as in Section 7: pose and topology change at every configuration.
 
-    Each desired configuration is the previous one moved rigidly (translation ``step``
-    m in a random direction, rotation up to ``turn`` rad about its centroid) and
-    reshaped (each robot displaced by N(0, ``reshape``) m); draws are repeated until the
-    configuration is connected within ``margin`` x ``sensing_range`` (so that motion
-    errors rarely break the sensing graph) and no two robots are closer than a quarter
-    of ``spacing``. The swarm starts at a random configuration connected the same way.
+    The swarm starts at a random configuration (``random_configuration``) connected within
+    ``margin`` x ``sensing_range`` (so that motion errors rarely break the sensing graph).
+    Each desired configuration is the previous one moved rigidly (translation ``step`` m
+    in a random direction, rotation up to ``turn`` rad about its centroid, and at most
+    the angle that moves the farthest robot by ``step`` m, so that a large swarm's edge
+    does not swing by metres, beyond what one robot drives in a step) and reshaped
+    (each robot displaced by N(0, ``reshape``) m); a robot whose displacement would cut the
+    graph within ``margin`` x ``sensing_range`` or bring it closer than a quarter of
+    ``spacing`` to another has its displacement halved until none does (no redrawing, so
+    1000 robots take well under a second). Deterministic for a given ``rng`` state.
+    Raises ``SwarmInputError`` naming the option for sizes below 2 robots / 1
+    configuration or a sensing range too small for robots kept apart.
     """
     reach = margin * sensing_range
+    _check_random_options(n, n_configs, spacing, reach, step=step, turn=turn, reshape=reshape)
+    if not 0 < margin <= 1:
+        raise SwarmInputError(f"random trajectory margin must be in (0, 1], got {margin}")
+    sep = MIN_SEPARATION * spacing
     start = random_configuration(n, rng, spacing, reach)
     configs = []
     prev = start
     for _ in range(n_configs):
-        while True:
-            ang = rng.uniform(-math.pi, math.pi)
-            rot = rng.uniform(-turn, turn)
-            c = prev.mean(axis=0)
-            r = np.array([[math.cos(rot), -math.sin(rot)], [math.sin(rot), math.cos(rot)]])
-            nxt = (prev - c) @ r.T + c + step * np.array([math.cos(ang), math.sin(ang)]) + rng.normal(0, reshape, (n, 2))
-            if is_connected(nxt, reach) and min_separation(nxt) >= 0.25 * spacing:
-                break
+        ang = rng.uniform(-math.pi, math.pi)
+        c = prev.mean(axis=0)
+        swing = min(turn, step / max(float(np.max(np.linalg.norm(prev - c, axis=1))), 1e-9))
+        rot = rng.uniform(-swing, swing)
+        r = np.array([[math.cos(rot), -math.sin(rot)], [math.sin(rot), math.cos(rot)]])
+        rigid = (prev - c) @ r.T + c + step * np.array([math.cos(ang), math.sin(ang)])
+        nxt = _reshape(rigid, rng.normal(0, reshape, (n, 2)), _spanning_edges(rigid, reach), reach, sep)
         configs.append(nxt)
         prev = nxt
     headings = rng.uniform(-math.pi, math.pi, n)

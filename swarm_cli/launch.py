@@ -2,7 +2,9 @@
 
 The launcher opens the run's Zenoh router hub itself on a free loopback port, writes
 the trajectory to a temporary file if it generated it, starts one ``swarm agent``
-process per robot (initial true pose from the trajectory), then ``swarm coordinator``,
+process per robot (initial true pose from the trajectory), or with ``--agents-per-process K``
+one per K robots (default: one per robot up to ``ONE_PER_PROCESS_UP_TO`` robots, larger
+swarms in processes of at most ``AGENTS_PER_PROCESS``), then ``swarm coordinator``,
 and waits for the coordinator, whose summary appears on stdout; the coordinator writes
 the Fig. 13/14/17 plots to ``--out`` (default ``out/demo`` or ``out/launch``) and prints
 their paths. The coordinator records the run to ``recordings/<run>.mcap`` (``--record PATH``
@@ -23,7 +25,8 @@ same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``Emergenc
 to the run, then stops every child; so does a coordinator that ends with an error or is
 killed (any exit status but 0), so no robot is left moving.
 
-``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID as soon as the
+``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID (with several agents per
+process: the process hosting it, and so its other robots too) as soon as the
 coordinator sends the first command of global step STEP (fault injection for demos,
 tests and ``swarm bench faults``); the launcher then times the coordinator's reaction
 (its targeted ``EmergencyStop``: detection = its stamp, arrival = when the launcher
@@ -56,6 +59,7 @@ from runtime.keys import estop_key, robot_wildcard
 from runtime.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
 from runtime.trajectory import Trajectory, random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session, subscribe
+from swarm_cli.agent import format_ids
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.estop import send_estop
 from swarm_cli.options import add_simulation_options, model_config, print_json
@@ -63,6 +67,9 @@ from swarm_cli.options import add_simulation_options, model_config, print_json
 GRACE_S = 3.0
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
+ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
+AGENTS_PER_PROCESS = 50  # at most, when they share
+START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -95,6 +102,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
     p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--agents-per-process", type=int, default=None,
+                   help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
+                        f"else up to {AGENTS_PER_PROCESS} per process)")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -179,24 +189,45 @@ def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
 def agent_command(
     robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
 ) -> list[str]:
-    """The command line of robot ``robot``'s agent process (``ids`` comma-separated, ``pose`` x, y, heading)."""
+    """The command line of robot ``robot``'s agent process (``ids`` as ``--ids`` takes them, ``pose`` x, y, heading)."""
     return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
             f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
             f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
 
 
+def agents_per_process(n: int, requested: int | None) -> int:
+    """Robots per agent process for a swarm of ``n``: ``requested`` (``--agents-per-process``), or the default."""
+    if requested is None:
+        if n <= ONE_PER_PROCESS_UP_TO:
+            return 1
+        processes = -(-n // AGENTS_PER_PROCESS)
+        return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
+    if requested < 1:
+        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
+    return requested
+
+
 def start_agents(
     traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
-    procs: list[subprocess.Popen] | None = None, **popen_kwargs,
+    procs: list[subprocess.Popen] | None = None, per_process: int = 1, traj_file: Path | None = None, **popen_kwargs,
 ) -> list[subprocess.Popen]:
-    """One agent process per robot of ``traj`` (initial true pose from it), appended to ``procs`` as each starts.
-
-    Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
+    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (initial
+    true pose on its command line), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``,
+    ``traj`` saved). Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
     """
     procs = [] if procs is None else procs
-    ids = ",".join(str(int(i)) for i in traj.ids)
-    for robot, pose in zip(traj.ids, traj.initial_poses):
-        procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
+    ids = format_ids(traj.ids)
+    if per_process == 1:
+        for robot, pose in zip(traj.ids, traj.initial_poses):
+            procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
+        return procs
+    if traj_file is None:
+        raise ValueError("start_agents needs traj_file to host several agents per process")
+    for k in range(0, traj.n, per_process):
+        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(traj.ids[k:k + per_process])}", f"--ids={ids}",
+               f"--trajectory={traj_file}", f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}",
+               f"--seed={seed}", *extra]
+        procs.append(subprocess.Popen(cmd, **popen_kwargs))
     return procs
 
 
@@ -278,6 +309,7 @@ def run(args: argparse.Namespace) -> int:
         traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
     if not 2 <= args.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the run")
+    per_process = agents_per_process(traj.n, args.agents_per_process)
     run_id = args.run_id or f"launch-{os.getpid()}"
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
@@ -301,11 +333,12 @@ def run(args: argparse.Namespace) -> int:
                                      args.emulator_events)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs)
-            agent_procs = dict(zip((int(i) for i in traj.ids), procs[first:]))
+            start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file)
+            agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
-                   f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS)]
+                   f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS),
+                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
             if args.result:
                 cmd.append(f"--result={args.result}")
             recording = None if args.no_record else (args.record or default_recording(run_id))
@@ -315,7 +348,8 @@ def run(args: argparse.Namespace) -> int:
             if args.foxglove is not None:
                 cmd.append(f"--foxglove={args.foxglove}")
             what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
-            print(f"swarm {args.command}: {traj.n} {what} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
+            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             killer = None
             if args.kill_robot is not None:
                 robot, step = args.kill_robot

@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
@@ -25,9 +27,11 @@ def _alive_with(text: str) -> list[int]:
     return pids
 
 
-def test_bench_runtime_json_contract_and_cleanup():
+@pytest.mark.parametrize("per_process", [1, 2])
+def test_bench_runtime_json_contract_and_cleanup(per_process):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "swarm_cli.main", "bench", "runtime", "--agents", "3", "--steps", "3", "--rtt-count", "20", "--json"],
+        [sys.executable, "-m", "swarm_cli.main", "bench", "runtime", "--agents", "3", "--steps", "3", "--rtt-count", "20", "--json",
+         f"--agents-per-process={per_process}"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
     )
     try:
@@ -40,8 +44,9 @@ def test_bench_runtime_json_contract_and_cleanup():
     last = json.loads(stdout.strip().splitlines()[-1])
     assert list(last) == ["results"] and len(last["results"]) == 1
     row = last["results"][0]
-    assert list(row) == ["agents", "step_ms_median", "zenoh_rtt_ms", "agent_rss_mb"]
-    assert row["agents"] == 3
-    assert row["step_ms_median"] > 0 and row["zenoh_rtt_ms"] > 0 and 10 < row["agent_rss_mb"] < 1000
+    assert list(row) == ["agents", "step_ms_median", "zenoh_rtt_ms", "agent_rss_mb", "agents_per_process"]
+    assert row["agents"] == 3 and row["agents_per_process"] == per_process
+    # per robot agent: the agent processes (tens of MB each) divided by the agents they host
+    assert row["step_ms_median"] > 0 and row["zenoh_rtt_ms"] > 0 and 10 / per_process < row["agent_rss_mb"] < 1000 / per_process
     assert "3 agents: all alive" in stderr
     assert _alive_with(f"bench-runtime-{proc.pid}-") == []

@@ -1,0 +1,121 @@
+"""Many robot agents in one process (robot_agent/host.py, ``swarm agent --id 0-49``, ``swarm launch
+--agents-per-process``): each hosted agent is its own agent on the wire, and a run is bit-identical
+to one process per agent. Real Zenoh sessions on loopback and real processes, stopped by pid.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from robot_agent.agent import Agent
+from robot_agent.driver import SimDriver
+from robot_agent.host import AgentHost
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.keys import alive_wildcard, parse_key, robot_key, robot_wildcard
+from runtime.messages import MotionCommand, Status, decode, encode
+from runtime.trajectory import random_trajectory
+from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from swarm_cli.agent import format_ids, parse_ids
+from swarm_cli.launch import agents_per_process
+
+REPO = Path(__file__).resolve().parent.parent
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+RUN = "host-test"
+
+
+def test_id_lists_and_ranges():
+    assert parse_ids("0-2,5,7-8", "--id") == [0, 1, 2, 5, 7, 8]
+    assert parse_ids("4", "--id") == [4]
+    assert format_ids([0, 1, 2, 5, 7, 8]) == "0-2,5,7-8"
+    assert parse_ids(format_ids(range(500)), "--ids") == list(range(500))
+    for bad, message in (("5-2", "a <= b"), ("-1", "ids >= 0"), ("a", "ids >= 0"), ("0-3,2", "twice"), ("", "ids >= 0")):
+        with pytest.raises(SwarmInputError, match=message):
+            parse_ids(bad, "--id")
+
+
+def test_default_agents_per_process():
+    assert agents_per_process(50, None) == 1  # one process per agent for small swarms
+    assert agents_per_process(60, None) == 30  # 2 processes, balanced
+    assert agents_per_process(500, None) == 50
+    assert agents_per_process(500, 7) == 7
+    with pytest.raises(SwarmInputError, match="--agents-per-process must be >= 1, got 0"):
+        agents_per_process(10, 0)
+
+
+def test_hosted_agents_are_separate_agents_on_the_wire():
+    ids = [0, 1, 2, 3]
+    hub_settings, member = loopback_hub(free_tcp_port())
+    with open_session(hub_settings) as hub:
+        agents = [Agent(member, RUN, r, ids, SimDriver(r, ids, np.array([0.2 * r, 0.0, 0.0]), ModelConfig(), seed=1)) for r in (1, 2, 3)]
+        host = AgentHost(member, agents)
+        done: list[int] = []
+        thread = threading.Thread(target=lambda: done.append(host.run()), daemon=True)
+        thread.start()
+        try:
+            deadline = time.monotonic() + 10
+            while (alive := sorted(parse_key(k).robot for k in alive_now(hub, alive_wildcard(RUN)))) != [1, 2, 3]:
+                assert time.monotonic() < deadline, f"tokens alive: {alive}"
+                time.sleep(0.02)
+            _, statuses = subscribe_queue(hub, robot_wildcard(RUN, "status"))
+            cmd = MotionCommand(run=RUN, step=1, robot=2, config=1, turn_rad=0.1, drive_m=0.05)
+            publish(hub, robot_key(RUN, 2, "cmd"), encode(cmd))
+            got = [decode(statuses.get(timeout=5)[1], Status) for _ in range(2)]
+            assert [(s.robot, s.state) for s in got] == [(2, "accepted"), (2, "done")]
+            assert [a.executed for a in agents] == [0, 1, 0]  # only robot 2's agent executed it
+            moved = agents[1].driver.true_pose()
+            assert not np.allclose(moved, [0.4, 0.0, 0.0]) and np.allclose(agents[0].driver.true_pose(), [0.2, 0.0, 0.0])
+        finally:
+            host.stop()
+            thread.join(timeout=10)
+        assert done == [0]
+        deadline = time.monotonic() + 5
+        while alive_now(hub, alive_wildcard(RUN)):
+            assert time.monotonic() < deadline, "tokens of a stopped host are still alive"
+            time.sleep(0.02)
+
+
+def _launch(tmp: Path, traj_file: Path, name: str, *extra: str) -> str:
+    result = tmp / f"{name}.json"
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", f"--trajectory={traj_file}", "--seed=3",
+                           "--method=inchworm", f"--result={result}", "--no-record", f"--out={tmp / name}", f"--run={name}-{os.getpid()}",
+                           *extra], capture_output=True, text=True, timeout=300, cwd=REPO, env=ENV)
+    assert proc.returncode == 0, proc.stderr
+    return result.read_text()
+
+
+def test_a_run_is_bit_identical_whatever_the_agents_per_process(tmp_path):
+    traj_file = tmp_path / "traj.json"
+    random_trajectory(5, 2, np.random.default_rng(8)).save(traj_file)
+    one = _launch(tmp_path, traj_file, "one", "--agents-per-process=1")
+    hosted = _launch(tmp_path, traj_file, "hosted", "--agents-per-process=3")  # processes of 3 + 2 agents
+    assert json.loads(one)["steps"] and hosted == one
+
+
+def test_hosted_gateway_agents_give_the_same_run(tmp_path):
+    traj_file = tmp_path / "traj.json"
+    random_trajectory(4, 1, np.random.default_rng(5)).save(traj_file)
+    one = _launch(tmp_path, traj_file, "gw-one", "--driver=gateway", "--agents-per-process=1")
+    hosted = _launch(tmp_path, traj_file, "gw-hosted", "--driver=gateway", "--agents-per-process=2")
+    assert json.loads(one)["steps"] and hosted == one
+
+
+@pytest.mark.parametrize("args,message", [
+    (["--id=0-3", "--ids=0-2"], "--id names robots [3] that are not robots of the run"),
+    (["--id=0-1", "--ids=0-3", "--pose=0,0,0"], "--pose is one robot's pose: give --trajectory FILE"),
+    (["--id=2-1", "--ids=0-3"], "--id must be robot ids"),
+    (["--id=0"], "give --ids"),
+])
+def test_agent_options_are_checked(args, message):
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.agent", "--run=r", "--hub=tcp/127.0.0.1:9", *args],
+                          capture_output=True, text=True, timeout=60, cwd=REPO, env=ENV)
+    assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
