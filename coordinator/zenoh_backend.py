@@ -105,6 +105,7 @@ class ZenohSwarmBackend:
         self.run = run
         self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
         self._id_list = self.ids.tolist()
+        self._id_set = set(self._id_list)
         self.known = frozenset(self._id_list)  # every robot of the run (decoding)
         self.timeouts = timeouts
         self.simulated = simulated
@@ -120,7 +121,9 @@ class ZenohSwarmBackend:
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
         self._stops: queue.Queue[tuple[int, str, float] | None] = queue.Queue()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
+        self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
+        self._owed: set[int] = set()  # robots whose answer the current wait still needs (O(1) per message)
         self._estimate: dict[int, list[float]] | None = None  # latest published pose per robot: commands' start_pose
         self._cmds: dict[int, MotionCommand] = {}
         self._reports: dict[int, ObservationReport] = {}
@@ -190,6 +193,7 @@ class ZenohSwarmBackend:
         if taken:
             self.ids = self.ids[~np.isin(self.ids, list(taken))]
             self._id_list = self.ids.tolist()
+            self._id_set = set(self._id_list)
         return taken
 
     def _present(self) -> list[int]:
@@ -223,14 +227,19 @@ class ZenohSwarmBackend:
             if msg.step > self.step:  # late answers to earlier steps are normal (re-sends); later steps are not
                 self._foreign(key, f"{msg.TYPE} for step {msg.step}, the run is at step {self.step}")
             return
-        if msg.robot not in self._id_list:
+        if msg.robot not in self._id_set:
             self._foreign(key, f"{msg.TYPE} from robot {msg.robot}, which is not in the run")
             return
         if isinstance(msg, TruthMessage):
             self._truth[msg.robot] = (msg.step, np.array(msg.pose, dtype=float))
+            self._truth_now.add(msg.robot)
+            if msg.robot in self._reports:
+                self._owed.discard(msg.robot)
             self._publish_truth_set()
         elif isinstance(msg, ObservationReport):
             self._reports[msg.robot] = msg
+            if not self.simulated or msg.robot in self._truth_now:
+                self._owed.discard(msg.robot)
         elif isinstance(msg, Status):
             cmd = self._cmds.get(msg.robot)
             if cmd is None or msg.cmd_id != cmd.cmd_id:
@@ -239,7 +248,9 @@ class ZenohSwarmBackend:
             old = self._status.get(msg.robot)
             if old is None or old.state == "accepted":
                 self._status[msg.robot] = msg
-            if msg.state == "refused":
+            if msg.state == "done":
+                self._owed.discard(msg.robot)
+            elif msg.state == "refused":
                 self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}")
 
     def _publish_truth_set(self, again: bool = False) -> None:
@@ -248,8 +259,10 @@ class ZenohSwarmBackend:
         s = self.step
         if not self.simulated or s == 0 or (s <= self._truths_sent and not again):
             return
+        if len(self._truth_now) < len(self._id_list) - len(self._lost):  # O(1) until the set can be complete
+            return
         present = self._present()
-        if not present or any(r not in self._truth or self._truth[r][0] < s for r in present):
+        if not present or not self._truth_now.issuperset(present):
             return
         msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present])
         publish(self.session, message_key(msg), encode(msg))
@@ -306,6 +319,7 @@ class ZenohSwarmBackend:
         self.step += 1
         s = self.step
         self._status = {}
+        self._truth_now = set()
         present = set(self._present())
         self._cmds = {}
         for k in np.flatnonzero(step.moving):
@@ -324,8 +338,9 @@ class ZenohSwarmBackend:
 
         def missing() -> list[int]:
             with self._lock:
-                return sorted(r for r in cmds if r not in self._lost and (r not in self._status or self._status[r].state != "done"))
+                return sorted(self._owed.difference(self._lost))
 
+        self._owed = set(cmds)
         send(cmds)
         self._wait(f"the command of step {s}", missing, send)
 
@@ -340,12 +355,10 @@ class ZenohSwarmBackend:
             self._publish_truth_set(again=True)  # a resend round: agents may have missed it
 
         def missing() -> list[int]:
-            present = self._present()
-            left = [r for r in present if r not in self._reports]
-            if self.simulated:
-                left += [r for r in present if r not in left and (r not in self._truth or self._truth[r][0] < s)]
-            return sorted(left)
+            with self._lock:
+                return sorted(self._owed.difference(self._lost))
 
+        self._owed = {r for r in requests if r not in self._reports or (self.simulated and r not in self._truth_now)}
         send(list(requests))
         self._wait(f"the observation request of step {s}", missing, send)
         return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)
@@ -366,7 +379,7 @@ class ZenohSwarmBackend:
         self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
 
     def true_poses(self) -> np.ndarray | None:
-        if not self.simulated or not set(self._id_list) <= self._truth.keys():
+        if not self.simulated or not self._id_set <= self._truth.keys():
             return None
         return np.array([self._truth[r][1] for r in self._id_list])
 

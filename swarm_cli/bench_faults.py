@@ -102,6 +102,7 @@ class Fuzzer:
     def __init__(self, run_id: str, robots: list[int], rng: np.random.Generator) -> None:
         self.run_id, self.robots, self.rng = run_id, robots, rng
         self.heard: list[tuple[str, bytes]] = []
+        self.kinds = list(range(6))  # 0 random bytes, 1 wrong types and future steps, 2 bad values, 3 unknown ids, 4 versions, 5 replays
         r = run_id
         self.keys = [coord_key(r, "plan"), coord_key(r, "estimate"), coord_key(r, "event"), truths_key(r), estop_key(r),
                      f"swarm/{r}/link/radio0/stats", robot_key(r, 10**6, "cmd"), robot_key(r, 10**6, "status")]
@@ -115,7 +116,7 @@ class Fuzzer:
     def message(self) -> tuple[str, bytes]:
         """One hostile (key, payload); never a valid emergency stop (that is a real stop, not a fault)."""
         key = self.keys[int(self.rng.integers(len(self.keys)))]
-        kind = int(self.rng.integers(6))
+        kind = int(self.rng.choice(self.kinds))
         if kind == 5 and self.heard:  # a replay of an earlier message of the run, on its own key
             return self.heard[int(self.rng.integers(len(self.heard)))]
         if kind == 0 or key == estop_key(self.run_id):
@@ -169,7 +170,7 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
             agents = list(start_agents(traj, run_id, hub, seed, 0.3, (), procs, stdout=log, stderr=subprocess.STDOUT))
             coordinator = subprocess.Popen(
                 [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={method}",
-                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", f"--result={result_file}", "--json"],
+                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", f"--record={Path(tmp) / 'run.mcap'}", f"--result={result_file}", "--json"],
                 stdout=subprocess.PIPE, stderr=open(Path(tmp) / "coordinator.log", "w"), text=True)
             procs.append(coordinator)
             started.wait(timeout=60)
