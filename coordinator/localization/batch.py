@@ -38,7 +38,7 @@ import numpy as np
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.joint import EXACT_COV_LIMIT
 from coordinator.localization.paper import fuse
-from coordinator.localization.range_bearing import COV_FLOOR, sensor_sigmas, sqrt_information
+from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     cluster_delta_p,
@@ -421,12 +421,12 @@ class _JointProblem(_Batched):
     x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
     """
 
-    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, s_b: float, ws: _Workspace):
-        self.s_r, self.s_b, self.ws = s_r, s_b, ws
+    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
+        self.s_r, self.ws = s_r, ws
         w = seen.astype(float)
-        self.w_sr, self.w_sb = w / s_r, w / s_b
-        self.wr, self.wb = w / s_r**2, w / s_b**2
         self.rho = _on_pairs(seen, ranges)
+        self.w_sr, self.w_sb = w / s_r, w * bearing_weights(self.rho, cfg)  # 1 / s_b(rho) where seen, 0 elsewhere
+        self.wr, self.wb = w / s_r**2, self.w_sb**2
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
@@ -471,7 +471,7 @@ class _JointProblem(_Batched):
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
 
         Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
-        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b^2.
+        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b(rho)^2.
         """
         ws, inv_dist, info = self.ws, st["inv_dist"], self.info
         b, n, _ = inv_dist.shape
@@ -499,7 +499,7 @@ class _JointProblem(_Batched):
             np.negative(both, out=block)
             _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
         lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
-        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b^2 = beta (-d_y, d_x).
+        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b(rho)^2 = beta (-d_y, d_x).
         ct = ws("ct", (b, n, 2 * n))
         beta_dy = np.multiply(beta, st["dy"], out=t1)
         beta_dx = np.multiply(beta, st["dx"], out=t2)
@@ -516,12 +516,12 @@ class _JointProblem(_Batched):
         shape = st["inv_dist"].shape
         ux, uy = ws.arrays["ux"], ws.arrays["uy"]
         rr = np.multiply(st["rr"], 1.0 / self.s_r, out=ws("n1", shape))  # range residual / s_r
-        rb = np.multiply(st["rb"], 1.0 / self.s_b, out=ws("n2", shape))
-        rb *= st["inv_dist"]  # bearing residual / (s_b |d|)
+        rb = np.multiply(st["rb"], self.w_sb, out=ws("n2", shape))
+        rb *= st["inv_dist"]  # bearing residual / (s_b(rho) |d|)
         q, tmp = ws("beta", shape), ws("tmp", shape)
         g_prior = st["gp"]
         g_xy = np.empty((b, n2))
-        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b |d|)
+        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b(rho) |d|)
             np.multiply(ux if k == 0 else uy, rr, out=q)
             np.multiply(uy if k == 0 else ux, rb, out=tmp)
             if k == 0:
@@ -529,15 +529,15 @@ class _JointProblem(_Batched):
             else:
                 q += tmp
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
-        g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", st["rb"]) / self.s_b
+        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
         diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
         d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
-    s_r, s_b = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, s_b, ws)
+    s_r, _ = sensor_sigmas(cfg)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
     x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
     cov = _joint_covariances(*problem.normal(problem.evaluate(x)))
     x[:, :, 2] = wrap_angle(x[:, :, 2])

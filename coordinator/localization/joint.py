@@ -9,7 +9,13 @@ residuals of every observation. Sparse Levenberg-Marquardt (``sparse_lm``).
 Uncertainty: the marginal covariances are the 3x3 diagonal blocks of (J^T J)^-1.
 Up to ``EXACT_COV_LIMIT`` robots they are exact; above it, the blocks of the
 information matrix are inverted on their own (conditional covariances, which
-are optimistic) to keep a 1000-robot step well under a second.
+are optimistic) to keep a 1000-robot step well under a second. Every block is
+projected onto the positive semi-definite cone (``psd``), so rounding never
+yields a negative variance.
+
+No convergence: the error names the robots of the observation with the largest
+whitened residual at the last iterate, the likeliest culprits, so that
+``partial.localize_observable`` can localize the others without them.
 """
 
 from __future__ import annotations
@@ -31,13 +37,32 @@ from runtime.state import Observations, StepCommands, SwarmEstimate
 EXACT_COV_LIMIT = 500  # robots
 
 
+def psd(cov: np.ndarray) -> np.ndarray:
+    """Nearest symmetric positive semi-definite matrices (..., k, k) (negative eigenvalues set to 0).
+
+    Non-finite matrices (a singular information matrix) raise ``LocalizationError("degenerate")``
+    at the caller; here they are returned as they are.
+    """
+    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    finite = np.isfinite(sym).all(axis=(-2, -1))
+    out = sym.copy()
+    if finite.any():
+        lam, vec = np.linalg.eigh(sym[finite])
+        if (lam < 0).any():
+            out[finite] = (vec * np.maximum(lam, 0.0)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+    return out
+
+
 def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -> np.ndarray:
     """3x3 pose covariances (n, 3, 3) from the information matrix; fixed components get 0."""
     cols = layout.cols
     free = cols >= 0
     safe = np.where(free, cols, 0)
     if n_robots <= EXACT_COV_LIMIT:
-        full = np.linalg.inv(normal.toarray())
+        try:
+            full = np.linalg.inv(normal.toarray())
+        except np.linalg.LinAlgError:  # singular: reported as degenerate by ``checked``
+            full = np.full(normal.shape, np.nan)
         cov = full[safe[:, :, None], safe[:, None, :]]
     else:
         normal = normal.tocsr()
@@ -45,8 +70,28 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
         blocks = blocks.reshape(n_robots, 3, 3)
         pair_free = free[:, :, None] & free[:, None, :]
         blocks = np.where(pair_free, blocks, np.eye(3))  # fixed components: identity, zeroed below
-        cov = np.linalg.inv(blocks)
-    return cov * (free[:, :, None] & free[:, None, :])
+        try:
+            cov = np.linalg.inv(blocks)
+        except np.linalg.LinAlgError:
+            cov = np.full(blocks.shape, np.nan)
+    return psd(cov * (free[:, :, None] & free[:, None, :]))
+
+
+def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """Ids of the two robots of the observation with the largest whitened residual (range^2 + bearing^2)."""
+    if len(observer) == 0:
+        return ids
+    per_obs = residual[-2 * len(observer) :].reshape(-1, 2)
+    k = int(np.argmax(np.sum(per_obs**2, axis=1)))
+    return ids[[observer[k], observed[k]]]
+
+
+def checked(cov: np.ndarray, ids: np.ndarray) -> np.ndarray:
+    """``cov`` if every entry is finite, else ``LocalizationError("degenerate")`` naming the robots concerned."""
+    bad = ~np.isfinite(cov).all(axis=(1, 2))
+    if bad.any():
+        raise LocalizationError("degenerate", ids[bad], "the information matrix is singular for them")
+    return cov
 
 
 class JointLocalizer:
@@ -77,10 +122,11 @@ class JointLocalizer:
 
         result = levenberg_marquardt(residuals, layout.pack(mean), huber=self.huber)
         if not result.converged:
-            raise LocalizationError("no-convergence", prior.ids, "joint least squares did not converge")
+            suspects = worst_observation(residuals(result.x)[0], i, j, prior.ids)
+            raise LocalizationError("no-convergence", suspects, "joint least squares did not converge")
         poses = layout.unpack(result.x, mean)
         poses[:, 2] = wrap_angle(poses[:, 2])
-        return SwarmEstimate(prior.ids, poses, pose_covariances(result.normal_matrix, layout, n))
+        return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
 
     def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
         """Relative poses with no prior, gauge as in the paper's topology (reference robot at the origin).
@@ -103,9 +149,10 @@ class JointLocalizer:
 
         result = levenberg_marquardt(residuals, layout.pack(base), huber=self.huber)
         if not result.converged:
-            raise LocalizationError("no-convergence", ids, "joint topology did not converge")
+            suspects = worst_observation(residuals(result.x)[0], i, j, ids)
+            raise LocalizationError("no-convergence", suspects, "joint topology did not converge")
         poses = layout.unpack(result.x, base)
-        cov = pose_covariances(result.normal_matrix, layout, n)
+        cov = checked(pose_covariances(result.normal_matrix, layout, n), ids)
         delta = np.sqrt(cov[:, 0, 0] + cov[:, 1, 1])
         heading_sigma = np.where(has_heading, np.sqrt(cov[:, 2, 2]), np.inf)
         headings = np.where(has_heading, wrap_angle(poses[:, 2]), np.nan)
