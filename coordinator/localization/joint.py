@@ -6,7 +6,12 @@ at once, minimising the whitened prior residuals of the dead-reckoning estimate
 (mean and 3x3 covariance from Phase 1.1) plus the whitened range and bearing
 residuals of every observation. Sparse Levenberg-Marquardt (``sparse_lm``).
 
-Uncertainty: the marginal covariances are the 3x3 diagonal blocks of (J^T J)^-1.
+Uncertainty: the joint covariance (J^T J)^-1 of all poses is returned (``SwarmEstimate.joint``)
+up to ``EXACT_COV_LIMIT`` robots, and when the prior carries it, the dead-reckoning prior
+is whitened with the full joint covariance (not per robot): the next step then sees the
+cross-correlations the previous steps built, which keeps the reported covariance honest
+along a trajectory (an iterated extended Kalman filter; docs/localization.md).
+The marginal covariances are the 3x3 diagonal blocks of (J^T J)^-1.
 Up to ``EXACT_COV_LIMIT`` robots they are exact; above it, the blocks of the
 information matrix are inverted on their own (conditional covariances, which
 are optimistic) to keep a 1000-robot step well under a second. Every block is
@@ -26,7 +31,14 @@ import scipy.sparse as sp
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.range_bearing import observation_terms, prior_terms, sqrt_information, stack_terms
+from coordinator.localization.range_bearing import (
+    joint_prior_terms,
+    joint_sqrt_information,
+    observation_terms,
+    prior_terms,
+    sqrt_information,
+    stack_terms,
+)
 from coordinator.localization.sparse_lm import PoseLayout, levenberg_marquardt
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
@@ -77,6 +89,22 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
     return psd(cov * (free[:, :, None] & free[:, None, :]))
 
 
+def joint_covariance(normal: sp.spmatrix) -> np.ndarray:
+    """(J^T J)^-1 (3n, 3n), symmetric and positive semi-definite; NaN where singular."""
+    try:
+        full = np.linalg.inv(normal.toarray())
+    except np.linalg.LinAlgError:
+        return np.full(normal.shape, np.nan)
+    full = 0.5 * (full + full.T)
+    if not np.isfinite(full).all():
+        return full
+    try:
+        np.linalg.cholesky(full)
+        return full
+    except np.linalg.LinAlgError:
+        return psd(full)
+
+
 def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Ids of the two robots of the observation with the largest whitened residual (range^2 + bearing^2)."""
     if len(observer) == 0:
@@ -110,13 +138,15 @@ class JointLocalizer:
         n = prior.n
         layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
         mean = dr.poses
-        u = sqrt_information(dr.cov)
+        carried = dr.joint is not None and n <= EXACT_COV_LIMIT
+        u = joint_sqrt_information(dr.joint) if carried else sqrt_information(dr.cov)
+        prior_fn = joint_prior_terms if carried else prior_terms
 
         def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
             poses = layout.unpack(vec, mean)
             return stack_terms(
                 layout.size,
-                prior_terms(poses, layout, mean, u),
+                prior_fn(poses, layout, mean, u),
                 observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg),
             )
 
@@ -126,7 +156,12 @@ class JointLocalizer:
             raise LocalizationError("no-convergence", suspects, "joint least squares did not converge")
         poses = layout.unpack(result.x, mean)
         poses[:, 2] = wrap_angle(poses[:, 2])
-        return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
+        if n > EXACT_COV_LIMIT:
+            return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
+        joint = joint_covariance(result.normal_matrix)
+        idx = np.arange(3 * n).reshape(n, 3)
+        checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
+        return SwarmEstimate.from_joint(prior.ids, poses, joint)
 
     def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
         """Relative poses with no prior, gauge as in the paper's topology (reference robot at the origin).

@@ -104,6 +104,29 @@ def prior_terms(
     return residual, (rows, cols, sqrt_info.reshape(-1))
 
 
+def joint_sqrt_information(joint: np.ndarray) -> np.ndarray:
+    """W (3n, 3n) with W^T W = joint^-1 (eigenvalues floored at ``COV_FLOOR``), like ``sqrt_information``."""
+    sym = 0.5 * (joint + joint.T)
+    try:
+        chol = np.linalg.cholesky(sym + COV_FLOOR * np.eye(len(sym)))
+        return np.linalg.inv(chol)  # W = L^-1: W^T W = (L L^T)^-1
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(sym)
+        return vec.T / np.sqrt(np.maximum(lam, COV_FLOOR))[:, None]
+
+
+def joint_prior_terms(
+    poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Residuals (3n,) W (p - mu) of a prior with joint covariance (W (3n, 3n)) and COO triplets (dense W)."""
+    diff = poses - mean
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    k = sqrt_info.shape[0]
+    rows = np.repeat(np.arange(k), k)
+    cols = np.tile(layout.cols.ravel(), k)
+    return sqrt_info @ diff.ravel(), (rows, cols, sqrt_info.ravel())
+
+
 def stack_terms(
     n_cols: int, *terms: tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]
 ) -> tuple[np.ndarray, sp.csr_matrix]:
