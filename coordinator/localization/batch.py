@@ -24,9 +24,13 @@ Pose unknowns the sparse code holds fixed (the reference robot of the paper's ga
 heading of a robot that observed nobody) keep their column with an identity row, so
 they do not move and the other unknowns solve exactly the reduced system.
 
-A sample that cannot be localized (a robot nobody observed, a disconnected observation
-graph, invalid values, a degenerate topology, no convergence) gets ``ok = False`` and the
-dead-reckoning estimate, the runtime's fallback; no exception is raised for it.
+A sample that cannot be fully localized (a robot nobody observed, a disconnected observation
+graph, a degenerate topology, no convergence) gets ``ok = False`` and the runtime's answer
+(``partial.localize_observable``): the largest observable group is localized, the other
+robots keep dead reckoning. For the joint method that is the batched solve with the other
+robots' observations removed (a robot without observations keeps its prior exactly);
+samples that still fail, and the paper's method, go through the single-swarm runtime code.
+Samples holding invalid values get ``ok = False`` and dead reckoning; no exception is raised.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
+from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
@@ -50,6 +55,9 @@ from coordinator.localization.topology import (
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.geometry import wrap_angle
+from runtime.state import Observations, StepCommands, SwarmEstimate
+from coordinator.localization import make_localizer
+from coordinator.localization.partial import localize_observable
 
 METHODS = ("paper", "joint")
 # (xtol, ftol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
@@ -89,9 +97,10 @@ def localize_batch(
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
     ``seen[b, i, j]`` = robot i observed robot j (the diagonal is ignored), ``ranges``/``bearings``
-    (B, n, n) (m, rad; only read where ``seen``). Where a sample could not be localized
-    (unobservable, values the single-swarm input types reject, degenerate, no convergence)
-    ``ok`` is False and its poses/covariances are those of dead reckoning.
+    (B, n, n) (m, rad; only read where ``seen``). Where a sample could not be fully localized
+    (unobservable, degenerate, no convergence) ``ok`` is False and its poses/covariances are
+    the runtime's partial localization (``partial.localize_observable``); where it holds
+    values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
     """
     if method not in METHODS:
         raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
@@ -109,8 +118,8 @@ def localize_batch(
     dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
-    ok = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) & observable(seen)
-
+    valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)
+    ok = valid & observable(seen)
     poses, cov = dr_poses.copy(), dr_cov.copy()
     solve = _localize_paper if method == "paper" else _localize_joint
     todo = np.flatnonzero(ok)
@@ -122,7 +131,35 @@ def localize_batch(
         poses[sel[good]] = est[good]
         cov[sel[good]] = est_cov[good]
         ok[sel[~good]] = False
+    partial = np.flatnonzero(valid & ~ok)
+    if partial.size:
+        _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
     return BatchEstimate(poses, cov, ok)
+
+
+def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
+    """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
+    n = seen.shape[1]
+    rest = index
+    if method == "joint":
+        masked = seen[index].copy()
+        for k, b in enumerate(index):
+            i, j = np.nonzero(seen[b])
+            keep, _ = observable_subset(np.arange(n), i, j)
+            masked[k] &= keep[:, None] & keep[None, :] if keep.sum() >= 2 else False
+        dr_poses, dr_cov = poses[index], cov[index]  # dead reckoning at this point
+        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
+        poses[index[good]], cov[index[good]] = est[good], est_cov[good]
+        rest = index[~good]
+    ids = np.arange(n)
+    loc = make_localizer(method, cfg)
+    for b in rest:
+        i, j = np.nonzero(seen[b])
+        est, _ = localize_observable(
+            loc, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
+            Observations(i, j, ranges[b, i, j], bearings[b, i, j]), cfg,
+        )
+        poses[b], cov[b] = est.poses, est.cov
 
 
 def observable(seen: np.ndarray) -> np.ndarray:
