@@ -105,6 +105,76 @@ def joint_covariance(normal: sp.spmatrix) -> np.ndarray:
         return psd(full)
 
 
+def gauge_basis(poses: np.ndarray) -> np.ndarray:
+    """(3n, 3) orthonormal basis of the motions of the whole swarm that no observation sees.
+
+    Translating every robot, and rotating the swarm (positions about the origin and every
+    heading by the same angle), changes no range or bearing: at poses p these directions are
+    (1, 0, 0)_i, (0, 1, 0)_i and (-y_i, x_i, 1)_i.
+    """
+    n = len(poses)
+    basis = np.zeros((n, 3, 3))
+    basis[:, 0, 0] = basis[:, 1, 1] = 1.0
+    basis[:, 0, 2], basis[:, 1, 2], basis[:, 2, 2] = -poses[:, 1], poses[:, 0], 1.0
+    q, _ = np.linalg.qr(basis.reshape(3 * n, 3))
+    return q
+
+
+def constrained_information(obs_jac: sp.spmatrix, predicted: np.ndarray) -> np.ndarray:
+    """Observation information J^T J (3n, 3n) with the gauge directions of ``predicted`` poses removed.
+
+    J is evaluated at the solution, whose own gauge directions J annihilates, but the prior's
+    covariance was built around the predicted (dead-reckoning) poses. Without this projection
+    the observations would seem to inform the swarm's global rotation (the directions the prior
+    holds at the predicted poses), the spurious information that makes an extended Kalman
+    filter overconfident along a trajectory; projecting the Jacobian onto the complement
+    of those directions (observability-constrained EKF) keeps the global pose uninformed.
+    """
+    a = (obs_jac.T @ obs_jac).toarray()
+    q = gauge_basis(predicted)
+    aq = a @ q
+    qaq = q.T @ aq
+    return a - aq @ q.T - q @ aq.T + q @ qaq @ q.T
+
+
+def rotation_direction(poses: np.ndarray) -> np.ndarray:
+    """(3n,) the swarm's rotation about the origin at ``poses``: (-y_i, x_i, 1) per robot."""
+    return np.column_stack([-poses[:, 1], poses[:, 0], np.ones(len(poses))]).ravel()
+
+
+def transport_gauge(joint: np.ndarray, predicted: np.ndarray, solved: np.ndarray) -> np.ndarray:
+    """``joint`` (3n, 3n) with its rotation gauge moved from the predicted poses to the solution.
+
+    The covariance's unobservable rotation was built around ``predicted`` poses; the next step
+    linearises at ``solved``, whose rotation direction differs by the correction (-dy_i, dx_i, 0).
+    Left as is, the next prior would look more certain along the new direction than along the
+    old one (spurious information on the global rotation, compounding along a trajectory).
+    T = I + (r_solved - r_predicted) g^T, with g the dual of r_predicted in the gauge basis
+    (g^T r_predicted = 1, g^T translations = 0), maps the old direction onto the new one and
+    leaves translations alone; the covariance becomes T P T^T (first estimates, as in an
+    observability-constrained EKF).
+    """
+    if not np.isfinite(joint).all():
+        return joint
+    n = len(predicted)
+    basis = np.zeros((3 * n, 3))
+    basis[0::3, 0] = basis[1::3, 1] = 1.0
+    basis[:, 2] = rotation_direction(predicted)
+    dual = np.linalg.pinv(basis)[2]  # g: g^T basis = (0, 0, 1)
+    d = rotation_direction(solved) - basis[:, 2]
+    t_p = joint + np.outer(d, dual @ joint)  # T P
+    out = t_p + np.outer(t_p @ dual, d)  # T P T^T
+    return 0.5 * (out + out.T)
+
+
+def _block_diag(blocks: np.ndarray) -> np.ndarray:
+    """Dense block-diagonal matrix (3n, 3n) from (n, 3, 3) blocks."""
+    n = len(blocks)
+    out = np.zeros((n, 3, n, 3))
+    out[np.arange(n), :, np.arange(n), :] = blocks
+    return out.reshape(3 * n, 3 * n)
+
+
 def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """Ids of the two robots of the observation with the largest whitened residual (range^2 + bearing^2)."""
     if len(observer) == 0:
@@ -158,7 +228,10 @@ class JointLocalizer:
         poses[:, 2] = wrap_angle(poses[:, 2])
         if n > EXACT_COV_LIMIT:
             return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
-        joint = joint_covariance(result.normal_matrix)
+        prior_info = u.T @ u if carried else _block_diag(np.swapaxes(u, 1, 2) @ u)
+        _, obs_jac = stack_terms(layout.size, observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg))
+        obs_info = constrained_information(obs_jac, mean)
+        joint = transport_gauge(joint_covariance(sp.csr_matrix(prior_info + obs_info)), mean, poses)
         idx = np.arange(3 * n).reshape(n, 3)
         checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
         return SwarmEstimate.from_joint(prior.ids, poses, joint)
