@@ -44,6 +44,7 @@ from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, constrained_information, psd, transport_gauge
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
+from coordinator.localization.sparse_lm import blas_threads
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     cluster_delta_p,
@@ -125,16 +126,22 @@ def localize_batch(
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
+    with blas_threads(3 * n * min(todo.size, chunk)):  # many small solves: one BLAS thread is fastest
+        _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws)
+        partial = np.flatnonzero(valid & ~ok)
+        if partial.size:
+            _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
+    return BatchEstimate(poses, cov, ok)
+
+
+def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws) -> None:
+    """Localize samples ``todo`` chunk by chunk into poses/cov; samples that fail get ok = False."""
     for start in range(0, todo.size, chunk):  # chunks keep the working arrays small (cache, allocator)
         sel = todo[start : start + chunk]
         est, est_cov, good = solve(cfg, dr_poses[sel], dr_cov[sel], seen[sel], ranges[sel], bearings[sel], ws)
         poses[sel[good]] = est[good]
         cov[sel[good]] = est_cov[good]
         ok[sel[~good]] = False
-    partial = np.flatnonzero(valid & ~ok)
-    if partial.size:
-        _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
-    return BatchEstimate(poses, cov, ok)
 
 
 def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:

@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from coordinator.localization.range_bearing import observation_terms, prior_terms, sqrt_information, stack_terms
-from coordinator.localization.sparse_lm import PoseLayout
+from coordinator.localization.sparse_lm import PoseLayout, dense
 from runtime.config import ModelConfig
 
 
@@ -49,7 +49,7 @@ def fisher_information(
         prior_terms(poses, layout, poses, sqrt_information(np.asarray(prior_cov, dtype=float))),
         observation_terms(poses, layout, observer_idx, observed_idx, rho, np.zeros(len(rho)), cfg),
     )
-    return (jac.T @ jac).toarray()
+    return dense(jac.T @ jac)
 
 
 def crlb_pose_covariances(

@@ -39,7 +39,7 @@ from coordinator.localization.range_bearing import (
     sqrt_information,
     stack_terms,
 )
-from coordinator.localization.sparse_lm import PoseLayout, levenberg_marquardt
+from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
@@ -72,13 +72,13 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
     safe = np.where(free, cols, 0)
     if n_robots <= EXACT_COV_LIMIT:
         try:
-            full = np.linalg.inv(normal.toarray())
+            full = np.linalg.inv(dense(normal))
         except np.linalg.LinAlgError:  # singular: reported as degenerate by ``checked``
             full = np.full(normal.shape, np.nan)
         cov = full[safe[:, :, None], safe[:, None, :]]
     else:
-        normal = normal.tocsr()
-        blocks = np.asarray(normal[safe[:, :, None].repeat(3, 2).ravel(), safe[:, None, :].repeat(3, 1).ravel()])
+        rows, cols_ = safe[:, :, None].repeat(3, 2).ravel(), safe[:, None, :].repeat(3, 1).ravel()
+        blocks = normal[rows, cols_] if isinstance(normal, np.ndarray) else np.asarray(normal.tocsr()[rows, cols_])
         blocks = blocks.reshape(n_robots, 3, 3)
         pair_free = free[:, :, None] & free[:, None, :]
         blocks = np.where(pair_free, blocks, np.eye(3))  # fixed components: identity, zeroed below
@@ -89,10 +89,10 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
     return psd(cov * (free[:, :, None] & free[:, None, :]))
 
 
-def joint_covariance(normal: sp.spmatrix) -> np.ndarray:
+def joint_covariance(normal: sp.spmatrix | np.ndarray) -> np.ndarray:
     """(J^T J)^-1 (3n, 3n), symmetric and positive semi-definite; NaN where singular."""
     try:
-        full = np.linalg.inv(normal.toarray())
+        full = np.linalg.inv(dense(normal))
     except np.linalg.LinAlgError:
         return np.full(normal.shape, np.nan)
     full = 0.5 * (full + full.T)
@@ -211,6 +211,10 @@ class JointLocalizer:
         self.huber = huber  # in sigmas of the whitened residuals; None = least squares
 
     def localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
+        with blas_threads(3 * prior.n):
+            return self._localize(prior, step, obs)
+
+    def _localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
         dr = dead_reckon(prior, step, self.cfg)
         i, j = obs.indexed(prior.ids)
         require_observable(prior.ids, i, j)
@@ -239,8 +243,8 @@ class JointLocalizer:
             return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
         prior_info = u.T @ u if carried else _block_diag(np.swapaxes(u, 1, 2) @ u)
         _, obs_jac = stack_terms(layout.size, observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg))
-        obs_info = constrained_information((obs_jac.T @ obs_jac).toarray(), mean)
-        joint = transport_gauge(joint_covariance(sp.csr_matrix(prior_info + obs_info)), mean, poses)
+        obs_info = constrained_information(dense(obs_jac.T @ obs_jac), mean)
+        joint = transport_gauge(joint_covariance(prior_info + obs_info), mean, poses)
         idx = np.arange(3 * n).reshape(n, 3)
         checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
         return SwarmEstimate.from_joint(prior.ids, poses, joint)
