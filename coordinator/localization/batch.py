@@ -41,7 +41,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, constrained_information, psd, transport_gauge
+from coordinator.localization.joint import EXACT_COV_LIMIT, psd
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
 from coordinator.localization.sparse_lm import blas_threads
@@ -583,38 +583,10 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
     x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
-    normal = problem.normal(problem.evaluate(x))
-    if dr_poses.shape[1] <= EXACT_COV_LIMIT:
-        members = (seen.any(axis=1) | seen.any(axis=2)).astype(float)  # robots in the observed group
-        cov = _constrained_covariances(*normal, problem.info, dr_poses, x, members)
-    else:
-        cov = _joint_covariances(*normal)
+    cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3))
     return x, cov, good
-
-
-def _constrained_covariances(lap, ct, d, info, predicted, solved, members) -> np.ndarray:
-    """3x3 blocks (B, n, 3, 3) of the joint localizer's covariance, as ``JointLocalizer.localize``.
-
-    The dense normal matrix (robot-major, (B, 3n, 3n)) is rebuilt from its blocks, the prior
-    information ``info`` (B, n, 3, 3) split off, the observation information projected off the
-    gauge of the ``predicted`` poses, the sum inverted and its gauge transported to ``solved``.
-    """
-    b, n, _ = ct.shape
-    full = np.zeros((b, n, 3, n, 3))
-    full[:, :, :2, :, :2] = lap.reshape(b, 2, n, 2, n).transpose(0, 2, 1, 4, 3)
-    full[:, :, 2, :, :2] = ct.reshape(b, n, 2, n).transpose(0, 1, 3, 2)
-    full[:, :, :2, :, 2] = np.swapaxes(full[:, :, 2, :, :2], 1, 2).transpose(0, 1, 3, 2)
-    i = np.arange(n)
-    full[:, i, 2, i, 2] = d
-    prior = np.zeros_like(full)
-    prior[:, i, :, i, :] = np.swapaxes(info, 0, 1)
-    full, prior = full.reshape(b, 3 * n, 3 * n), prior.reshape(b, 3 * n, 3 * n)
-    total = prior + constrained_information(full - prior, predicted, members)
-    joint = transport_gauge(_inv_stack(total), predicted, solved, members)
-    idx = np.arange(3 * n).reshape(n, 3)
-    return psd(joint[:, idx[:, :, None], idx[:, None, :]])
 
 
 def _prior_information(cov: np.ndarray) -> np.ndarray:

@@ -56,12 +56,28 @@ def psd(cov: np.ndarray) -> np.ndarray:
     at the caller; here they are returned as they are.
     """
     sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    finite = np.isfinite(sym).all(axis=(-2, -1))
     out = sym.copy()
-    if finite.any():
-        lam, vec = np.linalg.eigh(sym[finite])
-        if (lam < 0).any():
-            out[finite] = (vec * np.maximum(lam, 0.0)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+    suspect = np.isfinite(sym).all(axis=(-2, -1)) & ~_positive_definite(sym)
+    if suspect.any():
+        lam, vec = np.linalg.eigh(sym[suspect])
+        out[suspect] = (vec * np.maximum(lam, 0.0)[..., None, :]) @ np.swapaxes(vec, -1, -2)
+    return out
+
+
+def _positive_definite(sym: np.ndarray) -> np.ndarray:
+    """(...,) True where the symmetric matrices are clearly positive definite (cheap test: 3x3 Sylvester, else Cholesky)."""
+    if sym.shape[-1] == 3:
+        a, b, c, d, e, f = sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2], sym[..., 0, 1], sym[..., 0, 2], sym[..., 1, 2]
+        det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+        with np.errstate(invalid="ignore"):
+            return (a > 0) & (a * b - d * d > 0) & (det > 0)
+    out = np.zeros(sym.shape[:-2], bool)
+    for k in np.ndindex(out.shape):
+        try:
+            np.linalg.cholesky(sym[k])
+            out[k] = True
+        except np.linalg.LinAlgError:
+            pass
     return out
 
 
@@ -103,85 +119,6 @@ def joint_covariance(normal: sp.spmatrix | np.ndarray) -> np.ndarray:
         return full
     except np.linalg.LinAlgError:
         return psd(full)
-
-
-def gauge_basis(poses: np.ndarray, members: np.ndarray | None = None) -> np.ndarray:
-    """(..., 3n, 3) orthonormal basis of the motions of the whole swarm that no observation sees.
-
-    Translating every robot, and rotating the swarm (positions about the origin and every
-    heading by the same angle), changes no range or bearing: at poses p (..., n, 3) these
-    directions are (1, 0, 0)_i, (0, 1, 0)_i and ``rotation_direction(p)``, over the robots
-    where ``members`` (..., n) (default all: the observed group; others do not move with it).
-    """
-    basis = _gauge_directions(poses, members)
-    return np.linalg.qr(basis)[0]
-
-
-def _gauge_directions(poses: np.ndarray, members: np.ndarray | None = None) -> np.ndarray:
-    """(..., 3n, 3): x translation, y translation, rotation about the origin at ``poses`` of the ``members``."""
-    shape = poses.shape[:-2]
-    n = poses.shape[-2]
-    basis = np.zeros(shape + (n, 3, 3))
-    basis[..., 0, 0] = basis[..., 1, 1] = 1.0
-    basis[..., 2] = rotation_direction(poses).reshape(shape + (n, 3))
-    if members is not None:
-        basis *= members[..., None, None]
-    return basis.reshape(shape + (3 * n, 3))
-
-
-def rotation_direction(poses: np.ndarray) -> np.ndarray:
-    """(..., 3n) the swarm's rotation about the origin at ``poses`` (..., n, 3): (-y_i, x_i, 1) per robot."""
-    out = np.stack([-poses[..., 1], poses[..., 0], np.ones(poses.shape[:-1])], axis=-1)
-    return out.reshape(poses.shape[:-2] + (-1,))
-
-
-def constrained_information(obs_info: np.ndarray, predicted: np.ndarray, members: np.ndarray | None = None) -> np.ndarray:
-    """Observation information J^T J (..., 3n, 3n) with the gauge directions of ``predicted`` poses removed.
-
-    J is evaluated at the solution, whose own gauge directions J annihilates, but the prior's
-    covariance was built around the predicted (dead-reckoning) poses. Without this projection
-    the observations would seem to inform the swarm's global rotation (the direction the prior
-    holds at the predicted poses), spurious information that makes an extended Kalman filter
-    overconfident along a trajectory; projecting the Jacobian onto the complement of those
-    directions (observability-constrained EKF) leaves the global pose to the prior.
-    """
-    q = gauge_basis(predicted, members)
-    qt = np.swapaxes(q, -1, -2)
-    aq = obs_info @ q
-    return obs_info - aq @ qt - q @ np.swapaxes(aq, -1, -2) + q @ (qt @ aq) @ qt
-
-
-def transport_gauge(
-    joint: np.ndarray, predicted: np.ndarray, solved: np.ndarray, members: np.ndarray | None = None
-) -> np.ndarray:
-    """``joint`` (..., 3n, 3n) with its rotation gauge moved from the predicted poses to the solution.
-
-    The covariance's unobservable rotation was built around ``predicted`` poses; the next step
-    linearises at ``solved``, whose rotation direction differs by the correction (-dy_i, dx_i, 0).
-    Left as is, the next prior would look more certain along the new direction than along the
-    old one (spurious information on the global rotation, compounding along a trajectory).
-    T = I + (r_solved - r_predicted) g^T, with g the dual of r_predicted in the gauge basis
-    (g^T r_predicted = 1, g^T translations = 0), maps the old direction onto the new one and
-    leaves translations alone; the covariance becomes T P T^T (first estimates, as in an
-    observability-constrained EKF). Non-finite matrices are returned as they are.
-    """
-    finite = np.isfinite(joint).all(axis=(-2, -1))
-    basis = _gauge_directions(predicted, members)
-    dual = np.linalg.pinv(basis)[..., 2, :]  # g: g^T basis = (0, 0, 1)
-    d = _gauge_directions(solved, members)[..., 2] - basis[..., 2]
-    safe = np.where(finite[..., None, None], joint, 0.0)
-    t_p = safe + d[..., :, None] * (dual[..., None, :] @ safe)  # T P
-    out = t_p + (t_p @ dual[..., :, None]) * d[..., None, :]  # T P T^T
-    out = 0.5 * (out + np.swapaxes(out, -1, -2))
-    return np.where(finite[..., None, None], out, joint)
-
-
-def _block_diag(blocks: np.ndarray) -> np.ndarray:
-    """Dense block-diagonal matrix (3n, 3n) from (n, 3, 3) blocks."""
-    n = len(blocks)
-    out = np.zeros((n, 3, n, 3))
-    out[np.arange(n), :, np.arange(n), :] = blocks
-    return out.reshape(3 * n, 3 * n)
 
 
 def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -241,10 +178,7 @@ class JointLocalizer:
         poses[:, 2] = wrap_angle(poses[:, 2])
         if n > EXACT_COV_LIMIT:
             return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
-        prior_info = u.T @ u if carried else _block_diag(np.swapaxes(u, 1, 2) @ u)
-        _, obs_jac = stack_terms(layout.size, observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg))
-        obs_info = constrained_information(dense(obs_jac.T @ obs_jac), mean)
-        joint = transport_gauge(joint_covariance(prior_info + obs_info), mean, poses)
+        joint = joint_covariance(result.normal_matrix)
         idx = np.arange(3 * n).reshape(n, 3)
         checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
         return SwarmEstimate.from_joint(prior.ids, poses, joint)
