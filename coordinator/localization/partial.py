@@ -47,7 +47,8 @@ def solvable_subset(
             return keep, solve(keep), excluded
         except LocalizationError as exc:
             named = np.isin(ids, exc.robots) & keep
-            if not retry or attempt == MAX_RETRIES or exc.reason not in SOLVER_FAILURES or not named.any() or named.all():
+            left = keep & ~named
+            if not retry or attempt == MAX_RETRIES or exc.reason not in SOLVER_FAILURES or not named.any() or left.sum() < 2:
                 raise
             for r in ids[named]:
                 excluded[int(r)] = exc.reason
