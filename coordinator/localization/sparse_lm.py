@@ -5,7 +5,7 @@ Residuals and Jacobians are assembled vectorised (COO triplets); the normal equa
 sparse Cholesky-like factorization (SciPy's SuperLU with a COLAMD fill-reducing ordering)
 otherwise, so a 1000-robot swarm with range-limited sensing stays fast.
 
-Small problems (up to ``DENSE_LIMIT`` unknowns) never touch scipy.sparse: the Jacobian is
+Small problems (up to ``DENSE_JACOBIAN_LIMIT`` unknowns) never touch scipy.sparse: the Jacobian is
 a dense array built by ``np.bincount`` from the triplets, whose per-call overhead is a few
 microseconds instead of the ~100 us of building sparse matrices, which dominated the
 10-robot step. Dense algebra on bigger problems runs with one BLAS thread (``blas_threads``):
@@ -25,6 +25,7 @@ from scipy.sparse.linalg import splu
 from threadpoolctl import ThreadpoolController
 
 DENSE_LIMIT = 400  # unknowns up to which a dense solve is faster than sparse LU
+DENSE_JACOBIAN_LIMIT = 64  # unknowns up to which a dense Jacobian (and dense J^T J) beats building sparse ones
 BLAS_SMALL = 96  # matrix order below which OpenBLAS stays single-threaded anyway (no limit needed)
 _THREADPOOLS = ThreadpoolController()
 
@@ -64,10 +65,10 @@ class PoseLayout:
 def jacobian(n_rows: int, n_cols: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> sp.csr_matrix | np.ndarray:
     """Jacobian from COO triplets (duplicates summed); entries with column -1 (fixed unknowns) are dropped.
 
-    Dense (ndarray) up to ``DENSE_LIMIT`` columns, CSR above.
+    Dense (ndarray) up to ``DENSE_JACOBIAN_LIMIT`` columns, CSR above.
     """
     keep = cols >= 0
-    if n_cols <= DENSE_LIMIT:
+    if n_cols <= DENSE_JACOBIAN_LIMIT:
         flat = rows[keep] * n_cols + cols[keep]
         return np.bincount(flat, weights=vals[keep], minlength=n_rows * n_cols).reshape(n_rows, n_cols)
     return sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n_rows, n_cols))
