@@ -25,14 +25,20 @@ from runtime.state import StepCommands, SwarmEstimate
 
 def dead_reckon(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> SwarmEstimate:
     """Post-step estimate hat C_tu with covariance, from the pre-step estimate and the commands."""
+    poses, cov, joint = dead_reckon_parts(prior, step, cfg)
+    return SwarmEstimate(prior.ids, poses, cov, joint)
+
+
+def dead_reckon_parts(
+    prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``dead_reckon`` as arrays: poses (n, 3), covariances (n, 3, 3), joint covariance (3n, 3n) or None."""
     if not np.array_equal(prior.ids, step.ids):
         raise SwarmInputError(
             f"step commands are for robots {step.ids.tolist()}, the estimate for {prior.ids.tolist()}"
         )
     poses, cov = dead_reckon_arrays(prior.poses, prior.cov, step.commands, step.moving, cfg)
-    if prior.joint is None:
-        return SwarmEstimate(prior.ids, poses, cov)
-    return SwarmEstimate.from_joint(prior.ids, poses, propagate_joint(prior, step, cfg))
+    return poses, cov, None if prior.joint is None else propagate_joint(prior, step, cfg)
 
 
 def propagate_joint(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> np.ndarray:

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.dead_reckoning import dead_reckon_parts
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import (
@@ -152,14 +152,13 @@ class JointLocalizer:
             return self._localize(prior, step, obs)
 
     def _localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
-        dr = dead_reckon(prior, step, self.cfg)
+        mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
         i, j = obs.indexed(prior.ids)
         require_observable(prior.ids, i, j)
         n = prior.n
         layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
-        mean = dr.poses
-        carried = dr.joint is not None and n <= EXACT_COV_LIMIT
-        u = joint_sqrt_information(dr.joint) if carried else sqrt_information(dr.cov)
+        carried = dr_joint is not None and n <= EXACT_COV_LIMIT
+        u = joint_sqrt_information(dr_joint) if carried else sqrt_information(dr_cov)
         prior_fn = joint_prior_terms if carried else prior_terms
 
         def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:

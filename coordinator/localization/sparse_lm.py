@@ -130,7 +130,7 @@ def levenberg_marquardt(
     def add_diagonal(a, values):
         if isinstance(a, np.ndarray):
             out = a.copy()
-            out[np.diag_indices_from(out)] += values
+            out.flat[:: len(out) + 1] += values
             return out
         return a + sp.diags(values)
 
