@@ -1,6 +1,7 @@
 """Data passed between motion, sensing and localization (SI units throughout).
 
-* ``SwarmEstimate``: poses (n, 3) = (x m, y m, heading rad) with a 3x3 covariance per robot.
+* ``SwarmEstimate``: poses (n, 3) = (x m, y m, heading rad) with a 3x3 covariance per robot
+  and, optionally, the joint (3n, 3n) covariance of the whole swarm (cross-correlations).
 * ``StepCommands``: one inchworm step's body-frame commands (turn rad, drive m).
 * ``Observations``: range/bearing rows ``[observer, observed, range_m, bearing_rad]``,
   the bearing measured in the observer's body frame (Eq. 20).
@@ -58,11 +59,17 @@ class SwarmEstimate:
     ``cov[i]`` is the 3x3 covariance of (x, y, heading) of robot ``ids[i]``
     (m^2, m*rad, rad^2). ``delta`` is the paper's scalar position uncertainty
     sqrt(var_x + var_y) (as in Eq. B6), in metres.
+
+    ``joint``, when known, is the (3n, 3n) covariance of all poses, ordered robot by robot
+    (x_0, y_0, heading_0, x_1, ...); its 3x3 diagonal blocks are ``cov`` (``from_joint``).
+    It carries the cross-correlations a localizer's next prior needs; None = robots
+    treated as independent. ``select`` keeps it (a marginal is a sub-block).
     """
 
     ids: np.ndarray
     poses: np.ndarray
     cov: np.ndarray
+    joint: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         ids = robot_ids(self.ids)
@@ -79,6 +86,21 @@ class SwarmEstimate:
         object.__setattr__(self, "ids", ids)
         object.__setattr__(self, "poses", poses)
         object.__setattr__(self, "cov", cov)
+        if self.joint is not None:
+            joint = np.asarray(self.joint, dtype=float)
+            if joint.shape != (3 * len(ids), 3 * len(ids)):
+                raise SwarmInputError(f"joint covariance must have shape ({3 * len(ids)}, {3 * len(ids)}), got {joint.shape}")
+            if not np.all(np.isfinite(joint)):
+                raise SwarmInputError("joint covariance holds NaN/inf")
+            object.__setattr__(self, "joint", joint)
+
+    @classmethod
+    def from_joint(cls, ids: np.ndarray | list[int], poses: np.ndarray, joint: np.ndarray) -> SwarmEstimate:
+        """Estimate whose per-robot ``cov`` are the 3x3 diagonal blocks of ``joint`` (3n, 3n)."""
+        n = len(ids)
+        idx = np.arange(3 * n).reshape(n, 3)
+        joint = np.asarray(joint, dtype=float)
+        return cls(np.asarray(ids), poses, joint[idx[:, :, None], idx[:, None, :]], joint)
 
     @classmethod
     def isotropic(
@@ -113,8 +135,12 @@ class SwarmEstimate:
         return np.sqrt(np.maximum(self.cov[:, 2, 2], 0.0))
 
     def select(self, mask: np.ndarray) -> SwarmEstimate:
-        """The estimate of the robots where ``mask`` (n,) is True."""
-        return SwarmEstimate(self.ids[mask], self.poses[mask], self.cov[mask])
+        """The estimate of the robots where ``mask`` (n,) is True (the joint covariance marginalised to them)."""
+        joint = None
+        if self.joint is not None:
+            idx = (3 * np.arange(self.n)[mask])[:, None] + np.arange(3)
+            joint = self.joint[idx.ravel()[:, None], idx.ravel()[None, :]]
+        return SwarmEstimate(self.ids[mask], self.poses[mask], self.cov[mask], joint)
 
 
 @dataclass(frozen=True)

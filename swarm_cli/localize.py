@@ -7,7 +7,9 @@ with the observations as a step in which nobody moved.
 
 Real data: robots that cannot be localized (unobserved, or cut off from the rest) are
 left out and listed under ``excluded`` unless ``--strict``; outliers are resisted by
-a Huber loss unless ``--no-robust``.
+a Huber loss unless ``--no-robust``. When the solver fails (no convergence, singular
+information), the robots it names are left out too, the rest is localized, and the exit
+code is ``EXIT_NOT_LOCALIZED`` (also when the solver fails for everyone): see docs/localize-input.md.
 """
 
 from __future__ import annotations
@@ -22,13 +24,14 @@ from typing import Any
 import numpy as np
 
 from coordinator.localization import make_localizer
-from coordinator.localization.graph import observable_subset
+from coordinator.localization.partial import SOLVER_FAILURES, solvable_subset
 from runtime.config import ModelConfig
-from runtime.errors import SwarmInputError
+from runtime.errors import LocalizationError, SwarmInputError
 from runtime.state import Observations, StepCommands, SwarmEstimate, robot_ids
 from swarm_cli.options import add_localizer_option, add_model_options, model_config, print_json
 
 HUBER_SIGMAS = 3.0
+EXIT_NOT_LOCALIZED = 3  # the solver failed for some or all robots (bad input is 2)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -99,30 +102,34 @@ def _parse_prior(prior: Any, ids: np.ndarray) -> SwarmEstimate | None:
 def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> dict:
     """The output document for one input document."""
     ids, obs, prior = parse_input(data)
-    i, j = obs.indexed(ids)
-    excluded: dict[int, str] = {}
-    if not strict:
-        keep, excluded = observable_subset(ids, i, j)
-        if not keep.any():
-            raise SwarmInputError(f"no robot can be localized: {excluded}")
-        obs = obs.select(keep[i] & keep[j])
-        if prior is not None:
-            prior = prior.select(keep)
-        ids = ids[keep]
+    all_ids, i, j = ids, *obs.indexed(ids)
     if localizer == "paper":
         huber = HUBER_SIGMAS * math.hypot(cfg.range_sigma_m, cfg.sensing_range_m * cfg.bearing_sigma_rad) if robust else None
     else:
         huber = HUBER_SIGMAS if robust else None
     loc = make_localizer(localizer, cfg, huber=huber)
+
+    def solve(keep: np.ndarray):
+        sub_obs = obs.select(keep[i] & keep[j])
+        if prior is None:
+            return loc.topology(all_ids[keep], sub_obs)
+        return loc.localize(prior.select(keep), StepCommands.stationary(all_ids[keep]), sub_obs)
+
+    excluded: dict[int, str] = {}
+    if strict:
+        result = solve(np.ones(len(ids), bool))
+    else:
+        keep, result, excluded = solvable_subset(solve, ids, obs)
+        ids = ids[keep]
     if prior is None:
-        topo = loc.topology(ids, obs)
+        topo = result
         robots = [
             {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": None if not np.isfinite(h) else float(h), "delta_p": float(dp)}
             for r, p, h, dp in zip(ids, topo.positions, topo.headings, topo.delta_p)
         ]
         frame = {"frame": "local", "reference": int(ids[topo.reference])}
     else:
-        est = loc.localize(prior, StepCommands.stationary(ids), obs)
+        est = result
         robots = [
             {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2]), "delta_p": float(dp)}
             for r, p, dp in zip(est.ids, est.poses, est.delta)
@@ -141,8 +148,14 @@ def run(args: argparse.Namespace) -> int:
         data = json.loads(args.file.read_text())
     except json.JSONDecodeError as exc:
         raise SwarmInputError(f"{args.file} is not valid JSON: {exc}") from None
-    result = localize_document(data, model_config(args), args.localizer, strict=args.strict, robust=not args.no_robust)
+    try:
+        result = localize_document(data, model_config(args), args.localizer, strict=args.strict, robust=not args.no_robust)
+    except LocalizationError as exc:
+        if exc.reason not in SOLVER_FAILURES:
+            raise  # unobserved / disconnected under --strict: an input problem (exit 2)
+        print(f"swarm localize: error: {exc}", file=sys.stderr)
+        return EXIT_NOT_LOCALIZED
     for item in result["excluded"]:
         print(f"swarm localize: left out robot {item['id']}: {item['reason']}", file=sys.stderr)
     print_json(result)
-    return 0
+    return EXIT_NOT_LOCALIZED if any(item["reason"] in SOLVER_FAILURES for item in result["excluded"]) else 0

@@ -85,3 +85,22 @@ def test_bench_localize_json_contract():
     for r in doc["results"]:
         assert r["ms_median"] > 0 and r["err_over_crlb"] > 0
         assert r["joint"]["err_over_crlb"] < r["paper"]["err_over_crlb"]
+
+
+def test_solver_failure_has_its_own_exit_code_and_localizes_the_rest(tmp_path):
+    """Two robots at the same spot (0 mm, no prior): the joint topology does not converge with all of
+    them (this draw); the robots it names are left out, the rest is localized, exit code 3."""
+    from test_localization_degenerate import close_pair_case, document  # noqa: PLC0415 - shared test scenario
+
+    _, obs, _ = close_pair_case(6, 0.0, True, 11)
+    path = tmp_path / "pair.json"
+    path.write_text(json.dumps(document(obs, None, 6)))
+    out = swarm("localize", str(path), "--localizer", "joint")
+    assert out.returncode == 3, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1], parse_constant=lambda c: pytest.fail(f"invalid JSON constant {c}"))
+    failed = [e["id"] for e in doc["excluded"] if e["reason"] == "no-convergence"]
+    assert failed and {r["id"] for r in doc["robots"]} == set(range(6)) - set(failed)
+    assert f"left out robot {failed[0]}: no-convergence" in out.stderr
+    strict = swarm("localize", str(path), "--localizer", "joint", "--strict")
+    assert strict.returncode == 3 and "no-convergence" in strict.stderr and "Traceback" not in strict.stderr
+    assert strict.stdout.strip() == ""

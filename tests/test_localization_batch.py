@@ -13,6 +13,7 @@ from coordinator.localization import make_localizer
 from coordinator.localization.batch import localize_batch, observable
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
+from coordinator.localization.partial import localize_observable
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.geometry import transform_poses, wrap_angle
@@ -114,10 +115,13 @@ def test_batch_equals_single_swarm_localizer(method, n, size):
             want = make_localizer(method, cfg).localize(prior, step, obs)
         except LocalizationError as err:
             assert err.reason in ("unobserved", "disconnected")
-            assert not out.ok[k]
+            assert not out.ok[k]  # not fully localized: the runtime's partial answer, as in the executor
+            partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
+            assert set(err.robots) <= set(excluded)
+            assert_same_estimate(out.poses[k], out.cov[k], partial)
             dr = dead_reckon(prior, step, cfg)
-            np.testing.assert_array_equal(out.poses[k], dr.poses)
-            np.testing.assert_allclose(out.cov[k], dr.cov, rtol=1e-12, atol=0)
+            kept_dr = np.isin(prior.ids, list(excluded))
+            np.testing.assert_allclose(out.poses[k][kept_dr], dr.poses[kept_dr], rtol=0, atol=1e-12)
             continue
         assert out.ok[k], f"sample {k} not localized"
         assert_same_estimate(out.poses[k], out.cov[k], want)
@@ -159,7 +163,8 @@ def two_groups(cfg: ModelConfig) -> tuple[SwarmEstimate, StepCommands, tuple[np.
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_non_observable_samples_fall_back_to_dead_reckoning(method):
+def test_non_observable_samples_are_localized_like_the_runtime(method):
+    """Largest observable group localized, the rest dead reckoning: the executor's partial localization."""
     cfg = ModelConfig()
     case = random_step(6, cfg, np.random.default_rng(3), spacing=0.2)
     seen, ranges, bearings = dense(case.observations, 6)
@@ -179,9 +184,13 @@ def test_non_observable_samples_fall_back_to_dead_reckoning(method):
         prior, step, obs = batch.single(k)
         with pytest.raises(LocalizationError, match=reason):
             make_localizer(method, cfg).localize(prior, step, obs)
+        partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
+        assert set(excluded.values()) == {reason} and len(excluded) < 6
+        assert_same_estimate(out.poses[k], out.cov[k], partial)
         dr = dead_reckon(prior, step, cfg)
-        np.testing.assert_array_equal(out.poses[k], dr.poses)
-        np.testing.assert_allclose(out.cov[k], dr.cov, rtol=1e-12, atol=0)
+        left = np.isin(prior.ids, list(excluded))
+        np.testing.assert_allclose(out.poses[k][left], dr.poses[left], rtol=0, atol=1e-12)
+        assert np.abs(out.poses[k][~left] - dr.poses[~left]).max() > 0  # the others were localized
     alone = localize_batch(method, cfg, *[a[:1] for a in batch.arrays()])
     want = make_localizer(method, cfg).localize(case.prior, case.step, case.observations)
     for k in (0, 3):  # the localizable samples are unaffected by their neighbours in the batch

@@ -24,9 +24,13 @@ Pose unknowns the sparse code holds fixed (the reference robot of the paper's ga
 heading of a robot that observed nobody) keep their column with an identity row, so
 they do not move and the other unknowns solve exactly the reduced system.
 
-A sample that cannot be localized (a robot nobody observed, a disconnected observation
-graph, invalid values, a degenerate topology, no convergence) gets ``ok = False`` and the
-dead-reckoning estimate, the runtime's fallback; no exception is raised for it.
+A sample that cannot be fully localized (a robot nobody observed, a disconnected observation
+graph, a degenerate topology, no convergence) gets ``ok = False`` and the runtime's answer
+(``partial.localize_observable``): the largest observable group is localized, the other
+robots keep dead reckoning. For the joint method that is the batched solve with the other
+robots' observations removed (a robot without observations keeps its prior exactly);
+samples that still fail, and the paper's method, go through the single-swarm runtime code.
+Samples holding invalid values get ``ok = False`` and dead reckoning; no exception is raised.
 """
 
 from __future__ import annotations
@@ -36,9 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
-from coordinator.localization.joint import EXACT_COV_LIMIT
+from coordinator.localization.graph import observable_subset
+from coordinator.localization.joint import EXACT_COV_LIMIT, psd
 from coordinator.localization.paper import fuse
-from coordinator.localization.range_bearing import COV_FLOOR, sensor_sigmas, sqrt_information
+from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
+from coordinator.localization.sparse_lm import blas_threads
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     cluster_delta_p,
@@ -50,6 +56,9 @@ from coordinator.localization.topology import (
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.geometry import wrap_angle
+from runtime.state import Observations, StepCommands, SwarmEstimate
+from coordinator.localization import make_localizer
+from coordinator.localization.partial import localize_observable
 
 METHODS = ("paper", "joint")
 # (xtol, ftol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
@@ -89,9 +98,10 @@ def localize_batch(
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
     ``seen[b, i, j]`` = robot i observed robot j (the diagonal is ignored), ``ranges``/``bearings``
-    (B, n, n) (m, rad; only read where ``seen``). Where a sample could not be localized
-    (unobservable, values the single-swarm input types reject, degenerate, no convergence)
-    ``ok`` is False and its poses/covariances are those of dead reckoning.
+    (B, n, n) (m, rad; only read where ``seen``). Where a sample could not be fully localized
+    (unobservable, degenerate, no convergence) ``ok`` is False and its poses/covariances are
+    the runtime's partial localization (``partial.localize_observable``); where it holds
+    values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
     """
     if method not in METHODS:
         raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
@@ -109,20 +119,54 @@ def localize_batch(
     dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
-    ok = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) & observable(seen)
-
+    valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)
+    ok = valid & observable(seen)
     poses, cov = dr_poses.copy(), dr_cov.copy()
     solve = _localize_paper if method == "paper" else _localize_joint
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
+    with blas_threads(3 * n * min(todo.size, chunk)):  # many small solves: one BLAS thread is fastest
+        _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws)
+        partial = np.flatnonzero(valid & ~ok)
+        if partial.size:
+            _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
+    return BatchEstimate(poses, cov, ok)
+
+
+def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws) -> None:
+    """Localize samples ``todo`` chunk by chunk into poses/cov; samples that fail get ok = False."""
     for start in range(0, todo.size, chunk):  # chunks keep the working arrays small (cache, allocator)
         sel = todo[start : start + chunk]
         est, est_cov, good = solve(cfg, dr_poses[sel], dr_cov[sel], seen[sel], ranges[sel], bearings[sel], ws)
         poses[sel[good]] = est[good]
         cov[sel[good]] = est_cov[good]
         ok[sel[~good]] = False
-    return BatchEstimate(poses, cov, ok)
+
+
+def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
+    """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
+    n = seen.shape[1]
+    rest = index
+    if method == "joint":
+        masked = seen[index].copy()
+        for k, b in enumerate(index):
+            i, j = np.nonzero(seen[b])
+            keep, _ = observable_subset(np.arange(n), i, j)
+            masked[k] &= keep[:, None] & keep[None, :] if keep.sum() >= 2 else False
+        dr_poses, dr_cov = poses[index], cov[index]  # dead reckoning at this point
+        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
+        poses[index[good]], cov[index[good]] = est[good], est_cov[good]
+        rest = index[~good]
+    ids = np.arange(n)
+    loc = make_localizer(method, cfg)
+    for b in rest:
+        i, j = np.nonzero(seen[b])
+        est, _ = localize_observable(
+            loc, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
+            Observations(i, j, ranges[b, i, j], bearings[b, i, j]), cfg,
+        )
+        poses[b], cov[b] = est.poses, est.cov
 
 
 def observable(seen: np.ndarray) -> np.ndarray:
@@ -421,12 +465,12 @@ class _JointProblem(_Batched):
     x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
     """
 
-    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, s_b: float, ws: _Workspace):
-        self.s_r, self.s_b, self.ws = s_r, s_b, ws
+    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
+        self.s_r, self.ws = s_r, ws
         w = seen.astype(float)
-        self.w_sr, self.w_sb = w / s_r, w / s_b
-        self.wr, self.wb = w / s_r**2, w / s_b**2
         self.rho = _on_pairs(seen, ranges)
+        self.w_sr, self.w_sb = w / s_r, w * bearing_weights(self.rho, cfg)  # 1 / s_b(rho) where seen, 0 elsewhere
+        self.wr, self.wb = w / s_r**2, self.w_sb**2
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
@@ -471,7 +515,7 @@ class _JointProblem(_Batched):
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
 
         Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
-        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b^2.
+        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b(rho)^2.
         """
         ws, inv_dist, info = self.ws, st["inv_dist"], self.info
         b, n, _ = inv_dist.shape
@@ -499,7 +543,7 @@ class _JointProblem(_Batched):
             np.negative(both, out=block)
             _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
         lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
-        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b^2 = beta (-d_y, d_x).
+        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b(rho)^2 = beta (-d_y, d_x).
         ct = ws("ct", (b, n, 2 * n))
         beta_dy = np.multiply(beta, st["dy"], out=t1)
         beta_dx = np.multiply(beta, st["dx"], out=t2)
@@ -516,12 +560,12 @@ class _JointProblem(_Batched):
         shape = st["inv_dist"].shape
         ux, uy = ws.arrays["ux"], ws.arrays["uy"]
         rr = np.multiply(st["rr"], 1.0 / self.s_r, out=ws("n1", shape))  # range residual / s_r
-        rb = np.multiply(st["rb"], 1.0 / self.s_b, out=ws("n2", shape))
-        rb *= st["inv_dist"]  # bearing residual / (s_b |d|)
+        rb = np.multiply(st["rb"], self.w_sb, out=ws("n2", shape))
+        rb *= st["inv_dist"]  # bearing residual / (s_b(rho) |d|)
         q, tmp = ws("beta", shape), ws("tmp", shape)
         g_prior = st["gp"]
         g_xy = np.empty((b, n2))
-        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b |d|)
+        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b(rho) |d|)
             np.multiply(ux if k == 0 else uy, rr, out=q)
             np.multiply(uy if k == 0 else ux, rb, out=tmp)
             if k == 0:
@@ -529,17 +573,17 @@ class _JointProblem(_Batched):
             else:
                 q += tmp
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
-        g_theta = g_prior[:, :, 2] - np.einsum("bij->bi", st["rb"]) / self.s_b
+        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
         diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
         d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
-    s_r, s_b = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, s_b, ws)
+    s_r, _ = sensor_sigmas(cfg)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
     x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
-    cov = _joint_covariances(*problem.normal(problem.evaluate(x)))
+    cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3))
     return x, cov, good

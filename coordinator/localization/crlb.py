@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from coordinator.localization.range_bearing import observation_terms, prior_terms, sqrt_information, stack_terms
-from coordinator.localization.sparse_lm import PoseLayout
+from coordinator.localization.sparse_lm import PoseLayout, dense
 from runtime.config import ModelConfig
 
 
@@ -40,14 +40,16 @@ def fisher_information(
     layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
     observer_idx = np.asarray(observer_idx, dtype=np.int64)
     observed_idx = np.asarray(observed_idx, dtype=np.int64)
-    # Only the Jacobian matters: measurement values and prior mean just shift the residuals.
-    rho = np.zeros(len(observer_idx))
+    # Only the Jacobian matters (measured values and prior mean just shift the residuals), and the
+    # bearing weights, which depend on the range: the true one here.
+    d = poses[observed_idx, :2] - poses[observer_idx, :2]
+    rho = np.hypot(d[:, 0], d[:, 1])
     _, jac = stack_terms(
         layout.size,
         prior_terms(poses, layout, poses, sqrt_information(np.asarray(prior_cov, dtype=float))),
-        observation_terms(poses, layout, observer_idx, observed_idx, rho, rho, cfg),
+        observation_terms(poses, layout, observer_idx, observed_idx, rho, np.zeros(len(rho)), cfg),
     )
-    return (jac.T @ jac).toarray()
+    return dense(jac.T @ jac)
 
 
 def crlb_pose_covariances(

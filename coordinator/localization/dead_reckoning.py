@@ -9,6 +9,8 @@ estimated pose, which equals Eq. 17 when the commands were computed from that es
 Its uncertainty delta_u (Section 5.1.1) propagates the prior covariance and the
 motion noise to first order (``runtime.motion.motion_covariance``). Anchors keep
 their prior uncertainty: delta_u(anchor) = prior delta (the paper leaves this open).
+When the prior carries the joint covariance of the swarm, it is propagated too:
+P' = F P F^T + blockdiag(Fu_i Q Fu_i^T), F = blockdiag(Fx_i) (each robot moves on its own).
 """
 
 from __future__ import annotations
@@ -23,12 +25,36 @@ from runtime.state import StepCommands, SwarmEstimate
 
 def dead_reckon(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> SwarmEstimate:
     """Post-step estimate hat C_tu with covariance, from the pre-step estimate and the commands."""
+    poses, cov, joint = dead_reckon_parts(prior, step, cfg)
+    return SwarmEstimate(prior.ids, poses, cov, joint)
+
+
+def dead_reckon_parts(
+    prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+    """``dead_reckon`` as arrays: poses (n, 3), covariances (n, 3, 3), joint covariance (3n, 3n) or None."""
     if not np.array_equal(prior.ids, step.ids):
         raise SwarmInputError(
             f"step commands are for robots {step.ids.tolist()}, the estimate for {prior.ids.tolist()}"
         )
     poses, cov = dead_reckon_arrays(prior.poses, prior.cov, step.commands, step.moving, cfg)
-    return SwarmEstimate(prior.ids, poses, cov)
+    return poses, cov, None if prior.joint is None else propagate_joint(prior, step, cfg)
+
+
+def propagate_joint(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> np.ndarray:
+    """The joint covariance (3n, 3n) after ``step``: F P F^T + motion noise (block-diagonal)."""
+    n = prior.n
+    commands = np.where(step.moving[:, None], step.commands, 0.0)
+    noise = np.where(step.moving[:, None, None], motion_covariance(prior.poses, np.zeros((n, 3, 3)), commands, cfg), 0.0)
+    heading = prior.poses[:, 2] + commands[:, 0]
+    fx = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    fx[:, 0, 2] = -commands[:, 1] * np.sin(heading)
+    fx[:, 1, 2] = commands[:, 1] * np.cos(heading)
+    p = prior.joint.reshape(n, 3, n, 3)
+    out = np.einsum("iab,ibjc,jdc->iajd", fx, p, fx, optimize=True)
+    out[np.arange(n), :, np.arange(n), :] += noise
+    out = out.reshape(3 * n, 3 * n)
+    return 0.5 * (out + out.T)
 
 
 def dead_reckon_arrays(

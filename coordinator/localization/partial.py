@@ -1,12 +1,17 @@
-"""Localize what can be localized: the runtime's answer to a robot out of sight.
+"""Localize what can be localized: the runtime's answer to a robot out of sight or a failed solve.
 
 When some robots are unobserved or cut off from the rest after a step, the largest
 observable group (``graph.observable_subset``) is localized as usual and the others
 keep their dead-reckoning estimate (Phase 1.1), instead of the whole swarm falling back
-to dead reckoning. The robots left out, and why, are returned so the caller can report them.
+to dead reckoning. When the solver itself fails (``no-convergence``, ``degenerate``),
+the robots its error names are set aside the same way and the rest is localized again
+(at most ``MAX_RETRIES`` times). The robots left out, and why, are returned so the
+caller can report them.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
@@ -14,27 +19,75 @@ from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
 from runtime.state import Observations, StepCommands, SwarmEstimate
 
+MAX_RETRIES = 3  # solver failures tolerated, each setting aside the robots it names
+SOLVER_FAILURES = ("no-convergence", "degenerate")
+
+
+def solvable_subset(
+    solve, ids: np.ndarray, obs: Observations, *, retry: bool = True
+) -> tuple[np.ndarray, object, dict[int, str]]:
+    """(mask over ``ids`` of the robots solved, ``solve(mask)``'s result, {left-out id: reason}).
+
+    ``solve(mask)`` localizes the robots where ``mask`` is True (observations restricted to them).
+    Robots outside the largest observable group are left out first; then, while ``retry`` and
+    ``solve`` fails with a solver failure naming some (not all) robots, those are left out too.
+    The last ``LocalizationError`` propagates when nothing is left to solve.
+    """
+    i, j = obs.indexed(ids)
+    keep = np.ones(len(ids), bool)
+    excluded: dict[int, str] = {}
+    for attempt in range(MAX_RETRIES + 1):
+        live = keep[i] & keep[j]
+        sub_keep, sub_excluded = observable_subset(ids[keep], *_reindex(keep, i[live], j[live]))
+        excluded.update(sub_excluded)
+        keep[np.flatnonzero(keep)[~sub_keep]] = False
+        if keep.sum() < 2:
+            raise LocalizationError("unobserved", ids, "fewer than two robots can be localized")
+        try:
+            return keep, solve(keep), excluded
+        except LocalizationError as exc:
+            named = np.isin(ids, exc.robots) & keep
+            left = keep & ~named
+            if not retry or attempt == MAX_RETRIES or exc.reason not in SOLVER_FAILURES or not named.any() or left.sum() < 2:
+                raise
+            for r in ids[named]:
+                excluded[int(r)] = exc.reason
+            keep &= ~named
+    raise AssertionError("unreachable")
+
+
+def _reindex(keep: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices into ``ids`` mapped to indices into ``ids[keep]``."""
+    new = np.cumsum(keep) - 1
+    return new[i], new[j]
+
 
 def localize_observable(
     localizer, prior: SwarmEstimate, step: StepCommands, obs: Observations, cfg: ModelConfig
 ) -> tuple[SwarmEstimate, dict[int, str]]:
     """Post-step estimate and {robot id: reason} of the robots that kept dead reckoning."""
-    try:
-        return localizer.localize(prior, step, obs), {}
-    except LocalizationError as exc:
-        failure = exc
-    dr = dead_reckon(prior, step, cfg)
     i, j = obs.indexed(prior.ids)
-    keep, excluded = observable_subset(prior.ids, i, j)
-    if keep.sum() < 2 or not excluded:
-        return dr, {int(r): failure.reason for r in prior.ids}
+
+    def solve(keep: np.ndarray) -> SwarmEstimate:
+        if keep.all():
+            return localizer.localize(prior, step, obs)
+        return localizer.localize(prior.select(keep), step.select(keep), obs.select(keep[i] & keep[j]))
+
+    dr = dead_reckon(prior, step, cfg)
     try:
-        sub = localizer.localize(prior.select(keep), step.select(keep), obs.select(keep[i] & keep[j]))
+        keep, sub, excluded = solvable_subset(solve, prior.ids, obs)
     except LocalizationError as exc:
         return dr, {int(r): exc.reason for r in prior.ids}
+    if keep.all():
+        return sub, {}
+    return merge(dr, sub, keep), excluded
+
+
+def merge(dr: SwarmEstimate, sub: SwarmEstimate, keep: np.ndarray) -> SwarmEstimate:
+    """``dr`` with the robots where ``keep`` replaced by ``sub`` (their localized estimate)."""
     poses, cov = dr.poses.copy(), dr.cov.copy()
     poses[keep], cov[keep] = sub.poses, sub.cov
-    return SwarmEstimate(prior.ids, poses, cov), excluded
+    return SwarmEstimate(dr.ids, poses, cov)
 
 
-__all__ = ["localize_observable"]
+__all__ = ["localize_observable", "solvable_subset", "merge"]

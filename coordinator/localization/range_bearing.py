@@ -2,8 +2,16 @@
 
 Unknowns are robot poses (x, y, theta). Two kinds of residuals:
 
-* observation (i sees j): ((|x_j - x_i| - rho_ij) / s_r, wrap(atan2(x_j - x_i) - theta_i - phi_ij) / s_b)
+* observation (i sees j): ((|x_j - x_i| - rho_ij) / s_r, wrap(atan2(x_j - x_i) - theta_i - phi_ij) / s_b(rho_ij))
 * prior: W_i (p_i - mu_i), W_i^T W_i = P_i^-1 (dead-reckoning mean and covariance)
+
+Near-coincident robots: the bearing of a robot a few millimetres away means nothing (the
+range sensor alone puts it anywhere within s_r), and its Jacobian grows like 1 / range.
+The bearing sigma is therefore gated smoothly by the measured range,
+s_b(rho) = s_b sqrt(1 + (GATE_SIGMAS s_r / rho)^4): unchanged beyond a few range sigmas
+(+0.01 % at 0.25 m with the defaults), meaningless below (a 0-range observation keeps only
+its range). It depends on the measurement, not on the estimate, so the problem stays a
+fixed weighted least squares (docs/localization.md).
 
 They are shared by the joint localizer and the Cramer-Rao bound, whose Fisher
 information is exactly J^T J of these residuals at the true poses.
@@ -19,6 +27,7 @@ from runtime.config import ModelConfig
 from runtime.geometry import wrap_angle
 
 COV_FLOOR = 1e-12  # smallest prior variance, so an exact prior stays invertible
+GATE_SIGMAS = 3.0  # range sigmas below which a bearing loses its weight (s_b(rho) doubles at ~0.84 of this)
 
 
 def sqrt_information(cov: np.ndarray) -> np.ndarray:
@@ -39,6 +48,18 @@ def sensor_sigmas(cfg: ModelConfig) -> tuple[float, float]:
     return max(cfg.range_sigma_m, 1e-9), max(cfg.bearing_sigma_rad, 1e-9)
 
 
+def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
+    """1 / s_b(rho) (1/rad): the whitening weight of each bearing given its measured range ``range_m`` (m).
+
+    s_b(rho) = s_b sqrt(1 + (GATE_SIGMAS s_r / rho)^4), written as rho^2 / (s_b sqrt(rho^4 + g^4))
+    so that a zero range gives weight 0 (no division by zero).
+    """
+    s_r, s_b = sensor_sigmas(cfg)
+    rho2 = np.square(np.asarray(range_m, dtype=float))
+    gate2 = (GATE_SIGMAS * s_r) ** 2
+    return rho2 / (s_b * np.sqrt(rho2 * rho2 + gate2 * gate2))
+
+
 def observation_terms(
     poses: np.ndarray,
     layout: PoseLayout,
@@ -48,13 +69,17 @@ def observation_terms(
     bearing_rad: np.ndarray,
     cfg: ModelConfig,
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets."""
-    s_r, s_b = sensor_sigmas(cfg)
+    """Residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets.
+
+    Bearings are whitened by ``bearing_weights`` of their measured range ``range_m``.
+    """
+    s_r, _ = sensor_sigmas(cfg)
+    w_b = bearing_weights(range_m, cfg)
     m = len(observer)
     d = poses[observed, :2] - poses[observer, :2]
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
     r_range = (dist - range_m) / s_r
-    r_bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) / s_b
+    r_bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
     residual = np.stack([r_range, r_bearing], axis=1).ravel()
     ux, uy = d[:, 0] / dist, d[:, 1] / dist  # d range / d x_j
     bx, by = -d[:, 1] / dist**2, d[:, 0] / dist**2  # d bearing / d x_j
@@ -62,7 +87,7 @@ def observation_terms(
     rr, rb = 2 * np.arange(m), 2 * np.arange(m) + 1
     rows = np.concatenate([rr, rr, rr, rr, rb, rb, rb, rb, rb])
     cols = np.concatenate([ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 2]])
-    vals = np.concatenate([-ux / s_r, -uy / s_r, ux / s_r, uy / s_r, -bx / s_b, -by / s_b, bx / s_b, by / s_b, np.full(m, -1.0 / s_b)])
+    vals = np.concatenate([-ux / s_r, -uy / s_r, ux / s_r, uy / s_r, -bx * w_b, -by * w_b, bx * w_b, by * w_b, -w_b])
     return residual, (rows, cols, vals)
 
 
@@ -77,6 +102,29 @@ def prior_terms(
     rows = np.repeat(np.arange(3 * n), 3)
     cols = np.repeat(layout.cols, 3, axis=0).ravel()
     return residual, (rows, cols, sqrt_info.reshape(-1))
+
+
+def joint_sqrt_information(joint: np.ndarray) -> np.ndarray:
+    """W (3n, 3n) with W^T W = joint^-1 (eigenvalues floored at ``COV_FLOOR``), like ``sqrt_information``."""
+    sym = 0.5 * (joint + joint.T)
+    try:
+        chol = np.linalg.cholesky(sym + COV_FLOOR * np.eye(len(sym)))
+        return np.linalg.inv(chol)  # W = L^-1: W^T W = (L L^T)^-1
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(sym)
+        return vec.T / np.sqrt(np.maximum(lam, COV_FLOOR))[:, None]
+
+
+def joint_prior_terms(
+    poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
+) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Residuals (3n,) W (p - mu) of a prior with joint covariance (W (3n, 3n)) and COO triplets (dense W)."""
+    diff = poses - mean
+    diff[:, 2] = wrap_angle(diff[:, 2])
+    k = sqrt_info.shape[0]
+    rows = np.repeat(np.arange(k), k)
+    cols = np.tile(layout.cols.ravel(), k)
+    return sqrt_info @ diff.ravel(), (rows, cols, sqrt_info.ravel())
 
 
 def stack_terms(

@@ -1,8 +1,15 @@
 """Sparse Levenberg-Marquardt over pose unknowns, shared by every localizer.
 
 Residuals and Jacobians are assembled vectorised (COO triplets); the normal equations
-(J^T J + mu diag(J^T J)) dx = -J^T r are solved densely for small problems and with
-SciPy's sparse LU otherwise, so a 1000-robot swarm with range-limited sensing stays fast.
+(J^T J + mu diag(J^T J)) dx = -J^T r are solved densely for small problems and with a
+sparse Cholesky-like factorization (SciPy's SuperLU with a COLAMD fill-reducing ordering)
+otherwise, so a 1000-robot swarm with range-limited sensing stays fast.
+
+Small problems (up to ``DENSE_JACOBIAN_LIMIT`` unknowns) never touch scipy.sparse: the Jacobian is
+a dense array built by ``np.bincount`` from the triplets, whose per-call overhead is a few
+microseconds instead of the ~100 us of building sparse matrices, which dominated the
+10-robot step. Dense algebra on bigger problems runs with one BLAS thread (``blas_threads``):
+on a busy 2-core machine multi-threaded OpenBLAS is many times slower for these sizes.
 """
 
 from __future__ import annotations
@@ -10,11 +17,24 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import contextlib
+
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import spsolve
+from scipy.sparse.linalg import splu
+from threadpoolctl import ThreadpoolController
 
-DENSE_LIMIT = 400  # unknowns up to which a dense solve is faster than sparse LU
+DENSE_LIMIT = 64  # unknowns up to which a dense solve beats SuperLU (sparse above: a 300x300 dense LU was ~3 ms)
+DENSE_JACOBIAN_LIMIT = 64  # unknowns up to which a dense Jacobian (and dense J^T J) beats building sparse ones
+BLAS_SMALL = 96  # matrix order below which OpenBLAS stays single-threaded anyway (no limit needed)
+_THREADPOOLS = ThreadpoolController()
+
+
+def blas_threads(size: int):
+    """Context limiting BLAS to one thread when dense algebra of order ``size`` follows (a no-op when small)."""
+    if size < BLAS_SMALL:
+        return contextlib.nullcontext()
+    return _THREADPOOLS.limit(limits=1, user_api="blas")
 
 
 class PoseLayout:
@@ -42,17 +62,28 @@ class PoseLayout:
         return poses
 
 
-def jacobian(n_rows: int, n_cols: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> sp.csr_matrix:
-    """CSR Jacobian from COO triplets; entries with column -1 (fixed unknowns) are dropped."""
+def jacobian(n_rows: int, n_cols: int, rows: np.ndarray, cols: np.ndarray, vals: np.ndarray) -> sp.csr_matrix | np.ndarray:
+    """Jacobian from COO triplets (duplicates summed); entries with column -1 (fixed unknowns) are dropped.
+
+    Dense (ndarray) up to ``DENSE_JACOBIAN_LIMIT`` columns, CSR above.
+    """
     keep = cols >= 0
+    if n_cols <= DENSE_JACOBIAN_LIMIT:
+        flat = rows[keep] * n_cols + cols[keep]
+        return np.bincount(flat, weights=vals[keep], minlength=n_rows * n_cols).reshape(n_rows, n_cols)
     return sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n_rows, n_cols))
 
 
-def solve_normal(a: sp.spmatrix, b: np.ndarray) -> np.ndarray:
-    """Solve the symmetric positive (semi)definite system a x = b."""
-    if a.shape[0] <= DENSE_LIMIT:
-        return np.linalg.solve(a.toarray(), b)
-    return spsolve(a.tocsc(), b)
+def dense(a: sp.spmatrix | np.ndarray) -> np.ndarray:
+    """``a`` as a dense array."""
+    return a if isinstance(a, np.ndarray) else a.toarray()
+
+
+def solve_normal(a: sp.spmatrix | np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Solve the symmetric positive (semi)definite system a x = b (dense, or sparse LU with COLAMD ordering)."""
+    if isinstance(a, np.ndarray) or a.shape[0] <= DENSE_LIMIT:
+        return np.linalg.solve(dense(a), b)
+    return splu(a.tocsc(), permc_spec="COLAMD").solve(b)
 
 
 @dataclass(frozen=True)
@@ -61,7 +92,7 @@ class LsqResult:
     cost: float
     iterations: int
     converged: bool
-    normal_matrix: sp.csr_matrix  # J^T J at the solution (Gauss-Newton information)
+    normal_matrix: sp.csr_matrix | np.ndarray  # J^T J at the solution (Gauss-Newton information; dense when small)
 
 
 def levenberg_marquardt(
@@ -83,7 +114,7 @@ def levenberg_marquardt(
     restores fast convergence where soft modes meet curved residuals (rotations).
     """
 
-    def weighted(x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix, float]:
+    def weighted(x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix | np.ndarray, float]:
         r, jac = residuals(x)
         if huber is None:
             return r, jac, 0.5 * float(r @ r)
@@ -91,7 +122,17 @@ def levenberg_marquardt(
         w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
         cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
         sw = np.sqrt(w)
-        return r * sw, sp.diags(sw) @ jac, cost
+        return r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac), cost
+
+    def normal(jac):
+        return jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()
+
+    def add_diagonal(a, values):
+        if isinstance(a, np.ndarray):
+            out = a.copy()
+            out.flat[:: len(out) + 1] += values
+            return out
+        return a + sp.diags(values)
 
     x = np.asarray(x0, dtype=float).copy()
     r, jac, cost = weighted(x)
@@ -99,13 +140,13 @@ def levenberg_marquardt(
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
-        a = (jac.T @ jac).tocsr()
+        a = normal(jac)
         g = jac.T @ r
         diag = np.maximum(a.diagonal(), 1e-12)
         if second_order is not None:
-            a = a + sp.diags(np.maximum(second_order(x, r), -0.9 * diag))
+            a = add_diagonal(a, np.maximum(second_order(x, r), -0.9 * diag))
         while True:
-            dx = solve_normal(a + sp.diags(mu * diag), -g)
+            dx = solve_normal(add_diagonal(a, mu * diag), -g)
             x_new = x + dx
             r_new, jac_new, cost_new = weighted(x_new)
             if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-12) + 1e-300:
@@ -120,4 +161,4 @@ def levenberg_marquardt(
         if small_step or small_gain:
             converged = True
             break
-    return LsqResult(x, cost, it, converged, (jac.T @ jac).tocsr())
+    return LsqResult(x, cost, it, converged, normal(jac))

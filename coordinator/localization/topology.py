@@ -72,9 +72,10 @@ def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_head
     b = np.zeros(2 * m)
     b[rx[at_ref]] = -zx[at_ref]
     b[ry[at_ref]] = -zy[at_ref]
-    ata = (a.T @ a).tocsr()
+    ata = a.T @ a
     ridge = 1e-9 * max(float(ata.diagonal().max(initial=1.0)), 1.0)
-    sol = solve_normal(ata + sp.identity(n_cols) * ridge, a.T @ b)
+    ridged = ata + ridge * np.eye(n_cols) if isinstance(ata, np.ndarray) else ata.tocsr() + sp.identity(n_cols) * ridge
+    sol = solve_normal(ridged, a.T @ b)
     full = np.zeros((n, 4))
     full[:, 2] = 1.0
     full[present] = sol[cols[present]]

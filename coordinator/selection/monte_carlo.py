@@ -40,8 +40,12 @@ class MonteCarlo:
         n, s, c = estimate.n, self.samples, len(plans)
         k_steps = plans[0].n_steps
         rng = np.random.default_rng([self.seed, 0])
-        chol = np.linalg.cholesky(estimate.cov + 1e-15 * np.eye(3))
-        truth = estimate.poses + np.einsum("nab,snb->sna", chol, rng.normal(size=(s, n, 3)))
+        if estimate.joint is None:
+            chol = np.linalg.cholesky(estimate.cov + 1e-15 * np.eye(3))
+            truth = estimate.poses + np.einsum("nab,snb->sna", chol, rng.normal(size=(s, n, 3)))
+        else:  # correlated errors: drawn from the joint covariance the localizer carries
+            chol = np.linalg.cholesky(estimate.joint + 1e-15 * np.eye(3 * n))
+            truth = estimate.poses + (rng.normal(size=(s, 3 * n)) @ chol.T).reshape(s, n, 3)
         turn, drive = draw_motion_noise(rng, (s, n), self.cfg)
         truth = np.broadcast_to(truth, (c, s, n, 3)).copy()
         est = np.broadcast_to(estimate.poses, (c, s, n, 3)).copy()
