@@ -27,7 +27,6 @@ import dataclasses
 import json
 import logging
 import math
-import signal
 import sys
 import threading
 import time
@@ -45,7 +44,7 @@ from runtime.keys import run_wildcard, validate_run
 from runtime.recording import McapRecorder, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import StopSignals, run_standalone
 from swarm_cli.summary import print_config_table, write_plots
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
@@ -172,12 +171,17 @@ class Recording:
         finally:
             probe.undeclare()
 
-    def finish(self) -> dict:
-        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``."""
+    def finish(self, interrupted: bool = False) -> dict:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``.
+
+        ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
+        (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
+        """
         if self.recorder is not None and self.thread.is_alive():
             start = last_change = time.monotonic()
             count = self.recorder.count
-            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < self.SETTLE_MAX_S:
+            settle_max = self.SETTLE_S if interrupted else self.SETTLE_MAX_S
+            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < settle_max:
                 time.sleep(0.05)
                 if self.recorder.count != count:
                     count, last_change = self.recorder.count, time.monotonic()
@@ -223,13 +227,9 @@ def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[N
         view.close()
 
 
-def _interrupt(*_) -> None:
-    raise KeyboardInterrupt
-
-
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
-    signal.signal(signal.SIGTERM, _interrupt)
+    signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside Recording.finish
     cfg = model_config(args)
     traj = Trajectory.load(args.trajectory)
     validate_connected(traj, cfg.sensing_range_m)
@@ -240,10 +240,13 @@ def run(args: argparse.Namespace) -> int:
     recording = None
     if not args.no_record:
         path = args.record or default_recording(args.run_id)
-        recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
+        with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
+            recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
         print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
     recorded, completed = None, False
     try:
+        if signals.received is not None:
+            raise KeyboardInterrupt
         with open_session(settings) as session, live_view(args, traj, session):
             if recording is not None:
                 recording.wait_subscribed(session)
@@ -263,7 +266,8 @@ def run(args: argparse.Namespace) -> int:
                 backend.close()
     finally:
         if recording is not None:
-            recorded = recording.finish()
+            with signals.deferred():
+                recorded = recording.finish(interrupted=signals.received is not None)
             if not completed:  # failed or interrupted run: the summary below is not printed
                 print(recording_line(recorded), flush=True)
     if args.result:

@@ -46,10 +46,12 @@ from runtime.messages import CommandLimits
 from runtime.trajectory import Trajectory, random_trajectory
 from runtime.transport import free_tcp_port, loopback_hub, open_session
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
+from swarm_cli.entry import StopSignals
 from swarm_cli.estop import send_estop
 from swarm_cli.options import add_simulation_options, model_config
 
 GRACE_S = 3.0
+COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations")
 
@@ -133,10 +135,6 @@ def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
             p.wait()
 
 
-def _raise_interrupt(*_) -> None:
-    raise KeyboardInterrupt
-
-
 ROBOTS_PER_PORT = 5
 GATEWAY_READY_S = 20.0
 
@@ -199,7 +197,8 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("out") / args.command
     py = sys.executable
     procs: list[subprocess.Popen] = []
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    coordinator: subprocess.Popen | None = None
+    signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
     try:
         with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
             traj_file = Path(tmp) / "trajectory.json"
@@ -240,7 +239,10 @@ def run(args: argparse.Namespace) -> int:
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status
     finally:
-        emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
-        stop_all(procs[emulators:])
-        stop_all(procs[:emulators])
-        signal.signal(signal.SIGTERM, previous)
+        with signals.deferred():
+            if coordinator is not None:  # first, with time to finish its recording
+                stop_all([coordinator], COORDINATOR_GRACE_S)
+            emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
+            stop_all(procs[emulators:])
+            stop_all(procs[:emulators])
+        signals.restore()

@@ -6,11 +6,14 @@ import argparse
 import json
 import math
 
-from coordinator.selection.genetic import GeneticConfig
-from coordinator.selection.selector import SelectionConfig
+from typing import TYPE_CHECKING
+
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.transport import ZenohSettings
+
+if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.transport import ZenohSettings
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
@@ -60,6 +63,9 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
+    from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a command runs
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+
     if not 0.0 <= args.w_v <= 1.0:
         raise SwarmInputError(f"--w-v must be in [0, 1], got {args.w_v}")
     if args.population < 2 or args.generations < 0:
@@ -107,6 +113,8 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
 
 def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     """The client ``ZenohSettings`` of ``--hub`` / ``--zenoh-config``; None if neither is given and not required."""
+    from runtime.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
+
     if args.hub is None and args.zenoh_config is None:
         if getattr(args, "_connection_required", True):
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
