@@ -5,14 +5,21 @@ liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
 
 * ``MotionCommand`` on ``.../robot/<id>/cmd``: decoded with the run's ids (a bad message
   is dropped and counted, never fatal; if its header still names this robot's run and
-  step, the refusal ``refusal_status`` is published too). A command for a new, higher
-  step is checked against ``CommandLimits`` (``Status refused`` with the reason), else
-  ``Status accepted``, executed through the driver, ``Status done``. The same step again
-  (a re-send) re-publishes the last ``Status`` and never executes twice; a lower step is
-  refused as stale.
+  step, the refusal ``refusal_status`` is published too, echoing whatever ``cmd_id`` it
+  carried, so a coordinator never acts on it). Only the next step is executed: a command
+  for step s is checked when s = (last observed step) + 1 (the coordinator observes every
+  robot after every step, so a real command always follows the observation of the step
+  before); then ``CommandLimits`` (``Status refused`` with the reason), else ``Status
+  accepted``, executed through the driver, ``Status done``. Every ``Status`` echoes the
+  command's ``cmd_id``. The same step again (a re-send) re-publishes the last ``Status``
+  and never executes twice; a lower step is refused as stale and a later one as out of
+  sequence, neither remembered.
 * ``ObserveRequest`` on ``.../robot/<id>/observe``: answered with an
   ``ObservationReport`` for that step; a duplicate step re-publishes the same report
-  (no new sensing, so random streams stay aligned with the in-process simulator).
+  (no new sensing, so random streams stay aligned with the in-process simulator). Only
+  the next step is sensed (any step for an agent that has not observed yet, e.g. one
+  rejoining a run); other steps are dropped and counted, so a forged or replayed request
+  never consumes a sensing draw.
 
 Synchronisation of simulated sensing (``driver.simulated``): sensing needs every
 robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
@@ -24,14 +31,15 @@ robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
    agent and step instead of one per robot),
 3. then senses and publishes its ``ObservationReport(step=s)``.
 
-Truth sets for later steps that arrive early are kept until needed. A simulated agent also
+Only the truth set of the pending step is used (a real one always follows this agent's own
+truth of that step); others are dropped and counted. A simulated agent also
 publishes its current truth (step 0 before any observation) at start and whenever the
 coordinator's liveliness token ``swarm/<run>/alive/coord`` appears, so a coordinator
 learns the initial true poses for evaluation without any sensing (which would consume
 the sensing stream).
 
-Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` is forwarded to the driver at
-once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
+Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
+robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
 while the loop waits for a motion to finish); every later command is refused. Limits
 (``CommandLimits``: drive, turn, and the workspace checked from the command's
 ``start_pose``, the coordinator's estimate of the robot) are checked before the driver
@@ -78,7 +86,6 @@ from runtime.transport import ZenohSettings, declare_token, open_session, publis
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
-MAX_PENDING_TRUTH_STEPS = 64  # early truths kept for at most this many future steps
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
 
@@ -113,7 +120,7 @@ class Agent:
         self._last_report: ObservationReport | None = None
         self._last_truth: TruthMessage | None = None
         self._pending: int | None = None  # step of an ObserveRequest waiting for truths
-        self._truths: dict[int, dict[int, np.ndarray]] = {}
+        self._peers: dict[int, np.ndarray] | None = None  # the pending step's truth set (simulation)
         self._session = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
@@ -183,7 +190,7 @@ class Agent:
 
     def _on_estop(self, key: str, payload: bytes) -> None:
         msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
-        if msg is not None:
+        if msg is not None and msg.applies_to(self.robot):
             self.estopped = True
             self._estop.set()
 
@@ -223,31 +230,35 @@ class Agent:
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
         if cmd.step < self._last_cmd_step:
-            self._status(cmd.step, "refused", f"stale step {cmd.step}: step {self._last_cmd_step} was already handled", remember=False)
+            self._status(cmd, "refused", f"stale step {cmd.step}: step {self._last_cmd_step} was already handled", remember=False)
             return
         if cmd.step == self._last_cmd_step and self._last_status is not None:
             self._send(self._last_status)  # duplicate: never execute twice
             return
+        expected = max(self._last_obs_step, 0) + 1
+        if cmd.step != expected:
+            self._status(cmd, "refused", f"out of sequence: step {cmd.step}, the next step of this robot is {expected}", remember=False)
+            return
         self._last_cmd_step = cmd.step
         reason = "emergency stop" if self.estopped else self.limits.refusal(cmd)
         if reason is not None:
-            self._status(cmd.step, "refused", reason)
+            self._status(cmd, "refused", reason)
             return
-        self._status(cmd.step, "accepted")
+        self._status(cmd, "accepted")
         try:
             self.driver.execute(cmd)
         except DriverRefused as e:
-            self._status(cmd.step, "refused", str(e) or "refused")
+            self._status(cmd, "refused", str(e) or "refused")
             return
         except RobotLost as e:  # say why in the command's status, then the loop drops the token
-            self._status(cmd.step, "refused", f"robot lost: {e}", remember=False)
+            self._status(cmd, "refused", f"robot lost: {e}", remember=False)
             raise
         self.executed += 1
-        self._status(cmd.step, "done")
+        self._status(cmd, "done")
 
-    def _status(self, step: int, state: str, reason: str = "", *, remember: bool = True) -> None:
-        """Publish this robot's ``Status`` for ``step``; ``remember`` it as the answer a re-sent command gets."""
-        status = Status(run=self.run_id, step=step, robot=self.robot, state=state, reason=reason)
+    def _status(self, cmd: MotionCommand, state: str, reason: str = "", *, remember: bool = True) -> None:
+        """Publish this robot's ``Status`` answering ``cmd``; ``remember`` it as the answer a re-sent command gets."""
+        status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state=state, reason=reason, cmd_id=cmd.cmd_id)
         if remember:
             self._last_status = status
         self._send(status)
@@ -258,8 +269,13 @@ class Agent:
                 self._send(self._last_truth)
             self._send(self._last_report)
             return
-        if req.step < self._last_obs_step or (self._pending is not None and req.step < self._pending):
-            _log.warning("robot %d: ignoring ObserveRequest for old step %d", self.robot, req.step)
+        if self._pending is not None:
+            expected: int | None = self._pending
+        else:  # the step after the last observed one; any step for the first observation (start, rejoining a run)
+            expected = self._last_obs_step + 1 if self._last_obs_step >= 0 else None
+        if expected is not None and req.step != expected:
+            self.drops.drop(self._observe_key, MessageError(
+                "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))
             return
         self._pending = req.step
         if self.driver.simulated:
@@ -267,35 +283,29 @@ class Agent:
         self._try_report()
 
     def _on_truths(self, msg: TruthSetMessage) -> None:
-        if msg.step < max(self._last_obs_step, 0):
+        if msg.step != self._pending:
+            if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
+                self.drops.drop(truths_key(self.run_id), MessageError(
+                    "TruthSetMessage.step", f"{msg.step} is not the pending step {self._pending}", "out-of-range"))
             return
-        self._truths.setdefault(msg.step, {}).update((r, np.array(p, dtype=float)) for r, p in zip(msg.ids, msg.poses))
-        while len(self._truths) > MAX_PENDING_TRUTH_STEPS:  # bounded, whatever arrives
-            del self._truths[max(self._truths)]
+        self._peers = {r: np.array(p, dtype=float) for r, p in zip(msg.ids, msg.poses)}
         self._try_report()
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
         self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=pose)
-        self._truths.setdefault(step, {})[self.robot] = np.array(self._last_truth.pose)
         self._send(self._last_truth)
 
     def _try_report(self) -> None:
         step = self._pending
         if step is None:
             return
-        peers = None
-        if self.driver.simulated:
-            have = self._truths.get(step, {})
-            if not self.known <= have.keys():
-                return
-            peers = {i: have[i] for i in self.ids}
-        observed, ranges, bearings = self.driver.sense(peers, step)
+        if self.driver.simulated and self._peers is None:
+            return  # waiting for the step's truth set
+        observed, ranges, bearings = self.driver.sense(self._peers, step)
         report = ObservationReport(
             run=self.run_id, step=step, robot=self.robot, observed=observed, ranges=ranges, bearings=bearings
         )
-        self._pending = None
+        self._pending, self._peers = None, None
         self._last_obs_step, self._last_report = step, report
-        for old in [s for s in self._truths if s < step]:
-            del self._truths[old]
         self._send(report)

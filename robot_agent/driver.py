@@ -69,7 +69,7 @@ class Driver(Protocol):
     def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(observed ids, ranges m, bearings rad in the body frame) of the neighbours after ``step``.
 
-        ``peers``: every robot's true pose by id (own included), for simulated drivers.
+        ``peers``: the true pose by id of every robot still in the run (own included), for simulated drivers.
         """
         ...
 
@@ -117,11 +117,12 @@ class SimDriver:
         return self._pose.copy()
 
     def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if peers is None or set(peers) != set(self.ids):
-            missing = sorted(set(self.ids) - set(peers or {}))
-            raise SwarmInputError(f"simulated sensing of robot {self.robot} needs every robot's true pose; missing {missing}")
-        poses = np.array([peers[i] for i in self.ids], dtype=float)
-        index = self.ids.index(self.robot)
+        if peers is None or self.robot not in peers or not set(peers) <= set(self.ids):
+            raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "
+                                  f"(its own included, run robots only); got {sorted(peers or {})}")
+        present = [i for i in self.ids if i in peers]  # robots dropped from the run (lost) are not sensed
+        poses = np.array([peers[i] for i in present], dtype=float)
+        index = present.index(self.robot)
         poses[index] = self._pose
         nb, rho, phi = sense_robot(poses, index, self.cfg, self._sensing)
-        return np.array(self.ids, dtype=np.int64)[nb], rho, phi
+        return np.array(present, dtype=np.int64)[nb], rho, phi

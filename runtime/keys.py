@@ -12,6 +12,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/estop                EmergencyStop      operator, launcher -> agents, links
     swarm/<run>/coord/plan           PlanMessage        coordinator -> all
     swarm/<run>/coord/estimate       EstimateMessage    coordinator -> all
+    swarm/<run>/coord/event          RobotEvent         coordinator -> all (robot lost / rejoined)
     swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
     swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
@@ -36,7 +37,7 @@ ROOT = "swarm"
 RUN_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
 MAX_ROBOT_ID = 2**63 - 1
 ROBOT_LEAVES = ("cmd", "observe", "status", "obs", "linkreq", "linkrep")
-COORD_LEAVES = ("plan", "estimate")
+COORD_LEAVES = ("plan", "estimate", "event")
 
 _RUN = re.compile(RUN_PATTERN)
 _ID = re.compile(r"0|[1-9][0-9]{0,18}")

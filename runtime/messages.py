@@ -247,6 +247,8 @@ class MotionCommand(Message):
     start_pose: tuple[float, ...] = _wire(
         "float", "optional: the coordinator's estimate [x, y, heading] of the robot before the move, "
                  "for the agent's workspace check; [] if unknown", default=(), unit="m, m, rad", shape=(None,))
+    cmd_id: int = _wire("int", "optional: the coordinator's id of this command (random, never 0), echoed in every "
+                               "Status answering it; 0 = none", default=0)
 
     def _check(self) -> None:
         if len(self.start_pose) not in (0, 3):
@@ -273,6 +275,8 @@ class Status(Message):
     robot: int = _wire("id", "the robot reporting")
     state: str = _wire("str", "accepted (executing), done (executed) or refused (not executed)", choices=STATES)
     reason: str = _wire("str", "why the command was refused; empty unless refused")
+    cmd_id: int = _wire("int", "optional: the cmd_id of the MotionCommand answered (0 if it could not be read); "
+                               "a coordinator counts only answers carrying the id it sent", default=0)
 
     def _check(self) -> None:
         if (self.state == "refused") != bool(self.reason):
@@ -468,6 +472,27 @@ class EmergencyStop(Message):
 
     source: str = _wire("str", "who stopped the run (e.g. swarm estop, launcher)", max_length=200)
     reason: str = _wire("str", "why, for the logs")
+    robots: tuple[int, ...] = _wire("id", "optional: the robots to stop (a lost robot); [] = every robot of the run",
+                                    default=(), shape=(None,))
+
+    def applies_to(self, robot: int) -> bool:
+        """Whether robot ``robot`` must stop."""
+        return not self.robots or robot in self.robots
+
+
+ROBOT_EVENTS = ("lost", "rejoined")
+
+
+@dataclass(frozen=True, kw_only=True)
+class RobotEvent(Message):
+    """Coordinator -> all: robot ``robot`` was lost (dropped from the run, sent an emergency stop) or rejoined it."""
+
+    TYPE: ClassVar[str] = "RobotEvent"
+    LEAF: ClassVar[str] = "event"
+
+    robot: int = _wire("id", "the robot")
+    kind: str = _wire("str", "lost or rejoined", choices=ROBOT_EVENTS)
+    reason: str = _wire("str", "why (lost: liveliness token gone, no answer, refused ...)")
 
 
 MESSAGE_TYPES: tuple[type[Message], ...] = (
@@ -483,6 +508,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     LinkReply,
     LinkStats,
     EmergencyStop,
+    RobotEvent,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
 _BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
@@ -560,7 +586,7 @@ def _message_class(raw: Any, expected: type[Message] | None) -> type[Message]:
 def _readable_header(cls: type[Message], raw: dict) -> dict[str, Any]:
     header: dict[str, Any] = {"type": cls.TYPE}
     for f in fields(cls):
-        if f.name in ("run", "step", "robot") and f.name in raw:
+        if f.name in ("run", "step", "robot", "cmd_id") and f.name in raw:
             try:
                 header[f.name] = _convert(raw[f.name], f.metadata["wire"], f.name, {})
             except MessageError:
@@ -603,7 +629,14 @@ def decode(
         except KeyspaceError as e:
             raise MessageError("key", str(e), "wrong-key") from None
     raw = _unpack(data)
-    cls = _message_class(raw, expected)
+    try:
+        cls = _message_class(raw, expected)
+    except MessageError as e:
+        if e.reason == "version" and (expected is None or raw.get("type") == expected.TYPE):
+            e.header = _readable_header(_BY_TYPE[raw["type"]], raw)
+            if parsed is not None and (e.header.get("run"), e.header.get("robot")) != (parsed.run, parsed.robot):
+                e.header = {"type": raw["type"]}
+        raise
     try:
         for f in _fields(cls):
             if f.name not in raw and not f.metadata["wire"].optional:
@@ -629,7 +662,8 @@ def refusal_status(error: MessageError, stamp_ns: int | None = None) -> Status |
         return None
     stamp = time.time_ns() if stamp_ns is None else stamp_ns
     reason = str(error)[:MAX_TEXT]
-    return Status(run=header["run"], step=header["step"], stamp_ns=stamp, robot=header["robot"], state="refused", reason=reason)
+    return Status(run=header["run"], step=header["step"], stamp_ns=stamp, robot=header["robot"], state="refused", reason=reason,
+                  cmd_id=header.get("cmd_id", 0))
 
 
 @dataclass(frozen=True)

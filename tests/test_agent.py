@@ -42,8 +42,9 @@ def next_status(statuses: queue.Queue, timeout: float = 3.0) -> Status:
     return decode(payload, Status)
 
 
-def send(hub, step: int, turn: float, drive: float) -> None:
-    publish(hub, robot_key(RUN, 0, "cmd"), encode(MotionCommand(run=RUN, step=step, robot=0, config=1, turn_rad=turn, drive_m=drive)))
+def send(hub, step: int, turn: float, drive: float, cmd_id: int = 0) -> None:
+    publish(hub, robot_key(RUN, 0, "cmd"),
+            encode(MotionCommand(run=RUN, step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, cmd_id=cmd_id)))
 
 
 def test_command_beyond_limits_is_refused_with_a_reason_and_not_executed(agent_on_hub):
@@ -74,5 +75,25 @@ def test_garbage_on_the_command_key_is_dropped_and_counted(agent_on_hub):
     while agent.drops.total < 4 and time.monotonic() < deadline:
         time.sleep(0.02)
     assert agent.drops.total == 4
-    send(hub, 2, 0.0, 0.1)  # still serving
+    send(hub, 1, 0.0, 0.1)  # still serving
     assert next_status(statuses).state == "accepted"
+
+
+def test_every_status_echoes_the_command_id(agent_on_hub):
+    hub, agent, statuses = agent_on_hub
+    send(hub, 1, 0.2, 0.1, cmd_id=77)
+    assert [(s.state, s.cmd_id) for s in (next_status(statuses), next_status(statuses))] == [("accepted", 77), ("done", 77)]
+    send(hub, 0, 0.2, 0.1, cmd_id=5)  # a replayed old command: refused with its own id, which no coordinator waits for
+    stale = next_status(statuses)
+    assert (stale.state, stale.cmd_id) == ("refused", 5)
+
+
+def test_a_command_for_a_later_step_is_refused_unremembered_and_the_real_one_runs(agent_on_hub):
+    """A command for any step but the next (last observed step + 1 = 1 here) is refused and not remembered."""
+    hub, agent, statuses = agent_on_hub
+    send(hub, 3, 0.2, 0.1, cmd_id=9)
+    early = next_status(statuses)
+    assert (early.state, early.step, early.cmd_id) == ("refused", 3, 9) and "out of sequence" in early.reason
+    send(hub, 1, 0.2, 0.1, cmd_id=10)
+    assert [next_status(statuses).state for _ in range(2)] == ["accepted", "done"]
+    assert agent.executed == 1

@@ -49,6 +49,7 @@ from runtime.messages import (
     ObservationReport,
     ObserveRequest,
     PlanMessage,
+    RobotEvent,
     Status,
     TruthMessage,
     TruthSetMessage,
@@ -71,9 +72,10 @@ def samples() -> list[Message]:
     """One valid message of every type, built from numpy inputs where a producer would use them."""
     head = {"run": "r1", "step": 7, "stamp_ns": STAMP}
     return [
-        MotionCommand(**head, robot=np.int64(3), config=2, turn_rad=np.float64(0.5), drive_m=0.12, start_pose=np.array([0.1, 0.2, 1.5])),
+        MotionCommand(**head, robot=np.int64(3), config=2, turn_rad=np.float64(0.5), drive_m=0.12, start_pose=np.array([0.1, 0.2, 1.5]),
+                      cmd_id=np.int64(2**62 + 5)),
         ObserveRequest(**head, robot=3),
-        Status(**head, robot=3, state="refused", reason="drive_m 2 exceeds the limit 1 m"),
+        Status(**head, robot=3, state="refused", reason="drive_m 2 exceeds the limit 1 m", cmd_id=2**62 + 5),
         ObservationReport(
             **head, robot=3, observed=np.array([1, 4, 9]), ranges=np.array([0.2, 0.31, 0.0]), bearings=[0.1, -math.pi, 3.0]
         ),
@@ -87,7 +89,8 @@ def samples() -> list[Message]:
         LinkReply(**head, robot=3, kind="observation", reason="", observed=[1, 4], ranges=[0.2, 0.31], bearings=[0.1, -2.0]),
         LinkStats(**head, port="radio0", robots=[1, 3], frames_sent=10, frames_received=9, retransmissions=1, crc_errors=2,
                   length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
-        EmergencyStop(**head, source="swarm estop", reason="operator pressed stop"),
+        EmergencyStop(**head, source="swarm estop", reason="operator pressed stop", robots=[4]),
+        RobotEvent(**head, robot=4, kind="lost", reason="liveliness token gone"),
     ]
 
 
@@ -560,7 +563,9 @@ def test_message_keys_and_key_checked_decoding():
         "LinkReply": "linkrep",
         "LinkStats": "stats",
         "EmergencyStop": "estop",
+        "RobotEvent": "event",
     }
+    assert message_key(SAMPLES["RobotEvent"]) == "swarm/r1/coord/event"
     assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
     assert message_key(SAMPLES["EmergencyStop"]) == "swarm/r1/estop"
     for msg in samples():
@@ -665,7 +670,7 @@ def test_undecodable_command_is_refused_when_its_header_is_readable():
     with pytest.raises(MessageError) as info:
         decode(msgpack.packb(raw), MotionCommand, key="swarm/r1/robot/3/cmd")
     status = refusal_status(info.value, stamp_ns=5)
-    assert status == Status(run="r1", step=7, stamp_ns=5, robot=3, state="refused", reason=str(info.value))
+    assert status == Status(run="r1", step=7, stamp_ns=5, robot=3, state="refused", reason=str(info.value), cmd_id=2**62 + 5)
     assert "MotionCommand.turn_rad: nan is not finite" in status.reason
     with pytest.raises(MessageError) as info:
         decode(msgpack.packb({**raw, "robot": 4}), key="swarm/r1/robot/3/cmd")
@@ -673,11 +678,31 @@ def test_undecodable_command_is_refused_when_its_header_is_readable():
     del raw["robot"]
     with pytest.raises(MessageError) as info:
         decode(msgpack.packb(raw))
-    assert info.value.header == {"type": "MotionCommand", "run": "r1", "step": 7}
+    assert info.value.header == {"type": "MotionCommand", "run": "r1", "step": 7, "cmd_id": 2**62 + 5}
     assert refusal_status(info.value) is None
     with pytest.raises(MessageError) as info:
         decode(b"\xc1")
     assert refusal_status(info.value) is None
+
+
+def test_command_of_an_unsupported_version_gets_a_refusal_naming_the_version():
+    raw = {**raw_map(SAMPLES["MotionCommand"]), "v": 2}
+    with pytest.raises(MessageError) as info:
+        decode(msgpack.packb(raw), MotionCommand, key="swarm/r1/robot/3/cmd")
+    assert info.value.reason == "version"
+    status = refusal_status(info.value, stamp_ns=5)
+    assert status is not None and (status.step, status.robot, status.cmd_id) == (7, 3, 2**62 + 5)
+    assert status.reason == "MotionCommand.v: version 2 is not supported (this decoder reads version 1)"
+    with pytest.raises(MessageError) as info:  # on another robot's key: nobody answers for it
+        decode(msgpack.packb(raw), MotionCommand, key="swarm/r1/robot/4/cmd")
+    assert refusal_status(info.value) is None
+
+
+def test_targeted_emergency_stop():
+    everyone = EmergencyStop(run="r1", step=0, source="s", reason="r")
+    one = EmergencyStop(run="r1", step=0, source="s", reason="r", robots=[4])
+    assert everyone.applies_to(3) and everyone.applies_to(4)
+    assert one.applies_to(4) and not one.applies_to(3)
 
 
 def test_command_limits():
