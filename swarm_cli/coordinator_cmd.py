@@ -41,7 +41,7 @@ from coordinator.strategies import METHODS, make_strategy
 from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
 from runtime.foxglove_live import LiveView
 from runtime.keys import run_wildcard, validate_run
-from runtime.recording import McapRecorder, record_run
+from runtime.recording import McapRecorder, counts_text, record_run
 from runtime.trajectory import Trajectory, validate_connected
 from runtime.transport import ZenohSettings, open_session, subscribe
 from swarm_cli.entry import StopSignals, run_standalone
@@ -193,7 +193,7 @@ class Recording:
 
 
 def recording_line(rec: dict) -> str:
-    return (f"recorded {rec['path']}: {rec['messages']} messages on {rec['channels']} channels"
+    return (f"recorded {rec['path']}: {counts_text(rec)}"
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import contextlib
 import re
 import signal
@@ -92,9 +93,13 @@ class StopSignals:
 
 
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, Ctrl-C gives 130."""
+    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, Ctrl-C gives 130,
+    a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
     try:
         return int(run() or 0)
+    except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+        return 141
     except (SwarmInputError, LocalizationError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -12,7 +12,7 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
-from runtime.recording import recording_info
+from runtime.recording import counts_text, recording_info
 from swarm_cli.options import print_json
 
 
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         lost = info["bytes"] - info["readable_bytes"]
         print(f"           read up to byte {info['readable_bytes']} ({lost} bytes of an incomplete record dropped): {info['problem']}")
         print(f"           'swarm recover {info['path']}' writes a finished copy")
-    print(f"messages:  {info['messages']} on {len(info['channels'])} channels, {info['undecodable']} undecodable")
+    print(f"messages:  {counts_text({**info, 'channels': info['channels_count']})}, {info['undecodable']} undecodable")
     print(f"start:     {_time(info['first_ns'])}")
     print(f"end:       {_time(info['last_ns'])}")
     print(f"duration:  {info['duration_s']:.3f} s")
