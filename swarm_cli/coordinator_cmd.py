@@ -82,6 +82,8 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-record", action="store_true", help="do not record the run")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e '.[foxglove]')")
+    p.add_argument("--linger", type=float, default=None, metavar="SECONDS",
+                   help="with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; 0: exit at once)")
 
 
 def default_recording(run_id: str) -> Path:
@@ -211,20 +213,38 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
                     "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
 
 
+class Live:
+    """The ``--foxglove`` view of a run; ``keep`` (set once the run is done) keeps it open for ``linger``."""
+
+    def __init__(self, view: LiveView | None) -> None:
+        self.view, self.keep = view, False
+
+    def linger(self, seconds: float | None) -> None:
+        if self.view is None:
+            return
+        if seconds != 0:
+            until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
+            print(f"coordinator: the run is over; the live view keeps serving at {self.view.url} {until}", file=sys.stderr, flush=True)
+            self.view.linger(seconds)
+        self.view.close()
+
+
 @contextlib.contextmanager
-def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[None]:
-    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs."""
+def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[Live]:
+    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs;
+    the view is closed at the end unless ``keep`` was set (then ``Live.linger`` closes it)."""
     if args.foxglove is None:
-        yield
+        yield Live(None)
         return
-    view = LiveView(args.foxglove, trajectory=traj.to_json())
-    subscriber = subscribe(session, run_wildcard(args.run_id), view.handle)
-    print(f"coordinator: live view for the Foxglove app at {view.url}", file=sys.stderr, flush=True)
+    live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
+    subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
+    print(f"coordinator: live view for the Foxglove app at {live.view.url}", file=sys.stderr, flush=True)
     try:
-        yield
+        yield live
     finally:
         subscriber.undeclare()
-        view.close()
+        if not live.keep:
+            live.view.close()
 
 
 def run(args: argparse.Namespace) -> int:
@@ -247,7 +267,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if signals.received is not None:
             raise KeyboardInterrupt
-        with open_session(settings) as session, live_view(args, traj, session):
+        with open_session(settings) as session, live_view(args, traj, session) as live:
             if recording is not None:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
@@ -258,7 +278,7 @@ def run(args: argparse.Namespace) -> int:
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
                 executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend)
                 result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
-                completed = True
+                completed = live.keep = True
             except AgentError as exc:
                 print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
                 return EXIT_AGENT
@@ -274,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
         args.result.write_text(json.dumps(result_json(result)))
     plots = write_plots(result, args.out) if args.out and result.configs else None
     print_summary(result, args, plots, recorded)
+    live.linger(args.linger)
     return 0
 
 

@@ -225,6 +225,8 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append("--json")
             if args.foxglove is not None:
                 cmd.append(f"--foxglove={args.foxglove}")
+                if args.linger is not None:
+                    cmd.append(f"--linger={args.linger!r}")
             what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
             print(f"swarm {args.command}: {traj.n} {what} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             coordinator = subprocess.Popen(cmd)
