@@ -12,15 +12,17 @@ Topics and schemas (``SCHEMAS``):
 * ``/robot/<id>/estimate`` (``inchworm.RobotEstimate``), per ``EstimateMessage``: the fused
   estimate ``x``, ``y``, ``heading`` and its standard deviations ``std_x``, ``std_y``,
   ``std_heading`` (square roots of the covariance diagonal), ``anchor`` (1 if the robot
-  stood still in this step under the current plan, 0 if it moved, -1 unknown).
-* ``/robot/<id>/truth`` (``inchworm.RobotTruth``), per ``TruthSetMessage`` (simulated runs):
-  the true ``x``, ``y``, ``heading``.
-* ``/robot/<id>/error`` (``inchworm.RobotError``), once the estimate and the truth of a step
-  are both known: ``localization_m`` = |true - estimated position| (the per-robot term of
-  e_l, Eq. 8), ``dx``, ``dy``, ``dheading`` (estimate - truth, heading wrapped to
-  [-pi, pi)); with the desired configuration known (``PlanMessage`` + trajectory metadata)
-  also ``following_m`` = |true - desired position| of the configuration the step heads for.
-* ``/swarm/error`` (``inchworm.SwarmError``), the same step: ``localization_mean_m`` (e_l,
+  stood still in this step under the current plan, 0 if it moved, -1 unknown), ``config``
+  (the configuration the step heads for, 0 unknown). When the truth of the step is known
+  (``TruthSetMessage``: simulated runs, motion capture) also the true pose ``true_x``,
+  ``true_y``, ``true_heading``, ``localization_m`` = |true - estimated position| (the
+  per-robot term of e_l, Eq. 8), ``dx``, ``dy``, ``dheading`` (estimate - truth, heading
+  wrapped to [-pi, pi)) and, with the desired configuration known (``PlanMessage`` +
+  trajectory metadata), ``following_m`` = |true - desired position|. Everything about one
+  robot at one step is one message: each derived message costs an MCAP record while
+  recording. The coordinator publishes a step's truth before its estimate; a truth that
+  comes after its estimate makes the estimate's messages be written again with it.
+* ``/swarm/error`` (``inchworm.SwarmError``), per step with estimate and truth: ``localization_mean_m`` (e_l,
   Eq. 8), ``localization_max_m``, ``std_mean_m`` (mean of sqrt(std_x^2 + std_y^2), what the
   localizer believes), and ``following_mean_m`` (the mean |true - desired| the summary
   table reports once a configuration is reached) with ``following_max_m`` when known.
@@ -31,6 +33,8 @@ Topics and schemas (``SCHEMAS``):
   (lost / rejoined), ``lost`` (1 lost, 0 rejoined, for plotting) and ``reason``.
 
 Every message also carries ``step`` (the run's global step, 0 = initial localization).
+Per-robot messages are written as JSON text from fragments (no dicts, no ``json.dumps``):
+the recorder derives n of them per step (``swarm bench record``).
 ``PlotDeriver`` holds the little state needed (trajectory, latest plan, estimate and truth
 of the latest steps); not thread-safe.
 """
@@ -62,26 +66,22 @@ def _schema(title: str, description: str, properties: dict[str, dict[str, Any]],
             "additionalProperties": False}
 
 
+_TRUTH_FIELDS = ("true_x", "true_y", "true_heading", "localization_m", "dx", "dy", "dheading", "following_m")
 _STEP = _number("global step of the run (0 = initial localization)", "integer")
 SCHEMAS: dict[str, dict[str, Any]] = {
-    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate", "one robot's fused estimate after a step (SI units)", {
+    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate", "one robot after a step: estimate, uncertainty, and truth and errors when known (SI units)", {
         "step": _STEP, "robot": _number("robot id", "integer"),
+        "config": _number("configuration the step heads for (1-based, 0 unknown)", "integer"),
         "x": _number("estimated x (m)"), "y": _number("estimated y (m)"), "heading": _number("estimated heading (rad)"),
         "std_x": _number("standard deviation of x (m)"), "std_y": _number("standard deviation of y (m)"),
         "std_heading": _number("standard deviation of the heading (rad)"),
         "anchor": _number("1 anchor (stood still this step), 0 moved, -1 unknown", "integer"),
-    }),
-    "inchworm.RobotTruth": _schema("inchworm.RobotTruth", "one robot's true pose after a step (simulation or motion capture)", {
-        "step": _STEP, "robot": _number("robot id", "integer"),
-        "x": _number("true x (m)"), "y": _number("true y (m)"), "heading": _number("true heading (rad)"),
-    }),
-    "inchworm.RobotError": _schema("inchworm.RobotError", "one robot's errors after a step", {
-        "step": _STEP, "robot": _number("robot id", "integer"), "config": _number("configuration the step heads for (1-based, 0 unknown)", "integer"),
+        "true_x": _number("true x (m)"), "true_y": _number("true y (m)"), "true_heading": _number("true heading (rad)"),
         "localization_m": _number("|true - estimated position| (m), the per-robot term of e_l (Eq. 8)"),
         "dx": _number("estimated - true x (m)"), "dy": _number("estimated - true y (m)"),
         "dheading": _number("estimated - true heading, wrapped to [-pi, pi) (rad)"),
         "following_m": _number("|true - desired position| of the configuration (m)"),
-    }, optional=("following_m",)),
+    }, optional=_TRUTH_FIELDS),
     "inchworm.SwarmError": _schema("inchworm.SwarmError", "the swarm's errors after a step", {
         "step": _STEP, "config": _number("configuration the step heads for (1-based, 0 unknown)", "integer"),
         "localization_mean_m": _number("e_l (Eq. 8): mean |true - estimated position| (m)"),
@@ -113,6 +113,18 @@ def _dumps(obj: Mapping[str, Any]) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
 
 
+def _num(value: float) -> str:
+    """A JSON number (as ``json`` writes it); non-finite values raise ``ValueError`` (JSON has none)."""
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"non-finite value {value!r} in a plot channel")
+    return repr(v)
+
+
+def _std(variance: float) -> str:
+    return _num(math.sqrt(max(variance, 0.0)))
+
+
 def _wrap(angle: float) -> float:
     return (angle + math.pi) % (2 * math.pi) - math.pi
 
@@ -129,23 +141,17 @@ class PlotDeriver:
 
     def derive(self, msg: Message) -> list[tuple[str, str, bytes]]:
         if isinstance(msg, EstimateMessage):
-            out = self._estimate(msg)
+            self.robots = msg.ids
             truth = self.truths.pop(msg.step, None)
-            if truth is None:
+            if truth is None:  # its truth may still come (or never: hardware)
                 self._keep(self.estimates, msg.step, msg)
-            else:
-                out += self._errors(msg, truth)
-            return out
+            return self._robots(msg, truth)
         if isinstance(msg, TruthSetMessage):
-            out = [(f"/robot/{int(r)}/truth", "inchworm.RobotTruth",
-                    _dumps({"step": msg.step, "robot": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2])}))
-                   for r, p in zip(msg.ids, msg.poses)]
             estimate = self.estimates.pop(msg.step, None)
             if estimate is None:
                 self._keep(self.truths, msg.step, msg)
-            else:
-                out += self._errors(estimate, msg)
-            return out
+                return []
+            return self._robots(estimate, msg)
         if isinstance(msg, PlanMessage):
             self.plan = msg
             robots = sorted({r for group in msg.groups for r in group} | set(self.robots))
@@ -164,42 +170,36 @@ class PlotDeriver:
         for old in sorted(store)[:-depth]:  # a step whose partner never comes is forgotten
             del store[old]
 
-    def _estimate(self, msg: EstimateMessage) -> list[tuple[str, str, bytes]]:
-        self.robots = msg.ids
-        moving = moving_robots(self.plan, msg.step)
-        out = []
-        for robot, pose, cov in zip(msg.ids, msg.poses, msg.cov):
-            anchor = -1 if moving is None else int(robot not in moving)
-            out.append((f"/robot/{int(robot)}/estimate", "inchworm.RobotEstimate", _dumps({
-                "step": msg.step, "robot": int(robot), "x": float(pose[0]), "y": float(pose[1]), "heading": float(pose[2]),
-                "std_x": math.sqrt(max(cov[0][0], 0.0)), "std_y": math.sqrt(max(cov[1][1], 0.0)),
-                "std_heading": math.sqrt(max(cov[2][2], 0.0)), "anchor": anchor})))
-        return out
-
     def _config(self, step: int) -> int:
         """The configuration ``step`` heads for under the current plan (0 if the plan does not cover it)."""
         return self.plan.config if moving_robots(self.plan, step) is not None else 0
 
-    def _errors(self, estimate: EstimateMessage, truth: TruthSetMessage) -> list[tuple[str, str, bytes]]:
-        true = dict(zip(truth.ids, truth.poses))
-        config = self._config(estimate.step)
+    def _robots(self, estimate: EstimateMessage, truth: TruthSetMessage | None) -> list[tuple[str, str, bytes]]:
+        """One ``/robot/<id>/estimate`` message per robot (with truth and errors when ``truth`` is given),
+        then ``/swarm/error`` when there is a truth."""
+        step, config = int(estimate.step), self._config(estimate.step)
+        moving = moving_robots(self.plan, estimate.step)
+        true = dict(zip(truth.ids, truth.poses)) if truth is not None else {}
         desired = self.configurations[config - 1] if self.configurations and 1 <= config <= len(self.configurations) else None
         out, loc, follow, std = [], [], [], []
         for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov):
+            anchor = -1 if moving is None else int(robot not in moving)
+            text = (f'{{"step":{step},"robot":{int(robot)},"config":{config},"x":{_num(pose[0])},"y":{_num(pose[1])},'
+                    f'"heading":{_num(pose[2])},"std_x":{_std(cov[0][0])},"std_y":{_std(cov[1][1])},"std_heading":{_std(cov[2][2])},'
+                    f'"anchor":{anchor}')
             t = true.get(robot)
-            if t is None:
-                continue
-            dx, dy = pose[0] - t[0], pose[1] - t[1]
-            row = {"step": estimate.step, "robot": int(robot), "config": config, "localization_m": math.hypot(dx, dy),
-                   "dx": dx, "dy": dy, "dheading": _wrap(pose[2] - t[2])}
-            loc.append(row["localization_m"])
-            std.append(math.sqrt(max(cov[0][0], 0.0) + max(cov[1][1], 0.0)))
-            if desired is not None and robot in desired:
-                row["following_m"] = math.hypot(t[0] - desired[robot][0], t[1] - desired[robot][1])
-                follow.append(row["following_m"])
-            out.append((f"/robot/{int(robot)}/error", "inchworm.RobotError", _dumps(row)))
+            if t is not None:
+                dx, dy = pose[0] - t[0], pose[1] - t[1]
+                loc.append(math.hypot(dx, dy))
+                std.append(math.sqrt(max(cov[0][0], 0.0) + max(cov[1][1], 0.0)))
+                text += (f',"true_x":{_num(t[0])},"true_y":{_num(t[1])},"true_heading":{_num(t[2])},"localization_m":{_num(loc[-1])},'
+                         f'"dx":{_num(dx)},"dy":{_num(dy)},"dheading":{_num(_wrap(pose[2] - t[2]))}')
+                if desired is not None and robot in desired:
+                    follow.append(math.hypot(t[0] - desired[robot][0], t[1] - desired[robot][1]))
+                    text += f',"following_m":{_num(follow[-1])}'
+            out.append((f"/robot/{int(robot)}/estimate", "inchworm.RobotEstimate", (text + "}").encode()))
         if loc:
-            swarm = {"step": estimate.step, "config": config, "localization_mean_m": sum(loc) / len(loc),
+            swarm = {"step": step, "config": config, "localization_mean_m": sum(loc) / len(loc),
                      "localization_max_m": max(loc), "std_mean_m": sum(std) / len(std)}
             if follow:
                 swarm["following_mean_m"], swarm["following_max_m"] = sum(follow) / len(follow), max(follow)

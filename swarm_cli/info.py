@@ -43,14 +43,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"duration:  {info['duration_s']:.3f} s")
     if info["channels"]:
         width = max(len(c["topic"]) for c in info["channels"])
-        print(f"{'topic':<{width}}  {'type':<18} {'count':>7} {'bad':>5}  {'first (s)':>9} {'last (s)':>9}")
+        tw = max(18, *(len(c["type"] or "") for c in info["channels"]))
+        print(f"{'topic':<{width}}  {'type':<{tw}} {'count':>7} {'bad':>5}  {'first (s)':>9} {'last (s)':>9}")
         t0 = info["first_ns"] or 0
         for c in info["channels"]:
             first = "-" if c["first_ns"] is None else f"{(c['first_ns'] - t0) / 1e9:.3f}"
             last = "-" if c["last_ns"] is None else f"{(c['last_ns'] - t0) / 1e9:.3f}"
             bad = "-" if c["type"] is None else str(c["undecodable"])
             reasons = f"  ({', '.join(f'{r}: {n}' for r, n in sorted(c['reasons'].items()))})" if c["reasons"] else ""
-            print(f"{c['topic']:<{width}}  {c['type'] or '(no schema)':<18} {c['messages']:>7} {bad:>5}  {first:>9} {last:>9}{reasons}")
+            print(f"{c['topic']:<{width}}  {c['type'] or '(no schema)':<{tw}} {c['messages']:>7} {bad:>5}  {first:>9} {last:>9}{reasons}")
     for name, values in info["metadata"].items():
         print(f"metadata {name}:")
         for key, value in values.items():

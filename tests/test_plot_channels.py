@@ -31,11 +31,13 @@ def test_known_answers_of_a_small_run() -> None:
     # the plan moves [0] at step 1, [1, 2] at step 2
     assert [est[(1, r)]["anchor"] for r in range(3)] == [0, 1, 1]
     assert [est[(2, r)]["anchor"] for r in range(3)] == [1, 0, 0]
-    err = {(b["step"], b["robot"]): b for t, _s, b in out if t.endswith("/error") and t.startswith("/robot/")}
+    err = {k: b for k, b in est.items() if "localization_m" in b}
     assert set(err) == {(s, r) for s in (1, 2) for r in range(3)}  # steps with both estimate and truth
+    assert "true_x" not in est[(0, 0)]  # no truth of step 0 in this run
     e = err[(1, 0)]  # estimate (0.1, 0.01), truth (0.1, 0), desired of configuration 2: (0.6, 0.1)
     assert e["localization_m"] == pytest.approx(0.01) and e["dx"] == pytest.approx(0.0) and e["dy"] == pytest.approx(0.01)
     assert e["config"] == 2 and e["following_m"] == pytest.approx(math.hypot(0.5, 0.1))
+    assert (e["true_x"], e["true_y"], e["true_heading"]) == (pytest.approx(0.1), 0.0, 0.0)
     swarm = [b for t, _s, b in out if t == "/swarm/error"]
     assert [b["step"] for b in swarm] == [1, 2]
     assert swarm[0]["localization_mean_m"] == pytest.approx(0.01) and swarm[0]["std_mean_m"] == pytest.approx(math.sqrt(2e-4))
@@ -45,11 +47,12 @@ def test_known_answers_of_a_small_run() -> None:
     assert swarm[0]["following_mean_m"] == pytest.approx(sum(follow) / 3) and swarm[0]["following_max_m"] == pytest.approx(max(follow))
     plan = [b for t, _s, b in out if t == "/swarm/plan"]
     assert plan == [{"step": 1, "config": 2, "n_anchors": 2, "steps": 2, "moving": 1, "anchors": [1, 2]}]
-    truths = [b for t, _s, b in out if t == "/robot/2/truth"]
-    assert [(b["step"], b["x"]) for b in truths] == [(1, pytest.approx(2.1)), (2, pytest.approx(2.2))]
+    assert [(err[(s, 2)]["true_x"], err[(s, 2)]["true_y"]) for s in (1, 2)] == [(pytest.approx(2.1), 0.0), (pytest.approx(2.2), 0.0)]
+    assert {t for t, _s, _b in out} == {f"/robot/{r}/estimate" for r in range(3)} | {"/swarm/error", "/swarm/plan"}
+    assert len(out) == 3 * 3 + 2 + 1  # one message per robot and estimate, one swarm error per step with truth, one plan
 
 
-def test_errors_do_not_depend_on_which_of_estimate_and_truth_comes_first() -> None:
+def test_a_truth_after_its_estimate_gives_the_same_last_word() -> None:
     msgs = run_messages()
     swapped = list(msgs)
     for i, m in enumerate(swapped[:-1]):  # every truth set after the estimate of its step
@@ -57,10 +60,13 @@ def test_errors_do_not_depend_on_which_of_estimate_and_truth_comes_first() -> No
             swapped[i], swapped[i + 1] = swapped[i + 1], m
     assert swapped != msgs
 
-    def errors(out):
-        return sorted((t, json.dumps(b, sort_keys=True)) for t, _s, b in out if t.endswith("/error"))
+    def last(out):  # the last message per topic and step: what a plot shows
+        return {(t, b["step"]): b for t, _s, b in out}
 
-    assert errors(_derive(swapped)) == errors(_derive(msgs)) and errors(_derive(msgs))
+    late = _derive(swapped)
+    assert last(late) == last(_derive(msgs))
+    # without the truth first, each estimate is written once without and once with its truth
+    assert sum(1 for t, _s, _b in late if t == "/robot/0/estimate") == 1 + 2 * 2
 
 
 def test_robot_events_and_a_truth_that_never_comes() -> None:
@@ -73,7 +79,9 @@ def test_robot_events_and_a_truth_that_never_comes() -> None:
     deriver = PlotDeriver(TRAJ)
     for step in range(20):
         est = EstimateMessage(run=RUN, step=step, ids=[0, 1, 2], poses=[[0, 0, 0]] * 3, cov=COV)
-        assert {t.rsplit("/", 1)[1] for t, _s, _b in deriver.derive(est)} == {"estimate"}
+        out = deriver.derive(est)
+        assert {t for t, _s, _b in out} == {f"/robot/{r}/estimate" for r in range(3)}
+        assert all("localization_m" not in json.loads(b) for _t, _s, b in out)
     assert len(deriver.estimates) <= 4
 
 
@@ -95,8 +103,8 @@ def test_a_recording_holds_plottable_json_channels_with_their_schemas(tmp_path) 
             jsonschema.validate(body, json.loads(schema.data))
             assert all(isinstance(v, (int, float, str, list)) for v in body.values())  # flat: a plot path is topic.field
             seen[channel.topic] = seen.get(channel.topic, 0) + 1
-    assert seen["/robot/0/estimate"] == 3 and seen["/robot/0/error"] == 2 and seen["/swarm/event"] == 1
-    assert seen["/swarm/plan"] == 1 and seen["/robot/1/truth"] == 2
+    assert seen["/robot/0/estimate"] == 3 and seen["/swarm/event"] == 1
+    assert seen["/swarm/plan"] == 1 and seen["/swarm/error"] == 2
     info = recording_info(path)
     assert info["raw_messages"] == len(msgs) and info["derived_messages"] == info["messages"] - len(msgs)
     for schema_name, schema in SCHEMAS.items():
