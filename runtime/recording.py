@@ -354,7 +354,8 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
 def counts_text(counts: dict[str, Any]) -> str:
     """``N messages on C channels (R raw on RC, D derived on DC)`` from ``record_run``'s or ``recording_info``'s counts:
     the recorder and ``swarm info`` print the same numbers for the same file."""
-    return (f"{counts['messages']} messages on {counts['channels']} channels ({counts['raw_messages']} raw on "
+    channels = counts["channels"] if isinstance(counts["channels"], int) else len(counts["channels"])  # recording_info lists them
+    return (f"{counts['messages']} messages on {channels} channels ({counts['raw_messages']} raw on "
             f"{counts['raw_channels']}, {counts['derived_messages']} derived on {counts['derived_channels']})")
 
 
@@ -614,7 +615,6 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
         "problem": status.problem,
         "library": status.library,
         "messages": sum(c["messages"] for c in channels.values()),
-        "channels_count": len(channels),
         "raw_messages": sum(c["messages"] for c in channels.values() if not c["derived"]),
         "raw_channels": sum(1 for c in channels.values() if not c["derived"]),
         "derived_messages": sum(c["messages"] for c in channels.values() if c["derived"]),

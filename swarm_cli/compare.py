@@ -23,7 +23,7 @@ from coordinator.strategies import METHODS
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, model_config, positive_int, print_json, selection_config
 from swarm_cli.plots import plot_bars
 from swarm_cli.progress import Progress
 from swarm_cli.summary import write_csv
@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--configs", type=int, default=8, help="configurations per trajectory n_d (default 8; the paper: 100)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated methods (default: all: {','.join(METHODS)})")
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
     add_simulation_options(p)
     p.set_defaults(run=run)

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
         lost = info["bytes"] - info["readable_bytes"]
         print(f"           read up to byte {info['readable_bytes']} ({lost} bytes of an incomplete record dropped): {info['problem']}")
         print(f"           'swarm recover {info['path']}' writes a finished copy")
-    print(f"messages:  {counts_text({**info, 'channels': info['channels_count']})}, {info['undecodable']} undecodable")
+    print(f"messages:  {counts_text(info)}, {info['undecodable']} undecodable")
     print(f"start:     {_time(info['first_ns'])}")
     print(f"end:       {_time(info['last_ns'])}")
     print(f"duration:  {info['duration_s']:.3f} s")

@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -43,12 +44,13 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway_config import GatewayConfig, Limits, Port
 from runtime.messages import CommandLimits
-from runtime.trajectory import Trajectory, random_trajectory
+from runtime.keys import validate_run
+from runtime.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.transport import free_tcp_port, loopback_hub, open_session
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.estop import send_estop
-from swarm_cli.options import add_simulation_options, model_config
+from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, selection_config
 
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
@@ -74,8 +76,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", dest="run_id", default=None, help="run id (default launch-<pid>)")
     p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
-    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
-    p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
+    p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
     p.add_argument("--driver", choices=("sim", "gateway"), default="sim",
                    help="simulated agents, or agents driving emulated robots through link processes and ptys (default sim)")
     p.add_argument("--gateway-config", type=Path, default=None,
@@ -181,6 +183,48 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
     return live
 
 
+def _check_writable(folder: Path, flag: str, value: Path) -> None:
+    """``SwarmInputError`` naming ``flag value`` unless a file can be created in ``folder`` (created if missing)."""
+    folder = folder if folder != Path("") else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise SwarmInputError(f"{flag} {value}: {folder} is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise SwarmInputError(f"{flag} {value}: cannot write in {folder}: {exc.strerror or exc}") from None
+
+
+def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: str, out: Path) -> None:
+    """Everything that can fail before a process is started: the run id, the trajectory, the strategy
+    options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
+    from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
+    from runtime.foxglove_live import _import_foxglove  # noqa: PLC0415
+
+    try:
+        validate_run(run_id)
+    except SwarmInputError as exc:
+        raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
+    validate_connected(traj, cfg.sensing_range_m)
+    make_strategy(args.method, traj.n, cfg, args.localizer, selection_config(args), args.seed)
+    if not args.no_record:
+        record = Path(args.record or default_recording(run_id))
+        _check_writable(record.parent, "--record", record)
+    _check_writable(out, "--out", out)
+    if args.result:
+        _check_writable(Path(args.result).parent, "--result", args.result)
+    if args.foxglove is not None:
+        _import_foxglove()
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", args.foxglove))
+            except OSError as exc:
+                raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
+    if args.driver == "gateway" and args.gateway_config:
+        GatewayConfig.load(args.gateway_config)
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     if args.trajectory:
@@ -191,10 +235,11 @@ def run(args: argparse.Namespace) -> int:
         seed = 0 if args.command == "demo" else args.seed
         traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
     run_id = args.run_id or f"launch-{os.getpid()}"
+    out = args.out or Path("out") / args.command
+    check_before_start(args, traj, cfg, run_id, out)
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    out = args.out or Path("out") / args.command
     py = sys.executable
     procs: list[subprocess.Popen] = []
     coordinator: subprocess.Popen | None = None

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import SeekingReader
 
-from runtime.recording import recording_info
+from runtime.recording import counts_text, recording_info
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -94,7 +94,7 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
     except subprocess.TimeoutExpired:
         _cleanup(proc)
         pytest.fail("the launcher did not exit within 60 s of the signal")
-    proc.stdout.read()
+    stdout = proc.stdout.read()
     left = [p for p in descendants if _alive(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
@@ -103,6 +103,7 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
     info = recording_info(record)
     assert info["complete"] and info["indexed"] and info["reader"] == "seeking", (info["problem"], "".join(lines))
     assert info["messages"] > 0
+    assert f"recorded {record}: {counts_text(info)}" in stdout  # the coordinator's count is swarm info's
     with open(record, "rb") as f:  # the seeking reader itself: summary, chunk indexes, CRCs
         reader = SeekingReader(f, validate_crcs=True)
         assert reader.get_summary().statistics.message_count == info["messages"]
