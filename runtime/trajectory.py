@@ -19,8 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
 
 from runtime.errors import SwarmInputError
 from runtime.state import robot_ids
@@ -93,6 +91,9 @@ def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:
     """Connected-component label per robot of the graph 'within sensing range'."""
     d = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
     adj = (d <= sensing_range) & ~np.eye(len(positions), dtype=bool)
+    import scipy.sparse as sp  # noqa: PLC0415 - scipy only when connectivity is checked (cheap parsers)
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+
     return connected_components(sp.csr_matrix(adj), directed=False)[1]
 
 

@@ -33,20 +33,19 @@ import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from coordinator.executor import InchwormExecutor, RunResult
-from coordinator.localization import make_localizer
-from coordinator.simulate import initial_estimate
-from coordinator.strategies import METHODS, make_strategy
-from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
-from runtime.foxglove_live import LiveView
+from coordinator.strategies import METHODS
 from runtime.keys import run_wildcard, validate_run
-from runtime.recording import McapRecorder, counts_text, record_run
-from runtime.trajectory import Trajectory, validate_connected
-from runtime.transport import ZenohSettings, open_session, subscribe
+from runtime.trajectory import Trajectory
 from swarm_cli.entry import StopSignals, run_standalone
-from swarm_cli.summary import print_config_table, write_plots
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
+
+if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
+    from coordinator.executor import RunResult
+    from runtime.foxglove_live import LiveView
+    from runtime.recording import McapRecorder
+    from runtime.transport import ZenohSettings
 
 EXIT_AGENT = 3
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
@@ -140,6 +139,7 @@ class Recording:
         self.recorder: McapRecorder | None = None
         self.result: dict = {}
         self.error: BaseException | None = None
+        from runtime.recording import record_run  # noqa: PLC0415
 
         def target() -> None:
             try:
@@ -195,12 +195,16 @@ class Recording:
 
 
 def recording_line(rec: dict) -> str:
+    from runtime.recording import counts_text  # noqa: PLC0415
+
     return (f"recorded {rec['path']}: {counts_text(rec)}"
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
 
 
 def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
     """The per-configuration table of ``swarm sim``, then the run's outcome."""
+    from swarm_cli.summary import print_config_table  # noqa: PLC0415
+
     rows, fallbacks = print_config_table(result)
     pf = result.pf() if result.has_truth else None
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed)" if pf is not None else "P_f: no ground truth")
@@ -236,6 +240,9 @@ def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[L
     if args.foxglove is None:
         yield Live(None)
         return
+    from runtime.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
+    from runtime.transport import subscribe  # noqa: PLC0415
+
     live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
     subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
     print(f"coordinator: live view for the Foxglove app at {live.view.url}", file=sys.stderr, flush=True)
@@ -250,6 +257,15 @@ def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[L
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside Recording.finish
+    from coordinator.executor import InchwormExecutor  # noqa: PLC0415 - the run's imports, not the parser's
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.transport import open_session  # noqa: PLC0415
+    from swarm_cli.summary import write_plots  # noqa: PLC0415
+
     cfg = model_config(args)
     traj = Trajectory.load(args.trajectory)
     validate_connected(traj, cfg.sensing_range_m)

@@ -43,8 +43,8 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway_config import GatewayConfig, Limits, Port
-from runtime.messages import CommandLimits
 from runtime.keys import validate_run
+from runtime.messages import CommandLimits
 from runtime.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.transport import free_tcp_port, loopback_hub, open_session
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
