@@ -33,8 +33,8 @@ Topics and schemas (``SCHEMAS``):
   (lost / rejoined), ``lost`` (1 lost, 0 rejoined, for plotting) and ``reason``.
 
 Every message also carries ``step`` (the run's global step, 0 = initial localization).
-Per-robot messages are written as JSON text from fragments (no dicts, no ``json.dumps``):
-the recorder derives n of them per step (``swarm bench record``).
+Per-robot messages are written as JSON text from templates with 9 significant digits (no
+dicts, no ``json.dumps``): the recorder derives n of them per step (``swarm bench record``).
 ``PlotDeriver`` holds the little state needed (trajectory, latest plan, estimate and truth
 of the latest steps); not thread-safe.
 """
@@ -113,16 +113,12 @@ def _dumps(obj: Mapping[str, Any]) -> bytes:
     return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
 
 
-def _num(value: float) -> str:
-    """A JSON number (as ``json`` writes it); non-finite values raise ``ValueError`` (JSON has none)."""
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"non-finite value {value!r} in a plot channel")
-    return repr(v)
-
-
-def _std(variance: float) -> str:
-    return _num(math.sqrt(max(variance, 0.0)))
+# Per-robot messages as %-templates: 9 significant digits (nanometres at metres), about 5x cheaper than
+# repr() per number; the recorder writes n of them per step.
+_ESTIMATE = ('{"step":%d,"robot":%d,"config":%d,"x":%.9g,"y":%.9g,"heading":%.9g,"std_x":%.9g,"std_y":%.9g,'
+             '"std_heading":%.9g,"anchor":%d')
+_TRUTH = ',"true_x":%.9g,"true_y":%.9g,"true_heading":%.9g,"localization_m":%.9g,"dx":%.9g,"dy":%.9g,"dheading":%.9g'
+_FOLLOWING = ',"following_m":%.9g'
 
 
 def _wrap(angle: float) -> float:
@@ -184,19 +180,22 @@ class PlotDeriver:
         out, loc, follow, std = [], [], [], []
         for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov):
             anchor = -1 if moving is None else int(robot not in moving)
-            text = (f'{{"step":{step},"robot":{int(robot)},"config":{config},"x":{_num(pose[0])},"y":{_num(pose[1])},'
-                    f'"heading":{_num(pose[2])},"std_x":{_std(cov[0][0])},"std_y":{_std(cov[1][1])},"std_heading":{_std(cov[2][2])},'
-                    f'"anchor":{anchor}')
+            values = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
+                      math.sqrt(max(cov[2][2], 0.0)))
+            text = _ESTIMATE % (step, robot, config, *values, anchor)
             t = true.get(robot)
             if t is not None:
                 dx, dy = pose[0] - t[0], pose[1] - t[1]
                 loc.append(math.hypot(dx, dy))
-                std.append(math.sqrt(max(cov[0][0], 0.0) + max(cov[1][1], 0.0)))
-                text += (f',"true_x":{_num(t[0])},"true_y":{_num(t[1])},"true_heading":{_num(t[2])},"localization_m":{_num(loc[-1])},'
-                         f'"dx":{_num(dx)},"dy":{_num(dy)},"dheading":{_num(_wrap(pose[2] - t[2]))}')
+                std.append(math.hypot(values[3], values[4]))
+                values += (t[0], t[1], t[2], loc[-1], dx, dy, _wrap(pose[2] - t[2]))
+                text += _TRUTH % values[6:]
                 if desired is not None and robot in desired:
                     follow.append(math.hypot(t[0] - desired[robot][0], t[1] - desired[robot][1]))
-                    text += f',"following_m":{_num(follow[-1])}'
+                    values += (follow[-1],)
+                    text += _FOLLOWING % follow[-1]
+            if not math.isfinite(math.fsum(values)):  # JSON has no NaN or infinity
+                raise ValueError(f"non-finite value in the estimate of robot {robot} at step {step}")
             out.append((f"/robot/{int(robot)}/estimate", "inchworm.RobotEstimate", (text + "}").encode()))
         if loc:
             swarm = {"step": step, "config": config, "localization_mean_m": sum(loc) / len(loc),
