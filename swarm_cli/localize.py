@@ -21,8 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.localization import make_localizer
-from coordinator.localization.graph import observable_subset
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.state import Observations, StepCommands, SwarmEstimate, robot_ids
@@ -98,6 +96,9 @@ def _parse_prior(prior: Any, ids: np.ndarray) -> SwarmEstimate | None:
 
 def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> dict:
     """The output document for one input document."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy when localizing, not for --help
+    from coordinator.localization.graph import observable_subset  # noqa: PLC0415
+
     ids, obs, prior = parse_input(data)
     i, j = obs.indexed(ids)
     excluded: dict[int, str] = {}

@@ -32,7 +32,7 @@ def test_the_top_level_help_imports_no_heavy_package() -> None:
     assert not loaded & set(HEAVY), loaded & set(HEAVY)
 
 
-@pytest.mark.parametrize("command", ["sim", "demo", "launch", "coordinator", "replay", "plot", "info", "record", "export", "agent", "estop", "recover",
+@pytest.mark.parametrize("command", ["sim", "compare", "localize", "demo", "launch", "coordinator", "replay", "plot", "info", "record", "export", "agent", "estop", "recover",
                                      "bench record", "certs", "router"])
 def test_light_commands_build_their_parser_without_heavy_packages(command: str) -> None:
     argv = command.split()
