@@ -69,6 +69,11 @@ class _HandshakeFilter(logging.Filter):
         return True
 
 
+def require_foxglove() -> None:
+    """``SwarmInputError`` naming the extra to install unless foxglove-sdk can be imported (check before starting a run)."""
+    _import_foxglove()
+
+
 def _import_foxglove() -> Any:
     try:
         import foxglove  # noqa: PLC0415 - optional dependency

@@ -200,7 +200,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     """Everything that can fail before a process is started: the run id, the trajectory, the strategy
     options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
     from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
-    from runtime.foxglove_live import _import_foxglove  # noqa: PLC0415
+    from runtime.foxglove_live import require_foxglove  # noqa: PLC0415
 
     try:
         validate_run(run_id)
@@ -215,7 +215,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     if args.result:
         _check_writable(Path(args.result).parent, "--result", args.result)
     if args.foxglove is not None:
-        _import_foxglove()
+        require_foxglove()
         with socket.socket() as probe:
             try:
                 probe.bind(("127.0.0.1", args.foxglove))
