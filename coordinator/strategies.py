@@ -10,16 +10,18 @@ random halves alternating, ref. [57]), ``no-anchors`` (everybody moves at once) 
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from coordinator.plan import Plan, feasible_anchor_counts
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, Selection, SelectionConfig
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
+
+if TYPE_CHECKING:  # the search (scipy) is imported when a strategy is made: METHODS stays cheap for parsers
+    from coordinator.selection.selector import AnchorSelector, Selection, SelectionConfig
 
 METHODS = ("inchworm", "inchworm-equal-speed", "heuristic-fixed", "ref57", "no-anchors", "one-at-a-time")
 
@@ -56,6 +58,8 @@ class SelectedStrategy:
         self.fallback_anchors = fallback_anchors
 
     def plan(self, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Selection | None]:
+        from coordinator.selection.selector import NoFeasiblePlanError  # noqa: PLC0415 - loaded by make_strategy already
+
         try:
             selection = self.selector.select(estimate, desired)
         except NoFeasiblePlanError:
@@ -68,7 +72,7 @@ class SelectedStrategy:
         if self.fallback_anchors is None:  # every feasible count of whatever swarm it is given
             return self
         n_a = anchors_for_half(int(np.sum(keep)))
-        selector = AnchorSelector(self.selector.cfg, self.selector.localizer,
+        selector = type(self.selector)(self.selector.cfg, self.selector.localizer,
                                   replace(self.selector.selection, anchor_counts=(n_a,)), self.selector.seed)
         selector.calls = self.selector.calls  # the search's random stream goes on where it was
         return SelectedStrategy(self.name, selector, fallback_anchors=n_a)
@@ -117,6 +121,8 @@ def make_strategy(
     method: str, n: int, cfg: ModelConfig, localizer: str, selection: SelectionConfig, seed: int
 ) -> Strategy:
     """The strategy called ``method`` for ``n`` robots; ``seed`` fixes its own random choices."""
+    from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415 - scipy, only when a strategy is made
+
     if method == "inchworm":
         return SelectedStrategy(method, AnchorSelector(cfg, localizer, selection, seed))
     if method == "inchworm-equal-speed":

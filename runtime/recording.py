@@ -3,10 +3,14 @@
 Layout: one channel per key (topic = the Zenoh key, message encoding ``msgpack``); one
 ``jsonschema`` schema per message type (name = the type, data = ``json_schema(cls)``),
 shared by every channel of that type; keys without a message type get schema id 0.
-Unless ``foxglove=False``, derived Foxglove channels are written too (``runtime.foxglove_scene``:
-``/foxglove/estimated``, ``/foxglove/true``, ``/foxglove/desired``, message encoding ``json``,
-schema ``foxglove.SceneUpdate``), each derived message right after the raw one it comes from;
-the raw channels are unchanged (same topics, schemas, payloads, times and sequence numbers).
+Unless ``foxglove=False``, derived channels are written too, each derived message right after
+the raw one it comes from, message encoding ``json`` with a ``jsonschema`` schema: the Foxglove
+3D scenes (``runtime.foxglove_scene``: ``/foxglove/estimated``, ``/foxglove/true``,
+``/foxglove/desired``, schema ``foxglove.SceneUpdate``) and the plottable channels
+(``runtime.plot_channels``: ``/robot/<id>/estimate``, ``/robot/<id>/truth``,
+``/robot/<id>/error``, ``/swarm/error``, ``/swarm/plan``, ``/swarm/event``) that Foxglove's
+Plot panel and PlotJuggler read; the raw channels are unchanged (same topics, schemas,
+payloads, times and sequence numbers).
 Metadata record ``run`` (string -> string; structured values JSON-encoded) is written
 first, ``recorder`` (message counts, clean stop) at ``close()``. Chunks are zstd-compressed,
 at most ``CHUNK_BYTES`` uncompressed, and a chunk is closed at least every ``FLUSH_S``
@@ -60,6 +64,9 @@ from runtime.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
 from runtime.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
 from runtime.keys import KeyspaceError, run_wildcard, validate_run
 from runtime.messages import MessageError, decode, json_schema, type_for_key
+from runtime.plot_channels import DERIVED_TYPES as PLOT_TYPES
+from runtime.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
+from runtime.plot_channels import PlotDeriver, is_plot_topic
 
 CHUNK_BYTES = 64 * 1024  # uncompressed bytes after which a chunk is closed
 FLUSH_S = 0.25  # a chunk is closed (and the file flushed) at least this often while messages arrive
@@ -131,7 +138,7 @@ class McapRecorder:
     (summary and indexes). ``metadata`` is stored as the ``run`` metadata record together
     with the run id and ``software_versions()``.
 
-    ``foxglove`` (default True): also write the derived ``foxglove.SceneUpdate`` channels
+    ``foxglove`` (default True): also write the derived scene and plot channels
     (module docstring); the desired positions need ``metadata["trajectory"]`` (the
     trajectory JSON object). Derivation errors never stop the recording (counted in
     ``derived_errors``).
@@ -143,10 +150,12 @@ class McapRecorder:
         self.run = validate_run(run)
         self.flush_s = float(flush_s)
         self.foxglove = bool(foxglove)
-        self._deriver = SceneDeriver((metadata or {}).get("trajectory")) if self.foxglove else None
+        trajectory = (metadata or {}).get("trajectory")
+        self._deriver = SceneDeriver(trajectory) if self.foxglove else None
+        self._plotter = PlotDeriver(trajectory) if self.foxglove else None
         self._derived_types: dict[str, bool] = {}  # key -> whether its type feeds the derived channels
         self._derived_channels: dict[str, int] = {}
-        self._derived_schema = 0
+        self._derived_schemas: dict[str, int] = {}
         self._derived_counts: dict[str, int] = {}
         self.derived_errors = 0
         if self.path.parent and not self.path.parent.exists():
@@ -218,7 +227,7 @@ class McapRecorder:
             self._channels[key] = channel_id
             if schema_id:
                 self._typed.add(key)
-            self._derived_types[key] = cls is not None and issubclass(cls, DERIVED_TYPES)
+            self._derived_types[key] = cls is not None and issubclass(cls, DERIVED_TYPES + PLOT_TYPES)
         return channel_id
 
     def _write_now(self, key: str, payload: bytes, publish_time: int | None, log_time: int) -> None:
@@ -247,16 +256,20 @@ class McapRecorder:
 
     def _write_derived(self, msg, log_time: int) -> None:
         try:
-            scenes = self._deriver.derive(msg)
+            derived = [(topic, DERIVED_SCHEMA, data) for topic, data in self._deriver.derive(msg)]
+            derived += self._plotter.derive(msg)
         except (ValueError, TypeError, KeyError, IndexError):  # a view must never stop the recording
             self.derived_errors += 1
             return
-        for topic, data in scenes:
+        for topic, schema_name, data in derived:
             channel_id = self._derived_channels.get(topic)
             if channel_id is None:
-                if not self._derived_schema:
-                    self._derived_schema = self._writer.register_schema(DERIVED_SCHEMA, SCHEMA_ENCODING, SCENE_UPDATE_SCHEMA_BYTES)
-                channel_id = self._writer.register_channel(topic, DERIVED_ENCODING, self._derived_schema,
+                schema_id = self._derived_schemas.get(schema_name)
+                if schema_id is None:
+                    schema_data = SCENE_UPDATE_SCHEMA_BYTES if schema_name == DERIVED_SCHEMA else PLOT_SCHEMAS[schema_name]
+                    schema_id = self._writer.register_schema(schema_name, SCHEMA_ENCODING, schema_data)
+                    self._derived_schemas[schema_name] = schema_id
+                channel_id = self._writer.register_channel(topic, DERIVED_ENCODING, schema_id,
                                                            {"derived_from": run_wildcard(self.run)})
                 self._derived_channels[topic] = channel_id
             with self._lock:
@@ -315,8 +328,9 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
                stop_event: threading.Event, on_ready: Callable[[McapRecorder], object] | None = None) -> dict[str, Any]:
     """Record ``swarm/<run>/**`` through a session opened with ``settings`` until ``stop_event`` is set.
 
-    ``on_ready(recorder)`` is called once the subscription is declared. Returns
-    ``{"path", "messages", "channels", "undecodable"}``.
+    ``on_ready(recorder)`` is called once the subscription is declared. Returns ``{"path",
+    "messages", "channels", "raw_messages", "raw_channels", "derived_messages", "derived_channels",
+    "undecodable"}`` (``messages`` and ``channels`` count raw and derived ones, as ``swarm info`` does).
     """
     from runtime.transport import open_session, subscribe  # zenoh only when recording live
 
@@ -331,8 +345,18 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
             sub.undeclare()
         finally:
             recorder.close()
-    return {"path": str(recorder.path), "messages": recorder.count, "channels": len(recorder.counts()),
-            "undecodable": sum(recorder.bad_counts().values())}
+    raw, derived = recorder.counts(), recorder.derived_counts()
+    return {"path": str(recorder.path), "messages": sum(raw.values()) + sum(derived.values()), "channels": len(raw) + len(derived),
+            "raw_messages": sum(raw.values()), "raw_channels": len(raw), "derived_messages": sum(derived.values()),
+            "derived_channels": len(derived), "undecodable": sum(recorder.bad_counts().values())}
+
+
+def counts_text(counts: dict[str, Any]) -> str:
+    """``N messages on C channels (R raw on RC, D derived on DC)`` from ``record_run``'s or ``recording_info``'s counts:
+    the recorder and ``swarm info`` print the same numbers for the same file."""
+    channels = counts["channels"] if isinstance(counts["channels"], int) else len(counts["channels"])  # recording_info lists them
+    return (f"{counts['messages']} messages on {channels} channels ({counts['raw_messages']} raw on "
+            f"{counts['raw_channels']}, {counts['derived_messages']} derived on {counts['derived_channels']})")
 
 
 # ---------------------------------------------------------------- reading
@@ -529,8 +553,9 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
 
 
 def is_derived(topic: str) -> bool:
-    """Whether ``topic`` is a derived Foxglove channel (``/foxglove/...``), not a Zenoh key of the run."""
-    return topic.startswith(DERIVED_PREFIX)
+    """Whether ``topic`` is a derived channel (``/foxglove/...`` scenes, ``/robot/...`` and ``/swarm/...``
+    plottable JSON), not a Zenoh key of the run (those never start with ``/``)."""
+    return topic.startswith(DERIVED_PREFIX) or is_plot_topic(topic)
 
 
 def read_messages(path: str | os.PathLike, derived: bool = False) -> Iterator[tuple[str, bytes, int, int]]:
@@ -590,7 +615,10 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
         "problem": status.problem,
         "library": status.library,
         "messages": sum(c["messages"] for c in channels.values()),
+        "raw_messages": sum(c["messages"] for c in channels.values() if not c["derived"]),
+        "raw_channels": sum(1 for c in channels.values() if not c["derived"]),
         "derived_messages": sum(c["messages"] for c in channels.values() if c["derived"]),
+        "derived_channels": sum(1 for c in channels.values() if c["derived"]),
         "undecodable": sum(c["undecodable"] for c in channels.values()),
         "first_ns": first,
         "last_ns": last,

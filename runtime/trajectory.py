@@ -19,9 +19,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-from scipy.spatial import cKDTree
 
 from runtime.errors import SwarmInputError
 from runtime.state import robot_ids
@@ -94,6 +91,9 @@ def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:
     """Connected-component label per robot of the graph 'within sensing range'."""
     d = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
     adj = (d <= sensing_range) & ~np.eye(len(positions), dtype=bool)
+    import scipy.sparse as sp  # noqa: PLC0415 - scipy only when connectivity is checked (cheap parsers)
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+
     return connected_components(sp.csr_matrix(adj), directed=False)[1]
 
 
@@ -146,6 +146,7 @@ MIN_SEPARATION = 0.25  # of the spacing: no two robots of a random configuration
 
 def min_separation(xy: np.ndarray) -> float:
     """The smallest distance between two robots of ``xy`` (n, 2), in m."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     d, _ = cKDTree(xy).query(xy, k=2)
     return float(d[:, 1].min())
 
@@ -170,6 +171,8 @@ RANGE_MARGIN = 0.9  # random configurations are connected within this fraction o
 
 def _spanning_edges(xy: np.ndarray, reach: float) -> np.ndarray:
     """(m, 2) robot pairs of a minimum spanning forest of the graph 'within ``reach``' of ``xy``."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
+    from scipy.sparse.csgraph import minimum_spanning_tree  # noqa: PLC0415
     mst = minimum_spanning_tree(cKDTree(xy).sparse_distance_matrix(cKDTree(xy), reach, output_type="coo_matrix").tocsr())
     return np.column_stack(mst.nonzero())
 
@@ -182,6 +185,8 @@ def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: flo
     closer than ``sep`` to another, or when it ends a spanning edge of ``rigid`` that now joins
     two parts of the graph 'within ``reach``' (there is one while the graph is cut).
     """
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
+    from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
     scale = np.ones(len(rigid))
     for _ in range(60):
         xy = rigid + scale[:, None] * noise

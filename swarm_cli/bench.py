@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
-from swarm_cli import bench_faults, bench_gateway, bench_localize, bench_record, bench_runtime, bench_select
+from swarm_cli.entry import Command, add_commands
 
-BENCHMARKS = (bench_localize, bench_select, bench_runtime, bench_record, bench_gateway, bench_faults)
+NESTED = True
+BENCHMARKS = (
+    Command("localize", "swarm_cli.bench_localize", "time and accuracy (vs. the Cramer-Rao bound) of one localization step"),
+    Command("select", "swarm_cli.bench_select", "time of one full anchor selection for n_r = 10, 30, 100"),
+    Command("runtime", "swarm_cli.bench_runtime", "per-step coordination overhead with 10 and 50 agent processes, agent memory, Zenoh RTT"),
+    Command("record", "swarm_cli.bench_record", "MCAP recording throughput (msgs/s, MB/s) and its CPU cost per step"),
+    Command("gateway", "swarm_cli.bench_gateway", "frame codec throughput, pty round trip, gateway vs simulated step time"),
+    Command("faults", "swarm_cli.bench_faults", "lost robots, hostile messages and radio faults: does every run complete, unchanged?"),
+)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, argv: Sequence[str] = (), full: bool = False) -> None:
     parser = sub.add_parser("bench", help="benchmarks (print numbers; --json for machines)")
     inner = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
-    for module in BENCHMARKS:
-        module.register(inner)
+    add_commands(inner, BENCHMARKS, argv, full=full)

@@ -44,6 +44,7 @@ from runtime.frames import (
 from runtime.gateway_config import GatewayConfig, Port
 from runtime.trajectory import random_trajectory
 from swarm_cli import bench_runtime
+from swarm_cli.entry import plain
 from swarm_cli.launch import start_emulator, stop_all
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, print_json
 
@@ -54,7 +55,7 @@ TARGET_RATIO = 1.5
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("gateway", help="frame codec throughput, pty round trip, gateway vs simulated step time",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=plain(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", type=int, default=10, help="agents of the step-time comparison (default 10)")
     p.add_argument("--steps", type=int, default=60, help="steps timed per driver and round (default 60)")
     p.add_argument("--rounds", type=int, default=2, help="rounds of sim then gateway, steps pooled per driver (default 2)")

@@ -28,6 +28,7 @@ from coordinator.localization.dead_reckoning import dead_reckon
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.scenarios import StepCase, random_step
+from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("paper", "joint")
@@ -40,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser = sub.add_parser(
         "localize",
         help="time and accuracy (vs. the Cramer-Rao bound) of one localization step",
-        description=__doc__,
+        description=plain(__doc__),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--sizes", default="10,100,1000", help="comma-separated swarm sizes (default 10,100,1000)")

@@ -51,6 +51,7 @@ from runtime.messages import (
     message_key,
 )
 from runtime.recording import McapRecorder
+from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, parse_list, print_json
 
 RUN = "bench-record"
@@ -62,7 +63,7 @@ MB = 2**20
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("record", help="MCAP recording throughput (msgs/s, MB/s) and its CPU cost per step",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+                       description=plain(__doc__), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", default="10,50", help="comma-separated swarm sizes (default 10,50)")
     p.add_argument("--steps", type=int, default=40, help="steps of messages recorded per run (default 40)")
     p.add_argument("--steps-per-config", type=int, default=4, help="steps per configuration: one PlanMessage each (default 4)")

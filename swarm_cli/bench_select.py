@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("select", help="time of one full anchor selection for n_r = 10, 30, 100")
     p.add_argument("--sizes", default="10,30,100", help="comma-separated swarm sizes (default 10,30,100)")
     p.add_argument("--repeats", type=int, default=3, help="selections per size, each on a new random step (default 3)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="seed of the random steps (default 0)")
     p.add_argument("--all-cores", action="store_true", help="do not pin the process to one core")
     add_simulation_options(p)
     p.set_defaults(run=run)

@@ -14,19 +14,19 @@ import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-import numpy as np
-from scipy import stats
+from typing import TYPE_CHECKING
 
-from coordinator.selection.selector import SelectionConfig
-from coordinator.simulate import simulate
+import numpy as np
+
 from coordinator.strategies import METHODS
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
-from swarm_cli.plots import plot_bars
+from swarm_cli.options import add_simulation_options, model_config, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress
-from swarm_cli.summary import write_csv
+
+if TYPE_CHECKING:  # scipy and matplotlib are imported where used, not to build the parser
+    from coordinator.selection.selector import SelectionConfig
 
 REFERENCE = "ref57"
 CONFIDENCE = 0.97  # Table II
@@ -39,7 +39,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--configs", type=int, default=8, help="configurations per trajectory n_d (default 8; the paper: 100)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated methods (default: all: {','.join(METHODS)})")
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
     add_simulation_options(p)
     p.set_defaults(run=run)
@@ -55,6 +55,8 @@ def parse_methods(text: str) -> list[str]:
 
 def run_one(job: tuple[int, str, int, int, int, ModelConfig, str, SelectionConfig]) -> dict:
     """One (trajectory, method) run; a top-level function so worker processes can import it."""
+    from coordinator.simulate import simulate  # noqa: PLC0415
+
     t, method, robots, configs, seed, cfg, localizer, selection = job
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
     result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
@@ -71,6 +73,8 @@ def run_one(job: tuple[int, str, int, int, int, ModelConfig, str, SelectionConfi
 
 def summarise(rows: list[dict], methods: list[str]) -> dict:
     """The JSON contract: per-method P_f statistics and p-values against ref57."""
+    from scipy import stats  # noqa: PLC0415
+
     out: dict = {"methods": {}, "p_values": {}}
     by = {m: sorted((r for r in rows if r["method"] == m), key=lambda r: r["trajectory"]) for m in methods}
     for m in methods:
@@ -106,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
         for row in pool.map(run_one, jobs):
             rows.append(row)
             progress(len(rows))
+    from swarm_cli.plots import plot_bars  # noqa: PLC0415 - matplotlib
+    from swarm_cli.summary import write_csv  # noqa: PLC0415
+
     summary = summarise(rows, methods)
     write_csv(args.out / "runs.csv", rows)
     names = list(summary["methods"])

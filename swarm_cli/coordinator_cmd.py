@@ -36,29 +36,26 @@ import json
 import logging
 import math
 import os
-import signal
 import sys
 import threading
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from coordinator.executor import InchwormExecutor, RunAborted, RunResult
-from coordinator.localization import make_localizer
-from coordinator.simulate import initial_estimate
-from coordinator.strategies import METHODS, make_strategy
-from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
+from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
-from runtime.foxglove_live import LiveView
 from runtime.keys import run_wildcard, validate_run
-from runtime.recording import McapRecorder, record_run
-from runtime.trajectory import Trajectory, validate_connected
-from runtime.transport import ZenohSettings, open_session, subscribe
-from swarm_cli.entry import run_standalone
-from swarm_cli.estop import send_estop
-from swarm_cli.summary import print_config_table, write_plots
+from runtime.trajectory import Trajectory
+from swarm_cli.entry import StopSignals, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
+
+if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
+    from coordinator.executor import RunResult
+    from runtime.foxglove_live import LiveView
+    from runtime.recording import McapRecorder
+    from runtime.transport import ZenohSettings
 
 EXIT_AGENT = 3
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
@@ -98,6 +95,8 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-record", action="store_true", help="do not record the run")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e '.[foxglove]')")
+    p.add_argument("--linger", type=float, default=None, metavar="SECONDS",
+                   help="with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; 0: exit at once)")
 
 
 def default_recording(run_id: str) -> Path:
@@ -155,6 +154,7 @@ class Recording:
         self.recorder: McapRecorder | None = None
         self.result: dict = {}
         self.error: BaseException | None = None
+        from runtime.recording import record_run  # noqa: PLC0415
 
         def target() -> None:
             try:
@@ -188,12 +188,17 @@ class Recording:
         finally:
             probe.undeclare()
 
-    def finish(self) -> dict:
-        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``."""
+    def finish(self, interrupted: bool = False) -> dict:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``.
+
+        ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
+        (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
+        """
         if self.recorder is not None and self.thread.is_alive():
             start = last_change = time.monotonic()
             count = self.recorder.count
-            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < self.SETTLE_MAX_S:
+            settle_max = self.SETTLE_S if interrupted else self.SETTLE_MAX_S
+            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < settle_max:
                 time.sleep(0.05)
                 if self.recorder.count != count:
                     count, last_change = self.recorder.count, time.monotonic()
@@ -205,12 +210,16 @@ class Recording:
 
 
 def recording_line(rec: dict) -> str:
-    return (f"recorded {rec['path']}: {rec['messages']} messages on {rec['channels']} channels"
+    from runtime.recording import counts_text  # noqa: PLC0415
+
+    return (f"recorded {rec['path']}: {counts_text(rec)}"
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
 
 
 def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
     """The per-configuration table of ``swarm sim``, then the run's outcome."""
+    from swarm_cli.summary import print_config_table  # noqa: PLC0415
+
     rows, fallbacks = print_config_table(result)
     for lost in result.lost:
         print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
@@ -228,29 +237,56 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
                     "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
 
 
+class Live:
+    """The ``--foxglove`` view of a run; ``keep`` (set once the run is done) keeps it open for ``linger``."""
+
+    def __init__(self, view: LiveView | None) -> None:
+        self.view, self.keep = view, False
+
+    def linger(self, seconds: float | None) -> None:
+        if self.view is None:
+            return
+        if seconds != 0:
+            until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
+            print(f"coordinator: the run is over; the live view keeps serving at {self.view.url} {until}", file=sys.stderr, flush=True)
+            self.view.linger(seconds)
+        self.view.close()
+
+
 @contextlib.contextmanager
-def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[None]:
-    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs."""
+def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[Live]:
+    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs;
+    the view is closed at the end unless ``keep`` was set (then ``Live.linger`` closes it)."""
     if args.foxglove is None:
-        yield
+        yield Live(None)
         return
-    view = LiveView(args.foxglove, trajectory=traj.to_json())
-    subscriber = subscribe(session, run_wildcard(args.run_id), view.handle)
-    print(f"coordinator: live view for the Foxglove app at {view.url}", file=sys.stderr, flush=True)
+    from runtime.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
+    from runtime.transport import subscribe  # noqa: PLC0415
+
+    live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
+    subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
+    print(f"coordinator: live view for the Foxglove app at {live.view.url}", file=sys.stderr, flush=True)
     try:
-        yield
+        yield live
     finally:
         subscriber.undeclare()
-        view.close()
-
-
-def _interrupt(*_) -> None:
-    raise KeyboardInterrupt
+        if not live.keep:
+            live.view.close()
 
 
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
-    signal.signal(signal.SIGTERM, _interrupt)
+    signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside Recording.finish
+    from coordinator.executor import InchwormExecutor, RunAborted  # noqa: PLC0415 - the run's imports, not the parser's
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.transport import open_session  # noqa: PLC0415
+    from swarm_cli.estop import send_estop  # noqa: PLC0415
+    from swarm_cli.summary import write_plots  # noqa: PLC0415
+
     cfg = model_config(args)
     traj = Trajectory.load(args.trajectory)
     validate_connected(traj, cfg.sensing_range_m)
@@ -263,11 +299,14 @@ def run(args: argparse.Namespace) -> int:
     recording = None
     if not args.no_record:
         path = args.record or default_recording(args.run_id)
-        recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
+        with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
+            recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
         print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
     recorded, completed = None, False
     try:
-        with open_session(settings) as session, live_view(args, traj, session):
+        if signals.received is not None:
+            raise KeyboardInterrupt
+        with open_session(settings) as session, live_view(args, traj, session) as live:
             if recording is not None:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
@@ -280,7 +319,7 @@ def run(args: argparse.Namespace) -> int:
                 executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
                                             on_lost=args.on_lost, min_robots=args.min_robots)
                 result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
-                completed = True
+                completed = live.keep = True
             except (AgentError, RunAborted) as exc:
                 ended = exc
                 print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
@@ -289,19 +328,22 @@ def run(args: argparse.Namespace) -> int:
                 ended = exc
                 raise
             finally:
-                if not completed:  # whatever ended the run early: no robot may be left moving
-                    send_estop(session, args.run_id, f"swarm coordinator (pid {os.getpid()})",
-                               f"the run ended early ({type(ended).__name__}: {ended})"[:2000])
-                backend.close()
+                with signals.deferred():
+                    if not completed:  # whatever ended the run early: no robot may be left moving
+                        send_estop(session, args.run_id, f"swarm coordinator (pid {os.getpid()})",
+                                   f"the run ended early ({type(ended).__name__}: {ended})"[:2000])
+                    backend.close()
     finally:
         if recording is not None:
-            recorded = recording.finish()
+            with signals.deferred():
+                recorded = recording.finish(interrupted=signals.received is not None)
             if not completed:  # failed or interrupted run: the summary below is not printed
                 print(recording_line(recorded), flush=True)
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
     plots = write_plots(result, args.out) if args.out and result.configs else None
     print_summary(result, args, plots, recorded)
+    live.linger(args.linger)
     return 0
 
 

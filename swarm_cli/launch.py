@@ -43,6 +43,7 @@ import argparse
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -55,16 +56,18 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway_config import GatewayConfig, Limits, Port
-from runtime.keys import estop_key, robot_wildcard
+from runtime.keys import estop_key, robot_wildcard, validate_run
 from runtime.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
-from runtime.trajectory import Trajectory, random_trajectory
+from runtime.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.agent import format_ids
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
+from swarm_cli.entry import StopSignals
 from swarm_cli.estop import send_estop
-from swarm_cli.options import add_simulation_options, model_config, print_json
+from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
 GRACE_S = 3.0
+COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
@@ -90,8 +93,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", dest="run_id", default=None, help="run id (default launch-<pid>)")
     p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
-    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
-    p.add_argument("--step-timeout", type=float, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
+    p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
     p.add_argument("--driver", choices=("sim", "gateway"), default="sim",
                    help="simulated agents, or agents driving emulated robots through link processes and ptys (default sim)")
     p.add_argument("--gateway-config", type=Path, default=None,
@@ -248,10 +251,6 @@ def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
             p.wait()
 
 
-def _raise_interrupt(*_) -> None:
-    raise KeyboardInterrupt
-
-
 ROBOTS_PER_PORT = 5
 GATEWAY_READY_S = 20.0
 
@@ -298,6 +297,51 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
     return live
 
 
+def _check_writable(folder: Path, flag: str, value: Path) -> None:
+    """``SwarmInputError`` naming ``flag value`` unless a file can be created in ``folder`` (created if missing)."""
+    folder = folder if folder != Path("") else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise SwarmInputError(f"{flag} {value}: {folder} is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise SwarmInputError(f"{flag} {value}: cannot write in {folder}: {exc.strerror or exc}") from None
+
+
+def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: str, out: Path) -> None:
+    """Everything that can fail before a process is started: the run id, the trajectory, the strategy
+    options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
+    from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
+    from runtime.foxglove_live import require_foxglove  # noqa: PLC0415
+
+    try:
+        validate_run(run_id)
+    except SwarmInputError as exc:
+        raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
+    validate_connected(traj, cfg.sensing_range_m)
+    make_strategy(args.method, traj.n, cfg, args.localizer, selection_config(args), args.seed)
+    if not args.no_record:
+        record = Path(args.record or default_recording(run_id))
+        _check_writable(record.parent, "--record", record)
+    _check_writable(out, "--out", out)
+    if args.result:
+        _check_writable(Path(args.result).parent, "--result", args.result)
+    if args.foxglove is not None:
+        require_foxglove()
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", args.foxglove))
+            except OSError as exc:
+                raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
+    if args.driver == "gateway" and args.gateway_config:
+        GatewayConfig.load(args.gateway_config)
+    if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
+        robot, step = args.kill_robot
+        raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     if args.trajectory:
@@ -311,13 +355,15 @@ def run(args: argparse.Namespace) -> int:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, args.agents_per_process)
     run_id = args.run_id or f"launch-{os.getpid()}"
+    out = args.out or Path("out") / args.command
+    check_before_start(args, traj, cfg, run_id, out)
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    out = args.out or Path("out") / args.command
     py = sys.executable
     procs: list[subprocess.Popen] = []
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    coordinator: subprocess.Popen | None = None
+    signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
     try:
         with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
             traj_file = Path(tmp) / "trajectory.json"
@@ -347,14 +393,14 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append("--json")
             if args.foxglove is not None:
                 cmd.append(f"--foxglove={args.foxglove}")
+                if args.linger is not None:
+                    cmd.append(f"--linger={args.linger!r}")
             what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
             print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             killer = None
             if args.kill_robot is not None:
                 robot, step = args.kill_robot
-                if robot not in [int(i) for i in traj.ids]:
-                    raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
                 killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
             json_hold = args.json and killer is not None
             coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
@@ -391,7 +437,10 @@ def run(args: argparse.Namespace) -> int:
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
-        emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
-        stop_all(procs[emulators:])
-        stop_all(procs[:emulators])
-        signal.signal(signal.SIGTERM, previous)
+        with signals.deferred():
+            if coordinator is not None:  # first, with time to finish its recording
+                stop_all([coordinator], COORDINATOR_GRACE_S)
+            emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
+            stop_all(procs[emulators:])
+            stop_all(procs[:emulators])
+        signals.restore()

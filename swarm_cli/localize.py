@@ -23,8 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from coordinator.localization import make_localizer
-from coordinator.localization.partial import SOLVER_FAILURES, solvable_subset
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.state import Observations, StepCommands, SwarmEstimate, robot_ids
@@ -101,6 +99,9 @@ def _parse_prior(prior: Any, ids: np.ndarray) -> SwarmEstimate | None:
 
 def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> dict:
     """The output document for one input document."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy when localizing, not for --help
+    from coordinator.localization.partial import solvable_subset  # noqa: PLC0415
+
     ids, obs, prior = parse_input(data)
     all_ids, i, j = ids, *obs.indexed(ids)
     if localizer == "paper":
@@ -144,6 +145,8 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.localization.partial import SOLVER_FAILURES  # noqa: PLC0415
+
     try:
         data = json.loads(args.file.read_text())
     except json.JSONDecodeError as exc:

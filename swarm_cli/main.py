@@ -1,30 +1,53 @@
-"""Entry point of the ``swarm`` command: subcommands register themselves here."""
+"""Entry point of the ``swarm`` command.
+
+Subcommands are listed here by name, module and one-line help; only the module of the
+command being run is imported (``swarm_cli.entry.add_commands``), so ``swarm --help`` and
+``swarm X --help`` do not pay for matplotlib, scipy or zenoh.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
-from swarm_cli import (
-    agent, bench, certs, compare, coordinator_cmd, emulate, estop, info, launch, link, localize, plot, record, recover, replay, router, sim,
-    study,
+from swarm_cli.entry import Command, add_commands, guarded
+
+COMMANDS = (
+    Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
+    Command("compare", "swarm_cli.compare", "Table I/II: P_f of every method on the same random trajectories"),
+    Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; consistency: NEES of the covariances)"),
+    Command("localize", "swarm_cli.localize", "localize robots from range/bearing observations in a JSON file"),
+    Command("bench", "swarm_cli.bench", "benchmarks (print numbers; --json for machines)"),
+    Command("agent", "swarm_cli.agent", "run the agent process of one robot, or of many (--id 0-49), in a distributed run"),
+    Command("coordinator", "swarm_cli.coordinator_cmd", "run the coordinator of a distributed run (agents started separately)"),
+    Command("launch", "swarm_cli.launch", "run agents + coordinator as processes on this host (Zenoh on loopback)"),
+    Command("demo", "swarm_cli.launch", "a distributed run of 10 agent processes on a small built-in trajectory"),
+    Command("record", "swarm_cli.record", "record every message of a run to an MCAP file until Ctrl-C / SIGTERM"),
+    Command("info", "swarm_cli.info", "channels, counts, duration, metadata and bad messages of an MCAP recording"),
+    Command("recover", "swarm_cli.recover", "rewrite an unfinished MCAP recording as a finished, indexed file"),
+    Command("replay", "swarm_cli.replay", "re-publish a recording on Zenoh (--publish) or check that it is reproduced (--check)"),
+    Command("export", "swarm_cli.export", "convert a recording for other tools (--ros2: a rosbag2 with standard ROS 2 messages)"),
+    Command("plot", "swarm_cli.plot", "the trajectory and error plots of swarm sim, from a recording"),
+    Command("link", "swarm_cli.link", "own one serial/radio port of the gateway and bridge its robots to their agents"),
+    Command("estop", "swarm_cli.estop", "emergency stop: every robot of the run stops now (latched)"),
+    Command("router", "swarm_cli.router", "run the Zenoh router of a multi-host swarm until Ctrl-C / SIGTERM"),
+    Command("certs", "swarm_cli.certs", "create a lab CA and per-host TLS certificates (mutual TLS, see deploy/README.md)"),
+    Command("emulate-robots", "swarm_cli.emulate", "emulate the robots of a gateway config on pseudo-terminals (frame protocol)"),
 )
-from swarm_cli.entry import guarded
-
-COMMANDS = (sim, compare, study, localize, bench, agent, coordinator_cmd, launch, record, info, recover, replay, plot, link, estop, router, certs,
-            emulate)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
+    """The ``swarm`` parser; with ``argv``, only the command it names is fully registered (and imported),
+    without it every command is (for tests and tools that walk the parser)."""
     parser = argparse.ArgumentParser(prog="swarm", description="Inchworm swarm runtime: simulation, localization, benchmarks.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for module in COMMANDS:
-        module.register(sub)
+    add_commands(sub, COMMANDS, argv or [], full=argv is None)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = build_parser(argv).parse_args(argv)
     return guarded(f"swarm {args.command}", lambda: args.run(args))
 
 

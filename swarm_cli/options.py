@@ -6,23 +6,77 @@ import argparse
 import json
 import math
 
-from coordinator.selection.genetic import GeneticConfig
-from coordinator.selection.selector import SelectionConfig
+from typing import TYPE_CHECKING
+
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.transport import ZenohSettings
+
+if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.transport import ZenohSettings
+
+
+def _number(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text!r}")
+    return value
+
+
+def nonnegative(text: str) -> float:
+    """argparse type: a finite number >= 0 (argparse names the flag in the error, in the user's units)."""
+    value = _number(text)
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {text}")
+    return value
+
+
+def positive(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = _number(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
+
+
+def probability(text: str) -> float:
+    """argparse type: a probability in [0, 1)."""
+    value = _number(text)
+    if not 0 <= value < 1:
+        raise argparse.ArgumentTypeError(f"must be in [0, 1), got {text}")
+    return value
+
+
+def positive_int(text: str) -> int:
+    """argparse type: an integer >= 1 (e.g. ``--workers``)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be an integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {text}")
+    return value
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
-    """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones)."""
+    """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones).
+
+    Values are checked as they are parsed, so an error names the flag and the value as typed
+    (``argument --turn-sigma-deg: must be >= 0, got -1``), never ``ModelConfig``'s radians.
+    """
     d = ModelConfig()
     g = parser.add_argument_group("model (noise and sensing; SI units, angles in degrees)")
-    g.add_argument("--turn-sigma-deg", type=float, default=math.degrees(d.turn_sigma_rad), help="turn noise std (default 3)")
-    g.add_argument("--drive-sigma-frac", type=float, default=d.drive_sigma_frac, help="drive noise std as a fraction of the distance (default 0.05)")
-    g.add_argument("--range-sigma", type=float, default=d.range_sigma_m, help="range noise std in m (default 0.01)")
-    g.add_argument("--bearing-sigma-deg", type=float, default=math.degrees(d.bearing_sigma_rad), help="bearing noise std (default 2)")
-    g.add_argument("--sensing-range", type=float, default=d.sensing_range_m, help="sensing range in m (default 0.5)")
-    g.add_argument("--dropout", type=float, default=d.dropout_prob, help="probability an observation is lost (default 0)")
+    g.add_argument("--turn-sigma-deg", type=nonnegative, default=math.degrees(d.turn_sigma_rad), help="turn noise std in degrees (default 3)")
+    g.add_argument("--drive-sigma-frac", type=nonnegative, default=d.drive_sigma_frac,
+                   help="drive noise std as a fraction of the distance (default 0.05)")
+    g.add_argument("--range-sigma", type=nonnegative, default=d.range_sigma_m, help="range noise std in m (default 0.01)")
+    g.add_argument("--bearing-sigma-deg", type=nonnegative, default=math.degrees(d.bearing_sigma_rad),
+                   help="bearing noise std in degrees (default 2)")
+    g.add_argument("--sensing-range", type=positive, default=d.sensing_range_m, help="sensing range in m (default 0.5)")
+    g.add_argument("--dropout", type=probability, default=d.dropout_prob, help="probability an observation is lost, in [0, 1) (default 0)")
 
 
 def model_config(args: argparse.Namespace) -> ModelConfig:
@@ -54,12 +108,16 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
     g.add_argument("--w-v", type=float, default=0.5, help="speed weight w_v of Eq. 3 (w_l = 1 - w_v; default 0.5)")
-    g.add_argument("--samples", type=int, default=16, help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
-    g.add_argument("--population", type=int, default=12, help="genetic population (default 12)")
+    g.add_argument("--samples", type=positive_int, default=16,
+                   help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
+    g.add_argument("--population", type=int, default=12, help="genetic population, at least 2 (default 12)")
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
+    from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a command runs
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+
     if not 0.0 <= args.w_v <= 1.0:
         raise SwarmInputError(f"--w-v must be in [0, 1], got {args.w_v}")
     if args.population < 2 or args.generations < 0:
@@ -107,6 +165,8 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
 
 def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     """The client ``ZenohSettings`` of ``--hub`` / ``--zenoh-config``; None if neither is given and not required."""
+    from runtime.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
+
     if args.hub is None and args.zenoh_config is None:
         if getattr(args, "_connection_required", True):
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")

@@ -17,8 +17,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from coordinator.replay_check import load_recording, rebuild_run
-from swarm_cli.summary import write_plots
 from swarm_cli.options import add_json_option, print_json
 
 
@@ -32,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.replay_check import load_recording, rebuild_run  # noqa: PLC0415 - scipy and matplotlib when it runs
+    from swarm_cli.summary import write_plots  # noqa: PLC0415
+
     rec = load_recording(args.file)
     if not rec.complete:
         print(f"swarm plot: {args.file} is unfinished ({rec.info['problem'] or 'no summary'}): plotting what it holds",

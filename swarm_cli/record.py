@@ -19,7 +19,7 @@ from pathlib import Path
 
 from runtime.errors import SwarmInputError
 from runtime.keys import run_wildcard, validate_run
-from runtime.recording import record_run
+from runtime.recording import counts_text, record_run
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {connection_label(args)} to {rec.path}",  # noqa: E731
                               file=sys.stderr, flush=True)
     result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)
-    print(f"wrote {result['path']}: {result['messages']} messages on {result['channels']} channels"
+    print(f"wrote {result['path']}: {counts_text(result)}"
           + (f" ({result['undecodable']} undecodable)" if result["undecodable"] else ""), flush=True)
     if args.json:
         print_json(result)

@@ -30,7 +30,6 @@ import sys
 import time
 from pathlib import Path
 
-from coordinator.replay_check import check, load_recording
 from runtime.errors import SwarmInputError
 from runtime.keys import ROOT
 from runtime.recording import read_messages, recording_info
@@ -146,6 +145,8 @@ def _overrides(args: argparse.Namespace) -> tuple[dict, dict]:
 
 
 def run_check(args: argparse.Namespace) -> int:
+    from coordinator.replay_check import check, load_recording  # noqa: PLC0415 - scipy when checking, not for --help
+
     model, selection = _overrides(args)
     rec = load_recording(args.file)
     if not rec.complete:

@@ -7,12 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.simulate import simulate
 from coordinator.strategies import METHODS
 from runtime.trajectory import Trajectory, random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
-from swarm_cli.summary import print_config_table, write_csv, write_plots
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.simulate import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
+    from swarm_cli.summary import print_config_table, write_csv, write_plots  # noqa: PLC0415
+
     cfg = model_config(args)
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)

@@ -3,14 +3,19 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Sequence
 
-from swarm_cli import study_anchors, study_consistency, study_noise
+from swarm_cli.entry import Command, add_commands
 
-STUDIES = (study_anchors, study_noise, study_consistency)
+NESTED = True
+STUDIES = (
+    Command("anchors", "swarm_cli.study_anchors", "Fig. 4 (number of anchors), Fig. 5 (choice of anchors), Appendix A (heuristic vs random)"),
+    Command("noise", "swarm_cli.study_noise", "sweep motion/sensing noise and localizer: chosen n_a and P_f vs ref57"),
+    Command("consistency", "swarm_cli.study_consistency", "NEES of the reported position covariance along trajectories, per localizer and method"),
+)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction, argv: Sequence[str] = (), full: bool = False) -> None:
     parser = sub.add_parser("study", help="parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; consistency: NEES of the covariances)")
     inner = parser.add_subparsers(dest="study", required=True, metavar="STUDY")
-    for module in STUDIES:
-        module.register(inner)
+    add_commands(inner, STUDIES, argv, full=full)

@@ -40,7 +40,7 @@ from runtime.config import ModelConfig  # noqa: E402
 from runtime.errors import SwarmInputError  # noqa: E402
 from runtime.state import SwarmEstimate  # noqa: E402
 from runtime.trajectory import random_trajectory  # noqa: E402
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_json  # noqa: E402
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, positive_int, print_json  # noqa: E402
 from swarm_cli.progress import Progress  # noqa: E402
 from swarm_cli.summary import write_csv
 
@@ -58,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--experiments", type=int, default=60, help="random experiments (default 60; the paper: 1000)")
     p.add_argument("--samples", type=int, default=8, help="Monte Carlo samples per plan per experiment (default 8)")
     p.add_argument("--seed", type=int, default=0, help="experiment e uses the seed [seed, e] (default 0)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/study-anchors"), help="folder for experiments.csv and the PNG plots")
     add_localizer_option(p)
     add_model_options(p)

@@ -23,7 +23,7 @@ import numpy as np  # noqa: E402
 
 from runtime.errors import SwarmInputError  # noqa: E402
 from swarm_cli.compare import run_one  # noqa: E402
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, print_json, selection_config  # noqa: E402
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config  # noqa: E402
 from swarm_cli.progress import Progress  # noqa: E402
 from swarm_cli.summary import write_csv
 
@@ -35,12 +35,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--motion-scales", default="0.5,1,2,4", help="factors on turn and drive sigmas (default 0.5,1,2,4)")
     p.add_argument("--sensing-scales", default="0.25,1,4", help="factors on range and bearing sigmas (default 0.25,1,4)")
     p.add_argument("--localizers", default="paper,joint", help="localizers to sweep (default paper,joint)")
-    p.add_argument("--robots", type=int, default=10)
+    p.add_argument("--robots", type=int, default=10, help="robots per trajectory (default 10)")
     p.add_argument("--trajectories", type=int, default=3, help="random trajectories per setting (default 3)")
     p.add_argument("--configs", type=int, default=4, help="configurations per trajectory (default 4)")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    p.add_argument("--out", type=Path, default=Path("out/study-noise"))
+    p.add_argument("--seed", type=int, default=0, help="seed of the trajectories and noise (default 0)")
+    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    p.add_argument("--out", type=Path, default=Path("out/study-noise"), help="folder for the CSV and heat maps (default out/study-noise)")
     add_selection_options(p)
     add_model_options(p)
     add_json_option(p)

@@ -23,7 +23,7 @@ from runtime.foxglove_scene import (
     trajectory_configurations,
 )
 from runtime.messages import EstimateMessage, PlanMessage, TruthMessage, TruthSetMessage, encode, message_key
-from runtime.recording import McapRecorder, read_messages, recording_info, recover
+from runtime.recording import McapRecorder, is_derived, read_messages, recording_info, recover
 from tests.test_recording import RUN, sample_messages
 
 TRAJ = {"robots": [0, 1, 2], "initial_poses": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]],
@@ -101,7 +101,7 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
         assert rec.count == len(msgs)
     summary, got = _channels(paths[True])
     _, plain = _channels(paths[False])
-    raw = [m for m in got if not m[0].startswith("/foxglove/")]
+    raw = [m for m in got if not is_derived(m[0])]
     assert raw == plain  # topics, payload bytes, log/publish times and sequence numbers unchanged
     assert [(k, p) for k, p, *_ in raw] == msgs
 
@@ -110,8 +110,9 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
     # single truths are not decoded by the recorder
     topics = {t for t, *_ in derived}
     assert topics == {TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED}
-    assert recs[True].derived_counts() == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 2, TOPIC_DESIRED: 4}
-    assert recs[True].derived_counts() == {t: sum(1 for m in derived if m[0] == t) for t in topics}
+    scene_counts = {t: n for t, n in recs[True].derived_counts().items() if t.startswith("/foxglove/")}
+    assert scene_counts == {TOPIC_ESTIMATED: 6, TOPIC_TRUE: 2, TOPIC_DESIRED: 4}
+    assert scene_counts == {t: sum(1 for m in derived if m[0] == t) for t in topics}
     assert recs[False].derived_counts() == {} and recs[True].derived_errors == 0
     schemas = {s.id: s for s in summary.schemas.values()}
     for ch in summary.channels.values():
@@ -131,8 +132,9 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
     assert list(read_messages(paths[True])) == list(read_messages(paths[False]))
     assert len(list(read_messages(paths[True], derived=True))) == len(got)
     info = recording_info(paths[True])
-    assert info["undecodable"] == 1 and info["derived_messages"] == len(derived)
-    assert info["metadata"]["recorder"]["derived_messages"] == len(derived)
+    all_derived = [m for m in got if is_derived(m[0])]
+    assert info["undecodable"] == 1 and info["derived_messages"] == len(all_derived) > len(derived)
+    assert info["metadata"]["recorder"]["derived_messages"] == len(all_derived)
     out = tmp_path / "copy.mcap"
     assert recover(paths[True], out)["messages"] == len(got)
     assert _channels(out)[1] == got
@@ -199,7 +201,64 @@ def test_demo_serves_the_live_view_while_it_runs(tmp_path):
 
     port = free_tcp_port()
     out = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n", "3", "--configs", "1", "--method", "no-anchors",
-                          "--no-record", "--foxglove", str(port), "--out", str(tmp_path)],
+                          "--no-record", "--foxglove", str(port), "--linger", "0", "--out", str(tmp_path)],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert f"live view for the Foxglove app at ws://127.0.0.1:{port}" in out.stderr
+
+
+def test_the_live_view_keeps_serving_after_the_run_until_ctrl_c(tmp_path):
+    """The run ends, its recording is finished, and the view still accepts a WebSocket client until SIGINT."""
+    import signal
+    import subprocess
+
+    pytest.importorskip("foxglove")
+    from runtime.transport import free_tcp_port
+
+    port = free_tcp_port()
+    record = tmp_path / "run.mcap"
+    launch = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "launch", "-n", "3", "--configs", "1", "--method", "no-anchors",
+                               f"--record={record}", "--foxglove", str(port), "--out", str(tmp_path)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        lines = []
+        for line in launch.stderr:
+            lines.append(line)
+            if "keeps serving" in line:
+                break
+        assert "until Ctrl-C" in lines[-1], "".join(lines)
+        assert recording_info(record)["indexed"]  # the run and its recording are finished while the view serves
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as conn:
+            key = base64.b64encode(os.urandom(16)).decode()
+            conn.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                          f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+                          "Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n").encode())
+            assert conn.recv(4096).decode(errors="replace").startswith("HTTP/1.1 101")
+        os.killpg(launch.pid, signal.SIGINT)
+        launch.wait(timeout=60)
+        assert "P_f = " in launch.stdout.read()
+    finally:
+        if launch.poll() is None:
+            launch.kill()
+            launch.wait()
+
+
+def test_failed_handshakes_are_logged_once(caplog):
+    pytest.importorskip("foxglove")
+    import logging
+    import time
+
+    from runtime.foxglove_live import SERVER_LOGGER, LiveView
+
+    with caplog.at_level(logging.INFO, logger=SERVER_LOGGER), LiveView(port=0) as view:
+        for _ in range(4):  # plain HTTP, no WebSocket upgrade: each fails the handshake
+            with socket.create_connection(("127.0.0.1", view.port), timeout=5) as conn:
+                conn.sendall(b"GET / HTTP/1.1\r\nHost: x\r\n\r\n")
+                conn.recv(4096)
+        deadline = time.monotonic() + 10
+        while view.failed_handshakes < 4 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert view.failed_handshakes == 4
+    failures = [r for r in caplog.records if "handshake" in r.getMessage()]
+    assert len(failures) == 1 and failures[0].levelno == logging.WARNING
+    assert "Foxglove" in failures[0].getMessage()
