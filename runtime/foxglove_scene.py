@@ -32,7 +32,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from runtime.messages import EstimateMessage, Message, PlanMessage, TruthMessage, TruthSetMessage
+from runtime.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 SCHEMA_ENCODING = "jsonschema"
@@ -57,6 +57,7 @@ DARK_GREEN = color(0.0, 0.35, 0.1, 1.0)
 BLUE = color(0.15, 0.35, 0.95, 0.9)
 RED = color(0.9, 0.1, 0.1, 0.6)
 WHITE = color(1.0, 1.0, 1.0, 1.0)
+GREY = color(0.5, 0.5, 0.5, 0.9)
 SPHERE_M = 0.05
 TRUE_SPHERE_M = 0.04
 ANCHOR_SPHERE_M = 0.065
@@ -272,6 +273,15 @@ def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> by
     return scene_update(entities)
 
 
+def lost_scene(robot: int, x: float, y: float, stamp_ns: int) -> bytes:
+    """A grey sphere labelled "<id> lost" at the robot's last estimated position (replaces its estimated entity)."""
+    xs, ys = _num(x), _num(y)
+    text = (f'{{"pose":{_pose(xs, ys, _num(LABEL_DZ_M))},"billboard":true,"font_size":{_num(LABEL_PX)},'
+            f'"scale_invariant":true,"color":{GREY},"text":"{int(robot)} lost"}}')
+    return scene_update([entity(f"estimated/{int(robot)}", stamp(stamp_ns), spheres=sphere(xs, ys, SPHERE_M, GREY), texts=text,
+                                metadata={"robot": int(robot), "lost": "true"})])
+
+
 def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> bytes:
     """One blue sphere per robot at its true position ``poses[robot] = (x, y, heading)`` (replaces the previous ones)."""
     t = stamp(stamp_ns)
@@ -333,9 +343,11 @@ class SceneDeriver:
         self.plan: PlanMessage | None = None
         self.truths: dict[int, TruthMessage] = {}
         self.truth_sets = False  # True once a TruthSetMessage was seen: it then draws the true scene
+        self.last_estimate: dict[int, tuple[float, float]] = {}  # where a robot was last estimated (marks a lost robot)
 
     def derive(self, msg: Message) -> list[tuple[str, bytes]]:
         if isinstance(msg, EstimateMessage):
+            self.last_estimate.update((int(r), (p[0], p[1])) for r, p in zip(msg.ids, msg.poses))
             scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
             if self.truths and not self.truth_sets:
                 poses = {robot: t.pose for robot, t in self.truths.items()}
@@ -347,6 +359,11 @@ class SceneDeriver:
         if isinstance(msg, TruthMessage):
             self.truths[msg.robot] = msg
             return []
+        if isinstance(msg, RobotEvent):
+            where = self.last_estimate.get(msg.robot)
+            if msg.kind == "lost" and where is not None:
+                return [(TOPIC_ESTIMATED, lost_scene(msg.robot, where[0], where[1], msg.stamp_ns))]
+            return []
         if isinstance(msg, PlanMessage):
             self.plan = msg
             if self.configurations is not None and 1 <= msg.config <= len(self.configurations):
@@ -354,7 +371,7 @@ class SceneDeriver:
         return []
 
 
-DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage)
+DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage, RobotEvent)
 """Message types the recorder decodes for ``SceneDeriver.derive`` (single truths are only peeked there)."""
 
 

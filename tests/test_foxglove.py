@@ -22,7 +22,7 @@ from runtime.foxglove_scene import (
     schema_errors,
     trajectory_configurations,
 )
-from runtime.messages import EstimateMessage, PlanMessage, TruthMessage, TruthSetMessage, encode, message_key
+from runtime.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
 from runtime.recording import McapRecorder, is_derived, read_messages, recording_info, recover
 from tests.test_recording import RUN, sample_messages
 
@@ -79,6 +79,23 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     assert len(schema_errors(bad)) == 2
     assert trajectory_configurations({"robots": [0], "configurations": [[[1.0]]]}) is None
     assert trajectory_configurations(None) is None
+
+
+def test_a_lost_robot_turns_grey_and_labelled_at_its_last_estimate():
+    deriver = SceneDeriver(TRAJ)
+    for m in run_messages():
+        deriver.derive(m)
+    out = deriver.derive(RobotEvent(run=RUN, step=2, robot=1, kind="lost", reason="liveliness token gone"))
+    assert [t for t, _ in out] == [TOPIC_ESTIMATED]
+    scene = json.loads(out[0][1])
+    assert schema_errors(scene) == []
+    (lost,) = scene["entities"]
+    assert lost["id"] == "estimated/1" and lost["texts"][0]["text"] == "1 lost"
+    position = lost["spheres"][0]["pose"]["position"]
+    assert (position["x"], position["y"]) == (1.2, 0.01)  # robot 1's estimate after step 2
+    color = lost["spheres"][0]["color"]
+    assert color["r"] == color["g"] == color["b"] == 0.5
+    assert deriver.derive(RobotEvent(run=RUN, step=2, robot=7, kind="lost", reason="never estimated")) == []
 
 
 def _channels(path):
