@@ -123,7 +123,8 @@ class ZenohSwarmBackend:
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
-        self._owed: set[int] = set()  # robots whose answer the current wait still needs (O(1) per message)
+        self._owed_done: set[int] = set()  # robots whose Status done the command round still needs (O(1) per message)
+        self._owed_obs: set[int] = set()  # robots whose report (and truth) the observation round still needs
         self._estimate: dict[int, list[float]] | None = None  # latest published pose per robot: commands' start_pose
         self._cmds: dict[int, MotionCommand] = {}
         self._reports: dict[int, ObservationReport] = {}
@@ -234,12 +235,12 @@ class ZenohSwarmBackend:
             self._truth[msg.robot] = (msg.step, np.array(msg.pose, dtype=float))
             self._truth_now.add(msg.robot)
             if msg.robot in self._reports:
-                self._owed.discard(msg.robot)
+                self._owed_obs.discard(msg.robot)
             self._publish_truth_set()
         elif isinstance(msg, ObservationReport):
             self._reports[msg.robot] = msg
             if not self.simulated or msg.robot in self._truth_now:
-                self._owed.discard(msg.robot)
+                self._owed_obs.discard(msg.robot)
         elif isinstance(msg, Status):
             cmd = self._cmds.get(msg.robot)
             if cmd is None or msg.cmd_id != cmd.cmd_id:
@@ -249,7 +250,7 @@ class ZenohSwarmBackend:
             if old is None or old.state == "accepted":
                 self._status[msg.robot] = msg
             if msg.state == "done":
-                self._owed.discard(msg.robot)
+                self._owed_done.discard(msg.robot)
             elif msg.state == "refused":
                 self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}")
 
@@ -338,9 +339,9 @@ class ZenohSwarmBackend:
 
         def missing() -> list[int]:
             with self._lock:
-                return sorted(self._owed.difference(self._lost))
+                return sorted(self._owed_done.difference(self._lost))
 
-        self._owed = set(cmds)
+        self._owed_done = set(cmds)
         send(cmds)
         self._wait(f"the command of step {s}", missing, send)
 
@@ -356,9 +357,9 @@ class ZenohSwarmBackend:
 
         def missing() -> list[int]:
             with self._lock:
-                return sorted(self._owed.difference(self._lost))
+                return sorted(self._owed_obs.difference(self._lost))
 
-        self._owed = {r for r in requests if r not in self._reports or (self.simulated and r not in self._truth_now)}
+        self._owed_obs = {r for r in requests if r not in self._reports or (self.simulated and r not in self._truth_now)}
         send(list(requests))
         self._wait(f"the observation request of step {s}", missing, send)
         return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)
