@@ -340,6 +340,8 @@ class Link:
                 if msg is None:
                     self.counters.rejected += 1
                     return
+                if msg.robot not in self.robots:
+                    return  # a robot behind another port: that link's request
                 problem = self._invalid(msg)
                 if problem is not None:
                     self.counters.rejected += 1
@@ -351,9 +353,7 @@ class Link:
         """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits."""
         if req.run != self.run_id:
             return f"run {req.run!r} is not this link's run {self.run_id!r}"
-        robot = self.robots.get(req.robot)
-        if robot is None:
-            return f"robot {req.robot} is not behind port {self.port.name}"
+        robot = self.robots[req.robot]
         if req.step > MAX_U32:
             return f"step {req.step} does not fit the frame's u32 step"
         if req.kind in ("command", "observe") and req.step > robot.latest + MAX_STEP_AHEAD:
