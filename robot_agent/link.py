@@ -356,7 +356,7 @@ class Link:
         robot = self.robots[req.robot]
         if req.step > MAX_U32:
             return f"step {req.step} does not fit the frame's u32 step"
-        if req.kind in ("command", "observe") and req.step > robot.latest + MAX_STEP_AHEAD:
+        if req.kind in ("command", "observe") and robot.latest and req.step > robot.latest + MAX_STEP_AHEAD:
             return f"step {req.step} is more than {MAX_STEP_AHEAD} steps ahead of robot {req.robot}'s step {robot.latest}"
         if req.kind != "command":
             return None

@@ -39,6 +39,7 @@ from runtime.frames import (
     MotionBody,
     RefusalBody,
     RefusalCode,
+    RunBody,
     StepBody,
     encode_frame,
 )
@@ -486,3 +487,38 @@ def test_cli_rejects_config_robots_missing_from_the_trajectory(tmp_path):
                             cwd=ROOT, capture_output=True, text=True, timeout=30)
     assert result.returncode == 2
     assert "robots [2] of the gateway config" in result.stderr and "not in the trajectory" in result.stderr
+
+
+def test_run_forgets_the_step_memory_once_per_epoch(emulated):
+    """A second run on the same robots: RUN with a new epoch clears the steps, a repeated RUN only answers."""
+    world, port, link, events = emulated
+    link.send(0, 1, FrameType.COMMAND, MotionBody(3, 0.1, 0.05))
+    assert kinds(link.expect(2)) == [(0, 1, "ACCEPTED"), (0, 1, "DONE")]
+    link.send(0, 2, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))  # the next run's step 1 without RUN: stale
+    (refused,) = link.expect(1)
+    assert refused.type == FrameType.REFUSED and "stale step 1" in refused.body().reason
+    link.send(0, 3, FrameType.RUN, RunBody(77))
+    (ack,) = link.expect(1)
+    assert (ack.seq, ack.type, ack.body()) == (3, FrameType.RUN_ACK, RunBody(77))
+    link.send(0, 4, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))
+    assert kinds(link.expect(2)) == [(0, 4, "ACCEPTED"), (0, 4, "DONE")]
+    link.send(0, 5, FrameType.RUN, RunBody(77))  # a retransmitted RUN: answered, memory kept
+    assert kinds(link.expect(1)) == [(0, 5, "RUN_ACK")]
+    link.send(0, 6, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))  # so step 1 is a duplicate, not executed again
+    assert kinds(link.expect(1)) == [(0, 6, "DONE")]
+    assert port.executed(0) == 2
+    assert [(e["epoch"], e["previous"]) for e in events if e["event"] == "run"] == [(77, 0)]
+
+
+@pytest.mark.parametrize("emulated", [{"motion_time_s": 5.0}], indirect=True)
+def test_repeated_command_while_moving_is_answered_accepted_and_run_aborts_the_motion(emulated):
+    world, port, link, events = emulated
+    frame = link.send(1, 1, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))
+    assert kinds(link.expect(1)) == [(1, 1, "ACCEPTED")]
+    link.write(encode_frame(frame))  # the link re-sends while the robot moves: ACCEPTED again, nothing else
+    assert kinds(link.expect(1)) == [(1, 1, "ACCEPTED")]
+    link.send(1, 2, FrameType.RUN, RunBody(5))  # a new run while moving: the motion stops, refused
+    refused, ack = link.expect(2)
+    assert (refused.seq, refused.type, refused.body().code) == (1, FrameType.REFUSED, RefusalCode.OTHER)
+    assert (ack.type, ack.body()) == (FrameType.RUN_ACK, RunBody(5))
+    assert port.executed(1) == 0 and [e["event"] for e in events].count("accepted") == 1
