@@ -158,7 +158,6 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             encode(_request(step=2**32 + 5)),  # crashed the link before: beyond the frame's u32 step
             encode(_request(step=2, turn_rad=1e39)),  # beyond float32
             encode(_request(step=2, drive_m=1e39)),
-            encode(_request(step=2, kind="observe", turn_rad=-1e300)),  # an observe carries no motion: fine? no, huge step below
             encode(_request(step=2, drive_m=2.0)),  # 2 m past the 0.5 m limit
             encode(_request(step=2, turn_rad=4.0)),  # beyond max_turn_rad (pi)
             encode(_request(step=2, drive_m=0.2, start_pose=[0.45, 0.0, 0.0])),  # would leave the workspace
@@ -170,14 +169,10 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             msgpack.packb(valid | {"kind": "selfdestruct"}),
             b"\x00\xffnot msgpack",
         ]
-        hostile.pop(3)  # (an observe with a turn is not hostile: the link ignores the motion fields of an observe)
-        frames_before = r.link.stats().frames_sent
         for payload in hostile:
             publish(session, "swarm/gw/robot/0/linkreq", payload)
         _wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
-        assert r.thread.is_alive() and r.emulator.executed(0) == 1
-        events_sent = r.link.stats().frames_sent - frames_before  # heartbeats only: no COMMAND went out
-        assert events_sent <= r.link.counters.frames_sent
+        assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
         r.driver.execute(command(2, 0.1, 0.05))  # the link still serves
         assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.1, 0.05)]), atol=1e-12)
