@@ -563,3 +563,22 @@ def test_launch_rejects_bad_fault_options_naming_the_flag(tmp_path):
         proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "demo", "--no-record", *args],
                               capture_output=True, text=True, timeout=60, cwd=tmp_path)
         assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+@pytest.mark.xfail(strict=True, reason="needs the agent to act on GatewayDriver.on_lost (robot_agent/agent.py, the lead's file): "
+                                       "remove this marker when that hunk is merged")
+def test_an_idle_agent_whose_link_dies_reports_its_robot_lost_and_exits_3(tmp_path):
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids)),))
+
+    with emulated_site(tmp_path, 2, 3, config) as site:
+        robot = site.ids[0]
+        link = site.link("idle")
+        agent = site.agent(robot, "idle", stderr=subprocess.PIPE, text=True)
+        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" in alive_now(site.session, "swarm/idle/alive/**"), 30, "the agent")
+        link.kill()  # the agent is idle: no command in flight
+        killed = time.monotonic()
+        assert agent.wait(timeout=10) == 3
+        assert time.monotonic() - killed < 3.0
+        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" not in alive_now(site.session, "swarm/idle/alive/**"), 5, "token gone")
+        assert "the link process of port radio0 is gone" in agent.stderr.read()
