@@ -45,7 +45,7 @@ from runtime.frames import (
 )
 from runtime.gateway_config import Calibration, GatewayConfig
 from runtime.keys import coord_alive_key, truth_wildcard
-from runtime.messages import MotionCommand, TruthMessage, decode
+from runtime.messages import MotionCommand, TruthMessage, decode, message_key
 from runtime.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -386,7 +386,12 @@ def test_truth_published_at_start_on_observe_and_when_the_coordinator_appears(cf
         def truths(n: int) -> list[TruthMessage]:
             return [decode(inbox.get(timeout=3.0)[1], TruthMessage) for _ in range(n)]
 
-        time.sleep(0.2)  # the subscription reaches the client session
+        probe = session.declare_publisher(message_key(TruthMessage(run=run, step=0, robot=0, pose=[0.0, 0.0, 0.0])))
+        deadline = time.monotonic() + 5
+        while not probe.matching_status.matching:  # the hub's subscription is known to the client session
+            assert time.monotonic() < deadline, "the truth subscription never reached the client session"
+            time.sleep(0.005)
+        probe.undeclare()
         publisher = TruthPublisher(world, session, run)
         try:
             publisher.start()

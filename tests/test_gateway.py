@@ -31,7 +31,7 @@ from runtime.keys import alive_wildcard
 from runtime.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
 from runtime.recording import read_messages
 from runtime.trajectory import random_trajectory
-from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
 from swarm_cli.launch import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
@@ -293,6 +293,16 @@ def _wait_for(predicate, timeout_s: float, what: str):
         time.sleep(0.02)
 
 
+def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
+    """Until the hub routes each of ``keys`` to a subscriber (a probe publisher's matching status), so that
+    what the agents publish from now on reaches the test's subscription."""
+    with open_session(ZenohSettings("client", connect=(hub,))) as probe:
+        for key in keys:
+            publisher = probe.declare_publisher(key)
+            _wait_for(lambda: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
+            publisher.undeclare()
+
+
 @dataclasses.dataclass
 class Site:
     """A loopback hub, emulated robots on ptys and the gateway processes a test starts (all stopped by pid at the end)."""
@@ -350,8 +360,8 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         for robot in ids:
             site.agent(robot, run_id)
         _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
-        time.sleep(0.3)
         _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
+        _wait_routed(site.hub, [f"swarm/{run_id}/robot/{r}/status" for r in ids])
 
         def status_of(robot: int, step: int) -> Status:
             def find():
@@ -429,9 +439,8 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
                                   "--ready-timeout=0.5"], stderr=subprocess.PIPE, text=True)
         try:
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
-            time.sleep(0.2)
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
-            time.sleep(0.2)
+            _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
             cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(cmd), encode(cmd))
             assert agent.wait(timeout=20) == 3
@@ -467,7 +476,7 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
         _wait_for(lambda: alive_now(site.session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{robot}",
                                                                                  "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
         _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
-        time.sleep(0.2)
+        _wait_routed(site.hub, [f"swarm/deadlink/robot/{robot}/status"])
         cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1)
         publish(site.session, message_key(cmd), encode(cmd))
         assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
@@ -492,7 +501,7 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
         site.link("late")
         _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
         _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
-        time.sleep(0.2)
+        _wait_routed(site.hub, [f"swarm/late/robot/{robot}/status"])
         cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05)
         publish(site.session, message_key(cmd), encode(cmd))
         states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
