@@ -32,10 +32,14 @@ robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
 
 Only the truth set of the pending step is used (a real one always follows this agent's own
 truth of that step); others are dropped and counted. A simulated agent also
-publishes its current truth (step 0 before any observation) at start and whenever the
-coordinator's liveliness token ``swarm/<run>/alive/coord`` appears, so a coordinator
-learns the initial true poses for evaluation without any sensing (which would consume
-the sensing stream).
+publishes its current truth as step 0 at start and whenever the coordinator's liveliness
+token ``swarm/<run>/alive/coord`` appears, so a coordinator learns the initial true poses
+for evaluation without any sensing (which would consume the sensing stream).
+
+Runs repeat: when a coordinator's token appears, a new run begins at step 1 and every
+agent forgets the last run's steps (an emergency stop stays latched), so ``swarm
+coordinator`` can run again against the same agents (and, through the link's RUN
+handshake, the same robots).
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
@@ -90,6 +94,7 @@ from runtime.transport import ZenohSettings, declare_token, open_session, publis
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
+_LOST = "__driver_lost__"  # the driver lost its robot while idle (e.g. the gateway's link process died)
 _STOP = "__stop__"  # wakes the loop so it sees stop()
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
@@ -148,6 +153,8 @@ class Agent:
         with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
             self._session = session
             self.driver.attach(session)
+            if hasattr(self.driver, "on_lost"):  # a gateway driver: its link disappearing ends an idle agent too
+                self.driver.on_lost = lambda reason: self._inbox.put((_LOST, reason.encode()))
             self._wait_for_driver()
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
             subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
@@ -156,7 +163,7 @@ class Agent:
             forwarder.start()
             if self.driver.simulated:
                 subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-                subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
             token = declare_token(session, alive_key(self.run_id, self.robot))
             if self.driver.simulated:
                 self._publish_truth(0)
@@ -215,9 +222,20 @@ class Agent:
     def _send(self, msg) -> None:
         publish(self._session, message_key(msg), encode(msg))
 
+    def _new_run(self) -> None:
+        """A coordinator appeared: a new run starts at step 1, so forget the last run's steps (an emergency
+        stop stays latched); a simulated agent publishes its truth as the new run's step 0."""
+        self._last_cmd_step, self._last_status = -1, None
+        self._last_obs_step, self._last_report = -1, None
+        self._pending, self._peers = None, None
+        if self.driver.simulated:
+            self._publish_truth(0)
+
     def _handle(self, key: str, payload: bytes) -> None:
+        if key == _LOST:
+            raise RobotLost(payload.decode())
         if key == _COORD:
-            self._publish_truth(max(self._last_obs_step, 0) if self._last_truth is None else self._last_truth.step)
+            self._new_run()
         elif key == self._cmd_key:
             self._on_command(key, payload)
         elif key == self._observe_key:

@@ -61,6 +61,7 @@ from runtime.frames import (
     ObservationBody,
     RefusalBody,
     RefusalCode,
+    RunBody,
     StepBody,
     encode_frame,
 )
@@ -287,6 +288,13 @@ class _Robot:
     last_rx: float | None = None  # monotonic time of the last frame for it; None: watchdog not started
     starved: bool = False  # stopped by the watchdog
     executed: int = 0
+    epoch: int = 0  # the run the gateway began last (RUN); 0 before any
+
+    def forget_steps(self) -> None:
+        """A new run: no step memory (commands and observations of the last run)."""
+        self.last_cmd = self.done = None
+        self.obs_seq = self.obs_step = None
+        self.obs_parts = ()
 
     def latest_step(self) -> int | None:
         steps = [c.step for c in (self.moving, self.done) if c is not None]
@@ -517,6 +525,20 @@ class PortEmulator:
             st.estopped = False
             self._event("reset", robot=st.robot, seq=frame.seq, was_estopped=was)
             self._send(st.robot, frame.seq, FrameType.RESET_ACK, EmptyBody())
+        elif kind is FrameType.RUN:
+            self._on_run(st, frame.seq, body.epoch)
+
+    def _on_run(self, st: _Robot, seq: int, epoch: int) -> None:
+        """RUN: a new epoch forgets the step memory (a motion still in progress is aborted); the
+        epoch the robot is already in is only answered again (a retransmission)."""
+        if epoch != st.epoch:
+            self._abort(st, RefusalCode.OTHER, f"run {epoch} began")
+            st.forget_steps()
+            self._event("run", robot=st.robot, seq=seq, epoch=epoch, previous=st.epoch)
+            st.epoch = epoch
+        else:
+            self._event("duplicate", robot=st.robot, type="RUN", seq=seq, epoch=epoch, answer="RUN_ACK")
+        self._send(st.robot, seq, FrameType.RUN_ACK, RunBody(epoch))
 
     def _error(self, robot: int, seq: int, code: ErrorCode, text: str) -> None:
         self._event("error", robot=robot, seq=seq, code=int(code), text=text)

@@ -2,12 +2,17 @@
 
 Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it has.
 ``execute`` publishes a ``LinkRequest`` ``command`` (drive corrected by the robot's
-``motion_scale``) on ``swarm/<run>/robot/<id>/linkreq`` and waits for the link's
-``LinkReply`` ``done``; ``sense`` asks for ``observe`` and corrects the raw measurements
-(range bias, bearing offset: ``runtime.gateway_config.Calibration``). A ``refused``
-answer raises ``DriverRefused``; ``lost``, the disappearance of the liveliness token of the
-link process of ``port`` (``swarm/<run>/alive/link/<port>``), or no answer within the wait
-raises ``RobotLost``. ``estop`` may be called from any thread: the emergency stop
+``motion_scale``, and the command's ``start_pose`` for the link's workspace check) on
+``swarm/<run>/robot/<id>/linkreq`` and waits for the link's ``LinkReply`` ``done``;
+``sense`` asks for ``observe`` and corrects the raw measurements (range bias, bearing
+offset: ``runtime.gateway_config.Calibration``). A ``refused`` answer raises
+``DriverRefused``; ``lost`` for the step being waited on (a ``lost`` for another step is
+ignored and counted in ``ignored_replies``), the disappearance of the liveliness token of
+the link process of ``port`` (``swarm/<run>/alive/link/<port>``), or no answer within
+``Timing.answer_timeout_s`` raises ``RobotLost``. The token is watched all the time: while
+idle, ``lost_reason`` says the link is gone and ``check`` raises ``RobotLost``, and the
+``on_lost`` callback (if set) is called once from the Zenoh thread, so an idle agent reports
+its robot lost at once too. ``estop`` may be called from any thread: the emergency stop
 goes out at once and also ends a wait in progress (``DriverRefused``).
 """
 
@@ -16,6 +21,7 @@ from __future__ import annotations
 import queue
 import threading
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -47,7 +53,9 @@ class GatewayDriver:
         self._watch = None
         self._req_key = robot_key(run, self.robot, "linkreq")
         self._rep_key = robot_key(run, self.robot, "linkrep")
-        self.bad_replies = 0
+        self.bad_replies = 0  # undecodable LinkReplies
+        self.ignored_replies = 0  # `lost` replies for a step not waited on
+        self.on_lost: Callable[[str], None] | None = None  # called once (Zenoh thread) when the link disappears
 
     def attach(self, session) -> None:
         """Start talking to the link over ``session`` (the agent's)."""
@@ -70,12 +78,24 @@ class GatewayDriver:
         """
         return self.port is None or self._link_seen.wait(timeout_s)
 
-    def _on_link(self, key: str, alive: bool) -> None:  # Zenoh thread: flags only
+    def _on_link(self, key: str, alive: bool) -> None:  # Zenoh thread: flags and the callback only
         if alive:
             self._link_seen.set()
             self._link_gone.clear()
-        elif self._link_seen.is_set():
+        elif self._link_seen.is_set() and not self._link_gone.is_set():
             self._link_gone.set()
+            if self.on_lost is not None:
+                self.on_lost(self.lost_reason())
+
+    def lost_reason(self) -> str | None:
+        """Why the robot cannot be reached any more (its link process is gone), or None."""
+        return f"robot {self.robot}: the link process of port {self.port} is gone" if self._link_gone.is_set() else None
+
+    def check(self) -> None:
+        """Raise ``RobotLost`` if the link process of the robot's port is gone (idle or not)."""
+        reason = self.lost_reason()
+        if reason is not None:
+            raise RobotLost(reason)
 
     def _on_reply(self, key: str, payload: bytes) -> None:  # Zenoh thread: decode and enqueue only
         try:
@@ -83,11 +103,13 @@ class GatewayDriver:
         except MessageError:
             self.bad_replies += 1
 
-    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0) -> None:
-        msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m)
+    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple = ()) -> None:
+        msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m,
+                          start_pose=start_pose)
         publish(self._session, self._req_key, encode(msg))
 
-    def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0) -> LinkReply:
+    def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0,
+                  start_pose: tuple = ()) -> LinkReply:
         """Send the request, then wait for its reply of kind ``final``; raises on refusal, loss, stop or timeout.
 
         The request is sent again whenever the link has been silent about it for ``_resend_s``
@@ -95,18 +117,14 @@ class GatewayDriver:
         copy of the request in flight, and the robot answers a repeated step from memory
         (docs/gateway-protocol.md), so nothing runs twice.
         """
-        t = self.timing
-        tries_s = t.ack_timeout_s * (t.max_retries + 1)  # the link's own retransmissions
-        resend_s = tries_s + 0.5
-        timeout_s = tries_s + (t.motion_timeout_s * (t.max_retries + 1) if motion else 0.0) + 1.0
-        self._request(step, kind, turn_rad, drive_m)
+        resend_s, timeout_s = self.timing.resend_s, self.timing.answer_timeout_s(motion)
+        self._request(step, kind, turn_rad, drive_m, start_pose)
         start = time.monotonic()
         deadline, next_resend = start + timeout_s, start + resend_s
         while True:
             if self._estopped.is_set():
                 raise DriverRefused("emergency stop")
-            if self._link_gone.is_set():
-                raise RobotLost(f"robot {self.robot}: the link process of port {self.port} is gone")
+            self.check()
             left = deadline - time.monotonic()
             if left <= 0:
                 raise RobotLost(f"robot {self.robot}: no answer from the link within {timeout_s:.1f} s (is `swarm link` running?)")
@@ -114,13 +132,14 @@ class GatewayDriver:
                 reply = self._replies.get(timeout=min(left, 0.05))
             except queue.Empty:
                 if time.monotonic() >= next_resend:
-                    self._request(step, kind, turn_rad, drive_m)
+                    self._request(step, kind, turn_rad, drive_m, start_pose)
                     next_resend = time.monotonic() + resend_s
                 continue
+            if reply.step != step:
+                self.ignored_replies += reply.kind == "lost"  # a lost robot is reported for the step in flight
+                continue  # a late answer to an earlier request, or a forged one
             if reply.kind == "lost":
                 raise RobotLost(reply.reason)
-            if reply.step != step:
-                continue  # a late answer to an earlier request
             if reply.kind == "refused":
                 raise DriverRefused(reply.reason)
             if reply.kind == final:
@@ -131,7 +150,8 @@ class GatewayDriver:
     def execute(self, command: MotionCommand) -> None:
         if self._estopped.is_set():
             raise DriverRefused("emergency stop")
-        self._exchange(command.step, "done", True, "command", command.turn_rad, self.calibration.corrected_drive(command.drive_m))
+        self._exchange(command.step, "done", True, "command", command.turn_rad, self.calibration.corrected_drive(command.drive_m),
+                       tuple(command.start_pose))
         return None
 
     def true_pose(self) -> None:

@@ -3,12 +3,20 @@
 Agents of the robots behind the port (gateway driver) publish ``LinkRequest``s on
 ``swarm/<run>/robot/<id>/linkreq``; the link turns each into a frame
 (docs/gateway-protocol.md), sends it with retransmission (same SEQ, at most
-``max_retries`` times, ``ack_timeout_s`` apart; ``motion_timeout_s`` after ACCEPTED),
-and publishes the robot's answers as ``LinkReply``s on ``.../linkrep`` (not ACCEPTED,
-which only restarts the timer: the agent waits for DONE). It sends a HEARTBEAT to every
-robot that got no other frame for ``heartbeat_period_s`` and reports a robot ``lost`` when a
-request exhausted its retries or nothing came from it for ``robot_timeout_s``. An
-``EmergencyStop`` on ``swarm/<run>/estop`` is sent at once as a broadcast ESTOP and then to
+``ack_timeout_s`` apart, also after ACCEPTED until DONE: the robot answers a repeated
+COMMAND from memory, so a lost DONE costs one interval), and publishes the robot's answers
+as ``LinkReply``s on ``.../linkrep`` (not ACCEPTED, which only shows the robot is alive: the
+agent waits for DONE). Every answer restarts the count of ``max_retries``; a robot silent
+through all of them (``Timing.retry_budget_s``), silent for ``robot_timeout_s``, or still
+moving after ``motion_timeout_s`` is reported ``lost``. It sends a HEARTBEAT to every
+robot that got no other frame for ``heartbeat_period_s``. The link trusts no request: one
+that does not fit the frame's wire types (u32 step, float32 turn and drive) or breaks the
+gateway config's limits or workspace is dropped and counted (``LinkStats.rejected``), never
+sent. When the coordinator's liveliness token appears, a new run begins: the link forgets
+what it had in flight, gives lost robots another chance and sends every robot RUN with a
+fresh epoch (it forgets its step memory); requests wait until the robot answered RUN_ACK. An
+``EmergencyStop`` on ``swarm/<run>/estop`` naming robots (the coordinator's stop of a lost
+robot) is sent as ESTOP to those robots of the port only; one naming none is sent at once as a broadcast ESTOP and then to
 each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
 the coordinator's liveliness token appears or disappears (so a recording of the run holds
 the link's counters at its start and end) and when the link stops. While it runs it holds
@@ -28,6 +36,7 @@ import logging
 import math
 import os
 import queue
+import secrets
 import select
 import statistics
 import threading
@@ -38,6 +47,7 @@ from typing import Protocol
 
 from runtime.frames import (
     BROADCAST,
+    MAX_U32,
     EmptyBody,
     Frame,
     FrameDecoder,
@@ -48,12 +58,15 @@ from runtime.frames import (
     QUIET_S,
     ObservationBody,
     RefusalCode,
+    RunBody,
     StepBody,
     encode_frame,
+    fits_f32,
 )
-from runtime.gateway_config import Port, Timing
+from runtime.gateway_config import Calibration, Limits, Port, Timing
 from runtime.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
 from runtime.messages import (
+    CommandLimits,
     DropCounter,
     EmergencyStop,
     LinkReply,
@@ -67,6 +80,7 @@ from runtime.transport import declare_token, publish, subscribe, watch_livelines
 
 _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000
+MAX_STEP_AHEAD = 1000  # a request more steps than this ahead of the robot's latest is refused (a step jump would strand the run)
 
 
 class ByteLink(Protocol):
@@ -131,20 +145,20 @@ def open_link(port: Port) -> ByteLink:
 class _Request:
     """A request in flight to one robot."""
 
-    kind: str  # command, observe, estop, reset
+    kind: str  # command, observe, estop, reset, run
     step: int
     seq: int
     wire: bytes
     sent_at: float
     first_sent_at: float
-    retries: int = 0
-    accepted: bool = False
+    retries: int = 0  # retransmissions since the robot last answered
+    accepted_at: float | None = None  # first ACCEPTED (a COMMAND being executed)
     answered: bool = False
     parts: dict[int, ObservationBody] = field(default_factory=dict)
 
     def due(self, timing: Timing) -> float:
-        """When the answer is overdue: ``ack_timeout_s`` after sending, ``motion_timeout_s`` after ACCEPTED."""
-        return self.sent_at + (timing.motion_timeout_s if self.accepted else timing.ack_timeout_s)
+        """When to retransmit: ``ack_timeout_s`` after the last transmission, whatever the robot answered so far."""
+        return self.sent_at + timing.ack_timeout_s
 
 
 @dataclass
@@ -156,7 +170,12 @@ class _Robot:
     lost: bool = False
     busy: _Request | None = None  # command or observe
     control: _Request | None = None  # estop or reset
-    waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy``
+    begin: _Request | None = None  # RUN of a new run: requests wait for its RUN_ACK
+    waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
+    latest: int = 0  # the latest step of a request sent this run
+
+    def requests(self) -> tuple[_Request, ...]:
+        return tuple(r for r in (self.busy, self.control, self.begin) if r is not None)
 
     def next_seq(self) -> int:
         self.seq = self.seq % 0xFFFF + 1  # 1..65535, 0 never used by the gateway
@@ -168,17 +187,26 @@ class LinkCounters:
     frames_sent: int = 0
     retransmissions: int = 0
     timeouts: int = 0
+    rejected: int = 0
+    epoch: int = 0  # the run epoch last begun (0: none yet)
     rtts_ms: deque = field(default_factory=lambda: deque(maxlen=RTT_WINDOW))
 
 
 class Link:
-    """The link engine of ``port`` for run ``run`` over ``device``, talking Zenoh on ``session``."""
+    """The link engine of ``port`` for run ``run`` over ``device``, talking Zenoh on ``session``.
 
-    def __init__(self, session, run: str, port: Port, timing: Timing, device: ByteLink) -> None:
+    ``limits`` and ``calibration`` (the gateway config's) bound what a command may make a
+    robot do: the distance it really drives (wire drive x ``motion_scale``) and its turn.
+    """
+
+    def __init__(self, session, run: str, port: Port, timing: Timing, device: ByteLink, limits: Limits = Limits(),
+                 calibration: dict[int, Calibration] | None = None) -> None:
         self.session = session
         self.run_id = run
         self.port = port
         self.timing = timing
+        self.limits = CommandLimits(max_drive_m=limits.max_drive_m, max_turn_rad=limits.max_turn_rad, workspace=limits.workspace)
+        self.calibration = dict(calibration or {})
         self.device = device
         self.decoder = FrameDecoder()
         self.counters = LinkCounters()
@@ -201,7 +229,7 @@ class Link:
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
-                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("stats",)))]
+                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("coord", alive)))]
         token = declare_token(self.session, link_alive_key(self.run_id, self.port.name))  # agents notice a dead link at once
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
         reader.start()
@@ -226,10 +254,10 @@ class Link:
                 except queue.Empty:
                     continue
                 with self._lock:
-                    self._handle(event)
+                    self._handle_safely(event)
                     while True:  # drain what is queued before the timers again
                         try:
-                            self._handle(self._events.get_nowait())
+                            self._handle_safely(self._events.get_nowait())
                         except queue.Empty:
                             break
         finally:
@@ -281,26 +309,68 @@ class Link:
             if robot.lost:
                 continue
             due = min(due, robot.last_tx + t.heartbeat_period_s, robot.last_rx + t.robot_timeout_s)
-            for req in (robot.busy, robot.control):
-                if req is not None:
-                    due = min(due, req.due(t))
+            for req in robot.requests():
+                due = min(due, req.due(t))
+                if req.accepted_at is not None:
+                    due = min(due, req.accepted_at + t.motion_timeout_s)
         return due
 
     # -- events (engine thread) ----------------------------------------------------------------
 
+    def _handle_safely(self, event: tuple) -> None:
+        """``_handle``; whatever a message holds, the link serves on (a failure is logged and counted)."""
+        try:
+            self._handle(event)
+        except Exception:  # noqa: BLE001 - the port's only owner must not die of one message
+            self.counters.rejected += 1
+            _log.exception("port %s: a request could not be handled; dropped", self.port.name)
+
     def _handle(self, event: tuple) -> None:
-        if event[0] == "stats":
+        if event[0] == "coord":
+            if event[1]:
+                self._begin_run()
             self._publish_stats()
         else:
             key, payload = event[1], event[2]
             if key == estop_key(self.run_id):
                 msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
-                if msg is not None:
+                if msg is not None and msg.robots:  # a lost robot's stop: only the robots it names
+                    for robot in self.robots.values():
+                        if robot.id in msg.robots and not robot.lost:
+                            self._start_control(robot, "estop", msg.step)
+                elif msg is not None:
                     self._estop_all(msg.step)
             else:
                 msg = decode_or_drop(payload, self.drops, key, LinkRequest)
-                if msg is not None and msg.robot in self.robots:
-                    self._on_request(msg)
+                if msg is None:
+                    self.counters.rejected += 1
+                    return
+                if msg.robot not in self.robots:
+                    return  # a robot behind another port: that link's request
+                problem = self._invalid(msg)
+                if problem is not None:
+                    self.counters.rejected += 1
+                    _log.warning("port %s: request dropped: %s", self.port.name, problem)
+                    return
+                self._on_request(msg)
+
+    def _invalid(self, req: LinkRequest) -> str | None:
+        """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits."""
+        if req.run != self.run_id:
+            return f"run {req.run!r} is not this link's run {self.run_id!r}"
+        robot = self.robots[req.robot]
+        if req.step > MAX_U32:
+            return f"step {req.step} does not fit the frame's u32 step"
+        if req.kind in ("command", "observe") and robot.latest and req.step > robot.latest + MAX_STEP_AHEAD:
+            return f"step {req.step} is more than {MAX_STEP_AHEAD} steps ahead of robot {req.robot}'s step {robot.latest}"
+        if req.kind != "command":
+            return None
+        if not (fits_f32(req.turn_rad) and fits_f32(req.drive_m)):
+            return f"turn {req.turn_rad!r} rad / drive {req.drive_m!r} m are not finite float32 values"
+        driven = self.calibration.get(req.robot, Calibration()).driven(req.drive_m)
+        pose = req.start_pose if req.start_pose and all(map(math.isfinite, req.start_pose)) else ()
+        problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=pose))
+        return None if problem is None else f"robot {req.robot}: {problem}"
 
     def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
         entries = [e for p in parts or [] for e in p.entries]
@@ -316,10 +386,22 @@ class Link:
             return
         if req.kind in ("estop", "reset"):
             self._start_control(robot, req.kind, req.step)
-        elif robot.busy is None:
+        elif robot.busy is None and robot.begin is None:
             self._start(robot, req)
-        elif (robot.busy.kind, robot.busy.step) != (req.kind, req.step):  # a re-sent request is already in flight
-            robot.waiting.append(req)
+        elif all((r.kind, r.step) != (req.kind, req.step) for r in (robot.busy, *robot.waiting) if r is not None):
+            robot.waiting.append(req)  # a re-sent request already in flight or queued is not queued twice
+
+    def _begin_run(self) -> None:
+        """The coordinator appeared: a new run. Forget the last run's requests and losses, send RUN (new epoch)."""
+        self.counters.epoch = secrets.randbelow(MAX_U32) + 1
+        now = time.monotonic()
+        for robot in self.robots.values():
+            robot.lost = False
+            robot.last_rx = now
+            robot.busy = robot.begin = None
+            robot.waiting.clear()
+            robot.latest = 0
+            robot.begin = self._request(robot, "run", 0, FrameType.RUN, RunBody(self.counters.epoch))
 
     def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body) -> _Request:
         """Send a new request frame (next SEQ) to ``robot``; the ``_Request`` to track its answer."""
@@ -328,6 +410,7 @@ class Link:
         return _Request(kind, step, seq, self._send(Frame.of(robot.id, seq, frame_type, body)), now, now)
 
     def _start(self, robot: _Robot, req: LinkRequest) -> None:
+        robot.latest = max(robot.latest, req.step)
         if req.kind == "command":
             robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
         else:
@@ -365,6 +448,9 @@ class Link:
         if robot is None:
             return
         robot.last_rx = now
+        for req in robot.requests():
+            if frame.seq == req.seq:
+                req.retries = 0  # the robot answers: the retry budget starts again
         try:
             body = frame.body()
         except FrameError as exc:
@@ -382,6 +468,12 @@ class Link:
             robot.control = None
             self._reply(robot.id, control.step, "estopped" if kind == FrameType.ESTOPPED else "reset")
             return
+        begin = robot.begin
+        if begin is not None and frame.seq == begin.seq and kind == FrameType.RUN_ACK and body.epoch == self.counters.epoch:
+            self._rtt(begin.sent_at, now)
+            robot.begin = None
+            self._start_waiting(robot)
+            return
         req = robot.busy
         if req is None or frame.seq != req.seq:
             return  # an answer to an older request (a late duplicate): already handled
@@ -389,9 +481,8 @@ class Link:
             self._rtt(req.sent_at, now)
             req.answered = True
         if kind == FrameType.ACCEPTED:
-            if not req.accepted:  # not forwarded: the agent waits for DONE (one message less per command)
-                req.accepted = True
-                req.sent_at = now  # from now on the motion timeout applies
+            if req.accepted_at is None:  # not forwarded: the agent waits for DONE (one message less per command)
+                req.accepted_at = now
             return
         if kind == FrameType.DONE:
             self._finish(robot, "done")
@@ -409,7 +500,10 @@ class Link:
         req = robot.busy
         robot.busy = None
         self._reply(robot.id, req.step, kind, reason, parts=parts)
-        while robot.busy is None and robot.waiting:
+        self._start_waiting(robot)
+
+    def _start_waiting(self, robot: _Robot) -> None:
+        while robot.busy is None and robot.begin is None and robot.waiting:
             self._start(robot, robot.waiting.popleft())
 
     def _check_timers(self, now: float) -> None:
@@ -417,10 +511,12 @@ class Link:
         for robot in self.robots.values():
             if robot.lost:
                 continue
-            for slot in ("busy", "control"):
-                req = getattr(robot, slot)
-                if req is None:
-                    continue
+            for req in robot.requests():
+                if req.accepted_at is not None and now - req.accepted_at > t.motion_timeout_s:
+                    self.counters.timeouts += 1
+                    self._lose(robot, f"robot {robot.id} still executing the command of step {req.step} after "
+                                      f"motion_timeout_s = {t.motion_timeout_s:g} s on port {self.port.name}")
+                    break
                 if now < req.due(t):
                     continue
                 if req.retries >= t.max_retries:
@@ -438,8 +534,8 @@ class Link:
     def _lose(self, robot: _Robot, reason: str) -> None:
         _log.error("%s", reason)
         robot.lost = True
-        step = max([r.step for r in (robot.busy, robot.control) if r is not None], default=0)
-        robot.busy = robot.control = None
+        step = max([r.step for r in (*robot.requests(), *robot.waiting)], default=0)  # the step its agent waits on
+        robot.busy = robot.control = robot.begin = None
         robot.waiting.clear()
         self._reply(robot.id, step, "lost", reason)
 
@@ -453,7 +549,7 @@ class Link:
             run=self.run_id, step=0, port=self.port.name, robots=sorted(self.robots),
             frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
             crc_errors=d.crc_errors, length_errors=d.length_errors, skipped_bytes=d.skipped_bytes,
-            timeouts=self.counters.timeouts,
+            timeouts=self.counters.timeouts, rejected=self.counters.rejected,
             rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
             rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
             rtt_ms_max=max(rtts) if rtts else 0.0,

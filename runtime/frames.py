@@ -34,6 +34,8 @@ OVERHEAD = HEADER.size + CRC.size  # 9 bytes around the payload
 BROADCAST = 0xFFFF
 MAX_ROBOT = 0xFFFE  # robot ids usable behind a port
 MAX_TEXT = 200  # bytes of UTF-8 reason/error text
+MAX_U32 = 0xFFFFFFFF  # steps, clocks and run epochs are u32
+F32_MAX = 3.4028234663852886e38  # the largest finite float32
 QUIET_S = 0.020  # a partial frame is given up after the line was quiet this long (s)
 
 
@@ -54,6 +56,7 @@ class FrameType(enum.IntEnum):
     HEARTBEAT = 0x03  # HeartbeatBody: the gateway is alive
     ESTOP = 0x04  # EmptyBody: stop now and stay stopped (latched)
     RESET = 0x05  # EmptyBody: clear the emergency stop
+    RUN = 0x06  # RunBody: a new run begins: forget the step memory of the last one
     ACCEPTED = 0x81  # StepBody: command valid, executing
     DONE = 0x82  # StepBody: command executed
     REFUSED = 0x83  # RefusalBody: command not executed, with a code and text
@@ -62,6 +65,7 @@ class FrameType(enum.IntEnum):
     ESTOPPED = 0x86  # EmptyBody: stopped (answer to ESTOP)
     RESET_ACK = 0x87  # EmptyBody: emergency stop cleared
     ERROR = 0x88  # ErrorBody: the robot could not parse or handle a request
+    RUN_ACK = 0x89  # RunBody (echo): step memory cleared, the robot is in that run
 
 
 class RefusalCode(enum.IntEnum):
@@ -142,6 +146,26 @@ class HeartbeatBody:
     @classmethod
     def unpack(cls, payload: bytes) -> HeartbeatBody:
         return cls(*_unpack(cls, payload))
+
+
+@dataclass(frozen=True, slots=True)
+class RunBody:
+    """RUN / RUN_ACK: ``epoch`` (u32, != 0) of the run the gateway begins; the robot echoes it."""
+
+    epoch: int
+    FORMAT: ClassVar[struct.Struct] = struct.Struct("<I")
+
+    def pack(self) -> bytes:
+        return _pack(self.FORMAT, self, self.epoch)
+
+    @classmethod
+    def unpack(cls, payload: bytes) -> RunBody:
+        return cls(*_unpack(cls, payload))
+
+
+def fits_f32(value: float) -> bool:
+    """Whether ``value`` is finite and stays finite as a float32 (|value| <= ``F32_MAX``)."""
+    return math.isfinite(value) and abs(value) <= F32_MAX
 
 
 def _text(payload: bytes, cls: type) -> str:
@@ -237,7 +261,7 @@ def _utf8(text: str) -> bytes:
 def _pack(fmt: struct.Struct, body: object, *values: object) -> bytes:
     try:
         return fmt.pack(*values)
-    except struct.error as exc:
+    except (struct.error, OverflowError) as exc:
         raise FrameError(f"{type(body).__name__}: {exc} (values {values})") from None
 
 
@@ -251,7 +275,7 @@ def _unpack(cls, payload: bytes) -> tuple:
     return cls.FORMAT.unpack(payload)
 
 
-Body = EmptyBody | StepBody | MotionBody | HeartbeatBody | RefusalBody | ErrorBody | ObservationBody
+Body = EmptyBody | StepBody | MotionBody | HeartbeatBody | RefusalBody | ErrorBody | ObservationBody | RunBody
 
 BODIES: dict[FrameType, type] = {
     FrameType.COMMAND: MotionBody,
@@ -259,6 +283,7 @@ BODIES: dict[FrameType, type] = {
     FrameType.HEARTBEAT: HeartbeatBody,
     FrameType.ESTOP: EmptyBody,
     FrameType.RESET: EmptyBody,
+    FrameType.RUN: RunBody,
     FrameType.ACCEPTED: StepBody,
     FrameType.DONE: StepBody,
     FrameType.REFUSED: RefusalBody,
@@ -267,6 +292,7 @@ BODIES: dict[FrameType, type] = {
     FrameType.ESTOPPED: EmptyBody,
     FrameType.RESET_ACK: EmptyBody,
     FrameType.ERROR: ErrorBody,
+    FrameType.RUN_ACK: RunBody,
 }
 
 

@@ -69,17 +69,45 @@ class Calibration:
         return math.remainder(bearing_rad - self.bearing_offset_rad, 2 * math.pi)
 
 
+STEP_TIMEOUT_S = 5.0  # the coordinator's default --step-timeout (coordinator.zenoh_backend.Timeouts.step_s)
+DRIVER_MARGIN_S = 0.2  # the agent re-sends a request the link said nothing about for retry_budget_s + this
+
+
 @dataclass(frozen=True)
 class Timing:
-    """Link timing (s): docs/gateway-protocol.md, Reliability."""
+    """Link timing (s): docs/gateway-protocol.md, Reliability.
+
+    One budget drives every retry: ``retry_budget_s`` = ``ack_timeout_s`` x (``max_retries`` + 1),
+    how long the link retransmits a request (every ``ack_timeout_s``, also after ACCEPTED)
+    to a robot that says nothing before reporting it lost. The gateway driver re-sends a
+    request after ``resend_s`` and gives up after ``answer_timeout_s``; both derive from it
+    and, for every request but a motion still answered ACCEPTED, stay below the coordinator's
+    step timeout (``STEP_TIMEOUT_S``), so a lost robot is reported by id before the step times out.
+    ``motion_timeout_s`` is the longest motion a robot may take (it keeps answering ACCEPTED).
+    """
 
     ack_timeout_s: float = 0.1
-    max_retries: int = 5
-    motion_timeout_s: float = 10.0
-    heartbeat_period_s: float = 0.2
+    max_retries: int = 15
+    motion_timeout_s: float = 4.0
+    heartbeat_period_s: float = 0.1
     heartbeat_timeout_s: float = 1.0
     robot_timeout_s: float = 2.0
     stats_period_s: float = 1.0
+
+    @property
+    def retry_budget_s(self) -> float:
+        """Seconds the link keeps retransmitting to a silent robot before reporting it lost."""
+        return self.ack_timeout_s * (self.max_retries + 1)
+
+    @property
+    def resend_s(self) -> float:
+        """Seconds of silence from the link after which the gateway driver re-sends its request."""
+        return self.retry_budget_s + DRIVER_MARGIN_S
+
+    def answer_timeout_s(self, motion: bool) -> float:
+        """Seconds the gateway driver waits for the link's final answer: two full link budgets
+        (the request and one re-send), plus ``motion_timeout_s`` for a motion."""
+        return 2 * self.resend_s + (self.motion_timeout_s if motion else 0.0)
 
 
 @dataclass(frozen=True)
@@ -272,6 +300,13 @@ class _Parser:
             else:
                 out[name] = self.number(t[name], f"timing.{name}", positive=True)
         timing = Timing(**out)
+        if timing.answer_timeout_s(motion=False) >= STEP_TIMEOUT_S:
+            raise self.fail("timing", f"ack_timeout_s x (max_retries + 1) = {timing.retry_budget_s:g} s is too long: the agent's "
+                                      f"wait 2 x ({timing.retry_budget_s:g} + {DRIVER_MARGIN_S:g}) s must stay below the "
+                                      f"coordinator's step timeout {STEP_TIMEOUT_S:g} s")
+        if timing.robot_timeout_s >= STEP_TIMEOUT_S:
+            raise self.fail("timing.robot_timeout_s", f"{timing.robot_timeout_s:g} s must stay below the coordinator's "
+                                                      f"step timeout {STEP_TIMEOUT_S:g} s")
         if timing.heartbeat_period_s >= timing.heartbeat_timeout_s:
             raise self.fail("timing", f"heartbeat_period_s ({timing.heartbeat_period_s}) must be below heartbeat_timeout_s "
                                       f"({timing.heartbeat_timeout_s}), or robots stop between heartbeats")

@@ -417,6 +417,13 @@ class LinkRequest(Message):
     kind: str = _wire("str", "command, observe, estop or reset", choices=LINK_REQUESTS)
     turn_rad: float = _wire("float", "command only (else 0): turn before driving, counter-clockwise positive", unit="rad")
     drive_m: float = _wire("float", "command only (else 0): straight distance after the turn", unit="m", minimum=0.0)
+    start_pose: tuple[float, ...] = _wire(
+        "float", "optional, command only: the coordinator's estimate [x, y, heading] of the robot before the move "
+                 "(the MotionCommand's), for the link's workspace check; [] if unknown", default=(), unit="m, m, rad", shape=(None,))
+
+    def _check(self) -> None:
+        if len(self.start_pose) not in (0, 3):
+            raise MessageError("LinkRequest.start_pose", f"{len(self.start_pose)} values, expected 3 or none", "size")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -462,6 +469,8 @@ class LinkStats(Message):
     rtt_ms_p90: float = _wire("float", "90th percentile round trip", unit="ms", minimum=0.0)
     rtt_ms_max: float = _wire("float", "longest round trip", unit="ms", minimum=0.0)
     lost: tuple[int, ...] = _wire("id", "robots that stopped answering", shape=(None,))
+    rejected: int = _wire("int", "requests dropped unsent: undecodable, foreign, not representable on the wire "
+                                 "or beyond the gateway config's limits", default=0)
 
 
 @dataclass(frozen=True, kw_only=True)

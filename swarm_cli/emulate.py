@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import signal
 import sys
@@ -99,6 +100,15 @@ def _indices(text: str, option: str) -> frozenset[int]:
     return frozenset(parse_list(text, option)) if text.strip() else frozenset()
 
 
+def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
+    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
+    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
+        if not 0.0 <= p <= 1.0:
+            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
+    if not (math.isfinite(delay) and delay >= 0):
+        raise SwarmInputError(f"--delay must be a finite number of seconds >= 0, got {delay!r}")
+
+
 def run(args: argparse.Namespace) -> int:
     config = GatewayConfig.load(args.config)
     traj = Trajectory.load(args.trajectory)
@@ -114,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         validate_run(args.run_id)
     if not args.motion_time >= 0:
         raise SwarmInputError(f"--motion-time must be >= 0 s, got {args.motion_time}")
+    check_radio_faults(args.drop, args.corrupt, args.delay)
     faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
                        drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"), seed=args.seed)
     world = EmulatedWorld(ids, traj.initial_poses, model_config(args), args.seed,

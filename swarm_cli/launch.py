@@ -63,6 +63,7 @@ from runtime.transport import free_tcp_port, loopback_hub, open_session, subscri
 from swarm_cli.agent import format_ids
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.entry import StopSignals
+from swarm_cli.emulate import check_radio_faults
 from swarm_cli.estop import send_estop
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
@@ -108,6 +109,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
+    p.add_argument("--drop", type=float, default=0.0, metavar="P", help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
+    p.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -282,12 +286,20 @@ def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str]
     return live
 
 
+def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
+    """The emulator options of the radio faults ``--drop P --corrupt P --delay S``, checked (errors name the flag)."""
+    check_radio_faults(drop, corrupt, delay)
+    return [f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}"]
+
+
 def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
-                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None) -> Path:
-    """Start the robot emulators and one link process per port; the live gateway config (pty devices)."""
+                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
+                  faults: list[str] | tuple[str, ...] = ()) -> Path:
+    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
+    the live gateway config (pty devices)."""
     config = tmp / "gateway.json"
     gateway.save(config)
-    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model]
+    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
     if events is not None:
         options.append(f"--events={events}")
     live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs)
@@ -344,6 +356,9 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
 
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
+    faults = radio_faults(args.drop, args.corrupt, args.delay)
+    if args.driver != "gateway" and (args.drop or args.corrupt or args.delay):
+        raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
     else:
@@ -376,7 +391,7 @@ def run(args: argparse.Namespace) -> int:
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, args.motion_time, model, procs,
-                                     args.emulator_events)
+                                     args.emulator_events, faults)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
             start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file)

@@ -46,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
     device = open_link(port)
     try:
         with open_session(settings) as session:
-            link = Link(session, args.run_id, port, config.timing, device)
+            link = Link(session, args.run_id, port, config.timing, device, config.limits,
+                        {r: config.calibration_of(r) for r in port.robots})
             for sig in (signal.SIGTERM, signal.SIGINT):
                 signal.signal(sig, lambda *_: link.stop())
             print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
@@ -54,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
             status = link.run()
             stats = link.stats()
             print(f"swarm link: port {port.name}: {stats.frames_sent} frames sent, {stats.frames_received} received, "
-                  f"{stats.retransmissions} retransmissions, {stats.crc_errors} CRC errors, "
+                  f"{stats.retransmissions} retransmissions, {stats.crc_errors} CRC errors, {stats.rejected} requests rejected, "
                   f"round trip median {stats.rtt_ms_median:.2f} ms", file=sys.stderr, flush=True)
             return status
     finally:

@@ -241,6 +241,71 @@ def test_router_relays_between_two_client_processes(tmp_path: Path, capsys: pyte
         stop(children)
 
 
+# -- router limits against connection floods --------------------------------------------------------
+
+FLOOD = 3000
+
+
+@pytest.mark.parametrize("config", ["zenoh-router.json5", "zenoh-single-host.json5", "zenoh-router-tls-acl.json5"])
+def test_router_configs_set_zenohs_transport_limits(config: str) -> None:
+    """The keys are Zenoh 1.10's (a misspelt key would be rejected or ignored: read the values back)."""
+    import zenoh
+
+    loaded = zenoh.Config.from_file(str(DEPLOY / config))
+    unicast = json.loads(loaded.get_json("transport/unicast"))
+    assert (unicast["accept_timeout"], unicast["accept_pending"], unicast["max_sessions"], unicast["max_links"]) == (1000, 100, 256, 1)
+    assert json.loads(loaded.get_json("transport/link/tx/lease")) == 3000
+
+
+def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> None:
+    """3000 TCP connections opened at once that never handshake: a Zenoh session and `swarm estop` still get through.
+
+    With Zenoh's defaults (accept_timeout 10 s, accept_pending 100) such a flood stopped new
+    sessions for about 5 minutes; deploy/zenoh-router.json5 drops idle handshakes after 1 s.
+    """
+    import socket
+
+    port = free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    children: list[Child] = []
+    sockets: list[socket.socket] = []
+    try:
+        router = Child(router_cmd("--config", str(DEPLOY / "zenoh-router.json5"), "--listen", endpoint))
+        children.append(router)
+        router.wait_line("swarm router: listening on", 15)
+        for _ in range(FLOOD):
+            sock = socket.socket()
+            sock.setblocking(False)
+            try:
+                sock.connect(("127.0.0.1", port))
+            except BlockingIOError:
+                pass
+            sockets.append(sock)
+        start = time.monotonic()
+        attempts = 0
+        while True:  # each attempt waits up to Zenoh's open_timeout (10 s), as a user re-running a command would
+            attempts += 1
+            try:
+                with open_session(ZenohSettings("client", connect=(endpoint,))):
+                    session_s = time.monotonic() - start
+                break
+            except ConnectionError:
+                assert time.monotonic() - start < 60, f"no session within 60 s of the flood ({attempts} attempts)"
+        start = time.monotonic()
+        estop = subprocess.run([sys.executable, "-m", "swarm_cli.main", "estop", "--run=flood", f"--hub={endpoint}"],
+                               capture_output=True, text=True, timeout=120, env=ENV)
+        estop_s = time.monotonic() - start
+        print(f"after {FLOOD} idle connections: a session opened after {session_s:.2f} s ({attempts} attempts), "
+              f"then swarm estop took {estop_s:.2f} s (busy machine)")
+        assert estop.returncode == 0, estop.stderr
+        assert "emergency stop sent" in estop.stderr
+        assert session_s < 30 and estop_s < 15  # Zenoh's defaults: about 300 s
+    finally:
+        for sock in sockets:
+            sock.close()
+        stop(children)
+
+
 # -- mutual TLS and access control -------------------------------------------------------------------
 
 

@@ -39,12 +39,13 @@ from runtime.frames import (
     MotionBody,
     RefusalBody,
     RefusalCode,
+    RunBody,
     StepBody,
     encode_frame,
 )
 from runtime.gateway_config import Calibration, GatewayConfig
 from runtime.keys import coord_alive_key, truth_wildcard
-from runtime.messages import MotionCommand, TruthMessage, decode
+from runtime.messages import MotionCommand, TruthMessage, decode, message_key
 from runtime.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -385,7 +386,12 @@ def test_truth_published_at_start_on_observe_and_when_the_coordinator_appears(cf
         def truths(n: int) -> list[TruthMessage]:
             return [decode(inbox.get(timeout=3.0)[1], TruthMessage) for _ in range(n)]
 
-        time.sleep(0.2)  # the subscription reaches the client session
+        probe = session.declare_publisher(message_key(TruthMessage(run=run, step=0, robot=0, pose=[0.0, 0.0, 0.0])))
+        deadline = time.monotonic() + 5
+        while not probe.matching_status.matching:  # the hub's subscription is known to the client session
+            assert time.monotonic() < deadline, "the truth subscription never reached the client session"
+            time.sleep(0.005)
+        probe.undeclare()
         publisher = TruthPublisher(world, session, run)
         try:
             publisher.start()
@@ -486,3 +492,38 @@ def test_cli_rejects_config_robots_missing_from_the_trajectory(tmp_path):
                             cwd=ROOT, capture_output=True, text=True, timeout=30)
     assert result.returncode == 2
     assert "robots [2] of the gateway config" in result.stderr and "not in the trajectory" in result.stderr
+
+
+def test_run_forgets_the_step_memory_once_per_epoch(emulated):
+    """A second run on the same robots: RUN with a new epoch clears the steps, a repeated RUN only answers."""
+    world, port, link, events = emulated
+    link.send(0, 1, FrameType.COMMAND, MotionBody(3, 0.1, 0.05))
+    assert kinds(link.expect(2)) == [(0, 1, "ACCEPTED"), (0, 1, "DONE")]
+    link.send(0, 2, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))  # the next run's step 1 without RUN: stale
+    (refused,) = link.expect(1)
+    assert refused.type == FrameType.REFUSED and "stale step 1" in refused.body().reason
+    link.send(0, 3, FrameType.RUN, RunBody(77))
+    (ack,) = link.expect(1)
+    assert (ack.seq, ack.type, ack.body()) == (3, FrameType.RUN_ACK, RunBody(77))
+    link.send(0, 4, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))
+    assert kinds(link.expect(2)) == [(0, 4, "ACCEPTED"), (0, 4, "DONE")]
+    link.send(0, 5, FrameType.RUN, RunBody(77))  # a retransmitted RUN: answered, memory kept
+    assert kinds(link.expect(1)) == [(0, 5, "RUN_ACK")]
+    link.send(0, 6, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))  # so step 1 is a duplicate, not executed again
+    assert kinds(link.expect(1)) == [(0, 6, "DONE")]
+    assert port.executed(0) == 2
+    assert [(e["epoch"], e["previous"]) for e in events if e["event"] == "run"] == [(77, 0)]
+
+
+@pytest.mark.parametrize("emulated", [{"motion_time_s": 5.0}], indirect=True)
+def test_repeated_command_while_moving_is_answered_accepted_and_run_aborts_the_motion(emulated):
+    world, port, link, events = emulated
+    frame = link.send(1, 1, FrameType.COMMAND, MotionBody(1, 0.1, 0.05))
+    assert kinds(link.expect(1)) == [(1, 1, "ACCEPTED")]
+    link.write(encode_frame(frame))  # the link re-sends while the robot moves: ACCEPTED again, nothing else
+    assert kinds(link.expect(1)) == [(1, 1, "ACCEPTED")]
+    link.send(1, 2, FrameType.RUN, RunBody(5))  # a new run while moving: the motion stops, refused
+    refused, ack = link.expect(2)
+    assert (refused.seq, refused.type, refused.body().code) == (1, FrameType.REFUSED, RefusalCode.OTHER)
+    assert (ack.type, ack.body()) == (FrameType.RUN_ACK, RunBody(5))
+    assert port.executed(1) == 0 and [e["event"] for e in events].count("accepted") == 1

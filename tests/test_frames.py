@@ -27,6 +27,7 @@ from runtime.frames import (
     MotionBody,
     ObservationBody,
     RefusalBody,
+    RunBody,
     RefusalCode,
     StepBody,
     crc16,
@@ -65,6 +66,7 @@ BODY_STRATEGIES = {
     RefusalBody: st.builds(RefusalBody, u32, u8, _short_text()),
     ErrorBody: st.builds(ErrorBody, u8, _short_text()),
     ObservationBody: _observation(),
+    RunBody: st.builds(RunBody, u32),
 }
 
 
@@ -239,6 +241,8 @@ def _expected(description: str) -> Frame:
         body = MotionBody(field(r"step (\d+)"), field(rf"turn {_NUM} rad", float), field(rf"drive {_NUM} m", float))
     elif cls is HeartbeatBody:
         body = HeartbeatBody(field(r"time (\d+) ms"))
+    elif cls is RunBody:
+        body = RunBody(field(r"epoch (\d+)"))
     elif cls is RefusalBody:
         code = re.search(r"code (\d+) \(([A-Z_]+)\)", rest)
         assert int(code.group(1)) == RefusalCode[code.group(2)]
@@ -255,7 +259,8 @@ def _expected(description: str) -> Frame:
 def test_doc_example_frames_decode_to_their_descriptions_and_reencode():
     examples = _doc_examples()
     assert len(examples) >= 9, "the example table of docs/gateway-protocol.md was not found"
-    assert {FrameType[d.split()[0]] for d, _ in examples} >= {FrameType.COMMAND, FrameType.OBSERVATION, FrameType.REFUSED, FrameType.ESTOP}
+    assert {FrameType[d.split()[0]] for d, _ in examples} >= {FrameType.COMMAND, FrameType.OBSERVATION, FrameType.REFUSED, FrameType.ESTOP,
+                                                               FrameType.RUN, FrameType.RUN_ACK}
     for description, wire in examples:
         expected = _expected(description)
         decoded = FrameDecoder().feed(wire)
@@ -281,3 +286,19 @@ def test_long_text_is_cut_on_a_character_boundary():
     assert len(back.reason.encode()) <= MAX_TEXT and refusal.reason.startswith(back.reason)
     error = ErrorBody(1, "€" * 100)
     assert ErrorBody.unpack(error.pack()).text == "€" * (MAX_TEXT // 3)
+
+
+@pytest.mark.parametrize("body", [
+    StepBody(2**32 + 5), MotionBody(2**32, 0.0, 0.0), MotionBody(1, 1e39, 0.0), MotionBody(1, 0.0, -1e39), RunBody(-1),
+])
+def test_values_beyond_the_wire_types_are_frame_errors_not_crashes(body):
+    with pytest.raises(FrameError, match=type(body).__name__):
+        body.pack()
+
+
+def test_fits_f32_is_the_float32_range():
+    from runtime.frames import F32_MAX, fits_f32
+
+    assert fits_f32(F32_MAX) and fits_f32(-F32_MAX) and fits_f32(0.0)
+    assert not any(fits_f32(v) for v in (1e39, -1e39, float("nan"), float("inf")))
+    assert struct.unpack("<f", struct.pack("<f", F32_MAX))[0] == F32_MAX

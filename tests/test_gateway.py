@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import msgpack
 import numpy as np
 import pytest
 
@@ -27,11 +28,11 @@ from robot_agent.link import Link, SerialLink
 from runtime.config import ModelConfig
 from runtime.gateway_config import Calibration, GatewayConfig, Limits, Port, Timing
 from runtime.keys import alive_wildcard
-from runtime.messages import EmergencyStop, LinkReply, LinkStats, MotionCommand, Status, decode, encode, message_key
+from runtime.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
 from runtime.recording import read_messages
 from runtime.trajectory import random_trajectory
-from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
-from swarm_cli.launch import start_emulator, stop_all
+from runtime.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from swarm_cli.launch import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -47,31 +48,33 @@ class Rig:
     link: Link
     driver: GatewayDriver
     member: object
+    thread: threading.Thread  # the link engine's
 
 
 @contextmanager
 def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Calibration = Calibration(),
-        port_robots: tuple[int, ...] = (0,), run: str = "gw") -> Iterator[Rig]:
+        port_robots: tuple[int, ...] = (0,), run: str = "gw", limits: Limits = Limits(), motion_time_s: float = 0.0) -> Iterator[Rig]:
     """Robot 0 of a world of robots 0 and 1 (seed 3) behind an emulated port with ``port_robots``, a link
-    engine and robot 0's gateway driver correcting ``calibration``, which is also robot 0's true deviation."""
+    engine (with ``limits``) and robot 0's gateway driver correcting ``calibration``, which is also robot 0's
+    true deviation; motions take ``motion_time_s``."""
     world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s,
-                          calibration={0: calibration})
+                          calibration={0: calibration}, motion_time_s=motion_time_s)
     hub_settings, member = loopback_hub(free_tcp_port())
     with PortEmulator(world, "radio0", port_robots, faults) as emulator, open_session(hub_settings), \
             open_session(member) as link_session, open_session(member) as agent_session:
         device = SerialLink(emulator.device, 115200)
-        link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device)
+        link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device, limits, {0: calibration})
         thread = threading.Thread(target=link.run, daemon=True)
         thread.start()
-        driver = GatewayDriver(run, 0, calibration, timing)
+        driver = GatewayDriver(run, 0, calibration, timing, port="radio0")
         driver.attach(agent_session)
         try:
             deadline = time.monotonic() + 5
             while not link.counters.rtts_ms and faults.drop_prob < 1:  # the first heartbeat was answered: the path is up
                 assert time.monotonic() < deadline, "no heartbeat answer from the emulator"
                 time.sleep(0.005)
-            time.sleep(0.2)  # the driver's and link's subscriptions reach the hub
-            yield Rig(emulator, link, driver, member)
+            assert driver.ready(5), "the link's liveliness token (declared after its subscriptions) never came"
+            yield Rig(emulator, link, driver, member, thread)
         finally:
             driver.detach()
             link.stop()
@@ -140,6 +143,110 @@ def test_corrupted_answers_are_rejected_and_recovered():
         assert r.emulator.stats().tx_corrupted >= stats.crc_errors
 
 
+def _request(**fields) -> LinkRequest:
+    return LinkRequest(**({"run": "gw", "step": 1, "robot": 0, "kind": "command", "turn_rad": 0.1, "drive_m": 0.1} | fields))
+
+
+def test_hostile_link_requests_are_dropped_counted_and_never_sent():
+    """Schema-valid requests the frame cannot carry or the limits forbid, undecodable ones, foreign ones: the link
+    drops and counts each (before any byte reaches the robot) and serves on."""
+    limits = Limits(max_drive_m=0.5, workspace=(-0.5, -0.5, 0.5, 0.5))
+    with rig(limits=limits) as r, open_session(r.member) as session:
+        r.driver.execute(command(1, 0.1, 0.05))  # the robot is at step 1
+        valid = msgpack.unpackb(encode(_request(step=2)))
+        hostile = [
+            encode(_request(step=2**32 + 5)),  # crashed the link before: beyond the frame's u32 step
+            encode(_request(step=2, turn_rad=1e39)),  # beyond float32
+            encode(_request(step=2, drive_m=1e39)),
+            encode(_request(step=2, drive_m=2.0)),  # 2 m past the 0.5 m limit
+            encode(_request(step=2, turn_rad=4.0)),  # beyond max_turn_rad (pi)
+            encode(_request(step=2, drive_m=0.2, start_pose=[0.45, 0.0, 0.0])),  # would leave the workspace
+            encode(_request(step=5000)),  # far in the future: would strand the robot's step memory
+            encode(_request(run="other", step=2)),  # another run's, on this run's key
+            msgpack.packb(valid | {"turn_rad": float("nan")}),
+            msgpack.packb(valid | {"drive_m": float("inf")}),
+            msgpack.packb(valid | {"step": -1}),
+            msgpack.packb(valid | {"kind": "selfdestruct"}),
+            b"\x00\xffnot msgpack",
+        ]
+        for payload in hostile:
+            publish(session, "swarm/gw/robot/0/linkreq", payload)
+        _wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
+        assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
+        r.driver.execute(command(2, 0.1, 0.05))  # the link still serves
+        assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
+        np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.1, 0.05)]), atol=1e-12)
+
+
+def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
+    with rig(motion_time_s=0.5) as r, open_session(r.member) as session:
+        failed: list[BaseException] = []
+        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker.start()
+        _wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")  # the driver waits for step 1
+        forged = LinkReply(run="gw", step=99, robot=0, kind="lost", reason="forged", observed=[], ranges=[], bearings=[])
+        publish(session, message_key(forged), encode(forged))
+        worker.join(timeout=10)
+        assert not failed and r.driver.ignored_replies == 1 and r.emulator.executed(0) == 1
+
+
+def test_a_lost_done_after_a_long_motion_costs_one_retry_interval():
+    """The link re-sends the COMMAND every ack_timeout_s while the robot moves; the robot answers ACCEPTED,
+    then DONE from memory, so losing the DONE (and whatever else in 0.5 s around it) delays the step by
+    about one interval, not a motion timeout, and the robot moves once."""
+    timing = dataclasses.replace(FAST, ack_timeout_s=0.05, max_retries=15, motion_timeout_s=5.0)
+    with rig(timing=timing, motion_time_s=0.5) as r:
+        failed: list[BaseException] = []
+        start = time.monotonic()
+        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker.start()
+        _wait_for(lambda: r.emulator.executed(0) == 0 and r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
+        accepted = time.monotonic()
+        time.sleep(max(0.0, accepted + 0.3 - time.monotonic()))
+        r.emulator.faults = FaultPlan(drop_prob=1.0)  # the radio is dead around the end of the motion: DONE lost
+        time.sleep(0.5)  # within the retry budget, 16 x 0.05 s
+        r.emulator.faults = FaultPlan()
+        worker.join(timeout=10)
+        took = time.monotonic() - start
+        assert not failed and r.emulator.executed(0) == 1
+        assert r.emulator.stats().tx_dropped >= 1 and r.link.counters.retransmissions >= 8  # re-sent during the motion
+        assert took < 3.0  # about one retry interval after the radio came back (~0.9 s), not the 5 s motion timeout
+
+
+def test_a_robot_dying_mid_motion_is_lost_within_the_retry_budget():
+    timing = dataclasses.replace(FAST, ack_timeout_s=0.05, max_retries=3, motion_timeout_s=30.0)
+    with rig(timing=timing, motion_time_s=20.0) as r:
+        failed: list[BaseException] = []
+        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker.start()
+        _wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
+        start = time.monotonic()
+        r.emulator.faults = FaultPlan(drop_prob=1.0)  # the radio goes dead while the robot moves
+        worker.join(timeout=10)
+        assert failed and isinstance(failed[0], RobotLost) and "did not answer the command of step 1" in str(failed[0])
+        assert time.monotonic() - start < timing.retry_budget_s + 4.0  # the retry budget (0.2 s), not the 30 s motion timeout
+
+
+def _catch(fn, into: list) -> None:
+    try:
+        fn()
+    except BaseException as exc:  # noqa: BLE001 - handed to the test thread
+        into.append(exc)
+
+
+def test_an_idle_driver_notices_its_link_disappear():
+    with rig() as r:
+        reasons: list[str] = []
+        r.driver.on_lost = reasons.append
+        r.driver.check()  # link alive: nothing
+        r.link.stop()
+        r.thread.join(timeout=5)
+        _wait_for(lambda: reasons, 5, "the lost callback")
+        assert reasons == ["robot 0: the link process of port radio0 is gone"]
+        with pytest.raises(RobotLost, match="the link process of port radio0 is gone"):
+            r.driver.check()
+
+
 # -- whole processes ----------------------------------------------------------------------------
 
 
@@ -184,6 +291,16 @@ def _wait_for(predicate, timeout_s: float, what: str):
             return value
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(0.02)
+
+
+def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
+    """Until the hub routes each of ``keys`` to a subscriber (a probe publisher's matching status), so that
+    what the agents publish from now on reaches the test's subscription."""
+    with open_session(ZenohSettings("client", connect=(hub,))) as probe:
+        for key in keys:
+            publisher = probe.declare_publisher(key)
+            _wait_for(lambda: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
+            publisher.undeclare()
 
 
 @dataclasses.dataclass
@@ -243,8 +360,8 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         for robot in ids:
             site.agent(robot, run_id)
         _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
-        time.sleep(0.3)
         _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
+        _wait_routed(site.hub, [f"swarm/{run_id}/robot/{r}/status" for r in ids])
 
         def status_of(robot: int, step: int) -> Status:
             def find():
@@ -322,9 +439,8 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
                                   "--ready-timeout=0.5"], stderr=subprocess.PIPE, text=True)
         try:
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
-            time.sleep(0.2)
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
-            time.sleep(0.2)
+            _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
             cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(cmd), encode(cmd))
             assert agent.wait(timeout=20) == 3
@@ -360,7 +476,7 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
         _wait_for(lambda: alive_now(site.session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{robot}",
                                                                                  "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
         _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
-        time.sleep(0.2)
+        _wait_routed(site.hub, [f"swarm/deadlink/robot/{robot}/status"])
         cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1)
         publish(site.session, message_key(cmd), encode(cmd))
         assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
@@ -385,8 +501,91 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
         site.link("late")
         _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
         _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
-        time.sleep(0.2)
+        _wait_routed(site.hub, [f"swarm/late/robot/{robot}/status"])
         cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05)
         publish(site.session, message_key(cmd), encode(cmd))
         states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
         assert states == ["accepted", "done"]
+
+
+def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
+    """The robots and link processes stay up; the second coordinator's appearance begins a new run (RUN with a
+    new epoch), so its step 1 is not refused as stale and every robot executes each step once."""
+    traj = random_trajectory(4, 2, np.random.default_rng(7))
+    traj_file, events = tmp_path / "traj.json", tmp_path / "events.jsonl"
+    traj.save(traj_file)
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub, run_id = f"tcp/127.0.0.1:{port}", "twice"
+    gateway = default_gateway(traj)
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings), open_session(member) as session:
+            live = start_gateway(traj_file, gateway, tmp_path, run_id, hub, 2, 0.0, [], procs, events)
+            ids = {f"swarm/{run_id}/alive/link/{p.name}" for p in gateway.ports}
+            _wait_for(lambda: alive_now(session, f"swarm/{run_id}/alive/link/*") == ids, 30, "the link processes")
+            stable = list(procs)
+            results = []
+            for k in (1, 2):
+                agents = start_agents(traj, run_id, hub, 2, 0.0, ["--driver=gateway", f"--gateway-config={live}"])
+                procs += agents
+                result = tmp_path / f"run{k}.json"
+                coordinator = subprocess.run(
+                    PY + ["swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--run={run_id}", f"--hub={hub}", "--seed=2",
+                          f"--out={tmp_path / str(k)}", f"--result={result}", "--no-record", "--json"],
+                    capture_output=True, text=True, timeout=180, cwd=tmp_path)
+                assert coordinator.returncode == 0, coordinator.stderr[-3000:]
+                results.append(json.loads(result.read_text()))
+                stop_all(agents)
+                assert all(p.poll() is None for p in stable), "the emulator and links served both runs"
+    finally:
+        stop_all(procs[2:])
+        stop_all(procs[:1])
+    rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+    runs = [r for r in rows if r["event"] == "run"]
+    assert len({r["epoch"] for r in runs}) == 2 and len(runs) == 2 * traj.n  # every robot began both runs
+    assert not [r for r in rows if r["event"] == "refused"], [r for r in rows if r["event"] == "refused"][:3]
+    executed = [(r["robot"], r["step"]) for r in rows if r["event"] == "executed"]
+    assert executed and all(len(results[i]["steps"]) > 0 for i in (0, 1))
+    second = runs[traj.n]["time_ns"]  # the steps of the second run start again at 1, each executed once per run
+    first_run = [(r["robot"], r["step"]) for r in rows if r["event"] == "executed" and r["time_ns"] < second]
+    second_run = [(r["robot"], r["step"]) for r in rows if r["event"] == "executed" and r["time_ns"] > second]
+    assert len(set(first_run)) == len(first_run) and len(set(second_run)) == len(second_run) and min(s for _, s in second_run) == 1
+
+
+@pytest.mark.parametrize("drop,corrupt,delay", [(0.1, 0.1, 0.05)])
+def test_radio_faults_through_swarm_launch_leave_the_results_unchanged(drop, corrupt, delay):
+    """``swarm launch --driver gateway --drop --corrupt --delay`` (3 seeds, 4 robots): every run completes with the
+    per-configuration table and P_f of the fault-free run of its seed, and no robot moves twice in a step."""
+    from swarm_cli.bench_faults_gateway import gateway_fault_row
+
+    row = gateway_fault_row(drop, corrupt, delay, seeds=[0, 1, 2], robots=4, configs=2)
+    assert row == {"drop": drop, "corrupt": corrupt, "delay": delay, "runs": 3, "completed": 3, "identical": 3,
+                   "max_executions_per_step": 1}
+
+
+def test_launch_rejects_bad_fault_options_naming_the_flag(tmp_path):
+    for args, message in ((["--driver=gateway", "--drop=1.5"], "--drop must be a probability in [0, 1], got 1.5"),
+                          (["--driver=gateway", "--corrupt=-0.1"], "--corrupt must be a probability"),
+                          (["--driver=gateway", "--delay=inf"], "--delay must be a finite number of seconds"),
+                          (["--drop=0.1"], "need --driver gateway")):
+        proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "demo", "--no-record", *args],
+                              capture_output=True, text=True, timeout=60, cwd=tmp_path)
+        assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr
+
+
+def test_an_idle_agent_whose_link_dies_reports_its_robot_lost_and_exits_3(tmp_path):
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids)),))
+
+    with emulated_site(tmp_path, 2, 3, config) as site:
+        robot = site.ids[0]
+        link = site.link("idle")
+        agent = site.agent(robot, "idle", stderr=subprocess.PIPE, text=True)
+        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" in alive_now(site.session, "swarm/idle/alive/**"), 30, "the agent")
+        link.kill()  # the agent is idle: no command in flight
+        killed = time.monotonic()
+        assert agent.wait(timeout=10) == 3
+        assert time.monotonic() - killed < 3.0
+        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" not in alive_now(site.session, "swarm/idle/alive/**"), 5, "token gone")
+        assert "the link process of port radio0 is gone" in agent.stderr.read()

@@ -48,6 +48,8 @@ def _base() -> dict:
     (lambda d: d.update(calibration={"1": {"scale": 1}}), "unknown field(s) ['scale']"),
     (lambda d: d.update(timing={"heartbeat_period_s": 2.0}), "heartbeat_period_s (2.0) must be below heartbeat_timeout_s"),
     (lambda d: d.update(timing={"max_retries": -1}), "timing.max_retries"),
+    (lambda d: d.update(timing={"ack_timeout_s": 0.2, "max_retries": 15}), "ack_timeout_s x (max_retries + 1) = 3.2 s is too long"),
+    (lambda d: d.update(timing={"robot_timeout_s": 6.0}), "timing.robot_timeout_s: 6 s must stay below the coordinator's step timeout 5 s"),
     (lambda d: d.update(limits={"workspace": [0, 0, -1, 1]}), "x_min < x_max"),
     (lambda d: d.update(limits={"workspace": [0, 0, 1]}), "limits.workspace"),
     (lambda d: d.update(extra=1), "unknown field(s) ['extra']"),
@@ -109,3 +111,17 @@ def test_ant_device_strings_and_missing_openant():
     if importlib.util.find_spec("openant") is None:
         with pytest.raises(SwarmInputError, match=r"pip install -e '\.\[ant\]'"):
             AntLink("ant:17")
+
+
+def test_retry_budgets_derive_from_one_budget_below_the_coordinators_step_timeout():
+    from coordinator.zenoh_backend import Timeouts
+    from runtime.gateway_config import STEP_TIMEOUT_S, Timing
+
+    assert STEP_TIMEOUT_S == Timeouts().step_s  # the coordinator's default the gateway config is checked against
+    t = Timing()
+    assert t.retry_budget_s == pytest.approx(t.ack_timeout_s * (t.max_retries + 1)) == pytest.approx(1.6)
+    assert t.resend_s > t.retry_budget_s  # the agent re-sends only once the link has given up on its copy
+    assert t.answer_timeout_s(motion=False) < STEP_TIMEOUT_S and t.robot_timeout_s < STEP_TIMEOUT_S
+    assert t.answer_timeout_s(motion=True) == pytest.approx(t.answer_timeout_s(motion=False) + t.motion_timeout_s)
+    # a lost DONE costs one retry interval: the link re-sends every ack_timeout_s, also after ACCEPTED
+    assert t.ack_timeout_s < t.heartbeat_timeout_s / 5

@@ -85,7 +85,7 @@ def samples() -> list[Message]:
         ),
         TruthMessage(**head, robot=3, pose=np.array([0.5, -0.25, 1.0])),
         TruthSetMessage(**head, ids=[1, 3], poses=np.array([[0.5, -0.25, 1.0], [0.1, 0.2, -3.0]])),
-        LinkRequest(**head, robot=3, kind="command", turn_rad=0.5, drive_m=0.1),
+        LinkRequest(**head, robot=3, kind="command", turn_rad=0.5, drive_m=0.1, start_pose=[0.1, 0.2, 1.5]),
         LinkReply(**head, robot=3, kind="observation", reason="", observed=[1, 4], ranges=[0.2, 0.31], bearings=[0.1, -2.0]),
         LinkStats(**head, port="radio0", robots=[1, 3], frames_sent=10, frames_received=9, retransmissions=1, crc_errors=2,
                   length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
