@@ -405,3 +405,41 @@ def test_prior_residuals_wrap_the_heading_and_stack_offsets_rows():
 def test_sensor_sigmas_are_floored_for_exact_sensing():
     assert sensor_sigmas(ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)) == (1e-9, 1e-9)
     assert sensor_sigmas(SENSING) == (0.01, 0.02)
+
+
+def test_relaxed_start_is_exact_on_exact_data():
+    """The linear relaxation of Eq. B3 in (x, y, cos theta, sin theta) has the true poses as its
+    zero-residual solution when the data are exact, so the solver's start is already the answer:
+    the three robots of the test above, (0, 0, 0), (2, 0, -pi/2), (0, 2, pi/2) in r0's frame; and
+    with robot 0 observing nobody (gauge robot 1): r0 at (0, 1) with heading 0 (none to solve for)."""
+    from coordinator.localization.topology import _relaxed_start
+
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    pairs = [(a, b) for a in range(3) for b in range(3) if a != b]
+    i, j, rho, phi = _exact_observations(poses, pairs)
+    start = _relaxed_start(3, i, j, observation_offsets(rho, phi), np.ones(3, bool), 0)
+    np.testing.assert_allclose(start, [[0, 0, 0], [2, 0, -HALF_PI], [0, 2, HALF_PI]], atol=1e-6)
+    i, j = np.array([1, 1, 2]), np.array([0, 2, 1])
+    z = observation_offsets(np.ones(3), np.array([HALF_PI, 0.0, 0.0]))
+    start = _relaxed_start(3, i, j, z, np.array([False, True, True]), 1)
+    np.testing.assert_allclose(start[:, :2], [[0, 1], [0, 0], [1, 0]], atol=1e-6)
+    assert start[0, 2] == 0.0 and start[1, 2] == 0.0 and abs(abs(start[2, 2]) - math.pi) < 1e-6
+
+
+def test_robust_topology_leaves_a_gross_outlier_out_of_its_cluster():
+    """Exact observations of the three-robot triangle plus one gross outlier: r1 also reports r2 2 m too far.
+
+    With ``huber`` = 0.05 m the solution stays near the truth and the outlier's point, ~2 m from
+    robot 2's solved position (> 2 x huber), leaves r2's cluster: r2's topology position is the
+    centroid of the good observations, (0, 2). Without ``huber`` the outlier stays in the cluster
+    and drags r2's centroid by about 2 m / 3 towards it.
+    """
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    pairs = [(a, b) for a in range(3) for b in range(3) if a != b]
+    i, j, rho, phi = _exact_observations(poses, pairs)
+    k = pairs.index((1, 2))
+    i, j, rho, phi = np.append(i, 1), np.append(j, 2), np.append(rho, rho[k] + 2.0), np.append(phi, phi[k])
+    robust = estimate_topology(3, i, j, rho, phi, SENSING, huber=0.05)
+    np.testing.assert_allclose(robust.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
+    plain = estimate_topology(3, i, j, rho, phi, SENSING)
+    assert np.linalg.norm(plain.positions[2] - [0.0, 2.0]) > 0.3
