@@ -75,6 +75,8 @@ def main(argv: list[str] | None = None) -> int:
     for path, c in scores.items():
         total.update(c)
         checked = c["killed"] + c["survived"] + c["no tests"]
+        if not checked:
+            continue  # not run yet (or filtered out by the GLOBs of the last run)
         print(f"{path:55s} {c['killed']:7d} {c['survived']:8d} {c['no tests']:8d} {100 * c['killed'] / max(checked, 1):6.1f}%")
     checked = total["killed"] + total["survived"] + total["no tests"]
     score = total["killed"] / max(checked, 1)
