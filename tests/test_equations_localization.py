@@ -241,14 +241,16 @@ def test_eq21_rotation_with_unequal_weights_known_answer():
 @pytest.mark.parametrize("w", [[1.0, 0.0, 1.0], [1.0, -1.0, 1.0], [1.0, np.inf, 1.0], [1.0, np.nan, 1.0]])
 def test_eq21_bad_weights_are_refused(w):
     p = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    with pytest.raises(LocalizationError, match="weights must be finite and > 0"):
+    with pytest.raises(LocalizationError, match="weights must be finite and > 0") as info:
         superimpose(p, p, np.array(w))
+    assert info.value.reason == "degenerate"
 
 
 def test_eq21_coincident_topology_is_refused():
     p = np.zeros((3, 2))
-    with pytest.raises(LocalizationError, match="all topology points coincide"):
+    with pytest.raises(LocalizationError, match="all topology points coincide") as info:
         superimpose(p, p + 1.0, np.ones(3))
+    assert info.value.reason == "degenerate"
 
 
 # -- Eq. 15, 23: the fused estimate -------------------------------------------------------

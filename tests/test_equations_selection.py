@@ -80,10 +80,10 @@ def test_plan_groups_masks_and_canonical_key():
 
 
 @pytest.mark.parametrize("order,sizes,message", [
-    ([0, 1, 1], (3,), "permutation"),
-    ([0, 1, 3], (3,), "permutation"),
-    ([0, 1, 2], (2, 2), "do not partition"),
-    ([0, 1, 2], (3, 0), "do not partition"),
+    ([0, 1, 1], (3,), r"a plan's order must be a permutation of 0\.\.2, got \[0, 1, 1\]"),
+    ([0, 1, 3], (3,), r"permutation of 0\.\.2, got \[0, 1, 3\]"),
+    ([0, 1, 2], (2, 2), r"group sizes \(2, 2\) do not partition 3 robots"),
+    ([0, 1, 2], (3, 0), r"group sizes \(3, 0\) do not partition 3 robots"),
 ])
 def test_plan_refuses_what_is_not_an_ordered_partition(order, sizes, message):
     with pytest.raises(SwarmInputError, match=message):
@@ -117,6 +117,15 @@ def test_eq11_to_13_step_score_known_answers():
         (math.sqrt(40) + math.sqrt(73) + math.sqrt(109)) / 3 + 1.0,
     ]
     np.testing.assert_allclose(p, expected, rtol=0, atol=1e-12)
+
+
+def test_eq11_to_13_single_anchor():
+    """One anchor at (3, 4) (robots 1, 2 move, desired at (0, 0) and (0, 2)): d = 0 (Eq. 11 of one point),
+    its centroid is itself, the movers' centroid (0, 1), s = |(3, 3)| = 3 sqrt(2), p = 1 / (3 sqrt(2))."""
+    base = np.array([[3.0, 4.0], [8.0, 8.0], [9.0, 9.0]])
+    desired = np.array([[5.0, 5.0], [0.0, 0.0], [0.0, 2.0]])
+    p = step_score(np.array([[False, True, True]]), base, desired)
+    assert p[0] == pytest.approx(1.0 / (3.0 * math.sqrt(2.0)), rel=1e-12)
 
 
 def test_eq12_zero_separation_is_floored_not_infinite():
