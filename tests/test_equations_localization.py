@@ -445,3 +445,23 @@ def test_robust_topology_leaves_a_gross_outlier_out_of_its_cluster():
     np.testing.assert_allclose(robust.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
     plain = estimate_topology(3, i, j, rho, phi, SENSING)
     assert np.linalg.norm(plain.positions[2] - [0.0, 2.0]) > 0.3
+
+
+def test_crlb_known_answer_for_one_observation():
+    """Robot 0 at (0, 0, 0) known almost exactly (prior variances 1e-10), robot 1 at (2, 0, 0.3) barely
+    (prior variances 100); robot 0 measures robot 1 (s_r = 0.01 m, s_b = 0.02 rad).
+
+    Fisher information on robot 1's position: the range row's gradient is (1, 0) / s_r, the bearing
+    row's (-dy, dx) / d^2 / s_b = (0, 1/2) / 0.02, so I = diag(1e4, 625) + the prior's 0.01: the bound
+    is diag(1 / (1e4 + 0.01), 1 / (625 + 0.01)) ~ diag(s_r^2, (d s_b)^2) = diag(1e-4, 1.6e-3) m^2; robot 1's heading is unobserved (stays 100 rad^2)
+    and robot 0 keeps its prior. Without observations the bound is the prior itself.
+    """
+    from coordinator.localization.crlb import crlb_pose_covariances
+
+    poses = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.3]])
+    prior = np.stack([np.eye(3) * 1e-10, np.eye(3) * 100.0])
+    cov = crlb_pose_covariances(poses, prior, np.array([0]), np.array([1]), SENSING)
+    np.testing.assert_allclose(np.diag(cov[1]), [1 / (1e4 + 0.01), 1 / (625 + 0.01), 100.0], rtol=1e-6)
+    np.testing.assert_allclose(np.diag(cov[0]), [1e-10] * 3, rtol=1e-5)
+    alone = crlb_pose_covariances(poses, prior, np.array([], dtype=int), np.array([], dtype=int), SENSING)
+    np.testing.assert_allclose(alone, prior, rtol=1e-9)
