@@ -352,4 +352,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # Leave without interpreter finalization: a Zenoh thread still delivering a late sample
+    # (a closed session does not wait for it) would re-enter Python while the interpreter
+    # finalizes; CPython 3.11 then pthread_exit()s that Rust thread, whose unwinder aborts
+    # the process ("FATAL: exception not rethrown", signal 6). Sessions and the recording are
+    # closed by now; only the standard streams need flushing.
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)

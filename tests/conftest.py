@@ -1,4 +1,12 @@
-"""Shared fixtures: noise-free and default model configurations."""
+"""Shared fixtures (noise-free and default model configurations) and the ``slow`` marker.
+
+``python -m pytest -m "not slow"`` is the quick subset: the maths, the codecs and tests that stay in
+one process. A test is ``slow`` when it starts a process, a Zenoh session or a pty, or runs a
+study: every test of a module in ``SLOW_MODULES``, and the single tests named in ``SLOW_TESTS``
+(modules that mix both kinds). Marking happens here, so test files need no decorators; a new
+test that starts processes or sessions belongs in a listed module or in ``SLOW_TESTS``.
+``python -m pytest`` still runs everything.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +19,37 @@ from runtime.config import ModelConfig
 # (a busy 2-core machine can stall any draw for a second).
 settings.register_profile("behaviour", deadline=None, suppress_health_check=[HealthCheck.too_slow])
 settings.load_profile("behaviour")
+
+SLOW_MODULES = frozenset({
+    "test_agent",  # agent on a Zenoh hub
+    "test_bench_runtime",  # swarm bench runtime: agent processes
+    "test_cli_localize",  # swarm localize as subprocesses
+    "test_cli_sim",  # swarm sim / compare as subprocesses
+    "test_deploy",  # routers, TLS, access control
+    "test_distributed",  # agents + coordinator processes
+    "test_emulator",  # robot emulators on ptys
+    "test_gateway",  # gateway links and agents on ptys
+    "test_replay",  # swarm replay subprocesses and sessions
+    "test_study_anchors",  # studies
+    "test_transport",  # Zenoh sessions and child processes
+})
+SLOW_TESTS = frozenset({
+    "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process
+    "test_recording.py::test_cli_info_recover_and_errors",  # subprocess
+    "test_recording.py::test_record_run_over_zenoh",  # Zenoh session
+    "test_foxglove.py::test_live_view_serves_a_websocket",  # websocket server
+    "test_foxglove.py::test_demo_serves_the_live_view_while_it_runs",  # swarm launch
+    "test_selection.py::test_weights_move_the_choice_towards_speed_or_accuracy",  # two full selections
+})
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark the tests that start processes, sessions or ptys (module docstring) as ``slow``."""
+    for item in items:
+        module = item.path.stem
+        name = f"{item.path.name}::{item.originalname}"
+        if module in SLOW_MODULES or name in SLOW_TESTS:
+            item.add_marker(pytest.mark.slow)
 
 
 @pytest.fixture

@@ -78,12 +78,28 @@ def test_missing_file_is_a_clear_error(tmp_path):
 
 
 def test_bench_localize_json_contract():
-    out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--json")
+    """The errors it prints are those of the same random steps localized here (seed + trial), to its 4 digits."""
+    import math
+
+    import numpy as np
+
+    from coordinator.localization import make_localizer
+    from runtime.config import ModelConfig
+    from runtime.scenarios import random_step
+    from swarm_cli.bench_localize import SPACING_M
+
+    out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--seed", "3", "--json")
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert [r["n"] for r in doc["results"]] == [10, 30]
     for r in doc["results"]:
-        assert r["ms_median"] > 0 and r["err_over_crlb"] > 0
+        case = random_step(r["n"], ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3)
+        for name in ("paper", "joint"):
+            est = make_localizer(name, ModelConfig()).localize(case.prior, case.step, case.observations)
+            rms = math.sqrt(float(np.mean(np.sum((est.positions - case.true_after[:, :2]) ** 2, axis=1))))
+            assert r[name]["err_rms_m"] == pytest.approx(rms, rel=1e-3), name
+            assert r[name]["err_over_crlb"] == pytest.approx(r[name]["err_rms_m"] / r["crlb_rms_m"], rel=2e-3), name
+        assert r["ms_median"] == r["paper"]["ms_median"] > 0 and r["err_over_crlb"] == r["paper"]["err_over_crlb"]
         assert r["joint"]["err_over_crlb"] < r["paper"]["err_over_crlb"]
 
 

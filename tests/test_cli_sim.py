@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -18,7 +20,13 @@ def test_sim_writes_plots_csv_and_json(tmp_path):
     out = swarm("sim", "--robots", "6", "--configs", "2", "--samples", "4", "--generations", "2", "--out", str(tmp_path), "--json")
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
-    assert doc["method"] == "inchworm" and len(doc["configs"]) == 2 and doc["pf"] > 0
+    rows = doc["configs"]
+    assert doc["method"] == "inchworm" and [r["config"] for r in rows] == [1, 2]
+    # P_f (Eq. 24) = final following error / average total motion (Eq. 25), both in its own table
+    assert doc["pf"] == pytest.approx(rows[-1]["following_error"] / rows[-1]["travelled"], rel=1e-12)
+    assert 0 < rows[0]["travelled"] < rows[1]["travelled"]  # partial sums of Eq. 25
+    for r in rows:
+        assert r["n_a"] in (0, 3, 4, 5) and r["steps"] == 6 // (6 - r["n_a"])  # Eq. 7 for 6 robots
     for name in ("trajectory.png", "errors.png", "configs.csv"):
         assert (tmp_path / name).stat().st_size > 0
 

@@ -13,6 +13,7 @@ import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from pathlib import Path
 
 import msgpack
@@ -62,6 +63,7 @@ class Run:
         self.stderr: list[str] = []
         self.stdout: list[str] = []
         self._readers: list[threading.Thread] = []
+        self._news = threading.Condition()  # notified on every coordinator output line and every message heard
         self.session = None
         self.out = out
         self.heard: list[tuple[str, bytes]] = []  # what the coordinator published on coord/* and robot/*/cmd
@@ -71,7 +73,7 @@ class Run:
     def start(self) -> None:
         self.session = open_session(self.hub_settings)
         for key_expr in (coord_key(self.run_id, "plan"), coord_key(self.run_id, "estimate"), robot_wildcard(self.run_id, "cmd")):
-            subscribe(self.session, key_expr, lambda key, payload: self.heard.append((key, payload)))
+            subscribe(self.session, key_expr, self._hear)
         ids = ",".join(str(int(i)) for i in self.traj.ids)
         common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}"]
         for robot, pose in zip(self.traj.ids, self.traj.initial_poses):
@@ -88,8 +90,32 @@ class Run:
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV,
         )
         for stream, lines in ((self.coordinator.stdout, self.stdout), (self.coordinator.stderr, self.stderr)):
-            self._readers.append(threading.Thread(target=lambda s=stream, l=lines: l.extend(s), daemon=True))
+            self._readers.append(threading.Thread(target=self._read, args=(stream, lines), daemon=True))
             self._readers[-1].start()
+
+    def _hear(self, key: str, payload: bytes) -> None:
+        with self._news:
+            self.heard.append((key, payload))
+            self._news.notify_all()
+
+    def _read(self, stream, lines: list[str]) -> None:
+        for line in stream:
+            with self._news:
+                lines.append(line)
+                self._news.notify_all()
+        with self._news:  # EOF: the coordinator is gone
+            self._news.notify_all()
+
+    def _wait(self, what: str, done: Callable[[], bool], timeout_s: float) -> None:
+        """Until ``done()`` holds, woken by each new output line or message; fails if the coordinator exits first."""
+        deadline = time.monotonic() + timeout_s
+        with self._news:
+            while not done():
+                if self.coordinator.poll() is not None and not any(r.is_alive() for r in self._readers):
+                    raise AssertionError(f"coordinator exited before {what}: {''.join(self.stderr)}")
+                left = deadline - time.monotonic()
+                assert left > 0, f"no {what} within {timeout_s} s: {''.join(self.stderr)}"
+                self._news.wait(min(left, 1.0))
 
     def finish(self, timeout_s: float) -> str:
         """The coordinator's stdout once it exited."""
@@ -99,11 +125,12 @@ class Run:
         return "".join(self.stdout)
 
     def wait_stderr(self, text: str, timeout_s: float) -> None:
-        deadline = time.monotonic() + timeout_s
-        while not any(text in line for line in self.stderr):
-            assert self.coordinator.poll() is None, f"coordinator exited: {''.join(self.stderr)}"
-            assert time.monotonic() < deadline, f"no {text!r} from the coordinator: {''.join(self.stderr)}"
-            time.sleep(0.02)
+        """Until the coordinator printed ``text`` on stderr (a readiness message)."""
+        self._wait(repr(text), lambda: any(text in line for line in self.stderr), timeout_s)
+
+    def wait_heard(self, what: str, predicate: Callable[[str, bytes], bool], timeout_s: float) -> None:
+        """Until our subscriber heard a coordinator message satisfying ``predicate(key, payload)``."""
+        self._wait(what, lambda: any(predicate(k, p) for k, p in list(self.heard)), timeout_s)
 
     def children(self) -> list[subprocess.Popen]:
         return [*self.agents.values(), *([self.coordinator] if self.coordinator else [])]
@@ -240,65 +267,89 @@ def test_coordinator_records_the_run(completed):
         assert [p for k, p in recorded if k == key] == [p for k, p in heard if k == key], key
 
 
-def _wait_for_command(run: Run, timeout_s: float = 30.0) -> None:
+def _wait_for_command(run: Run, timeout_s: float = 60.0) -> None:
     """Until our subscriber heard the coordinator's first MotionCommand (the run is moving)."""
-    deadline = time.monotonic() + timeout_s
-    while not any(key.endswith("/cmd") for key, _ in list(run.heard)):
-        assert run.coordinator.poll() is None, "".join(run.stderr)
-        assert time.monotonic() < deadline, "no command heard"
-        time.sleep(0.01)
+    run.wait_heard("a motion command", lambda key, payload: key.endswith("/cmd"), timeout_s)
 
 
 def _recorded(run: Run) -> list:
     return [decode(p) for _k, p, _t, _pub in read_messages(run.recording) if _k.startswith("swarm/")]
 
 
-def test_killed_agent_is_stopped_dropped_and_the_run_goes_on(tmp_path):
+def _kill_an_agent_mid_run(tmp_path: Path, extra: tuple[str, ...] = ("--on-lost=abort",)) -> Run:
+    """ref57 on 4 robots: once the coordinator has sent the first step's commands, SIGKILL robot 1's agent.
+
+    Returns the finished (stopped) run; the caller asserts on it.
+    """
     traj = random_trajectory(4, 4, np.random.default_rng(1))
-    run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3)
+    run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3, extra=extra)
     try:
         run.start()
-        _wait_for_command(run)
+        run.wait_stderr("agents alive", 60)
+        _wait_for_command(run)  # the run is under way
         run.agents[1].send_signal(signal.SIGKILL)
-        out = run.finish(90)
-        err = "".join(run.stderr)
-        assert run.coordinator.returncode == 0, err
-        assert "robot 1 lost (liveliness token gone): emergency stop sent" in err
-        assert "lost robot 1 after step" in out and "over the 3 robots that finished" in out
-        result = json.loads(run.result_file.read_text())
-        assert [r["robot"] for r in result["lost"]] == [1]
-        assert result["steps"][-1]["ids"] == [0, 2, 3]
-        msgs = _recorded(run)
-        event = next(i for i, m in enumerate(msgs) if type(m).__name__ == "RobotEvent")
-        assert (msgs[event].robot, msgs[event].kind) == (1, "lost")
-        stops = [m for m in msgs if type(m).__name__ == "EmergencyStop"]
-        assert [list(m.robots) for m in stops] == [[1]]  # only the lost robot was stopped; the run ended normally
-        assert not any(isinstance(m, MotionCommand) and m.robot == 1 for m in msgs[event:])  # never commanded again
-        info = recording_info(run.recording)
-        assert info["complete"] and info["metadata"]["recorder"]["clean_stop"]
+        run.coordinator.wait(timeout=90)
+        run.finish(10)
     finally:
         run.stop()
+    return run
+
+
+def test_killed_agent_is_stopped_dropped_and_the_run_goes_on(tmp_path):
+    run = _kill_an_agent_mid_run(tmp_path, extra=())
+    out, err = "".join(run.stdout), "".join(run.stderr)
+    assert run.coordinator.returncode == 0, err
+    assert "robot 1 lost (liveliness token gone): emergency stop sent" in err
+    assert "lost robot 1 after step" in out and "over the 3 robots that finished" in out
+    result = json.loads(run.result_file.read_text())
+    assert [r["robot"] for r in result["lost"]] == [1]
+    assert result["steps"][-1]["ids"] == [0, 2, 3]
+    msgs = _recorded(run)
+    event = next(i for i, m in enumerate(msgs) if type(m).__name__ == "RobotEvent")
+    assert (msgs[event].robot, msgs[event].kind) == (1, "lost")
+    stops = [m for m in msgs if type(m).__name__ == "EmergencyStop"]
+    assert [list(m.robots) for m in stops] == [[1]]  # only the lost robot was stopped; the run ended normally
+    assert not any(isinstance(m, MotionCommand) and m.robot == 1 for m in msgs[event:])  # never commanded again
+    info = recording_info(run.recording)
+    assert info["complete"] and info["metadata"]["recorder"]["clean_stop"]
+    assert all(p.returncode is not None for p in run.children())
+    assert _alive_with(run.run_id) == []
+
+
+def _assert_lost_cleanly(run: Run) -> None:
+    """``--on-lost abort``: exit 3 naming the robot, the lost robot's stop and the run-wide stop, a finished recording."""
+    err = "".join(run.stderr)
+    assert run.coordinator.returncode == 3, f"exit status {run.coordinator.returncode}: {err}"
+    assert "lost robot 1 (liveliness token gone); --on-lost abort ends the run" in err
+    assert not run.result_file.exists()  # the run did not complete
+    # the failed run's recording is finished and names its path
+    assert f"recorded {run.recording}: " in "".join(run.stdout)
+    info = recording_info(run.recording)
+    assert info["complete"] and info["metadata"]["recorder"]["clean_stop"] and info["messages"] > 0
+    plans = [c["messages"] for c in info["channels"] if c["topic"] == coord_key(run.run_id, "plan")]
+    assert plans and 1 <= plans[0] < 8  # ref57: 4 configurations x 2 steps would be 8 plans; it stopped early
+    stops = [m for m in _recorded(run) if type(m).__name__ == "EmergencyStop"]
+    assert sorted(list(m.robots) for m in stops) == [[], [1]]  # the lost robot at once, and the whole run at the abort
     assert all(p.returncode is not None for p in run.children())
     assert _alive_with(run.run_id) == []
 
 
 def test_on_lost_abort_ends_the_run_and_stops_every_robot(tmp_path):
-    traj = random_trajectory(4, 4, np.random.default_rng(1))
-    run = Run(tmp_path, traj, "ref57", 1, motion_time=0.3, extra=("--on-lost=abort",))
-    try:
-        run.start()
-        _wait_for_command(run)
-        run.agents[2].send_signal(signal.SIGKILL)
-        run.finish(60)
-        err = "".join(run.stderr)
-        assert run.coordinator.returncode == 3, err
-        assert "lost robot 2 (liveliness token gone); --on-lost abort ends the run" in err
-        stops = [m for m in _recorded(run) if type(m).__name__ == "EmergencyStop"]
-        assert sorted(list(m.robots) for m in stops) == [[], [2]]  # the lost robot at once, and the whole run at the abort
-        assert f"recorded {run.recording}: " in "".join(run.stdout)
-    finally:
-        run.stop()
-    assert _alive_with(run.run_id) == []
+    _assert_lost_cleanly(_kill_an_agent_mid_run(tmp_path))
+
+
+def test_lost_agent_exit_path_twenty_times(tmp_path):
+    """The lost-agent exit path (``--on-lost abort``), repeated: the coordinator must exit with status 3 every time.
+
+    It once died with signal 6 ("FATAL: exception not rethrown") right after "robot 1 lost":
+    a Zenoh thread entering Python while the interpreter was finalizing (see
+    swarm_cli/coordinator_cmd.py, ``__main__``).
+    """
+    for k in range(20):
+        (tmp_path / f"run{k}").mkdir()
+        run = _kill_an_agent_mid_run(tmp_path / f"run{k}")
+        assert run.coordinator.returncode != -signal.SIGABRT, f"run {k}: coordinator aborted: {''.join(run.stderr)}"
+        _assert_lost_cleanly(run)
 
 
 def _garbage(run: Run) -> list[tuple[str, bytes]]:

@@ -28,13 +28,37 @@ def test_end_to_end_is_bounded_and_bit_for_bit_reproducible(traj):
     a = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=3)
     b = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=3)
     assert len(a.configs) == 3
-    assert np.all(a.localization_errors() < 0.05)
+    # e_l (Eq. 8) and P_f (Eq. 24, 25) from the recorded truths and estimates, written out here
+    truths = np.array([a.initial_truth[:, :2], *[c.truth[:, :2] for c in a.configs]])
+    estimates = np.array([c.estimate.poses[:, :2] for c in a.configs])
+    np.testing.assert_allclose(a.localization_errors(), np.linalg.norm(truths[1:] - estimates, axis=-1).mean(axis=1), rtol=1e-12)
+    m_bar = sum(np.linalg.norm(truths[j] - truths[j - 1], axis=1).mean() for j in range(1, 4))
+    final_error = np.linalg.norm(truths[-1] - traj.configurations[2], axis=1).mean()
+    assert a.pf() == pytest.approx(final_error / m_bar, rel=1e-12)
     for sa, sb in zip(a.steps, b.steps):
         np.testing.assert_array_equal(sa.estimate.poses, sb.estimate.poses)
         np.testing.assert_array_equal(sa.truth, sb.truth)
-    assert a.pf() == b.pf() and 0 < a.pf() < 0.5
+    assert a.pf() == b.pf()
     c = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=4)
     assert c.pf() != a.pf()
+
+
+@pytest.mark.parametrize("method", ["ref57", "inchworm"])
+def test_noise_free_run_reaches_every_configuration_exactly(traj, method):
+    """No motion or sensing noise and an exact start: every command lands, every estimate is the truth.
+
+    So e_l = 0 and the following error is 0 after each configuration, P_f = 0, and the
+    average total motion (Eq. 25) is that of the desired configurations themselves:
+    sum_j mean_i |C_j,i - C_j-1,i| with C_0 the initial positions.
+    """
+    exact = ModelConfig(turn_sigma_rad=0.0, drive_sigma_frac=0.0, range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    run = simulate(traj, method, exact, selection=FAST, seed=5, initial_delta=0.0, initial_heading_sigma=0.0)
+    np.testing.assert_allclose(run.localization_errors(), 0.0, atol=1e-9)
+    np.testing.assert_allclose(run.following_errors(), 0.0, atol=1e-9)
+    assert run.pf() == pytest.approx(0.0, abs=1e-9)
+    desired = np.array([traj.initial_poses[:, :2], *traj.configurations[:3]])
+    expected = np.cumsum([np.linalg.norm(desired[j] - desired[j - 1], axis=1).mean() for j in range(1, 4)])
+    np.testing.assert_allclose(run.travelled(), expected, rtol=1e-9)
 
 
 @pytest.mark.parametrize(

@@ -205,9 +205,19 @@ def test_bench_record_prints_json(capsys):
     rows = out["results"]
     assert [(r["robots"], r["derived"]) for r in rows] == [(4, False), (4, True), (6, False), (6, True)]
     assert [r["step_ms"] for r in rows] == [20, 20, 100, 100]
+    # messages per step, from the step it builds: per mover (half the robots) a command and two
+    # statuses, per robot an observe request, a truth and an observation report, one truth set, one
+    # estimate; one plan in the first of every 4 steps. N = 4: (2 x 3 + 4 x 3 + 2) x 3 + 1 = 61 over
+    # 3 steps = 20.3; N = 6: (3 x 3 + 6 x 3 + 2) x 3 + 1 = 88 -> 29.3.
+    assert [r["msgs_per_step"] for r in rows] == [20.3, 20.3, 29.3, 29.3]
+    for plain, derived in (rows[0:2], rows[2:4]):
+        assert plain["payload_mb"] == derived["payload_mb"] > 0  # the same raw messages in both modes
+        assert plain["derived_msgs"] == 0 < derived["derived_msgs"]
+        assert derived["file_mb"] > plain["file_mb"]  # the derived channels are in the file
     for r in rows:
-        assert r["msgs_per_s"] > 0 and r["mb_per_s"] > 0 and r["overhead_pct"] > 0
-        assert (r["derived_msgs"] > 0) == r["derived"]
+        assert r["overhead_pct"] == pytest.approx(100 * r["record_ms_per_step"] / r["step_ms"], rel=0.01, abs=0.01)
+        assert r["record_ms_per_step"] == pytest.approx(r["cpu_us_per_msg"] * r["msgs_per_step"] / 1e3, rel=0.01, abs=1e-3)
+        assert r["msgs_per_s"] > 0 and r["mb_per_s"] >= 0
 
 
 def test_demo_serves_the_live_view_while_it_runs(tmp_path):

@@ -73,6 +73,22 @@ def test_execute_command_is_a_pure_function_of_state_command_and_rng(cfg):
     np.testing.assert_array_equal(one, two)
 
 
+def test_execute_command_known_answer():
+    """Turn-then-drive with the robot's two standard normal draws z_t, z_d (turn first, then drive).
+
+    Pose (1, 2, 0.2), command (turn 0.1, drive 0.2) with s_t = 0.05 rad, s_d = 0.1:
+    heading h = 0.2 + 0.1 + 0.05 z_t, distance 0.2 (1 + 0.1 z_d),
+    pose (1 + d cos h, 2 + d sin h, h), written out here from the same generator's draws.
+    """
+    cfg = ModelConfig(turn_sigma_rad=0.05, drive_sigma_frac=0.1)
+    z_t, z_d = np.random.Generator(np.random.PCG64(np.random.SeedSequence(1, spawn_key=(0, int(Stream.MOTION))))).normal(size=2)
+    h = 0.3 + 0.05 * z_t
+    d = 0.2 * (1 + 0.1 * z_d)
+    got = execute_command(np.array([1.0, 2.0, 0.2]), np.array([0.1, 0.2]), cfg, robot_rng(1, 0, Stream.MOTION))
+    np.testing.assert_allclose(got, [1.0 + d * math.cos(h), 2.0 + d * math.sin(h), h], rtol=0, atol=1e-15)
+    assert z_t != 0 and z_d != 0 and not np.allclose(got, apply_motion(np.array([1.0, 2.0, 0.2]), np.array([0.1, 0.2])))
+
+
 def test_measure_known_answer_and_wrap():
     rng, brg = measure(np.array([0.0, 0.0, math.pi - 0.1]), np.array([-1.0, -0.2]))
     assert rng == pytest.approx(math.hypot(1.0, 0.2))

@@ -80,6 +80,19 @@ def test_selection_is_reproducible_from_its_seed():
     assert a.scores[0].p_l == 1.0 and a.scores[0].p_v == 1.0  # n_a = 0 defines e_l,max and v_max
 
 
+def test_heuristic_only_selection_known_answer():
+    """One anchor count and no refinement: the plan is exactly the heuristic plan of Eq. 11-13, found with
+    two Monte Carlo evaluations (e_l,max with no anchors, then the heuristic plan), and its scores follow
+    Eq. 1-3 (n_r = 6, n_a = 3: n_s = 2, P_v = 1/2; P_s = 0.5 x 1/2 - 0.5 x e_l / e_l(0))."""
+    estimate, desired = step_problem(6, 3)
+    config = SelectionConfig(samples=4, anchor_counts=(3,), refine=0)
+    selection = AnchorSelector(ModelConfig(), "paper", config, seed=5).select(estimate, desired)
+    assert selection.plan.key() == heuristic_plan(estimate.positions, desired, 3).key()
+    assert selection.evaluations == 2 and [s.n_anchors for s in selection.scores] == [3]
+    (score,) = selection.scores
+    assert score.p_v == 0.5 and score.p_s == pytest.approx(0.25 - 0.5 * score.p_l, abs=1e-15) and score.p_l > 0
+
+
 def test_weights_move_the_choice_towards_speed_or_accuracy():
     estimate, desired = step_problem(6, 4)
     budget = dict(samples=4, genetic=GeneticConfig(population=6, generations=2))
