@@ -7,6 +7,7 @@ import json
 import math
 
 from coordinator.selection.genetic import GeneticConfig
+from coordinator.selection.selector import METHODS as SELECTION_METHODS
 from coordinator.selection.selector import SelectionConfig
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
@@ -57,6 +58,8 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--samples", type=int, default=16, help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
     g.add_argument("--population", type=int, default=12, help="genetic population (default 12)")
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
+    g.add_argument("--selection", choices=SELECTION_METHODS, default=SelectionConfig.method,
+                   help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
@@ -69,6 +72,7 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         w_l=1.0 - args.w_v,
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
+        method=args.selection,
     )
 
 
