@@ -96,6 +96,8 @@ class CountScore:
     p_l: float
     p_s: float
     plan: Plan | None
+    seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
+    searched: bool = False  # the inner loop ran for this count (else: the heuristic plan, screened)
 
 
 @dataclass(frozen=True)
@@ -103,6 +105,7 @@ class Selection:
     plan: Plan
     scores: list[CountScore]
     evaluations: int
+    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its samples: ``samples_for(final_samples)``)
 
     @property
     def n_anchors(self) -> int:
@@ -150,10 +153,10 @@ class AnchorSelector:
             def evaluate(plans: list[Plan]) -> np.ndarray:
                 return sampled(plans, samples, screen_seed)
 
-        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float) -> CountScore:
+        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False) -> CountScore:
             p_v = speed_performance(n, n_a)
             p_l = e_l / e_max if e_max > 0 else 0.0
-            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan)
+            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched)
 
         all_move = Plan.equal(np.arange(n), 0)
         e_max = float(evaluate([all_move])[0])  # e_l,max = e_l(0) (Section 4.1.1)
@@ -167,7 +170,8 @@ class AnchorSelector:
             elif n_a == 0:
                 scores[n_a] = score(n_a, all_move, e_max, e_max)
             else:
-                scores[n_a] = score(n_a, seeds[n_a], float(evaluate([seeds[n_a]])[0]), e_max)
+                e_seed = float(evaluate([seeds[n_a]])[0])
+                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed)
                 evaluations += 1
         bar = max((s.p_s for s in scores.values() if s.plan is not None), default=-np.inf)
         searched = [k for k in scores if k != 0 and self._could_win(scores[k], bar)]  # 2. bound
@@ -179,18 +183,18 @@ class AnchorSelector:
             evaluations += k
             if plan is None:
                 continue
-            if sel.method == "crlb":
-                scores[n_a] = score(n_a, plan, e_l, e_max)  # elitism: never above the seed's prediction
+            if sel.method == "crlb":  # elitism: never above the seed's prediction
+                scores[n_a] = score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True)
                 continue
             champion, spent = race(best_distinct(known, sel.contenders), sampled, samples, rng)
             if e_max_final is None:
                 e_max_final = float(sampled([all_move], final_samples, final_seed)[0])
             if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
-                kept, e_fresh = champion, float(sampled([champion], final_samples, final_seed)[0])
+                kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
             else:
-                kept, e_fresh, _ = final_check(champion, seeds[n_a], sampled, final_samples, final_seed)
+                kept, e_fresh, e_seed = final_check(champion, seeds[n_a], sampled, final_samples, final_seed)
             evaluations += spent + 2
-            scores[n_a] = score(n_a, kept, e_fresh, e_max_final)
+            scores[n_a] = score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
@@ -198,7 +202,7 @@ class AnchorSelector:
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
             )
-        return Selection(best.plan, ordered, evaluations)
+        return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
 
     def _could_win(self, entry: CountScore, bar: float) -> bool:
         """Whether the inner loop could lift this count's P_s to ``bar``: e_l lowered by ``prune_gain``
