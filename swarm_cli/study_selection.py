@@ -36,7 +36,7 @@ from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, speed_pe
 from coordinator.selection.genetic import genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.selector import AnchorSelector, SelectionConfig, samples_for
+from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, SelectionConfig, samples_for
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
@@ -110,7 +110,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
         forced = AnchorSelector(job.cfg, job.localizer, replace(selection, anchor_counts=(n_a,)), seed=job.experiment)
         try:
             searched = forced.select(estimate, desired).plan
-        except Exception:  # no feasible plan at this count
+        except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
         screen_samples = samples_for(selection.samples, n)
         screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)))
