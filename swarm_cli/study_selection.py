@@ -162,6 +162,12 @@ def summarise(rows: list[dict], robots: int) -> dict:
     return out
 
 
+def write_rows(path: Path, rows: list[dict]) -> Path:
+    """``rows`` as CSV; counts without a feasible plan leave their columns empty."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))
+    return write_csv(path, [{k: r.get(k, "") for k in keys} for r in rows])
+
+
 def run(args: argparse.Namespace) -> int:
     if args.robots < 3 or args.configs < 1 or args.workers < 1:
         raise SwarmInputError("--robots must be >= 3, --configs and --workers >= 1")
@@ -177,6 +183,7 @@ def run(args: argparse.Namespace) -> int:
         for row in pool.map(run_config, jobs):
             rows.append(row)
             progress(len(rows))
+            write_rows(args.out / "configs.csv", rows)  # what is done survives an interrupted study
     summary = summarise(rows, args.robots)
     print(f"swarm study selection: n_r = {args.robots}, {args.configs} configurations, localizer {args.localizer}, "
           f"selection {selection.method}; e_l on {budget.eval} fresh samples / optimum's")
@@ -191,8 +198,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(rows)} (chosen: {[r['chosen_na'] for r in rows]})")
     if summary["reported_over_fresh_median"] is not None:
         print(f"e_l reported by the selection / its fresh e_l: median {summary['reported_over_fresh_median']:.3f}")
-    keys = list(dict.fromkeys(k for r in rows for k in r))
-    path = write_csv(args.out / "configs.csv", [{k: r.get(k, "") for k in keys} for r in rows])
+    path = write_rows(args.out / "configs.csv", rows)
     print(f"wrote {path}")
     if args.json:
         pooled = summary["pooled"]
