@@ -24,6 +24,7 @@ compared with that plan's e_l on the evaluation set (the bias of the reported e_
 from __future__ import annotations
 
 import argparse
+import csv
 import itertools
 import os
 from concurrent.futures import ProcessPoolExecutor
@@ -45,6 +46,7 @@ from swarm_cli.study_anchors import CHUNK, Job, experiment_setup
 from swarm_cli.summary import write_csv
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
+INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees")
 SHORTLIST = 16  # best plans of the screening set re-evaluated to pick the optimum
 
 
@@ -58,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
     p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/study-selection"), help="folder for configs.csv")
+    p.add_argument("--from-csv", type=Path, default=None, help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
     p.set_defaults(run=run)
 
@@ -168,6 +171,17 @@ def write_rows(path: Path, rows: list[dict]) -> Path:
     return write_csv(path, [{k: r.get(k, "") for k in keys} for r in rows])
 
 
+def read_rows(path: Path) -> list[dict]:
+    """The rows ``write_rows`` wrote (numbers back as numbers, empty cells dropped)."""
+    if not path.exists():
+        raise SwarmInputError(f"--from-csv: no such file {path}")
+    with open(path, newline="") as f:
+        rows = [{k: (int(v) if k in INT_COLUMNS else float(v)) for k, v in r.items() if v != ""} for r in csv.DictReader(f)]
+    if not rows:
+        raise SwarmInputError(f"--from-csv: {path} has no rows")
+    return rows
+
+
 def run(args: argparse.Namespace) -> int:
     if args.robots < 3 or args.configs < 1 or args.workers < 1:
         raise SwarmInputError("--robots must be >= 3, --configs and --workers >= 1")
@@ -176,16 +190,19 @@ def run(args: argparse.Namespace) -> int:
     cfg: ModelConfig = model_config(args)
     selection = selection_config(args)
     budget = Budget(args.screen_samples, args.pick_samples, args.eval_samples)
-    jobs = [(Job(c, args.robots, budget.screen, args.seed, cfg, args.localizer), selection, budget) for c in range(args.configs)]
-    progress = Progress(len(jobs), "study selection")
-    rows: list[dict] = []
-    with ProcessPoolExecutor(max_workers=min(args.workers, len(jobs))) as pool:
-        for row in pool.map(run_config, jobs):
-            rows.append(row)
-            progress(len(rows))
-            write_rows(args.out / "configs.csv", rows)  # what is done survives an interrupted study
+    if args.from_csv is not None:
+        rows = read_rows(args.from_csv)
+    else:
+        jobs = [(Job(c, args.robots, budget.screen, args.seed, cfg, args.localizer), selection, budget) for c in range(args.configs)]
+        progress = Progress(len(jobs), "study selection")
+        rows = []
+        with ProcessPoolExecutor(max_workers=min(args.workers, len(jobs))) as pool:
+            for row in pool.map(run_config, jobs):
+                rows.append(row)
+                progress(len(rows))
+                write_rows(args.out / "configs.csv", rows)  # what is done survives an interrupted study
     summary = summarise(rows, args.robots)
-    print(f"swarm study selection: n_r = {args.robots}, {args.configs} configurations, localizer {args.localizer}, "
+    print(f"swarm study selection: n_r = {args.robots}, {len(rows)} configurations, localizer {args.localizer}, "
           f"selection {selection.method}; e_l on {budget.eval} fresh samples / optimum's")
     print(f"{'n_a':>4} {'plan':<10} {'median':>7} {'mean':>7} {'max':>7}")
     for n_a, entry in summary["counts"].items():
@@ -198,8 +215,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(rows)} (chosen: {[r['chosen_na'] for r in rows]})")
     if summary["reported_over_fresh_median"] is not None:
         print(f"e_l reported by the selection / its fresh e_l: median {summary['reported_over_fresh_median']:.3f}")
-    path = write_rows(args.out / "configs.csv", rows)
-    print(f"wrote {path}")
+    if args.from_csv is None:
+        print(f"wrote {write_rows(args.out / 'configs.csv', rows)}")
     if args.json:
         pooled = summary["pooled"]
         print_json({
