@@ -35,7 +35,9 @@ def test_study_selection_json_contract(tmp_path):
     assert last["configs"] == 2 and 0 <= last["na_agrees"] <= 2
     # the optimum is picked on other samples than the ratios are computed on: ratios near 1, possibly below
     assert 0.8 < last["ga_over_optimum_median"] <= last["ga_over_optimum_max"] < 1.5
-    assert (tmp_path / "configs.csv").exists()
+    again = swarm("study", "selection", "--robots", "6", "--from-csv", str(tmp_path / "configs.csv"), "--json")
+    assert again.returncode == 0, again.stderr
+    assert json.loads(again.stdout.strip().splitlines()[-1]) == last  # the CSV keeps everything the summary needs
 
 
 def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
