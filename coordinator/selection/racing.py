@@ -8,10 +8,11 @@ biased low (the minimum of noisy estimates). Two steps remove that:
   blocks (common random numbers within a block, the budget doubling each round),
   keeping the better half by the mean over every block seen so far;
 * ``final_check``: the race's winner and the search's seed (the heuristic plan,
-  Eq. 11-13) re-evaluated on one more fresh set; the better of the two is kept with
-  that fresh e_l, so the selection never does worse than its seed on those samples
-  and P_s (Eq. 3) is computed from an e_l that took no part in choosing the plan
-  among the search's candidates.
+  Eq. 11-13) re-evaluated on one more fresh set; the winner replaces the seed only if
+  it is better there by more than ``margin`` standard errors of the paired per-sample
+  difference (a one-sided paired test), so the selection never does worse than its
+  seed on those samples and rarely on others; P_s (Eq. 3) is computed from the kept
+  plan's e_l on that set, which took no part in choosing among the search's candidates.
 """
 
 from __future__ import annotations
@@ -23,6 +24,8 @@ import numpy as np
 from coordinator.plan import Plan
 
 Evaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan
+SampleEvaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan and sample
+MARGIN = 1.0  # standard errors by which a challenger must beat the seed in the final check
 
 
 def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Generator) -> tuple[Plan, int]:
@@ -46,13 +49,21 @@ def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Ge
     return plans[alive[0]], spent
 
 
-def final_check(champion: Plan, seed: Plan, evaluate: Evaluator, samples: int, fresh: int) -> tuple[Plan, float, float]:
-    """(kept plan, its e_l, the seed's e_l) on the fresh set of ``samples`` drawn from seed ``fresh``; the seed wins ties."""
+def final_check(champion: Plan, seed: Plan, evaluate: SampleEvaluator, samples: int, fresh: int,
+                margin: float = MARGIN) -> tuple[Plan, float, float]:
+    """(kept plan, its e_l, the seed's e_l) on the fresh set of ``samples`` drawn from seed ``fresh``.
+
+    The champion is kept only if its mean e_l is below the seed's by more than ``margin``
+    standard errors of the per-sample difference (common random numbers pair the samples).
+    """
     if champion.key() == seed.key():
-        e_seed = float(evaluate([seed], samples, fresh)[0])
+        e_seed = float(evaluate([seed], samples, fresh)[0].mean())
         return seed, e_seed, e_seed
-    e_champion, e_seed = (float(v) for v in evaluate([champion, seed], samples, fresh))
-    return (champion, e_champion, e_seed) if e_champion < e_seed else (seed, e_seed, e_seed)
+    each = evaluate([champion, seed], samples, fresh)
+    diff = each[0] - each[1]
+    e_champion, e_seed = float(each[0].mean()), float(each[1].mean())
+    se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
+    return (champion, e_champion, e_seed) if diff.mean() + margin * se < 0 else (seed, e_seed, e_seed)
 
 
 def best_distinct(cache: dict[tuple, float], count: int) -> list[Plan]:

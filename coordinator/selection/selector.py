@@ -16,9 +16,10 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 3. Inner loop of every surviving count: the genetic search on the screening samples,
    then a race (successive halving on fresh samples) among its ``contenders`` best
    distinct plans, then the race winner and the heuristic seed on one more fresh set
-   (``samples_for(final_samples)``): the better is kept with that fresh e_l, and P_l is
-   taken against e_l(0) on the same fresh set. So the search never returns a plan that
-   is worse than its seed on those samples, and P_s is not biased by the search.
+   (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
+   more than one standard error of the paired difference; the kept plan's fresh e_l and
+   e_l(0) on the same set give P_l. So the search never returns a plan that is worse
+   than its seed on those samples, and P_s is not biased by the search.
 
 ``method = "crlb"`` ranks plans by the Cramer-Rao prediction of ``crlb_rank`` instead
 (deterministic, no sampling, so no race and no final check).
@@ -145,6 +146,9 @@ class AnchorSelector:
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans)
 
+        def each_sample(plans: list[Plan], count: int, seed: int) -> np.ndarray:
+            return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans, per_sample=True)
+
         screen_seed = int(rng.integers(2**63))
         if sel.method == "crlb":
             def evaluate(plans: list[Plan]) -> np.ndarray:
@@ -192,7 +196,7 @@ class AnchorSelector:
             if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
                 kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
             else:
-                kept, e_fresh, e_seed = final_check(champion, seeds[n_a], sampled, final_samples, final_seed)
+                kept, e_fresh, e_seed = final_check(champion, seeds[n_a], each_sample, final_samples, final_seed)
             evaluations += spent + 2
             scores[n_a] = score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True)
         ordered = [scores[k] for k in sorted(scores)]
