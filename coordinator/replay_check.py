@@ -138,7 +138,7 @@ def recorded_model(rec: RecordedRun, overrides: dict[str, float] | None = None) 
 
 def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None) -> SelectionConfig:
     """The run's ``SelectionConfig`` from the metadata (defaults where absent), with ``overrides``
-    (``w_v`` (w_l = 1 - w_v), ``samples``, ``population``, ``generations``)."""
+    (``w_v`` (w_l = 1 - w_v), ``samples``, ``population``, ``generations``, ``selection`` (the ranking method))."""
     stored = rec.meta.get("selection") or {}
     stored = dict(stored) if isinstance(stored, dict) else {}
     genetic = GeneticConfig(**stored.pop("genetic", {}) or {})
@@ -151,6 +151,8 @@ def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None
         sel = replace(sel, w_v=o["w_v"], w_l=1.0 - o["w_v"])
     if "samples" in o:
         sel = replace(sel, samples=o["samples"])
+    if "selection" in o:
+        sel = replace(sel, method=o["selection"])
     if "population" in o or "generations" in o:
         sel = replace(sel, genetic=replace(sel.genetic, population=o.get("population", sel.genetic.population),
                                            generations=o.get("generations", sel.genetic.generations)))

@@ -4,13 +4,18 @@ Each trajectory is run by every method with the same seed, so the robots' noise
 streams are shared and the comparison is paired. P_f (Eq. 24) per run; per method the
 mean, standard deviation and a 97 % confidence interval of the mean (Table II), the
 p-value of the paired t-test against ``ref57``, the mean anchor count and the mean
-number of steps per configuration (speed). Runs are spread over the machine's cores.
+number of steps per configuration (speed), and the CPU seconds per run. With
+``--selections mc,crlb`` the methods that select anchors online run once per ranking
+(Monte Carlo e_l or the Cramer-Rao prediction) and are reported as ``method/mc`` and
+``method/crlb``. Runs are spread over the machine's cores.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import time
+from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -22,7 +27,7 @@ from coordinator.strategies import METHODS
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_simulation_options, model_config, positive_int, print_json, selection_config
+from swarm_cli.options import SELECTION_METHODS, add_simulation_options, model_config, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress
 
 if TYPE_CHECKING:  # scipy and matplotlib are imported where used, not to build the parser
@@ -39,6 +44,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--configs", type=int, default=8, help="configurations per trajectory n_d (default 8; the paper: 100)")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated methods (default: all: {','.join(METHODS)})")
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
+    p.add_argument("--selections", default=None,
+                   help="comma-separated anchor rankings to compare for the searching methods, e.g. mc,crlb (default: --selection)")
     p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
     add_simulation_options(p)
@@ -53,16 +60,29 @@ def parse_methods(text: str) -> list[str]:
     return methods
 
 
-def run_one(job: tuple[int, str, int, int, int, ModelConfig, str, SelectionConfig]) -> dict:
+SEARCHING = ("inchworm", "inchworm-equal-speed")  # methods that rank anchor plans (``--selections``)
+
+
+def parse_selections(text: str) -> list[str]:
+    rankings = [r.strip() for r in text.split(",") if r.strip()]
+    if not rankings or any(r not in SELECTION_METHODS for r in rankings):
+        raise SwarmInputError(f"--selections must list {' and/or '.join(SELECTION_METHODS)}, got {text!r}")
+    return list(dict.fromkeys(rankings))
+
+
+def run_one(job: tuple) -> dict:
     """One (trajectory, method) run; a top-level function so worker processes can import it."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
-    t, method, robots, configs, seed, cfg, localizer, selection = job
+    t, method, robots, configs, seed, cfg, localizer, selection = job[:8]
+    label = job[8] if len(job) > 8 else method
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
+    cpu = time.process_time()
     result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
     return {
         "trajectory": t,
-        "method": method,
+        "method": label,
+        "cpu_s": time.process_time() - cpu,
         "pf": result.pf(),
         "n_a_mean": float(result.anchor_counts().mean()),
         "steps_mean": float(result.steps_per_config().mean()),
@@ -86,6 +106,7 @@ def summarise(rows: list[dict], methods: list[str]) -> dict:
             "pf_ci97": [float(pf.mean() - half), float(pf.mean() + half)],
             "na_mean": float(np.mean([r["n_a_mean"] for r in by[m]])),
             "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
+            "cpu_s_mean": float(np.mean([r["cpu_s"] for r in by[m]])),
             "runs": len(pf),
         }
     if REFERENCE in by:
@@ -103,7 +124,11 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectories < 1 or args.configs < 1 or args.robots < 2:
         raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
     selection = selection_config(args)
-    jobs = [(t, m, args.robots, args.configs, args.seed, cfg, args.localizer, selection) for t in range(args.trajectories) for m in methods]
+    rankings = parse_selections(args.selections or selection.method)
+    variants = [(m, m, selection) for m in methods if m not in SEARCHING or len(rankings) == 1]
+    variants += [(m, f"{m}/{r}", replace(selection, method=r)) for m in methods if m in SEARCHING and len(rankings) > 1 for r in rankings]
+    methods = [label for _, label, _ in variants]
+    jobs = [(t, m, args.robots, args.configs, args.seed, cfg, args.localizer, sel, label) for t in range(args.trajectories) for m, label, sel in variants]
     progress = Progress(len(jobs), "compare")
     rows = []
     with ProcessPoolExecutor(max_workers=max(1, args.workers)) as pool:
@@ -120,11 +145,11 @@ def run(args: argparse.Namespace) -> int:
     errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])
     title = f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots} (bars: 97 % CI of the mean)"
     png = plot_bars(names, means, errs, "P_f (Eq. 24)", title, args.out / "pf.png")
-    print(f"{'method':<22} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'p vs ref57':>11}")
+    print(f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11}")
     for m in names:
         s = summary["methods"][m]
         p = summary["p_values"].get(m)
-        print(f"{m:<22} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {('-' if p is None else f'{p:.3g}'):>11}")
+        print(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
     if "inchworm-equal-speed" in summary["methods"] and REFERENCE in summary["methods"]:
         a, b = summary["methods"]["inchworm-equal-speed"]["pf_mean"], summary["methods"][REFERENCE]["pf_mean"]
         print(f"equal speed (n_a = n_r/2 for both): inchworm-equal-speed / ref57 = {a / b:.3f} (paper, Table I: 0.0477 / 0.0673 = 0.71)")

@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 
+SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, without importing the search for a parser
+
 if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
     from coordinator.selection.selector import SelectionConfig
     from runtime.transport import ZenohSettings
@@ -112,6 +114,8 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
                    help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
     g.add_argument("--population", type=int, default=12, help="genetic population, at least 2 (default 12)")
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
+    g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
+                   help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
@@ -127,6 +131,7 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         w_l=1.0 - args.w_v,
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
+        method=args.selection,
     )
 
 

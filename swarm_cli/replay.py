@@ -44,7 +44,7 @@ MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
     "sensing_range": ("sensing_range_m", float),
     "dropout": ("dropout_prob", float),
 }
-SELECTION_OPTIONS = ("w_v", "samples", "population", "generations")
+SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection")
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -354,26 +354,30 @@ def test_paper_localizer_end_to_end_known_answer():
 def test_observation_residuals_known_answer():
     """Observer r0 at (0, 0, 0.5), r1 at (3, 4, 0); measured rho 4.9, phi 0.4 with s_r = 0.01, s_b = 0.02.
 
-    Range residual (5 - 4.9) / 0.01 = 10; bearing residual (atan2(4, 3) - 0.5 - 0.4) / 0.02
-    = (0.927295 - 0.9) / 0.02 = 1.36476. Jacobian of the range row w.r.t. r1's (x, y):
+    Range residual (5 - 4.9) / 0.01 = 10; bearing residual (atan2(4, 3) - 0.5 - 0.4) / s_b(4.9)
+    = (0.927295 - 0.9) / s_b(4.9) = 1.36476 / k, where the bearing sigma grows at short range
+    (docs/localization.md): s_b(rho) = s_b sqrt(1 + (3 s_r / rho)^4), k = sqrt(1 + (0.03 / 4.9)^4)
+    = 1 + 7.0e-10 at this range. Jacobian of the range row w.r.t. r1's (x, y):
     (3/5, 4/5) / 0.01 = (60, 80), w.r.t. r0's: (-60, -80); the bearing row w.r.t. r1:
-    (-4/25, 3/25) / 0.02 = (-8, 6), w.r.t. r0's heading: -1/0.02 = -50.
+    (-4/25, 3/25) / 0.02 / k = (-8, 6) / k, w.r.t. r0's heading: -1/0.02 / k = -50 / k.
     """
     poses = np.array([[0.0, 0.0, 0.5], [3.0, 4.0, 0.0]])
     layout = PoseLayout(np.array([True, True]), np.array([True, True]))
     r, (rows, cols, vals) = observation_terms(poses, layout, np.array([0]), np.array([1]), np.array([4.9]), np.array([0.4]), SENSING)
-    np.testing.assert_allclose(r, [10.0, (math.atan2(4, 3) - 0.9) / 0.02], rtol=1e-12)
+    k = math.sqrt(1 + (3 * 0.01 / 4.9) ** 4)
+    np.testing.assert_allclose(r, [10.0, (math.atan2(4, 3) - 0.9) / 0.02 / k], rtol=1e-12)
     dense = np.zeros((2, layout.size))
     np.add.at(dense, (rows, cols), vals)
-    np.testing.assert_allclose(dense, [[-60, -80, 0, 60, 80, 0], [8, -6, -50, -8, 6, 0]], atol=1e-9)
+    np.testing.assert_allclose(dense, [[-60, -80, 0, 60, 80, 0], np.array([8, -6, -50, -8, 6, 0]) / k], atol=1e-9)
 
 
 def test_bearing_residual_is_wrapped():
-    """Observed bearing pi - 0.1 of a robot truly at bearing -pi + 0.1: the residual is -0.2 / s_b, not (2 pi - 0.2) / s_b."""
+    """Observed bearing pi - 0.1 of a robot truly at bearing -pi + 0.1: the residual is 0.2 / s_b(1 m), not
+    (2 pi - 0.2) / s_b(1 m); at 1 m, s_b(rho) = 0.02 sqrt(1 + 0.03^4) (short-range weighting)."""
     poses = np.array([[0.0, 0.0, 0.0], [math.cos(-math.pi + 0.1), math.sin(-math.pi + 0.1), 0.0]])
     layout = PoseLayout(np.array([False, True]), np.array([False, True]))
     r, _ = observation_terms(poses, layout, np.array([0]), np.array([1]), np.array([1.0]), np.array([math.pi - 0.1]), SENSING)
-    np.testing.assert_allclose(r, [0.0, 0.2 / 0.02], atol=1e-9)
+    np.testing.assert_allclose(r, [0.0, 0.2 / (0.02 * math.sqrt(1 + 0.03**4))], atol=1e-9)
 
 
 def test_sqrt_information_whitens_a_known_covariance():
@@ -400,7 +404,7 @@ def test_prior_residuals_wrap_the_heading_and_stack_offsets_rows():
     residual, jac = stack_terms(layout.size, obs_block, (r, triplets))
     np.testing.assert_allclose(residual, [7.0, 8.0, *r])
     assert jac.shape == (5, 3)
-    prior_rows = jac.toarray()[2:]
+    prior_rows = (jac.toarray() if hasattr(jac, "toarray") else np.asarray(jac))[2:]  # dense for small problems
     np.testing.assert_allclose(prior_rows.T @ prior_rows, np.diag([4.0, 1.0, 100.0]), atol=1e-9)
 
 

@@ -80,15 +80,13 @@ def test_selection_is_reproducible_from_its_seed():
     assert a.scores[0].p_l == 1.0 and a.scores[0].p_v == 1.0  # n_a = 0 defines e_l,max and v_max
 
 
-def test_heuristic_only_selection_known_answer():
-    """One anchor count and no refinement: the plan is exactly the heuristic plan of Eq. 11-13, found with
-    two Monte Carlo evaluations (e_l,max with no anchors, then the heuristic plan), and its scores follow
-    Eq. 1-3 (n_r = 6, n_a = 3: n_s = 2, P_v = 1/2; P_s = 0.5 x 1/2 - 0.5 x e_l / e_l(0))."""
+def test_single_count_selection_scores_follow_eq_1_to_3():
+    """One anchor count: its score follows Eq. 1-3 exactly (n_r = 6, n_a = 3: n_s = 2, P_v = 1/2;
+    P_s = 0.5 x 1/2 - 0.5 x e_l / e_l(0)), and the plan chosen partitions the robots into two groups of 3."""
     estimate, desired = step_problem(6, 3)
-    config = SelectionConfig(samples=4, anchor_counts=(3,), refine=0)
+    config = SelectionConfig(samples=4, anchor_counts=(3,))
     selection = AnchorSelector(ModelConfig(), "paper", config, seed=5).select(estimate, desired)
-    assert selection.plan.key() == heuristic_plan(estimate.positions, desired, 3).key()
-    assert selection.evaluations == 2 and [s.n_anchors for s in selection.scores] == [3]
+    assert [s.n_anchors for s in selection.scores] == [3] and selection.plan.sizes == (3, 3)
     (score,) = selection.scores
     assert score.p_v == 0.5 and score.p_s == pytest.approx(0.25 - 0.5 * score.p_l, abs=1e-15) and score.p_l > 0
 
@@ -115,3 +113,100 @@ def test_no_feasible_plan_is_said_clearly():
     desired = np.array([[0, 0], [0.3, 0], [5, 5], [5.3, 5]], float)  # two groups 7 m apart
     with pytest.raises(NoFeasiblePlanError, match="no anchor plan keeps every robot within sensing range"):
         AnchorSelector(ModelConfig(), "paper", SelectionConfig(samples=2), seed=0).select(estimate, desired)
+
+
+# ------------------------------------------------------------------ the search's guarantees (issue 16)
+
+from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
+from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402
+from coordinator.selection.selector import samples_for  # noqa: E402
+
+NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15)  # motion noise x 3: anchors pay
+
+
+@pytest.mark.parametrize("localizer,seed", [("paper", 0), ("joint", 1), ("joint", 2)])
+def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(localizer, seed):
+    estimate, desired = step_problem(8, seed)
+    sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0)  # accuracy only: the count(s) that could win are searched
+    result = AnchorSelector(NOISY_JOINT, localizer, sel, seed=seed).select(estimate, desired)
+    assert result.fresh_seed is not None
+    fresh = MonteCarlo(NOISY_JOINT, localizer, samples_for(sel.final_samples, 8), result.fresh_seed)
+    assert any(entry.searched for entry in result.scores)
+    for entry in result.scores:
+        assert entry.plan is not None and entry.e_l <= entry.seed_e_l
+        if not entry.searched:  # pruned (could not win): its heuristic plan, scored at screening
+            assert entry.plan.key() == heuristic_plan(estimate.positions, desired, entry.n_anchors).key()
+            continue
+        seed_plan = heuristic_plan(estimate.positions, desired, entry.n_anchors)
+        e_plan, e_seed = fresh.localization_errors(estimate, desired, [entry.plan, seed_plan])
+        assert entry.e_l == pytest.approx(e_plan, rel=1e-12)  # the reported e_l is the fresh set's, not the search's
+        assert entry.seed_e_l == pytest.approx(e_seed, rel=1e-12)
+
+
+def test_final_check_keeps_the_seed_unless_the_champion_is_better_on_fresh_samples():
+    a, b = Plan.equal(np.arange(4), 2), Plan.equal(np.array([2, 3, 0, 1]), 2)
+
+    def evaluate(plans, samples, seed):  # per sample; b is better on even seeds, worse on odd ones; seed 4: better only by noise
+        wobble = np.where(np.arange(samples) % 2 == 0, 0.3, -0.3)
+        rows = {a.key(): np.ones(samples), b.key(): np.full(samples, 0.9 if seed % 2 == 0 else 1.1) + (wobble if seed == 4 else 0.0)}
+        return np.stack([rows[p.key()] for p in plans])
+
+    assert final_check(b, a, evaluate, 8, 2)[:2] == (b, pytest.approx(0.9))
+    assert final_check(b, a, evaluate, 8, 3)[:2] == (a, 1.0)
+    assert final_check(b, a, evaluate, 8, 4)[:2] == (a, 1.0)  # 0.1 better on average, but within one standard error
+    assert final_check(a, a, evaluate, 8, 3) == (a, 1.0, 1.0)
+
+
+def test_race_spends_more_samples_on_contenders_and_finds_the_best():
+    plans = [Plan.equal(np.roll(np.arange(6), k), 3) for k in range(1, 5)]
+    truth = {p.key(): 1.0 + 0.05 * k for k, p in enumerate(plans)}
+    seen: list[tuple[int, int]] = []
+
+    def evaluate(ps, samples, seed):
+        seen.append((len(ps), samples))
+        noise = np.random.default_rng(seed).normal(0, 0.1 / math.sqrt(samples), len(ps))
+        return np.array([truth[p.key()] for p in ps]) + noise
+
+    winner, spent = race(plans, evaluate, 64, np.random.default_rng(0))
+    assert winner.key() == plans[0].key()
+    assert seen == [(4, 64), (2, 128)] and spent == 6
+    assert [p.key() for p in best_distinct({p.key(): truth[p.key()] for p in plans}, 2)] == [plans[0].key(), plans[1].key()]
+
+
+@pytest.mark.parametrize("method", ["mc", "crlb"])
+def test_selection_is_deterministic_for_a_seed(method):
+    estimate, desired = step_problem(8, 5)
+    sel = SelectionConfig(method=method)
+    a, b = (AnchorSelector(NOISY_JOINT, "joint", sel, seed=9).select(estimate, desired) for _ in range(2))
+    assert a.plan.key() == b.plan.key()
+    assert [(s.n_anchors, s.e_l, s.seed_e_l, s.searched) for s in a.scores] == [(s.n_anchors, s.e_l, s.seed_e_l, s.searched) for s in b.scores]
+
+
+@pytest.mark.parametrize("n_a,seed", [(3, 0), (4, 1), (4, 3)])
+def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
+    estimate, desired = step_problem(6, seed)
+    plans = [p for p in all_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
+    predicted = predicted_errors(NOISY_JOINT, estimate, desired, plans)
+    chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(method="crlb", anchor_counts=(n_a,)), seed=seed).select(estimate, desired)
+    assert chosen.scores[0].e_l in predicted  # the prediction of one of the feasible plans, not an estimate
+    assert predicted.min() <= chosen.scores[0].e_l <= 1.02 * predicted.min()  # the genetic search gets within 2 %
+
+
+def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
+    estimate, desired = step_problem(6, 2)
+    plans = [p for p in all_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
+    chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(anchor_counts=(3,)), seed=4).select(estimate, desired).plan
+    pick, judge = (MonteCarlo(NOISY_JOINT, "joint", 256, seed=s) for s in (999, 12345))  # independent sets
+    optimum = plans[int(np.argmin(pick.localization_errors(estimate, desired, plans)))]
+    e_chosen, e_optimum = judge.localization_errors(estimate, desired, [chosen, optimum])
+    print(f"chosen / optimum on independent samples: {e_chosen / e_optimum:.4f}")
+    assert e_chosen <= 1.02 * e_optimum
+
+
+def test_counts_that_cannot_win_are_not_searched():
+    estimate, desired = step_problem(8, 6)
+    speed_only = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=1.0, w_l=0.0), seed=1).select(estimate, desired)
+    assert not any(s.searched for s in speed_only.scores)  # P_v alone decides: n_a = 0, screening only
+    assert speed_only.evaluations == len(feasible_anchor_counts(8)) and speed_only.fresh_seed is None
+    accuracy_only = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=0.0, w_l=1.0), seed=1).select(estimate, desired)
+    assert all(s.searched for s in accuracy_only.scores if s.n_anchors > 0)

@@ -106,13 +106,18 @@ def test_command_writes_outputs_and_json_last(tmp_path, capsys):
         (["--robots", "2"], "--robots must be >= 3"),
         (["--experiments", "0"], "--experiments must be >= 1"),
         (["--samples", "0"], "--samples must be >= 1"),
-        (["--workers", "0"], "--workers must be >= 1"),
     ],
 )
 def test_bad_options(argv, message, tmp_path):
     args = parse(["anchors", "--out", str(tmp_path), *argv])
     with pytest.raises(SwarmInputError, match=message):
         args.run(args)
+
+
+def test_zero_workers_is_refused_by_the_parser_naming_the_flag(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        parse(["anchors", "--out", str(tmp_path), "--workers", "0"])
+    assert "argument --workers: must be >= 1, got 0" in capsys.readouterr().err
 
 
 def test_heuristic_beats_random_on_average():

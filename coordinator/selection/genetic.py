@@ -61,12 +61,13 @@ def genetic_search(
     """Best plan found, its e_l, and the number of distinct plans newly evaluated.
 
     ``evaluate`` maps plans to e_l (lower is better); infeasible plans get e_l = inf.
-    ``known`` holds e_l already computed on the same random numbers, by ``Plan.key()``.
+    ``known`` holds e_l already computed on the same random numbers, by ``Plan.key()``;
+    when given, every newly evaluated plan is added to it (the caller races the best of them).
     Returns (None, inf, k) when no feasible plan was found.
     """
     sizes = seeds[0].sizes
     n = seeds[0].n_robots
-    cache: dict[tuple, float] = dict(known or {})
+    cache: dict[tuple, float] = known if known is not None else {}
     preset = len(cache)
 
     def score(plans: list[Plan]) -> np.ndarray:

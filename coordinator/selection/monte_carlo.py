@@ -35,8 +35,8 @@ class MonteCarlo:
     def _step_rng(self, step: int) -> np.random.Generator:
         return np.random.default_rng([self.seed, 1, step])
 
-    def localization_errors(self, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan]) -> np.ndarray:
-        """Mean e_l (m) over the samples for each plan (all plans must have the same step count)."""
+    def localization_errors(self, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan], per_sample: bool = False) -> np.ndarray:
+        """Mean e_l (m) over the samples for each plan (all plans must have the same step count); (plans, samples) with ``per_sample``."""
         n, s, c = estimate.n, self.samples, len(plans)
         k_steps = plans[0].n_steps
         rng = np.random.default_rng([self.seed, 0])
@@ -69,7 +69,7 @@ class MonteCarlo:
             est = out.poses.reshape(c, s, n, 3)
             cov = out.cov.reshape(c, s, n, 3, 3)
         e_l = np.mean(np.linalg.norm(truth[..., :2] - est[..., :2], axis=-1), axis=-1)  # Eq. 8, (c, s)
-        return e_l.mean(axis=1)
+        return e_l if per_sample else e_l.mean(axis=1)
 
 
 def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float) -> bool:

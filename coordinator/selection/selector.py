@@ -6,11 +6,23 @@ with the least expected localization error e_l (Eq. 9), seeded by the heuristic
 e_l,max = e_l(0), the error with no anchors) and P_s = w_v P_v - w_l P_l (Eq. 3);
 the selection maximises P_s over the plans that keep the swarm connected (Eq. 4).
 
-The outer loop is a two-stage search: every feasible n_a is first scored with its
-heuristic plan (one Monte Carlo candidate each), then the genetic inner loop refines
-the ``refine`` most promising counts. Counts with many steps (n_a close to n_r) cost
-n_s Monte Carlo steps per candidate, so screening them once keeps a selection for
-large swarms affordable while the search effort goes where P_s can be won.
+Search, per selection (``docs/selection.md`` has the budgets and the measurements):
+
+1. Screening: every feasible n_a is scored with its heuristic plan on one Monte Carlo
+   set of common random numbers (``samples_for(samples)`` samples).
+2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
+   even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
+   best screened P_s (every count whose P_s could win is searched, Section 4.2.1).
+3. Inner loop of every surviving count: the genetic search on the screening samples,
+   then a race (successive halving on fresh samples) among its ``contenders`` best
+   distinct plans, then the race winner and the heuristic seed on one more fresh set
+   (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
+   more than one standard error of the paired difference; the kept plan's fresh e_l and
+   e_l(0) on the same set give P_l. So the search never returns a plan that is worse
+   than its seed on those samples, and P_s is not biased by the search.
+
+``method = "crlb"`` ranks plans by the Cramer-Rao prediction of ``crlb_rank`` instead
+(deterministic, no sampling, so no race and no final check).
 """
 
 from __future__ import annotations
@@ -20,12 +32,17 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coordinator.plan import Plan, feasible_anchor_counts, speed_performance
+from coordinator.selection.crlb_rank import predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
+from coordinator.selection.racing import best_distinct, final_check, race
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
+
+
+METHODS = ("mc", "crlb")
 
 
 class NoFeasiblePlanError(SwarmInputError):
@@ -41,9 +58,19 @@ class SelectionConfig:
     samples: int = 16  # Monte Carlo samples per candidate for a 10-robot swarm (see ``samples_for``)
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
-    refine: int = 2  # anchor counts refined by the genetic search after screening (0 = heuristic only)
+    final_samples: int = 64  # samples of the final fresh check for 10 robots (scaled like ``samples``)
+    contenders: int = 4  # best distinct plans of the genetic search that enter the race
+    prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
+    method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
 
     def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise SwarmInputError(f"selection method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.final_samples < 1 or self.contenders < 1 or not 0 <= self.prune_gain <= 1:
+            raise SwarmInputError(
+                f"final samples and contenders must be >= 1 and prune gain in [0, 1], got "
+                f"{self.final_samples}, {self.contenders}, {self.prune_gain}"
+            )
         if not (self.w_v >= 0 and self.w_l >= 0 and abs(self.w_v + self.w_l - 1.0) < 1e-9):
             raise SwarmInputError(f"weights must be >= 0 and sum to 1 (Eq. 3), got w_v={self.w_v}, w_l={self.w_l}")
         if self.samples < 1:
@@ -70,6 +97,8 @@ class CountScore:
     p_l: float
     p_s: float
     plan: Plan | None
+    seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
+    searched: bool = False  # the inner loop ran for this count (else: the heuristic plan, screened)
 
 
 @dataclass(frozen=True)
@@ -77,6 +106,7 @@ class Selection:
     plan: Plan
     scores: list[CountScore]
     evaluations: int
+    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its samples: ``samples_for(final_samples)``)
 
     @property
     def n_anchors(self) -> int:
@@ -104,44 +134,71 @@ class AnchorSelector:
 
     def select(self, estimate: SwarmEstimate, desired: np.ndarray) -> Selection:
         """The plan maximising P_s for moving from ``estimate`` to ``desired`` positions (n, 2)."""
-        n = estimate.n
+        n, sel = estimate.n, self.selection
         self.calls += 1
         rng = np.random.default_rng([self.seed, self.calls])
-        mc = MonteCarlo(self.cfg, self.localizer, samples_for(self.selection.samples, n), int(rng.integers(2**63)))
+        samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
 
         def feasible(plan: Plan) -> bool:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
-        def evaluate(plans: list[Plan]) -> np.ndarray:
-            return mc.localization_errors(estimate, desired, plans)
+        def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
+            return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans)
 
-        def score(n_a: int, plan: Plan | None, e_l: float) -> CountScore:
+        def each_sample(plans: list[Plan], count: int, seed: int) -> np.ndarray:
+            return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans, per_sample=True)
+
+        screen_seed = int(rng.integers(2**63))
+        if sel.method == "crlb":
+            def evaluate(plans: list[Plan]) -> np.ndarray:
+                return predicted_errors(self.cfg, estimate, desired, plans)
+        else:
+            def evaluate(plans: list[Plan]) -> np.ndarray:
+                return sampled(plans, samples, screen_seed)
+
+        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False) -> CountScore:
             p_v = speed_performance(n, n_a)
             p_l = e_l / e_max if e_max > 0 else 0.0
-            return CountScore(n_a, float(e_l), p_v, float(p_l), float(self.selection.w_v * p_v - self.selection.w_l * p_l), plan)
+            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched)
 
         all_move = Plan.equal(np.arange(n), 0)
         e_max = float(evaluate([all_move])[0])  # e_l,max = e_l(0) (Section 4.1.1)
         evaluations = 1
         scores: dict[int, CountScore] = {}
-        for n_a in self.candidate_counts(n):  # stage 1: heuristic plan of every count
-            plan = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
-            if not feasible(plan):
-                scores[n_a] = score(n_a, None, np.inf)
+        seeds: dict[int, Plan] = {}
+        for n_a in self.candidate_counts(n):  # 1. screening: the heuristic plan of every count
+            seeds[n_a] = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
+            if not feasible(seeds[n_a]):
+                scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
-                scores[n_a] = score(n_a, plan, e_max)
+                scores[n_a] = score(n_a, all_move, e_max, e_max)
             else:
-                scores[n_a] = score(n_a, plan, float(evaluate([plan])[0]))
+                e_seed = float(evaluate([seeds[n_a]])[0])
+                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed)
                 evaluations += 1
-        ranked = sorted((k for k in scores if k != 0), key=lambda k: -scores[k].p_s if scores[k].plan else np.inf)
-        for n_a in ranked[: self.selection.refine]:  # stage 2: genetic search where P_s can be won
-            seed = scores[n_a].plan or heuristic_plan(current, desired, n_a)
-            known = {seed.key(): scores[n_a].e_l}
-            plan, e_l, k = genetic_search(evaluate, [seed], feasible, rng, self.selection.genetic, known)
+        bar = max((s.p_s for s in scores.values() if s.plan is not None), default=-np.inf)
+        searched = [k for k in scores if k != 0 and self._could_win(scores[k], bar)]  # 2. bound
+        final_seed = int(rng.integers(2**63))
+        e_max_final = None
+        for n_a in searched:  # 3. inner loop, race and final fresh check of every count that could win
+            known = {seeds[n_a].key(): scores[n_a].e_l} if scores[n_a].plan is not None else {}
+            plan, e_l, k = genetic_search(evaluate, [seeds[n_a]], feasible, rng, sel.genetic, known)
             evaluations += k
-            if plan is not None and e_l <= scores[n_a].e_l:
-                scores[n_a] = score(n_a, plan, e_l)
+            if plan is None:
+                continue
+            if sel.method == "crlb":  # elitism: never above the seed's prediction
+                scores[n_a] = score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True)
+                continue
+            champion, spent = race(best_distinct(known, sel.contenders), sampled, samples, rng)
+            if e_max_final is None:
+                e_max_final = float(sampled([all_move], final_samples, final_seed)[0])
+            if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
+                kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
+            else:
+                kept, e_fresh, e_seed = final_check(champion, seeds[n_a], each_sample, final_samples, final_seed)
+            evaluations += spent + 2
+            scores[n_a] = score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
@@ -149,4 +206,10 @@ class AnchorSelector:
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
             )
-        return Selection(best.plan, ordered, evaluations)
+        return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
+
+    def _could_win(self, entry: CountScore, bar: float) -> bool:
+        """Whether the inner loop could lift this count's P_s to ``bar``: e_l lowered by ``prune_gain``
+        (P_l >= 0 when its heuristic plan is infeasible and nothing was measured)."""
+        p_l = 0.0 if entry.plan is None else entry.p_l * (1.0 - self.selection.prune_gain)
+        return self.selection.w_v * entry.p_v - self.selection.w_l * p_l >= bar

@@ -1,0 +1,61 @@
+"""``swarm study selection`` and ``swarm study calibration`` as a user runs them (real subprocesses, tiny sizes)."""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from coordinator.plan import n_solutions
+from swarm_cli.study_selection import enumerate_plans
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def swarm(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "swarm_cli.main", *args], capture_output=True, text=True, timeout=600, cwd=ROOT)
+
+
+def test_enumeration_is_every_ordered_partition_once():
+    for n, n_a in ((6, 3), (6, 4), (8, 4)):
+        plans = enumerate_plans(n, n_a)
+        assert len(plans) == n_solutions(n, n_a) == len({p.key() for p in plans})
+
+
+def test_study_selection_json_contract(tmp_path):
+    out = swarm("study", "selection", "--robots", "6", "--configs", "2", "--screen-samples", "4", "--pick-samples", "8",
+                "--eval-samples", "16", "--workers", "1", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    last = json.loads(out.stdout.strip().splitlines()[-1])
+    assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs"]
+    assert last["configs"] == 2 and 0 <= last["na_agrees"] <= 2
+    # the optimum is picked on other samples than the ratios are computed on: ratios near 1, possibly below
+    assert 0.8 < last["ga_over_optimum_median"] <= last["ga_over_optimum_max"] < 1.5
+    again = swarm("study", "selection", "--robots", "6", "--from-csv", str(tmp_path / "configs.csv"), "--json")
+    assert again.returncode == 0, again.stderr
+    assert json.loads(again.stdout.strip().splitlines()[-1]) == last  # the CSV keeps everything the summary needs
+
+
+def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
+    out = swarm("study", "calibration", "--localizers", "paper", "--trajectories", "2", "--configs", "2",
+                "--calibration-trajectories", "2", "--iterations", "3", "--seeds", "0,1000", "--methods", "no-anchors,ref57",
+                "--workers", "1", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout.strip().splitlines()[-1])["results"][0]
+    assert 1.0 < result["motion_scale"] < 32.0
+    assert set(result) >= {"0", "1000", "pooled"} and result["pooled"]["trajectories"] == 4
+    pooled = result["pooled"]["pf"]
+    per_set = [result[s]["pf"] for s in ("0", "1000")]
+    for m in ("no-anchors", "ref57"):  # pooled means are the means of the two equal-sized sets
+        assert math.isclose(pooled[m], np.mean([p[m] for p in per_set]), rel_tol=1e-9)
+
+
+def test_bad_options_are_named():
+    out = swarm("study", "selection", "--configs", "0")
+    assert out.returncode != 0 and "--configs" in out.stderr and "Traceback" not in out.stderr
+    out = swarm("compare", "--selections", "mc,bogus")
+    assert out.returncode != 0 and "--selections" in out.stderr and "Traceback" not in out.stderr
