@@ -224,6 +224,11 @@ class ZenohSwarmBackend:
         msg = decode_or_drop(payload, self.drops, key, None, self.known)
         if msg is None:
             return
+        if isinstance(msg, TruthMessage) and self.step == 0 and msg.robot in self._id_set:
+            # before the first step a robot's current truth is the run's start, whatever step its publisher counts
+            # (a motion-capture publisher, e.g. the emulator, keeps counting across runs)
+            self._truth[msg.robot] = (0, np.array(msg.pose, dtype=float))
+            return
         if msg.step != self.step:
             if msg.step > self.step:  # late answers to earlier steps are normal (re-sends); later steps are not
                 self._foreign(key, f"{msg.TYPE} for step {msg.step}, the run is at step {self.step}")

@@ -509,8 +509,9 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
 
 
 def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
-    """The robots and link processes stay up; the second coordinator's appearance begins a new run (RUN with a
-    new epoch), so its step 1 is not refused as stale and every robot executes each step once."""
+    """The robots, link processes and agents stay up; the second coordinator's appearance begins a new run (the
+    agents forget their steps, the links send RUN with a new epoch), so its step 1 is not refused as stale
+    and every robot executes each step once."""
     traj = random_trajectory(4, 2, np.random.default_rng(7))
     traj_file, events = tmp_path / "traj.json", tmp_path / "events.jsonl"
     traj.save(traj_file)
@@ -524,11 +525,11 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
             live = start_gateway(traj_file, gateway, tmp_path, run_id, hub, 2, 0.0, [], procs, events)
             ids = {f"swarm/{run_id}/alive/link/{p.name}" for p in gateway.ports}
             _wait_for(lambda: alive_now(session, f"swarm/{run_id}/alive/link/*") == ids, 30, "the link processes")
+            agents = start_agents(traj, run_id, hub, 2, 0.0, ["--driver=gateway", f"--gateway-config={live}"])
+            procs += agents
             stable = list(procs)
             results = []
             for k in (1, 2):
-                agents = start_agents(traj, run_id, hub, 2, 0.0, ["--driver=gateway", f"--gateway-config={live}"])
-                procs += agents
                 result = tmp_path / f"run{k}.json"
                 coordinator = subprocess.run(
                     PY + ["swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--run={run_id}", f"--hub={hub}", "--seed=2",
@@ -536,8 +537,7 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
                     capture_output=True, text=True, timeout=180, cwd=tmp_path)
                 assert coordinator.returncode == 0, coordinator.stderr[-3000:]
                 results.append(json.loads(result.read_text()))
-                stop_all(agents)
-                assert all(p.poll() is None for p in stable), "the emulator and links served both runs"
+                assert all(p.poll() is None for p in stable), "the emulator, links and agents served both runs"
     finally:
         stop_all(procs[2:])
         stop_all(procs[:1])
