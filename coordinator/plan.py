@@ -9,6 +9,7 @@ consecutive groups, which is what the genetic search (Eq. 9) manipulates.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -93,3 +94,18 @@ class Plan:
     def key(self) -> tuple[tuple[int, ...], ...]:
         """Canonical form: the order of robots inside a group does not matter."""
         return tuple(tuple(sorted(g.tolist())) for g in self.groups)
+
+
+def enumerate_plans(n: int, n_a: int) -> list[Plan]:
+    """Every ordered partition of ``n`` robots into equal mobile groups of n - n_a (Eq. 10)."""
+    size, plans = n - n_a, []
+
+    def extend(prefix: list[int], rest: list[int]) -> None:
+        if not rest:
+            plans.append(Plan.equal(np.array(prefix), n_a))
+            return
+        for group in itertools.combinations(rest, size):
+            extend(prefix + list(group), [r for r in rest if r not in group])
+
+    extend([], list(range(n)))
+    return plans

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import itertools
 import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
@@ -33,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, speed_performance
+from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance
 from coordinator.selection.genetic import genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
@@ -70,21 +69,6 @@ class Budget:
     screen: int
     pick: int
     eval: int
-
-
-def enumerate_plans(n: int, n_a: int) -> list[Plan]:
-    """Every ordered partition of ``n`` robots into equal mobile groups of n - n_a (Eq. 10)."""
-    size, plans = n - n_a, []
-
-    def extend(prefix: list[int], rest: list[int]) -> None:
-        if not rest:
-            plans.append(Plan.equal(np.array(prefix), n_a))
-            return
-        for group in itertools.combinations(rest, size):
-            extend(prefix + list(group), [r for r in rest if r not in group])
-
-    extend([], list(range(n)))
-    return plans
 
 
 def _errors(mc: MonteCarlo, estimate, desired, plans: list[Plan]) -> np.ndarray:

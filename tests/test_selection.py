@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 
 import numpy as np
 import pytest
 
-from coordinator.plan import Plan, feasible_anchor_counts
+from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
@@ -23,26 +22,10 @@ def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:
     return SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2)), traj.configurations[0]
 
 
-def all_plans(n: int, n_a: int) -> list[Plan]:
-    """Every ordered partition into equal groups (Eq. 10)."""
-    size = n - n_a
-    plans = []
-
-    def extend(prefix: list[int], rest: list[int]) -> None:
-        if not rest:
-            plans.append(Plan.equal(np.array(prefix), n_a))
-            return
-        for group in itertools.combinations(rest, size):
-            extend(prefix + list(group), [r for r in rest if r not in group])
-
-    extend([], list(range(n)))
-    return plans
-
-
 def test_batch_evaluation_uses_common_random_numbers():
     estimate, desired = step_problem(6, 1)
     mc = MonteCarlo(ModelConfig(), "paper", 6, seed=11)
-    plans = all_plans(6, 3)[:5]
+    plans = enumerate_plans(6, 3)[:5]
     together = mc.localization_errors(estimate, desired, plans)
     alone = np.array([mc.localization_errors(estimate, desired, [p])[0] for p in plans])
     np.testing.assert_allclose(together, alone, rtol=1e-9)
@@ -53,7 +36,7 @@ def test_batch_evaluation_uses_common_random_numbers():
 def test_genetic_search_is_within_5_percent_of_exhaustive_optimum(n_a, seed):
     estimate, desired = step_problem(6, seed)
     mc = MonteCarlo(ModelConfig(), "paper", 8, seed=seed)
-    plans = [p for p in all_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
+    plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     optimum = float(np.min(mc.localization_errors(estimate, desired, plans)))
 
     def feasible(p: Plan) -> bool:
@@ -185,7 +168,7 @@ def test_selection_is_deterministic_for_a_seed(method):
 @pytest.mark.parametrize("n_a,seed", [(3, 0), (4, 1), (4, 3)])
 def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
     estimate, desired = step_problem(6, seed)
-    plans = [p for p in all_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
+    plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     predicted = predicted_errors(NOISY_JOINT, estimate, desired, plans)
     chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(method="crlb", anchor_counts=(n_a,)), seed=seed).select(estimate, desired)
     assert chosen.scores[0].e_l in predicted  # the prediction of one of the feasible plans, not an estimate
@@ -194,7 +177,7 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
 
 def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
     estimate, desired = step_problem(6, 2)
-    plans = [p for p in all_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
+    plans = [p for p in enumerate_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(anchor_counts=(3,)), seed=4).select(estimate, desired).plan
     pick, judge = (MonteCarlo(NOISY_JOINT, "joint", 256, seed=s) for s in (999, 12345))  # independent sets
     optimum = plans[int(np.argmin(pick.localization_errors(estimate, desired, plans)))]

@@ -10,8 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.plan import n_solutions
-from swarm_cli.study_selection import enumerate_plans
+from coordinator.plan import enumerate_plans, n_solutions
 
 ROOT = Path(__file__).resolve().parents[1]
 
