@@ -36,14 +36,11 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from coordinator.simulate import simulate
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
 from runtime.trajectory import random_trajectory
-from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
-from swarm_cli.launch import start_agents, stop_all
 from swarm_cli.options import add_json_option, print_json
 from swarm_cli.progress import Progress
 
@@ -152,6 +149,10 @@ class Fuzzer:
 def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: str = "ref57", rate: float = 4000.0) -> dict:
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
+    from runtime.transport import free_tcp_port, loopback_hub, open_session, publish  # noqa: PLC0415
+    from coordinator.simulate import simulate  # noqa: PLC0415
+    from swarm_cli.launch import start_agents, stop_all  # noqa: PLC0415
+    from runtime.transport import subscribe  # noqa: PLC0415
     traj = random_trajectory(robots, configs, np.random.default_rng(seed))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()

@@ -18,18 +18,18 @@ import statistics
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coordinator.localization import make_localizer
-from coordinator.localization.crlb import crlb_pose_covariances
-from coordinator.localization.dead_reckoning import dead_reckon
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.scenarios import StepCase, random_step
 from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_json
+
+if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
+    from runtime.scenarios import StepCase
+
 
 METHODS = ("paper", "joint")
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
@@ -69,6 +69,7 @@ def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig) -> Any:
     Priors: the dead-reckoning mean and covariance. GTSAM's Pose2 tangent space is in
     the body frame, so the world-frame covariance is rotated by -heading on the xy block.
     """
+    from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
     dr = dead_reckon(case.prior, case.step, cfg)
     i, j = case.observations.indexed(case.prior.ids)
     theta = dr.poses[:, 2]
@@ -138,6 +139,10 @@ def timed(fn: Any, repeats: int) -> tuple[list[float], Any]:
 
 def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | None) -> dict[str, Any]:
     """Result object of one swarm size."""
+    from coordinator.localization.crlb import crlb_pose_covariances  # noqa: PLC0415
+    from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from runtime.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}
     stats = {name: MethodStats() for name in (*METHODS, "gtsam")}
     crlb_sq: list[np.ndarray] = []

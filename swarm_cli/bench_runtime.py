@@ -43,16 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
-from coordinator.executor import InchwormExecutor
-from coordinator.localization import make_localizer
-from coordinator.selection.selector import SelectionConfig
-from coordinator.simulate import initial_estimate
-from coordinator.strategies import make_strategy
-from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from runtime.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms
-from swarm_cli.launch import MODEL_OPTIONS, _forward, agents_per_process, default_gateway, start_agents, start_gateway, stop_all
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("no-anchors", "ref57")
@@ -150,6 +142,19 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
     ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
     (``swarm_cli.launch.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
     """
+    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+    from coordinator.executor import InchwormExecutor  # noqa: PLC0415
+    from swarm_cli.launch import MODEL_OPTIONS  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.zenoh_backend import Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from swarm_cli.launch import _forward, agents_per_process, default_gateway  # noqa: PLC0415
+    from runtime.transport import free_tcp_port  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from runtime.transport import loopback_hub  # noqa: PLC0415
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from runtime.transport import open_session, round_trip_ms  # noqa: PLC0415
+    from swarm_cli.launch import start_agents, start_gateway, stop_all  # noqa: PLC0415
     cfg = model_config(args)
     strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps
@@ -212,6 +217,7 @@ def _p90(values: list[float]) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
     sizes = parse_list(args.agents, "--agents", int, 2)
     if args.steps < 1:
         raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")

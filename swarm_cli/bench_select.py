@@ -17,7 +17,6 @@ import time
 
 import numpy as np
 
-from coordinator.selection.selector import AnchorSelector
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
 from runtime.trajectory import random_trajectory
@@ -35,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
     sizes = parse_list(args.sizes, "--sizes", int, 2)
     if args.repeats < 1:
         raise SwarmInputError(f"--repeats must be >= 1, got {args.repeats}")

@@ -27,22 +27,21 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
-import matplotlib
+from typing import TYPE_CHECKING
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
-from coordinator.plan import Plan, feasible_anchor_counts, n_steps  # noqa: E402
-from coordinator.selection.heuristic import heuristic_plan  # noqa: E402
-from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: E402
-from runtime.config import ModelConfig  # noqa: E402
-from runtime.errors import SwarmInputError  # noqa: E402
-from runtime.state import SwarmEstimate  # noqa: E402
-from runtime.trajectory import random_trajectory  # noqa: E402
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, positive_int, print_json  # noqa: E402
-from swarm_cli.progress import Progress  # noqa: E402
-from swarm_cli.summary import write_csv
+from runtime.config import ModelConfig
+from runtime.errors import SwarmInputError
+from runtime.state import SwarmEstimate
+from runtime.trajectory import random_trajectory
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, positive_int, print_json
+from swarm_cli.progress import Progress
+
+if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
+    from coordinator.plan import Plan
+    from coordinator.selection.monte_carlo import MonteCarlo
+
 
 EXHAUSTIVE_LIMIT = 5000  # plans per experiment for part 2 (Fig. 5)
 CHUNK = 1024  # plans per MonteCarlo call (memory bound; common random numbers make chunks comparable)
@@ -84,6 +83,7 @@ class Job:
 
 def choice_anchor_count(n: int) -> int:
     """n_a of parts 2 and 3: n_r / 2, or for odd n_r the feasible n_a > 0 nearest to it."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
     if n % 2 == 0:
         return n // 2
     return min((k for k in feasible_anchor_counts(n) if k > 0), key=lambda k: (abs(k - n / 2), k))
@@ -96,6 +96,7 @@ def exhaustive_count(n: int) -> int:
 
 def exhaustive_plans(n: int) -> list[Plan]:
     """Every plan with n_a = n_r / 2: first mobile group from ``combinations``, the second its complement."""
+    from coordinator.plan import Plan  # noqa: PLC0415
     everyone = set(range(n))
     return [Plan.equal(np.array([*first, *sorted(everyone - set(first))]), n // 2) for first in itertools.combinations(range(n), n // 2)]
 
@@ -107,6 +108,7 @@ def evaluate(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans
 
 def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndarray, SwarmEstimate, MonteCarlo]:
     """The random start (n, 3), desired configuration (n, 2), start estimate and e_l estimator of an experiment."""
+    from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
     rng = np.random.default_rng([job.seed, job.experiment])
     step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
     traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step)
@@ -125,6 +127,10 @@ def run_experiment(job: Job) -> dict:
     random numbers (an independent Monte Carlo seed): the best and worst of many noisy
     estimates are biased (selection on noise), the fresh values are not.
     """
+    from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
+    from coordinator.plan import Plan, feasible_anchor_counts  # noqa: PLC0415
+    from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
+    from coordinator.selection.monte_carlo import plan_keeps_connectivity  # noqa: PLC0415
     n = job.robots
     rng, start, desired, estimate, mc = experiment_setup(job)
     counts = feasible_anchor_counts(n)
@@ -202,6 +208,7 @@ def _mean(values: list[float]) -> float | None:
 
 def summarise(rows: list[dict], robots: int) -> dict:
     """The JSON contract (e_l in m): per-n_a means and ratios, Fig. 5 means, heuristic vs random."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
     counts = feasible_anchor_counts(robots)
     e_mean = {str(k): _mean([r[f"e_l_na{k}"] for r in rows]) for k in counts}
     out: dict = {
@@ -240,6 +247,7 @@ def _std_mm(values: list[float]) -> float:
 
 def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str:
     """The human-readable tables (e_l in mm)."""
+    from coordinator.plan import feasible_anchor_counts, n_steps  # noqa: PLC0415
     n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
     dist = np.array([r["distance_m"] for r in rows])
     mm = lambda v: "-" if v is None else f"{1000 * v:.2f}"  # noqa: E731
@@ -294,6 +302,9 @@ def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str
 
 def _scatter_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, title: str, path: Path) -> Path:
     """One panel per (title, e_l (m) per experiment): e_l (mm) vs average distance travelled, shared axes."""
+    import matplotlib  # noqa: PLC0415 - plotting and the search only when a command runs (fast --help)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
     k = len(panels)
     cols = 2 if k == 4 else k
     rows = math.ceil(k / cols)
@@ -321,6 +332,8 @@ def _scatter_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, 
 
 def write_outputs(rows: list[dict], summary: dict, out: Path) -> list[Path]:
     """experiments.csv, fig4.png, fig5.png (when part 2 ran) and appendix_a.png."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
+    from swarm_cli.summary import write_csv  # noqa: PLC0415
     out.mkdir(parents=True, exist_ok=True)
     n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
     written = [write_csv(out / "experiments.csv", rows)]

@@ -24,10 +24,8 @@ import numpy as np
 
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from swarm_cli.compare import REFERENCE, parse_methods, run_one, summarise
 from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress
-from swarm_cli.summary import write_csv
 
 PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
 CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED + t
@@ -61,11 +59,13 @@ def scaled(base: ModelConfig, motion: float, sensing: float) -> ModelConfig:
 
 
 def _run(jobs: list[tuple], pool: ProcessPoolExecutor) -> list[dict]:
+    from swarm_cli.compare import run_one  # noqa: PLC0415
     return list(pool.map(run_one, jobs))
 
 
 def calibrate(base: ModelConfig, localizer: str, sensing: float, args: argparse.Namespace, selection, pool) -> tuple[float, float]:
     """(motion scale, ref57 mean P_f there): bisection on log(scale) in [1, --max-motion-scale]."""
+    from swarm_cli.compare import REFERENCE  # noqa: PLC0415
 
     def pf(motion: float) -> float:
         cfg = scaled(base, motion, sensing)
@@ -82,6 +82,7 @@ def calibrate(base: ModelConfig, localizer: str, sensing: float, args: argparse.
 
 def compare_at(cfg: ModelConfig, localizer: str, methods: list[str], seeds: list[int], args, selection, pool, tick) -> tuple[dict, list[dict]]:
     """Per seed set and pooled: P_f per method, ratio to ref57 and paired p-values."""
+    from swarm_cli.compare import REFERENCE, run_one, summarise  # noqa: PLC0415
     rows: list[dict] = []
     for s in seeds:
         jobs = [(t, m, args.robots, args.configs, s, cfg, localizer, selection) for t in range(args.trajectories) for m in methods]
@@ -104,6 +105,8 @@ def compare_at(cfg: ModelConfig, localizer: str, methods: list[str], seeds: list
 
 
 def run(args: argparse.Namespace) -> int:
+    from swarm_cli.compare import REFERENCE, parse_methods  # noqa: PLC0415
+    from swarm_cli.summary import write_csv  # noqa: PLC0415
     base = model_config(args)
     selection = selection_config(args)
     sensing = parse_list(args.sensing_scales, "--sensing-scales", float)

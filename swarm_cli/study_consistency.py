@@ -11,17 +11,20 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import matplotlib
+from typing import TYPE_CHECKING
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import numpy as np
 
-from coordinator.consistency import LOCALIZERS, METHODS, ConsistencyRow, chi2_band, consistency_study  # noqa: E402
-from coordinator.strategies import METHODS as ALL_METHODS  # noqa: E402
-from runtime.errors import SwarmInputError  # noqa: E402
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, print_json, selection_config  # noqa: E402
-from swarm_cli.progress import Progress  # noqa: E402
+from runtime.errors import SwarmInputError
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, print_json, selection_config
+from swarm_cli.progress import Progress
+
+if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
+    from coordinator.consistency import ConsistencyRow
+
+
+LOCALIZERS = ("paper", "joint")  # as coordinator.consistency, without importing it to build the parser
+METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -48,6 +51,8 @@ def _names(text: str, flag: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.strategies import METHODS as ALL_METHODS  # noqa: PLC0415
+    from coordinator.consistency import LOCALIZERS, chi2_band, consistency_study  # noqa: PLC0415
     localizers = _names(args.localizers, "--localizers", LOCALIZERS)
     methods = _names(args.methods, "--methods", tuple(ALL_METHODS))
     for flag, value, low in (("--robots", args.robots, 2), ("--configs", args.configs, 1), ("--trajectories", args.trajectories, 1)):
@@ -80,6 +85,9 @@ def _fmt(x: float | None) -> str:
 
 def plot(rows: list[ConsistencyRow], band: tuple[float, float], path: Path) -> Path:
     """One panel per localizer: NEES / 2 per configuration for every method, with the chi-square band."""
+    import matplotlib  # noqa: PLC0415 - plotting and the search only when a command runs (fast --help)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
     localizers = sorted({r.localizer for r in rows}, key=[r.localizer for r in rows].index)
     fig, axes = plt.subplots(1, len(localizers), figsize=(6.5 * len(localizers), 4.5), squeeze=False, sharey=True)
     for ax, loc in zip(axes[0], localizers):

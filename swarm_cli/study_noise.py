@@ -15,17 +15,11 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from runtime.errors import SwarmInputError  # noqa: E402
-from swarm_cli.compare import run_one  # noqa: E402
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config  # noqa: E402
-from swarm_cli.progress import Progress  # noqa: E402
-from swarm_cli.summary import write_csv
+from runtime.errors import SwarmInputError
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config
+from swarm_cli.progress import Progress
 
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
 
@@ -48,6 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swarm_cli.compare import run_one  # noqa: PLC0415
+    from swarm_cli.summary import write_csv  # noqa: PLC0415
     base = model_config(args)
     motion = parse_list(args.motion_scales, "--motion-scales", float)
     sensing = parse_list(args.sensing_scales, "--sensing-scales", float)
@@ -92,6 +88,9 @@ def run(args: argparse.Namespace) -> int:
 
 def plot_heatmaps(results: list[dict], localizers: list[str], motion: list[float], sensing: list[float], path: Path) -> Path:
     """Per localizer: the chosen n_a and the P_f ratio inchworm / ref57 over (motion, sensing) scales."""
+    import matplotlib  # noqa: PLC0415 - plotting and the search only when a command runs (fast --help)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
     fig, axes = plt.subplots(len(localizers), 2, figsize=(10, 4 * len(localizers)), squeeze=False)
     for row, loc in enumerate(localizers):
         for col, (key, title, cmap) in enumerate((("inchworm_na_mean", "n_a chosen by inchworm", "viridis"),

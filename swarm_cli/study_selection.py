@@ -30,19 +30,21 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance
-from coordinator.selection.genetic import genetic_search
-from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, SelectionConfig, samples_for
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 from swarm_cli.study_anchors import CHUNK, Job, experiment_setup
-from swarm_cli.summary import write_csv
+
+if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
+    from coordinator.plan import Plan
+    from coordinator.selection.monte_carlo import MonteCarlo
+    from coordinator.selection.selector import SelectionConfig
+
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
 INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees")
@@ -77,6 +79,16 @@ def _errors(mc: MonteCarlo, estimate, desired, plans: list[Plan]) -> np.ndarray:
 
 def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
+    from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
+    from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
+    from coordinator.selection.selector import NoFeasiblePlanError  # noqa: PLC0415
+    from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts  # noqa: PLC0415
+    from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
+    from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
+    from coordinator.plan import n_solutions  # noqa: PLC0415
+    from coordinator.selection.monte_carlo import plan_keeps_connectivity  # noqa: PLC0415
+    from coordinator.selection.selector import samples_for  # noqa: PLC0415
+    from coordinator.plan import speed_performance  # noqa: PLC0415
     job, selection, budget = args
     n = job.robots
     rng, start, desired, estimate, _ = experiment_setup(job)
@@ -127,6 +139,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
 
 def summarise(rows: list[dict], robots: int) -> dict:
     """Per count and pooled: ratios of e_l to the optimum on the evaluation set (m / m)."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
     out: dict = {"counts": {}}
     pooled: dict[str, list[float]] = {}
     for n_a in (k for k in feasible_anchor_counts(robots) if k > 0):
@@ -151,6 +164,7 @@ def summarise(rows: list[dict], robots: int) -> dict:
 
 def write_rows(path: Path, rows: list[dict]) -> Path:
     """``rows`` as CSV; counts without a feasible plan leave their columns empty."""
+    from swarm_cli.summary import write_csv  # noqa: PLC0415
     keys = list(dict.fromkeys(k for r in rows for k in r))
     return write_csv(path, [{k: r.get(k, "") for k in keys} for r in rows])
 

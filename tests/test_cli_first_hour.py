@@ -33,7 +33,9 @@ def test_the_top_level_help_imports_no_heavy_package() -> None:
 
 
 @pytest.mark.parametrize("command", ["sim", "compare", "localize", "demo", "launch", "coordinator", "replay", "plot", "info", "record", "export", "agent", "estop", "recover",
-                                     "bench record", "certs", "router"])
+                                     "bench record", "certs", "router", "study anchors", "study noise", "study selection",
+                                     "study calibration", "study consistency", "bench localize", "bench select", "bench runtime",
+                                     "bench gateway", "bench faults"])
 def test_light_commands_build_their_parser_without_heavy_packages(command: str) -> None:
     argv = command.split()
     loaded = _loaded_after(f"from swarm_cli.main import build_parser\nbuild_parser({argv!r})")
