@@ -22,6 +22,11 @@ settings.load_profile("behaviour")
 
 SLOW_MODULES = frozenset({
     "test_agent",  # agent on a Zenoh hub
+    "test_agent_host",  # agent hosts: launches and Zenoh sessions
+    "test_export",  # reads a recording made by a launch
+    "test_faults",  # fault injection through swarm launch, bench faults
+    "test_multihost",  # network namespaces and routers
+    "test_stopping",  # launches stopped by real signals
     "test_bench_runtime",  # swarm bench runtime: agent processes
     "test_cli_localize",  # swarm localize as subprocesses
     "test_cli_sim",  # swarm sim / compare as subprocesses
@@ -40,6 +45,12 @@ SLOW_TESTS = frozenset({
     "test_foxglove.py::test_live_view_serves_a_websocket",  # websocket server
     "test_foxglove.py::test_demo_serves_the_live_view_while_it_runs",  # swarm launch
     "test_selection.py::test_weights_move_the_choice_towards_speed_or_accuracy",  # two full selections
+    "test_foxglove.py::test_the_live_view_keeps_serving_after_the_run_until_ctrl_c",  # swarm launch
+    "test_foxglove.py::test_failed_handshakes_are_logged_once",  # websocket server
+    "test_study_selection.py::test_study_selection_json_contract",  # a study
+    "test_study_selection.py::test_study_calibration_finds_the_noise_and_pairs_the_seed_sets",  # a study
+    "test_localization_consistency.py::test_study_consistency_json_contract",  # a study
+    "test_sample_recording.py::test_replay_check_passes_on_the_sample",  # replay over the whole sample
 })
 
 
