@@ -142,19 +142,14 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
     ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
     (``swarm_cli.launch.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
     """
-    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
-    from swarm_cli.launch import MODEL_OPTIONS  # noqa: PLC0415
-    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
-    from coordinator.zenoh_backend import Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from swarm_cli.launch import _forward, agents_per_process, default_gateway  # noqa: PLC0415
-    from runtime.transport import free_tcp_port  # noqa: PLC0415
-    from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from runtime.transport import loopback_hub  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from runtime.transport import open_session, round_trip_ms  # noqa: PLC0415
-    from swarm_cli.launch import start_agents, start_gateway, stop_all  # noqa: PLC0415
+    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
+    from swarm_cli.launch import MODEL_OPTIONS, _forward, agents_per_process, default_gateway, start_agents, start_gateway, stop_all  # noqa: PLC0415
     cfg = model_config(args)
     strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps

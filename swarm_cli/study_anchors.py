@@ -127,10 +127,9 @@ def run_experiment(job: Job) -> dict:
     random numbers (an independent Monte Carlo seed): the best and worst of many noisy
     estimates are biased (selection on noise), the fresh values are not.
     """
-    from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
     from coordinator.plan import Plan, feasible_anchor_counts  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
-    from coordinator.selection.monte_carlo import plan_keeps_connectivity  # noqa: PLC0415
+    from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
     n = job.robots
     rng, start, desired, estimate, mc = experiment_setup(job)
     counts = feasible_anchor_counts(n)

@@ -79,16 +79,11 @@ def _errors(mc: MonteCarlo, estimate, desired, plans: list[Plan]) -> np.ndarray:
 
 def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
-    from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
-    from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
-    from coordinator.selection.selector import NoFeasiblePlanError  # noqa: PLC0415
-    from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts  # noqa: PLC0415
+    from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance  # noqa: PLC0415
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
-    from coordinator.plan import n_solutions  # noqa: PLC0415
-    from coordinator.selection.monte_carlo import plan_keeps_connectivity  # noqa: PLC0415
-    from coordinator.selection.selector import samples_for  # noqa: PLC0415
-    from coordinator.plan import speed_performance  # noqa: PLC0415
+    from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
+    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for  # noqa: PLC0415
     job, selection, budget = args
     n = job.robots
     rng, start, desired, estimate, _ = experiment_setup(job)
