@@ -41,7 +41,7 @@ from runtime.errors import SwarmInputError
 from runtime.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_json_option, print_json
+from swarm_cli.options import add_json_option, last_json, print_json
 from swarm_cli.progress import Progress
 
 
@@ -73,7 +73,7 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
                 [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
                  f"--kill-robot={victim}@{step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
                 capture_output=True, text=True, cwd=tmp, timeout=600)
-        summaries.append({**_last_json(proc.stdout), "returncode": proc.returncode})
+        summaries.append({**(last_json(proc.stdout) or {}), "returncode": proc.returncode})
         progress(seed + 1)
     done = [s for s in summaries
             if s["returncode"] == 0 and len(s.get("configs", [])) == configs and s.get("finished_robots") == robots - 1]
@@ -81,14 +81,6 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
     return {"detect_ms_median": statistics.median(k["detect_ms"] for k in kills) if kills else None,
             "completed": len(done) == seeds, "estop_ms_max": max(k["estop_ms"] for k in kills) if kills else None,
             "runs": seeds, "runs_completed": len(done), "summaries": summaries}
-
-
-def _last_json(stdout: str) -> dict:
-    lines = [line for line in stdout.splitlines() if line.startswith("{")]
-    try:
-        return json.loads(lines[-1]) if lines else {}
-    except json.JSONDecodeError:
-        return {}
 
 
 # -- hostile messages ---------------------------------------------------------------------------
@@ -149,10 +141,9 @@ class Fuzzer:
 def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: str = "ref57", rate: float = 4000.0) -> dict:
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
-    from runtime.transport import free_tcp_port, loopback_hub, open_session, publish  # noqa: PLC0415
     from coordinator.simulate import simulate  # noqa: PLC0415
+    from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     from swarm_cli.launch import start_agents, stop_all  # noqa: PLC0415
-    from runtime.transport import subscribe  # noqa: PLC0415
     traj = random_trajectory(robots, configs, np.random.default_rng(seed))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()
@@ -161,19 +152,18 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     procs: list[subprocess.Popen] = []
     sent = 0
     with tempfile.TemporaryDirectory(prefix="bench-fuzz-") as tmp, open_session(hub_settings) as hub_session:
-        traj_file, result_file = Path(tmp) / "traj.json", Path(tmp) / "result.json"
+        traj_file = Path(tmp) / "traj.json"
         traj.save(traj_file)
         fuzzer = Fuzzer(run_id, [int(i) for i in traj.ids], np.random.default_rng([seed, 99]))
         started = threading.Event()
         listener = subscribe(hub_session, run_wildcard(run_id), fuzzer.on_heard)
         watcher = subscribe(hub_session, robot_wildcard(run_id, "cmd"), lambda *_: started.set())
         try:
-            log = open(Path(tmp) / "agents.log", "w")
-            agents = list(start_agents(traj, run_id, hub, seed, 0.3, (), procs, stdout=log, stderr=subprocess.STDOUT))
+            agents = list(start_agents(traj, run_id, hub, seed, 0.3, (), procs, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
             coordinator = subprocess.Popen(
                 [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={method}",
-                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", f"--record={Path(tmp) / 'run.mcap'}", f"--result={result_file}", "--json"],
-                stdout=subprocess.PIPE, stderr=open(Path(tmp) / "coordinator.log", "w"), text=True)
+                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", "--json"],
+                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             procs.append(coordinator)
             started.wait(timeout=60)
             progress = Progress(count, "fuzz")
@@ -191,7 +181,7 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
             listener.undeclare()
             watcher.undeclare()
             stop_all(procs)
-        summary = _last_json(out)
+        summary = last_json(out) or {}
     ref = simulate(traj, method, ModelConfig(), seed=seed)
     identical = bool(summary) and _same_table(summary, ref)
     return {"sent": sent, "process_deaths": deaths, "completed": coordinator.returncode == 0, "identical": identical}

@@ -26,6 +26,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from swarm_cli.options import last_json
 from swarm_cli.progress import Progress
 
 RUN_TIMEOUT_S = 300.0  # one whole launch (busy machine); a run that takes longer counts as not completed
@@ -46,9 +47,7 @@ def launch_gateway(seed: int, out: Path, drop: float = 0.0, corrupt: float = 0.0
     except subprocess.TimeoutExpired:
         return None, executions_per_step(events)
     (out / "stderr.txt").write_text(proc.stderr)
-    summary = None
-    if proc.returncode == 0 and proc.stdout.strip():
-        summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    summary = last_json(proc.stdout) if proc.returncode == 0 else None
     return summary, executions_per_step(events)
 
 

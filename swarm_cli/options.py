@@ -106,6 +106,15 @@ def print_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
+def last_json(stdout: str) -> dict | None:
+    """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
+    lines = [line for line in stdout.splitlines() if line.startswith("{")]
+    try:
+        return json.loads(lines[-1]) if lines else None
+    except json.JSONDecodeError:
+        return None
+
+
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
