@@ -29,6 +29,6 @@ class SwarmBackend(Protocol):
         ...
 
     def take_lost(self) -> dict[int, str]:
-        """Robots lost since the last call, with why; the backend has stopped them and drops them
-        from ``ids`` (a backend that never loses robots returns {})."""
+        """Robots lost since the last call, with why; the backend has stopped them, no longer commands or
+        observes them, and drops them from ``ids`` (a backend that never loses robots returns {})."""
         ...

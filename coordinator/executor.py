@@ -11,8 +11,8 @@ the largest observable group is localized and those robots keep their dead-recko
 estimate; the step record names them and says why.
 
 Lost robots (docs/failure-model.md): the executor asks the backend which robots it lost
-(``take_lost``) before each step, after each command round and observation round, and
-after each plan. A lost robot (the backend has already stopped it) is dropped from the
+(``take_lost``) before each step, after each step's observation round (a backend asks no
+robot it has lost, so the command round needs no check of its own), and after each plan. A lost robot (the backend has already stopped it) is dropped from the
 swarm: from the estimate, the remaining steps of the current plan (its groups keep their
 other robots), the strategy (``restrict``: Eq. 4 and the anchor counts on the remaining
 swarm), the observations and the localization. A plan made while a robot was lost is
@@ -215,8 +215,8 @@ class InchwormExecutor:
         if self.listener is not None:
             self.listener.on_estimate(0, initial_estimate)
         for c in range(total):
+            estimate = self._drop_lost(result, c, estimate)[0]
             while True:  # (i), again if a robot was lost meanwhile
-                estimate = self._drop_lost(result, c, estimate)[0]
                 desired = self._desired(trajectory, c, estimate.ids)
                 plan, selection = self.strategy.plan(estimate, desired)
                 estimate, keep = self._drop_lost(result, c, estimate)
@@ -264,10 +264,7 @@ class InchwormExecutor:
         cmd = StepCommands(estimate.ids, commands, moving)
         self._executed += 1
         self.backend.execute(cmd)  # (iii)
-        estimate, keep = self._drop_lost(result, config, estimate)
-        if keep is not None:
-            cmd = cmd.select(keep)
-        observations = self.backend.observe()
+        observations = self.backend.observe()  # robots lost during the command round are no longer asked
         estimate, keep = self._drop_lost(result, config, estimate)
         if keep is not None:
             cmd = cmd.select(keep)

@@ -30,8 +30,7 @@ stopper thread), when it has not answered a command or observation request of a 
 within ``timeouts.step_s`` (each is re-sent once at half that), or when it refuses its
 command. A lost robot gets an ``EmergencyStop`` naming it and a ``RobotEvent`` ``lost``
 at once; the waits stop waiting for it and the simulated truth sets leave it out; the
-executor learns of it through ``take_lost()``. ``lost_log`` keeps (robot, reason,
-detected, stopped) monotonic times for benchmarks.
+executor learns of it through ``take_lost()``.
 All Zenoh callbacks only enqueue or set flags; the waiting happens on the caller's thread.
 """
 
@@ -112,14 +111,13 @@ class ZenohSwarmBackend:
         self.step = 0  # last global step number used
         self.config = 0  # 1-based configuration of the current plan (0 before on_plan)
         self.drops = DropCounter(_log)
-        self.lost_log: list[tuple[int, str, float, float]] = []  # (robot, reason, detected, estop published), monotonic s
         self._inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
         self._lock = threading.Lock()
         self._alive: set[int] = set()
         self._started = False  # after wait_for_agents: a token that disappears is a lost robot
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
-        self._stops: queue.Queue[tuple[int, str, float] | None] = queue.Queue()
+        self._stops: queue.Queue[tuple[int, str] | None] = queue.Queue()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
@@ -163,29 +161,22 @@ class ZenohSwarmBackend:
                 return
             self._lost[robot] = reason
             self._untaken[robot] = reason
-        self._stops.put((robot, reason, time.monotonic()))
+        self._stops.put((robot, reason))
 
     def _stop_lost(self) -> None:
         """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order."""
         while (item := self._stops.get()) is not None:
-            robot, reason, detected = item
+            robot, reason = item
             try:
                 stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
                                      robots=[robot])
                 publish(self.session, message_key(stop), encode(stop))
-                stopped = time.monotonic()
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
             except Exception:  # a closed session at shutdown: the launcher's run-wide stop covers it
                 _log.exception("could not publish the emergency stop of lost robot %d", robot)
                 continue
-            self.lost_log.append((robot, reason, detected, stopped))
             _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
-
-    def lost(self) -> list[int]:
-        """Every robot lost so far."""
-        with self._lock:
-            return sorted(self._lost)
 
     def take_lost(self) -> dict[int, str]:
         """The robots lost since the last call, with why; they leave ``ids``."""
@@ -364,7 +355,7 @@ class ZenohSwarmBackend:
             with self._lock:
                 return sorted(self._owed_obs.difference(self._lost))
 
-        self._owed_obs = {r for r in requests if r not in self._reports or (self.simulated and r not in self._truth_now)}
+        self._owed_obs = set(requests)
         send(list(requests))
         self._wait(f"the observation request of step {s}", missing, send)
         return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)

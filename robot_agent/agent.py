@@ -267,7 +267,7 @@ class Agent:
         if self.estopped:
             self._status(cmd, "refused", "emergency stop", remember=False)
             return
-        expected = max(self._last_obs_step, 0) + 1
+        expected = self._next_step
         if cmd.step != expected:
             self._status(cmd, "refused", f"out of sequence: step {cmd.step}, the next step of this robot is {expected}", remember=False)
             return
@@ -288,6 +288,12 @@ class Agent:
         self.executed += 1
         self._status(cmd, "done")
 
+    @property
+    def _next_step(self) -> int:
+        """The only step this robot may move or sense at next: the coordinator observes every robot after every
+        step, so a real command or request always follows the observation of the step before (step 1 first)."""
+        return max(self._last_obs_step, 0) + 1
+
     def _status(self, cmd: MotionCommand, state: str, reason: str = "", *, remember: bool = True) -> None:
         """Publish this robot's ``Status`` answering ``cmd``; ``remember`` it as the answer a re-sent command gets."""
         status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state=state, reason=reason, cmd_id=cmd.cmd_id)
@@ -301,7 +307,7 @@ class Agent:
                 self._send(self._last_truth)
             self._send(self._last_report)
             return
-        expected = self._pending if self._pending is not None else max(self._last_obs_step, 0) + 1
+        expected = self._pending if self._pending is not None else self._next_step
         if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))

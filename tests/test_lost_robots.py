@@ -27,29 +27,36 @@ CFG = ModelConfig()
 
 
 class LossySwarm(SimulatedSwarm):
-    """Loses robot r after motion step ``lose[r]`` (0: at the first ``take_lost``, i.e. while the first plan is made)."""
+    """Loses robot r in motion step ``lose[r]`` (0: while the first plan is made); like the Zenoh backend, it
+    neither commands nor observes a robot once it is lost, and reports it at the next ``take_lost``."""
 
     def __init__(self, traj, seed: int, lose: dict[int, int]) -> None:
         super().__init__(traj.ids, traj.initial_poses, CFG, seed)
         self.lose, self.steps, self.calls = dict(lose), 0, 0
+        self.untaken: dict[int, str] = {}
         self.commanded: list[tuple[int, list[int]]] = []  # (step, robots moved)
+
+    def _lose(self, due: dict[int, str]) -> None:
+        for r in due:
+            del self.lose[r]
+        self.untaken.update(due)
+        keep = ~np.isin(self.ids, list(due))
+        self.ids, self._poses = self.ids[keep], self._poses[keep]
+        self._motion = [g for g, k in zip(self._motion, keep) if k]
+        self._sensing = [g for g, k in zip(self._sensing, keep) if k]
 
     def execute(self, step: StepCommands) -> None:
         super().execute(step)
         self.steps += 1
         self.commanded.append((self.steps, step.ids[step.moving].tolist()))
+        self._lose({r: f"lost after step {at}" for r, at in self.lose.items() if 0 < at <= self.steps})
 
     def take_lost(self) -> dict[int, str]:
         self.calls += 1
-        due = {r: f"lost after step {at}" for r, at in self.lose.items() if at <= self.steps and (at > 0 or self.calls > 1)}
-        for r in due:
-            del self.lose[r]
-        keep = ~np.isin(self.ids, list(due))
-        if due:
-            self.ids, self._poses = self.ids[keep], self._poses[keep]
-            self._motion = [g for g, k in zip(self._motion, keep) if k]
-            self._sensing = [g for g, k in zip(self._sensing, keep) if k]
-        return due
+        if self.calls == 2:  # after the first plan was made
+            self._lose({r: "lost after step 0" for r, at in self.lose.items() if at == 0})
+        taken, self.untaken = self.untaken, {}
+        return taken
 
 
 def run(traj, method: str, lose: dict[int, int], seed: int = 3, **kw):
