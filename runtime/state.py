@@ -142,6 +142,15 @@ class SwarmEstimate:
             joint = self.joint[idx.ravel()[:, None], idx.ravel()[None, :]]
         return SwarmEstimate(self.ids[mask], self.poses[mask], self.cov[mask], joint)
 
+    def with_subset(self, mask: np.ndarray, sub: SwarmEstimate) -> SwarmEstimate:
+        """This estimate with the robots where ``mask`` (n,) replaced by ``sub`` (poses and covariances).
+
+        The joint covariance is dropped (the cross-covariances of the two parts are unknown here).
+        """
+        poses, cov = self.poses.copy(), self.cov.copy()
+        poses[mask], cov[mask] = sub.poses, sub.cov
+        return SwarmEstimate(self.ids, poses, cov)
+
 
 @dataclass(frozen=True)
 class StepCommands:

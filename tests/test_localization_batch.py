@@ -9,8 +9,7 @@ import pytest
 
 import coordinator.localization.batch as batch_module
 import coordinator.localization.joint as joint_module
-from coordinator.localization import make_localizer
-from coordinator.localization.batch import localize_batch, observable
+from coordinator.localization.batch import localize_batch, observable, reference_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
 from coordinator.localization.partial import localize_observable
@@ -112,11 +111,11 @@ def test_batch_equals_single_swarm_localizer(method, n, size):
     for k in range(size):
         prior, step, obs = batch.single(k)
         try:
-            want = make_localizer(method, cfg).localize(prior, step, obs)
+            want = reference_localizer(method, cfg).localize(prior, step, obs)
         except LocalizationError as err:
             assert err.reason in ("unobserved", "disconnected")
             assert not out.ok[k]  # not fully localized: the runtime's partial answer, as in the executor
-            partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
+            partial, excluded = localize_observable(reference_localizer(method, cfg), prior, step, obs, cfg)
             assert set(err.robots) <= set(excluded)
             assert_same_estimate(out.poses[k], out.cov[k], partial)
             dr = dead_reckon(prior, step, cfg)
@@ -150,7 +149,7 @@ def test_joint_block_covariances_above_the_exact_limit(monkeypatch):
     batch = random_batch(6, 4, cfg, seed=77)
     out = localize_batch("joint", cfg, *batch.arrays())
     for k in np.flatnonzero(out.ok):
-        assert_same_estimate(out.poses[k], out.cov[k], make_localizer("joint", cfg).localize(*batch.single(k)))
+        assert_same_estimate(out.poses[k], out.cov[k], reference_localizer("joint", cfg).localize(*batch.single(k)))
     assert out.ok.sum() >= 2
 
 
@@ -183,8 +182,8 @@ def test_non_observable_samples_are_localized_like_the_runtime(method):
     for k, reason in ((1, "unobserved"), (2, "disconnected")):
         prior, step, obs = batch.single(k)
         with pytest.raises(LocalizationError, match=reason):
-            make_localizer(method, cfg).localize(prior, step, obs)
-        partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
+            reference_localizer(method, cfg).localize(prior, step, obs)
+        partial, excluded = localize_observable(reference_localizer(method, cfg), prior, step, obs, cfg)
         assert set(excluded.values()) == {reason} and len(excluded) < 6
         assert_same_estimate(out.poses[k], out.cov[k], partial)
         dr = dead_reckon(prior, step, cfg)
@@ -192,7 +191,7 @@ def test_non_observable_samples_are_localized_like_the_runtime(method):
         np.testing.assert_allclose(out.poses[k][left], dr.poses[left], rtol=0, atol=1e-12)
         assert np.abs(out.poses[k][~left] - dr.poses[~left]).max() > 0  # the others were localized
     alone = localize_batch(method, cfg, *[a[:1] for a in batch.arrays()])
-    want = make_localizer(method, cfg).localize(case.prior, case.step, case.observations)
+    want = reference_localizer(method, cfg).localize(case.prior, case.step, case.observations)
     for k in (0, 3):  # the localizable samples are unaffected by their neighbours in the batch
         np.testing.assert_array_equal(out.poses[k], out.poses[0])
         np.testing.assert_allclose(out.poses[k], alone.poses[0], rtol=0, atol=1e-12)

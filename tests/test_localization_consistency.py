@@ -13,10 +13,17 @@ import pytest
 from coordinator.consistency import chi2_band, position_nees
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.gauge import gauge_basis, merge_subset, transport
+from coordinator.localization.joint import JointLocalizer
+from scipy.stats import chi2
+
 from runtime.config import ModelConfig
+from runtime.geometry import wrap_angle
+from runtime.rng import Stream, robot_rngs
+from runtime.sensing import sense_swarm
 from runtime.errors import SwarmInputError
 from runtime.scenarios import random_step
-from runtime.state import SwarmEstimate
+from runtime.state import StepCommands, SwarmEstimate
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ModelConfig()
@@ -67,7 +74,95 @@ def test_joint_localizer_carries_the_joint_covariance():
     np.testing.assert_allclose(again.joint, first.joint, rtol=1e-6, atol=1e-15)
     # Correlations change the answer: the second step's prior holds them.
     step2 = loc.localize(first, case.step, case.observations)
-    assert step2.joint is not None and np.all(step2.delta <= first.delta + 1e-12)
+    independent = loc.localize(SwarmEstimate(first.ids, first.poses, first.cov), case.step, case.observations)
+    assert step2.joint is not None and not np.allclose(step2.cov, independent.cov, rtol=1e-3)
+
+
+def _gauge_information(est: SwarmEstimate, center: np.ndarray) -> np.ndarray:
+    basis = gauge_basis(est.poses, center)
+    return basis.T @ np.linalg.solve(est.joint, basis)
+
+
+@pytest.mark.parametrize("seed", [2, 3, 4])
+def test_constrained_update_gains_no_information_on_the_global_pose(seed):
+    """Observations are blind to the swarm's global translation and rotation, so an update may not
+    add information along them (Huang, Mourikis & Roumeliotis 2010). The plain inverse of J^T J does
+    (its Jacobian is blind at the solution, not at the prediction): that made long runs overconfident."""
+    case = random_step(8, CFG, np.random.default_rng(seed))
+    first = make_localizer("joint", CFG).localize(case.prior, case.step, case.observations)
+    still = StepCommands.stationary(first.ids)  # then a second look from where they stand
+    again = sense_swarm(case.true_after, first.ids, CFG, robot_rngs(seed + 100, first.ids, Stream.SENSING))
+    predicted = dead_reckon(first, still, CFG)
+    center = predicted.positions.mean(axis=0)  # the same fixed point before and after (gauge.transport)
+    before = _gauge_information(predicted, center)
+    gained = {}
+    for constrained in (True, False):
+        post = JointLocalizer(CFG, constrain_gauge=constrained).localize(first, still, again)
+        gained[constrained] = np.linalg.eigvalsh(_gauge_information(post, center) - before).max() / np.abs(before).max()
+    assert gained[True] < 1e-8
+    assert gained[False] > 1e-5
+
+
+def test_merge_subset_is_the_linear_update_of_the_kept_robots():
+    """Known answer: a linear measurement z = H x_A + v (v ~ N(0, I)) of robots A only, the Kalman update
+    of A, B left as they are. Errors: e_A' = (I - K H) e_A - K v, e_B' = e_B, so
+    Cov = [[C_A, (I - K H) P_AB], [P_BA (I - K H)^T, P_BB]] with C_A = (P_AA^-1 + H^T H)^-1, K = C_A H^T."""
+    rng = np.random.default_rng(5)
+    prior = random_joint(4, 5)
+    keep = np.array([True, False, True, True])
+    a = np.r_[0:3, 6:12]
+    b = np.r_[3:6]
+    h = rng.normal(size=(7, 9))
+    c_a = np.linalg.inv(np.linalg.inv(prior[np.ix_(a, a)]) + h.T @ h)
+    gain = c_a @ h.T
+    want_ab = (np.eye(9) - gain @ h) @ prior[np.ix_(a, b)]
+    got = merge_subset(prior, c_a, keep)
+    np.testing.assert_allclose(got[np.ix_(a, a)], c_a, rtol=1e-12)
+    np.testing.assert_allclose(got[np.ix_(a, b)], want_ab, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(got[np.ix_(b, b)], prior[np.ix_(b, b)])
+    np.testing.assert_allclose(got, got.T)
+    assert np.linalg.eigvalsh(got).min() > 0
+    np.testing.assert_array_equal(merge_subset(prior, c_a, np.ones(3, bool)), c_a)
+
+
+def test_transport_is_the_rank_three_map_of_the_gauge():
+    rng = np.random.default_rng(6)
+    predicted = np.column_stack([rng.uniform(-1, 1, (5, 2)), rng.uniform(-3, 3, 5)])
+    solution = predicted + rng.normal(0, 0.02, (5, 3))
+    cov = random_joint(5, 6)
+    center = predicted[:, :2].mean(axis=0)
+    basis = gauge_basis(predicted, center)
+    t = np.eye(15) + (gauge_basis(solution, center) - basis) @ np.linalg.pinv(basis)
+    np.testing.assert_allclose(t @ basis, gauge_basis(solution, center), atol=1e-12)
+    np.testing.assert_allclose(transport(cov, predicted, solution), t @ cov @ t.T, rtol=1e-10, atol=1e-16)
+    # The gauge: a global translation and a rotation about the centroid, with heading rate 1.
+    g = gauge_basis(predicted).reshape(5, 3, 3)
+    np.testing.assert_array_equal(g[:, :, 0], np.tile([1.0, 0.0, 0.0], (5, 1)))
+    np.testing.assert_allclose(g[:, :2, 2], np.column_stack([-(predicted[:, 1] - predicted[:, 1].mean()), predicted[:, 0] - predicted[:, 0].mean()]))
+    np.testing.assert_array_equal(g[:, 2, 2], np.ones(5))
+
+
+def test_one_update_is_consistent_in_monte_carlo():
+    """Truths drawn from the prior, observations drawn from the truths: the mean NEES of the joint
+    update over the 3n components is 1 within its chi-square band (300 draws, 10 robots)."""
+    rng = np.random.default_rng(7)
+    n, draws = 10, 300
+    mean = np.column_stack([rng.uniform(0, 0.6, (n, 2)), rng.uniform(-np.pi, np.pi, n)])
+    cov = np.broadcast_to(np.diag([0.02**2, 0.02**2, 0.05**2]), (n, 3, 3)).copy()
+    prior = SwarmEstimate(np.arange(n), mean, cov)
+    chol = np.linalg.cholesky(cov)
+    loc = make_localizer("joint", CFG)
+    nees = []
+    for k in range(draws):
+        truth = mean + np.einsum("nab,nb->na", chol, rng.normal(size=(n, 3)))
+        obs = sense_swarm(truth, prior.ids, CFG, robot_rngs(k, prior.ids, Stream.SENSING))
+        est = loc.localize(prior, StepCommands.stationary(prior.ids), obs)
+        e = truth - est.poses
+        e[:, 2] = wrap_angle(e[:, 2])
+        nees.append(e.ravel() @ np.linalg.solve(est.joint, e.ravel()))
+    dof = 3 * n * draws
+    low, high = chi2.ppf([0.001, 0.999], dof) / dof
+    assert low < np.sum(nees) / dof < high
 
 
 def _block(cov: np.ndarray) -> np.ndarray:

@@ -28,6 +28,10 @@ class Localizer(Protocol):
         """Post-step poses and covariances of every robot in ``prior.ids`` (global frame)."""
         ...
 
+    def localize_subset(self, prior: SwarmEstimate, step: StepCommands, obs: Observations, keep: np.ndarray) -> SwarmEstimate:
+        """``localize`` of the robots where ``keep`` (n,) alone; the others keep their dead reckoning."""
+        ...
+
     def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
         """Relative poses from observations alone, in the reference robot's frame."""
         ...

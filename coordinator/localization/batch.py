@@ -31,6 +31,11 @@ robots keep dead reckoning. For the joint method that is the batched solve with 
 robots' observations removed (a robot without observations keeps its prior exactly);
 samples that still fail, and the paper's method, go through the single-swarm runtime code.
 Samples holding invalid values get ``ok = False`` and dead reckoning; no exception is raised.
+
+Covariances are those of ``reference_localizer``: for the joint method, without the runtime's
+observability constraint (``gauge``). It removes information that builds up spuriously over
+hundreds of steps; within the few steps of one plan it changes a covariance by well under
+1 % (tests/test_localization_consistency.py), not worth its cost in the planner's inner loop.
 """
 
 from __future__ import annotations
@@ -41,7 +46,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, psd
+from coordinator.localization.joint import EXACT_COV_LIMIT, JointLocalizer, psd
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
 from coordinator.localization.sparse_lm import blas_threads
@@ -80,6 +85,13 @@ class BatchEstimate:
     poses: np.ndarray  # (B, n, 3)
     cov: np.ndarray  # (B, n, 3, 3)
     ok: np.ndarray  # (B,) bool: False where the sample could not be localized (poses/cov = dead reckoning)
+
+
+def reference_localizer(method: str, cfg: ModelConfig):
+    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``method``."""
+    if method == "joint":
+        return JointLocalizer(cfg, constrain_gauge=False)
+    return make_localizer(method, cfg)
 
 
 def localize_batch(
@@ -159,7 +171,7 @@ def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, movi
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
     ids = np.arange(n)
-    loc = make_localizer(method, cfg)
+    loc = reference_localizer(method, cfg)
     for b in rest:
         i, j = np.nonzero(seen[b])
         est, _ = localize_observable(

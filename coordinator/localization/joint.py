@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.dead_reckoning import dead_reckon_parts
+from coordinator.localization.gauge import constrained_covariance, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import (
@@ -39,7 +40,7 @@ from coordinator.localization.range_bearing import (
     sqrt_information,
     stack_terms,
 )
-from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt
+from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, huber_weights, jacobian, levenberg_marquardt, row_scaled
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
@@ -105,13 +106,9 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
     return psd(cov * (free[:, :, None] & free[:, None, :]))
 
 
-def joint_covariance(normal: sp.spmatrix | np.ndarray) -> np.ndarray:
-    """(J^T J)^-1 (3n, 3n), symmetric and positive semi-definite; NaN where singular."""
-    try:
-        full = np.linalg.inv(dense(normal))
-    except np.linalg.LinAlgError:
-        return np.full(normal.shape, np.nan)
-    full = 0.5 * (full + full.T)
+def psd_joint(cov: np.ndarray) -> np.ndarray:
+    """``cov`` (k, k) symmetrized, projected onto the PSD cone only when its Cholesky factorization fails."""
+    full = 0.5 * (cov + cov.T)
     if not np.isfinite(full).all():
         return full
     try:
@@ -119,6 +116,19 @@ def joint_covariance(normal: sp.spmatrix | np.ndarray) -> np.ndarray:
         return full
     except np.linalg.LinAlgError:
         return psd(full)
+
+
+def block_diagonal(cov: np.ndarray) -> np.ndarray:
+    """The joint covariance (3n, 3n) of independent robots with covariances ``cov`` (n, 3, 3)."""
+    n = len(cov)
+    out = np.zeros((n, 3, n, 3))
+    out[np.arange(n), :, np.arange(n), :] = cov
+    return out.reshape(3 * n, 3 * n)
+
+
+def _rows(keep: np.ndarray) -> np.ndarray:
+    """Indices of the state components (x, y, heading) of the robots where ``keep`` (n,)."""
+    return (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
 
 
 def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
@@ -143,23 +153,61 @@ class JointLocalizer:
 
     name = "joint"
 
-    def __init__(self, cfg: ModelConfig, huber: float | None = None) -> None:
+    def __init__(self, cfg: ModelConfig, huber: float | None = None, constrain_gauge: bool = True) -> None:
         self.cfg = cfg
         self.huber = huber  # in sigmas of the whitened residuals; None = least squares
+        self.constrain_gauge = constrain_gauge  # observability-constrained joint covariance (``gauge``)
 
     def localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
-        with blas_threads(3 * prior.n):
-            return self._localize(prior, step, obs)
+        return self.localize_subset(prior, step, obs, np.ones(prior.n, bool))
 
-    def _localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
-        mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
-        i, j = obs.indexed(prior.ids)
-        require_observable(prior.ids, i, j)
-        n = prior.n
+    def localize_subset(self, prior: SwarmEstimate, step: StepCommands, obs: Observations, keep: np.ndarray) -> SwarmEstimate:
+        """Post-step estimate of the whole swarm, localizing the robots where ``keep`` (n,) from the
+        observations among them; the others keep their dead reckoning (``partial.localize_observable``).
+
+        Up to ``EXACT_COV_LIMIT`` robots the joint covariance is returned: observability-constrained,
+        the others' cross-covariances updated with the kept robots' (``gauge``). Above it, the
+        conditional 3x3 blocks only.
+        """
+        keep = np.asarray(keep, bool)
+        with blas_threads(3 * prior.n):
+            mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
+            exact = prior.n <= EXACT_COV_LIMIT
+            if exact and dr_joint is None:
+                dr_joint = block_diagonal(dr_cov)
+            i, j = obs.indexed(prior.ids)
+            sub_obs = obs if keep.all() else obs.select(keep[i] & keep[j])
+            sub_joint = None if dr_joint is None else dr_joint[np.ix_(_rows(keep), _rows(keep))]
+            poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact)
+            poses = mean.copy()
+            poses[keep] = poses_a
+            if not exact:
+                cov = dr_cov.copy()
+                cov[keep] = cov_a
+                poses[:, 2] = wrap_angle(poses[:, 2])
+                return SwarmEstimate(prior.ids, poses, cov)
+            joint = merge_subset(dr_joint, cov_a, keep)
+            joint = psd_joint(transport(joint, mean, poses) if self.constrain_gauge else joint)
+            poses[:, 2] = wrap_angle(poses[:, 2])
+            idx = _rows(np.ones(prior.n, bool)).reshape(prior.n, 3)
+            checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
+            return SwarmEstimate.from_joint(prior.ids, poses, joint)
+
+    def _solve(
+        self, ids: np.ndarray, mean: np.ndarray, cov: np.ndarray, joint: np.ndarray | None, obs: Observations, exact: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the constrained joint one
+        (3k, 3k, before ``transport``) when ``exact``, else conditional 3x3 blocks (k, 3, 3).
+
+        The prior is the dead reckoning: ``mean`` (k, 3) with its joint covariance when given
+        (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3).
+        """
+        i, j = obs.indexed(ids)
+        require_observable(ids, i, j)
+        n = len(ids)
         layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
-        carried = dr_joint is not None and n <= EXACT_COV_LIMIT
-        u = joint_sqrt_information(dr_joint) if carried else sqrt_information(dr_cov)
-        prior_fn = joint_prior_terms if carried else prior_terms
+        u = sqrt_information(cov) if joint is None else joint_sqrt_information(joint)
+        prior_fn = prior_terms if joint is None else joint_prior_terms
 
         def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
             poses = layout.unpack(vec, mean)
@@ -171,16 +219,21 @@ class JointLocalizer:
 
         result = levenberg_marquardt(residuals, layout.pack(mean), huber=self.huber)
         if not result.converged:
-            suspects = worst_observation(residuals(result.x)[0], i, j, prior.ids)
+            suspects = worst_observation(residuals(result.x)[0], i, j, ids)
             raise LocalizationError("no-convergence", suspects, "joint least squares did not converge")
         poses = layout.unpack(result.x, mean)
-        poses[:, 2] = wrap_angle(poses[:, 2])
-        if n > EXACT_COV_LIMIT:
-            return SwarmEstimate(prior.ids, poses, checked(pose_covariances(result.normal_matrix, layout, n), prior.ids))
-        joint = joint_covariance(result.normal_matrix)
-        idx = np.arange(3 * n).reshape(n, 3)
-        checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
-        return SwarmEstimate.from_joint(prior.ids, poses, joint)
+        if not exact:
+            return poses, checked(pose_covariances(result.normal_matrix, layout, n), ids)
+        if self.constrain_gauge:
+            r, (rows, cols, vals) = observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg)
+            h = row_scaled(jacobian(len(r), layout.size, rows, cols, vals), np.sqrt(huber_weights(r, self.huber)))
+            cov = constrained_covariance(result.normal_matrix, h, mean)
+        else:
+            cov = inverse(result.normal_matrix)
+        if not np.isfinite(cov).all():  # singular information: name the robots through their blocks
+            blocks = _rows(np.ones(n, bool)).reshape(n, 3)
+            checked(cov[blocks[:, :, None], blocks[:, None, :]], ids)
+        return poses, cov
 
     def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
         """Relative poses with no prior, gauge as in the paper's topology (reference robot at the origin).

@@ -55,6 +55,16 @@ class PaperLocalizer:
         return SwarmEstimate(prior.ids, poses, cov)
 
 
+    def localize_subset(self, prior: SwarmEstimate, step: StepCommands, obs: Observations, keep: np.ndarray) -> SwarmEstimate:
+        """Post-step estimate of the whole swarm, localizing the robots where ``keep`` (n,) from the
+        observations among them; the others keep their dead reckoning (``partial.localize_observable``)."""
+        if keep.all():
+            return self.localize(prior, step, obs)
+        i, j = obs.indexed(prior.ids)
+        sub = self.localize(prior.select(keep), step.select(keep), obs.select(keep[i] & keep[j]))
+        return dead_reckon(prior, step, self.cfg).with_subset(keep, sub)
+
+
 def fuse(
     topo_positions: np.ndarray,
     topo_headings: np.ndarray,

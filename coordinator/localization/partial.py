@@ -65,29 +65,20 @@ def _reindex(keep: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray
 def localize_observable(
     localizer, prior: SwarmEstimate, step: StepCommands, obs: Observations, cfg: ModelConfig
 ) -> tuple[SwarmEstimate, dict[int, str]]:
-    """Post-step estimate and {robot id: reason} of the robots that kept dead reckoning."""
-    i, j = obs.indexed(prior.ids)
+    """Post-step estimate and {robot id: reason} of the robots that kept dead reckoning.
+
+    ``localizer.localize_subset`` localizes the robots kept and leaves the others at dead
+    reckoning (the joint localizer also carries their cross-covariances, ``gauge.merge_subset``).
+    """
 
     def solve(keep: np.ndarray) -> SwarmEstimate:
-        if keep.all():
-            return localizer.localize(prior, step, obs)
-        return localizer.localize(prior.select(keep), step.select(keep), obs.select(keep[i] & keep[j]))
+        return localizer.localize_subset(prior, step, obs, keep)
 
-    dr = dead_reckon(prior, step, cfg)
     try:
-        keep, sub, excluded = solvable_subset(solve, prior.ids, obs)
+        _keep, estimate, excluded = solvable_subset(solve, prior.ids, obs)
     except LocalizationError as exc:
-        return dr, {int(r): exc.reason for r in prior.ids}
-    if keep.all():
-        return sub, {}
-    return merge(dr, sub, keep), excluded
+        return dead_reckon(prior, step, cfg), {int(r): exc.reason for r in prior.ids}
+    return estimate, excluded
 
 
-def merge(dr: SwarmEstimate, sub: SwarmEstimate, keep: np.ndarray) -> SwarmEstimate:
-    """``dr`` with the robots where ``keep`` replaced by ``sub`` (their localized estimate)."""
-    poses, cov = dr.poses.copy(), dr.cov.copy()
-    poses[keep], cov[keep] = sub.poses, sub.cov
-    return SwarmEstimate(dr.ids, poses, cov)
-
-
-__all__ = ["localize_observable", "solvable_subset", "merge"]
+__all__ = ["localize_observable", "solvable_subset"]

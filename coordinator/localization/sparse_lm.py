@@ -88,6 +88,19 @@ def solve_normal(a: sp.spmatrix | np.ndarray, b: np.ndarray) -> np.ndarray:
     return splu(a.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(b)
 
 
+def huber_weights(r: np.ndarray, huber: float | None) -> np.ndarray:
+    """IRLS weights of whitened residuals ``r``: 1 inside ``huber`` sigmas, huber / |r| beyond (all 1 when None)."""
+    if huber is None:
+        return np.ones_like(r)
+    a = np.abs(r)
+    return np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
+
+
+def row_scaled(jac: sp.spmatrix | np.ndarray, scale: np.ndarray) -> sp.csr_matrix | np.ndarray:
+    """diag(scale) @ jac, dense or sparse like ``jac``."""
+    return scale[:, None] * jac if isinstance(jac, np.ndarray) else (sp.diags(scale) @ jac).tocsr()
+
+
 @dataclass(frozen=True)
 class LsqResult:
     x: np.ndarray
@@ -121,10 +134,9 @@ def levenberg_marquardt(
         if huber is None:
             return r, jac, 0.5 * float(r @ r)
         a = np.abs(r)
-        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
         cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
-        sw = np.sqrt(w)
-        return r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac), cost
+        sw = np.sqrt(huber_weights(r, huber))
+        return r * sw, row_scaled(jac, sw), cost
 
     def normal(jac):
         return jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()

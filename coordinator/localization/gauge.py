@@ -1,0 +1,114 @@
+"""The swarm's global pose is unobservable: keep the joint covariance from pretending otherwise.
+
+Range and body-frame bearing observations between robots are blind to three directions of
+the joint state, the gauge: a global translation (x, y) and a global rotation of every pose
+(``gauge_basis``). Only the first prior and the dead reckoning fix them, so a consistent
+filter never gains information along them. An extended Kalman filter does: its prior's
+information has no observation information along the gauge at the predicted poses N(mu),
+but the observation Jacobian H of an update, evaluated at the solution, is blind to
+N(solution) instead, and adding H^T H gains a little spurious information on the global
+rotation at every step. Along a trajectory the reported covariance then shrinks far below the
+error (measured: position NEES 2-8 x its expected value after 100 configurations).
+
+Observability-constrained covariance (Huang, Mourikis & Roumeliotis, "Observability-based
+rules for designing consistent EKF SLAM estimators", IJRR 2010), three pieces:
+
+* ``constrained_covariance``: the observation rows are projected off N(mu),
+  H~ = H (I - N (N^T N)^-1 N^T), and the covariance is (J^T J - H^T H + H~^T H~)^-1.
+* ``merge_subset``: when only some robots were localized (the others keep dead reckoning),
+  their cross-covariance with the others follows the same linear update (positive
+  semi-definite by construction).
+* ``transport``: the covariance is moved from N(mu) to N(solution), T = I + (N(solution) -
+  N(mu)) (N^T N)^-1 N^T, where the next step's propagation (linearised at the solution) maps
+  N(solution) onto the next prediction's gauge directions exactly.
+
+The estimate itself (the least-squares solution) is unchanged; only its covariance is.
+Units: metres and radians; matrices are ordered robot by robot (x_0, y_0, heading_0, x_1, ...).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+
+from coordinator.localization.sparse_lm import dense
+
+
+def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None) -> np.ndarray:
+    """N (3n, 3): the swarm's global translation (x, y) and rotation about ``center`` (2,) (default: the
+    centroid) at ``poses`` (n, 3).
+
+    Relative range and bearing observations do not change along these directions, to first
+    order at ``poses``: H(poses) N = 0.
+    """
+    n = len(poses)
+    c = poses[:, :2] - (poses[:, :2].mean(axis=0) if center is None else center)
+    basis = np.zeros((n, 3, 3))
+    basis[:, 0, 0] = basis[:, 1, 1] = basis[:, 2, 2] = 1.0
+    basis[:, 0, 2], basis[:, 1, 2] = -c[:, 1], c[:, 0]
+    return basis.reshape(3 * n, 3)
+
+
+def _projector(basis: np.ndarray) -> np.ndarray:
+    """(N^T N)^-1 N^T (3, 3n): coordinates along ``basis`` of a state vector."""
+    return np.linalg.solve(basis.T @ basis, basis.T)
+
+
+def constrained_covariance(normal: sp.spmatrix | np.ndarray, h: sp.spmatrix | np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(J^T J - H^T H + H~^T H~)^-1 (3n, 3n), H~ = H projected off N(``predicted``); NaN where singular.
+
+    ``normal`` is J^T J at the solution (whitened prior and observations), ``h`` the whitened
+    observation Jacobian (2m, 3n) there, ``predicted`` the dead-reckoning poses (n, 3).
+    """
+    basis = gauge_basis(predicted)
+    proj = _projector(basis)
+    hn = h @ basis  # (2m, 3)
+    cross = np.asarray(h.T @ hn) @ proj  # H^T H N (N^T N)^-1 N^T
+    return inverse(dense(normal) - cross - cross.T + proj.T @ (hn.T @ hn) @ proj)
+
+
+def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
+    """The covariance (k, k) of an information matrix; NaN where it is singular."""
+    try:
+        return np.linalg.inv(dense(info))
+    except np.linalg.LinAlgError:
+        return np.full(info.shape, np.nan)
+
+
+def merge_subset(prior: np.ndarray, updated: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """Joint covariance (3n, 3n) after an update of the robots ``keep`` (n,) alone, the others unchanged.
+
+    ``prior`` (3n, 3n) is the covariance before the update, ``updated`` (3a, 3a) the kept robots'
+    covariance after it (``constrained_covariance`` of their solve, before ``transport``). The
+    observations touched only the kept robots A, so their update was linear in their prior error,
+    e_A' = (I - K H) e_A + K v with (I - K H) = P_AA' P_AA^-1, and the others B keep theirs:
+    P_A'B = P_AA' P_AA^-1 P_AB, P_BB unchanged. Positive semi-definite whenever P_AA' <= P_AA.
+    """
+    if keep.all():
+        return updated
+    idx = np.arange(len(prior)).reshape(-1, 3)
+    a, b = idx[keep].ravel(), idx[~keep].ravel()
+    gain = np.linalg.solve(prior[np.ix_(a, a)], updated).T  # P_AA' P_AA^-1 (both symmetric)
+    out = prior.copy()
+    out[np.ix_(a, a)] = updated
+    out[np.ix_(a, b)] = gain @ prior[np.ix_(a, b)]
+    out[np.ix_(b, a)] = out[np.ix_(a, b)].T
+    return out
+
+
+def transport(cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray) -> np.ndarray:
+    """T cov T^T with T = I + (N(solution) - N(predicted)) (N^T N)^-1 N^T (a rank-3 update, O(n^2)).
+
+    Both rotations are about the same point (the predicted centroid): the symmetry that moves
+    ``predicted`` rotates ``solution`` about that point too, and so does the next propagation.
+    """
+    center = predicted[:, :2].mean(axis=0)
+    basis = gauge_basis(predicted, center)
+    proj = _projector(basis)
+    d = gauge_basis(solution, center) - basis  # (3n, 3)
+    pc = proj @ cov  # (3, 3n)
+    out = cov + d @ pc + pc.T @ d.T + d @ (pc @ proj.T) @ d.T
+    return 0.5 * (out + out.T)
+
+
+__all__ = ["constrained_covariance", "gauge_basis", "inverse", "merge_subset", "transport"]
