@@ -147,7 +147,8 @@ def test_one_update_is_consistent_in_monte_carlo():
     update over the 3n components is 1 within its chi-square band (300 draws, 10 robots)."""
     rng = np.random.default_rng(7)
     n, draws = 10, 300
-    mean = np.column_stack([rng.uniform(0, 0.6, (n, 2)), rng.uniform(-np.pi, np.pi, n)])
+    grid = 0.2 * np.column_stack([np.arange(n) % 4, np.arange(n) // 4])  # 0.2 m apart: no pair ever coincides
+    mean = np.column_stack([grid + rng.uniform(-0.03, 0.03, (n, 2)), rng.uniform(-np.pi, np.pi, n)])
     cov = np.broadcast_to(np.diag([0.02**2, 0.02**2, 0.05**2]), (n, 3, 3)).copy()
     prior = SwarmEstimate(np.arange(n), mean, cov)
     chol = np.linalg.cholesky(cov)

@@ -40,7 +40,7 @@ from coordinator.localization.range_bearing import (
     sqrt_information,
     stack_terms,
 )
-from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, huber_weights, jacobian, levenberg_marquardt, row_scaled
+from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
@@ -173,12 +173,12 @@ class JointLocalizer:
         with blas_threads(3 * prior.n):
             mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
             exact = prior.n <= EXACT_COV_LIMIT
-            if exact and dr_joint is None:
-                dr_joint = block_diagonal(dr_cov)
             i, j = obs.indexed(prior.ids)
             sub_obs = obs if keep.all() else obs.select(keep[i] & keep[j])
-            sub_joint = None if dr_joint is None else dr_joint[np.ix_(_rows(keep), _rows(keep))]
+            sub_joint = None if dr_joint is None or not exact else dr_joint[np.ix_(_rows(keep), _rows(keep))]
             poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact)
+            if exact and dr_joint is None and not keep.all():  # independent robots (a first step): sparse prior above
+                dr_joint = block_diagonal(dr_cov)
             poses = mean.copy()
             poses[keep] = poses_a
             if not exact:
@@ -224,10 +224,8 @@ class JointLocalizer:
         poses = layout.unpack(result.x, mean)
         if not exact:
             return poses, checked(pose_covariances(result.normal_matrix, layout, n), ids)
-        if self.constrain_gauge:
-            r, (rows, cols, vals) = observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg)
-            h = row_scaled(jacobian(len(r), layout.size, rows, cols, vals), np.sqrt(huber_weights(r, self.huber)))
-            cov = constrained_covariance(result.normal_matrix, h, mean)
+        if self.constrain_gauge:  # the observation rows of the final Jacobian (after the 3n prior rows)
+            cov = constrained_covariance(result.normal_matrix, result.jacobian[3 * n :], mean)
         else:
             cov = inverse(result.normal_matrix)
         if not np.isfinite(cov).all():  # singular information: name the robots through their blocks

@@ -2,7 +2,8 @@
 
 Residuals and Jacobians are assembled vectorised (COO triplets); the normal equations
 (J^T J + mu diag(J^T J)) dx = -J^T r are solved densely for small problems and with a
-sparse Cholesky-like factorization (SciPy's SuperLU in symmetric mode with a minimum-degree ordering)
+sparse LDL^T factorization (QDLDL with an approximate-minimum-degree ordering, its symbolic analysis reused
+across iterations)
 otherwise, so a 1000-robot swarm with range-limited sensing stays fast.
 
 Small problems (up to ``DENSE_JACOBIAN_LIMIT`` unknowns) never touch scipy.sparse: the Jacobian is
@@ -21,7 +22,7 @@ import contextlib
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.linalg import splu
+import qdldl
 from threadpoolctl import ThreadpoolController
 
 DENSE_LIMIT = 64  # unknowns up to which a dense solve beats SuperLU (sparse above: a 300x300 dense LU was ~3 ms)
@@ -79,26 +80,36 @@ def dense(a: sp.spmatrix | np.ndarray) -> np.ndarray:
     return a if isinstance(a, np.ndarray) else a.toarray()
 
 
-def solve_normal(a: sp.spmatrix | np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Solve the symmetric positive (semi)definite system a x = b: dense, or sparse LU in SuperLU's symmetric
-    mode (minimum-degree ordering of A^T + A, diagonal pivots), which on swarm graphs fills about a third less
-    than COLAMD and factorizes about 1.5x faster (500 robots: 6 ms against 9.5 ms)."""
+def solve_normal(a: sp.spmatrix | np.ndarray, b: np.ndarray, factor: SparseLDL | None = None) -> np.ndarray:
+    """Solve the symmetric positive definite system a x = b: dense up to ``DENSE_LIMIT`` unknowns, else by a
+    sparse LDL^T (``SparseLDL``; pass one to reuse its symbolic analysis across calls with the same pattern)."""
     if isinstance(a, np.ndarray) or a.shape[0] <= DENSE_LIMIT:
         return np.linalg.solve(dense(a), b)
-    return splu(a.tocsc(), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).solve(b)
+    return (factor or SparseLDL()).solve(a, b)
 
 
-def huber_weights(r: np.ndarray, huber: float | None) -> np.ndarray:
-    """IRLS weights of whitened residuals ``r``: 1 inside ``huber`` sigmas, huber / |r| beyond (all 1 when None)."""
-    if huber is None:
-        return np.ones_like(r)
-    a = np.abs(r)
-    return np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
+class SparseLDL:
+    """Sparse LDL^T factorization (QDLDL, approximate-minimum-degree ordering) of symmetric positive definite
+    matrices, keeping its ordering and symbolic analysis while the sparsity pattern stays the same.
 
+    Levenberg-Marquardt factorizes J^T J + mu D with one pattern at every iteration: the numeric
+    refactorization alone is 2.5-3x faster than a fresh factorization, itself 2-4x faster than SciPy's
+    SuperLU (300 unknowns: 0.34 / 0.95 / 4.1 ms; 3000: 16 / 43 / 77 ms).
+    """
 
-def row_scaled(jac: sp.spmatrix | np.ndarray, scale: np.ndarray) -> sp.csr_matrix | np.ndarray:
-    """diag(scale) @ jac, dense or sparse like ``jac``."""
-    return scale[:, None] * jac if isinstance(jac, np.ndarray) else (sp.diags(scale) @ jac).tocsr()
+    def __init__(self) -> None:
+        self._solver = None
+        self._pattern: tuple[np.ndarray, np.ndarray] | None = None
+
+    def solve(self, a: sp.spmatrix, b: np.ndarray) -> np.ndarray:
+        upper = sp.triu(a, format="csc")
+        upper.sort_indices()
+        pattern = (upper.indptr, upper.indices)
+        if self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern)):
+            self._solver.update(upper)
+        else:
+            self._solver, self._pattern = qdldl.Solver(upper), pattern
+        return self._solver.solve(b)
 
 
 @dataclass(frozen=True)
@@ -108,6 +119,7 @@ class LsqResult:
     iterations: int
     converged: bool
     normal_matrix: sp.csr_matrix | np.ndarray  # J^T J at the solution (Gauss-Newton information; dense when small)
+    jacobian: sp.csr_matrix | np.ndarray  # J there (whitened, Huber-weighted)
 
 
 def levenberg_marquardt(
@@ -134,9 +146,10 @@ def levenberg_marquardt(
         if huber is None:
             return r, jac, 0.5 * float(r @ r)
         a = np.abs(r)
+        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
         cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
-        sw = np.sqrt(huber_weights(r, huber))
-        return r * sw, row_scaled(jac, sw), cost
+        sw = np.sqrt(w)
+        return r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac), cost
 
     def normal(jac):
         return jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()
@@ -149,6 +162,7 @@ def levenberg_marquardt(
         return a + sp.diags(values)
 
     x = np.asarray(x0, dtype=float).copy()
+    factor = SparseLDL()
     r, jac, cost = weighted(x)
     mu = 1e-8
     converged = False
@@ -160,7 +174,7 @@ def levenberg_marquardt(
         if second_order is not None:
             a = add_diagonal(a, np.maximum(second_order(x, r), -0.9 * diag))
         while True:
-            dx = solve_normal(add_diagonal(a, mu * diag), -g)
+            dx = solve_normal(add_diagonal(a, mu * diag), -g, factor)
             x_new = x + dx
             r_new, jac_new, cost_new = weighted(x_new)
             if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-12) + 1e-300:
@@ -168,11 +182,11 @@ def levenberg_marquardt(
                 break
             mu *= 10.0
             if mu > 1e10:
-                return LsqResult(x, cost, it, converged, a)
+                return LsqResult(x, cost, it, converged, a, jac)
         small_step = np.max(np.abs(dx), initial=0.0) <= xtol * (1.0 + np.max(np.abs(x), initial=0.0))
         small_gain = cost - cost_new <= ftol * max(cost, 1e-300)
         x, r, jac, cost = x_new, r_new, jac_new, cost_new
         if small_step or small_gain:
             converged = True
             break
-    return LsqResult(x, cost, it, converged, normal(jac))
+    return LsqResult(x, cost, it, converged, normal(jac), jac)
