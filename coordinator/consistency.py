@@ -87,7 +87,7 @@ def consistency_study(
     methods: tuple[str, ...] = METHODS,
     robots: int = 10,
     configs: int = 100,
-    trajectories: int = 4,
+    trajectories: int = 16,
     seed: int = 0,
     selection: SelectionConfig = SelectionConfig(),
     progress: Callable[[int], None] | None = None,

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 import qdldl
 from threadpoolctl import ThreadpoolController
 
-DENSE_LIMIT = 64  # unknowns up to which a dense solve beats SuperLU (sparse above: a 300x300 dense LU was ~3 ms)
+DENSE_LIMIT = 64  # unknowns up to which a dense solve beats the sparse LDL^T (a 300x300 dense LU was ~3 ms)
 DENSE_JACOBIAN_LIMIT = 64  # unknowns up to which a dense Jacobian (and dense J^T J) beats building sparse ones
 BLAS_SMALL = 96  # matrix order below which OpenBLAS stays single-threaded anyway (no limit needed)
 _THREADPOOLS = ThreadpoolController()
