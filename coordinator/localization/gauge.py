@@ -54,17 +54,18 @@ def _projector(basis: np.ndarray) -> np.ndarray:
     return np.linalg.solve(basis.T @ basis, basis.T)
 
 
-def constrained_covariance(normal: sp.spmatrix | np.ndarray, h: sp.spmatrix | np.ndarray, predicted: np.ndarray) -> np.ndarray:
+def constrained_covariance(normal: sp.spmatrix | np.ndarray, observed: sp.spmatrix | np.ndarray, predicted: np.ndarray) -> np.ndarray:
     """(J^T J - H^T H + H~^T H~)^-1 (3n, 3n), H~ = H projected off N(``predicted``); NaN where singular.
 
-    ``normal`` is J^T J at the solution (whitened prior and observations), ``h`` the whitened
-    observation Jacobian (2m, 3n) there, ``predicted`` the dead-reckoning poses (n, 3).
+    ``normal`` is J^T J at the solution (whitened prior and observations), ``observed`` the
+    observations' share H^T H of it (whitened), ``predicted`` the dead-reckoning poses (n, 3).
+    With S = H^T H and Pi = (N^T N)^-1 N^T: H~^T H~ = S - S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi.
     """
     basis = gauge_basis(predicted)
     proj = _projector(basis)
-    hn = h @ basis  # (2m, 3)
-    cross = np.asarray(h.T @ hn) @ proj  # H^T H N (N^T N)^-1 N^T
-    return inverse(dense(normal) - cross - cross.T + proj.T @ (hn.T @ hn) @ proj)
+    sn = np.asarray(observed @ basis)  # S N, (3n, 3)
+    cross = sn @ proj
+    return inverse(dense(normal) - cross - cross.T + proj.T @ (basis.T @ sn) @ proj)
 
 
 def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:

@@ -40,7 +40,8 @@ from coordinator.localization.range_bearing import (
     sqrt_information,
     stack_terms,
 )
-from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt
+from coordinator.localization.joint_normal import JointProblem
+from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
@@ -132,10 +133,13 @@ def _rows(keep: np.ndarray) -> np.ndarray:
 
 
 def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.ndarray, ids: np.ndarray) -> np.ndarray:
-    """Ids of the two robots of the observation with the largest whitened residual (range^2 + bearing^2)."""
+    """Ids of the two robots of the observation with the largest whitened residual (range^2 + bearing^2).
+
+    ``residual`` holds the observations' whitened residuals, (m, 2) or flat and last in the vector.
+    """
     if len(observer) == 0:
         return ids
-    per_obs = residual[-2 * len(observer) :].reshape(-1, 2)
+    per_obs = residual.reshape(-1)[-2 * len(observer) :].reshape(-1, 2)
     k = int(np.argmax(np.sum(per_obs**2, axis=1)))
     return ids[[observer[k], observed[k]]]
 
@@ -205,27 +209,17 @@ class JointLocalizer:
         i, j = obs.indexed(ids)
         require_observable(ids, i, j)
         n = len(ids)
-        layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
         u = sqrt_information(cov) if joint is None else joint_sqrt_information(joint)
-        prior_fn = prior_terms if joint is None else joint_prior_terms
-
-        def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-            poses = layout.unpack(vec, mean)
-            return stack_terms(
-                layout.size,
-                prior_fn(poses, layout, mean, u),
-                observation_terms(poses, layout, i, j, obs.range_m, obs.bearing_rad, self.cfg),
-            )
-
-        result = levenberg_marquardt(residuals, layout.pack(mean), huber=self.huber)
+        problem = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)
+        result = minimize(problem.evaluate, mean.ravel(), solve=problem.solve)
         if not result.converged:
-            suspects = worst_observation(residuals(result.x)[0], i, j, ids)
+            suspects = worst_observation(problem.residuals(result.x)[1], i, j, ids)
             raise LocalizationError("no-convergence", suspects, "joint least squares did not converge")
-        poses = layout.unpack(result.x, mean)
+        poses = result.x.reshape(n, 3).copy()
         if not exact:
-            return poses, checked(pose_covariances(result.normal_matrix, layout, n), ids)
-        if self.constrain_gauge:  # the observation rows of the final Jacobian (after the 3n prior rows)
-            cov = constrained_covariance(result.normal_matrix, result.jacobian[3 * n :], mean)
+            return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
+        if self.constrain_gauge:
+            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean)
         else:
             cov = inverse(result.normal_matrix)
         if not np.isfinite(cov).all():  # singular information: name the robots through their blocks

@@ -60,6 +60,29 @@ def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     return rho2 / (s_b * np.sqrt(rho2 * rho2 + gate2 * gate2))
 
 
+def observation_blocks(
+    poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, range_m: np.ndarray, bearing_rad: np.ndarray, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whitened residuals (m, 2) = (range, bearing) of each observation and their Jacobians (m, 2, 5)
+    over the five unknowns they depend on, (x_i, y_i, theta_i, x_j, y_j) of observer i and observed j.
+
+    Bearings are whitened by ``bearing_weights`` of their measured range ``range_m``.
+    """
+    s_r, _ = sensor_sigmas(cfg)
+    w_b = bearing_weights(range_m, cfg)
+    d = poses[observed, :2] - poses[observer, :2]
+    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+    residual = np.empty((len(observer), 2))
+    residual[:, 0] = (dist - range_m) / s_r
+    residual[:, 1] = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
+    ux, uy = d[:, 0] / dist, d[:, 1] / dist  # d range / d x_j
+    bx, by = -d[:, 1] / dist**2 * w_b, d[:, 0] / dist**2 * w_b  # d bearing / d x_j, whitened
+    jac = np.zeros((len(observer), 2, 5))
+    jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 3], jac[:, 0, 4] = -ux / s_r, -uy / s_r, ux / s_r, uy / s_r
+    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2], jac[:, 1, 3], jac[:, 1, 4] = -bx, -by, -w_b, bx, by
+    return residual, jac
+
+
 def observation_terms(
     poses: np.ndarray,
     layout: PoseLayout,
@@ -69,26 +92,13 @@ def observation_terms(
     bearing_rad: np.ndarray,
     cfg: ModelConfig,
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets.
-
-    Bearings are whitened by ``bearing_weights`` of their measured range ``range_m``.
-    """
-    s_r, _ = sensor_sigmas(cfg)
-    w_b = bearing_weights(range_m, cfg)
-    m = len(observer)
-    d = poses[observed, :2] - poses[observer, :2]
-    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-    r_range = (dist - range_m) / s_r
-    r_bearing = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
-    residual = np.stack([r_range, r_bearing], axis=1).ravel()
-    ux, uy = d[:, 0] / dist, d[:, 1] / dist  # d range / d x_j
-    bx, by = -d[:, 1] / dist**2, d[:, 0] / dist**2  # d bearing / d x_j
+    """``observation_blocks`` as residuals (2m,) ordered [range_0, bearing_0, range_1, ...] and COO Jacobian triplets."""
+    residual, jac = observation_blocks(poses, observer, observed, range_m, bearing_rad, cfg)
     ci, cj = layout.cols[observer], layout.cols[observed]
-    rr, rb = 2 * np.arange(m), 2 * np.arange(m) + 1
-    rows = np.concatenate([rr, rr, rr, rr, rb, rb, rb, rb, rb])
-    cols = np.concatenate([ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 0], ci[:, 1], cj[:, 0], cj[:, 1], ci[:, 2]])
-    vals = np.concatenate([-ux / s_r, -uy / s_r, ux / s_r, uy / s_r, -bx * w_b, -by * w_b, bx * w_b, by * w_b, -w_b])
-    return residual, (rows, cols, vals)
+    cols5 = np.stack([ci[:, 0], ci[:, 1], ci[:, 2], cj[:, 0], cj[:, 1]], axis=1)  # (m, 5)
+    rows = np.broadcast_to(np.arange(2 * len(observer)).reshape(-1, 2, 1), jac.shape)
+    cols = np.broadcast_to(cols5[:, None, :], jac.shape)
+    return residual.ravel(), (rows.ravel(), cols.ravel(), jac.ravel())
 
 
 def prior_terms(

@@ -113,13 +113,92 @@ class SparseLDL:
 
 
 @dataclass(frozen=True)
+class NormalEquations:
+    """The Gauss-Newton system of a least-squares problem at one point.
+
+    ``normal`` = J^T J (whitened, Huber-weighted), ``gradient`` = J^T r, ``curvature`` the diagonal
+    second-order term to add for the step (or None), ``extra`` whatever the problem wants back at
+    the solution (the Jacobian, for residual problems).
+    """
+
+    cost: float
+    normal: sp.spmatrix | np.ndarray
+    gradient: np.ndarray
+    curvature: np.ndarray | None = None
+    extra: object = None
+
+
+@dataclass(frozen=True)
 class LsqResult:
     x: np.ndarray
     cost: float
     iterations: int
     converged: bool
-    normal_matrix: sp.csr_matrix | np.ndarray  # J^T J at the solution (Gauss-Newton information; dense when small)
-    jacobian: sp.csr_matrix | np.ndarray  # J there (whitened, Huber-weighted)
+    normal_matrix: sp.spmatrix | np.ndarray  # J^T J at the solution (Gauss-Newton information; dense when small)
+    extra: object  # the problem's ``NormalEquations.extra`` there (the Jacobian, for residual problems)
+
+
+def add_diagonal(a: sp.spmatrix | np.ndarray, values: np.ndarray) -> sp.spmatrix | np.ndarray:
+    """a + diag(values), dense or sparse like ``a``."""
+    if isinstance(a, np.ndarray):
+        out = a.copy()
+        out.flat[:: len(out) + 1] += values
+        return out
+    return a + sp.diags(values)
+
+
+def minimize(
+    evaluate: Callable[[np.ndarray], NormalEquations],
+    x0: np.ndarray,
+    *,
+    solve: Callable[[sp.spmatrix | np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+    max_iter: int = 100,
+    xtol: float = 1e-10,
+    ftol: float = 1e-12,
+) -> LsqResult:
+    """Levenberg-Marquardt on the normal equations ``evaluate(x)`` returns.
+
+    ``solve(a, shift, rhs)`` solves (a + diag(shift)) dx = rhs (default: ``solve_normal``, its
+    factorization reused while the pattern stays).
+
+    Step (A + C + mu D) dx = -g with D = diag(A) (floored at 1e-12) and C the curvature kept
+    >= -0.9 D; mu starts at 1e-8, is divided by 10 on an accepted step (floor 1e-12) and
+    multiplied by 10 on a rejected one (giving up above 1e10). Converged when the step is
+    below ``xtol`` relative to x or the cost decrease below ``ftol`` relative to the cost.
+    """
+    x = np.asarray(x0, dtype=float).copy()
+    if solve is None:
+        factor = SparseLDL()
+
+        def solve(a, shift, rhs):
+            return solve_normal(add_diagonal(a, shift), rhs, factor)
+
+    ne = evaluate(x)
+    mu = 1e-8
+    converged = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        a = ne.normal
+        diag = np.maximum(a.diagonal(), 1e-12)
+        if ne.curvature is not None:
+            a = add_diagonal(a, np.maximum(ne.curvature, -0.9 * diag))
+        while True:
+            dx = solve(a, mu * diag, -ne.gradient)
+            x_new = x + dx
+            ne_new = evaluate(x_new)
+            if np.isfinite(ne_new.cost) and ne_new.cost <= ne.cost * (1 + 1e-12) + 1e-300:
+                mu = max(mu / 10.0, 1e-12)
+                break
+            mu *= 10.0
+            if mu > 1e10:
+                return LsqResult(x, ne.cost, it, converged, a, ne.extra)
+        small_step = np.max(np.abs(dx), initial=0.0) <= xtol * (1.0 + np.max(np.abs(x), initial=0.0))
+        small_gain = ne.cost - ne_new.cost <= ftol * max(ne.cost, 1e-300)
+        x, ne = x_new, ne_new
+        if small_step or small_gain:
+            converged = True
+            break
+    return LsqResult(x, ne.cost, it, converged, ne.normal, ne.extra)
 
 
 def levenberg_marquardt(
@@ -132,61 +211,28 @@ def levenberg_marquardt(
     xtol: float = 1e-10,
     ftol: float = 1e-12,
 ) -> LsqResult:
-    """Minimise sum(rho(r_k(x))) with rho quadratic (or Huber beyond ``huber``, via IRLS).
+    """Minimise sum(rho(r_k(x))) with rho quadratic (or Huber beyond ``huber``, via IRLS) by ``minimize``.
 
     ``residuals(x)`` returns the residual vector and its sparse Jacobian; residuals
     should be whitened (unit variance) when ``huber`` is used, so the threshold is in sigmas.
     ``second_order(x, r)``, if given, returns the diagonal of sum_k r_k d^2 r_k / dx^2,
     the term Gauss-Newton drops; adding it (kept >= 10 % of the Gauss-Newton diagonal)
     restores fast convergence where soft modes meet curved residuals (rotations).
+    The result's ``extra`` is the (weighted) Jacobian at the solution.
     """
 
-    def weighted(x: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix | np.ndarray, float]:
+    def evaluate(x: np.ndarray) -> NormalEquations:
         r, jac = residuals(x)
         if huber is None:
-            return r, jac, 0.5 * float(r @ r)
-        a = np.abs(r)
-        w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
-        cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
-        sw = np.sqrt(w)
-        return r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac), cost
+            cost = 0.5 * float(r @ r)
+        else:
+            a = np.abs(r)
+            w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
+            cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
+            sw = np.sqrt(w)
+            r, jac = r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac)
+        normal = jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()
+        curvature = None if second_order is None else second_order(x, r)  # of the weighted residuals
+        return NormalEquations(cost, normal, jac.T @ r, curvature, jac)
 
-    def normal(jac):
-        return jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()
-
-    def add_diagonal(a, values):
-        if isinstance(a, np.ndarray):
-            out = a.copy()
-            out.flat[:: len(out) + 1] += values
-            return out
-        return a + sp.diags(values)
-
-    x = np.asarray(x0, dtype=float).copy()
-    factor = SparseLDL()
-    r, jac, cost = weighted(x)
-    mu = 1e-8
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        a = normal(jac)
-        g = jac.T @ r
-        diag = np.maximum(a.diagonal(), 1e-12)
-        if second_order is not None:
-            a = add_diagonal(a, np.maximum(second_order(x, r), -0.9 * diag))
-        while True:
-            dx = solve_normal(add_diagonal(a, mu * diag), -g, factor)
-            x_new = x + dx
-            r_new, jac_new, cost_new = weighted(x_new)
-            if np.isfinite(cost_new) and cost_new <= cost * (1 + 1e-12) + 1e-300:
-                mu = max(mu / 10.0, 1e-12)
-                break
-            mu *= 10.0
-            if mu > 1e10:
-                return LsqResult(x, cost, it, converged, a, jac)
-        small_step = np.max(np.abs(dx), initial=0.0) <= xtol * (1.0 + np.max(np.abs(x), initial=0.0))
-        small_gain = cost - cost_new <= ftol * max(cost, 1e-300)
-        x, r, jac, cost = x_new, r_new, jac_new, cost_new
-        if small_step or small_gain:
-            converged = True
-            break
-    return LsqResult(x, cost, it, converged, normal(jac), jac)
+    return minimize(evaluate, x0, max_iter=max_iter, xtol=xtol, ftol=ftol)
