@@ -33,6 +33,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
 
 METHODS = ("paper", "joint")
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
+EXACT_COV_LIMIT = 500  # robots up to which the joint localizer returns the joint covariance (joint.EXACT_COV_LIMIT)
 SPACING_M = 0.25
 GAUSSIAN_FLOOR = 1e-12  # variance added to the GTSAM prior covariances (exact anchors)
 
@@ -63,11 +64,13 @@ def load_gtsam() -> Any | None:
     return gtsam
 
 
-def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig) -> Any:
+def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig, covariance: bool = False) -> Any:
     """Build and solve the joint problem of ``case`` as a GTSAM factor graph; returns the ``gtsam.Values``.
 
     Priors: the dead-reckoning mean and covariance. GTSAM's Pose2 tangent space is in
     the body frame, so the world-frame covariance is rotated by -heading on the xy block.
+    ``covariance``: also the joint marginal covariance of all poses (``gtsam.Marginals``), the
+    work our joint localizer does besides the solve (it returns the 3n x 3n joint covariance).
     """
     from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
     dr = dead_reckon(case.prior, case.step, cfg)
@@ -88,7 +91,11 @@ def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig) -> Any:
     obs = case.observations
     for a, b, rho, phi in zip(i.tolist(), j.tolist(), obs.range_m.tolist(), obs.bearing_rad.tolist()):
         graph.add(gtsam.BearingRangeFactorPose2(a, b, gtsam.Rot2(phi), rho, noise))
-    return gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    values = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
+    if covariance:
+        keys = gtsam.KeyVector(list(range(dr.n)))
+        gtsam.Marginals(graph, values).jointMarginalCovariance(keys).fullMatrix()
+    return values
 
 
 def gtsam_positions(values: Any, n: int) -> np.ndarray:
@@ -144,7 +151,7 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from runtime.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}
-    stats = {name: MethodStats() for name in (*METHODS, "gtsam")}
+    stats = {name: MethodStats() for name in (*METHODS, "gtsam", "gtsam_cov")}
     crlb_sq: list[np.ndarray] = []
     n_obs: list[int] = []
     for trial in range(args.trials):
@@ -163,6 +170,9 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
         if gtsam is not None:
             times, values = timed(lambda: gtsam_localize(gtsam, case, cfg), args.repeats)
             stats["gtsam"].record(times, gtsam_positions(values, n), truth)
+            if n <= EXACT_COV_LIMIT:
+                times, values = timed(lambda: gtsam_localize(gtsam, case, cfg, covariance=True), args.repeats)
+                stats["gtsam_cov"].record(times, gtsam_positions(values, n), truth)
 
     crlb_rms = float(np.sqrt(np.mean(np.concatenate(crlb_sq)))) if crlb_sq else None
     per = {name: stats[name].summary(crlb_rms) for name in METHODS}
@@ -181,6 +191,11 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
         joint_err = float(np.sqrt(np.mean(np.concatenate(stats["joint"].sq_err))))
         gtsam_err = float(np.sqrt(np.mean(np.concatenate(stats["gtsam"].sq_err))))
         result["joint_over_gtsam_err"] = sig(joint_err / gtsam_err) if gtsam_err > 0 else None
+        with_cov = stats["gtsam_cov"].times_ms
+        result["gtsam_cov_ms_median"] = sig(statistics.median(with_cov)) if with_cov else None
+        result["joint_over_gtsam_cov_time"] = (
+            sig(statistics.median(stats["joint"].times_ms) / statistics.median(with_cov)) if with_cov else None
+        )
     return result
 
 
@@ -210,7 +225,9 @@ def print_table(results: list[dict[str, Any]], gtsam_used: bool) -> None:
             f"  n={r['n']}: time {fmt(r['joint']['ms_median'], '.3f')} ms"
             f" / {fmt(r['gtsam']['ms_median'], '.3f')} ms = {fmt(r['joint_over_gtsam_ms'], '.3g')}x,"
             f" error {fmt(r['joint']['err_rms_m'], '.5f')} m / {fmt(r['gtsam']['err_rms_m'], '.5f')} m"
-            f" = {fmt(r['joint_over_gtsam_err'], '.4f')}"
+            f" = {fmt(r['joint_over_gtsam_err'], '.4f')};"
+            f" with GTSAM's joint marginal covariance too (the same work): {fmt(r['gtsam_cov_ms_median'], '.3f')} ms,"
+            f" joint / that = {fmt(r['joint_over_gtsam_cov_time'], '.3g')}x"
         )
 
 
