@@ -46,7 +46,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, JointLocalizer, psd
+from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
 from coordinator.localization.sparse_lm import blas_threads
@@ -71,7 +71,7 @@ METHODS = ("paper", "joint")
 # topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
 # would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
 PAPER_TOL = (1e-10, 1e-12)
-JOINT_TOL = (1e-10, 1e-12)
+JOINT_TOL = (XTOL, FTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL)
 MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
