@@ -71,7 +71,7 @@ from collections.abc import Collection
 
 import numpy as np
 
-from robot_agent.driver import Driver, DriverRefused, RobotLost
+from robot_agent.driver import Driver, DriverRefused, PeerPoses, RobotLost
 from runtime.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
 from runtime.messages import (
     CommandLimits,
@@ -130,7 +130,7 @@ class Agent:
         self._last_report: ObservationReport | None = None
         self._last_truth: TruthMessage | None = None
         self._pending: int | None = None  # step of an ObserveRequest waiting for truths
-        self._peers: dict[int, np.ndarray] | None = None  # the pending step's truth set (simulation)
+        self._peers: PeerPoses | None = None  # the pending step's truth set (simulation)
         self._session = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
@@ -317,7 +317,7 @@ class Agent:
             self._publish_truth(req.step)
         self._try_report()
 
-    def _on_truths(self, msg: TruthSetMessage, poses: dict[int, np.ndarray]) -> None:
+    def _on_truths(self, msg: TruthSetMessage, poses: PeerPoses) -> None:
         """The truth set ``msg`` with its ``poses`` by robot (shared read-only by the agents of a process)."""
         if msg.step != self._pending:
             if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
@@ -347,12 +347,22 @@ class Agent:
         self._send(report)
 
 
+_TRUTHS_LOCK = threading.Lock()
+
+
+def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> tuple[TruthSetMessage, PeerPoses] | MessageError:
+    """A ``TruthSetMessage`` and its poses (or why it is bad), decoded once per process: the agents a host runs
+    (``robot_agent.host``) all receive the same set of every robot's pose each step, at the same moment. The
+    lock makes the first decode and the others wait for its cached result (without it all 50 threads of a host
+    missed the cache together and decoded the 500-pose set 50 times: most of a 500-agent step's CPU)."""
+    with _TRUTHS_LOCK:
+        return _decode_truths_once(payload, known, key)
+
+
 @functools.lru_cache(maxsize=4)
-def _decode_truths(payload: bytes, known: frozenset[int], key: str) -> tuple[TruthSetMessage, dict[int, np.ndarray]] | MessageError:
-    """A ``TruthSetMessage`` and its poses by robot (or why it is bad), decoded once per process: the agents a
-    host runs (``robot_agent.host``) all receive the same set of every robot's pose each step."""
+def _decode_truths_once(payload: bytes, known: frozenset[int], key: str) -> tuple[TruthSetMessage, PeerPoses] | MessageError:
     try:
         msg = decode(payload, TruthSetMessage, known, key=key)
     except MessageError as e:
         return e
-    return msg, {r: np.array(p, dtype=float) for r, p in zip(msg.ids, msg.poses)}
+    return msg, PeerPoses(np.array(msg.ids, dtype=np.int64), np.array(msg.poses, dtype=float).reshape(len(msg.ids), 3))

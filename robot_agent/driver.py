@@ -13,6 +13,8 @@ implements the same interface and ignores ``peers``.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -23,6 +25,26 @@ from runtime.messages import MotionCommand
 from runtime.motion import execute_command
 from runtime.rng import Stream, robot_rng
 from runtime.sensing import sense_robot
+
+
+@dataclass(frozen=True)
+class PeerPoses:
+    """The true poses (n, 3) of robots ``ids`` (n,) of one step (simulation): what a simulated robot senses.
+
+    Built once per process from a ``TruthSetMessage`` and shared read-only by the agents it hosts,
+    so each agent's sensing is array work, not a rebuild of n poses.
+    """
+
+    ids: np.ndarray
+    poses: np.ndarray
+
+    @classmethod
+    def of(cls, peers: PeerPoses | Mapping[int, np.ndarray]) -> PeerPoses:
+        """``peers`` as ``PeerPoses`` (a mapping robot id -> pose is converted)."""
+        if isinstance(peers, PeerPoses):
+            return peers
+        ids = np.array(sorted(peers), dtype=np.int64)
+        return cls(ids, np.array([peers[int(i)] for i in ids], dtype=float).reshape(len(ids), 3))
 
 
 class DriverRefused(Exception):
@@ -66,10 +88,10 @@ class Driver(Protocol):
         """The true pose (3,) (simulation), or None (hardware)."""
         ...
 
-    def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(observed ids, ranges m, bearings rad in the body frame) of the neighbours after ``step``.
 
-        ``peers``: the true pose by id of every robot still in the run (own included), for simulated drivers.
+        ``peers``: the true poses of every robot still in the run (own included), for simulated drivers.
         """
         ...
 
@@ -84,6 +106,7 @@ class SimDriver:
             raise SwarmInputError(f"robot {robot} is not one of the run's robots {ids}")
         self.robot = int(robot)
         self.ids = [int(i) for i in ids]
+        self._ids = np.array(self.ids, dtype=np.int64)
         self._pose = np.array(pose, dtype=float).reshape(3)
         if not np.all(np.isfinite(self._pose)):
             raise SwarmInputError(f"initial pose of robot {robot} must be finite, got {self._pose.tolist()}")
@@ -116,13 +139,19 @@ class SimDriver:
     def true_pose(self) -> np.ndarray:
         return self._pose.copy()
 
-    def sense(self, peers: dict[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        if peers is None or self.robot not in peers or not set(peers) <= set(self.ids):
+    def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        peers = None if peers is None else PeerPoses.of(peers)
+        own = None if peers is None else np.flatnonzero(peers.ids == self.robot)
+        if peers is None or len(own) != 1 or not np.isin(peers.ids, self._ids).all():
+            got = [] if peers is None else peers.ids.tolist()
             raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "
-                                  f"(its own included, run robots only); got {sorted(peers or {})}")
-        present = [i for i in self.ids if i in peers]  # robots dropped from the run (lost) are not sensed
-        poses = np.array([peers[i] for i in present], dtype=float)
-        index = present.index(self.robot)
+                                  f"(its own included, run robots only); got {got}")
+        sorter = np.argsort(self._ids)
+        rank = sorter[np.searchsorted(self._ids, peers.ids, sorter=sorter)]  # position in the run's order
+        order = np.argsort(rank)  # the run's order, as the noise streams are drawn; lost robots are absent
+        present = peers.ids[order]
+        poses = peers.poses[order]
+        index = int(np.flatnonzero(present == self.robot)[0])
         poses[index] = self._pose
         nb, rho, phi = sense_robot(poses, index, self.cfg, self._sensing)
-        return np.array(present, dtype=np.int64)[nb], rho, phi
+        return present[nb], rho, phi

@@ -39,7 +39,7 @@ from runtime.gateway_config import GatewayConfig
 from runtime.keys import validate_run
 from runtime.messages import CommandLimits
 from runtime.trajectory import Trajectory
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import leave, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
 
 
@@ -163,4 +163,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    leave(main())  # no interpreter finalization under Zenoh threads (entry.leave)

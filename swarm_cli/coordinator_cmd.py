@@ -48,7 +48,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.keys import run_wildcard, validate_run
 from runtime.trajectory import Trajectory
-from swarm_cli.entry import StopSignals, run_standalone
+from swarm_cli.entry import StopSignals, leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
@@ -352,12 +352,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    # Leave without interpreter finalization: a Zenoh thread still delivering a late sample
-    # (a closed session does not wait for it) would re-enter Python while the interpreter
-    # finalizes; CPython 3.11 then pthread_exit()s that Rust thread, whose unwinder aborts
-    # the process ("FATAL: exception not rethrown", signal 6). Sessions and the recording are
-    # closed by now; only the standard streams need flushing.
-    code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)
+    leave(main())  # no interpreter finalization under Zenoh threads (entry.leave)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.entry import Command, add_commands, guarded
+from swarm_cli.entry import Command, add_commands, guarded, leave
 
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
@@ -45,10 +45,17 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+ZENOH_PROCESSES = ("agent", "coordinator")  # long-lived processes whose exit skips finalization (entry.leave)
+
+
 def main(argv: list[str] | None = None) -> int:
+    standalone = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
     args = build_parser(argv).parse_args(argv)
-    return guarded(f"swarm {args.command}", lambda: args.run(args))
+    code = guarded(f"swarm {args.command}", lambda: args.run(args))
+    if standalone and args.command in ZENOH_PROCESSES:
+        leave(code)
+    return code
 
 
 if __name__ == "__main__":
