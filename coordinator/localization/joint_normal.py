@@ -21,7 +21,7 @@ import qdldl
 import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
 
-from coordinator.localization.range_bearing import observation_blocks
+from coordinator.localization.range_bearing import bearing_weights, observation_blocks
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations
 from runtime.config import ModelConfig
 from runtime.geometry import wrap_angle
@@ -52,6 +52,7 @@ class JointProblem:
         self.sqrt_info = sqrt_info
         self.joint_prior = sqrt_info.ndim == 2
         self.obs = (observer, observed, range_m, bearing_rad)
+        self.w_b = bearing_weights(range_m, cfg)  # fixed by the measured ranges
         self.cfg = cfg
         self.huber = huber
         self.dense = self.joint_prior or size <= DENSE_LIMIT
@@ -89,7 +90,7 @@ class JointProblem:
             prior = self.sqrt_info @ diff.ravel()
         else:
             prior = np.einsum("nab,nb->na", self.sqrt_info, diff).ravel()
-        obs, _ = observation_blocks(poses, *self.obs, self.cfg)
+        obs, _ = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
         return prior, obs
 
     def evaluate(self, x: np.ndarray) -> NormalEquations:
@@ -97,7 +98,7 @@ class JointProblem:
         poses = x.reshape(self.n, 3)
         diff = poses - self.mean
         diff[:, 2] = wrap_angle(diff[:, 2])
-        res, jac = observation_blocks(poses, *self.obs, self.cfg)
+        res, jac = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
         w_obs, cost_obs = self._weights(res)
         wj = jac if w_obs is None else jac * w_obs[:, :, None]
         blocks = wj[:, 0, :, None] * jac[:, 0, None, :] + wj[:, 1, :, None] * jac[:, 1, None, :]  # (m, 5, 5)

@@ -61,25 +61,32 @@ def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
 
 
 def observation_blocks(
-    poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, range_m: np.ndarray, bearing_rad: np.ndarray, cfg: ModelConfig
+    poses: np.ndarray,
+    observer: np.ndarray,
+    observed: np.ndarray,
+    range_m: np.ndarray,
+    bearing_rad: np.ndarray,
+    cfg: ModelConfig,
+    w_b: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Whitened residuals (m, 2) = (range, bearing) of each observation and their Jacobians (m, 2, 5)
     over the five unknowns they depend on, (x_i, y_i, theta_i, x_j, y_j) of observer i and observed j.
 
-    Bearings are whitened by ``bearing_weights`` of their measured range ``range_m``.
+    Bearings are whitened by ``bearing_weights`` of their measured range ``range_m`` (pass them as
+    ``w_b`` when they are already known: they do not change while the observations do not).
     """
     s_r, _ = sensor_sigmas(cfg)
-    w_b = bearing_weights(range_m, cfg)
+    w_b = bearing_weights(range_m, cfg) if w_b is None else w_b
     d = poses[observed, :2] - poses[observer, :2]
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-    residual = np.empty((len(observer), 2))
-    residual[:, 0] = (dist - range_m) / s_r
-    residual[:, 1] = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
-    ux, uy = d[:, 0] / dist, d[:, 1] / dist  # d range / d x_j
-    bx, by = -d[:, 1] / dist**2 * w_b, d[:, 0] / dist**2 * w_b  # d bearing / d x_j, whitened
-    jac = np.zeros((len(observer), 2, 5))
-    jac[:, 0, 0], jac[:, 0, 1], jac[:, 0, 3], jac[:, 0, 4] = -ux / s_r, -uy / s_r, ux / s_r, uy / s_r
-    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2], jac[:, 1, 3], jac[:, 1, 4] = -bx, -by, -w_b, bx, by
+    residual = np.stack([(dist - range_m) / s_r, wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b], axis=1)
+    u = d / (dist * s_r)[:, None]  # d range / d x_j, whitened
+    b = d * (w_b / dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
+    zero = np.zeros(len(observer))
+    jac = np.stack([
+        np.stack([-u[:, 0], -u[:, 1], zero, u[:, 0], u[:, 1]], axis=1),
+        np.stack([b[:, 1], -b[:, 0], -w_b, -b[:, 1], b[:, 0]], axis=1),
+    ], axis=1)
     return residual, jac
 
 
