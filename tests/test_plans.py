@@ -111,3 +111,21 @@ def test_genetic_search_finds_the_known_optimum_and_respects_feasibility():
 
     _, e_none, _ = genetic_search(evaluate, [Plan.equal(np.arange(n), n_a)], lambda p: False, rng)
     assert e_none == np.inf
+
+
+def test_plan_normalises_its_encoding():
+    """A plan given as floats and lists is stored as an int64 permutation and a tuple of ints.
+
+    By hand: order (2, 0, 1) cut into sizes (1, 2) gives groups [2] and [0, 1]; step 0 moves
+    robot 2 only, step 1 robots 0 and 1. The masks index arrays (a float mask or float group
+    indices could not), and the stored sizes compare equal to the tuple (1, 2).
+    """
+    plan = Plan([2.0, 0.0, 1.0], [np.int32(1), 2])
+    assert isinstance(plan.order, np.ndarray) and plan.order.dtype == np.int64
+    assert plan.order.tolist() == [2, 0, 1]
+    assert plan.sizes == (1, 2) and all(type(s) is int for s in plan.sizes)
+    assert [g.tolist() for g in plan.groups] == [[2], [0, 1]]
+    assert plan.moving(0).dtype == bool and plan.moving(0).tolist() == [False, False, True]
+    assert np.array([10, 11, 12])[plan.moving(1)].tolist() == [10, 11]
+    assert (plan.n_robots, plan.n_steps, plan.n_anchors) == (3, 2, 2)
+    assert plan.key() == ((2,), (0, 1))

@@ -1,0 +1,118 @@
+"""Known answers for the observability of the observation graph (coordinator/localization/graph.py).
+
+Connected components are compared with a breadth-first search written in the test; the subset and
+error cases are small graphs worked out by hand in the docstrings.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.localization.graph import (
+    SMALL_GRAPH,
+    components,
+    observable_subset,
+    require_observable,
+    unobserved,
+)
+from runtime.errors import LocalizationError
+
+
+def reference_partition(n: int, observer: np.ndarray, observed: np.ndarray) -> set[frozenset[int]]:
+    """Components of the undirected graph by breadth-first search."""
+    nbrs: list[set[int]] = [set() for _ in range(n)]
+    for a, b in zip(observer.tolist(), observed.tolist()):
+        nbrs[a].add(b)
+        nbrs[b].add(a)
+    seen, parts = set(), set()
+    for s in range(n):
+        if s in seen:
+            continue
+        comp, todo = {s}, [s]
+        while todo:
+            for m in nbrs[todo.pop()] - comp:
+                comp.add(m)
+                todo.append(m)
+        seen |= comp
+        parts.add(frozenset(comp))
+    return parts
+
+
+def partition(labels: np.ndarray) -> set[frozenset[int]]:
+    return {frozenset(np.flatnonzero(labels == v).tolist()) for v in np.unique(labels)}
+
+
+@pytest.mark.parametrize("n", [1, 7, SMALL_GRAPH, SMALL_GRAPH + 1, 150])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_components_match_breadth_first_search(n, seed):
+    """Random directed edges (about one per robot, so several components, long chains and isolated
+    robots); the labels' partition equals the BFS components, on both sides of the 64-robot switch."""
+    rng = np.random.default_rng(seed)
+    m = n
+    observer, observed = rng.integers(0, n, m), rng.integers(0, n, m)
+    labels = components(n, observer, observed)
+    assert labels.shape == (n,)
+    assert partition(labels) == reference_partition(n, observer, observed)
+
+
+def test_a_long_chain_is_one_component():
+    """A path 0 - 1 - ... - 39 given in reverse direction needs 39 label-propagation rounds."""
+    n = 40
+    labels = components(n, np.arange(1, n), np.arange(n - 1))
+    assert len(set(labels.tolist())) == 1
+
+
+def test_unobserved_by_hand():
+    """Robots 0..4, observed robots 1, 1, 3: robots 0, 2 and 4 were seen by nobody."""
+    assert unobserved(5, np.array([1, 1, 3])).tolist() == [0, 2, 4]
+    assert unobserved(3, np.array([], int)).tolist() == [0, 1, 2]
+
+
+def test_require_observable_names_the_robots():
+    """ids 10..14. Observations 0->1, 1->0, 2->0, 3->4, 4->3: robot 2 (id 12) unobserved. Adding 0->2 makes
+    everyone observed but {0, 1, 2} and {3, 4} are two groups: ids 13 and 14 lie outside the largest."""
+    ids = np.arange(10, 15)
+    obs, seen = np.array([0, 1, 2, 3, 4]), np.array([1, 0, 0, 4, 3])
+    with pytest.raises(LocalizationError) as err:
+        require_observable(ids, obs, seen)
+    assert (err.value.reason, err.value.robots) == ("unobserved", [12])
+    obs, seen = np.append(obs, 0), np.append(seen, 2)
+    with pytest.raises(LocalizationError, match="splits into 2 groups") as err:
+        require_observable(ids, obs, seen)
+    assert (err.value.reason, err.value.robots) == ("disconnected", [13, 14])
+    require_observable(ids, np.append(obs, 2), np.append(seen, 3))  # 2 -> 3 joins the groups
+
+
+def test_observable_subset_cascades():
+    """ids 10..14; observations 0<->1, 1<->2, 3->2, 3->4. Round 1: robot 3 is unobserved and dropped
+    (the graph is still connected through its edges). Round 2: without robot 3's observations robot 4
+    is unobserved too. Round 3 changes nothing: robots 0, 1, 2 remain."""
+    ids = np.arange(10, 15)
+    obs, seen = np.array([0, 1, 1, 2, 3, 3]), np.array([1, 0, 2, 1, 2, 4])
+    keep, why = observable_subset(ids, obs, seen)
+    assert keep.dtype == bool and keep.tolist() == [True, True, True, False, False]
+    assert why == {13: "unobserved", 14: "unobserved"}
+
+
+def test_observable_subset_keeps_the_largest_group():
+    """ids 10..15; observations 0<->1, 0<->5, 2<->3, 4->2: everyone is observed but robot 4; it is
+    dropped, then {0, 1, 5} (3 robots) beats {2, 3} (2 robots), whose members are 'disconnected'."""
+    ids = np.arange(10, 16)
+    obs, seen = np.array([0, 1, 0, 5, 2, 3, 4]), np.array([1, 0, 5, 0, 3, 2, 2])
+    keep, why = observable_subset(ids, obs, seen)
+    assert keep.tolist() == [True, True, False, False, False, True]
+    assert why == {14: "unobserved", 12: "disconnected", 13: "disconnected"}
+    assert all(type(k) is int for k in why)
+
+
+def test_observable_subset_of_nobody_observed():
+    """No observations: every robot is unobserved, nothing is kept."""
+    keep, why = observable_subset(np.array([7, 8]), np.array([], int), np.array([], int))
+    assert keep.tolist() == [False, False] and why == {7: "unobserved", 8: "unobserved"}
+
+
+def test_observable_subset_keeps_a_connected_swarm():
+    """A ring 0 -> 1 -> 2 -> 0: everyone kept, nothing excluded."""
+    keep, why = observable_subset(np.array([1, 2, 3]), np.array([0, 1, 2]), np.array([1, 2, 0]))
+    assert keep.tolist() == [True, True, True] and why == {}

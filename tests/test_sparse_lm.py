@@ -1,0 +1,234 @@
+"""Known answers for the shared least-squares machinery (coordinator/localization/sparse_lm.py).
+
+Each answer is worked out by hand in the test's docstring (small linear or Huber problems with a
+closed-form minimiser, the Rosenbrock valley, column maps of a few robots), not by running the code.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+from threadpoolctl import ThreadpoolController
+
+from coordinator.localization.sparse_lm import (
+    BLAS_SMALL,
+    DENSE_JACOBIAN_LIMIT,
+    DENSE_LIMIT,
+    PoseLayout,
+    blas_threads,
+    dense,
+    huber_weights,
+    jacobian,
+    levenberg_marquardt,
+    row_scaled,
+    solve_normal,
+)
+
+
+def blas_thread_counts() -> list[int]:
+    return [info["num_threads"] for info in ThreadpoolController().select(user_api="blas").info()]
+
+
+def test_blas_threads_limits_only_large_dense_algebra():
+    """Below order 96 nothing is limited (a no-op context); from 96 on, BLAS runs one thread
+    even when the caller allowed two."""
+    assert BLAS_SMALL == 96
+    assert isinstance(blas_threads(95), contextlib.nullcontext)
+    assert not isinstance(blas_threads(96), contextlib.nullcontext)
+    if not blas_thread_counts():
+        pytest.skip("no BLAS library visible to threadpoolctl")
+    with ThreadpoolController().limit(limits=2, user_api="blas"):
+        outside = blas_thread_counts()
+        with blas_threads(96):
+            assert set(blas_thread_counts()) == {1}
+        with blas_threads(95):
+            assert blas_thread_counts() == outside
+
+
+def test_pose_layout_columns_pack_and_unpack():
+    """Free masks position (T, F, T), heading (F, T, T): per robot the free components are
+    (x, y), (theta), (x, y, theta), numbered in row order: columns [[0, 1, -1], [-1, -1, 2], [3, 4, 5]],
+    6 unknowns. Packing takes exactly those components; unpacking writes them back over ``fixed``."""
+    layout = PoseLayout(np.array([True, False, True]), np.array([False, True, True]))
+    assert layout.cols.tolist() == [[0, 1, -1], [-1, -1, 2], [3, 4, 5]]
+    assert layout.size == 6 and type(layout.size) is int
+    poses = np.arange(9.0).reshape(3, 3) + 1  # [[1,2,3],[4,5,6],[7,8,9]]
+    assert layout.pack(poses).tolist() == [1, 2, 6, 7, 8, 9]
+    fixed = -np.ones((3, 3), int)
+    out = layout.unpack(np.array([10.5, 20, 30, 40, 50, 60]), fixed)
+    assert out.dtype == float and out.tolist() == [[10.5, 20, -1], [-1, -1, 30], [40, 50, 60]]
+    assert fixed.tolist() == (-np.ones((3, 3))).tolist()  # the fixed poses are not written to
+    none = PoseLayout(np.zeros(2, bool), np.zeros(2, bool))
+    assert none.size == 0 and (none.cols == -1).all() and none.pack(poses[:2]).shape == (0,)
+
+
+@pytest.mark.parametrize("n_cols", [3, DENSE_JACOBIAN_LIMIT, DENSE_JACOBIAN_LIMIT + 1])
+def test_jacobian_sums_duplicates_and_drops_fixed_columns(n_cols):
+    """Triplets (0,0,1), (0,0,2), (1,2,5), (1,-1,7), (2,1,-3): entry (0,0) = 1 + 2 = 3 (duplicates
+    add), (1,2) = 5, (2,1) = -3, the column -1 entry vanishes. Dense up to 64 columns, sparse above."""
+    rows, cols, vals = np.array([0, 0, 1, 1, 2]), np.array([0, 0, 2, -1, 1]), np.array([1.0, 2, 5, 7, -3])
+    jac = jacobian(3, n_cols, rows, cols, vals)
+    assert isinstance(jac, np.ndarray) == (n_cols <= 64)
+    expected = np.zeros((3, n_cols))
+    expected[0, 0], expected[1, 2], expected[2, 1] = 3, 5, -3
+    assert dense(jac).shape == (3, n_cols)
+    np.testing.assert_array_equal(dense(jac), expected)
+
+
+@pytest.mark.parametrize("size", [5, DENSE_LIMIT, DENSE_LIMIT + 1, 200])
+def test_solve_normal_solves_a_tridiagonal_system(size):
+    """A = tridiag(-1, 2, -1) + I (SPD) and b = A x for x_k = k: the solve returns x, dense or sparse."""
+    a = sp.diags([-np.ones(size - 1), 3 * np.ones(size), -np.ones(size - 1)], [-1, 0, 1]).tocsr()
+    x = np.arange(size, dtype=float)
+    b = a @ x
+    np.testing.assert_allclose(solve_normal(a, b), x, rtol=1e-10, atol=1e-9)
+    np.testing.assert_allclose(solve_normal(a.toarray(), b), x, rtol=1e-10, atol=1e-9)
+
+
+def test_huber_weights_by_hand():
+    """huber 1: |r| <= 1 weighs 1 (also exactly at the threshold), beyond 1 / |r|; None: all 1."""
+    r = np.array([0.0, 0.5, -1.0, -2.0, 4.0])
+    np.testing.assert_allclose(huber_weights(r, 1.0), [1, 1, 1, 0.5, 0.25])
+    np.testing.assert_allclose(huber_weights(r, 2.0), [1, 1, 1, 1, 0.5])
+    np.testing.assert_array_equal(huber_weights(r, None), np.ones(5))
+
+
+def test_row_scaled_dense_and_sparse():
+    """diag(2, -1) @ [[1, 2], [3, 4]] = [[2, 4], [-3, -4]], whichever the storage."""
+    jac = np.array([[1.0, 2], [3, 4]])
+    scale = np.array([2.0, -1])
+    np.testing.assert_array_equal(row_scaled(jac, scale), [[2, 4], [-3, -4]])
+    out = row_scaled(sp.csr_matrix(jac), scale)
+    assert sp.issparse(out)
+    np.testing.assert_array_equal(out.toarray(), [[2, 4], [-3, -4]])
+
+
+def location_problem(y: np.ndarray, sparse: bool = False):
+    """Residuals r_i(x) = x - y_i (one unknown), Jacobian a column of ones."""
+
+    def residuals(x):
+        jac = np.ones((len(y), 1))
+        return x[0] - y, sp.csr_matrix(jac) if sparse else jac
+
+    return residuals
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_least_squares_mean(sparse):
+    """Quadratic loss on y = (0, 0, 0, 10): the minimiser is the mean 2.5, the cost
+    0.5 (3 * 2.5^2 + 7.5^2) = 37.5 and J^T J = 4; a linear problem converges in at most 2 steps."""
+    out = levenberg_marquardt(location_problem(np.array([0.0, 0, 0, 10]), sparse), np.array([0.0]))
+    assert out.converged and out.iterations <= 2
+    np.testing.assert_allclose(out.x, [2.5], atol=1e-9)
+    assert out.cost == pytest.approx(37.5, rel=1e-9)
+    np.testing.assert_allclose(dense(out.normal_matrix), [[4.0]], rtol=1e-9)
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_huber_location_estimate(sparse):
+    """Huber loss (threshold 1) on y = (0, 0, 0, 10): with three residuals inside the threshold and the
+    outlier beyond it, the stationarity condition is 3 x - 1 = 0, so x = 1/3; the cost is
+    3 * 0.5 (1/3)^2 + (|1/3 - 10| - 0.5) = 28/3, and the IRLS normal matrix sum w_i is
+    3 + 1 / |1/3 - 10| = 3 + 3/29."""
+    out = levenberg_marquardt(location_problem(np.array([0.0, 0, 0, 10]), sparse), np.array([0.0]), huber=1.0)
+    assert out.converged
+    np.testing.assert_allclose(out.x, [1 / 3], atol=1e-8)
+    assert out.cost == pytest.approx(28 / 3, rel=1e-9)
+    np.testing.assert_allclose(dense(out.normal_matrix), [[3 + 3 / 29]], rtol=1e-7)
+
+
+def rosenbrock(x):
+    """r = (10 (x1 - x0^2), 1 - x0): cost 0 only at (1, 1)."""
+    r = np.array([10 * (x[1] - x[0] ** 2), 1 - x[0]])
+    jac = np.array([[-20 * x[0], 10.0], [-1.0, 0.0]])
+    return r, jac
+
+
+def test_rosenbrock_valley_is_followed_to_its_minimum():
+    """From the classic start (-1.2, 1) the minimum (1, 1), cost 0, is reached; J^T J there is
+    [[-20, -1], [10, 0]] [[-20, 10], [-1, 0]] = [[401, -200], [-200, 100]]."""
+    out = levenberg_marquardt(rosenbrock, np.array([-1.2, 1.0]))
+    assert out.converged and out.iterations < 100
+    np.testing.assert_allclose(out.x, [1, 1], atol=1e-6)
+    assert out.cost < 1e-12
+    np.testing.assert_allclose(out.normal_matrix, [[401, -200], [-200, 100]], rtol=1e-5)
+
+
+def test_iteration_cap_is_reported():
+    """Three iterations cannot reach the Rosenbrock minimum: 3 iterations, not converged, and the start
+    point's cost 0.5 (10^2 (1 - 1.44)^2 + 2.2^2) = 12.1 has decreased."""
+    start = np.array([-1.2, 1.0])
+    assert 0.5 * float(rosenbrock(start)[0] @ rosenbrock(start)[0]) == pytest.approx(12.1)
+    out = levenberg_marquardt(rosenbrock, start, max_iter=3)
+    assert out.iterations == 3 and not out.converged
+    assert 0 < out.cost < 12.1
+    assert not np.allclose(out.x, [1, 1], atol=1e-3)
+
+
+def test_no_acceptable_step_gives_up_after_raising_the_damping_to_1e10():
+    """A cost that is NaN everywhere but the start: every trial step is refused and the damping mu goes
+    1e-8, 1e-7, ..., 1e10 (19 trials) before exceeding 1e10; the start point comes back, unconverged,
+    after one iteration, with 1 + 19 residual evaluations."""
+    calls = []
+
+    def residuals(x):
+        calls.append(x.copy())
+        r = np.array([x[0] - 3.0]) if x[0] == 0 else np.array([np.nan])
+        return r, np.ones((1, 1))
+
+    out = levenberg_marquardt(residuals, np.array([0.0]))
+    assert (out.x.tolist(), out.iterations, out.converged) == ([0.0], 1, False)
+    assert out.cost == pytest.approx(4.5)
+    assert len(calls) == 20
+    # The trial steps solve (1 + mu) dx = 3: dx = 3 / (1 + mu) for mu = 1e-8 ... 1e10.
+    np.testing.assert_allclose([c[0] for c in calls[1:]], 3 / (1 + 10.0 ** np.arange(-8, 11)), rtol=1e-9)
+
+
+def test_damping_decreases_after_accepted_steps():
+    """The linear problem r = x - 3 with J^T J = 1: the first step at mu = 1e-8 is accepted, dx =
+    3 / (1 + 1e-8); the next solve uses mu / 10 = 1e-9: x + (3 - x) / (1 + 1e-9)."""
+    calls = []
+
+    def residuals(x):
+        calls.append(x.copy())
+        return np.array([x[0] - 3.0]), np.ones((1, 1))
+
+    out = levenberg_marquardt(residuals, np.array([0.0]), xtol=0.0, ftol=-1.0, max_iter=2)
+    x1 = 3 / (1 + 1e-8)
+    assert calls[1][0] == pytest.approx(x1, rel=1e-15)
+    assert calls[2][0] == pytest.approx(x1 + (3 - x1) / (1 + 1e-9), rel=1e-15)
+    assert out.iterations == 2
+
+
+def test_second_order_term_is_clamped_to_keep_the_system_positive():
+    """A second-order diagonal of -1e6 would make J^T J + S negative; clamped at -0.9 J^T J the
+    system is 0.1 J^T J, so each accepted step is 10 Gauss-Newton steps damped back by mu: on the
+    linear problem r = x - 3 the minimiser 3 (cost 0) is still reached."""
+    out = levenberg_marquardt(
+        lambda x: (np.array([x[0] - 3.0]), np.ones((1, 1))),
+        np.array([0.0]),
+        second_order=lambda x, r: np.array([-1e6]),
+    )
+    np.testing.assert_allclose(out.x, [3.0], atol=1e-6)
+    # With the clamp the first trial solves (0.1 + 1e-8) dx = 3: dx = 29.99..., refused, and so on;
+    # without the clamp it would solve a negative system and step the wrong way forever.
+    assert out.cost < 1e-10
+
+
+def test_second_order_term_keeps_the_minimiser_of_a_curved_residual():
+    """r(x) = (x^2 - 4, 0.1 x): d/dx 0.5 |r|^2 = 2 x (x^2 - 4) + 0.01 x = 0 at x^2 = 3.995; the
+    second-order term r_0 d^2 r_0 / dx^2 = 2 r_0 changes the steps, not the minimiser; J^T J there
+    is 4 x^2 + 0.01 = 15.99."""
+
+    def residuals(x):
+        return np.array([x[0] ** 2 - 4, 0.1 * x[0]]), np.array([[2 * x[0]], [0.1]])
+
+    plain = levenberg_marquardt(residuals, np.array([3.0]))
+    newton = levenberg_marquardt(residuals, np.array([3.0]), second_order=lambda x, r: np.array([2 * r[0]]))
+    for out in (plain, newton):
+        assert out.converged
+        np.testing.assert_allclose(out.x, [np.sqrt(3.995)], rtol=1e-7)
+        np.testing.assert_allclose(out.normal_matrix, [[15.99]], rtol=1e-6)
