@@ -235,5 +235,5 @@ def test_crlb_of_a_robot_seen_from_a_known_anchor():
 def test_crlb_without_observations_is_the_prior():
     """No observation: the bound of each robot is its prior covariance."""
     covs = np.stack([np.diag([1e-4, 4e-4, 1e-2]), np.array([[2e-4, 5e-5, 0], [5e-5, 1e-4, 1e-5], [0, 1e-5, 3e-3]])])
-    out = crlb_pose_covariances(np.zeros((2, 3)), covs, np.array([], int), np.array([], int), CFG)
+    out = crlb_pose_covariances(np.zeros((2, 3)), covs, [], [], CFG)  # empty lists are index arrays too
     np.testing.assert_allclose(out, covs, rtol=1e-9, atol=1e-18)

@@ -232,3 +232,40 @@ def test_second_order_term_keeps_the_minimiser_of_a_curved_residual():
         assert out.converged
         np.testing.assert_allclose(out.x, [np.sqrt(3.995)], rtol=1e-7)
         np.testing.assert_allclose(out.normal_matrix, [[15.99]], rtol=1e-6)
+
+
+def test_pack_ignores_fixed_trailing_components():
+    """Position free for both robots, heading free for robot 0 only: columns [[0, 1, 2], [3, 4, -1]];
+    packing [[1, 2, 3], [4, 5, 6]] gives [1, 2, 3, 4, 5] (robot 1's heading 6 is fixed, not packed)."""
+    layout = PoseLayout(np.array([True, True]), np.array([True, False]))
+    assert layout.cols.tolist() == [[0, 1, 2], [3, 4, -1]]
+    assert layout.pack(np.array([[1.0, 2, 3], [4, 5, 6]])).tolist() == [1, 2, 3, 4, 5]
+
+
+def test_sparse_normal_matrix_is_csr():
+    """With a sparse Jacobian the returned J^T J is a CSR matrix (the type ``LsqResult`` documents)."""
+    out = levenberg_marquardt(location_problem(np.array([1.0, 2.0]), sparse=True), np.array([0.0]))
+    assert sp.issparse(out.normal_matrix) and out.normal_matrix.format == "csr"
+    assert out.normal_matrix.toarray().tolist() == [[2.0]]
+
+
+def test_default_iteration_cap_is_100():
+    """r(x) = exp(-x) has its infimum at x = +inf: each undamped Gauss-Newton step is dx = -r / r' = 1, so
+    the cost exp(-2x) / 2 keeps falling by a constant factor and neither stopping test fires (once
+    J^T J = exp(-2x) drops under the 1e-12 diagonal floor the damping shortens the steps, which
+    still gain a constant fraction): the default cap stops it after 100 iterations, unconverged."""
+
+    def residuals(x):
+        return np.exp(-x), -np.exp(-x)[:, None]
+
+    out = levenberg_marquardt(residuals, np.array([0.0]))
+    assert (out.iterations, out.converged) == (100, False)
+    assert out.x[0] > 14  # exp(-28) < 1e-12: well past the undamped phase
+
+
+def test_zero_iterations_return_the_start():
+    """max_iter = 0: no step is taken; the start point (as floats), its cost 0.5 * 3^2 and 0 iterations,
+    not converged."""
+    out = levenberg_marquardt(lambda x: (x - 3.0, np.ones((1, 1))), np.array([0]), max_iter=0)
+    assert (out.iterations, out.converged, out.cost) == (0, False, 4.5)
+    assert out.x.dtype == float and out.x.tolist() == [0.0]
