@@ -19,21 +19,22 @@ from coordinator.localization.sparse_lm import (
     DENSE_LIMIT,
     PoseLayout,
     blas_threads,
+    SparseLDL,
     dense,
-    huber_weights,
     jacobian,
     levenberg_marquardt,
-    row_scaled,
     solve_normal,
 )
 
 
 def blas_thread_counts() -> list[int]:
-    return [info["num_threads"] for info in ThreadpoolController().select(user_api="blas").info()]
+    """Threads of numpy's BLAS (the one ``np.linalg`` runs on; SciPy may load its own copy)."""
+    infos = ThreadpoolController().select(user_api="blas").info()
+    return [info["num_threads"] for info in infos if "numpy" in info["filepath"]]
 
 
 def test_blas_threads_limits_only_large_dense_algebra():
-    """Below order 96 nothing is limited (a no-op context); from 96 on, BLAS runs one thread
+    """Below order 96 nothing is limited (a no-op context); from 96 on, numpy's BLAS runs one thread
     even when the caller allowed two."""
     assert BLAS_SMALL == 96
     assert isinstance(blas_threads(95), contextlib.nullcontext)
@@ -88,22 +89,34 @@ def test_solve_normal_solves_a_tridiagonal_system(size):
     np.testing.assert_allclose(solve_normal(a.toarray(), b), x, rtol=1e-10, atol=1e-9)
 
 
-def test_huber_weights_by_hand():
-    """huber 1: |r| <= 1 weighs 1 (also exactly at the threshold), beyond 1 / |r|; None: all 1."""
-    r = np.array([0.0, 0.5, -1.0, -2.0, 4.0])
-    np.testing.assert_allclose(huber_weights(r, 1.0), [1, 1, 1, 0.5, 0.25])
-    np.testing.assert_allclose(huber_weights(r, 2.0), [1, 1, 1, 1, 0.5])
-    np.testing.assert_array_equal(huber_weights(r, None), np.ones(5))
+def spd_tridiagonal(size: int, scale: float = 1.0) -> sp.csr_matrix:
+    """scale * tridiag(-1, 3, -1): symmetric, strictly diagonally dominant, so positive definite."""
+    return (scale * sp.diags([-np.ones(size - 1), 3 * np.ones(size), -np.ones(size - 1)], [-1, 0, 1])).tocsr()
 
 
-def test_row_scaled_dense_and_sparse():
-    """diag(2, -1) @ [[1, 2], [3, 4]] = [[2, 4], [-3, -4]], whichever the storage."""
-    jac = np.array([[1.0, 2], [3, 4]])
-    scale = np.array([2.0, -1])
-    np.testing.assert_array_equal(row_scaled(jac, scale), [[2, 4], [-3, -4]])
-    out = row_scaled(sp.csr_matrix(jac), scale)
-    assert sp.issparse(out)
-    np.testing.assert_array_equal(out.toarray(), [[2, 4], [-3, -4]])
+def test_sparse_ldl_reuses_its_analysis_only_for_the_same_pattern():
+    """One factor object solving, in turn: A (tridiagonal, 100 unknowns), 2 A (same pattern: numeric
+    update), A + a corner entry (new pattern: fresh analysis), and A again. Each answer is x with
+    x_k = k, since b is built as A x; a stale factorization would return x / 2 or miss the corner."""
+    size = 100
+    x = np.arange(size, dtype=float)
+    corner = sp.csr_matrix(([0.5, 0.5], ([0, size - 1], [size - 1, 0])), shape=(size, size))
+    factor = SparseLDL()
+    for a in (spd_tridiagonal(size), spd_tridiagonal(size, 2.0), (spd_tridiagonal(size) + corner).tocsr(), spd_tridiagonal(size)):
+        np.testing.assert_allclose(factor.solve(a, a @ x), x, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(solve_normal(a, a @ x, factor), x, rtol=1e-10, atol=1e-9)
+
+
+def test_sparse_ldl_uses_only_the_upper_triangle_of_unsorted_input():
+    """A CSC matrix with unsorted row indices (built column by column in reverse) solves like its
+    sorted copy: the factor sorts the upper triangle it keeps."""
+    size = 80
+    a = spd_tridiagonal(size).tocoo()
+    order = np.argsort(-a.row, kind="stable")
+    unsorted = sp.csc_matrix((a.data[order], (a.row[order], a.col[order])), shape=a.shape)
+    unsorted.has_sorted_indices = False
+    x = np.linspace(-1, 1, size)
+    np.testing.assert_allclose(SparseLDL().solve(unsorted, spd_tridiagonal(size) @ x), x, rtol=1e-10, atol=1e-12)
 
 
 def location_problem(y: np.ndarray, sparse: bool = False):
@@ -125,6 +138,7 @@ def test_least_squares_mean(sparse):
     np.testing.assert_allclose(out.x, [2.5], atol=1e-9)
     assert out.cost == pytest.approx(37.5, rel=1e-9)
     np.testing.assert_allclose(dense(out.normal_matrix), [[4.0]], rtol=1e-9)
+    np.testing.assert_array_equal(dense(out.jacobian), np.ones((4, 1)))
 
 
 @pytest.mark.parametrize("sparse", [False, True])
@@ -138,6 +152,8 @@ def test_huber_location_estimate(sparse):
     np.testing.assert_allclose(out.x, [1 / 3], atol=1e-8)
     assert out.cost == pytest.approx(28 / 3, rel=1e-9)
     np.testing.assert_allclose(dense(out.normal_matrix), [[3 + 3 / 29]], rtol=1e-7)
+    # The returned Jacobian is the Huber-weighted one: sqrt(w_i) = 1, 1, 1, sqrt(3 / 29).
+    np.testing.assert_allclose(dense(out.jacobian)[:, 0], [1, 1, 1, np.sqrt(3 / 29)], rtol=1e-7)
 
 
 def rosenbrock(x):
@@ -182,6 +198,7 @@ def test_no_acceptable_step_gives_up_after_raising_the_damping_to_1e10():
     out = levenberg_marquardt(residuals, np.array([0.0]))
     assert (out.x.tolist(), out.iterations, out.converged) == ([0.0], 1, False)
     assert out.cost == pytest.approx(4.5)
+    assert dense(out.normal_matrix).tolist() == [[1.0]] and dense(out.jacobian).tolist() == [[1.0]]
     assert len(calls) == 20
     # The trial steps solve (1 + mu) dx = 3: dx = 3 / (1 + mu) for mu = 1e-8 ... 1e10.
     np.testing.assert_allclose([c[0] for c in calls[1:]], 3 / (1 + 10.0 ** np.arange(-8, 11)), rtol=1e-9)
