@@ -1,0 +1,284 @@
+"""Known answers for the anchor-selection operators (coordinator/selection/): the genetic operators
+(OX1 crossover, swap mutation), the genetic search's bookkeeping (cache, elitism, patience),
+the Cramer-Rao prediction of e_l (crlb_rank) and the Monte Carlo e_l (Eq. 8) where it has a closed form.
+
+The genetic operators get their random choices from a scripted generator (``Scripted``) so the cut
+points and swapped robots are known and the child can be written out by hand; the other answers are
+closed forms derived in each docstring. They pin what the operators do, not the search budgets.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from coordinator.plan import Plan
+from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
+from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, swap_mutation
+from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
+from runtime.config import ModelConfig
+from runtime.state import SwarmEstimate
+
+
+class Scripted:
+    """The two ``np.random.Generator`` calls the operators make, answering from a script and recording them."""
+
+    def __init__(self, choice=None, integers=None) -> None:
+        self._choice, self._integers, self.calls = choice, integers, []
+
+    def choice(self, a, size=None, replace=True):
+        self.calls.append(("choice", np.array(a).tolist() if np.ndim(a) else a, size, replace))
+        return np.array(self._choice) if size is not None else self._choice
+
+    def integers(self, high):
+        self.calls.append(("integers", high))
+        return self._integers
+
+
+def test_order_crossover_by_hand():
+    """OX1 with cut points 2 and 5 (drawn in either order from 0..n): the child keeps a[2:5] = (2, 3, 4)
+    in place and fills positions 0, 1, 5, 6, 7 with b's other robots in b's order (7, 6, 5, 1, 0):
+    child = (7, 6, 2, 3, 4, 5, 1, 0)."""
+    a, b = np.arange(8), np.arange(8)[::-1].copy()
+    rng = Scripted(choice=[5, 2])
+    assert order_crossover(a, b, rng).tolist() == [7, 6, 2, 3, 4, 5, 1, 0]
+    assert rng.calls == [("choice", 9, 2, False)]  # cut points 0..n, distinct
+
+
+def test_order_crossover_whole_and_empty_slices():
+    """Cuts (0, n): the child is a. Cuts (3, 3) are impossible (distinct), cuts (0, 1): a[0] then b's order."""
+    a, b = np.array([3, 1, 0, 2]), np.array([2, 0, 3, 1])
+    assert order_crossover(a, b, Scripted(choice=[0, 4])).tolist() == [3, 1, 0, 2]
+    assert order_crossover(a, b, Scripted(choice=[1, 0])).tolist() == [3, 2, 0, 1]
+
+
+def test_order_crossover_children_are_permutations():
+    """With the real generator every child is a permutation that keeps one contiguous slice of a in place
+    and lists the remaining robots in b's order."""
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        a, b = rng.permutation(7), rng.permutation(7)
+        child = order_crossover(a, b, rng)
+        assert sorted(child.tolist()) == list(range(7))
+        same = np.flatnonzero(child == a)
+        kept = [i for i in range(7) if child[i] == a[i]]
+        rest = [x for x in child.tolist() if x not in a[same].tolist()]
+        assert rest == [x for x in b.tolist() if x in rest] and kept == same.tolist()
+
+
+def test_swap_mutation_by_hand():
+    """Groups of sizes (2, 3, 3) over positions 0-1, 2-4, 5-7. Position 3 is drawn (group 1); the partner is
+    drawn among the positions of the other groups, (0, 1, 5, 6, 7); the script picks 7: positions 3 and 7
+    swap. The input is not modified."""
+    order = np.array([4, 0, 6, 1, 7, 3, 5, 2])
+    rng = Scripted(choice=7, integers=3)
+    out = swap_mutation(order, (2, 3, 3), rng)
+    assert out.tolist() == [4, 0, 6, 2, 7, 3, 5, 1]
+    assert order.tolist() == [4, 0, 6, 1, 7, 3, 5, 2]
+    assert rng.calls == [("integers", 8), ("choice", [0, 1, 5, 6, 7], None, True)]
+
+
+def test_swap_mutation_of_one_group_is_a_no_op():
+    """A single group has no other group to swap with: the order comes back unchanged, no draw made."""
+    rng = Scripted()
+    assert swap_mutation(np.array([2, 0, 1]), (3,), rng).tolist() == [2, 0, 1] and rng.calls == []
+
+
+def test_swap_mutation_always_changes_the_partition():
+    """With the real generator: exactly two positions change, in different groups."""
+    rng = np.random.default_rng(1)
+    group_of = np.repeat([0, 1, 2], [3, 3, 3])
+    for _ in range(200):
+        order = rng.permutation(9)
+        out = swap_mutation(order, (3, 3, 3), rng)
+        changed = np.flatnonzero(out != order)
+        assert len(changed) == 2 and group_of[changed[0]] != group_of[changed[1]]
+
+
+def counting(table):
+    """An evaluator returning ``table(plan)`` that records every plan it is asked about."""
+    asked = []
+
+    def evaluate(plans):
+        asked.extend(p.key() for p in plans)
+        return np.array([table(p) for p in plans])
+
+    return evaluate, asked
+
+
+def first_group_sum(plan: Plan) -> float:
+    """e_l = sum of the robots moving first: minimal (0 + 1 = 1) for the first group {0, 1}."""
+    return float(sum(plan.groups[0]))
+
+
+def test_genetic_search_evaluates_each_partition_once_and_keeps_the_best_ever():
+    """Every distinct partition is evaluated once (the cache), the count returned is the number of
+    distinct partitions evaluated, and, the two best plans being carried over each generation (elitism),
+    the result is the best of every plan evaluated: with 8 robots in two groups of 4 and e_l = sum of the
+    first group, the optimum {0, 1, 2, 3} (e_l 6) is found."""
+    evaluate, asked = counting(first_group_sum)
+    seeds = [Plan.equal(np.array([7, 6, 5, 4, 3, 2, 1, 0]), 4)]
+    known: dict = {}
+    plan, e_l, fresh = genetic_search(evaluate, seeds, lambda p: True, np.random.default_rng(3),
+                                      GeneticConfig(generations=30, patience=30), known)
+    assert len(asked) == len(set(asked)) == fresh == len(known)
+    assert e_l == min(known.values()) == first_group_sum(plan)
+    assert plan.key()[0] == (0, 1, 2, 3) and e_l == 6.0
+
+
+def test_genetic_search_reuses_known_scores_and_counts_only_new_ones():
+    """Scores already in ``known`` are not asked for again, and the count excludes them."""
+    seed = Plan.equal(np.arange(6), 3)
+    known = {seed.key(): 0.5}
+    evaluate, asked = counting(first_group_sum)
+    plan, e_l, fresh = genetic_search(evaluate, [seed], lambda p: True, np.random.default_rng(0), GeneticConfig(), known)
+    assert seed.key() not in asked and fresh == len(known) - 1 == len(asked)
+    assert (plan.key(), e_l) == (seed.key(), 0.5)  # 0.5 beats every sum of three distinct robots (>= 3)
+
+
+def test_infeasible_plans_are_never_evaluated():
+    """All plans infeasible: nothing is evaluated, no plan is returned, e_l is inf; each infeasible
+    partition is recorded once (as inf). Only feasible ones reach the evaluator otherwise."""
+    evaluate, asked = counting(first_group_sum)
+    known: dict = {}
+    plan, e_l, fresh = genetic_search(evaluate, [Plan.equal(np.arange(4), 2)], lambda p: False,
+                                      np.random.default_rng(0), GeneticConfig(), known)
+    assert (plan, e_l, asked) == (None, np.inf, []) and fresh == len(known) > 0
+    assert all(v == np.inf for v in known.values())
+    feasible = lambda p: 0 not in p.groups[0]  # robot 0 may not move first
+    plan, e_l, _ = genetic_search(evaluate, [Plan.equal(np.array([1, 2, 0, 3]), 2)], feasible,
+                                  np.random.default_rng(0), GeneticConfig())
+    assert all(0 not in k[0] for k in asked)
+    assert plan.key() == ((1, 2), (0, 3)) and e_l == 3.0  # best feasible: {1, 2} first
+
+
+def test_genetic_search_stops_after_patience_generations_without_improvement():
+    """A constant e_l never improves: the search stops after ``patience`` generations, so the evaluator is
+    called for the initial population and then once per generation (each generation of 10 children of
+    8 robots in groups of 4 (70 partitions) brings fresh ones): 1 + patience calls, or
+    1 + generations when that is smaller."""
+    for cfg, calls in ((GeneticConfig(patience=3, generations=8), 4), (GeneticConfig(patience=5, generations=2), 3)):
+        batches = []
+
+        def evaluate(plans):
+            batches.append(len(plans))
+            return np.ones(len(plans))
+
+        genetic_search(evaluate, [Plan.equal(np.arange(8), 4)], lambda p: True, np.random.default_rng(5), cfg)
+        assert len(batches) == calls
+
+
+def test_without_mutation_copies_of_one_plan_breed_only_that_plan():
+    """A population of 4 copies of one plan: OX1 of two identical parents is that parent, so without
+    mutation (probability 0) no other partition ever appears: exactly one evaluation. With probability 1
+    every child is swapped: other partitions appear."""
+    seeds = [Plan.equal(np.arange(6), 3)] * 4
+    for prob, single in ((0.0, True), (1.0, False)):
+        evaluate, asked = counting(first_group_sum)
+        genetic_search(evaluate, seeds, lambda p: True, np.random.default_rng(2),
+                       GeneticConfig(population=4, elite=1, mutation=prob))
+        assert (asked == [seeds[0].key()]) == single
+
+
+# ---------------------------------------------------------------------------------------------
+# Cramer-Rao prediction (crlb_rank)
+
+
+def far_apart_estimate(sigma_p: float, sigma_h: float) -> tuple[SwarmEstimate, np.ndarray]:
+    """Two robots 10 m apart (never within sensing range), heading 0, each to move 0.2 m along x."""
+    ids = np.arange(2)
+    poses = np.array([[0.0, 0.0, 0.0], [10.0, 0.0, 0.0]])
+    return SwarmEstimate.isotropic(ids, poses, sigma_p, sigma_h), poses[:, :2] + [0.2, 0.0]
+
+
+def test_crlb_prediction_without_observations_is_dead_reckoning():
+    """No observation ever: the bound is the dead-reckoning covariance. The prior has trace s_p^2 in
+    position (``isotropic`` splits it over x and y); driving d = 0.2 m straight ahead (no turn) adds
+    (0.05 d)^2 along x and (d s_turn)^2 + (d s_heading)^2 across (first order), so each robot ends with
+    trace s_p^2 + (0.05 d)^2 + d^2 (s_turn^2 + s_h^2), and e_l = sqrt(pi)/2 sqrt(trace).
+    Both plans (either robot first) give that, since each robot moves once and keeps its covariance after."""
+    cfg = ModelConfig()
+    s_p, s_h, d = 0.01, 0.02, 0.2
+    estimate, desired = far_apart_estimate(s_p, s_h)
+    trace = s_p**2 + (0.05 * d) ** 2 + d**2 * (cfg.turn_sigma_rad**2 + s_h**2)
+    assert MEAN_NORM == pytest.approx(math.sqrt(math.pi) / 2)
+    plans = [Plan.equal(np.array([0, 1]), 1), Plan.equal(np.array([1, 0]), 1)]
+    np.testing.assert_allclose(predicted_errors(cfg, estimate, desired, plans), math.sqrt(math.pi) / 2 * math.sqrt(trace), rtol=1e-9)
+
+
+def test_crlb_prediction_of_one_mover_averages_over_robots():
+    """Robot 1 is already at its desired position (its step is a zero move): its trace stays s_p^2, robot 0's
+    grows as above; e_l is the mean of the two robots' sqrt(pi)/2 sqrt(trace), not the value of the mean trace."""
+    cfg = ModelConfig()
+    s_p, s_h, d = 0.01, 0.02, 0.2
+    estimate, desired = far_apart_estimate(s_p, s_h)
+    desired = np.array([[0.2, 0.0], [10.0, 0.0]])  # robot 1 is already there
+    plan = Plan.equal(np.array([0, 1]), 1)
+    moved = s_p**2 + (0.05 * d) ** 2 + d**2 * (cfg.turn_sigma_rad**2 + s_h**2)
+    want = math.sqrt(math.pi) / 2 * (math.sqrt(moved) + s_p) / 2
+    assert predicted_errors(cfg, estimate, desired, [plan])[0] == pytest.approx(want, rel=1e-9)
+
+
+def test_crlb_prediction_uses_the_observations_at_the_expected_poses():
+    """Robots 0.3 m apart: after the step they see each other, so the prediction is below dead reckoning
+    (far apart, same motion); and an observation that only exists before the motion does not count:
+    robots 0.45 m apart moving 0.2 m away from each other end 0.85 m apart, out of range, which predicts
+    exactly the far-apart (dead-reckoning) value."""
+    cfg = ModelConfig()
+    far, far_desired = far_apart_estimate(0.01, 0.02)
+    plan = Plan.equal(np.array([0, 1]), 1)
+    e_far = predicted_errors(cfg, far, far_desired, [plan])[0]
+    near = SwarmEstimate.isotropic(np.arange(2), np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]]), 0.01, 0.02)
+    e_near = predicted_errors(cfg, near, np.array([[0.2, 0.0], [0.5, 0.0]]), [plan])[0]
+    assert e_near < 0.9 * e_far
+    apart = SwarmEstimate.isotropic(np.arange(2), np.array([[0.0, 0.0, math.pi], [0.45, 0.0, 0.0]]), 0.01, 0.02)
+    e_apart = predicted_errors(cfg, apart, np.array([[-0.2, 0.0], [0.65, 0.0]]), [plan])[0]
+    assert e_apart == pytest.approx(e_far, rel=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# Monte Carlo e_l (Eq. 8)
+
+
+def test_monte_carlo_error_of_blind_robots_is_the_rayleigh_mean():
+    """Sensing range 1 um (nobody observes anybody: every robot keeps dead reckoning), exact motion (no
+    turn or drive noise) and exact headings: each robot's error stays its initial position error, drawn
+    isotropic with std s / sqrt(2) per axis (``isotropic`` splits s over x and y). Eq. 8 averages |e| (not
+    its square) over robots, so the expected e_l is the Rayleigh mean (s / sqrt(2)) sqrt(pi / 2) =
+    sqrt(pi) / 2 s = 0.886 s (an RMS would give s). 1500 samples of 4 robots: standard error
+    0.463 s / sqrt(6000) = 0.6 %."""
+    cfg = ModelConfig(turn_sigma_rad=0.0, drive_sigma_frac=0.0, sensing_range_m=1e-6)
+    s = 0.02
+    poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 1.0], [0.0, 0.3, 2.0], [0.3, 0.3, -1.0]])
+    estimate = SwarmEstimate.isotropic(np.arange(4), poses, s, 0.0)
+    desired = poses[:, :2] + 0.1
+    mc = MonteCarlo(cfg, "joint", 1500, seed=3)
+    per_sample = mc.localization_errors(estimate, desired, [Plan.equal(np.arange(4), 2)], per_sample=True)
+    assert per_sample.shape == (1, 1500)
+    assert per_sample.mean() == pytest.approx(s * math.sqrt(math.pi) / 2, rel=0.03)
+    assert mc.localization_errors(estimate, desired, [Plan.equal(np.arange(4), 2)])[0] == pytest.approx(per_sample.mean(), rel=1e-12)
+
+
+def test_monte_carlo_error_of_an_exact_swarm_is_zero():
+    """Exact initial estimate, motion and sensing: every localizer recovers the truth, e_l = 0 for every plan."""
+    cfg = ModelConfig(turn_sigma_rad=0.0, drive_sigma_frac=0.0, range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    poses = np.array([[0.0, 0.0, 0.0], [0.25, 0.0, 1.0], [0.0, 0.25, 2.0], [0.25, 0.25, -1.0]])
+    estimate = SwarmEstimate.isotropic(np.arange(4), poses, 0.0, 0.0)
+    plans = [Plan.equal(np.arange(4), 2), Plan.equal(np.array([3, 1, 2, 0]), 2)]
+    for method in ("paper", "joint"):
+        e_l = MonteCarlo(cfg, method, 4, seed=0).localization_errors(estimate, poses[:, :2] + [0.05, 0.0], plans)
+        np.testing.assert_allclose(e_l, 0.0, atol=1e-6)
+
+
+def test_connectivity_is_checked_after_every_step():
+    """Robots at x = 0, 0.4, 0.8 m (sensing 0.5 m), desired x = 0.6, 1.0, 1.2 (connected). Moving robot 2
+    first leaves 0, 0.4, 1.2: a 0.8 m gap, so that plan is refused although its end is connected. Moving
+    0, then 1, then 2 passes through (0.6, 0.4, 0.8) and (0.6, 1.0, 0.8): connected after every step."""
+    current = np.array([[0.0, 0.0], [0.4, 0.0], [0.8, 0.0]])
+    desired = np.array([[0.6, 0.0], [1.0, 0.0], [1.2, 0.0]])
+    assert not plan_keeps_connectivity(Plan(np.array([2, 0, 1]), (1, 1, 1)), current, desired, 0.5)
+    assert plan_keeps_connectivity(Plan(np.array([0, 1, 2]), (1, 1, 1)), current, desired, 0.5)
+    assert not plan_keeps_connectivity(Plan(np.array([0, 1, 2]), (1, 1, 1)), current, desired, 0.39)  # 0.4 m gaps
+    assert current.tolist() == [[0.0, 0.0], [0.4, 0.0], [0.8, 0.0]]  # not modified
