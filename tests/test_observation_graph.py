@@ -74,7 +74,7 @@ def test_require_observable_names_the_robots():
     everyone observed but {0, 1, 2} and {3, 4} are two groups: ids 13 and 14 lie outside the largest."""
     ids = np.arange(10, 15)
     obs, seen = np.array([0, 1, 2, 3, 4]), np.array([1, 0, 0, 4, 3])
-    with pytest.raises(LocalizationError) as err:
+    with pytest.raises(LocalizationError, match=r"^unobserved: robots \[12\] \(no robot observed them\)$") as err:
         require_observable(ids, obs, seen)
     assert (err.value.reason, err.value.robots) == ("unobserved", [12])
     obs, seen = np.append(obs, 0), np.append(seen, 2)
@@ -116,3 +116,16 @@ def test_observable_subset_keeps_a_connected_swarm():
     """A ring 0 -> 1 -> 2 -> 0: everyone kept, nothing excluded."""
     keep, why = observable_subset(np.array([1, 2, 3]), np.array([0, 1, 2]), np.array([1, 2, 0]))
     assert keep.tolist() == [True, True, True] and why == {}
+
+
+def test_the_largest_group_need_not_contain_robot_0():
+    """ids 10..14; observations 0<->1 and 2<->3<->4: the larger group {2, 3, 4} is kept (or, when
+    requiring everyone, ids 10 and 11 are named as outside it)."""
+    ids = np.arange(10, 15)
+    obs, seen = np.array([0, 1, 2, 3, 3, 4]), np.array([1, 0, 3, 2, 4, 3])
+    with pytest.raises(LocalizationError, match="splits into 2 groups") as err:
+        require_observable(ids, obs, seen)
+    assert (err.value.reason, err.value.robots) == ("disconnected", [10, 11])
+    keep, why = observable_subset(ids, obs, seen)
+    assert keep.tolist() == [False, False, True, True, True]
+    assert why == {10: "disconnected", 11: "disconnected"}

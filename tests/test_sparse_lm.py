@@ -10,9 +10,11 @@ import contextlib
 
 import numpy as np
 import pytest
+import qdldl
 import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
+import coordinator.localization.sparse_lm as sparse_lm
 from coordinator.localization.sparse_lm import (
     BLAS_SMALL,
     DENSE_JACOBIAN_LIMIT,
@@ -102,9 +104,13 @@ def test_sparse_ldl_reuses_its_analysis_only_for_the_same_pattern():
     x = np.arange(size, dtype=float)
     corner = sp.csr_matrix(([0.5, 0.5], ([0, size - 1], [size - 1, 0])), shape=(size, size))
     factor = SparseLDL()
+    solvers = []
     for a in (spd_tridiagonal(size), spd_tridiagonal(size, 2.0), (spd_tridiagonal(size) + corner).tocsr(), spd_tridiagonal(size)):
         np.testing.assert_allclose(factor.solve(a, a @ x), x, rtol=1e-10, atol=1e-9)
+        solvers.append(factor._solver)
         np.testing.assert_allclose(solve_normal(a, a @ x, factor), x, rtol=1e-10, atol=1e-9)
+    # The analysis (the QDLDL solver object) is kept for 2 A and replaced for each new pattern.
+    assert solvers[1] is solvers[0] and solvers[2] is not solvers[1] and solvers[3] is not solvers[2]
 
 
 def test_sparse_ldl_uses_only_the_upper_triangle_of_unsorted_input():
@@ -286,3 +292,86 @@ def test_zero_iterations_return_the_start():
     out = levenberg_marquardt(lambda x: (x - 3.0, np.ones((1, 1))), np.array([0]), max_iter=0)
     assert (out.iterations, out.converged, out.cost) == (0, False, 4.5)
     assert out.x.dtype == float and out.x.tolist() == [0.0]
+
+
+class CountingQDLDL:
+    """qdldl with its ``Solver`` constructions (symbolic analyses) counted."""
+
+    def __init__(self) -> None:
+        self.analyses = 0
+
+    def Solver(self, *args, **kwargs):
+        self.analyses += 1
+        return qdldl.Solver(*args, **kwargs)
+
+
+def test_levenberg_marquardt_analyses_the_sparse_pattern_once(monkeypatch):
+    """100 unknowns (sparse path), residuals x_k^2 - (k + 1) and 0.1 (x_(k+1) - x_k): the pattern of
+    J^T J + mu D never changes, so every iteration reuses one symbolic analysis. Minimiser near
+    x_k = sqrt(k + 1) (the coupling shifts it slightly), reached in several iterations."""
+    spy = CountingQDLDL()
+    monkeypatch.setattr(sparse_lm, "qdldl", spy)
+    n = 100
+    target = np.arange(1.0, n + 1)
+
+    def residuals(x):
+        r = np.concatenate([x * x - target, 0.1 * np.diff(x)])
+        rows = np.concatenate([np.arange(n), n + np.arange(n - 1), n + np.arange(n - 1)])
+        cols = np.concatenate([np.arange(n), np.arange(1, n), np.arange(n - 1)])
+        vals = np.concatenate([2 * x, np.full(n - 1, 0.1), np.full(n - 1, -0.1)])
+        return r, sp.csr_matrix((vals, (rows, cols)), shape=(2 * n - 1, n))
+
+    out = levenberg_marquardt(residuals, np.full(n, 3.0))
+    assert out.converged and out.iterations >= 3
+    np.testing.assert_allclose(out.x, np.sqrt(target), rtol=0.02)
+    assert spy.analyses == 1
+
+
+def test_start_at_a_zero_cost_minimum_converges_at_once():
+    """r(x) = x - 2 from x = 2: the step is 0 and the cost stays 0, which is accepted (not worse):
+    converged after 1 iteration at x = 2."""
+    out = levenberg_marquardt(lambda x: (x - 2.0, np.ones((1, 1))), np.array([2.0]))
+    assert (out.x.tolist(), out.iterations, out.converged, out.cost) == ([2.0], 1, True, 0.0)
+
+
+def test_no_unknowns():
+    """Every pose fixed (0 unknowns): the empty step is accepted and converges at once, the cost is the
+    fixed residuals' 0.5 (1 + 4)."""
+    out = levenberg_marquardt(lambda x: (np.array([1.0, 2.0]), np.zeros((2, 0))), np.zeros(0))
+    assert (out.x.shape, out.iterations, out.converged, out.cost) == ((0,), 1, True, 2.5)
+
+
+def test_stopping_tests_are_inclusive():
+    """r = (x - 1, x + 1) from x = 0: the gradient is 0, the step exactly 0 and the cost stays 1. With
+    xtol = 0 (and no gain test) the zero step still counts as small (0 <= 0); with ftol = 0 (and no step
+    test) the zero gain counts as small: both converge after one iteration."""
+    problem = lambda x: (np.array([x[0] - 1.0, x[0] + 1.0]), np.ones((2, 1)))
+    for xtol, ftol in ((0.0, -1.0), (-1.0, 0.0)):
+        out = levenberg_marquardt(problem, np.array([0.0]), xtol=xtol, ftol=ftol, max_iter=5)
+        assert (out.iterations, out.converged, out.cost) == (1, True, 1.0)
+
+
+def test_step_test_is_relative_to_the_size_of_x():
+    """xtol = 1e-10 scales with 1 + |x|. From x = 0 towards 1.5e-10 the first step (1.5e-10) exceeds
+    1e-10 (1 + 0): a second iteration is needed. From x = 1 towards 1 + 1.5e-10 the same step is below
+    1e-10 (1 + 1): converged after one."""
+    for start, iterations in ((0.0, 2), (1.0, 1)):
+        goal = start + 1.5e-10
+        out = levenberg_marquardt(lambda x: (x - goal, np.ones((1, 1))), np.array([start]), ftol=-1.0)
+        assert (out.iterations, out.converged) == (iterations, True)
+
+
+def test_damping_grows_until_a_step_is_accepted_then_shrinks():
+    """r = x - 100, but the cost is NaN beyond x = 1 (steps there are refused). Trial steps
+    100 / (1 + mu) for mu = 1e-8, 1e-7, ..., 1e2: the first one inside is at mu = 100 (x1 = 100 / 101).
+    Then mu = 10: the next trial is x1 + (100 - x1) / 11."""
+    calls = []
+
+    def residuals(x):
+        calls.append(x[0])
+        return (np.array([x[0] - 100.0]) if x[0] <= 1.0 else np.array([np.nan])), np.ones((1, 1))
+
+    levenberg_marquardt(residuals, np.array([0.0]), max_iter=2)
+    np.testing.assert_allclose(calls[1:12], 100 / (1 + 10.0 ** np.arange(-8, 3)), rtol=1e-12)
+    x1 = 100 / 101
+    assert calls[12] == pytest.approx(x1 + (100 - x1) / 11, rel=1e-12)
