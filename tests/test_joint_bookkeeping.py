@@ -1,0 +1,417 @@
+"""Known answers for the joint localizer's bookkeeping: dead-reckoning propagation of the joint
+covariance (dead_reckoning.py), the gauge (gauge.py), the retry logic of partial localization
+(partial.py) and the covariance helpers of joint.py.
+
+References are written out in the tests from the docstrings' formulas (the EKF predict
+F P F^T + Fu Q Fu^T, the projection off the gauge, the Sylvester criterion) or worked by hand.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import coordinator.localization.joint as joint_module
+from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays, propagate_joint
+from coordinator.localization.gauge import constrained_covariance, gauge_basis, inverse, transport
+from coordinator.localization.joint import (
+    JointLocalizer,
+    block_diagonal,
+    checked,
+    pose_covariances,
+    psd,
+    psd_joint,
+    worst_observation,
+)
+from coordinator.localization.partial import MAX_RETRIES, localize_observable, solvable_subset
+from coordinator.localization.sparse_lm import PoseLayout
+from runtime.config import ModelConfig
+from runtime.errors import LocalizationError, SwarmInputError
+from runtime.geometry import wrap_angle
+from runtime.rng import Stream, robot_rngs
+from runtime.sensing import sense_swarm
+from runtime.state import Observations, StepCommands, SwarmEstimate
+
+CFG = ModelConfig()
+
+
+def spd(k: int, seed: int, scale: float = 0.01) -> np.ndarray:
+    a = np.random.default_rng(seed).normal(size=(k, k)) * scale
+    return a @ a.T + 1e-4 * np.eye(k)
+
+
+# ---------------------------------------------------------------------------------------------
+# Dead reckoning (Eq. 17-19) and the joint covariance
+
+
+def test_propagate_joint_is_the_ekf_predict():
+    """Robot 0 (heading 0.3) turns 0.4 and drives d = 0.2, robot 1 is an anchor, robot 2 is 'moving' with a
+    zero command. With h = 0.3 + 0.4, Fx_0 = [[1, 0, -d sin h], [0, 1, d cos h], [0, 0, 1]], the others
+    identity; the motion noise of robot 0 is s_t^2 u u^T + (0.05)^2 v v^T with u = (-d sin h, d cos h, 1)
+    (turn) and v = (d cos h, d sin h, 0) (drive, 5 % of d); a zero command adds nothing. P' = F P F^T + Q."""
+    poses = np.array([[0.0, 0.0, 0.3], [0.5, 0.1, -1.0], [0.2, 0.4, 2.0]])
+    commands = np.array([[0.4, 0.2], [1.0, 0.3], [0.0, 0.0]])  # robot 1's command is ignored (not moving)
+    moving = np.array([True, False, True])
+    joint = spd(9, 1)
+    prior = SwarmEstimate.from_joint(np.arange(3), poses, joint)
+    d, h = 0.2, 0.7
+    f = np.eye(9)
+    f[0, 2], f[1, 2] = -d * math.sin(h), d * math.cos(h)
+    u = np.array([-d * math.sin(h), d * math.cos(h), 1.0])
+    v = np.array([d * math.cos(h), d * math.sin(h), 0.0])
+    q = np.zeros((9, 9))
+    q[:3, :3] = CFG.turn_sigma_rad**2 * np.outer(u, u) + CFG.drive_sigma_frac**2 * np.outer(v, v)
+    want = f @ joint @ f.T + q
+    got = propagate_joint(prior, StepCommands(np.arange(3), commands, moving), CFG)
+    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-18)
+    np.testing.assert_array_equal(got, got.T)
+    est = dead_reckon(prior, StepCommands(np.arange(3), commands, moving), CFG)
+    np.testing.assert_allclose(est.joint, want, rtol=1e-12, atol=1e-18)
+    np.testing.assert_allclose(est.poses[0], [d * math.cos(h), d * math.sin(h), h], atol=1e-15)
+    np.testing.assert_array_equal(est.poses[1:], poses[1:])
+
+
+def test_dead_reckoning_without_a_joint_prior_has_none():
+    prior = SwarmEstimate.isotropic(np.arange(2), np.zeros((2, 3)), 0.01, 0.01)
+    est = dead_reckon(prior, StepCommands(np.arange(2), np.array([[0.0, 0.1], [0.0, 0.0]]), np.array([True, False])), CFG)
+    assert est.joint is None and est.cov[0, 0, 0] > prior.cov[0, 0, 0]
+    np.testing.assert_array_equal(est.cov[1], prior.cov[1])
+
+
+def test_dead_reckoning_refuses_commands_for_other_robots():
+    prior = SwarmEstimate.isotropic([1, 2], np.zeros((2, 3)), 0.01, 0.01)
+    with pytest.raises(SwarmInputError, match=r"step commands are for robots \[1, 3\], the estimate for \[1, 2\]"):
+        dead_reckon(prior, StepCommands.stationary([1, 3]), CFG)
+
+
+def test_dead_reckon_arrays_broadcasts_over_batches():
+    """Two samples of two robots: a moving robot at the origin heading 0 turning pi/2 and driving 0.1 ends
+    at (0, 0.1, pi/2); a robot that does not move keeps pose and covariance exactly, whatever its command."""
+    poses = np.zeros((2, 2, 3))
+    cov = np.broadcast_to(np.diag([1e-4, 1e-4, 1e-3]), (2, 2, 3, 3)).copy()
+    commands = np.broadcast_to([math.pi / 2, 0.1], (2, 2, 2)).copy()
+    moving = np.array([[True, False], [False, True]])
+    out, out_cov = dead_reckon_arrays(poses, cov, commands, moving, CFG)
+    np.testing.assert_allclose(out[0, 0], [0, 0.1, math.pi / 2], atol=1e-15)
+    np.testing.assert_allclose(out[1, 1], [0, 0.1, math.pi / 2], atol=1e-15)
+    np.testing.assert_array_equal(out[0, 1], [0, 0, 0])
+    np.testing.assert_array_equal(out_cov[0, 1], cov[0, 1])
+    # Moving 0.1 along y with heading variance 1e-3: x gains (0.1)^2 (1e-3 + s_t^2), y gains (0.005)^2.
+    assert out_cov[0, 0, 0, 0] == pytest.approx(1e-4 + 0.01 * (1e-3 + CFG.turn_sigma_rad**2), rel=1e-9)
+    assert out_cov[0, 0, 1, 1] == pytest.approx(1e-4 + 0.005**2, rel=1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# The gauge
+
+
+def test_gauge_basis_by_hand():
+    """Robots at (1, 0) and (-1, 2): centroid (0, 1), offsets (1, -1) and (-1, 1). Columns: x translation,
+    y translation, rotation (-c_y, c_x, 1) per robot. About the point (1, 0) instead: offsets (0, 0), (-2, 2)."""
+    poses = np.array([[1.0, 0.0, 0.5], [-1.0, 2.0, -0.5]])
+    want = np.array([
+        [1, 0, 1], [0, 1, 1], [0, 0, 1],
+        [1, 0, -1], [0, 1, -1], [0, 0, 1],
+    ], float)
+    np.testing.assert_array_equal(gauge_basis(poses), want)
+    about = gauge_basis(poses, np.array([1.0, 0.0]))
+    np.testing.assert_array_equal(about[:, 2], [0, 0, 1, -2, -2, 1])
+
+
+def observation_jacobian(poses: np.ndarray, observer, observed, h: float = 1e-6) -> np.ndarray:
+    """Central differences of (range, bearing in the observer's frame) of every observation."""
+
+    def f(flat):
+        p = flat.reshape(-1, 3)
+        out = []
+        for i, j in zip(observer, observed):
+            dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
+            out += [math.hypot(dx, dy), math.atan2(dy, dx) - p[i, 2]]
+        return np.array(out)
+
+    x = poses.ravel()
+    return np.column_stack([(f(x + h * e) - f(x - h * e)) / (2 * h) for e in np.eye(len(x))])
+
+
+def test_observations_are_blind_to_the_gauge():
+    """H N = 0: relative ranges and body-frame bearings do not change under a global translation or a
+    rotation of every pose about the centroid (or any point)."""
+    poses = np.array([[0.0, 0.0, 0.3], [0.3, 0.1, -1.0], [0.1, 0.35, 2.0], [0.4, 0.3, 0.0]])
+    h = observation_jacobian(poses, [0, 1, 2, 3, 1], [1, 2, 3, 0, 3])
+    np.testing.assert_allclose(h @ gauge_basis(poses), 0, atol=1e-8)
+    np.testing.assert_allclose(h @ gauge_basis(poses, np.array([5.0, -2.0])), 0, atol=1e-8)
+
+
+def test_constrained_covariance_is_the_docstring_formula():
+    """(J^T J - H^T H + H~^T H~)^-1 with H~ = H (I - N (N^T N)^-1 N^T), N at the predicted poses: written
+    out with dense matrices. When the prediction is the point where H was taken (H N = 0 there), H~ = H
+    and the result is the plain inverse."""
+    poses = np.array([[0.0, 0.0, 0.3], [0.3, 0.1, -1.0], [0.1, 0.35, 2.0]])
+    h = observation_jacobian(poses, [0, 1, 2, 0], [1, 2, 0, 2]) / 0.01
+    prior_info = np.linalg.inv(spd(9, 2))
+    normal = prior_info + h.T @ h
+    predicted = poses + np.random.default_rng(3).normal(0, 0.05, poses.shape)
+    n = gauge_basis(predicted)
+    off = np.eye(9) - n @ np.linalg.solve(n.T @ n, n.T)
+    want = np.linalg.inv(normal - h.T @ h + (h @ off).T @ (h @ off))
+    np.testing.assert_allclose(constrained_covariance(normal, h, predicted), want, rtol=1e-8)
+    np.testing.assert_allclose(constrained_covariance(normal, h, poses), np.linalg.inv(normal), rtol=1e-5)
+
+
+def test_inverse_of_a_singular_information_is_nan():
+    assert np.isnan(inverse(np.zeros((3, 3)))).all() and inverse(np.zeros((3, 3))).shape == (3, 3)
+    np.testing.assert_allclose(inverse(np.diag([2.0, 4.0])), np.diag([0.5, 0.25]))
+
+
+def test_transport_moves_gauge_covariance_onto_the_new_gauge():
+    """T N(predicted) = N(solution) (about the predicted centroid), so a covariance that lies entirely along
+    the gauge, N(predicted) A N(predicted)^T, becomes N(solution) A N(solution)^T; with solution = prediction
+    nothing moves."""
+    rng = np.random.default_rng(8)
+    predicted = np.column_stack([rng.uniform(-1, 1, (4, 2)), rng.uniform(-3, 3, 4)])
+    solution = predicted + rng.normal(0, 0.05, (4, 3))
+    center = predicted[:, :2].mean(axis=0)
+    a = spd(3, 9, 1.0)
+    before = gauge_basis(predicted, center) @ a @ gauge_basis(predicted, center).T
+    after = gauge_basis(solution, center) @ a @ gauge_basis(solution, center).T
+    np.testing.assert_allclose(transport(before, predicted, solution), after, rtol=1e-9, atol=1e-12)
+    cov = spd(12, 10)
+    np.testing.assert_allclose(transport(cov, predicted, predicted), cov, rtol=1e-12, atol=1e-18)
+
+
+# ---------------------------------------------------------------------------------------------
+# Partial localization: the retry loop
+
+
+def ring_obs(ids) -> Observations:
+    """Everyone observes everyone: any subset of two or more robots stays observable."""
+    ids = np.asarray(ids)
+    i, j = np.nonzero(~np.eye(len(ids), dtype=bool))
+    return Observations(ids[i], ids[j], np.full(len(i), 0.3), np.zeros(len(i)))
+
+
+def scripted_solver(failures):
+    """``solve(mask)``: raises the scripted LocalizationErrors in turn, then returns the mask it got."""
+    calls = []
+
+    def solve(keep):
+        calls.append(keep.copy())
+        if len(calls) <= len(failures):
+            raise failures[len(calls) - 1]
+        return keep.copy()
+
+    return solve, calls
+
+
+def test_solver_failures_set_aside_the_robots_they_name():
+    """Robots 10..14, everyone observing everyone. The first solve fails
+    ('no-convergence' naming 12), the second ('degenerate' naming 14): the third, without 12 and 14, succeeds."""
+    ids = np.arange(10, 15)
+    solve, calls = scripted_solver([LocalizationError("no-convergence", [12]), LocalizationError("degenerate", [14])])
+    keep, result, excluded = solvable_subset(solve, ids, ring_obs(ids))
+    assert keep.tolist() == [True, True, False, True, False] and result.tolist() == keep.tolist()
+    assert excluded == {12: "no-convergence", 14: "degenerate"}
+    assert [c.tolist() for c in calls] == [[True] * 5, [True, True, False, True, True], [True, True, False, True, False]]
+
+
+def test_at_most_max_retries_solver_failures_are_tolerated():
+    """MAX_RETRIES = 3 failures are set aside; a fourth propagates (8 robots, one named each time)."""
+    assert MAX_RETRIES == 3
+    ids = np.arange(8)
+    ok_solve, _ = scripted_solver([LocalizationError("no-convergence", [k]) for k in (1, 2, 3)])
+    keep, _, excluded = solvable_subset(ok_solve, ids, ring_obs(ids))
+    assert keep.sum() == 5 and set(excluded) == {1, 2, 3}
+    failing, calls = scripted_solver([LocalizationError("no-convergence", [k]) for k in (1, 2, 3, 4)])
+    with pytest.raises(LocalizationError, match="no-convergence: robots \\[4\\]"):
+        solvable_subset(failing, ids, ring_obs(ids))
+    assert len(calls) == 4
+
+
+@pytest.mark.parametrize(
+    "error",
+    [
+        LocalizationError("unobserved", [2]),  # not a solver failure
+        LocalizationError("no-convergence", [0, 1, 2, 3]),  # names everybody: nothing left
+        LocalizationError("no-convergence", [0, 1, 2]),  # would leave one robot
+        LocalizationError("no-convergence", [9]),  # names nobody that is kept
+    ],
+)
+def test_failures_that_cannot_be_set_aside_propagate(error):
+    ids = np.arange(4)
+    solve, calls = scripted_solver([error])
+    with pytest.raises(LocalizationError) as err:
+        solvable_subset(solve, ids, ring_obs(ids))
+    assert err.value is error and len(calls) == 1
+
+
+def test_no_retry_propagates_the_first_failure():
+    ids = np.arange(4)
+    solve, calls = scripted_solver([LocalizationError("no-convergence", [1])])
+    with pytest.raises(LocalizationError, match="no-convergence"):
+        solvable_subset(solve, ids, ring_obs(ids), retry=False)
+    assert len(calls) == 1
+
+
+def test_unobservable_robots_are_left_out_before_solving():
+    """Robots 0..4: 0 -> 1 -> 2 -> 0 is a ring, 3 and 4 see only each other (a second group): {3, 4} is
+    disconnected from the largest group, which is solved alone. With one observation 0 -> 1 among three
+    robots, fewer than two robots are left after the unobserved are dropped: 'unobserved' is raised."""
+    ids = np.arange(5)
+    obs = Observations(np.array([0, 1, 2, 3, 4]), np.array([1, 2, 0, 4, 3]), np.full(5, 0.3), np.zeros(5))
+    solve, calls = scripted_solver([])
+    keep, _, excluded = solvable_subset(solve, ids, obs)
+    assert keep.tolist() == [True, True, True, False, False]
+    assert excluded == {3: "disconnected", 4: "disconnected"}
+    lonely = Observations(np.array([0]), np.array([1]), np.array([0.3]), np.array([0.0]))
+    with pytest.raises(LocalizationError, match="fewer than two robots"):
+        solvable_subset(solve, np.arange(3), lonely)
+
+
+def test_localize_observable_falls_back_to_dead_reckoning():
+    """Nobody observes anybody: every robot keeps dead reckoning, each reported with the reason."""
+    ids = np.array([4, 5, 6])
+    prior = SwarmEstimate.isotropic(ids, np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]]), 0.01, 0.01)
+    step = StepCommands(ids, np.array([[0.0, 0.1], [0, 0], [0, 0]]), np.array([True, False, False]))
+    empty = Observations(np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0))
+    est, why = localize_observable(JointLocalizer(CFG), prior, step, empty, CFG)
+    assert why == {4: "unobserved", 5: "unobserved", 6: "unobserved"}
+    dr = dead_reckon(prior, step, CFG)
+    np.testing.assert_array_equal(est.poses, dr.poses)
+    np.testing.assert_array_equal(est.cov, dr.cov)
+
+
+# ---------------------------------------------------------------------------------------------
+# joint.py helpers
+
+
+def test_psd_by_hand():
+    """diag(1, -1, 2) -> diag(1, 0, 2); a positive definite matrix is returned as it is (symmetrised); a
+    NaN matrix is returned as it is; 6x6 matrices use the Cholesky test."""
+    out = psd(np.stack([np.diag([1.0, -1.0, 2.0]), np.diag([1.0, 2.0, 3.0]), np.full((3, 3), np.nan)]))
+    np.testing.assert_allclose(out[0], np.diag([1.0, 0.0, 2.0]), atol=1e-15)
+    np.testing.assert_array_equal(out[1], np.diag([1.0, 2.0, 3.0]))
+    assert np.isnan(out[2]).all()
+    six = np.diag([1.0, 2.0, -3.0, 4.0, 5.0, 6.0])
+    np.testing.assert_allclose(psd(six), np.diag([1.0, 2.0, 0.0, 4.0, 5.0, 6.0]), atol=1e-15)
+    p = spd(6, 4)
+    np.testing.assert_array_equal(psd(p), 0.5 * (p + p.T))
+
+
+@pytest.mark.parametrize("diagonal", [(-1.0, -1.0, 1.0), (1.0, -1.0, -1.0), (1.0, 1.0, -1.0)])
+def test_psd_checks_every_leading_minor(diagonal):
+    """Each diagonal matrix fails exactly one of Sylvester's three minors; its negative entries become 0."""
+    np.testing.assert_allclose(psd(np.diag(diagonal)), np.diag(np.maximum(diagonal, 0.0)), atol=1e-15)
+
+
+def test_psd_symmetrises():
+    """An asymmetric positive definite matrix (0.3 above, 0.1 below the diagonal) comes back as its
+    symmetric part (0.2 on both sides)."""
+    a = np.array([[2.0, 0.3, 0.0], [0.1, 2.0, 0.0], [0.0, 0.0, 1.0]])
+    np.testing.assert_allclose(psd(a), [[2.0, 0.2, 0.0], [0.2, 2.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def test_psd_joint():
+    """Symmetrised as it is when positive definite; projected when not; non-finite returned symmetrised."""
+    a = np.array([[2.0, 0.4], [0.0, 1.0]])
+    np.testing.assert_array_equal(psd_joint(a), [[2.0, 0.2], [0.2, 1.0]])
+    np.testing.assert_allclose(psd_joint(np.diag([1.0, -2.0])), np.diag([1.0, 0.0]), atol=1e-15)
+    nan = np.array([[np.nan, 1.0], [0.0, 1.0]])
+    out = psd_joint(nan)
+    assert np.isnan(out[0, 0]) and out[0, 1] == out[1, 0] == 0.5
+
+
+def test_block_diagonal_by_hand():
+    cov = np.stack([np.full((3, 3), 1.0), np.full((3, 3), 2.0)])
+    out = block_diagonal(cov)
+    assert out.shape == (6, 6)
+    np.testing.assert_array_equal(out[:3, :3], 1.0)
+    np.testing.assert_array_equal(out[3:, 3:], 2.0)
+    np.testing.assert_array_equal(out[:3, 3:], 0.0)
+    np.testing.assert_array_equal(out[3:, :3], 0.0)
+
+
+def test_worst_observation_names_the_largest_whitened_residual():
+    """Prior residuals first (ignored), then (range, bearing) pairs: observation 1 (robots 7 -> 9) has
+    3^2 + 1^2 = 10, observation 0 (5 -> 7) 2^2 + 2^2 = 8, so ids 7 and 9 are named; no observation: all."""
+    ids = np.array([5, 7, 9])
+    residual = np.array([100.0, 100.0, 100.0, 2.0, 2.0, 3.0, -1.0])
+    assert worst_observation(residual, np.array([0, 1]), np.array([1, 2]), ids).tolist() == [7, 9]
+    assert worst_observation(residual[:3], np.zeros(0, int), np.zeros(0, int), ids).tolist() == [5, 7, 9]
+
+
+def test_checked_names_robots_with_non_finite_covariances():
+    cov = np.stack([np.eye(3), np.full((3, 3), np.nan), np.eye(3), np.diag([1.0, np.inf, 1.0])])
+    with pytest.raises(LocalizationError, match=r"degenerate: robots \[11, 13\]"):
+        checked(cov, np.array([10, 11, 12, 13]))
+    assert checked(cov[[0, 2]], np.array([1, 2])) is not None
+
+
+def test_pose_covariances_exact_and_conditional(monkeypatch):
+    """Information matrix of 2 robots (6x6, correlated), robot 1's heading fixed (5 unknowns). Exact: the
+    blocks of the inverse, zero on the fixed heading. Above EXACT_COV_LIMIT: each robot's own information
+    block inverted alone (conditional covariance), zero on the fixed heading."""
+    layout = PoseLayout(np.ones(2, bool), np.array([True, False]))
+    info = np.linalg.inv(spd(5, 11))
+    full = np.linalg.inv(info)
+    cols = [[0, 1, 2], [3, 4, None]]
+    want = np.zeros((2, 3, 3))
+    cond = np.zeros((2, 3, 3))
+    for r in range(2):
+        free = [c for c in cols[r] if c is not None]
+        k = len(free)
+        want[r, :k, :k] = full[np.ix_(free, free)]
+        cond[r, :k, :k] = np.linalg.inv(info[np.ix_(free, free)])
+    np.testing.assert_allclose(pose_covariances(info, layout, 2), want, rtol=1e-9, atol=1e-15)
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 1)
+    np.testing.assert_allclose(pose_covariances(info, layout, 2), cond, rtol=1e-9, atol=1e-15)
+
+
+def four_robots(seed: int):
+    ids = np.arange(4)
+    poses = np.array([[0.0, 0.0, 0.2], [0.3, 0.0, 1.5], [0.0, 0.3, -2.0], [0.3, 0.3, 3.0]])
+    prior = SwarmEstimate.isotropic(ids, poses, 0.02, 0.05)
+    obs = sense_swarm(poses, ids, CFG, robot_rngs(seed, ids, Stream.SENSING))
+    return prior, StepCommands.stationary(ids), obs
+
+
+def test_noise_free_joint_localization_keeps_exact_poses():
+    """Prior at the truth, noise-free observations of the truth: the solution is the truth, with or
+    without the Huber loss and the gauge constraint, and the covariance shrinks below the prior."""
+    exact = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    prior, step, _ = four_robots(0)
+    obs = sense_swarm(prior.poses, prior.ids, exact, robot_rngs(0, prior.ids, Stream.SENSING))
+    for loc in (JointLocalizer(CFG), JointLocalizer(CFG, huber=1.0), JointLocalizer(CFG, constrain_gauge=False)):
+        est = loc.localize(prior, step, obs)
+        np.testing.assert_allclose(est.poses[:, :2], prior.poses[:, :2], atol=1e-9)
+        np.testing.assert_allclose(wrap_angle(est.poses[:, 2] - prior.poses[:, 2]), 0, atol=1e-9)
+        assert (np.trace(est.cov[:, :2, :2], axis1=1, axis2=2) < np.trace(prior.cov[:, :2, :2], axis1=1, axis2=2)).all()
+
+
+def test_huber_changes_the_answer_only_with_outliers():
+    """An observation range off by 0.1 m (10 sigmas): least squares follows it partly, Huber (1 sigma) much
+    less; on clean data both agree to the solver's tolerance."""
+    prior, step, obs = four_robots(1)
+    plain, robust = JointLocalizer(CFG), JointLocalizer(CFG, huber=1.0)
+    a, b = plain.localize(prior, step, obs), robust.localize(prior, step, obs)
+    assert np.abs(a.poses - b.poses).max() < 0.01
+    bad = Observations(obs.observer, obs.observed, obs.range_m + np.where(np.arange(len(obs.range_m)) == 0, 0.1, 0.0), obs.bearing_rad)
+    a, b = plain.localize(prior, step, bad), robust.localize(prior, step, bad)
+    i, j = obs.observer[0], obs.observed[0]
+    stretch_a = np.hypot(*(a.poses[j, :2] - a.poses[i, :2])) - np.hypot(*(prior.poses[j, :2] - prior.poses[i, :2]))
+    stretch_b = np.hypot(*(b.poses[j, :2] - b.poses[i, :2])) - np.hypot(*(prior.poses[j, :2] - prior.poses[i, :2]))
+    assert stretch_a > 2 * stretch_b
+
+
+def test_conditional_covariances_above_the_exact_limit(monkeypatch):
+    """Above EXACT_COV_LIMIT no joint covariance is returned; the poses are the same as below it."""
+    prior, step, obs = four_robots(2)
+    exact = JointLocalizer(CFG).localize(prior, step, obs)
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 3)
+    blocks = JointLocalizer(CFG).localize(prior, step, obs)
+    assert exact.joint is not None and blocks.joint is None
+    np.testing.assert_allclose(blocks.poses, exact.poses, atol=1e-12)
+    assert (np.abs(blocks.poses[:, 2]) <= np.pi).all()
+    # Conditional covariances are optimistic: never above the exact marginals.
+    assert (np.linalg.eigvalsh(exact.cov - blocks.cov) > -1e-15).all()
