@@ -145,8 +145,8 @@ def test_observations_are_blind_to_the_gauge():
 
 
 def test_constrained_covariance_is_the_docstring_formula():
-    """(J^T J - H^T H + H~^T H~)^-1 with H~ = H (I - N (N^T N)^-1 N^T), N at the predicted poses: written
-    out with dense matrices. When the prediction is the point where H was taken (H N = 0 there), H~ = H
+    """(J^T J - H^T H + H~^T H~)^-1 with H~ = H (I - N (N^T N)^-1 N^T), N at the predicted poses (the
+    function takes H^T H): written out with dense matrices. When the prediction is the point where H was taken (H N = 0 there), H~ = H
     and the result is the plain inverse."""
     poses = np.array([[0.0, 0.0, 0.3], [0.3, 0.1, -1.0], [0.1, 0.35, 2.0]])
     h = observation_jacobian(poses, [0, 1, 2, 0], [1, 2, 0, 2]) / 0.01
@@ -156,8 +156,8 @@ def test_constrained_covariance_is_the_docstring_formula():
     n = gauge_basis(predicted)
     off = np.eye(9) - n @ np.linalg.solve(n.T @ n, n.T)
     want = np.linalg.inv(normal - h.T @ h + (h @ off).T @ (h @ off))
-    np.testing.assert_allclose(constrained_covariance(normal, h, predicted), want, rtol=1e-8)
-    np.testing.assert_allclose(constrained_covariance(normal, h, poses), np.linalg.inv(normal), rtol=1e-5)
+    np.testing.assert_allclose(constrained_covariance(normal, h.T @ h, predicted), want, rtol=1e-8)
+    np.testing.assert_allclose(constrained_covariance(normal, h.T @ h, poses), np.linalg.inv(normal), rtol=1e-5)
 
 
 def test_inverse_of_a_singular_information_is_nan():

@@ -144,7 +144,7 @@ def test_least_squares_mean(sparse):
     np.testing.assert_allclose(out.x, [2.5], atol=1e-9)
     assert out.cost == pytest.approx(37.5, rel=1e-9)
     np.testing.assert_allclose(dense(out.normal_matrix), [[4.0]], rtol=1e-9)
-    np.testing.assert_array_equal(dense(out.jacobian), np.ones((4, 1)))
+    np.testing.assert_array_equal(dense(out.extra), np.ones((4, 1)))
 
 
 @pytest.mark.parametrize("sparse", [False, True])
@@ -159,7 +159,7 @@ def test_huber_location_estimate(sparse):
     assert out.cost == pytest.approx(28 / 3, rel=1e-9)
     np.testing.assert_allclose(dense(out.normal_matrix), [[3 + 3 / 29]], rtol=1e-7)
     # The returned Jacobian is the Huber-weighted one: sqrt(w_i) = 1, 1, 1, sqrt(3 / 29).
-    np.testing.assert_allclose(dense(out.jacobian)[:, 0], [1, 1, 1, np.sqrt(3 / 29)], rtol=1e-7)
+    np.testing.assert_allclose(dense(out.extra)[:, 0], [1, 1, 1, np.sqrt(3 / 29)], rtol=1e-7)
 
 
 def rosenbrock(x):
@@ -204,7 +204,7 @@ def test_no_acceptable_step_gives_up_after_raising_the_damping_to_1e10():
     out = levenberg_marquardt(residuals, np.array([0.0]))
     assert (out.x.tolist(), out.iterations, out.converged) == ([0.0], 1, False)
     assert out.cost == pytest.approx(4.5)
-    assert dense(out.normal_matrix).tolist() == [[1.0]] and dense(out.jacobian).tolist() == [[1.0]]
+    assert dense(out.normal_matrix).tolist() == [[1.0]] and dense(out.extra).tolist() == [[1.0]]
     assert len(calls) == 20
     # The trial steps solve (1 + mu) dx = 3: dx = 3 / (1 + mu) for mu = 1e-8 ... 1e10.
     np.testing.assert_allclose([c[0] for c in calls[1:]], 3 / (1 + 10.0 ** np.arange(-8, 11)), rtol=1e-9)
