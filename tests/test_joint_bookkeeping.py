@@ -415,3 +415,53 @@ def test_conditional_covariances_above_the_exact_limit(monkeypatch):
     assert (np.abs(blocks.poses[:, 2]) <= np.pi).all()
     # Conditional covariances are optimistic: never above the exact marginals.
     assert (np.linalg.eigvalsh(exact.cov - blocks.cov) > -1e-15).all()
+
+
+def test_worst_observation_accepts_per_observation_rows():
+    """The (m, 2) residuals of ``JointProblem.residuals``: the same choice as the flat vector."""
+    rows = np.array([[2.0, 2.0], [3.0, -1.0]])
+    assert worst_observation(rows, np.array([0, 1]), np.array([1, 2]), np.array([5, 7, 9])).tolist() == [7, 9]
+
+
+def test_localize_subset_updates_the_kept_robots_only():
+    """Robots 0-3 kept (they observe each other), robot 4 set aside. Robot 4 keeps its dead reckoning
+    (pose and covariance). Without the gauge constraint the joint covariance is merge_subset's linear
+    update: P_A'B = P_AA' P_AA^-1 P_AB and P_BB unchanged (P = the dead-reckoned joint prior); with a
+    first-step prior (independent robots, no joint) the cross-covariances stay 0."""
+    ids = np.arange(5)
+    poses = np.array([[0.0, 0.0, 0.2], [0.3, 0.0, 1.5], [0.0, 0.3, -2.0], [0.3, 0.3, 3.0], [2.0, 2.0, 0.0]])
+    keep = np.array([True, True, True, True, False])
+    step = StepCommands(ids, np.array([[0.0, 0.05]] * 5), np.array([True, False, False, False, True]))
+    obs = sense_swarm(poses, ids, CFG, robot_rngs(4, ids, Stream.SENSING))
+    joint_prior = SwarmEstimate.from_joint(ids, poses, spd(15, 12, 0.005))
+    loc = JointLocalizer(CFG, constrain_gauge=False)
+    est = loc.localize_subset(joint_prior, step, obs, keep)
+    dr = dead_reckon(joint_prior, step, CFG)
+    np.testing.assert_array_equal(est.poses[4], dr.poses[4])
+    a, b = np.arange(12), np.arange(12, 15)
+    np.testing.assert_allclose(est.joint[np.ix_(b, b)], dr.joint[np.ix_(b, b)], rtol=1e-12)
+    want_ab = est.joint[np.ix_(a, a)] @ np.linalg.solve(dr.joint[np.ix_(a, a)], dr.joint[np.ix_(a, b)])
+    np.testing.assert_allclose(est.joint[np.ix_(a, b)], want_ab, rtol=1e-6, atol=1e-15)
+    assert np.abs(est.poses[:4] - dr.poses[:4]).max() > 0
+    first = loc.localize_subset(SwarmEstimate(ids, poses, joint_prior.cov), step, obs, keep)
+    np.testing.assert_array_equal(first.joint[np.ix_(a, b)], 0.0)
+    np.testing.assert_allclose(first.cov[4], dr.cov[4], rtol=1e-12)
+    assert first.joint.shape == (15, 15)
+
+
+def test_joint_topology_of_exact_observations():
+    """Noise-free observations of four robots: the topology is the swarm seen from its reference robot
+    (robot 0, the lowest that observed someone): positions R(-theta_0) (p - p_0), headings theta - theta_0;
+    the reference itself has no uncertainty."""
+    exact = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    ids = np.arange(10, 14)
+    poses = np.array([[0.1, 0.2, 0.7], [0.4, 0.2, 1.5], [0.1, 0.5, -2.0], [0.4, 0.5, 3.0]])
+    obs = sense_swarm(poses, ids, exact, robot_rngs(0, ids, Stream.SENSING))
+    topo = JointLocalizer(CFG).topology(ids, obs)
+    c, s = math.cos(-0.7), math.sin(-0.7)
+    rel = (poses[:, :2] - poses[0, :2]) @ np.array([[c, s], [-s, c]])
+    assert topo.reference == 0
+    np.testing.assert_allclose(topo.solved_positions, rel, atol=1e-9)
+    np.testing.assert_allclose(topo.positions, rel, atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(topo.headings - (poses[:, 2] - 0.7)), 0, atol=1e-9)
+    assert topo.delta_p[0] == 0 and (topo.delta_p[1:] > 0).all() and np.isfinite(topo.heading_sigma).all()
