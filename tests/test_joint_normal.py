@@ -169,3 +169,31 @@ def test_add_diagonal_dense_and_sparse():
     assert a.tolist() == [[1, 2], [3, 4]]
     out = add_diagonal(sp.csr_matrix(a), np.array([10.0, 20.0]))
     assert sp.issparse(out) and out.toarray().tolist() == [[11, 2], [3, 24]]
+
+
+def test_dense_solve_falls_back_when_cholesky_fails():
+    """With a joint prior above 64 unknowns the dense solve uses Cholesky; a matrix that is not positive
+    definite (here -I, shift 0) goes to the general solver: -I dx = rhs gives dx = -rhs."""
+    truth, mean, obs = swarm(25, 4)
+    w = joint_sqrt_information(np.kron(np.eye(25), np.diag([4e-4, 4e-4, 2.5e-3])))
+    problem = JointProblem(mean, w, *obs, CFG)
+    assert problem.dense and problem.size == 75
+    rhs = np.arange(75.0)
+    np.testing.assert_allclose(problem.solve(-np.eye(75), np.zeros(75), rhs), -rhs)
+
+
+@pytest.mark.parametrize("n", [4, 25])
+def test_observation_normal_when_the_last_robot_observes_nobody(n):
+    """The last robot is observed but observes nobody (its heading enters no observation): H^T H still has
+    the full (3n, 3n) shape, with a zero row and column for that heading."""
+    truth, mean, (i, j, rho, phi) = swarm(n, 5)
+    keep = i != n - 1
+    obs = (i[keep], j[keep], rho[keep], phi[keep])
+    w = sqrt_information(np.broadcast_to(np.diag([4e-4, 4e-4, 2.5e-3]), (n, 3, 3)).copy())
+    problem = JointProblem(mean, w, *obs, CFG)
+    x = truth.ravel()
+    h = numeric_jacobian(lambda v: reference_residuals(v, mean, w, False, obs)[1], x)
+    got = dense(problem.observation_normal(problem.evaluate(x).extra))
+    assert got.shape == (3 * n, 3 * n)
+    np.testing.assert_allclose(got, h.T @ h, atol=1e-6 * np.abs(h.T @ h).max())
+    np.testing.assert_array_equal(got[-1], 0.0)
