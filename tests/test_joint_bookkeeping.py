@@ -265,8 +265,32 @@ def test_unobservable_robots_are_left_out_before_solving():
     assert keep.tolist() == [True, True, True, False, False]
     assert excluded == {3: "disconnected", 4: "disconnected"}
     lonely = Observations(np.array([0]), np.array([1]), np.array([0.3]), np.array([0.0]))
-    with pytest.raises(LocalizationError, match="fewer than two robots"):
+    with pytest.raises(LocalizationError, match=r"^unobserved: robots \[0, 1, 2\] \(fewer than two robots can be localized\)$"):
         solvable_subset(solve, np.arange(3), lonely)
+    pair = Observations(np.array([0, 1]), np.array([1, 0]), np.full(2, 0.3), np.zeros(2))
+    keep, _, excluded = solvable_subset(solve, np.arange(3), pair)  # two robots are enough
+    assert keep.tolist() == [True, True, False] and excluded == {2: "unobserved"}
+
+
+def test_a_set_aside_robot_no_longer_observes_anyone():
+    """Robots 0, 1, 2 observe each other; robot 3 is observed only by robot 2. When the solver names robot 2,
+    its observations go with it: robot 3 becomes unobserved and is left out too; 0 and 1 are solved."""
+    ids = np.arange(4)
+    i = np.array([0, 1, 1, 2, 2, 0, 2, 3])
+    j = np.array([1, 0, 2, 1, 0, 2, 3, 0])
+    obs = Observations(i, j, np.full(8, 0.3), np.zeros(8))
+    solve, calls = scripted_solver([LocalizationError("no-convergence", [2])])
+    keep, _, excluded = solvable_subset(solve, ids, obs)
+    assert keep.tolist() == [True, True, False, False]
+    assert excluded == {2: "no-convergence", 3: "unobserved"}
+
+
+def test_a_failure_may_leave_exactly_two_robots():
+    """Three robots observing each other; the solver names robot 2: robots 0 and 1 are solved again."""
+    ids = np.arange(3)
+    solve, calls = scripted_solver([LocalizationError("degenerate", [2])])
+    keep, _, excluded = solvable_subset(solve, ids, ring_obs(ids))
+    assert keep.tolist() == [True, True, False] and excluded == {2: "degenerate"} and len(calls) == 2
 
 
 def test_localize_observable_falls_back_to_dead_reckoning():

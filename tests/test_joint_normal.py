@@ -79,8 +79,9 @@ def test_normal_equations_match_the_residual_reference(n, joint, h):
     if joint:
         a = rng.normal(size=(3 * n, 3 * n)) * 0.01
         w = joint_sqrt_information(a @ a.T + 1e-4 * np.eye(3 * n))
-    else:
-        w = sqrt_information(np.broadcast_to(np.diag([4e-4, 4e-4, 2.5e-3]), (n, 3, 3)).copy())
+    else:  # correlated per-robot covariances: W is not symmetric
+        a = rng.normal(size=(n, 3, 3)) * 0.01
+        w = sqrt_information(a @ np.swapaxes(a, 1, 2) + np.diag([2e-4, 2e-4, 2e-3]))
     problem = JointProblem(mean, w, *obs, CFG, huber=h)
     assert problem.dense == (joint or 3 * n <= DENSE_LIMIT)
     x = (truth + rng.normal(0, 0.01, truth.shape)).ravel()

@@ -64,6 +64,9 @@ def test_pose_layout_columns_pack_and_unpack():
     out = layout.unpack(np.array([10.5, 20, 30, 40, 50, 60]), fixed)
     assert out.dtype == float and out.tolist() == [[10.5, 20, -1], [-1, -1, 30], [40, 50, 60]]
     assert fixed.tolist() == (-np.ones((3, 3))).tolist()  # the fixed poses are not written to
+    fixed_float = np.zeros((3, 3))
+    layout.unpack(np.arange(6.0), fixed_float)
+    assert not fixed_float.any()  # nor when they already are floats
     none = PoseLayout(np.zeros(2, bool), np.zeros(2, bool))
     assert none.size == 0 and (none.cols == -1).all() and none.pack(poses[:2]).shape == (0,)
 
