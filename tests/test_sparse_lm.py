@@ -21,10 +21,12 @@ from coordinator.localization.sparse_lm import (
     DENSE_LIMIT,
     PoseLayout,
     blas_threads,
+    NormalEquations,
     SparseLDL,
     dense,
     jacobian,
     levenberg_marquardt,
+    minimize,
     solve_normal,
 )
 
@@ -378,3 +380,27 @@ def test_damping_grows_until_a_step_is_accepted_then_shrinks():
     np.testing.assert_allclose(calls[1:12], 100 / (1 + 10.0 ** np.arange(-8, 3)), rtol=1e-12)
     x1 = 100 / 101
     assert calls[12] == pytest.approx(x1 + (100 - x1) / 11, rel=1e-12)
+
+
+def exp_decay(x):
+    """r(x) = exp(-x): infimum at +inf, each Gauss-Newton step dx = 1, the cost falls by e^-2 (86 %)."""
+    return np.exp(-x), -np.exp(-x)[:, None]
+
+
+def test_minimize_defaults_match_levenberg_marquardt():
+    """``minimize`` called directly with its defaults (100 iterations, xtol 1e-10, ftol 1e-12) never stops
+    early on exp(-x): 100 iterations, unconverged."""
+    def evaluate(x):
+        r, jac = exp_decay(x)
+        return NormalEquations(0.5 * float(r @ r), jac.T @ jac, jac.T @ r)
+
+    out = minimize(evaluate, np.array([0.0]))
+    assert (out.iterations, out.converged) == (100, False)
+
+
+@pytest.mark.parametrize(("xtol", "ftol"), [(10.0, 1e-12), (1e-10, 0.99)])
+def test_levenberg_marquardt_passes_its_tolerances_on(xtol, ftol):
+    """On exp(-x) from 0 the first step is 1 (below 10 (1 + 0)) and gains 86 % of the cost (below 99 %):
+    a loose xtol or ftol stops it after one iteration, converged."""
+    out = levenberg_marquardt(exp_decay, np.array([0.0]), xtol=xtol, ftol=ftol)
+    assert (out.iterations, out.converged) == (1, True)
