@@ -489,3 +489,25 @@ def test_joint_topology_of_exact_observations():
     np.testing.assert_allclose(topo.positions, rel, atol=1e-9)
     np.testing.assert_allclose(wrap_angle(topo.headings - (poses[:, 2] - 0.7)), 0, atol=1e-9)
     assert topo.delta_p[0] == 0 and (topo.delta_p[1:] > 0).all() and np.isfinite(topo.heading_sigma).all()
+
+
+def test_psd_of_rotated_matrices_with_known_eigenvalues():
+    """V diag(lambda) V^T for random rotations V: with one negative eigenvalue psd gives V diag(max(lambda,
+    0)) V^T; positive definite ones come back exactly as they are (the cheap 3x3 test must not send them
+    to the eigen-decomposition). Off-diagonal entries exercise every term of the determinant."""
+    rng = np.random.default_rng(21)
+    for _ in range(60):
+        v, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        lam = rng.uniform(0.1, 2.0, 3)
+        pd = v @ np.diag(lam) @ v.T
+        pd = 0.5 * (pd + pd.T)
+        np.testing.assert_array_equal(psd(pd), pd)
+        lam[rng.integers(3)] *= -1
+        bad = v @ np.diag(lam) @ v.T
+        np.testing.assert_allclose(psd(bad), v @ np.diag(np.maximum(lam, 0)) @ v.T, atol=1e-12)
+
+
+def test_pose_covariances_of_a_singular_information_are_nan():
+    """A zero information matrix has no inverse: every covariance is NaN (``checked`` then names the robots)."""
+    out = pose_covariances(np.zeros((6, 6)), PoseLayout(np.ones(2, bool), np.ones(2, bool)), 2)
+    assert out.shape == (2, 3, 3) and np.isnan(out).all()

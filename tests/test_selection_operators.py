@@ -282,3 +282,49 @@ def test_connectivity_is_checked_after_every_step():
     assert plan_keeps_connectivity(Plan(np.array([0, 1, 2]), (1, 1, 1)), current, desired, 0.5)
     assert not plan_keeps_connectivity(Plan(np.array([0, 1, 2]), (1, 1, 1)), current, desired, 0.39)  # 0.4 m gaps
     assert current.tolist() == [[0.0, 0.0], [0.4, 0.0], [0.8, 0.0]]  # not modified
+
+
+def test_crlb_prediction_counts_pairs_exactly_at_sensing_range():
+    """Robots 0 and 1 start 1 m apart; robot 0 moves to 0.125 (0.875 m apart: no observation), then robot 1
+    to 0.625: exactly 0.5 m, the sensing range (inclusive), so from then on they observe each other and the
+    prediction is below that of the same moves 10 m further apart (never observed); robot 2 is far away."""
+    cfg = ModelConfig()
+    plan = Plan.equal(np.array([0, 1, 2]), 2)
+    start = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [20.0, 0.0, 0.0]])
+    desired = np.array([[0.125, 0.0], [0.625, 0.0], [20.125, 0.0]])  # robots 0 and 1 end 0.5 m apart
+    near = predicted_errors(cfg, SwarmEstimate.isotropic(np.arange(3), start, 0.01, 0.02), desired, [plan])[0]
+    apart = start.copy()
+    apart[1, 0] += 10.0
+    desired_apart = desired.copy()
+    desired_apart[1, 0] += 10.0
+    far = predicted_errors(cfg, SwarmEstimate.isotropic(np.arange(3), apart, 0.01, 0.02), desired_apart, [plan])[0]
+    assert near < 0.95 * far
+
+
+def test_race_keeps_the_best_whatever_its_position():
+    """Four plans whose e_l is known exactly (no noise): the best is the last one listed; the race returns it."""
+    from coordinator.selection.racing import race
+
+    plans = [Plan.equal(np.roll(np.arange(6), k), 3) for k in range(4)]
+    truth = {p.key(): 1.0 - 0.1 * k for k, p in enumerate(plans)}
+    winner, spent = race(plans, lambda ps, samples, seed: np.array([truth[p.key()] for p in ps]), 8, np.random.default_rng(0))
+    assert winner.key() == plans[3].key() and spent == 4 + 2
+
+
+def test_final_check_is_a_one_sided_paired_test():
+    """Per-sample differences champion - seed = (-0.5, -0.2, 0.1): mean -0.2, sample std (ddof 1) 0.3,
+    standard error 0.3 / sqrt(3) = 0.173; -0.2 + 0.173 < 0: the champion is kept. With a single sample
+    the standard error is taken as 0: a better champion is kept."""
+    from coordinator.selection.racing import final_check
+
+    champion, seed = Plan.equal(np.arange(4), 2), Plan.equal(np.array([2, 3, 0, 1]), 2)
+    seed_e = np.array([1.0, 1.0, 1.0])
+
+    def evaluate(plans, samples, fresh):
+        rows = {champion.key(): seed_e[:samples] + np.array([-0.5, -0.2, 0.1])[:samples], seed.key(): seed_e[:samples]}
+        return np.stack([rows[p.key()] for p in plans])
+
+    kept, e_kept, e_seed = final_check(champion, seed, evaluate, 3, 0)
+    assert kept.key() == champion.key() and e_kept == pytest.approx(0.8) and e_seed == pytest.approx(1.0)
+    kept, e_kept, _ = final_check(champion, seed, evaluate, 1, 0)
+    assert kept.key() == champion.key() and e_kept == pytest.approx(0.5)
