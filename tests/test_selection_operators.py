@@ -328,3 +328,24 @@ def test_final_check_is_a_one_sided_paired_test():
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.8) and e_seed == pytest.approx(1.0)
     kept, e_kept, _ = final_check(champion, seed, evaluate, 1, 0)
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "ok"),
+    [("final_samples", 0, False), ("final_samples", 1, True), ("contenders", 0, False), ("contenders", 1, True),
+     ("prune_gain", -0.01, False), ("prune_gain", 0.0, True), ("prune_gain", 1.0, True), ("prune_gain", 1.01, False),
+     ("samples", 0, False), ("samples", 1, True), ("method", "grid", False)],
+)
+def test_selection_config_bounds(field, value, ok):
+    """Each budget is checked on its own, inclusive bounds accepted: final samples and contenders >= 1,
+    prune gain in [0, 1], samples >= 1, a known method."""
+    from dataclasses import replace
+
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.errors import SwarmInputError
+
+    if ok:
+        assert getattr(replace(SelectionConfig(), **{field: value}), field) == value
+    else:
+        with pytest.raises(SwarmInputError):
+            replace(SelectionConfig(), **{field: value})
