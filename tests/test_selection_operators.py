@@ -259,6 +259,14 @@ def test_monte_carlo_error_of_blind_robots_is_the_rayleigh_mean():
     assert per_sample.shape == (1, 1500)
     assert per_sample.mean() == pytest.approx(s * math.sqrt(math.pi) / 2, rel=0.03)
     assert mc.localization_errors(estimate, desired, [Plan.equal(np.arange(4), 2)])[0] == pytest.approx(per_sample.mean(), rel=1e-12)
+    # The same errors drawn from a joint covariance (block-diagonal here: the same distribution).
+    joint = np.zeros((12, 12))
+    for k in range(4):
+        joint[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = estimate.cov[k]
+    carried = SwarmEstimate.from_joint(estimate.ids, poses, joint)
+    e_joint = mc.localization_errors(carried, desired, [Plan.equal(np.arange(4), 2)], per_sample=True)
+    assert e_joint.shape == (1, 1500)
+    assert e_joint.mean() == pytest.approx(s * math.sqrt(math.pi) / 2, rel=0.03)
 
 
 def test_monte_carlo_error_of_an_exact_swarm_is_zero():
