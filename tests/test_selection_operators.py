@@ -336,6 +336,22 @@ def test_final_check_is_a_one_sided_paired_test():
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.8) and e_seed == pytest.approx(1.0)
     kept, e_kept, _ = final_check(champion, seed, evaluate, 1, 0)
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.5)
+    # Two samples, differences (-0.5, -0.2): mean -0.35, std 0.212, standard error 0.15: champion kept.
+    assert final_check(champion, seed, evaluate, 2, 0)[0].key() == champion.key()
+
+
+def test_final_check_with_two_samples_uses_their_spread():
+    """Differences (-0.3, 0.1): mean -0.1, sample std 0.283, standard error 0.2: -0.1 + 0.2 > 0, the seed
+    is kept (a better mean alone is not enough)."""
+    from coordinator.selection.racing import final_check
+
+    champion, seed = Plan.equal(np.arange(4), 2), Plan.equal(np.array([2, 3, 0, 1]), 2)
+
+    def evaluate(plans, samples, fresh):
+        rows = {champion.key(): np.array([0.7, 1.1]), seed.key(): np.array([1.0, 1.0])}
+        return np.stack([rows[p.key()] for p in plans])
+
+    assert final_check(champion, seed, evaluate, 2, 0) == (seed, 1.0, 1.0)
 
 
 @pytest.mark.parametrize(
