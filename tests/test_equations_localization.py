@@ -241,7 +241,7 @@ def test_eq21_rotation_with_unequal_weights_known_answer():
 @pytest.mark.parametrize("w", [[1.0, 0.0, 1.0], [1.0, -1.0, 1.0], [1.0, np.inf, 1.0], [1.0, np.nan, 1.0]])
 def test_eq21_bad_weights_are_refused(w):
     p = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
-    with pytest.raises(LocalizationError, match="weights must be finite and > 0") as info:
+    with pytest.raises(LocalizationError, match=r"^degenerate: robots \[\] \(superimposition weights must be finite and > 0\)$") as info:
         superimpose(p, p, np.array(w))
     assert info.value.reason == "degenerate"
 
