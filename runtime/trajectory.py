@@ -88,13 +88,15 @@ class Trajectory:
 
 
 def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:
-    """Connected-component label per robot of the graph 'within sensing range'."""
-    d = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
-    adj = (d <= sensing_range) & ~np.eye(len(positions), dtype=bool)
+    """Connected-component label per robot of the graph 'within sensing range' (pairs from a k-d tree: O(n) pairs, not n^2)."""
     import scipy.sparse as sp  # noqa: PLC0415 - scipy only when connectivity is checked (cheap parsers)
     from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415
 
-    return connected_components(sp.csr_matrix(adj), directed=False)[1]
+    n = len(positions)
+    pairs = cKDTree(positions).query_pairs(sensing_range, output_type="ndarray")
+    adj = sp.csr_matrix((np.ones(len(pairs), bool), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(adj, directed=False)[1]
 
 
 def is_connected(positions: np.ndarray, sensing_range: float) -> bool:

@@ -79,20 +79,22 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
     anchor[group] = False
     n_a, n_m = n - len(group), len(group)
     centroid_a = base[anchor].mean(axis=0)
-    centroid_m = desired[group].mean(axis=0)
     off = base[anchor] - centroid_a
-    dist = np.linalg.norm(off, axis=1)
+    dist = np.hypot(off[:, 0], off[:, 1])
     total = dist.sum()
     pull = np.sum(off / np.maximum(dist, MIN_SEPARATION)[:, None], axis=0)  # minus the gradient of the sum at c
-    delta = (base[group][:, None] - base[outside][None]) / n_a  # (size, outside, 2) anchor-centroid shift
-    shifted = centroid_a + delta
-    tangent = total - delta @ pull + np.linalg.norm(base[group][:, None] - shifted, axis=-1) \
-        - np.linalg.norm(base[outside][None] - shifted, axis=-1)
-    step = float(np.max(np.linalg.norm(delta, axis=-1)))
+    out_, in_ = base[group] - centroid_a, base[outside] - centroid_a  # robots leaving the group / joining it
+    dx = (out_[:, 0, None] - in_[None, :, 0]) / n_a  # (size, outside): the swap's anchor-centroid shift delta
+    dy = (out_[:, 1, None] - in_[None, :, 1]) / n_a
+    tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[:, 0, None] - dx, out_[:, 1, None] - dy) \
+        - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
+    step = float(np.sqrt(np.max(dx * dx + dy * dy)))
     room = dist - step
     curvature = np.sum(np.where(room > 0, step * step / (2 * np.maximum(room, MIN_SEPARATION)), 2 * step))
-    gap = centroid_a - centroid_m + delta - (desired[outside][None] - desired[group][:, None]) / n_m
-    inverse_s = 1.0 / np.maximum(np.linalg.norm(gap, axis=-1), MIN_SEPARATION)
+    leave = base[group] / n_a + desired[group] / n_m  # Eq. 12 gap c_a' - c_m' = c_a - c_m + leave[a] - join[b]
+    join = base[outside] / n_a + desired[outside] / n_m
+    lead = centroid_a - desired[group].mean(axis=0) + leave
+    inverse_s = 1.0 / np.maximum(np.hypot(lead[:, 0, None] - join[None, :, 0], lead[:, 1, None] - join[None, :, 1]), MIN_SEPARATION)
     low = (tangent / n_a + inverse_s).ravel()
     return np.flatnonzero(low + (curvature + 1e-9 * (1 + total)) / n_a >= low.max())
 
