@@ -8,7 +8,8 @@ the selection maximises P_s over the plans that keep the swarm connected (Eq. 4)
 
 Search, per selection (``docs/selection.md`` has the budgets and the measurements):
 
-1. Screening: every feasible n_a is scored with its heuristic plan on one Monte Carlo
+1. Screening: every feasible n_a with at most ``max_steps`` steps (all of them up to
+   n_r = 10) is scored with its heuristic plan on one Monte Carlo
    set of common random numbers (``samples_for(samples)`` samples).
 2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
@@ -63,7 +64,7 @@ class SelectionConfig:
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
-    max_steps: int = 10  # larger swarms: counts with more steps n_s are not screened
+    max_steps: int = 10  # counts with more steps n_s are not screened unless ``anchor_counts`` names them
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -128,9 +129,10 @@ class AnchorSelector:
         self.calls = 0
 
     def candidate_counts(self, n: int) -> list[int]:
+        """The given counts, or every feasible n_a (Eq. 7) with at most ``max_steps`` steps."""
         feasible = feasible_anchor_counts(n)
         if self.selection.anchor_counts is None:
-            return feasible
+            return [n_a for n_a in feasible if n_steps(n, n_a) <= self.selection.max_steps]
         bad = [k for k in self.selection.anchor_counts if k not in feasible]
         if bad:
             raise SwarmInputError(f"anchor counts {bad} are not feasible for {n} robots; feasible: {feasible} (Eq. 7)")
@@ -221,7 +223,7 @@ class AnchorSelector:
         centroid of the current estimate, simulated without the rest of the swarm
         (``samples_for(samples, window)`` samples; ``crlb`` predicts the same window);
         (2) each count's plan is its heuristic plan (Eq. 11-13), not searched (Eq. 9);
-        (3) counts with more than ``max_steps`` steps are not screened. Exact: counts are
+        (3) as for every n_r, counts with more than ``max_steps`` steps are not screened. Exact: counts are
         screened by increasing n_s and one with w_v P_v below the best P_s so far is skipped
         (P_l >= 0, so it cannot win). ``scores`` lists the screened counts.
         """
@@ -246,9 +248,8 @@ class AnchorSelector:
         scores: list[CountScore] = []
         bar = -np.inf
         for n_a in self.candidate_counts(n):
-            steps = n_steps(n, n_a)
-            p_v = 1.0 / steps
-            if steps > sel.max_steps or sel.w_v * p_v < bar:
+            p_v = speed_performance(n, n_a)
+            if sel.w_v * p_v < bar:
                 continue
             plan = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
             if not plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m):
