@@ -59,7 +59,7 @@ class SelectionConfig:
     samples: int = 16  # Monte Carlo samples per candidate for a 10-robot swarm (see ``samples_for``)
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
-    final_samples: int = 64  # samples of the final fresh check for 10 robots (scaled like ``samples``)
+    final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
     contenders: int = 4  # best distinct plans of the genetic search that enter the race
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
