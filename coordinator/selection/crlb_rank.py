@@ -34,14 +34,14 @@ MEAN_NORM = math.sqrt(math.pi) / 2  # E|e| / sqrt(E|e|^2) for an isotropic 2-D G
 
 def predicted_errors(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan]) -> np.ndarray:
     """Predicted e_l (m) of each plan for moving from ``estimate`` to ``desired`` (n, 2)."""
-    return np.array([_predicted(cfg, estimate, desired, p) for p in plans])
+    return np.array([predicted_error(cfg, estimate, desired, np.stack([p.moving(k) for k in range(p.n_steps)])) for p in plans])
 
 
-def _predicted(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, plan: Plan) -> float:
+def predicted_error(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, steps: np.ndarray) -> float:
+    """Predicted e_l (m) of the plan whose step k moves the robots where ``steps[k]`` (n,) is True."""
     poses, cov = estimate.poses.copy(), estimate.cov.copy()
     off_diagonal = ~np.eye(len(poses), dtype=bool)
-    for k in range(plan.n_steps):
-        moving = plan.moving(k)
+    for moving in steps:
         poses, cov = dead_reckon_arrays(poses, cov, command_towards(poses, desired), moving, cfg)
         gap = np.linalg.norm(poses[:, None, :2] - poses[None, :, :2], axis=-1)
         observer, observed = np.nonzero((gap <= cfg.sensing_range_m) & off_diagonal)

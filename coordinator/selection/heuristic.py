@@ -6,8 +6,9 @@ distance of the anchors from their centroid) and close to the mobile robots
 in the expected post-step configuration: mobile robots at their desired positions,
 robots that moved earlier at theirs, the others where they are estimated now. Each
 step's mobile group maximises p_ak = d_k + 1 / s_k (Eq. 13), step after step.
-Small choices are enumerated; large ones are improved by single swaps from the
-robots nearest the centroid.
+Small choices are enumerated; large ones are improved by steepest-ascent single swaps
+from the robots nearest the centroid (only the swaps that can score best are scored in
+full, ``_promising_swaps``).
 """
 
 from __future__ import annotations
@@ -49,18 +50,53 @@ def _best_group(pool: np.ndarray, size: int, base: np.ndarray, desired: np.ndarr
     best = step_score(_mask(group, n), base, desired)[0]
     for _ in range(4 * size):
         outside = np.setdiff1d(pool, group)
-        swaps = np.array([(a, b) for a in range(size) for b in range(len(outside))])
+        swaps = _promising_swaps(group, outside, base, desired)
         masks = np.repeat(_mask(group, n), len(swaps), axis=0)
-        masks[np.arange(len(swaps)), group[swaps[:, 0]]] = False
-        masks[np.arange(len(swaps)), outside[swaps[:, 1]]] = True
+        masks[np.arange(len(swaps)), group[swaps // len(outside)]] = False
+        masks[np.arange(len(swaps)), outside[swaps % len(outside)]] = True
         scores = step_score(masks, base, desired)
         k = int(np.argmax(scores))
         if scores[k] <= best:
             break
         best = scores[k]
         group = group.copy()
-        group[swaps[k, 0]] = outside[swaps[k, 1]]
+        group[swaps[k] // len(outside)] = outside[swaps[k] % len(outside)]
     return group
+
+
+def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
+    """Flat indices a x len(outside) + b of the single swaps (group[a] out, outside[b] in) that can score best.
+
+    Eq. 12 after a swap is exact in O(1) per swap (both centroids shift by one robot). Eq. 11's
+    sum of anchor distances to the shifted centroid c + delta is bounded below by its tangent
+    at c (it is convex in the centroid) and above by the tangent plus a curvature bound. A
+    swap whose upper bound is below the best lower bound cannot be the best single swap, so
+    the exact scores of the rest (``step_score``) pick the same swap as scoring all of them:
+    O(size x outside) instead of O(size x outside x n).
+    """
+    n = len(base)
+    anchor = np.ones(n, bool)
+    anchor[group] = False
+    n_a, n_m = n - len(group), len(group)
+    centroid_a = base[anchor].mean(axis=0)
+    off = base[anchor] - centroid_a
+    dist = np.hypot(off[:, 0], off[:, 1])
+    total = dist.sum()
+    pull = np.sum(off / np.maximum(dist, MIN_SEPARATION)[:, None], axis=0)  # minus the gradient of the sum at c
+    out_, in_ = base[group] - centroid_a, base[outside] - centroid_a  # robots leaving the group / joining it
+    dx = (out_[:, 0, None] - in_[None, :, 0]) / n_a  # (size, outside): the swap's anchor-centroid shift delta
+    dy = (out_[:, 1, None] - in_[None, :, 1]) / n_a
+    tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[:, 0, None] - dx, out_[:, 1, None] - dy) \
+        - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
+    step = float(np.sqrt(np.max(dx * dx + dy * dy)))
+    room = dist - step
+    curvature = np.sum(np.where(room > 0, step * step / (2 * np.maximum(room, MIN_SEPARATION)), 2 * step))
+    leave = base[group] / n_a + desired[group] / n_m  # Eq. 12 gap c_a' - c_m' = c_a - c_m + leave[a] - join[b]
+    join = base[outside] / n_a + desired[outside] / n_m
+    lead = centroid_a - desired[group].mean(axis=0) + leave
+    inverse_s = 1.0 / np.maximum(np.hypot(lead[:, 0, None] - join[None, :, 0], lead[:, 1, None] - join[None, :, 1]), MIN_SEPARATION)
+    low = (tangent / n_a + inverse_s).ravel()
+    return np.flatnonzero(low + (curvature + 1e-9 * (1 + total)) / n_a >= low.max())
 
 
 def _mask(group: np.ndarray, n: int) -> np.ndarray:

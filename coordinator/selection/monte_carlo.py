@@ -35,10 +35,19 @@ class MonteCarlo:
     def _step_rng(self, step: int) -> np.random.Generator:
         return np.random.default_rng([self.seed, 1, step])
 
-    def localization_errors(self, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan], per_sample: bool = False) -> np.ndarray:
-        """Mean e_l (m) over the samples for each plan (all plans must have the same step count); (plans, samples) with ``per_sample``."""
-        n, s, c = estimate.n, self.samples, len(plans)
+    def localization_errors(self, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan], per_sample: bool = False,
+                            window: np.ndarray | None = None) -> np.ndarray:
+        """Mean e_l (m) over the samples for each plan (all plans must have the same step count); (plans, samples) with ``per_sample``.
+
+        ``window`` (n,) bool simulates only those robots (part of a large swarm): the others are
+        absent, each step moves the plan's movers among them (possibly none), and e_l is the
+        mean over them.
+        """
         k_steps = plans[0].n_steps
+        masks = np.stack([np.stack([p.moving(k) for k in range(k_steps)]) for p in plans])  # (c, k, n)
+        if window is not None:
+            estimate, desired, masks = estimate.select(window), desired[window], masks[..., window]
+        n, s, c = estimate.n, self.samples, len(plans)
         rng = np.random.default_rng([self.seed, 0])
         if estimate.joint is None:
             chol = np.linalg.cholesky(estimate.cov + 1e-15 * np.eye(3))
@@ -50,7 +59,6 @@ class MonteCarlo:
         truth = np.broadcast_to(truth, (c, s, n, 3)).copy()
         est = np.broadcast_to(estimate.poses, (c, s, n, 3)).copy()
         cov = np.broadcast_to(estimate.cov, (c, s, n, 3, 3)).copy()
-        masks = np.stack([np.stack([p.moving(k) for k in range(k_steps)]) for p in plans])  # (c, k, n)
         eye = np.eye(n, dtype=bool)
         for k in range(k_steps):
             moving = np.broadcast_to(masks[:, k, None, :], (c, s, n))

@@ -8,7 +8,8 @@ the selection maximises P_s over the plans that keep the swarm connected (Eq. 4)
 
 Search, per selection (``docs/selection.md`` has the budgets and the measurements):
 
-1. Screening: every feasible n_a is scored with its heuristic plan on one Monte Carlo
+1. Screening: every feasible n_a with at most ``max_steps`` steps (all of them up to
+   n_r = 10) is scored with its heuristic plan on one Monte Carlo
    set of common random numbers (``samples_for(samples)`` samples).
 2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
@@ -31,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.plan import Plan, feasible_anchor_counts, speed_performance
-from coordinator.selection.crlb_rank import predicted_errors
+from coordinator.plan import Plan, feasible_anchor_counts, n_steps, speed_performance
+from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
@@ -58,10 +59,12 @@ class SelectionConfig:
     samples: int = 16  # Monte Carlo samples per candidate for a 10-robot swarm (see ``samples_for``)
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
-    final_samples: int = 64  # samples of the final fresh check for 10 robots (scaled like ``samples``)
+    final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
     contenders: int = 4  # best distinct plans of the genetic search that enter the race
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
+    window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
+    max_steps: int = 10  # counts with more steps n_s are not screened unless ``anchor_counts`` names them
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -75,6 +78,8 @@ class SelectionConfig:
             raise SwarmInputError(f"weights must be >= 0 and sum to 1 (Eq. 3), got w_v={self.w_v}, w_l={self.w_l}")
         if self.samples < 1:
             raise SwarmInputError(f"Monte Carlo samples must be >= 1, got {self.samples}")
+        if self.window < 2 or self.max_steps < 1:
+            raise SwarmInputError(f"window must be >= 2 robots and max steps >= 1, got {self.window}, {self.max_steps}")
 
 
 def samples_for(samples: int, n_robots: int) -> int:
@@ -124,9 +129,10 @@ class AnchorSelector:
         self.calls = 0
 
     def candidate_counts(self, n: int) -> list[int]:
+        """The given counts, or every feasible n_a (Eq. 7) with at most ``max_steps`` steps."""
         feasible = feasible_anchor_counts(n)
         if self.selection.anchor_counts is None:
-            return feasible
+            return [n_a for n_a in feasible if n_steps(n, n_a) <= self.selection.max_steps]
         bad = [k for k in self.selection.anchor_counts if k not in feasible]
         if bad:
             raise SwarmInputError(f"anchor counts {bad} are not feasible for {n} robots; feasible: {feasible} (Eq. 7)")
@@ -137,6 +143,8 @@ class AnchorSelector:
         n, sel = estimate.n, self.selection
         self.calls += 1
         rng = np.random.default_rng([self.seed, self.calls])
+        if n > sel.window:
+            return self._select_large(estimate, desired, rng)
         samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
 
@@ -207,6 +215,57 @@ class AnchorSelector:
                 f"after every step (tried n_a = {sorted(scores)})"
             )
         return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
+
+    def _select_large(self, estimate: SwarmEstimate, desired: np.ndarray, rng: np.random.Generator) -> Selection:
+        """Selection for n_r > ``window`` with a budget that does not grow with n_r (``docs/selection.md``).
+
+        Approximations: (1) e_l is the Monte Carlo mean over the ``window`` robots nearest the
+        centroid of the current estimate, simulated without the rest of the swarm
+        (``samples_for(samples, window)`` samples; ``crlb`` predicts the same window);
+        (2) each count's plan is its heuristic plan (Eq. 11-13), not searched (Eq. 9);
+        (3) as for every n_r, counts with more than ``max_steps`` steps are not screened. Exact: counts are
+        screened by increasing n_s and one with w_v P_v below the best P_s so far is skipped
+        (P_l >= 0, so it cannot win). ``scores`` lists the screened counts.
+        """
+        n, sel = estimate.n, self.selection
+        current = estimate.positions
+        window = np.zeros(n, bool)
+        window[np.argsort(np.linalg.norm(current - current.mean(axis=0), axis=1), kind="stable")[: sel.window]] = True
+        if sel.method == "crlb":
+            sub, sub_desired = estimate.select(window), desired[window]
+
+            def evaluate(plan: Plan) -> float:
+                steps = np.stack([plan.moving(k) for k in range(plan.n_steps)])
+                return predicted_error(self.cfg, sub, sub_desired, steps[:, window])
+        else:
+            mc = MonteCarlo(self.cfg, self.localizer, samples_for(sel.samples, sel.window), int(rng.integers(2**63)))
+
+            def evaluate(plan: Plan) -> float:
+                return float(mc.localization_errors(estimate, desired, [plan], window=window)[0])
+
+        all_move = Plan.equal(np.arange(n), 0)
+        e_max = evaluate(all_move)
+        scores: list[CountScore] = []
+        bar = -np.inf
+        for n_a in self.candidate_counts(n):
+            p_v = speed_performance(n, n_a)
+            if sel.w_v * p_v < bar:
+                continue
+            plan = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
+            if not plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m):
+                scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
+                continue
+            e_l = e_max if n_a == 0 else evaluate(plan)
+            p_l = e_l / e_max if e_max > 0 else 0.0
+            scores.append(CountScore(n_a, e_l, p_v, p_l, sel.w_v * p_v - sel.w_l * p_l, plan, e_l))
+            bar = max(bar, scores[-1].p_s)
+        best = max((s for s in scores if s.plan is not None), key=lambda s: s.p_s, default=None)
+        if best is None:
+            raise NoFeasiblePlanError(
+                f"no anchor plan with at most {sel.max_steps} steps keeps every robot within sensing range "
+                f"{self.cfg.sensing_range_m} m of another after every step (tried n_a = {[s.n_anchors for s in scores]})"
+            )
+        return Selection(best.plan, scores, len(scores))
 
     def _could_win(self, entry: CountScore, bar: float) -> bool:
         """Whether the inner loop could lift this count's P_s to ``bar``: e_l lowered by ``prune_gain``
