@@ -32,14 +32,7 @@ from coordinator.localization.dead_reckoning import dead_reckon_parts
 from coordinator.localization.gauge import constrained_covariance, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.range_bearing import (
-    joint_prior_terms,
-    joint_sqrt_information,
-    observation_terms,
-    prior_terms,
-    sqrt_information,
-    stack_terms,
-)
+from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
 from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
