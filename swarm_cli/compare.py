@@ -13,7 +13,6 @@ number of steps per configuration (speed), and the CPU seconds per run. With
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
@@ -27,7 +26,7 @@ from coordinator.strategies import METHODS
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import SELECTION_METHODS, add_simulation_options, model_config, positive_int, print_json, selection_config
+from swarm_cli.options import SELECTION_METHODS, add_simulation_options, add_workers_option, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
 if TYPE_CHECKING:  # scipy and matplotlib are imported where used, not to build the parser
@@ -46,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
     p.add_argument("--selections", default=None,
                    help="comma-separated anchor rankings to compare for the searching methods, e.g. mc,crlb (default: --selection)")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/compare"), help="folder for runs.csv and pf.png")
     add_simulation_options(p)
     p.set_defaults(run=run)

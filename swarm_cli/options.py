@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 
 from typing import TYPE_CHECKING
 
@@ -95,6 +96,10 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--localizer", choices=["paper", "joint"], default="paper", help="localization method (default: paper, Section 5)")
+
+
+def add_workers_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
 
 
 def add_json_option(parser: argparse.ArgumentParser) -> None:

@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import math
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +34,7 @@ from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.state import SwarmEstimate
 from runtime.trajectory import random_trajectory
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, positive_int, print_json
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_workers_option, model_config, print_json
 from swarm_cli.progress import Progress
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
@@ -57,7 +56,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--experiments", type=int, default=60, help="random experiments (default 60; the paper: 1000)")
     p.add_argument("--samples", type=int, default=8, help="Monte Carlo samples per plan per experiment (default 8)")
     p.add_argument("--seed", type=int, default=0, help="experiment e uses the seed [seed, e] (default 0)")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/study-anchors"), help="folder for experiments.csv and the PNG plots")
     add_localizer_option(p)
     add_model_options(p)

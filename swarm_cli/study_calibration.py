@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -24,7 +23,7 @@ import numpy as np
 
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress
 
 PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
@@ -45,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seeds", default="0,1000", help="seed sets; trajectory t of set s uses seed s + t (default 0,1000)")
     p.add_argument("--methods", default="inchworm,inchworm-equal-speed,ref57",
                    help="comma-separated methods compared with ref57 at the calibrated noise (default inchworm,inchworm-equal-speed,ref57)")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/study-calibration"), help="folder for the CSV and PNG (default out/study-calibration)")
     add_selection_options(p)
     add_model_options(p)

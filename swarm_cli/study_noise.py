@@ -10,7 +10,6 @@ and the P_f ratio against ref57. Heat maps per localizer show both.
 from __future__ import annotations
 
 import argparse
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import replace
 from pathlib import Path
@@ -18,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, parse_list, positive_int, print_json, selection_config
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, print_json, selection_config
 from swarm_cli.progress import Progress
 
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
@@ -33,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trajectories", type=int, default=3, help="random trajectories per setting (default 3)")
     p.add_argument("--configs", type=int, default=4, help="configurations per trajectory (default 4)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectories and noise (default 0)")
-    p.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/study-noise"), help="folder for the CSV and heat maps (default out/study-noise)")
     add_selection_options(p)
     add_model_options(p)

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -36,7 +35,7 @@ import numpy as np
 
 from runtime.config import ModelConfig
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, add_workers_option, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 from swarm_cli.study_anchors import CHUNK, Job, experiment_setup
 
@@ -59,7 +58,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pick-samples", type=int, default=256, help="fresh samples to pick the optimum from the shortlist (default 256)")
     p.add_argument("--eval-samples", type=int, default=512, help="fresh samples every reported plan is evaluated on (default 512)")
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+    add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/study-selection"), help="folder for configs.csv")
     p.add_argument("--from-csv", type=Path, default=None, help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
