@@ -34,7 +34,7 @@ from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
 from coordinator.localization.joint_normal import JointProblem
-from coordinator.localization.sparse_lm import PoseLayout, blas_threads, dense, levenberg_marquardt, minimize
+from coordinator.localization.sparse_lm import PoseLayout, blas_threads, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
@@ -87,11 +87,7 @@ def pose_covariances(normal: sp.csr_matrix, layout: PoseLayout, n_robots: int) -
     free = cols >= 0
     safe = np.where(free, cols, 0)
     if n_robots <= EXACT_COV_LIMIT:
-        try:
-            full = np.linalg.inv(dense(normal))
-        except np.linalg.LinAlgError:  # singular: reported as degenerate by ``checked``
-            full = np.full(normal.shape, np.nan)
-        cov = full[safe[:, :, None], safe[:, None, :]]
+        cov = inverse(normal)[safe[:, :, None], safe[:, None, :]]  # NaN where singular: ``checked`` names them
     else:
         rows, cols_ = safe[:, :, None].repeat(3, 2).ravel(), safe[:, None, :].repeat(3, 1).ravel()
         blocks = normal[rows, cols_] if isinstance(normal, np.ndarray) else np.asarray(normal.tocsr()[rows, cols_])

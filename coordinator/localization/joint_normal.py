@@ -17,12 +17,11 @@ weights and Huber IRLS (on every whitened residual) as ``range_bearing`` with
 from __future__ import annotations
 
 import numpy as np
-import qdldl
 import scipy.sparse as sp
 from scipy.linalg import cho_factor, cho_solve
 
 from coordinator.localization.range_bearing import bearing_weights, observation_blocks
-from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations
+from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
 from runtime.config import ModelConfig
 from runtime.geometry import wrap_angle
 
@@ -79,7 +78,7 @@ class JointProblem:
         self._lower_indices = self._indices[self._lower]
         self._lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[self._lower], minlength=size))]).astype(np.int32)
         self._lower_diag = self._lower_indptr[1:] - 1
-        self._ldl = None
+        self._ldl = SparseLDL()
 
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Whitened prior residuals (3n,) and observation residuals (m, 2) at ``x``."""
@@ -99,19 +98,19 @@ class JointProblem:
         diff = poses - self.mean
         diff[:, 2] = wrap_angle(diff[:, 2])
         res, jac = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
-        w_obs, cost_obs = self._weights(res)
+        w_obs, cost_obs = huber_weights(res, self.huber)
         wj = jac if w_obs is None else jac * w_obs[:, :, None]
         blocks = wj[:, 0, :, None] * jac[:, 0, None, :] + wj[:, 1, :, None] * jac[:, 1, None, :]  # (m, 5, 5)
         g5 = wj[:, 0] * res[:, :1] + wj[:, 1] * res[:, 1:]
         if self.joint_prior:
             r_p = self.sqrt_info @ diff.ravel()
-            w_p, cost_p = self._weights(r_p)
+            w_p, cost_p = huber_weights(r_p, self.huber)
             info = self.prior_info if w_p is None else self.sqrt_info.T @ (w_p[:, None] * self.sqrt_info)
             g_prior = self.sqrt_info.T @ (r_p if w_p is None else w_p * r_p)
             prior_vals = None
         else:
             r_p = np.einsum("nab,nb->na", self.sqrt_info, diff)
-            w_p, cost_p = self._weights(r_p)
+            w_p, cost_p = huber_weights(r_p, self.huber)
             info = self.prior_info if w_p is None else np.swapaxes(self.sqrt_info, -1, -2) @ (w_p[:, :, None] * self.sqrt_info)
             g_prior = np.einsum("nba,nb->na", self.sqrt_info, r_p if w_p is None else w_p * r_p).ravel()
             prior_vals = info.ravel()
@@ -142,11 +141,7 @@ class JointProblem:
         data = normal.data[self._lower]
         data[self._lower_diag] += shift
         upper = sp.csc_matrix((data, self._lower_indices, self._lower_indptr), shape=(self.size, self.size))
-        if self._ldl is None:
-            self._ldl = qdldl.Solver(upper)
-        else:
-            self._ldl.update(upper)
-        return self._ldl.solve(rhs)
+        return self._ldl.solve_upper(upper, rhs, same_pattern=True)
 
     def observation_normal(self, blocks: np.ndarray) -> sp.spmatrix | np.ndarray:
         """H^T H (3n, 3n) of the observations alone, from ``evaluate``'s ``extra`` blocks."""
@@ -154,16 +149,6 @@ class JointProblem:
         if self.dense:
             return data.reshape(self.size, self.size)
         return sp.csr_matrix((data, self._indices, self._indptr), shape=(self.size, self.size))
-
-    def _weights(self, r: np.ndarray) -> tuple[np.ndarray | None, float]:
-        """IRLS weights of whitened residuals ``r`` (None: all 1) and their cost (Huber beyond ``huber`` sigmas)."""
-        if self.huber is None:
-            flat = r.ravel()
-            return None, 0.5 * float(flat @ flat)
-        a = np.abs(r)
-        h = self.huber
-        cost = float(np.sum(np.where(a <= h, 0.5 * r * r, h * a - 0.5 * h * h)))
-        return np.where(a <= h, 1.0, h / np.maximum(a, 1e-300)), cost
 
 
 __all__ = ["JointProblem"]

@@ -102,14 +102,32 @@ class SparseLDL:
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
 
     def solve(self, a: sp.spmatrix, b: np.ndarray) -> np.ndarray:
+        """a^-1 b, refactorizing numerically when ``a`` keeps the last pattern (compared here)."""
         upper = sp.triu(a, format="csc")
         upper.sort_indices()
         pattern = (upper.indptr, upper.indices)
-        if self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern)):
+        same = self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern))
+        self._pattern = pattern
+        return self.solve_upper(upper, b, same)
+
+    def solve_upper(self, upper: sp.csc_matrix, b: np.ndarray, same_pattern: bool) -> np.ndarray:
+        """a^-1 b from a's upper triangle (CSC, sorted); ``same_pattern``: the caller knows it is the last one's."""
+        if same_pattern and self._solver is not None:
             self._solver.update(upper)
         else:
-            self._solver, self._pattern = qdldl.Solver(upper), pattern
+            self._solver = qdldl.Solver(upper)
         return self._solver.solve(b)
+
+
+def huber_weights(r: np.ndarray, huber: float | None) -> tuple[np.ndarray | None, float]:
+    """IRLS weights of whitened residuals ``r`` (None: all 1, plain least squares) and their cost
+    sum(rho(r)), rho quadratic within ``huber`` sigmas and linear beyond."""
+    if huber is None:
+        flat = r.ravel()
+        return None, 0.5 * float(flat @ flat)
+    a = np.abs(r)
+    cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
+    return np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300)), cost
 
 
 @dataclass(frozen=True)
@@ -223,12 +241,8 @@ def levenberg_marquardt(
 
     def evaluate(x: np.ndarray) -> NormalEquations:
         r, jac = residuals(x)
-        if huber is None:
-            cost = 0.5 * float(r @ r)
-        else:
-            a = np.abs(r)
-            w = np.where(a <= huber, 1.0, huber / np.maximum(a, 1e-300))
-            cost = float(np.sum(np.where(a <= huber, 0.5 * r * r, huber * a - 0.5 * huber * huber)))
+        w, cost = huber_weights(r, huber)
+        if w is not None:
             sw = np.sqrt(w)
             r, jac = r * sw, (sw[:, None] * jac if isinstance(jac, np.ndarray) else sp.diags(sw) @ jac)
         normal = jac.T @ jac if isinstance(jac, np.ndarray) else (jac.T @ jac).tocsr()
