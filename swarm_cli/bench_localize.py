@@ -33,7 +33,6 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
 
 METHODS = ("paper", "joint")
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
-EXACT_COV_LIMIT = 500  # robots up to which the joint localizer returns the joint covariance (joint.EXACT_COV_LIMIT)
 SPACING_M = 0.25
 GAUSSIAN_FLOOR = 1e-12  # variance added to the GTSAM prior covariances (exact anchors)
 
@@ -149,6 +148,7 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
     from coordinator.localization.crlb import crlb_pose_covariances  # noqa: PLC0415
     from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.localization.joint import EXACT_COV_LIMIT  # noqa: PLC0415 - the joint covariance up to this n
     from runtime.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}
     stats = {name: MethodStats() for name in (*METHODS, "gtsam", "gtsam_cov")}
