@@ -148,7 +148,9 @@ def test_minimize_with_normal_equations_of_a_linear_problem():
 
 
 def test_minimize_adds_the_curvature_clamped_at_minus_90_percent():
-    """A curvature of -1e6 against J^T J = 1: clamped to -0.9, so the first solve sees 1 - 0.9 + 1e-8."""
+    """A curvature of -1e6 against J^T J = 1. The first iteration is Gauss-Newton: its solve sees 1 + 1e-8
+    (the step 3 / (1 + 1e-8) is accepted, mu -> 1e-9); the second adds the curvature clamped to -0.9,
+    so its solve sees 1 - 0.9 + 1e-9."""
     seen = []
 
     def evaluate(x):
@@ -159,8 +161,9 @@ def test_minimize_adds_the_curvature_clamped_at_minus_90_percent():
         seen.append(float(m[0, 0] + shift[0]))
         return np.linalg.solve(m + np.diag(shift), rhs)
 
-    minimize(evaluate, np.zeros(1), solve=solve, max_iter=1)
-    assert seen[0] == pytest.approx(0.1 + 1e-8, rel=1e-12)
+    minimize(evaluate, np.zeros(1), solve=solve, max_iter=2)
+    assert seen[0] == pytest.approx(1 + 1e-8, rel=1e-12)
+    assert seen[1] == pytest.approx(0.1 + 1e-9, rel=1e-12)
 
 
 def test_add_diagonal_dense_and_sparse():

@@ -231,19 +231,28 @@ def test_damping_decreases_after_accepted_steps():
     assert out.iterations == 2
 
 
-def test_second_order_term_is_clamped_to_keep_the_system_positive():
-    """A second-order diagonal of -1e6 would make J^T J + S negative; clamped at -0.9 J^T J the
-    system is 0.1 J^T J, so each accepted step is 10 Gauss-Newton steps damped back by mu: on the
-    linear problem r = x - 3 the minimiser 3 (cost 0) is still reached."""
-    out = levenberg_marquardt(
-        lambda x: (np.array([x[0] - 3.0]), np.ones((1, 1))),
-        np.array([0.0]),
-        second_order=lambda x, r: np.array([-1e6]),
-    )
-    np.testing.assert_allclose(out.x, [3.0], atol=1e-6)
-    # With the clamp the first trial solves (0.1 + 1e-8) dx = 3: dx = 29.99..., refused, and so on;
-    # without the clamp it would solve a negative system and step the wrong way forever.
-    assert out.cost < 1e-10
+def test_first_step_is_gauss_newton_then_the_second_order_term_is_clamped():
+    """r(x) = x^2 - 4 from x0 = 3, with a second-order diagonal of -1e6 (it would make J^T J + S
+    negative). Iteration 1 is a Gauss-Newton step: J = 6, r = 5, (36 (1 + 1e-8)) dx = -30, so
+    x1 = 3 - 30 / (36 (1 + 1e-8)) = 2.1666...; accepted (r = 0.6944, cost 0.2411), mu -> 1e-9.
+    Iteration 2 adds the term clamped at -0.9 J^T J: J = 2 x1, g = J r(x1), the system is
+    0.1 J^2 + 1e-9 J^2, so the trial is x1 - g / (J^2 (0.1 + 1e-9)) = x1 - 10 r / J (ten Gauss-Newton
+    steps: x = 0.564, cost 6.8, refused). Unclamped it would step the other way by about g / 1e6.
+    The minimiser x = 2 is reached all the same."""
+    trials = []
+
+    def residuals(x):
+        trials.append(float(x[0]))
+        return np.array([x[0] ** 2 - 4]), np.array([[2 * x[0]]])
+
+    out = levenberg_marquardt(residuals, np.array([3.0]), second_order=lambda x, r: np.array([-1e6]))
+    x1 = 3 - 30 / (36 * (1 + 1e-8))
+    assert trials[1] == pytest.approx(x1, rel=1e-14)
+    j, r = 2 * x1, x1**2 - 4
+    assert trials[2] == pytest.approx(x1 - j * r / (j * j * (0.1 + 1e-9)), rel=1e-12)
+    assert trials[2] == pytest.approx(0.5644, abs=1e-3)
+    np.testing.assert_allclose(out.x, [2.0], atol=1e-6)
+    assert out.converged and out.cost < 1e-10
 
 
 def test_second_order_term_keeps_the_minimiser_of_a_curved_residual():
