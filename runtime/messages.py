@@ -160,13 +160,13 @@ def _scalar(x: Any, wire: Wire, path: str) -> Any:
 def _plain_leaves(values: list | tuple, wire: Wire) -> tuple | None:
     """``values`` as a tuple if all are plain valid floats (or ints), the common case; else None."""
     if wire.kind == "float":
-        if not all(type(v) is float for v in values):
+        if not set(map(type, values)) <= {float}:
             return None
         lo = -math.inf if wire.minimum is None else wire.minimum - wire.slack
         hi = math.inf if wire.maximum is None else wire.maximum + wire.slack
         ok = not values or (math.isfinite(sum(values)) and lo <= min(values) and max(values) <= hi)
     else:
-        plain = wire.kind != "str" and all(type(v) is int for v in values)
+        plain = wire.kind != "str" and set(map(type, values)) <= {int}
         ok = plain and (not values or 0 <= min(values) and max(values) <= MAX_INT)
     return tuple(values) if ok else None
 
@@ -604,11 +604,14 @@ def _readable_header(cls: type[Message], raw: dict) -> dict[str, Any]:
     return header
 
 
-def _check_known(msg: Message, known: Collection[int]) -> None:
-    for f in fields(msg):
+def _check_known(msg: Message, known: frozenset[int] | set[int]) -> None:
+    for f in _fields(type(msg)):
         wire = f.metadata["wire"]
         if wire.kind == "id":
-            for path, robot in _leaves(getattr(msg, f.name), f"{msg.TYPE}.{f.name}", len(wire.shape)):
+            value, depth = getattr(msg, f.name), len(wire.shape)
+            if (depth == 0 and value in known) or (depth == 1 and known.issuperset(value)):
+                continue  # the common case, checked in C; the walk below names the first stranger
+            for path, robot in _leaves(value, f"{msg.TYPE}.{f.name}", depth):
                 if robot not in known:
                     raise MessageError(path, f"robot {robot} is not one of the run's {len(known)} robots", "unknown-id")
 
