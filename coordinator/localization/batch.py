@@ -52,6 +52,8 @@ from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, s
 from coordinator.localization.sparse_lm import blas_threads
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
+    FTOL as TOPOLOGY_FTOL,
+    XTOL as TOPOLOGY_XTOL,
     cluster_delta_p,
     heading_sigmas,
     observation_offsets,
@@ -70,7 +72,7 @@ METHODS = ("paper", "joint")
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
 # topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
 # would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
-PAPER_TOL = (1e-10, 1e-12)
+PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL)  # the paper localizer's topology solve's
 JOINT_TOL = (XTOL, FTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL)
 MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
@@ -225,8 +227,9 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
     """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
 
     ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
-    held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu)`` the
-    damped Newton step (B, n, 3) (zero on fixed unknowns); ``problem.subset(index)`` the
+    held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu, curved)``
+    the damped Newton step (B, n, 3) (zero on fixed unknowns), with a second-order term only where ``curved``
+    (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``); ``problem.subset(index)`` the
     problem restricted to some samples. As in ``sparse_lm``: damping mu diag(J^T J) starting
     at mu = 1e-8; a step is accepted if it does not raise the cost (relative slack 1e-12),
     then mu /= 10, else mu *= 10 and the sample fails beyond 1e10 or after MAX_ITER accepted
@@ -249,7 +252,7 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
             work, xs, mu, active, iterations = work[keep], xs[keep], mu[keep], active[keep], iterations[keep]
             problem = problem.subset(keep)
             st = {key: value[keep] for key, value in st.items()}
-        dx = problem.step(st, mu)
+        dx = problem.step(st, mu, iterations > 0)
         dx[~active] = 0.0
         x_new = xs + dx
         new = problem.evaluate(x_new, slot)
@@ -399,7 +402,7 @@ class _TopologyProblem(_Batched):
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
@@ -409,9 +412,10 @@ class _TopologyProblem(_Batched):
             [np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx), np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)], axis=1
         )
         g_xy[rows, ref] = g_xy[rows, n + ref] = 0.0
-        # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm.
+        # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm
+        # (and, as there, left out of a sample's first iteration).
         second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
-        d = self.h_theta + np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
+        d = self.h_theta + curved[:, None] * np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
         # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
         ct = self.ws("ct", (b, n, 2 * n))
@@ -565,7 +569,7 @@ class _JointProblem(_Batched):
         _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
         return lap, ct, self.d_theta
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
         ws = self.ws
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape

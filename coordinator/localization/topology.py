@@ -31,6 +31,11 @@ from runtime.config import ModelConfig
 from runtime.errors import LocalizationError
 from runtime.geometry import rotate, wrap_angle
 
+# Convergence of Eq. B3's least squares (``sparse_lm.minimize``: relative step, relative cost decrease).
+# Observations are centimetre-accurate; 1e-8 stops within 1e-8 m of 1e-10 / 1e-12's answer (measured on
+# random swarms of 10-500 robots) and saves about one iteration in seven, as the joint localizer's.
+XTOL, FTOL = 1e-8, 1e-8
+
 
 @dataclass(frozen=True)
 class Topology:
@@ -170,7 +175,7 @@ def estimate_topology(
         np.add.at(out, hc[hc >= 0], term[hc >= 0])
         return out
 
-    result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber)
+    result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber, xtol=XTOL, ftol=FTOL)
     if not result.converged:
         raise LocalizationError("no-convergence", [], "topology least squares did not converge")
     poses = layout.unpack(result.x, start)
