@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 import coordinator.localization.joint as joint_module
 from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays, propagate_joint
@@ -26,7 +27,7 @@ from coordinator.localization.joint import (
     worst_observation,
 )
 from coordinator.localization.partial import MAX_RETRIES, localize_observable, solvable_subset
-from coordinator.localization.sparse_lm import PoseLayout
+from coordinator.localization.sparse_lm import BLAS_SMALL, PoseLayout
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.geometry import wrap_angle
@@ -163,6 +164,21 @@ def test_constrained_covariance_is_the_docstring_formula():
 def test_inverse_of_a_singular_information_is_nan():
     assert np.isnan(inverse(np.zeros((3, 3)))).all() and inverse(np.zeros((3, 3))).shape == (3, 3)
     np.testing.assert_allclose(inverse(np.diag([2.0, 4.0])), np.diag([0.5, 0.25]))
+
+
+@pytest.mark.parametrize("sparse_input", [False, True])
+def test_inverse_above_blas_small_by_cholesky_and_its_fallbacks(sparse_input):
+    """Order 120 (>= BLAS_SMALL, the Cholesky path): 60 copies of [[2, 1], [1, 2]], whose inverse is
+    [[2, -1], [-1, 2]] / 3, returned symmetric in full (potri fills one triangle only). The same
+    blocks with [[1, 2], [2, 1]] (indefinite, det -3, inverse [[-1, 2], [2, -1]] / 3): Cholesky fails,
+    the general inverse answers. A zero matrix of that order: NaN everywhere."""
+    assert BLAS_SMALL <= 120
+    as_input = (lambda m: sp.csr_matrix(m)) if sparse_input else (lambda m: m)
+    spd = np.kron(np.eye(60), [[2.0, 1.0], [1.0, 2.0]])
+    np.testing.assert_allclose(inverse(as_input(spd)), np.kron(np.eye(60), [[2.0, -1.0], [-1.0, 2.0]]) / 3, atol=1e-15)
+    indefinite = np.kron(np.eye(60), [[1.0, 2.0], [2.0, 1.0]])
+    np.testing.assert_allclose(inverse(as_input(indefinite)), np.kron(np.eye(60), [[-1.0, 2.0], [2.0, -1.0]]) / 3, atol=1e-15)
+    assert np.isnan(inverse(np.zeros((120, 120)))).all()
 
 
 def test_transport_moves_gauge_covariance_onto_the_new_gauge():

@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg.lapack import dpotrf, dpotri
 
-from coordinator.localization.sparse_lm import dense
+from coordinator.localization.sparse_lm import BLAS_SMALL, blas_threads, dense
 
 
 def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None) -> np.ndarray:
@@ -69,9 +70,23 @@ def constrained_covariance(normal: sp.spmatrix | np.ndarray, observed: sp.spmatr
 
 
 def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
-    """The covariance (k, k) of an information matrix; NaN where it is singular."""
+    """The covariance (k, k) of an information matrix; NaN where it is singular.
+
+    From order ``BLAS_SMALL`` on, when positive definite (the usual case): Cholesky and its inverse
+    (LAPACK potrf + potri, half the flops of ``np.linalg.inv``'s LU) on one BLAS thread (SciPy's
+    LAPACK spins its threads: 300 unknowns took 86 ms on a busy 2-core machine, 6.3 ms on one);
+    otherwise, and below that order, the general inverse.
+    """
+    a = dense(info)
+    if len(a) >= BLAS_SMALL:
+        with blas_threads(len(a)):
+            factor, bad = dpotrf(a, lower=False, clean=False)
+            if bad == 0:
+                upper, bad = dpotri(factor, lower=False)
+        if bad == 0:
+            return np.triu(upper) + np.triu(upper, 1).T
     try:
-        return np.linalg.inv(dense(info))
+        return np.linalg.inv(a)
     except np.linalg.LinAlgError:
         return np.full(info.shape, np.nan)
 

@@ -113,9 +113,9 @@ class SparseLDL:
     def solve_upper(self, upper: sp.csc_matrix, b: np.ndarray, same_pattern: bool) -> np.ndarray:
         """a^-1 b from a's upper triangle (CSC, sorted); ``same_pattern``: the caller knows it is the last one's."""
         if same_pattern and self._solver is not None:
-            self._solver.update(upper)
+            self._solver.update(upper, upper=True)
         else:
-            self._solver = qdldl.Solver(upper)
+            self._solver = qdldl.Solver(upper, upper=True)
         return self._solver.solve(b)
 
 
