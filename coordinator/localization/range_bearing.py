@@ -79,14 +79,17 @@ def observation_blocks(
     w_b = bearing_weights(range_m, cfg) if w_b is None else w_b
     d = poses[observed, :2] - poses[observer, :2]
     dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
-    residual = np.stack([(dist - range_m) / s_r, wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b], axis=1)
+    residual = np.empty((len(observer), 2))
+    residual[:, 0] = (dist - range_m) / s_r
+    residual[:, 1] = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
     u = d / (dist * s_r)[:, None]  # d range / d x_j, whitened
     b = d * (w_b / dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
-    zero = np.zeros(len(observer))
-    jac = np.stack([
-        np.stack([-u[:, 0], -u[:, 1], zero, u[:, 0], u[:, 1]], axis=1),
-        np.stack([b[:, 1], -b[:, 0], -w_b, -b[:, 1], b[:, 0]], axis=1),
-    ], axis=1)
+    jac = np.empty((len(observer), 2, 5))  # filled column by column (one np.stack each cost more at n = 10)
+    jac[:, 0, 3:] = u
+    np.negative(u, out=jac[:, 0, :2])
+    jac[:, 0, 2] = 0.0
+    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = b[:, 1], -b[:, 0], -w_b
+    jac[:, 1, 3], jac[:, 1, 4] = -b[:, 1], b[:, 0]
     return residual, jac
 
 
