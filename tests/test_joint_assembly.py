@@ -86,3 +86,18 @@ def test_solve_is_the_damped_system(n):
         np.testing.assert_allclose(problem.solve(ne.normal, shift, -ne.gradient), want, rtol=1e-9, atol=1e-12)
         shift = shift * 0.5
         want = np.linalg.solve(dense(ne.normal) + np.diag(shift), -ne.gradient)
+
+
+def test_the_pattern_is_ranked_alike_by_the_count_map_and_by_sorting(monkeypatch):
+    """Up to ``RANK_MAP_LIMIT`` entries the pattern's keys are ranked by marking and counting, above by
+    sorting and searching: both must give the same CSR pattern and the same entry positions."""
+    import coordinator.localization.joint_normal as jn
+
+    mean, u, i, j, obs = _case(30, 7, False)
+    by_map = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, CFG)
+    monkeypatch.setattr(jn, "RANK_MAP_LIMIT", 0)
+    by_sort = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, CFG)
+    for name in ("_indices", "_indptr", "_obs_pos", "_prior_pos", "_lower_indices", "_lower_indptr"):
+        np.testing.assert_array_equal(getattr(by_map, name), getattr(by_sort, name), err_msg=name)
+    x = mean.ravel() + np.random.default_rng(8).normal(0, 0.02, 90)
+    np.testing.assert_array_equal(dense(by_map.evaluate(x).normal), dense(by_sort.evaluate(x).normal))
