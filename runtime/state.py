@@ -103,6 +103,24 @@ class SwarmEstimate:
         return cls(np.asarray(ids), poses, joint[idx[:, :, None], idx[:, None, :]], joint)
 
     @classmethod
+    def derived(cls, of: SwarmEstimate, poses: np.ndarray, joint: np.ndarray) -> SwarmEstimate:
+        """``from_joint`` for a new estimate of the robots of ``of`` (a localizer's output): their ids were
+        validated when ``of`` was built, so only the shapes and finiteness of ``poses`` (n, 3) and
+        ``joint`` (3n, 3n) are checked (``SwarmInputError`` otherwise)."""
+        n = of.n
+        poses, joint = np.asarray(poses, dtype=float), np.asarray(joint, dtype=float)
+        if poses.shape != (n, 3) or joint.shape != (3 * n, 3 * n):
+            raise SwarmInputError(f"a derived estimate of {n} robots needs poses (n, 3) and joint (3n, 3n), got {poses.shape} and {joint.shape}")
+        if not (np.isfinite(poses).all() and np.isfinite(joint).all()):
+            bad = _bad_rows(np.concatenate([poses, joint.reshape(n, -1)], axis=1))
+            raise SwarmInputError(f"poses or joint covariance hold NaN/inf for robots {of.ids[bad].tolist()}")
+        idx = np.arange(3 * n).reshape(n, 3)
+        out = object.__new__(cls)
+        for name, value in (("ids", of.ids), ("poses", poses), ("cov", joint[idx[:, :, None], idx[:, None, :]]), ("joint", joint)):
+            object.__setattr__(out, name, value)
+        return out
+
+    @classmethod
     def isotropic(
         cls, ids: np.ndarray | list[int], poses: np.ndarray, delta: np.ndarray | float, sigma_heading: np.ndarray | float
     ) -> SwarmEstimate:

@@ -131,3 +131,27 @@ def test_swarm_sensing_equals_each_robot_sensing_alone(cfg):
 def test_config_rejects_bad_values(field, value):
     with pytest.raises(SwarmInputError, match=field):
         ModelConfig(**{field: value})
+
+
+def test_a_derived_estimate_equals_from_joint_and_checks_what_it_is_given():
+    """``SwarmEstimate.derived`` (a localizer's output for the robots of a validated estimate) keeps the
+    prior's ids, takes the 3x3 diagonal blocks of the joint covariance, and names the robot whose
+    values are not finite."""
+    from runtime.state import SwarmEstimate
+
+    prior = SwarmEstimate([7, 3, 5], np.zeros((3, 3)), np.broadcast_to(np.eye(3), (3, 3, 3)))
+    poses = np.arange(9.0).reshape(3, 3)
+    a = np.arange(81.0).reshape(9, 9)
+    joint = a @ a.T + np.eye(9)
+    got, want = SwarmEstimate.derived(prior, poses, joint), SwarmEstimate.from_joint([7, 3, 5], poses, joint)
+    np.testing.assert_array_equal(got.ids, [7, 3, 5])
+    np.testing.assert_array_equal(got.cov, want.cov)
+    np.testing.assert_array_equal(got.cov[1], joint[3:6, 3:6])
+    np.testing.assert_array_equal(got.joint, joint)
+    np.testing.assert_array_equal(got.poses, poses)
+    bad = joint.copy()
+    bad[4, 0] = np.nan  # a row of robot 3 (the second robot)
+    with pytest.raises(SwarmInputError, match=r"robots \[3\]"):
+        SwarmEstimate.derived(prior, poses, bad)
+    with pytest.raises(SwarmInputError, match="needs poses"):
+        SwarmEstimate.derived(prior, poses[:2], joint)

@@ -172,9 +172,12 @@ class JointLocalizer:
             mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
             exact = prior.n <= EXACT_COV_LIMIT
             i, j = obs.indexed(prior.ids)
-            sub_obs = obs if keep.all() else obs.select(keep[i] & keep[j])
+            if keep.all():
+                sub_obs, index = obs, (i, j)
+            else:
+                sub_obs, index = obs.select(keep[i] & keep[j]), None
             sub_joint = None if dr_joint is None or not exact else dr_joint[np.ix_(_rows(keep), _rows(keep))]
-            poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact)
+            poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact, index)
             if exact and dr_joint is None and not keep.all():  # independent robots (a first step): sparse prior above
                 dr_joint = block_diagonal(dr_cov)
             poses = mean.copy()
@@ -189,18 +192,26 @@ class JointLocalizer:
             poses[:, 2] = wrap_angle(poses[:, 2])
             idx = _rows(np.ones(prior.n, bool)).reshape(prior.n, 3)
             checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
-            return SwarmEstimate.from_joint(prior.ids, poses, joint)
+            return SwarmEstimate.derived(prior, poses, joint)
 
     def _solve(
-        self, ids: np.ndarray, mean: np.ndarray, cov: np.ndarray, joint: np.ndarray | None, obs: Observations, exact: bool
+        self,
+        ids: np.ndarray,
+        mean: np.ndarray,
+        cov: np.ndarray,
+        joint: np.ndarray | None,
+        obs: Observations,
+        exact: bool,
+        index: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the constrained joint one
         (3k, 3k, before ``transport``) when ``exact``, else conditional 3x3 blocks (k, 3, 3).
 
         The prior is the dead reckoning: ``mean`` (k, 3) with its joint covariance when given
-        (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3).
+        (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3). ``index``: the observations'
+        (observer, observed) indices into ``ids`` when the caller has them.
         """
-        i, j = obs.indexed(ids)
+        i, j = obs.indexed(ids) if index is None else index
         require_observable(ids, i, j)
         n = len(ids)
         u = sqrt_information(cov) if joint is None else joint_sqrt_information(joint)
