@@ -413,3 +413,45 @@ def test_levenberg_marquardt_passes_its_tolerances_on(xtol, ftol):
     a loose xtol or ftol stops it after one iteration, converged."""
     out = levenberg_marquardt(exp_decay, np.array([0.0]), xtol=xtol, ftol=ftol)
     assert (out.iterations, out.converged) == (1, True)
+
+
+def _linear_problem(calls: list[np.ndarray]):
+    """r(x) = A x - b with A = [[1, 0], [0, 2], [1, 1]], b = (1, 2, 4): the minimiser solves A^T A x = A^T b,
+    A^T A = [[2, 1], [1, 5]], A^T b = (5, 8): x* = (17, 11) / 9, r(x*) = (8, 4, -8) / 9, cost* = 144 / 162 = 8 / 9.
+    From x0 = 0 (cost 21 / 2) the Gauss-Newton step lands on x* in one iteration (mu = 1e-8 moves it by ~1e-8)."""
+    a, b = np.array([[1.0, 0.0], [0.0, 2.0], [1.0, 1.0]]), np.array([1.0, 2.0, 4.0])
+
+    def evaluate(x):
+        calls.append(x.copy())
+        r = a @ x - b
+        return NormalEquations(0.5 * float(r @ r), a.T @ a, a.T @ r)
+
+    return evaluate
+
+
+def test_ptol_stops_before_a_step_that_predicts_no_gain():
+    """After the first step x1 ~ x*, the next step predicts -g.dx / 2 ~ 1e-16 of the cost: with ptol the
+    solver stops at x1 with 2 evaluations (x0, x1); without it it evaluates x1 + dx too, a 3rd time, and
+    stops on the negligible gain. Both return x* and the cost 8/9."""
+    for ptol, evaluations in ((1e-6, 2), (None, 3)):
+        calls: list[np.ndarray] = []
+        out = minimize(_linear_problem(calls), np.zeros(2), ptol=ptol)
+        assert out.converged and len(calls) == evaluations
+        np.testing.assert_allclose(out.x, [17 / 9, 11 / 9], rtol=1e-7)
+        assert out.cost == pytest.approx(8 / 9, rel=1e-7)
+
+
+def test_ptol_is_relative_to_the_cost_and_waits_for_negligible_damping(monkeypatch):
+    """At x0 = 0 the step's predicted decrease is cost(x0) - cost* = 21/2 - 8/9 = 173/18 ~ 0.916 of the cost:
+    ptol = 0.95 stops at x0 at once (1 evaluation, x = 0), ptol = 0.9 does not (2 evaluations). With
+    PRED_MU_MAX below mu's floor 1e-12 the damping never counts as negligible and ptol never stops (3
+    evaluations, as without it)."""
+    for ptol, evaluations in ((0.95, 1), (0.9, 2)):
+        calls: list[np.ndarray] = []
+        out = minimize(_linear_problem(calls), np.zeros(2), ptol=ptol)
+        assert len(calls) == evaluations and out.converged
+    assert not np.any(minimize(_linear_problem([]), np.zeros(2), ptol=0.95).x)
+    monkeypatch.setattr(sparse_lm, "PRED_MU_MAX", 1e-13)
+    calls = []
+    minimize(_linear_problem(calls), np.zeros(2), ptol=0.95)
+    assert len(calls) == 3

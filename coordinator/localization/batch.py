@@ -46,10 +46,10 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, XTOL, JointLocalizer, psd
+from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
-from coordinator.localization.sparse_lm import blas_threads
+from coordinator.localization.sparse_lm import PRED_MU_MAX, blas_threads
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
@@ -68,12 +68,12 @@ from coordinator.localization import make_localizer
 from coordinator.localization.partial import localize_observable
 
 METHODS = ("paper", "joint")
-# (xtol, ftol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
+# (xtol, ftol, ptol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
 # topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
 # would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
-PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL)  # the paper localizer's topology solve's
-JOINT_TOL = (XTOL, FTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL)
+PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topology solve's
+JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
 MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
@@ -223,7 +223,7 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 # Batched Levenberg-Marquardt (the algorithm of sparse_lm.levenberg_marquardt, per sample)
 
 
-def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> tuple[np.ndarray, np.ndarray]:
+def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None) -> tuple[np.ndarray, np.ndarray]:
     """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
 
     ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
@@ -233,7 +233,8 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
     problem restricted to some samples. As in ``sparse_lm``: damping mu diag(J^T J) starting
     at mu = 1e-8; a step is accepted if it does not raise the cost (relative slack 1e-12),
     then mu /= 10, else mu *= 10 and the sample fails beyond 1e10 or after MAX_ITER accepted
-    steps. A sample converges on a small step or a small cost decrease.
+    steps. A sample converges on a small step or a small cost decrease, or (``ptol``) where its step
+    predicts a decrease below ``ptol`` of its cost at mu <= ``PRED_MU_MAX``: it then stays where it is.
     """
     x = np.array(x0, dtype=float, copy=True)
     converged = np.zeros(len(x), bool)
@@ -252,7 +253,11 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float) -> t
             work, xs, mu, active, iterations = work[keep], xs[keep], mu[keep], active[keep], iterations[keep]
             problem = problem.subset(keep)
             st = {key: value[keep] for key, value in st.items()}
-        dx = problem.step(st, mu, iterations > 0)
+        dx, predicted = problem.step(st, mu, iterations > 0)
+        if ptol is not None:  # converged before the step, as sparse_lm.minimize
+            settled = active & (mu <= PRED_MU_MAX) & (predicted <= ptol * st["cost"])
+            converged[work[settled]] = True
+            active &= ~settled
         dx[~active] = 0.0
         x_new = xs + dx
         new = problem.evaluate(x_new, slot)
@@ -307,13 +312,13 @@ class _Batched:
         return [self.ws(f"{name}/{slot}", shape) for name in names]
 
 
-def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, ws: _Workspace) -> np.ndarray:
+def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, ws: _Workspace) -> tuple[np.ndarray, np.ndarray]:
     """Solve [[A + mu diag(diag_x), C], [C^T, diag(d)]] [dxy; dtheta] = -[g_xy; g_theta] per sample.
 
     Positions are ordered x of every robot, then y (index k n + a). A (B, 2n, 2n) is the
     position block, ``ct`` = C^T (B, n, 2n) the heading-position block, d (B, n) the (damped)
     heading diagonal. The headings are eliminated: (A - C D^-1 C^T) dxy = C D^-1 g_theta - g_xy.
-    Returns the step (B, n, 3).
+    Returns the step (B, n, 3) and its predicted decrease -g.dx / 2 (B,) (``sparse_lm.minimize``'s ptol).
     """
     b, n, n2 = ct.shape
     ctd = np.divide(ct, d[:, :, None], out=ws("ctd", ct.shape))
@@ -323,7 +328,8 @@ def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, 
     rhs = np.matmul(g_theta[:, None, :], ctd)[:, 0, :] - g_xy
     dxy = _solve_stack(s, rhs)
     dtheta = (-g_theta - np.matmul(ct, dxy[:, :, None])[:, :, 0]) / d
-    return np.stack([dxy[:, :n], dxy[:, n:], dtheta], axis=2)
+    predicted = -0.5 * (np.einsum("bk,bk->b", g_xy, dxy) + np.einsum("bk,bk->b", g_theta, dtheta))
+    return np.stack([dxy[:, :n], dxy[:, n:], dtheta], axis=2), predicted
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:

@@ -27,6 +27,7 @@ from threadpoolctl import ThreadpoolController
 
 DENSE_LIMIT = 64  # unknowns up to which a dense solve beats the sparse LDL^T (a 300x300 dense LU was ~3 ms)
 DENSE_JACOBIAN_LIMIT = 64  # unknowns up to which a dense Jacobian (and dense J^T J) beats building sparse ones
+PRED_MU_MAX = 1e-6  # damping up to which a step's predicted decrease stands for the undamped one (``minimize``'s ptol)
 BLAS_SMALL = 96  # matrix order below which OpenBLAS stays single-threaded anyway (no limit needed)
 _THREADPOOLS = ThreadpoolController()
 
@@ -173,6 +174,7 @@ def minimize(
     max_iter: int = 100,
     xtol: float = 1e-10,
     ftol: float = 1e-12,
+    ptol: float | None = None,
 ) -> LsqResult:
     """Levenberg-Marquardt on the normal equations ``evaluate(x)`` returns.
 
@@ -186,6 +188,12 @@ def minimize(
     times before mu had grown enough; the Gauss-Newton step moved 2 cm). mu starts at 1e-8, is divided by 10 on an accepted step (floor 1e-12) and
     multiplied by 10 on a rejected one (giving up above 1e10). Converged when the step is
     below ``xtol`` relative to x or the cost decrease below ``ftol`` relative to the cost.
+
+    ``ptol``: also converged, at x and without evaluating x + dx, when the step just solved
+    predicts a decrease -g.dx / 2 (the Newton decrement of the quadratic model) below ``ptol``
+    relative to the cost, while the damping is negligible (mu <= ``PRED_MU_MAX``; a damped step
+    under-predicts). x is then within about sqrt(2 ptol cost) whitened units of the minimum:
+    the evaluation of a step whose gain no one could use is saved.
     """
     x = np.asarray(x0, dtype=float).copy()
     if solve is None:
@@ -205,6 +213,8 @@ def minimize(
             a = add_diagonal(a, np.maximum(ne.curvature, -0.9 * diag))
         while True:
             dx = solve(a, mu * diag, -ne.gradient)
+            if ptol is not None and mu <= PRED_MU_MAX and -0.5 * float(ne.gradient @ dx) <= ptol * ne.cost:
+                return LsqResult(x, ne.cost, it, True, ne.normal, ne.extra)
             x_new = x + dx
             ne_new = evaluate(x_new)
             if np.isfinite(ne_new.cost) and ne_new.cost <= ne.cost * (1 + 1e-12) + 1e-300:
