@@ -28,6 +28,8 @@ Units: metres and radians; matrices are ordered robot by robot (x_0, y_0, headin
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.lapack import dpotrf, dpotri
@@ -65,8 +67,13 @@ def constrained_covariance(normal: sp.spmatrix | np.ndarray, observed: sp.spmatr
     basis = gauge_basis(predicted)
     proj = _projector(basis)
     sn = np.asarray(observed @ basis)  # S N, (3n, 3)
-    cross = sn @ proj
-    return inverse(dense(normal) - cross - cross.T + proj.T @ (basis.T @ sn) @ proj)
+    # The correction -S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi has rank <= 6: U V with U = [S N, Pi^T] and
+    # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
+    u = np.hstack([sn, proj.T])
+    v = np.vstack([-proj, (basis.T @ sn) @ proj - sn.T])
+    info = np.array(dense(normal), dtype=float, copy=True)
+    info += u @ v
+    return inverse(info)
 
 
 def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
@@ -83,12 +90,18 @@ def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
             factor, bad = dpotrf(a, lower=False, clean=False)
             if bad == 0:
                 upper, bad = dpotri(factor, lower=False)
-        if bad == 0:
-            return np.triu(upper) + np.triu(upper, 1).T
+        if bad == 0:  # potri fills the upper triangle: mirror it in one pass
+            return np.where(_upper_mask(len(a)), upper, upper.T)
     try:
         return np.linalg.inv(a)
     except np.linalg.LinAlgError:
         return np.full(info.shape, np.nan)
+
+
+@functools.lru_cache(maxsize=8)
+def _upper_mask(k: int) -> np.ndarray:
+    """(k, k) True on and above the diagonal (kept: a swarm's size rarely changes)."""
+    return np.triu(np.ones((k, k), bool))
 
 
 def merge_subset(prior: np.ndarray, updated: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -123,7 +136,8 @@ def transport(cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray) -> n
     proj = _projector(basis)
     d = gauge_basis(solution, center) - basis  # (3n, 3)
     pc = proj @ cov  # (3, 3n)
-    out = cov + d @ pc + pc.T @ d.T + d @ (pc @ proj.T) @ d.T
+    # T cov T^T = cov + D Pi cov + (D Pi cov)^T + D (Pi cov Pi^T) D^T = cov + [D, (Pi cov)^T] [Pi cov + (Pi cov Pi^T) D^T; D^T]
+    out = cov + np.hstack([d, pc.T]) @ np.vstack([pc + (pc @ proj.T) @ d.T, d.T])
     return 0.5 * (out + out.T)
 
 
