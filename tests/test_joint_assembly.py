@@ -97,7 +97,9 @@ def test_the_pattern_is_ranked_alike_by_the_count_map_and_by_sorting(monkeypatch
     by_map = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, CFG)
     monkeypatch.setattr(jn, "RANK_MAP_LIMIT", 0)
     by_sort = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, CFG)
-    for name in ("_indices", "_indptr", "_obs_pos", "_prior_pos", "_lower_indices", "_lower_indptr"):
+    for name in ("_indices", "_indptr", "_obs_pos", "_prior_pos", "_lower_at", "_lower_diag"):
         np.testing.assert_array_equal(getattr(by_map, name), getattr(by_sort, name), err_msg=name)
+    for name in ("indices", "indptr"):
+        np.testing.assert_array_equal(getattr(by_map._upper, name), getattr(by_sort._upper, name), err_msg=name)
     x = mean.ravel() + np.random.default_rng(8).normal(0, 0.02, 90)
     np.testing.assert_array_equal(dense(by_map.evaluate(x).normal), dense(by_sort.evaluate(x).normal))

@@ -87,10 +87,12 @@ class JointProblem:
         self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))]).astype(np.int32)
         # The lower triangle in CSR order is the upper triangle in CSC order (the matrix is symmetric),
         # QDLDL's input; each row's diagonal entry is its last lower one.
-        self._lower = cols <= rows
-        self._lower_indices = self._indices[self._lower]
-        self._lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[self._lower], minlength=size))]).astype(np.int32)
-        self._lower_diag = self._lower_indptr[1:] - 1
+        lower = cols <= rows
+        self._lower_at = np.flatnonzero(lower)
+        lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[lower], minlength=size))]).astype(np.int32)
+        self._lower_diag = lower_indptr[1:] - 1
+        # One CSC matrix per problem whose values ``solve`` overwrites (no matrix construction per iteration).
+        self._upper = sp.csc_matrix((np.zeros(len(self._lower_at)), self._indices[lower], lower_indptr), shape=(size, size))
         self._ldl = SparseLDL()
 
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -113,7 +115,8 @@ class JointProblem:
         res, jac = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
         w_obs, cost_obs = huber_weights(res, self.huber)
         wj = jac if w_obs is None else jac * w_obs[:, :, None]
-        blocks = wj[:, 0, :, None] * jac[:, 0, None, :] + wj[:, 1, :, None] * jac[:, 1, None, :]  # (m, 5, 5)
+        blocks = np.multiply(wj[:, 0, :, None], jac[:, 0, None, :])  # (m, 5, 5): range, then bearing outer products
+        blocks += wj[:, 1, :, None] * jac[:, 1, None, :]
         g5 = wj[:, 0] * res[:, :1] + wj[:, 1] * res[:, 1:]
         if self.joint_prior:
             r_p = self.sqrt_info @ diff.ravel()
@@ -151,9 +154,9 @@ class JointProblem:
                 return cho_solve(cho_factor(a, check_finite=False), rhs, check_finite=False)
             except np.linalg.LinAlgError:
                 return np.linalg.solve(a, rhs)
-        data = normal.data[self._lower]
-        data[self._lower_diag] += shift
-        upper = sp.csc_matrix((data, self._lower_indices, self._lower_indptr), shape=(self.size, self.size))
+        upper = self._upper  # the lower triangle's values (in CSR order) are the upper's in CSC order
+        np.take(normal.data, self._lower_at, out=upper.data)
+        upper.data[self._lower_diag] += shift
         return self._ldl.solve_upper(upper, rhs, same_pattern=True)
 
     def observation_normal(self, blocks: np.ndarray) -> sp.spmatrix | np.ndarray:
