@@ -68,7 +68,13 @@ class JointProblem:
         prior_keys = (block * size + np.swapaxes(block, 1, 2)).ravel()  # per-robot 3x3 diagonal blocks
         if self.dense:
             self._obs_pos, self._prior_pos, self._nnz = obs_keys, prior_keys, size * size
-            return
+        else:
+            self._sparse_pattern(size, obs_keys, prior_keys)
+        if huber is None and not self.joint_prior:  # the prior's share of the normal matrix, placed once
+            self._prior_data = np.bincount(self._prior_pos, weights=self.prior_info.ravel(), minlength=self._nnz)
+
+    def _sparse_pattern(self, size: int, obs_keys: np.ndarray, prior_keys: np.ndarray) -> None:
+        """CSR pattern of the normal matrix and the positions of the observation and prior entries in it."""
         diag_keys = np.arange(size) * (size + 1)
         if size * size <= RANK_MAP_LIMIT:  # mark the used entries, rank them by a running count: no sort
             used = np.zeros(size * size, bool)
@@ -124,15 +130,21 @@ class JointProblem:
             info = self.prior_info if w_p is None else self.sqrt_info.T @ (w_p[:, None] * self.sqrt_info)
             g_prior = self.sqrt_info.T @ (r_p if w_p is None else w_p * r_p)
             prior_vals = None
+        elif self.huber is None:  # constant information: gradient P^-1 (p - mu), cost (p - mu) . P^-1 (p - mu) / 2
+            g_prior = np.matmul(self.prior_info, diff[:, :, None]).ravel()
+            cost_p = 0.5 * float(diff.ravel() @ g_prior)
+            prior_vals = None
         else:
             r_p = np.einsum("nab,nb->na", self.sqrt_info, diff)
             w_p, cost_p = huber_weights(r_p, self.huber)
-            info = self.prior_info if w_p is None else np.swapaxes(self.sqrt_info, -1, -2) @ (w_p[:, :, None] * self.sqrt_info)
-            g_prior = np.einsum("nba,nb->na", self.sqrt_info, r_p if w_p is None else w_p * r_p).ravel()
+            info = np.swapaxes(self.sqrt_info, -1, -2) @ (w_p[:, :, None] * self.sqrt_info)
+            g_prior = np.einsum("nba,nb->na", self.sqrt_info, w_p * r_p).ravel()
             prior_vals = info.ravel()
         data = np.bincount(self._obs_pos, weights=blocks.ravel(), minlength=self._nnz)
         if prior_vals is not None:
             data += np.bincount(self._prior_pos, weights=prior_vals, minlength=self._nnz)
+        elif not self.joint_prior:
+            data += self._prior_data
         if self.dense:
             normal = data.reshape(self.size, self.size)
             if self.joint_prior:
