@@ -176,8 +176,8 @@ def test_add_diagonal_dense_and_sparse():
 
 
 def test_dense_solve_falls_back_when_cholesky_fails():
-    """With a joint prior above 64 unknowns the dense solve uses Cholesky; a matrix that is not positive
-    definite (here -I, shift 0) goes to the general solver: -I dx = rhs gives dx = -rhs."""
+    """The dense solve (here a joint prior, 75 unknowns) uses Cholesky (LAPACK dposv); a matrix that is not
+    positive definite (here -I, shift 0) goes to the general solver: -I dx = rhs gives dx = -rhs."""
     truth, mean, obs = swarm(25, 4)
     w = joint_sqrt_information(np.kron(np.eye(25), np.diag([4e-4, 4e-4, 2.5e-3])))
     problem = JointProblem(mean, w, *obs, CFG)

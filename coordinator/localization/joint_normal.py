@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dposv
 
 from coordinator.localization.range_bearing import bearing_weights, observation_blocks
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
@@ -157,15 +157,15 @@ class JointProblem:
     def solve(self, normal: sp.spmatrix | np.ndarray, shift: np.ndarray, rhs: np.ndarray) -> np.ndarray:
         """(normal + diag(shift))^-1 rhs (``sparse_lm.minimize``'s step): dense Cholesky, or QDLDL on the fixed
         pattern, refactorized numerically after the first call."""
-        if self.dense:
+        if self.dense:  # LAPACK's Cholesky solve called directly (np.linalg.solve's wrapper: 2.5x its time at n = 10)
             a = normal.copy()
             a.flat[:: self.size + 1] += shift
-            if self.size <= DENSE_LIMIT:  # small: LAPACK's call overhead dominates, not its flops
-                return np.linalg.solve(a, rhs)
-            try:
-                return cho_solve(cho_factor(a, check_finite=False), rhs, check_finite=False)
-            except np.linalg.LinAlgError:
-                return np.linalg.solve(a, rhs)
+            _, x, bad = dposv(a, rhs, overwrite_a=True)
+            if bad == 0:
+                return x
+            a = normal.copy()  # not positive definite: the general solver (raises if singular)
+            a.flat[:: self.size + 1] += shift
+            return np.linalg.solve(a, rhs)
         upper = self._upper  # the lower triangle's values (in CSR order) are the upper's in CSC order
         np.take(normal.data, self._lower_at, out=upper.data)
         upper.data[self._lower_diag] += shift

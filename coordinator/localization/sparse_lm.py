@@ -223,7 +223,7 @@ def minimize(
             mu *= 10.0
             if mu > 1e10:
                 return LsqResult(x, ne.cost, it, converged, a, ne.extra)
-        small_step = np.max(np.abs(dx), initial=0.0) <= xtol * (1.0 + np.max(np.abs(x), initial=0.0))
+        small_step = bool(dx.size == 0 or np.abs(dx).max() <= xtol * (1.0 + np.abs(x).max()))
         small_gain = ne.cost - ne_new.cost <= ftol * max(ne.cost, 1e-300)
         x, ne = x_new, ne_new
         if small_step or small_gain:
