@@ -265,4 +265,5 @@ class Observations:
 
     def indexed(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(observer index, observed index) into ``ids``; unknown ids raise naming them."""
-        return index_of(ids, self.observer, "observations"), index_of(ids, self.observed, "observations")
+        both = index_of(ids, np.concatenate([self.observer, self.observed]), "observations")
+        return both[: len(self.observer)], both[len(self.observer) :]

@@ -57,15 +57,27 @@ def _projector(basis: np.ndarray) -> np.ndarray:
     return np.linalg.solve(basis.T @ basis, basis.T)
 
 
-def constrained_covariance(normal: sp.spmatrix | np.ndarray, observed: sp.spmatrix | np.ndarray, predicted: np.ndarray) -> np.ndarray:
+def gauge_frame(predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(N, (N^T N)^-1 N^T) at the predicted poses (n, 3), rotation about their centroid: what
+    ``constrained_covariance`` and ``transport`` of one update share (computed once per step)."""
+    basis = gauge_basis(predicted)
+    return basis, _projector(basis)
+
+
+def constrained_covariance(
+    normal: sp.spmatrix | np.ndarray,
+    observed: sp.spmatrix | np.ndarray,
+    predicted: np.ndarray,
+    frame: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
     """(J^T J - H^T H + H~^T H~)^-1 (3n, 3n), H~ = H projected off N(``predicted``); NaN where singular.
 
     ``normal`` is J^T J at the solution (whitened prior and observations), ``observed`` the
     observations' share H^T H of it (whitened), ``predicted`` the dead-reckoning poses (n, 3).
     With S = H^T H and Pi = (N^T N)^-1 N^T: H~^T H~ = S - S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi.
+    ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    basis = gauge_basis(predicted)
-    proj = _projector(basis)
+    basis, proj = gauge_frame(predicted) if frame is None else frame
     sn = np.asarray(observed @ basis)  # S N, (3n, 3)
     # The correction -S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi has rank <= 6: U V with U = [S N, Pi^T] and
     # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
@@ -125,15 +137,17 @@ def merge_subset(prior: np.ndarray, updated: np.ndarray, keep: np.ndarray) -> np
     return out
 
 
-def transport(cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray) -> np.ndarray:
+def transport(
+    cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray, frame: tuple[np.ndarray, np.ndarray] | None = None
+) -> np.ndarray:
     """T cov T^T with T = I + (N(solution) - N(predicted)) (N^T N)^-1 N^T (a rank-3 update, O(n^2)).
 
     Both rotations are about the same point (the predicted centroid): the symmetry that moves
     ``predicted`` rotates ``solution`` about that point too, and so does the next propagation.
+    ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
     center = predicted[:, :2].mean(axis=0)
-    basis = gauge_basis(predicted, center)
-    proj = _projector(basis)
+    basis, proj = gauge_frame(predicted) if frame is None else frame
     d = gauge_basis(solution, center) - basis  # (3n, 3)
     pc = proj @ cov  # (3, 3n)
     # T cov T^T = cov + D Pi cov + (D Pi cov)^T + D (Pi cov Pi^T) D^T = cov + [D, (Pi cov)^T] [Pi cov + (Pi cov Pi^T) D^T; D^T]
@@ -141,4 +155,4 @@ def transport(cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray) -> n
     return 0.5 * (out + out.T)
 
 
-__all__ = ["constrained_covariance", "gauge_basis", "inverse", "merge_subset", "transport"]
+__all__ = ["constrained_covariance", "gauge_basis", "gauge_frame", "inverse", "merge_subset", "transport"]

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.dead_reckoning import dead_reckon_parts
-from coordinator.localization.gauge import constrained_covariance, inverse, merge_subset, transport
+from coordinator.localization.gauge import constrained_covariance, gauge_frame, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
@@ -176,12 +176,12 @@ class JointLocalizer:
             mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
             exact = prior.n <= EXACT_COV_LIMIT
             i, j = obs.indexed(prior.ids)
-            if keep.all():
-                sub_obs, index = obs, (i, j)
+            if keep.all():  # the whole swarm: one gauge frame serves the constrained covariance and its transport
+                sub_obs, index, frame = obs, (i, j), gauge_frame(mean) if exact and self.constrain_gauge else None
             else:
-                sub_obs, index = obs.select(keep[i] & keep[j]), None
+                sub_obs, index, frame = obs.select(keep[i] & keep[j]), None, None
             sub_joint = None if dr_joint is None or not exact else dr_joint[np.ix_(_rows(keep), _rows(keep))]
-            poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact, index)
+            poses_a, cov_a = self._solve(prior.ids[keep], mean[keep], dr_cov[keep], sub_joint, sub_obs, exact, index, frame)
             if exact and dr_joint is None and not keep.all():  # independent robots (a first step): sparse prior above
                 dr_joint = block_diagonal(dr_cov)
             poses = mean.copy()
@@ -192,7 +192,7 @@ class JointLocalizer:
                 poses[:, 2] = wrap_angle(poses[:, 2])
                 return SwarmEstimate(prior.ids, poses, cov)
             joint = merge_subset(dr_joint, cov_a, keep)
-            joint = psd_joint(transport(joint, mean, poses) if self.constrain_gauge else joint)
+            joint = psd_joint(transport(joint, mean, poses, frame) if self.constrain_gauge else joint)
             poses[:, 2] = wrap_angle(poses[:, 2])
             idx = _rows(np.ones(prior.n, bool)).reshape(prior.n, 3)
             checked(joint[idx[:, :, None], idx[:, None, :]], prior.ids)
@@ -207,13 +207,15 @@ class JointLocalizer:
         obs: Observations,
         exact: bool,
         index: tuple[np.ndarray, np.ndarray] | None = None,
+        frame: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the constrained joint one
         (3k, 3k, before ``transport``) when ``exact``, else conditional 3x3 blocks (k, 3, 3).
 
         The prior is the dead reckoning: ``mean`` (k, 3) with its joint covariance when given
         (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3). ``index``: the observations'
-        (observer, observed) indices into ``ids`` when the caller has them.
+        (observer, observed) indices into ``ids`` when the caller has them; ``frame``: ``gauge.gauge_frame(mean)``
+        when the caller has it.
         """
         i, j = obs.indexed(ids) if index is None else index
         require_observable(ids, i, j)
@@ -228,7 +230,7 @@ class JointLocalizer:
         if not exact:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
-            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean)
+            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean, frame)
         else:
             cov = inverse(result.normal_matrix)
         if not np.isfinite(cov).all():  # singular information: name the robots through their blocks
