@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
+from runtime.graph import component_labels
 from runtime.state import robot_ids
 
 
@@ -90,22 +91,12 @@ class Trajectory:
 def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:
     """Connected-component label per robot of the graph 'within sensing range' (0, 1, ... by lowest robot index).
 
-    Pairs come from a k-d tree (O(n) pairs, not n^2); each robot's label is the lowest index
-    in its component, found by propagating minima along the pairs with pointer jumping.
+    Pairs come from a k-d tree (O(n) pairs, not n^2); labels by ``runtime.graph.component_labels``.
     """
     from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when connectivity is checked (cheap parsers)
 
     pairs = cKDTree(positions).query_pairs(sensing_range, output_type="ndarray") if len(positions) else np.zeros((0, 2), int)
-    i, j = pairs[:, 0], pairs[:, 1]
-    labels = np.arange(len(positions))
-    while True:
-        lower = labels.copy()
-        np.minimum.at(lower, i, labels[j])
-        np.minimum.at(lower, j, labels[i])
-        lower = lower[lower]  # a label is a robot of the same component with a label no higher
-        if np.array_equal(lower, labels):
-            return np.unique(labels, return_inverse=True)[1]
-        labels = lower
+    return component_labels(len(positions), pairs[:, 0], pairs[:, 1])
 
 
 def is_connected(positions: np.ndarray, sensing_range: float) -> bool:

@@ -13,6 +13,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from runtime.errors import LocalizationError
+from runtime.graph import component_labels
 
 
 def unobserved(n: int, observed: np.ndarray) -> np.ndarray:
@@ -20,7 +21,7 @@ def unobserved(n: int, observed: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.bincount(observed, minlength=n) == 0)
 
 
-SMALL_GRAPH = 64  # robots up to which labels are propagated with numpy (scipy.sparse costs ~1 ms per call)
+SMALL_GRAPH = 64  # robots up to which labels are propagated with numpy (building a scipy.sparse matrix costs more)
 
 
 def components(n: int, observer: np.ndarray, observed: np.ndarray) -> np.ndarray:
@@ -29,14 +30,7 @@ def components(n: int, observer: np.ndarray, observed: np.ndarray) -> np.ndarray
     Labels are arbitrary integers (only equality matters), as ``connected_components`` gives.
     """
     if n <= SMALL_GRAPH:
-        labels = np.arange(n)
-        a, b = np.concatenate([observer, observed]), np.concatenate([observed, observer])
-        while True:  # each robot takes the smallest label among itself and its neighbours
-            new = labels.copy()
-            np.minimum.at(new, a, labels[b])
-            if np.array_equal(new, labels):
-                return np.unique(labels, return_inverse=True)[1]
-            labels = new
+        return component_labels(n, observer, observed)
     adj = sp.coo_matrix((np.ones(len(observer)), (observer, observed)), shape=(n, n))
     return connected_components(adj, directed=False)[1]
 
