@@ -527,3 +527,16 @@ def test_pose_covariances_of_a_singular_information_are_nan():
     """A zero information matrix has no inverse: every covariance is NaN (``checked`` then names the robots)."""
     out = pose_covariances(np.zeros((6, 6)), PoseLayout(np.ones(2, bool), np.ones(2, bool)), 2)
     assert out.shape == (2, 3, 3) and np.isnan(out).all()
+
+
+def test_gauge_frame_projector_in_closed_form():
+    """About the centroid, N^T N = diag(n, n, n + sum |c_i|^2): for poses (0, 0), (2, 0), (1, 3) the centroid is
+    (1, 1), offsets (-1, -1), (1, -1), (0, 2), so N^T N = diag(3, 3, 3 + 2 + 2 + 4) = diag(3, 3, 11) and the
+    projector is N^T scaled row by row by 1/3, 1/3, 1/11; it maps N onto the identity."""
+    from coordinator.localization.gauge import gauge_frame
+
+    poses = np.array([[0.0, 0.0, 0.3], [2.0, 0.0, -1.0], [1.0, 3.0, 2.0]])
+    basis, proj = gauge_frame(poses)
+    np.testing.assert_array_equal(basis, gauge_basis(poses))
+    np.testing.assert_allclose(proj, basis.T / np.array([[3.0], [3.0], [11.0]]), rtol=1e-15)
+    np.testing.assert_allclose(proj @ basis, np.eye(3), atol=1e-15)

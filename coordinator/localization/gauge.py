@@ -61,7 +61,10 @@ def gauge_frame(predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, (N^T N)^-1 N^T) at the predicted poses (n, 3), rotation about their centroid: what
     ``constrained_covariance`` and ``transport`` of one update share (computed once per step)."""
     basis = gauge_basis(predicted)
-    return basis, _projector(basis)
+    # About the centroid the offsets c_i sum to zero, so N^T N = diag(n, n, n + sum |c_i|^2): no solve.
+    n = len(predicted)
+    offsets = basis[0::3, 2] ** 2 + basis[1::3, 2] ** 2  # |c_i|^2 (the rotation column holds (-c_y, c_x))
+    return basis, basis.T / np.array([n, n, n + offsets.sum()])[:, None]
 
 
 def constrained_covariance(
