@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.dead_reckoning import dead_reckon_parts
-from coordinator.localization.gauge import constrained_covariance, inverse, merge_subset, transport
+from coordinator.localization.gauge import constrained_covariance, constrained_solution, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
@@ -214,6 +214,7 @@ class JointLocalizer:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
             cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean)
+            poses = constrained_solution(poses, mean, cov, problem.prior_gradient(result.x))
         else:
             cov = inverse(result.normal_matrix)
         if not np.isfinite(cov).all():  # singular information: name the robots through their blocks
