@@ -164,8 +164,9 @@ class JointLocalizer:
         observations among them; the others keep their dead reckoning (``partial.localize_observable``).
 
         Up to ``EXACT_COV_LIMIT`` robots the joint covariance is returned: observability-constrained,
-        the others' cross-covariances updated with the kept robots' (``gauge``). Above it, the
-        conditional 3x3 blocks only.
+        the others' cross-covariances updated with the kept robots' (``gauge``), and the poses are those
+        of the constrained update (``gauge.constrained_solution``). Above it, the least-squares poses and
+        the conditional 3x3 blocks only.
         """
         keep = np.asarray(keep, bool)
         with blas_threads(3 * prior.n):
@@ -194,8 +195,9 @@ class JointLocalizer:
     def _solve(
         self, ids: np.ndarray, mean: np.ndarray, cov: np.ndarray, joint: np.ndarray | None, obs: Observations, exact: bool
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the constrained joint one
-        (3k, 3k, before ``transport``) when ``exact``, else conditional 3x3 blocks (k, 3, 3).
+        """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the joint one (3k, 3k) when
+        ``exact``, else conditional 3x3 blocks (k, 3, 3). With ``constrain_gauge`` and ``exact`` both are the
+        observability-constrained update's (covariance before ``transport``), else the least-squares solution's.
 
         The prior is the dead reckoning: ``mean`` (k, 3) with its joint covariance when given
         (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3).
