@@ -11,10 +11,12 @@ rotation at every step. Along a trajectory the reported covariance then shrinks 
 error (measured: position NEES 2-8 x its expected value after 100 configurations).
 
 Observability-constrained covariance (Huang, Mourikis & Roumeliotis, "Observability-based
-rules for designing consistent EKF SLAM estimators", IJRR 2010), three pieces:
+rules for designing consistent EKF SLAM estimators", IJRR 2010), four pieces:
 
 * ``constrained_covariance``: the observation rows are projected off N(mu),
   H~ = H (I - N (N^T N)^-1 N^T), and the covariance is (J^T J - H^T H + H~^T H~)^-1.
+* ``constrained_solution``: the estimate is moved to where the update with H~ puts it (one Gauss-Newton step from
+  the least-squares solution): its gauge component no longer follows the spurious information either.
 * ``merge_subset``: when only some robots were localized (the others keep dead reckoning),
   their cross-covariance with the others follows the same linear update (positive
   semi-definite by construction).
@@ -22,7 +24,6 @@ rules for designing consistent EKF SLAM estimators", IJRR 2010), three pieces:
   N(mu)) (N^T N)^-1 N^T, where the next step's propagation (linearised at the solution) maps
   N(solution) onto the next prediction's gauge directions exactly.
 
-The estimate itself (the least-squares solution) is unchanged; only its covariance is.
 Units: metres and radians; matrices are ordered robot by robot (x_0, y_0, heading_0, x_1, ...).
 """
 
@@ -89,6 +90,28 @@ def constrained_covariance(
     info = np.array(dense(normal), dtype=float, copy=True)
     info += u @ v
     return inverse(info)
+
+
+def constrained_solution(
+    solution: np.ndarray,
+    predicted: np.ndarray,
+    cov: np.ndarray,
+    prior_gradient: np.ndarray,
+    frame: tuple[np.ndarray, np.ndarray] | None = None,
+) -> np.ndarray:
+    """Poses (n, 3) of the observability-constrained update, one Gauss-Newton step from the least-squares ``solution``.
+
+    Huang, Mourikis & Roumeliotis (2010) use the constrained Jacobian H~ for the state update too, not only for the
+    covariance. At the least-squares solution x* the prior's gradient g = P^-1 (x* - mu) (``prior_gradient``, (3n,))
+    equals the observations' H^T r; its part along the predicted gauge, N^T H^T r, is the spurious information
+    (H~ is blind to N). Replacing H^T r by H~^T r = H^T r - Pi^T N^T g and linearizing about x* gives
+    x = x* - C Pi^T N^T g, with C = ``cov`` the constrained covariance (3n, 3n, before ``transport``). Without it the
+    swarm's estimated global rotation took a noise-driven step at every update that no covariance accounted for.
+    ``frame``: ``gauge_frame(predicted)`` when the caller has it.
+    """
+    basis, proj = gauge_frame(predicted) if frame is None else frame
+    step = cov @ (proj.T @ (basis.T @ prior_gradient))
+    return solution - step.reshape(solution.shape)
 
 
 def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
@@ -158,4 +181,4 @@ def transport(
     return 0.5 * (out + out.T)
 
 
-__all__ = ["constrained_covariance", "gauge_basis", "gauge_frame", "inverse", "merge_subset", "transport"]
+__all__ = ["constrained_covariance", "constrained_solution", "gauge_basis", "gauge_frame", "inverse", "merge_subset", "transport"]

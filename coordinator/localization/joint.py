@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.dead_reckoning import dead_reckon_parts
-from coordinator.localization.gauge import constrained_covariance, gauge_frame, inverse, merge_subset, transport
+from coordinator.localization.gauge import constrained_covariance, constrained_solution, gauge_frame, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
@@ -168,8 +168,9 @@ class JointLocalizer:
         observations among them; the others keep their dead reckoning (``partial.localize_observable``).
 
         Up to ``EXACT_COV_LIMIT`` robots the joint covariance is returned: observability-constrained,
-        the others' cross-covariances updated with the kept robots' (``gauge``). Above it, the
-        conditional 3x3 blocks only.
+        the others' cross-covariances updated with the kept robots' (``gauge``), and the poses are those
+        of the constrained update (``gauge.constrained_solution``). Above it, the least-squares poses and
+        the conditional 3x3 blocks only.
         """
         keep = np.asarray(keep, bool)
         with blas_threads(3 * prior.n):
@@ -209,8 +210,9 @@ class JointLocalizer:
         index: tuple[np.ndarray, np.ndarray] | None = None,
         frame: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the constrained joint one
-        (3k, 3k, before ``transport``) when ``exact``, else conditional 3x3 blocks (k, 3, 3).
+        """Poses (k, 3, headings unwrapped) of robots ``ids`` and their covariance: the joint one (3k, 3k) when
+        ``exact``, else conditional 3x3 blocks (k, 3, 3). With ``constrain_gauge`` and ``exact`` both are the
+        observability-constrained update's (covariance before ``transport``), else the least-squares solution's.
 
         The prior is the dead reckoning: ``mean`` (k, 3) with its joint covariance when given
         (whitened with its Cholesky factor), else the per-robot ``cov`` (k, 3, 3). ``index``: the observations'
@@ -231,6 +233,7 @@ class JointLocalizer:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
             cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean, frame)
+            poses = constrained_solution(poses, mean, cov, problem.prior_gradient(result.x), frame)
         else:
             cov = inverse(result.normal_matrix)
         if not np.isfinite(cov).all():  # singular information: name the robots through their blocks

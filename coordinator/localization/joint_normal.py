@@ -113,6 +113,18 @@ class JointProblem:
         obs, _ = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
         return prior, obs
 
+    def prior_gradient(self, x: np.ndarray) -> np.ndarray:
+        """The prior's share of the gradient J^T r at ``x`` (3n,): P^-1 (x - mu), Huber-weighted like ``evaluate``."""
+        diff = x.reshape(self.n, 3) - self.mean
+        diff[:, 2] = wrap_angle(diff[:, 2])
+        if self.joint_prior:
+            r_p = self.sqrt_info @ diff.ravel()
+            w_p, _ = huber_weights(r_p, self.huber)
+            return self.sqrt_info.T @ (r_p if w_p is None else w_p * r_p)
+        r_p = np.einsum("nab,nb->na", self.sqrt_info, diff)
+        w_p, _ = huber_weights(r_p, self.huber)
+        return np.einsum("nba,nb->na", self.sqrt_info, r_p if w_p is None else w_p * r_p).ravel()
+
     def evaluate(self, x: np.ndarray) -> NormalEquations:
         """Cost, J^T J and J^T r at ``x`` (``sparse_lm.minimize``'s callback)."""
         poses = x.reshape(self.n, 3)
