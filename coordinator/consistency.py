@@ -72,6 +72,7 @@ class ConsistencyRow:
             "configs": int(len(finite)),
             "nees_over_expected_median": _json_number(float(np.median(finite))),
             "nees_over_expected_max": _json_number(float(np.max(finite))),
+            "nees_over_expected_min": _json_number(float(np.min(finite))),
         }
 
 

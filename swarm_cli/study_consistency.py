@@ -69,10 +69,10 @@ def run(args: argparse.Namespace) -> int:
     summaries = [r.summary() for r in rows]
     print(f"position NEES / 2 per configuration, mean over {args.trajectories} trajectories of {args.robots} robots"
           f" (chi-square 95 % band {band[0]:.2f}-{band[1]:.2f} if errors were independent; target 0.7-1.5)")
-    print(f"{'localizer':<9} {'method':<16} {'configs':>7} {'median':>8} {'max':>8}")
+    print(f"{'localizer':<9} {'method':<16} {'configs':>7} {'median':>8} {'max':>8} {'min':>8}")
     for s in summaries:
-        med, mx = s["nees_over_expected_median"], s["nees_over_expected_max"]
-        print(f"{s['localizer']:<9} {s['method']:<16} {s['configs']:>7} {_fmt(med):>8} {_fmt(mx):>8}")
+        med, mx, mn = s["nees_over_expected_median"], s["nees_over_expected_max"], s["nees_over_expected_min"]
+        print(f"{s['localizer']:<9} {s['method']:<16} {s['configs']:>7} {_fmt(med):>8} {_fmt(mx):>8} {_fmt(mn):>8}")
     print(f"wrote {png}")
     if args.json:
         print_json({"rows": summaries})

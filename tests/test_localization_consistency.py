@@ -260,8 +260,9 @@ def test_study_consistency_json_contract(tmp_path):
     assert [(r["localizer"], r["method"]) for r in doc["rows"]] == [
         ("paper", "no-anchors"), ("paper", "ref57"), ("joint", "no-anchors"), ("joint", "ref57")]
     for r in doc["rows"]:
-        assert list(r) == ["localizer", "method", "configs", "nees_over_expected_median", "nees_over_expected_max"]
-        assert r["configs"] == 2 and 0 < r["nees_over_expected_median"] <= r["nees_over_expected_max"]
+        assert list(r) == ["localizer", "method", "configs", "nees_over_expected_median", "nees_over_expected_max",
+                           "nees_over_expected_min"]
+        assert r["configs"] == 2 and 0 < r["nees_over_expected_min"] <= r["nees_over_expected_median"] <= r["nees_over_expected_max"]
     assert (tmp_path / "consistency.png").stat().st_size > 0
     bad = subprocess.run([sys.executable, "-m", "swarm_cli.main", "study", "consistency", "--methods", "nope"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
