@@ -88,7 +88,7 @@ def consistency_study(
     methods: tuple[str, ...] = METHODS,
     robots: int = 10,
     configs: int = 100,
-    trajectories: int = 16,
+    trajectories: int = 48,
     seed: int = 0,
     selection: SelectionConfig = SelectionConfig(),
     progress: Callable[[int], None] | None = None,
