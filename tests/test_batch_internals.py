@@ -12,8 +12,11 @@ import numpy as np
 import pytest
 
 from coordinator.localization.batch import (
+    COMPACT_BELOW,
+    MAX_ITER,
     _diagonal,
     _inv_stack,
+    _levenberg_marquardt,
     _prior_information,
     _solve_stack,
     _Workspace,
@@ -181,3 +184,131 @@ def test_workspace_reuses_arrays_of_the_same_shape():
     assert ws("x", (2, 3)) is a
     b = ws("x", (3, 2))
     assert b is not a and b.shape == (3, 2) and ws("x", (3, 2)) is b
+
+
+# --------------------------------------------------------------------------------------------
+# The batched Levenberg-Marquardt on toy problems whose every step is known
+
+
+class ToyProblem:
+    """Samples of one robot whose cost is ``costs[s](x)`` (x the sample's (1, 3) pose) and whose step is the
+    fixed ``steps[s]`` (1, 3) whatever the damping; every ``step`` call logs (samples, mu, curved)."""
+
+    def __init__(self, costs, steps, log, index=None):
+        self.costs, self.steps, self.log = costs, np.asarray(steps, float), log
+        self.index = np.arange(len(costs)) if index is None else index
+
+    def evaluate(self, x, slot=0):
+        return {"cost": np.array([self.costs[s](x[k]) for k, s in enumerate(self.index)])}
+
+    def step(self, st, mu, curved):
+        self.log.append((self.index.copy(), mu.copy(), curved.copy()))
+        return self.steps[self.index].copy()
+
+    def subset(self, keep):
+        return ToyProblem(self.costs, self.steps, self.log, self.index[keep])
+
+
+def run_toy(costs, steps, x0, xtol=1e-8, ftol=1e-8):
+    log = []
+    x, converged = _levenberg_marquardt(ToyProblem(costs, steps, log), np.asarray(x0, float), xtol, ftol)
+    return x, converged, log
+
+
+def test_lm_gives_up_when_mu_passes_1e10():
+    """Every step raises the cost 0.5 |x|^2 from x = 0 (a step of 1 m, not negligible): each is rejected and
+    mu grows tenfold from 1e-8: 1e-8, 1e-7, ..., 1e10 after 18 rejections (exactly 1e10 in floating point,
+    not beyond it), so a 19th step is tried; it takes mu to 1e11 > 1e10: the sample fails at its start."""
+    x, converged, log = run_toy([lambda p: 0.5 * float(np.sum(p**2))], [[[1.0, 0.0, 0.0]]], np.zeros((1, 1, 3)))
+    mus = [float(mu[0]) for _, mu, _ in log]
+    assert len(mus) == 19
+    want = [1e-8]
+    for _ in range(18):
+        want.append(want[-1] * 10.0)
+    assert mus == want and want[18] == 1e10
+    assert not any(curved[0] for _, _, curved in log)  # no accepted step: Gauss-Newton throughout
+    assert converged.tolist() == [False]
+    np.testing.assert_array_equal(x, 0.0)
+
+
+def test_lm_stops_after_max_iter_accepted_steps():
+    """The cost 1e6 - x falls by 1 on every 1 m step along x: each step is accepted, none is small relative to
+    x (xtol 1e-8) or to the cost (ftol 1e-8: 1 > 1e-2); after MAX_ITER = 100 accepted steps the sample
+    fails at x = 100. mu falls tenfold per accepted step to its floor 1e-12; the first step is Gauss-Newton
+    (curved False), the others carry the second-order term."""
+    assert MAX_ITER == 100
+    x, converged, log = run_toy([lambda p: 1e6 - p[0, 0]], [[[1.0, 0.0, 0.0]]], np.zeros((1, 1, 3)))
+    assert len(log) == 100
+    assert converged.tolist() == [False]
+    np.testing.assert_array_equal(x[0, 0], [100.0, 0.0, 0.0])
+    mus = [float(mu[0]) for _, mu, _ in log]
+    np.testing.assert_allclose(mus[:5], [1e-8, 1e-9, 1e-10, 1e-11, 1e-12], rtol=1e-12)
+    assert set(mus[5:]) == {1e-12}  # the floor, exactly
+    assert [bool(c[0]) for _, _, c in log] == [False] + [True] * 99
+
+
+@pytest.mark.parametrize(("rise", "accepted"), [(0.5e-12, True), (2e-12, False)])
+def test_lm_accepts_a_cost_rise_within_the_relative_slack(rise, accepted):
+    """Cost 1 + rise x from x = 0, step 1: a rise of 0.5e-12 is within the relative slack 1e-12 and is
+    accepted; the cost did not fall, so the sample converges there (x = 1). A rise of 2e-12 is rejected
+    every time (mu grows until the sample fails at x = 0)."""
+    x, converged, log = run_toy([lambda p: 1.0 + rise * p[0, 0]], [[[1.0, 0.0, 0.0]]], np.zeros((1, 1, 3)))
+    assert converged.tolist() == [accepted]
+    assert x[0, 0, 0] == (1.0 if accepted else 0.0)
+    assert len(log) == (1 if accepted else 19)
+
+
+def test_lm_converges_on_a_small_step_relative_to_x():
+    """Robots at x = 1000 (the largest coordinate of the sample) step 1e-6 m, cost 10 - 1e-3 * step count
+    (gain 1e-3, above ftol = 1e-20 x cost): 1e-6 <= xtol (1 + 1000) = 1.001e-5 with xtol = 1e-8, so the
+    first accepted step converges. A sample at the origin taking the same step is not small (1e-6 > 1e-8)
+    and runs to MAX_ITER."""
+    costs = [lambda p: 10.0 - 1e3 * (p[0, 0] - 1000.0), lambda p: 10.0 - 1e3 * p[0, 0]]
+    x0 = np.zeros((2, 1, 3))
+    x0[0, 0, 1] = 1000.0  # the largest |coordinate| of sample 0 (y), not the stepped one
+    x, converged, log = run_toy(costs, [[[1e-6, 0, 0]], [[1e-6, 0, 0]]], x0, xtol=1e-8, ftol=1e-20)
+    assert converged.tolist() == [True, False]
+    np.testing.assert_allclose(x[:, 0, 0], [1e-6, 100 * 1e-6], rtol=1e-12)
+    assert x[0, 0, 1] == 1000.0
+
+
+@pytest.mark.parametrize(("ftol", "converged_at"), [(2e-3, 1.0), (5e-4, None)])
+def test_lm_converges_on_a_small_cost_decrease(ftol, converged_at):
+    """Cost 1 - 1e-3 x, steps of 1 (never small against xtol 1e-12): the first step lowers the cost by 1e-3,
+    below ftol = 2e-3 times the cost 1: converged at x = 1. With ftol = 5e-4 no decrease is small
+    (1e-3 > 5e-4 x cost) and the sample fails after MAX_ITER steps at x = 100."""
+    x, converged, _ = run_toy([lambda p: 1.0 - 1e-3 * p[0, 0]], [[[1.0, 0, 0]]], np.zeros((1, 1, 3)), xtol=1e-12, ftol=ftol)
+    assert converged.tolist() == [converged_at is not None]
+    assert x[0, 0, 0] == (converged_at if converged_at is not None else 100.0)
+
+
+def test_lm_a_negligible_rejected_step_means_converged():
+    """At the minimum of 0.5 |x - 5|^2 (x = 5) a step of 1e-12 raises the cost and is rejected, but it is
+    below xtol (1 + 5): the sample sits at its minimum and has converged, at x = 5 unchanged.
+    A rejected step of 1 m is not negligible: mu grows and that sample fails."""
+    costs = [lambda p: 0.5 * float(np.sum((p - 5.0) ** 2))] * 2
+    x, converged, log = run_toy(costs, [[[1e-12, 0, 0]], [[1.0, 0, 0]]], np.full((2, 1, 3), 5.0))
+    assert converged.tolist() == [True, False]
+    np.testing.assert_array_equal(x, 5.0)
+
+
+def test_lm_finished_samples_leave_the_work_set():
+    """Five samples: four converge on their first step (x = 1, a gain below ftol), one runs MAX_ITER steps.
+    Once fewer than COMPACT_BELOW = half of the work set is active the problem is restricted to sample 4:
+    its later steps are asked of it alone, with its own mu and iteration count. Sample 2 has a NaN cost at
+    its start: it never steps and keeps x0. Every sample ends where its own run would."""
+    assert COMPACT_BELOW == 0.5
+    flat = lambda p: 1.0 - 1e-12 * p[0, 0]  # noqa: E731  (converges on its first step)
+    costs = [flat, flat, lambda p: np.nan, flat, lambda p: 1e6 - p[0, 0]]
+    steps = [[[1.0, 0.0, 0.0]]] * 5
+    x0 = np.arange(15.0).reshape(5, 1, 3)
+    x, converged, log = run_toy(costs, steps, x0)
+    assert converged.tolist() == [True, True, False, True, False]
+    want = x0.copy()
+    want[[0, 1, 3], 0, 0] += 1.0
+    want[4, 0, 0] += 100.0
+    np.testing.assert_array_equal(x, want)
+    assert log[0][0].tolist() == [0, 1, 2, 3, 4]  # the first step: the whole work set (sample 2 masked)
+    assert all(index.tolist() == [4] for index, _, _ in log[1:]) and len(log) == 100
+    assert float(log[1][1][0]) == 1e-9 and bool(log[1][2][0])  # its own mu and iteration count survive
+    assert float(log[-1][1][0]) == 1e-12
