@@ -527,3 +527,103 @@ def test_pose_covariances_of_a_singular_information_are_nan():
     """A zero information matrix has no inverse: every covariance is NaN (``checked`` then names the robots)."""
     out = pose_covariances(np.zeros((6, 6)), PoseLayout(np.ones(2, bool), np.ones(2, bool)), 2)
     assert out.shape == (2, 3, 3) and np.isnan(out).all()
+
+
+def test_conditional_pose_covariances_of_sparse_and_singular_information(monkeypatch):
+    """Above EXACT_COV_LIMIT the blocks are read from a sparse information matrix as from a dense one (a
+    1000-robot step's is sparse); a zero information matrix has singular blocks: every covariance NaN."""
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 1)
+    layout = PoseLayout(np.ones(2, bool), np.array([True, False]))
+    info = np.linalg.inv(spd(5, 11))
+    want = np.zeros((2, 3, 3))
+    want[0] = np.linalg.inv(info[:3, :3])
+    want[1, :2, :2] = np.linalg.inv(info[3:, 3:])
+    np.testing.assert_allclose(pose_covariances(sp.csr_matrix(info), layout, 2), want, rtol=1e-9, atol=1e-15)
+    out = pose_covariances(np.zeros((5, 5)), layout, 2)
+    assert out.shape == (2, 3, 3) and np.isnan(out[0]).all() and np.isnan(out[1, :2, :2]).all()
+
+
+def outlier_case():
+    """Four robots (ids 20-23) observing each other, observation 0's range 0.3 m (30 sigma) too long: after
+    one iteration its whitened residual is still by far the largest."""
+    ids = np.arange(20, 24)
+    poses = np.array([[0.0, 0.0, 0.2], [0.3, 0.0, 1.5], [0.0, 0.3, -2.0], [0.3, 0.3, 3.0]])
+    prior = SwarmEstimate.isotropic(ids, poses, 0.02, 0.05)
+    obs = sense_swarm(poses, ids, CFG, robot_rngs(3, ids, Stream.SENSING))
+    bad = Observations(obs.observer, obs.observed, obs.range_m + np.where(np.arange(len(obs.range_m)) == 0, 0.3, 0.0),
+                       obs.bearing_rad)
+    return prior, StepCommands.stationary(ids), bad, sorted([int(obs.observer[0]), int(obs.observed[0])])
+
+
+def test_no_convergence_names_the_robots_of_the_worst_observation(monkeypatch):
+    """Solvers allowed a single iteration (and no convergence test) do not converge: the joint solve raises
+    'no-convergence' naming the two robots of the outlier observation, and so does the joint topology."""
+    prior, step, obs, pair = outlier_case()
+    real_min, real_lm = joint_module.minimize, joint_module.levenberg_marquardt
+    monkeypatch.setattr(joint_module, "minimize", lambda *a, **kw: real_min(*a, **{**kw, "max_iter": 1, "xtol": 0.0, "ftol": 0.0}))
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG).localize(prior, step, obs)
+    assert err.value.reason == "no-convergence" and err.value.robots == pair
+    assert str(err.value) == f"no-convergence: robots {pair} (joint least squares did not converge)"
+    monkeypatch.setattr(joint_module, "levenberg_marquardt", lambda *a, **kw: real_lm(*a, **{**kw, "max_iter": 1, "xtol": 0.0, "ftol": 0.0}))
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG).topology(prior.ids, obs)
+    assert str(err.value) == f"no-convergence: robots {pair} (joint topology did not converge)"
+
+
+def test_a_singular_information_matrix_names_its_robots(monkeypatch):
+    """If the inverse of the information matrix is NaN on robot 22's rows and columns (singular for it), the
+    joint solve raises 'degenerate' naming robot 22 only (the other robots' diagonal blocks are finite)."""
+    prior, step, obs, _ = outlier_case()
+    real = joint_module.inverse
+
+    def singular_for_robot_2(normal):
+        out = np.array(real(normal), dtype=float)
+        out[6:9, :] = out[:, 6:9] = np.nan
+        return out
+
+    monkeypatch.setattr(joint_module, "inverse", singular_for_robot_2)
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG, constrain_gauge=False).localize(prior, step, obs)
+    assert str(err.value) == "degenerate: robots [22] (the information matrix is singular for them)"
+
+
+def test_exactly_exact_cov_limit_robots_get_the_joint_covariance(monkeypatch):
+    """Up to and including EXACT_COV_LIMIT robots the joint covariance is returned: four robots at a limit of 4
+    give the same estimate as at the default limit."""
+    prior, step, obs = four_robots(2)
+    want = JointLocalizer(CFG).localize(prior, step, obs)
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 4)
+    got = JointLocalizer(CFG).localize(prior, step, obs)
+    assert got.joint is not None
+    np.testing.assert_array_equal(got.joint, want.joint)
+
+
+def test_localize_subset_takes_any_truth_values_as_keep():
+    """``keep`` as a list of 0/1 integers selects the same robots as the boolean mask."""
+    prior, step, obs = four_robots(4)
+    loc = JointLocalizer(CFG)
+    want = loc.localize_subset(prior, step, obs, np.array([True, True, True, False]))
+    got = loc.localize_subset(prior, step, obs, [1, 1, 1, 0])
+    np.testing.assert_array_equal(got.poses, want.poses)
+    np.testing.assert_array_equal(got.cov, want.cov)
+
+
+def test_joint_topology_uncertainties_are_those_of_the_information_matrix(monkeypatch):
+    """delta_p = sqrt(var x + var y) and the heading sigma sqrt(var theta) from the inverse of J^T J at the
+    solution (its free unknowns: all but the reference robot's pose); the reference robot gets 0 and 0."""
+    prior, _, obs = four_robots(5)
+    results, real = [], joint_module.levenberg_marquardt
+
+    def spy(*a, **kw):
+        results.append(real(*a, **kw))
+        return results[-1]
+
+    monkeypatch.setattr(joint_module, "levenberg_marquardt", spy)
+    topo = JointLocalizer(CFG).topology(prior.ids, obs)
+    assert topo.reference == 0
+    cov = np.linalg.inv(np.asarray(results[0].normal_matrix.toarray() if sp.issparse(results[0].normal_matrix)
+                                   else results[0].normal_matrix))  # unknowns (x, y, theta) of robots 1, 2, 3
+    var = np.diag(cov).reshape(3, 3)
+    np.testing.assert_allclose(topo.delta_p, np.r_[0.0, np.sqrt(var[:, 0] + var[:, 1])], rtol=1e-9)
+    np.testing.assert_allclose(topo.heading_sigma, np.r_[0.0, np.sqrt(var[:, 2])], rtol=1e-9)
