@@ -374,3 +374,20 @@ def test_joint_problem_is_the_single_swarm_one(monkeypatch):
                 sl = slice(3 * a, 3 * a + 3)
                 np.testing.assert_allclose(cov[k, a], inv[sl, sl], rtol=1e-7, atol=1e-9 * np.abs(inv[sl, sl]).max())
                 np.testing.assert_allclose(blocks[k, a], np.linalg.inv(info[sl, sl]), rtol=1e-7)
+
+
+def test_partial_localization_ignores_values_of_unseen_pairs():
+    """Nobody observes robot 4, and every unseen pair holds finite garbage (123 m, -7 rad): the batch's partial
+    localization of the joint method (its own solve with robot 4's observations removed) uses only the
+    observations among the other robots, as the runtime's ``localize_observable`` does."""
+    cfg = ModelConfig()
+    case = random_step(6, cfg, np.random.default_rng(3), spacing=0.2)
+    seen, ranges, bearings = dense(case.observations, 6)
+    seen[:, 4] = False
+    batch = Batch()
+    batch.add(case.prior, case.step, seen, np.where(seen, ranges, 123.0), np.where(seen, bearings, -7.0))
+    out = localize_batch("joint", cfg, *batch.arrays())
+    assert out.ok.tolist() == [False]
+    partial, excluded = localize_observable(reference_localizer("joint", cfg), *batch.single(0), cfg)
+    assert excluded == {4: "unobserved"}
+    assert_same_estimate(out.poses[0], out.cov[0], partial)
