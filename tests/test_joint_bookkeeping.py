@@ -627,3 +627,15 @@ def test_joint_topology_uncertainties_are_those_of_the_information_matrix(monkey
     var = np.diag(cov).reshape(3, 3)
     np.testing.assert_allclose(topo.delta_p, np.r_[0.0, np.sqrt(var[:, 0] + var[:, 1])], rtol=1e-9)
     np.testing.assert_allclose(topo.heading_sigma, np.r_[0.0, np.sqrt(var[:, 2])], rtol=1e-9)
+
+
+def test_the_gauge_constraint_is_on_by_default():
+    """``JointLocalizer(cfg)`` returns the observability-constrained covariance (constrain_gauge=True), which
+    differs from the unconstrained (J^T J)^-1 (same poses)."""
+    prior, step, obs = four_robots(6)
+    default = JointLocalizer(CFG).localize(prior, step, obs)
+    on = JointLocalizer(CFG, constrain_gauge=True).localize(prior, step, obs)
+    off = JointLocalizer(CFG, constrain_gauge=False).localize(prior, step, obs)
+    np.testing.assert_array_equal(default.joint, on.joint)
+    np.testing.assert_array_equal(off.poses, on.poses)
+    assert np.abs(off.joint - on.joint).max() > 1e-3 * np.abs(on.joint).max()
