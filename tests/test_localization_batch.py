@@ -391,3 +391,23 @@ def test_partial_localization_ignores_values_of_unseen_pairs():
     partial, excluded = localize_observable(reference_localizer("joint", cfg), *batch.single(0), cfg)
     assert excluded == {4: "unobserved"}
     assert_same_estimate(out.poses[0], out.cov[0], partial)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_two_evaluation_slots_coexist(monkeypatch, method):
+    """``evaluate(x, slot)`` keeps one state per slot (0 or 1): the Levenberg-Marquardt holds the current point's
+    state in one while it tries a step in the other. A state evaluated in slot 0 is unchanged by an evaluation
+    of another point in slot 1, and equals a fresh evaluation at its point."""
+    cfg = ModelConfig(dropout_prob=0.15)
+    batch = random_batch(6, 4, cfg, seed=1 if method == "paper" else 8)
+    problem, x0 = batch_problem(monkeypatch, method, cfg, batch.arrays())
+    perturbed = x0 + 0.03 * np.random.default_rng(0).normal(size=x0.shape)
+    first = problem.evaluate(x0, 0)
+    kept = {key: np.array(value) for key, value in first.items()}
+    other = problem.evaluate(perturbed, 1)
+    assert np.all(other["cost"] != kept["cost"])
+    for key, value in first.items():
+        np.testing.assert_array_equal(value, kept[key])
+    again = problem.evaluate(x0, 1)
+    for key, value in again.items():
+        np.testing.assert_array_equal(value, kept[key])
