@@ -312,3 +312,15 @@ def test_lm_finished_samples_leave_the_work_set():
     assert all(index.tolist() == [4] for index, _, _ in log[1:]) and len(log) == 100
     assert float(log[1][1][0]) == 1e-9 and bool(log[1][2][0])  # its own mu and iteration count survive
     assert float(log[-1][1][0]) == 1e-12
+
+
+def test_prior_information_of_a_correlated_singular_covariance():
+    """cov = [[1, 0, 0.5], [0, 1, 0], [0.5, 0, 0.25]] (x and heading perfectly correlated) is singular: its
+    eigenvectors u = (1, 0, -2)/sqrt(5), e_y, w = (2, 0, 1)/sqrt(5) have eigenvalues 0, 1, 1.25. Its leading
+    minors 1 and 1 are positive, only the determinant (0) shows it is not clearly positive definite; the
+    floored inverse is 1e12 u u^T + e_y e_y^T + w w^T / 1.25."""
+    cov = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.0], [0.5, 0.0, 0.25]])
+    u, w = np.array([1.0, 0.0, -2.0]) / np.sqrt(5), np.array([2.0, 0.0, 1.0]) / np.sqrt(5)
+    want = 1e12 * np.outer(u, u) + np.diag([0.0, 1.0, 0.0]) + np.outer(w, w) / 1.25
+    info = _prior_information(cov[None])[0]
+    np.testing.assert_allclose(info, want, rtol=1e-6, atol=1e-3)

@@ -639,3 +639,15 @@ def test_the_gauge_constraint_is_on_by_default():
     np.testing.assert_array_equal(default.joint, on.joint)
     np.testing.assert_array_equal(off.poses, on.poses)
     assert np.abs(off.joint - on.joint).max() > 1e-3 * np.abs(on.joint).max()
+
+
+def test_psd_clips_a_matrix_whose_determinant_alone_reveals_it():
+    """M = [[1, t, t], [t, 1, -t], [t, -t, 1]], t = 0.55: both leading minors are positive (1, 0.6975) but
+    det M = 1 - 3 t^2 - 2 t^3 = -0.24 < 0 (every term of the determinant matters: dropping the sign of one
+    would call M positive definite). v = (1, -1, -1)/sqrt(3) has
+    M v = (1 - 2t) v = -0.1 v; the other eigenvalue is 1 + t = 1.55 (twice). psd(M) = M + 0.1 v v^T."""
+    t = 0.55
+    m = np.array([[1, t, t], [t, 1, -t], [t, -t, 1.0]])
+    v = np.array([1.0, -1.0, -1.0]) / math.sqrt(3)
+    np.testing.assert_allclose(m @ v, -0.1 * v, atol=1e-15)
+    np.testing.assert_allclose(psd(m), m + 0.1 * np.outer(v, v), atol=1e-12)
