@@ -247,11 +247,12 @@ def test_lm_stops_after_max_iter_accepted_steps():
     assert [bool(c[0]) for _, _, c in log] == [False] + [True] * 99
 
 
-@pytest.mark.parametrize(("rise", "accepted"), [(0.5e-12, True), (2e-12, False)])
+@pytest.mark.parametrize(("rise", "accepted"), [(0.5e-12, True), ((1 + 1e-12) - 1.0, True), (2e-12, False)])
 def test_lm_accepts_a_cost_rise_within_the_relative_slack(rise, accepted):
     """Cost 1 + rise x from x = 0, step 1: a rise of 0.5e-12 is within the relative slack 1e-12 and is
-    accepted; the cost did not fall, so the sample converges there (x = 1). A rise of 2e-12 is rejected
-    every time (mu grows until the sample fails at x = 0)."""
+    accepted; the cost did not fall, so the sample converges there (x = 1). A rise to exactly the bound
+    1 (1 + 1e-12) (floating point: 1 + ((1 + 1e-12) - 1) is that number) is accepted too (<=). A rise of
+    2e-12 is rejected every time (mu grows until the sample fails at x = 0)."""
     x, converged, log = run_toy([lambda p: 1.0 + rise * p[0, 0]], [[[1.0, 0.0, 0.0]]], np.zeros((1, 1, 3)))
     assert converged.tolist() == [accepted]
     assert x[0, 0, 0] == (1.0 if accepted else 0.0)
@@ -262,13 +263,14 @@ def test_lm_converges_on_a_small_step_relative_to_x():
     """Robots at x = 1000 (the largest coordinate of the sample) step 1e-6 m, cost 10 - 1e-3 * step count
     (gain 1e-3, above ftol = 1e-20 x cost): 1e-6 <= xtol (1 + 1000) = 1.001e-5 with xtol = 1e-8, so the
     first accepted step converges. A sample at the origin taking the same step is not small (1e-6 > 1e-8)
-    and runs to MAX_ITER."""
-    costs = [lambda p: 10.0 - 1e3 * (p[0, 0] - 1000.0), lambda p: 10.0 - 1e3 * p[0, 0]]
-    x0 = np.zeros((2, 1, 3))
+    and runs to MAX_ITER, as does a step of 1.5e-8 from the origin (above xtol (1 + 0) = 1e-8)."""
+    costs = [lambda p: 10.0 - 1e3 * (p[0, 0] - 1000.0), lambda p: 10.0 - 1e3 * p[0, 0], lambda p: 10.0 - 1e6 * p[0, 0]]
+    x0 = np.zeros((3, 1, 3))
     x0[0, 0, 1] = 1000.0  # the largest |coordinate| of sample 0 (y), not the stepped one
-    x, converged, log = run_toy(costs, [[[1e-6, 0, 0]], [[1e-6, 0, 0]]], x0, xtol=1e-8, ftol=1e-20)
-    assert converged.tolist() == [True, False]
-    np.testing.assert_allclose(x[:, 0, 0], [1e-6, 100 * 1e-6], rtol=1e-12)
+    steps = [[[1e-6, 0, 0]], [[1e-6, 0, 0]], [[1.5e-8, 0, 0]]]
+    x, converged, log = run_toy(costs, steps, x0, xtol=1e-8, ftol=1e-20)
+    assert converged.tolist() == [True, False, False]  # sample 2: 1.5e-8 > xtol (1 + 0) near the origin
+    np.testing.assert_allclose(x[:, 0, 0], [1e-6, 100 * 1e-6, 100 * 1.5e-8], rtol=1e-12)
     assert x[0, 0, 1] == 1000.0
 
 
