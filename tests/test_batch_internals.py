@@ -18,7 +18,9 @@ from coordinator.localization.batch import (
     _inv_stack,
     _levenberg_marquardt,
     _prior_information,
+    _solve_chunks,
     _solve_stack,
+    _valid,
     _Workspace,
     localize_batch,
     observable,
@@ -76,7 +78,7 @@ def test_no_robots_gives_empty_estimates():
     """n = 0: nothing to localize; every sample is ok and the arrays have shape (B, 0, ...)."""
     out = localize_batch("joint", CFG, np.zeros((2, 0, 3)), np.zeros((2, 0, 3, 3)), np.zeros((2, 0, 2)),
                          np.zeros((2, 0), bool), np.zeros((2, 0, 0), bool), np.zeros((2, 0, 0)), np.zeros((2, 0, 0)))
-    assert out.ok.tolist() == [True, True]
+    assert out.ok.tolist() == [True, True] and out.ok.dtype == bool
     assert out.poses.shape == (2, 0, 3) and out.cov.shape == (2, 0, 3, 3)
 
 
@@ -326,3 +328,41 @@ def test_prior_information_of_a_correlated_singular_covariance():
     want = 1e12 * np.outer(u, u) + np.diag([0.0, 1.0, 0.0]) + np.outer(w, w) / 1.25
     info = _prior_information(cov[None])[0]
     np.testing.assert_allclose(info, want, rtol=1e-6, atol=1e-3)
+
+
+def test_a_zero_range_is_a_valid_observation():
+    """Ranges must be >= 0 and finite: a measured range of exactly 0 m (robots touching) is valid, -0.1 m and
+    an infinite range are not; a bad value on an unseen pair does not count."""
+    poses, cov, commands, moving, seen, ranges, bearings = triangle_batch(4)
+    ranges = ranges.copy()
+    ranges[0, 0, 1] = 0.0
+    ranges[1, 0, 1] = -0.1
+    ranges[2, 0, 1] = np.inf
+    seen = seen.copy()
+    seen[3, 0, 1], ranges[3, 0, 1] = False, -0.1
+    assert _valid(poses, cov, commands, moving, seen, ranges, bearings).tolist() == [True, False, False, True]
+
+
+def test_solve_chunks_writes_the_solved_samples_and_flags_the_failed_ones():
+    """Samples 0, 2, 3, 5 to solve in chunks of 3 ([0, 2, 3], [5]); the solver (here: prior + 1, covariance x 2)
+    fails on sample 3. Solved samples get its answer; sample 3 keeps its poses and covariance and gets
+    ok = False; samples 1 and 4 (not to solve) are untouched."""
+    b, n = 6, 2
+    dr_poses = np.arange(b * n * 3, dtype=float).reshape(b, n, 3)
+    dr_cov = np.broadcast_to(np.eye(3), (b, n, 3, 3)).copy()
+    seen = np.ones((b, n, n), bool)
+    ranges = bearings = np.zeros((b, n, n))
+    calls = []
+
+    def solve(cfg, p, c, s, r, br, ws):
+        calls.append(len(p))
+        return p + 1.0, 2.0 * c, np.array([k != 2 for k in range(len(p))]) if len(p) == 3 else np.ones(len(p), bool)
+
+    poses, cov, ok = dr_poses.copy(), dr_cov.copy(), np.array([True, False, True, True, False, True])
+    _solve_chunks(solve, CFG, np.array([0, 2, 3, 5]), 3, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, None)
+    assert calls == [3, 1]
+    assert ok.tolist() == [True, False, True, False, False, True]
+    for k in range(b):
+        solved = k in (0, 2, 5)
+        np.testing.assert_array_equal(poses[k], dr_poses[k] + (1.0 if solved else 0.0))
+        np.testing.assert_array_equal(cov[k], dr_cov[k] * (2.0 if solved else 1.0))
