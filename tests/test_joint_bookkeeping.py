@@ -651,3 +651,84 @@ def test_psd_clips_a_matrix_whose_determinant_alone_reveals_it():
     v = np.array([1.0, -1.0, -1.0]) / math.sqrt(3)
     np.testing.assert_allclose(m @ v, -0.1 * v, atol=1e-15)
     np.testing.assert_allclose(psd(m), m + 0.1 * np.outer(v, v), atol=1e-12)
+
+
+def test_pose_covariances_at_exactly_the_limit_are_exact(monkeypatch):
+    """n_robots == EXACT_COV_LIMIT still gets the exact blocks of the inverse (not the conditional ones)."""
+    layout = PoseLayout(np.ones(2, bool), np.ones(2, bool))
+    info = np.linalg.inv(spd(6, 13))
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 2)
+    full = np.linalg.inv(info)
+    want = np.stack([full[:3, :3], full[3:, 3:]])
+    np.testing.assert_allclose(pose_covariances(info, layout, 2), want, rtol=1e-9, atol=1e-15)
+
+
+def test_worst_observation_compares_squares_not_signed_values():
+    """Residual rows (-3, 0) and (2, 1): squares 9 and 5, so the first observation (robots 5 -> 7) is the worst,
+    though its residual is negative."""
+    rows = np.array([[-3.0, 0.0], [2.0, 1.0]])
+    assert worst_observation(rows, np.array([0, 1]), np.array([1, 2]), np.array([5, 7, 9])).tolist() == [5, 7]
+
+
+def nan_for_robot(k: int, real):
+    """Wrap ``real`` (returning (n, 3, 3) blocks or a (3n, 3n) joint covariance) to make robot k's entries NaN."""
+    def wrapped(*args, **kwargs):
+        out = np.array(real(*args, **kwargs), dtype=float)
+        if out.ndim == 3:
+            out[k] = np.nan
+        else:
+            out[3 * k : 3 * k + 3, :] = out[:, 3 * k : 3 * k + 3] = np.nan
+        return out
+    return wrapped
+
+
+def test_non_finite_covariances_are_named_on_every_path(monkeypatch):
+    """Whichever path yields the covariances, a non-finite block for robot 2 (id 22) raises 'degenerate'
+    naming it: the conditional blocks above EXACT_COV_LIMIT, the joint topology's blocks, and the final
+    joint covariance of ``localize_subset`` (after the gauge transport)."""
+    prior, step, obs, _ = outlier_case()
+    want = "degenerate: robots [22] (the information matrix is singular for them)"
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "EXACT_COV_LIMIT", 3)
+        m.setattr(joint_module, "pose_covariances", nan_for_robot(2, joint_module.pose_covariances))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).localize(prior, step, obs)
+        assert str(err.value) == want
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "pose_covariances", nan_for_robot(2, joint_module.pose_covariances))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).topology(prior.ids, obs)
+        assert str(err.value) == want
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "psd_joint", nan_for_robot(2, joint_module.psd_joint))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).localize(prior, step, obs)
+        assert str(err.value) == want
+
+
+def test_joint_topology_of_a_robot_that_observed_nobody():
+    """Robot 3 (id 13) observes nobody (others observe it): its position is solved, its heading is unknown
+    (NaN, sigma inf); the others' positions and headings are those of the swarm seen from robot 0."""
+    exact = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    ids = np.arange(10, 14)
+    poses = np.array([[0.1, 0.2, 0.7], [0.4, 0.2, 1.5], [0.1, 0.5, -2.0], [0.4, 0.5, 3.0]])
+    obs = sense_swarm(poses, ids, exact, robot_rngs(0, ids, Stream.SENSING))
+    obs = obs.select(obs.observer != 13)
+    topo = JointLocalizer(CFG).topology(ids, obs)
+    c, s = math.cos(-0.7), math.sin(-0.7)
+    rel = (poses[:, :2] - poses[0, :2]) @ np.array([[c, s], [-s, c]])
+    np.testing.assert_allclose(topo.positions, rel, atol=1e-9)
+    assert np.isnan(topo.headings[3]) and topo.heading_sigma[3] == np.inf
+    np.testing.assert_allclose(wrap_angle(topo.headings[:3] - (poses[:3, 2] - 0.7)), 0, atol=1e-9)
+
+
+def test_joint_topology_uses_the_huber_loss():
+    """With a 0.3 m (30 sigma) range outlier the Huber topology (1 sigma) keeps the outlier pair's distance
+    much closer to the truth than least squares does."""
+    prior, _, obs, pair = outlier_case()
+    truth = np.hypot(*(prior.poses[pair[1] - 20, :2] - prior.poses[pair[0] - 20, :2]))
+    stretch = []
+    for loc in (JointLocalizer(CFG), JointLocalizer(CFG, huber=1.0)):
+        topo = loc.topology(prior.ids, obs)
+        stretch.append(abs(np.hypot(*(topo.positions[pair[1] - 20] - topo.positions[pair[0] - 20])) - truth))
+    assert stretch[0] > 3 * stretch[1]
