@@ -366,3 +366,33 @@ def test_solve_chunks_writes_the_solved_samples_and_flags_the_failed_ones():
         solved = k in (0, 2, 5)
         np.testing.assert_array_equal(poses[k], dr_poses[k] + (1.0 if solved else 0.0))
         np.testing.assert_array_equal(cov[k], dr_cov[k] * (2.0 if solved else 1.0))
+
+
+@pytest.mark.parametrize(
+    "cov",
+    [
+        [[4.0, 0.0, 2.0], [0.0, 1.0, 0.0], [2.0, 0.0, 1.0]],  # x and heading perfectly correlated (singular)
+        [[1.0, 0.0, 0.0], [0.0, 4.0, 2.0], [0.0, 2.0, 1.0]],  # y and heading perfectly correlated (singular)
+        [[4.0, 2.5, 0.0], [2.5, 1.0, 0.0], [0.0, 0.0, -1.0]],  # two negative eigenvalues: det > 0, minor 2 < 0
+    ],
+)
+def test_prior_information_floors_what_only_one_minor_reveals(cov):
+    """Covariances whose first leading minor is positive but which are not clearly positive definite, each
+    revealed by one minor only (the determinant for the singular ones, the second minor for the indefinite
+    one, whose determinant is positive): W^T W is the floored inverse V diag(1 / max(lambda, 1e-12)) V^T of
+    the eigen-decomposition, not the plain inverse."""
+    cov = np.array(cov)
+    lam, vec = np.linalg.eigh(cov)
+    want = (vec / np.maximum(lam, 1e-12)) @ vec.T
+    np.testing.assert_allclose(_prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
+
+
+@pytest.mark.parametrize("method", ["paper", "joint"])
+def test_a_single_robot_is_dead_reckoning(method):
+    """n = 1: nobody can observe the only robot, so it is not localized (ok False) and keeps its dead
+    reckoning: 0.1 m along its heading 0."""
+    out = localize_batch(method, CFG, np.zeros((2, 1, 3)), np.broadcast_to(np.eye(3) * 1e-4, (2, 1, 3, 3)),
+                         np.array([[[0.0, 0.1]]] * 2), np.ones((2, 1), bool), np.zeros((2, 1, 1), bool),
+                         np.zeros((2, 1, 1)), np.zeros((2, 1, 1)))
+    assert out.ok.tolist() == [False, False]
+    np.testing.assert_allclose(out.poses[:, 0], [[0.1, 0.0, 0.0]] * 2, atol=1e-15)

@@ -732,3 +732,20 @@ def test_joint_topology_uses_the_huber_loss():
         topo = loc.topology(prior.ids, obs)
         stretch.append(abs(np.hypot(*(topo.positions[pair[1] - 20] - topo.positions[pair[0] - 20])) - truth))
     assert stretch[0] > 3 * stretch[1]
+
+
+@pytest.mark.parametrize(
+    "m",
+    [
+        [[4.0, 2.5, 0.0], [2.5, 1.0, 0.0], [0.0, 0.0, -1.0]],
+        [[1.0, 0.6, 0.0], [0.6, 0.25, 0.0], [0.0, 0.0, -1.0]],
+    ],
+)
+def test_psd_clips_two_negative_eigenvalues_that_only_the_second_minor_reveals(m):
+    """First leading minor positive, determinant positive (-1 x (a b - d^2) > 0), but the second minor
+    a b - d^2 is negative (4 - 6.25, 0.25 - 0.36): two negative eigenvalues. psd sets both to zero:
+    V diag(max(lambda, 0)) V^T."""
+    m = np.array(m)
+    lam, vec = np.linalg.eigh(m)
+    assert (lam < 0).sum() == 2 and np.linalg.det(m) > 0
+    np.testing.assert_allclose(psd(m), (vec * np.maximum(lam, 0.0)) @ vec.T, atol=1e-12)
