@@ -449,9 +449,19 @@ def test_robust_topology_leaves_a_gross_outlier_out_of_its_cluster():
     np.testing.assert_allclose(robust.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
     plain = estimate_topology(3, i, j, rho, phi, SENSING)
     assert np.linalg.norm(plain.positions[2] - [0.0, 2.0]) > 0.3
-    # The paper's localizer hands its ``huber`` to the topology.
+
+
+def test_the_paper_localizer_hands_its_huber_threshold_to_the_topology():
+    """The triangle with the gross outlier of the test above: ``PaperLocalizer(cfg, huber=0.05).topology`` is
+    ``estimate_topology(..., huber=0.05)``, near the truth (least squares is ~2/3 m off for r2)."""
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    pairs = [(a, b) for a in range(3) for b in range(3) if a != b]
+    i, j, rho, phi = _exact_observations(poses, pairs)
+    k = pairs.index((1, 2))
+    i, j, rho, phi = np.append(i, 1), np.append(j, 2), np.append(rho, rho[k] + 2.0), np.append(phi, phi[k])
     paper = PaperLocalizer(SENSING, huber=0.05).topology(np.arange(3), Observations(i, j, rho, phi))
-    np.testing.assert_allclose(paper.positions, robust.positions, atol=1e-12)
+    np.testing.assert_allclose(paper.positions, estimate_topology(3, i, j, rho, phi, SENSING, huber=0.05).positions, atol=1e-12)
+    np.testing.assert_allclose(paper.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
 
 
 def test_robust_topology_drops_an_outlier_beside_a_single_good_point():
