@@ -451,6 +451,47 @@ def test_robust_topology_leaves_a_gross_outlier_out_of_its_cluster():
     assert np.linalg.norm(plain.positions[2] - [0.0, 2.0]) > 0.3
 
 
+def test_the_paper_localizer_hands_its_huber_threshold_to_the_topology():
+    """The triangle with the gross outlier of the test above: ``PaperLocalizer(cfg, huber=0.05).topology`` is
+    ``estimate_topology(..., huber=0.05)``, near the truth (least squares is ~2/3 m off for r2)."""
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    pairs = [(a, b) for a in range(3) for b in range(3) if a != b]
+    i, j, rho, phi = _exact_observations(poses, pairs)
+    k = pairs.index((1, 2))
+    i, j, rho, phi = np.append(i, 1), np.append(j, 2), np.append(rho, rho[k] + 2.0), np.append(phi, phi[k])
+    paper = PaperLocalizer(SENSING, huber=0.05).topology(np.arange(3), Observations(i, j, rho, phi))
+    np.testing.assert_allclose(paper.positions, estimate_topology(3, i, j, rho, phi, SENSING, huber=0.05).positions, atol=1e-12)
+    np.testing.assert_allclose(paper.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
+
+
+def test_robust_topology_drops_an_outlier_beside_a_single_good_point():
+    """As above, but r0 does not observe r2: r2's cluster has one good point (from r1) and the outlier. The
+    outlier still leaves it (one inlier remains; only a robot with no inlier at all keeps its outliers), so
+    r2's topology position is the good point (0, 2), not the midpoint about 1 m away."""
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    pairs = [(a, b) for a in range(3) for b in range(3) if a != b and (a, b) != (0, 2)]
+    i, j, rho, phi = _exact_observations(poses, pairs)
+    k = pairs.index((1, 2))
+    i, j, rho, phi = np.append(i, 1), np.append(j, 2), np.append(rho, rho[k] + 2.0), np.append(phi, phi[k])
+    robust = estimate_topology(3, i, j, rho, phi, SENSING, huber=0.05)
+    np.testing.assert_allclose(robust.positions, [[0, 0], [2, 0], [0, 2]], atol=0.02)
+
+
+def test_topology_no_convergence_is_reported(monkeypatch):
+    """A solver allowed one iteration (no convergence test) does not converge: 'no-convergence', no robots
+    named, with the topology's message."""
+    import coordinator.localization.topology as topology_module
+
+    real = topology_module.levenberg_marquardt
+    monkeypatch.setattr(topology_module, "levenberg_marquardt",
+                        lambda *a, **kw: real(*a, **{**kw, "max_iter": 1, "xtol": 0.0, "ftol": 0.0}))
+    poses = np.array([[1.0, 1.0, HALF_PI], [1.0, 3.0, 0.0], [-1.0, 1.0, math.pi]])
+    i, j, rho, phi = _exact_observations(poses, [(a, b) for a in range(3) for b in range(3) if a != b])
+    with pytest.raises(LocalizationError) as err:
+        estimate_topology(3, i, j, rho + 0.05 * np.arange(len(rho)), phi, SENSING)
+    assert str(err.value) == "no-convergence: robots [] (topology least squares did not converge)"
+
+
 def test_crlb_known_answer_for_one_observation():
     """Robot 0 at (0, 0, 0) known almost exactly (prior variances 1e-10), robot 1 at (2, 0, 0.3) barely
     (prior variances 100); robot 0 measures robot 1 (s_r = 0.01 m, s_b = 0.02 rad).

@@ -544,3 +544,227 @@ def test_gauge_frame_projector_in_closed_form():
     np.testing.assert_array_equal(basis, gauge_basis(poses))
     np.testing.assert_allclose(proj, basis.T / np.array([[3.0], [3.0], [11.0]]), rtol=1e-15)
     np.testing.assert_allclose(proj @ basis, np.eye(3), atol=1e-15)
+
+
+def test_conditional_pose_covariances_of_sparse_and_singular_information(monkeypatch):
+    """Above EXACT_COV_LIMIT the blocks are read from a sparse information matrix as from a dense one (a
+    1000-robot step's is sparse); a zero information matrix has singular blocks: every covariance NaN."""
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 1)
+    layout = PoseLayout(np.ones(2, bool), np.array([True, False]))
+    info = np.linalg.inv(spd(5, 11))
+    want = np.zeros((2, 3, 3))
+    want[0] = np.linalg.inv(info[:3, :3])
+    want[1, :2, :2] = np.linalg.inv(info[3:, 3:])
+    np.testing.assert_allclose(pose_covariances(sp.csr_matrix(info), layout, 2), want, rtol=1e-9, atol=1e-15)
+    out = pose_covariances(np.zeros((5, 5)), layout, 2)
+    assert out.shape == (2, 3, 3) and np.isnan(out[0]).all() and np.isnan(out[1, :2, :2]).all()
+
+
+def outlier_case():
+    """Four robots (ids 20-23) observing each other, observation 0's range 0.3 m (30 sigma) too long: after
+    one iteration its whitened residual is still by far the largest."""
+    ids = np.arange(20, 24)
+    poses = np.array([[0.0, 0.0, 0.2], [0.3, 0.0, 1.5], [0.0, 0.3, -2.0], [0.3, 0.3, 3.0]])
+    prior = SwarmEstimate.isotropic(ids, poses, 0.02, 0.05)
+    obs = sense_swarm(poses, ids, CFG, robot_rngs(3, ids, Stream.SENSING))
+    bad = Observations(obs.observer, obs.observed, obs.range_m + np.where(np.arange(len(obs.range_m)) == 0, 0.3, 0.0),
+                       obs.bearing_rad)
+    return prior, StepCommands.stationary(ids), bad, sorted([int(obs.observer[0]), int(obs.observed[0])])
+
+
+def test_no_convergence_names_the_robots_of_the_worst_observation(monkeypatch):
+    """Solvers allowed a single iteration (and no convergence test) do not converge: the joint solve raises
+    'no-convergence' naming the two robots of the outlier observation, and so does the joint topology."""
+    prior, step, obs, pair = outlier_case()
+    real_min, real_lm = joint_module.minimize, joint_module.levenberg_marquardt
+    monkeypatch.setattr(joint_module, "minimize", lambda *a, **kw: real_min(*a, **{**kw, "max_iter": 1, "xtol": 0.0, "ftol": 0.0}))
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG).localize(prior, step, obs)
+    assert err.value.reason == "no-convergence" and err.value.robots == pair
+    assert str(err.value) == f"no-convergence: robots {pair} (joint least squares did not converge)"
+    monkeypatch.setattr(joint_module, "levenberg_marquardt", lambda *a, **kw: real_lm(*a, **{**kw, "max_iter": 1, "xtol": 0.0, "ftol": 0.0}))
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG).topology(prior.ids, obs)
+    assert str(err.value) == f"no-convergence: robots {pair} (joint topology did not converge)"
+
+
+def test_a_singular_information_matrix_names_its_robots(monkeypatch):
+    """If the inverse of the information matrix is NaN on robot 22's rows and columns (singular for it), the
+    joint solve raises 'degenerate' naming robot 22 only (the other robots' diagonal blocks are finite)."""
+    prior, step, obs, _ = outlier_case()
+    real = joint_module.inverse
+
+    def singular_for_robot_2(normal):
+        out = np.array(real(normal), dtype=float)
+        out[6:9, :] = out[:, 6:9] = np.nan
+        return out
+
+    monkeypatch.setattr(joint_module, "inverse", singular_for_robot_2)
+    with pytest.raises(LocalizationError) as err:
+        JointLocalizer(CFG, constrain_gauge=False).localize(prior, step, obs)
+    assert str(err.value) == "degenerate: robots [22] (the information matrix is singular for them)"
+
+
+def test_exactly_exact_cov_limit_robots_get_the_joint_covariance(monkeypatch):
+    """Up to and including EXACT_COV_LIMIT robots the joint covariance is returned: four robots at a limit of 4
+    give the same estimate as at the default limit."""
+    prior, step, obs = four_robots(2)
+    want = JointLocalizer(CFG).localize(prior, step, obs)
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 4)
+    got = JointLocalizer(CFG).localize(prior, step, obs)
+    assert got.joint is not None
+    np.testing.assert_array_equal(got.joint, want.joint)
+
+
+def test_localize_subset_takes_any_truth_values_as_keep():
+    """``keep`` as a list of 0/1 integers selects the same robots as the boolean mask."""
+    prior, step, obs = four_robots(4)
+    loc = JointLocalizer(CFG)
+    want = loc.localize_subset(prior, step, obs, np.array([True, True, True, False]))
+    got = loc.localize_subset(prior, step, obs, [1, 1, 1, 0])
+    np.testing.assert_array_equal(got.poses, want.poses)
+    np.testing.assert_array_equal(got.cov, want.cov)
+
+
+def test_joint_topology_uncertainties_are_those_of_the_information_matrix(monkeypatch):
+    """delta_p = sqrt(var x + var y) and the heading sigma sqrt(var theta) from the inverse of J^T J at the
+    solution (its free unknowns: all but the reference robot's pose); the reference robot gets 0 and 0."""
+    prior, _, obs = four_robots(5)
+    results, real = [], joint_module.levenberg_marquardt
+
+    def spy(*a, **kw):
+        results.append(real(*a, **kw))
+        return results[-1]
+
+    monkeypatch.setattr(joint_module, "levenberg_marquardt", spy)
+    topo = JointLocalizer(CFG).topology(prior.ids, obs)
+    assert topo.reference == 0
+    cov = np.linalg.inv(np.asarray(results[0].normal_matrix.toarray() if sp.issparse(results[0].normal_matrix)
+                                   else results[0].normal_matrix))  # unknowns (x, y, theta) of robots 1, 2, 3
+    var = np.diag(cov).reshape(3, 3)
+    np.testing.assert_allclose(topo.delta_p, np.r_[0.0, np.sqrt(var[:, 0] + var[:, 1])], rtol=1e-9)
+    np.testing.assert_allclose(topo.heading_sigma, np.r_[0.0, np.sqrt(var[:, 2])], rtol=1e-9)
+
+
+def test_the_gauge_constraint_is_on_by_default():
+    """``JointLocalizer(cfg)`` returns the observability-constrained update (constrain_gauge=True): its
+    covariance differs from the unconstrained (J^T J)^-1, its poses from the least-squares ones by the
+    constrained step (``gauge.constrained_solution``: small, well under a millimetre here)."""
+    prior, step, obs = four_robots(6)
+    default = JointLocalizer(CFG).localize(prior, step, obs)
+    on = JointLocalizer(CFG, constrain_gauge=True).localize(prior, step, obs)
+    off = JointLocalizer(CFG, constrain_gauge=False).localize(prior, step, obs)
+    np.testing.assert_array_equal(default.joint, on.joint)
+    np.testing.assert_array_equal(default.poses, on.poses)
+    assert 0 < np.abs(off.poses - on.poses).max() < 1e-3
+    assert np.abs(off.joint - on.joint).max() > 1e-3 * np.abs(on.joint).max()
+
+
+def test_psd_clips_a_matrix_whose_determinant_alone_reveals_it():
+    """M = [[1, t, t], [t, 1, -t], [t, -t, 1]], t = 0.55: both leading minors are positive (1, 0.6975) but
+    det M = 1 - 3 t^2 - 2 t^3 = -0.24 < 0 (every term of the determinant matters: dropping the sign of one
+    would call M positive definite). v = (1, -1, -1)/sqrt(3) has
+    M v = (1 - 2t) v = -0.1 v; the other eigenvalue is 1 + t = 1.55 (twice). psd(M) = M + 0.1 v v^T."""
+    t = 0.55
+    m = np.array([[1, t, t], [t, 1, -t], [t, -t, 1.0]])
+    v = np.array([1.0, -1.0, -1.0]) / math.sqrt(3)
+    np.testing.assert_allclose(m @ v, -0.1 * v, atol=1e-15)
+    np.testing.assert_allclose(psd(m), m + 0.1 * np.outer(v, v), atol=1e-12)
+
+
+def test_pose_covariances_at_exactly_the_limit_are_exact(monkeypatch):
+    """n_robots == EXACT_COV_LIMIT still gets the exact blocks of the inverse (not the conditional ones)."""
+    layout = PoseLayout(np.ones(2, bool), np.ones(2, bool))
+    info = np.linalg.inv(spd(6, 13))
+    monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 2)
+    full = np.linalg.inv(info)
+    want = np.stack([full[:3, :3], full[3:, 3:]])
+    np.testing.assert_allclose(pose_covariances(info, layout, 2), want, rtol=1e-9, atol=1e-15)
+
+
+def test_worst_observation_compares_squares_not_signed_values():
+    """Residual rows (-3, 0) and (2, 1): squares 9 and 5, so the first observation (robots 5 -> 7) is the worst,
+    though its residual is negative."""
+    rows = np.array([[-3.0, 0.0], [2.0, 1.0]])
+    assert worst_observation(rows, np.array([0, 1]), np.array([1, 2]), np.array([5, 7, 9])).tolist() == [5, 7]
+
+
+def nan_for_robot(k: int, real):
+    """Wrap ``real`` (returning (n, 3, 3) blocks or a (3n, 3n) joint covariance) to make robot k's entries NaN."""
+    def wrapped(*args, **kwargs):
+        out = np.array(real(*args, **kwargs), dtype=float)
+        if out.ndim == 3:
+            out[k] = np.nan
+        else:
+            out[3 * k : 3 * k + 3, :] = out[:, 3 * k : 3 * k + 3] = np.nan
+        return out
+    return wrapped
+
+
+def test_non_finite_covariances_are_named_on_every_path(monkeypatch):
+    """Whichever path yields the covariances, a non-finite block for robot 2 (id 22) raises 'degenerate'
+    naming it: the conditional blocks above EXACT_COV_LIMIT, the joint topology's blocks, and the final
+    joint covariance of ``localize_subset`` (after the gauge transport)."""
+    prior, step, obs, _ = outlier_case()
+    want = "degenerate: robots [22] (the information matrix is singular for them)"
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "EXACT_COV_LIMIT", 3)
+        m.setattr(joint_module, "pose_covariances", nan_for_robot(2, joint_module.pose_covariances))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).localize(prior, step, obs)
+        assert str(err.value) == want
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "pose_covariances", nan_for_robot(2, joint_module.pose_covariances))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).topology(prior.ids, obs)
+        assert str(err.value) == want
+    with monkeypatch.context() as m:
+        m.setattr(joint_module, "psd_joint", nan_for_robot(2, joint_module.psd_joint))
+        with pytest.raises(LocalizationError) as err:
+            JointLocalizer(CFG).localize(prior, step, obs)
+        assert str(err.value) == want
+
+
+def test_joint_topology_of_a_robot_that_observed_nobody():
+    """Robot 3 (id 13) observes nobody (others observe it): its position is solved, its heading is unknown
+    (NaN, sigma inf); the others' positions and headings are those of the swarm seen from robot 0."""
+    exact = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    ids = np.arange(10, 14)
+    poses = np.array([[0.1, 0.2, 0.7], [0.4, 0.2, 1.5], [0.1, 0.5, -2.0], [0.4, 0.5, 3.0]])
+    obs = sense_swarm(poses, ids, exact, robot_rngs(0, ids, Stream.SENSING))
+    obs = obs.select(obs.observer != 13)
+    topo = JointLocalizer(CFG).topology(ids, obs)
+    c, s = math.cos(-0.7), math.sin(-0.7)
+    rel = (poses[:, :2] - poses[0, :2]) @ np.array([[c, s], [-s, c]])
+    np.testing.assert_allclose(topo.positions, rel, atol=1e-9)
+    assert np.isnan(topo.headings[3]) and topo.heading_sigma[3] == np.inf
+    np.testing.assert_allclose(wrap_angle(topo.headings[:3] - (poses[:3, 2] - 0.7)), 0, atol=1e-9)
+
+
+def test_joint_topology_uses_the_huber_loss():
+    """With a 0.3 m (30 sigma) range outlier the Huber topology (1 sigma) keeps the outlier pair's distance
+    much closer to the truth than least squares does."""
+    prior, _, obs, pair = outlier_case()
+    truth = np.hypot(*(prior.poses[pair[1] - 20, :2] - prior.poses[pair[0] - 20, :2]))
+    stretch = []
+    for loc in (JointLocalizer(CFG), JointLocalizer(CFG, huber=1.0)):
+        topo = loc.topology(prior.ids, obs)
+        stretch.append(abs(np.hypot(*(topo.positions[pair[1] - 20] - topo.positions[pair[0] - 20])) - truth))
+    assert stretch[0] > 3 * stretch[1]
+
+
+@pytest.mark.parametrize(
+    "m",
+    [
+        [[4.0, 2.5, 0.0], [2.5, 1.0, 0.0], [0.0, 0.0, -1.0]],
+        [[1.0, 0.6, 0.0], [0.6, 0.25, 0.0], [0.0, 0.0, -1.0]],
+    ],
+)
+def test_psd_clips_two_negative_eigenvalues_that_only_the_second_minor_reveals(m):
+    """First leading minor positive, determinant positive (-1 x (a b - d^2) > 0), but the second minor
+    a b - d^2 is negative (4 - 6.25, 0.25 - 0.36): two negative eigenvalues. psd sets both to zero:
+    V diag(max(lambda, 0)) V^T."""
+    m = np.array(m)
+    lam, vec = np.linalg.eigh(m)
+    assert (lam < 0).sum() == 2 and np.linalg.det(m) > 0
+    np.testing.assert_allclose(psd(m), (vec * np.maximum(lam, 0.0)) @ vec.T, atol=1e-12)

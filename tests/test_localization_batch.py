@@ -9,10 +9,15 @@ import pytest
 
 import coordinator.localization.batch as batch_module
 import coordinator.localization.joint as joint_module
+import coordinator.localization.topology as topology_module
 from coordinator.localization.batch import localize_batch, observable, reference_localizer
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays
 from coordinator.localization.graph import require_observable
+from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.partial import localize_observable
+from coordinator.localization.range_bearing import sqrt_information
+from coordinator.localization.sparse_lm import PoseLayout
+from coordinator.localization.sparse_lm import dense as sparse_dense
 from runtime.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.geometry import transform_poses, wrap_angle
@@ -258,3 +263,154 @@ def test_bad_shapes_and_methods_are_rejected():
         localize_batch("kalman", cfg, poses, cov, commands, moving, seen, ranges, bearings)
     with pytest.raises(SwarmInputError, match="seen must have shape"):
         localize_batch("paper", cfg, poses, cov, commands, moving, seen[:, :4], ranges, bearings)
+
+
+# --------------------------------------------------------------------------------------------
+# The batch's least-squares problems against the single-swarm normal equations, term by term
+
+
+def lm_step(normal, gradient, mu: float, curvature=None) -> np.ndarray:
+    """``sparse_lm.minimize``'s step: (A + C + mu D) dx = -g, D = diag(A) floored at 1e-12, C = the curvature
+    floored at -0.9 D (only when given)."""
+    a = np.array(sparse_dense(normal), dtype=float)
+    diag = np.maximum(np.diag(a), 1e-12)
+    if curvature is not None:
+        a += np.diag(np.maximum(curvature, -0.9 * diag))
+    return np.linalg.solve(a + np.diag(mu * diag), -gradient)
+
+
+def batch_problem(monkeypatch, method: str, cfg: ModelConfig, arrays):
+    """The problem and start ``localize_batch`` hands its Levenberg-Marquardt (the first call)."""
+    seen, real = [], batch_module._levenberg_marquardt
+
+    def spy(problem, x0, xtol, ftol, ptol):
+        seen.append((problem, np.array(x0)))
+        return real(problem, x0, xtol, ftol, ptol)
+
+    monkeypatch.setattr(batch_module, "_levenberg_marquardt", spy)
+    out = localize_batch(method, cfg, *arrays)
+    assert out.ok.all()  # every sample in the one problem, in order
+    return seen[0]
+
+
+MUS = np.array([1e-8, 0.3, 2.0, 1e-3])  # per sample: damping that matters (and that does not)
+
+
+@pytest.mark.parametrize("seed", [1, 6])
+def test_topology_problem_is_the_single_swarm_one(monkeypatch, seed):
+    """The batch's Eq. B3 problem equals ``estimate_topology``'s at the start and at a perturbed point: the cost
+    0.5 |r|^2 and the damped step (J^T J + C + mu D) dx = -J^T r, with the clamped second-order heading term C
+    where ``curved`` and without it elsewhere. Unknowns the single-swarm layout holds fixed (the reference
+    robot's pose, the heading of robot 2 that observed nobody in sample 1) must not move."""
+    cfg = ModelConfig(dropout_prob=0.15)
+    batch = random_batch(6, 4, cfg, seed=seed)
+    problem, x0 = batch_problem(monkeypatch, "paper", cfg, batch.arrays())
+    closures, real = [], topology_module.levenberg_marquardt
+
+    def spy(residuals, x_start, **kw):
+        closures.append((residuals, kw["second_order"]))
+        return real(residuals, x_start, **kw)
+
+    monkeypatch.setattr(topology_module, "levenberg_marquardt", spy)
+    rng = np.random.default_rng(seed)
+    layouts = []
+    perturbed = x0 + 0.03 * rng.normal(size=x0.shape)
+    for k in range(4):
+        prior, step, obs = batch.single(k)
+        reference_localizer("paper", cfg).localize(prior, step, obs)
+        has_heading = np.bincount(obs.observer, minlength=6) > 0
+        assert has_heading[2] == (k != 1)
+        free = np.arange(6) != np.argmax(has_heading)
+        layout = PoseLayout(free, free & has_heading)
+        layouts.append(layout)
+        perturbed[k][layout.cols < 0] = x0[k][layout.cols < 0]
+    for x in (x0, perturbed):
+        st = problem.evaluate(x, 0)
+        for curved in (np.array([False, True, False, True]), np.array([True, False, True, False])):
+            dx, predicted = problem.step(st, MUS, curved)
+            for k, layout in enumerate(layouts):
+                residuals, second_order = closures[k]
+                vec = layout.pack(x[k])
+                r, jac = residuals(vec)
+                jac = sparse_dense(jac)
+                assert st["cost"][k] == pytest.approx(0.5 * r @ r, rel=1e-12)
+                curvature = second_order(vec, r) if curved[k] else None
+                want = layout.unpack(lm_step(jac.T @ jac, jac.T @ r, MUS[k], curvature), np.zeros((6, 3)))
+                np.testing.assert_allclose(dx[k], want, rtol=0, atol=1e-9 * np.abs(want).max())
+                # the step's predicted decrease -g.dx / 2 (sparse_lm.minimize's ptol)
+                assert predicted[k] == pytest.approx(-0.5 * (jac.T @ r) @ layout.pack(dx[k]), rel=1e-8)
+
+
+def test_joint_problem_is_the_single_swarm_one(monkeypatch):
+    """The batch's joint problem equals ``joint_normal.JointProblem``'s on the dead-reckoning prior at the start
+    and at a perturbed point: the cost, the damped step (J^T J + mu D) dx = -J^T r (positions and headings),
+    and the 3x3 blocks of (J^T J)^-1 (the covariances; above EXACT_COV_LIMIT those of each robot's own
+    information block). Sample 3 has exact priors (zero covariance, floored information 1e12)."""
+    cfg = ModelConfig(dropout_prob=0.15)
+    batch = random_batch(6, 4, cfg, seed=8)
+    arrays = batch.arrays()
+    problem, x0 = batch_problem(monkeypatch, "joint", cfg, arrays)
+    dr_poses, dr_cov = dead_reckon_arrays(*arrays[:4], cfg)
+    np.testing.assert_array_equal(x0, dr_poses)
+    singles = []
+    for k in range(4):
+        _, _, obs = batch.single(k)
+        singles.append(JointProblem(dr_poses[k], sqrt_information(dr_cov[k]), obs.observer, obs.observed,
+                                    obs.range_m, obs.bearing_rad, cfg))
+    perturbed = x0 + 0.03 * np.random.default_rng(2).normal(size=x0.shape)
+    for x in (x0, perturbed):
+        st = problem.evaluate(x, 0)
+        dx, predicted = problem.step(st, MUS, np.array([False, True, False, True]))
+        cov = batch_module._joint_covariances(*problem.normal(st))
+        monkeypatch.setattr(batch_module, "EXACT_COV_LIMIT", 4)
+        blocks = batch_module._joint_covariances(*problem.normal(st))
+        monkeypatch.undo()
+        for k, single in enumerate(singles):
+            ne = single.evaluate(x[k].ravel())
+            assert st["cost"][k] == pytest.approx(ne.cost, rel=1e-10)
+            want = lm_step(ne.normal, ne.gradient, MUS[k]).reshape(6, 3)
+            np.testing.assert_allclose(dx[k], want, rtol=0, atol=1e-8 * np.abs(want).max())
+            assert predicted[k] == pytest.approx(-0.5 * ne.gradient @ want.ravel(), rel=1e-8)
+            info = sparse_dense(ne.normal)
+            inv = np.linalg.inv(info)
+            for a in range(6):
+                sl = slice(3 * a, 3 * a + 3)
+                np.testing.assert_allclose(cov[k, a], inv[sl, sl], rtol=1e-7, atol=1e-9 * np.abs(inv[sl, sl]).max())
+                np.testing.assert_allclose(blocks[k, a], np.linalg.inv(info[sl, sl]), rtol=1e-7)
+
+
+def test_partial_localization_ignores_values_of_unseen_pairs():
+    """Nobody observes robot 4, and every unseen pair holds finite garbage (123 m, -7 rad): the batch's partial
+    localization of the joint method (its own solve with robot 4's observations removed) uses only the
+    observations among the other robots, as the runtime's ``localize_observable`` does."""
+    cfg = ModelConfig()
+    case = random_step(6, cfg, np.random.default_rng(3), spacing=0.2)
+    seen, ranges, bearings = dense(case.observations, 6)
+    seen[:, 4] = False
+    batch = Batch()
+    batch.add(case.prior, case.step, seen, np.where(seen, ranges, 123.0), np.where(seen, bearings, -7.0))
+    out = localize_batch("joint", cfg, *batch.arrays())
+    assert out.ok.tolist() == [False]
+    partial, excluded = localize_observable(reference_localizer("joint", cfg), *batch.single(0), cfg)
+    assert excluded == {4: "unobserved"}
+    assert_same_estimate(out.poses[0], out.cov[0], partial)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_the_two_evaluation_slots_coexist(monkeypatch, method):
+    """``evaluate(x, slot)`` keeps one state per slot (0 or 1): the Levenberg-Marquardt holds the current point's
+    state in one while it tries a step in the other. A state evaluated in slot 0 is unchanged by an evaluation
+    of another point in slot 1, and equals a fresh evaluation at its point."""
+    cfg = ModelConfig(dropout_prob=0.15)
+    batch = random_batch(6, 4, cfg, seed=1 if method == "paper" else 8)
+    problem, x0 = batch_problem(monkeypatch, method, cfg, batch.arrays())
+    perturbed = x0 + 0.03 * np.random.default_rng(0).normal(size=x0.shape)
+    first = problem.evaluate(x0, 0)
+    kept = {key: np.array(value) for key, value in first.items()}
+    other = problem.evaluate(perturbed, 1)
+    assert np.all(other["cost"] != kept["cost"])
+    for key, value in first.items():
+        np.testing.assert_array_equal(value, kept[key])
+    again = problem.evaluate(x0, 1)
+    for key, value in again.items():
+        np.testing.assert_array_equal(value, kept[key])

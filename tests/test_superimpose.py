@@ -83,3 +83,19 @@ def test_coincident_points_are_degenerate():
 
 def test_weights_follow_eq_22():
     np.testing.assert_allclose(fusion_weights(np.array([0.01, 0.0]), np.array([0.03, 0.0])), [25.0, 1e9])
+
+
+def test_a_spread_of_exactly_min_spread_is_degenerate():
+    """Two equally weighted points at (+-1e-6, 0) have the weighted spread 0.5 (1e-6)^2 + 0.5 (1e-6)^2 = 1e-12
+    m^2 (exact in floating point) = MIN_SPREAD: the rotation is undetermined and the error says so. At
+    (+-2e-6, 0) (spread 4e-12) the pair defines the rotation: 90 degrees onto (0, +-2e-6)."""
+    from coordinator.localization.superimpose import MIN_SPREAD, weighted_procrustes
+
+    p = np.array([[1e-6, 0.0], [-1e-6, 0.0]])
+    assert weighted_procrustes(p, p, np.ones(2))[2] == MIN_SPREAD == 1e-12
+    with pytest.raises(LocalizationError) as err:
+        superimpose(p, p, np.ones(2))
+    assert str(err.value) == "degenerate: robots [] (all topology points coincide: rotation is undetermined)"
+    theta, t = superimpose(2 * p, np.array([[0.0, 2e-6], [0.0, -2e-6]]), np.ones(2))
+    assert theta == pytest.approx(np.pi / 2, abs=1e-9)
+    np.testing.assert_allclose(t, 0.0, atol=1e-15)
