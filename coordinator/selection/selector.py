@@ -60,7 +60,7 @@ class SelectionConfig:
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
     final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
-    contenders: int = 4  # best distinct plans of the genetic search that enter the race
+    contenders: int = 8  # best distinct plans of the genetic search that enter the race
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
