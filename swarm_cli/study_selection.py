@@ -82,7 +82,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
-    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for  # noqa: PLC0415
+    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for, search_samples  # noqa: PLC0415
     job, selection, budget = args
     n = job.robots
     rng, start, desired, estimate, _ = experiment_setup(job)
@@ -105,7 +105,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
             searched = forced.select(estimate, desired).plan
         except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
-        screen_samples = samples_for(selection.samples, n)
+        screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
         screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)))
         raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)

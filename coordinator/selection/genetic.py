@@ -3,17 +3,20 @@
 A candidate is a permutation of the robots cut into the plan's consecutive mobile
 groups. Order crossover (OX1) of two permutations is again a permutation, and a
 mutation swaps two robots of different groups, so every child is a valid partition.
-The population is seeded with the heuristic plan (Eq. 11-13) and distinct single swaps of
-it (two robots of different groups exchanged; random plans only when it has fewer swaps
-than the population has room for): measured with ``swarm study selection`` the optimum
-is mostly near the heuristic plan, and random permutations of a large plan space
-(2520 plans at n_r = 8, n_a = 6) rarely reach it in the budget (``docs/selection.md``);
+The population is seeded with the heuristic plan (Eq. 11-13) and random plans; when the
+count has more plans than the search can visit (``population`` x (``generations`` + 1)),
+the first generation also holds ``swaps`` distinct single swaps of the heuristic plan
+(two robots of different groups exchanged): random permutations of a large plan space
+(2520 plans at n_r = 8, n_a = 6) rarely come near the optimum, which is mostly near the
+heuristic plan, while in a small one they cover most of it and the swaps only narrow the
+search (measurements in ``docs/selection.md``);
 the fitness is the Monte Carlo e_l on common random numbers, evaluated once per
 distinct partition (cached) and for a whole generation in one vectorised batch.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -29,6 +32,16 @@ class GeneticConfig:
     patience: int = 3  # generations without improvement before stopping
     elite: int = 2
     mutation: float = 0.4  # probability that a child gets one swap
+    swaps: int = 6  # single swaps of the seed added to the first generation of a large plan space (``covers``)
+
+    def covers(self, plans: int) -> bool:
+        """Whether the search can visit ``plans`` plans (then no swaps are added)."""
+        return plans <= self.population * (self.generations + 1)
+
+
+def plan_count(sizes: tuple[int, ...]) -> int:
+    """Ordered partitions of sum(sizes) robots into groups of these sizes (Eq. 10 for equal groups)."""
+    return math.factorial(sum(sizes)) // math.prod(math.factorial(s) for s in sizes)
 
 
 def order_crossover(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -104,9 +117,10 @@ def genetic_search(
         return np.array([cache[p.key()] for p in plans])
 
     population = list(seeds)
-    population += single_swaps(seeds[0], cfg.population - len(population), rng)
     while len(population) < cfg.population:
         population.append(Plan(rng.permutation(n), sizes))
+    if not cfg.covers(plan_count(sizes)):
+        population += single_swaps(seeds[0], cfg.swaps, rng)
     fitness = score(population)
     best, stale = float(np.min(fitness)), 0
     for _ in range(cfg.generations):
