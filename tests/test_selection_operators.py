@@ -16,7 +16,7 @@ import pytest
 
 from coordinator.plan import Plan
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
-from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
+from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, plan_count, single_swaps, swap_mutation
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from runtime.config import ModelConfig
 from runtime.state import SwarmEstimate
@@ -200,20 +200,29 @@ def test_single_swaps_are_distinct_neighbours_and_all_of_them_when_there_is_room
     assert [p.key() for p in some] == [p.key() for p in single_swaps(plan, 11, np.random.default_rng(1))]  # deterministic
 
 
-def test_initial_population_is_the_seed_and_its_single_swaps():
-    """The first batch evaluated is the seed and population - 1 distinct single swaps of it (no random
-    permutation while the seed has more swaps than the population has room for)."""
-    seed = Plan.equal(np.arange(8), 6)
+def first_generation(seed: Plan, cfg: GeneticConfig) -> list[Plan]:
     batches = []
 
     def evaluate(plans):
         batches.append(list(plans))
         return np.ones(len(plans))
 
-    genetic_search(evaluate, [seed], lambda p: True, np.random.default_rng(4), GeneticConfig(generations=0))
-    first = batches[0]
-    assert len(first) == 12 and first[0].key() == seed.key()
-    assert len({p.key() for p in first}) == 12 and all(swapped_pair(seed, p) for p in first[1:])
+    genetic_search(evaluate, [seed], lambda p: True, np.random.default_rng(4), cfg)
+    return batches[0]
+
+
+def test_first_generation_adds_single_swaps_of_the_seed_only_in_a_large_plan_space():
+    """2520 plans (8 robots, n_a = 6) are more than population x (generations + 1) = 12 x 9 = 108: the
+    first generation is the seed, 11 random plans and 6 distinct single swaps of the seed. 70 plans
+    (n_a = 4) are fewer: the seed and 11 random plans only, as before (at most 12 distinct plans)."""
+    large = Plan.equal(np.arange(8), 6)
+    cfg = GeneticConfig()
+    assert plan_count(large.sizes) == 2520 and not cfg.covers(2520) and cfg.covers(70)
+    first = first_generation(large, cfg)
+    assert len(first) == 18 and first[0].key() == large.key()
+    assert len({p.key() for p in first[12:]}) == 6 and all(swapped_pair(large, p) for p in first[12:])
+    small = Plan.equal(np.arange(8), 4)
+    assert plan_count(small.sizes) == 70 and len(first_generation(small, cfg)) <= 12  # distinct plans evaluated
 
 
 def needle(seed: Plan, target: Plan):
@@ -223,19 +232,21 @@ def needle(seed: Plan, target: Plan):
 
 def test_a_needle_one_swap_from_the_seed_is_found_in_a_large_plan_space():
     """2520 plans (8 robots, n_a = 6) and one good plan, a single swap away from the seed (the heuristic
-    plan): with room for the seed's 24 swaps (population 25) the search finds it for every seed. Seeding
-    with random permutations instead found it for 11 of 50 seeds (by mutating copies of the seed), with the
-    default population 12 as with 25; with 11 of the 24 swaps (population 12) it is found for 26 of 50."""
+    plan). With all 24 swaps in the first generation the search finds it for every random seed; with the
+    default 6 it is found for 22 of 50 seeds; without swaps (random plans only, the search before this
+    rule) for 12 of 50 (by mutating copies of the seed)."""
     seed = Plan.equal(np.arange(8), 6)
     order = seed.order.copy()
     order[0], order[7] = order[7], order[0]
     target = Plan(order, seed.sizes)
-    for s in range(10):
-        plan, e_l, _ = genetic_search(needle(seed, target), [seed], lambda p: True, np.random.default_rng(s), GeneticConfig(population=25))
-        assert plan.key() == target.key() and e_l == 0.0
-    found = [genetic_search(needle(seed, target), [seed], lambda p: True, np.random.default_rng(s), GeneticConfig())[0].key() == target.key()
-             for s in range(50)]
-    assert sum(found) >= 20
+
+    def found(cfg: GeneticConfig, s: int) -> bool:
+        plan, e_l, _ = genetic_search(needle(seed, target), [seed], lambda p: True, np.random.default_rng(s), cfg)
+        return plan.key() == target.key() and e_l == 0.0
+
+    assert all(found(GeneticConfig(swaps=24), s) for s in range(10))
+    assert sum(found(GeneticConfig(), s) for s in range(50)) >= 18
+    assert sum(found(GeneticConfig(swaps=0), s) for s in range(50)) <= 15
 
 
 # ---------------------------------------------------------------------------------------------
