@@ -10,8 +10,8 @@ independent Monte Carlo sets (common random numbers within each):
 2. the shortlist on ``--pick-samples`` fresh samples -> the optimum,
 3. the optimum, the heuristic plan (Eq. 11-13), the plan of the online search
    (``AnchorSelector`` restricted to that n_a: genetic search, race, final check), the
-   raw genetic search (its best plan by the screening samples alone, the search before
-   the race and final check) and a random connected plan, all on ``--eval-samples``
+   raw genetic search (its best plan by its own samples alone, ``search_samples`` of
+   them, the search before the race and final check) and a random connected plan, all on ``--eval-samples``
    fresh samples: the ratios to the optimum come from this set only, so no ratio is
    biased by a choice made on the same draws.
 

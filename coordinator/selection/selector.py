@@ -15,7 +15,8 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
    best screened P_s (every count whose P_s could win is searched, Section 4.2.1).
 3. Inner loop of every surviving count: the genetic search on the screening samples
-   (more of them for a count with more than 252 plans, ``search_samples``), then a race (successive halving on fresh samples) among its ``contenders`` best
+   (more of them for a count with more than 252 plans, ``search_samples``), then a race
+   (successive halving on fresh samples) among its ``contenders`` best
    distinct plans, then the race winner and the heuristic seed on one more fresh set
    (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
