@@ -10,8 +10,8 @@ independent Monte Carlo sets (common random numbers within each):
 2. the shortlist on ``--pick-samples`` fresh samples -> the optimum,
 3. the optimum, the heuristic plan (Eq. 11-13), the plan of the online search
    (``AnchorSelector`` restricted to that n_a: genetic search, race, final check), the
-   raw genetic search (its best plan by the screening samples alone, the search before
-   the race and final check) and a random connected plan, all on ``--eval-samples``
+   raw genetic search (its best plan by its own samples alone, ``search_samples`` of
+   them, the search before the race and final check) and a random connected plan, all on ``--eval-samples``
    fresh samples: the ratios to the optimum come from this set only, so no ratio is
    biased by a choice made on the same draws.
 
@@ -82,7 +82,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
-    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for  # noqa: PLC0415
+    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for, search_samples  # noqa: PLC0415
     job, selection, budget = args
     n = job.robots
     rng, start, desired, estimate, _ = experiment_setup(job)
@@ -105,7 +105,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
             searched = forced.select(estimate, desired).plan
         except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
-        screen_samples = samples_for(selection.samples, n)
+        screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
         screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)))
         raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)

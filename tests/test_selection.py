@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts
+from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, SelectionConfig
+from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, SelectionConfig, samples_for, search_samples
 from runtime.config import ModelConfig
 from runtime.state import SwarmEstimate
 from runtime.trajectory import random_trajectory
@@ -193,3 +193,30 @@ def test_counts_that_cannot_win_are_not_searched():
     assert speed_only.evaluations == len(feasible_anchor_counts(8)) and speed_only.fresh_seed is None
     accuracy_only = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=0.0, w_l=1.0), seed=1).select(estimate, desired)
     assert all(s.searched for s in accuracy_only.scores if s.n_anchors > 0)
+
+
+def test_search_samples_grow_with_the_log_of_the_plan_space():
+    """S x ln(plans) / ln(252), between 1x and 2x: n_r = 8 (S = 20): n_a = 4 (70 plans) 20, n_a = 6 (2520) 29,
+    n_a = 7 (40320) 39; n_r = 10 (S = 16): n_a = 5 (252) 16, n_a = 8 (113400) and 9 (10!) capped at 32."""
+    assert [search_samples(20, n_solutions(8, k)) for k in (4, 6, 7)] == [20, 29, 39]
+    assert [search_samples(16, n_solutions(10, k)) for k in (5, 8, 9)] == [16, 32, 32]
+
+
+def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
+    """n_r = 8, n_a = 6 (2520 plans), S = samples_for(4, 8) = 5: screening on 5 samples, the genetic search and
+    the race on search_samples(5, 2520) = 8 (race rounds 8, 16, 32), the final check on samples_for(256, 8) = 320."""
+    import coordinator.selection.selector as selector  # noqa: PLC0415
+
+    sizes = []
+
+    class Recording(MonteCarlo):
+        def localization_errors(self, *args, **kwargs):
+            sizes.append(self.samples)
+            return super().localization_errors(*args, **kwargs)
+
+    monkeypatch.setattr(selector, "MonteCarlo", Recording)
+    estimate, desired = step_problem(8, 2)
+    config = SelectionConfig(samples=4, anchor_counts=(6,), genetic=GeneticConfig(generations=2))
+    selection = AnchorSelector(ModelConfig(), "paper", config, seed=1).select(estimate, desired)
+    assert selection.scores[0].searched and samples_for(4, 8) == 5 and search_samples(5, 2520) == 8
+    assert set(sizes) == {5, 8, 16, 32, 320} and sizes[:2] == [5, 5] and sizes[2] == 8

@@ -3,13 +3,20 @@
 A candidate is a permutation of the robots cut into the plan's consecutive mobile
 groups. Order crossover (OX1) of two permutations is again a permutation, and a
 mutation swaps two robots of different groups, so every child is a valid partition.
-The population is seeded with the heuristic plan (Eq. 11-13) and random plans;
+The population is seeded with the heuristic plan (Eq. 11-13) and random plans; when the
+count has more plans than the search can visit (``population`` x (``generations`` + 1)),
+the first generation also holds ``swaps`` distinct single swaps of the heuristic plan
+(two robots of different groups exchanged): random permutations of a large plan space
+(2520 plans at n_r = 8, n_a = 6) rarely come near the optimum, which is mostly near the
+heuristic plan, while in a small one they cover most of it and the swaps only narrow the
+search (measurements in ``docs/selection.md``);
 the fitness is the Monte Carlo e_l on common random numbers, evaluated once per
 distinct partition (cached) and for a whole generation in one vectorised batch.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,6 +32,16 @@ class GeneticConfig:
     patience: int = 3  # generations without improvement before stopping
     elite: int = 2
     mutation: float = 0.4  # probability that a child gets one swap
+    swaps: int = 6  # single swaps of the seed added to the first generation of a large plan space (``covers``)
+
+    def covers(self, plans: int) -> bool:
+        """Whether the search can visit ``plans`` plans (then no swaps are added)."""
+        return plans <= self.population * (self.generations + 1)
+
+
+def plan_count(sizes: tuple[int, ...]) -> int:
+    """Ordered partitions of sum(sizes) robots into groups of these sizes (Eq. 10 for equal groups)."""
+    return math.factorial(sum(sizes)) // math.prod(math.factorial(s) for s in sizes)
 
 
 def order_crossover(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -47,6 +64,20 @@ def swap_mutation(order: np.ndarray, sizes: tuple[int, ...], rng: np.random.Gene
     j = int(rng.choice(np.flatnonzero(group_of != group_of[i])))
     out = order.copy()
     out[i], out[j] = out[j], out[i]
+    return out
+
+
+def single_swaps(plan: Plan, count: int, rng: np.random.Generator) -> list[Plan]:
+    """Up to ``count`` distinct plans that each swap two robots of different groups of ``plan``
+    (all of them, in random order, when there are at most ``count``)."""
+    group_of = np.repeat(np.arange(len(plan.sizes)), plan.sizes)
+    i, j = np.triu_indices(len(plan.order), 1)
+    pairs = np.flatnonzero(group_of[i] != group_of[j])  # different groups: a different partition
+    out = []
+    for k in rng.permutation(pairs)[:count]:
+        order = plan.order.copy()
+        order[i[k]], order[j[k]] = order[j[k]], order[i[k]]
+        out.append(Plan(order, plan.sizes))
     return out
 
 
@@ -88,6 +119,8 @@ def genetic_search(
     population = list(seeds)
     while len(population) < cfg.population:
         population.append(Plan(rng.permutation(n), sizes))
+    if not cfg.covers(plan_count(sizes)):
+        population += single_swaps(seeds[0], cfg.swaps, rng)
     fitness = score(population)
     best, stale = float(np.min(fitness)), 0
     for _ in range(cfg.generations):

@@ -14,8 +14,9 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
    best screened P_s (every count whose P_s could win is searched, Section 4.2.1).
-3. Inner loop of every surviving count: the genetic search on the screening samples,
-   then a race (successive halving on fresh samples) among its ``contenders`` best
+3. Inner loop of every surviving count: the genetic search on the screening samples
+   (more of them for a count with more than 252 plans, ``search_samples``), then a race
+   (successive halving on fresh samples) among its ``contenders`` best
    distinct plans, then the race winner and the heuristic seed on one more fresh set
    (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
@@ -28,11 +29,13 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import partial
 
 import numpy as np
 
-from coordinator.plan import Plan, feasible_anchor_counts, n_steps, speed_performance
+from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -60,7 +63,7 @@ class SelectionConfig:
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
     final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
-    contenders: int = 4  # best distinct plans of the genetic search that enter the race
+    contenders: int = 8  # best distinct plans of the genetic search that enter the race
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
@@ -90,6 +93,23 @@ def samples_for(samples: int, n_robots: int) -> int:
     comparison between plans while a 100-robot selection stays affordable.
     """
     return max(2, -(-samples * 10 // n_robots))
+
+
+REFERENCE_PLANS = 252  # plans of n_a = 5 at n_r = 10: counts with more get more search samples
+MAX_SEARCH_SCALE = 2.0  # at most twice the screening samples
+
+
+def search_samples(samples: int, plans: int) -> int:
+    """Monte Carlo samples of the genetic search and race of a count with ``plans`` plans (Eq. 10).
+
+    ``samples`` (the screening samples) x ln(plans) / ln(``REFERENCE_PLANS``), between 1x and
+    ``MAX_SEARCH_SCALE`` x. The best of N noisy estimates is biased low by about
+    sqrt(2 ln N) standard errors (the winner's curse) and the standard error falls like
+    1 / sqrt(samples), so samples growing like ln N keep that bias from growing with the plan
+    space. n_r = 8: n_a = 4 (70 plans) keeps 20, n_a = 6 (2520) gets 29, n_a = 7 (40320) 39.
+    """
+    scale = min(MAX_SEARCH_SCALE, max(1.0, math.log(plans) / math.log(REFERENCE_PLANS)))
+    return math.ceil(samples * scale - 1e-9)
 
 
 @dataclass(frozen=True)
@@ -191,14 +211,18 @@ class AnchorSelector:
         e_max_final = None
         for n_a in searched:  # 3. inner loop, race and final fresh check of every count that could win
             known = {seeds[n_a].key(): scores[n_a].e_l} if scores[n_a].plan is not None else {}
-            plan, e_l, k = genetic_search(evaluate, [seeds[n_a]], feasible, rng, sel.genetic, known)
+            count_samples = samples if sel.method == "crlb" else search_samples(samples, n_solutions(n, n_a))
+            search = evaluate
+            if count_samples != samples:  # a large plan space: more samples (the seed's screened e_l is not on them)
+                known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
+            plan, e_l, k = genetic_search(search, [seeds[n_a]], feasible, rng, sel.genetic, known)
             evaluations += k
             if plan is None:
                 continue
             if sel.method == "crlb":  # elitism: never above the seed's prediction
                 scores[n_a] = score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True)
                 continue
-            champion, spent = race(best_distinct(known, sel.contenders), sampled, samples, rng)
+            champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
             if e_max_final is None:
                 e_max_final = float(sampled([all_move], final_samples, final_seed)[0])
             if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
