@@ -53,13 +53,9 @@ def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None) -> np.ndarr
     return basis.reshape(3 * n, 3)
 
 
-def _projector(basis: np.ndarray) -> np.ndarray:
-    """(N^T N)^-1 N^T (3, 3n): coordinates along ``basis`` of a state vector."""
-    return np.linalg.solve(basis.T @ basis, basis.T)
-
-
 def gauge_frame(predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, (N^T N)^-1 N^T) at the predicted poses (n, 3), rotation about their centroid: what
+    """(N, Pi = (N^T N)^-1 N^T) at the predicted poses (n, 3), rotation about their centroid (Pi gives the
+    coordinates along N of a state vector): what
     ``constrained_covariance`` and ``transport`` of one update share (computed once per step)."""
     basis = gauge_basis(predicted)
     # About the centroid the offsets c_i sum to zero, so N^T N = diag(n, n, n + sum |c_i|^2): no solve.
@@ -87,7 +83,7 @@ def constrained_covariance(
     # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
     u = np.hstack([sn, proj.T])
     v = np.vstack([-proj, (basis.T @ sn) @ proj - sn.T])
-    info = np.array(dense(normal), dtype=float, copy=True)
+    info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # one fresh copy
     info += u @ v
     return inverse(info)
 
