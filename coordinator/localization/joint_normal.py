@@ -101,66 +101,64 @@ class JointProblem:
         self._upper = sp.csc_matrix((np.zeros(len(self._lower_at)), self._indices[lower], lower_indptr), shape=(size, size))
         self._ldl = SparseLDL()
 
+    def _difference(self, x: np.ndarray) -> np.ndarray:
+        """p - mu (n, 3) at ``x``, heading differences wrapped."""
+        diff = x.reshape(self.n, 3) - self.mean
+        diff[:, 2] = wrap_angle(diff[:, 2])
+        return diff
+
+    def _prior(self, diff: np.ndarray, information: bool = True) -> tuple[float, np.ndarray, np.ndarray | None]:
+        """Cost, gradient (3n,) and Huber-weighted information of the prior terms at p - mu = ``diff``.
+
+        The information is None where it is the constant ``prior_info`` (no Huber loss) or not asked
+        for; else (3n, 3n) for a joint prior, (n, 3, 3) per robot.
+        """
+        w = self.sqrt_info
+        if self.joint_prior:
+            r_p = w @ diff.ravel()
+            w_p, cost = huber_weights(r_p, self.huber)
+            if w_p is None:
+                return cost, w.T @ r_p, None
+            return cost, w.T @ (w_p * r_p), w.T @ (w_p[:, None] * w) if information else None
+        if self.huber is None:  # constant information: gradient P^-1 (p - mu), cost (p - mu) . P^-1 (p - mu) / 2
+            gradient = np.matmul(self.prior_info, diff[:, :, None]).ravel()
+            return 0.5 * float(diff.ravel() @ gradient), gradient, None
+        r_p = np.einsum("nab,nb->na", w, diff)
+        w_p, cost = huber_weights(r_p, self.huber)
+        gradient = np.einsum("nba,nb->na", w, w_p * r_p).ravel()
+        return cost, gradient, np.swapaxes(w, -1, -2) @ (w_p[:, :, None] * w) if information else None
+
     def residuals(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Whitened prior residuals (3n,) and observation residuals (m, 2) at ``x``."""
-        poses = x.reshape(self.n, 3)
-        diff = poses - self.mean
-        diff[:, 2] = wrap_angle(diff[:, 2])
+        diff = self._difference(x)
         if self.joint_prior:
             prior = self.sqrt_info @ diff.ravel()
         else:
             prior = np.einsum("nab,nb->na", self.sqrt_info, diff).ravel()
-        obs, _ = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
+        obs, _ = observation_blocks(x.reshape(self.n, 3), *self.obs, self.cfg, self.w_b)
         return prior, obs
 
     def prior_gradient(self, x: np.ndarray) -> np.ndarray:
         """The prior's share of the gradient J^T r at ``x`` (3n,): P^-1 (x - mu), Huber-weighted like ``evaluate``."""
-        diff = x.reshape(self.n, 3) - self.mean
-        diff[:, 2] = wrap_angle(diff[:, 2])
-        if self.joint_prior:
-            r_p = self.sqrt_info @ diff.ravel()
-            w_p, _ = huber_weights(r_p, self.huber)
-            return self.sqrt_info.T @ (r_p if w_p is None else w_p * r_p)
-        r_p = np.einsum("nab,nb->na", self.sqrt_info, diff)
-        w_p, _ = huber_weights(r_p, self.huber)
-        return np.einsum("nba,nb->na", self.sqrt_info, r_p if w_p is None else w_p * r_p).ravel()
+        return self._prior(self._difference(x), information=False)[1]
 
     def evaluate(self, x: np.ndarray) -> NormalEquations:
         """Cost, J^T J and J^T r at ``x`` (``sparse_lm.minimize``'s callback)."""
         poses = x.reshape(self.n, 3)
-        diff = poses - self.mean
-        diff[:, 2] = wrap_angle(diff[:, 2])
         res, jac = observation_blocks(poses, *self.obs, self.cfg, self.w_b)
         w_obs, cost_obs = huber_weights(res, self.huber)
         wj = jac if w_obs is None else jac * w_obs[:, :, None]
         blocks = np.multiply(wj[:, 0, :, None], jac[:, 0, None, :])  # (m, 5, 5): range, then bearing outer products
         blocks += wj[:, 1, :, None] * jac[:, 1, None, :]
         g5 = wj[:, 0] * res[:, :1] + wj[:, 1] * res[:, 1:]
-        if self.joint_prior:
-            r_p = self.sqrt_info @ diff.ravel()
-            w_p, cost_p = huber_weights(r_p, self.huber)
-            info = self.prior_info if w_p is None else self.sqrt_info.T @ (w_p[:, None] * self.sqrt_info)
-            g_prior = self.sqrt_info.T @ (r_p if w_p is None else w_p * r_p)
-            prior_vals = None
-        elif self.huber is None:  # constant information: gradient P^-1 (p - mu), cost (p - mu) . P^-1 (p - mu) / 2
-            g_prior = np.matmul(self.prior_info, diff[:, :, None]).ravel()
-            cost_p = 0.5 * float(diff.ravel() @ g_prior)
-            prior_vals = None
-        else:
-            r_p = np.einsum("nab,nb->na", self.sqrt_info, diff)
-            w_p, cost_p = huber_weights(r_p, self.huber)
-            info = np.swapaxes(self.sqrt_info, -1, -2) @ (w_p[:, :, None] * self.sqrt_info)
-            g_prior = np.einsum("nba,nb->na", self.sqrt_info, w_p * r_p).ravel()
-            prior_vals = info.ravel()
+        cost_p, g_prior, info = self._prior(self._difference(x))
         data = np.bincount(self._obs_pos, weights=blocks.ravel(), minlength=self._nnz)
-        if prior_vals is not None:
-            data += np.bincount(self._prior_pos, weights=prior_vals, minlength=self._nnz)
-        elif not self.joint_prior:
-            data += self._prior_data
+        if not self.joint_prior:
+            data += self._prior_data if info is None else np.bincount(self._prior_pos, weights=info.ravel(), minlength=self._nnz)
         if self.dense:
             normal = data.reshape(self.size, self.size)
             if self.joint_prior:
-                normal += info
+                normal += self.prior_info if info is None else info
         else:
             normal = sp.csr_matrix((data, self._indices, self._indptr), shape=(self.size, self.size))
         gradient = np.bincount(self.cols5.ravel(), weights=g5.ravel(), minlength=self.size) + g_prior
