@@ -38,10 +38,15 @@ def speed_performance(n_robots: int, n_anchors: int) -> float:
     return 1.0 / n_steps(n_robots, n_anchors)
 
 
+def n_partitions(sizes: tuple[int, ...]) -> int:
+    """Ordered partitions of sum(sizes) robots into consecutive groups of these sizes:
+    (sum sizes)! / prod(size!)."""
+    return math.factorial(sum(sizes)) // math.prod(math.factorial(s) for s in sizes)
+
+
 def n_solutions(n_robots: int, n_anchors: int) -> int:
-    """Number of ordered partitions the inner loop searches (Eq. 10)."""
-    n_m = n_robots - n_anchors
-    return math.prod(math.comb(n_robots - k * n_m, n_m) for k in range(n_steps(n_robots, n_anchors)))
+    """Number of ordered partitions the inner loop searches (Eq. 10): n_s groups of n_m = n_r - n_a robots."""
+    return n_partitions((n_robots - n_anchors,) * n_steps(n_robots, n_anchors))
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,9 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.plan import Plan
+from coordinator.plan import Plan, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
-from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, plan_count, single_swaps, swap_mutation
+from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from runtime.config import ModelConfig
 from runtime.state import SwarmEstimate
@@ -217,12 +217,12 @@ def test_first_generation_adds_single_swaps_of_the_seed_only_in_a_large_plan_spa
     (n_a = 4) are fewer: the seed and 11 random plans only, as before (at most 12 distinct plans)."""
     large = Plan.equal(np.arange(8), 6)
     cfg = GeneticConfig()
-    assert plan_count(large.sizes) == 2520 and not cfg.covers(2520) and cfg.covers(70)
+    assert n_partitions(large.sizes) == 2520 and not cfg.covers(2520) and cfg.covers(70)
     first = first_generation(large, cfg)
     assert len(first) == 18 and first[0].key() == large.key()
     assert len({p.key() for p in first[12:]}) == 6 and all(swapped_pair(large, p) for p in first[12:])
     small = Plan.equal(np.arange(8), 4)
-    assert plan_count(small.sizes) == 70 and len(first_generation(small, cfg)) <= 12  # distinct plans evaluated
+    assert n_partitions(small.sizes) == 70 and len(first_generation(small, cfg)) <= 12  # distinct plans evaluated
 
 
 def needle(seed: Plan, target: Plan):

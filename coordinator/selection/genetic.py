@@ -16,13 +16,12 @@ distinct partition (cached) and for a whole generation in one vectorised batch.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from coordinator.plan import Plan
+from coordinator.plan import Plan, n_partitions
 
 
 @dataclass(frozen=True)
@@ -37,11 +36,6 @@ class GeneticConfig:
     def covers(self, plans: int) -> bool:
         """Whether the search can visit ``plans`` plans (then no swaps are added)."""
         return plans <= self.population * (self.generations + 1)
-
-
-def plan_count(sizes: tuple[int, ...]) -> int:
-    """Ordered partitions of sum(sizes) robots into groups of these sizes (Eq. 10 for equal groups)."""
-    return math.factorial(sum(sizes)) // math.prod(math.factorial(s) for s in sizes)
 
 
 def order_crossover(a: np.ndarray, b: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -119,7 +113,7 @@ def genetic_search(
     population = list(seeds)
     while len(population) < cfg.population:
         population.append(Plan(rng.permutation(n), sizes))
-    if not cfg.covers(plan_count(sizes)):
+    if not cfg.covers(n_partitions(sizes)):
         population += single_swaps(seeds[0], cfg.swaps, rng)
     fitness = score(population)
     best, stale = float(np.min(fitness)), 0
