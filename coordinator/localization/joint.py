@@ -232,6 +232,7 @@ class JointLocalizer:
         if not exact:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
+            frame = gauge_frame(mean) if frame is None else frame  # shared by the covariance and the estimate
             cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean, frame)
             poses = constrained_solution(poses, mean, cov, problem.prior_gradient(result.x), frame)
         else:
