@@ -1,6 +1,6 @@
 """The swarm-backend interface: all the executor knows about the robots.
 
-The in-process simulator (``runtime.simulation.SimulatedSwarm``) implements it now; a
+The in-process simulator (``runtime.models.simulation.SimulatedSwarm``) implements it now; a
 distributed Zenoh backend implements it later, and the executor does not change.
 """
 
@@ -10,7 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
-from runtime.state import Observations, StepCommands
+from runtime.models.state import Observations, StepCommands
 
 
 class SwarmBackend(Protocol):

@@ -22,8 +22,8 @@ from scipy.stats import chi2
 from coordinator.executor import RunResult
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import simulate
-from runtime.config import ModelConfig
-from runtime.trajectory import random_trajectory
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
 
 LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods

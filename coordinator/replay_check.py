@@ -1,6 +1,6 @@
 """Re-running a recorded run's coordinator decisions (``swarm replay --check``) and rebuilding it (``swarm plot``).
 
-``load_recording(path)`` reads an MCAP recording (finished or not, ``runtime.recording``)
+``load_recording(path)`` reads an MCAP recording (finished or not, ``runtime.recording.mcap_log``)
 into a ``RecordedRun``: the run metadata and the decoded messages by step (estimates,
 commands, observation reports, truths) and by configuration (plans); messages that do not
 decode are counted and left out, channels outside ``swarm/`` (derived views such as
@@ -37,10 +37,10 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.keys import ROOT
-from runtime.messages import (
+from runtime.wire.keys import ROOT
+from runtime.wire.messages import (
     EstimateMessage,
     MessageError,
     MotionCommand,
@@ -50,9 +50,9 @@ from runtime.messages import (
     decode,
     observations_from_reports,
 )
-from runtime.recording import read_messages, recording_info
-from runtime.state import StepCommands, SwarmEstimate
-from runtime.trajectory import Trajectory
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.models.state import StepCommands, SwarmEstimate
+from runtime.models.trajectory import Trajectory
 
 
 @dataclass

@@ -17,10 +17,10 @@ from coordinator.executor import InchwormExecutor, RunResult
 from coordinator.localization import make_localizer
 from coordinator.selection.selector import SelectionConfig
 from coordinator.strategies import make_strategy
-from runtime.config import ModelConfig
-from runtime.simulation import SimulatedSwarm
-from runtime.state import SwarmEstimate
-from runtime.trajectory import Trajectory, validate_connected
+from runtime.models.config import ModelConfig
+from runtime.models.simulation import SimulatedSwarm
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import Trajectory, validate_connected
 
 
 def initial_estimate(traj: Trajectory, seed: int, delta: float, heading_sigma: float) -> SwarmEstimate:

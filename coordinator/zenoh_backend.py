@@ -47,8 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
-from runtime.messages import (
+from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
+from runtime.wire.messages import (
     DropCounter,
     EmergencyStop,
     EstimateMessage,
@@ -66,8 +66,8 @@ from runtime.messages import (
     message_key,
     observations_from_reports,
 )
-from runtime.state import Observations, StepCommands, SwarmEstimate
-from runtime.transport import declare_token, publish, subscribe, watch_liveliness
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
+from runtime.wire.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 

@@ -72,8 +72,8 @@ from collections.abc import Collection
 import numpy as np
 
 from robot_agent.driver import Driver, DriverRefused, PeerPoses, RobotLost
-from runtime.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
-from runtime.messages import (
+from runtime.wire.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
+from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
@@ -90,7 +90,7 @@ from runtime.messages import (
     message_key,
     refusal_status,
 )
-from runtime.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"

@@ -1,10 +1,10 @@
 """Drivers: what an agent moves and senses with, behind one ``Driver`` interface.
 
 ``SimDriver`` is a simulated robot: it holds its own true pose, moves with the motion
-model (``runtime.motion.execute_command``, noise from ``robot_rng(seed, id, MOTION)``)
-and senses with the sensing model (``runtime.sensing.sense_robot``, noise from
+model (``runtime.models.motion.execute_command``, noise from ``robot_rng(seed, id, MOTION)``)
+and senses with the sensing model (``runtime.models.sensing.sense_robot``, noise from
 ``robot_rng(seed, id, SENSING)``), so an agent process draws exactly the numbers the
-in-process ``runtime.simulation.SimulatedSwarm`` draws for that robot with that seed.
+in-process ``runtime.models.simulation.SimulatedSwarm`` draws for that robot with that seed.
 Sensing needs the neighbours' true poses: the agent hands them to ``sense`` (simulated
 agents exchange ``TruthMessage``s, see ``robot_agent.agent``). A hardware driver
 implements the same interface and ignores ``peers``.
@@ -19,12 +19,12 @@ from typing import Protocol
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.messages import MotionCommand
-from runtime.motion import execute_command
-from runtime.rng import Stream, robot_rng
-from runtime.sensing import sense_robot
+from runtime.wire.messages import MotionCommand
+from runtime.models.motion import execute_command
+from runtime.models.rng import Stream, robot_rng
+from runtime.models.sensing import sense_robot
 
 
 @dataclass(frozen=True)

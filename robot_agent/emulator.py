@@ -43,9 +43,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.frames import (
+from runtime.gateway.frames import (
     BROADCAST,
     MAX_ENTRIES,
     MAX_ROBOT,
@@ -65,13 +65,13 @@ from runtime.frames import (
     StepBody,
     encode_frame,
 )
-from runtime.gateway_config import Calibration
-from runtime.keys import coord_alive_key, validate_port, validate_run
-from runtime.messages import TruthMessage, encode, message_key
-from runtime.motion import execute_command
-from runtime.rng import Stream, robot_rng
-from runtime.sensing import sense_robot
-from runtime.transport import publish, watch_liveliness
+from runtime.gateway.config import Calibration
+from runtime.wire.keys import coord_alive_key, validate_port, validate_run
+from runtime.wire.messages import TruthMessage, encode, message_key
+from runtime.models.motion import execute_command
+from runtime.models.rng import Stream, robot_rng
+from runtime.models.sensing import sense_robot
+from runtime.wire.transport import publish, watch_liveliness
 
 _log = logging.getLogger(__name__)
 

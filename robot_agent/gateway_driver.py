@@ -5,7 +5,7 @@ Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it
 ``motion_scale``, and the command's ``start_pose`` for the link's workspace check) on
 ``swarm/<run>/robot/<id>/linkreq`` and waits for the link's ``LinkReply`` ``done``;
 ``sense`` asks for ``observe`` and corrects the raw measurements (range bias, bearing
-offset: ``runtime.gateway_config.Calibration``). A ``refused`` answer raises
+offset: ``runtime.gateway.config.Calibration``). A ``refused`` answer raises
 ``DriverRefused``; ``lost`` for the step being waited on (a ``lost`` for another step is
 ignored and counted in ``ignored_replies``), the disappearance of the liveliness token of
 the link process of ``port`` (``swarm/<run>/alive/link/<port>``), or no answer within
@@ -26,10 +26,10 @@ from collections.abc import Callable
 import numpy as np
 
 from robot_agent.driver import DriverRefused, RobotLost
-from runtime.gateway_config import Calibration, Timing
-from runtime.keys import link_alive_key, robot_key
-from runtime.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
-from runtime.transport import publish, subscribe, watch_liveliness
+from runtime.gateway.config import Calibration, Timing
+from runtime.wire.keys import link_alive_key, robot_key
+from runtime.wire.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
+from runtime.wire.transport import publish, subscribe, watch_liveliness
 
 
 class GatewayDriver:

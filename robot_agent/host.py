@@ -3,7 +3,7 @@
 A process costs ~75 MB (Python, numpy, Zenoh), an ``Agent`` on a shared session well
 under 1 MB, so a few processes of many agents each carry hundreds of robots. On the wire
 nothing changes: every agent declares its own liveliness token, subscribes to its own
-keys, drives its own driver and draws from its own random streams (``runtime.rng``), so a
+keys, drives its own driver and draws from its own random streams (``runtime.models.rng``), so a
 coordinator cannot tell a hosted agent from an agent process, and a run gives the same
 numbers however the robots are spread over processes. Each agent's loop runs on its own
 thread (Zenoh callbacks only enqueue, as in ``robot_agent.agent``); a robot lost ends its
@@ -17,7 +17,7 @@ import threading
 from collections.abc import Sequence
 
 from robot_agent.agent import Agent
-from runtime.transport import ZenohSettings, open_session
+from runtime.wire.transport import ZenohSettings, open_session
 
 _log = logging.getLogger(__name__)
 

@@ -45,7 +45,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from runtime.frames import (
+from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
     EmptyBody,
@@ -63,9 +63,9 @@ from runtime.frames import (
     encode_frame,
     fits_f32,
 )
-from runtime.gateway_config import Calibration, Limits, Port, Timing
-from runtime.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
-from runtime.messages import (
+from runtime.gateway.config import Calibration, Limits, Port, Timing
+from runtime.wire.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
+from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
@@ -76,7 +76,7 @@ from runtime.messages import (
     encode,
     message_key,
 )
-from runtime.transport import declare_token, publish, subscribe, watch_liveliness
+from runtime.wire.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000

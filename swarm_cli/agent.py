@@ -35,10 +35,10 @@ from robot_agent.driver import Driver, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
-from runtime.gateway_config import GatewayConfig
-from runtime.keys import validate_run
-from runtime.messages import CommandLimits
-from runtime.trajectory import Trajectory
+from runtime.gateway.config import GatewayConfig
+from runtime.wire.keys import validate_run
+from runtime.wire.messages import CommandLimits
+from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
 

@@ -36,11 +36,11 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
-from runtime.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
-from runtime.trajectory import random_trajectory
+from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
+from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
+from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import add_json_option, last_json, print_json
 from swarm_cli.progress import Progress
 
@@ -142,7 +142,7 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
     from coordinator.simulate import simulate  # noqa: PLC0415
-    from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     from swarm_cli.launch import start_agents, stop_all  # noqa: PLC0415
     traj = random_trajectory(robots, configs, np.random.default_rng(seed))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"

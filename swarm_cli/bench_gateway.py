@@ -31,8 +31,8 @@ import numpy as np
 
 from robot_agent.link import SerialLink
 from runtime.errors import SwarmInputError
-from runtime.gateway_config import GatewayConfig, Port
-from runtime.trajectory import random_trajectory
+from runtime.gateway.config import GatewayConfig, Port
+from runtime.models.trajectory import random_trajectory
 from swarm_cli import bench_runtime
 from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, print_json
@@ -63,7 +63,7 @@ def _say(text: str) -> None:
 
 def codec_frames_per_s(count: int) -> float:
     """Frames per second through encode + decode + body parsing (median of 3 rounds)."""
-    from runtime.frames import Frame, FrameDecoder, FrameType, HeartbeatBody, MotionBody, ObservationBody, StepBody, encode_frame  # noqa: PLC0415
+    from runtime.gateway.frames import Frame, FrameDecoder, FrameType, HeartbeatBody, MotionBody, ObservationBody, StepBody, encode_frame  # noqa: PLC0415
     mix = [
         Frame.of(3, 1, FrameType.COMMAND, MotionBody(12, 0.5, 0.1)),
         Frame.of(3, 1, FrameType.DONE, StepBody(12)),
@@ -87,7 +87,7 @@ def codec_frames_per_s(count: int) -> float:
 
 def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
     """COMMAND -> DONE times (ms) through a ``swarm emulate-robots`` process on a pty."""
-    from runtime.frames import Frame, FrameDecoder, FrameType, MotionBody, encode_frame  # noqa: PLC0415
+    from runtime.gateway.frames import Frame, FrameDecoder, FrameType, MotionBody, encode_frame  # noqa: PLC0415
     from swarm_cli.launch import start_emulator, stop_all  # noqa: PLC0415
     with tempfile.TemporaryDirectory(prefix="swarm-bench-gw-") as tmp:
         folder = Path(tmp)

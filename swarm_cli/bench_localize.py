@@ -1,6 +1,6 @@
 """``swarm bench localize``: time and accuracy of one localization step vs. the Cramer-Rao bound.
 
-For each swarm size, ``--trials`` random steps (``runtime.scenarios.random_step``,
+For each swarm size, ``--trials`` random steps (``runtime.models.scenarios.random_step``,
 grid spacing 0.25 m) are localized by the paper's method and by the joint least
 squares; each call is timed ``--repeats`` times. Accuracy is the RMS post-step
 position error over robots and trials, compared with the RMS CRLB
@@ -22,13 +22,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_json
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
-    from runtime.scenarios import StepCase
+    from runtime.models.scenarios import StepCase
 
 
 METHODS = ("paper", "joint")
@@ -149,7 +149,7 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
     from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.localization.joint import EXACT_COV_LIMIT  # noqa: PLC0415 - the joint covariance up to this n
-    from runtime.scenarios import random_step  # noqa: PLC0415
+    from runtime.models.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}
     stats = {name: MethodStats() for name in (*METHODS, "gtsam", "gtsam_cov")}
     crlb_sq: list[np.ndarray] = []

@@ -7,7 +7,7 @@ per moving robot a ``MotionCommand`` and two ``Status`` (accepted, done); per ro
 one ``EstimateMessage`` of all N robots; and one ``PlanMessage`` per configuration of
 ``--steps-per-config`` steps. ``--steps`` such steps are written through a fresh
 ``McapRecorder`` (zstd chunks, a file in a temporary folder), once with and once
-without the derived Foxglove channels (``runtime.foxglove_scene``), ``--repeats`` times
+without the derived Foxglove channels (``runtime.recording.foxglove_scene``), ``--repeats`` times
 each (median reported). The clock runs from the first ``write`` to the return of
 ``close()`` (queue drained, summary written), so it covers the whole cost of the file.
 
@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.messages import (
+from runtime.wire.messages import (
     EstimateMessage,
     MotionCommand,
     ObservationReport,
@@ -50,7 +50,7 @@ from runtime.messages import (
     encode,
     message_key,
 )
-from runtime.recording import McapRecorder
+from runtime.recording.mcap_log import McapRecorder
 from swarm_cli.entry import plain
 from swarm_cli.options import add_json_option, parse_list, print_json
 

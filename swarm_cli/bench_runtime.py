@@ -14,7 +14,7 @@ time is included (``--motion-time`` 0). Reported per N:
 
 * ``step_ms_median``: median step time (ms);
 * ``zenoh_rtt_ms``: the raw Zenoh round trip between two client sessions through the
-  same hub (``runtime.transport.round_trip_ms``, median), measured in the same run with
+  same hub (``runtime.wire.transport.round_trip_ms``, median), measured in the same run with
   the agents alive, and the step time as a multiple of it;
 * beside them (table only): the median of the command round (``execute``: commands out,
   every ``done`` back) and of the observation round (``observe``: requests out, every
@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.trajectory import random_trajectory
+from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("no-anchors", "ref57")
@@ -148,7 +148,7 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from runtime.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     from swarm_cli.launch import MODEL_OPTIONS, _forward, agents_per_process, default_gateway, start_agents, start_gateway, stop_all  # noqa: PLC0415
     cfg = model_config(args)
     strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)

@@ -18,8 +18,8 @@ import time
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.state import SwarmEstimate
-from runtime.trajectory import random_trajectory
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, parse_list, print_json, selection_config
 
 

@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from coordinator.strategies import METHODS
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.trajectory import random_trajectory
+from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import SELECTION_METHODS, add_simulation_options, add_workers_option, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 

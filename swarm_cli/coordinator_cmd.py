@@ -17,7 +17,7 @@ run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (als
 lost robots), 3 the run was aborted or the agents did not come up (the message names the
 robots), 2 bad input.
 
-Recording is on by default: before the run starts, a recorder (``runtime.recording.record_run``,
+Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
 writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
 to turn it off), with the run metadata ``swarm replay --check`` and ``swarm plot`` need (seed,
@@ -46,16 +46,16 @@ from typing import TYPE_CHECKING
 
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
-from runtime.keys import run_wildcard, validate_run
-from runtime.trajectory import Trajectory
+from runtime.wire.keys import run_wildcard, validate_run
+from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import StopSignals, leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
     from coordinator.executor import RunResult
-    from runtime.foxglove_live import LiveView
-    from runtime.recording import McapRecorder
-    from runtime.transport import ZenohSettings
+    from runtime.recording.foxglove_live import LiveView
+    from runtime.recording.mcap_log import McapRecorder
+    from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
@@ -154,7 +154,7 @@ class Recording:
         self.recorder: McapRecorder | None = None
         self.result: dict = {}
         self.error: BaseException | None = None
-        from runtime.recording import record_run  # noqa: PLC0415
+        from runtime.recording.mcap_log import record_run  # noqa: PLC0415
 
         def target() -> None:
             try:
@@ -210,7 +210,7 @@ class Recording:
 
 
 def recording_line(rec: dict) -> str:
-    from runtime.recording import counts_text  # noqa: PLC0415
+    from runtime.recording.mcap_log import counts_text  # noqa: PLC0415
 
     return (f"recorded {rec['path']}: {counts_text(rec)}"
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
@@ -260,8 +260,8 @@ def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[L
     if args.foxglove is None:
         yield Live(None)
         return
-    from runtime.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
-    from runtime.transport import subscribe  # noqa: PLC0415
+    from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
+    from runtime.wire.transport import subscribe  # noqa: PLC0415
 
     live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
     subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
@@ -282,8 +282,8 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from runtime.trajectory import validate_connected  # noqa: PLC0415
-    from runtime.transport import open_session  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.wire.transport import open_session  # noqa: PLC0415
     from swarm_cli.estop import send_estop  # noqa: PLC0415
     from swarm_cli.summary import write_plots  # noqa: PLC0415
 

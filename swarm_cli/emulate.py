@@ -28,10 +28,10 @@ from typing import TextIO
 
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
 from runtime.errors import SwarmInputError
-from runtime.gateway_config import GatewayConfig
-from runtime.keys import validate_run
-from runtime.trajectory import Trajectory
-from runtime.transport import open_session
+from runtime.gateway.config import GatewayConfig
+from runtime.wire.keys import validate_run
+from runtime.models.trajectory import Trajectory
+from runtime.wire.transport import open_session
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, print_json
 

@@ -15,9 +15,9 @@ import os
 import sys
 import time
 
-from runtime.keys import validate_run
-from runtime.messages import EmergencyStop, encode, message_key
-from runtime.transport import open_session, publish
+from runtime.wire.keys import validate_run
+from runtime.wire.messages import EmergencyStop, encode, message_key
+from runtime.wire.transport import open_session, publish
 from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
 
 REPEATS = 3

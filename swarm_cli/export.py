@@ -1,4 +1,4 @@
-"""``swarm export RUN.mcap --ros2 OUT/``: a recording for other tools (runtime.ros2_export, docs/recording.md).
+"""``swarm export RUN.mcap --ros2 OUT/``: a recording for other tools (runtime.recording.ros2_export, docs/recording.md).
 
     swarm export recordings/sample.mcap --ros2 out/sample-ros2 [--json]
 
@@ -26,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
+    from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
 
     result = export_ros2(args.file, args.ros2)
     print(f"wrote {result['path']}: {result['messages']} ROS 2 messages on {len(result['topics'])} topics")

@@ -1,4 +1,4 @@
-"""``swarm info FILE [--json]``: what an MCAP recording holds (runtime.recording.recording_info).
+"""``swarm info FILE [--json]``: what an MCAP recording holds (runtime.recording.mcap_log.recording_info).
 
 Channels with their message type, count, first/last time and undecodable messages, the
 duration, the run metadata, and whether the file was finished (a killed recorder leaves
@@ -12,7 +12,7 @@ import json
 from datetime import datetime, timezone
 from pathlib import Path
 
-from runtime.recording import counts_text, recording_info
+from runtime.recording.mcap_log import counts_text, recording_info
 from swarm_cli.options import print_json
 
 

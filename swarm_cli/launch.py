@@ -55,11 +55,11 @@ import numpy as np
 
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
-from runtime.gateway_config import GatewayConfig, Limits, Port
-from runtime.keys import estop_key, robot_wildcard, validate_run
-from runtime.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
-from runtime.trajectory import Trajectory, random_trajectory, validate_connected
-from runtime.transport import free_tcp_port, loopback_hub, open_session, subscribe
+from runtime.gateway.config import GatewayConfig, Limits, Port
+from runtime.wire.keys import estop_key, robot_wildcard, validate_run
+from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.agent import format_ids
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.entry import StopSignals
@@ -326,7 +326,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     """Everything that can fail before a process is started: the run id, the trajectory, the strategy
     options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
     from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
-    from runtime.foxglove_live import require_foxglove  # noqa: PLC0415
+    from runtime.recording.foxglove_live import require_foxglove  # noqa: PLC0415
 
     try:
         validate_run(run_id)

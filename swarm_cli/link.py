@@ -17,9 +17,9 @@ import sys
 from pathlib import Path
 
 from robot_agent.link import Link, open_link
-from runtime.gateway_config import GatewayConfig
-from runtime.keys import validate_run
-from runtime.transport import open_session
+from runtime.gateway.config import GatewayConfig
+from runtime.wire.keys import validate_run
+from runtime.wire.transport import open_session
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_connection_options, connection_settings
 

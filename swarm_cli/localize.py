@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
-from runtime.state import Observations, StepCommands, SwarmEstimate, robot_ids
+from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 from swarm_cli.options import add_localizer_option, add_model_options, model_config, print_json
 
 HUBER_SIGMAS = 3.0

@@ -9,14 +9,14 @@ import os
 
 from typing import TYPE_CHECKING
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
 SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, without importing the search for a parser
 
 if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
     from coordinator.selection.selector import SelectionConfig
-    from runtime.transport import ZenohSettings
+    from runtime.wire.transport import ZenohSettings
 
 
 def _number(text: str) -> float:
@@ -184,7 +184,7 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
 
 def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     """The client ``ZenohSettings`` of ``--hub`` / ``--zenoh-config``; None if neither is given and not required."""
-    from runtime.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
+    from runtime.wire.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
 
     if args.hub is None and args.zenoh_config is None:
         if getattr(args, "_connection_required", True):

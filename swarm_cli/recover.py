@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from runtime.recording import recover
+from runtime.recording.mcap_log import recover
 from swarm_cli.options import print_json
 
 

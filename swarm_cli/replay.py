@@ -31,8 +31,8 @@ import time
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from runtime.keys import ROOT
-from runtime.recording import read_messages, recording_info
+from runtime.wire.keys import ROOT
+from runtime.recording.mcap_log import read_messages, recording_info
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 
 EXIT_DIVERGED = 1
@@ -77,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 def run_publish(args: argparse.Namespace) -> int:
     import zenoh  # only when publishing
 
-    from runtime.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session
+    from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session
 
     speed = args.speed
     if math.isnan(speed) or speed < 0:

@@ -32,7 +32,7 @@ import threading
 import zenoh
 
 from runtime.errors import SwarmInputError
-from runtime.transport import ZenohSettings, open_session
+from runtime.wire.transport import ZenohSettings, open_session
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.strategies import METHODS
-from runtime.trajectory import Trajectory, random_trajectory
+from runtime.models.trajectory import Trajectory, random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 

@@ -30,10 +30,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.state import SwarmEstimate
-from runtime.trajectory import random_trajectory
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_workers_option, model_config, print_json
 from swarm_cli.progress import Progress
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_simulation_options, add_workers_option, model_config, print_json, selection_config
 from swarm_cli.progress import Progress

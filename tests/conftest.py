@@ -13,7 +13,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import HealthCheck, settings
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 
 # Behaviour, not speed: no per-example deadline and no "input generation is slow" failure
 # (a busy 2-core machine can stall any draw for a second).

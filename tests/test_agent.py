@@ -11,10 +11,10 @@ import pytest
 
 from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
-from runtime.config import ModelConfig
-from runtime.keys import alive_wildcard, robot_key
-from runtime.messages import MotionCommand, Status, decode, encode
-from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.models.config import ModelConfig
+from runtime.wire.keys import alive_wildcard, robot_key
+from runtime.wire.messages import MotionCommand, Status, decode, encode
+from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
 
 RUN = "agent-test"
 

@@ -19,12 +19,12 @@ import pytest
 from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from robot_agent.host import AgentHost
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.keys import alive_wildcard, parse_key, robot_key, robot_wildcard
-from runtime.messages import MotionCommand, Status, decode, encode
-from runtime.trajectory import random_trajectory
-from runtime.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.keys import alive_wildcard, parse_key, robot_key, robot_wildcard
+from runtime.wire.messages import MotionCommand, Status, decode, encode
+from runtime.models.trajectory import random_trajectory
+from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
 from swarm_cli.agent import format_ids, parse_ids
 from swarm_cli.launch import agents_per_process
 

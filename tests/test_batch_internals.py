@@ -27,7 +27,7 @@ from coordinator.localization.batch import (
     observable,
 )
 from coordinator.localization.range_bearing import sqrt_information
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
 CFG = ModelConfig()

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import pytest
 
-from runtime.keys import alive_key, robot_key
-from runtime.messages import MotionCommand, Status, decode, encode, message_key
-from runtime.transport import ZenohSettings, free_tcp_port, open_session, publish, subscribe_queue, watch_liveliness
+from runtime.wire.keys import alive_key, robot_key
+from runtime.wire.messages import MotionCommand, Status, decode, encode, message_key
+from runtime.wire.transport import ZenohSettings, free_tcp_port, open_session, publish, subscribe_queue, watch_liveliness
 from swarm_cli.main import main as swarm_main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -39,7 +39,7 @@ CERT_DIR = "/etc/swarm/certs/"
 # other side gets its message too); prints {"name", "received"} and exits 0 if it received.
 SIDE = """
 import json, queue, sys, time
-from runtime.transport import ZenohSettings, open_session, publish, subscribe_queue
+from runtime.wire.transport import ZenohSettings, open_session, publish, subscribe_queue
 settings, sub_key, pub_key, name = ZenohSettings.from_json(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
 received, extra, deadline = None, 0, time.monotonic() + 20.0
 with open_session(settings) as session:

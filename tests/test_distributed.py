@@ -21,8 +21,8 @@ import numpy as np
 import pytest
 
 from coordinator.simulate import simulate
-from runtime.keys import coord_key, robot_key, robot_wildcard, truth_key, truths_key
-from runtime.messages import (
+from runtime.wire.keys import coord_key, robot_key, robot_wildcard, truth_key, truths_key
+from runtime.wire.messages import (
     EstimateMessage,
     MotionCommand,
     ObservationReport,
@@ -33,9 +33,9 @@ from runtime.messages import (
     encode,
     message_key,
 )
-from runtime.recording import read_messages, recording_info
-from runtime.trajectory import Trajectory, random_trajectory
-from runtime.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
 from swarm_cli.launch import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config

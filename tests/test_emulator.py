@@ -25,8 +25,8 @@ import pytest
 
 from robot_agent.driver import SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
-from runtime.config import ModelConfig
-from runtime.frames import (
+from runtime.models.config import ModelConfig
+from runtime.gateway.frames import (
     BROADCAST,
     MAX_ENTRIES,
     EmptyBody,
@@ -43,10 +43,10 @@ from runtime.frames import (
     StepBody,
     encode_frame,
 )
-from runtime.gateway_config import Calibration, GatewayConfig
-from runtime.keys import coord_alive_key, truth_wildcard
-from runtime.messages import MotionCommand, TruthMessage, decode, message_key
-from runtime.trajectory import Trajectory
+from runtime.gateway.config import Calibration, GatewayConfig
+from runtime.wire.keys import coord_alive_key, truth_wildcard
+from runtime.wire.messages import MotionCommand, TruthMessage, decode, message_key
+from runtime.models.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = 7
@@ -374,7 +374,7 @@ def test_dropped_rx_corrupted_and_delayed_frames(cfg):
 
 
 def test_truth_published_at_start_on_observe_and_when_the_coordinator_appears(cfg):
-    from runtime.transport import declare_token, free_tcp_port, loopback_hub, open_session, subscribe_queue
+    from runtime.wire.transport import declare_token, free_tcp_port, loopback_hub, open_session, subscribe_queue
 
     run = "emu-truth"
     hub_settings, member = loopback_hub(free_tcp_port())

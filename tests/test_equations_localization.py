@@ -32,9 +32,9 @@ from coordinator.localization.topology import (
     reference_robot,
     to_reference_frame,
 )
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 HALF_PI = math.pi / 2
 SENSING = ModelConfig(range_sigma_m=0.01, bearing_sigma_rad=0.02)

@@ -1,4 +1,4 @@
-"""Known answers for the performance metrics (Eq. 8, 24, 25; runtime/metrics.py), derived by hand.
+"""Known answers for the performance metrics (Eq. 8, 24, 25; runtime/models/metrics.py), derived by hand.
 
 The inputs have 3 robots and 4 configuration changes (n_r != n_d) with unequal distances,
 so a mean taken as a median or a sum, the sum and the mean of Eq. 25 swapped, a wrong axis
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.metrics import average_total_motion, localization_error, trajectory_following_performance
+from runtime.models.metrics import average_total_motion, localization_error, trajectory_following_performance
 
 # True configurations of 3 robots before the trajectory and after each of n_d = 4 configurations (m).
 #   robot A: (0,0) -> (3,4) -> (3,4)  -> (3,1)  -> (3,1)     moves 5, 0, 3, 0

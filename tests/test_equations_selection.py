@@ -17,9 +17,9 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.heuristic import MIN_SEPARATION, heuristic_plan, step_score
 from coordinator.selection.monte_carlo import plan_keeps_connectivity
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, samples_for
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.state import SwarmEstimate
+from runtime.models.state import SwarmEstimate
 
 # -- Eq. 1, 6, 7, 10 ----------------------------------------------------------------
 

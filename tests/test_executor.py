@@ -11,10 +11,10 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate, simulate
 from coordinator.strategies import make_strategy
-from runtime.config import ModelConfig
-from runtime.simulation import SimulatedSwarm
-from runtime.state import Observations
-from runtime.trajectory import random_trajectory
+from runtime.models.config import ModelConfig
+from runtime.models.simulation import SimulatedSwarm
+from runtime.models.state import Observations
+from runtime.models.trajectory import random_trajectory
 
 FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
 
@@ -99,7 +99,7 @@ def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
 
 
 def test_equal_speed_keeps_its_anchor_count_when_no_plan_keeps_connectivity():
-    from runtime.state import SwarmEstimate
+    from runtime.models.state import SwarmEstimate
 
     strategy = make_strategy("inchworm-equal-speed", 4, ModelConfig(), "paper", FAST, seed=0)
     estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.45, 0, 0], [0.9, 0, 0], [1.35, 0, 0]], float), 0.01, 0.02)

@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from runtime.errors import SwarmInputError
-from runtime.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
-from runtime.metrics import localization_error
-from runtime.recording import read_messages
+from runtime.wire.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
+from runtime.models.metrics import localization_error
+from runtime.recording.mcap_log import read_messages
 from swarm_cli.main import main
 
 SAMPLE = Path(__file__).resolve().parent.parent / "recordings" / "sample.mcap"
@@ -91,7 +91,7 @@ def test_export_refuses_an_existing_folder_and_names_the_extra(tmp_path, monkeyp
     out.mkdir()
     assert main(["export", str(SAMPLE), "--ros2", str(out)]) == 2
     assert "--ros2" in capsys.readouterr().err
-    from runtime.ros2_export import export_ros2
+    from runtime.recording.ros2_export import export_ros2
 
     monkeypatch.setitem(sys.modules, "rosbags.rosbag2", None)  # import -> ImportError
     with pytest.raises(SwarmInputError, match=r"pip install -e '\.\[ros2\]'"):

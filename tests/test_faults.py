@@ -11,8 +11,8 @@ import sys
 import time
 from pathlib import Path
 
-from runtime.messages import EmergencyStop, decode
-from runtime.recording import read_messages
+from runtime.wire.messages import EmergencyStop, decode
+from runtime.recording.mcap_log import read_messages
 from swarm_cli.bench_faults import lost_robot
 from swarm_cli.launch import stop_all
 
@@ -92,7 +92,7 @@ def test_a_coordinator_killed_under_launch_gets_every_robot_stopped(tmp_path):
 def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
     from test_distributed import Run, _wait_for_command
 
-    from runtime.trajectory import random_trajectory
+    from runtime.models.trajectory import random_trajectory
     import numpy as np
 
     run = Run(tmp_path, random_trajectory(4, 6, np.random.default_rng(2)), "ref57", 2, motion_time=0.3)

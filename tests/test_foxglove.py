@@ -1,4 +1,4 @@
-"""Foxglove views: derived SceneUpdate scenes (runtime.foxglove_scene), their MCAP channels, the live view."""
+"""Foxglove views: derived SceneUpdate scenes (runtime.recording.foxglove_scene), their MCAP channels, the live view."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from mcap.reader import make_reader
 
 from runtime.errors import SwarmInputError
-from runtime.foxglove_scene import (
+from runtime.recording.foxglove_scene import (
     SCENE_UPDATE_SCHEMA,
     TOPIC_DESIRED,
     TOPIC_ESTIMATED,
@@ -22,8 +22,8 @@ from runtime.foxglove_scene import (
     schema_errors,
     trajectory_configurations,
 )
-from runtime.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
-from runtime.recording import McapRecorder, is_derived, read_messages, recording_info, recover
+from runtime.wire.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
+from runtime.recording.mcap_log import McapRecorder, is_derived, read_messages, recording_info, recover
 from tests.test_recording import RUN, sample_messages
 
 TRAJ = {"robots": [0, 1, 2], "initial_poses": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]],
@@ -158,7 +158,7 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
 
 
 def test_live_view_needs_the_extra(monkeypatch):
-    from runtime.foxglove_live import LiveView
+    from runtime.recording.foxglove_live import LiveView
 
     monkeypatch.setitem(sys.modules, "foxglove", None)  # import foxglove -> ImportError
     with pytest.raises(SwarmInputError, match=r"pip install -e '\.\[foxglove\]'"):
@@ -173,7 +173,7 @@ def _free_port() -> int:
 
 def test_live_view_serves_a_websocket():
     pytest.importorskip("foxglove")
-    from runtime.foxglove_live import LiveView
+    from runtime.recording.foxglove_live import LiveView
 
     port = _free_port()
     view = LiveView(port=port, host="127.0.0.1", trajectory=TRAJ)
@@ -224,7 +224,7 @@ def test_demo_serves_the_live_view_while_it_runs(tmp_path):
     import subprocess
 
     pytest.importorskip("foxglove")
-    from runtime.transport import free_tcp_port
+    from runtime.wire.transport import free_tcp_port
 
     port = free_tcp_port()
     out = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n", "3", "--configs", "1", "--method", "no-anchors",
@@ -240,7 +240,7 @@ def test_the_live_view_keeps_serving_after_the_run_until_ctrl_c(tmp_path):
     import subprocess
 
     pytest.importorskip("foxglove")
-    from runtime.transport import free_tcp_port
+    from runtime.wire.transport import free_tcp_port
 
     port = free_tcp_port()
     record = tmp_path / "run.mcap"
@@ -275,7 +275,7 @@ def test_failed_handshakes_are_logged_once(caplog):
     import logging
     import time
 
-    from runtime.foxglove_live import SERVER_LOGGER, LiveView
+    from runtime.recording.foxglove_live import SERVER_LOGGER, LiveView
 
     with caplog.at_level(logging.INFO, logger=SERVER_LOGGER), LiveView(port=0) as view:
         for _ in range(4):  # plain HTTP, no WebSocket upgrade: each fails the handshake

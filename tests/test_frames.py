@@ -1,4 +1,4 @@
-"""The frame codec (runtime/frames.py) against docs/gateway-protocol.md: layout, CRC, bodies, resynchronisation."""
+"""The frame codec (runtime/gateway/frames.py) against docs/gateway-protocol.md: layout, CRC, bodies, resynchronisation."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from runtime.frames import (
+from runtime.gateway.frames import (
     BODIES,
     BROADCAST,
     MAX_ENTRIES,
@@ -162,7 +162,7 @@ def test_resync_after_corrupted_length():
 
 
 def test_receive_gives_up_on_a_partial_frame_only_after_a_quiet_line():
-    from runtime.frames import QUIET_S
+    from runtime.gateway.frames import QUIET_S
 
     first = bytearray(encode_frame(Frame.of(1, 1, FrameType.DONE, StepBody(3))))
     second = Frame.of(1, 2, FrameType.ACCEPTED, StepBody(4))
@@ -279,7 +279,7 @@ def test_decoder_statistics_count_skipped_bytes():
 
 
 def test_long_text_is_cut_on_a_character_boundary():
-    from runtime.frames import MAX_TEXT, ErrorBody, RefusalBody
+    from runtime.gateway.frames import MAX_TEXT, ErrorBody, RefusalBody
 
     refusal = RefusalBody(1, 1, "a" + "é" * 150)
     back = RefusalBody.unpack(refusal.pack())
@@ -297,7 +297,7 @@ def test_values_beyond_the_wire_types_are_frame_errors_not_crashes(body):
 
 
 def test_fits_f32_is_the_float32_range():
-    from runtime.frames import F32_MAX, fits_f32
+    from runtime.gateway.frames import F32_MAX, fits_f32
 
     assert fits_f32(F32_MAX) and fits_f32(-F32_MAX) and fits_f32(0.0)
     assert not any(fits_f32(v) for v in (1e39, -1e39, float("nan"), float("inf")))

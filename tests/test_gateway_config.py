@@ -1,4 +1,4 @@
-"""The gateway config file (runtime/gateway_config.py), calibration maths, the ANT device string, limits."""
+"""The gateway config file (runtime/gateway/config.py), calibration maths, the ANT device string, limits."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import pytest
 
 from robot_agent.ant_link import AntLink, parse_ant_device
 from runtime.errors import SwarmInputError
-from runtime.gateway_config import Calibration, GatewayConfig
-from runtime.messages import CommandLimits, MotionCommand
+from runtime.gateway.config import Calibration, GatewayConfig
+from runtime.wire.messages import CommandLimits, MotionCommand
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "deploy" / "gateway.example.json"
 
@@ -115,7 +115,7 @@ def test_ant_device_strings_and_missing_openant():
 
 def test_retry_budgets_derive_from_one_budget_below_the_coordinators_step_timeout():
     from coordinator.zenoh_backend import Timeouts
-    from runtime.gateway_config import STEP_TIMEOUT_S, Timing
+    from runtime.gateway.config import STEP_TIMEOUT_S, Timing
 
     assert STEP_TIMEOUT_S == Timeouts().step_s  # the coordinator's default the gateway config is checked against
     t = Timing()

@@ -18,8 +18,8 @@ from coordinator.localization.range_bearing import (
     stack_terms,
 )
 from coordinator.localization.sparse_lm import PoseLayout, dense
-from runtime.config import ModelConfig
-from runtime.scenarios import random_step
+from runtime.models.config import ModelConfig
+from runtime.models.scenarios import random_step
 
 CFG = ModelConfig()
 

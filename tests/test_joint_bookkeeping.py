@@ -28,12 +28,12 @@ from coordinator.localization.joint import (
 )
 from coordinator.localization.partial import MAX_RETRIES, localize_observable, solvable_subset
 from coordinator.localization.sparse_lm import BLAS_SMALL, PoseLayout
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
-from runtime.geometry import wrap_angle
-from runtime.rng import Stream, robot_rngs
-from runtime.sensing import sense_swarm
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import wrap_angle
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.sensing import sense_swarm
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 CFG = ModelConfig()
 

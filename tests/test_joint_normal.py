@@ -18,7 +18,7 @@ import scipy.sparse as sp
 from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.range_bearing import joint_sqrt_information, sqrt_information
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, add_diagonal, dense, minimize
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 
 CFG = ModelConfig(range_sigma_m=0.01, bearing_sigma_rad=0.02)
 

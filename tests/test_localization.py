@@ -10,13 +10,13 @@ import pytest
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
-from runtime.geometry import rotate, transform_poses, wrap_angle
-from runtime.rng import Stream, robot_rngs
-from runtime.scenarios import grid_configuration, random_step
-from runtime.sensing import sense_swarm
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import rotate, transform_poses, wrap_angle
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.scenarios import grid_configuration, random_step
+from runtime.models.sensing import sense_swarm
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 METHODS = ["paper", "joint"]
 
@@ -57,7 +57,7 @@ def test_noise_free_step_recovers_true_configuration(method, exact_sensing):
     moving = np.arange(10) % 2 == 0
     commands = np.column_stack([rng.uniform(-1, 1, 10), rng.uniform(0.05, 0.15, 10)])
     step = StepCommands(ids, commands, moving)
-    from runtime.motion import apply_motion
+    from runtime.models.motion import apply_motion
 
     after = np.where(moving[:, None], apply_motion(poses, commands), poses)  # executed exactly
     obs = sense_swarm(after, ids, exact_sensing, robot_rngs(0, ids, Stream.SENSING))

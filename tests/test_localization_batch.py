@@ -18,14 +18,14 @@ from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import sqrt_information
 from coordinator.localization.sparse_lm import PoseLayout
 from coordinator.localization.sparse_lm import dense as sparse_dense
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
-from runtime.geometry import transform_poses, wrap_angle
-from runtime.motion import apply_motion
-from runtime.rng import Stream, robot_rngs
-from runtime.scenarios import grid_configuration, random_step
-from runtime.sensing import sense_swarm
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import transform_poses, wrap_angle
+from runtime.models.motion import apply_motion
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.scenarios import grid_configuration, random_step
+from runtime.models.sensing import sense_swarm
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 METHODS = ["paper", "joint"]
 

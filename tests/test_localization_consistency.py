@@ -17,13 +17,13 @@ from coordinator.localization.gauge import constrained_solution, gauge_basis, me
 from coordinator.localization.joint import JointLocalizer
 from scipy.stats import chi2
 
-from runtime.config import ModelConfig
-from runtime.geometry import wrap_angle
-from runtime.rng import Stream, robot_rngs
-from runtime.sensing import sense_swarm
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.sensing import sense_swarm
 from runtime.errors import SwarmInputError
-from runtime.scenarios import random_step
-from runtime.state import StepCommands, SwarmEstimate
+from runtime.models.scenarios import random_step
+from runtime.models.state import StepCommands, SwarmEstimate
 
 ROOT = Path(__file__).resolve().parents[1]
 CFG = ModelConfig()

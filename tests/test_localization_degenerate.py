@@ -10,12 +10,12 @@ import pytest
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import solvable_subset
 from coordinator.localization.range_bearing import GATE_SIGMAS, bearing_weights
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
-from runtime.geometry import wrap_angle
-from runtime.scenarios import grid_configuration
-from runtime.sensing import measure
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import wrap_angle
+from runtime.models.scenarios import grid_configuration
+from runtime.models.sensing import measure
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from swarm_cli.localize import localize_document
 
 CFG = ModelConfig()

@@ -16,11 +16,11 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import METHODS, anchors_for_half, make_strategy
-from runtime.config import ModelConfig
-from runtime.metrics import trajectory_following_performance
-from runtime.simulation import SimulatedSwarm
-from runtime.state import StepCommands
-from runtime.trajectory import random_trajectory
+from runtime.models.config import ModelConfig
+from runtime.models.metrics import trajectory_following_performance
+from runtime.models.simulation import SimulatedSwarm
+from runtime.models.state import StepCommands
+from runtime.models.trajectory import random_trajectory
 
 FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
 CFG = ModelConfig()

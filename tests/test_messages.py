@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from runtime.errors import SwarmInputError
-from runtime.keys import (
+from runtime.wire.keys import (
     KeyspaceError,
     ParsedKey,
     alive_key,
@@ -33,7 +33,7 @@ from runtime.keys import (
     truth_wildcard,
     validate_run,
 )
-from runtime.messages import (
+from runtime.wire.messages import (
     MAX_ITEMS,
     MESSAGE_TYPES,
     CommandLimits,
@@ -62,7 +62,7 @@ from runtime.messages import (
     refusal_status,
     type_for_key,
 )
-from runtime.state import SwarmEstimate
+from runtime.models.state import SwarmEstimate
 
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 STAMP = 1_700_000_000_123_456_789
@@ -650,7 +650,7 @@ def test_drop_counter_and_decode_or_drop(caplog):
     key = "swarm/r1/robot/3/obs"
     raw = raw_map(SAMPLES["ObservationReport"])
     raw["ranges"][0] = math.nan
-    with caplog.at_level(logging.WARNING, logger="runtime.messages"):
+    with caplog.at_level(logging.WARNING, logger="runtime.wire.messages"):
         assert decode_or_drop(b"\xc1", counter, key) is None
         assert decode_or_drop(msgpack.packb(raw), counter, key) is None
         assert decode_or_drop(msgpack.packb(raw), counter, key) is None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.metrics import average_total_motion, localization_error, trajectory_following_performance
+from runtime.models.metrics import average_total_motion, localization_error, trajectory_following_performance
 
 
 def test_localization_error_eq8():

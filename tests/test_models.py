@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
-from runtime.rng import Stream, robot_rng, robot_rngs
-from runtime.sensing import measure, neighbours, sense_robot, sense_swarm
+from runtime.models.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
+from runtime.models.rng import Stream, robot_rng, robot_rngs
+from runtime.models.sensing import measure, neighbours, sense_robot, sense_swarm
 
 
 def test_turn_then_drive_known_answer():
@@ -137,7 +137,7 @@ def test_a_derived_estimate_equals_from_joint_and_checks_what_it_is_given():
     """``SwarmEstimate.derived`` (a localizer's output for the robots of a validated estimate) keeps the
     prior's ids, takes the 3x3 diagonal blocks of the joint covariance, and names the robot whose
     values are not finite."""
-    from runtime.state import SwarmEstimate
+    from runtime.models.state import SwarmEstimate
 
     prior = SwarmEstimate([7, 3, 5], np.zeros((3, 3)), np.broadcast_to(np.eye(3), (3, 3, 3)))
     poses = np.arange(9.0).reshape(3, 3)

@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.trajectory import Trajectory, random_trajectory
-from runtime.transport import free_tcp_port
+from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.wire.transport import free_tcp_port
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

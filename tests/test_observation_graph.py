@@ -135,7 +135,7 @@ def test_component_labels_are_numbered_by_lowest_node():
     """Edges 3-1, 1-0, 5-4 on 7 nodes: components {0, 1, 3}, {2}, {4, 5}, {6}, numbered by their lowest
     node (0, 2, 4, 6 -> 0, 1, 2, 3): labels [0, 0, 1, 0, 2, 2, 3]. A path 6-5-4-3-2-1-0 given in reverse
     (the worst case for plain minimum propagation) is one component."""
-    from runtime.graph import component_labels
+    from runtime.models.graph import component_labels
 
     np.testing.assert_array_equal(component_labels(7, np.array([3, 1, 5]), np.array([1, 0, 4])), [0, 0, 1, 0, 2, 2, 3])
     np.testing.assert_array_equal(component_labels(7, np.arange(6, 0, -1), np.arange(5, -1, -1)), np.zeros(7))

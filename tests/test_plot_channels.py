@@ -1,4 +1,4 @@
-"""Plottable JSON channels (runtime.plot_channels): known answers, schemas, and what a recording holds."""
+"""Plottable JSON channels (runtime.recording.plot_channels): known answers, schemas, and what a recording holds."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import math
 import pytest
 from mcap.reader import make_reader
 
-from runtime.foxglove_scene import schema_errors
-from runtime.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
-from runtime.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
-from runtime.recording import McapRecorder, recording_info
+from runtime.recording.foxglove_scene import schema_errors
+from runtime.wire.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
+from runtime.recording.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
+from runtime.recording.mcap_log import McapRecorder, recording_info
 from tests.test_foxglove import COV, RUN, TRAJ, run_messages
 
 

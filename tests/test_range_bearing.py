@@ -28,7 +28,7 @@ from coordinator.localization.range_bearing import (
     stack_terms,
 )
 from coordinator.localization.sparse_lm import PoseLayout, dense
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 
 CFG = ModelConfig(range_sigma_m=0.01, bearing_sigma_rad=0.02)
 

@@ -1,4 +1,4 @@
-"""MCAP recording (runtime.recording): round trip, SIGKILLed recorder, corrupt files, live Zenoh run.
+"""MCAP recording (runtime.recording.mcap_log): round trip, SIGKILLed recorder, corrupt files, live Zenoh run.
 
 Every file is a real MCAP in tmp_path, read back with mcap's own readers (not the writer).
 """
@@ -22,8 +22,8 @@ from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
 from runtime.errors import SwarmInputError
-from runtime.keys import coord_key, robot_key
-from runtime.messages import (
+from runtime.wire.keys import coord_key, robot_key
+from runtime.wire.messages import (
     MESSAGE_TYPES,
     EstimateMessage,
     MotionCommand,
@@ -35,7 +35,7 @@ from runtime.messages import (
     json_schema,
     message_key,
 )
-from runtime.recording import McapRecorder, read_messages, record_run, recording_info, recover
+from runtime.recording.mcap_log import McapRecorder, read_messages, record_run, recording_info, recover
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -141,8 +141,8 @@ def test_thread_safe_writes(tmp_path):
 
 CHILD = """
 import sys, time
-from runtime.messages import Status, encode, message_key
-from runtime.recording import McapRecorder
+from runtime.wire.messages import Status, encode, message_key
+from runtime.recording.mcap_log import McapRecorder
 rec = McapRecorder(sys.argv[1], "killed", {"seed": 1})
 i = 0
 while True:
@@ -269,7 +269,7 @@ def test_cli_info_recover_and_errors(tmp_path, capsys):
 
 
 def test_record_run_over_zenoh(tmp_path):
-    from runtime.transport import free_tcp_port, loopback_hub, open_session, publish
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish
 
     run = f"z{uuid.uuid4().hex[:8]}"
     hub, member = loopback_hub(free_tcp_port())

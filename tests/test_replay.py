@@ -17,8 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from runtime.recording import read_messages, recording_info
-from runtime.transport import free_tcp_port, loopback_hub, open_session, subscribe
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.main import main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -101,7 +101,7 @@ def test_publish_own_hub_as_fast_as_possible(recording):
         hub = line.split("hub ", 1)[1].split(",")[0]
         got: list[tuple[str, bytes]] = []
         done = threading.Event()
-        from runtime.transport import ZenohSettings
+        from runtime.wire.transport import ZenohSettings
         with open_session(ZenohSettings("client", connect=(hub,))) as session:
             _collect(session, got, done, len(expected))
             out, err = proc.communicate(timeout=60)

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from mcap.reader import SeekingReader
 
-from runtime.recording import recording_info
+from runtime.recording.mcap_log import recording_info
 from swarm_cli.main import main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -55,7 +55,7 @@ def test_the_layout_shows_topics_and_fields_of_a_run() -> None:
     assert sorted(placed) == sorted(ids)  # every configured panel is on screen, and only those
     info = recording_info(SAMPLE)
     topics = {c["topic"]: c["type"] for c in info["channels"]}
-    from runtime.plot_channels import SCHEMAS
+    from runtime.recording.plot_channels import SCHEMAS
 
     assert set(layout["configById"]["3D!swarm"]["topics"]) <= set(topics)
     for path in _paths(layout["configById"]):

@@ -12,9 +12,9 @@ from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, SelectionConfig, samples_for, search_samples
-from runtime.config import ModelConfig
-from runtime.state import SwarmEstimate
-from runtime.trajectory import random_trajectory
+from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import random_trajectory
 
 
 def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:

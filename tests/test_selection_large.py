@@ -13,9 +13,9 @@ from coordinator.plan import Plan, feasible_anchor_counts, n_steps
 from coordinator.selection.heuristic import heuristic_plan, step_score
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, samples_for
-from runtime.config import ModelConfig
-from runtime.state import SwarmEstimate
-from runtime.trajectory import random_trajectory, sensing_groups
+from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import random_trajectory, sensing_groups
 
 
 def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:

@@ -18,8 +18,8 @@ from coordinator.plan import Plan, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
-from runtime.config import ModelConfig
-from runtime.state import SwarmEstimate
+from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
 
 
 class Scripted:

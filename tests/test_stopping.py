@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from mcap.reader import SeekingReader
 
-from runtime.recording import counts_text, recording_info
+from runtime.recording.mcap_log import counts_text, recording_info
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -11,7 +11,7 @@ import pytest
 
 from coordinator.plan import n_solutions
 from coordinator.selection.heuristic import heuristic_plan
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from swarm_cli import study_anchors
 from swarm_cli.study_anchors import (

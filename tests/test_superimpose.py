@@ -10,7 +10,7 @@ from hypothesis.extra.numpy import arrays
 
 from coordinator.localization.superimpose import fusion_weights, superimpose
 from runtime.errors import LocalizationError
-from runtime.geometry import rotate, wrap_angle
+from runtime.models.geometry import rotate, wrap_angle
 
 coords = st.floats(-10, 10, allow_nan=False, allow_infinity=False)
 sizes = st.integers(3, 25)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from runtime.errors import SwarmInputError
-from runtime.trajectory import Trajectory, is_connected, min_separation, random_trajectory, validate_connected
+from runtime.models.trajectory import Trajectory, is_connected, min_separation, random_trajectory, validate_connected
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -16,7 +16,7 @@ import pytest
 import zenoh
 
 from runtime.errors import SwarmInputError
-from runtime.transport import (
+from runtime.wire.transport import (
     ZenohSettings,
     alive_now,
     declare_token,
@@ -35,7 +35,7 @@ DEPLOY = REPO / "deploy"
 
 CHILD = """
 import sys, time
-from runtime.transport import ZenohSettings, declare_token, open_session, publish
+from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish
 settings, alive_key, data_key = ZenohSettings.from_json(sys.argv[1]), sys.argv[2], sys.argv[3]
 with open_session(settings) as session:
     token = declare_token(session, alive_key)

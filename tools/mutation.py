@@ -2,11 +2,11 @@
 
 Runs mutmut (``pip install -e '.[dev,mutation]'``) with the ``[tool.mutmut]`` configuration of
 pyproject.toml: it mutates coordinator/localization/, coordinator/selection/, coordinator/plan.py
-and runtime/metrics.py one small change at a time (a ``+`` for a ``-``, 0.5 for 1.5, a dropped
+and runtime/models/metrics.py one small change at a time (a ``+`` for a ``-``, 0.5 for 1.5, a dropped
 statement ...) and runs the fast maths tests that cover each mutated function; a mutant is
 killed when a test fails. It prints the score (killed / checked) per module and in total.
 
-GLOBs restrict the run to mutant names (``coordinator.plan.*``, ``runtime.metrics.*``); without
+GLOBs restrict the run to mutant names (``coordinator.plan.*``, ``runtime.models.metrics.*``); without
 them every mutant of the configured modules runs (long: tens of minutes on 2 cores). mutmut keeps
 its results in ``mutants/`` and re-runs only what changed. Not part of CI's default run.
 """
@@ -54,7 +54,7 @@ def module_scores(globs: list[str]) -> dict[str, Counter]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tools.mutation", description=__doc__.splitlines()[0])
-    parser.add_argument("globs", nargs="*", help="mutant-name globs, e.g. 'runtime.metrics.*' (default: all)")
+    parser.add_argument("globs", nargs="*", help="mutant-name globs, e.g. 'runtime.models.metrics.*' (default: all)")
     parser.add_argument("--max-children", type=int, default=1, help="parallel mutant runs (default 1: a shared machine)")
     parser.add_argument("--report-only", action="store_true", help="print the scores of the last run without running")
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")

@@ -14,9 +14,9 @@ import numpy as np
 from coordinator.localization.joint import JointLocalizer
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.topology import Topology
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 
 class Localizer(Protocol):

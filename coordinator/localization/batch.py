@@ -60,10 +60,10 @@ from coordinator.localization.topology import (
     reference_robot,
     to_reference_frame,
 )
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.geometry import wrap_angle
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import wrap_angle
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import localize_observable
 

@@ -28,7 +28,7 @@ import numpy as np
 
 from coordinator.localization.range_bearing import observation_terms, prior_terms, sqrt_information, stack_terms
 from coordinator.localization.sparse_lm import PoseLayout, dense
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 
 
 def fisher_information(

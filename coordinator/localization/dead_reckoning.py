@@ -7,7 +7,7 @@ hat x_tui = hat x_t0i + hat u_i (Eq. 19). Body-frame commands are replayed on th
 estimated pose, which equals Eq. 17 when the commands were computed from that estimate.
 
 Its uncertainty delta_u (Section 5.1.1) propagates the prior covariance and the
-motion noise to first order (``runtime.motion.motion_covariance``). Anchors keep
+motion noise to first order (``runtime.models.motion.motion_covariance``). Anchors keep
 their prior uncertainty: delta_u(anchor) = prior delta (the paper leaves this open).
 When the prior carries the joint covariance of the swarm, it is propagated too:
 P' = F P F^T + blockdiag(Fu_i Q Fu_i^T), F = blockdiag(Fx_i) (each robot moves on its own).
@@ -17,10 +17,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.motion import apply_motion, motion_covariance
-from runtime.state import StepCommands, SwarmEstimate
+from runtime.models.motion import apply_motion, motion_covariance
+from runtime.models.state import StepCommands, SwarmEstimate
 
 
 def dead_reckon(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> SwarmEstimate:

@@ -13,7 +13,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
 from runtime.errors import LocalizationError
-from runtime.graph import component_labels
+from runtime.models.graph import component_labels
 
 
 def unobserved(n: int, observed: np.ndarray) -> np.ndarray:

@@ -36,10 +36,10 @@ from coordinator.localization.range_bearing import joint_sqrt_information, obser
 from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.sparse_lm import PoseLayout, blas_threads, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
-from runtime.geometry import wrap_angle
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.geometry import wrap_angle
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 EXACT_COV_LIMIT = 500  # robots
 # Convergence of the joint solve: a step below 1e-8 of (1 + |x|) or a relative cost decrease below 1e-8.

@@ -22,8 +22,8 @@ from scipy.linalg.lapack import dposv
 
 from coordinator.localization.range_bearing import bearing_weights, observation_blocks
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
-from runtime.config import ModelConfig
-from runtime.geometry import wrap_angle
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
 
 
 # Entries of the normal matrix (size^2) up to which its pattern is ranked with a dense mark-and-count map

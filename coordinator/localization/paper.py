@@ -22,9 +22,9 @@ from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
 from coordinator.localization.superimpose import fusion_weights, superimpose
 from coordinator.localization.topology import Topology, estimate_topology
-from runtime.config import ModelConfig
-from runtime.geometry import rotate, wrap_angle
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import rotate, wrap_angle
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 
 class PaperLocalizer:

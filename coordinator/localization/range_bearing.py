@@ -23,8 +23,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.sparse_lm import PoseLayout, jacobian
-from runtime.config import ModelConfig
-from runtime.geometry import wrap_angle
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
 
 COV_FLOOR = 1e-12  # smallest prior variance, so an exact prior stays invertible
 GATE_SIGMAS = 3.0  # range sigmas below which a bearing loses its weight (s_b(rho) doubles at ~0.84 of this)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from runtime.errors import LocalizationError
-from runtime.geometry import rotate
+from runtime.models.geometry import rotate
 
 MIN_SPREAD = 1e-12  # m^2: below this weighted spread the rotation is undetermined
 

@@ -27,9 +27,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
-from runtime.geometry import rotate, wrap_angle
+from runtime.models.geometry import rotate, wrap_angle
 
 # Convergence of Eq. B3's least squares (``sparse_lm.minimize``: relative step, relative cost decrease).
 # Observations are centimetre-accurate; 1e-8 stops within 1e-8 m of 1e-10 / 1e-12's answer (measured on

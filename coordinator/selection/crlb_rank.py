@@ -25,9 +25,9 @@ import numpy as np
 from coordinator.localization.crlb import crlb_pose_covariances
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.plan import Plan
-from runtime.config import ModelConfig
-from runtime.motion import command_towards
-from runtime.state import SwarmEstimate
+from runtime.models.config import ModelConfig
+from runtime.models.motion import command_towards
+from runtime.models.state import SwarmEstimate
 
 MEAN_NORM = math.sqrt(math.pi) / 2  # E|e| / sqrt(E|e|^2) for an isotropic 2-D Gaussian
 

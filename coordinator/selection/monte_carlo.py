@@ -16,11 +16,11 @@ import numpy as np
 
 from coordinator.localization.batch import localize_batch
 from coordinator.plan import Plan
-from runtime.config import ModelConfig
-from runtime.motion import apply_motion, command_towards, draw_motion_noise
-from runtime.sensing import add_sensing_noise, measure
-from runtime.state import SwarmEstimate
-from runtime.trajectory import is_connected
+from runtime.models.config import ModelConfig
+from runtime.models.motion import apply_motion, command_towards, draw_motion_noise
+from runtime.models.sensing import add_sensing_noise, measure
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import is_connected
 
 
 @dataclass(frozen=True)

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.config import ModelConfig
-from runtime.geometry import wrap_angle
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
 
 
 def apply_motion(

@@ -5,9 +5,9 @@ Layout: one channel per key (topic = the Zenoh key, message encoding ``msgpack``
 shared by every channel of that type; keys without a message type get schema id 0.
 Unless ``foxglove=False``, derived channels are written too, each derived message right after
 the raw one it comes from, message encoding ``json`` with a ``jsonschema`` schema: the Foxglove
-3D scenes (``runtime.foxglove_scene``: ``/foxglove/estimated``, ``/foxglove/true``,
+3D scenes (``runtime.recording.foxglove_scene``: ``/foxglove/estimated``, ``/foxglove/true``,
 ``/foxglove/desired``, schema ``foxglove.SceneUpdate``) and the plottable channels
-(``runtime.plot_channels``: ``/robot/<id>/estimate``, ``/robot/<id>/truth``,
+(``runtime.recording.plot_channels``: ``/robot/<id>/estimate``, ``/robot/<id>/truth``,
 ``/robot/<id>/error``, ``/swarm/error``, ``/swarm/plan``, ``/swarm/event``) that Foxglove's
 Plot panel and PlotJuggler read; the raw channels are unchanged (same topics, schemas,
 payloads, times and sequence numbers).
@@ -54,19 +54,19 @@ try:
 except ImportError:  # mcap's zstd support is optional; without it nothing raises this
     class _ZstdError(Exception):
         pass
-from runtime.foxglove_scene import (
+from runtime.recording.foxglove_scene import (
     DERIVED_TYPES,
     SCENE_UPDATE_SCHEMA_BYTES,
     SceneDeriver,
 )
-from runtime.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
-from runtime.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
-from runtime.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
-from runtime.keys import KeyspaceError, run_wildcard, validate_run
-from runtime.messages import MessageError, decode, json_schema, type_for_key
-from runtime.plot_channels import DERIVED_TYPES as PLOT_TYPES
-from runtime.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
-from runtime.plot_channels import PlotDeriver, is_plot_topic
+from runtime.recording.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
+from runtime.recording.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
+from runtime.recording.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
+from runtime.wire.keys import KeyspaceError, run_wildcard, validate_run
+from runtime.wire.messages import MessageError, decode, json_schema, type_for_key
+from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES
+from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
+from runtime.recording.plot_channels import PlotDeriver, is_plot_topic
 
 CHUNK_BYTES = 64 * 1024  # uncompressed bytes after which a chunk is closed
 FLUSH_S = 0.25  # a chunk is closed (and the file flushed) at least this often while messages arrive
@@ -332,7 +332,7 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
     "messages", "channels", "raw_messages", "raw_channels", "derived_messages", "derived_channels",
     "undecodable"}`` (``messages`` and ``channels`` count raw and derived ones, as ``swarm info`` does).
     """
-    from runtime.transport import open_session, subscribe  # zenoh only when recording live
+    from runtime.wire.transport import open_session, subscribe  # zenoh only when recording live
 
     with open_session(settings) as session:  # fails (ConnectionError) before any file is created
         recorder = McapRecorder(path, run, metadata)

@@ -29,7 +29,7 @@ import msgpack
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.keys import (
+from runtime.wire.keys import (
     COORD_LEAVES,
     MAX_ROBOT_ID,
     ROBOT_LEAVES,
@@ -43,7 +43,7 @@ from runtime.keys import (
     truth_key,
     truths_key,
 )
-from runtime.state import Observations, SwarmEstimate
+from runtime.models.state import Observations, SwarmEstimate
 
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
 MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
@@ -215,7 +215,7 @@ class Message:
 
     TYPE: ClassVar[str] = ""
     VERSION: ClassVar[int] = 1
-    LEAF: ClassVar[str] = ""  # last key chunk this type travels on (runtime.keys)
+    LEAF: ClassVar[str] = ""  # last key chunk this type travels on (runtime.wire.keys)
 
     run: str = _wire("str", "run id", pattern=RUN_PATTERN, max_length=64)
     step: int = _wire("int", "global step counter of the run: 0 = initial localization, motion steps from 1")
@@ -339,7 +339,7 @@ class PlanMessage(Message):
 
 @dataclass(frozen=True, kw_only=True)
 class EstimateMessage(Message):
-    """Coordinator -> all: the fused estimate after ``step`` (runtime.state.SwarmEstimate)."""
+    """Coordinator -> all: the fused estimate after ``step`` (runtime.models.state.SwarmEstimate)."""
 
     TYPE: ClassVar[str] = "EstimateMessage"
     LEAF: ClassVar[str] = "estimate"
@@ -526,7 +526,7 @@ M = TypeVar("M", bound=Message)
 
 
 def message_key(msg: Message) -> str:
-    """The key ``msg`` is published on (runtime.keys)."""
+    """The key ``msg`` is published on (runtime.wire.keys)."""
     if msg.LEAF in ROBOT_LEAVES:
         return robot_key(msg.run, msg.robot, msg.LEAF)  # type: ignore[attr-defined]
     if msg.LEAF in COORD_LEAVES:

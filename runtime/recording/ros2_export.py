@@ -34,9 +34,9 @@ from typing import Any
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.foxglove_scene import trajectory_configurations
-from runtime.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
-from runtime.recording import read_messages, recording_info
+from runtime.recording.foxglove_scene import trajectory_configurations
+from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
+from runtime.recording.mcap_log import read_messages, recording_info
 
 INSTALL_HINT = "pip install -e '.[ros2]'"
 FRAME = "world"

@@ -11,9 +11,9 @@ and the in-process simulator produce identical numbers for the same seed.
 from __future__ import annotations
 
 import numpy as np
-from runtime.config import ModelConfig
-from runtime.geometry import wrap_angle
-from runtime.state import Observations
+from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
+from runtime.models.state import Observations
 
 
 def measure(observer_poses: np.ndarray, target_positions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

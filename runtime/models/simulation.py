@@ -1,7 +1,7 @@
 """In-process simulated swarm: the ground truth world behind the swarm-backend interface.
 
 Each robot draws its motion and sensing noise from its own seeded streams
-(``runtime.rng``), exactly as a simulated agent process will, so an in-process run and a
+(``runtime.models.rng``), exactly as a simulated agent process will, so an in-process run and a
 distributed run with the same seed produce the same numbers.
 """
 
@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.config import ModelConfig
+from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.motion import execute_command
-from runtime.rng import Stream, robot_rngs
-from runtime.sensing import sense_swarm
-from runtime.state import Observations, StepCommands
+from runtime.models.motion import execute_command
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.sensing import sense_swarm
+from runtime.models.state import Observations, StepCommands
 
 
 class SimulatedSwarm:

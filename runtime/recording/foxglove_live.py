@@ -6,8 +6,8 @@
     view.close()
 
 ``handle(key, payload)`` decodes a raw message, derives the same channels the recorder
-writes (``runtime.foxglove_scene``: ``/foxglove/estimated``, ``/foxglove/true``,
-``/foxglove/desired`` scenes; ``runtime.plot_channels``: ``/robot/<id>/estimate`` ... for
+writes (``runtime.recording.foxglove_scene``: ``/foxglove/estimated``, ``/foxglove/true``,
+``/foxglove/desired`` scenes; ``runtime.recording.plot_channels``: ``/robot/<id>/estimate`` ... for
 the Plot panel) and logs them as JSON on channels of a ``foxglove.start_server`` WebSocket
 server; in the Foxglove app: Open connection -> Foxglove WebSocket -> ``ws://<host>:<port>``,
 then a 3D panel with display frame ``world`` (or the layout ``docs/foxglove-layout.json``).
@@ -32,7 +32,7 @@ import time
 from typing import Any
 
 from runtime.errors import SwarmInputError
-from runtime.foxglove_scene import (
+from runtime.recording.foxglove_scene import (
     MESSAGE_ENCODING,
     SCENE_UPDATE_SCHEMA_BYTES,
     SCHEMA_ENCODING,
@@ -40,10 +40,10 @@ from runtime.foxglove_scene import (
     TOPICS,
     SceneDeriver,
 )
-from runtime.keys import KeyspaceError
-from runtime.messages import MessageError, decode, type_for_key
-from runtime.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
-from runtime.plot_channels import PlotDeriver
+from runtime.wire.keys import KeyspaceError
+from runtime.wire.messages import MessageError, decode, type_for_key
+from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
+from runtime.recording.plot_channels import PlotDeriver
 
 INSTALL_HINT = "pip install -e '.[foxglove]'"
 REPEAT_S = 1.0  # while lingering, the latest message of each channel is logged again this often

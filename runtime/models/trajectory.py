@@ -21,8 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.graph import component_labels
-from runtime.state import robot_ids
+from runtime.models.graph import component_labels
+from runtime.models.state import robot_ids
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ class Trajectory:
 def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:
     """Connected-component label per robot of the graph 'within sensing range' (0, 1, ... by lowest robot index).
 
-    Pairs come from a k-d tree (O(n) pairs, not n^2); labels by ``runtime.graph.component_labels``.
+    Pairs come from a k-d tree (O(n) pairs, not n^2); labels by ``runtime.models.graph.component_labels``.
     """
     from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when connectivity is checked (cheap parsers)
 

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.geometry import wrap_angle
-from runtime.keys import KeyspaceError, validate_port
+from runtime.models.geometry import wrap_angle
+from runtime.wire.keys import KeyspaceError, validate_port
 
 TRANSPORTS = ("serial", "ant")
 MAX_LINK_ROBOT = 0xFFFE  # robot ids fit the frame's u16 ROBOT field (0xFFFF is broadcast)

@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.config import ModelConfig
-from runtime.motion import apply_motion, command_towards, draw_motion_noise
-from runtime.rng import Stream, robot_rngs
-from runtime.sensing import sense_swarm
-from runtime.state import Observations, StepCommands, SwarmEstimate
+from runtime.models.config import ModelConfig
+from runtime.models.motion import apply_motion, command_towards, draw_motion_noise
+from runtime.models.rng import Stream, robot_rngs
+from runtime.models.sensing import sense_swarm
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 
 def grid_configuration(n: int, spacing: float, rng: np.random.Generator, jitter: float = 0.25) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 Foxglove (Plot, Raw Message, State Transitions panels) and PlotJuggler read MCAP channels
 whose message encoding is ``json`` and whose schema is a ``jsonschema``; they cannot decode
-our msgpack. The recorder (``runtime.recording``) writes these channels next to the raw
+our msgpack. The recorder (``runtime.recording.mcap_log``) writes these channels next to the raw
 ones, each message right after the raw one it comes from, with its ``stamp_ns`` as publish
 time. Every field is a flat number (or, for plans and events, a short string or id list),
 so a plot path is simply ``/robot/3/estimate.x``. Units SI: m, rad.
@@ -46,8 +46,8 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from runtime.foxglove_scene import moving_robots, trajectory_configurations
-from runtime.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthSetMessage
+from runtime.recording.foxglove_scene import moving_robots, trajectory_configurations
+from runtime.wire.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthSetMessage
 
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"

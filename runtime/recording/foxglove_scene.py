@@ -1,8 +1,8 @@
 """Foxglove views of a run: ``foxglove.SceneUpdate`` messages derived from the raw ones (docs/recording.md).
 
-Pure Python, no foxglove-sdk needed: the recorder (``runtime.recording``) writes these
+Pure Python, no foxglove-sdk needed: the recorder (``runtime.recording.mcap_log``) writes these
 scenes as extra ``json`` channels next to the raw ``msgpack`` ones, and
-``runtime.foxglove_live.LiveView`` sends the same JSON to the Foxglove app live.
+``runtime.recording.foxglove_live.LiveView`` sends the same JSON to the Foxglove app live.
 
 Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
 
@@ -32,7 +32,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from runtime.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage
+from runtime.wire.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 SCHEMA_ENCODING = "jsonschema"

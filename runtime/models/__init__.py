@@ -1,0 +1,1 @@
+"""The swarm's models: state, trajectories, motion and sensing, the simulated world, metrics (SI units)."""
