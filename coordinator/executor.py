@@ -39,6 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from coordinator.backend import SwarmBackend
+from coordinator.checkpoint import RunState
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -187,6 +188,7 @@ class InchwormExecutor:
         listener: ExecutorListener | None = None,
         on_lost: str = "continue",
         min_robots: int = 2,
+        on_checkpoint: Callable[[RunState], None] | None = None,
     ) -> None:
         if on_lost not in ("continue", "abort"):
             raise SwarmInputError(f"on_lost must be 'continue' or 'abort', got {on_lost!r}")
@@ -200,40 +202,74 @@ class InchwormExecutor:
         self.listener = listener
         self.on_lost = on_lost
         self.min_robots = min_robots
+        self.on_checkpoint = on_checkpoint
         self._executed = 0  # command rounds sent in the current run (the global step in progress)
 
-    def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunResult:
-        if not np.array_equal(trajectory.ids, self.backend.ids) or not np.array_equal(initial_estimate.ids, trajectory.ids):
+    def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate, resume: RunState | None = None) -> RunResult:
+        """Follow ``trajectory`` from ``initial_estimate``; with ``resume``, go on from that state of the same run
+        (another coordinator's checkpoint: the backend's robots are the state's)."""
+        start = initial_estimate if resume is None else resume.estimate
+        if not np.array_equal(start.ids, self.backend.ids) or not np.isin(start.ids, trajectory.ids).all() or \
+                not np.array_equal(initial_estimate.ids, trajectory.ids):
             raise SwarmInputError(
                 f"trajectory robots {trajectory.ids.tolist()}, backend robots {self.backend.ids.tolist()} "
-                f"and estimate robots {initial_estimate.ids.tolist()} must be the same"
+                f"and estimate robots {start.ids.tolist()} must be the same"
             )
-        result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
-        self._executed = 0  # command rounds sent (the global step in progress)
-        estimate = initial_estimate
         total = len(trajectory.configurations)
-        if self.listener is not None:
-            self.listener.on_estimate(0, initial_estimate)
-        for c in range(total):
-            estimate = self._drop_lost(result, c, estimate)[0]
-            while True:  # (i), again if a robot was lost meanwhile
-                desired = self._desired(trajectory, c, estimate.ids)
-                plan, selection = self.strategy.plan(estimate, desired)
-                estimate, keep = self._drop_lost(result, c, estimate)
-                if keep is None:
-                    break
+        if resume is None:
+            result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
+            self._executed, estimate, first, group, plan, selection, planned_ids = 0, initial_estimate, 0, 0, None, None, None
             if self.listener is not None:
-                self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
-            planned_ids = estimate.ids
-            for k, group in enumerate(plan.groups):
+                self.listener.on_estimate(0, initial_estimate)
+            self._checkpoint(result, 0, 0, estimate, None, None)
+        else:
+            result, estimate, first, group = resume.result, resume.estimate, resume.config, resume.group
+            plan, selection, planned_ids = resume.plan, None, resume.planned_ids
+            self._executed = resume.step
+            self._restore_strategy(trajectory.ids, estimate.ids, resume.selector_calls)
+        for c in range(first, total):
+            if plan is None:
                 estimate = self._drop_lost(result, c, estimate)[0]
-                moving = np.isin(estimate.ids, planned_ids[group])
+                while True:  # (i), again if a robot was lost meanwhile
+                    desired = self._desired(trajectory, c, estimate.ids)
+                    plan, selection = self.strategy.plan(estimate, desired)
+                    estimate, keep = self._drop_lost(result, c, estimate)
+                    if keep is None:
+                        break
+                if self.listener is not None:
+                    self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
+                planned_ids, group = estimate.ids, 0
+                self._checkpoint(result, c, 0, estimate, plan, planned_ids)
+            for k in range(group, len(plan.groups)):
+                estimate = self._drop_lost(result, c, estimate)[0]
+                moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
+                self._checkpoint(result, c, k + 1, estimate, plan, planned_ids)
             result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
+            plan, selection = None, None
             if self.progress:
                 self.progress(c + 1, total)
+        self._checkpoint(result, total, 0, estimate, None, None, finished=True)
         return result
+
+    def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
+                    planned_ids: np.ndarray | None, finished: bool = False) -> None:
+        """Hand the run's state to ``on_checkpoint`` (after the start, each plan, each step and at the end)."""
+        if self.on_checkpoint is not None:
+            selector = getattr(self.strategy, "selector", None)
+            self.on_checkpoint(RunState(self._executed, config, group, estimate, plan, planned_ids,
+                                        0 if selector is None else selector.calls, result, finished))
+
+    def _restore_strategy(self, all_ids: np.ndarray, ids: np.ndarray, selector_calls: int) -> None:
+        """The strategy as the checkpointing coordinator had it: restricted to the robots left, its search's
+        random stream where it was."""
+        keep = np.isin(all_ids, ids)
+        if not keep.all():
+            self.strategy = self.strategy.restrict(keep)
+        selector = getattr(self.strategy, "selector", None)
+        if selector is not None:
+            selector.calls = selector_calls
 
     @staticmethod
     def _desired(trajectory: Trajectory, config: int, ids: np.ndarray) -> np.ndarray:

@@ -17,6 +17,16 @@ run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (als
 lost robots), 3 the run was aborted or the agents did not come up (the message names the
 robots), 2 bad input.
 
+One master per run (docs/protocol.md, Coordinator epochs): a coordinator started while another
+coordinator of the run is alive exits 4 with one line naming the live one, and touches nothing
+(no recording, no stop). The run survives its coordinator (docs/failure-model.md): the
+coordinator publishes a ``Checkpoint`` after the start, every plan and every step;
+``--standby`` follows a live coordinator's checkpoints and, when its token disappears without
+the run having finished or been stopped, takes the run over from the last one; ``--resume
+RECORDING`` takes it over from the last checkpoint recorded in an MCAP file. Either continues
+as the same run (same step numbers, estimate, plan, lost robots, selection random state), so in
+simulation the result is the fault-free run's.
+
 Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
 writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
@@ -36,6 +46,7 @@ import json
 import logging
 import math
 import os
+import queue
 import sys
 import threading
 import time
@@ -52,12 +63,14 @@ from swarm_cli.entry import StopSignals, leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
+    from coordinator.checkpoint import RunState
     from coordinator.executor import RunResult
     from runtime.recording.foxglove_live import LiveView
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
+EXIT_CONFLICT = 4  # another coordinator of the run is alive
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -84,6 +97,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
     p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
+    takeover = p.add_mutually_exclusive_group()
+    takeover.add_argument("--standby", action="store_true",
+                          help="follow the run's live coordinator and take the run over from its last checkpoint if it dies "
+                               "(same options as the coordinator it stands by for)")
+    takeover.add_argument("--resume", type=Path, default=None, metavar="RECORDING",
+                          help="take over the run from the last checkpoint in this MCAP recording (its coordinator is gone)")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -99,8 +118,13 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
                    help="with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; 0: exit at once)")
 
 
-def default_recording(run_id: str) -> Path:
-    return Path("recordings") / f"{run_id}.mcap"
+def default_recording(run_id: str, role: str = "") -> Path:
+    """``recordings/<run>.mcap``; a standby or resuming coordinator (``role``) records to ``recordings/<run>.<role>.mcap``."""
+    return Path("recordings") / (f"{run_id}.{role}.mcap" if role else f"{run_id}.mcap")
+
+
+def _role(args: argparse.Namespace) -> str:
+    return "standby" if args.standby else "resume" if args.resume else ""
 
 
 def result_json(result: RunResult) -> dict:
@@ -281,7 +305,14 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from coordinator.zenoh_backend import (  # noqa: PLC0415
+        AgentError,
+        CoordinatorConflict,
+        Timeouts,
+        ZenohSwarmBackend,
+        conflict_message,
+        live_coordinators,
+    )
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
     from swarm_cli.estop import send_estop  # noqa: PLC0415
@@ -296,29 +327,49 @@ def run(args: argparse.Namespace) -> int:
     strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
     settings = connection_settings(args)
     validate_run(args.run_id)
-    recording = None
-    if not args.no_record:
-        path = args.record or default_recording(args.run_id)
-        with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
-            recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
-        print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
-    recorded, completed = None, False
+    initial = initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
+    taken = read_checkpoint(args.resume, args.run_id, traj, initial) if args.resume else None
+    recording, recorded, completed, result = None, None, False, None
     try:
         if signals.received is not None:
             raise KeyboardInterrupt
         with open_session(settings) as session, live_view(args, traj, session) as live:
-            if recording is not None:
+            live_now = live_coordinators(session, args.run_id)
+            if live_now and not args.standby:  # before anything is recorded or stopped: this run has a master
+                print(f"swarm coordinator: error: {conflict_message(args.run_id, live_now)}", file=sys.stderr, flush=True)
+                return EXIT_CONFLICT
+            if not args.no_record:
+                path = args.record or default_recording(args.run_id, _role(args))
+                with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
+                    recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
+                print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
                 recording.wait_subscribed(session)
-            backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
-                                        simulated=not args.no_truth)
+            if args.standby:
+                taken = Standby(session, args.run_id, traj, initial).wait(args.start_timeout, signals)
+                if isinstance(taken, str):  # the run finished or was stopped: nothing to take over
+                    print(f"coordinator: standby: {taken}; nothing to take over", file=sys.stderr, flush=True)
+                    completed = True
+                    return 0 if taken.startswith("the run finished") else EXIT_AGENT
+            parent, state = taken if taken is not None else (0, None)
+            try:
+                backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
+                                            simulated=not args.no_truth, parent=parent)
+            except CoordinatorConflict as exc:
+                print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
+                completed = True  # not ours to stop
+                return EXIT_CONFLICT
             ended: BaseException | None = None
             try:
+                if state is not None:
+                    backend.resume(state)
+                    print(f"coordinator: epoch {backend.epoch} takes over run {args.run_id} from epoch {parent} after step "
+                          f"{state.step}", file=sys.stderr, flush=True)
                 backend.wait_for_agents()
-                print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
+                print(f"coordinator: {len(backend.ids)} agents alive, run {args.run_id}, epoch {backend.epoch}", file=sys.stderr, flush=True)
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
                 executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
-                                            on_lost=args.on_lost, min_robots=args.min_robots)
-                result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                                            on_lost=args.on_lost, min_robots=args.min_robots, on_checkpoint=backend.publish_checkpoint)
+                result = executor.run(traj, initial, resume=state)
                 completed = live.keep = True
             except (AgentError, RunAborted) as exc:
                 ended = exc
@@ -337,7 +388,7 @@ def run(args: argparse.Namespace) -> int:
         if recording is not None:
             with signals.deferred():
                 recorded = recording.finish(interrupted=signals.received is not None)
-            if not completed:  # failed or interrupted run: the summary below is not printed
+            if result is None:  # failed, interrupted or nothing to do: the summary below is not printed
                 print(recording_line(recorded), flush=True)
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
@@ -345,6 +396,107 @@ def run(args: argparse.Namespace) -> int:
     print_summary(result, args, plots, recorded)
     live.linger(args.linger)
     return 0
+
+
+def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple[int, RunState]:
+    """``(epoch, state)`` of the last ``Checkpoint`` of run ``run_id`` recorded in ``path`` (``--resume``)."""
+    from coordinator.checkpoint import RunState  # noqa: PLC0415
+    from runtime.recording.mcap_log import read_messages  # noqa: PLC0415
+    from runtime.wire.keys import coord_key  # noqa: PLC0415
+    from runtime.wire.messages import Checkpoint, MessageError, decode  # noqa: PLC0415
+
+    if not path.is_file():
+        raise SwarmInputError(f"--resume {path}: no such file")
+    key, last = coord_key(run_id, "checkpoint"), None
+    for topic, payload, _, _ in read_messages(path):
+        if topic == key:
+            try:
+                last = decode(payload, Checkpoint, key=key)
+            except MessageError:
+                continue
+    if last is None:
+        raise SwarmInputError(f"--resume {path}: no checkpoint of run {run_id} in this recording")
+    state = RunState.from_json(last.state, traj, initial)
+    if state.finished:
+        raise SwarmInputError(f"--resume {path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
+    return last.epoch, state
+
+
+class Standby:
+    """``--standby``: follows the checkpoints of the run's live coordinator until its token disappears."""
+
+    def __init__(self, session, run_id: str, traj: Trajectory, initial) -> None:
+        from runtime.wire.keys import coord_alive_key, coord_key, estop_key, parse_coord_token  # noqa: PLC0415
+        from runtime.wire.messages import Checkpoint, DropCounter, EmergencyStop, decode_or_drop  # noqa: PLC0415
+        from runtime.wire.transport import subscribe, watch_liveliness  # noqa: PLC0415
+
+        self.run_id, self.traj, self.initial = run_id, traj, initial
+        self.latest: dict[int, Checkpoint] = {}  # by epoch
+        self.stopped: str | None = None
+        self.events: queue.SimpleQueue[tuple[tuple[int, int], bool]] = queue.SimpleQueue()
+        drops = DropCounter(logging.getLogger(__name__))
+
+        def on_checkpoint(key: str, payload: bytes) -> None:
+            msg = decode_or_drop(payload, drops, key, Checkpoint)
+            if msg is not None:
+                self.latest[msg.epoch] = msg
+
+        def on_estop(key: str, payload: bytes) -> None:
+            msg = decode_or_drop(payload, drops, key, EmergencyStop)
+            if msg is not None and not msg.robots:
+                self.stopped = f"the run was stopped by {msg.source} ({msg.reason})"
+
+        def on_token(key: str, alive: bool) -> None:
+            token = parse_coord_token(key)
+            if token is not None:
+                self.events.put((token, alive))
+
+        self._subs = [subscribe(session, coord_key(run_id, "checkpoint"), on_checkpoint),
+                      subscribe(session, estop_key(run_id), on_estop),
+                      watch_liveliness(session, coord_alive_key(run_id), on_token)]
+
+    def wait(self, timeout_s: float, signals: StopSignals) -> tuple[int, RunState | None] | str:
+        """``(epoch, state)`` to take over once the followed coordinator is gone (``state`` None: it died before
+        its first checkpoint), or why there is nothing to take over."""
+        from coordinator.checkpoint import RunState  # noqa: PLC0415
+
+        live: dict[int, int] = {}
+        followed: int | None = None
+        deadline = time.monotonic() + timeout_s
+        try:
+            while True:
+                if signals.received is not None:
+                    raise KeyboardInterrupt
+                try:
+                    (epoch, parent), alive = self.events.get(timeout=0.05)
+                except queue.Empty:
+                    if followed is None and time.monotonic() > deadline:
+                        return f"no coordinator of run {self.run_id} appeared within {timeout_s:.0f} s"
+                    continue
+                if alive:
+                    live[epoch] = parent
+                    if followed is None:
+                        followed = epoch
+                        print(f"coordinator: standby for run {self.run_id}, following epoch {epoch}", file=sys.stderr, flush=True)
+                    continue
+                live.pop(epoch, None)
+                if epoch != followed:
+                    continue
+                if live:  # another coordinator took over first: follow it
+                    followed = min(live)
+                    continue
+                checkpoint = self.latest.get(epoch)
+                if self.stopped is not None:
+                    return self.stopped
+                if checkpoint is None:
+                    return epoch, None
+                state = RunState.from_json(checkpoint.state, self.traj, self.initial)
+                if state.finished:
+                    return f"the run finished (epoch {epoch})"
+                return epoch, state
+        finally:
+            for sub in self._subs:
+                sub.undeclare()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -33,6 +33,15 @@ tests and ``swarm bench faults``); the launcher then times the coordinator's rea
 heard it) and prints it; with ``--json`` the last line is the coordinator's JSON object
 with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
+``--standby`` also starts a standby coordinator (``swarm coordinator --standby``, same options,
+recording to ``<record>.standby.mcap``): if the coordinator dies without a word (SIGKILL, OOM)
+the standby takes the run over from its last checkpoint, the launcher sends no emergency stop
+and waits for the standby, whose summary and exit status become the launcher's.
+``--kill-coordinator STEP`` SIGKILLs the coordinator at the first command of global step STEP
+(fault injection); the launcher times the takeover: from the kill to the first command or
+observation request of the new coordinator's epoch, and with ``--json`` adds
+``"coordinator_kill": {"step", "takeover_ms"}`` to the last line.
+
 ``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
 ``swarm bench runtime``).
 """
@@ -57,7 +66,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.wire.keys import estop_key, robot_wildcard, validate_run
-from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, ObserveRequest, decode
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.agent import format_ids
@@ -106,6 +115,10 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
     p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--standby", action="store_true",
+                   help="also start a standby coordinator that takes the run over if the coordinator dies")
+    p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
+                   help="fault injection: SIGKILL the coordinator when global step STEP starts (with --standby: time the takeover)")
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
@@ -170,6 +183,40 @@ class RobotKiller:
             return None
         ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
         return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
+
+
+class CoordinatorKiller:
+    """``--kill-coordinator``: SIGKILL the coordinator at its first command of ``step``, then time the takeover: the
+    first command or observation request of another epoch (wall clock, ns; all processes are on this host)."""
+
+    def __init__(self, session, run_id: str, step: int, process: subprocess.Popen) -> None:
+        self.step, self.process = step, process
+        self.epoch: int | None = None
+        self.killed_ns: int | None = None
+        self.taken_ns: int | None = None
+        self._subs = [subscribe(session, robot_wildcard(run_id, leaf), self._on_message) for leaf in ("cmd", "observe")]
+
+    def _on_message(self, key: str, payload: bytes) -> None:
+        heard = time.time_ns()
+        try:
+            msg = decode(payload, MotionCommand if key.endswith("/cmd") else ObserveRequest)
+        except MessageError:
+            return
+        if self.killed_ns is None:
+            if isinstance(msg, MotionCommand) and msg.step >= self.step and self.process.poll() is None:
+                self.process.send_signal(signal.SIGKILL)
+                self.killed_ns, self.epoch = time.time_ns(), msg.epoch
+        elif self.taken_ns is None and msg.epoch != self.epoch:
+            self.taken_ns = heard
+
+    def report(self) -> dict | None:
+        """``{"step", "takeover_ms"}`` once the coordinator was killed (``takeover_ms`` None if nobody took over)."""
+        for sub in self._subs:
+            sub.undeclare()
+        if self.killed_ns is None:
+            return None
+        taken = None if self.taken_ns is None else round((self.taken_ns - self.killed_ns) / 1e6, 3)
+        return {"step": self.step, "takeover_ms": taken}
 
 
 def _forward_output(stream, last_json: list[str]) -> None:
@@ -349,6 +396,8 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
                 raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
     if args.driver == "gateway" and args.gateway_config:
         GatewayConfig.load(args.gateway_config)
+    if args.kill_coordinator is not None and args.kill_coordinator < 1:
+        raise SwarmInputError(f"--kill-coordinator {args.kill_coordinator}: the step must be >= 1")
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -417,15 +466,27 @@ def run(args: argparse.Namespace) -> int:
             if args.kill_robot is not None:
                 robot, step = args.kill_robot
                 killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
-            json_hold = args.json and killer is not None
+            json_hold = args.json and (killer is not None or args.kill_coordinator is not None)
+            standby = None
+            if args.standby:
+                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
+                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
+                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True)
+                procs.append(standby)
             coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
             procs.append(coordinator)
+            coord_killer = None if args.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, args.kill_coordinator, coordinator)
             last: list[str] = []
-            forwarder = threading.Thread(target=_forward_output, args=(coordinator.stdout, last), daemon=True) if json_hold else None
-            if forwarder is not None:
+            forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
+                          for p in (coordinator, standby) if json_hold and p is not None]
+            for forwarder in forwarders:
                 forwarder.start()
             try:
                 status = coordinator.wait()
+                if standby is not None and status < 0:  # died without a word: the standby takes the run over
+                    print(f"swarm {args.command}: the coordinator was killed (signal {-status}); the standby takes over",
+                          file=sys.stderr, flush=True)
+                    status = standby.wait()
             except KeyboardInterrupt:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
                 print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
@@ -434,20 +495,29 @@ def run(args: argparse.Namespace) -> int:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
                 print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
                       file=sys.stderr, flush=True)
-            if forwarder is not None:
+            if standby is not None:
+                stop_all([standby], COORDINATOR_GRACE_S)  # it saw the run finish and exits by itself
+            for forwarder in forwarders:
                 forwarder.join(timeout=10)
-            if killer is not None:
-                kill = killer.report()
-                if kill is not None:
-                    print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
-                          f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
-                if json_hold:
+            kill = None if killer is None else killer.report()
+            if kill is not None:
+                print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                      f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
+            coord_kill = None if coord_killer is None else coord_killer.report()
+            if coord_kill is not None:
+                print(f"swarm {args.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
+                      f"command came {coord_kill['takeover_ms']} ms after the kill", file=sys.stderr, flush=True)
+            if json_hold:
+                summary = {}
+                for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
                     try:
-                        summary = json.loads(last[0]) if last else {}
-                    except json.JSONDecodeError:  # the coordinator failed before its JSON line: pass it on as it was
-                        sys.stdout.write(last[0])
-                        summary = {}
-                    print_json({**summary, "kill": kill})
+                        summary = json.loads(line)
+                    except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
+                        sys.stdout.write(line)
+                extra = {} if killer is None else {"kill": kill}
+                if coord_killer is not None:
+                    extra["coordinator_kill"] = coord_kill
+                print_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
