@@ -41,15 +41,15 @@ token ``coord_alive_key(run, epoch, parent)`` and stamps its commands, observati
 truth sets with its ``epoch``. The agent obeys one epoch: the first live coordinator whose
 message it gets binds it, and while that token lives every other epoch is refused (a command
 answered ``Status refused`` naming the live epoch, other messages dropped as foreign); a message
-of an epoch whose token is not alive (a dead or replayed coordinator, or no epoch at all) is
-refused too. When the bound token is gone the next live coordinator may bind it: one that names
-the agent's epoch (or an ancestor) as its ``parent`` took the run over and continues it, so the
+of an epoch whose token went (a dead or replayed coordinator) or without any epoch is refused,
+one of an epoch whose token has not reached the agent yet is dropped (its coordinator sends it
+again). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
+declares itself only once that token is gone), even before the agent saw the token go. When
+the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an ancestor) as its ``parent`` took the run over and continues it, so the
 step memory is kept (a command for the step already executed is answered from memory, never
 executed twice); any other starts a new run at step 1 and the agent forgets the last run's steps
 (an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
-agents (and, through the link's RUN handshake, the same robots). An agent without any step
-memory (just started, e.g. a lost robot's agent restarted) answers an observation request of any
-step of its coordinator: that is how a robot rejoins a run in progress.
+agents (and, through the link's RUN handshake, the same robots).
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
@@ -106,6 +106,7 @@ _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
 _LOST = "__driver_lost__"  # the driver lost its robot while idle (e.g. the gateway's link process died)
 _STOP = "__stop__"  # wakes the loop so it sees stop()
+_UNSEEN = "__unseen__"  # a coordinator epoch whose token has not reached this agent yet
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 
 
@@ -152,6 +153,7 @@ class Agent:
         self._coords: dict[int, int] = {}  # live coordinator tokens: epoch -> parent
         self.bound: int | None = None  # the epoch obeyed (its token may have gone since)
         self._lineage: set[int] = set()  # epochs of the run the step memory belongs to
+        self._gone: set[int] = set()  # epochs whose tokens this agent saw go
 
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
@@ -247,6 +249,7 @@ class Agent:
         epoch, parent = token
         if alive == "0":
             self._coords.pop(epoch, None)
+            self._gone.add(epoch)
             return
         obeying = self.bound is not None and self.bound in self._coords
         self._coords[epoch] = parent
@@ -254,14 +257,21 @@ class Agent:
             self._publish_truth(0)
 
     def _admit(self, epoch: int) -> str | None:
-        """None if a message of coordinator ``epoch`` is to be obeyed (binding the agent to it), else why not."""
+        """None if a message of coordinator ``epoch`` is to be obeyed (binding the agent to it), ``_UNSEEN`` if that
+        epoch's token has not reached this agent yet (the message is dropped: its coordinator sends it again), else
+        why not."""
         if self.bound is not None and self.bound in self._coords:
             if epoch == self.bound:
                 return None
-            return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys the live coordinator epoch {self.bound} "
-                    f"of run {self.run_id}")
+            if self._coords.get(epoch) != self.bound:
+                return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys the live coordinator epoch {self.bound} "
+                        f"of run {self.run_id}")
+            self._coords.pop(self.bound)  # it took over from ours, which declared after our token had gone: gone
+            self._gone.add(self.bound)
         if epoch not in self._coords:
-            what = "carries no coordinator epoch" if epoch == 0 else f"comes from coordinator epoch {epoch}, which is not alive"
+            if epoch != 0 and epoch not in self._gone:
+                return _UNSEEN
+            what = "carries no coordinator epoch" if epoch == 0 else f"comes from coordinator epoch {epoch}, which is gone"
             return f"refused: the message {what} (run {self.run_id})"
         if self._coords[epoch] not in self._lineage:  # a new run: forget the last run's steps (a stop stays latched)
             self._last_cmd_step, self._last_cmd, self._last_status = -1, None, None
@@ -295,7 +305,8 @@ class Agent:
         """Whether ``msg`` comes from the coordinator obeyed; if not it is dropped as foreign."""
         reason = self._admit(msg.epoch)
         if reason is not None:
-            self.drops.drop(key, MessageError(f"{msg.TYPE}.epoch", reason, "foreign"))
+            problem = f"coordinator epoch {msg.epoch} is not known yet" if reason == _UNSEEN else reason
+            self.drops.drop(key, MessageError(f"{msg.TYPE}.epoch", problem, "foreign"))
         return reason is None
 
     def _on_command(self, key: str, payload: bytes) -> None:
@@ -308,6 +319,9 @@ class Agent:
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
         refusal = self._admit(cmd.epoch)
+        if refusal == _UNSEEN:
+            self.drops.drop(key, MessageError("MotionCommand.epoch", f"coordinator epoch {cmd.epoch} is not known yet", "foreign"))
+            return
         if refusal is not None:
             self._status(cmd, "refused", refusal, remember=False)
             return
@@ -373,8 +387,6 @@ class Agent:
             self._send(self._last_report)
             return
         expected = self._pending if self._pending is not None else self._next_step
-        if self._last_cmd_step < 0 and self._last_obs_step < 0 and self._pending is None:
-            expected = req.step  # no step memory: join the run at its coordinator's step (a robot rejoining)
         if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))

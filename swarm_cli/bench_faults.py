@@ -12,11 +12,18 @@ Three parts, each through the options a user has, with real processes on loopbac
   earlier messages. ``process_deaths`` counts agents or coordinator that died; ``identical``:
   the per-configuration table and P_f equal the in-process run of the same seed (which the
   distributed run reproduces bit for bit without faults).
+* ``coordinator``: ``swarm launch -n 10 --standby --kill-coordinator STEP --json`` per seed, STEP
+  drawn at random among the run's steps (seeded): the coordinator is SIGKILLed, the standby takes
+  the run over from its last checkpoint; ``completed`` counts runs that exit 0 with every
+  configuration done, ``identical`` those whose per-configuration table and P_f equal the
+  in-process run of the same seed, ``takeover_ms_max`` the longest kill -> first command of the
+  new coordinator.
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``swarm_cli.bench_faults_gateway``.
 
-``--json``: the last line is ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}}``.
+``--json``: the last line is ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}, "coordinator": {"runs",
+"completed", "identical", "takeover_ms_max"}}``.
 """
 
 from __future__ import annotations
@@ -81,6 +88,35 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
     return {"detect_ms_median": statistics.median(k["detect_ms"] for k in kills) if kills else None,
             "completed": len(done) == seeds, "estop_ms_max": max(k["estop_ms"] for k in kills) if kills else None,
             "runs": seeds, "runs_completed": len(done), "summaries": summaries}
+
+
+# -- coordinator killed, standby taking over -----------------------------------------------------
+
+
+def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3) -> dict:
+    """``swarm launch --standby --kill-coordinator STEP`` for seeds 0..seeds-1, STEP drawn among the run's steps;
+    each run compared with the in-process run of its seed. ``summaries``: each run's JSON and ``"returncode"``."""
+    from coordinator.simulate import simulate  # noqa: PLC0415
+
+    summaries, identical = [], 0
+    progress = Progress(seeds, "coordinator")
+    for seed in range(seeds):
+        traj = random_trajectory(robots, configs, np.random.default_rng(seed))
+        ref = simulate(traj, "inchworm", ModelConfig(), seed=seed)
+        step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
+        with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
+            proc = subprocess.run(
+                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
+                 "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
+                capture_output=True, text=True, cwd=tmp, timeout=600)
+        summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
+        summaries.append(summary)
+        identical += summary["returncode"] == 0 and _same_table(summary, ref)
+        progress(seed + 1)
+    done = [s for s in summaries if s["returncode"] == 0 and len(s.get("configs", [])) == configs]
+    takeovers = [s["coordinator_kill"]["takeover_ms"] for s in summaries if s.get("coordinator_kill")]
+    return {"runs": seeds, "completed": len(done), "identical": identical,
+            "takeover_ms_max": None if not takeovers or None in takeovers else max(takeovers), "summaries": summaries}
 
 
 # -- hostile messages ---------------------------------------------------------------------------
@@ -228,7 +264,10 @@ def run(args: argparse.Namespace) -> int:
     _say(f"fuzz: {args.fuzz} hostile messages during a run")
     fz = fuzz(args.fuzz)
     _say(json.dumps(fz))
+    _say(f"coordinator: swarm launch -n 10 --standby --kill-coordinator STEP (random) over {args.seeds} seeds")
+    coord = {k: v for k, v in coordinator_takeover(args.seeds).items() if k != "summaries"}
+    _say(json.dumps(coord))
     if args.json:
         print_json({"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")},
-                    "fuzz": fz})
+                    "fuzz": fz, "coordinator": coord})
     return 0

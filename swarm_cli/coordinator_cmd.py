@@ -438,8 +438,8 @@ class Standby:
 
         def on_checkpoint(key: str, payload: bytes) -> None:
             msg = decode_or_drop(payload, drops, key, Checkpoint)
-            if msg is not None:
-                self.latest[msg.epoch] = msg
+            if msg is not None and (msg.epoch not in self.latest or msg.step >= self.latest[msg.epoch].step):
+                self.latest[msg.epoch] = msg  # a replayed older checkpoint never replaces a newer one
 
         def on_estop(key: str, payload: bytes) -> None:
             msg = decode_or_drop(payload, drops, key, EmergencyStop)
