@@ -48,6 +48,7 @@ class RunState:
             "planned_ids": None if self.planned_ids is None else self.planned_ids.tolist(),
             "selector_calls": self.selector_calls, "method": r.method, "initial_truth": _array(r.initial_truth),
             "lost": [{"robot": x.robot, "step": x.step, "config": x.config, "reason": x.reason} for x in r.lost],
+            "rejoined": [{"robot": x.robot, "step": x.step, "config": x.config} for x in r.rejoined],
             "steps": [{"config": s.config, "step": s.step, "moving": s.moving.tolist(), "commands": s.commands.tolist(),
                        "estimate": _estimate(s.estimate), "truth": _array(s.truth), "fallback": s.fallback} for s in r.steps],
             "configs": [{"config": c.config, "plan": _plan(c.plan), "estimate": _estimate(c.estimate), "truth": _array(c.truth),
@@ -57,12 +58,13 @@ class RunState:
     @classmethod
     def from_json(cls, text: str, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunState:
         """The state ``to_json`` wrote, for the run of ``trajectory`` that started from ``initial_estimate``."""
-        from coordinator.executor import ConfigRecord, LostRobot, RunResult, StepRecord  # noqa: PLC0415 (import cycle)
+        from coordinator.executor import ConfigRecord, LostRobot, RejoinedRobot, RunResult, StepRecord  # noqa: PLC0415 (cycle)
 
         try:
             d = json.loads(text)
             result = RunResult(d["method"], trajectory, initial_estimate, _from_array(d["initial_truth"]))
             result.lost = [LostRobot(x["robot"], x["step"], x["config"], x["reason"]) for x in d["lost"]]
+            result.rejoined = [RejoinedRobot(x["robot"], x["step"], x["config"]) for x in d["rejoined"]]
             result.steps = [StepRecord(s["config"], s["step"], np.array(s["moving"], dtype=bool), np.array(s["commands"], float).reshape(-1, 2),
                                        _from_estimate(s["estimate"]), _from_array(s["truth"]), s["fallback"]) for s in d["steps"]]
             result.configs = [ConfigRecord(c["config"], _from_plan(c["plan"]), None, _from_estimate(c["estimate"]),

@@ -127,12 +127,14 @@ class ZenohSwarmBackend:
     """``SwarmBackend`` of the agents of run ``run`` with robots ``ids``, over ``session``."""
 
     def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
-                 parent: int = 0) -> None:
+                 parent: int = 0, rejoin: bool = True) -> None:
         live = live_coordinators(session, run)
         if live:
             raise CoordinatorConflict(conflict_message(run, live))
         self.epoch = secrets.randbits(63) or 1
         self.parent = parent
+        self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
+        self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.session = session
         self.run = run
         self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
@@ -185,7 +187,7 @@ class ZenohSwarmBackend:
         self._id_list = self.ids.tolist()
         self._id_set = set(self._id_list)
         with self._lock:
-            self._lost.update({x.robot: x.reason for x in state.result.lost})
+            self._lost.update({x.robot: x.reason for x in state.result.lost if x.robot not in self._id_set})
         self._estimate = {robot: list(pose) for robot, pose in zip(self._id_list, state.estimate.poses.tolist())}
         last = state.result.steps[-1] if state.result.steps else None
         truth = state.result.initial_truth if last is None else last.truth
@@ -210,7 +212,10 @@ class ZenohSwarmBackend:
         with self._lock:
             if alive:
                 self._alive.add(robot)
+                if self._started and robot in self._lost and self.rejoin:
+                    self._back.add(robot)
                 return
+            self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
         if started:
@@ -249,6 +254,50 @@ class ZenohSwarmBackend:
             self._id_list = self.ids.tolist()
             self._id_set = set(self._id_list)
         return taken
+
+    def lose(self, robot: int, reason: str) -> None:
+        """Declare ``robot`` lost (its stop and event are sent; ``take_lost`` reports it)."""
+        self._declare_lost(robot, reason)
+
+    def take_rejoining(self) -> list[int]:
+        """Lost robots whose agents came back since the last call (their tokens alive again)."""
+        with self._lock:
+            back, self._back = sorted(self._back & self._alive), set()
+        return back
+
+    def observe_rejoining(self, robots: list[int]) -> Observations:
+        """Bring ``robots`` (lost, their agents back) into the run: each is asked for its observations of the
+        current step (a simulated one first gets the step's truth set, with its own truth); those that answer are
+        in ``ids`` again and get a ``RobotEvent`` rejoined, the others are lost again. Their reports."""
+        s = self.step
+        with self._lock:
+            for robot in robots:
+                self._lost.pop(robot, None)
+        self.ids = np.array(sorted({*self._id_list, *robots}), dtype=np.int64)
+        self._id_list = self.ids.tolist()
+        self._id_set = set(self._id_list)
+        self._truths_sent = s - 1  # the set is sent again, with their truths
+        self._reports = {}
+        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
+
+        def send(targets) -> None:
+            for robot in targets:
+                publish(self.session, message_key(requests[robot]), encode(requests[robot]))
+            self._publish_truth_set(again=self._truths_sent >= s)
+
+        def missing() -> list[int]:
+            with self._lock:
+                return sorted(self._owed_obs.difference(self._lost))
+
+        self._owed_obs = set(requests)
+        send(list(requests))
+        self._wait(f"the observation request of step {s} (rejoining)", missing, send)
+        joined = [r for r in robots if r in self._reports and r not in self._lost]
+        for robot in joined:
+            event = RobotEvent(run=self.run, step=s, robot=robot, kind="rejoined", reason="its agent came back")
+            publish(self.session, message_key(event), encode(event))
+            _log.warning("robot %d rejoined the run after step %d", robot, s)
+        return observations_from_reports(self._reports[r] for r in joined)
 
     def _present(self) -> list[int]:
         """Robots of ``ids`` not lost meanwhile."""

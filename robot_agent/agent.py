@@ -49,7 +49,9 @@ the bound token is gone the next live coordinator may bind it: one that names th
 step memory is kept (a command for the step already executed is answered from memory, never
 executed twice); any other starts a new run at step 1 and the agent forgets the last run's steps
 (an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
-agents (and, through the link's RUN handshake, the same robots).
+agents (and, through the link's RUN handshake, the same robots). An agent without any step
+memory (just started, e.g. a lost robot's agent restarted) answers an observation request of any
+step of the coordinator it obeys: that is how a lost robot rejoins a run in progress.
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
@@ -387,6 +389,8 @@ class Agent:
             self._send(self._last_report)
             return
         expected = self._pending if self._pending is not None else self._next_step
+        if self._last_cmd_step < 0 and self._last_obs_step < 0 and self._pending is None:
+            expected = req.step  # no step memory: join the run at its coordinator's step (a lost robot rejoining)
         if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))

@@ -93,6 +93,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
     p.add_argument("--min-robots", type=int, default=2,
                    help="end the run when fewer robots than this are left (default 2, the least localization needs)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--no-truth", action="store_true",
                    help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
@@ -138,6 +140,7 @@ def result_json(result: RunResult) -> dict:
         "initial_estimate": result.initial_estimate.poses.tolist(),
         "initial_truth": truth(result.initial_truth),
         "lost": [{"robot": r.robot, "step": r.step, "config": r.config + 1, "reason": r.reason} for r in result.lost],
+        "rejoined": [{"robot": r.robot, "step": r.step, "config": r.config + 1} for r in result.rejoined],
         "steps": [
             {"config": s.config, "step": s.step, "ids": s.estimate.ids.tolist(), "moving": s.moving.tolist(), "commands": s.commands.tolist(),
              "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
@@ -247,6 +250,8 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
     rows, fallbacks = print_config_table(result)
     for lost in result.lost:
         print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
+    for back in result.rejoined:
+        print(f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on")
     pf = result.pf() if result.has_truth else None
     over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
@@ -353,7 +358,7 @@ def run(args: argparse.Namespace) -> int:
             parent, state = taken if taken is not None else (0, None)
             try:
                 backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
-                                            simulated=not args.no_truth, parent=parent)
+                                            simulated=not args.no_truth, parent=parent, rejoin=args.rejoin == "yes")
             except CoordinatorConflict as exc:
                 print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
                 completed = True  # not ours to stop

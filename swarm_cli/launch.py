@@ -79,7 +79,7 @@ from swarm_cli.options import add_simulation_options, model_config, nonnegative,
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "rejoin")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
@@ -113,6 +113,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
                    help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
     p.add_argument("--standby", action="store_true",

@@ -181,3 +181,43 @@ def test_sigkill_of_the_coordinator_at_a_random_step_the_standby_finishes_the_ru
     assert kill["step"] == step and 0 < kill["takeover_ms"] < 1000
     assert killed_result == clean_result  # every step's estimate, covariance and truth, bit for bit
     assert killed["pf"] == clean["pf"] and killed["configs"] == clean["configs"] and killed["lost"] == []
+
+
+def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_path):
+    """SIGKILL robot 2's agent when step 2 starts, restart it (same id, where the robot stands): it rejoins at the
+    next configuration, re-localized from its observations of its neighbours, and the run completes with it."""
+    traj, traj_file, hub_settings, hub = _run_with_agents(tmp_path, "rejoin", robots=6, configs=5, seed=3)
+    procs: list[subprocess.Popen] = []
+    truths: dict[int, list[float]] = {}
+    started = []
+    with open_session(hub_settings) as session:
+        from runtime.wire.messages import TruthMessage  # noqa: PLC0415
+
+        subscribe(session, "swarm/rejoin/sim/truth/2", lambda key, payload: truths.update({2: list(decode(payload, TruthMessage).pose)}))
+        subscribe(session, robot_wildcard("rejoin", "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
+        try:
+            start_agents(traj, "rejoin", hub, 3, 0.4, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json")
+            procs.append(coordinator)
+            _wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
+            victim = procs[2]
+            victim.send_signal(signal.SIGKILL)
+            victim.wait(timeout=10)
+            time.sleep(0.5)
+            x, y, heading = truths[2]
+            procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=2", f"--ids={','.join(map(str, traj.ids))}",
+                                           f"--pose={x!r},{y!r},{heading!r}", "--motion-time=0.4", "--run=rejoin", f"--hub={hub}",
+                                           "--seed=3"], env=ENV, stderr=subprocess.DEVNULL))
+            out, err = coordinator.communicate(timeout=180)
+        finally:
+            stop_all(procs)
+    assert coordinator.returncode == 0, err[-3000:]
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert [lost["robot"] for lost in result["lost"]] == [2]
+    assert [back["robot"] for back in result["rejoined"]] == [2]
+    assert result["rejoined"][0]["config"] > result["lost"][0]["config"]
+    last = result["steps"][-1]
+    assert 2 in last["ids"] and 2 in last["ids"] and len(last["ids"]) == 6  # it finished the run with the others
+    row = last["ids"].index(2)
+    assert np.linalg.norm(np.subtract(last["poses"][row][:2], last["truth"][row][:2])) < 0.1  # localized, not guessed
+    assert "robot 2 rejoined after step" in out
