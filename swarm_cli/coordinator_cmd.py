@@ -373,7 +373,8 @@ def run(args: argparse.Namespace) -> int:
                 print(f"coordinator: {len(backend.ids)} agents alive, run {args.run_id}, epoch {backend.epoch}", file=sys.stderr, flush=True)
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
                 executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
-                                            on_lost=args.on_lost, min_robots=args.min_robots, on_checkpoint=backend.publish_checkpoint)
+                                            on_lost=args.on_lost, min_robots=args.min_robots,
+                                            on_checkpoint=durable_checkpoints(backend, recording))
                 result = executor.run(traj, initial, resume=state)
                 completed = live.keep = True
             except (AgentError, RunAborted) as exc:
@@ -401,6 +402,19 @@ def run(args: argparse.Namespace) -> int:
     print_summary(result, args, plots, recorded)
     live.linger(args.linger)
     return 0
+
+
+def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
+    """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
+    it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on)."""
+    def checkpoint(state: RunState) -> None:
+        recorder = None if recording is None else recording.recorder
+        written = 0 if recorder is None else recorder.checkpoints
+        backend.publish_checkpoint(state)
+        if recorder is not None and not recorder.wait_checkpoints(written + 1, timeout_s):
+            logging.getLogger(__name__).warning("the recorder did not store the checkpoint of step %d within %.0f s",
+                                                state.step, timeout_s)
+    return checkpoint
 
 
 def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple[int, RunState]:

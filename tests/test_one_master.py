@@ -41,8 +41,9 @@ def _wait_for(predicate, timeout_s: float, what: str):
 
 
 def _coordinator(traj_file: Path, run_id: str, hub: str, seed: int, *extra: str) -> subprocess.Popen:
+    record = [] if any(e.startswith("--record=") for e in extra) else ["--no-record"]
     return subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", "--method=ref57",
-                             f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", "--json", *extra],
+                             f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *record, "--json", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=traj_file.parent, env=ENV)
 
 
@@ -221,3 +222,37 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
     row = last["ids"].index(2)
     assert np.linalg.norm(np.subtract(last["poses"][row][:2], last["truth"][row][:2])) < 0.1  # localized, not guessed
     assert "robot 2 rejoined after step" in out
+
+
+def test_a_coordinator_resumed_from_the_recording_of_a_killed_one_finishes_the_run_bit_for_bit(tmp_path):
+    """SIGKILL the coordinator (no standby) when step 3 starts; ``swarm coordinator --resume`` its recording: the run
+    completes with every estimate and truth equal to the fault-free run of the same seed."""
+    results = {}
+    for name in ("clean", "resumed"):
+        folder = tmp_path / name
+        folder.mkdir()
+        traj, traj_file, hub_settings, hub = _run_with_agents(folder, name, robots=6, configs=3, seed=6)
+        procs: list[subprocess.Popen] = []
+        started: list[int] = []
+        with open_session(hub_settings) as session:
+            subscribe(session, robot_wildcard(name, "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
+            try:
+                start_agents(traj, name, hub, 6, 0.05, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+                first = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--record=run.mcap")
+                procs.append(first)
+                if name == "resumed":
+                    _wait_for(lambda: any(s >= 3 for s in started), 60, "step 3")
+                    first.send_signal(signal.SIGKILL)
+                    first.wait(timeout=10)
+                    resumed = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--resume=run.mcap")
+                    procs.append(resumed)
+                    out, err = resumed.communicate(timeout=120)
+                    assert resumed.returncode == 0, err[-3000:]
+                    assert "takes over run resumed from epoch" in err
+                else:
+                    out, err = first.communicate(timeout=120)
+                    assert first.returncode == 0, err[-3000:]
+            finally:
+                stop_all(procs)
+        results[name] = json.loads((folder / "result.json").read_text())
+    assert results["resumed"] == results["clean"]
