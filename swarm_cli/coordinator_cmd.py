@@ -343,14 +343,15 @@ def run(args: argparse.Namespace) -> int:
             if live_now and not args.standby:  # before anything is recorded or stopped: this run has a master
                 print(f"swarm coordinator: error: {conflict_message(args.run_id, live_now)}", file=sys.stderr, flush=True)
                 return EXIT_CONFLICT
+            standby = Standby(session, args.run_id, traj, initial) if args.standby else None
             if not args.no_record:
                 path = args.record or default_recording(args.run_id, _role(args))
                 with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
                     recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
                 print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
                 recording.wait_subscribed(session)
-            if args.standby:
-                taken = Standby(session, args.run_id, traj, initial).wait(args.start_timeout, signals)
+            if standby is not None:
+                taken = standby.wait(args.start_timeout, signals)
                 if isinstance(taken, str):  # the run finished or was stopped: nothing to take over
                     print(f"coordinator: standby: {taken}; nothing to take over", file=sys.stderr, flush=True)
                     completed = True
@@ -470,9 +471,8 @@ class Standby:
             if token is not None:
                 self.events.put((token, alive))
 
-        self._subs = [subscribe(session, coord_key(run_id, "checkpoint"), on_checkpoint),
-                      subscribe(session, estop_key(run_id), on_estop),
-                      watch_liveliness(session, coord_alive_key(run_id), on_token)]
+        self._subs = [watch_liveliness(session, coord_alive_key(run_id), on_token), subscribe(session, estop_key(run_id), on_estop),
+                      subscribe(session, coord_key(run_id, "checkpoint"), on_checkpoint)]  # last: its match says "ready"
 
     def wait(self, timeout_s: float, signals: StopSignals) -> tuple[int, RunState | None] | str:
         """``(epoch, state)`` to take over once the followed coordinator is gone (``state`` None: it died before

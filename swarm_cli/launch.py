@@ -65,7 +65,7 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
-from runtime.wire.keys import estop_key, robot_wildcard, validate_run
+from runtime.wire.keys import coord_key, estop_key, robot_wildcard, validate_run
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, ObserveRequest, decode
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
@@ -219,6 +219,22 @@ class CoordinatorKiller:
             return None
         taken = None if self.taken_ns is None else round((self.taken_ns - self.killed_ns) / 1e6, 3)
         return {"step": self.step, "takeover_ms": taken}
+
+
+def wait_for_standby(session, run_id: str, standby: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Until the standby coordinator follows the run's checkpoints (its subscription reached the hub), so it sees
+    the coordinator that starts next from its first checkpoint on."""
+    probe = session.declare_publisher(coord_key(run_id, "checkpoint"))  # never published on
+    try:
+        deadline = time.monotonic() + timeout_s
+        while not probe.matching_status.matching:
+            if standby.poll() is not None:
+                raise SwarmInputError(f"the standby coordinator exited with status {standby.returncode} before it was ready")
+            if time.monotonic() > deadline:
+                raise SwarmInputError(f"the standby coordinator was not ready within {timeout_s:.0f} s")
+            time.sleep(0.01)
+    finally:
+        probe.undeclare()
 
 
 def _forward_output(stream, last_json: list[str]) -> None:
@@ -475,6 +491,7 @@ def run(args: argparse.Namespace) -> int:
                     [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
                 standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True)
                 procs.append(standby)
+                wait_for_standby(hub_session, run_id, standby)
             coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
             procs.append(coordinator)
             coord_killer = None if args.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, args.kill_coordinator, coordinator)

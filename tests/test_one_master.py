@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key, robot_wildcard
@@ -184,9 +185,11 @@ def test_sigkill_of_the_coordinator_at_a_random_step_the_standby_finishes_the_ru
     assert killed["pf"] == clean["pf"] and killed["configs"] == clean["configs"] and killed["lost"] == []
 
 
-def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_path):
+@pytest.mark.parametrize("rejoin", ["yes", "no"])
+def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_path, rejoin):
     """SIGKILL robot 2's agent when step 2 starts, restart it (same id, where the robot stands): it rejoins at the
-    next configuration, re-localized from its observations of its neighbours, and the run completes with it."""
+    next configuration, re-localized from its observations of its neighbours, and the run completes with it
+    (``--rejoin no``: it stays out, as before)."""
     traj, traj_file, hub_settings, hub = _run_with_agents(tmp_path, "rejoin", robots=6, configs=5, seed=3)
     procs: list[subprocess.Popen] = []
     truths: dict[int, list[float]] = {}
@@ -198,7 +201,7 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
         subscribe(session, robot_wildcard("rejoin", "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
         try:
             start_agents(traj, "rejoin", hub, 3, 0.4, (), procs, env=ENV, stderr=subprocess.DEVNULL)
-            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json")
+            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}")
             procs.append(coordinator)
             _wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
             victim = procs[2]
@@ -215,10 +218,13 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
     assert coordinator.returncode == 0, err[-3000:]
     result = json.loads((tmp_path / "result.json").read_text())
     assert [lost["robot"] for lost in result["lost"]] == [2]
+    if rejoin == "no":
+        assert result["rejoined"] == [] and 2 not in result["steps"][-1]["ids"] and "rejoined" not in out
+        return
     assert [back["robot"] for back in result["rejoined"]] == [2]
     assert result["rejoined"][0]["config"] > result["lost"][0]["config"]
     last = result["steps"][-1]
-    assert 2 in last["ids"] and 2 in last["ids"] and len(last["ids"]) == 6  # it finished the run with the others
+    assert 2 in last["ids"] and len(last["ids"]) == 6  # it finished the run with the others
     row = last["ids"].index(2)
     assert np.linalg.norm(np.subtract(last["poses"][row][:2], last["truth"][row][:2])) < 0.1  # localized, not guessed
     assert "robot 2 rejoined after step" in out
