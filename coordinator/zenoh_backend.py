@@ -38,7 +38,7 @@ One master per run (docs/protocol.md, Coordinator epochs): the backend draws its
 ``TruthSetMessage`` with it and declares its token ``coord_alive_key(run, epoch, parent)``
 only if no other coordinator's token of the run is alive, and gives up (``CoordinatorConflict``
 naming the live one) if another appeared meanwhile. ``parent`` is the epoch whose run it takes
-over (0: a new run); ``resume(state, truths)`` then starts at the checkpoint's step.
+over (0: a new run); ``resume(state)`` then starts at the checkpoint's step.
 ``publish_checkpoint`` publishes the executor's ``RunState`` as a ``Checkpoint``.
 """
 
@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.checkpoint import RunState
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
@@ -75,7 +76,6 @@ from runtime.wire.messages import (
     message_key,
     observations_from_reports,
 )
-from coordinator.checkpoint import RunState
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
 
@@ -195,7 +195,7 @@ class ZenohSwarmBackend:
             ids = state.result.initial_estimate.ids if last is None else last.estimate.ids
             self._truth.update({int(r): (state.step, np.array(pose, dtype=float)) for r, pose in zip(ids, truth)})
 
-    def publish_checkpoint(self, state) -> None:
+    def publish_checkpoint(self, state: RunState) -> None:
         """Publish the executor's ``RunState`` after its step as a ``Checkpoint`` (``on_checkpoint`` of the executor)."""
         msg = Checkpoint(run=self.run, step=state.step, epoch=self.epoch, config=state.config + 1, group=state.group,
                          selector_calls=state.selector_calls, lost=sorted({x.robot for x in state.result.lost}),
