@@ -515,7 +515,10 @@ def run(args: argparse.Namespace) -> int:
                 print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
                       file=sys.stderr, flush=True)
             if standby is not None:
-                stop_all([standby], COORDINATOR_GRACE_S)  # it saw the run finish and exits by itself
+                try:
+                    standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
+                except subprocess.TimeoutExpired:
+                    stop_all([standby], COORDINATOR_GRACE_S)
             for forwarder in forwarders:
                 forwarder.join(timeout=10)
             kill = None if killer is None else killer.report()
