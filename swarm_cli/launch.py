@@ -69,7 +69,7 @@ from swarm_cli.options import add_simulation_options, model_config, nonnegative,
 
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
@@ -189,8 +189,12 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={getattr(args, name)!r}".replace("'", "") for name in names]
+    """``--name=value`` for each option given (``=`` so negative numbers pass; repr so floats are exact)."""
+    return [f"--{name.replace('_', '-')}={_arg_text(getattr(args, name))}" for name in names if getattr(args, name) is not None]
+
+
+def _arg_text(value) -> str:
+    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
 def agent_command(
