@@ -89,7 +89,7 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, (int, float)):
         if isinstance(value, float) and not math.isfinite(value):
             return "inf" if value > 0 else ("-inf" if value < 0 else "nan")
-        return repr(value)
+        return repr(int(value)) if isinstance(value, int) else repr(float(value))
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     return json.dumps(str(value))  # a JSON string is a TOML basic string
