@@ -49,8 +49,13 @@ while the loop waits for a motion to finish); every later command is refused. Li
 sees a command. A driver that raises ``DriverRefused`` gives ``Status refused`` with its
 reason; ``RobotLost`` (during a command: after a ``Status refused`` "robot lost: ...")
 drops the liveliness token (the coordinator reports the robot lost by id) and ends the
-loop (``run`` returns 3). The token is declared only once ``driver.ready`` (a gateway
-driver: its link process is up), so "agent alive" means "robot reachable".
+loop (``run`` returns 3); so does ``driver.report_lost`` while idle. Any other exception from
+``execute`` or ``sense``, or no return within ``command_timeout_s`` (when set: the call then runs
+on a thread of its own and is abandoned), is a driver fault (``DriverFault``, a ``RobotLost``):
+the robot is reported lost the same way and ``driver.estop`` is called first. Whenever the loop
+ends, ``driver.stop()`` then ``driver.detach()`` are called (docs/drivers.md). The token is
+declared only once ``driver.ready`` (a gateway driver: its link process is up), so "agent
+alive" means "robot reachable".
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.

@@ -12,7 +12,9 @@ the wire. ``--ids`` lists every robot of the run (ranges too; default with
 (one robot) or from the initial poses of ``--trajectory``;
 ``--driver gateway`` drives the real or emulated robot through the link process of its
 port (``swarm link``), with limits (drive, turn, workspace) and calibration from the
-gateway config (docs/gateway.md). Exit status 3 when a robot was lost.
+gateway config (docs/gateway.md); ``--driver package.module:Class`` (or ``file.py:Class``, or an
+``inchworm_swarm.drivers`` entry point) builds a lab's own driver with ``--driver-option KEY=VALUE``
+and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 when a robot was lost.
 
 Connects as a Zenoh client to the hub, serves commands and observation requests until
 SIGTERM/SIGINT (see ``robot_agent.agent``), then closes its session and exits 0.

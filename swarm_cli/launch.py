@@ -25,6 +25,10 @@ same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``Emergenc
 to the run, then stops every child; so does a coordinator that ends with an error or is
 killed (any exit status but 0), so no robot is left moving.
 
+``--driver package.module:Class`` (or ``file.py:Class``, an entry point name) starts the agents with a
+lab's own driver (docs/drivers.md), given ``--driver-option``s and ``--command-timeout``; a driver
+that is not ``simulated`` gets a coordinator with ``--no-truth``.
+
 ``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID (with several agents per
 process: the process hosting it, and so its other robots too) as soon as the
 coordinator sends the first command of global step STEP (fault injection for demos,
