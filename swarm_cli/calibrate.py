@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibrate", help="fit the noise model (motion, sensing) to a recorded run and a tracker's true poses")
     p.add_argument("file", type=Path, help="MCAP recording of the run (swarm coordinator / swarm record)")
     p.add_argument("--truth", type=Path, required=True, metavar="CSV",
-                   help="true poses at step ends: robot,step,x,y,heading (m, rad; docs/calibration.md)")
+                   help="true poses at step ends: robot,step,x,y,heading (m, rad), or robot,time,x,y,heading (docs/calibration.md)")
     p.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="model file to write (TOML; default: the recording's name with .model.toml)")
     p.add_argument("--confidence", type=float, default=0.95, help="level of the confidence intervals (default 0.95)")
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         raise SwarmInputError(f"--confidence must be in [0.5, 1), got {args.confidence}")
     out = args.out or args.file.with_suffix(".model.toml")
     log = load_run_log(args.file)
-    truths = read_truth_csv(args.truth, log.ids)
+    truths = read_truth_csv(args.truth, log.ids, log.step_end_times())
     fit = fit_noise(log.commands, log.observations, truths, args.confidence)
     if fit.turn is None and fit.range is None:
         raise SwarmInputError(f"--truth {args.truth}: no step of the recording has true poses for its robots (steps 0, 1, ... of robots {log.ids})")

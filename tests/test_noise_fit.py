@@ -185,3 +185,29 @@ def test_calibrate_and_export_truth_on_the_sample(tmp_path, capsys):
     cfg = load_model(out)  # the file it wrote is a model file every command reads
     assert cfg.range_sigma_m == pytest.approx(result["range_sigma_m"])
     assert main(["sim", "--robots", "4", "--configs", "1", "--model", str(out), "--out", str(tmp_path)]) == 0
+
+
+def test_a_tracker_on_its_own_clock_gives_the_same_fit(tmp_path, capsys):
+    """Rows with ``time`` instead of ``step`` are interpolated at the step ends: a tracker sampling at the step
+    ends and halfway between them gives the fit of the per-step truth."""
+    log = load_run_log(SAMPLE)
+    ends = log.step_end_times()
+    timed = tmp_path / "timed.csv"
+    lines = ["time,robot,x,y,heading"]
+    for (robot, step), pose in sorted(log.truths.items()):
+        pose, t = pose.tolist(), ends[(robot, step)]
+        lines.append(f"{t!r},{robot},{pose[0]!r},{pose[1]!r},{pose[2] + 2 * np.pi!r}")  # headings need not be wrapped
+        if (robot, step + 1) in log.truths:  # halfway to the next step end: not a step end, never used as one
+            nxt = log.truths[(robot, step + 1)].tolist()
+            mid = (t + ends[(robot, step + 1)]) / 2
+            lines.append(f"{mid!r},{robot},{(pose[0] + nxt[0]) / 2!r},{(pose[1] + nxt[1]) / 2!r},{pose[2]!r}")
+    timed.write_text("\n".join(lines) + "\n")
+    stepped = tmp_path / "stepped.csv"
+    assert main(["export", str(SAMPLE), "--truth", str(stepped)]) == 0
+    results = []
+    for csv_path in (stepped, timed):
+        assert main(["calibrate", str(SAMPLE), "--truth", str(csv_path), "--out", str(tmp_path / "m.toml"), "--json"]) == 0
+        results.append(last_json(capsys.readouterr().out))
+    for key in ("turn_sigma_deg", "drive_sigma_frac", "range_sigma_m", "bearing_sigma_deg", "dropout", "sensing_range_m"):
+        assert results[1][key] == pytest.approx(results[0][key], rel=1e-9, abs=1e-12)
+    assert results[1]["samples"] == results[0]["samples"]

@@ -28,6 +28,16 @@ class RunLog:
     commands: dict[tuple[int, int], tuple[float, float]] = field(default_factory=dict)  # (robot, step) -> (turn, drive), executed
     observations: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
     truths: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # (robot, step) -> true pose (simulation)
+    report_ns: dict[tuple[int, int], int] = field(default_factory=dict)  # (robot, step) -> its ObservationReport's stamp_ns
+    first_command_ns: dict[int, int] = field(default_factory=dict)  # step -> stamp_ns of its first MotionCommand
+
+    def step_end_times(self) -> dict[tuple[int, int], float]:
+        """When each robot's step ended (s since the Unix epoch, publishers' clocks): step s >= 1 when the robot
+        reported its observations of s, step 0 when the first command of step 1 went out (nothing had moved)."""
+        times = {key: ns / 1e9 for key, ns in self.report_ns.items()}
+        if 1 in self.first_command_ns:
+            times.update({(robot, 0): self.first_command_ns[1] / 1e9 for robot in self.ids})
+        return times
 
 
 def load_run_log(path: str | os.PathLike) -> RunLog:
@@ -54,12 +64,14 @@ def load_run_log(path: str | os.PathLike) -> RunLog:
         ids.add(key[0])
         if isinstance(msg, MotionCommand):
             sent[key] = (float(msg.turn_rad), float(msg.drive_m))
+            log.first_command_ns[key[1]] = min(msg.stamp_ns, log.first_command_ns.get(key[1], msg.stamp_ns))
         elif isinstance(msg, Status):
             if msg.state == "done":
                 done.add(key)
         elif isinstance(msg, ObservationReport):
             log.observations[key] = (np.array(msg.observed, dtype=np.int64), np.array(msg.ranges, dtype=float),
                                      np.array(msg.bearings, dtype=float))
+            log.report_ns.setdefault(key, msg.stamp_ns)
         else:
             log.truths[key] = np.array(msg.pose, dtype=float)
     log.commands = {k: v for k, v in sent.items() if k in done}
