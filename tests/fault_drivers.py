@@ -75,3 +75,18 @@ class LosingDriver(_Logged):
 
     def fail(self, command) -> None:
         raise RobotLost(f"robot {self.robot_id} stopped answering its radio")
+
+
+class LostWhileIdleDriver(_Logged):
+    """Its robot's battery dies between steps: after sensing step ``fail_step`` the driver calls ``report_lost``."""
+
+    def execute(self, command):
+        self.log("execute", step=command.step)
+        return UnicycleDriver.execute(self, command)
+
+    def sense(self, peers, step: int = 0):
+        result = super().sense(peers, step)
+        if self.robot_id == self.fail_robot and step == self.fail_step:
+            self.log("fault", step=step)
+            threading.Timer(0.05, self.report_lost, args=(f"robot {self.robot_id}: battery flat",)).start()
+        return result
