@@ -200,8 +200,10 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
         subscribe(session, "swarm/rejoin/sim/truth/2", lambda key, payload: truths.update({2: list(decode(payload, TruthMessage).pose)}))
         subscribe(session, robot_wildcard("rejoin", "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
         try:
-            start_agents(traj, "rejoin", hub, 3, 0.4, (), procs, env=ENV, stderr=subprocess.DEVNULL)
-            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}")
+            # a sensing range of 3 m: the robot left behind still sees the others when it comes back (out of
+            # everybody's range it could not be re-localized and would stay lost)
+            start_agents(traj, "rejoin", hub, 3, 0.4, ("--sensing-range=3.0",), procs, env=ENV, stderr=subprocess.DEVNULL)
+            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}", "--sensing-range=3.0")
             procs.append(coordinator)
             _wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
             victim = procs[2]
@@ -211,13 +213,13 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
             x, y, heading = truths[2]
             procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=2", f"--ids={','.join(map(str, traj.ids))}",
                                            f"--pose={x!r},{y!r},{heading!r}", "--motion-time=0.4", "--run=rejoin", f"--hub={hub}",
-                                           "--seed=3"], env=ENV, stderr=subprocess.DEVNULL))
+                                           "--seed=3", "--sensing-range=3.0"], env=ENV, stderr=subprocess.DEVNULL))
             out, err = coordinator.communicate(timeout=180)
         finally:
             stop_all(procs)
     assert coordinator.returncode == 0, err[-3000:]
     result = json.loads((tmp_path / "result.json").read_text())
-    assert [lost["robot"] for lost in result["lost"]] == [2]
+    assert [lost["robot"] for lost in result["lost"]] == [2], (result["lost"], err[-3000:])
     if rejoin == "no":
         assert result["rejoined"] == [] and 2 not in result["steps"][-1]["ids"] and "rejoined" not in out
         return
