@@ -64,13 +64,14 @@ def test_a_second_coordinator_on_a_live_run_is_refused_and_the_first_finishes_al
     with open_session(hub_settings) as session:
         subscribe(session, robot_wildcard("twomasters", "cmd"), lambda key, payload: commands.append(decode(payload, MotionCommand)))
         try:
-            start_agents(traj, "twomasters", hub, 2, 0.3, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+            # the first coordinator is live (its token declared, waiting for its agents) however slow the machine
             first = _coordinator(traj_file, "twomasters", hub, 2, "--result=first.json")
             procs.append(first)
-            _wait_for(lambda: commands, 60, "the first coordinator's first command")
+            _wait_for(lambda: alive_now(session, coord_alive_key("twomasters")), 60, "the first coordinator's token")
             second = _coordinator(traj_file, "twomasters", hub, 5)
             procs.append(second)
             _, err2 = second.communicate(timeout=60)
+            start_agents(traj, "twomasters", hub, 2, 0.1, (), procs, env=ENV, stderr=subprocess.DEVNULL)
             out1, err1 = first.communicate(timeout=120)
         finally:
             stop_all(procs)
