@@ -20,12 +20,12 @@ import numpy as np
 from scipy.stats import chi2
 
 from coordinator.executor import RunResult
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import simulate
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 
-LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods
 
 
@@ -84,7 +84,7 @@ def _json_number(x: float) -> float | None:
 def consistency_study(
     cfg: ModelConfig,
     *,
-    localizers: tuple[str, ...] = LOCALIZERS,
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS,
     methods: tuple[str, ...] = METHODS,
     robots: int = 10,
     configs: int = 100,
@@ -116,4 +116,4 @@ def consistency_study(
     return rows
 
 
-__all__ = ["ConsistencyRow", "chi2_band", "consistency_study", "position_nees", "run_nees", "LOCALIZERS", "METHODS"]
+__all__ = ["ConsistencyRow", "chi2_band", "consistency_study", "position_nees", "run_nees", "METHODS"]

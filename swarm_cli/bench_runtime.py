@@ -151,7 +151,7 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     from swarm_cli.launch import MODEL_OPTIONS, _forward, agents_per_process, default_gateway, start_agents, start_gateway, stop_all  # noqa: PLC0415
     cfg = model_config(args)
-    strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
+    strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)

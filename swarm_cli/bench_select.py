@@ -34,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
     sizes = parse_list(args.sizes, "--sizes", int, 2)
     if args.repeats < 1:
@@ -41,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.all_cores and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     cfg, selection = model_config(args), selection_config(args)
+    localizer = make_localizer(args.localizer, cfg)
     results = []
     print(f"{'n':>5} {'s_median':>9} {'s_min':>7} {'s_max':>7} {'n_a chosen':>10} {'plans evaluated':>16}")
     for n in sizes:
@@ -49,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"n={n} selection {r + 1}/{args.repeats}", file=sys.stderr, flush=True)
             traj = random_trajectory(n, 1, np.random.default_rng([args.seed, n, r]), sensing_range=cfg.sensing_range_m)
             estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
-            selector = AnchorSelector(cfg, args.localizer, selection, seed=args.seed + r)
+            selector = AnchorSelector(cfg, localizer, selection, seed=args.seed + r)
             t0 = time.perf_counter()
             sel = selector.select(estimate, traj.configurations[0])
             times.append(time.perf_counter() - t0)

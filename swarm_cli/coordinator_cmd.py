@@ -293,7 +293,8 @@ def run(args: argparse.Namespace) -> int:
     if not 2 <= args.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     selection = selection_config(args)
-    strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
+    localizer = make_localizer(args.localizer, cfg)
+    strategy = make_strategy(args.method, traj.n, cfg, localizer, selection, args.seed)  # bad input fails before waiting
     settings = connection_settings(args)
     validate_run(args.run_id)
     recording = None
@@ -316,7 +317,7 @@ def run(args: argparse.Namespace) -> int:
                 backend.wait_for_agents()
                 print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
+                executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=backend,
                                             on_lost=args.on_lost, min_robots=args.min_robots)
                 result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
                 completed = live.keep = True

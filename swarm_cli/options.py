@@ -9,6 +9,7 @@ import os
 
 from typing import TYPE_CHECKING
 
+from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -95,7 +96,18 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--localizer", choices=["paper", "joint"], default="paper", help="localization method (default: paper, Section 5)")
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
+                        help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
+
+
+def localizer_list(text: str, option: str) -> list[str]:
+    """Names of a comma-separated localizer option (``--localizers paper,joint``), each registered."""
+    names = [x.strip() for x in text.split(",") if x.strip()]
+    known = localizer_names()
+    if not names or any(x not in known for x in names):
+        raise SwarmInputError(f"{option} must list localizers among {', '.join(known)}, got {text!r}")
+    return names
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:

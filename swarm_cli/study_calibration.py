@@ -23,7 +23,8 @@ import numpy as np
 
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, positive_int, print_json, selection_config
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from swarm_cli.options import localizer_list, add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, positive_int, print_json, selection_config
 from swarm_cli.progress import Progress
 
 PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
@@ -32,7 +33,8 @@ CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibration", help="noise at which ref57's P_f matches the paper's; inchworm / ref57 there")
-    p.add_argument("--localizers", default="paper,joint", help="localizers (default paper,joint)")
+    p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
+                   help=f"localizers, any registered one (default {','.join(BUILTIN_LOCALIZERS)})")
     p.add_argument("--sensing-scales", default="1", help="factors on range and bearing sigmas (default 1)")
     p.add_argument("--target", type=float, default=PAPER_REF57_PF, help="ref57 P_f to match (default the paper's 0.0673)")
     p.add_argument("--max-motion-scale", type=float, default=32.0, help="largest factor on turn and drive sigmas tried (default 32)")
@@ -111,9 +113,7 @@ def run(args: argparse.Namespace) -> int:
     sensing = parse_list(args.sensing_scales, "--sensing-scales", float)
     seeds = parse_list(args.seeds, "--seeds", int)
     methods = parse_methods(args.methods)
-    localizers = [x.strip() for x in args.localizers.split(",") if x.strip()]
-    if not localizers or any(x not in ("paper", "joint") for x in localizers):
-        raise SwarmInputError(f"--localizers must list paper and/or joint, got {args.localizers!r}")
+    localizers = localizer_list(args.localizers, "--localizers")
     if REFERENCE not in methods:
         raise SwarmInputError(f"--methods must include {REFERENCE} (the ratios are against it)")
     if min(args.trajectories, args.configs, args.calibration_trajectories, args.iterations) < 1 or args.target <= 0 or args.max_motion_scale <= 1:

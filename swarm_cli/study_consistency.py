@@ -16,20 +16,21 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, model_config, print_json, selection_config
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from swarm_cli.options import add_json_option, add_model_options, add_selection_options, localizer_list, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
     from coordinator.consistency import ConsistencyRow
 
 
-LOCALIZERS = ("paper", "joint")  # as coordinator.consistency, without importing it to build the parser
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("consistency", help="NEES of the reported position covariance along trajectories, per localizer and method")
-    p.add_argument("--localizers", default=",".join(LOCALIZERS), help="comma-separated (default paper,joint)")
+    p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
+                   help=f"comma-separated, any registered localizer (default {','.join(BUILTIN_LOCALIZERS)})")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated anchor methods (default {','.join(METHODS)})")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--configs", type=int, default=100, help="configurations per trajectory (default 100)")
@@ -53,8 +54,8 @@ def _names(text: str, flag: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
 
 def run(args: argparse.Namespace) -> int:
     from coordinator.strategies import METHODS as ALL_METHODS  # noqa: PLC0415
-    from coordinator.consistency import LOCALIZERS, chi2_band, consistency_study  # noqa: PLC0415
-    localizers = _names(args.localizers, "--localizers", LOCALIZERS)
+    from coordinator.consistency import chi2_band, consistency_study  # noqa: PLC0415
+    localizers = tuple(localizer_list(args.localizers, "--localizers"))
     methods = _names(args.methods, "--methods", tuple(ALL_METHODS))
     for flag, value, low in (("--robots", args.robots, 2), ("--configs", args.configs, 1), ("--trajectories", args.trajectories, 1)):
         if value < low:

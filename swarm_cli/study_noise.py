@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, print_json, selection_config
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from swarm_cli.options import localizer_list, add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, print_json, selection_config
 from swarm_cli.progress import Progress
 
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
@@ -27,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("noise", help="sweep motion/sensing noise and localizer: chosen n_a and P_f vs ref57")
     p.add_argument("--motion-scales", default="0.5,1,2,4", help="factors on turn and drive sigmas (default 0.5,1,2,4)")
     p.add_argument("--sensing-scales", default="0.25,1,4", help="factors on range and bearing sigmas (default 0.25,1,4)")
-    p.add_argument("--localizers", default="paper,joint", help="localizers to sweep (default paper,joint)")
+    p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
+                   help=f"localizers to sweep, any registered one (default {','.join(BUILTIN_LOCALIZERS)})")
     p.add_argument("--robots", type=int, default=10, help="robots per trajectory (default 10)")
     p.add_argument("--trajectories", type=int, default=3, help="random trajectories per setting (default 3)")
     p.add_argument("--configs", type=int, default=4, help="configurations per trajectory (default 4)")
@@ -46,9 +48,7 @@ def run(args: argparse.Namespace) -> int:
     base = model_config(args)
     motion = parse_list(args.motion_scales, "--motion-scales", float)
     sensing = parse_list(args.sensing_scales, "--sensing-scales", float)
-    localizers = [x.strip() for x in args.localizers.split(",") if x.strip()]
-    if not localizers or any(x not in ("paper", "joint") for x in localizers):
-        raise SwarmInputError(f"--localizers must list paper and/or joint, got {args.localizers!r}")
+    localizers = localizer_list(args.localizers, "--localizers")
     selection = selection_config(args)
     settings = [(loc, ms, ss) for loc in localizers for ms in motion for ss in sensing]
     jobs = []

@@ -36,6 +36,11 @@ Covariances are those of ``reference_localizer``: for the joint method, without 
 observability constraint (``gauge``). It removes information that builds up spuriously over
 hundreds of steps; within the few steps of one plan it changes a covariance by well under
 1 % (tests/test_localization_consistency.py), not worth its cost in the planner's inner loop.
+
+The batch is given the localizer object itself (the executor's, with its options). The built-in
+localizers without a Huber loss are solved here, vectorised; any other localizer (a registered
+one, or a built-in with ``huber`` set) localizes every sample through its own ``localize_subset``
+(``partial.localize_observable``, as the runtime): exact, one sample at a time.
 """
 
 from __future__ import annotations
@@ -64,10 +69,10 @@ from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from coordinator.localization import make_localizer
+from coordinator.localization import Localizer
+from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.partial import localize_observable
 
-METHODS = ("paper", "joint")
 # (xtol, ftol, ptol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
 # topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
@@ -89,15 +94,25 @@ class BatchEstimate:
     ok: np.ndarray  # (B,) bool: False where the sample could not be localized (poses/cov = dead reckoning)
 
 
-def reference_localizer(method: str, cfg: ModelConfig):
-    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``method``."""
-    if method == "joint":
-        return JointLocalizer(cfg, constrain_gauge=False)
-    return make_localizer(method, cfg)
+def batched_method(localizer: Localizer) -> str | None:
+    """``paper`` or ``joint`` where this module solves ``localizer``'s problem vectorised, else None
+    (every sample then goes through the localizer itself)."""
+    kind = type(localizer)
+    if kind in (PaperLocalizer, JointLocalizer) and localizer.huber is None:
+        return localizer.name
+    return None
+
+
+def reference_localizer(localizer: Localizer) -> Localizer:
+    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``localizer``: the joint
+    localizer without the observability constraint (module docstring), else ``localizer`` itself."""
+    if type(localizer) is JointLocalizer and localizer.constrain_gauge:
+        return JointLocalizer(localizer.cfg, huber=localizer.huber, constrain_gauge=False)
+    return localizer
 
 
 def localize_batch(
-    method: str,
+    localizer: Localizer,
     cfg: ModelConfig,
     prior_poses: np.ndarray,
     prior_cov: np.ndarray,
@@ -107,7 +122,7 @@ def localize_batch(
     ranges: np.ndarray,
     bearings: np.ndarray,
 ) -> BatchEstimate:
-    """Localize B swarms: ``make_localizer(method, cfg).localize`` applied to every sample.
+    """Localize B swarms: ``reference_localizer(localizer).localize`` applied to every sample.
 
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
@@ -117,8 +132,6 @@ def localize_batch(
     the runtime's partial localization (``partial.localize_observable``); where it holds
     values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
     """
-    if method not in METHODS:
-        raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
     prior_poses = np.asarray(prior_poses, dtype=float)
     if prior_poses.ndim != 3 or prior_poses.shape[2] != 3:
         raise SwarmInputError(f"prior_poses must have shape (B, n, 3), got {prior_poses.shape}")
@@ -134,8 +147,12 @@ def localize_batch(
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
     valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)
-    ok = valid & observable(seen)
     poses, cov = dr_poses.copy(), dr_cov.copy()
+    method = batched_method(localizer)
+    if method is None:
+        ok = _localize_each(localizer, cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+        return BatchEstimate(poses, cov, valid & ok)
+    ok = valid & observable(seen)
     solve = _localize_paper if method == "paper" else _localize_joint
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
@@ -144,7 +161,7 @@ def localize_batch(
         _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws)
         partial = np.flatnonzero(valid & ~ok)
         if partial.size:
-            _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
+            _localize_partial(localizer, method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
     return BatchEstimate(poses, cov, ok)
 
 
@@ -158,7 +175,7 @@ def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, beari
         ok[sel[~good]] = False
 
 
-def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
+def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
     """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
     n = seen.shape[1]
     rest = index
@@ -172,15 +189,25 @@ def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, movi
         est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
-    ids = np.arange(n)
-    loc = reference_localizer(method, cfg)
-    for b in rest:
+    _localize_each(reference_localizer(localizer), cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+
+
+def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov) -> np.ndarray:
+    """The runtime's localization (``partial.localize_observable``) of samples ``index`` one by one, into poses/cov.
+
+    Returns (B,) True where no robot of the sample was left at dead reckoning.
+    """
+    ids = np.arange(seen.shape[1])
+    whole = np.zeros(len(seen), bool)
+    for b in index:
         i, j = np.nonzero(seen[b])
-        est, _ = localize_observable(
-            loc, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
+        est, excluded = localize_observable(
+            localizer, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
             Observations(i, j, ranges[b, i, j], bearings[b, i, j]), cfg,
         )
         poses[b], cov[b] = est.poses, est.cov
+        whole[b] = not excluded
+    return whole
 
 
 def observable(seen: np.ndarray) -> np.ndarray:
