@@ -39,8 +39,8 @@ hundreds of steps; within the few steps of one plan it changes a covariance by w
 
 The batch is given the localizer object itself (the executor's, with its options). The built-in
 localizers without a Huber loss are solved here, vectorised; any other localizer (a registered
-one, or a built-in with ``huber`` set) localizes every sample through its own ``localize_subset``
-(``partial.localize_observable``, as the runtime): exact, one sample at a time.
+one, or a built-in with ``huber`` set) localizes every sample through ``reference_localizer`` of it
+(``partial.localize_observable``, as the runtime), one sample at a time.
 """
 
 from __future__ import annotations
@@ -150,7 +150,7 @@ def localize_batch(
     poses, cov = dr_poses.copy(), dr_cov.copy()
     method = batched_method(localizer)
     if method is None:
-        ok = _localize_each(localizer, cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
     solve = _localize_paper if method == "paper" else _localize_joint
