@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import coordinator.localization.batch as batch_module
+import coordinator.localization.sparse_lm as sparse_lm
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
     COMPACT_BELOW,
@@ -234,7 +235,7 @@ def test_lm_settles_a_sample_whose_step_predicts_no_gain(monkeypatch):
     assert x[:, 0, 0].tolist() == [3.0, 1.1]
     x, converged, _ = run_toy(costs, steps, x0, ptol=None, predicted=[1e-9, 1.0])  # without ptol: both step
     assert converged.tolist() == [True, True] and x[:, 0, 0].tolist() == [3.1, 1.1]
-    monkeypatch.setattr(batch_module, "PRED_MU_MAX", 1e-13)  # damping never negligible: ptol never settles
+    monkeypatch.setattr(sparse_lm, "PRED_MU_MAX", 1e-13)  # damping never negligible: ptol never settles
     x, _, _ = run_toy(costs, steps, x0, ptol=1e-6, predicted=[1e-9, 1.0])
     assert x[:, 0, 0].tolist() == [3.1, 1.1]
 

@@ -54,7 +54,15 @@ from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import fuse
 from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
-from coordinator.localization.sparse_lm import PRED_MU_MAX, blas_threads
+from coordinator.localization.sparse_lm import (
+    MAX_ITER,
+    MU_START,
+    blas_threads,
+    clamp_curvature,
+    damping_scale,
+    settled,
+    step_outcome,
+)
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
@@ -79,7 +87,6 @@ from coordinator.localization.partial import localize_observable
 # would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
 PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topology solve's
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
-MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
 COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
@@ -247,7 +254,7 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 
 
 # --------------------------------------------------------------------------------------------
-# Batched Levenberg-Marquardt (the algorithm of sparse_lm.levenberg_marquardt, per sample)
+# Batched Levenberg-Marquardt: ``sparse_lm.minimize``'s rule (its functions and constants), per sample in lock-step
 
 
 def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -255,19 +262,18 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol
 
     ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
     held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu, curved)``
-    the damped Newton step (B, n, 3) (zero on fixed unknowns), with a second-order term only where ``curved``
-    (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``); ``problem.subset(index)`` the
-    problem restricted to some samples. As in ``sparse_lm``: damping mu diag(J^T J) starting
-    at mu = 1e-8; a step is accepted if it does not raise the cost (relative slack 1e-12),
-    then mu /= 10, else mu *= 10 and the sample fails beyond 1e10 or after MAX_ITER accepted
-    steps. A sample converges on a small step or a small cost decrease, or (``ptol``) where its step
-    predicts a decrease below ``ptol`` of its cost at mu <= ``PRED_MU_MAX``: it then stays where it is.
+    the damped Newton step (B, n, 3) (zero on fixed unknowns) and its predicted decrease, with a second-order
+    term only where ``curved`` (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``);
+    ``problem.subset(index)`` the problem restricted to some samples. Every sample follows ``sparse_lm.minimize``
+    step for step: the same start (``MU_START``), trial-step rule (``step_outcome``: acceptance, convergence,
+    damping, giving up), predicted-decrease stop (``settled`` with ``ptol``: the sample then stays where it is)
+    and ``MAX_ITER`` accepted steps at most.
     """
     x = np.array(x0, dtype=float, copy=True)
     converged = np.zeros(len(x), bool)
     work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
     xs, st, slot = x, problem.evaluate(x, 0), 1
-    mu = np.full(len(x), 1e-8)
+    mu = np.full(len(x), MU_START)
     iterations = np.zeros(len(x), np.int64)  # accepted steps
     active = np.isfinite(st["cost"])
     while True:  # ends: every sample converges or fails
@@ -281,26 +287,21 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol
             problem = problem.subset(keep)
             st = {key: value[keep] for key, value in st.items()}
         dx, predicted = problem.step(st, mu, iterations > 0)
-        if ptol is not None:  # converged before the step, as sparse_lm.minimize
-            settled = active & (mu <= PRED_MU_MAX) & (predicted <= ptol * st["cost"])
-            converged[work[settled]] = True
-            active &= ~settled
+        if ptol is not None:  # converged before the step
+            done_early = active & settled(predicted, st["cost"], mu, ptol)
+            converged[work[done_early]] = True
+            active &= ~done_early
         dx[~active] = 0.0
         x_new = xs + dx
         new = problem.evaluate(x_new, slot)
-        cost, cost_new = st["cost"], new["cost"]
-        accept = np.isfinite(cost_new) & (cost_new <= cost * (1 + 1e-12) + 1e-300)
-        with np.errstate(invalid="ignore"):
-            small_step = np.max(np.abs(dx), axis=(1, 2)) <= xtol * (1.0 + np.max(np.abs(xs), axis=(1, 2)))
-            small_gain = cost - cost_new <= ftol * np.maximum(cost, 1e-300)
-        rejected = active & ~accept
-        # A rejected step that is already negligible: the sample sits at its minimum (rounding).
-        done = active & ((accept & (small_step | small_gain)) | (rejected & small_step))
+        accept, done, mu, gave_up = step_outcome(
+            st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
+        )
+        done &= active
         converged[work[done]] = True
-        mu = np.where(accept, np.maximum(mu / 10.0, 1e-12), mu * 10.0)
         iterations += accept
-        failed = active & ~done & ((rejected & (mu > 1e10)) | (iterations >= MAX_ITER))
-        back = np.flatnonzero(rejected)
+        failed = active & ~done & (gave_up | (iterations >= MAX_ITER))
+        back = np.flatnonzero(~accept)
         if back.size:  # rejected samples keep their point and state
             x_new[back] = xs[back]
             for key, value in st.items():
@@ -414,11 +415,11 @@ class _TopologyProblem(_Batched):
             block[rows, :, ref] = 0.0
             block[rows, ref, ref] = 1.0
         self.lap = lap
-        diag_x = np.maximum(degree, 1e-12)  # damping scale, as sparse_lm: max(diag(J^T J), 1e-12)
+        diag_x = damping_scale(degree)
         diag_x[rows, ref] = 0.0
         self.diag_x = np.concatenate([diag_x, diag_x], axis=1)
         self.h_theta = np.einsum("bij->bi", zx * zx + zy * zy)  # |d r_ij / d theta_i|^2 = rho_ij^2
-        self.diag_theta = np.maximum(self.h_theta, 1e-12)
+        self.diag_theta = damping_scale(self.h_theta)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
         rzx, rzy, rx, ry = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
@@ -448,7 +449,7 @@ class _TopologyProblem(_Batched):
         # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm
         # (and, as there, left out of a sample's first iteration).
         second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
-        d = self.h_theta + curved[:, None] * np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
+        d = self.h_theta + curved[:, None] * clamp_curvature(second, self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
         # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
         ct = self.ws("ct", (b, n, 2 * n))
@@ -623,8 +624,8 @@ class _JointProblem(_Batched):
                 q += tmp
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
-        diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
-        d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
+        diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
+        d_damped = d + mu[:, None] * damping_scale(d)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
