@@ -53,7 +53,14 @@ from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import fuse
-from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
+from coordinator.localization.range_bearing import (
+    COV_FLOOR,
+    bearing_weights,
+    observation_residuals,
+    pose_difference,
+    sensor_sigmas,
+    sqrt_information,
+)
 from coordinator.localization.sparse_lm import (
     MAX_ITER,
     MU_START,
@@ -70,6 +77,7 @@ from coordinator.localization.topology import (
     cluster_delta_p,
     heading_sigmas,
     observation_offsets,
+    observation_residuals as topology_residuals,
     reference_robot,
     to_reference_frame,
 )
@@ -392,7 +400,8 @@ def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 class _TopologyProblem(_Batched):
-    """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j).
+    """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j)
+    (``topology.observation_residuals``, the single-swarm problem's, on the dense (B, n, n) pair arrays).
 
     Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
     """
@@ -422,17 +431,15 @@ class _TopologyProblem(_Batched):
         self.diag_theta = damping_scale(self.h_theta)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
-        rzx, rzy, rx, ry = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
-        tmp = self.ws("tmp", self.w.shape)
+        out = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
-        np.multiply(c, self.zx, out=rzx)  # R(theta_i) z_ij: zero where (i, j) unseen
-        rzx -= np.multiply(s, self.zy, out=tmp)
-        np.multiply(s, self.zx, out=rzy)
-        rzy += np.multiply(c, self.zy, out=tmp)
-        for k, r, rz in ((0, rx, rzx), (1, ry, rzy)):  # r_ij = (R z_ij + x_i - x_j) where seen
-            np.subtract(x[:, :, None, k], x[:, None, :, k], out=r)
-            r += rz
-            r *= self.w
+        xi, xj = x[:, :, None, :2], x[:, None, :, :2]
+        # R(theta_i) z_ij (zero where (i, j) unseen) and r_ij = R z_ij + x_i - x_j, kept where seen
+        rzx, rzy, rx, ry = topology_residuals(
+            c, s, self.zx, self.zy, xi[..., 0], xi[..., 1], xj[..., 0], xj[..., 1], out=out, scratch=self.ws("tmp", self.w.shape)
+        )
+        rx *= self.w
+        ry *= self.w
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
@@ -511,8 +518,8 @@ class _JointProblem(_Batched):
 
     Only W^T W enters (cost, gradient, J^T J), so W itself is not needed.
 
-    The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
-    x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
+    The observation residuals are ``range_bearing.observation_residuals`` (the single-swarm problem's) on the
+    dense (B, n, n) pair arrays, zero where unseen; the prior's difference is ``range_bearing.pose_difference``.
     """
 
     def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
@@ -530,29 +537,17 @@ class _JointProblem(_Batched):
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
         shape, ws = self.rho.shape, self.ws
         dx, dy, inv_dist, r_range, r_bearing = self._state(slot, ("dx", "dy", "inv_dist", "rr", "rb"), shape)
-        t1, t2, t3, t4 = ws("t1", shape), ws("t2", shape), ws("t3", shape), ws("t4", shape)
+        t1, t2, t3, t4, t5 = (ws(f"t{k}", shape) for k in range(1, 6))
         np.subtract(x[:, None, :, 0], x[:, :, None, 0], out=dx)  # [b, i, j] = x_j - x_i
         np.subtract(x[:, None, :, 1], x[:, :, None, 1], out=dy)
-        dist = np.multiply(dx, dx, out=t1)
-        dist += np.multiply(dy, dy, out=t2)
-        np.sqrt(dist, out=dist)
-        np.maximum(dist, 1e-9, out=dist)
-        np.subtract(dist, self.rho, out=r_range)
-        r_range *= self.w_sr  # (|d| - rho) / s_r where seen
-        np.divide(1.0, dist, out=inv_dist)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
         ca = np.multiply(c, self.cphi, out=t1)  # cos(theta_i + phi_ij), 0 where unseen
         ca -= np.multiply(s, self.sphi, out=t2)
         sa = np.multiply(s, self.cphi, out=t2)
         sa += np.multiply(c, self.sphi, out=t3)
-        along = np.multiply(dx, ca, out=t3)
-        along += np.multiply(dy, sa, out=t4)
-        across = np.multiply(dy, ca, out=t4)
-        across -= np.multiply(dx, sa, out=t1)
-        np.arctan2(across, along, out=r_bearing)
-        r_bearing *= self.w_sb  # unseen pairs hold atan2(+-0, +-0): masked
-        diff = x - self.mean
-        diff[:, :, 2] = wrap_angle(diff[:, :, 2])
+        # (|d| - rho) / s_r and the bearing residual where seen; unseen pairs hold atan2(+-0, +-0) x 0: masked
+        observation_residuals(dx, dy, ca, sa, self.rho, self.w_sr, self.w_sb, out=(r_range, r_bearing, inv_dist), scratch=(t3, t4, t5))
+        diff = pose_difference(x, self.mean)
         g_prior = np.einsum("bnij,bnj->bni", self.info, diff)  # W^T W (p - mu): gradient of the prior terms
         cost = 0.5 * (
             np.einsum("bni,bni->b", diff, g_prior)

@@ -28,6 +28,7 @@ from runtime.models.geometry import wrap_angle
 
 COV_FLOOR = 1e-12  # smallest prior variance, so an exact prior stays invertible
 GATE_SIGMAS = 3.0  # range sigmas below which a bearing loses its weight (s_b(rho) doubles at ~0.84 of this)
+DIST_FLOOR = 1e-9  # m: robots closer than this are taken this far apart (range residual and derivatives stay finite)
 
 
 def sqrt_information(cov: np.ndarray) -> np.ndarray:
@@ -60,6 +61,46 @@ def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     return rho2 / (s_b * np.sqrt(rho2 * rho2 + gate2 * gate2))
 
 
+def observation_residuals(
+    dx: np.ndarray,
+    dy: np.ndarray,
+    cos_a: np.ndarray,
+    sin_a: np.ndarray,
+    range_m: np.ndarray,
+    w_r: np.ndarray | float,
+    w_b: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Whitened residuals of observations i -> j, elementwise over arrays of any (common) shape: the one
+    definition of the joint problem's observation terms, for one swarm (``observation_blocks``) and for the
+    planner's batch (``batch``).
+
+    ``dx``, ``dy``: x_j - x_i (m); ``cos_a``, ``sin_a``: cos and sin of theta_i + phi_ij (the bearing's direction
+    in the global frame); ``range_m``: rho_ij (m); ``w_r``: 1 / s_r (or 0 where there is no observation); ``w_b``:
+    ``bearing_weights``. Returns (range residual (|d| - rho) w_r, bearing residual w_b times the angle of d seen
+    from the measured direction, which is wrap(atan2(d) - theta_i - phi_ij) without a wrap, 1 / |d|), |d| floored
+    at ``DIST_FLOOR``. ``out``: three arrays of the shape to write them into, ``scratch`` three more for the
+    intermediate values (the batch reuses its own: fresh large arrays cost page faults at every iteration).
+    """
+    r_range, r_bearing, inv_dist = (np.empty(np.shape(dx)) for _ in range(3)) if out is None else out
+    t1, t2, t3 = (None, None, None) if scratch is None else scratch
+    dist = np.multiply(dx, dx, out=r_range)
+    dist += np.multiply(dy, dy, out=t1)
+    np.sqrt(dist, out=dist)
+    np.maximum(dist, DIST_FLOOR, out=dist)
+    np.divide(1.0, dist, out=inv_dist)
+    dist -= range_m
+    dist *= w_r
+    along = np.multiply(dx, cos_a, out=t1)  # d in the frame of the measured direction
+    along += np.multiply(dy, sin_a, out=t2)
+    across = np.multiply(dy, cos_a, out=t2)
+    across -= np.multiply(dx, sin_a, out=t3)
+    np.arctan2(across, along, out=r_bearing)
+    r_bearing *= w_b
+    return r_range, r_bearing, inv_dist
+
+
 def observation_blocks(
     poses: np.ndarray,
     observer: np.ndarray,
@@ -78,12 +119,12 @@ def observation_blocks(
     s_r, _ = sensor_sigmas(cfg)
     w_b = bearing_weights(range_m, cfg) if w_b is None else w_b
     d = poses[observed, :2] - poses[observer, :2]
-    dist = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-9)
+    direction = poses[observer, 2] + bearing_rad
     residual = np.empty((len(observer), 2))
-    residual[:, 0] = (dist - range_m) / s_r
-    residual[:, 1] = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad) * w_b
-    u = d / (dist * s_r)[:, None]  # d range / d x_j, whitened
-    b = d * (w_b / dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
+    r_range, r_bearing, inv_dist = observation_residuals(d[:, 0], d[:, 1], np.cos(direction), np.sin(direction), range_m, 1.0 / s_r, w_b)
+    residual[:, 0], residual[:, 1] = r_range, r_bearing
+    u = d * (inv_dist / s_r)[:, None]  # d range / d x_j, whitened
+    b = d * (w_b * inv_dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
     jac = np.empty((len(observer), 2, 5))  # filled column by column (one np.stack each cost more at n = 10)
     jac[:, 0, 3:] = u
     np.negative(u, out=jac[:, 0, :2])
@@ -111,14 +152,19 @@ def observation_terms(
     return residual.ravel(), (rows.ravel(), cols.ravel(), jac.ravel())
 
 
+def pose_difference(poses: np.ndarray, mean: np.ndarray) -> np.ndarray:
+    """p - mu (..., n, 3) of the prior terms, heading differences wrapped (one swarm or a batch)."""
+    diff = poses - mean
+    diff[..., 2] = wrap_angle(diff[..., 2])
+    return diff
+
+
 def prior_terms(
     poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Residuals (3n,) W_i (p_i - mu_i) (heading difference wrapped) and COO triplets."""
     n = len(poses)
-    diff = poses - mean
-    diff[:, 2] = wrap_angle(diff[:, 2])
-    residual = np.einsum("nab,nb->na", sqrt_info, diff).ravel()
+    residual = np.einsum("nab,nb->na", sqrt_info, pose_difference(poses, mean)).ravel()
     rows = np.repeat(np.arange(3 * n), 3)
     cols = np.repeat(layout.cols, 3, axis=0).ravel()
     return residual, (rows, cols, sqrt_info.reshape(-1))
@@ -139,8 +185,7 @@ def joint_prior_terms(
     poses: np.ndarray, layout: PoseLayout, mean: np.ndarray, sqrt_info: np.ndarray
 ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Residuals (3n,) W (p - mu) of a prior with joint covariance (W (3n, 3n)) and COO triplets (dense W)."""
-    diff = poses - mean
-    diff[:, 2] = wrap_angle(diff[:, 2])
+    diff = pose_difference(poses, mean)
     k = sqrt_info.shape[0]
     rows = np.repeat(np.arange(k), k)
     cols = np.tile(layout.cols.ravel(), k)

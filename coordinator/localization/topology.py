@@ -54,6 +54,38 @@ def observation_offsets(range_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndar
     return np.stack([range_m * np.cos(bearing_rad), range_m * np.sin(bearing_rad)], axis=-1)
 
 
+def observation_residuals(
+    cos_i: np.ndarray,
+    sin_i: np.ndarray,
+    zx: np.ndarray,
+    zy: np.ndarray,
+    xi: np.ndarray,
+    yi: np.ndarray,
+    xj: np.ndarray,
+    yj: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    scratch: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. B3's residual of observations i -> j, elementwise over arrays of any (common) shape: the one
+    definition for one swarm (``estimate_topology``) and for the planner's batch (``batch``).
+
+    ``cos_i``, ``sin_i``: of the observer's heading theta_i; ``zx``, ``zy``: the offset z_ij (Eq. B1);
+    ``xi``, ``yi``, ``xj``, ``yj``: the two positions (m). Returns (R(theta_i) z_ij (two arrays), the residual
+    R(theta_i) z_ij + x_i - x_j (two arrays)); d r / d theta_i = (-(R z)_y, (R z)_x), d r / d x_i = I,
+    d r / d x_j = -I, d^2 r / d theta_i^2 = -R z. ``out``: four arrays to write them into, ``scratch`` one more.
+    """
+    rzx, rzy, rx, ry = (np.empty(np.shape(zx)) for _ in range(4)) if out is None else out
+    np.multiply(cos_i, zx, out=rzx)
+    rzx -= np.multiply(sin_i, zy, out=scratch)
+    np.multiply(sin_i, zx, out=rzy)
+    rzy += np.multiply(cos_i, zy, out=scratch)
+    np.add(rzx, xi, out=rx)  # Eq. B4 minus x_j
+    rx -= xj
+    np.add(rzy, yi, out=ry)
+    ry -= yj
+    return rzx, rzy, rx, ry
+
+
 def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_heading: np.ndarray, ref: int) -> np.ndarray:
     """Poses from the linear relaxation of Eq. B3 in (x, y, c, s) with the gauge fixed.
 
@@ -155,20 +187,23 @@ def estimate_topology(
     rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
     ci, cj = layout.cols[observer], layout.cols[observed]
 
-    def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+    def terms(vec: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         poses = layout.unpack(vec, start)
-        rz = rotate(poses[observer, 2], z)  # R(theta_i) z_ij
-        r = (rz + poses[observer, :2] - poses[observed, :2]).ravel()  # Eq. B4 minus x_j
+        heading = poses[observer, 2]
+        pi, pj = poses[observer], poses[observed]
+        return observation_residuals(np.cos(heading), np.sin(heading), z[:, 0], z[:, 1], pi[:, 0], pi[:, 1], pj[:, 0], pj[:, 1])
+
+    def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
+        rzx, rzy, rx, ry = terms(vec)
         ones = np.ones(m)
         rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
         cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
-        vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
-        return r, jacobian(2 * m, layout.size, rows, cols, vals)
+        vals = np.concatenate([ones, -ones, -rzy, ones, -ones, rzx])
+        return np.stack([rx, ry], axis=1).ravel(), jacobian(2 * m, layout.size, rows, cols, vals)
 
     def second_order(vec: np.ndarray, r: np.ndarray) -> np.ndarray:
         """d^2 r / d theta_i^2 = -R(theta_i) z_ij: diagonal of sum r . d^2 r on heading columns."""
-        poses = layout.unpack(vec, start)
-        rz = rotate(poses[observer, 2], z)
+        rz = np.stack(terms(vec)[:2], axis=1)
         term = -np.sum(r.reshape(m, 2) * rz, axis=1)
         out = np.zeros(layout.size)
         hc = ci[:, 2]
