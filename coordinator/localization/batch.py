@@ -302,9 +302,10 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol
         dx[~active] = 0.0
         x_new = xs + dx
         new = problem.evaluate(x_new, slot)
-        accept, done, mu, gave_up = step_outcome(
-            st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
-        )
+        with np.errstate(invalid="ignore"):  # inactive samples may hold inf - inf
+            accept, done, mu, gave_up = step_outcome(
+                st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
+            )
         done &= active
         converged[work[done]] = True
         iterations += accept

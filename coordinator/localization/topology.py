@@ -74,14 +74,14 @@ def observation_residuals(
     R(theta_i) z_ij + x_i - x_j (two arrays)); d r / d theta_i = (-(R z)_y, (R z)_x), d r / d x_i = I,
     d r / d x_j = -I, d^2 r / d theta_i^2 = -R z. ``out``: four arrays to write them into, ``scratch`` one more.
     """
-    rzx, rzy, rx, ry = (np.empty(np.shape(zx)) for _ in range(4)) if out is None else out
-    np.multiply(cos_i, zx, out=rzx)
+    o = (None, None, None, None) if out is None else out
+    rzx = np.multiply(cos_i, zx, out=o[0])
     rzx -= np.multiply(sin_i, zy, out=scratch)
-    np.multiply(sin_i, zx, out=rzy)
+    rzy = np.multiply(sin_i, zx, out=o[1])
     rzy += np.multiply(cos_i, zy, out=scratch)
-    np.add(rzx, xi, out=rx)  # Eq. B4 minus x_j
+    rx = np.add(rzx, xi, out=o[2])  # Eq. B4 minus x_j
     rx -= xj
-    np.add(rzy, yi, out=ry)
+    ry = np.add(rzy, yi, out=o[3])
     ry -= yj
     return rzx, rzy, rx, ry
 
@@ -187,24 +187,28 @@ def estimate_topology(
     rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
     ci, cj = layout.cols[observer], layout.cols[observed]
 
-    def terms(vec: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    zx, zy = z[:, 0], z[:, 1]
+    ones = np.ones(m)
+    rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
+    cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
+    last: dict[str, np.ndarray] = {}  # R(theta_i) z_ij at the last point ``residuals`` saw, for ``second_order``
+
+    def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         poses = layout.unpack(vec, start)
         heading = poses[observer, 2]
         pi, pj = poses[observer], poses[observed]
-        return observation_residuals(np.cos(heading), np.sin(heading), z[:, 0], z[:, 1], pi[:, 0], pi[:, 1], pj[:, 0], pj[:, 1])
-
-    def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
-        rzx, rzy, rx, ry = terms(vec)
-        ones = np.ones(m)
-        rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
-        cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
-        vals = np.concatenate([ones, -ones, -rzy, ones, -ones, rzx])
-        return np.stack([rx, ry], axis=1).ravel(), jacobian(2 * m, layout.size, rows, cols, vals)
+        rz, r = np.empty((m, 2)), np.empty((m, 2))
+        observation_residuals(np.cos(heading), np.sin(heading), zx, zy, pi[:, 0], pi[:, 1], pj[:, 0], pj[:, 1],
+                              out=(rz[:, 0], rz[:, 1], r[:, 0], r[:, 1]))
+        last["vec"], last["rz"] = vec, rz
+        vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
+        return r.ravel(), jacobian(2 * m, layout.size, rows, cols, vals)
 
     def second_order(vec: np.ndarray, r: np.ndarray) -> np.ndarray:
         """d^2 r / d theta_i^2 = -R(theta_i) z_ij: diagonal of sum r . d^2 r on heading columns."""
-        rz = np.stack(terms(vec)[:2], axis=1)
-        term = -np.sum(r.reshape(m, 2) * rz, axis=1)
+        if last.get("vec") is not vec:
+            residuals(vec)
+        term = -np.sum(r.reshape(m, 2) * last["rz"], axis=1)
         out = np.zeros(layout.size)
         hc = ci[:, 2]
         np.add.at(out, hc[hc >= 0], term[hc >= 0])
