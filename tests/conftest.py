@@ -51,6 +51,8 @@ SLOW_TESTS = frozenset({
     "test_study_selection.py::test_study_calibration_finds_the_noise_and_pairs_the_seed_sets",  # a study
     "test_localization_consistency.py::test_study_consistency_json_contract",  # a study
     "test_sample_recording.py::test_replay_check_passes_on_the_sample",  # replay over the whole sample
+    "test_localizer_registry.py::test_a_registered_localizer_runs_a_study",  # a study
+    "test_localizer_registry.py::test_an_installed_plugin_reaches_swarm_sim",  # swarm subprocesses
 })
 
 

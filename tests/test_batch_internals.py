@@ -13,6 +13,7 @@ import pytest
 
 import coordinator.localization.batch as batch_module
 import coordinator.localization.sparse_lm as sparse_lm
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
     COMPACT_BELOW,
@@ -49,7 +50,7 @@ def triangle_batch(b: int):
     return [np.repeat(a[None], b, axis=0) for a in (poses, cov, commands, moving, seen, ranges, bearings)]
 
 
-@pytest.mark.parametrize("method", ["paper", "joint"])
+@pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
 def test_invalid_values_flag_only_their_sample(method):
     """Sample k gets one bad value each: 1 NaN pose, 2 infinite covariance, 3 NaN command of a moving
     robot, 4 negative drive of a moving robot, 5 negative range, 6 infinite range, 7 NaN bearing (all on
@@ -410,7 +411,7 @@ def test_prior_information_floors_what_only_one_minor_reveals(cov):
     np.testing.assert_allclose(_prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
 
 
-@pytest.mark.parametrize("method", ["paper", "joint"])
+@pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
 def test_a_single_robot_is_dead_reckoning(method):
     """n = 1: nobody can observe the only robot, so it is not localized (ok False) and keeps its dead
     reckoning: 0.1 m along its heading 0."""

@@ -129,6 +129,18 @@ def test_a_registered_localizer_runs_swarm_sim_in_process(dead_reckoning, tmp_pa
     assert np.isfinite(doc["pf"])
 
 
+def test_a_registered_localizer_runs_a_study(dead_reckoning, tmp_path, capsys):
+    """``swarm study consistency --localizers paper,dr``: the study's list reads the registry. Dead reckoning with
+    its honest covariance (the motion noise propagated, ``inflate`` 1) differs from the paper's fused estimate."""
+    code = main(["study", "consistency", "--localizers", "paper,dr", "--methods", "no-anchors", "--robots", "4", "--configs", "2",
+                 "--trajectories", "2", "--out", str(tmp_path), "--json"])
+    assert code == 0
+    rows = json.loads(capsys.readouterr().out.strip().splitlines()[-1])["rows"]
+    assert [r["localizer"] for r in rows] == ["paper", "dr"]
+    assert rows[0]["nees_over_expected_median"] != rows[1]["nees_over_expected_median"]
+    assert main(["study", "consistency", "--localizers", "paper,kalman", "--out", str(tmp_path)]) == 2
+
+
 def test_the_executor_and_the_planner_share_one_localizer_object(dead_reckoning):
     loc = make_localizer("paper", CFG, huber=0.02)
     traj = random_trajectory(6, 1, np.random.default_rng(1), sensing_range=CFG.sensing_range_m)
@@ -153,7 +165,6 @@ def test_an_option_of_the_executors_localizer_changes_the_monte_carlo(name, hube
     np.testing.assert_allclose(neutral, plain, rtol=1e-7)
 
 
-@pytest.mark.slow
 def test_an_installed_plugin_reaches_swarm_sim(tmp_path):
     """A package installed with an ``inchworm.localizers`` entry point: a fresh ``swarm`` process lists it among
     ``--localizer``'s choices and runs the simulation (executor and selection) with it."""

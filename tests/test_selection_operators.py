@@ -14,6 +14,7 @@ import math
 import numpy as np
 import pytest
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 
 from coordinator.plan import Plan, n_partitions
@@ -344,7 +345,7 @@ def test_monte_carlo_error_of_an_exact_swarm_is_zero():
     poses = np.array([[0.0, 0.0, 0.0], [0.25, 0.0, 1.0], [0.0, 0.25, 2.0], [0.25, 0.25, -1.0]])
     estimate = SwarmEstimate.isotropic(np.arange(4), poses, 0.0, 0.0)
     plans = [Plan.equal(np.arange(4), 2), Plan.equal(np.array([3, 1, 2, 0]), 2)]
-    for method in ("paper", "joint"):
+    for method in BUILTIN_LOCALIZERS:
         e_l = MonteCarlo(cfg, make_localizer(method, cfg), 4, seed=0).localization_errors(estimate, poses[:, :2] + [0.05, 0.0], plans)
         np.testing.assert_allclose(e_l, 0.0, atol=1e-6)
 
