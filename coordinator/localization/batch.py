@@ -547,7 +547,8 @@ class _JointProblem(_Batched):
         sa = np.multiply(s, self.cphi, out=t2)
         sa += np.multiply(c, self.sphi, out=t3)
         # (|d| - rho) / s_r and the bearing residual where seen; unseen pairs hold atan2(+-0, +-0) x 0: masked
-        observation_residuals(dx, dy, ca, sa, self.rho, self.w_sr, self.w_sb, out=(r_range, r_bearing, inv_dist), scratch=(t3, t4, t5))
+        observation_residuals(dx, dy, self.rho, self.w_sr, self.w_sb, cos_sin=(ca, sa), out=(r_range, r_bearing, inv_dist), scratch=(t3, t4, t5))
+        np.divide(1.0, inv_dist, out=inv_dist)  # |d| -> 1 / |d|
         diff = pose_difference(x, self.mean)
         g_prior = np.einsum("bnij,bnj->bni", self.info, diff)  # W^T W (p - mu): gradient of the prior terms
         cost = 0.5 * (

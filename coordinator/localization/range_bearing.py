@@ -64,11 +64,12 @@ def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
 def observation_residuals(
     dx: np.ndarray,
     dy: np.ndarray,
-    cos_a: np.ndarray,
-    sin_a: np.ndarray,
     range_m: np.ndarray,
     w_r: np.ndarray | float,
     w_b: np.ndarray,
+    *,
+    direction: np.ndarray | None = None,
+    cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
     out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
     scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,33 +77,48 @@ def observation_residuals(
     definition of the joint problem's observation terms, for one swarm (``observation_blocks``) and for the
     planner's batch (``batch``).
 
-    ``dx``, ``dy``: x_j - x_i (m); ``cos_a``, ``sin_a``: cos and sin of theta_i + phi_ij (the bearing's direction
-    in the global frame); ``range_m``: rho_ij (m); ``w_r``: 1 / s_r (or 0 where there is no observation); ``w_b``:
-    ``bearing_weights``. Returns (range residual (|d| - rho) w_r, bearing residual w_b times the angle of d seen
-    from the measured direction, which is wrap(atan2(d) - theta_i - phi_ij) without a wrap, 1 / |d|), |d| floored
-    at ``DIST_FLOOR``. ``out``: three arrays of the shape to write them into, ``scratch`` three more for the
-    intermediate values (the batch reuses its own: fresh large arrays cost page faults at every iteration).
+    ``dx``, ``dy``: d = x_j - x_i (m); ``range_m``: rho_ij (m); ``w_r``: 1 / s_r (or 0 where there is no
+    observation); ``w_b``: ``bearing_weights``. The measured direction theta_i + phi_ij (rad) is given as
+    ``direction`` or as its (cos, sin) ``cos_sin``. Returns (range residual (|d| - rho) w_r, bearing residual
+    w_b times the angle of d seen from the measured direction, wrap(atan2(d) - theta_i - phi_ij), |d|), |d|
+    floored at ``DIST_FLOOR``.
+
+    Two evaluations of the same values (to rounding), chosen by what is cheap: one swarm (no ``scratch``: tens
+    to thousands of values, where each numpy call costs more than its values) takes hypot and the wrapped
+    difference of angles; the batch (``scratch``: three arrays for the intermediate values, and ``cos_sin``)
+    takes the square root of the squares and the angle of d rotated into the measured direction, since hypot,
+    the wrap (a float modulo) and the trigonometry of every pair are several times slower per value. ``out``:
+    the three result arrays to write into (the batch reuses its own: fresh large arrays cost page faults).
     """
-    r_range, r_bearing, inv_dist = (np.empty(np.shape(dx)) for _ in range(3)) if out is None else out
-    if scratch is None:  # one swarm: few values, one call
-        t1 = t2 = t3 = None
-        dist = np.hypot(dx, dy, out=r_range)
-    else:  # the batch: many values, and hypot is ~10x slower per value than the square root of the squares
+    r_range, r_bearing, dist = (None, None, None) if out is None else out
+    # outputs are passed positionally: numpy parses ``out=`` keywords ~0.25 us slower per call
+    if scratch is None:
+        dist = np.hypot(dx, dy, dist)
+    else:
         t1, t2, t3 = scratch
-        dist = np.multiply(dx, dx, out=r_range)
-        dist += np.multiply(dy, dy, out=t1)
-        np.sqrt(dist, out=dist)
+        dist = np.multiply(dx, dx, dist)
+        dist += np.multiply(dy, dy, t1)
+        np.sqrt(dist, dist)
     np.maximum(dist, DIST_FLOOR, out=dist)
-    np.divide(1.0, dist, out=inv_dist)
-    dist -= range_m
-    dist *= w_r
-    along = np.multiply(dx, cos_a, out=t1)  # d in the frame of the measured direction
-    along += np.multiply(dy, sin_a, out=t2)
-    across = np.multiply(dy, cos_a, out=t2)
-    across -= np.multiply(dx, sin_a, out=t3)
-    np.arctan2(across, along, out=r_bearing)
+    r_range = np.subtract(dist, range_m, r_range)
+    r_range *= w_r
+    if scratch is None:
+        if direction is None:
+            direction = np.arctan2(cos_sin[1], cos_sin[0])
+        r_bearing = np.arctan2(dy, dx, r_bearing)
+        r_bearing -= direction
+        r_bearing += np.pi  # wrap to [-pi, pi), as geometry.wrap_angle
+        np.mod(r_bearing, 2.0 * np.pi, r_bearing)
+        r_bearing -= np.pi
+    else:
+        cos_a, sin_a = (np.cos(direction), np.sin(direction)) if cos_sin is None else cos_sin
+        along = np.multiply(dx, cos_a, t1)  # d in the frame of the measured direction
+        along += np.multiply(dy, sin_a, t2)
+        across = np.multiply(dy, cos_a, t2)
+        across -= np.multiply(dx, sin_a, t3)
+        r_bearing = np.arctan2(across, along, r_bearing)
     r_bearing *= w_b
-    return r_range, r_bearing, inv_dist
+    return r_range, r_bearing, dist
 
 
 def observation_blocks(
@@ -125,12 +141,10 @@ def observation_blocks(
     at_i = poses[observer]
     d = poses[observed, :2] - at_i[:, :2]
     direction = at_i[:, 2] + bearing_rad
-    rows = np.empty((2, len(observer)))  # (range, bearing) rows: contiguous outputs are the fast ones
-    _, _, inv_dist = observation_residuals(d[:, 0], d[:, 1], np.cos(direction), np.sin(direction), range_m, 1.0 / s_r, w_b,
-                                           out=(rows[0], rows[1], np.empty(len(observer))))
-    residual = rows.T
-    u = d * (inv_dist / s_r)[:, None]  # d range / d x_j, whitened
-    b = d * (w_b * inv_dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
+    residual = np.empty((len(observer), 2))
+    _, _, dist = observation_residuals(d[:, 0], d[:, 1], range_m, 1.0 / s_r, w_b, direction=direction, out=(residual[:, 0], residual[:, 1], None))
+    u = d / (dist * s_r)[:, None]  # d range / d x_j, whitened
+    b = d * (w_b / dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
     jac = np.empty((len(observer), 2, 5))  # filled column by column (one np.stack each cost more at n = 10)
     jac[:, 0, 3:] = u
     np.negative(u, out=jac[:, 0, :2])

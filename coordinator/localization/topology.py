@@ -74,14 +74,14 @@ def observation_residuals(
     R(theta_i) z_ij + x_i - x_j (two arrays)); d r / d theta_i = (-(R z)_y, (R z)_x), d r / d x_i = I,
     d r / d x_j = -I, d^2 r / d theta_i^2 = -R z. ``out``: four arrays to write them into, ``scratch`` one more.
     """
-    o = (None, None, None, None) if out is None else out
-    rzx = np.multiply(cos_i, zx, out=o[0])
-    rzx -= np.multiply(sin_i, zy, out=scratch)
-    rzy = np.multiply(sin_i, zx, out=o[1])
-    rzy += np.multiply(cos_i, zy, out=scratch)
-    rx = np.add(rzx, xi, out=o[2])  # Eq. B4 minus x_j
+    o = (None, None, None, None) if out is None else out  # outputs positional: faster than ``out=`` keywords
+    rzx = np.multiply(cos_i, zx, o[0])
+    rzx -= np.multiply(sin_i, zy, scratch)
+    rzy = np.multiply(sin_i, zx, o[1])
+    rzy += np.multiply(cos_i, zy, scratch)
+    rx = np.add(rzx, xi, o[2])  # Eq. B4 minus x_j
     rx -= xj
-    ry = np.add(rzy, yi, out=o[3])
+    ry = np.add(rzy, yi, o[3])
     ry -= yj
     return rzx, rzy, rx, ry
 
