@@ -16,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from swarm_cli.options import localizer_list, add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, parse_list, print_json, selection_config
 from swarm_cli.progress import Progress

@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import coordinator.localization.batch as batch_module
 import coordinator.localization.sparse_lm as sparse_lm
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
