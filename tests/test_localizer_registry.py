@@ -166,7 +166,7 @@ def test_an_option_of_the_executors_localizer_changes_the_monte_carlo(name, hube
 
 
 def test_an_installed_plugin_reaches_swarm_sim(tmp_path):
-    """A package installed with an ``inchworm.localizers`` entry point: a fresh ``swarm`` process lists it among
+    """A package installed with an ``inchworm_swarm.localizers`` entry point: a fresh ``swarm`` process lists it among
     ``--localizer``'s choices and runs the simulation (executor and selection) with it."""
     write_plugin(tmp_path)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), str(REPO)])}

@@ -5,8 +5,8 @@ A localizer factory is called as ``factory(cfg, **options)`` and returns an obje
 
 * the built-ins ``paper`` (Section 5) and ``joint`` (Section 5.3);
 * ``register_localizer(name, factory)`` from Python (a notebook, a study script, a test);
-* an installed package declaring an entry point in the group ``inchworm.localizers``
-  (``[project.entry-points."inchworm.localizers"] name = "package.module:factory"``): every
+* an installed package declaring an entry point in the group ``inchworm_swarm.localizers``
+  (``[project.entry-points."inchworm_swarm.localizers"] name = "package.module:factory"``): every
   ``swarm`` command, its worker processes and the processes of a distributed run see it.
 
 Names are listed without importing anything (a parser's ``--localizer`` choices); a factory is
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
     from coordinator.localization import Localizer
     from runtime.models.config import ModelConfig
 
-ENTRY_POINT_GROUP = "inchworm.localizers"
+ENTRY_POINT_GROUP = "inchworm_swarm.localizers"
 BUILTIN_LOCALIZERS = ("paper", "joint")  # the paper's method first: the default of every command
 DEFAULT_LOCALIZER = BUILTIN_LOCALIZERS[0]
 
@@ -57,7 +57,7 @@ def unregister_localizer(name: str) -> None:
 
 
 def _plugins() -> dict[str, Any]:
-    """Entry points of the ``inchworm.localizers`` group by name (not loaded)."""
+    """Entry points of the ``inchworm_swarm.localizers`` group by name (not loaded)."""
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
