@@ -27,9 +27,9 @@ import math
 import re
 import signal
 import sys
-from collections.abc import Iterable
 from pathlib import Path
 
+from inchworm.processes import format_ids
 from robot_agent.agent import READY_TIMEOUT_S, Agent
 from robot_agent.driver import Driver, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
@@ -79,18 +79,6 @@ def parse_ids(text: str, option: str) -> list[int]:
     if len(set(ids)) != len(ids):
         raise SwarmInputError(f"{option} names a robot twice: {text!r}")
     return ids
-
-
-def format_ids(ids: Iterable[int]) -> str:
-    """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
-    parts: list[str] = []
-    for i in ids:
-        i = int(i)
-        if parts and parts[-1][1] == i - 1:
-            parts[-1][1] = i
-        else:
-            parts.append([i, i])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def make_driver(args: argparse.Namespace, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None) -> tuple[Driver, CommandLimits]:

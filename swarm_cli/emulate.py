@@ -16,17 +16,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
-import math
-import os
 import signal
 import sys
 import threading
 import time
 from pathlib import Path
-from typing import TextIO
 
+from inchworm.processes import check_radio_faults
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
+from robot_agent.emulator_files import JsonLinesSink, write_atomically
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
@@ -65,48 +63,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help='print {"ports": {name: device}, "config": OUT} as one JSON line when ready')
 
 
-class JsonLinesSink:
-    """An ``on_event`` callback writing each event as one JSON line, flushed (thread-safe)."""
-
-    def __init__(self, path: Path) -> None:
-        self._file: TextIO = open(path, "w", encoding="utf-8")
-        self._lock = threading.Lock()
-
-    def __call__(self, event: dict) -> None:
-        line = json.dumps(event, separators=(",", ":")) + "\n"
-        with self._lock:
-            if not self._file.closed:
-                self._file.write(line)
-                self._file.flush()
-
-    def close(self) -> None:
-        with self._lock:
-            self._file.close()
-
-
-def write_atomically(config: GatewayConfig, out: Path) -> None:
-    """``config`` to ``out`` via a temporary file and a rename: a reader sees no file or the whole file."""
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        config.save(tmp)
-        os.replace(tmp, out)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-
-
 def _indices(text: str, option: str) -> frozenset[int]:
     return frozenset(parse_list(text, option)) if text.strip() else frozenset()
-
-
-def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
-    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
-    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
-        if not 0.0 <= p <= 1.0:
-            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
-    if not (math.isfinite(delay) and delay >= 0):
-        raise SwarmInputError(f"--delay must be a finite number of seconds >= 0, got {delay!r}")
 
 
 def run(args: argparse.Namespace) -> int:

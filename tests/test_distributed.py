@@ -1,6 +1,6 @@
 """The distributed runtime with real processes on loopback: agents + coordinator over a Zenoh hub.
 
-Every child is started here and stopped by its pid in ``finally`` (swarm_cli.launch.stop_all).
+Every child is started here and stopped by its pid in ``finally`` (inchworm.processes.stop_all).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from runtime.wire.messages import (
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.models.trajectory import Trajectory, random_trajectory
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
-from swarm_cli.launch import stop_all
+from inchworm.processes import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
 
