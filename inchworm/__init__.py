@@ -22,8 +22,8 @@ from runtime.errors import LocalizationError, SwarmError, SwarmInputError
 if TYPE_CHECKING:
     from coordinator.executor import RunResult
     from coordinator.selection.selector import SelectionConfig
-    from inchworm.compare import CompareOptions, CompareResult, compare
-    from inchworm.localize import localize, localize_document
+    from inchworm.comparison import CompareOptions, CompareResult, compare
+    from inchworm.localize_data import localize, localize_document
     from inchworm.options import RunOptions
     from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
     from inchworm.simulation import simulate
@@ -42,7 +42,7 @@ _WHERE = {
     "SelectionConfig": "coordinator.selection.selector",
     "Trajectory": "runtime.models.trajectory",
     "RunOptions": "inchworm.options",
-    "compare": "inchworm.compare", "CompareOptions": "inchworm.compare", "CompareResult": "inchworm.compare",
+    "compare": "inchworm.comparison", "CompareOptions": "inchworm.comparison", "CompareResult": "inchworm.comparison",
     "study_anchors": "inchworm.studies.anchors", "AnchorsOptions": "inchworm.studies.anchors", "AnchorsResult": "inchworm.studies.anchors",
     "study_noise": "inchworm.studies.noise", "NoiseOptions": "inchworm.studies.noise", "NoiseResult": "inchworm.studies.noise",
     "study_selection": "inchworm.studies.selection", "SelectionStudyOptions": "inchworm.studies.selection",
@@ -51,7 +51,7 @@ _WHERE = {
     "CalibrationResult": "inchworm.studies.calibration",
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
-    "localize": "inchworm.localize", "localize_document": "inchworm.localize",
+    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
 }
 

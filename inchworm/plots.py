@@ -25,7 +25,7 @@ def title(ax: Axes, text: str, fontsize: float = 11) -> None:
     """``text`` as the title of ``ax``, wrapped to the axes' width (never cut)."""
     fig = ax.get_figure()
     width_in = fig.get_size_inches()[0] * ax.get_position().width if fig is not None else 6.0
-    chars = max(20, int(width_in * 72 / (0.55 * fontsize)))
+    chars = max(20, int(width_in * 72 / (0.5 * fontsize)))
     ax.set_title("\n".join(textwrap.wrap(text, chars)), fontsize=fontsize)
 
 

@@ -15,9 +15,11 @@ Another executor is one small class with ``imap``: e.g. a Dask one would submit
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
@@ -136,17 +138,34 @@ class StudyLog:
         os.fsync(self._file.fileno())
 
     def add(self, key: str, row: Row, csv: bool = True) -> None:
-        """Keep one finished row (``csv``: also in the CSV, rewritten now)."""
-        self.rows[key] = row
-        self._write({"task": key, "row": row, **({} if csv else {"csv": False})})
-        if csv:
-            self._csv_rows[key] = row
-            write_rows(self.csv, list(self._csv_rows.values()))
+        """Keep one finished row (``csv``: also in the CSV, rewritten now); a Ctrl-C meanwhile waits until both files agree."""
+        with _interrupt_deferred():
+            self.rows[key] = row
+            self._write({"task": key, "row": row, **({} if csv else {"csv": False})})
+            if csv:
+                self._csv_rows[key] = row
+                write_rows(self.csv, list(self._csv_rows.values()))
 
     def finish(self, rows: list[Row]) -> Path:
         """The final CSV: ``rows`` in the study's order."""
         self._file.close()
         return write_rows(self.csv, rows)
+
+
+@contextlib.contextmanager
+def _interrupt_deferred() -> Iterator[None]:
+    """Ctrl-C (SIGINT) inside the block is raised as ``KeyboardInterrupt`` at its end (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, _frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if received:
+        raise KeyboardInterrupt
 
 
 def run_tasks(

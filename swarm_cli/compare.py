@@ -1,4 +1,4 @@
-"""``swarm compare``: Table I/II of the paper for every method on the same random trajectories (``inchworm.compare``).
+"""``swarm compare``: Table I/II of the paper for every method on the same random trajectories (``inchworm.comparison``).
 
 Runs are spread over the machine's cores; each finished run is kept at once in
 ``--out/runs.jsonl`` and ``--out/runs.csv``, so ``--resume`` continues an interrupted
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from inchworm.compare import CompareOptions, compare  # noqa: PLC0415
+    from inchworm.comparison import CompareOptions, compare  # noqa: PLC0415
 
     options = CompareOptions(robots=args.robots, trajectories=args.trajectories, configs=args.configs, methods=names(args.methods),
                              seed=args.seed, selections=None if args.selections is None else names(args.selections), run=run_options(args))

@@ -1,4 +1,4 @@
-"""``swarm localize FILE.json``: run a localizer on a user's own data (``inchworm.localize``; format: docs/localize-input.md).
+"""``swarm localize FILE.json``: run a localizer on a user's own data (``inchworm.localize_data``; format: docs/localize-input.md).
 
 Robots that cannot be localized are left out and listed under ``excluded`` unless
 ``--strict``. When the solver fails (no convergence, singular information) for some or
@@ -29,7 +29,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from coordinator.localization.partial import SOLVER_FAILURES  # noqa: PLC0415
-    from inchworm.localize import localize  # noqa: PLC0415
+    from inchworm.localize_data import localize  # noqa: PLC0415
 
     try:
         result = localize(args.file, model_config(args), args.localizer, strict=args.strict, robust=not args.no_robust)

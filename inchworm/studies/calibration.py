@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from inchworm.compare import REFERENCE, RunTask, check_methods, run_one, summarise
+from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_localizers, plain
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -155,7 +155,7 @@ class CalibrationResult:
 
     def plot(self, ax: Any) -> Any:
         """Pooled P_f of every method at each calibrated setting (bars: 97 % t-interval of the mean, clipped at 0)."""
-        from inchworm.compare import CONFIDENCE, mean_ci  # noqa: PLC0415
+        from inchworm.comparison import CONFIDENCE, mean_ci  # noqa: PLC0415
         from inchworm.plots import title  # noqa: PLC0415
         from inchworm.stats import clipped_at_zero  # noqa: PLC0415
 

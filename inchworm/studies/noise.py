@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.compare import RunTask, run_one
+from inchworm.comparison import RunTask, run_one
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_at_least, check_localizers, plain
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
