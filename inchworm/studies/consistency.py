@@ -132,6 +132,8 @@ class ConsistencyResult:
 
     def plot(self, ax: Axes, localizer: str | None = None) -> Axes:
         """NEES / 2 per configuration of every method of ``localizer`` (log scale), with the chi-square band and the target."""
+        from matplotlib.ticker import MaxNLocator  # noqa: PLC0415
+
         from inchworm.plots import title  # noqa: PLC0415
 
         loc = localizer or self.options.localizers[0]
@@ -147,6 +149,7 @@ class ConsistencyResult:
         ax.set_xlabel("configuration")
         ax.set_ylabel("position NEES / 2 (mean over robots and trajectories)")
         ax.set_xlim(1, max(k, 2))
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.legend(fontsize=8)
         title(ax, f"{loc} localizer")
         return ax
