@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from robot_agent.emulator_process import check_radio_faults
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.models.config import ModelConfig
@@ -162,15 +163,6 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
                                        f"--run={run_id}", f"--hub={hub}"]))
     return live
-
-
-def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
-    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
-    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
-        if not 0.0 <= p <= 1.0:
-            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
-    if not (math.isfinite(delay) and delay >= 0):
-        raise SwarmInputError(f"--delay must be a finite number of seconds >= 0, got {delay!r}")
 
 
 def last_json(stdout: str) -> dict | None:
