@@ -222,7 +222,7 @@ def say(text: str) -> None:
 
 
 @contextlib.contextmanager
-def live_view(o: CoordinatorOptions, session: Any) -> Iterator[Live]:
+def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = say) -> Iterator[Live]:
     """With ``foxglove_port``: every message of the run also goes to a Foxglove live view while it runs;
     the view is closed at the end unless ``keep`` was set (then ``Live.linger`` closes it)."""
     if o.foxglove_port is None:
@@ -233,7 +233,7 @@ def live_view(o: CoordinatorOptions, session: Any) -> Iterator[Live]:
 
     live = Live(LiveView(o.foxglove_port, trajectory=o.trajectory.to_json()))
     subscriber = subscribe(session, run_wildcard(o.run_id), live.view.handle)
-    say(f"live view for the Foxglove app at {live.view.url}")
+    log(f"live view for the Foxglove app at {live.view.url}")
     try:
         yield live
     finally:
@@ -252,11 +252,13 @@ class CoordinatorOutcome:
     error: Exception | None = None  # the agents did not come up, or the run was aborted (lost robots)
 
 
-def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Callable[[int, int, int], None] | None = None) -> CoordinatorOutcome:
+def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Callable[[int, int, int], None] | None = None,
+                    log: Callable[[str], None] = say) -> CoordinatorOutcome:
     """Record, wait for every agent, run the executor over Zenoh; e-stop every robot on any abnormal end.
 
     ``signals`` (the caller's, made first) turn SIGINT/SIGTERM into a stop that never interrupts
-    finishing the recording. ``on_config(done, total, step)`` is told each configuration as it ends.
+    finishing the recording. ``on_config(done, total, step)`` is told each configuration as it ends,
+    ``log`` the progress lines of the process (default: stderr).
     A failed or interrupted run still finishes its recording (printed as ``recorded PATH ...``).
     """
     from coordinator.executor import InchwormExecutor, RunAborted  # noqa: PLC0415 - the run's imports, not a parser's
@@ -279,20 +281,20 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     if o.record is not None:
         with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
             recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection))
-        say(f"recording swarm/{o.run_id}/** to {o.record}")
+        log(f"recording swarm/{o.run_id}/** to {o.record}")
     recorded, completed, result, error = None, False, None, None
     live = Live(None)
     try:
         if signals.received is not None:
             raise KeyboardInterrupt
-        with open_session(o.settings) as session, live_view(o, session) as live:
+        with open_session(o.settings) as session, live_view(o, session, log) as live:
             if recording is not None:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s), simulated=o.truth)
             ended: BaseException | None = None
             try:
                 backend.wait_for_agents()
-                say(f"{traj.n} agents alive, run {o.run_id}")
+                log(f"{traj.n} agents alive, run {o.run_id}")
                 progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731
                 executor = InchwormExecutor(backend, make_localizer(o.localizer, cfg), strategy, cfg, progress, listener=backend,
                                             on_lost=o.on_lost, min_robots=o.min_robots)

@@ -2,6 +2,7 @@
 
     import inchworm
     run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult
+    same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
 
@@ -23,6 +24,7 @@ if TYPE_CHECKING:
     from coordinator.executor import RunResult
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
+    from inchworm.distributed import run_distributed
     from inchworm.localize_data import localize, localize_document
     from inchworm.options import RunOptions
     from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
@@ -37,6 +39,7 @@ if TYPE_CHECKING:
 
 _WHERE = {
     "simulate": "inchworm.simulation",
+    "run_distributed": "inchworm.distributed",
     "RunResult": "coordinator.executor",
     "ModelConfig": "runtime.models.config",
     "SelectionConfig": "coordinator.selection.selector",
