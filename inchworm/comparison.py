@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.strategies import METHODS
-from inchworm.options import RunOptions, plain
+from inchworm.options import RunOptions, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
 from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
@@ -192,7 +192,7 @@ def compare(
     """Run the paired comparison; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes
     (``resume``: continue a comparison interrupted there)."""
     options.validate()
-    log = StudyLog(out, "runs", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     methods = [label for _, label, _ in options.variants()]
     if log is not None:

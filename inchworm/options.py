@@ -39,7 +39,7 @@ def check_at_least(flag: str, value: int, low: int) -> None:
         raise SwarmInputError(f"--{flag} must be >= {low}, got {value}")
 
 
-def plain(options: Any) -> dict[str, Any]:
+def options_dict(options: Any) -> dict[str, Any]:
     """The options as plain JSON-ready values (what a study log keeps to check ``resume``)."""
     out = {}
     for f in fields(options):

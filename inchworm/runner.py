@@ -106,10 +106,9 @@ class StudyLog:
         self._csv_rows: dict[str, Row] = {}
         if resume and self.jsonl.exists():
             self._read()
-            self._file = open(self.jsonl, "a")
         else:
             folder.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.jsonl, "w")
+            self.jsonl.write_text("")
             self._write({"options": self.options})
 
     def _read(self) -> None:
@@ -133,9 +132,10 @@ class StudyLog:
                 self._csv_rows[entry["task"]] = entry["row"]
 
     def _write(self, obj: dict) -> None:
-        self._file.write(json.dumps(obj, separators=(",", ":")) + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
+        with open(self.jsonl, "a") as f:
+            f.write(json.dumps(obj, separators=(",", ":")) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
 
     def add(self, key: str, row: Row, csv: bool = True) -> None:
         """Keep one finished row (``csv``: also in the CSV, rewritten now); a Ctrl-C meanwhile waits until both files agree."""
@@ -148,7 +148,6 @@ class StudyLog:
 
     def finish(self, rows: list[Row]) -> Path:
         """The final CSV: ``rows`` in the study's order."""
-        self._file.close()
         return write_rows(self.csv, rows)
 
 

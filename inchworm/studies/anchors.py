@@ -28,8 +28,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.options import check_at_least, check_localizers, plain
+from inchworm.options import check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
+from inchworm.seeding import trajectory_rng
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import random_trajectory
@@ -97,7 +98,7 @@ def evaluate(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans
 def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndarray, SwarmEstimate, MonteCarlo]:
     """The random start (n, 3), desired configuration (n, 2), start estimate and e_l estimator of an experiment."""
     from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
-    rng = np.random.default_rng([job.seed, job.experiment])
+    rng = trajectory_rng(job.seed, job.experiment)  # the study's seeding convention (inchworm.seeding)
     step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
     traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step)
     start, desired = traj.initial_poses, traj.configurations[0]
@@ -419,7 +420,7 @@ def study_anchors(
 ) -> AnchorsResult:
     """Fig. 4, Fig. 5 and Appendix A; with ``out`` each experiment is kept in ``out/experiments.jsonl`` and ``.csv`` as it finishes."""
     options.validate()
-    log = StudyLog(out, "experiments", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "experiments", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_experiment, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
         log.finish(rows)

@@ -23,7 +23,7 @@ import numpy as np
 
 from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
 from inchworm.noise import scaled
-from inchworm.options import RunOptions, check_localizers, plain
+from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -197,7 +197,7 @@ def study_calibration(
     and the comparison runs in ``out/runs.csv`` as they finish."""
     options.validate()
     o = options
-    log = StudyLog(out, "runs", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = _Runs(executor, log, progress, total=len(o.localizers) * len(o.sensing_scales) * len(o.seeds) * o.trajectories * len(o.methods))
     results, all_rows = [], []
     for loc in o.localizers:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.options import check_at_least, check_localizers, default_selection, plain
+from inchworm.options import check_at_least, check_localizers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
 from runtime.errors import SwarmInputError
@@ -179,7 +179,7 @@ def study_consistency(
     from coordinator.consistency import chi2_band  # noqa: PLC0415
 
     options.validate()
-    log = StudyLog(out, "runs", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = run_tasks(run_task, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
         log.finish(runs)

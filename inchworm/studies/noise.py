@@ -18,7 +18,7 @@ import numpy as np
 
 from inchworm.comparison import RunTask, run_one
 from inchworm.noise import scaled
-from inchworm.options import RunOptions, check_at_least, check_localizers, plain
+from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
 
@@ -142,7 +142,7 @@ def study_noise(
 ) -> NoiseResult:
     """Run the sweep; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
     options.validate()
-    log = StudyLog(out, "runs", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
         log.finish(rows)

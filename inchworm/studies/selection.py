@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.options import RunOptions, check_localizers, plain
+from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
 from runtime.errors import SwarmInputError
@@ -260,7 +260,7 @@ def study_selection(
 ) -> SelectionStudyResult:
     """Run the study; with ``out`` every configuration is kept in ``out/configs.jsonl`` and ``out/configs.csv`` as it finishes."""
     options.validate()
-    log = StudyLog(out, "configs", plain(options), resume) if out is not None else None
+    log = StudyLog(out, "configs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_config, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
         log.finish(rows)
