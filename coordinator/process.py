@@ -94,6 +94,7 @@ class CoordinatorOptions:
     seed: int = 0
     localizer: str = "paper"
     model: ModelConfig = field(default_factory=ModelConfig)
+    model_file: Path | None = None  # the model file ``model`` was read from, if any (kept in the metadata)
     selection: SelectionConfig | None = None  # None: the default search
     start_timeout_s: float = 30.0
     step_timeout_s: float = 5.0
@@ -115,6 +116,7 @@ def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
         "method": o.method,
         "localizer": o.localizer,
         "model": o.model.to_dict(),
+        "model_file": None if o.model_file is None else str(Path(o.model_file).resolve()),
         "selection": dataclasses.asdict(selection),
         "trajectory": o.trajectory.to_json(),
         "initial_delta_m": INITIAL_DELTA,

@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
     from inchworm.localize_data import localize, localize_document
+    from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
     from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
     from inchworm.simulation import simulate
@@ -55,6 +56,7 @@ _WHERE = {
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
+    "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
 }
 

@@ -60,7 +60,7 @@ def run_distributed(
             traj.save(traj_file)
             start_agents(traj, run_id, f"tcp/127.0.0.1:{port}", seed, 0.0, model_flags(cfg), procs,
                          per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
-            options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, selection,
+            options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
                                          start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=record,
                                          command="inchworm.run_distributed")
             outcome = run_coordinator(options, signals, log=lambda _line: None)

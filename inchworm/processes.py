@@ -13,33 +13,23 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
+from robot_agent.assembly import format_ids
 from robot_agent.emulator_process import check_radio_faults
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
-from runtime.wire.messages import CommandLimits
+from runtime.wire.keys import estop_key, robot_wildcard
+from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.wire.transport import subscribe
 
 GRACE_S = 3.0  # s a child gets after SIGTERM before SIGKILL
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
-
-
-def format_ids(ids: Iterable[int]) -> str:
-    """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
-    parts: list[str] = []
-    for i in ids:
-        i = int(i)
-        if parts and parts[-1][1] == i - 1:
-            parts[-1][1] = i
-        else:
-            parts.append([i, i])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
 
 
 def model_flags(cfg: ModelConfig) -> list[str]:
@@ -172,3 +162,45 @@ def last_json(stdout: str) -> dict | None:
         return json.loads(lines[-1]) if lines else None
     except json.JSONDecodeError:
         return None
+
+
+class RobotKiller:
+    """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
+    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
+
+    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
+        self.robot, self.step, self.process = robot, step, process
+        self.killed_ns: int | None = None
+        self.stop_stamp_ns: int | None = None
+        self.stop_heard_ns: int | None = None
+        self._subs = [subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command),
+                      subscribe(session, estop_key(run_id), self._on_estop)]
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        if self.killed_ns is not None:
+            return
+        try:
+            cmd = decode(payload, MotionCommand)
+        except MessageError:
+            return
+        if cmd.step >= self.step and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.killed_ns = time.time_ns()
+
+    def _on_estop(self, key: str, payload: bytes) -> None:
+        heard = time.time_ns()
+        try:
+            stop = decode(payload, EmergencyStop)
+        except MessageError:
+            return
+        if self.robot in stop.robots and self.stop_heard_ns is None:
+            self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
+
+    def report(self) -> dict | None:
+        """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
+        for sub in self._subs:
+            sub.undeclare()
+        if self.killed_ns is None:
+            return None
+        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
+        return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
 
     options = CoordinatorOptions(
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
-        args.localizer, model_config(args), selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
+        args.localizer, model_config(args), args.model, selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
         truth=not args.no_truth, record=None if args.no_record else args.record or default_recording(args.run_id),
         foxglove_port=args.foxglove, command=" ".join(sys.argv))
     outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
