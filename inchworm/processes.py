@@ -7,7 +7,6 @@ the runtime and fault benchmarks and the tests start them through these function
 
 from __future__ import annotations
 
-import json
 import math
 import signal
 import subprocess
@@ -153,15 +152,6 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
                                        f"--run={run_id}", f"--hub={hub}"]))
     return live
-
-
-def last_json(stdout: str) -> dict | None:
-    """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
-    lines = [line for line in stdout.splitlines() if line.startswith("{")]
-    try:
-        return json.loads(lines[-1]) if lines else None
-    except json.JSONDecodeError:
-        return None
 
 
 class RobotKiller:

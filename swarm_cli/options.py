@@ -11,6 +11,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 

@@ -38,7 +38,7 @@ import msgpack
 import numpy as np
 
 from inchworm.bench import BenchResult
-from inchworm.processes import last_json
+from inchworm.output import last_json
 from inchworm.progress import Progress
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError

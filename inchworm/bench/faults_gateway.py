@@ -26,7 +26,7 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from inchworm.processes import last_json
+from inchworm.output import last_json
 from inchworm.progress import Progress
 
 RUN_TIMEOUT_S = 300.0  # one whole launch (busy machine); a run that takes longer counts as not completed
