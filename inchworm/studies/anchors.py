@@ -401,8 +401,9 @@ class AnchorsResult:
         title(ax, f"Heuristic vs random anchors, n_a = {self.summary['choice_n_anchors']} of n_r = {self.options.robots}")
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
         """fig4.png, fig5.png (when part 2 ran) and appendix_a.png in ``out`` (experiments.csv is written as experiments finish)."""
+        out = Path(out)
         n, n_a, k = self.options.robots, self.summary["choice_n_anchors"], len(self.rows)
         headings = {"fig4": f"Fig. 4: e_l vs number of anchors, n_r = {n}, {k} experiments",
                     "fig5": f"Fig. 5: choice of anchors, n_a = {n_a} of n_r = {n}",
@@ -415,7 +416,7 @@ def study_anchors(
     options: AnchorsOptions = AnchorsOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> AnchorsResult:

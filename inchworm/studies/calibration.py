@@ -180,9 +180,11 @@ class CalibrationResult:
         title(ax, "P_f at the calibrated noise (bars: 97 % CI of the mean, t, clipped at 0)")
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
+        """``calibration.png``: the pooled P_f of every method at each calibrated setting."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
+        out = Path(out)
         return [save_figure(self.plot, out / "calibration.png", (max(6.0, 2.5 * len(self.results) + 3), 4.5))]
 
 
@@ -190,7 +192,7 @@ def study_calibration(
     options: CalibrationOptions = CalibrationOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CalibrationResult:

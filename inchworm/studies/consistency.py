@@ -154,8 +154,9 @@ class ConsistencyResult:
         title(ax, f"{loc} localizer")
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
         """``consistency.png``: one panel per localizer."""
+        out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
 
         locs = self.options.localizers
@@ -171,7 +172,7 @@ def study_consistency(
     options: ConsistencyOptions = ConsistencyOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ConsistencyResult:

@@ -104,8 +104,9 @@ class NoiseResult:
         title(ax, f"{loc}: " + ("P_f inchworm / ref57 (< 1: inchworm better)" if ratio else "n_a chosen by inchworm"))
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
         """``noise.png``: per localizer the chosen n_a and the P_f ratio."""
+        out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
 
         locs = self.options.localizers
@@ -137,7 +138,7 @@ def study_noise(
     options: NoiseOptions = NoiseOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:

@@ -245,9 +245,11 @@ class SelectionStudyResult:
         title(ax, f"Anchor plans against the exhaustive optimum, n_r = {self.options.robots}")
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
+        """``selection.png``: the plans against the optimum (when an anchor count was enumerated)."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
+        out = Path(out)
         return [save_figure(self.plot, out / "selection.png", (7.0, 4.5))] if self.summary["counts"] else []
 
 
@@ -255,7 +257,7 @@ def study_selection(
     options: SelectionStudyOptions = SelectionStudyOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:
