@@ -1,78 +1,31 @@
-"""``swarm coordinator``: the coordinator process of a distributed run.
+"""``swarm coordinator``: the coordinator process of a distributed run (``coordinator.process``).
 
     swarm coordinator --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0 --method inchworm
 
-Connects as a Zenoh client to the hub, waits for every robot's agent, then runs the
-same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` (which also
-publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
-per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
-13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there, as ``swarm sim`` does.
-
-Lost robots (docs/failure-model.md): with ``--on-lost continue`` (the default) a robot
-that is lost (liveliness token gone, silent through a step, or refusing its command) is
-stopped and the run goes on without it; the summary names it and P_f is over the robots
-that finished. ``--on-lost abort``, or fewer than ``--min-robots`` robots left, ends the
-run. Every abnormal end (an abort, an error, SIGTERM or Ctrl-C) first publishes a
-run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (also with
-lost robots), 3 the run was aborted or the agents did not come up (the message names the
-robots), 2 bad input.
-
-One master per run (docs/protocol.md, Coordinator epochs): a coordinator started while another
-coordinator of the run is alive exits 4 with one line naming the live one, and touches nothing
-(no recording, no stop). The run survives its coordinator (docs/failure-model.md): the
-coordinator publishes a ``Checkpoint`` after the start, every plan and every step;
-``--standby`` follows a live coordinator's checkpoints and, when its token disappears without
-the run having finished or been stopped, takes the run over from the last one; ``--resume
-RECORDING`` takes it over from the last checkpoint recorded in an MCAP file. Either continues
-as the same run (same step numbers, estimate, plan, lost robots, selection random state), so in
-simulation the result is the fault-free run's.
-
-Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
-its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
-writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
-to turn it off), with the run metadata ``swarm replay --check`` and ``swarm plot`` need (seed,
-method, localizer, model and selection configuration, trajectory). The coordinator waits until
-the recorder's subscription has reached the hub before it starts, and at the end (also after a
-failed or interrupted run) lets the last messages arrive, finishes the file and prints
-``recorded PATH: N messages on C channels``.
+Waits for every robot's agent, runs the same executor as ``swarm sim`` over Zenoh and prints
+the per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
+13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there. Recording is on by
+default (``recordings/<run>.mcap``). Exit status: 0 done (also with lost robots), 3 the run
+was aborted or the agents did not come up, 4 another coordinator of the run is alive, 2 bad input.
+``--standby`` / ``--resume RECORDING``: take the run over when its coordinator is gone
+(``coordinator.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import dataclasses
 import json
 import logging
-import math
-import os
-import queue
 import sys
-import threading
-import time
-import uuid
-from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from coordinator.strategies import METHODS
-from runtime.errors import SwarmInputError
-from runtime.wire.keys import run_wildcard, validate_run
 from runtime.models.trajectory import Trajectory
-from swarm_cli.entry import StopSignals, leave, run_standalone
+from swarm_cli.entry import leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
-
-if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
-    from coordinator.checkpoint import RunState
-    from coordinator.executor import RunResult
-    from runtime.recording.foxglove_live import LiveView
-    from runtime.recording.mcap_log import McapRecorder
-    from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
 EXIT_CONFLICT = 4  # another coordinator of the run is alive
-INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
-INITIAL_HEADING_SIGMA = math.radians(2.0)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -93,12 +46,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
     p.add_argument("--min-robots", type=int, default=2,
                    help="end the run when fewer robots than this are left (default 2, the least localization needs)")
-    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
-                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--no-truth", action="store_true",
                    help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
     p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     takeover = p.add_mutually_exclusive_group()
     takeover.add_argument("--standby", action="store_true",
                           help="follow the run's live coordinator and take the run over from its last checkpoint if it dies "
@@ -120,403 +73,44 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
                    help="with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; 0: exit at once)")
 
 
-def default_recording(run_id: str, role: str = "") -> Path:
-    """``recordings/<run>.mcap``; a standby or resuming coordinator (``role``) records to ``recordings/<run>.<role>.mcap``."""
-    return Path("recordings") / (f"{run_id}.{role}.mcap" if role else f"{run_id}.mcap")
-
-
-def _role(args: argparse.Namespace) -> str:
-    return "standby" if args.standby else "resume" if args.resume else ""
-
-
-def result_json(result: RunResult) -> dict:
-    """Every step's estimate (and truth, when known) as plain JSON."""
-    def truth(t):
-        return None if t is None else t.tolist()
-
-    return {
-        "method": result.method,
-        "ids": result.initial_estimate.ids.tolist(),
-        "initial_estimate": result.initial_estimate.poses.tolist(),
-        "initial_truth": truth(result.initial_truth),
-        "lost": [{"robot": r.robot, "step": r.step, "config": r.config + 1, "reason": r.reason} for r in result.lost],
-        "rejoined": [{"robot": r.robot, "step": r.step, "config": r.config + 1} for r in result.rejoined],
-        "steps": [
-            {"config": s.config, "step": s.step, "ids": s.estimate.ids.tolist(), "moving": s.moving.tolist(), "commands": s.commands.tolist(),
-             "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
-            for s in result.steps
-        ],
-        "final": result.configs[-1].estimate.poses.tolist() if result.configs else None,
-    }
-
-
-def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> dict:
-    """What a recording needs to re-run the coordinator's decisions (``swarm replay --check``, ``swarm plot``)."""
-    return {
-        "source": "swarm coordinator",
-        "command": " ".join(sys.argv),
-        "hub": connection_label(args),
-        "seed": args.seed,
-        "method": args.method,
-        "localizer": args.localizer,
-        "model": cfg.to_dict(),
-        "model_file": None if getattr(args, "model", None) is None else str(Path(args.model).resolve()),
-        "selection": dataclasses.asdict(selection),
-        "trajectory": traj.to_json(),
-        "initial_delta_m": INITIAL_DELTA,
-        "initial_heading_sigma_rad": INITIAL_HEADING_SIGMA,
-        "step_timeout_s": args.step_timeout,
-    }
-
-
-class Recording:
-    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end."""
-
-    SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
-    SETTLE_MAX_S = 3.0  # ... or after this long
-
-    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0) -> None:
-        self.run_id, self.path = run_id, path
-        self.stop = threading.Event()
-        self._ready = threading.Event()
-        self.recorder: McapRecorder | None = None
-        self.result: dict = {}
-        self.error: BaseException | None = None
-        from runtime.recording.mcap_log import record_run  # noqa: PLC0415
-
-        def target() -> None:
-            try:
-                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready))
-            except BaseException as exc:  # noqa: BLE001 - reported by the main thread
-                self.error = exc
-            finally:
-                self._ready.set()
-
-        self.thread = threading.Thread(target=target, name="swarm-recorder", daemon=True)
-        self.thread.start()
-        if not self._ready.wait(timeout_s):
-            self.stop.set()
-            raise ConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
-        if self.error is not None:
-            raise self.error
-
-    def _on_ready(self, recorder: McapRecorder) -> None:
-        self.recorder = recorder
-        self._ready.set()
-
-    def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
-        """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
-        probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
-        try:
-            deadline = time.monotonic() + timeout_s
-            while not probe.matching_status.matching:
-                if time.monotonic() > deadline or self.error is not None:
-                    raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
-                time.sleep(0.005)
-        finally:
-            probe.undeclare()
-
-    def finish(self, interrupted: bool = False) -> dict:
-        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``.
-
-        ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
-        (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
-        """
-        if self.recorder is not None and self.thread.is_alive():
-            start = last_change = time.monotonic()
-            count = self.recorder.count
-            settle_max = self.SETTLE_S if interrupted else self.SETTLE_MAX_S
-            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < settle_max:
-                time.sleep(0.05)
-                if self.recorder.count != count:
-                    count, last_change = self.recorder.count, time.monotonic()
-        self.stop.set()
-        self.thread.join(timeout=30)
-        if self.error is not None:
-            raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
-        return self.result
-
-
-def recording_line(rec: dict) -> str:
-    from runtime.recording.mcap_log import counts_text  # noqa: PLC0415
-
-    return (f"recorded {rec['path']}: {counts_text(rec)}"
-            + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
-
-
-def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
-    """The per-configuration table of ``swarm sim``, then the run's outcome."""
-    from swarm_cli.summary import print_config_table  # noqa: PLC0415
-
-    rows, fallbacks = print_config_table(result)
-    for lost in result.lost:
-        print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
-    for back in result.rejoined:
-        print(f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on")
-    pf = result.pf() if result.has_truth else None
-    over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
-    print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
-    if plots:
-        print(f"wrote {', '.join(plots)}")
-    if recording:
-        print(recording_line(recording))
-    if args.json:
-        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
-                    "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
-                    "finished_robots": len(result.finished_ids),
-                    "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
-
-
-class Live:
-    """The ``--foxglove`` view of a run; ``keep`` (set once the run is done) keeps it open for ``linger``."""
-
-    def __init__(self, view: LiveView | None) -> None:
-        self.view, self.keep = view, False
-
-    def linger(self, seconds: float | None) -> None:
-        if self.view is None:
-            return
-        if seconds != 0:
-            until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
-            print(f"coordinator: the run is over; the live view keeps serving at {self.view.url} {until}", file=sys.stderr, flush=True)
-            self.view.linger(seconds)
-        self.view.close()
-
-
-@contextlib.contextmanager
-def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[Live]:
-    """With ``--foxglove``: every message of the run also goes to a Foxglove live view while it runs;
-    the view is closed at the end unless ``keep`` was set (then ``Live.linger`` closes it)."""
-    if args.foxglove is None:
-        yield Live(None)
-        return
-    from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
-    from runtime.wire.transport import subscribe  # noqa: PLC0415
-
-    live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
-    subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
-    print(f"coordinator: live view for the Foxglove app at {live.view.url}", file=sys.stderr, flush=True)
-    try:
-        yield live
-    finally:
-        subscriber.undeclare()
-        if not live.keep:
-            live.view.close()
-
-
 def run(args: argparse.Namespace) -> int:
     logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
-    signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside Recording.finish
-    from coordinator.executor import InchwormExecutor, RunAborted  # noqa: PLC0415 - the run's imports, not the parser's
-    from coordinator.localization import make_localizer  # noqa: PLC0415
-    from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import (  # noqa: PLC0415
-        AgentError,
-        CoordinatorConflict,
-        Timeouts,
-        ZenohSwarmBackend,
-        conflict_message,
-        live_coordinators,
-    )
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
-    from runtime.wire.transport import open_session  # noqa: PLC0415
-    from swarm_cli.estop import send_estop  # noqa: PLC0415
-    from swarm_cli.summary import write_plots  # noqa: PLC0415
+    from coordinator.stop import StopSignals  # noqa: PLC0415
 
-    cfg = model_config(args)
-    traj = Trajectory.load(args.trajectory)
-    validate_connected(traj, cfg.sensing_range_m)
-    if not 2 <= args.min_robots <= traj.n:
-        raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
-    selection = selection_config(args)
-    strategy = make_strategy(args.method, traj.n, cfg, args.localizer, selection, args.seed)  # bad input fails before waiting
-    settings = connection_settings(args)
-    validate_run(args.run_id)
-    initial = initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
-    taken = read_checkpoint(args.resume, args.run_id, traj, initial) if args.resume else None
-    recording, recorded, completed, result = None, None, False, None
-    try:
-        if signals.received is not None:
-            raise KeyboardInterrupt
-        with open_session(settings) as session, live_view(args, traj, session) as live:
-            live_now = live_coordinators(session, args.run_id)
-            if live_now and not args.standby:  # before anything is recorded or stopped: this run has a master
-                print(f"swarm coordinator: error: {conflict_message(args.run_id, live_now)}", file=sys.stderr, flush=True)
-                return EXIT_CONFLICT
-            standby = Standby(session, args.run_id, traj, initial) if args.standby else None
-            if not args.no_record:
-                path = args.record or default_recording(args.run_id, _role(args))
-                with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
-                    recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
-                print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
-                recording.wait_subscribed(session)
-            if standby is not None:
-                taken = standby.wait(args.start_timeout, signals)
-                if isinstance(taken, str):  # the run finished or was stopped: nothing to take over
-                    print(f"coordinator: standby: {taken}; nothing to take over", file=sys.stderr, flush=True)
-                    completed = True
-                    return 0 if taken.startswith("the run finished") else EXIT_AGENT
-            parent, state = taken if taken is not None else (0, None)
-            try:
-                backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
-                                            simulated=not args.no_truth, parent=parent, rejoin=args.rejoin == "yes")
-            except CoordinatorConflict as exc:
-                print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
-                completed = True  # not ours to stop
-                return EXIT_CONFLICT
-            ended: BaseException | None = None
-            try:
-                if state is not None:
-                    backend.resume(state)
-                    print(f"coordinator: epoch {backend.epoch} takes over run {args.run_id} from epoch {parent} after step "
-                          f"{state.step}", file=sys.stderr, flush=True)
-                backend.wait_for_agents()
-                print(f"coordinator: {len(backend.ids)} agents alive, run {args.run_id}, epoch {backend.epoch}", file=sys.stderr, flush=True)
-                progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
-                                            on_lost=args.on_lost, min_robots=args.min_robots,
-                                            on_checkpoint=durable_checkpoints(backend, recording))
-                result = executor.run(traj, initial, resume=state)
-                completed = live.keep = True
-            except (AgentError, RunAborted) as exc:
-                ended = exc
-                print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
-                return EXIT_AGENT
-            except BaseException as exc:
-                ended = exc
-                raise
-            finally:
-                with signals.deferred():
-                    if not completed:  # whatever ended the run early: no robot may be left moving
-                        send_estop(session, args.run_id, f"swarm coordinator (pid {os.getpid()})",
-                                   f"the run ended early ({type(ended).__name__}: {ended})"[:2000])
-                    backend.close()
-    finally:
-        if recording is not None:
-            with signals.deferred():
-                recorded = recording.finish(interrupted=signals.received is not None)
-            if result is None:  # failed, interrupted or nothing to do: the summary below is not printed
-                print(recording_line(recorded), flush=True)
+    signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
+    from coordinator.process import CoordinatorOptions, default_recording, recording_line, result_json, run_coordinator, say  # noqa: PLC0415
+    from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
+    from inchworm.plots import write_run_plots  # noqa: PLC0415
+    from inchworm.simulation import config_rows, fallback_steps, summary_text  # noqa: PLC0415
+
+    options = CoordinatorOptions(
+        Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
+        args.localizer, model_config(args), args.model, selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
+        truth=not args.no_truth,
+        record=None if args.no_record else args.record or default_recording(args.run_id, "standby" if args.standby else "resume" if args.resume else ""),
+        foxglove_port=args.foxglove, command=" ".join(sys.argv), standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
+    outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
+    if outcome.error is not None:
+        print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
+        return EXIT_CONFLICT if isinstance(outcome.error, CoordinatorConflict) else EXIT_AGENT
+    if outcome.result is None:  # a standby whose run finished without it
+        return 0
+    result = outcome.result
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
-    plots = write_plots(result, args.out) if args.out and result.configs else None
-    print_summary(result, args, plots, recorded)
-    live.linger(args.linger)
+    plots = write_run_plots(result, args.out) if args.out and result.configs else None
+    print(summary_text(result, args.method, args.localizer))
+    if plots:
+        print(f"wrote {', '.join(plots)}")
+    if outcome.recording:
+        print(recording_line(outcome.recording))
+    if args.json:
+        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf() if result.has_truth else None, "configs": config_rows(result),
+                    "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
+                    "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots or [],
+                    "recording": outcome.recording["path"] if outcome.recording else None})
+    outcome.live.linger(args.linger)
     return 0
-
-
-def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
-    """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
-    it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on)."""
-    def checkpoint(state: RunState) -> None:
-        recorder = None if recording is None else recording.recorder
-        written = 0 if recorder is None else recorder.checkpoints
-        backend.publish_checkpoint(state)
-        if recorder is not None and not recorder.wait_checkpoints(written + 1, timeout_s):
-            logging.getLogger(__name__).warning("the recorder did not store the checkpoint of step %d within %.0f s",
-                                                state.step, timeout_s)
-    return checkpoint
-
-
-def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple[int, RunState]:
-    """``(epoch, state)`` of the last ``Checkpoint`` of run ``run_id`` recorded in ``path`` (``--resume``)."""
-    from coordinator.checkpoint import RunState  # noqa: PLC0415
-    from runtime.recording.mcap_log import read_messages  # noqa: PLC0415
-    from runtime.wire.keys import coord_key  # noqa: PLC0415
-    from runtime.wire.messages import Checkpoint, MessageError, decode  # noqa: PLC0415
-
-    if not path.is_file():
-        raise SwarmInputError(f"--resume {path}: no such file")
-    key, last = coord_key(run_id, "checkpoint"), None
-    for topic, payload, _, _ in read_messages(path):
-        if topic == key:
-            try:
-                last = decode(payload, Checkpoint, key=key)
-            except MessageError:
-                continue
-    if last is None:
-        raise SwarmInputError(f"--resume {path}: no checkpoint of run {run_id} in this recording")
-    state = RunState.from_json(last.state, traj, initial)
-    if state.finished:
-        raise SwarmInputError(f"--resume {path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
-    return last.epoch, state
-
-
-class Standby:
-    """``--standby``: follows the checkpoints of the run's live coordinator until its token disappears."""
-
-    def __init__(self, session, run_id: str, traj: Trajectory, initial) -> None:
-        from runtime.wire.keys import coord_alive_key, coord_key, estop_key, parse_coord_token  # noqa: PLC0415
-        from runtime.wire.messages import Checkpoint, DropCounter, EmergencyStop, decode_or_drop  # noqa: PLC0415
-        from runtime.wire.transport import subscribe, watch_liveliness  # noqa: PLC0415
-
-        self.run_id, self.traj, self.initial = run_id, traj, initial
-        self.latest: dict[int, Checkpoint] = {}  # by epoch
-        self.stopped: str | None = None
-        self.events: queue.SimpleQueue[tuple[tuple[int, int], bool]] = queue.SimpleQueue()
-        drops = DropCounter(logging.getLogger(__name__))
-
-        def on_checkpoint(key: str, payload: bytes) -> None:
-            msg = decode_or_drop(payload, drops, key, Checkpoint)
-            if msg is not None and (msg.epoch not in self.latest or msg.step >= self.latest[msg.epoch].step):
-                self.latest[msg.epoch] = msg  # a replayed older checkpoint never replaces a newer one
-
-        def on_estop(key: str, payload: bytes) -> None:
-            msg = decode_or_drop(payload, drops, key, EmergencyStop)
-            if msg is not None and not msg.robots:
-                self.stopped = f"the run was stopped by {msg.source} ({msg.reason})"
-
-        def on_token(key: str, alive: bool) -> None:
-            token = parse_coord_token(key)
-            if token is not None:
-                self.events.put((token, alive))
-
-        self._subs = [watch_liveliness(session, coord_alive_key(run_id), on_token), subscribe(session, estop_key(run_id), on_estop),
-                      subscribe(session, coord_key(run_id, "checkpoint"), on_checkpoint)]  # last: its match says "ready"
-
-    def wait(self, timeout_s: float, signals: StopSignals) -> tuple[int, RunState | None] | str:
-        """``(epoch, state)`` to take over once the followed coordinator is gone (``state`` None: it died before
-        its first checkpoint), or why there is nothing to take over."""
-        from coordinator.checkpoint import RunState  # noqa: PLC0415
-
-        live: dict[int, int] = {}
-        followed: int | None = None
-        deadline = time.monotonic() + timeout_s
-        try:
-            while True:
-                if signals.received is not None:
-                    raise KeyboardInterrupt
-                try:
-                    (epoch, parent), alive = self.events.get(timeout=0.05)
-                except queue.Empty:
-                    if followed is None and time.monotonic() > deadline:
-                        return f"no coordinator of run {self.run_id} appeared within {timeout_s:.0f} s"
-                    continue
-                if alive:
-                    live[epoch] = parent
-                    if followed is None:
-                        followed = epoch
-                        print(f"coordinator: standby for run {self.run_id}, following epoch {epoch}", file=sys.stderr, flush=True)
-                    continue
-                live.pop(epoch, None)
-                if epoch != followed:
-                    continue
-                if live:  # another coordinator took over first: follow it
-                    followed = min(live)
-                    continue
-                checkpoint = self.latest.get(epoch)
-                if self.stopped is not None:
-                    return self.stopped
-                if checkpoint is None:
-                    return epoch, None
-                state = RunState.from_json(checkpoint.state, self.traj, self.initial)
-                if state.finished:
-                    return f"the run finished (epoch {epoch})"
-                return epoch, state
-        finally:
-            for sub in self._subs:
-                sub.undeclare()
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -27,7 +27,7 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
-from swarm_cli.launch import start_agents, stop_all
+from inchworm.processes import start_agents, stop_all
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
