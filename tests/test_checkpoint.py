@@ -27,8 +27,9 @@ class Died(Exception):
 
 
 def _executor(backend, traj, method: str, seed: int, on_checkpoint) -> InchwormExecutor:
-    strategy = make_strategy(method, traj.n, CFG, "paper", FAST, seed)
-    return InchwormExecutor(backend, make_localizer("paper", CFG), strategy, CFG, on_checkpoint=on_checkpoint)
+    localizer = make_localizer("paper", CFG)
+    strategy = make_strategy(method, traj.n, CFG, localizer, FAST, seed)
+    return InchwormExecutor(backend, localizer, strategy, CFG, on_checkpoint=on_checkpoint)
 
 
 @pytest.fixture(scope="module")
