@@ -95,7 +95,7 @@ def consistency_study(
 ) -> list[ConsistencyRow]:
     """NEES / 2 of every (localizer, method) on the same ``trajectories`` random trajectories.
 
-    Trajectory t is ``random_trajectory(robots, configs, rng [seed, t])``, run with seed t
+    Trajectory t is ``random_trajectory(robots, configs, rng [seed, t])``, run with seed ``seed + t``
     (same motion and sensing noise streams for every localizer and method).
     """
     trajs = [
