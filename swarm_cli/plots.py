@@ -18,8 +18,9 @@ DESIRED, ESTIMATED, TRUE = "tab:red", "tab:green", "tab:blue"
 def plot_trajectory(run: RunResult, path: Path) -> Path:
     """Fig. 13/14/16: desired (red), estimated (green) and true (blue) configurations.
 
-    Hollow circles are past configurations, filled circles the last one; anchors of
-    each configuration's first step are ringed in black on the estimated positions.
+    Hollow circles are past configurations, filled circles the last one; the anchors of
+    each configuration's first step are ringed in black where they stood (the estimate at the
+    start of that configuration); the legend names every marker.
     """
     k = len(run.configs)
     desired = run.desired_configurations()
@@ -34,16 +35,23 @@ def plot_trajectory(run: RunResult, path: Path) -> Path:
         ax.scatter(*truths[-1].T, s=40, color=TRUE, label="true")
         for i in range(truths.shape[1]):
             ax.plot(truths[:, i, 0], truths[:, i, 1], color=TRUE, lw=0.5, alpha=0.4)
-    for c in run.configs:
-        anchors = np.isin(c.estimate.ids, c.anchor_ids(0))
-        ax.scatter(*c.estimate.positions[anchors].T, s=90, facecolors="none", edgecolors="black", linewidths=0.6)
-    ax.scatter(*run.initial_estimate.positions.T, s=30, marker="x", color="gray", label="start")
+    label = "anchor: stood still in its configuration's first step"
+    for j, c in enumerate(run.configs):  # where the anchors stood: the estimate at the start of their configuration
+        before = run.configs[j - 1].estimate if j else run.initial_estimate
+        anchors = np.isin(before.ids, c.anchor_ids(0))
+        if anchors.any():
+            ax.scatter(*before.positions[anchors].T, s=110, facecolors="none", edgecolors="black", linewidths=1.0, label=label)
+            label = None
+    ax.scatter(*run.initial_estimate.positions.T, s=30, marker="x", color="gray", label="start (estimated)")
+    ax.scatter([], [], s=22, facecolors="none", edgecolors="gray", linewidths=0.8, label="hollow: earlier configurations")
+    if run.has_truth:
+        ax.plot([], [], color=TRUE, lw=0.5, alpha=0.4, label="true path of each robot")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     anchors = run.anchor_counts()
     ax.set_title(f"{run.method}: {k} configurations, n_a per configuration {anchors.min()}..{anchors.max()}" + (f", P_f = {run.pf():.4f}" if run.has_truth else ""))
-    ax.legend(loc="best")
+    ax.legend(loc="best", fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

@@ -25,7 +25,34 @@ def print_config_table(result: RunResult) -> tuple[list[dict], list[StepRecord]]
     fallbacks = [s for s in result.steps if s.fallback]
     for s in fallbacks:
         print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
+    print_anchor_choices(result)
     return rows, fallbacks
+
+
+def print_anchor_choices(result: RunResult) -> None:
+    """Per configuration: which robots stood still at each step and, where the plan was searched,
+    the outer loop's score of every candidate count (Eq. 3: P_s = w_v P_v - w_l P_l, P_v = 1 / n_s,
+    P_l = e_l / e_l(0), e_l the Monte Carlo estimate of the count's best plan, in mm)."""
+    from swarm_cli.agent import format_ids  # noqa: PLC0415
+
+    for c in result.configs:
+        plan = c.plan
+        still = "; ".join(f"step {k + 1}: {format_ids(sorted(c.anchor_ids(k).tolist())) or 'none'}" for k in range(plan.n_steps))
+        who = "no anchors, every robot moved at once" if plan.n_anchors == 0 else f"stood still {still}"
+        print(f"config {c.config + 1}: n_a = {plan.n_anchors} ({who})")
+        if c.selection is None or len(c.selection.scores) < 2:
+            continue
+        print(f"  {'n_a':>5} {'steps':>5} {'e_l (mm)':>9} {'P_v':>6} {'P_l':>6} {'P_s':>7}")
+        for s in c.selection.scores:
+            mark = "*" if s.n_anchors == plan.n_anchors else " "
+            steps = round(1 / s.p_v) if s.p_v > 0 else 0
+            if s.plan is None:
+                print(f"  {mark}{s.n_anchors:>4} {steps:>5} {'no plan keeps the swarm connected':>30}")
+            else:
+                print(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+    if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
+        print("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
+              " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")
 
 
 def write_plots(result: RunResult, out: Path) -> list[str]:
