@@ -11,7 +11,10 @@ their paths. The coordinator records the run to ``recordings/<run>.mcap`` (``--r
 to choose, ``--no-record`` to turn it off) and prints the path; the launcher repeats it on
 stderr at the end. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
-period), so no process outlives it. Exit status: the coordinator's.
+period), so no process outlives it. Exit status: the coordinator's. While it runs it keeps the
+run file ``<run dir>/<run>.json`` with the hub's address (``swarm_cli.run_file``; removed at exit),
+so ``swarm estop --run RUN`` and ``swarm record --run RUN`` need no ``--hub``; a run id that is
+already live on this host is refused.
 
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
 (``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
@@ -70,6 +73,7 @@ from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
 from swarm_cli.estop import send_estop
+from swarm_cli.run_file import published_run
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
 GRACE_S = 3.0
@@ -404,7 +408,8 @@ def run(args: argparse.Namespace) -> int:
     coordinator: subprocess.Popen | None = None
     signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
     try:
-        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
+        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session, \
+                published_run(run_id, hub, f"swarm {args.command}"):
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
@@ -436,7 +441,8 @@ def run(args: argparse.Namespace) -> int:
                     cmd.append(f"--linger={args.linger!r}")
             what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
-            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
+                  f"(emergency stop: swarm estop --run {run_id})", file=sys.stderr, flush=True)
             killer = None
             if args.kill_robot is not None:
                 robot, step = args.kill_robot

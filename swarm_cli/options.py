@@ -173,11 +173,14 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
     """How a process joins the run's Zenoh network: ``--hub ENDPOINT`` and/or ``--zenoh-config FILE``.
 
     ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-gateway-tls.json5`` with
-    TLS certificates); ``--hub`` then overrides its connect endpoints. One of the two is
-    required unless ``required=False``.
+    TLS certificates); ``--hub`` then overrides its connect endpoints. Without either, a command
+    with ``--run RUN`` takes the hub of that live run from its run file (``swarm_cli.run_file``);
+    one of them is required unless ``required=False``.
     """
     g = parser.add_argument_group("Zenoh connection")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--hub", default=None,
+                   help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447 (default: the hub of the live "
+                        "run --run names, from its run file on this host)")
     g.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file (TLS, access control; see deploy/README.md)")
     parser.set_defaults(_connection_required=required)
 
@@ -187,9 +190,13 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     from runtime.wire.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
 
     if args.hub is None and args.zenoh_config is None:
-        if getattr(args, "_connection_required", True):
+        if not getattr(args, "_connection_required", True):
+            return None
+        if getattr(args, "run_id", None) is None:
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
-        return None
+        from swarm_cli.run_file import hub_of  # noqa: PLC0415
+
+        args.hub = hub_of(args.run_id)  # so that connection_label and the metadata name it too
     return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
 
 
