@@ -48,7 +48,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import run_wildcard, validate_run
 from runtime.models.trajectory import Trajectory
-from swarm_cli.entry import StopSignals, leave, run_standalone
+from swarm_cli.entry import portable_command, StopSignals, leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
@@ -127,7 +127,7 @@ def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> 
     """What a recording needs to re-run the coordinator's decisions (``swarm replay --check``, ``swarm plot``)."""
     return {
         "source": "swarm coordinator",
-        "command": " ".join(sys.argv),
+        "command": portable_command("swarm coordinator", sys.argv[1:]),
         "hub": connection_label(args),
         "seed": args.seed,
         "method": args.method,

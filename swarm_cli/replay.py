@@ -185,7 +185,8 @@ def _recorded_selection_values(meta: dict) -> dict:
 
 
 def contradictions(rec, args: argparse.Namespace, model: dict, selection: dict) -> list[str]:
-    """The options given that differ from what the recording's metadata states, as ``--flag VALUE (recorded: X)``."""
+    """The options given that differ from what the recording's metadata states, as ``--flag VALUE (recorded: X)``;
+    model options equal to the recorded value up to rounding are removed from ``model`` (the recorded value is used)."""
     meta, found = rec.meta, []
 
     def differs(a, b) -> bool:
@@ -208,6 +209,8 @@ def contradictions(rec, args: argparse.Namespace, model: dict, selection: dict) 
             recorded = float(stored_model[field])
             shown = f"{math.degrees(recorded):g}" if convert is math.radians else f"{recorded:g}"
             note(dest, model[field], recorded, shown)
+            if not differs(model[field], recorded):  # the recorded value as typed (3 for 3.0000000000000004 deg): keep the exact one
+                del model[field]
     for dest, recorded in _recorded_selection_values(meta).items():
         if dest in selection:
             note(dest, selection[dest], recorded)
