@@ -64,6 +64,36 @@ def positive_int(text: str) -> int:
     return value
 
 
+MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
+MAX_ROBOTS = 5000  # simulated robots (swarm sim, compare, studies): 1000 take ~12 s per configuration here
+MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
+MAX_CONFIGS = 10_000  # configurations of a random trajectory
+MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study
+LIMITS = {  # option dest -> (flag, least (None: the command checks it), most, what is limited)
+    "seed": ("--seed", 0, MAX_SEED, "numpy seeds are >= 0 and int64"),
+    "configs": ("--configs", None, MAX_CONFIGS, "configurations of a random trajectory"),
+    "trajectories": ("--trajectories", 1, MAX_TRAJECTORIES, "random trajectories"),
+}
+
+
+def check_limits(args: argparse.Namespace) -> None:
+    """``SwarmInputError`` naming the flag and its limits for a negative seed or an absurd size (every command:
+    ``swarm_cli.main`` calls it before running). ``--robots``: at most ``MAX_ROBOTS`` simulated or
+    ``MAX_LAUNCHED_ROBOTS`` launched as agent processes (the least, 2, is checked where the swarm is made)."""
+    limits = dict(LIMITS)
+    launched = getattr(args, "command", None) in ("launch", "demo")
+    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
+                        "robots launched as agent processes on one host" if launched else "simulated robots")
+    for dest, (flag, least, most, what) in limits.items():
+        value = getattr(args, dest, None)
+        if not isinstance(value, int) or isinstance(value, bool) or (least is None or value >= least) and value <= most:
+            continue
+        shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
+        if least is None:
+            raise SwarmInputError(f"{flag} {value}: at most {shown} ({what})")
+        raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
+
+
 def add_model_options(parser: argparse.ArgumentParser) -> None:
     """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones).
 

@@ -1,8 +1,10 @@
-"""``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv`` and Fig. 13/14/17-style plots."""
+"""``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv``, Fig. 13/14/17-style plots and
+``trajectory.json``, the trajectory it followed (docs/trajectory.md; ``--trajectory`` runs it again)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +14,7 @@ from runtime.models.trajectory import Trajectory, random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
+LARGE = 1000  # robots: say what is being made before the first progress line
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim", help="simulate one run along a trajectory and plot it")
@@ -30,16 +33,23 @@ def run(args: argparse.Namespace) -> int:
     from swarm_cli.summary import print_config_table, write_csv, write_plots  # noqa: PLC0415
 
     cfg = model_config(args)
+    selection = selection_config(args)
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
     else:
+        if args.robots >= LARGE:
+            print(f"sim: making a random trajectory of {args.robots} robots x {args.configs} configurations", file=sys.stderr, flush=True)
         traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=cfg.sensing_range_m)
+    args.out.mkdir(parents=True, exist_ok=True)
+    used = args.out / "trajectory.json"
+    traj.save(used)  # what this run followed: swarm sim --trajectory out/sim/trajectory.json runs it again
     progress = Progress(len(traj.configurations), f"sim {args.method}")
-    result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection_config(args), seed=args.seed, progress=progress)
+    progress(0)
+    result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection, seed=args.seed, progress=progress)
     plots = write_plots(result, args.out)
     rows, fallbacks = print_config_table(result)
     write_csv(args.out / "configs.csv", rows)
-    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
+    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
                     "configs": rows, "fallback_steps": len(fallbacks), "plots": plots})
