@@ -37,6 +37,7 @@ SLOW_MODULES = frozenset({
     "test_replay",  # swarm replay subprocesses and sessions
     "test_study_anchors",  # studies
     "test_transport",  # Zenoh sessions and child processes
+    "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
 })
 SLOW_TESTS = frozenset({
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process
