@@ -65,7 +65,7 @@ def positive_int(text: str) -> int:
 
 
 MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
-MAX_ROBOTS = 5000  # simulated robots (swarm sim, compare, studies): 1000 take ~12 s per configuration here
+MAX_ROBOTS = 2000  # simulated robots (swarm sim, compare, studies): 1000 take 5-7 s of CPU per configuration, 5000 over 200 s
 MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
 MAX_CONFIGS = 10_000  # configurations of a random trajectory
 MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study

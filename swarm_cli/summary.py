@@ -37,7 +37,7 @@ def print_anchor_choices(result: RunResult) -> None:
 
     for c in result.configs:
         plan = c.plan
-        still = "; ".join(f"step {k + 1}: {format_ids(sorted(c.anchor_ids(k).tolist())) or 'none'}" for k in range(plan.n_steps))
+        still = "; ".join(f"step {k + 1}: {_robots(sorted(c.anchor_ids(k).tolist()), format_ids)}" for k in range(plan.n_steps))
         who = "no anchors, every robot moved at once" if plan.n_anchors == 0 else f"stood still {still}"
         print(f"config {c.config + 1}: n_a = {plan.n_anchors} ({who})")
         if c.selection is None or len(c.selection.scores) < 2:
@@ -53,6 +53,13 @@ def print_anchor_choices(result: RunResult) -> None:
     if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
         print("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
               " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")
+
+
+def _robots(ids: list[int], format_ids, most: int = 20) -> str:
+    """Robot ids as ranges (``0-3,7``); a long list as its count and first ids."""
+    if not ids:
+        return "none"
+    return format_ids(ids) if len(ids) <= most else f"{len(ids)} robots ({format_ids(ids[:most])}, ...)"
 
 
 def write_plots(result: RunResult, out: Path) -> list[str]:
