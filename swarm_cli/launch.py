@@ -74,7 +74,7 @@ from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
 from swarm_cli.estop import send_estop
 from swarm_cli.run_file import published_run
-from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, nonnegative, positive, print_json, selection_config
 
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
@@ -389,6 +389,7 @@ def run(args: argparse.Namespace) -> int:
         raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {args.trajectory}", launched=True)
     else:
         if args.robots < 2 or args.configs < 1:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")

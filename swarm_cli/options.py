@@ -94,6 +94,14 @@ def check_limits(args: argparse.Namespace) -> None:
         raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
 
 
+def check_swarm_size(n: int, source: str, *, launched: bool = False) -> None:
+    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows."""
+    most = MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS
+    if n > most:
+        what = "robots launched as agent processes on one host" if launched else "simulated robots"
+        raise SwarmInputError(f"{source}: {n} robots, at most {most} ({what})")
+
+
 def add_model_options(parser: argparse.ArgumentParser) -> None:
     """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones).
 

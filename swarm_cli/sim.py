@@ -11,7 +11,7 @@ import numpy as np
 
 from coordinator.strategies import METHODS
 from runtime.models.trajectory import Trajectory, random_trajectory
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
 LARGE = 1000  # robots: say what is being made before the first progress line
@@ -36,6 +36,7 @@ def run(args: argparse.Namespace) -> int:
     selection = selection_config(args)
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {args.trajectory}")
     else:
         if args.robots >= LARGE:
             print(f"sim: making a random trajectory of {args.robots} robots x {args.configs} configurations", file=sys.stderr, flush=True)
