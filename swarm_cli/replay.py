@@ -125,8 +125,8 @@ def run_publish(args: argparse.Namespace) -> int:
             where += f"; on this host `--run {run}` finds it (swarm record --run {run}, swarm estop --run {run})"
         else:
             where += f"; connect with --hub {hub}"
-    print(f"swarm replay: publishing {len(messages)} messages of run {run or '?'} on {hub} ({where})", flush=True)
-    with own_run, open_session(settings) as session:
+    with open_session(settings) as session, own_run:  # the hub is open, and findable, before anyone is told of it
+        print(f"swarm replay: publishing {len(messages)} messages of run {run or '?'} on {hub} ({where})", flush=True)
         publishers = {}
         for topic, *_ in messages:
             if topic not in publishers:
