@@ -8,7 +8,8 @@ standard ROS 2 messages (PoseArray, PoseWithCovarianceStamped per robot, MarkerA
 String, a /tf_static map -> world) that ``ros2 bag play`` and RViz use, with the metadata the
 chosen distribution's rosbag2 parses (``--distro``, default humble); needs the optional extra:
 ``pip install -e '.[ros2]'`` (no ROS install). ``--foxglove-layout`` writes the Foxglove layout
-for the run's robots and trajectory (``runtime.recording.foxglove_layout``). Exit status 0, 2
+for the run's robots and trajectory (``runtime.recording.foxglove_layout``): of the recording, or
+with ``--ros2`` of the bag (its ROS 2 topics). Exit status 0, 2
 on bad input (unreadable recording, existing OUT, missing extra).
 """
 
@@ -30,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--distro", choices=("humble", "jazzy"), default="humble",
                    help="ROS 2 distribution whose rosbag2 reads the bag: humble (metadata version 5) or jazzy (version 9); default humble")
     p.add_argument("--foxglove-layout", type=Path, default=None, metavar="OUT.json",
-                   help="write the Foxglove layout for this run's robots and trajectory (Layouts -> Import from file)")
+                   help="write the Foxglove layout for this run's robots and trajectory (Layouts -> Import from file); "
+                        "with --ros2, for the exported bag's topics")
     add_json_option(p)
     p.set_defaults(run=run)
 
@@ -48,7 +50,8 @@ def run_robots(info: dict) -> tuple[list[int], list | None]:
     return robots, None
 
 
-def write_layout(src: Path, out: Path) -> dict:
+def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
+    """The Foxglove layout of the recording ``src`` (with ``ros2``: of its rosbag2 export) written to ``out``."""
     from runtime.recording.foxglove_layout import layout  # noqa: PLC0415
     from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
 
@@ -56,17 +59,14 @@ def write_layout(src: Path, out: Path) -> dict:
     if not robots:
         raise SwarmInputError(f"{src}: no robots found (no trajectory in its metadata, no /robot/<id>/... channel)")
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(layout(robots, configurations), indent=1) + "\n")
-    return {"path": str(out), "robots": len(robots)}
+    out.write_text(json.dumps(layout(robots, configurations, ros2=ros2), indent=1) + "\n")
+    return {"path": str(out), "robots": len(robots), "for": "ros2" if ros2 else "recording"}
 
 
 def run(args: argparse.Namespace) -> int:
     if args.ros2 is None and args.foxglove_layout is None:
         raise SwarmInputError("give --ros2 OUT/ (a rosbag2 folder) and/or --foxglove-layout OUT.json")
     result: dict = {}
-    if args.foxglove_layout is not None:
-        result["foxglove_layout"] = write_layout(args.file, args.foxglove_layout)
-        print(f"wrote {args.foxglove_layout}: Foxglove layout for {result['foxglove_layout']['robots']} robots")
     if args.ros2 is not None:
         from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
 
@@ -76,6 +76,10 @@ def run(args: argparse.Namespace) -> int:
         for topic, count in ros2["topics"].items():
             print(f"  {topic:<28} {count:>6}")
         result.update(ros2)
+    if args.foxglove_layout is not None:
+        result["foxglove_layout"] = write_layout(args.file, args.foxglove_layout, ros2=args.ros2 is not None)
+        what = f"the bag {args.ros2}" if args.ros2 is not None else args.file
+        print(f"wrote {args.foxglove_layout}: Foxglove layout of {what} for its {result['foxglove_layout']['robots']} robots")
     if args.json:
         print_json(result)
     return 0

@@ -204,3 +204,36 @@ def _sample_meta() -> dict:
     from runtime.recording.mcap_log import recording_info
 
     return recording_info(SAMPLE)["metadata"]["run"]
+
+
+def test_foxglove_layout_of_the_ros2_bag_refers_to_its_topics_and_fields(tmp_path) -> None:
+    """With --ros2, --foxglove-layout describes the bag: every plotted path names a topic of the bag and a field
+    its messages have (resolved on a message read back), one line per robot of the run."""
+    pytest.importorskip("rosbags")
+    import re
+
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    bag, out = tmp_path / "bag", tmp_path / "layout.json"
+    assert main(["export", str(SAMPLE), "--ros2", str(bag), "--foxglove-layout", str(out)]) == 0
+    config = json.loads(out.read_text())["configById"]
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    first: dict[str, object] = {}
+    with Reader(bag) as reader:
+        for c, _t, raw in reader.messages():
+            first.setdefault(c.topic, ts.deserialize_cdr(raw, c.msgtype))
+    paths = [p["value"] for panel in config.values() for p in panel.get("paths", [])]
+    paths += [config[k]["topicPath"] for k in config if k.startswith("RawMessages!")]
+    assert len([p for p in paths if p.startswith("/robot_")]) == 2 * 10
+    for path in paths:
+        topic, _, field = path.partition(".")
+        if topic == "/swarm/event":  # no robot was lost in the sample run
+            continue
+        assert topic in first, path
+        value = first[topic]
+        for name, index in re.findall(r"(\w+)(?:\[(\d+)\])?", field):
+            value = getattr(value, name)
+            value = value[int(index)] if index else value
+        assert isinstance(value, (float, str)), path
+    assert set(config["3D!swarm"]["topics"]) <= set(first)

@@ -6,7 +6,8 @@ scenes with the camera above the middle of the trajectory and far enough to see 
 swarm's error plot, one line per robot in the per-robot error and uncertainty plots (the first
 ``MAX_PLOTTED`` robots: a plot of hundreds of lines shows nothing; the title says how many are
 shown), and the plan and event messages. ``swarm export RUN.mcap --foxglove-layout OUT.json``
-writes it (Foxglove: Layouts -> Import from file).
+writes it (Foxglove: Layouts -> Import from file); with ``--ros2`` too, the layout is for the
+exported bag's topics instead (``layout(..., ros2=True)``).
 """
 
 from __future__ import annotations
@@ -46,8 +47,16 @@ def camera(configurations: Sequence[Mapping[int, tuple[float, float]]] | None) -
     return ((round((max(xs) + min(xs)) / 2, 3), round((max(ys) + min(ys)) / 2, 3)), round(2.0 * extent, 2))
 
 
-def layout(robots: Iterable[int], configurations: Sequence[Mapping[int, tuple[float, float]]] | None = None) -> dict[str, Any]:
-    """The layout for a run of ``robots`` (ids) along ``configurations`` (robot -> desired (x, y), m), module doc."""
+ROS2_PER_ROBOT = {  # the same panels on the topics of ``swarm export --ros2`` (runtime.recording.ros2_export)
+    "Plot!robots": ("/robot_{}/pose.pose.pose.position.x", "per-robot estimated x (m)"),
+    "Plot!uncertainty": ("/robot_{}/pose.pose.covariance[0]", "per-robot variance of x (m^2)"),
+}
+
+
+def layout(robots: Iterable[int], configurations: Sequence[Mapping[int, tuple[float, float]]] | None = None,
+           ros2: bool = False) -> dict[str, Any]:
+    """The layout for a run of ``robots`` (ids) along ``configurations`` (robot -> desired (x, y), m), module doc;
+    with ``ros2`` for the rosbag2 of the run instead (``/swarm/markers``, ``/robot_<id>/pose``, ``/swarm/localization_error``)."""
     ids = sorted(int(r) for r in robots)
     shown = ids[:MAX_PLOTTED]
     (tx, ty), distance = camera(configurations)
@@ -66,13 +75,18 @@ def layout(robots: Iterable[int], configurations: Sequence[Mapping[int, tuple[fl
         "Plot!localization": {"title": "localization error e_l (m) and what the localizer believes",
                               "paths": [_path(f"/swarm/error.{field}", label, color) for field, label, color in _SWARM_PATHS], **_PLOT},
     }
-    for panel, (field, title) in PER_ROBOT.items():
+    per_robot = ROS2_PER_ROBOT if ros2 else {panel: (f"/robot/{{}}/estimate.{field}", title) for panel, (field, title) in PER_ROBOT.items()}
+    for panel, (path, title) in per_robot.items():
         more = f" (the first {len(shown)} of {len(ids)} robots)" if len(shown) < len(ids) else ""
         config[panel] = {"title": title + more,
-                         "paths": [_path(f"/robot/{r}/estimate.{field}", f"robot {r}", COLORS[k % len(COLORS)]) for k, r in enumerate(shown)],
+                         "paths": [_path(path.format(r), f"robot {r}", COLORS[k % len(COLORS)]) for k, r in enumerate(shown)],
                          **_PLOT}
-    config["RawMessages!plan"] = {"topicPath": "/swarm/plan", **_RAW}
-    config["RawMessages!event"] = {"topicPath": "/swarm/event", **_RAW}
+    config["RawMessages!plan"] = {"topicPath": "/swarm/plan" + (".data" if ros2 else ""), **_RAW}
+    config["RawMessages!event"] = {"topicPath": "/swarm/event" + (".data" if ros2 else ""), **_RAW}
+    if ros2:
+        config["3D!swarm"]["topics"] = {"/swarm/markers": {"visible": True}}
+        config["Plot!localization"] = {"title": "localization error e_l (m)",
+                                       "paths": [_path("/swarm/localization_error.data", "e_l (Eq. 8)", "#2ca02c")], **_PLOT}
     return {
         "configById": config, "globalVariables": {}, "userNodes": {}, "playbackConfig": {"speed": 1},
         "layout": {"direction": "row",
