@@ -1,7 +1,12 @@
-"""``swarm export RUN.mcap --ros2 OUT/ | --foxglove-layout OUT.json``: a recording for other tools (docs/recording.md).
+"""``swarm export RUN.mcap --ros2 OUT/ | --foxglove-layout OUT.json | --truth OUT.csv``: a recording for other
+tools (docs/recording.md).
 
     swarm export recordings/sample.mcap --ros2 out/sample-ros2 [--distro humble|jazzy] [--json]
     swarm export recordings/sample.mcap --foxglove-layout out/sample-layout.json
+    swarm export recordings/sample.mcap --truth out/sample-truth.csv [--json]
+
+``--truth`` writes the simulated true poses at step ends in the CSV format ``swarm calibrate``
+reads (``runtime.recording.truth_csv``, docs/calibration.md).
 
 ``--ros2`` writes a rosbag2 folder (MCAP storage, CDR; ``runtime.recording.ros2_export``) with
 standard ROS 2 messages (PoseArray, PoseWithCovarianceStamped per robot, MarkerArray, Float64,
@@ -30,6 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="write a rosbag2 folder here (MCAP storage, CDR; must not exist; pip install -e '.[ros2]')")
     p.add_argument("--distro", choices=("humble", "jazzy"), default="humble",
                    help="ROS 2 distribution whose rosbag2 reads the bag: humble (metadata version 5) or jazzy (version 9); default humble")
+    p.add_argument("--truth", type=Path, default=None, metavar="CSV",
+                   help="write the simulated true poses at step ends as robot,step,x,y,heading (docs/calibration.md)")
     p.add_argument("--foxglove-layout", type=Path, default=None, metavar="OUT.json",
                    help="write the Foxglove layout for this run's robots and trajectory (Layouts -> Import from file); "
                         "with --ros2, for the exported bag's topics")
@@ -64,8 +71,12 @@ def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.truth is not None:
+        if args.ros2 is not None or args.foxglove_layout is not None:
+            raise SwarmInputError("--truth writes a CSV on its own: give --ros2 / --foxglove-layout in another call")
+        return run_truth(args)
     if args.ros2 is None and args.foxglove_layout is None:
-        raise SwarmInputError("give --ros2 OUT/ (a rosbag2 folder) and/or --foxglove-layout OUT.json")
+        raise SwarmInputError("give --ros2 OUT/ (a rosbag2 folder), --foxglove-layout OUT.json or --truth OUT.csv")
     result: dict = {}
     if args.ros2 is not None:
         from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
@@ -82,4 +93,20 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {args.foxglove_layout}: Foxglove layout of {what} for its {result['foxglove_layout']['robots']} robots")
     if args.json:
         print_json(result)
+    return 0
+
+
+def run_truth(args: argparse.Namespace) -> int:
+    from runtime.recording.run_log import load_run_log  # noqa: PLC0415
+    from runtime.recording.truth_csv import write_truth_csv  # noqa: PLC0415
+
+    log = load_run_log(args.file)
+    if not log.truths:
+        raise SwarmInputError(f"{args.file}: the recording holds no true poses (TruthMessage): only simulated runs have them")
+    rows = [(robot, step, *pose) for (robot, step), pose in log.truths.items()]
+    n = write_truth_csv(args.truth, rows)
+    steps = sorted({step for _, step in log.truths})
+    print(f"wrote {args.truth}: {n} true poses of {len(log.ids)} robots, steps {steps[0]}-{steps[-1]}")
+    if args.json:
+        print_json({"path": str(args.truth), "rows": n, "robots": len(log.ids), "steps": len(steps)})
     return 0

@@ -38,6 +38,7 @@ from pathlib import Path
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.models.model_file import load_model
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 from swarm_cli.run_file import published_run, read_run
 
@@ -166,7 +167,8 @@ def run_publish(args: argparse.Namespace) -> int:
 
 
 def _overrides(args: argparse.Namespace) -> tuple[dict, dict]:
-    model = {field: convert(getattr(args, name)) for name, (field, convert) in MODEL_OPTIONS.items() if getattr(args, name) is not None}
+    model = load_model(args.model).to_dict() if args.model is not None else {}  # a model file replaces the recorded model
+    model |= {field: convert(getattr(args, name)) for name, (field, convert) in MODEL_OPTIONS.items() if getattr(args, name) is not None}
     selection = {name: getattr(args, name) for name in SELECTION_OPTIONS if getattr(args, name) is not None}
     if "w_v" in selection and not 0.0 <= selection["w_v"] <= 1.0:
         raise SwarmInputError(f"--w-v must be in [0, 1], got {selection['w_v']}")
@@ -197,7 +199,12 @@ def contradictions(rec, args: argparse.Namespace, model: dict, selection: dict) 
     def note(dest: str, given, recorded, shown=None) -> None:
         if differs(given, recorded):
             shown_recorded = recorded if shown is None else shown
-            found.append(f"--{dest.replace('_', '-')} {getattr(args, dest)} (recorded: {shown_recorded})")
+            typed = getattr(args, dest, None)
+            flag = f"--{dest.replace('_', '-')} {typed}" if typed is not None else f"--model {args.model}: {dest} {shown_given(dest, given)}"
+            found.append(f"{flag} (recorded: {shown_recorded})")
+
+    def shown_given(dest: str, value) -> str:
+        return f"{math.degrees(value):g}" if MODEL_OPTIONS.get(dest, (None, None))[1] is math.radians else f"{value:g}"
 
     if args.localizer is not None and "localizer" in meta:
         note("localizer", args.localizer, meta["localizer"])
