@@ -204,7 +204,7 @@ def test_trajectory_files_are_written_checked_and_bad_rows_named(tmp_path):
 
 
 def test_sim_saves_the_trajectory_it_followed(tmp_path):
-    first = swarm("sim", "--robots", "5", "--configs", "2", "--seed", "7", "--out", "a", "--json", cwd=tmp_path)
+    first = swarm("sim", "--robots", "6", "--configs", "2", "--seed", "7", "--out", "a", "--json", cwd=tmp_path)
     assert first.returncode == 0, first.stderr
     saved = tmp_path / "a" / "trajectory.json"
     assert str(Path("a") / "trajectory.json") in first.stdout
