@@ -88,7 +88,7 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
     handles += [
         Line2D([], [], mfc="none", mec="0.3", ms=6, label="earlier configurations (hollow)", **dot),
         Line2D([], [], color="0.3", ms=7, label="last configuration (filled)", **dot),
-        Line2D([], [], mfc="none", mec="black", ms=10, label="anchor: stood still here in its configuration's first step", **dot),
+        Line2D([], [], mfc="none", mec="black", ms=10, label="anchors of a configuration's first step", **dot),
         Line2D([], [], marker="x", ls="none", color="gray", label="start estimate"),
     ]
     if run.has_truth:
