@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
-from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -148,7 +147,12 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``).
+
+    Imported here, not with this module: the registry loads numpy and the entry-point metadata, which
+    ``swarm --help`` (it imports this module) need not pay for."""
+    from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names  # noqa: PLC0415
+
     parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
                         help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
