@@ -120,7 +120,7 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
     assert "run live is live on this hub (agents of robots 0, 1, 2, 3)" in refused.stderr and "Traceback" not in refused.stderr
     assert refused_heard == []  # nothing was published
     assert moved.returncode == 0, moved.stderr
-    new_run = moved.stderr.split(" as run ", 1)[1].split(";", 1)[0]
+    new_run = moved.stdout.split(" messages of run ", 1)[1].split(" ", 1)[0]
     assert new_run.startswith("live-replay-")
     replayed = [k for k in heard if k.startswith("swarm/")]
     assert replayed and all(k.startswith(f"swarm/{new_run}/") for k in replayed)
