@@ -167,6 +167,14 @@ def print_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
+def print_result(result: Any, as_json: bool) -> int:
+    """A result's table, and with ``as_json`` its JSON object as the last line; exit code 0."""
+    print(result.report())
+    if as_json:
+        print_json(result.to_json())
+    return 0
+
+
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
