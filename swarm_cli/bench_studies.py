@@ -9,8 +9,7 @@ from swarm_cli.options import add_json_option, print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("studies", help="study runs/s and parallel efficiency on the local pool and on Dask (1 and 2 workers)")
-    add_json_option(p)
+    add_json_option(p := sub.add_parser("studies", help="study runs/s and parallel efficiency on the local pool and on Dask (1 and 2 workers)"))
     p.set_defaults(run=run)
 
 

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
+from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -109,7 +110,9 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--localizer", choices=["paper", "joint"], default="paper", help="localization method (default: paper, Section 5)")
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
+                        help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:
@@ -139,11 +142,7 @@ def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any,
     save_config(args)
     with open_executor(args.executor, args.workers, args.scheduler) as executor:
         result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))
-    print(result.report())
-    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json, "wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
 
 
 def run_options(args: argparse.Namespace) -> RunOptions:
@@ -167,9 +166,11 @@ def print_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
-def print_result(result: Any, as_json: bool) -> int:
-    """A result's table, and with ``as_json`` its JSON object as the last line; exit code 0."""
+def print_result(result: Any, as_json: bool, *lines: str) -> int:
+    """A result's table, then ``lines``, and with ``as_json`` its JSON object as the last line; exit code 0."""
     print(result.report())
+    for line in lines:
+        print(line)
     if as_json:
         print_json(result.to_json())
     return 0
