@@ -12,7 +12,7 @@ to choose, ``--no-record`` to turn it off) and prints the path; the launcher rep
 stderr at the end. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
 period), so no process outlives it. Exit status: the coordinator's. While it runs it keeps the
-run file ``<run dir>/<run>.json`` with the hub's address (``swarm_cli.run_file``; removed at exit),
+run file ``<run dir>/<run>.json`` with the hub's address (``runtime.wire.run_file``; removed at exit),
 so ``swarm estop --run RUN`` and ``swarm record --run RUN`` need no ``--hub``; a run id that is
 already live on this host is refused.
 
@@ -83,8 +83,9 @@ from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
 from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from swarm_cli.coordinator_cmd import add_record_options
-from swarm_cli.run_file import published_run
-from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, nonnegative, positive, print_json, selection_config
+from runtime.wire.run_file import published_run
+from inchworm.limits import check_swarm_size
+from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
