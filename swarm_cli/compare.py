@@ -78,6 +78,7 @@ def run_one(job: tuple) -> dict:
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
     cpu = time.process_time()
     result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
+    e_l_final = float(result.localization_errors()[-1])
     return {
         "trajectory": t,
         "method": label,
@@ -85,9 +86,17 @@ def run_one(job: tuple) -> dict:
         "pf": result.pf(),
         "n_a_mean": float(result.anchor_counts().mean()),
         "steps_mean": float(result.steps_per_config().mean()),
-        "e_l_final": float(result.localization_errors()[-1]),
+        "e_l_final": e_l_final,
+        "drift_pct": 100.0 * e_l_final / float(result.travelled()[-1]),
+        "n_a_by_config": [int(k) for k in result.anchor_counts()],
         "fallback_steps": sum(1 for s in result.steps if s.fallback),
     }
+
+
+def anchors_along(rows: list[dict]) -> list[float]:
+    """Mean n_a at each configuration index (1, 2, ...) over the runs that reached it."""
+    longest = max((len(r["n_a_by_config"]) for r in rows), default=0)
+    return [float(np.mean([r["n_a_by_config"][k] for r in rows if len(r["n_a_by_config"]) > k])) for k in range(longest)]
 
 
 def summarise(rows: list[dict], methods: list[str]) -> dict:
@@ -106,6 +115,8 @@ def summarise(rows: list[dict], methods: list[str]) -> dict:
             "na_mean": float(np.mean([r["n_a_mean"] for r in by[m]])),
             "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
             "cpu_s_mean": float(np.mean([r["cpu_s"] for r in by[m]])),
+            "drift_pct_mean": float(np.mean([r["drift_pct"] for r in by[m]])),
+            "na_by_config": anchors_along(by[m]),
             "runs": len(pf),
         }
     if REFERENCE in by:
@@ -138,17 +149,22 @@ def run(args: argparse.Namespace) -> int:
     from swarm_cli.summary import write_csv  # noqa: PLC0415
 
     summary = summarise(rows, methods)
+    summary |= {"mc_start": selection.mc_start, "mc_emax": selection.mc_emax}
     write_csv(args.out / "runs.csv", rows)
     names = list(summary["methods"])
     means = np.array([summary["methods"][m]["pf_mean"] for m in names])
     errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])
     title = f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots} (bars: 97 % CI of the mean)"
     png = plot_bars(names, means, errs, "P_f (Eq. 24)", title, args.out / "pf.png")
-    print(f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11}")
+    print(f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'drift %':>8} {'CPU s':>6} {'p vs ref57':>11}")
     for m in names:
         s = summary["methods"][m]
         p = summary["p_values"].get(m)
-        print(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+        print(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {s['drift_pct_mean']:>8.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+    for m in names:
+        along = " ".join(f"{v:.1f}" for v in summary["methods"][m]["na_by_config"])
+        print(f"n_a along the trajectory, {m}: {along}")
+    print("drift %: final e_l (true vs estimated, m) / distance travelled (m bar, Eq. 25) x 100")
     if "inchworm-equal-speed" in summary["methods"] and REFERENCE in summary["methods"]:
         a, b = summary["methods"]["inchworm-equal-speed"]["pf_mean"], summary["methods"][REFERENCE]["pf_mean"]
         print(f"equal speed (n_a = n_r/2 for both): inchworm-equal-speed / ref57 = {a / b:.3f} (paper, Table I: 0.0477 / 0.0673 = 0.71)")

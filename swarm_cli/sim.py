@@ -35,12 +35,14 @@ def run(args: argparse.Namespace) -> int:
     else:
         traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=cfg.sensing_range_m)
     progress = Progress(len(traj.configurations), f"sim {args.method}")
-    result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection_config(args), seed=args.seed, progress=progress)
+    selection = selection_config(args)
+    result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection, seed=args.seed, progress=progress)
     plots = write_plots(result, args.out)
     rows, fallbacks = print_config_table(result)
     write_csv(args.out / "configs.csv", rows)
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
+                    "mc_start": selection.mc_start, "mc_emax": selection.mc_emax,
                     "configs": rows, "fallback_steps": len(fallbacks), "plots": plots})
     return 0
