@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swarm_cli.compare import run_one  # noqa: PLC0415
+    from swarm_cli.compare import anchors_along, run_one  # noqa: PLC0415
     from swarm_cli.summary import write_csv  # noqa: PLC0415
     base = model_config(args)
     motion = parse_list(args.motion_scales, "--motion-scales", float)
@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         results.append({
             "localizer": loc, "motion_scale": ms, "sensing_scale": ss,
             "inchworm_na_mean": float(np.mean([r["n_a_mean"] for r in sel if r["method"] == "inchworm"])),
+            "inchworm_na_by_config": anchors_along([r for r in sel if r["method"] == "inchworm"]),
+            "drift_pct": {m: float(np.mean([r["drift_pct"] for r in sel if r["method"] == m])) for m in METHODS},
             "pf": pf,
             "inchworm_over_ref57": pf["inchworm"] / pf["ref57"],
             "equal_speed_over_ref57": pf["inchworm-equal-speed"] / pf["ref57"],
@@ -79,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{'localizer':<9} {'motion x':>8} {'sensing x':>9} {'n_a chosen':>10} {'P_f inchworm/ref57':>19} {'equal-speed/ref57':>18}")
     for r in results:
         print(f"{r['localizer']:<9} {r['motion_scale']:>8g} {r['sensing_scale']:>9g} {r['inchworm_na_mean']:>10.2f} {r['inchworm_over_ref57']:>19.3f} {r['equal_speed_over_ref57']:>18.3f}")
+    for r in results:
+        along = " ".join(f"{v:.1f}" for v in r["inchworm_na_by_config"])
+        drift = ", ".join(f"{m} {v:.2f}" for m, v in r["drift_pct"].items())
+        print(f"{r['localizer']} motion x {r['motion_scale']:g} sensing x {r['sensing_scale']:g}: inchworm n_a along the trajectory {along}; drift % {drift}")
     print(f"wrote {args.out / 'runs.csv'} and {png}")
     if args.json:
         print_json({"results": results, "trajectories": args.trajectories, "configs": args.configs, "robots": args.robots})

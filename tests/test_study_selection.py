@@ -51,6 +51,8 @@ def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
     per_set = [result[s]["pf"] for s in ("0", "1000")]
     for m in ("no-anchors", "ref57"):  # pooled means are the means of the two equal-sized sets
         assert math.isclose(pooled[m], np.mean([p[m] for p in per_set]), rel_tol=1e-9)
+    assert result["pooled"]["na_by_config"] == {"no-anchors": [0.0, 0.0], "ref57": [5.0, 5.0]}  # n_a along the trajectory
+    assert all(0 < v < 100 for v in result["pooled"]["drift_pct"].values())
 
 
 def test_bad_options_are_named():
