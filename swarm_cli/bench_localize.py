@@ -49,6 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     parser.add_argument("--repeats", type=int, default=5, help="timing repetitions per step (default 5)")
     parser.add_argument("--seed", type=int, default=0, help="trial t uses seed + t (default 0)")
     parser.add_argument("--no-gtsam", action="store_true", help="skip the GTSAM reference even if it is installed")
+    parser.add_argument("--still-prior", type=float, default=None, metavar="M",
+                        help="prior position std in m of the robots that do not move (anchors); default: the movers' 0.02 m")
     add_model_options(parser)
     add_json_option(parser)
     parser.set_defaults(run=run)
@@ -156,7 +158,8 @@ def bench_size(n: int, cfg: ModelConfig, args: argparse.Namespace, gtsam: Any | 
     n_obs: list[int] = []
     for trial in range(args.trials):
         print(f"n={n} trial {trial + 1}/{args.trials}", file=sys.stderr, flush=True)
-        case = random_step(n, cfg, np.random.default_rng(args.seed + trial), spacing=SPACING_M, seed=args.seed + trial)
+        case = random_step(n, cfg, np.random.default_rng(args.seed + trial), spacing=SPACING_M, seed=args.seed + trial,
+                           still_delta=args.still_prior)
         truth = case.true_after[:, :2]
         n_obs.append(len(case.observations))
         for name, loc in localizers.items():
@@ -234,6 +237,8 @@ def print_table(results: list[dict[str, Any]], gtsam_used: bool) -> None:
 def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     sizes = parse_list(args.sizes, "--sizes", int, 2)
+    if args.still_prior is not None and not args.still_prior > 0:
+        raise SwarmInputError(f"--still-prior must be > 0 m, got {args.still_prior}")
     if args.trials < 1 or args.repeats < 1:
         raise SwarmInputError(f"--trials and --repeats must be >= 1, got {args.trials} and {args.repeats}")
     gtsam = None if args.no_gtsam else load_gtsam()
@@ -242,5 +247,6 @@ def run(args: argparse.Namespace) -> int:
     print("err = RMS post-step position error over robots and trials; crlb = RMS Cramer-Rao bound (n <= 1000)\n")
     print_table(results, gtsam is not None)
     if args.json:
-        print_json({"results": results, "config": cfg.to_dict(), "seed": args.seed, "trials": args.trials, "repeats": args.repeats})
+        print_json({"results": results, "config": cfg.to_dict(), "seed": args.seed, "trials": args.trials, "repeats": args.repeats,
+                    "still_prior_m": args.still_prior})
     return 0

@@ -2,10 +2,13 @@
 # The pre-registered runs of the Monte Carlo readings (docs/experiments.md): one `swarm compare`
 # per cell, in priority order, each cell's JSON summary appended to $OUT/cells.jsonl as it ends
 # and its per-trajectory rows kept in $OUT/<cell>/runs.csv (partial results survive an interrupt).
-# Usage: tools/mc_readings.sh [OUT (default out/mc-readings)] [WORKERS (default 2)]
+# Run it from the repository's root (it runs that folder's code: python -m swarm_cli.main).
+# Usage: tools/mc_readings.sh [OUT (default out/mc-readings)] [WORKERS (default 2)] [LOCALIZER (joint|paper; default both)]
+# Several runners may share one OUT: each takes a cell by creating $OUT/<cell>.lock.
 set -u
 OUT=${1:-out/mc-readings}
 WORKERS=${2:-2}
+ONLY=${3:-}
 mkdir -p "$OUT"
 noise() {  # localizer, level -> model flags (calibrated: swarm study calibration's motion scale, sensing default)
   case "$1:$2" in
@@ -30,13 +33,15 @@ cells() {  # priority: calibrated noise R0/R1, then default noise R0/R1, then R2
 }
 cells | while read -r r loc level seed; do
   name="$r-$loc-$level-$seed"
+  [ -n "$ONLY" ] && [ "$loc" != "$ONLY" ] && continue
   grep -q "\"cell\":\"$name\"" "$OUT/cells.jsonl" 2>/dev/null && continue
+  mkdir "$OUT/$name.lock" 2>/dev/null || continue
   cmd="swarm compare --trajectories 30 --configs 8 --robots 10 --methods inchworm,ref57 --seed $seed --localizer $loc $(noise "$loc" "$level") $(reading "$r") --robot-radius 0 --workers $WORKERS --out $OUT/$name --json"
-  swarm compare --help | grep -q -- --robot-radius || cmd=${cmd/--robot-radius 0 /}  # point robots are the only kind before the collision constraint
+  python -m swarm_cli.main compare --help | grep -q -- --robot-radius || cmd=${cmd/--robot-radius 0 /}  # point robots are the only kind before the collision constraint
   start=$(date +%s)
-  json=$(nice -n 10 $cmd 2>"$OUT/$name.err" | tail -n 1)
+  json=$(nice -n 10 python -m swarm_cli.main ${cmd#swarm } 2>"$OUT/$name.err" | tail -n 1)  # the code of the current folder
   case "$json" in
     "{"*) echo "{\"cell\":\"$name\",\"reading\":\"$r\",\"localizer\":\"$loc\",\"noise\":\"$level\",\"seed\":$seed,\"wall_s\":$(( $(date +%s) - start )),\"command\":\"$cmd\",\"summary\":$json}" >> "$OUT/cells.jsonl" ;;
-    *) echo "cell $name failed: see $OUT/$name.err" >&2 ;;
+    *) echo "cell $name failed: see $OUT/$name.err" >&2; rmdir "$OUT/$name.lock" ;;
   esac
 done
