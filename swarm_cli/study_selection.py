@@ -60,6 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
     add_workers_option(p)
     p.add_argument("--out", type=Path, default=Path("out/study-selection"), help="folder for configs.csv")
+    p.add_argument("--no-optimum", action="store_true", help="skip the exhaustive optimum (search against the heuristic only)")
     p.add_argument("--from-csv", type=Path, default=None, help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
     p.set_defaults(run=run)
@@ -113,7 +114,10 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
         plans = {"heuristic": heuristic, "search": searched, "ga_raw": raw or heuristic}
         if randoms:
             plans["random"] = randoms[0]
-        exhaustive = n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
+        paired = final.localization_errors(estimate, desired, [heuristic, searched], per_sample=True)
+        row[f"na{n_a}_search_is_seed"] = int(searched.key() == heuristic.key())
+        row[f"na{n_a}_gain_se"] = float(np.std(paired[0] - paired[1], ddof=1) / np.sqrt(paired.shape[1]))  # m
+        exhaustive = job.exhaustive and n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
         if exhaustive:
             every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]
@@ -151,8 +155,27 @@ def summarise(rows: list[dict], robots: int) -> dict:
     out["pooled"] = {k: {"median": float(np.median(v)), "max": float(np.max(v))} for k, v in pooled.items() if v}
     vs = [r[f"na{k}_search"] / r[f"na{k}_heuristic"] for r in rows for k in feasible_anchor_counts(robots) if f"na{k}_search" in r]
     out["search_over_heuristic_median"] = float(np.median(vs)) if vs else None
+    out["search_vs_heuristic"] = search_vs_heuristic(rows, robots)
     bias = [r["reported_over_fresh"] for r in rows if "reported_over_fresh" in r]
     out["reported_over_fresh_median"] = float(np.median(bias)) if bias else None
+    return out
+
+
+BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation set
+
+
+def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, int]]:
+    """Per count: selections, how many returned the heuristic seed, and how many beat it (or lost to it) on the
+    evaluation set by more than ``BEYOND_NOISE`` standard errors of the paired Monte Carlo difference."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
+    out = {}
+    for n_a in (k for k in feasible_anchor_counts(robots) if k > 0):
+        have = [r for r in rows if f"na{n_a}_gain_se" in r]
+        if not have:
+            continue
+        gain = [(r[f"na{n_a}_heuristic"] - r[f"na{n_a}_search"], BEYOND_NOISE * r[f"na{n_a}_gain_se"]) for r in have]
+        out[str(n_a)] = {"cases": len(have), "seed_returned": int(sum(r[f"na{n_a}_search_is_seed"] for r in have)),
+                         "beats": sum(g > noise for g, noise in gain), "loses": sum(-g > noise for g, noise in gain)}
     return out
 
 
@@ -185,7 +208,8 @@ def run(args: argparse.Namespace) -> int:
     if args.from_csv is not None:
         rows = read_rows(args.from_csv)
     else:
-        jobs = [(Job(c, args.robots, budget.screen, args.seed, cfg, args.localizer), selection, budget) for c in range(args.configs)]
+        jobs = [(Job(c, args.robots, budget.screen, args.seed, cfg, args.localizer, not args.no_optimum), selection, budget)
+                for c in range(args.configs)]
         progress = Progress(len(jobs), "study selection")
         rows = []
         with ProcessPoolExecutor(max_workers=min(args.workers, len(jobs))) as pool:
@@ -203,6 +227,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"{n_a:>4} {name:<10} {s['median']:>7.4f} {s['mean']:>7.4f} {s['max']:>7.4f}")
         h = entry["search_over_heuristic"]
         print(f"{n_a:>4} search / heuristic: median {h['median']:.4f}, worse in {h['worse']} of {h['cases']}")
+    for n_a, v in summary["search_vs_heuristic"].items():
+        print(f"{n_a:>4} search returned its heuristic seed in {v['seed_returned']} of {v['cases']}; beat it by more than "
+              f"{BEYOND_NOISE:g} standard errors in {v['beats']}, lost by as much in {v['loses']}")
     agrees = sum(r["na_agrees"] for r in rows)
     print(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(rows)} (chosen: {[r['chosen_na'] for r in rows]})")
     if summary["reported_over_fresh_median"] is not None:
@@ -217,5 +244,6 @@ def run(args: argparse.Namespace) -> int:
             "heuristic_over_optimum_median": pooled["heuristic"]["median"] if "heuristic" in pooled else None,
             "na_agrees": agrees,
             "configs": len(rows),
+            "search_vs_heuristic": summary["search_vs_heuristic"],
         })
     return 0

@@ -30,7 +30,12 @@ def test_study_selection_json_contract(tmp_path):
                 "--eval-samples", "16", "--workers", "1", "--out", str(tmp_path), "--json")
     assert out.returncode == 0, out.stderr
     last = json.loads(out.stdout.strip().splitlines()[-1])
-    assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs"]
+    assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs",
+                          "search_vs_heuristic"]
+    for v in last["search_vs_heuristic"].values():  # per count: how often the search returned or beat its seed
+        assert v["cases"] == 2 and 0 <= v["seed_returned"] <= 2 and v["beats"] + v["loses"] <= 2
+        if v["seed_returned"] == 2:  # the seed itself: no difference to beat or lose
+            assert v["beats"] == v["loses"] == 0
     assert last["configs"] == 2 and 0 <= last["na_agrees"] <= 2
     # the optimum is picked on other samples than the ratios are computed on: ratios near 1, possibly below
     assert 0.8 < last["ga_over_optimum_median"] <= last["ga_over_optimum_max"] < 1.5
