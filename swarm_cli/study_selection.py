@@ -89,7 +89,8 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
     rng, start, desired, estimate, _ = experiment_setup(job)
     current = start[:, :2]
     sets = [int(rng.integers(2**63)) for _ in range(3)]
-    screen, pick, final = (MonteCarlo(job.cfg, job.localizer, s, seed) for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
+    screen, pick, final = (MonteCarlo(job.cfg, job.localizer, s, seed, selection.mc_start)  # the selection's reading of the start
+                           for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
 
     def feasible(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
@@ -107,7 +108,7 @@ def run_config(args: tuple[Job, SelectionConfig, Budget]) -> dict:
         except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
         screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
-        screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)))
+        screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)), selection.mc_start)
         raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
