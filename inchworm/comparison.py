@@ -191,8 +191,9 @@ class CompareResult:
                     f"{o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
                     "97 % CI of the mean (t, clipped at 0)")
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
         """``pf.png`` in ``out`` (``runs.csv`` is written while the runs finish)."""
+        out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
 
         return [save_figure(self.plot, out / "pf.png", (max(6.0, 1.3 * len(self.summary["methods"])), 4.4))]
@@ -202,7 +203,7 @@ def compare(
     options: CompareOptions = CompareOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CompareResult:

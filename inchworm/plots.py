@@ -29,13 +29,14 @@ def title(ax: Axes, text: str, fontsize: float = 11) -> None:
     ax.set_title("\n".join(textwrap.wrap(text, chars)), fontsize=fontsize)
 
 
-def save_figure(draw: Callable[..., Any], path: Path, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
+def save_figure(draw: Callable[..., Any], path: str | Path, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
     """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``), ``draw(axes)`` on it, saved as ``path``."""
     from matplotlib.figure import Figure  # noqa: PLC0415
 
     fig = Figure(figsize=size, layout="constrained")
     axes = fig.subplots(*panels, **kw)
     draw(axes)
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     return path
@@ -119,8 +120,9 @@ def plot_errors(runs: RunResult | Mapping[str, RunResult], axes: Sequence[Axes])
     return axes
 
 
-def write_run_plots(run: RunResult, out: Path, compared: Mapping[str, RunResult] | None = None) -> list[str]:
+def write_run_plots(run: RunResult, out: str | Path, compared: Mapping[str, RunResult] | None = None) -> list[str]:
     """``trajectory.png`` (Fig. 13/14) and, with ground truth, ``errors.png`` (Fig. 17; with ``compared`` runs beside it)."""
+    out = Path(out)
     plots = [str(save_figure(lambda ax: plot_trajectory(run, ax), out / "trajectory.png", (7.5, 7.5)))]
     if run.has_truth:
         runs = {run.method: run, **(compared or {})}

@@ -98,7 +98,8 @@ class StudyLog:
     interruption is ignored (its task runs again).
     """
 
-    def __init__(self, folder: Path, name: str, options: dict[str, Any], resume: bool = False) -> None:
+    def __init__(self, folder: str | Path, name: str, options: dict[str, Any], resume: bool = False) -> None:
+        folder = Path(folder)
         self.jsonl = folder / f"{name}.jsonl"
         self.csv = folder / f"{name}.csv"
         self.options = json.loads(json.dumps(options))  # as it reads back

@@ -214,3 +214,18 @@ def test_layering():
         assert not _imports(package) & {"inchworm", "swarm_cli"}, package
     assert "swarm_cli" not in _imports("inchworm")
     assert (REPO / "inchworm" / "py.typed").exists()
+
+
+@pytest.mark.parametrize("study, options, log", [
+    ("study_anchors", inchworm.AnchorsOptions(robots=4, experiments=3, samples=2), "experiments"),
+    ("study_consistency", inchworm.ConsistencyOptions(localizers=("paper",), methods=("no-anchors", "ref57"), robots=4, configs=2, trajectories=2), "runs"),
+])
+def test_a_study_cut_after_one_row_resumes_to_the_same_result(tmp_path, study, options, log):
+    run = getattr(inchworm, study)
+    whole = run(options, out=tmp_path / "whole")
+    run(options, out=tmp_path / "cut")
+    jsonl = tmp_path / "cut" / f"{log}.jsonl"
+    jsonl.write_text("".join(jsonl.read_text().splitlines(keepends=True)[:2]))  # the options and one finished row
+    resumed = run(options, out=tmp_path / "cut", resume=True)
+    assert resumed.to_json() == whole.to_json()
+    assert (tmp_path / "cut" / f"{log}.csv").read_text() == (tmp_path / "whole" / f"{log}.csv").read_text()

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coordinator.localization import make_localizer
 from coordinator.plan import Plan, enumerate_plans
 from coordinator.replay_check import RecordedRun, recorded_selection
 from coordinator.selection.genetic import GeneticConfig
@@ -31,8 +32,8 @@ def step_problem(n: int, seed: int, sigma: float = 0.02) -> tuple[SwarmEstimate,
 def test_known_start_without_noise_has_no_error(localizer):
     estimate, desired = step_problem(6, 0)
     plans = [Plan.equal(np.arange(6), 0), *enumerate_plans(6, 3)[:2]]
-    known = MonteCarlo(NOISELESS, localizer, 5, seed=3, start="known").localization_errors(estimate, desired, plans, per_sample=True)
-    drawn = MonteCarlo(NOISELESS, localizer, 5, seed=3, start="estimate").localization_errors(estimate, desired, plans, per_sample=True)
+    known = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="known").localization_errors(estimate, desired, plans, per_sample=True)
+    drawn = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="estimate").localization_errors(estimate, desired, plans, per_sample=True)
     np.testing.assert_allclose(known, 0.0, atol=1e-9)
     assert np.all(drawn > 1e-3)  # the estimate's 2 cm uncertainty is in every drawn start
 
@@ -41,16 +42,16 @@ def test_known_start_scores_only_the_added_error():
     """With noise, a known start's e_l is below the drawn start's (which carries the error before the change)."""
     estimate, desired = step_problem(10, 1, sigma=0.05)
     plans = [Plan.equal(np.arange(10), 0)]
-    known = MonteCarlo(ModelConfig(), "joint", 32, seed=4, start="known").localization_errors(estimate, desired, plans)[0]
-    drawn = MonteCarlo(ModelConfig(), "joint", 32, seed=4, start="estimate").localization_errors(estimate, desired, plans)[0]
+    known = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="known").localization_errors(estimate, desired, plans)[0]
+    drawn = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="estimate").localization_errors(estimate, desired, plans)[0]
     assert 0 < known < 0.5 * drawn
 
 
 def test_worst_emax_is_at_least_the_mean():
     estimate, desired = step_problem(8, 2)
     base = SelectionConfig(samples=6, genetic=GeneticConfig(population=4, generations=1), final_samples=16)
-    mean = AnchorSelector(ModelConfig(), "paper", base, seed=7).select(estimate, desired)
-    worst = AnchorSelector(ModelConfig(), "paper", replace(base, mc_emax="worst"), seed=7).select(estimate, desired)
+    mean = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), base, seed=7).select(estimate, desired)
+    worst = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), replace(base, mc_emax="worst"), seed=7).select(estimate, desired)
     p_mean = {s.n_anchors: s for s in mean.scores if s.plan is not None}
     p_worst = {s.n_anchors: s for s in worst.scores if s.plan is not None}
     assert p_mean[0].p_l == pytest.approx(1.0)

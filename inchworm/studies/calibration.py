@@ -23,6 +23,7 @@ import numpy as np
 
 from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
 from inchworm.noise import scaled
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -36,7 +37,7 @@ CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED 
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 
-    localizers: tuple[str, ...] = ("paper", "joint")
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     sensing_scales: tuple[float, ...] = (1.0,)
     target: float = PAPER_REF57_PF
     max_motion_scale: float = 32.0
@@ -186,9 +187,11 @@ class CalibrationResult:
         title(ax, "P_f at the calibrated noise (bars: 97 % CI of the mean, t, clipped at 0)")
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
+        """``calibration.png``: the pooled P_f of every method at each calibrated setting."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
+        out = Path(out)
         return [save_figure(self.plot, out / "calibration.png", (max(6.0, 2.5 * len(self.results) + 3), 4.5))]
 
 
@@ -196,7 +199,7 @@ def study_calibration(
     options: CalibrationOptions = CalibrationOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CalibrationResult:

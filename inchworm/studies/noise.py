@@ -18,6 +18,7 @@ import numpy as np
 
 from inchworm.comparison import RunTask, anchors_along, run_one
 from inchworm.noise import scaled
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -34,7 +35,7 @@ class NoiseOptions:
 
     motion_scales: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
     sensing_scales: tuple[float, ...] = (0.25, 1.0, 4.0)
-    localizers: tuple[str, ...] = ("paper", "joint")
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     robots: int = 10
     trajectories: int = 3
     configs: int = 4
@@ -107,8 +108,9 @@ class NoiseResult:
         title(ax, f"{loc}: " + ("P_f inchworm / ref57 (< 1: inchworm better)" if ratio else "n_a chosen by inchworm"))
         return ax
 
-    def save(self, out: Path) -> list[Path]:
+    def save(self, out: str | Path) -> list[Path]:
         """``noise.png``: per localizer the chosen n_a and the P_f ratio."""
+        out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
 
         locs = self.options.localizers
@@ -142,7 +144,7 @@ def study_noise(
     options: NoiseOptions = NoiseOptions(),
     *,
     executor: Executor | None = None,
-    out: Path | None = None,
+    out: str | Path | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:
