@@ -75,7 +75,7 @@ class SelectionConfig:
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
     max_steps: int = 10  # counts with more steps n_s are not screened unless ``anchor_counts`` names them
-    mc_start: str = "estimate"  # Monte Carlo start: one of ``MC_STARTS``
+    mc_start: str = "known"  # Monte Carlo start: one of ``MC_STARTS`` (``docs/experiments.md``: the text's reading)
     mc_emax: str = "mean"  # e_l,max: one of ``MC_EMAX``
 
     def __post_init__(self) -> None:
