@@ -215,5 +215,4 @@ def compare(
     methods = [label for _, label, _ in options.variants()]
     if log is not None:
         log.finish(rows)
-    summary = summarise(rows, methods) | {"mc_start": options.run.selection.mc_start, "mc_emax": options.run.selection.mc_emax}
-    return CompareResult(options, rows, summary)
+    return CompareResult(options, rows, summarise(rows, methods))
