@@ -70,8 +70,10 @@ def model_from_flags(model_file: Path | None, flags: Mapping[str, float | None])
     return replace(base, **given)
 
 
-def selection_from(w_v: float, samples: int, population: int, generations: int, method: str) -> SelectionConfig:
-    """The anchor search of Eq. 3 weights (``w_v``, ``w_l = 1 - w_v``) and the Monte Carlo / genetic budget."""
+def selection_from(w_v: float, samples: int, population: int, generations: int, method: str, mc_start: str = "known",
+                   mc_emax: str = "mean") -> SelectionConfig:
+    """The anchor search of Eq. 3 weights (``w_v``, ``w_l = 1 - w_v``), the Monte Carlo / genetic budget and the
+    Monte Carlo readings (``mc_start``, ``mc_emax``: ``SelectionConfig``)."""
     from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a run starts
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
 
@@ -80,4 +82,5 @@ def selection_from(w_v: float, samples: int, population: int, generations: int, 
     if population < 2 or generations < 0:
         raise SwarmInputError("--population must be >= 2 and --generations >= 0")
     return SelectionConfig(w_v=w_v, w_l=1.0 - w_v, samples=samples,
-                           genetic=GeneticConfig(population=population, generations=generations), method=method)
+                           genetic=GeneticConfig(population=population, generations=generations), method=method,
+                           mc_start=mc_start, mc_emax=mc_emax)

@@ -184,12 +184,18 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
     g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
+    g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
+                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
+                        "truths drawn from its covariance (estimate, the default until the pre-registered results); default known (docs/experiments.md)")
+    g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
+                   help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
     from inchworm.limits import selection_from  # noqa: PLC0415
 
-    return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection)
+    return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection,
+                          args.mc_start, args.mc_emax)
 
 
 def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:

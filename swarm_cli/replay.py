@@ -20,7 +20,7 @@ from swarm_cli.options import add_json_option, add_localizer_option, add_model_o
 
 EXIT_DIVERGED = 1
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
-SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection")
+SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
