@@ -44,8 +44,8 @@ from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.metrics import localization_error, trajectory_following_performance
 from runtime.models.motion import command_towards
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, index_of

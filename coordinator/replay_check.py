@@ -41,8 +41,11 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.state import StepCommands, SwarmEstimate
+from runtime.models.trajectory import Trajectory
+from runtime.recording.mcap_log import float_platform, read_messages, recording_info
 from runtime.wire.keys import ROOT
 from runtime.wire.messages import (
     EstimateMessage,
@@ -54,9 +57,6 @@ from runtime.wire.messages import (
     decode,
     observations_from_reports,
 )
-from runtime.recording.mcap_log import float_platform, read_messages, recording_info
-from runtime.models.state import StepCommands, SwarmEstimate
-from runtime.models.trajectory import Trajectory
 
 
 @dataclass

@@ -47,6 +47,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from runtime.errors import SwarmInputError
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
     DropCounter,
@@ -66,7 +67,6 @@ from runtime.wire.messages import (
     message_key,
     observations_from_reports,
 )
-from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.transport import declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
@@ -143,7 +143,7 @@ class ZenohSwarmBackend:
     def _on_liveliness(self, key: str, alive: bool) -> None:  # Zenoh thread
         try:
             robot = parse_key(key).robot
-        except Exception:
+        except Exception:  # noqa: BLE001 - a key that is not a robot's token is not ours
             return
         with self._lock:
             if alive:
@@ -173,7 +173,7 @@ class ZenohSwarmBackend:
                 publish(self.session, message_key(stop), encode(stop))
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
-            except Exception:  # a closed session at shutdown: the launcher's run-wide stop covers it
+            except Exception:  # noqa: BLE001 - a closed session at shutdown: the launcher's run-wide stop covers it
                 _log.exception("could not publish the emergency stop of lost robot %d", robot)
                 continue
             _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)

@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 
 HUBER_SIGMAS = 3.0

@@ -186,7 +186,7 @@ class Agent:
                     if isinstance(e, DriverFault):  # the robot's state is unknown: stop it for good
                         self._bounded(self.driver.estop, max(self._last_cmd_step, 0))
                     break
-                except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
+                except Exception:  # noqa: BLE001 - a bug must not silently kill a robot mid-run: log it and keep serving
                     _log.exception("robot %d: error handling a message on %s", self.robot, key)
             token.undeclare()
             for sub in subs:
@@ -210,7 +210,7 @@ class Agent:
                 return fn(*args)
             except (DriverRefused, RobotLost):
                 raise
-            except Exception as e:  # noqa: BLE001 - a driver's bug is a fault of that robot, not of the agent
+            except Exception as e:  # a driver's bug is a fault of that robot, not of the agent
                 raise DriverFault(f"driver error in {what}: {type(e).__name__}: {e}") from e
         box: list = []
         done = threading.Event()

@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.wire.messages import MotionCommand
+from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
+from runtime.wire.messages import MotionCommand
 
 
 @dataclass(frozen=True)

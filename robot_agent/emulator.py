@@ -43,8 +43,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.gateway.config import Calibration
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_ENTRIES,
@@ -65,12 +65,12 @@ from runtime.gateway.frames import (
     StepBody,
     encode_frame,
 )
-from runtime.gateway.config import Calibration
-from runtime.wire.keys import coord_alive_key, validate_port, validate_run
-from runtime.wire.messages import TruthMessage, encode, message_key
+from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
+from runtime.wire.keys import coord_alive_key, validate_port, validate_run
+from runtime.wire.messages import TruthMessage, encode, message_key
 from runtime.wire.transport import publish, watch_liveliness
 
 _log = logging.getLogger(__name__)
@@ -444,7 +444,7 @@ class PortEmulator:
                 for frame in frames:
                     self._receive(frame)
                 self._watchdog(time.monotonic())
-            except Exception:  # a bug must not silently kill every robot of the port: log and serve on
+            except Exception:  # noqa: BLE001 - a bug must not silently kill every robot of the port: log and serve on
                 _log.exception("port %s: error handling frames", self.port_name)
 
     def _receive(self, frame: Frame) -> None:
@@ -704,7 +704,7 @@ class PortEmulator:
             return
         try:
             self.on_event({"event": event, "time_ns": time.time_ns(), "port": self.port_name, **fields})
-        except Exception:
+        except Exception:  # noqa: BLE001 - the caller's callback must not break the port
             _log.exception("port %s: event callback failed", self.port_name)
 
     def _close_fds(self) -> None:
@@ -773,7 +773,7 @@ class TruthPublisher:
         msg = TruthMessage(run=self.run_id, step=step, robot=robot, pose=[float(v) for v in pose])
         try:
             publish(self.session, message_key(msg), encode(msg))
-        except Exception:  # a closed session at shutdown must not break a robot's answer
+        except Exception:  # noqa: BLE001 - a closed session at shutdown must not break a robot's answer
             _log.warning("truth of robot %d (step %d) not published", robot, step, exc_info=True)
             return
         with self._lock:

@@ -45,9 +45,11 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
+    QUIET_S,
     EmptyBody,
     Frame,
     FrameDecoder,
@@ -55,7 +57,6 @@ from runtime.gateway.frames import (
     FrameType,
     HeartbeatBody,
     MotionBody,
-    QUIET_S,
     ObservationBody,
     RefusalCode,
     RunBody,
@@ -63,7 +64,6 @@ from runtime.gateway.frames import (
     encode_frame,
     fits_f32,
 )
-from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.wire.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
 from runtime.wire.messages import (
     CommandLimits,

@@ -20,7 +20,15 @@ from pathlib import Path
 from coordinator.strategies import METHODS
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, run_standalone
-from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
+from swarm_cli.options import (
+    add_connection_options,
+    add_simulation_options,
+    connection_label,
+    connection_settings,
+    model_config,
+    print_json,
+    selection_config,
+)
 
 EXIT_AGENT = 3
 

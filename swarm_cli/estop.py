@@ -19,6 +19,7 @@ from runtime.wire.keys import validate_run
 from runtime.wire.transport import open_session
 from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
 
+
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("estop", help="emergency stop: every robot of the run stops now (latched)")
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")

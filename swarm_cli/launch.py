@@ -58,15 +58,24 @@ import numpy as np
 from coordinator.process import default_recording
 from coordinator.stop import StopSignals, send_estop
 from coordinator.strategies import METHODS
-from inchworm.processes import (AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO, RobotKiller, agents_per_process, default_gateway, radio_faults,
-                                start_agents, start_gateway, stop_all)
-from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig
-from runtime.wire.keys import validate_run
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
+from inchworm.processes import (
+    AGENTS_PER_PROCESS,
+    ONE_PER_PROCESS_UP_TO,
+    RobotKiller,
+    agents_per_process,
+    default_gateway,
+    radio_faults,
+    start_agents,
+    start_gateway,
+    stop_all,
+)
 from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
+from runtime.errors import SwarmInputError
+from runtime.gateway.config import GatewayConfig
+from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.wire.keys import validate_run
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
 from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 

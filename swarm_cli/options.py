@@ -11,10 +11,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
 from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
-from runtime.models.config import ModelConfig
+from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 
 SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, without importing the search for a parser
 

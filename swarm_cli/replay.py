@@ -31,9 +31,9 @@ import time
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import ROOT
-from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.models.model_file import load_model
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.keys import ROOT
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 
 EXIT_DIVERGED = 1
@@ -76,9 +76,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_publish(args: argparse.Namespace) -> int:
-    import zenoh  # only when publishing
+    import zenoh  # noqa: PLC0415 - only when publishing
 
-    from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session
+    from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     speed = args.speed
     if math.isnan(speed) or speed < 0:

@@ -21,6 +21,9 @@ import numpy as np
 import pytest
 
 from coordinator.simulate import simulate
+from inchworm.processes import stop_all
+from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.keys import coord_key, robot_key, robot_wildcard, truth_key, truths_key
 from runtime.wire.messages import (
     EstimateMessage,
@@ -33,10 +36,7 @@ from runtime.wire.messages import (
     encode,
     message_key,
 )
-from runtime.recording.mcap_log import read_messages, recording_info
-from runtime.models.trajectory import Trajectory, random_trajectory
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
-from inchworm.processes import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
 

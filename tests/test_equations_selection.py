@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 
 from coordinator.localization import make_localizer
-
 from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.heuristic import MIN_SEPARATION, heuristic_plan, step_score
 from coordinator.selection.monte_carlo import plan_keeps_connectivity
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, samples_for
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 # -- Eq. 1, 6, 7, 10 ----------------------------------------------------------------

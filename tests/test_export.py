@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from runtime.errors import SwarmInputError
-from runtime.wire.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
 from runtime.models.metrics import localization_error
 from runtime.recording.mcap_log import read_messages
+from runtime.wire.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
 from swarm_cli.main import main
 
 SAMPLE = Path(__file__).resolve().parent.parent / "recordings" / "sample.mcap"

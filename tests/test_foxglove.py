@@ -22,8 +22,8 @@ from runtime.recording.foxglove_scene import (
     schema_errors,
     trajectory_configurations,
 )
-from runtime.wire.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
 from runtime.recording.mcap_log import McapRecorder, is_derived, read_messages, recording_info, recover
+from runtime.wire.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
 from tests.test_recording import RUN, sample_messages
 
 TRAJ = {"robots": [0, 1, 2], "initial_poses": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]],

@@ -8,8 +8,7 @@ import struct
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from runtime.gateway.frames import (
     BODIES,
@@ -27,8 +26,8 @@ from runtime.gateway.frames import (
     MotionBody,
     ObservationBody,
     RefusalBody,
-    RunBody,
     RefusalCode,
+    RunBody,
     StepBody,
     crc16,
     encode_frame,

@@ -21,18 +21,18 @@ import msgpack
 import numpy as np
 import pytest
 
+from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 from robot_agent.driver import RobotLost, SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.link import Link, SerialLink
-from runtime.models.config import ModelConfig
 from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
+from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
-from runtime.recording.mcap_log import read_messages
-from runtime.models.trajectory import random_trajectory
 from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
-from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]

@@ -28,8 +28,8 @@ from coordinator.localization.joint import (
 )
 from coordinator.localization.partial import MAX_RETRIES, localize_observable, solvable_subset
 from coordinator.localization.sparse_lm import BLAS_SMALL, PoseLayout
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.sensing import sense_swarm

@@ -7,17 +7,17 @@ import json
 import numpy as np
 import pytest
 
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import solvable_subset
 from coordinator.localization.range_bearing import GATE_SIGMAS, bearing_weights
-from runtime.models.config import ModelConfig
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from inchworm.localize_data import localize_document
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.scenarios import grid_configuration
 from runtime.models.sensing import measure
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from inchworm.localize_data import localize_document
 
 CFG = ModelConfig()
 REASONS = {"unobserved", "disconnected", "no-convergence", "degenerate"}

@@ -6,8 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, swap_mutation

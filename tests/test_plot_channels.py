@@ -9,9 +9,9 @@ import pytest
 from mcap.reader import make_reader
 
 from runtime.recording.foxglove_scene import schema_errors
-from runtime.wire.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
-from runtime.recording.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.recording.mcap_log import McapRecorder, recording_info
+from runtime.recording.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
+from runtime.wire.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
 from tests.test_foxglove import COV, RUN, TRAJ, run_messages
 
 

@@ -22,6 +22,7 @@ from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
 from runtime.errors import SwarmInputError
+from runtime.recording.mcap_log import McapRecorder, read_messages, record_run, recording_info, recover
 from runtime.wire.keys import coord_key, robot_key
 from runtime.wire.messages import (
     MESSAGE_TYPES,
@@ -35,7 +36,6 @@ from runtime.wire.messages import (
     json_schema,
     message_key,
 )
-from runtime.recording.mcap_log import McapRecorder, read_messages, record_run, recording_info, recover
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

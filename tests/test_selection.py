@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from coordinator.localization import make_localizer
-
 from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -104,7 +103,6 @@ def test_no_feasible_plan_is_said_clearly():
 
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
 from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402
-from coordinator.selection.selector import samples_for  # noqa: E402
 
 NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15)  # motion noise x 3: anchors pay
 
@@ -207,7 +205,7 @@ def test_search_samples_grow_with_the_log_of_the_plan_space():
 def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
     """n_r = 8, n_a = 6 (2520 plans), S = samples_for(4, 8) = 5: screening on 5 samples, the genetic search and
     the race on search_samples(5, 2520) = 8 (race rounds 8, 16, 32), the final check on samples_for(256, 8) = 320."""
-    import coordinator.selection.selector as selector  # noqa: PLC0415
+    import coordinator.selection.selector as selector
 
     sizes = []
 

@@ -14,9 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
-
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.plan import Plan, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation

@@ -49,10 +49,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.localization import Localizer
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
-from coordinator.localization.paper import fuse
+from coordinator.localization.paper import PaperLocalizer, fuse
+from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
     COV_FLOOR,
     bearing_weights,
@@ -81,13 +83,10 @@ from coordinator.localization.topology import (
     reference_robot,
     to_reference_frame,
 )
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from coordinator.localization import Localizer
-from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.partial import localize_observable
 
 # (xtol, ftol, ptol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.motion import apply_motion, motion_covariance
 from runtime.models.state import StepCommands, SwarmEstimate
 

@@ -31,13 +31,13 @@ import scipy.sparse as sp
 from coordinator.localization.dead_reckoning import dead_reckon_parts
 from coordinator.localization.gauge import constrained_covariance, constrained_solution, gauge_frame, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
+from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
-from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.sparse_lm import PoseLayout, blas_threads, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 

@@ -15,15 +15,14 @@ on a busy 2-core machine multi-threaded OpenBLAS is many times slower for these 
 
 from __future__ import annotations
 
+import contextlib
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import contextlib
-import math
-
 import numpy as np
-import scipy.sparse as sp
 import qdldl
+import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
 DENSE_LIMIT = 64  # unknowns up to which a dense solve beats the sparse LDL^T (a 300x300 dense LU was ~3 ms)

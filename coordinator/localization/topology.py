@@ -27,8 +27,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import rotate, wrap_angle
 
 # Convergence of Eq. B3's least squares (``sparse_lm.minimize``: relative step, relative cost decrease).

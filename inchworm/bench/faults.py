@@ -40,11 +40,11 @@ import numpy as np
 from inchworm.bench import BenchResult
 from inchworm.output import last_json
 from inchworm.progress import Progress
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
-from runtime.models.trajectory import random_trajectory
 
 
 @dataclass(frozen=True)
@@ -137,8 +137,8 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
     from coordinator.simulate import simulate  # noqa: PLC0415
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     from inchworm.processes import start_agents, stop_all  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     traj = random_trajectory(robots, configs, np.random.default_rng(seed))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()

@@ -137,9 +137,9 @@ def timed(fn: Any, repeats: int) -> tuple[list[float], Any]:
 
 def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any | None, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Result object of one swarm size."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.localization.crlb import crlb_pose_covariances  # noqa: PLC0415
     from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
-    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.localization.joint import EXACT_COV_LIMIT  # noqa: PLC0415 - the joint covariance up to this n
     from runtime.models.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}

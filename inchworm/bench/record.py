@@ -40,6 +40,7 @@ import numpy as np
 
 from inchworm.bench import BenchResult
 from runtime.errors import SwarmInputError
+from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
     EstimateMessage,
     MotionCommand,
@@ -52,7 +53,6 @@ from runtime.wire.messages import (
     encode,
     message_key,
 )
-from runtime.recording.mcap_log import McapRecorder
 
 RUN = "bench-record"
 SPACING_M = 0.25

@@ -11,6 +11,7 @@ and the in-process simulator produce identical numbers for the same seed.
 from __future__ import annotations
 
 import numpy as np
+
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations

@@ -56,17 +56,15 @@ except ImportError:  # mcap's zstd support is optional; without it nothing raise
         pass
 from runtime.recording.foxglove_scene import (
     DERIVED_TYPES,
+    MESSAGE_ENCODING as DERIVED_ENCODING,
     SCENE_UPDATE_SCHEMA_BYTES,
+    SCHEMA_NAME as DERIVED_SCHEMA,
+    TOPIC_PREFIX as DERIVED_PREFIX,
     SceneDeriver,
 )
-from runtime.recording.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
-from runtime.recording.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
-from runtime.recording.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
+from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES, SCHEMA_BYTES as PLOT_SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.wire.keys import KeyspaceError, run_wildcard, validate_run
 from runtime.wire.messages import MessageError, decode, json_schema, type_for_key
-from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES
-from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
-from runtime.recording.plot_channels import PlotDeriver, is_plot_topic
 
 CHUNK_BYTES = 64 * 1024  # uncompressed bytes after which a chunk is closed
 FLUSH_S = 0.25  # a chunk is closed (and the file flushed) at least this often while messages arrive
@@ -347,7 +345,7 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
     "messages", "channels", "raw_messages", "raw_channels", "derived_messages", "derived_channels",
     "undecodable"}`` (``messages`` and ``channels`` count raw and derived ones, as ``swarm info`` does).
     """
-    from runtime.wire.transport import open_session, subscribe  # zenoh only when recording live
+    from runtime.wire.transport import open_session, subscribe  # noqa: PLC0415 - zenoh only when recording live
 
     with open_session(settings) as session:  # fails (ConnectionError) before any file is created
         recorder = McapRecorder(path, run, metadata)

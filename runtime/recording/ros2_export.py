@@ -35,8 +35,8 @@ import numpy as np
 
 from runtime.errors import SwarmInputError
 from runtime.recording.foxglove_scene import trajectory_configurations
-from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
 from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
 
 INSTALL_HINT = "pip install -e '.[ros2]'"
 FRAME = "world"

@@ -29,6 +29,7 @@ import msgpack
 import numpy as np
 
 from runtime.errors import SwarmInputError
+from runtime.models.state import Observations, SwarmEstimate
 from runtime.wire.keys import (
     COORD_LEAVES,
     MAX_ROBOT_ID,
@@ -43,7 +44,6 @@ from runtime.wire.keys import (
     truth_key,
     truths_key,
 )
-from runtime.models.state import Observations, SwarmEstimate
 
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
 MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
@@ -566,7 +566,7 @@ def _unpack(data: Any) -> Any:
         return msgpack.unpackb(
             data, raw=False, max_str_len=limit, max_bin_len=limit, max_ext_len=limit, max_array_len=MAX_ITEMS, max_map_len=64
         )
-    except Exception as e:  # msgpack raises several exception types for bad input; none may escape
+    except Exception as e:  # noqa: BLE001 - msgpack raises several exception types for bad input; none may escape
         raise MessageError("message", f"not valid msgpack ({type(e).__name__}: {_show(str(e))})", "undecodable") from None
 
 
