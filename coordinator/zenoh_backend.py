@@ -373,7 +373,7 @@ class ZenohSwarmBackend:
         """Publish the estimate after ``step`` as ``EstimateMessage``."""
         msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
         publish(self.session, message_key(msg), encode(msg))
-        self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
+        self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses, strict=True)}
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self._id_set <= self._truth.keys():

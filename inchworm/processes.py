@@ -70,7 +70,7 @@ def start_agents(
     procs = [] if procs is None else procs
     ids = format_ids(traj.ids)
     if per_process == 1:
-        for robot, pose in zip(traj.ids, traj.initial_poses):
+        for robot, pose in zip(traj.ids, traj.initial_poses, strict=True):
             procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
         return procs
     if traj_file is None:

@@ -133,7 +133,7 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
         if missing and spec.driver == "sim":
             raise SwarmInputError(f"--id names robots {missing} that {spec.trajectory_path} does not have")
-        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses)}
+        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses, strict=True)}
     elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
         raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")
     gateway = None

@@ -638,7 +638,7 @@ class PortEmulator:
             return
         stamp = self.world.clock_ms()
         ids, ranges, bearings = self.world.sense(st.robot, step)  # truth listeners hear of it first
-        entries = [(int(i), float(r), float(b)) for i, r, b in zip(ids, ranges, bearings)]
+        entries = [(int(i), float(r), float(b)) for i, r, b in zip(ids, ranges, bearings, strict=True)]
         chunks = [entries[k:k + MAX_ENTRIES] for k in range(0, len(entries), MAX_ENTRIES)] or [[]]
         if len(chunks) > MAX_PARTS:
             self._error(st.robot, seq, ErrorCode.OTHER, f"{len(entries)} neighbours need {len(chunks)} parts, at most {MAX_PARTS}")

@@ -137,7 +137,7 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
             assert ch.message_encoding == "json"
             assert schemas[ch.schema_id].name == "foxglove.SceneUpdate" and schemas[ch.schema_id].encoding == "jsonschema"
             assert json.loads(schemas[ch.schema_id].data) == SCENE_UPDATE_SCHEMA
-    for topic, data, log_time, publish_time, _seq in derived:
+    for topic, data, _log_time, _publish_time, _seq in derived:
         scene = json.loads(data)
         assert schema_errors(scene) == [], (topic, scene)
         assert scene["entities"] and all(e["frame_id"] == "world" for e in scene["entities"])

@@ -268,7 +268,7 @@ def test_gateway_run_equals_the_simulated_run_and_is_recorded(tmp_path):
     sim = _launch(tmp_path, "sim", traj_file, "eq-sim", None)
     gw = _launch(tmp_path, "gateway", traj_file, "eq-gw", recording)
     assert len(gw["steps"]) == len(sim["steps"]) > 0
-    for a, b in zip(gw["steps"], sim["steps"]):
+    for a, b in zip(gw["steps"], sim["steps"], strict=True):
         assert a["moving"] == b["moving"]  # the same plans
         # float32 on the wire (docs/gateway-protocol.md): equal to ~1e-7 m, not bit for bit
         np.testing.assert_allclose(a["commands"], b["commands"], atol=1e-6)
@@ -299,7 +299,7 @@ def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
     with open_session(ZenohSettings("client", connect=(hub,))) as probe:
         for key in keys:
             publisher = probe.declare_publisher(key)
-            _wait_for(lambda: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
+            _wait_for(lambda publisher=publisher: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
             publisher.undeclare()
 
 

@@ -57,7 +57,7 @@ class Batch:
         self.rows.append((prior.poses, prior.cov, step.commands, step.moving, seen, ranges, bearings))
 
     def arrays(self) -> list[np.ndarray]:
-        return [np.stack(column) for column in zip(*self.rows)]
+        return [np.stack(column) for column in zip(*self.rows, strict=True)]
 
     def single(self, k: int) -> tuple[SwarmEstimate, StepCommands, Observations]:
         poses, cov, commands, moving, seen, ranges, bearings = self.rows[k]

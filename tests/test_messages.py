@@ -765,6 +765,6 @@ def test_protocol_doc_examples_decode_to_their_json():
     hexes = re.findall(r"```text\n([0-9a-f\n]+)```", doc)
     jsons = re.findall(r"```json\n(.*?)```", doc, re.S)
     assert len(hexes) == len(jsons) == 2
-    for hex_text, json_text in zip(hexes, jsons):
+    for hex_text, json_text in zip(hexes, jsons, strict=True):
         msg = decode(bytes.fromhex(hex_text.replace("\n", "")))
         assert raw_map(msg) == json.loads(json_text)

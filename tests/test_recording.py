@@ -17,6 +17,7 @@ import uuid
 from pathlib import Path
 
 import pytest
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
@@ -173,7 +174,7 @@ def test_sigkill_loses_at_most_the_last_flush_interval(tmp_path):
     assert child.returncode == -signal.SIGKILL
 
     with open(path, "rb") as f:
-        with pytest.raises(Exception):  # the seeking reader needs the summary the killed recorder never wrote
+        with pytest.raises(McapError):  # the seeking reader needs the summary the killed recorder never wrote
             list(make_reader(f).iter_messages())
     got = list(read_messages(path))
     assert got, "no complete chunk survived"

@@ -22,7 +22,7 @@ def test_random_trajectories_change_pose_and_topology_and_stay_connected():
     for config in traj.configurations:
         assert is_connected(config, 0.5)
     shape = [np.linalg.norm(c[:, None] - c[None], axis=-1) for c in traj.configurations]
-    assert all(not np.allclose(a, b, atol=1e-3) for a, b in zip(shape, shape[1:]))  # topology changes
+    assert all(not np.allclose(a, b, atol=1e-3) for a, b in zip(shape, shape[1:], strict=False))  # topology changes
     np.testing.assert_array_equal(random_trajectory(10, 5, np.random.default_rng(3)).configurations,
                                   random_trajectory(10, 5, np.random.default_rng(3)).configurations)
 

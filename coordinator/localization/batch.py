@@ -669,8 +669,8 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
     with np.errstate(divide="ignore", invalid="ignore"):
         if n > EXACT_COV_LIMIT:  # conditional covariances
             for k in (0, 1):
-                for l in (0, 1):
-                    cov[:, :, k, l] = lap[:, k * n + i, l * n + i]
+                for m in (0, 1):
+                    cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
                 cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
             cov[:, :, 2, 2] = d
             return _inv_stack(cov)
@@ -678,8 +678,8 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
         s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
         e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
         for k in (0, 1):
-            for l in (0, 1):
-                cov[:, :, k, l] = s_inv[:, k * n + i, l * n + i]
+            for m in (0, 1):
+                cov[:, :, k, m] = s_inv[:, k * n + i, m * n + i]
             cov[:, :, k, 2] = cov[:, :, 2, k] = -e[:, k * n + i, i]
         cov[:, :, 2, 2] = 1.0 / d + np.einsum("bir,bri->bi", ctd, e)  # D^-1 + D^-1 C^T S^-1 C D^-1
     return cov

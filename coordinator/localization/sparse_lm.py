@@ -107,7 +107,7 @@ class SparseLDL:
         upper = sp.triu(a, format="csc")
         upper.sort_indices()
         pattern = (upper.indptr, upper.indices)
-        same = self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern))
+        same = self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern, strict=True))
         self._pattern = pattern
         return self.solve_upper(upper, b, same)
 

@@ -192,7 +192,7 @@ def _same_table(summary: dict, ref) -> bool:
         return False
     return all(row["n_a"] == c.plan.n_anchors and row["steps"] == c.plan.n_steps and same(row["e_l"], e_l[k])
                and same(row["following_error"], follow[k]) and same(row["travelled"], travelled[k])
-               for k, (row, c) in enumerate(zip(rows, ref.configs)))
+               for k, (row, c) in enumerate(zip(rows, ref.configs, strict=True)))
 
 
 # -- the command ----------------------------------------------------------------------------------

@@ -80,7 +80,7 @@ def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig, covariance: boo
         initial.insert(k, pose)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([cfg.bearing_sigma_rad, cfg.range_sigma_m]))
     obs = case.observations
-    for a, b, rho, phi in zip(i.tolist(), j.tolist(), obs.range_m.tolist(), obs.bearing_rad.tolist()):
+    for a, b, rho, phi in zip(i.tolist(), j.tolist(), obs.range_m.tolist(), obs.bearing_rad.tolist(), strict=True):
         graph.add(gtsam.BearingRangeFactorPose2(a, b, gtsam.Rot2(phi), rho, noise))
     values = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
     if covariance:
@@ -153,7 +153,7 @@ def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any 
         truth = case.true_after[:, :2]
         n_obs.append(len(case.observations))
         for name, loc in localizers.items():
-            times, est = timed(lambda loc=loc: loc.localize(case.prior, case.step, case.observations), args.repeats)
+            times, est = timed(lambda loc=loc, case=case: loc.localize(case.prior, case.step, case.observations), args.repeats)
             stats[name].record(times, est.positions, truth)
         if n <= CRLB_LIMIT:
             dr = dead_reckon(case.prior, case.step, cfg)
@@ -161,10 +161,10 @@ def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any 
             cov = crlb_pose_covariances(case.true_after, dr.cov, i, j, cfg)
             crlb_sq.append(cov[:, 0, 0] + cov[:, 1, 1])
         if gtsam is not None:
-            times, values = timed(lambda: gtsam_localize(gtsam, case, cfg), args.repeats)
+            times, values = timed(lambda case=case: gtsam_localize(gtsam, case, cfg), args.repeats)
             stats["gtsam"].record(times, gtsam_positions(values, n), truth)
             if n <= EXACT_COV_LIMIT:
-                times, values = timed(lambda: gtsam_localize(gtsam, case, cfg, covariance=True), args.repeats)
+                times, values = timed(lambda case=case: gtsam_localize(gtsam, case, cfg, covariance=True), args.repeats)
                 stats["gtsam_cov"].record(times, gtsam_positions(values, n), truth)
 
     crlb_rms = float(np.sqrt(np.mean(np.concatenate(crlb_sq)))) if crlb_sq else None

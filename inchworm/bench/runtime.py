@@ -188,7 +188,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
             agents = procs[first_agent:]
             hosted = [traj.ids[k:k + per_process] for k in range(0, n, per_process)]
             rss = [rss_mb(p.pid) for p in agents]
-            dead = [int(r) for robots, p in zip(hosted, agents) if p.poll() is not None for r in robots]
+            dead = [int(r) for robots, p in zip(hosted, agents, strict=True) if p.poll() is not None for r in robots]
             if dead or None in rss:
                 raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
     finally:

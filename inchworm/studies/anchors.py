@@ -294,7 +294,7 @@ def scatter_panels(axes: Any, panels: list[tuple[str, np.ndarray]], distance: np
     from inchworm.plots import title  # noqa: PLC0415
 
     flat = list(np.ravel(axes))
-    for ax, (label, values) in zip(flat, panels):
+    for ax, (label, values) in zip(flat, panels, strict=False):
         ok = np.isfinite(values)
         ax.scatter(distance[ok], 1000 * values[ok], s=10, alpha=0.7, label="one experiment")
         if ok.any():

@@ -175,10 +175,10 @@ class PlotDeriver:
         then ``/swarm/error`` when there is a truth."""
         step, config = int(estimate.step), self._config(estimate.step)
         moving = moving_robots(self.plan, estimate.step)
-        true = dict(zip(truth.ids, truth.poses)) if truth is not None else {}
+        true = dict(zip(truth.ids, truth.poses, strict=True)) if truth is not None else {}
         desired = self.configurations[config - 1] if self.configurations and 1 <= config <= len(self.configurations) else None
         out, loc, follow, std = [], [], [], []
-        for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov):
+        for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov, strict=True):
             anchor = -1 if moving is None else int(robot not in moving)
             values = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
                       math.sqrt(max(cov[2][2], 0.0)))

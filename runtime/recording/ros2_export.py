@@ -143,14 +143,14 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike) -> dict[str, Any
                 continue
             if isinstance(msg, EstimateMessage):
                 write("/swarm/estimate", TOPICS["/swarm/estimate"], build.pose_array(msg.stamp_ns, msg.poses), log_time)
-                for robot, pose, cov in zip(msg.ids, msg.poses, msg.cov):
+                for robot, pose, cov in zip(msg.ids, msg.poses, msg.cov, strict=True):
                     write(ROBOT_TOPIC.format(robot), ROBOT_TYPE, build.pose_with_covariance(msg.stamp_ns, pose, cov), log_time)
                 write("/swarm/markers", TOPICS["/swarm/markers"],
-                      build.markers(msg.stamp_ns, "estimated", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses)}), log_time)
+                      build.markers(msg.stamp_ns, "estimated", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses, strict=True)}), log_time)
                 truth = truths.pop(msg.step, None)
                 if truth is not None:
-                    true = dict(zip(truth.ids, truth.poses))
-                    errors = [math.dist(p[:2], true[r][:2]) for r, p in zip(msg.ids, msg.poses) if r in true]
+                    true = dict(zip(truth.ids, truth.poses, strict=True))
+                    errors = [math.dist(p[:2], true[r][:2]) for r, p in zip(msg.ids, msg.poses, strict=True) if r in true]
                     if errors:
                         write("/swarm/localization_error", TOPICS["/swarm/localization_error"],
                               build.Float64(data=sum(errors) / len(errors)), log_time)
@@ -158,7 +158,7 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike) -> dict[str, Any
                 truths = {msg.step: msg}  # the coordinator publishes a step's truth before its estimate
                 write("/swarm/truth", TOPICS["/swarm/truth"], build.pose_array(msg.stamp_ns, msg.poses), log_time)
                 write("/swarm/markers", TOPICS["/swarm/markers"],
-                      build.markers(msg.stamp_ns, "true", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses)}), log_time)
+                      build.markers(msg.stamp_ns, "true", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses, strict=True)}), log_time)
             elif isinstance(msg, PlanMessage):
                 write("/swarm/plan", TOPICS["/swarm/plan"], build.String(data=json.dumps(
                     {"step": msg.step, "config": msg.config, "n_anchors": msg.n_anchors, "groups": [list(g) for g in msg.groups]})),
