@@ -73,6 +73,7 @@ import queue
 import threading
 import time
 from collections.abc import Collection
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -96,6 +97,9 @@ from runtime.wire.messages import (
     refusal_status,
 )
 from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
@@ -138,7 +142,7 @@ class Agent:
         self._last_truth: TruthMessage | None = None
         self._pending: int | None = None  # step of an ObserveRequest waiting for truths
         self._peers: PeerPoses | None = None  # the pending step's truth set (simulation)
-        self._session = None
+        self._session: zenoh.Session | None = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
         self._estop_key = estop_key(run)
@@ -169,7 +173,7 @@ class Agent:
             forwarder.start()
             if self.driver.simulated:
                 subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: self._inbox.put((_COORD, b"")) if alive else None))
             token = declare_token(session, alive_key(self.run_id, self.robot))
             if self.driver.simulated:
                 self._publish_truth(0)
@@ -268,6 +272,7 @@ class Agent:
     # -- message handling (loop thread only) --------------------------------------------
 
     def _send(self, msg) -> None:
+        assert self._session is not None, "while running only"
         publish(self._session, message_key(msg), encode(msg))
 
     def _new_run(self) -> None:
@@ -377,7 +382,8 @@ class Agent:
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
-        self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=pose)
+        assert pose is not None, "simulated drivers only"
+        self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=tuple(pose.tolist()))
         self._send(self._last_truth)
 
     def _try_report(self) -> None:

@@ -47,7 +47,7 @@ def parse_ids(text: str, option: str) -> list[int]:
 
 def format_ids(ids: Iterable[int]) -> str:
     """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
-    parts: list[str] = []
+    parts: list[list[int]] = []  # [first, last] of each run
     for i in ids:
         i = int(i)
         if parts and parts[-1][1] == i - 1:

@@ -40,6 +40,7 @@ import time
 import tty
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -72,6 +73,9 @@ from runtime.models.sensing import sense_robot
 from runtime.wire.keys import coord_alive_key, validate_port, validate_run
 from runtime.wire.messages import TruthMessage, encode, message_key
 from runtime.wire.transport import publish, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log = logging.getLogger(__name__)
 
@@ -219,8 +223,9 @@ class EmulatedWorld:
             pose = self._poses[i].copy()
             listeners = list(self._listeners) if step is not None else []
             nb, rho, phi = sense_robot(self._poses, i, self.cfg, self._sensing[robot])
-        for listener in listeners:
-            listener(robot, int(step), pose)
+        if step is not None:
+            for listener in listeners:
+                listener(robot, int(step), pose)
         return np.array(self.ids, dtype=np.int64)[nb], cal.measured_ranges(rho), cal.measured_bearings(phi)
 
 
@@ -509,9 +514,9 @@ class PortEmulator:
         except FrameError as exc:
             self._error(st.robot, frame.seq, ErrorCode.BAD_BODY, f"{kind.name}: {exc}")
             return
-        if kind is FrameType.COMMAND:
+        if kind is FrameType.COMMAND and isinstance(body, MotionBody):
             self._on_command(st, frame.seq, body)
-        elif kind is FrameType.OBSERVE:
+        elif kind is FrameType.OBSERVE and isinstance(body, StepBody):
             self._on_observe(st, frame.seq, body.step)
         elif kind is FrameType.HEARTBEAT:
             self._send(st.robot, frame.seq, FrameType.HEARTBEAT_ACK, body)
@@ -525,7 +530,7 @@ class PortEmulator:
             st.estopped = False
             self._event("reset", robot=st.robot, seq=frame.seq, was_estopped=was)
             self._send(st.robot, frame.seq, FrameType.RESET_ACK, EmptyBody())
-        elif kind is FrameType.RUN:
+        elif kind is FrameType.RUN and isinstance(body, RunBody):
             self._on_run(st, frame.seq, body.epoch)
 
     def _on_run(self, st: _Robot, seq: int, epoch: int) -> None:
@@ -727,14 +732,14 @@ class TruthPublisher:
     answers (from the port's reader thread, never from a Zenoh callback).
     """
 
-    def __init__(self, world: EmulatedWorld, session: object, run_id: str) -> None:
+    def __init__(self, world: EmulatedWorld, session: zenoh.Session, run_id: str) -> None:
         self.world = world
         self.session = session
         self.run_id = validate_run(run_id)
         self.published = 0
         self._jobs: queue.SimpleQueue[bool] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="emulator-truth", daemon=True)
-        self._watch = None
+        self._watch: zenoh.Subscriber | None = None
         self._lock = threading.Lock()
 
     def __enter__(self) -> TruthPublisher:
@@ -748,7 +753,7 @@ class TruthPublisher:
         self._thread.start()
         self._jobs.put(True)  # step 0 (or the latest) of every robot now
         self._watch = watch_liveliness(
-            self.session, coord_alive_key(self.run_id), lambda key, alive: alive and self._jobs.put(True)
+            self.session, coord_alive_key(self.run_id), lambda key, alive: self._jobs.put(True) if alive else None
         )
 
     def close(self) -> None:
@@ -770,7 +775,7 @@ class TruthPublisher:
         self._publish(robot, step, pose)
 
     def _publish(self, robot: int, step: int, pose: np.ndarray) -> None:
-        msg = TruthMessage(run=self.run_id, step=step, robot=robot, pose=[float(v) for v in pose])
+        msg = TruthMessage(run=self.run_id, step=step, robot=robot, pose=tuple(float(v) for v in pose))
         try:
             publish(self.session, message_key(msg), encode(msg))
         except Exception:  # noqa: BLE001 - a closed session at shutdown must not break a robot's answer
