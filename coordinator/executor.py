@@ -123,8 +123,9 @@ class RunResult:
 
     def true_configurations(self) -> np.ndarray:
         """(k + 1, n, 2): the true start, then the truth after each completed configuration (finished robots)."""
+        assert self.initial_truth is not None, "simulated runs only"
         start = self.initial_truth[self._rows(self.initial_estimate.ids), :2]
-        return np.stack([start, *[c.truth[self._rows(c.estimate.ids), :2] for c in self.configs]])
+        return np.stack([start, *[c.truth[self._rows(c.estimate.ids), :2] for c in self.configs]])  # type: ignore[index]  # simulated
 
     def estimated_configurations(self) -> np.ndarray:
         start = self.initial_estimate.positions[self._rows(self.initial_estimate.ids)]

@@ -233,15 +233,16 @@ def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = 
     from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with a live view
     from runtime.wire.transport import subscribe  # noqa: PLC0415
 
-    live = Live(LiveView(o.foxglove_port, trajectory=o.trajectory.to_json()))
-    subscriber = subscribe(session, run_wildcard(o.run_id), live.view.handle)
-    log(f"live view for the Foxglove app at {live.view.url}")
+    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json())
+    live = Live(view)
+    subscriber = subscribe(session, run_wildcard(o.run_id), view.handle)
+    log(f"live view for the Foxglove app at {view.url}")
     try:
         yield live
     finally:
         subscriber.undeclare()
         if not live.keep:
-            live.view.close()
+            view.close()
 
 
 @dataclass

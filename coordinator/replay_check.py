@@ -278,7 +278,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     last = max(rec.estimates)
     for step in range(0, last + 1):
         plan_msg = plan_at_step.get(step)
-        if plan_msg is not None and plans_ok:
+        if plan_msg is not None and plans_ok and strategy is not None and traj is not None:  # plans_ok: both set
             before = rec.estimates.get(step - 1)
             if plan_msg.config != expected_config or before is None or plan_msg.config > len(traj.configurations):
                 result.skipped.append(f"plans from configuration {plan_msg.config} on (an earlier plan or the estimate "

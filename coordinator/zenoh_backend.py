@@ -145,6 +145,8 @@ class ZenohSwarmBackend:
             robot = parse_key(key).robot
         except Exception:  # noqa: BLE001 - a key that is not a robot's token is not ours
             return
+        if robot is None:  # not a robot's token either
+            return
         with self._lock:
             if alive:
                 self._alive.add(robot)
@@ -169,7 +171,7 @@ class ZenohSwarmBackend:
             robot, reason = item
             try:
                 stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
-                                     robots=[robot])
+                                     robots=(robot,))
                 publish(self.session, message_key(stop), encode(stop))
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
@@ -220,6 +222,8 @@ class ZenohSwarmBackend:
             # (a motion-capture publisher, e.g. the emulator, keeps counting across runs)
             self._truth[msg.robot] = (0, np.array(msg.pose, dtype=float))
             return
+        if not isinstance(msg, (TruthMessage, ObservationReport, Status)):
+            return  # the keys subscribed carry nothing else (decode checks the type against the key)
         if msg.step != self.step:
             if msg.step > self.step:  # late answers to earlier steps are normal (re-sends); later steps are not
                 self._foreign(key, f"{msg.TYPE} for step {msg.step}, the run is at step {self.step}")
@@ -261,7 +265,7 @@ class ZenohSwarmBackend:
         present = self._present()
         if not present or not self._truth_now.issuperset(present):
             return
-        msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present])
+        msg = TruthSetMessage(run=self.run, step=s, ids=tuple(present), poses=tuple(tuple(self._truth[r][1].tolist()) for r in present))
         publish(self.session, message_key(msg), encode(msg))
         self._truths_sent = s
 
@@ -324,7 +328,7 @@ class ZenohSwarmBackend:
             if robot not in present:
                 continue  # lost meanwhile: never command it again
             turn, drive = step.commands[k]
-            start = () if self._estimate is None else self._estimate.get(robot, ())
+            start = () if self._estimate is None else tuple(self._estimate.get(robot, ()))
             self._cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
                                               drive_m=float(drive), start_pose=start, cmd_id=secrets.randbits(63) or 1)
         cmds = self._cmds
@@ -365,7 +369,7 @@ class ZenohSwarmBackend:
     def on_plan(self, config_index: int, first_step: int, plan, selection) -> None:
         """Publish the plan of configuration ``config_index`` (0-based) as ``PlanMessage`` (``config`` 1-based)."""
         self.config = config_index + 1
-        groups = [[self._id_list[int(k)] for k in group] for group in plan.groups]
+        groups = tuple(tuple(self._id_list[int(k)] for k in group) for group in plan.groups)
         msg = PlanMessage(run=self.run, step=first_step, config=self.config, n_anchors=plan.n_anchors, groups=groups)
         publish(self.session, message_key(msg), encode(msg))
 

@@ -68,6 +68,7 @@ def run_distributed(
         stop_all(procs)
     if outcome.error is not None:
         raise outcome.error
+    assert outcome.result is not None  # no error: a result
     return outcome.result
 
 

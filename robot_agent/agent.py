@@ -72,8 +72,8 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Collection
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Collection
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -205,7 +205,7 @@ class Agent:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
         return 3 if self.lost_reason is not None else 0
 
-    def _driver_call(self, fn, *args):
+    def _driver_call(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)`` of the driver: ``DriverRefused`` and ``RobotLost`` pass; any other exception, or no return
         within ``command_timeout_s`` (if set), raises ``DriverFault``."""
         what = getattr(fn, "__name__", "call")

@@ -112,7 +112,7 @@ def batched_method(localizer: Localizer) -> str | None:
     """``paper`` or ``joint`` where this module solves ``localizer``'s problem vectorised, else None
     (every sample then goes through the localizer itself)."""
     kind = type(localizer)
-    if kind in (PaperLocalizer, JointLocalizer) and localizer.huber is None:
+    if kind in (PaperLocalizer, JointLocalizer) and getattr(localizer, "huber", None) is None:
         return localizer.name
     return None
 
@@ -227,7 +227,7 @@ def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, movi
 def observable(seen: np.ndarray) -> np.ndarray:
     """(B,) True where every robot was observed by another and the undirected observation graph is connected."""
     b, n, _ = seen.shape
-    observed = seen.any(axis=1).all(axis=1)
+    observed: np.ndarray = np.all(np.any(seen, axis=1), axis=1)
     both = (seen | np.swapaxes(seen, 1, 2)).astype(float)
     reach = np.zeros((b, 1, n))
     reach[:, 0, 0] = 1.0
@@ -240,7 +240,7 @@ def observable(seen: np.ndarray) -> np.ndarray:
 
 
 def _shaped(values: np.ndarray, shape: tuple[int, ...], name: str, dtype: type) -> np.ndarray:
-    arr = np.asarray(values, dtype=dtype)
+    arr: np.ndarray = np.asarray(values, dtype=dtype)
     if arr.shape != shape:
         raise SwarmInputError(f"{name} must have shape {shape}, got {arr.shape}")
     return arr
@@ -335,6 +335,8 @@ class _Workspace:
 
 class _Batched:
     """A problem whose array attributes all have the batch as their first axis, with a workspace."""
+
+    ws: _Workspace
 
     def subset(self, index: np.ndarray):
         out = object.__new__(type(self))
@@ -443,7 +445,7 @@ class _TopologyProblem(_Batched):
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
@@ -599,7 +601,7 @@ class _JointProblem(_Batched):
         _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
         return lap, ct, self.d_theta
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ws = self.ws
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape

@@ -25,6 +25,8 @@ whitened residual at the last iterate, the likeliest culprits, so that
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -233,7 +235,7 @@ class JointLocalizer:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
             frame = gauge_frame(mean) if frame is None else frame  # shared by the covariance and the estimate
-            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean, frame)
+            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(cast(np.ndarray, result.extra)), mean, frame)
             poses = constrained_solution(poses, mean, cov, problem.prior_gradient(result.x), frame)
         else:
             cov = inverse(result.normal_matrix)

@@ -19,6 +19,7 @@ import contextlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
 import qdldl
@@ -99,7 +100,7 @@ class SparseLDL:
     """
 
     def __init__(self) -> None:
-        self._solver = None
+        self._solver: qdldl.Solver | None = None
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
 
     def solve(self, a: sp.spmatrix, b: np.ndarray) -> np.ndarray:
@@ -118,6 +119,18 @@ class SparseLDL:
         else:
             self._solver = qdldl.Solver(upper, upper=True)
         return self._solver.solve(b)
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: float) -> tuple[np.ndarray, float]: ...
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: None) -> tuple[None, float]: ...
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: float | None) -> tuple[np.ndarray | None, float]: ...
 
 
 def huber_weights(r: np.ndarray, huber: float | None) -> tuple[np.ndarray | None, float]:

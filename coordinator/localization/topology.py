@@ -21,6 +21,7 @@ Decisions the paper leaves open (documented in docs/localization.md):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +64,7 @@ def observation_residuals(
     yi: np.ndarray,
     xj: np.ndarray,
     yj: np.ndarray,
-    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    out: Sequence[np.ndarray] | None = None,
     scratch: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. B3's residual of observations i -> j, elementwise over arrays of any (common) shape: the one

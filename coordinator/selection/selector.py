@@ -241,6 +241,7 @@ class AnchorSelector:
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
             )
+        assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
 
     def _select_large(self, estimate: SwarmEstimate, desired: np.ndarray, rng: np.random.Generator) -> Selection:
@@ -292,6 +293,7 @@ class AnchorSelector:
                 f"no anchor plan with at most {sel.max_steps} steps keeps every robot within sensing range "
                 f"{self.cfg.sensing_range_m} m of another after every step (tried n_a = {[s.n_anchors for s in scores]})"
             )
+        assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, scores, len(scores))
 
     def _could_win(self, entry: CountScore, bar: float) -> bool:

@@ -143,12 +143,13 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.strategies import FixedPlanStrategy, make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
     from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, stop_all  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     cfg = args.model
     strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
+    assert isinstance(strategy, FixedPlanStrategy)  # --method: a fixed plan
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
@@ -200,7 +201,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
         raise RuntimeError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
     return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
-            "agent_rss_mb": round(sum(rss) / n, 2), "agents_per_process": per_process, "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
+            "agent_rss_mb": round(sum(r or 0.0 for r in rss) / n, 2), "agents_per_process": per_process, "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
             "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
 
 

@@ -206,7 +206,7 @@ def summarise(rows: list[dict], robots: int) -> dict:
         "distance_mean": _mean([r["distance_m"] for r in rows]),
         "e_l_mean": e_mean,
         "e_l_ratio": {str(k): _mean([r[f"ratio_na{k}"] for r in rows]) for k in counts},  # mean of per-experiment ratios
-        "e_l_ratio_of_means": {str(k): (e_mean[str(k)] / e_mean["0"] if e_mean["0"] else None) for k in counts},
+        "e_l_ratio_of_means": {str(k): (mk / m0 if (mk := e_mean[str(k)]) is not None and (m0 := e_mean["0"]) else None) for k in counts},
         "choice_n_anchors": choice_anchor_count(robots),
         "choice": None,
     }

@@ -24,6 +24,7 @@ compared with that plan's e_l on the evaluation set (the bias of the reported e_
 from __future__ import annotations
 
 import csv
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -105,7 +106,7 @@ def run_config(task: ConfigTask) -> dict:
             continue
         screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
         screen_mc = MonteCarlo(job.cfg, localizer, screen_samples, int(rng.integers(2**63)))
-        raw, _, _ = genetic_search(lambda ps, screen_mc=screen_mc: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
+        raw, _, _ = genetic_search(functools.partial(screen_mc.localization_errors, estimate, desired), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
         plans = {"heuristic": heuristic, "search": searched, "ga_raw": raw or heuristic}

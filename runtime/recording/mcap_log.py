@@ -37,7 +37,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata as _pkg_metadata
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, cast
 
 import msgpack
 from mcap.exceptions import EndOfFile, McapError
@@ -52,7 +52,7 @@ from runtime.errors import SwarmInputError
 try:
     from zstandard import ZstdError as _ZstdError
 except ImportError:  # mcap's zstd support is optional; without it nothing raises this
-    class _ZstdError(Exception):
+    class _ZstdError(Exception):  # type: ignore[no-redef]  # the stand-in of the optional import
         pass
 from runtime.recording.foxglove_scene import (
     DERIVED_TYPES,
@@ -268,6 +268,7 @@ class McapRecorder:
             self._write_derived(msg, log_time)
 
     def _write_derived(self, msg, log_time: int) -> None:
+        assert self._deriver is not None and self._plotter is not None  # foxglove recordings only
         try:
             derived = [(topic, DERIVED_SCHEMA, data) for topic, data in self._deriver.derive(msg)]
             derived += self._plotter.derive(msg)
@@ -516,7 +517,7 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
         scan = _scan(path, f)
         status.complete, status.indexed, status.size = scan.complete, scan.indexed, scan.size
         status.readable_bytes, status.problem = scan.end, scan.problem
-        view = _Bounded(f, scan.end)
+        view = cast(IO[bytes], _Bounded(f, scan.end))  # duck-typed: only what mcap's readers call
         if scan.indexed and seeking:
             status.reader = "seeking"
             try:
@@ -525,6 +526,7 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
                 summary = reader.get_summary()
             except _READ_ERRORS as e:
                 raise _wrap(path, e, "summary") from None
+            assert summary is not None  # the scan found the summary (indexed)
             status.profile, status.library = header.profile, header.library
             status.schemas.update(summary.schemas)
             status.channels.update(summary.channels)
@@ -635,7 +637,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
         "undecodable": sum(c["undecodable"] for c in channels.values()),
         "first_ns": first,
         "last_ns": last,
-        "duration_s": (last - first) / 1e9 if firsts else 0.0,
+        "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
         "schemas": sorted({s.name for s in status.schemas.values()}),
         "channels": sorted(channels.values(), key=lambda c: c["topic"]),
         "metadata": meta,

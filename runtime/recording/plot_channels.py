@@ -168,7 +168,7 @@ class PlotDeriver:
 
     def _config(self, step: int) -> int:
         """The configuration ``step`` heads for under the current plan (0 if the plan does not cover it)."""
-        return self.plan.config if moving_robots(self.plan, step) is not None else 0
+        return self.plan.config if self.plan is not None and moving_robots(self.plan, step) is not None else 0
 
     def _robots(self, estimate: EstimateMessage, truth: TruthSetMessage | None) -> list[tuple[str, str, bytes]]:
         """One ``/robot/<id>/estimate`` message per robot (with truth and errors when ``truth`` is given),
@@ -180,7 +180,7 @@ class PlotDeriver:
         out, loc, follow, std = [], [], [], []
         for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov, strict=True):
             anchor = -1 if moving is None else int(robot not in moving)
-            values = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
+            values: tuple[float, ...] = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
                       math.sqrt(max(cov[2][2], 0.0)))
             text = _ESTIMATE % (step, robot, config, *values, anchor)
             t = true.get(robot)
