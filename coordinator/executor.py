@@ -12,8 +12,8 @@ estimate; the step record names them and says why.
 
 Lost robots (docs/failure-model.md): the executor asks the backend which robots it lost
 (``take_lost``) before each step, after each step's observation round (a backend asks no
-robot it has lost, so the command round needs no check of its own), and after each plan. A lost robot (the backend has already stopped it) is dropped from the
-swarm: from the estimate, the remaining steps of the current plan (its groups keep their
+robot it has lost, so the command round needs no check of its own), and after each plan. A lost robot
+(the backend has already stopped it) is dropped from the swarm: from the estimate, the remaining steps of the current plan (its groups keep their
 other robots), the strategy (``restrict``: Eq. 4 and the anchor counts on the remaining
 swarm), the observations and the localization. A plan made while a robot was lost is
 made again without it. ``on_lost="abort"``, or fewer than ``min_robots`` left, ends the

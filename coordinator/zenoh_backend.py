@@ -308,7 +308,8 @@ class ZenohSwarmBackend:
                 return
             if time.monotonic() > deadline:
                 if missing:
-                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)", missing)
+                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)",
+                                    missing)
                 raise AgentLost(f"no initial true pose from {_robots(no_truth)} after {timeout_s:.1f} s", no_truth)
             self._pump(0.05)
 

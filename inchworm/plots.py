@@ -30,7 +30,8 @@ def title(ax: Axes, text: str, fontsize: float = 11) -> None:
 
 
 def save_figure(draw: Callable[..., Any], path: str | Path, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
-    """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``), ``draw(axes)`` on it, saved as ``path``."""
+    """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``),
+    ``draw(axes)`` on it, saved as ``path``."""
     from matplotlib.figure import Figure  # noqa: PLC0415
 
     fig = Figure(figsize=size, layout="constrained")

@@ -69,7 +69,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", help="initial true pose x,y,heading (m, m, rad) of one simulated robot (or give --trajectory)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--max-drive", type=float, default=CommandLimits().max_drive_m, help="refuse drives longer than this (m, default 1)")
-    p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad), help="refuse turns larger than this (default 180)")
+    p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad),
+                   help="refuse turns larger than this (default 180)")
     add_model_options(p)
 
 

@@ -98,7 +98,8 @@ def run(args: argparse.Namespace) -> int:
     if outcome.recording:
         print(recording_line(outcome.recording))
     if args.json:
-        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf() if result.has_truth else None, "configs": config_rows(result),
+        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf() if result.has_truth else None,
+                    "configs": config_rows(result),
                     "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
                     "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots or [],
                     "recording": outcome.recording["path"] if outcome.recording else None})

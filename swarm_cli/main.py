@@ -16,7 +16,8 @@ from swarm_cli.options import apply_config
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
     Command("compare", "swarm_cli.compare", "Table I/II: P_f of every method on the same random trajectories"),
-    Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"),
+    Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; "
+                                        "selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"),
     Command("localize", "swarm_cli.localize", "localize robots from range/bearing observations in a JSON file"),
     Command("bench", "swarm_cli.bench", "benchmarks (print numbers; --json for machines)"),
     Command("agent", "swarm_cli.agent", "run the agent process of one robot, or of many (--id 0-49), in a distributed run"),

@@ -293,7 +293,8 @@ def save_config(args: argparse.Namespace) -> Path:
         value = getattr(args, dest)
         if value is None:
             continue
-        text = ("true" if value else "false") if isinstance(value, bool) else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value))
+        text = (("true" if value else "false") if isinstance(value, bool)
+                else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value)))
         lines.append(f"{dest.replace('_', '-')} = {text}")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "study.toml"

@@ -62,7 +62,8 @@ def test_strict_names_the_robot_that_cannot_be_localized():
         ('{"robots": [1, 2], "observations": [[1, 2, 0.2]]}', "observations[0]: expected [observer, observed, range_m, bearing_rad]"),
         ('{"robots": [1, 1], "observations": []}', "duplicate robot ids: [1]"),
         ('{"robots": [1, 2], "observations": [[1, 2, -0.2, 0.0]]}', "negative ranges"),
-        ('{"robots": [1, 2], "observations": [[2, 1, 0.2, 0.0], [1, 2, 0.2, 3.1]], "prior": [{"id": 1, "x": 0, "y": 0, "heading": 0, "delta": 0.01, "sigma_heading": 0.1}]}', "missing [2]"),
+        ('{"robots": [1, 2], "observations": [[2, 1, 0.2, 0.0], [1, 2, 0.2, 3.1]], '
+         '"prior": [{"id": 1, "x": 0, "y": 0, "heading": 0, "delta": 0.01, "sigma_heading": 0.1}]}', "missing [2]"),
     ],
 )
 def test_bad_input_gets_a_clear_error(tmp_path, content, message):

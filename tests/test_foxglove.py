@@ -54,7 +54,8 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     # desired = configuration 2 of the trajectory, red, labelled
     desired = out[1][1]["entities"]
     assert [e["id"] for e in desired] == ["desired/0", "desired/1", "desired/2"]
-    assert [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired] == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
+    centres = [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired]
+    assert centres == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
     assert desired[0]["spheres"][0]["color"]["r"] > 0.5 and [e["texts"][0]["text"] for e in desired] == ["0", "1", "2"]
     # step 0: no plan, nobody marked; step 1: robot 0 moves, 1 and 2 are anchors; step 2: 0 is the anchor
     def anchors(scene):

@@ -47,7 +47,8 @@ def close_pair_case(n: int, gap: float, exact: bool, seed: int):
 
 def document(obs: Observations, prior: SwarmEstimate | None, n: int) -> dict:
     doc = {"robots": list(range(n)),
-           "observations": [[int(a), int(b), float(r), float(p)] for a, b, r, p in zip(obs.observer, obs.observed, obs.range_m, obs.bearing_rad, strict=True)]}
+           "observations": [[int(a), int(b), float(r), float(p)] for a, b, r, p in zip(obs.observer, obs.observed, obs.range_m, obs.bearing_rad,
+                                                                                       strict=True)]}
     if prior is not None:
         doc["prior"] = [{"id": k, "x": p[0], "y": p[1], "heading": p[2], "delta": 0.02, "sigma_heading": 0.035}
                         for k, p in enumerate(prior.poses.tolist())]

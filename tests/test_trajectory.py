@@ -94,7 +94,8 @@ def test_round_trip(tmp_path):
     [
         ({"robots": [0, 1]}, "'robots', 'initial_poses' and 'configurations'"),
         ({"robots": [0, 1], "initial_poses": [[0, 0, 0]], "configurations": [[[0, 0], [0.1, 0]]]}, "initial_poses must be 2 rows"),
-        ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [None, 0]]]}, "configuration 1 holds NaN/inf for robots [1]"),
+        ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [None, 0]]]},
+         "configuration 1 holds NaN/inf for robots [1]"),
         ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": []}, "non-empty"),
         ({"robots": [0, 0], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [0, 1]]]}, "duplicate robot ids"),
     ],

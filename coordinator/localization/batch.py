@@ -164,7 +164,8 @@ def localize_batch(
     poses, cov = dr_poses.copy(), dr_cov.copy()
     method = batched_method(localizer)
     if method is None:
-        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
+                            bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
     solve = _localize_paper if method == "paper" else _localize_joint

@@ -69,7 +69,8 @@ def _schema(title: str, description: str, properties: dict[str, dict[str, Any]],
 _TRUTH_FIELDS = ("true_x", "true_y", "true_heading", "localization_m", "dx", "dy", "dheading", "following_m")
 _STEP = _number("global step of the run (0 = initial localization)", "integer")
 SCHEMAS: dict[str, dict[str, Any]] = {
-    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate", "one robot after a step: estimate, uncertainty, and truth and errors when known (SI units)", {
+    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate",
+                                      "one robot after a step: estimate, uncertainty, and truth and errors when known (SI units)", {
         "step": _STEP, "robot": _number("robot id", "integer"),
         "config": _number("configuration the step heads for (1-based, 0 unknown)", "integer"),
         "x": _number("estimated x (m)"), "y": _number("estimated y (m)"), "heading": _number("estimated heading (rad)"),
