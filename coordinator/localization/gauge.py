@@ -83,7 +83,7 @@ def constrained_covariance(
     # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
     u = np.hstack([sn, proj.T])
     v = np.vstack([-proj, (basis.T @ sn) @ proj - sn.T])
-    info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # type: ignore[union-attr]  # one fresh copy
+    info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # type: ignore[union-attr]  # issparse: a sparse matrix; one fresh copy
     info += u @ v
     return inverse(info)
 
