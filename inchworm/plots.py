@@ -63,7 +63,8 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
     """Fig. 13/14/16: desired (red), estimated (green) and true (blue) configurations of ``run``.
 
     Hollow circles: earlier configurations; filled circles: the last one; black rings: the
-    anchors of each configuration's first step (on the estimated positions); x: the start estimate.
+    anchors of each configuration's first step, where they stood (the estimate at the start of
+    that configuration); x: the start estimate.
     """
     from matplotlib.lines import Line2D  # noqa: PLC0415
 
@@ -80,10 +81,11 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
         ax.scatter(x, y, s=22, facecolors="none", edgecolors=color, linewidths=0.8)
         x, y = configs[-1][:, :2].T
         ax.scatter(x, y, s=40, color=color)
-    for c in run.configs:
-        anchors = np.isin(c.estimate.ids, c.anchor_ids(0))
-        x, y = c.estimate.positions[anchors].T
-        ax.scatter(x, y, s=90, facecolors="none", edgecolors="black", linewidths=0.6)
+    for k, c in enumerate(run.configs):  # where the anchors stood: the estimate at the start of their configuration
+        before = run.configs[k - 1].estimate if k else run.initial_estimate
+        anchors = np.isin(before.ids, c.anchor_ids(0))
+        x, y = before.positions[anchors].T
+        ax.scatter(x, y, s=90, facecolors="none", edgecolors="black", linewidths=0.8)
     x, y = run.initial_estimate.positions.T
     ax.scatter(x, y, s=30, marker="x", color="gray")
     dot: dict[str, Any] = dict(marker="o", ls="none")
