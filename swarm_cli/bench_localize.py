@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from swarm_cli.entry import library_doc
-from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_json
+from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +32,4 @@ def run(args: argparse.Namespace) -> int:
     options = LocalizeBenchOptions(tuple(parse_list(args.sizes, "--sizes", int, 2)), args.trials, args.repeats, args.seed,
                                    not args.no_gtsam, model_config(args))
     result = bench_localize(options, lambda text: print(text, file=sys.stderr, flush=True))
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

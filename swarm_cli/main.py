@@ -12,6 +12,7 @@ import sys
 
 from swarm_cli.entry import Command, add_commands, guarded, leave, limit_blas_threads
 from swarm_cli.options import apply_config, check_limits
+from swarm_cli.version import VersionAction
 
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
@@ -44,6 +45,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The ``swarm`` parser; with ``argv``, only the command it names is fully registered (and imported),
     without it every command is (for tests and tools that walk the parser)."""
     parser = argparse.ArgumentParser(prog="swarm", description="Inchworm swarm runtime: simulation, localization, benchmarks.")
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_commands(sub, COMMANDS, argv or [], full=argv is None)
     return parser

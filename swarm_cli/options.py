@@ -11,7 +11,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -148,7 +147,12 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``).
+
+    Imported here, not with this module: the registry loads numpy and the entry-point metadata, which
+    ``swarm --help`` (it imports this module) need not pay for."""
+    from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names  # noqa: PLC0415
+
     parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
                         help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
@@ -158,8 +162,12 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
-    """``--workers``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study
+    (``files``: what it writes to ``--out``)."""
     add_workers_option(parser)
+    parser.add_argument("--executor", choices=("local", "dask"), default="local",
+                        help="local: a process pool; dask: a Dask LocalCluster (default local)")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster instead (docs/scale-out.md)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
     parser.add_argument("--resume", action="store_true",
                         help="continue the study interrupted in --out: runs already kept there are not run again (same final result)")
@@ -172,16 +180,13 @@ def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any,
     """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
     table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
     from inchworm.progress import Progress  # noqa: PLC0415
-    from inchworm.runner import default_executor  # noqa: PLC0415
+    from inchworm.runner import open_executor  # noqa: PLC0415
 
     options.validate()
     save_config(args)
-    result = study(options, executor=default_executor(args.workers), out=args.out, resume=args.resume, progress=Progress(total, label))
-    print(result.report())
-    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    with open_executor(args.executor, args.workers, args.scheduler) as executor:
+        result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))
+    return print_result(result, args.json, "wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
 
 
 def run_options(args: argparse.Namespace) -> RunOptions:
@@ -203,6 +208,16 @@ def add_json_option(parser: argparse.ArgumentParser) -> None:
 def print_json(obj: object) -> None:
     """The machine-readable result: one JSON object on one line."""
     print(json.dumps(obj, separators=(",", ":")), flush=True)
+
+
+def print_result(result: Any, as_json: bool, *lines: str) -> int:
+    """A result's table, then ``lines``, and with ``as_json`` its JSON object as the last line; exit code 0."""
+    print(result.report())
+    for line in lines:
+        print(line)
+    if as_json:
+        print_json(result.to_json())
+    return 0
 
 
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
@@ -290,7 +305,8 @@ def connection_label(args: argparse.Namespace) -> str:
     return args.hub or f"config {args.zenoh_config}"
 
 
-NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers"})  # how to run, not what: never read from or saved to a study file
+# how to run, not what: never read from or saved to a study file
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers", "executor", "scheduler"})
 
 
 def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from swarm_cli.options import add_simulation_options, add_study_options, print_json, run_options, run_study
+from swarm_cli.options import add_simulation_options, add_study_options, print_result, run_options, run_study
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +32,4 @@ def run(args: argparse.Namespace) -> int:
     if args.from_csv is None:
         return run_study(args, study_selection, options, options.configs, "study selection", "configs")
     result = selection_from_csv(args.from_csv, options)
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)
