@@ -230,6 +230,12 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
     g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
+    g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
+                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
+                        "truths drawn from its covariance (estimate, the default until the pre-registered results); "
+                        "default known (docs/experiments.md)")
+    g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
+                   help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
@@ -246,6 +252,8 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
         method=args.selection,
+        mc_start=args.mc_start,
+        mc_emax=args.mc_emax,
     )
 
 

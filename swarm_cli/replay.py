@@ -58,7 +58,7 @@ MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
     "sensing_range": ("sensing_range_m", float),
     "dropout": ("dropout_prob", float),
 }
-SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection")
+SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
