@@ -47,8 +47,18 @@ import numpy as np
 from coordinator.process import default_recording
 from coordinator.stop import StopSignals, send_estop
 from inchworm.limits import check_swarm_size
-from inchworm.processes import (GRACE_S, CoordinatorKiller, RobotKiller, agents_per_process, default_gateway, radio_faults,
-                                start_agents, start_gateway, stop_all, wait_for_standby)
+from inchworm.processes import (
+    GRACE_S,
+    CoordinatorKiller,
+    RobotKiller,
+    agents_per_process,
+    default_gateway,
+    radio_faults,
+    start_agents,
+    start_gateway,
+    stop_all,
+    wait_for_standby,
+)
 from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import SwarmInputError

@@ -66,7 +66,7 @@ def model_from_flags(model_file: Path | None, flags: Mapping[str, float | None])
     from runtime.models.model_file import load_model  # noqa: PLC0415
 
     base = load_model(model_file) if model_file is not None else ModelConfig()
-    given = {field: to_si(flags[dest]) for dest, (field, to_si, _) in MODEL_FLAGS.items() if flags.get(dest) is not None}
+    given = {field: to_si(value) for dest, (field, to_si, _) in MODEL_FLAGS.items() if (value := flags.get(dest)) is not None}
     return replace(base, **given)
 
 

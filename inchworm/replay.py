@@ -107,7 +107,7 @@ def publish(options: PublishOptions, *, say: Say = _quiet, warn: Say = _quiet) -
              f"{len(messages)} readable messages")
     messages, run = _retarget(messages, options.run_id, options.same_run)  # a new run id unless same_run
     live = read_run(run) if isinstance(run, str) and _valid_run(run) else None
-    own_run = contextlib.nullcontext()
+    own_run: contextlib.AbstractContextManager[Any] = contextlib.nullcontext()
     if options.hub:
         settings, hub, where = ZenohSettings("client", connect=(options.hub,)), options.hub, "--hub"
     elif live is not None:
@@ -126,7 +126,7 @@ def publish(options: PublishOptions, *, say: Say = _quiet, warn: Say = _quiet) -
     with open_session(settings) as session, own_run:  # the hub is open, and findable, before anyone is told of it
         _refuse_live_run(session, run)  # a replay never publishes onto a live run
         say(f"swarm replay: publishing {len(messages)} messages of run {run or '?'} on {hub} ({where})")
-        publishers = {}
+        publishers: dict[str, Any] = {}  # zenoh.Publisher (its stub types matching_status as a bool)
         for topic, *_ in messages:
             if topic not in publishers:
                 publishers[topic] = session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
@@ -206,7 +206,7 @@ def _refuse_live_run(session, run_id: str) -> None:
 
     if run_id == "(none)":
         return
-    robots = sorted(parse_key(key).robot for key in alive_now(session, alive_wildcard(run_id)))
+    robots = sorted(robot for key in alive_now(session, alive_wildcard(run_id)) if (robot := parse_key(key).robot) is not None)
     coords = sorted(live_coordinators(session, run_id))
     if robots or coords:
         who = ", ".join(([f"coordinator epoch {', '.join(map(str, coords))}"] if coords else [])
@@ -266,7 +266,9 @@ def _recorded_selection_values(meta: dict) -> dict:
     stored = meta.get("selection")
     if not isinstance(stored, dict):
         return {}
-    genetic = stored.get("genetic") if isinstance(stored.get("genetic"), dict) else {}
+    genetic = stored.get("genetic")
+    if not isinstance(genetic, dict):
+        genetic = {}
     values = {"w_v": stored.get("w_v"), "samples": stored.get("samples"), "selection": stored.get("method"),
               "population": genetic.get("population"), "generations": genetic.get("generations")}
     return {k: v for k, v in values.items() if v is not None}

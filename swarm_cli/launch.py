@@ -79,9 +79,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
-    p.add_argument("--drop", type=float, default=0.0, metavar="P", help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
-    p.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
+    p.add_argument("--drop", type=float, default=0.0, metavar="P",
+                   help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
+    p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
+                   help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S",
+                   help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
     add_record_options(p)
     add_simulation_options(p)
 

@@ -16,8 +16,8 @@ import sys
 import threading
 from pathlib import Path
 
-from runtime.wire.keys import run_wildcard, validate_run
 from runtime.recording.mcap_log import counts_text, record_run, run_metadata
+from runtime.wire.keys import run_wildcard, validate_run
 from swarm_cli.entry import portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 

@@ -31,7 +31,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--check", action="store_true", help="re-run localization and anchor selection, compare bit for bit")
     g = p.add_argument_group("--publish")
     g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live on this host, else a loopback hub of its own, printed)")
+    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live "
+                                               "on this host, else a loopback hub of its own, printed)")
     g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
     target = g.add_mutually_exclusive_group()
     target.add_argument("--run", dest="run_id", default=None, help="run id to publish under (default <run>-replay-<hex>)")
@@ -40,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
     c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
     c.add_argument("--what-if", action="store_true",
-                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report where the results part")
+                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report "
+                        "where the results part")
     add_localizer_option(p)
     add_selection_options(p)
     add_model_options(p)

@@ -8,9 +8,9 @@ import sys
 from pathlib import Path
 
 from coordinator.strategies import HALF_ANCHORED, METHODS
+from inchworm.limits import check_swarm_size
 from inchworm.progress import Progress
 from runtime.errors import SwarmInputError
-from inchworm.limits import check_swarm_size
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 
 LARGE = 1000  # robots: say what is being made before the first progress line
@@ -63,5 +63,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
-                    "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows, "fallback_steps": len(fallback_steps(result)), "plots": plots})
+                    "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows,
+                    "fallback_steps": len(fallback_steps(result)), "plots": plots})
     return 0
