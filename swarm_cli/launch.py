@@ -1,4 +1,4 @@
-"""``swarm launch`` and ``swarm demo``: a whole distributed run on this host (``inchworm.launch``: what it
+"""``swarm launch`` and ``swarm demo``: a whole distributed run on this host (``inchworm.launcher``: what it
 starts, checks and stops, and the fault injection of ``--kill-robot ID@STEP``, ``--standby`` and
 ``--kill-coordinator STEP``). While it runs, ``swarm estop --run RUN`` and ``swarm record --run RUN``
 find its hub (its run file); a run id already live on this host is refused. Exit status: the
@@ -120,7 +120,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from inchworm.launch import LaunchOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
+    from inchworm.launcher import LaunchOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
 
     given = lambda names: {name: getattr(args, name) for name in names if getattr(args, name) is not None}  # noqa: E731
     options = LaunchOptions(

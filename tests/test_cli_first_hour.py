@@ -102,10 +102,10 @@ def no_process(monkeypatch):
     def refuse(*_a, **_k):
         raise AssertionError("a process was started before the input was checked")
 
-    import inchworm.launch
+    import inchworm.launcher
 
-    monkeypatch.setattr(inchworm.launch.subprocess, "Popen", refuse)
-    monkeypatch.setattr(inchworm.launch, "open_session", refuse)
+    monkeypatch.setattr(inchworm.launcher.subprocess, "Popen", refuse)
+    monkeypatch.setattr(inchworm.launcher, "open_session", refuse)
 
 
 def test_launch_checks_everything_before_starting_a_process(tmp_path, no_process, capsys, monkeypatch) -> None:
