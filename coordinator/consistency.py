@@ -23,7 +23,7 @@ from coordinator.executor import RunResult
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import simulate
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 
 LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods
@@ -99,7 +99,7 @@ def consistency_study(
     (same motion and sensing noise streams for every localizer and method).
     """
     trajs = [
-        random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
+        random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
         for t in range(trajectories)
     ]
     rows, done = [], 0

@@ -20,6 +20,12 @@ made again without it. ``on_lost="abort"``, or fewer than ``min_robots`` left, e
 run with ``RunAborted`` instead. Metrics (e_l, following error, P_f) are over the robots
 that finished.
 
+Bodies (docs/bodies.md): with ``cfg.robot_radius_m`` > 0 every plan is checked before its
+first command under the nominal motion of its steps; a step whose movers would come too
+close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
+so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``).
+``RunResult.contacts`` finds where the true motion brought bodies into contact.
+
 An optional ``ExecutorListener`` is told what the executor decided, without changing
 what it does: ``on_estimate(0, initial)`` at the start, ``on_plan(c, first_step, plan,
 selection)`` when configuration ``c`` (0-based) is planned, before its first command,
@@ -39,11 +45,13 @@ from typing import Protocol
 import numpy as np
 
 from coordinator.backend import SwarmBackend
+from coordinator.clearance import Regrouping, clear_plan
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
+from runtime.models.bodies import step_contacts
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.models.metrics import localization_error, trajectory_following_performance
@@ -61,6 +69,18 @@ class StepRecord:
     estimate: SwarmEstimate
     truth: np.ndarray | None  # (n, 3)
     fallback: str | None  # why dead reckoning was kept, if it was
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """Robots ``a`` < ``b`` touched during global step ``step`` (from 1) of configuration ``config`` (0-based):
+    their true centres came ``distance`` m apart, less than two radii."""
+
+    step: int
+    config: int
+    a: int
+    b: int
+    distance: float
 
 
 @dataclass(frozen=True)
@@ -89,6 +109,7 @@ class ConfigRecord:
     estimate: SwarmEstimate
     truth: np.ndarray | None
     planned_ids: np.ndarray | None = None  # the robots the plan's indices refer to (None: ``estimate.ids``; differs after a loss)
+    regrouped: Regrouping | None = None  # how the body constraint split the strategy's plan (None: it was clear)
 
     def anchor_ids(self, step: int = 0) -> np.ndarray:
         """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
@@ -157,6 +178,26 @@ class RunResult:
     def steps_per_config(self) -> np.ndarray:
         return np.array([c.plan.n_steps for c in self.configs])
 
+    def steps_added(self) -> int:
+        """Steps the body constraint added to the strategies' plans (Eq. 6-7 count the steps taken)."""
+        return int(sum(c.plan.n_steps - c.regrouped.planned_steps for c in self.configs if c.regrouped is not None))
+
+    def contacts(self, radius: float) -> list[ContactEvent]:
+        """Contacts of bodies of ``radius`` (m) in the true motion of every step (``runtime.models.bodies.step_contacts``):
+        each pair of robots whose bodies overlapped at some time of a step, once per step. [] without ground truth."""
+        if not self.has_truth or radius <= 0:
+            return []
+        ids = self.trajectory.ids
+        before, out = self.initial_truth, []
+        for number, rec in enumerate(self.steps, start=1):
+            if rec.truth is None:
+                return out
+            moving = np.isin(ids, rec.estimate.ids[rec.moving])
+            for c in step_contacts(before, rec.truth, moving, radius):
+                out.append(ContactEvent(number, rec.config, int(ids[c.a]), int(ids[c.b]), c.distance))
+            before = rec.truth
+        return out
+
 
 class ExecutorListener(Protocol):
     """Observer of a run (see the module doc); called on the executor's thread."""
@@ -222,6 +263,7 @@ class InchwormExecutor:
                 estimate, keep = self._drop_lost(result, c, estimate)
                 if keep is None:
                     break
+            plan, regrouped = clear_plan(self.cfg, plan, estimate, desired)
             if self.listener is not None:
                 self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
             planned_ids = estimate.ids
@@ -230,7 +272,7 @@ class InchwormExecutor:
                 moving = np.isin(estimate.ids, planned_ids[group])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
-            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
+            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids, regrouped))
             if self.progress:
                 self.progress(c + 1, total)
         return result

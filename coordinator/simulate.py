@@ -17,6 +17,7 @@ from coordinator.executor import InchwormExecutor, RunResult
 from coordinator.localization import make_localizer
 from coordinator.selection.selector import SelectionConfig
 from coordinator.strategies import make_strategy
+from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import SwarmEstimate
@@ -47,6 +48,7 @@ def simulate(
 ) -> RunResult:
     """Run ``method`` along ``traj`` in the in-process simulator."""
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed)
     strategy = make_strategy(method, traj.n, cfg, localizer, selection, seed)
     executor = InchwormExecutor(backend, make_localizer(localizer, cfg), strategy, cfg, progress)

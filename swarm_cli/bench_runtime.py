@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("no-anchors", "ref57")
@@ -154,7 +154,7 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
     strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
-    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
+    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     per_process = agents_per_process(n, getattr(args, "agents_per_process", None))
     run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
     port = free_tcp_port()

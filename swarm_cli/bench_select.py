@@ -19,7 +19,7 @@ import numpy as np
 
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, parse_list, print_json, selection_config
 
 
@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
         times, chosen, evaluations = [], [], []
         for r in range(args.repeats):
             print(f"n={n} selection {r + 1}/{args.repeats}", file=sys.stderr, flush=True)
-            traj = random_trajectory(n, 1, np.random.default_rng([args.seed, n, r]), sensing_range=cfg.sensing_range_m)
+            traj = random_trajectory(n, 1, np.random.default_rng([args.seed, n, r]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
             estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
             selector = AnchorSelector(cfg, args.localizer, selection, seed=args.seed + r)
             t0 = time.perf_counter()

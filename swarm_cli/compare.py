@@ -25,7 +25,7 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from swarm_cli.options import SELECTION_METHODS, add_simulation_options, add_workers_option, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
@@ -75,7 +75,7 @@ def run_one(job: tuple) -> dict:
 
     t, method, robots, configs, seed, cfg, localizer, selection = job[:8]
     label = job[8] if len(job) > 8 else method
-    traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
+    traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     cpu = time.process_time()
     result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
     return {

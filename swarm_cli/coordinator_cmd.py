@@ -282,6 +282,7 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
     from swarm_cli.estop import send_estop  # noqa: PLC0415
@@ -290,6 +291,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = model_config(args)
     traj = Trajectory.load(args.trajectory)
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     if not 2 <= args.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     selection = selection_config(args)

@@ -58,7 +58,8 @@ from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.wire.keys import estop_key, robot_wildcard, validate_run
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.models.bodies import validate_passable
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.agent import format_ids
 from swarm_cli.coordinator_cmd import add_record_options, default_recording
@@ -69,7 +70,7 @@ from swarm_cli.options import add_simulation_options, model_config, nonnegative,
 
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
@@ -333,6 +334,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     except SwarmInputError as exc:
         raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     make_strategy(args.method, traj.n, cfg, args.localizer, selection_config(args), args.seed)
     if not args.no_record:
         record = Path(args.record or default_recording(run_id))
@@ -365,7 +367,7 @@ def run(args: argparse.Namespace) -> int:
         if args.robots < 2 or args.configs < 1:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
         seed = 0 if args.command == "demo" else args.seed
-        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
+        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     if not 2 <= args.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, args.agents_per_process)

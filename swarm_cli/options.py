@@ -80,6 +80,9 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
                    help="bearing noise std in degrees (default 2)")
     g.add_argument("--sensing-range", type=positive, default=d.sensing_range_m, help="sensing range in m (default 0.5)")
     g.add_argument("--dropout", type=probability, default=d.dropout_prob, help="probability an observation is lost, in [0, 1) (default 0)")
+    g.add_argument("--robot-radius", type=nonnegative, default=d.robot_radius_m,
+                   help="robot body radius in m: plans keep bodies apart, runs count contacts; 0 = the paper's point robots "
+                        f"(default {d.robot_radius_m:g}, docs/bodies.md)")
 
 
 def model_config(args: argparse.Namespace) -> ModelConfig:
@@ -91,6 +94,7 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
         bearing_sigma_rad=math.radians(args.bearing_sigma_deg),
         sensing_range_m=args.sensing_range,
         dropout_prob=args.dropout,
+        robot_radius_m=args.robot_radius,
     )
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.strategies import METHODS
-from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 from swarm_cli.progress import Progress
 
@@ -33,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
     else:
-        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=cfg.sensing_range_m)
+        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     progress = Progress(len(traj.configurations), f"sim {args.method}")
     result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection_config(args), seed=args.seed, progress=progress)
     plots = write_plots(result, args.out)

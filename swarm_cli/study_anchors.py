@@ -33,7 +33,7 @@ import numpy as np
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_workers_option, model_config, print_json
 from swarm_cli.progress import Progress
 
@@ -110,7 +110,7 @@ def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndar
     from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
     rng = np.random.default_rng([job.seed, job.experiment])
     step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
-    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step)
+    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step, **body_spacing(job.cfg))
     start, desired = traj.initial_poses, traj.configurations[0]
     estimate = SwarmEstimate.isotropic(traj.ids, start, START_DELTA_M, math.radians(START_HEADING_DEG))
     mc = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))

@@ -23,6 +23,12 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    e_l(0) on the same set give P_l. So the search never returns a plan that is worse
    than its seed on those samples, and P_s is not biased by the search.
 
+Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
+every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
+heuristic seeds, the genetic search and the outer loop alike. When no plan found is clear but
+some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
+and the executor splits its conflicting steps.
+
 ``method = "crlb"`` ranks plans by the Cramer-Rao prediction of ``crlb_rank`` instead
 (deterministic, no sampling, so no race and no final check).
 """
@@ -41,6 +47,7 @@ from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import best_distinct, final_check, race
+from runtime.models.bodies import BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
@@ -167,9 +174,13 @@ class AnchorSelector:
             return self._select_large(estimate, desired, rng)
         samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
+        bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
+
+        def connected(plan: Plan) -> bool:
+            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
         def feasible(plan: Plan) -> bool:
-            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
+            return connected(plan) and bodies.is_clear(plan.groups)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans)
@@ -234,6 +245,9 @@ class AnchorSelector:
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
+            crowded = [seeds[k] for k in sorted(seeds, key=lambda k: seeds[k].n_steps) if connected(seeds[k])]
+            if crowded:  # connected but every plan found brings bodies too close: the fewest steps, split by the executor
+                return Selection(crowded[0], ordered, evaluations)
             raise NoFeasiblePlanError(
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
@@ -269,7 +283,9 @@ class AnchorSelector:
 
         all_move = Plan.equal(np.arange(n), 0)
         e_max = evaluate(all_move)
+        bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
         scores: list[CountScore] = []
+        crowded: list[Plan] = []  # connected plans that bring bodies too close, by increasing n_s
         bar = -np.inf
         for n_a in self.candidate_counts(n):
             p_v = speed_performance(n, n_a)
@@ -279,11 +295,17 @@ class AnchorSelector:
             if not plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m):
                 scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
                 continue
+            if not bodies.is_clear(plan.groups):
+                crowded.append(plan)
+                scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
+                continue
             e_l = e_max if n_a == 0 else evaluate(plan)
             p_l = e_l / e_max if e_max > 0 else 0.0
             scores.append(CountScore(n_a, e_l, p_v, p_l, sel.w_v * p_v - sel.w_l * p_l, plan, e_l))
             bar = max(bar, scores[-1].p_s)
         best = max((s for s in scores if s.plan is not None), key=lambda s: s.p_s, default=None)
+        if best is None and crowded:
+            return Selection(crowded[0], scores, len(scores))
         if best is None:
             raise NoFeasiblePlanError(
                 f"no anchor plan with at most {sel.max_steps} steps keeps every robot within sensing range "
