@@ -29,7 +29,8 @@ so every strategy runs collision-free and the record says so (``ConfigRecord.reg
 An optional ``ExecutorListener`` is told what the executor decided, without changing
 what it does: ``on_estimate(0, initial)`` at the start, ``on_plan(c, first_step, plan,
 selection)`` when configuration ``c`` (0-based) is planned, before its first command,
-and ``on_estimate(step, estimate)`` after every step. Steps are numbered globally over
+``on_estimate(step, estimate)`` after every step and, with ground truth and bodies,
+``on_contacts(contacts)`` after a step in which true bodies touched. Steps are numbered globally over
 the run, motion steps from 1 (docs/protocol.md), so the first step of configuration c
 is 1 + the steps of all earlier configurations. A distributed backend uses it to
 publish plans and estimates and to stamp its commands with their configuration; the
@@ -74,13 +75,14 @@ class StepRecord:
 @dataclass(frozen=True)
 class ContactEvent:
     """Robots ``a`` < ``b`` touched during global step ``step`` (from 1) of configuration ``config`` (0-based):
-    their true centres came ``distance`` m apart, less than two radii."""
+    their true centres came ``distance`` m apart, less than two radii, ``point`` (x, y) m midway between them."""
 
     step: int
     config: int
     a: int
     b: int
     distance: float
+    point: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -187,16 +189,20 @@ class RunResult:
         each pair of robots whose bodies overlapped at some time of a step, once per step. [] without ground truth."""
         if not self.has_truth or radius <= 0:
             return []
-        ids = self.trajectory.ids
         before, out = self.initial_truth, []
         for number, rec in enumerate(self.steps, start=1):
             if rec.truth is None:
                 return out
-            moving = np.isin(ids, rec.estimate.ids[rec.moving])
-            for c in step_contacts(before, rec.truth, moving, radius):
-                out.append(ContactEvent(number, rec.config, int(ids[c.a]), int(ids[c.b]), c.distance))
+            out += contact_events(number, rec, before, self.trajectory.ids, radius)
             before = rec.truth
         return out
+
+
+def contact_events(number: int, rec: StepRecord, before: np.ndarray, ids: np.ndarray, radius: float) -> list[ContactEvent]:
+    """The contacts of global step ``number`` (record ``rec``) from the true poses ``before`` it (rows: ``ids``)."""
+    moving = np.isin(ids, rec.estimate.ids[rec.moving])
+    return [ContactEvent(number, rec.config, int(ids[c.a]), int(ids[c.b]), c.distance, c.point)
+            for c in step_contacts(before, rec.truth, moving, radius)]
 
 
 class ExecutorListener(Protocol):
@@ -208,6 +214,10 @@ class ExecutorListener(Protocol):
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
         """The estimate after global step ``step`` (0: the initial estimate)."""
+        ...
+
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
+        """The robots' true bodies touched during the step just made (ground truth and a body radius only; not called otherwise)."""
         ...
 
 
@@ -316,9 +326,14 @@ class InchwormExecutor:
         if excluded:
             reasons = sorted(set(excluded.values()))
             fallback = f"dead reckoning kept for robots {sorted(excluded)} ({', '.join(reasons)})"
+        before = result.steps[-1].truth if result.steps else result.initial_truth
         result.steps.append(StepRecord(config, step, cmd.moving, cmd.commands, new, self.backend.true_poses(), fallback))
         if self.listener is not None:
             self.listener.on_estimate(len(result.steps), new)
+            if self.cfg.robot_radius_m > 0 and before is not None and result.steps[-1].truth is not None:
+                contacts = contact_events(len(result.steps), result.steps[-1], before, result.trajectory.ids, self.cfg.robot_radius_m)
+                if contacts:
+                    self.listener.on_contacts(contacts)
         return new
 
 

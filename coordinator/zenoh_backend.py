@@ -58,6 +58,7 @@ from runtime.wire.messages import (
     ObserveRequest,
     PlanMessage,
     RobotEvent,
+    ContactMessage,
     Status,
     TruthMessage,
     TruthSetMessage,
@@ -99,8 +100,10 @@ def _robots(ids: list[int]) -> str:
 class ZenohSwarmBackend:
     """``SwarmBackend`` of the agents of run ``run`` with robots ``ids``, over ``session``."""
 
-    def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True) -> None:
+    def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
+                 robot_radius_m: float = 0.0) -> None:
         self.session = session
+        self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
         self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
         self._id_list = self.ids.tolist()
@@ -374,6 +377,13 @@ class ZenohSwarmBackend:
         msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
         publish(self.session, message_key(msg), encode(msg))
         self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
+
+    def on_contacts(self, contacts) -> None:
+        """Publish each contact of the robots' true bodies (``ContactEvent``) as ``ContactMessage``."""
+        for c in contacts:
+            msg = ContactMessage(run=self.run, step=c.step, config=c.config + 1, a=c.a, b=c.b, distance_m=c.distance,
+                                 radius_m=self.radius, point=c.point)
+            publish(self.session, message_key(msg), encode(msg))
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self._id_set <= self._truth.keys():

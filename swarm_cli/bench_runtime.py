@@ -80,6 +80,9 @@ class StepTimer:
         self.inner.on_plan(config_index, first_step, plan, selection)
         self.mark = time.perf_counter()
 
+    def on_contacts(self, contacts) -> None:
+        self.inner.on_contacts(contacts)
+
     def on_estimate(self, step, estimate) -> None:
         self.inner.on_estimate(step, estimate)
         now = time.perf_counter()
@@ -175,7 +178,8 @@ def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
             first_agent = len(procs)
             start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
             with open_session(member) as session:
-                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
+                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
+                                            robot_radius_m=cfg.robot_radius_m)
                 try:
                     backend.wait_for_agents()
                     _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")

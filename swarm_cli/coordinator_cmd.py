@@ -216,11 +216,13 @@ def recording_line(rec: dict) -> str:
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
 
 
-def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
+def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None,
+                  radius: float = 0.0) -> None:
     """The per-configuration table of ``swarm sim``, then the run's outcome."""
-    from swarm_cli.summary import print_config_table  # noqa: PLC0415
+    from swarm_cli.summary import print_config_table, print_contacts  # noqa: PLC0415
 
     rows, fallbacks = print_config_table(result)
+    bodies = print_contacts(result, radius)
     for lost in result.lost:
         print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
     pf = result.pf() if result.has_truth else None
@@ -234,7 +236,8 @@ def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] 
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
                     "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
                     "finished_robots": len(result.finished_ids),
-                    "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None})
+                    "fallback_steps": len(fallbacks), "plots": plots or [], "recording": recording["path"] if recording else None,
+                    **bodies})
 
 
 class Live:
@@ -263,7 +266,7 @@ def live_view(args: argparse.Namespace, traj: Trajectory, session) -> Iterator[L
     from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with --foxglove
     from runtime.wire.transport import subscribe  # noqa: PLC0415
 
-    live = Live(LiveView(args.foxglove, trajectory=traj.to_json()))
+    live = Live(LiveView(args.foxglove, trajectory=traj.to_json(), robot_radius=model_config(args).robot_radius_m))
     subscriber = subscribe(session, run_wildcard(args.run_id), live.view.handle)
     print(f"coordinator: live view for the Foxglove app at {live.view.url}", file=sys.stderr, flush=True)
     try:
@@ -312,7 +315,7 @@ def run(args: argparse.Namespace) -> int:
             if recording is not None:
                 recording.wait_subscribed(session)
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
-                                        simulated=not args.no_truth)
+                                        simulated=not args.no_truth, robot_radius_m=cfg.robot_radius_m)
             ended: BaseException | None = None
             try:
                 backend.wait_for_agents()
@@ -344,7 +347,7 @@ def run(args: argparse.Namespace) -> int:
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
     plots = write_plots(result, args.out) if args.out and result.configs else None
-    print_summary(result, args, plots, recorded)
+    print_summary(result, args, plots, recorded, cfg.robot_radius_m)
     live.linger(args.linger)
     return 0
 

@@ -27,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from coordinator.simulate import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
-    from swarm_cli.summary import print_config_table, write_csv, write_plots  # noqa: PLC0415
+    from swarm_cli.summary import print_config_table, print_contacts, write_csv, write_plots  # noqa: PLC0415
 
     cfg = model_config(args)
     if args.trajectory:
@@ -38,9 +38,10 @@ def run(args: argparse.Namespace) -> int:
     result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection_config(args), seed=args.seed, progress=progress)
     plots = write_plots(result, args.out)
     rows, fallbacks = print_config_table(result)
+    bodies = print_contacts(result, cfg.robot_radius_m)
     write_csv(args.out / "configs.csv", rows)
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
-                    "configs": rows, "fallback_steps": len(fallbacks), "plots": plots})
+                    "configs": rows, "fallback_steps": len(fallbacks), "plots": plots, **bodies})
     return 0

@@ -22,10 +22,27 @@ def print_config_table(result: RunResult) -> tuple[list[dict], list[StepRecord]]
                          "following_error": float(follow[c]), "travelled": float(travelled[c])})
         else:
             print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    for c, rec in enumerate(result.configs):
+        if rec.regrouped is not None:
+            print(f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}")
     fallbacks = [s for s in result.steps if s.fallback]
     for s in fallbacks:
         print(f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})")
     return rows, fallbacks
+
+
+def print_contacts(result: RunResult, radius: float) -> dict:
+    """Print the contacts of the robots' true bodies (radius ``radius`` m) and return the additive ``--json`` keys:
+    ``robot_radius_m``, ``contacts`` (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``) and
+    ``steps_added`` (by the body constraint)."""
+    contacts = result.contacts(radius)
+    if radius > 0 and result.has_truth:
+        closest = f", closest {min(c.distance for c in contacts) * 1e3:.1f} mm" if contacts else ""
+        print(f"contacts (bodies of radius {radius:g} m): {len(contacts)}{closest}; steps added for bodies: {result.steps_added()}")
+        for c in contacts:
+            print(f"  step {c.step} (config {c.config + 1}): robots {c.a} and {c.b}, centres {c.distance * 1e3:.1f} mm apart")
+    return {"robot_radius_m": radius, "steps_added": result.steps_added(),
+            "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance} for c in contacts]}
 
 
 def write_plots(result: RunResult, out: Path) -> list[str]:

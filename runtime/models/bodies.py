@@ -37,22 +37,28 @@ SIGMA_LEVELS = (2.0, 1.0, 0.0)  # margins tried in turn when no order clears a c
 TOLERANCE_M = 1e-9  # closest approaches within this of the requirement are not conflicts (rounding)
 
 
+def closest_time(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The s in [0, 1] minimising |offset + s velocity| for (..., 2) arrays (0 when ``velocity`` is 0)."""
+    vv = np.einsum("...k,...k->...", velocity, velocity)
+    return np.clip(-np.einsum("...k,...k->...", offset, velocity) / np.where(vv > 0, vv, 1.0), 0.0, 1.0)
+
+
 def closest_approach(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     """min over s in [0, 1] of |offset + s velocity| for (..., 2) arrays (m): the closest approach
     of two robots whose relative position moves linearly from ``offset`` to ``offset + velocity``."""
-    vv = np.einsum("...k,...k->...", velocity, velocity)
-    s = np.clip(-np.einsum("...k,...k->...", offset, velocity) / np.where(vv > 0, vv, 1.0), 0.0, 1.0)
-    rel = offset + s[..., None] * velocity
+    rel = offset + closest_time(offset, velocity)[..., None] * velocity
     return np.hypot(rel[..., 0], rel[..., 1])
 
 
 @dataclass(frozen=True)
 class Contact:
-    """Two robots (indices into the step's arrays) whose bodies touched: centres ``distance`` m apart at the closest."""
+    """Two robots (indices a < b into the step's arrays) whose bodies touched: centres ``distance`` m apart at
+    the closest, ``point`` (x, y) m midway between them then."""
 
     a: int
     b: int
     distance: float
+    point: tuple[float, float]
 
 
 def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, radius: float) -> list[Contact]:
@@ -70,7 +76,11 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
     d[np.arange(len(movers)), movers] = np.inf
     once = ~np.asarray(moving, bool)[None] | (np.arange(len(start))[None] > movers[:, None])  # each mover pair once
     rows, cols = np.nonzero(once & (d < 2.0 * radius))
-    out = [Contact(int(min(movers[r], c)), int(max(movers[r], c)), float(d[r, c])) for r, c in zip(rows, cols)]
+    mover, other = movers[rows], cols
+    s = closest_time(start[mover] - start[other], disp[mover] - disp[other])[:, None]
+    mid = (start[mover] + start[other] + s * (disp[mover] + disp[other])) / 2.0
+    out = [Contact(int(min(i, j)), int(max(i, j)), float(d[r, c]), (float(m[0]), float(m[1])))
+           for i, j, r, c, m in zip(mover, other, rows, cols, mid)]
     return sorted(out, key=lambda c: (c.a, c.b))
 
 

@@ -58,6 +58,7 @@ from runtime.recording.foxglove_scene import (
     DERIVED_TYPES,
     SCENE_UPDATE_SCHEMA_BYTES,
     SceneDeriver,
+    metadata_radius,
 )
 from runtime.recording.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
 from runtime.recording.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
@@ -151,7 +152,7 @@ class McapRecorder:
         self.flush_s = float(flush_s)
         self.foxglove = bool(foxglove)
         trajectory = (metadata or {}).get("trajectory")
-        self._deriver = SceneDeriver(trajectory) if self.foxglove else None
+        self._deriver = SceneDeriver(trajectory, metadata_radius(metadata)) if self.foxglove else None
         self._plotter = PlotDeriver(trajectory) if self.foxglove else None
         self._derived_types: dict[str, bool] = {}  # key -> whether its type feeds the derived channels
         self._derived_channels: dict[str, int] = {}
