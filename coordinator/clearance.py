@@ -30,7 +30,8 @@ class Regrouping:
     sigmas: float = CLEARANCE_SIGMAS  # the margin kept, in standard deviations (lower when no order kept the full one)
 
     def describe(self, steps: int) -> str:
-        text = f"steps split for bodies: {self.planned_steps} -> {steps}"
+        text = (f"steps split for bodies: {self.planned_steps} -> {steps}" if steps != self.planned_steps
+                else f"steps regrouped for bodies (still {steps})")
         if self.sigmas < CLEARANCE_SIGMAS:
             text += f" (margin lowered to {self.sigmas:g} sigma)"
         if self.unclear:
