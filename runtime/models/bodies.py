@@ -15,9 +15,10 @@ length L has standard deviation
 sigma_i = sqrt(lambda_i + L^2 max(turn_sigma^2 + heading_var_i, drive_sigma_frac^2)),
 lambda_i the largest eigenvalue of its estimated position covariance and heading_var_i its
 estimated heading variance (a still robot: L = 0); the margin of a pair is
-``CLEARANCE_SIGMAS`` x sqrt(sigma_i^2 + sigma_j^2). Where the desired configurations
-themselves put a pair closer than that (at the start or at the end of the change), no plan
-can do better and the pair's requirement is that distance (never below 2R).
+``CLEARANCE_SIGMAS`` x sqrt(sigma_i^2 + sigma_j^2). Where the configurations themselves put
+a pair closer than 2R + margin (at the start or at the end of the change), no plan can do
+better: the pair may then come no more than one sigma closer than that distance during a
+step (never below 2R), so slight bends of nearly parallel paths pass and crossings do not.
 """
 
 from __future__ import annotations
@@ -127,11 +128,12 @@ class BodyCheck:
         closest = closest_approach(before[movers, None] - before[None], disp[movers, None] - disp[None])
         length2 = np.einsum("nk,nk->n", disp, disp)
         var = self.position_var + length2 * self.spread_rate
-        margin = self.sigmas * np.sqrt(var[movers, None] + var[None])
+        sigma = np.sqrt(var[movers, None] + var[None])
         start = np.hypot(*(self.current[movers, None] - self.current[None]).transpose(2, 0, 1))
         end = np.hypot(*(self.desired[movers, None] - self.desired[None]).transpose(2, 0, 1))
         two_r = 2.0 * self.radius
-        required = np.maximum(two_r, np.minimum(two_r + margin, np.minimum(start, end)))
+        floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
+        required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
         closest[np.arange(len(movers)), movers] = np.inf
         return closest, required
 
