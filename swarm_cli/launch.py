@@ -260,15 +260,17 @@ ROBOTS_PER_PORT = 5
 GATEWAY_READY_S = 20.0
 
 
-def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
+def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float = Limits().robot_radius_m) -> GatewayConfig:
     """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
-    trajectory's bounding box grown by ``margin_m``; devices are filled in by the emulator."""
+    trajectory's bounding box grown by ``margin_m``; the robots' body radius ``robot_radius`` (m);
+    devices are filled in by the emulator."""
     ids = [int(i) for i in traj.ids]
     ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
                   for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
     xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
     lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
-    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
+    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1]),
+                                              robot_radius_m=robot_radius))
 
 
 def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen]) -> Path:
@@ -350,7 +352,10 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
             except OSError as exc:
                 raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
     if args.driver == "gateway" and args.gateway_config:
-        GatewayConfig.load(args.gateway_config)
+        radius = GatewayConfig.load(args.gateway_config).limits.robot_radius_m
+        if radius != cfg.robot_radius_m:
+            raise SwarmInputError(f"--robot-radius {cfg.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
+                                  f"in {args.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -388,7 +393,7 @@ def run(args: argparse.Namespace) -> int:
             model = _forward(args, MODEL_OPTIONS)
             agent_extra = list(model)
             if args.driver == "gateway":
-                gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj)
+                gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj, robot_radius=cfg.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")

@@ -74,3 +74,15 @@ def test_bench_collisions_json_contract():
     assert by[("one-at-a-time", True)]["steps_per_config"] == by[("one-at-a-time", False)]["steps_per_config"] == 10
     bad = swarm("bench", "collisions", "--robot-radius", "0")
     assert bad.returncode == 2 and "--robot-radius must be > 0" in bad.stderr
+
+
+def test_a_gateway_whose_robots_have_other_bodies_is_refused_before_anything_starts(tmp_path):
+    config = tmp_path / "gw.json"
+    config.write_text(json.dumps({"ports": [{"name": "radio0", "device": "/dev/null", "robots": list(range(10))}],
+                                  "limits": {"robot_radius_m": 0.02}}))
+    out = swarm("demo", "--driver", "gateway", "--gateway-config", str(config), "--no-record", "--out", str(tmp_path))
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "--robot-radius 0.011 differs from the robots' body radius 0.02 m" in out.stderr
+    config.write_text(json.dumps({"ports": [{"name": "radio0", "device": "/dev/null", "robots": [0]}], "limits": {"robot_radius_m": -1}}))
+    out = swarm("demo", "--driver", "gateway", "--gateway-config", str(config), "--no-record", "--out", str(tmp_path))
+    assert out.returncode == 2 and "limits.robot_radius_m: must be >= 0, got -1" in out.stderr
