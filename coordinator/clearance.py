@@ -21,13 +21,16 @@ from runtime.models.state import SwarmEstimate
 
 @dataclass(frozen=True)
 class Regrouping:
-    """The strategy's plan had steps whose nominal motion brings bodies too close: it ran in more
-    sub-steps than its ``planned_steps``; ``unclear``: robot ids no order of single moves kept clear
-    (they moved one at a time, in plan order)."""
+    """The strategy's plan (``planned``) had steps whose nominal motion brings bodies too close: it ran
+    regrouped into sub-steps; ``unclear``: robot ids whose sub-steps no order cleared even with the bare 2R."""
 
-    planned_steps: int
+    planned: Plan
     unclear: tuple[int, ...] = ()
     sigmas: float = CLEARANCE_SIGMAS  # the margin kept, in standard deviations (lower when no order kept the full one)
+
+    @property
+    def planned_steps(self) -> int:
+        return self.planned.n_steps
 
     def describe(self, steps: int) -> str:
         text = (f"steps split for bodies: {self.planned_steps} -> {steps}" if steps != self.planned_steps
@@ -47,4 +50,4 @@ def clear_plan(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: n
     if len(out.groups) == plan.n_steps and all(np.array_equal(a, b) for a, b in zip(out.groups, plan.groups)):
         return plan, None
     split = Plan(np.concatenate(out.groups), tuple(len(g) for g in out.groups))
-    return split, Regrouping(plan.n_steps, tuple(int(r) for r in estimate.ids[out.unclear]), out.sigmas)
+    return split, Regrouping(plan, tuple(int(r) for r in estimate.ids[out.unclear]), out.sigmas)

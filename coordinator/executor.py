@@ -175,7 +175,8 @@ class RunResult:
         return float(trajectory_following_performance(truths[-1], self.desired_configurations()[-1], truths))
 
     def anchor_counts(self) -> np.ndarray:
-        return np.array([c.plan.n_anchors for c in self.configs])
+        """n_a of the strategy's plan of each configuration (before any split for bodies: the steps show that)."""
+        return np.array([(c.plan if c.regrouped is None else c.regrouped.planned).n_anchors for c in self.configs])
 
     def steps_per_config(self) -> np.ndarray:
         return np.array([c.plan.n_steps for c in self.configs])

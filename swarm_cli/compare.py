@@ -4,7 +4,8 @@ Each trajectory is run by every method with the same seed, so the robots' noise
 streams are shared and the comparison is paired. P_f (Eq. 24) per run; per method the
 mean, standard deviation and a 97 % confidence interval of the mean (Table II), the
 p-value of the paired t-test against ``ref57``, the mean anchor count and the mean
-number of steps per configuration (speed), and the CPU seconds per run. With
+number of steps per configuration (speed), the CPU seconds per run, and the contacts of the
+robots' true bodies (``--robot-radius``; per 100 configuration changes, docs/bodies.md). With
 ``--selections mc,crlb`` the methods that select anchors online run once per ranking
 (Monte Carlo e_l or the Cramer-Rao prediction) and are reported as ``method/mc`` and
 ``method/crlb``. Runs are spread over the machine's cores.
@@ -78,6 +79,7 @@ def run_one(job: tuple) -> dict:
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     cpu = time.process_time()
     result = simulate(traj, method, cfg, localizer=localizer, selection=selection, seed=seed + t)
+    contacts = result.contacts(cfg.robot_radius_m)
     return {
         "trajectory": t,
         "method": label,
@@ -87,7 +89,20 @@ def run_one(job: tuple) -> dict:
         "steps_mean": float(result.steps_per_config().mean()),
         "e_l_final": float(result.localization_errors()[-1]),
         "fallback_steps": sum(1 for s in result.steps if s.fallback),
+        "contacts": len(contacts),
+        "configs_with_contact": len({c.config for c in contacts}),
+        "configs_run": len(result.configs),
+        "steps_added": result.steps_added(),
     }
+
+
+def contact_stats(rows: list[dict]) -> dict:
+    """Contacts of the robots' true bodies over ``rows`` (``run_one``'s): per 100 configuration changes, the
+    percentage of changes with a contact, and the steps the body constraint added per configuration change."""
+    changes = max(sum(r["configs_run"] for r in rows), 1)
+    return {"contacts_per_100": 100.0 * sum(r["contacts"] for r in rows) / changes,
+            "configs_with_contact_pct": 100.0 * sum(r["configs_with_contact"] for r in rows) / changes,
+            "steps_added_per_config": sum(r["steps_added"] for r in rows) / changes}
 
 
 def summarise(rows: list[dict], methods: list[str]) -> dict:
@@ -107,6 +122,7 @@ def summarise(rows: list[dict], methods: list[str]) -> dict:
             "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
             "cpu_s_mean": float(np.mean([r["cpu_s"] for r in by[m]])),
             "runs": len(pf),
+            **contact_stats(by[m]),
         }
     if REFERENCE in by:
         ref = np.array([r["pf"] for r in by[REFERENCE]])
@@ -144,11 +160,13 @@ def run(args: argparse.Namespace) -> int:
     errs = np.array([summary["methods"][m]["pf_ci97"][1] - summary["methods"][m]["pf_mean"] for m in names])
     title = f"{args.trajectories} trajectories x {args.configs} configurations, n_r = {args.robots} (bars: 97 % CI of the mean)"
     png = plot_bars(names, means, errs, "P_f (Eq. 24)", title, args.out / "pf.png")
-    print(f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11}")
+    print(f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11} {'contacts/100':>12}")
     for m in names:
         s = summary["methods"][m]
         p = summary["p_values"].get(m)
-        print(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+        print(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} {s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11} {s['contacts_per_100']:>12.2f}")
+    if cfg.robot_radius_m > 0:
+        print(f"contacts: true bodies of radius {cfg.robot_radius_m:g} m touching, per 100 configuration changes (docs/bodies.md)")
     if "inchworm-equal-speed" in summary["methods"] and REFERENCE in summary["methods"]:
         a, b = summary["methods"]["inchworm-equal-speed"]["pf_mean"], summary["methods"][REFERENCE]["pf_mean"]
         print(f"equal speed (n_a = n_r/2 for both): inchworm-equal-speed / ref57 = {a / b:.3f} (paper, Table I: 0.0477 / 0.0673 = 0.71)")

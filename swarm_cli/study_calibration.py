@@ -99,6 +99,7 @@ def compare_at(cfg: ModelConfig, localizer: str, methods: list[str], seeds: list
             "over_ref57": {m: summary["methods"][m]["pf_mean"] / ref for m in methods if m != REFERENCE},
             "p_values": summary["p_values"],
             "trajectories": len(subset) // len(methods),
+            "contacts_per_100": {m: summary["methods"][m]["contacts_per_100"] for m in methods},
         }
     return out, rows
 

@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swarm_cli.compare import run_one  # noqa: PLC0415
+    from swarm_cli.compare import contact_stats, run_one  # noqa: PLC0415
     from swarm_cli.summary import write_csv  # noqa: PLC0415
     base = model_config(args)
     motion = parse_list(args.motion_scales, "--motion-scales", float)
@@ -73,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             "pf": pf,
             "inchworm_over_ref57": pf["inchworm"] / pf["ref57"],
             "equal_speed_over_ref57": pf["inchworm-equal-speed"] / pf["ref57"],
+            "contacts_per_100": {m: contact_stats([r for r in sel if r["method"] == m])["contacts_per_100"] for m in METHODS},
         })
     write_csv(args.out / "runs.csv", rows)
     png = plot_heatmaps(results, localizers, motion, sensing, args.out / "noise.png")

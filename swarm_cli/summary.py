@@ -9,19 +9,21 @@ from coordinator.executor import RunResult, StepRecord
 
 
 def print_config_table(result: RunResult) -> tuple[list[dict], list[StepRecord]]:
-    """Print the per-configuration table (n_a, steps, e_l, following error, distance) and the
+    """Print the per-configuration table (n_a of the strategy's plan, steps taken, e_l, following error, distance),
+    where the body constraint regrouped a plan a line saying so, and the
     steps that kept dead reckoning; return the table's rows (empty without ground truth) and those steps."""
     rows = []
     if result.has_truth:
         e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
     print(f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}")
+    anchors = result.anchor_counts()
     for c, rec in enumerate(result.configs):
         if result.has_truth:
-            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
-            rows.append({"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+            print(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {e_l[c] * 1e3:>9.2f} {follow[c] * 1e3:>11.2f} {travelled[c]:>13.3f}")
+            rows.append({"config": c + 1, "n_a": int(anchors[c]), "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
                          "following_error": float(follow[c]), "travelled": float(travelled[c])})
         else:
-            print(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+            print(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     for c, rec in enumerate(result.configs):
         if rec.regrouped is not None:
             print(f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}")
