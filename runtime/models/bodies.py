@@ -27,11 +27,16 @@ import copy
 import heapq
 from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
+
+if TYPE_CHECKING:  # trajectory.py imports this module
+    from runtime.models.trajectory import Trajectory
 
 CLEARANCE_SIGMAS = 2.0  # k of the margin k x sqrt(sigma_i^2 + sigma_j^2)
 SIGMA_LEVELS = (2.0, 1.0, 0.0)  # margins tried in turn when no order clears a change with the larger one
@@ -114,8 +119,8 @@ class BodyCheck:
                                       cfg.drive_sigma_frac**2)
 
     @classmethod
-    def of_estimate(cls, cfg: ModelConfig, estimate, desired: np.ndarray) -> BodyCheck:
-        """The check for moving ``estimate`` (a ``SwarmEstimate``) to ``desired``, with its uncertainty."""
+    def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
+        """The check for moving ``estimate`` to ``desired``, with its uncertainty."""
         return cls(cfg, estimate.positions, desired, np.linalg.eigvalsh(estimate.cov[:, :2, :2])[:, -1], estimate.cov[:, 2, 2])
 
     @property
@@ -152,18 +157,6 @@ class BodyCheck:
     def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
         closest, required = self._rows(np.array([robot]), before, moving)
         return not np.any(closest < required - TOLERANCE_M)
-
-    def plan_conflicts(self, groups: list[np.ndarray]) -> list[tuple[int, Conflict]]:
-        """(step, conflict) for every step of the ordered mobile ``groups`` (robot indices)."""
-        if not self.active:
-            return []
-        before, out = self.current.copy(), []
-        for k, group in enumerate(groups):
-            moving = np.zeros(len(before), bool)
-            moving[group] = True
-            out += [(k, c) for c in self.step_conflicts(before, moving)]
-            before[group] = self.desired[group]
-        return out
 
     def is_clear(self, groups: list[np.ndarray]) -> bool:
         """Whether no step of ``groups`` has a conflict (constraint g of Eq. 4)."""
@@ -367,7 +360,7 @@ def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.nd
     return np.column_stack([i[bad], j[bad]])
 
 
-def validate_passable(traj, cfg: ModelConfig) -> None:
+def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
     """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj`` (a ``Trajectory``),
     or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
     e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
