@@ -252,14 +252,15 @@ def random_trajectory(
     configuration or a sensing range too small for robots kept apart. With ``robot_radius`` > 0
     (m) robots are kept at least 2 ``robot_radius`` + 3 sqrt(2) ``step`` ``motion_sigma`` apart
     (bodies, plus three standard deviations of two robots' relative end-of-path error after a
-    drive of ``step`` with relative motion noise ``motion_sigma``, see ``body_spacing``) and every
+    drive of ``step`` with relative motion noise ``motion_sigma``, see ``body_spacing``), but no
+    more than half the ``spacing`` unless the bodies need it, and every
     change can be made without bodies touching (``runtime.models.bodies.validate_passable``);
     ``robot_radius`` 0 draws exactly as before bodies.
     """
     reach = margin * sensing_range
     sep = MIN_SEPARATION * spacing
-    if robot_radius > 0:
-        sep = max(sep, 2.0 * robot_radius + END_SIGMAS * math.sqrt(2.0) * step * motion_sigma)
+    if robot_radius > 0:  # room for the end-of-path error, but at most half the spacing (the swarm keeps its density)
+        sep = max(sep, 2.0 * robot_radius, min(2.0 * robot_radius + END_SIGMAS * math.sqrt(2.0) * step * motion_sigma, spacing / 2))
     _check_random_options(n, n_configs, spacing, reach, sep, step=step, turn=turn, reshape=reshape)
     if not 0 < margin <= 1:
         raise SwarmInputError(f"random trajectory margin must be in (0, 1], got {margin}")
