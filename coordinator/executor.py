@@ -70,6 +70,7 @@ class StepRecord:
     estimate: SwarmEstimate
     truth: np.ndarray | None  # (n, 3)
     fallback: str | None  # why dead reckoning was kept, if it was
+    truth_ids: np.ndarray | None = None  # the robots of ``truth``'s rows (None: the trajectory's; fewer after a loss)
 
 
 @dataclass(frozen=True)
@@ -190,20 +191,25 @@ class RunResult:
         each pair of robots whose bodies overlapped at some time of a step, once per step. [] without ground truth."""
         if not self.has_truth or radius <= 0:
             return []
-        before, out = self.initial_truth, []
+        before, before_ids, out = self.initial_truth, self.trajectory.ids, []
         for number, rec in enumerate(self.steps, start=1):
             if rec.truth is None:
                 return out
-            out += contact_events(number, rec, before, self.trajectory.ids, radius)
-            before = rec.truth
+            out += contact_events(number, rec, before, before_ids, self.trajectory.ids, radius)
+            before, before_ids = rec.truth, self.trajectory.ids if rec.truth_ids is None else rec.truth_ids
         return out
 
 
-def contact_events(number: int, rec: StepRecord, before: np.ndarray, ids: np.ndarray, radius: float) -> list[ContactEvent]:
-    """The contacts of global step ``number`` (record ``rec``) from the true poses ``before`` it (rows: ``ids``)."""
-    moving = np.isin(ids, rec.estimate.ids[rec.moving])
-    return [ContactEvent(number, rec.config, int(ids[c.a]), int(ids[c.b]), c.distance, c.point)
-            for c in step_contacts(before, rec.truth, moving, radius)]
+def contact_events(number: int, rec: StepRecord, before: np.ndarray, before_ids: np.ndarray, ids: np.ndarray,
+                   radius: float) -> list[ContactEvent]:
+    """The contacts of global step ``number`` (record ``rec``) from the true poses ``before`` it (rows: ``before_ids``)
+    among the robots in both; ``ids``: the trajectory's robots (``rec.truth``'s rows unless it names them)."""
+    after_ids = ids if rec.truth_ids is None else rec.truth_ids
+    common = np.intersect1d(before_ids, after_ids)
+    start, end = before[index_of(before_ids, common, "truth")], rec.truth[index_of(after_ids, common, "truth")]
+    moving = np.isin(common, rec.estimate.ids[rec.moving])
+    return [ContactEvent(number, rec.config, int(common[c.a]), int(common[c.b]), c.distance, c.point)
+            for c in step_contacts(start, end, moving, radius)]
 
 
 class ExecutorListener(Protocol):
@@ -327,12 +333,16 @@ class InchwormExecutor:
         if excluded:
             reasons = sorted(set(excluded.values()))
             fallback = f"dead reckoning kept for robots {sorted(excluded)} ({', '.join(reasons)})"
-        before = result.steps[-1].truth if result.steps else result.initial_truth
-        result.steps.append(StepRecord(config, step, cmd.moving, cmd.commands, new, self.backend.true_poses(), fallback))
+        last = result.steps[-1] if result.steps else None
+        before = result.initial_truth if last is None else last.truth
+        before_ids = trajectory.ids if last is None or last.truth_ids is None else last.truth_ids
+        truth = self.backend.true_poses()
+        truth_ids = None if truth is None or len(truth) == trajectory.n else np.array(self.backend.ids, dtype=np.int64)
+        result.steps.append(StepRecord(config, step, cmd.moving, cmd.commands, new, truth, fallback, truth_ids))
         if self.listener is not None:
             self.listener.on_estimate(len(result.steps), new)
-            if self.cfg.robot_radius_m > 0 and before is not None and result.steps[-1].truth is not None:
-                contacts = contact_events(len(result.steps), result.steps[-1], before, result.trajectory.ids, self.cfg.robot_radius_m)
+            if self.cfg.robot_radius_m > 0 and before is not None and truth is not None:
+                contacts = contact_events(len(result.steps), result.steps[-1], before, before_ids, trajectory.ids, self.cfg.robot_radius_m)
                 if contacts:
                     self.listener.on_contacts(contacts)
         return new
