@@ -12,7 +12,9 @@ the wire. ``--ids`` lists every robot of the run (ranges too; default with
 (one robot) or from the initial poses of ``--trajectory``;
 ``--driver gateway`` drives the real or emulated robot through the link process of its
 port (``swarm link``), with limits (drive, turn, workspace) and calibration from the
-gateway config (docs/gateway.md). Exit status 3 when a robot was lost.
+gateway config (docs/gateway.md); ``--driver package.module:Class`` (or ``file.py:Class``, or an
+``inchworm_swarm.drivers`` entry point) builds a lab's own driver with ``--driver-option KEY=VALUE``
+and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 when a robot was lost.
 
 Connects as a Zenoh client to the hub, serves commands and observation requests until
 SIGTERM/SIGINT (see ``robot_agent.agent``), then closes its session and exits 0.
@@ -24,24 +26,19 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import re
 import signal
 import sys
-from collections.abc import Iterable
 from pathlib import Path
 
-from robot_agent.agent import READY_TIMEOUT_S, Agent
-from robot_agent.driver import Driver, SimDriver
-from robot_agent.gateway_driver import GatewayDriver
+from robot_agent.agent import READY_TIMEOUT_S
+from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, AgentSpec, build_agents, driver_options, parse_ids
 from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
-
+from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, positive
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("agent", help="run the agent process of one robot, or of many (--id 0-49), in a distributed run")
@@ -57,7 +54,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     add_connection_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
-    p.add_argument("--driver", choices=("sim", "gateway"), default="sim", help="simulated robot, or a robot behind a link process (default sim)")
+    p.add_argument("--driver", default="sim", metavar="DRIVER",
+                   help="sim (simulated robot, default), gateway (a robot behind a link process), or a lab's own driver: "
+                        "package.module:Class, file.py:Class or an inchworm_swarm.drivers entry point name (docs/drivers.md)")
+    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="an option for a lab's own driver (its DriverContext.options), repeatable")
+    p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
+                   help=f"a lab's own driver must finish each command and observation within this many seconds, else the robot "
+                        f"is stopped and reported lost (default {PLUGIN_COMMAND_TIMEOUT_S:g}; not applied to sim and gateway unless given)")
     p.add_argument("--gateway-config", type=Path, help="gateway config JSON (docs/gateway.md), required with --driver gateway")
     p.add_argument("--ready-timeout", type=float, default=READY_TIMEOUT_S,
                    help=f"seconds to wait for the robot's link process before declaring this agent alive (default {READY_TIMEOUT_S:g})")
@@ -68,89 +72,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_model_options(p)
 
 
-def parse_ids(text: str, option: str) -> list[int]:
-    """Robot ids of an option such as ``--id 0-49`` or ``--ids 0,2,5-9`` (ranges inclusive), in the order given."""
-    ids: list[int] = []
-    for part in (p.strip() for p in str(text).split(",")):
-        match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
-        if match is None or (match[2] is not None and int(match[2]) < int(match[1])):
-            raise SwarmInputError(f"{option} must be robot ids >= 0 and ranges a-b with a <= b, comma-separated (e.g. 0-49), got {text!r}")
-        ids.extend(range(int(match[1]), int(match[2] or match[1]) + 1))
-    if len(set(ids)) != len(ids):
-        raise SwarmInputError(f"{option} names a robot twice: {text!r}")
-    return ids
-
-
-def format_ids(ids: Iterable[int]) -> str:
-    """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
-    parts: list[str] = []
-    for i in ids:
-        i = int(i)
-        if parts and parts[-1][1] == i - 1:
-            parts[-1][1] = i
-        else:
-            parts.append([i, i])
-    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
-
-
-def make_driver(args: argparse.Namespace, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None) -> tuple[Driver, CommandLimits]:
-    """The driver and limits of ``robot`` the options ask for (``pose``: its initial true pose for ``--driver sim``)."""
-    if args.driver == "gateway":
-        if gateway is None:
-            if args.gateway_config is None:
-                raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
-            gateway = GatewayConfig.load(args.gateway_config)
-        port = gateway.port_of(robot)  # the robot must be behind a port of this gateway
-        lim = gateway.limits
-        limits = CommandLimits(max_drive_m=lim.max_drive_m, max_turn_rad=lim.max_turn_rad, workspace=lim.workspace)
-        return GatewayDriver(args.run_id, robot, gateway.calibration_of(robot), gateway.timing, port.name), limits
-    if pose is None:
-        if args.pose is None:
-            raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
-        pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)
-        if len(pose) != 3:
-            raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
-    limits = CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg))
-    return SimDriver(robot, ids, pose, model_config(args), args.seed, args.motion_time), limits
-
-
-def make_agents(args: argparse.Namespace) -> list[Agent]:
-    """The agents of ``--id`` (robots of ``--ids``), each with its own driver; options checked first."""
-    settings = connection_settings(args)
-    validate_run(args.run_id)
-    hosted = parse_ids(args.id, "--id")
-    traj = Trajectory.load(args.trajectory) if args.trajectory else None
-    if args.ids is not None:
-        ids = parse_ids(args.ids, "--ids")
-    elif traj is not None:
-        ids = [int(i) for i in traj.ids]
-    else:
-        raise SwarmInputError("give --ids (every robot of the run, e.g. 0-9) or --trajectory FILE")
-    outside = sorted(set(hosted) - set(ids))
-    if outside:
-        raise SwarmInputError(f"--id names robots {outside} that are not robots of the run (--ids {args.ids or format_ids(ids)})")
-    poses: dict[int, object] = {}
-    if args.driver == "sim" and args.pose is None and traj is not None:
-        missing = sorted(set(hosted) - {int(i) for i in traj.ids})
-        if missing:
-            raise SwarmInputError(f"--id names robots {missing} that {args.trajectory} does not have")
-        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses)}
-    elif args.driver == "sim" and len(hosted) > 1:
-        raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {args.id}")
-    gateway = None
-    if args.driver == "gateway":
-        if args.gateway_config is None:
-            raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
-        gateway = GatewayConfig.load(args.gateway_config)
-    agents = []
-    for robot in hosted:
-        driver, limits = make_driver(args, robot, ids, poses.get(robot), gateway)
-        agents.append(Agent(settings, args.run_id, robot, ids, driver, limits, args.ready_timeout))
-    return agents
+def initial_pose(args: argparse.Namespace) -> list[float] | None:
+    """``--pose`` as x, y, heading, or None."""
+    if args.pose is None:
+        return None
+    pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)
+    if len(pose) != 3:
+        raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
+    return pose
 
 
 def run(args: argparse.Namespace) -> int:
-    agents = make_agents(args)
+    settings = connection_settings(args)
+    validate_run(args.run_id)
+    spec = AgentSpec(settings, args.run_id, parse_ids(args.id, "--id"), None if args.ids is None else parse_ids(args.ids, "--ids"), args.ids,
+                     Trajectory.load(args.trajectory) if args.trajectory else None, args.trajectory, initial_pose(args), args.driver,
+                     driver_options(args.driver_option), args.gateway_config, args.seed, model_config(args), args.motion_time,
+                     CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg)), args.ready_timeout,
+                     args.command_timeout)
+    agents = build_agents(spec)
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
     server = agents[0] if len(agents) == 1 else AgentHost(agents[0].settings, agents)
     for sig in (signal.SIGTERM, signal.SIGINT):

@@ -27,7 +27,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.models.trajectory import body_spacing, random_trajectory
 from swarm_cli.options import add_selection_options, add_model_options, add_json_option, add_workers_option, model_config, print_json, selection_config
-from swarm_cli.progress import Progress
+from inchworm.progress import Progress
 
 LOCALIZERS = ("paper", "joint")
 

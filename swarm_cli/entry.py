@@ -5,11 +5,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import contextlib
 import re
-import signal
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from runtime.errors import LocalizationError, SwarmInputError
@@ -19,6 +17,16 @@ def plain(doc: str | None) -> str:
     """A module docstring as ``--help`` text: reStructuredText literals (````x````) and ``::`` markers removed."""
     text = re.sub(r"``([^`]+)``", r"\1", doc or "")
     return re.sub(r"::$", ":", text, flags=re.MULTILINE).strip()
+
+
+def library_doc(module: str) -> str:
+    """The docstring of ``module`` as ``--help`` text, read from its source without importing it."""
+    import ast  # noqa: PLC0415
+    import importlib.util  # noqa: PLC0415
+
+    spec = importlib.util.find_spec(module)
+    source = open(spec.origin, encoding="utf-8").read() if spec and spec.origin else ""
+    return plain(ast.get_docstring(ast.parse(source)) if source else "")
 
 
 class Command(NamedTuple):
@@ -55,43 +63,6 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
             sub.add_parser(c.name, help=c.help)
 
 
-class StopSignals:
-    """SIGINT and SIGTERM as a stop request: the first one raises ``KeyboardInterrupt`` (ends the run),
-    later ones are only noted, and inside ``deferred()`` (finishing a recording, stopping children)
-    every signal is only noted, never an exception in the middle of writing a file.
-
-    ``received`` is the first signal number (None if none came). ``restore()`` puts back the
-    previous handlers. Main thread only (Python runs signal handlers there).
-    """
-
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._deferred = 0
-        self._previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
-
-    def _handle(self, signum: int, _frame: object) -> None:
-        first = self.received is None
-        if first:
-            self.received = signum
-        if first and not self._deferred:
-            raise KeyboardInterrupt
-
-    @contextlib.contextmanager
-    def deferred(self) -> Iterator[None]:
-        """Signals arriving in this block are noted, not raised (a stop request is then ``received``)."""
-        self._deferred += 1
-        try:
-            yield
-        finally:
-            self._deferred -= 1
-
-    def restore(self) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
     """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, Ctrl-C gives 130,
     a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
@@ -108,6 +79,22 @@ def guarded(prog: str, run: Callable[[], int | None]) -> int:
         return 130
 
 
+def limit_blas_threads() -> None:
+    """One BLAS thread in this process and the processes it starts (an entry point, before numpy loads).
+
+    The commands parallelise over processes (one per core), so each keeps its BLAS to one
+    thread: several BLAS threads per process only oversubscribe the cores and make the small
+    batched solves of the Monte Carlo planner erratic. A BLAS already loaded (``main`` called
+    from Python) is limited through threadpoolctl.
+    """
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    if "numpy" in sys.modules:
+        from threadpoolctl import threadpool_limits  # noqa: PLC0415
+
+        threadpool_limits(1)
+
+
 def run_standalone(
     prog: str,
     add_arguments: Callable[[argparse.ArgumentParser], None],
@@ -116,6 +103,7 @@ def run_standalone(
 ) -> int:
     """Entry point of a command started as its own module (``python -m swarm_cli.agent``):
     the launcher starts processes this way so each imports only what it needs."""
+    limit_blas_threads()
     parser = argparse.ArgumentParser(prog=prog)
     add_arguments(parser)
     args = parser.parse_args(argv)

@@ -13,15 +13,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 
+from coordinator.stop import send_estop
 from runtime.wire.keys import validate_run
-from runtime.wire.messages import EmergencyStop, encode, message_key
-from runtime.wire.transport import open_session, publish
+from runtime.wire.transport import open_session
 from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
-
-REPEATS = 3
-
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("estop", help="emergency stop: every robot of the run stops now (latched)")
@@ -31,18 +27,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_connection_options(p)
     add_json_option(p)
     p.set_defaults(run=run)
-
-
-def send_estop(session, run_id: str, source: str, reason: str, repeat_s: float = 0.0) -> int:
-    """Publish the run's ``EmergencyStop`` (once, then again spread over ``repeat_s``); the number published."""
-    msg = EmergencyStop(run=run_id, step=0, source=source, reason=reason)
-    key, payload = message_key(msg), encode(msg)
-    count = 1 if repeat_s <= 0 else REPEATS
-    for i in range(count):
-        publish(session, key, payload)
-        if i + 1 < count:
-            time.sleep(repeat_s / (count - 1))
-    return count
 
 
 def run(args: argparse.Namespace) -> int:

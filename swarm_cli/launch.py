@@ -25,6 +25,10 @@ same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``Emergenc
 to the run, then stops every child; so does a coordinator that ends with an error or is
 killed (any exit status but 0), so no robot is left moving.
 
+``--driver package.module:Class`` (or ``file.py:Class``, an entry point name) starts the agents with a
+lab's own driver (docs/drivers.md), given ``--driver-option``s and ``--command-timeout``; a driver
+that is not ``simulated`` gets a coordinator with ``--no-truth``.
+
 ``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID (with several agents per
 process: the process hosting it, and so its other robots too) as soon as the
 coordinator sends the first command of global step STEP (fault injection for demos,
@@ -33,7 +37,7 @@ tests and ``swarm bench faults``); the launcher then times the coordinator's rea
 heard it) and prints it; with ``--json`` the last line is the coordinator's JSON object
 with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
-``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
+``inchworm.processes`` holds the reusable pieces (``agent_command``, ``start_agents``, ``stop_all``) (also used by
 ``swarm bench runtime``).
 """
 
@@ -42,38 +46,34 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
+from coordinator.process import default_recording
+from coordinator.stop import StopSignals, send_estop
 from coordinator.strategies import METHODS
+from inchworm.processes import (AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO, RobotKiller, agents_per_process, default_gateway, radio_faults,
+                                start_agents, start_gateway, stop_all)
 from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig, Limits, Port
-from runtime.wire.keys import estop_key, robot_wildcard, validate_run
-from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.gateway.config import GatewayConfig
+from runtime.wire.keys import validate_run
 from runtime.models.bodies import validate_passable
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
-from swarm_cli.agent import format_ids
-from swarm_cli.coordinator_cmd import add_record_options, default_recording
-from swarm_cli.entry import StopSignals
-from swarm_cli.emulate import check_radio_faults
-from swarm_cli.estop import send_estop
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
+from robot_agent.assembly import driver_options
+from robot_agent.plugins import BUILT_IN, driver_class
+from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
-GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
+MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
-ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
-AGENTS_PER_PROCESS = 50  # at most, when they share
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
@@ -97,8 +97,14 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
-    p.add_argument("--driver", choices=("sim", "gateway"), default="sim",
-                   help="simulated agents, or agents driving emulated robots through link processes and ptys (default sim)")
+    p.add_argument("--driver", default="sim", metavar="DRIVER",
+                   help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
+                        "or a lab's own driver package.module:Class, file.py:Class or entry point name (docs/drivers.md)")
+    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="with a lab's own driver: an option passed to every agent's driver, repeatable")
+    p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
+                   help="with a lab's own driver: seconds each command or observation may take before the agent stops the "
+                        "robot and reports it lost (default: swarm agent's)")
     p.add_argument("--gateway-config", type=Path, default=None,
                    help="with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)")
     p.add_argument("--emulator-events", type=Path, default=None, help="with --driver gateway: the emulator's JSON-lines event log")
@@ -131,48 +137,6 @@ def _kill_spec(text: str) -> tuple[int, int]:
     return robot_id, step_no
 
 
-class RobotKiller:
-    """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
-    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
-
-    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
-        self.robot, self.step, self.process = robot, step, process
-        self.killed_ns: int | None = None
-        self.stop_stamp_ns: int | None = None
-        self.stop_heard_ns: int | None = None
-        self._subs = [subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command),
-                      subscribe(session, estop_key(run_id), self._on_estop)]
-
-    def _on_command(self, key: str, payload: bytes) -> None:
-        if self.killed_ns is not None:
-            return
-        try:
-            cmd = decode(payload, MotionCommand)
-        except MessageError:
-            return
-        if cmd.step >= self.step and self.process.poll() is None:
-            self.process.send_signal(signal.SIGKILL)
-            self.killed_ns = time.time_ns()
-
-    def _on_estop(self, key: str, payload: bytes) -> None:
-        heard = time.time_ns()
-        try:
-            stop = decode(payload, EmergencyStop)
-        except MessageError:
-            return
-        if self.robot in stop.robots and self.stop_heard_ns is None:
-            self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
-
-    def report(self) -> dict | None:
-        """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
-        for sub in self._subs:
-            sub.undeclare()
-        if self.killed_ns is None:
-            return None
-        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
-        return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
-
-
 def _forward_output(stream, last_json: list[str]) -> None:
     """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
     held = None
@@ -190,126 +154,18 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={getattr(args, name)!r}".replace("'", "") for name in names]
+    """``--name=value`` for each option given (``=`` so negative numbers pass; repr so floats are exact)."""
+    return [f"--{name.replace('_', '-')}={_arg_text(getattr(args, name))}" for name in names if getattr(args, name) is not None]
 
 
-def agent_command(
-    robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
-) -> list[str]:
-    """The command line of robot ``robot``'s agent process (``ids`` as ``--ids`` takes them, ``pose`` x, y, heading)."""
-    return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
-            f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
-            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
+def _arg_text(value) -> str:
+    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
-def agents_per_process(n: int, requested: int | None) -> int:
-    """Robots per agent process for a swarm of ``n``: ``requested`` (``--agents-per-process``), or the default."""
-    if requested is None:
-        if n <= ONE_PER_PROCESS_UP_TO:
-            return 1
-        processes = -(-n // AGENTS_PER_PROCESS)
-        return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
-    if requested < 1:
-        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
-    return requested
-
-
-def start_agents(
-    traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
-    procs: list[subprocess.Popen] | None = None, per_process: int = 1, traj_file: Path | None = None, **popen_kwargs,
-) -> list[subprocess.Popen]:
-    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (initial
-    true pose on its command line), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``,
-    ``traj`` saved). Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
-    """
-    procs = [] if procs is None else procs
-    ids = format_ids(traj.ids)
-    if per_process == 1:
-        for robot, pose in zip(traj.ids, traj.initial_poses):
-            procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
-        return procs
-    if traj_file is None:
-        raise ValueError("start_agents needs traj_file to host several agents per process")
-    for k in range(0, traj.n, per_process):
-        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(traj.ids[k:k + per_process])}", f"--ids={ids}",
-               f"--trajectory={traj_file}", f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}",
-               f"--seed={seed}", *extra]
-        procs.append(subprocess.Popen(cmd, **popen_kwargs))
-    return procs
-
-
-def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
-    """SIGTERM every child still running, SIGKILL those still running after ``grace_s``; reap all."""
-    for p in procs:
-        if p.poll() is None:
-            try:
-                p.send_signal(signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-    deadline = time.monotonic() + grace_s
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
-ROBOTS_PER_PORT = 5
-GATEWAY_READY_S = 20.0
-
-
-def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float = Limits().robot_radius_m) -> GatewayConfig:
-    """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
-    trajectory's bounding box grown by ``margin_m``; the robots' body radius ``robot_radius`` (m);
-    devices are filled in by the emulator."""
-    ids = [int(i) for i in traj.ids]
-    ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
-                  for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
-    xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
-    lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
-    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1]),
-                                              robot_radius_m=robot_radius))
-
-
-def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen]) -> Path:
-    """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
-    until it wrote ``live``, the same config with its pty devices; returns ``live``."""
-    emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL)
-    procs.append(emulator)
-    deadline = time.monotonic() + GATEWAY_READY_S
-    while not live.exists():
-        if emulator.poll() is not None:
-            raise SwarmInputError(f"the robot emulator exited with status {emulator.returncode} before its ptys were ready")
-        if time.monotonic() > deadline:
-            raise SwarmInputError(f"the robot emulator did not write {live} within {GATEWAY_READY_S:.0f} s")
-        time.sleep(0.02)
-    return live
-
-
-def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
-    """The emulator options of the radio faults ``--drop P --corrupt P --delay S``, checked (errors name the flag)."""
-    check_radio_faults(drop, corrupt, delay)
-    return [f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}"]
-
-
-def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
-                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = ()) -> Path:
-    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
-    the live gateway config (pty devices)."""
-    config = tmp / "gateway.json"
-    gateway.save(config)
-    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
-    if events is not None:
-        options.append(f"--events={events}")
-    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs)
-    for port in gateway.ports:
-        procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
-                                       f"--run={run_id}", f"--hub={hub}"]))
-    return live
+def plugin_spec(spec: str) -> str:
+    """``--driver`` as the agents get it: a ``file.py:Class`` path made absolute (they may start elsewhere)."""
+    module, sep, attr = spec.rpartition(":")
+    return f"{Path(module).resolve()}:{attr}" if sep and module.endswith(".py") else spec
 
 
 def _check_writable(folder: Path, flag: str, value: Path) -> None:
@@ -356,6 +212,9 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
         if radius != cfg.robot_radius_m:
             raise SwarmInputError(f"--robot-radius {cfg.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
                                   f"in {args.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
+    if args.driver not in BUILT_IN:
+        driver_class(args.driver)
+        driver_options(args.driver_option)
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -392,6 +251,10 @@ def run(args: argparse.Namespace) -> int:
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
             agent_extra = list(model)
+            if args.driver not in BUILT_IN:
+                agent_extra += [f"--driver={plugin_spec(args.driver)}", *(f"--driver-option={o}" for o in args.driver_option)]
+                if args.command_timeout is not None:
+                    agent_extra.append(f"--command-timeout={args.command_timeout!r}")
             if args.driver == "gateway":
                 gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj, robot_radius=cfg.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -404,6 +267,8 @@ def run(args: argparse.Namespace) -> int:
             start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file)
             agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
+            if args.driver not in BUILT_IN and not driver_class(args.driver).simulated:
+                common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
                    f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS),
                    f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
@@ -417,7 +282,7 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append(f"--foxglove={args.foxglove}")
                 if args.linger is not None:
                     cmd.append(f"--linger={args.linger!r}")
-            what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(args.driver, f"agents ({args.driver})")
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
             print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             killer = None

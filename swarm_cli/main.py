@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.entry import Command, add_commands, guarded, leave
+from swarm_cli.entry import Command, add_commands, guarded, leave, limit_blas_threads
+from swarm_cli.options import apply_config
 
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
@@ -27,6 +28,7 @@ COMMANDS = (
     Command("recover", "swarm_cli.recover", "rewrite an unfinished MCAP recording as a finished, indexed file"),
     Command("replay", "swarm_cli.replay", "re-publish a recording on Zenoh (--publish) or check that it is reproduced (--check)"),
     Command("export", "swarm_cli.export", "convert a recording for other tools (--ros2: a rosbag2 with standard ROS 2 messages)"),
+    Command("calibrate", "swarm_cli.calibrate", "fit the noise model (motion, sensing) to a recorded run and a tracker's true poses"),
     Command("plot", "swarm_cli.plot", "the trajectory and error plots of swarm sim, from a recording"),
     Command("link", "swarm_cli.link", "own one serial/radio port of the gateway and bridge its robots to their agents"),
     Command("estop", "swarm_cli.estop", "emergency stop: every robot of the run stops now (latched)"),
@@ -48,10 +50,23 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 ZENOH_PROCESSES = ("agent", "coordinator")  # long-lived processes whose exit skips finalization (entry.leave)
 
 
+def parse(argv: list[str]) -> argparse.Namespace:
+    """The command line; a study's ``--config FILE`` gives the defaults of its options, the flags override them."""
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if getattr(args, "_study_parser", None) is not None and args.config is not None:
+        code = guarded("swarm", lambda: apply_config(args._study_parser, args.config))
+        if code:
+            sys.exit(code)
+        args = parser.parse_args(argv)
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     standalone = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(argv).parse_args(argv)
+    limit_blas_threads()
+    args = parse(argv)
     code = guarded(f"swarm {args.command}", lambda: args.run(args))
     if standalone and args.command in ZENOH_PROCESSES:
         leave(code)

@@ -6,9 +6,12 @@ import argparse
 import json
 import math
 import os
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from typing import TYPE_CHECKING
-
+from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -16,6 +19,7 @@ SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, wi
 
 if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
     from coordinator.selection.selector import SelectionConfig
+    from inchworm.options import RunOptions
     from runtime.wire.transport import ZenohSettings
 
 
@@ -65,37 +69,47 @@ def positive_int(text: str) -> int:
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
-    """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones).
+    """Noise and sensing options mirroring ``ModelConfig``, and ``--model FILE`` (a model file, docs/calibration.md).
 
     Values are checked as they are parsed, so an error names the flag and the value as typed
     (``argument --turn-sigma-deg: must be >= 0, got -1``), never ``ModelConfig``'s radians.
+    The flags default to None: ``model_config`` takes the model file's values (or the documented
+    defaults) for every flag not given.
     """
-    d = ModelConfig()
     g = parser.add_argument_group("model (noise and sensing; SI units, angles in degrees)")
-    g.add_argument("--turn-sigma-deg", type=nonnegative, default=math.degrees(d.turn_sigma_rad), help="turn noise std in degrees (default 3)")
-    g.add_argument("--drive-sigma-frac", type=nonnegative, default=d.drive_sigma_frac,
+    g.add_argument("--model", type=Path, default=None, metavar="FILE",
+                   help="noise model file (TOML, e.g. written by swarm calibrate); the flags below override its values")
+    g.add_argument("--turn-sigma-deg", type=nonnegative, default=None, help="turn noise std in degrees (default 3)")
+    g.add_argument("--drive-sigma-frac", type=nonnegative, default=None,
                    help="drive noise std as a fraction of the distance (default 0.05)")
-    g.add_argument("--range-sigma", type=nonnegative, default=d.range_sigma_m, help="range noise std in m (default 0.01)")
-    g.add_argument("--bearing-sigma-deg", type=nonnegative, default=math.degrees(d.bearing_sigma_rad),
-                   help="bearing noise std in degrees (default 2)")
-    g.add_argument("--sensing-range", type=positive, default=d.sensing_range_m, help="sensing range in m (default 0.5)")
-    g.add_argument("--dropout", type=probability, default=d.dropout_prob, help="probability an observation is lost, in [0, 1) (default 0)")
-    g.add_argument("--robot-radius", type=nonnegative, default=d.robot_radius_m,
+    g.add_argument("--range-sigma", type=nonnegative, default=None, help="range noise std in m (default 0.01)")
+    g.add_argument("--bearing-sigma-deg", type=nonnegative, default=None, help="bearing noise std in degrees (default 2)")
+    g.add_argument("--sensing-range", type=positive, default=None, help="sensing range in m (default 0.5)")
+    g.add_argument("--dropout", type=probability, default=None, help="probability an observation is lost, in [0, 1) (default 0)")
+    g.add_argument("--robot-radius", type=nonnegative, default=None,
                    help="robot body radius in m: plans keep bodies apart, runs count contacts; 0 = the paper's point robots "
-                        f"(default {d.robot_radius_m:g}, docs/bodies.md)")
+                        "(default 0.011, docs/bodies.md)")
+
+
+MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
+    "turn_sigma_deg": ("turn_sigma_rad", math.radians, "--turn-sigma-deg"),
+    "drive_sigma_frac": ("drive_sigma_frac", float, "--drive-sigma-frac"),
+    "range_sigma": ("range_sigma_m", float, "--range-sigma"),
+    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, "--bearing-sigma-deg"),
+    "sensing_range": ("sensing_range_m", float, "--sensing-range"),
+    "dropout": ("dropout_prob", float, "--dropout"),
+    "robot_radius": ("robot_radius_m", float, "--robot-radius"),
+}
 
 
 def model_config(args: argparse.Namespace) -> ModelConfig:
-    """``ModelConfig`` from the options added by ``add_model_options``."""
-    return ModelConfig(
-        turn_sigma_rad=math.radians(args.turn_sigma_deg),
-        drive_sigma_frac=args.drive_sigma_frac,
-        range_sigma_m=args.range_sigma,
-        bearing_sigma_rad=math.radians(args.bearing_sigma_deg),
-        sensing_range_m=args.sensing_range,
-        dropout_prob=args.dropout,
-        robot_radius_m=args.robot_radius,
-    )
+    """``ModelConfig`` from the options added by ``add_model_options``: the ``--model`` file's values (or the
+    defaults), overridden by the flags given."""
+    from runtime.models.model_file import load_model  # noqa: PLC0415
+
+    base = load_model(args.model) if getattr(args, "model", None) is not None else ModelConfig()
+    given = {field: to_si(getattr(args, dest)) for dest, (field, to_si, _) in MODEL_FLAGS.items() if getattr(args, dest, None) is not None}
+    return replace(base, **given)
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
@@ -106,6 +120,45 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
 
 
+def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
+    """``--workers``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    add_workers_option(parser)
+    parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the study interrupted in --out: runs already kept there are not run again (same final result)")
+    parser.add_argument("--config", type=Path, default=None, metavar="TOML",
+                        help="options from a TOML file (keys as the flags, e.g. robots = 10); flags given here override it")
+    parser.set_defaults(_study_parser=parser)
+
+
+def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any, total: int, label: str, log: str = "runs") -> int:
+    """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
+    table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
+    from inchworm.progress import Progress  # noqa: PLC0415
+    from inchworm.runner import default_executor  # noqa: PLC0415
+
+    options.validate()
+    save_config(args)
+    result = study(options, executor=default_executor(args.workers), out=args.out, resume=args.resume, progress=Progress(total, label))
+    print(result.report())
+    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
+    if args.json:
+        print_json(result.to_json())
+    return 0
+
+
+def run_options(args: argparse.Namespace) -> RunOptions:
+    """The model, localizer and anchor search of ``add_simulation_options``."""
+    from inchworm.options import RunOptions  # noqa: PLC0415
+
+    return RunOptions(model_config(args), args.localizer, selection_config(args))
+
+
+def names(text: str) -> tuple[str, ...]:
+    """The items of a comma-separated option."""
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
 def add_json_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
@@ -113,15 +166,6 @@ def add_json_option(parser: argparse.ArgumentParser) -> None:
 def print_json(obj: object) -> None:
     """The machine-readable result: one JSON object on one line."""
     print(json.dumps(obj, separators=(",", ":")), flush=True)
-
-
-def last_json(stdout: str) -> dict | None:
-    """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
-    lines = [line for line in stdout.splitlines() if line.startswith("{")]
-    try:
-        return json.loads(lines[-1]) if lines else None
-    except json.JSONDecodeError:
-        return None
 
 
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
@@ -200,3 +244,59 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
 def connection_label(args: argparse.Namespace) -> str:
     """What the connection options say, for logs and metadata."""
     return args.hub or f"config {args.zenoh_config}"
+
+
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers"})  # how to run, not what: never read from or saved to a study file
+
+
+def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+    return {a.dest: a for a in parser._actions if a.option_strings and a.dest not in NOT_IN_CONFIG and not a.dest.startswith("_")}
+
+
+def apply_config(parser: argparse.ArgumentParser, path: Path) -> None:
+    """Make the options of the TOML file ``path`` the defaults of ``parser`` (flags given on the command line still win).
+
+    Keys are the flags' names (``robots``, ``turn-sigma-deg`` or ``turn_sigma_deg``); a list is a
+    comma-separated value. Values are checked as if typed on the command line.
+    """
+    import tomllib  # noqa: PLC0415
+
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SwarmInputError(f"--config {path}: not TOML ({exc})") from None
+    actions = _config_actions(parser)
+    defaults: dict[str, object] = {}
+    for key, value in doc.items():
+        action = actions.get(key.replace("-", "_"))
+        if action is None:
+            raise SwarmInputError(f"--config {path}: unknown key {key!r}")
+        flag = action.option_strings[-1]
+        if action.nargs == 0:
+            if not isinstance(value, bool):
+                raise SwarmInputError(f"--config {path}: {key} must be true or false, got {value!r}")
+        elif isinstance(value, (list, tuple)):
+            value = ",".join(str(v) for v in value)
+        elif isinstance(value, (dict, type(None))):
+            raise SwarmInputError(f"--config {path}: {key} must be a value, got {value!r}")
+        else:
+            value = str(value)
+        if action.choices is not None and value not in action.choices:
+            raise SwarmInputError(f"--config {path}: {key} ({flag}) must be one of {', '.join(map(str, action.choices))}, got {value!r}")
+        defaults[action.dest] = value
+    parser.set_defaults(**defaults)
+
+
+def save_config(args: argparse.Namespace) -> Path:
+    """The options of a study as ``--out/study.toml`` (``--config`` reads it back)."""
+    lines = [f"# swarm {args.command} {getattr(args, 'study', None) or ''}".rstrip() + ": the options of the results in this folder"]
+    for dest in _config_actions(args._study_parser):
+        value = getattr(args, dest)
+        if value is None:
+            continue
+        text = ("true" if value else "false") if isinstance(value, bool) else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value))
+        lines.append(f"{dest.replace('_', '-')} = {text}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "study.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -86,7 +86,7 @@ def test_bench_localize_json_contract():
     from coordinator.localization import make_localizer
     from runtime.models.config import ModelConfig
     from runtime.models.scenarios import random_step
-    from swarm_cli.bench_localize import SPACING_M
+    from inchworm.bench.localize import SPACING_M
 
     out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--seed", "3", "--json")
     assert out.returncode == 0, out.stderr

@@ -16,7 +16,7 @@ from runtime.models.geometry import wrap_angle
 from runtime.models.scenarios import grid_configuration
 from runtime.models.sensing import measure
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from swarm_cli.localize import localize_document
+from inchworm.localize_data import localize_document
 
 CFG = ModelConfig()
 REASONS = {"unobserved", "disconnected", "no-convergence", "degenerate"}

@@ -1,0 +1,132 @@
+"""One simulated run from Python: ``simulate`` and the per-configuration table of a run."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
+
+if TYPE_CHECKING:
+    from coordinator.executor import RunResult, StepRecord
+    from coordinator.localization import Localizer
+    from coordinator.selection.selector import SelectionConfig
+    from coordinator.strategies import Strategy
+
+
+def simulate(
+    trajectory: Trajectory | str | Path | None = None,
+    *,
+    method: str | Strategy = "inchworm",
+    robots: int = 10,
+    configs: int = 5,
+    seed: int = 0,
+    model: ModelConfig | None = None,
+    localizer: str | Localizer = "paper",
+    selection: SelectionConfig | None = None,
+    initial_delta_m: float = 0.01,
+    initial_heading_sigma_rad: float = math.radians(2.0),
+    progress: Callable[[int, int], None] | None = None,
+) -> RunResult:
+    """Run ``method`` along ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of
+    ``robots`` robots and ``configs`` configurations drawn with ``seed``) in the in-process simulator.
+
+    ``method`` is a method name (``coordinator.strategies.METHODS``) or your own ``Strategy``;
+    ``localizer`` a name (``paper``, ``joint``) or your own ``Localizer`` (a searching method's
+    Monte Carlo then predicts with the paper's localizer). Everything random derives from
+    ``seed``; the result holds every step's estimate and the truth.
+    """
+    from coordinator.executor import InchwormExecutor  # noqa: PLC0415
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
+    from runtime.models.bodies import validate_passable  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+
+    cfg = model or ModelConfig()
+    traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
+    validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
+    search = localizer if isinstance(localizer, str) else "paper"
+    strategy = make_strategy(method, traj.n, cfg, search, selection or SelectionConfig(), seed) if isinstance(method, str) else method
+    executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed),
+                                make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer, strategy, cfg, progress)
+    return executor.run(traj, initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad))
+
+
+def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
+    """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
+    if trajectory is None:
+        return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))
+    return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(Path(trajectory))
+
+
+def config_rows(result: RunResult) -> list[dict[str, Any]]:
+    """Per configuration: n_a (of the strategy's plan), steps taken, e_l (m), following error (m), average distance
+    travelled (m); empty without truth."""
+    if not result.has_truth:
+        return []
+    e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
+    anchors = result.anchor_counts()
+    return [{"config": c + 1, "n_a": int(anchors[c]), "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+             "following_error": float(follow[c]), "travelled": float(travelled[c])} for c, rec in enumerate(result.configs)]
+
+
+def fallback_steps(result: RunResult) -> list[StepRecord]:
+    """The steps that kept dead reckoning (some robots could not be localized)."""
+    return [s for s in result.steps if s.fallback]
+
+
+def config_table(result: RunResult) -> str:
+    """The per-configuration table (e_l and following error in mm), a line for each plan the body constraint
+    regrouped, and the steps that kept dead reckoning."""
+    lines = [f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
+    rows, anchors = config_rows(result), result.anchor_counts()
+    for c, rec in enumerate(result.configs):
+        if rows:
+            r = rows[c]
+            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} {r['travelled']:>13.3f}")
+        else:
+            lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]
+    lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
+    return "\n".join(lines)
+
+
+def contacts_text(result: RunResult, radius: float) -> str:
+    """The contacts of the robots' true bodies of ``radius`` (m) and the steps added for bodies ("" for point robots)."""
+    if radius <= 0 or not result.has_truth:
+        return ""
+    contacts = result.contacts(radius)
+    closest = f", closest {min(c.distance for c in contacts) * 1e3:.1f} mm" if contacts else ""
+    lines = [f"contacts (bodies of radius {radius:g} m): {len(contacts)}{closest}; steps added for bodies: {result.steps_added()}"]
+    lines += [f"  step {c.step} (config {c.config + 1}): robots {c.a} and {c.b}, centres {c.distance * 1e3:.1f} mm apart" for c in contacts]
+    return "\n".join(lines)
+
+
+def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
+    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added`` and ``contacts``
+    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``)."""
+    return {"robot_radius_m": radius, "steps_added": result.steps_added(),
+            "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
+                         for c in result.contacts(radius)]}
+
+
+def summary_text(result: RunResult, method: str, localizer: str, radius: float = 0.0) -> str:
+    """The table of a distributed run, its contacts (bodies of ``radius`` m), the robots it lost and its P_f
+    (over the robots that finished)."""
+    lines = [config_table(result)]
+    if contacts_text(result, radius):
+        lines.append(contacts_text(result, radius))
+    lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
+    pf = result.pf() if result.has_truth else None
+    over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
+    lines.append(f"P_f = {pf:.4f} ({method}, {localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
+    return "\n".join(lines)
