@@ -17,7 +17,6 @@ from scipy.stats import chi2
 
 from coordinator.executor import RunResult
 
-LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods
 
 
@@ -47,4 +46,4 @@ def chi2_band(robots: int, trajectories: int, level: float = 0.95) -> tuple[floa
     return float(chi2.ppf(tail, dof) / dof), float(chi2.ppf(1.0 - tail, dof) / dof)
 
 
-__all__ = ["chi2_band", "position_nees", "run_nees", "LOCALIZERS", "METHODS"]
+__all__ = ["chi2_band", "position_nees", "run_nees", "METHODS"]

@@ -279,7 +279,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     validate_passable(traj, cfg)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
-    strategy = make_strategy(o.method, traj.n, cfg, o.localizer, selection, o.seed)  # bad input fails before waiting
+    localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
+    strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
     validate_run(o.run_id)
     recording = None
     if o.record is not None:
@@ -301,7 +302,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 backend.wait_for_agents()
                 log(f"{traj.n} agents alive, run {o.run_id}")
                 progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731
-                executor = InchwormExecutor(backend, make_localizer(o.localizer, cfg), strategy, cfg, progress, listener=backend,
+                executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=backend,
                                             on_lost=o.on_lost, min_robots=o.min_robots)
                 result = executor.run(traj, initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
                 completed = live.keep = True

@@ -90,10 +90,12 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
     ids, obs, prior = parse_input(data)
     all_ids, i, j = ids, *obs.indexed(ids)
     if localizer == "paper":
-        huber = HUBER_SIGMAS * math.hypot(cfg.range_sigma_m, cfg.sensing_range_m * cfg.bearing_sigma_rad) if robust else None
-    else:
-        huber = HUBER_SIGMAS if robust else None
-    loc = make_localizer(localizer, cfg, huber=huber)
+        options = {"huber": HUBER_SIGMAS * math.hypot(cfg.range_sigma_m, cfg.sensing_range_m * cfg.bearing_sigma_rad) if robust else None}
+    elif localizer == "joint":
+        options = {"huber": HUBER_SIGMAS if robust else None}
+    else:  # a registered localizer: its own defaults (the Huber threshold's unit is each localizer's)
+        options = {}
+    loc = make_localizer(localizer, cfg, **options)
 
     def solve(keep: np.ndarray):
         sub_obs = obs.select(keep[i] & keep[j])

@@ -5,13 +5,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
+from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
 
-LOCALIZERS = ("paper", "joint")
 
 
 def default_selection() -> SelectionConfig:
@@ -25,13 +25,14 @@ class RunOptions:
     """How every run of a study simulates: noise and sensing (``model``), localizer and anchor search."""
 
     model: ModelConfig = field(default_factory=ModelConfig)
-    localizer: str = "paper"
+    localizer: str = DEFAULT_LOCALIZER  # a registered name (``coordinator.localization.registry``)
     selection: SelectionConfig = field(default_factory=default_selection)
 
 
 def check_localizers(localizers: tuple[str, ...], flag: str = "localizers") -> None:
-    if not localizers or any(x not in LOCALIZERS for x in localizers):
-        raise SwarmInputError(f"--{flag} must list paper and/or joint, got {','.join(localizers)!r}")
+    known = localizer_names()
+    if not localizers or any(x not in known for x in localizers):
+        raise SwarmInputError(f"--{flag} must list localizers among {', '.join(known)}, got {','.join(localizers)!r}")
 
 
 def check_at_least(flag: str, value: int, low: int) -> None:

@@ -37,8 +37,8 @@ def simulate(
     ``robots`` robots and ``configs`` configurations drawn with ``seed``) in the in-process simulator.
 
     ``method`` is a method name (``coordinator.strategies.METHODS``) or your own ``Strategy``;
-    ``localizer`` a name (``paper``, ``joint``) or your own ``Localizer`` (a searching method's
-    Monte Carlo then predicts with the paper's localizer). Everything random derives from
+    ``localizer`` a registered name (``coordinator.localization.registry``) or your own ``Localizer`` object:
+    the executor and a searching method's Monte Carlo use the same one. Everything random derives from
     ``seed``; the result holds every step's estimate and the truth.
     """
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
@@ -54,10 +54,9 @@ def simulate(
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
     validate_connected(traj, cfg.sensing_range_m)
     validate_passable(traj, cfg)
-    search = localizer if isinstance(localizer, str) else "paper"
-    strategy = make_strategy(method, traj.n, cfg, search, selection or SelectionConfig(), seed) if isinstance(method, str) else method
-    executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed),
-                                make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer, strategy, cfg, progress)
+    loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
+    strategy = make_strategy(method, traj.n, cfg, loc, selection or SelectionConfig(), seed) if isinstance(method, str) else method
+    executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress)
     return executor.run(traj, initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad))
 
 

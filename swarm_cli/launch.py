@@ -184,7 +184,8 @@ def _check_writable(folder: Path, flag: str, value: Path) -> None:
 def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: str, out: Path) -> None:
     """Everything that can fail before a process is started: the run id, the trajectory, the strategy
     options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
-    from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
+    from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy, only when launching
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
     from runtime.recording.foxglove_live import require_foxglove  # noqa: PLC0415
 
     try:
@@ -193,7 +194,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
         raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
     validate_connected(traj, cfg.sensing_range_m)
     validate_passable(traj, cfg)
-    make_strategy(args.method, traj.n, cfg, args.localizer, selection_config(args), args.seed)
+    make_strategy(args.method, traj.n, cfg, make_localizer(args.localizer, cfg), selection_config(args), args.seed)
     if not args.no_record:
         record = Path(args.record or default_recording(run_id))
         _check_writable(record.parent, "--record", record)

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
+from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -113,7 +114,9 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--localizer", choices=["paper", "joint"], default="paper", help="localization method (default: paper, Section 5)")
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
+                        help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS, DEFAULT_LOCALIZER
 from swarm_cli.options import (add_json_option, add_model_options, add_selection_options, add_study_options, names, parse_list,
                                positive_int, run_options, run_study)
 
@@ -13,7 +14,8 @@ PAPER_REF57_PF = 0.0673  # inchworm.studies.calibration.PAPER_REF57_PF, without 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("calibration", help="noise at which ref57's P_f matches the paper's; inchworm / ref57 there")
-    p.add_argument("--localizers", default="paper,joint", help="localizers (default paper,joint)")
+    p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
+                   help=f"localizers, any registered one (default {','.join(BUILTIN_LOCALIZERS)})")
     p.add_argument("--sensing-scales", default="1", help="factors on range and bearing sigmas (default 1)")
     p.add_argument("--target", type=float, default=PAPER_REF57_PF, help="ref57 P_f to match (default the paper's 0.0673)")
     p.add_argument("--max-motion-scale", type=float, default=32.0, help="largest factor on turn and drive sigmas tried (default 32)")
@@ -29,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_selection_options(p)
     add_model_options(p)
     add_json_option(p)
-    p.set_defaults(run=run, localizer="paper")
+    p.set_defaults(run=run, localizer=DEFAULT_LOCALIZER)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import argparse
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from swarm_cli.options import (add_json_option, add_model_options, add_selection_options, add_study_options, model_config, names, run_study,
                                selection_config)
 
-LOCALIZERS = ("paper", "joint")  # as inchworm.studies.consistency, without importing it to build the parser
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("consistency", help="NEES of the reported position covariance along trajectories, per localizer and method")
-    p.add_argument("--localizers", default=",".join(LOCALIZERS), help="comma-separated (default paper,joint)")
+    p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
+                   help=f"comma-separated, any registered localizer (default {','.join(BUILTIN_LOCALIZERS)})")
     p.add_argument("--methods", default=",".join(METHODS), help=f"comma-separated anchor methods (default {','.join(METHODS)})")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--configs", type=int, default=100, help="configurations per trajectory (default 100)")

@@ -4,11 +4,13 @@ and radius 0 reproducing the point robots' numbers exactly (docs/bodies.md)."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from coordinator.clearance import clear_plan
+from coordinator.localization import make_localizer
 from coordinator.plan import Plan
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import AnchorSelector, SelectionConfig
@@ -101,10 +103,10 @@ def test_selection_returns_only_collision_free_plans():
     desired = CROSSING.configurations[0]
     check = BodyCheck.of_estimate(BODIES, estimate, desired)
     for seed in range(3):
-        selection = AnchorSelector(BODIES, "paper", FAST, seed=seed).select(estimate, desired)
+        selection = AnchorSelector(BODIES, make_localizer("paper", BODIES), FAST, seed=seed).select(estimate, desired)
         assert check.is_clear(selection.plan.groups)
     for n_a in (2, 3):
-        scores = AnchorSelector(BODIES, "paper", FAST.__class__(**{**FAST.__dict__, "anchor_counts": (n_a,)}), seed=1).select(estimate, desired)
+        scores = AnchorSelector(BODIES, make_localizer("paper", BODIES), replace(FAST, anchor_counts=(n_a,)), seed=1).select(estimate, desired)
         assert check.is_clear(scores.plan.groups)
 
 

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.bench import BenchResult
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -29,7 +30,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
     from runtime.models.scenarios import StepCase
 
 
-METHODS = ("paper", "joint")
+METHODS = BUILTIN_LOCALIZERS  # the built-in localizers: the keys of the JSON result
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
 SPACING_M = 0.25
 GAUSSIAN_FLOOR = 1e-12  # variance added to the GTSAM prior covariances (exact anchors)

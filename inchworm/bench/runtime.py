@@ -151,7 +151,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, stop_all  # noqa: PLC0415
     cfg = args.model
-    strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
+    strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))

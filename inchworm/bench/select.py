@@ -35,6 +35,7 @@ class SelectBenchOptions:
 
 def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
     """Time ``repeats`` selections per size; ``say`` is told each selection as it starts."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
 
     o = options
@@ -45,6 +46,7 @@ def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callab
     if o.one_core and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     cfg = o.run.model
+    localizer = make_localizer(o.run.localizer, cfg)
     results = []
     lines = [f"{'n':>5} {'s_median':>9} {'s_min':>7} {'s_max':>7} {'n_a chosen':>10} {'plans evaluated':>16}"]
     for n in o.sizes:
@@ -54,7 +56,7 @@ def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callab
                 say(f"n={n} selection {r + 1}/{o.repeats}")
             traj = random_trajectory(n, 1, np.random.default_rng([o.seed, n, r]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
             estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
-            selector = AnchorSelector(cfg, o.run.localizer, o.run.selection, seed=o.seed + r)
+            selector = AnchorSelector(cfg, localizer, o.run.selection, seed=o.seed + r)
             t0 = time.perf_counter()
             sel = selector.select(estimate, traj.configurations[0])
             times.append(time.perf_counter() - t0)

@@ -97,13 +97,14 @@ def evaluate(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans
 
 def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndarray, SwarmEstimate, MonteCarlo]:
     """The random start (n, 3), desired configuration (n, 2), start estimate and e_l estimator of an experiment."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
     rng = trajectory_rng(job.seed, job.experiment)  # the study's seeding convention (inchworm.seeding)
     step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
     traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step, **body_spacing(job.cfg))
     start, desired = traj.initial_poses, traj.configurations[0]
     estimate = SwarmEstimate.isotropic(traj.ids, start, START_DELTA_M, math.radians(START_HEADING_DEG))
-    mc = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))
+    mc = MonteCarlo(job.cfg, make_localizer(job.localizer, job.cfg), job.samples, int(rng.integers(2**63)))
     return rng, start, desired, estimate, mc
 
 
@@ -123,7 +124,7 @@ def run_experiment(job: Job) -> dict:
     rng, start, desired, estimate, mc = experiment_setup(job)
     counts = feasible_anchor_counts(n)
     random_plans = {n_a: Plan.equal(rng.permutation(n), n_a) for n_a in counts}
-    fresh = MonteCarlo(job.cfg, job.localizer, job.samples, int(rng.integers(2**63)))
+    fresh = MonteCarlo(job.cfg, mc.localizer, job.samples, int(rng.integers(2**63)))
     n_a_choice = choice_anchor_count(n)
     heuristic = heuristic_plan(start[:, :2], desired, n_a_choice)
     exhaustive = job.exhaustive and 0 < exhaustive_count(n) <= EXHAUSTIVE_LIMIT

@@ -23,6 +23,7 @@ import numpy as np
 
 from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
 from inchworm.noise import scaled
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -36,7 +37,7 @@ CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED 
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 
-    localizers: tuple[str, ...] = ("paper", "joint")
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     sensing_scales: tuple[float, ...] = (1.0,)
     target: float = PAPER_REF57_PF
     max_motion_scale: float = 32.0

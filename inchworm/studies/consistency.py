@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import check_at_least, check_localizers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
@@ -29,7 +30,6 @@ if TYPE_CHECKING:
 
     from coordinator.selection.selector import SelectionConfig
 
-LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with methods
 
 
@@ -37,7 +37,7 @@ METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed p
 class ConsistencyOptions:
     """Every (localizer, method) on the same ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
 
-    localizers: tuple[str, ...] = LOCALIZERS
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     methods: tuple[str, ...] = METHODS
     robots: int = 10
     configs: int = 100

@@ -18,6 +18,7 @@ import numpy as np
 
 from inchworm.comparison import RunTask, contact_stats, run_one
 from inchworm.noise import scaled
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -34,7 +35,7 @@ class NoiseOptions:
 
     motion_scales: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
     sensing_scales: tuple[float, ...] = (0.25, 1.0, 4.0)
-    localizers: tuple[str, ...] = ("paper", "joint")
+    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     robots: int = 10
     trajectories: int = 3
     configs: int = 4

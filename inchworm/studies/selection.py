@@ -82,28 +82,29 @@ def run_config(task: ConfigTask) -> dict:
     from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for, search_samples  # noqa: PLC0415
     job, selection, budget = task.job, task.selection, task.budget
     n = job.robots
-    rng, start, desired, estimate, _ = experiment_setup(job)
+    rng, start, desired, estimate, mc = experiment_setup(job)
+    localizer = mc.localizer  # one object for every Monte Carlo and selector of the experiment
     current = start[:, :2]
     sets = [int(rng.integers(2**63)) for _ in range(3)]
-    screen, pick, final = (MonteCarlo(job.cfg, job.localizer, s, seed) for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
+    screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed) for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
 
     def feasible(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
 
-    online = AnchorSelector(job.cfg, job.localizer, selection, seed=job.experiment).select(estimate, desired)
+    online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
     row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
     all_move = Plan.equal(np.arange(n), 0)
     e0 = float(final.localization_errors(estimate, desired, [all_move])[0])
     best_p_s = {0: selection.w_v - selection.w_l}
     for n_a in (k for k in feasible_anchor_counts(n) if k > 0):
         heuristic = heuristic_plan(current, desired, n_a)
-        forced = AnchorSelector(job.cfg, job.localizer, replace(selection, anchor_counts=(n_a,)), seed=job.experiment)
+        forced = AnchorSelector(job.cfg, localizer, replace(selection, anchor_counts=(n_a,)), seed=job.experiment)
         try:
             searched = forced.select(estimate, desired).plan
         except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
         screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
-        screen_mc = MonteCarlo(job.cfg, job.localizer, screen_samples, int(rng.integers(2**63)))
+        screen_mc = MonteCarlo(job.cfg, localizer, screen_samples, int(rng.integers(2**63)))
         raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
