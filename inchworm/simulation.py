@@ -85,7 +85,8 @@ def fallback_steps(result: RunResult) -> list[StepRecord]:
 
 def config_table(result: RunResult) -> str:
     """The per-configuration table (e_l and following error in mm), a line for each plan the body constraint
-    regrouped, and the steps that kept dead reckoning."""
+    regrouped, the steps that kept dead reckoning, and per configuration who stood still and why that many
+    (``anchor_choices``)."""
     lines = [f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
     rows, anchors = config_rows(result), result.anchor_counts()
     for c, rec in enumerate(result.configs):
@@ -96,7 +97,42 @@ def config_table(result: RunResult) -> str:
             lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
-    return "\n".join(lines)
+    return "\n".join([*lines, *anchor_choices(result)])
+
+
+def _robots(ids: list[int], most: int = 20) -> str:
+    """Robot ids as ranges (``0-3,7``); a long list as its count and first ids."""
+    from robot_agent.assembly import format_ids  # noqa: PLC0415 - the id-range text the agents' --ids take
+
+    if not ids:
+        return "none"
+    return format_ids(ids) if len(ids) <= most else f"{len(ids)} robots ({format_ids(ids[:most])}, ...)"
+
+
+def anchor_choices(result: RunResult) -> list[str]:
+    """Per configuration: which robots stood still at each step and, where the plan was searched, the outer
+    loop's score of every candidate count (Eq. 3: P_s = w_v P_v - w_l P_l, P_v = 1 / n_s, P_l = e_l / e_l(0),
+    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``."""
+    lines = []
+    for c in result.configs:
+        plan = c.plan if c.regrouped is None else c.regrouped.planned  # the strategy's (the steps taken: ``c.plan``)
+        still = "; ".join(f"step {k + 1}: {_robots(sorted(c.anchor_ids(k).tolist()))}" for k in range(c.plan.n_steps))
+        who = "no anchors, every robot moved at once" if c.plan.n_anchors == 0 else f"stood still {still}"
+        lines.append(f"config {c.config + 1}: n_a = {plan.n_anchors} ({who})")
+        if c.selection is None or len(c.selection.scores) < 2:
+            continue
+        lines.append(f"  {'n_a':>5} {'steps':>5} {'e_l (mm)':>9} {'P_v':>6} {'P_l':>6} {'P_s':>7}")
+        for s in c.selection.scores:
+            mark = "*" if s.n_anchors == plan.n_anchors else " "
+            steps = round(1 / s.p_v) if s.p_v > 0 else 0
+            if s.plan is None:
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {'no plan keeps the swarm connected':>30}")
+            else:
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+    if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
+        lines.append("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
+                     " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")
+    return lines
 
 
 def contacts_text(result: RunResult, radius: float) -> str:
@@ -125,6 +161,7 @@ def summary_text(result: RunResult, method: str, localizer: str, radius: float =
     if contacts_text(result, radius):
         lines.append(contacts_text(result, radius))
     lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
+    lines += [f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on" for back in result.rejoined]
     pf = result.pf() if result.has_truth else None
     over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
     lines.append(f"P_f = {pf:.4f} ({method}, {localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")

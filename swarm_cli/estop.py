@@ -1,6 +1,9 @@
 """``swarm estop``: emergency stop of every robot of a run.
 
-    swarm estop --run lab --hub tcp/127.0.0.1:7447 [--reason "..."]
+    swarm estop --run lab [--hub tcp/127.0.0.1:7447] [--reason "..."]
+
+Without ``--hub`` / ``--zenoh-config`` the hub is the one of the live run ``--run`` names on
+this host, from the run file its launcher keeps (``swarm_cli.run_file``).
 
 Publishes one ``EmergencyStop`` on ``swarm/<run>/estop``, a few times over ``--repeat-s``
 (default 0.3 s) so that it also reaches subscribers whose route is still being set up.
@@ -17,7 +20,8 @@ import sys
 from coordinator.stop import send_estop
 from runtime.wire.keys import validate_run
 from runtime.wire.transport import open_session
-from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
+from swarm_cli.options import add_connection_options, add_json_option, connection_label, connection_settings, print_json
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("estop", help="emergency stop: every robot of the run stops now (latched)")
@@ -33,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
     with open_session(connection_settings(args)) as session:
         sent = send_estop(session, args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s)
-    print(f"swarm estop: emergency stop sent to run {args.run_id}", file=sys.stderr, flush=True)
+    print(f"swarm estop: emergency stop sent to run {args.run_id} on {connection_label(args)}", file=sys.stderr, flush=True)
     if args.json:
         print_json({"run": args.run_id, "published": sent})
     return 0

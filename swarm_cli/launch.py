@@ -11,10 +11,16 @@ their paths. The coordinator records the run to ``recordings/<run>.mcap`` (``--r
 to choose, ``--no-record`` to turn it off) and prints the path; the launcher repeats it on
 stderr at the end. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
-period), so no process outlives it. Exit status: the coordinator's.
+period), so no process outlives it. Exit status: the coordinator's. While it runs it keeps the
+run file ``<run dir>/<run>.json`` with the hub's address (``swarm_cli.run_file``; removed at exit),
+so ``swarm estop --run RUN`` and ``swarm record --run RUN`` need no ``--hub``; a run id that is
+already live on this host is refused.
 
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
-(``random_trajectory(10, 3, seed 0)``).
+(``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
+anchors (``DEMO_SCENARIO``: the joint localizer and 4x the default motion noise; measured in
+docs/quickstart.md); ``--paper`` keeps the paper's localizer and the default noise, where it
+chooses none. Options given explicitly override either.
 
 ``--driver gateway`` runs the hardware path end to end without hardware: the launcher
 starts ``swarm emulate-robots`` (robots speaking the frame protocol on ptys, true poses
@@ -39,6 +45,15 @@ with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
 ``inchworm.processes`` holds the reusable pieces (``agent_command``, ``start_agents``, ``stop_all``) (also used by
 ``swarm bench runtime``).
+
+``--standby`` also starts a standby coordinator (``swarm coordinator --standby``, same options,
+recording to ``<record>.standby.mcap``): if the coordinator dies without a word (SIGKILL, OOM)
+the standby takes the run over from its last checkpoint, the launcher sends no emergency stop
+and waits for the standby, whose summary and exit status become the launcher's.
+``--kill-coordinator STEP`` SIGKILLs the coordinator at the first command of global step STEP
+(fault injection); the launcher times the takeover: from the kill to the first command or
+observation request of the new coordinator's epoch, and with ``--json`` adds
+``"coordinator_kill": {"step", "takeover_ms"}`` to the last line.
 """
 
 from __future__ import annotations
@@ -58,8 +73,8 @@ import numpy as np
 from coordinator.process import default_recording
 from coordinator.stop import StopSignals, send_estop
 from coordinator.strategies import METHODS
-from inchworm.processes import (AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO, RobotKiller, agents_per_process, default_gateway, radio_faults,
-                                start_agents, start_gateway, stop_all)
+from inchworm.processes import (AGENTS_PER_PROCESS, GRACE_S, ONE_PER_PROCESS_UP_TO, CoordinatorKiller, RobotKiller, agents_per_process,
+                                default_gateway, radio_faults, start_agents, start_gateway, stop_all, wait_for_standby)
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
@@ -69,11 +84,17 @@ from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
 from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from swarm_cli.coordinator_cmd import add_record_options
-from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.run_file import published_run
+from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, nonnegative, positive, print_json, selection_config
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "mc_start", "mc_emax", "on_lost", "min_robots", "rejoin")
+DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
+PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)
+DEMO_TEXT = ("demo scenario: joint localizer, motion noise 4x the default (turn 12 deg, drive 20 %): a robot that stands "
+             "still keeps its estimate, so the others localize against it far better than when everybody moves; the "
+             "selection weighs that against the extra step and chooses anchors (--paper: the paper's localizer and noise)")
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
@@ -84,9 +105,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--configs", type=int, default=3, help="configurations of the random trajectory (default 3)")
     add_run_options(p)
     p.set_defaults(run=run)
-    d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory")
+    d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory",
+                       description=f"A distributed run of 10 agent processes on a small built-in trajectory. {DEMO_TEXT}")
+    d.add_argument("--paper", action="store_true",
+                   help="the paper's localizer (Section 5) and the default noise instead of the demo scenario")
     add_run_options(d)
-    d.set_defaults(run=run_demo, trajectory=None, robots=10, configs=3)
+    d.set_defaults(run=run_demo, trajectory=None, robots=10, configs=3, **{name: None for name in DEMO_SCENARIO})
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
@@ -111,8 +135,14 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
                    help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--standby", action="store_true",
+                   help="also start a standby coordinator that takes the run over if the coordinator dies")
+    p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
+                   help="fault injection: SIGKILL the coordinator when global step STEP starts (with --standby: time the takeover)")
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
@@ -150,6 +180,18 @@ def _forward_output(stream, last_json: list[str]) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    """``swarm launch`` on the demo scenario (or with ``--paper`` the paper's defaults); explicit options win."""
+    scenario = PAPER_SCENARIO if args.paper else DEMO_SCENARIO
+    if args.model is not None:  # a model file gives the noise: the scenario only picks the localizer
+        scenario = {"localizer": scenario["localizer"]}
+    given = [name for name in DEMO_SCENARIO if getattr(args, name) is not None]
+    for name, value in scenario.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    what = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
+            "selection chooses speed (n_a = 0)") if args.paper else DEMO_TEXT
+    over = [f"--{n.replace('_', '-')}" for n in given] + ([f"--model {args.model}"] if args.model is not None else [])
+    print(f"swarm demo: {what}" + (f" (overridden: {', '.join(over)})" if over else ""), flush=True)
     return run(args)
 
 
@@ -216,6 +258,8 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     if args.driver not in BUILT_IN:
         driver_class(args.driver)
         driver_options(args.driver_option)
+    if args.kill_coordinator is not None and args.kill_coordinator < 1:
+        raise SwarmInputError(f"--kill-coordinator {args.kill_coordinator}: the step must be >= 1")
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -228,6 +272,7 @@ def run(args: argparse.Namespace) -> int:
         raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {args.trajectory}", launched=True)
     else:
         if args.robots < 2 or args.configs < 1:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
@@ -247,7 +292,8 @@ def run(args: argparse.Namespace) -> int:
     coordinator: subprocess.Popen | None = None
     signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
     try:
-        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
+        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session, \
+                published_run(run_id, hub, f"swarm {args.command}"):
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
@@ -285,20 +331,34 @@ def run(args: argparse.Namespace) -> int:
                     cmd.append(f"--linger={args.linger!r}")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(args.driver, f"agents ({args.driver})")
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
-            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
+                  f"(emergency stop: swarm estop --run {run_id})", file=sys.stderr, flush=True)
             killer = None
             if args.kill_robot is not None:
                 robot, step = args.kill_robot
                 killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
-            json_hold = args.json and killer is not None
+            json_hold = args.json and (killer is not None or args.kill_coordinator is not None)
+            standby = None
+            if args.standby:
+                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
+                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
+                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True)
+                procs.append(standby)
+                wait_for_standby(hub_session, run_id, standby)
             coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
             procs.append(coordinator)
+            coord_killer = None if args.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, args.kill_coordinator, coordinator)
             last: list[str] = []
-            forwarder = threading.Thread(target=_forward_output, args=(coordinator.stdout, last), daemon=True) if json_hold else None
-            if forwarder is not None:
+            forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
+                          for p in (coordinator, standby) if json_hold and p is not None]
+            for forwarder in forwarders:
                 forwarder.start()
             try:
                 status = coordinator.wait()
+                if standby is not None and status < 0:  # died without a word: the standby takes the run over
+                    print(f"swarm {args.command}: the coordinator was killed (signal {-status}); the standby takes over",
+                          file=sys.stderr, flush=True)
+                    status = standby.wait()
             except KeyboardInterrupt:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
                 print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
@@ -307,20 +367,32 @@ def run(args: argparse.Namespace) -> int:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
                 print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
                       file=sys.stderr, flush=True)
-            if forwarder is not None:
+            if standby is not None:
+                try:
+                    standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
+                except subprocess.TimeoutExpired:
+                    stop_all([standby], COORDINATOR_GRACE_S)
+            for forwarder in forwarders:
                 forwarder.join(timeout=10)
-            if killer is not None:
-                kill = killer.report()
-                if kill is not None:
-                    print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
-                          f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
-                if json_hold:
+            kill = None if killer is None else killer.report()
+            if kill is not None:
+                print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                      f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
+            coord_kill = None if coord_killer is None else coord_killer.report()
+            if coord_kill is not None:
+                print(f"swarm {args.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
+                      f"command came {coord_kill['takeover_ms']} ms after the kill", file=sys.stderr, flush=True)
+            if json_hold:
+                summary = {}
+                for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
                     try:
-                        summary = json.loads(last[0]) if last else {}
-                    except json.JSONDecodeError:  # the coordinator failed before its JSON line: pass it on as it was
-                        sys.stdout.write(last[0])
-                        summary = {}
-                    print_json({**summary, "kill": kill})
+                        summary = json.loads(line)
+                    except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
+                        sys.stdout.write(line)
+                extra = {} if killer is None else {"kill": kill}
+                if coord_killer is not None:
+                    extra["coordinator_kill"] = coord_kill
+                print_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it

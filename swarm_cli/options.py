@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
-from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -69,6 +68,44 @@ def positive_int(text: str) -> int:
     return value
 
 
+MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
+MAX_ROBOTS = 2000  # simulated robots (swarm sim, compare, studies): 1000 take 5-7 s of CPU per configuration, 5000 over 200 s
+MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
+MAX_CONFIGS = 10_000  # configurations of a random trajectory
+MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study
+LIMITS = {  # option dest -> (flag, least (None: the command checks it), most, what is limited)
+    "seed": ("--seed", 0, MAX_SEED, "numpy seeds are >= 0 and int64"),
+    "configs": ("--configs", None, MAX_CONFIGS, "configurations of a random trajectory"),
+    "trajectories": ("--trajectories", 1, MAX_TRAJECTORIES, "random trajectories"),
+}
+
+
+def check_limits(args: argparse.Namespace) -> None:
+    """``SwarmInputError`` naming the flag and its limits for a negative seed or an absurd size (every command:
+    ``swarm_cli.main`` calls it before running). ``--robots``: at most ``MAX_ROBOTS`` simulated or
+    ``MAX_LAUNCHED_ROBOTS`` launched as agent processes (the least, 2, is checked where the swarm is made)."""
+    limits = dict(LIMITS)
+    launched = getattr(args, "command", None) in ("launch", "demo")
+    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
+                        "robots launched as agent processes on one host" if launched else "simulated robots")
+    for dest, (flag, least, most, what) in limits.items():
+        value = getattr(args, dest, None)
+        if not isinstance(value, int) or isinstance(value, bool) or (least is None or value >= least) and value <= most:
+            continue
+        shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
+        if least is None:
+            raise SwarmInputError(f"{flag} {value}: at most {shown} ({what})")
+        raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
+
+
+def check_swarm_size(n: int, source: str, *, launched: bool = False) -> None:
+    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows."""
+    most = MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS
+    if n > most:
+        what = "robots launched as agent processes on one host" if launched else "simulated robots"
+        raise SwarmInputError(f"{source}: {n} robots, at most {most} ({what})")
+
+
 def add_model_options(parser: argparse.ArgumentParser) -> None:
     """Noise and sensing options mirroring ``ModelConfig``, and ``--model FILE`` (a model file, docs/calibration.md).
 
@@ -114,7 +151,12 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``).
+
+    Imported here, not with this module: the registry loads numpy and the entry-point metadata, which
+    ``swarm --help`` (it imports this module) need not pay for."""
+    from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names  # noqa: PLC0415
+
     parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
                         help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
@@ -124,8 +166,10 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
-    """``--workers``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
     add_workers_option(parser)
+    parser.add_argument("--executor", choices=("local", "dask"), default="local", help="local: a process pool; dask: a Dask LocalCluster (default local)")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster instead (docs/scale-out.md)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
     parser.add_argument("--resume", action="store_true",
                         help="continue the study interrupted in --out: runs already kept there are not run again (same final result)")
@@ -138,16 +182,13 @@ def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any,
     """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
     table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
     from inchworm.progress import Progress  # noqa: PLC0415
-    from inchworm.runner import default_executor  # noqa: PLC0415
+    from inchworm.runner import open_executor  # noqa: PLC0415
 
     options.validate()
     save_config(args)
-    result = study(options, executor=default_executor(args.workers), out=args.out, resume=args.resume, progress=Progress(total, label))
-    print(result.report())
-    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    with open_executor(args.executor, args.workers, args.scheduler) as executor:
+        result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))
+    return print_result(result, args.json, "wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
 
 
 def run_options(args: argparse.Namespace) -> RunOptions:
@@ -171,6 +212,16 @@ def print_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
+def print_result(result: Any, as_json: bool, *lines: str) -> int:
+    """A result's table, then ``lines``, and with ``as_json`` its JSON object as the last line; exit code 0."""
+    print(result.report())
+    for line in lines:
+        print(line)
+    if as_json:
+        print_json(result.to_json())
+    return 0
+
+
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
@@ -181,6 +232,11 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
     g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
+    g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
+                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
+                        "truths drawn from its covariance (estimate, the default until the pre-registered results); default known (docs/experiments.md)")
+    g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
+                   help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
@@ -197,6 +253,8 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
         method=args.selection,
+        mc_start=args.mc_start,
+        mc_emax=args.mc_emax,
     )
 
 
@@ -224,11 +282,14 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
     """How a process joins the run's Zenoh network: ``--hub ENDPOINT`` and/or ``--zenoh-config FILE``.
 
     ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-gateway-tls.json5`` with
-    TLS certificates); ``--hub`` then overrides its connect endpoints. One of the two is
-    required unless ``required=False``.
+    TLS certificates); ``--hub`` then overrides its connect endpoints. Without either, a command
+    with ``--run RUN`` takes the hub of that live run from its run file (``swarm_cli.run_file``);
+    one of them is required unless ``required=False``.
     """
     g = parser.add_argument_group("Zenoh connection")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--hub", default=None,
+                   help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447 (default: the hub of the live "
+                        "run --run names, from its run file on this host)")
     g.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file (TLS, access control; see deploy/README.md)")
     parser.set_defaults(_connection_required=required)
 
@@ -238,9 +299,13 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     from runtime.wire.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
 
     if args.hub is None and args.zenoh_config is None:
-        if getattr(args, "_connection_required", True):
+        if not getattr(args, "_connection_required", True):
+            return None
+        if getattr(args, "run_id", None) is None:
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
-        return None
+        from swarm_cli.run_file import hub_of  # noqa: PLC0415
+
+        args.hub = hub_of(args.run_id)  # so that connection_label and the metadata name it too
     return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
 
 
@@ -249,7 +314,7 @@ def connection_label(args: argparse.Namespace) -> str:
     return args.hub or f"config {args.zenoh_config}"
 
 
-NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers"})  # how to run, not what: never read from or saved to a study file
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers", "executor", "scheduler"})  # how to run, not what: never read from or saved to a study file
 
 
 def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:

@@ -100,7 +100,7 @@ def test_no_feasible_plan_is_said_clearly():
         AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(samples=2), seed=0).select(estimate, desired)
 
 
-# ------------------------------------------------------------------ the search's guarantees (issue 16)
+# ------------------------------------------------------------------ the search's guarantees
 
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
 from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402
@@ -117,7 +117,7 @@ def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(locali
     sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0)  # accuracy only: the count(s) that could win are searched
     result = AnchorSelector(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), sel, seed=seed).select(estimate, desired)
     assert result.fresh_seed is not None
-    fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed)
+    fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed, sel.mc_start)
     assert any(entry.searched for entry in result.scores)
     for entry in result.scores:
         assert entry.plan is not None and entry.e_l <= entry.seed_e_l
