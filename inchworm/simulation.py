@@ -126,7 +126,8 @@ def anchor_choices(result: RunResult) -> list[str]:
             mark = "*" if s.n_anchors == plan.n_anchors else " "
             steps = round(1 / s.p_v) if s.p_v > 0 else 0
             if s.plan is None:
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {'no plan keeps the swarm connected':>30}")
+                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {why:>30}")
             else:
                 lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
     if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):

@@ -145,6 +145,7 @@ class CountScore:
     plan: Plan | None
     seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
     searched: bool = False  # the inner loop ran for this count (else: the heuristic plan, screened)
+    crowded: bool = False  # no plan: its connected heuristic plan brings bodies too close (docs/bodies.md), none clear found
 
 
 @dataclass(frozen=True)
@@ -213,10 +214,12 @@ class AnchorSelector:
             def evaluate(plans: list[Plan]) -> np.ndarray:
                 return sampled(plans, samples, screen_seed)
 
-        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False) -> CountScore:
+        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False,
+                  crowded: bool = False) -> CountScore:
             p_v = speed_performance(n, n_a)
             p_l = e_l / e_max if e_max > 0 else 0.0
-            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched)
+            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched,
+                              crowded)
 
         all_move = Plan.equal(np.arange(n), 0)
 
@@ -235,7 +238,7 @@ class AnchorSelector:
         for n_a in self.candidate_counts(n):  # 1. screening: the heuristic plan of every count
             seeds[n_a] = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
             if not feasible(seeds[n_a]):
-                scores[n_a] = score(n_a, None, np.inf, e_max)
+                scores[n_a] = score(n_a, None, np.inf, e_max, crowded=connected(seeds[n_a]))
             elif n_a == 0:
                 scores[n_a] = score(n_a, all_move, e_zero, e_max)
             else:
@@ -327,7 +330,7 @@ class AnchorSelector:
                 continue
             if not bodies.is_clear(plan.groups):
                 crowded.append(plan)
-                scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
+                scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None, crowded=True))
                 continue
             e_l = e_zero if n_a == 0 else evaluate(plan)
             p_l = e_l / e_max if e_max > 0 else 0.0
