@@ -123,8 +123,8 @@ def test_a_stale_run_file_is_ignored_and_removed(tmp_path):
 
 def test_replay_publish_says_where_and_a_recorder_finds_it_by_run_id(tmp_path):
     env = _env(tmp_path)
-    replay = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "replay", str(SAMPLE), "--publish", "--speed", "0",
-                               "--wait", "30", "--json"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    replay = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "replay", str(SAMPLE), "--publish", "--same-run",
+                               "--speed", "0", "--wait", "30", "--json"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                               text=True)
     recorder = None
     try:
