@@ -96,7 +96,7 @@ def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3) -> dict
     summaries, identical = [], 0
     progress = Progress(seeds, "coordinator")
     for seed in range(seeds):
-        traj = random_trajectory(robots, configs, np.random.default_rng(seed))
+        traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))  # as launch draws it
         ref = simulate(traj, "inchworm", ModelConfig(), seed=seed)
         step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
