@@ -47,7 +47,7 @@ def clear_plan(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: n
     if cfg.robot_radius_m <= 0:
         return plan, None
     out = BodyCheck.of_estimate(cfg, estimate, desired).regroup(plan.groups)
-    if len(out.groups) == plan.n_steps and all(np.array_equal(a, b) for a, b in zip(out.groups, plan.groups)):
+    if len(out.groups) == plan.n_steps and all(np.array_equal(a, b) for a, b in zip(out.groups, plan.groups, strict=True)):
         return plan, None
     split = Plan(np.concatenate(out.groups), tuple(len(g) for g in out.groups))
     return split, Regrouping(plan, tuple(int(r) for r in estimate.ids[out.unclear]), out.sigmas)

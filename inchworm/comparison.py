@@ -31,8 +31,9 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
 
 if TYPE_CHECKING:
-    from coordinator.selection.selector import SelectionConfig
     from matplotlib.axes import Axes
+
+    from coordinator.selection.selector import SelectionConfig
 
 REFERENCE = "ref57"
 SEARCHING = ("inchworm", "inchworm-equal-speed")  # methods that rank anchor plans (``selections``)

@@ -46,8 +46,8 @@ def simulate(
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.bodies import validate_passable  # noqa: PLC0415
+    from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
 
     cfg = model or ModelConfig()
@@ -92,7 +92,8 @@ def config_table(result: RunResult) -> str:
     for c, rec in enumerate(result.configs):
         if rows:
             r = rows[c]
-            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} {r['travelled']:>13.3f}")
+            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} "
+                         f"{r['travelled']:>13.3f}")
         else:
             lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]

@@ -45,25 +45,27 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
+    QUIET_S,
     EmptyBody,
+    ErrorBody,
     Frame,
     FrameDecoder,
     FrameError,
     FrameType,
     HeartbeatBody,
     MotionBody,
-    QUIET_S,
     ObservationBody,
+    RefusalBody,
     RefusalCode,
     RunBody,
     StepBody,
     encode_frame,
     fits_f32,
 )
-from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.wire.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
 from runtime.wire.messages import (
     CommandLimits,
@@ -217,7 +219,7 @@ class Link:
         self._stop = threading.Event()
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
-        self._subs = []
+        self._subs: list = []
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -341,18 +343,18 @@ class Link:
                 elif msg is not None:
                     self._estop_all(msg.step)
             else:
-                msg = decode_or_drop(payload, self.drops, key, LinkRequest)
-                if msg is None:
+                req = decode_or_drop(payload, self.drops, key, LinkRequest)
+                if req is None:
                     self.counters.rejected += 1
                     return
-                if msg.robot not in self.robots:
+                if req.robot not in self.robots:
                     return  # a robot behind another port: that link's request
-                problem = self._invalid(msg)
+                problem = self._invalid(req)
                 if problem is not None:
                     self.counters.rejected += 1
                     _log.warning("port %s: request dropped: %s", self.port.name, problem)
                     return
-                self._on_request(msg)
+                self._on_request(req)
 
     def _invalid(self, req: LinkRequest) -> str | None:
         """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits."""
@@ -375,8 +377,8 @@ class Link:
     def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
         entries = [e for p in parts or [] for e in p.entries]
         msg = LinkReply(run=self.run_id, step=step, robot=robot, kind=kind, reason=reason,
-                        observed=[e[0] for e in entries], ranges=[max(float(e[1]), 0.0) for e in entries],
-                        bearings=[float(e[2]) for e in entries])
+                        observed=tuple(e[0] for e in entries), ranges=tuple(max(float(e[1]), 0.0) for e in entries),
+                        bearings=tuple(float(e[2]) for e in entries))
         publish(self.session, message_key(msg), encode(msg))
 
     def _on_request(self, req: LinkRequest) -> None:
@@ -448,9 +450,9 @@ class Link:
         if robot is None:
             return
         robot.last_rx = now
-        for req in robot.requests():
-            if frame.seq == req.seq:
-                req.retries = 0  # the robot answers: the retry budget starts again
+        for pending in robot.requests():
+            if frame.seq == pending.seq:
+                pending.retries = 0  # the robot answers: the retry budget starts again
         try:
             body = frame.body()
         except FrameError as exc:
@@ -469,7 +471,8 @@ class Link:
             self._reply(robot.id, control.step, "estopped" if kind == FrameType.ESTOPPED else "reset")
             return
         begin = robot.begin
-        if begin is not None and frame.seq == begin.seq and kind == FrameType.RUN_ACK and body.epoch == self.counters.epoch:
+        if (begin is not None and frame.seq == begin.seq and kind == FrameType.RUN_ACK and isinstance(body, RunBody)
+                and body.epoch == self.counters.epoch):
             self._rtt(begin.sent_at, now)
             robot.begin = None
             self._start_waiting(robot)
@@ -486,18 +489,19 @@ class Link:
             return
         if kind == FrameType.DONE:
             self._finish(robot, "done")
-        elif kind == FrameType.REFUSED:
+        elif kind == FrameType.REFUSED and isinstance(body, RefusalBody):
             code = RefusalCode(body.code).name if body.code in set(RefusalCode) else str(body.code)
             self._finish(robot, "refused", f"robot {robot.id} refused ({code}): {body.reason}")
-        elif kind == FrameType.ERROR:
+        elif kind == FrameType.ERROR and isinstance(body, ErrorBody):
             self._finish(robot, "refused", f"robot {robot.id} reported error {body.code}: {body.text}")
-        elif kind == FrameType.OBSERVATION and req.kind == "observe":
+        elif kind == FrameType.OBSERVATION and isinstance(body, ObservationBody) and req.kind == "observe":
             req.parts[body.part] = body
             if len(req.parts) == body.parts and all(p.parts == body.parts for p in req.parts.values()):
                 self._finish(robot, "observation", parts=[req.parts[i] for i in range(body.parts)])
 
     def _finish(self, robot: _Robot, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
         req = robot.busy
+        assert req is not None  # called for the request in flight only
         robot.busy = None
         self._reply(robot.id, req.step, kind, reason, parts=parts)
         self._start_waiting(robot)
@@ -546,14 +550,14 @@ class Link:
             d = dataclasses.replace(self.decoder.stats)
             lost = sorted(r.id for r in self.robots.values() if r.lost)
         return LinkStats(
-            run=self.run_id, step=0, port=self.port.name, robots=sorted(self.robots),
+            run=self.run_id, step=0, port=self.port.name, robots=tuple(sorted(self.robots)),
             frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
             crc_errors=d.crc_errors, length_errors=d.length_errors, skipped_bytes=d.skipped_bytes,
             timeouts=self.counters.timeouts, rejected=self.counters.rejected,
             rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
             rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
             rtt_ms_max=max(rtts) if rtts else 0.0,
-            lost=lost,
+            lost=tuple(lost),
         )
 
     def _publish_stats(self) -> None:

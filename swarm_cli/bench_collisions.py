@@ -8,8 +8,16 @@ from __future__ import annotations
 import argparse
 
 from coordinator.strategies import METHODS
-from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_workers_option, model_config, names, \
-    print_result, selection_config
+from swarm_cli.options import (
+    add_json_option,
+    add_model_options,
+    add_selection_options,
+    add_workers_option,
+    model_config,
+    names,
+    print_result,
+    selection_config,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -14,10 +14,10 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from runtime.errors import SwarmInputError
+from runtime.models.state import SwarmEstimate
 from runtime.wire.keys import (
     KeyspaceError,
     ParsedKey,
@@ -37,12 +37,13 @@ from runtime.wire.messages import (
     MAX_ITEMS,
     MESSAGE_TYPES,
     CommandLimits,
+    ContactMessage,
     DropCounter,
+    EmergencyStop,
     EstimateMessage,
     LinkReply,
     LinkRequest,
     LinkStats,
-    EmergencyStop,
     Message,
     MessageError,
     MotionCommand,
@@ -50,7 +51,6 @@ from runtime.wire.messages import (
     ObserveRequest,
     PlanMessage,
     RobotEvent,
-    ContactMessage,
     Status,
     TruthMessage,
     TruthSetMessage,
@@ -63,7 +63,6 @@ from runtime.wire.messages import (
     refusal_status,
     type_for_key,
 )
-from runtime.models.state import SwarmEstimate
 
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 STAMP = 1_700_000_000_123_456_789
@@ -770,6 +769,6 @@ def test_protocol_doc_examples_decode_to_their_json():
     hexes = re.findall(r"```text\n([0-9a-f\n]+)```", doc)
     jsons = re.findall(r"```json\n(.*?)```", doc, re.S)
     assert len(hexes) == len(jsons) == 2
-    for hex_text, json_text in zip(hexes, jsons):
+    for hex_text, json_text in zip(hexes, jsons, strict=True):
         msg = decode(bytes.fromhex(hex_text.replace("\n", "")))
         assert raw_map(msg) == json.loads(json_text)

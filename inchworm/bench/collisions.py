@@ -113,7 +113,7 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
                      f"{r['configs_with_contact_pct']:>9.2f} {r['steps_per_config']:>6.2f} {r['_steps_added']:>6} {r['_unclear']:>7} "
                      f"{r['pf_mean']:>8.4f}")
     lines.append("added: steps the body constraint added over all runs; unclear: configuration changes with robots no order kept clear")
-    summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs,
-               "rows": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]}
-    return BenchResult(summary["rows"], summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",
+    public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
+    summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
+    return BenchResult(public, summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",
                        "contacts between robot bodies")

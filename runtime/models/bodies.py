@@ -86,7 +86,7 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
     s = closest_time(start[mover] - start[other], disp[mover] - disp[other])[:, None]
     mid = (start[mover] + start[other] + s * (disp[mover] + disp[other])) / 2.0
     out = [Contact(int(min(i, j)), int(max(i, j)), float(d[r, c]), (float(m[0]), float(m[1])))
-           for i, j, r, c, m in zip(mover, other, rows, cols, mid)]
+           for i, j, r, c, m in zip(mover, other, rows, cols, mid, strict=True)]
     return sorted(out, key=lambda c: (c.a, c.b))
 
 
@@ -152,7 +152,7 @@ class BodyCheck:
         bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
         rows, cols = np.nonzero(bad)
         return [Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]), float(required[r, c]))
-                for r, c in zip(rows, cols)]
+                for r, c in zip(rows, cols, strict=True)]
 
     def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
         closest, required = self._rows(np.array([robot]), before, moving)
@@ -248,15 +248,15 @@ class BodyCheck:
         from scipy.sparse import coo_matrix  # noqa: PLC0415 - scipy only when a plan needs reordering
         from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
 
-        robots = [int(r) for r in robots]
-        local = {r: k for k, r in enumerate(robots)}
+        ids = [int(r) for r in robots]
+        local = {r: k for k, r in enumerate(ids)}
         edges, stuck = [], set()  # (a, b): a must move before b
-        for r in robots:
+        for r in ids:
             near_current, near_desired = self._single_hits(r)
             edges += [(local[j], local[r]) for j in near_current if j in local]
             edges += [(local[r], local[j]) for j in near_desired if j in local]
             stuck |= {r for j in near_desired if j not in local and done[j]}
-        m = len(robots)
+        m = len(ids)
         a, b = (np.array([e[k] for e in edges], np.int64) for k in (0, 1))
         graph = coo_matrix((np.ones(len(edges)), (a, b)), shape=(m, m)).tocsr()
         _, label = connected_components(graph, directed=True, connection="strong")
@@ -264,11 +264,11 @@ class BodyCheck:
         for k, c in enumerate(label):
             members.setdefault(int(c), []).append(k)
         after: dict[int, set[int]] = {c: set() for c in members}
-        for x, y in zip(a.tolist(), b.tolist()):
+        for x, y in zip(a.tolist(), b.tolist(), strict=True):
             if label[x] != label[y]:
                 after[int(label[x])].add(int(label[y]))
         waiting = {c: 0 for c in members}
-        for c, nxt in after.items():
+        for nxt in after.values():
             for d in nxt:
                 waiting[d] += 1
         ready = [(min(members[c]), c) for c in members if not waiting[c]]
@@ -277,7 +277,7 @@ class BodyCheck:
         out, unclear = [], []
         while ready:  # Kahn's topological sort of the components
             c = heapq.heappop(ready)[1]
-            group = [robots[k] for k in members[c]]
+            group = [ids[k] for k in members[c]]
             moving = np.zeros(len(before), bool)
             moving[group] = True
             if stuck & set(group) or (len(group) > 1 and self.step_conflicts(before, moving)):

@@ -224,8 +224,8 @@ RANGE_MARGIN = 0.9  # random configurations are connected within this fraction o
 
 def _spanning_edges(xy: np.ndarray, reach: float) -> np.ndarray:
     """(m, 2) robot pairs of a minimum spanning forest of the graph 'within ``reach``' of ``xy``."""
-    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     from scipy.sparse.csgraph import minimum_spanning_tree  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     mst = minimum_spanning_tree(cKDTree(xy).sparse_distance_matrix(cKDTree(xy), reach, output_type="coo_matrix").tocsr())
     return np.column_stack(mst.nonzero())
 
@@ -242,14 +242,14 @@ def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: flo
     touching in any order (``runtime.models.bodies.impassable_pairs``; a rigid motion of robots
     ``sep`` > 2 ``radius`` apart turning by at most 30 degrees never has such a pair).
     """
-    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     scale = np.ones(len(rigid))
     for _ in range(60):
         xy = rigid + scale[:, None] * noise
         tree = cKDTree(xy)
         bad = tree.query_pairs(sep, output_type="ndarray").ravel()
-        if not len(bad) and radius > 0:
+        if not len(bad) and radius > 0 and prev is not None:
             bad = impassable_pairs(prev, xy, radius).ravel()
         if not len(bad):  # the (costlier) connectivity check only once robots are apart
             parts, label = connected_components(tree.sparse_distance_matrix(tree, reach, output_type="coo_matrix"), directed=False)
