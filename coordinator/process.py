@@ -251,7 +251,7 @@ def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = 
     from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with a live view
     from runtime.wire.transport import subscribe  # noqa: PLC0415
 
-    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json())
+    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json(), robot_radius=o.model.robot_radius_m)
     live = Live(view)
     subscriber = subscribe(session, run_wildcard(o.run_id), view.handle)
     log(f"live view for the Foxglove app at {view.url}")
@@ -295,12 +295,14 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         conflict_message,
         live_coordinators,
     )
+    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
     traj, cfg = o.trajectory, o.model
     selection = o.selection or SelectionConfig()
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
@@ -336,7 +338,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             parent, state = taken if taken is not None else (0, None)
             try:
                 backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s),
-                                            simulated=o.truth, parent=parent, rejoin=o.rejoin)
+                                            simulated=o.truth, parent=parent, rejoin=o.rejoin,
+                                            robot_radius_m=cfg.robot_radius_m)
             except CoordinatorConflict as exc:
                 completed = True  # not ours to stop
                 return CoordinatorOutcome(None, None, live, exc)

@@ -63,8 +63,9 @@ from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
+from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
 from runtime.wire.keys import validate_run
 from runtime.wire.run_file import published_run
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
@@ -176,7 +177,8 @@ def launch_trajectory(o: LaunchOptions) -> Trajectory:
         return traj
     if o.robots < 2 or o.configs < 1:
         raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
-    return random_trajectory(o.robots, o.configs, np.random.default_rng(o.trajectory_seed), sensing_range=o.model.sensing_range_m)
+    return random_trajectory(o.robots, o.configs, np.random.default_rng(o.trajectory_seed), sensing_range=o.model.sensing_range_m,
+                             **body_spacing(o.model))
 
 
 def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Path) -> None:
@@ -191,6 +193,7 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     except SwarmInputError as exc:
         raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
     validate_connected(traj, o.model.sensing_range_m)
+    validate_passable(traj, o.model)
     make_strategy(o.method, traj.n, o.model, make_localizer(o.localizer, o.model), o.selection, o.seed)
     if not o.no_record:
         record = Path(o.record or default_recording(run_id))
@@ -206,7 +209,10 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
             except OSError as exc:
                 raise SwarmInputError(f"--foxglove {o.foxglove}: cannot serve on 127.0.0.1:{o.foxglove}: {exc.strerror or exc}") from None
     if o.driver == "gateway" and o.gateway_config:
-        GatewayConfig.load(o.gateway_config)
+        radius = GatewayConfig.load(o.gateway_config).limits.robot_radius_m
+        if radius != o.model.robot_radius_m:
+            raise SwarmInputError(f"--robot-radius {o.model.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
+                                  f"in {o.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
     if o.driver not in BUILT_IN:
         driver_class(o.driver)
         driver_options(list(o.driver_options))
@@ -249,7 +255,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
             if o.driver == "gateway":
-                gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj)
+                gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")

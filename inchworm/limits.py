@@ -32,6 +32,7 @@ MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
     "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, "--bearing-sigma-deg"),
     "sensing_range": ("sensing_range_m", float, "--sensing-range"),
     "dropout": ("dropout_prob", float, "--dropout"),
+    "robot_radius": ("robot_radius_m", float, "--robot-radius"),
 }
 
 

@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.process import CoordinatorOptions, default_recording, recording_line, result_json, run_coordinator, say  # noqa: PLC0415
     from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
     from inchworm.plots import write_run_plots  # noqa: PLC0415
-    from inchworm.simulation import config_rows, fallback_steps, summary_text  # noqa: PLC0415
+    from inchworm.simulation import config_rows, contacts_json, fallback_steps, summary_text  # noqa: PLC0415
 
     options = CoordinatorOptions(
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     if args.result:
         args.result.write_text(json.dumps(result_json(result)))
     plots = write_run_plots(result, args.out) if args.out and result.configs else None
-    print(summary_text(result, args.method, args.localizer))
+    radius = options.model.robot_radius_m
+    print(summary_text(result, args.method, args.localizer, radius))
     if plots:
         print(f"wrote {', '.join(plots)}")
     if outcome.recording:
@@ -119,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                     "configs": config_rows(result),
                     "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
                     "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots or [],
-                    "recording": outcome.recording["path"] if outcome.recording else None})
+                    "recording": outcome.recording["path"] if outcome.recording else None, **contacts_json(result, radius)})
     outcome.live.linger(args.linger)
     return 0
 

@@ -22,7 +22,8 @@ from inchworm.processes import AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO
 from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
-MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout",
+                 "robot_radius")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "mc_start", "mc_emax", "on_lost", "min_robots", "rejoin")
 DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
 PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)

@@ -19,7 +19,7 @@ from pathlib import Path
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 
 EXIT_DIVERGED = 1
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 

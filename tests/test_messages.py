@@ -37,6 +37,7 @@ from runtime.wire.messages import (
     MAX_ITEMS,
     MESSAGE_TYPES,
     CommandLimits,
+    ContactMessage,
     DropCounter,
     EmergencyStop,
     EstimateMessage,
@@ -90,6 +91,7 @@ def samples() -> list[Message]:
                   length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
         EmergencyStop(**head, source="swarm estop", reason="operator pressed stop", robots=[4]),
         RobotEvent(**head, robot=4, kind="lost", reason="liveliness token gone"),
+        ContactMessage(**head, config=2, a=3, b=4, distance_m=0.0185, radius_m=0.011, point=[0.25, -0.5]),
     ]
 
 
@@ -563,7 +565,9 @@ def test_message_keys_and_key_checked_decoding():
         "LinkStats": "stats",
         "EmergencyStop": "estop",
         "RobotEvent": "event",
+        "ContactMessage": "contact",
     }
+    assert message_key(SAMPLES["ContactMessage"]) == "swarm/r1/sim/contact"
     assert message_key(SAMPLES["RobotEvent"]) == "swarm/r1/coord/event"
     assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
     assert message_key(SAMPLES["EmergencyStop"]) == "swarm/r1/estop"
