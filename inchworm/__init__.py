@@ -5,6 +5,8 @@
     same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
+    check = inchworm.check_recording(inchworm.CheckOptions(Path("recordings/sample.mcap")))  # swarm replay --check
+    status = inchworm.launch(inchworm.LaunchOptions(ModelConfig(), "paper", SelectionConfig()))  # swarm launch
 
 Every study takes typed options (frozen dataclasses) and returns a result with ``rows``,
 ``to_json()`` (what ``swarm ... --json`` prints), ``report()`` (its table) and
@@ -25,9 +27,11 @@ if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
+    from inchworm.launcher import LaunchOptions, launch
     from inchworm.localize_data import localize, localize_document
     from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
+    from inchworm.replay import CheckOptions, PublishOptions, check_recording, publish
     from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
     from inchworm.simulation import simulate
     from inchworm.studies.anchors import AnchorsOptions, AnchorsResult, study_anchors
@@ -58,6 +62,9 @@ _WHERE = {
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
+    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher",
+    "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
+    "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }
 
 __all__ = ["LocalizationError", "SwarmError", "SwarmInputError", *_WHERE]

@@ -3,7 +3,7 @@
     swarm estop --run lab [--hub tcp/127.0.0.1:7447] [--reason "..."]
 
 Without ``--hub`` / ``--zenoh-config`` the hub is the one of the live run ``--run`` names on
-this host, from the run file its launcher keeps (``swarm_cli.run_file``).
+this host, from the run file its launcher keeps (``runtime.wire.run_file``).
 
 Publishes one ``EmergencyStop`` on ``swarm/<run>/estop``, a few times over ``--repeat-s``
 (default 0.3 s) so that it also reaches subscribers whose route is still being set up.

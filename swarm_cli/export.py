@@ -21,7 +21,6 @@ on bad input (unreadable recording, existing OUT, missing extra).
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
@@ -44,32 +43,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def run_robots(info: dict) -> tuple[list[int], list | None]:
-    """The run's robot ids and desired configurations: from the trajectory metadata, else from its robot channels."""
-    from runtime.recording.foxglove_scene import trajectory_configurations  # noqa: PLC0415
-
-    trajectory = info["metadata"].get("run", {}).get("trajectory") if isinstance(info["metadata"].get("run"), dict) else None
-    configurations = trajectory_configurations(trajectory)
-    if configurations:
-        return sorted(configurations[0]), configurations
-    robots = sorted({int(c["topic"].split("/")[2]) for c in info["channels"]
-                     if c["topic"].startswith("/robot/") and c["topic"].split("/")[2].isdigit()})
-    return robots, None
-
-
-def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
-    """The Foxglove layout of the recording ``src`` (with ``ros2``: of its rosbag2 export) written to ``out``."""
-    from runtime.recording.foxglove_layout import layout  # noqa: PLC0415
-    from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
-
-    robots, configurations = run_robots(recording_info(src))
-    if not robots:
-        raise SwarmInputError(f"{src}: no robots found (no trajectory in its metadata, no /robot/<id>/... channel)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(layout(robots, configurations, ros2=ros2), indent=1) + "\n")
-    return {"path": str(out), "robots": len(robots), "for": "ros2" if ros2 else "recording"}
-
-
 def run(args: argparse.Namespace) -> int:
     if args.truth is not None:
         if args.ros2 is not None or args.foxglove_layout is not None:
@@ -88,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {topic:<28} {count:>6}")
         result.update(ros2)
     if args.foxglove_layout is not None:
+        from runtime.recording.foxglove_layout import write_layout  # noqa: PLC0415
+
         result["foxglove_layout"] = write_layout(args.file, args.foxglove_layout, ros2=args.ros2 is not None)
         what = f"the bag {args.ros2}" if args.ros2 is not None else args.file
         print(f"wrote {args.foxglove_layout}: Foxglove layout of {what} for its {result['foxglove_layout']['robots']} robots")
@@ -97,16 +72,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_truth(args: argparse.Namespace) -> int:
-    from runtime.recording.run_log import load_run_log  # noqa: PLC0415
-    from runtime.recording.truth_csv import write_truth_csv  # noqa: PLC0415
+    from runtime.recording.truth_csv import export_truth  # noqa: PLC0415
 
-    log = load_run_log(args.file)
-    if not log.truths:
-        raise SwarmInputError(f"{args.file}: the recording holds no true poses (TruthMessage): only simulated runs have them")
-    rows = [(robot, step, *pose) for (robot, step), pose in log.truths.items()]
-    n = write_truth_csv(args.truth, rows)
-    steps = sorted({step for _, step in log.truths})
-    print(f"wrote {args.truth}: {n} true poses of {len(log.ids)} robots, steps {steps[0]}-{steps[-1]}")
+    out = export_truth(args.file, args.truth)
+    print(f"wrote {args.truth}: {out['rows']} true poses of {out['robots']} robots, steps {out['first_step']}-{out['last_step']}")
     if args.json:
-        print_json({"path": str(args.truth), "rows": n, "robots": len(log.ids), "steps": len(steps)})
+        print_json({k: out[k] for k in ("path", "rows", "robots", "steps")})
     return 0

@@ -7,7 +7,6 @@ import json
 import math
 import os
 from collections.abc import Callable
-from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -68,42 +67,11 @@ def positive_int(text: str) -> int:
     return value
 
 
-MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
-MAX_ROBOTS = 2000  # simulated robots (swarm sim, compare, studies): 1000 take 5-7 s of CPU per configuration, 5000 over 200 s
-MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
-MAX_CONFIGS = 10_000  # configurations of a random trajectory
-MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study
-LIMITS = {  # option dest -> (flag, least (None: the command checks it), most, what is limited)
-    "seed": ("--seed", 0, MAX_SEED, "numpy seeds are >= 0 and int64"),
-    "configs": ("--configs", None, MAX_CONFIGS, "configurations of a random trajectory"),
-    "trajectories": ("--trajectories", 1, MAX_TRAJECTORIES, "random trajectories"),
-}
-
-
 def check_limits(args: argparse.Namespace) -> None:
-    """``SwarmInputError`` naming the flag and its limits for a negative seed or an absurd size (every command:
-    ``swarm_cli.main`` calls it before running). ``--robots``: at most ``MAX_ROBOTS`` simulated or
-    ``MAX_LAUNCHED_ROBOTS`` launched as agent processes (the least, 2, is checked where the swarm is made)."""
-    limits = dict(LIMITS)
-    launched = getattr(args, "command", None) in ("launch", "demo")
-    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
-                        "robots launched as agent processes on one host" if launched else "simulated robots")
-    for dest, (flag, least, most, what) in limits.items():
-        value = getattr(args, dest, None)
-        if not isinstance(value, int) or isinstance(value, bool) or (least is None or value >= least) and value <= most:
-            continue
-        shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
-        if least is None:
-            raise SwarmInputError(f"{flag} {value}: at most {shown} ({what})")
-        raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
+    """``inchworm.limits.check_limits`` of every command's options (``swarm_cli.main`` calls it before running)."""
+    from inchworm.limits import check_limits as check  # noqa: PLC0415
 
-
-def check_swarm_size(n: int, source: str, *, launched: bool = False) -> None:
-    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows."""
-    most = MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS
-    if n > most:
-        what = "robots launched as agent processes on one host" if launched else "simulated robots"
-        raise SwarmInputError(f"{source}: {n} robots, at most {most} ({what})")
+    check(vars(args), launched=getattr(args, "command", None) in ("launch", "demo"))
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
@@ -129,25 +97,12 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
                         "(default 0.011, docs/bodies.md)")
 
 
-MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
-    "turn_sigma_deg": ("turn_sigma_rad", math.radians, "--turn-sigma-deg"),
-    "drive_sigma_frac": ("drive_sigma_frac", float, "--drive-sigma-frac"),
-    "range_sigma": ("range_sigma_m", float, "--range-sigma"),
-    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, "--bearing-sigma-deg"),
-    "sensing_range": ("sensing_range_m", float, "--sensing-range"),
-    "dropout": ("dropout_prob", float, "--dropout"),
-    "robot_radius": ("robot_radius_m", float, "--robot-radius"),
-}
-
-
 def model_config(args: argparse.Namespace) -> ModelConfig:
     """``ModelConfig`` from the options added by ``add_model_options``: the ``--model`` file's values (or the
     defaults), overridden by the flags given."""
-    from runtime.models.model_file import load_model  # noqa: PLC0415
+    from inchworm.limits import MODEL_FLAGS, model_from_flags  # noqa: PLC0415
 
-    base = load_model(args.model) if getattr(args, "model", None) is not None else ModelConfig()
-    given = {field: to_si(getattr(args, dest)) for dest, (field, to_si, _) in MODEL_FLAGS.items() if getattr(args, dest, None) is not None}
-    return replace(base, **given)
+    return model_from_flags(getattr(args, "model", None), {dest: getattr(args, dest, None) for dest in MODEL_FLAGS})
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
@@ -243,22 +198,10 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
-    from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a command runs
-    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from inchworm.limits import selection_from  # noqa: PLC0415
 
-    if not 0.0 <= args.w_v <= 1.0:
-        raise SwarmInputError(f"--w-v must be in [0, 1], got {args.w_v}")
-    if args.population < 2 or args.generations < 0:
-        raise SwarmInputError("--population must be >= 2 and --generations >= 0")
-    return SelectionConfig(
-        w_v=args.w_v,
-        w_l=1.0 - args.w_v,
-        samples=args.samples,
-        genetic=GeneticConfig(population=args.population, generations=args.generations),
-        method=args.selection,
-        mc_start=args.mc_start,
-        mc_emax=args.mc_emax,
-    )
+    return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection,
+                          args.mc_start, args.mc_emax)
 
 
 def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:
@@ -286,7 +229,7 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
 
     ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-gateway-tls.json5`` with
     TLS certificates); ``--hub`` then overrides its connect endpoints. Without either, a command
-    with ``--run RUN`` takes the hub of that live run from its run file (``swarm_cli.run_file``);
+    with ``--run RUN`` takes the hub of that live run from its run file (``runtime.wire.run_file``);
     one of them is required unless ``required=False``.
     """
     g = parser.add_argument_group("Zenoh connection")
@@ -306,7 +249,7 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
             return None
         if getattr(args, "run_id", None) is None:
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
-        from swarm_cli.run_file import hub_of  # noqa: PLC0415
+        from runtime.wire.run_file import hub_of  # noqa: PLC0415
 
         args.hub = hub_of(args.run_id)  # so that connection_label and the metadata name it too
     return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)

@@ -11,14 +11,12 @@ earlier are not recorded). Exit status 0, 2 on bad input.
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
 from pathlib import Path
 
-from runtime.errors import SwarmInputError
-from runtime.recording.mcap_log import counts_text, record_run
+from runtime.recording.mcap_log import counts_text, record_run, run_metadata
 from runtime.wire.keys import run_wildcard, validate_run
 from swarm_cli.entry import portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
@@ -41,34 +39,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
-def _metadata(args: argparse.Namespace) -> dict:
-    meta: dict = {"hub": connection_label(args), "command": portable_command("swarm record", sys.argv[1:])}
-    if args.seed is not None:
-        meta["seed"] = args.seed
-    if args.trajectory is not None:
-        try:
-            meta["trajectory"] = json.loads(args.trajectory.read_text())
-        except (OSError, ValueError) as exc:
-            raise SwarmInputError(f"trajectory {args.trajectory}: cannot read it as JSON: {exc}") from None
-    params = {}
-    for item in args.param:
-        key, sep, value = item.partition("=")
-        if not sep or not key:
-            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
-        try:
-            params[key] = json.loads(value)
-        except ValueError:
-            params[key] = value
-    if params:
-        meta["parameters"] = params
-    return meta
-
-
 def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
     settings = connection_settings(args)
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
-    meta = _metadata(args)
+    meta = run_metadata(connection_label(args), portable_command("swarm record", sys.argv[1:]), args.seed, args.trajectory, args.param)
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())

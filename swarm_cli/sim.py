@@ -8,9 +8,10 @@ import sys
 from pathlib import Path
 
 from coordinator.strategies import HALF_ANCHORED, METHODS
+from inchworm.limits import check_swarm_size
 from inchworm.progress import Progress
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
 
 LARGE = 1000  # robots: say what is being made before the first progress line
 

@@ -44,14 +44,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     check.set_defaults(run=run_check)
 
 
-def describe(traj: Trajectory, sensing_range: float) -> dict:
-    """Robots, configurations and the robots' motion per configuration (mean and max, m)."""
-    path = np.concatenate([traj.initial_poses[None, :, :2], traj.configurations])
-    moves = np.linalg.norm(np.diff(path, axis=0), axis=-1)
-    return {"robots": traj.n, "configs": len(traj.configurations), "sensing_range_m": sensing_range,
-            "move_mean_m": float(moves.mean()), "move_max_m": float(moves.max())}
-
-
 def _report(verb: str, path: Path, summary: dict, as_json: bool) -> int:
     print(f"{verb} {path}: {summary['robots']} robots, {summary['configs']} configurations, connected within "
           f"{summary['sensing_range_m']:g} m; robots move {summary['move_mean_m']:.3f} m per configuration on average "
@@ -65,7 +57,7 @@ def run_new(args: argparse.Namespace) -> int:
     traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=args.sensing_range, step=args.step)
     args.file.parent.mkdir(parents=True, exist_ok=True)
     traj.save(args.file)
-    return _report("wrote", args.file, describe(traj, args.sensing_range), args.json)
+    return _report("wrote", args.file, traj.describe(args.sensing_range), args.json)
 
 
 def run_check(args: argparse.Namespace) -> int:
@@ -74,4 +66,4 @@ def run_check(args: argparse.Namespace) -> int:
         validate_connected(traj, args.sensing_range)
     except SwarmInputError as exc:
         raise SwarmInputError(f"trajectory {args.file}: {exc}") from None
-    return _report("ok", args.file, describe(traj, args.sensing_range), args.json)
+    return _report("ok", args.file, traj.describe(args.sensing_range), args.json)

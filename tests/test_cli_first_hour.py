@@ -11,7 +11,6 @@ from pathlib import Path
 
 import pytest
 
-from swarm_cli import launch
 from swarm_cli.main import COMMANDS, build_parser, main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -103,8 +102,10 @@ def no_process(monkeypatch):
     def refuse(*_a, **_k):
         raise AssertionError("a process was started before the input was checked")
 
-    monkeypatch.setattr(launch.subprocess, "Popen", refuse)
-    monkeypatch.setattr(launch, "open_session", refuse)
+    import inchworm.launcher
+
+    monkeypatch.setattr(inchworm.launcher.subprocess, "Popen", refuse)
+    monkeypatch.setattr(inchworm.launcher, "open_session", refuse)
 
 
 def test_launch_checks_everything_before_starting_a_process(tmp_path, no_process, capsys, monkeypatch) -> None:

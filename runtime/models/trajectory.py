@@ -81,6 +81,13 @@ class Trajectory:
         rows = [_table(c, 2, f"configuration {k + 1}", "[x, y]", robots) for k, c in enumerate(configs)]
         return cls(np.asarray(robots), table, np.stack(rows))
 
+    def describe(self, sensing_range: float) -> dict:
+        """Robots, configurations and the robots' motion per configuration (mean and max, m); ``sensing_range`` (m) as given."""
+        path = np.concatenate([self.initial_poses[None, :, :2], self.configurations])
+        moves = np.linalg.norm(np.diff(path, axis=0), axis=-1)
+        return {"robots": self.n, "configs": len(self.configurations), "sensing_range_m": sensing_range,
+                "move_mean_m": float(moves.mean()), "move_max_m": float(moves.max())}
+
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()))
 

@@ -12,8 +12,12 @@ exported bag's topics instead (``layout(..., ros2=True)``).
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
+
+from runtime.errors import SwarmInputError
 
 MAX_PLOTTED = 20
 COLORS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf")
@@ -97,3 +101,28 @@ def layout(robots: Iterable[int], configurations: Sequence[Mapping[int, tuple[fl
                               "second": {"direction": "column", "first": "Plot!robots", "second": "Plot!uncertainty"}, "splitPercentage": 34},
                    "splitPercentage": 55},
     }
+
+
+def run_robots(info: dict) -> tuple[list[int], list | None]:
+    """The run's robot ids and desired configurations: from the trajectory metadata, else from its robot channels."""
+    from runtime.recording.foxglove_scene import trajectory_configurations  # noqa: PLC0415
+
+    trajectory = info["metadata"].get("run", {}).get("trajectory") if isinstance(info["metadata"].get("run"), dict) else None
+    configurations = trajectory_configurations(trajectory)
+    if configurations:
+        return sorted(configurations[0]), configurations
+    robots = sorted({int(c["topic"].split("/")[2]) for c in info["channels"]
+                     if c["topic"].startswith("/robot/") and c["topic"].split("/")[2].isdigit()})
+    return robots, None
+
+
+def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
+    """The Foxglove layout of the recording ``src`` (with ``ros2``: of its rosbag2 export) written to ``out``."""
+    from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
+
+    robots, configurations = run_robots(recording_info(src))
+    if not robots:
+        raise SwarmInputError(f"{src}: no robots found (no trajectory in its metadata, no /robot/<id>/... channel)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(layout(robots, configurations, ros2=ros2), indent=1) + "\n")
+    return {"path": str(out), "robots": len(robots), "for": "ros2" if ros2 else "recording"}

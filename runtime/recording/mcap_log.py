@@ -36,8 +36,9 @@ import queue
 import struct
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
+from datetime import UTC, datetime
 from importlib import metadata as _pkg_metadata
 from pathlib import Path
 from typing import IO, Any, cast
@@ -384,12 +385,76 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
             "derived_channels": len(derived), "undecodable": sum(recorder.bad_counts().values())}
 
 
+def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Path | None = None,
+                 params: Iterable[str] = ()) -> dict[str, Any]:
+    """The run metadata ``swarm record`` stores: the hub, its command line, the seed, the trajectory file's JSON
+    and ``KEY=VALUE`` parameters (VALUE parsed as JSON when it is JSON)."""
+    meta: dict = {"hub": hub, "command": command}
+    if seed is not None:
+        meta["seed"] = seed
+    if trajectory is not None:
+        try:
+            meta["trajectory"] = json.loads(trajectory.read_text())
+        except (OSError, ValueError) as exc:
+            raise SwarmInputError(f"trajectory {trajectory}: cannot read it as JSON: {exc}") from None
+    values = {}
+    for item in params:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
+        try:
+            values[key] = json.loads(value)
+        except ValueError:
+            values[key] = value
+    if values:
+        meta["parameters"] = values
+    return meta
+
+
 def counts_text(counts: dict[str, Any]) -> str:
     """``N messages on C channels (R raw on RC, D derived on DC)`` from ``record_run``'s or ``recording_info``'s counts:
     the recorder and ``swarm info`` print the same numbers for the same file."""
     channels = counts["channels"] if isinstance(counts["channels"], int) else len(counts["channels"])  # recording_info lists them
     return (f"{counts['messages']} messages on {channels} channels ({counts['raw_messages']} raw on "
             f"{counts['raw_channels']}, {counts['derived_messages']} derived on {counts['derived_channels']})")
+
+
+def _utc(ns: int | None) -> str:
+    if ns is None:
+        return "-"
+    return datetime.fromtimestamp(ns / 1e9, UTC).strftime("%Y-%m-%d %H:%M:%S.%f")[:-3] + " UTC"
+
+
+def info_text(info: dict[str, Any]) -> str:
+    """``recording_info`` as ``swarm info`` prints it: file state, counts, times, a table of the channels, the metadata."""
+    out: list[str] = []
+    state = "finished, indexed" if info["indexed"] else "finished, no index" if info["complete"] else "UNFINISHED"
+    out.append(f"file:      {info['path']} ({info['bytes']} bytes, {state})")
+    if not info["complete"]:
+        lost = info["bytes"] - info["readable_bytes"]
+        out.append(f"           read up to byte {info['readable_bytes']} ({lost} bytes of an incomplete record dropped): {info['problem']}")
+        out.append(f"           'swarm recover {info['path']}' writes a finished copy")
+    out.append(f"messages:  {counts_text(info)}, {info['undecodable']} undecodable")
+    out.append(f"start:     {_utc(info['first_ns'])}")
+    out.append(f"end:       {_utc(info['last_ns'])}")
+    out.append(f"duration:  {info['duration_s']:.3f} s")
+    if info["channels"]:
+        width = max(len(c["topic"]) for c in info["channels"])
+        tw = max(18, *(len(c["type"] or "") for c in info["channels"]))
+        out.append(f"{'topic':<{width}}  {'type':<{tw}} {'count':>7} {'bad':>5}  {'first (s)':>9} {'last (s)':>9}")
+        t0 = info["first_ns"] or 0
+        for c in info["channels"]:
+            first = "-" if c["first_ns"] is None else f"{(c['first_ns'] - t0) / 1e9:.3f}"
+            last = "-" if c["last_ns"] is None else f"{(c['last_ns'] - t0) / 1e9:.3f}"
+            bad = "-" if c["type"] is None else str(c["undecodable"])
+            reasons = f"  ({', '.join(f'{r}: {n}' for r, n in sorted(c['reasons'].items()))})" if c["reasons"] else ""
+            out.append(f"{c['topic']:<{width}}  {c['type'] or '(no schema)':<{tw}} {c['messages']:>7} {bad:>5}  {first:>9} {last:>9}{reasons}")
+    for name, values in info["metadata"].items():
+        out.append(f"metadata {name}:")
+        for key, value in values.items():
+            text = value if isinstance(value, str) else json.dumps(value, sort_keys=True)
+            out.append(f"  {key}: {text if len(text) <= 200 else text[:197] + '...'}")
+    return "\n".join(out)
 
 
 # ---------------------------------------------------------------- reading

@@ -18,6 +18,7 @@ import csv
 import math
 from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -132,3 +133,16 @@ def _finite(row: dict[str, str], col: str, where: str) -> float:
     if not math.isfinite(value):
         raise SwarmInputError(f"{where}: {col} must be finite, got {text!r}")
     return value
+
+
+def export_truth(src: str | Path, out: str | Path) -> dict[str, Any]:
+    """Write the simulated true poses at step ends of the recording ``src`` to the CSV ``out`` (``write_truth_csv``):
+    its path, rows, robots, steps and first / last step; ``SwarmInputError`` if the recording holds none."""
+    from runtime.recording.run_log import load_run_log  # noqa: PLC0415
+
+    log = load_run_log(src)
+    if not log.truths:
+        raise SwarmInputError(f"{src}: the recording holds no true poses (TruthMessage): only simulated runs have them")
+    n = write_truth_csv(out, [(robot, step, *pose) for (robot, step), pose in log.truths.items()])
+    steps = sorted({step for _, step in log.truths})
+    return {"path": str(out), "rows": n, "robots": len(log.ids), "steps": len(steps), "first_step": steps[0], "last_step": steps[-1]}

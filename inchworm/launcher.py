@@ -1,0 +1,356 @@
+"""A whole distributed run on this host (``swarm launch`` / ``swarm demo``): ``launch(LaunchOptions(...))``.
+
+The launcher opens the run's Zenoh router hub itself on a free loopback port, writes the
+trajectory to a temporary file, starts one ``swarm agent`` process per robot (initial true pose
+from the trajectory), or one per ``agents_per_process`` robots (default: one per robot up to
+``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``),
+then ``swarm coordinator``, and waits for the coordinator, whose summary appears on stdout; the
+coordinator writes the Fig. 13/14/17 plots to ``out`` and records the run (``record``, default
+``recordings/<run>.mcap``; ``no_record``). On exit, error or Ctrl-C it stops every child it
+started by its pid (SIGTERM, then SIGKILL after a grace period), so no process outlives it; the
+result's status is the coordinator's. While it runs it keeps the run file of the run
+(``runtime.wire.run_file``), so ``swarm estop --run RUN`` needs no ``--hub``; a run id already
+live on this host is refused. Every input is checked before a process is started
+(``check_before_start``).
+
+``driver="gateway"`` runs the hardware path end to end without hardware: ``swarm emulate-robots``
+(robots speaking the frame protocol on ptys), one ``swarm link`` per port of the gateway config
+(``gateway_config``, default: ports of 5 robots each) and agents with the gateway driver. Ctrl-C
+(or SIGTERM) first publishes an ``EmergencyStop`` to the run, then stops every child; so does a
+coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
+``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
+one that is not ``simulated`` gets a coordinator with ``--no-truth``.
+
+Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID at the first
+command of global step STEP and times the coordinator's targeted ``EmergencyStop`` (the JSON
+object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``); ``standby`` also starts a
+standby coordinator, and ``kill_coordinator=STEP`` SIGKILLs the coordinator at STEP and times the
+takeover (``"coordinator_kill": {"step", "takeover_ms"}``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coordinator.process import default_recording
+from coordinator.stop import StopSignals, send_estop
+from inchworm.limits import check_swarm_size
+from inchworm.processes import (
+    GRACE_S,
+    CoordinatorKiller,
+    RobotKiller,
+    agents_per_process,
+    default_gateway,
+    radio_faults,
+    start_agents,
+    start_gateway,
+    stop_all,
+    wait_for_standby,
+)
+from robot_agent.assembly import driver_options
+from robot_agent.plugins import BUILT_IN, driver_class
+from runtime.errors import SwarmInputError
+from runtime.gateway.config import GatewayConfig
+from runtime.models.bodies import validate_passable
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.wire.keys import validate_run
+from runtime.wire.run_file import published_run
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
+
+if TYPE_CHECKING:
+    from coordinator.selection.selector import SelectionConfig
+
+COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
+START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
+Say = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class LaunchOptions:
+    """What ``launch`` runs. ``model`` / ``selection`` / ``localizer`` are checked before anything starts;
+    ``model_flags`` and ``coordinator_flags`` (option name -> value, only those given) are passed on to the
+    agent and coordinator processes as ``--name=value``. Times in seconds."""
+
+    model: ModelConfig
+    localizer: str
+    selection: SelectionConfig
+    command: str = "launch"  # how the launcher names itself (swarm launch / swarm demo)
+    trajectory: Path | None = None  # else a random one of ``robots`` x ``configs`` (seed ``trajectory_seed``)
+    robots: int = 10
+    configs: int = 3
+    trajectory_seed: int = 0
+    method: str = "inchworm"
+    seed: int = 0
+    run_id: str | None = None  # default launch-<pid>
+    out: Path | None = None  # default out/<command>
+    result: Path | None = None
+    motion_time: float = 0.0
+    step_timeout: float = 5.0
+    driver: str = "sim"
+    driver_options: tuple[str, ...] = ()
+    command_timeout: float | None = None
+    gateway_config: Path | None = None
+    emulator_events: Path | None = None
+    min_robots: int = 2
+    kill_robot: tuple[int, int] | None = None
+    standby: bool = False
+    kill_coordinator: int | None = None
+    agents_per_process: int | None = None
+    drop: float = 0.0
+    corrupt: float = 0.0
+    delay: float = 0.0
+    record: Path | None = None
+    no_record: bool = False
+    foxglove: int | None = None
+    linger: float | None = None
+    json: bool = False
+    model_flags: dict[str, Any] = field(default_factory=dict)
+    coordinator_flags: dict[str, Any] = field(default_factory=dict)
+
+
+def _stderr(text: str) -> None:
+    print(text, file=sys.stderr, flush=True)
+
+
+def _stdout_json(obj: object) -> None:
+    print(json.dumps(obj, separators=(",", ":")), flush=True)
+
+
+def flags(values: dict[str, Any]) -> list[str]:
+    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
+    return [f"--{name.replace('_', '-')}={_arg_text(value)}" for name, value in values.items() if value is not None]
+
+
+def _arg_text(value) -> str:
+    return str(value) if isinstance(value, (str, Path)) else repr(value)
+
+
+def plugin_spec(spec: str) -> str:
+    """A driver as the agents get it: a ``file.py:Class`` path made absolute (they may start elsewhere)."""
+    module, sep, attr = spec.rpartition(":")
+    return f"{Path(module).resolve()}:{attr}" if sep and module.endswith(".py") else spec
+
+
+def _forward_output(stream, last_json: list[str]) -> None:
+    """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
+    held = None
+    for line in stream:
+        if held is not None:
+            sys.stdout.write(held)
+            sys.stdout.flush()
+        held = line
+    if held is not None:
+        last_json.append(held)
+
+
+def _check_writable(folder: Path, flag: str, value: Path) -> None:
+    """``SwarmInputError`` naming ``flag value`` unless a file can be created in ``folder`` (created if missing)."""
+    folder = folder if folder != Path("") else Path(".")
+    if folder.exists() and not folder.is_dir():
+        raise SwarmInputError(f"{flag} {value}: {folder} is not a folder")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            pass
+    except OSError as exc:
+        raise SwarmInputError(f"{flag} {value}: cannot write in {folder}: {exc.strerror or exc}") from None
+
+
+def launch_trajectory(o: LaunchOptions) -> Trajectory:
+    """The run's trajectory: the file, else a random one (``SwarmInputError`` for a swarm too small or too large)."""
+    if o.trajectory:
+        traj = Trajectory.load(o.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {o.trajectory}", launched=True)
+        return traj
+    if o.robots < 2 or o.configs < 1:
+        raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
+    return random_trajectory(o.robots, o.configs, np.random.default_rng(o.trajectory_seed), sensing_range=o.model.sensing_range_m,
+                             **body_spacing(o.model))
+
+
+def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Path) -> None:
+    """Everything that can fail before a process is started: the run id, the trajectory, the strategy
+    options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy, only when launching
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from runtime.recording.foxglove_live import require_foxglove  # noqa: PLC0415
+
+    try:
+        validate_run(run_id)
+    except SwarmInputError as exc:
+        raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
+    validate_connected(traj, o.model.sensing_range_m)
+    validate_passable(traj, o.model)
+    make_strategy(o.method, traj.n, o.model, make_localizer(o.localizer, o.model), o.selection, o.seed)
+    if not o.no_record:
+        record = Path(o.record or default_recording(run_id))
+        _check_writable(record.parent, "--record", record)
+    _check_writable(out, "--out", out)
+    if o.result:
+        _check_writable(Path(o.result).parent, "--result", o.result)
+    if o.foxglove is not None:
+        require_foxglove()
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", o.foxglove))
+            except OSError as exc:
+                raise SwarmInputError(f"--foxglove {o.foxglove}: cannot serve on 127.0.0.1:{o.foxglove}: {exc.strerror or exc}") from None
+    if o.driver == "gateway" and o.gateway_config:
+        radius = GatewayConfig.load(o.gateway_config).limits.robot_radius_m
+        if radius != o.model.robot_radius_m:
+            raise SwarmInputError(f"--robot-radius {o.model.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
+                                  f"in {o.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
+    if o.driver not in BUILT_IN:
+        driver_class(o.driver)
+        driver_options(list(o.driver_options))
+    if o.kill_coordinator is not None and o.kill_coordinator < 1:
+        raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
+    if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
+        robot, step = o.kill_robot
+        raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+
+
+def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
+    """Run it (module doc); the exit status: the coordinator's, 128 + N if it was killed by signal N.
+    ``say``: the launcher's notes (stderr); ``emit_json``: the amended JSON object of a run with a kill."""
+    faults = radio_faults(o.drop, o.corrupt, o.delay)
+    if o.driver != "gateway" and (o.drop or o.corrupt or o.delay):
+        raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
+    traj = launch_trajectory(o)
+    if not 2 <= o.min_robots <= traj.n:
+        raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
+    per_process = agents_per_process(traj.n, o.agents_per_process)
+    run_id = o.run_id or f"launch-{os.getpid()}"
+    out = o.out or Path("out") / o.command
+    check_before_start(o, traj, run_id, out)
+    port = free_tcp_port()
+    hub_settings, _ = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    py = sys.executable
+    procs: list[subprocess.Popen] = []
+    coordinator: subprocess.Popen | None = None
+    signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
+    try:
+        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session, \
+                published_run(run_id, hub, f"swarm {o.command}"):
+            traj_file = Path(tmp) / "trajectory.json"
+            traj.save(traj_file)
+            model = flags(o.model_flags)
+            agent_extra = list(model)
+            if o.driver not in BUILT_IN:
+                agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
+                if o.command_timeout is not None:
+                    agent_extra.append(f"--command-timeout={o.command_timeout!r}")
+            if o.driver == "gateway":
+                gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
+                missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
+                if missing:
+                    raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
+                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
+                                     o.emulator_events, faults)
+                agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+            first = len(procs)
+            start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file)
+            agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
+            if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
+                common.append("--no-truth")  # the lab's robots publish no true poses
+            cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
+                   f"--step-timeout={o.step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
+                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
+            if o.result:
+                cmd.append(f"--result={o.result}")
+            recording = None if o.no_record else (o.record or default_recording(run_id))
+            cmd.append("--no-record" if recording is None else f"--record={recording}")
+            if o.json:
+                cmd.append("--json")
+            if o.foxglove is not None:
+                cmd.append(f"--foxglove={o.foxglove}")
+                if o.linger is not None:
+                    cmd.append(f"--linger={o.linger!r}")
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
+            say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
+                f"(emergency stop: swarm estop --run {run_id})")
+            killer = None
+            if o.kill_robot is not None:
+                robot, step = o.kill_robot
+                killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
+            json_hold = o.json and (killer is not None or o.kill_coordinator is not None)
+            standby = None
+            if o.standby:
+                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
+                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
+                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True)
+                procs.append(standby)
+                wait_for_standby(hub_session, run_id, standby)
+            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
+            procs.append(coordinator)
+            coord_killer = None if o.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, o.kill_coordinator, coordinator)
+            last: list[str] = []
+            forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
+                          for p in (coordinator, standby) if json_hold and p is not None]
+            for forwarder in forwarders:
+                forwarder.start()
+            try:
+                status = coordinator.wait()
+                if standby is not None and status < 0:  # died without a word: the standby takes the run over
+                    say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
+                    status = standby.wait()
+            except KeyboardInterrupt:
+                send_estop(hub_session, run_id, f"swarm {o.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
+                say(f"swarm {o.command}: interrupted: emergency stop sent to run {run_id}")
+                raise
+            if status != 0:  # an abort, an error or a killed coordinator: stop every robot
+                send_estop(hub_session, run_id, f"swarm {o.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
+                say(f"swarm {o.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}")
+            if standby is not None:
+                try:
+                    standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
+                except subprocess.TimeoutExpired:
+                    stop_all([standby], COORDINATOR_GRACE_S)
+            for forwarder in forwarders:
+                forwarder.join(timeout=10)
+            kill = None if killer is None else killer.report()
+            if kill is not None:
+                say(f"swarm {o.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                    f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill")
+            coord_kill = None if coord_killer is None else coord_killer.report()
+            if coord_kill is not None:
+                say(f"swarm {o.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
+                    f"command came {coord_kill['takeover_ms']} ms after the kill")
+            if json_hold:
+                summary = {}
+                for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
+                    try:
+                        summary = json.loads(line)
+                    except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
+                        sys.stdout.write(line)
+                extra = {} if killer is None else {"kill": kill}
+                if coord_killer is not None:
+                    extra["coordinator_kill"] = coord_kill
+                emit_json({**summary, **extra})
+            if recording is not None and Path(recording).exists():
+                say(f"swarm {o.command}: recording {recording}")
+            return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
+    finally:
+        with signals.deferred():
+            if coordinator is not None:  # first, with time to finish its recording
+                stop_all([coordinator], COORDINATOR_GRACE_S)
+            emulators = 1 if o.driver == "gateway" else 0  # stopped last, after the links that read their ptys
+            stop_all(procs[emulators:])
+            stop_all(procs[:emulators])
+        signals.restore()
