@@ -25,7 +25,6 @@ import argparse
 import logging
 import math
 import re
-import signal
 import sys
 from collections.abc import Iterable
 from pathlib import Path
@@ -39,7 +38,7 @@ from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
 from runtime.models.trajectory import Trajectory
-from swarm_cli.entry import leave, run_standalone
+from swarm_cli.entry import leave, on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
 
 
@@ -153,8 +152,7 @@ def run(args: argparse.Namespace) -> int:
     agents = make_agents(args)
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
     server = agents[0] if len(agents) == 1 else AgentHost(agents[0].settings, agents)
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: server.stop())
+    on_stop_signals(server.stop)
     return server.run()
 
 

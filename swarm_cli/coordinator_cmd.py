@@ -48,7 +48,7 @@ from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import run_wildcard, validate_run
 from runtime.models.trajectory import Trajectory
-from swarm_cli.entry import StopSignals, leave, run_standalone
+from swarm_cli.entry import StopRequested, StopSignals, leave, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 if TYPE_CHECKING:  # imported where used: building the parser (--help) must not load scipy, zenoh or matplotlib
@@ -305,7 +305,7 @@ def run(args: argparse.Namespace) -> int:
     recorded, completed = None, False
     try:
         if signals.received is not None:
-            raise KeyboardInterrupt
+            raise StopRequested(signals.received)
         with open_session(settings) as session, live_view(args, traj, session) as live:
             if recording is not None:
                 recording.wait_subscribed(session)

@@ -19,7 +19,6 @@ import contextlib
 import json
 import math
 import os
-import signal
 import sys
 import threading
 import time
@@ -32,7 +31,7 @@ from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
 from runtime.models.trajectory import Trajectory
 from runtime.wire.transport import open_session
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, print_json
 
 PROG = "swarm emulate-robots"
@@ -131,8 +130,7 @@ def run(args: argparse.Namespace) -> int:
                           calibration=dict(config.calibration) if args.miscalibrate else None,
                           motion_time_s=args.motion_time, heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
     stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
+    on_stop_signals(stop.set)
     with contextlib.ExitStack() as stack:
         sink = None
         if args.events is not None:

@@ -55,16 +55,28 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
             sub.add_parser(c.name, help=c.help)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # every one takes the same path: a clean, run-wide stop
+
+
+class StopRequested(KeyboardInterrupt):
+    """A stop signal ended the run; ``signum`` is its number (exit status 128 + ``signum``)."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
 class StopSignals:
-    """SIGINT and SIGTERM as a stop request: the first one raises ``KeyboardInterrupt`` (ends the run),
-    later ones are only noted, and inside ``deferred()`` (finishing a recording, stopping children)
-    every signal is only noted, never an exception in the middle of writing a file.
+    """SIGINT, SIGTERM and SIGHUP as a stop request: the first one raises ``StopRequested`` (a
+    ``KeyboardInterrupt``: ends the run), later ones are only noted, and inside ``deferred()``
+    (finishing a recording, stopping children) every signal is only noted, never an exception in
+    the middle of writing a file.
 
     ``received`` is the first signal number (None if none came). ``restore()`` puts back the
     previous handlers. Main thread only (Python runs signal handlers there).
     """
 
-    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+    SIGNALS = STOP_SIGNALS
 
     def __init__(self) -> None:
         self.received: int | None = None
@@ -76,7 +88,7 @@ class StopSignals:
         if first:
             self.received = signum
         if first and not self._deferred:
-            raise KeyboardInterrupt
+            raise StopRequested(signum)
 
     @contextlib.contextmanager
     def deferred(self) -> Iterator[None]:
@@ -92,9 +104,15 @@ class StopSignals:
             signal.signal(sig, handler)
 
 
+def on_stop_signals(callback: Callable[[], object]) -> None:
+    """Call ``callback()`` (it must be safe in a signal handler) on SIGINT, SIGTERM and SIGHUP."""
+    for sig in STOP_SIGNALS:
+        signal.signal(sig, lambda *_: callback())
+
+
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, Ctrl-C gives 130,
-    a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
+    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, a stop signal N
+    gives 128 + N (Ctrl-C 130), a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
     try:
         return int(run() or 0)
     except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
@@ -103,9 +121,9 @@ def guarded(prog: str, run: Callable[[], int | None]) -> int:
     except (SwarmInputError, LocalizationError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return 128 + (exc.signum if isinstance(exc, StopRequested) else signal.SIGINT)
 
 
 def run_standalone(
@@ -116,6 +134,9 @@ def run_standalone(
 ) -> int:
     """Entry point of a command started as its own module (``python -m swarm_cli.agent``):
     the launcher starts processes this way so each imports only what it needs."""
+    from swarm_cli.lifeline import hold_lifeline  # noqa: PLC0415
+
+    hold_lifeline()  # started by a launcher: end with it, whatever killed it
     parser = argparse.ArgumentParser(prog=prog)
     add_arguments(parser)
     args = parser.parse_args(argv)

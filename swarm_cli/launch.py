@@ -40,6 +40,7 @@ with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import signal
@@ -65,6 +66,7 @@ from swarm_cli.coordinator_cmd import add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
 from swarm_cli.estop import send_estop
+from swarm_cli.lifeline import Lifeline
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
 GRACE_S = 3.0
@@ -270,11 +272,12 @@ def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
     return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
 
 
-def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen]) -> Path:
+def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],
+                   **popen_kwargs) -> Path:
     """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
     until it wrote ``live``, the same config with its pty devices; returns ``live``."""
     emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL)
+                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL, **popen_kwargs)
     procs.append(emulator)
     deadline = time.monotonic() + GATEWAY_READY_S
     while not live.exists():
@@ -294,7 +297,7 @@ def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
 
 def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
                   model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = ()) -> Path:
+                  faults: list[str] | tuple[str, ...] = (), **popen_kwargs) -> Path:
     """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
     the live gateway config (pty devices)."""
     config = tmp / "gateway.json"
@@ -302,10 +305,10 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
     options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
     if events is not None:
         options.append(f"--events={events}")
-    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs)
+    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
     for port in gateway.ports:
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
-                                       f"--run={run_id}", f"--hub={hub}"]))
+                                       f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
     return live
 
 
@@ -377,10 +380,27 @@ def run(args: argparse.Namespace) -> int:
     hub = f"tcp/127.0.0.1:{port}"
     py = sys.executable
     procs: list[subprocess.Popen] = []
+    gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinator: subprocess.Popen | None = None
-    signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
+    signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
+    lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
+    tied = lifeline.child_options()
+
+    def stop_children() -> None:
+        """Coordinator, agents, links, emulator: in this order, while the hub still routes (called twice: idempotent)."""
+        with signals.deferred():
+            if coordinator is not None:  # first, with time to finish its recording
+                stop_all([coordinator], COORDINATOR_GRACE_S)
+            stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
+            stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
+            stop_all(procs[:1] if gateway_procs else [])
+
     try:
-        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session:
+        with contextlib.ExitStack() as stack:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
+            hub_session = stack.enter_context(open_session(hub_settings))
+            stack.callback(stop_children)  # before the hub closes
+            lifeline.guard(Path(tmp))
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
@@ -391,10 +411,11 @@ def run(args: argparse.Namespace) -> int:
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, args.motion_time, model, procs,
-                                     args.emulator_events, faults)
+                                     args.emulator_events, faults, **tied)
+                gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file)
+            start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file, **tied)
             agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
@@ -418,7 +439,7 @@ def run(args: argparse.Namespace) -> int:
                 robot, step = args.kill_robot
                 killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
             json_hold = args.json and killer is not None
-            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
+            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
             procs.append(coordinator)
             last: list[str] = []
             forwarder = threading.Thread(target=_forward_output, args=(coordinator.stdout, last), daemon=True) if json_hold else None
@@ -452,10 +473,6 @@ def run(args: argparse.Namespace) -> int:
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
-        with signals.deferred():
-            if coordinator is not None:  # first, with time to finish its recording
-                stop_all([coordinator], COORDINATOR_GRACE_S)
-            emulators = 1 if args.driver == "gateway" else 0  # stopped last, after the links that read their ptys
-            stop_all(procs[emulators:])
-            stop_all(procs[:emulators])
+        stop_children()
+        lifeline.close()
         signals.restore()

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 from pathlib import Path
@@ -20,7 +19,7 @@ from pathlib import Path
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import run_wildcard, validate_run
 from runtime.recording.mcap_log import counts_text, record_run
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
 
@@ -70,8 +69,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
     meta = _metadata(args)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    on_stop_signals(stop.set)
     ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {connection_label(args)} to {rec.path}",  # noqa: E731
                               file=sys.stderr, flush=True)
     result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)

@@ -33,7 +33,7 @@ import zenoh
 
 from runtime.errors import SwarmInputError
 from runtime.wire.transport import ZenohSettings, open_session
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import STOP_SIGNALS, run_standalone
 from swarm_cli.options import print_json
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
@@ -99,7 +99,7 @@ def router_settings(listen: list[str], config_file: str | None) -> ZenohSettings
 def run(args: argparse.Namespace) -> int:
     settings = router_settings(args.listen, args.config)
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in STOP_SIGNALS}
     try:
         try:
             session = open_session(settings)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -255,8 +256,12 @@ def _launch(tmp: Path, driver: str, traj_file: Path, run_id: str, record: Path |
     cmd = [sys.executable, "-m", "swarm_cli.main", "launch", f"--trajectory={traj_file}", f"--driver={driver}", "--seed=2",
            f"--run={run_id}", f"--result={result}", f"--out={tmp / driver}", "--json"]
     cmd += [f"--record={record}"] if record else ["--no-record"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp)
+    scratch = tmp / f"tmp-{driver}"
+    scratch.mkdir()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp, env={**os.environ, "TMPDIR": str(scratch)})
     assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "ERROR" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-3000:]  # agents stopped before links
+    assert not list(scratch.iterdir())  # no temporary folder left
     return json.loads(result.read_text())
 
 
