@@ -43,7 +43,9 @@ handshake, the same robots).
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
-while the loop waits for a motion to finish); every later command is refused. Limits
+while the loop waits for a motion to finish); every later command is refused. The same thread
+acknowledges every stop it acted on with an ``EstopAck`` on ``swarm/<run>/estop/ack`` (``swarm
+estop`` counts them). Limits
 (``CommandLimits``: drive, turn, and the workspace checked from the command's
 ``start_pose``, the coordinator's estimate of the robot) are checked before the driver
 sees a command. A driver that raises ``DriverRefused`` gives ``Status refused`` with its
@@ -77,6 +79,7 @@ from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
+    EstopAck,
     MessageError,
     MotionCommand,
     ObservationReport,
@@ -135,7 +138,7 @@ class Agent:
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
         self._estop_key = estop_key(run)
-        self._estop = threading.Event()
+        self._stops: queue.SimpleQueue[EmergencyStop | None] = queue.SimpleQueue()  # for the forwarder thread
         self.estopped = False
         self.lost_reason: str | None = None
 
@@ -185,7 +188,7 @@ class Agent:
                 sub.undeclare()
             self.driver.detach()
             self._stop.set()
-            self._estop.set()  # wakes the forwarder, which sees _stop
+            self._stops.put(None)  # ends the forwarder
             forwarder.join(timeout=1.0)
             self._session = None
         if self.drops.total:
@@ -208,14 +211,22 @@ class Agent:
         msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
         if msg is not None and msg.applies_to(self.robot):
             self.estopped = True
-            self._estop.set()
+            self._stops.put(msg)
 
     def _forward_estop(self) -> None:
-        self._estop.wait()
-        if self._stop.is_set() and not self.estopped:
-            return
-        _log.warning("robot %d: emergency stop", self.robot)
-        self.driver.estop(max(self._last_cmd_step, 0))
+        """Forwarder thread: the first stop goes to the driver; every stop is acknowledged."""
+        forwarded = False
+        while (msg := self._stops.get()) is not None:
+            if not forwarded:
+                _log.warning("robot %d: emergency stop", self.robot)
+                self.driver.estop(max(self._last_cmd_step, 0))
+                forwarded = True
+            ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="agent", name=str(self.robot),
+                           robots=[self.robot])
+            try:
+                self._send(ack)
+            except Exception:  # noqa: BLE001 - a closed session at shutdown: the stop itself went out
+                _log.warning("robot %d: could not acknowledge the emergency stop", self.robot)
 
     # -- message handling (loop thread only) --------------------------------------------
 

@@ -17,7 +17,8 @@ what it had in flight, gives lost robots another chance and sends every robot RU
 fresh epoch (it forgets its step memory); requests wait until the robot answered RUN_ACK. An
 ``EmergencyStop`` on ``swarm/<run>/estop`` naming robots (the coordinator's stop of a lost
 robot) is sent as ESTOP to those robots of the port only; one naming none is sent at once as a broadcast ESTOP and then to
-each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
+each robot until it answers ESTOPPED; either is acknowledged with an ``EstopAck`` naming the port and the
+robots it stopped. ``LinkStats`` go out every ``stats_period_s``, when
 the coordinator's liveliness token appears or disappears (so a recording of the run holds
 the link's counters at its start and end) and when the link stops. While it runs it holds
 the liveliness token ``swarm/<run>/alive/link/<port>``: an agent whose link disappears
@@ -69,6 +70,7 @@ from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
+    EstopAck,
     LinkReply,
     LinkRequest,
     LinkStats,
@@ -334,12 +336,19 @@ class Link:
             key, payload = event[1], event[2]
             if key == estop_key(self.run_id):
                 msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
-                if msg is not None and msg.robots:  # a lost robot's stop: only the robots it names
-                    for robot in self.robots.values():
-                        if robot.id in msg.robots and not robot.lost:
-                            self._start_control(robot, "estop", msg.step)
-                elif msg is not None:
+                if msg is None:
+                    return
+                if msg.robots:  # a lost robot's stop: only the robots it names
+                    stopped = [r.id for r in self.robots.values() if r.id in msg.robots and not r.lost]
+                    for robot in stopped:
+                        self._start_control(self.robots[robot], "estop", msg.step)
+                else:
                     self._estop_all(msg.step)
+                    stopped = sorted(r.id for r in self.robots.values() if not r.lost)
+                if stopped:
+                    ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="link", name=self.port.name,
+                                   robots=stopped)
+                    publish(self.session, message_key(ack), encode(ack))
             else:
                 msg = decode_or_drop(payload, self.drops, key, LinkRequest)
                 if msg is None:

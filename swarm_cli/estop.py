@@ -1,26 +1,38 @@
 """``swarm estop``: emergency stop of every robot of a run.
 
-    swarm estop --run lab --hub tcp/127.0.0.1:7447 [--reason "..."]
+    swarm estop --run lab --hub tcp/127.0.0.1:7447 [--reason "..."] [--ack-timeout 1] [--json]
 
 Publishes one ``EmergencyStop`` on ``swarm/<run>/estop``, a few times over ``--repeat-s``
 (default 0.3 s) so that it also reaches subscribers whose route is still being set up.
 Every agent forwards it to its robot at once and refuses later commands; every link
-process sends ESTOP to all robots of its port, which stay stopped until reset.
+process sends ESTOP to all robots of its port, which stay stopped until reset. Each of
+them acknowledges it with an ``EstopAck`` on ``swarm/<run>/estop/ack``; ``swarm estop``
+collects them for ``--ack-timeout`` seconds (default 1) after the first publication and
+says who acknowledged: ``emergency stop of run lab acknowledged by 10 agents (robots
+0-9) and 2 links (ports radio0, radio1)``.
+
+Exit status: 0 when at least one agent or link acknowledged, 1 when none did (a wrong
+``--run`` or hub, or nobody listening: the stop reached no robot that can be named), 2 on
+bad input. ``--json`` prints ``{"run", "published", "agents", "links", "robots"}`` last
+(``agents``: robot ids of the agents that acknowledged, ``links``: port names,
+``robots``: every robot an agent or link said it stopped).
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import queue
 import sys
 import time
 
-from runtime.wire.keys import validate_run
-from runtime.wire.messages import EmergencyStop, encode, message_key
-from runtime.wire.transport import open_session, publish
+from runtime.wire.keys import estop_ack_key, validate_run
+from runtime.wire.messages import EmergencyStop, EstopAck, MessageError, decode, encode, message_key
+from runtime.wire.transport import open_session, publish, subscribe_queue
 from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
 
 REPEATS = 3
+EXIT_NO_ACK = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,6 +40,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     p.add_argument("--reason", default="operator", help="why, for the logs (default operator)")
     p.add_argument("--repeat-s", type=float, default=0.3, help="publish again over this many seconds (default 0.3)")
+    p.add_argument("--ack-timeout", type=float, default=1.0,
+                   help="seconds to collect the acknowledgements of agents and links (default 1)")
     add_connection_options(p)
     add_json_option(p)
     p.set_defaults(run=run)
@@ -35,21 +49,60 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def send_estop(session, run_id: str, source: str, reason: str, repeat_s: float = 0.0) -> int:
     """Publish the run's ``EmergencyStop`` (once, then again spread over ``repeat_s``); the number published."""
-    msg = EmergencyStop(run=run_id, step=0, source=source, reason=reason)
+    return len(publish_estop(session, EmergencyStop(run=run_id, step=0, source=source, reason=reason), repeat_s))
+
+
+def publish_estop(session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[float]:
+    """Publish ``msg`` (once, then again spread over ``repeat_s``); the monotonic times it went out."""
     key, payload = message_key(msg), encode(msg)
     count = 1 if repeat_s <= 0 else REPEATS
+    times = []
     for i in range(count):
         publish(session, key, payload)
+        times.append(time.monotonic())
         if i + 1 < count:
             time.sleep(repeat_s / (count - 1))
-    return count
+    return times
+
+
+def collect_acks(inbox: queue.Queue, stamp_ns: int, until: float) -> dict[tuple[str, str], EstopAck]:
+    """The acknowledgements of the stop stamped ``stamp_ns`` arriving before monotonic time ``until``, by (by, name)."""
+    acks: dict[tuple[str, str], EstopAck] = {}
+    while (left := until - time.monotonic()) > 0:
+        try:
+            key, payload = inbox.get(timeout=left)
+        except queue.Empty:
+            break
+        try:
+            ack = decode(payload, EstopAck, key=key)
+        except MessageError:
+            continue
+        if ack.stop_stamp_ns == stamp_ns:
+            acks.setdefault((ack.by, ack.name), ack)
+    return acks
+
+
+def _names(values: list) -> str:
+    return ", ".join(map(str, values))
 
 
 def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
+    msg = EmergencyStop(run=args.run_id, step=0, source=f"swarm estop (pid {os.getpid()})", reason=args.reason)
     with open_session(connection_settings(args)) as session:
-        sent = send_estop(session, args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s)
-    print(f"swarm estop: emergency stop sent to run {args.run_id}", file=sys.stderr, flush=True)
+        _sub, inbox = subscribe_queue(session, estop_ack_key(args.run_id))  # before the stop: no answer is missed
+        times = publish_estop(session, msg, args.repeat_s)
+        acks = collect_acks(inbox, msg.stamp_ns, times[0] + max(args.ack_timeout, 0.0))
+    agents = sorted(int(name) for by, name in acks if by == "agent")
+    links = sorted(name for by, name in acks if by == "link")
+    robots = sorted({r for ack in acks.values() for r in ack.robots})
+    if acks:
+        print(f"swarm estop: emergency stop of run {args.run_id} acknowledged by {len(agents)} agents"
+              f"{f' (robots {_names(agents)})' if agents else ''} and {len(links)} links"
+              f"{f' (ports {_names(links)})' if links else ''}", file=sys.stderr, flush=True)
+    else:
+        print(f"swarm estop: emergency stop published to run {args.run_id}, but no agent or link acknowledged it "
+              f"within {args.ack_timeout:g} s: is the run id right and the run on this hub?", file=sys.stderr, flush=True)
     if args.json:
-        print_json({"run": args.run_id, "published": sent})
-    return 0
+        print_json({"run": args.run_id, "published": len(times), "agents": agents, "links": links, "robots": robots})
+    return 0 if acks else EXIT_NO_ACK

@@ -297,8 +297,8 @@ def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> N
         estop_s = time.monotonic() - start
         print(f"after {FLOOD} idle connections: a session opened after {session_s:.2f} s ({attempts} attempts), "
               f"then swarm estop took {estop_s:.2f} s (busy machine)")
-        assert estop.returncode == 0, estop.stderr
-        assert "emergency stop sent" in estop.stderr
+        assert estop.returncode == 1, estop.stderr  # it got through; nobody runs "flood", so nobody acknowledged
+        assert "no agent or link acknowledged it" in estop.stderr
         assert session_s < 30 and estop_s < 15  # Zenoh's defaults: about 300 s
     finally:
         for sock in sockets:

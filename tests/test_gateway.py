@@ -412,6 +412,31 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
 
 
+def test_swarm_estop_counts_the_agents_and_links_that_acknowledged_and_fails_when_none_did(tmp_path):
+    run_id = "acks"
+
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))))
+
+    with emulated_site(tmp_path, 3, 2, config) as site:
+        site.link(run_id, "radio0")
+        site.link(run_id, "radio1")
+        for robot in site.ids:
+            site.agent(robot, run_id)
+        _wait_for(lambda: len(alive_now(site.session, alive_wildcard(run_id))) == len(site.ids), 30, "every agent alive")
+        estop = [sys.executable, "-m", "swarm_cli.main", "estop", f"--hub={site.hub}", "--json"]
+        done = subprocess.run([*estop, f"--run={run_id}"], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        out = json.loads(done.stdout.splitlines()[-1])
+        assert out["published"] == 3 and out["agents"] == sorted(site.ids) and out["links"] == ["radio0", "radio1"]
+        assert out["robots"] == sorted(site.ids)
+        assert f"acknowledged by 3 agents (robots {', '.join(map(str, sorted(site.ids)))}) and 2 links (ports radio0, radio1)" in done.stderr
+        wrong = subprocess.run([*estop, "--run=acks-typo", "--ack-timeout=0.5"], capture_output=True, text=True, timeout=60)
+        assert wrong.returncode == 1, wrong.stderr
+        assert "no agent or link acknowledged it within 0.5 s" in wrong.stderr
+        assert json.loads(wrong.stdout.splitlines()[-1]) == {"run": "acks-typo", "published": 3, "agents": [], "links": [], "robots": []}
+
+
 def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):
     events = tmp_path / "events.jsonl"
     launcher = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "launch", "--driver=gateway", "-n", "4", "--configs=4",

@@ -24,6 +24,7 @@ from runtime.wire.keys import (
     alive_key,
     alive_wildcard,
     coord_alive_key,
+    estop_ack_key,
     coord_key,
     parse_key,
     robot_key,
@@ -43,6 +44,7 @@ from runtime.wire.messages import (
     LinkRequest,
     LinkStats,
     EmergencyStop,
+    EstopAck,
     Message,
     MessageError,
     MotionCommand,
@@ -90,6 +92,7 @@ def samples() -> list[Message]:
         LinkStats(**head, port="radio0", robots=[1, 3], frames_sent=10, frames_received=9, retransmissions=1, crc_errors=2,
                   length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
         EmergencyStop(**head, source="swarm estop", reason="operator pressed stop", robots=[4]),
+        EstopAck(**head, stop_stamp_ns=STAMP - 1, by="link", name="radio0", robots=[1, 3]),
         RobotEvent(**head, robot=4, kind="lost", reason="liveliness token gone"),
     ]
 
@@ -495,6 +498,7 @@ def test_key_builders_and_parse_round_trip():
         truth_key("r1", 7): ParsedKey("r1", "sim", 7, "truth"),
         alive_key("r1", 7): ParsedKey("r1", "alive", 7, "alive"),
         coord_alive_key("r1"): ParsedKey("r1", "alive", None, "alive"),
+        estop_ack_key("r1"): ParsedKey("r1", "estop", None, "ack"),
     }
     for key, parsed in cases.items():
         assert parse_key(key) == parsed
@@ -563,8 +567,10 @@ def test_message_keys_and_key_checked_decoding():
         "LinkReply": "linkrep",
         "LinkStats": "stats",
         "EmergencyStop": "estop",
+        "EstopAck": "ack",
         "RobotEvent": "event",
     }
+    assert message_key(SAMPLES["EstopAck"]) == estop_ack_key("r1") == "swarm/r1/estop/ack"
     assert message_key(SAMPLES["RobotEvent"]) == "swarm/r1/coord/event"
     assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
     assert message_key(SAMPLES["EmergencyStop"]) == "swarm/r1/estop"

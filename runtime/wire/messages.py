@@ -36,6 +36,7 @@ from runtime.wire.keys import (
     RUN_PATTERN,
     KeyspaceError,
     coord_key,
+    estop_ack_key,
     estop_key,
     link_stats_key,
     parse_key,
@@ -490,6 +491,23 @@ class EmergencyStop(Message):
         return not self.robots or robot in self.robots
 
 
+ESTOP_ACKERS = ("agent", "link")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EstopAck(Message):
+    """Agent or link -> whoever stopped the run: it acted on the ``EmergencyStop`` stamped ``stop_stamp_ns``
+    (an agent: forwarded it to its robot; a link: sent ESTOP on its port to ``robots``)."""
+
+    TYPE: ClassVar[str] = "EstopAck"
+    LEAF: ClassVar[str] = "ack"
+
+    stop_stamp_ns: int = _wire("int", "stamp_ns of the EmergencyStop acknowledged", unit="ns")
+    by: str = _wire("str", "agent or link", choices=ESTOP_ACKERS)
+    name: str = _wire("str", "the agent's robot id, or the link's port name", max_length=64)
+    robots: tuple[int, ...] = _wire("id", "the robots it stopped", shape=(None,))
+
+
 ROBOT_EVENTS = ("lost", "rejoined")
 
 
@@ -518,6 +536,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     LinkReply,
     LinkStats,
     EmergencyStop,
+    EstopAck,
     RobotEvent,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
@@ -537,6 +556,8 @@ def message_key(msg: Message) -> str:
         return link_stats_key(msg.run, msg.port)
     if isinstance(msg, EmergencyStop):
         return estop_key(msg.run)
+    if isinstance(msg, EstopAck):
+        return estop_ack_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
 
 
