@@ -65,11 +65,12 @@ from runtime.gateway.frames import (
     fits_f32,
 )
 from runtime.gateway.config import Calibration, Limits, Port, Timing
-from runtime.wire.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
+from runtime.wire.keys import KeyspaceError, alive_wildcard, coord_alive_key, coord_key, estop_key, link_alive_key, parse_key, robot_wildcard
 from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
+    EstimateMessage,
     EstopAck,
     LinkReply,
     LinkRequest,
@@ -82,6 +83,7 @@ from runtime.wire.transport import declare_token, publish, subscribe, watch_live
 
 _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000
+STALL_S = 0.5  # s between two turns of the engine beyond which the link itself was stalled (it turns every ack_timeout_s / 2)
 MAX_STEP_AHEAD = 1000  # a request more steps than this ahead of the robot's latest is refused (a step jump would strand the run)
 
 
@@ -156,6 +158,7 @@ class _Request:
     retries: int = 0  # retransmissions since the robot last answered
     accepted_at: float | None = None  # first ACCEPTED (a COMMAND being executed)
     answered: bool = False
+    motion: tuple[float, float] = (0.0, 0.0)  # a COMMAND's turn (rad) and the distance the robot really drives (m)
     parts: dict[int, ObservationBody] = field(default_factory=dict)
 
     def due(self, timing: Timing) -> float:
@@ -175,6 +178,10 @@ class _Robot:
     begin: _Request | None = None  # RUN of a new run: requests wait for its RUN_ACK
     waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
     latest: int = 0  # the latest step of a request sent this run
+    unanswered_since: float | None = None  # the first frame written to it since its last answer
+    reckoned: tuple[float, float, float] | None = None  # its pose: the coordinator's estimate, moved by every DONE since
+    agent_seen: bool = False  # its agent's liveliness token appeared ...
+    agent_gone: bool = False  # ... and disappeared since: the link stops feeding the robot
 
     def requests(self) -> tuple[_Request, ...]:
         return tuple(r for r in (self.busy, self.control, self.begin) if r is not None)
@@ -220,6 +227,9 @@ class Link:
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
         self._subs = []
+        self._coord_seen = False  # the coordinator's token appeared ...
+        self._coord_gone = False  # ... and disappeared since (or the session to it was lost): the link stops feeding
+        self._estimate_key = coord_key(run, "estimate")
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -231,13 +241,15 @@ class Link:
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
-                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("coord", alive)))]
+                      subscribe(self.session, self._estimate_key, enqueue),
+                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("coord", alive))),
+                      watch_liveliness(self.session, alive_wildcard(self.run_id), lambda key, alive: self._events.put(("agent", key, alive)))]
         token = declare_token(self.session, link_alive_key(self.run_id, self.port.name))  # agents notice a dead link at once
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
         reader.start()
-        now = time.monotonic()
+        now = last_tick = time.monotonic()
         for robot in self.robots.values():
-            robot.last_rx = now  # grace: robot_timeout_s from the start
+            robot.last_rx = now
         next_stats = now
         try:
             # the reader may start a waiting request at any time: look at the timers at least this often
@@ -245,6 +257,9 @@ class Link:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self._lock:
+                    if now - last_tick > STALL_S:  # this process was stalled: the robots are not to blame
+                        self._resume(now - last_tick)
+                    last_tick = now
                     self._heartbeat(now)
                     if now >= next_stats:
                         self._publish_stats()
@@ -296,12 +311,30 @@ class Link:
         return wire
 
     def _write(self, robot_id: int, wire: bytes) -> None:
-        """Put a frame on the port; it counts as a sign of life for robot ``robot_id``."""
+        """Put a frame on the port; it counts as a sign of life for robot ``robot_id``, which owes an answer from now."""
         self.device.write(wire)
         self.counters.frames_sent += 1
         robot = self.robots.get(robot_id)
         if robot is not None:
             robot.last_tx = time.monotonic()
+            if robot.unanswered_since is None:
+                robot.unanswered_since = robot.last_tx
+
+    def _feeding(self, robot: _Robot) -> bool:
+        """Whether the link keeps ``robot`` alive (heartbeats, retransmissions): not once the coordinator or the
+        robot's agent was seen and is gone (or the session to them was lost), so the robot's own watchdog stops it."""
+        return not (self._coord_gone or robot.agent_gone)
+
+    def _resume(self, stalled_s: float) -> None:
+        """After a stall of this process: every robot's silence is counted again from the next frame sent to it,
+        and a motion's timeout is moved by the stall."""
+        _log.warning("port %s: the link was stalled for %.1f s; robots are judged again from now", self.port.name, stalled_s)
+        for robot in self.robots.values():
+            robot.unanswered_since = None
+            for req in robot.requests():
+                req.sent_at += stalled_s
+                if req.accepted_at is not None:
+                    req.accepted_at += stalled_s
 
     def _next_deadline(self) -> float:
         """The earliest time a heartbeat, retransmission or loss check is due."""
@@ -310,7 +343,13 @@ class Link:
         for robot in self.robots.values():
             if robot.lost:
                 continue
-            due = min(due, robot.last_tx + t.heartbeat_period_s, robot.last_rx + t.robot_timeout_s)
+            if robot.control is not None:
+                due = min(due, robot.control.due(t))
+            if not self._feeding(robot):
+                continue
+            due = min(due, robot.last_tx + t.heartbeat_period_s)
+            if robot.unanswered_since is not None:
+                due = min(due, robot.unanswered_since + t.robot_timeout_s)
             for req in robot.requests():
                 due = min(due, req.due(t))
                 if req.accepted_at is not None:
@@ -330,11 +369,22 @@ class Link:
     def _handle(self, event: tuple) -> None:
         if event[0] == "coord":
             if event[1]:
+                self._coord_seen, self._coord_gone = True, False
                 self._begin_run()
+            elif self._coord_seen:
+                self._coord_gone = True
+                _log.warning("port %s: the coordinator is gone; the robots are no longer kept alive", self.port.name)
             self._publish_stats()
+        elif event[0] == "agent":
+            self._on_agent(event[1], event[2])
         else:
             key, payload = event[1], event[2]
-            if key == estop_key(self.run_id):
+            if key == self._estimate_key:
+                msg = decode_or_drop(payload, self.drops, key, EstimateMessage)
+                for robot, pose in zip(msg.ids if msg is not None else (), msg.poses if msg is not None else ()):
+                    if robot in self.robots:
+                        self.robots[robot].reckoned = tuple(pose)
+            elif key == estop_key(self.run_id):
                 msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
                 if msg is None:
                     return
@@ -363,8 +413,27 @@ class Link:
                     return
                 self._on_request(msg)
 
+    def _on_agent(self, key: str, alive: bool) -> None:
+        """The liveliness token of an agent appeared or disappeared: keep feeding its robot or stop."""
+        try:
+            robot = self.robots.get(parse_key(key).robot)
+        except KeyspaceError:
+            return
+        if robot is None:
+            return
+        if alive:
+            robot.agent_seen, robot.agent_gone = True, False
+            robot.unanswered_since = None
+        elif robot.agent_seen:
+            robot.agent_gone = True
+            _log.warning("port %s: the agent of robot %d is gone; the robot is no longer kept alive", self.port.name, robot.id)
+
     def _invalid(self, req: LinkRequest) -> str | None:
-        """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits."""
+        """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits.
+
+        With a workspace configured a command must carry its start pose, and its end is checked both from that
+        pose and from the link's own ``reckoned`` pose of the robot (the coordinator's latest estimate moved by
+        every motion the robot completed since), so forged requests cannot walk a robot out of the workspace."""
         if req.run != self.run_id:
             return f"run {req.run!r} is not this link's run {self.run_id!r}"
         robot = self.robots[req.robot]
@@ -378,7 +447,12 @@ class Link:
             return f"turn {req.turn_rad!r} rad / drive {req.drive_m!r} m are not finite float32 values"
         driven = self.calibration.get(req.robot, Calibration()).driven(req.drive_m)
         pose = req.start_pose if req.start_pose and all(map(math.isfinite, req.start_pose)) else ()
+        if self.limits.workspace is not None and not pose:
+            return f"robot {req.robot}: a command needs its start pose while a workspace is configured"
         problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=pose))
+        if problem is None and self.limits.workspace is not None and robot.reckoned is not None:
+            problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=robot.reckoned))
+            problem = None if problem is None else f"from the link's reckoning of its pose, {problem}"
         return None if problem is None else f"robot {req.robot}: {problem}"
 
     def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
@@ -407,6 +481,8 @@ class Link:
         for robot in self.robots.values():
             robot.lost = False
             robot.last_rx = now
+            robot.unanswered_since = None
+            robot.reckoned = None
             robot.busy = robot.begin = None
             robot.waiting.clear()
             robot.latest = 0
@@ -422,6 +498,9 @@ class Link:
         robot.latest = max(robot.latest, req.step)
         if req.kind == "command":
             robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
+            robot.busy.motion = (req.turn_rad, self.calibration.get(robot.id, Calibration()).driven(req.drive_m))
+            if robot.reckoned is None and req.start_pose:  # no estimate from the coordinator yet: start from the request's
+                robot.reckoned = tuple(req.start_pose)
         else:
             robot.busy = self._request(robot, req.kind, req.step, FrameType.OBSERVE, StepBody(req.step))
 
@@ -440,7 +519,7 @@ class Link:
         """HEARTBEAT to every robot that got no frame for ``heartbeat_period_s`` (any frame is a sign of life)."""
         stamp = int(now * 1000) & 0xFFFFFFFF
         for robot in self.robots.values():
-            if now - robot.last_tx < self.timing.heartbeat_period_s:
+            if now - robot.last_tx < self.timing.heartbeat_period_s or not self._feeding(robot):
                 continue
             seq = robot.next_seq()
             self._send(Frame.of(robot.id, seq, FrameType.HEARTBEAT, HeartbeatBody(stamp)))
@@ -457,6 +536,7 @@ class Link:
         if robot is None:
             return
         robot.last_rx = now
+        robot.unanswered_since = None
         for req in robot.requests():
             if frame.seq == req.seq:
                 req.retries = 0  # the robot answers: the retry budget starts again
@@ -494,6 +574,11 @@ class Link:
                 req.accepted_at = now
             return
         if kind == FrameType.DONE:
+            if req.kind == "command" and robot.reckoned is not None:
+                x, y, heading = robot.reckoned
+                turn, driven = req.motion
+                heading += turn
+                robot.reckoned = (x + driven * math.cos(heading), y + driven * math.sin(heading), heading)
             self._finish(robot, "done")
         elif kind == FrameType.REFUSED:
             code = RefusalCode(body.code).name if body.code in set(RefusalCode) else str(body.code)
@@ -520,7 +605,10 @@ class Link:
         for robot in self.robots.values():
             if robot.lost:
                 continue
+            feeding = self._feeding(robot)
             for req in robot.requests():
+                if not feeding and req is not robot.control:
+                    continue  # no longer kept alive: only an emergency stop is still sent
                 if req.accepted_at is not None and now - req.accepted_at > t.motion_timeout_s:
                     self.counters.timeouts += 1
                     self._lose(robot, f"robot {robot.id} still executing the command of step {req.step} after "
@@ -537,8 +625,9 @@ class Link:
                 self.counters.retransmissions += 1
                 req.retries += 1
                 req.sent_at = now
-            if not robot.lost and now - robot.last_rx > t.robot_timeout_s:
-                self._lose(robot, f"robot {robot.id} silent for {now - robot.last_rx:.1f} s on port {self.port.name}")
+            silent = None if robot.unanswered_since is None else now - robot.unanswered_since
+            if not robot.lost and feeding and silent is not None and silent > t.robot_timeout_s:
+                self._lose(robot, f"robot {robot.id} silent for {silent:.1f} s on port {self.port.name}")
 
     def _lose(self, robot: _Robot, reason: str) -> None:
         _log.error("%s", reason)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import os
 import signal
 import subprocess
@@ -32,7 +33,7 @@ from runtime.wire.keys import alive_wildcard
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
 from runtime.recording.mcap_log import read_messages
 from runtime.models.trajectory import random_trajectory
-from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe, subscribe_queue
 from swarm_cli.launch import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
@@ -83,8 +84,8 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
             device.close()
 
 
-def command(step: int, turn: float = 0.3, drive: float = 0.1) -> MotionCommand:
-    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive)
+def command(step: int, turn: float = 0.3, drive: float = 0.1, start_pose=()) -> MotionCommand:
+    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, start_pose=start_pose)
 
 
 def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) -> np.ndarray:
@@ -153,8 +154,8 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
     drops and counts each (before any byte reaches the robot) and serves on."""
     limits = Limits(max_drive_m=0.5, workspace=(-0.5, -0.5, 0.5, 0.5))
     with rig(limits=limits) as r, open_session(r.member) as session:
-        r.driver.execute(command(1, 0.1, 0.05))  # the robot is at step 1
-        valid = msgpack.unpackb(encode(_request(step=2)))
+        r.driver.execute(command(1, 0.1, 0.05, POSES[0]))  # the robot is at step 1
+        valid = msgpack.unpackb(encode(_request(step=2, start_pose=[0.0, 0.0, 0.0])))
         hostile = [
             encode(_request(step=2**32 + 5)),  # crashed the link before: beyond the frame's u32 step
             encode(_request(step=2, turn_rad=1e39)),  # beyond float32
@@ -162,6 +163,7 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             encode(_request(step=2, drive_m=2.0)),  # 2 m past the 0.5 m limit
             encode(_request(step=2, turn_rad=4.0)),  # beyond max_turn_rad (pi)
             encode(_request(step=2, drive_m=0.2, start_pose=[0.45, 0.0, 0.0])),  # would leave the workspace
+            encode(_request(step=2, drive_m=0.2)),  # no start pose: the workspace cannot be checked
             encode(_request(step=5000)),  # far in the future: would strand the robot's step memory
             encode(_request(run="other", step=2)),  # another run's, on this run's key
             msgpack.packb(valid | {"turn_rad": float("nan")}),
@@ -174,9 +176,30 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             publish(session, "swarm/gw/robot/0/linkreq", payload)
         _wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
         assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
-        r.driver.execute(command(2, 0.1, 0.05))  # the link still serves
+        r.driver.execute(command(2, 0.1, 0.05, simulated_pose([(0.1, 0.05)])))  # the link still serves
         assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.1, 0.05)]), atol=1e-12)
+
+
+@pytest.mark.parametrize("start_pose", [[], [0.0, 0.0, 0.0]], ids=["no start pose", "a start pose that never moves"])
+def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_workspace(start_pose):
+    """Ten 0.5 m commands toward x < -1, each within the limits, published by a client allowed on the key: without a
+    start pose none is sent; with a forged one that never moves, the link's own reckoning of the pose stops them."""
+    limits = Limits(max_drive_m=0.5, workspace=(-1.2, -1.0, 1.0, 1.0))
+    with rig(limits=limits) as r, open_session(r.member) as session:
+        replies: list[LinkReply] = []
+        sub = subscribe(session, "swarm/gw/robot/0/linkrep", lambda key, payload: replies.append(decode(payload, LinkReply)))
+        for step in range(1, 11):
+            rejected = r.link.stats().rejected
+            request = _request(step=step, turn_rad=math.pi if step == 1 else 0.0, drive_m=0.5, start_pose=start_pose)
+            publish(session, "swarm/gw/robot/0/linkreq", encode(request))
+            _wait_for(lambda: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
+                      f"the link's answer to the request of step {step}")
+        sub.undeclare()
+        x = r.emulator.world.pose(0)[0]
+        assert x >= -1.2, f"robot 0 was driven to x = {x:.2f} m, outside the workspace x >= -1.2 m"
+        assert r.emulator.executed(0) == (0 if not start_pose else 2)  # 0 -> -0.5 -> -1.0; the third would end at -1.5
+        assert r.link.stats().rejected == 10 - r.emulator.executed(0)
 
 
 def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
