@@ -23,7 +23,7 @@ import msgpack
 import numpy as np
 import pytest
 
-from robot_agent.driver import RobotLost, SimDriver
+from robot_agent.driver import DriverRefused, RobotLost, SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.link import Link, SerialLink
@@ -200,6 +200,24 @@ def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_worksp
         assert x >= -1.2, f"robot 0 was driven to x = {x:.2f} m, outside the workspace x >= -1.2 m"
         assert r.emulator.executed(0) == (0 if not start_pose else 2)  # 0 -> -0.5 -> -1.0; the third would end at -1.5
         assert r.link.stats().rejected == 10 - r.emulator.executed(0)
+
+
+@pytest.mark.parametrize("watchdog_s,survives", [(Timing().heartbeat_timeout_s, True), (1.0, False)],
+                         ids=["default watchdog", "a watchdog shorter than the retry budget"])
+def test_a_radio_blackout_of_a_second_during_a_motion_is_survived(watchdog_s, survives):
+    """The radio goes dead for 1.2 s right after the robot accepted a 1.5 s motion (the link retransmits, hears
+    nothing, then the DONE). The default watchdog (2 s) outlasts the retry budget (1.6 s) plus one retransmission,
+    so the motion completes; the former 1 s watchdog stopped the robot mid-motion."""
+    timing = dataclasses.replace(Timing(), heartbeat_timeout_s=watchdog_s)
+    with rig(FaultPlan(blackout=(1, 1.2)), timing=timing, motion_time_s=1.5) as r:
+        if survives:
+            r.driver.execute(command(1))
+            assert r.emulator.executed(0) == 1 and r.link.stats().lost == ()
+            assert r.emulator.stats().rx_dropped > 0  # the blackout did happen
+        else:
+            with pytest.raises(DriverRefused, match="stopped by the watchdog"):
+                r.driver.execute(command(1))
+            assert r.emulator.executed(0) == 0
 
 
 def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
