@@ -45,7 +45,7 @@ from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
 from runtime.models.config import ModelConfig
-from runtime.errors import SwarmInputError
+from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.metrics import localization_error, trajectory_following_performance
 from runtime.models.motion import command_towards
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, index_of
@@ -74,11 +74,13 @@ class LostRobot:
 
 
 class RunAborted(SwarmInputError):
-    """The run ended because robots were lost (``on_lost="abort"`` or fewer than ``min_robots`` left)."""
+    """The run ended because robots were lost (``on_lost="abort"``, fewer than ``min_robots`` left, or the robots
+    left cannot finish the trajectory); ``robots`` names every robot lost, ``result`` holds what was completed."""
 
-    def __init__(self, message: str, robots: list[int]) -> None:
+    def __init__(self, message: str, robots: list[int], result: RunResult | None = None) -> None:
         super().__init__(message)
         self.robots = robots
+        self.result = result
 
 
 @dataclass(frozen=True)
@@ -201,6 +203,7 @@ class InchwormExecutor:
         self.on_lost = on_lost
         self.min_robots = min_robots
         self._executed = 0  # command rounds sent in the current run (the global step in progress)
+        self.result: RunResult | None = None  # the run in progress (or last run): what it completed so far
 
     def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunResult:
         if not np.array_equal(trajectory.ids, self.backend.ids) or not np.array_equal(initial_estimate.ids, trajectory.ids):
@@ -208,12 +211,25 @@ class InchwormExecutor:
                 f"trajectory robots {trajectory.ids.tolist()}, backend robots {self.backend.ids.tolist()} "
                 f"and estimate robots {initial_estimate.ids.tolist()} must be the same"
             )
-        result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
+        result = self.result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
         self._executed = 0  # command rounds sent (the global step in progress)
-        estimate = initial_estimate
-        total = len(trajectory.configurations)
         if self.listener is not None:
             self.listener.on_estimate(0, initial_estimate)
+        try:
+            self._run(result, trajectory, initial_estimate)
+        except RunAborted as exc:
+            exc.result = result  # the configurations completed before the end
+            raise
+        except (SwarmInputError, LocalizationError) as exc:
+            if not result.lost:
+                raise
+            lost = sorted(r.robot for r in result.lost)
+            raise RunAborted(f"after losing {_robot_list(lost)}, the robots left cannot go on after configuration "
+                             f"{len(result.configs)} of {len(trajectory.configurations)}: {exc}", lost, result) from exc
+        return result
+
+    def _run(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate) -> None:
+        total = len(trajectory.configurations)
         for c in range(total):
             estimate = self._drop_lost(result, c, estimate)[0]
             while True:  # (i), again if a robot was lost meanwhile
@@ -233,7 +249,6 @@ class InchwormExecutor:
             result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
             if self.progress:
                 self.progress(c + 1, total)
-        return result
 
     @staticmethod
     def _desired(trajectory: Trajectory, config: int, ids: np.ndarray) -> np.ndarray:
@@ -278,6 +293,10 @@ class InchwormExecutor:
         if self.listener is not None:
             self.listener.on_estimate(len(result.steps), new)
         return new
+
+
+def _robot_list(ids: list[int]) -> str:
+    return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
 
 
 def _among(obs: Observations, ids: np.ndarray) -> Observations:

@@ -13,9 +13,14 @@ that is lost (liveliness token gone, silent through a step, or refusing its comm
 stopped and the run goes on without it; the summary names it and P_f is over the robots
 that finished. ``--on-lost abort``, or fewer than ``--min-robots`` robots left, ends the
 run. Every abnormal end (an abort, an error, SIGTERM or Ctrl-C) first publishes a
-run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (also with
-lost robots), 3 the run was aborted or the agents did not come up (the message names the
-robots), 2 bad input.
+run-wide ``EmergencyStop``, so no robot is left moving. A run ended by lost robots (``--on-lost
+abort``, fewer than ``--min-robots`` left, or the robots left unable to reach the next
+configuration) names them and still prints the summary of the configurations it completed
+and writes ``--result`` and the plots. Exit status: 0 done (also with lost robots), 3 the run
+was ended by lost robots or the agents did not come up (the message names the robots), 4
+the recording, ``--result`` or a plot could not be written (each failure is one line; the
+other outputs are still written) or the run was stopped because its recording failed
+(``--on-record-error stop``), 2 bad input, 128 + N after signal N (SIGINT, SIGTERM, SIGHUP).
 
 Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
@@ -24,7 +29,12 @@ to turn it off), with the run metadata ``swarm replay --check`` and ``swarm plot
 method, localizer, model and selection configuration, trajectory). The coordinator waits until
 the recorder's subscription has reached the hub before it starts, and at the end (also after a
 failed or interrupted run) lets the last messages arrive, finishes the file and prints
-``recorded PATH: N messages on C channels``.
+``recorded PATH: N messages on C channels``. A recording that fails (disk full, file size
+limit, device gone) is one line on stderr at once, ``coordinator: error: recording to PATH
+failed after N messages: No space left on device; ...``; with ``--on-record-error continue``
+(the default) the run goes on unrecorded, with ``stop`` it is stopped as an error (run-wide
+``EmergencyStop``, exit 4). Either way the file keeps what reached the disk and the summary,
+``--json``, ``--result`` and plots are written.
 """
 
 from __future__ import annotations
@@ -58,6 +68,7 @@ if TYPE_CHECKING:  # imported where used: building the parser (--help) must not 
     from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
+EXIT_OUTPUT = 4  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -93,6 +104,8 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--record", type=Path, default=None, metavar="PATH",
                    help="MCAP file recording every message of the run (default recordings/<run>.mcap)")
     g.add_argument("--no-record", action="store_true", help="do not record the run")
+    p.add_argument("--on-record-error", choices=("continue", "stop"), default="continue",
+                   help="when writing the recording fails (disk full ...): go on unrecorded, or stop the run (default continue)")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e '.[foxglove]')")
     p.add_argument("--linger", type=float, default=None, metavar="SECONDS",
@@ -141,24 +154,36 @@ def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> 
     }
 
 
+class RecordingStopped(Exception):
+    """``--on-record-error stop``: the recording failed, so the run is stopped."""
+
+
 class Recording:
-    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end."""
+    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end.
+
+    A write error during the run is reported at once (one line, ``policy`` said) and sets ``failed``."""
 
     SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
     SETTLE_MAX_S = 3.0  # ... or after this long
 
-    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0) -> None:
-        self.run_id, self.path = run_id, path
+    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0,
+                 policy: str = "continue") -> None:
+        self.run_id, self.path, self.policy = run_id, path, policy
         self.stop = threading.Event()
+        self.failed = threading.Event()
         self._ready = threading.Event()
         self.recorder: McapRecorder | None = None
         self.result: dict = {}
         self.error: BaseException | None = None
-        from runtime.recording.mcap_log import record_run  # noqa: PLC0415
+        from runtime.recording.mcap_log import RecordingFailed, record_run  # noqa: PLC0415
 
         def target() -> None:
             try:
-                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready))
+                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready,
+                                              on_error=self._on_error))
+            except RecordingFailed as exc:  # reported by finish(); the run is not an error for it
+                self.error = exc
+                self.failed.set()
             except BaseException as exc:  # noqa: BLE001 - reported by the main thread
                 self.error = exc
             finally:
@@ -176,6 +201,18 @@ class Recording:
         self.recorder = recorder
         self._ready.set()
 
+    def _on_error(self, error: BaseException) -> None:  # the recorder's writer thread
+        detail = error.strerror if isinstance(error, OSError) and error.strerror else str(error) or type(error).__name__
+        then = "the run goes on unrecorded" if self.policy == "continue" else "stopping the run"
+        print(f"coordinator: error: recording to {self.path} failed after {self.recorder.count if self.recorder else 0} "
+              f"messages: {detail}; {then} (--on-record-error {self.policy})", file=sys.stderr, flush=True)
+        self.failed.set()
+
+    def check(self) -> None:
+        """``RecordingStopped`` if the recording failed and the policy is to stop the run."""
+        if self.policy == "stop" and self.failed.is_set():
+            raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
+
     def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
         """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
         probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
@@ -188,8 +225,9 @@ class Recording:
         finally:
             probe.undeclare()
 
-    def finish(self, interrupted: bool = False) -> dict:
-        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``.
+    def finish(self, interrupted: bool = False) -> dict | None:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``,
+        or None when writing failed (``error`` says why; the file holds what reached the disk).
 
         ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
         (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
@@ -204,9 +242,26 @@ class Recording:
                     count, last_change = self.recorder.count, time.monotonic()
         self.stop.set()
         self.thread.join(timeout=30)
+        if self.failed.is_set():
+            return None
         if self.error is not None:
             raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
         return self.result
+
+
+class _Checked:
+    """The executor's listener (the backend), followed by ``check()`` after every plan and estimate."""
+
+    def __init__(self, listener, check) -> None:
+        self.listener, self.check = listener, check
+
+    def on_plan(self, *args) -> None:
+        self.listener.on_plan(*args)
+        self.check()
+
+    def on_estimate(self, *args) -> None:
+        self.listener.on_estimate(*args)
+        self.check()
 
 
 def recording_line(rec: dict) -> str:
@@ -216,20 +271,23 @@ def recording_line(rec: dict) -> str:
             + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
 
 
-def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None) -> None:
-    """The per-configuration table of ``swarm sim``, then the run's outcome."""
+def print_summary(result: RunResult, args: argparse.Namespace, plots: list[str] | None = None, recording: dict | None = None,
+                  failure: BaseException | None = None) -> None:
+    """The per-configuration table of ``swarm sim``, then the run's outcome (``failure``: why the recording failed)."""
     from swarm_cli.summary import print_config_table  # noqa: PLC0415
 
     rows, fallbacks = print_config_table(result)
     for lost in result.lost:
         print(f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}")
-    pf = result.pf() if result.has_truth else None
+    pf = result.pf() if result.has_truth and result.configs else None
     over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
     print(f"P_f = {pf:.4f} ({args.method}, {args.localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
     if plots:
         print(f"wrote {', '.join(plots)}")
     if recording:
         print(recording_line(recording))
+    elif failure is not None:
+        print(f"recording failed: {failure}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": rows,
                     "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
@@ -300,9 +358,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_record:
         path = args.record or default_recording(args.run_id)
         with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
-            recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection))
+            recording = Recording(settings, args.run_id, path, run_metadata(args, traj, cfg, selection),
+                                  policy=args.on_record_error)
         print(f"coordinator: recording swarm/{args.run_id}/** to {path}", file=sys.stderr, flush=True)
-    recorded, completed = None, False
+    recorded, completed, result, status = None, False, None, 0
     try:
         if signals.received is not None:
             raise StopRequested(signals.received)
@@ -312,18 +371,26 @@ def run(args: argparse.Namespace) -> int:
             backend = ZenohSwarmBackend(session, args.run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout),
                                         simulated=not args.no_truth)
             ended: BaseException | None = None
+            partial = None
             try:
                 backend.wait_for_agents()
                 print(f"coordinator: {traj.n} agents alive, run {args.run_id}", file=sys.stderr, flush=True)
                 progress = lambda done, total: print(f"coordinator: config {done}/{total} done (step {backend.step})", file=sys.stderr, flush=True)  # noqa: E731
-                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=backend,
+                listener = backend if recording is None else _Checked(backend, recording.check)
+                executor = InchwormExecutor(backend, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=listener,
                                             on_lost=args.on_lost, min_robots=args.min_robots)
-                result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                try:
+                    result = executor.run(traj, initial_estimate(traj, args.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                finally:
+                    partial = executor.result  # the configurations completed, however the run ends
                 completed = live.keep = True
-            except (AgentError, RunAborted) as exc:
+            except (AgentError, RunAborted, RecordingStopped) as exc:
                 ended = exc
                 print(f"swarm coordinator: error: {exc}", file=sys.stderr, flush=True)
-                return EXIT_AGENT
+                result = getattr(exc, "result", None) or (partial if isinstance(exc, RecordingStopped) else None)
+                status = EXIT_OUTPUT if isinstance(exc, RecordingStopped) else EXIT_AGENT
+                if result is None:  # the agents did not come up: nothing ran
+                    return status
             except BaseException as exc:
                 ended = exc
                 raise
@@ -337,14 +404,25 @@ def run(args: argparse.Namespace) -> int:
         if recording is not None:
             with signals.deferred():
                 recorded = recording.finish(interrupted=signals.received is not None)
-            if not completed:  # failed or interrupted run: the summary below is not printed
-                print(recording_line(recorded), flush=True)
+            if result is None:  # interrupted or failed run: the summary below is not printed
+                print(recording_line(recorded) if recorded else f"recording failed: {recording.error}", flush=True)
+    failed = recording is not None and recording.failed.is_set()
     if args.result:
-        args.result.write_text(json.dumps(result_json(result)))
-    plots = write_plots(result, args.out) if args.out and result.configs else None
-    print_summary(result, args, plots, recorded)
+        try:
+            args.result.write_text(json.dumps(result_json(result)))
+        except OSError as exc:
+            failed = True
+            print(f"swarm coordinator: error: cannot write --result {args.result}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+    plots = None
+    if args.out and result.configs:
+        try:
+            plots = write_plots(result, args.out)
+        except OSError as exc:
+            failed = True
+            print(f"swarm coordinator: error: cannot write the plots to {args.out}: {exc.strerror or exc}", file=sys.stderr, flush=True)
+    print_summary(result, args, plots, recorded, None if recording is None else recording.error)
     live.linger(args.linger)
-    return 0
+    return EXIT_OUTPUT if failed and status == 0 else status
 
 
 def main(argv: list[str] | None = None) -> int:

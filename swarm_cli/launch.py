@@ -62,7 +62,7 @@ from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, Mo
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
 from swarm_cli.agent import format_ids
-from swarm_cli.coordinator_cmd import add_record_options, default_recording
+from swarm_cli.coordinator_cmd import EXIT_OUTPUT, add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
 from swarm_cli.estop import send_estop
@@ -72,7 +72,7 @@ from swarm_cli.options import add_simulation_options, model_config, nonnegative,
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
@@ -451,7 +451,7 @@ def run(args: argparse.Namespace) -> int:
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
                 print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
                 raise
-            if status != 0:  # an abort, an error or a killed coordinator: stop every robot
+            if status not in (0, EXIT_OUTPUT):  # an abort, an error or a killed coordinator: stop every robot
                 send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
                 print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
                       file=sys.stderr, flush=True)
