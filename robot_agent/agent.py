@@ -6,7 +6,10 @@ liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
 * ``MotionCommand`` on ``.../robot/<id>/cmd``: decoded with the run's ids (a bad message
   is dropped and counted, never fatal; if its header still names this robot's run and
   step, the refusal ``refusal_status`` is published too, echoing whatever ``cmd_id`` it
-  carried, so a coordinator never acts on it). Only the next step is executed: a command
+  carried, so a coordinator never acts on it). Refusals nobody's real command needs (a bad
+  message, a stale or out-of-sequence step, a command after an emergency stop) are published
+  at most ``REFUSAL_BURST`` at once and ``REFUSALS_PER_S`` a second; the others are only counted
+  (``refusals.suppressed``), so a flood of forged commands is not answered one for one. Only the next step is executed: a command
   for step s is checked when s = (last observed step) + 1 (the coordinator observes every
   robot after every step, so a real command always follows the observation of the step
   before); then ``CommandLimits`` (``Status refused`` with the reason), else ``Status
@@ -93,6 +96,7 @@ from runtime.wire.messages import (
     message_key,
     refusal_status,
 )
+from runtime.wire.rate_limit import RateLimit
 from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
@@ -100,6 +104,8 @@ _COORD = "__coord_alive__"
 _LOST = "__driver_lost__"  # the driver lost its robot while idle (e.g. the gateway's link process died)
 _STOP = "__stop__"  # wakes the loop so it sees stop()
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
+REFUSALS_PER_S = 20.0  # refusals of commands that answer no real command, on average ...
+REFUSAL_BURST = 20  # ... and at once
 
 
 class Agent:
@@ -124,6 +130,7 @@ class Agent:
         self.limits = limits
         self.ready_timeout_s = float(ready_timeout_s)
         self.drops = DropCounter(_log)
+        self.refusals = RateLimit(REFUSALS_PER_S, REFUSAL_BURST)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
@@ -193,6 +200,8 @@ class Agent:
             self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
+        if self.refusals.suppressed:
+            _log.warning("robot %d left %d refusals unsent (rate limit)", self.robot, self.refusals.suppressed)
         return 3 if self.lost_reason is not None else 0
 
     def _wait_for_driver(self) -> None:
@@ -266,7 +275,7 @@ class Agent:
         except MessageError as e:
             self.drops.drop(key, e)
             refusal = refusal_status(e)
-            if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot:
+            if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot and self.refusals.allow():
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
         if cmd.step < self._last_cmd_step:
@@ -310,6 +319,8 @@ class Agent:
         status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state=state, reason=reason, cmd_id=cmd.cmd_id)
         if remember:
             self._last_status = status
+        elif not self.refusals.allow():
+            return  # an answer to no real command, beyond the rate limit: counted only
         self._send(status)
 
     def _on_observe(self, req: ObserveRequest) -> None:

@@ -49,7 +49,10 @@ from runtime.models.state import Observations, SwarmEstimate
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
 MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
 MAX_TEXT = 2_000  # longest string field (characters)
-MAX_MESSAGE_BYTES = 32 * 2**20
+SMALL_BYTES = 64 * 2**10  # commands, requests, answers, stops: a few hundred bytes in practice
+LIST_BYTES = 2**20  # messages with one list per robot seen or planned (observations, plans, link replies and stats)
+SWARM_BYTES = 4 * 2**20  # messages with a row per robot of the swarm (estimates, truth sets): ~110 B a robot
+MAX_MESSAGE_BYTES = SWARM_BYTES  # the largest message of any type; Zenoh drops larger ones (transport.MAX_WIRE_BYTES)
 ANGLE_SLACK = 1e-9  # rad tolerated beyond [-pi, pi] for bearings
 STATES = ("accepted", "done", "refused")
 LINK_REQUESTS = ("command", "observe", "estop", "reset")
@@ -217,6 +220,7 @@ class Message:
     TYPE: ClassVar[str] = ""
     VERSION: ClassVar[int] = 1
     LEAF: ClassVar[str] = ""  # last key chunk this type travels on (runtime.wire.keys)
+    MAX_BYTES: ClassVar[int] = SMALL_BYTES  # a larger payload on this type's keys is dropped before it is parsed
 
     run: str = _wire("str", "run id", pattern=RUN_PATTERN, max_length=64)
     step: int = _wire("int", "global step counter of the run: 0 = initial localization, motion steps from 1")
@@ -292,6 +296,7 @@ class ObservationReport(Message):
 
     TYPE: ClassVar[str] = "ObservationReport"
     LEAF: ClassVar[str] = "obs"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     robot: int = _wire("id", "the observer")
     observed: tuple[int, ...] = _wire("id", "robots observed", shape=("n",))
@@ -318,6 +323,7 @@ class PlanMessage(Message):
 
     TYPE: ClassVar[str] = "PlanMessage"
     LEAF: ClassVar[str] = "plan"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     config: int = _wire("int", "desired configuration planned for: k for C_dk (1-based)")
     n_anchors: int = _wire("int", "anchors of the largest step (robots minus the smallest group)")
@@ -344,6 +350,7 @@ class EstimateMessage(Message):
 
     TYPE: ClassVar[str] = "EstimateMessage"
     LEAF: ClassVar[str] = "estimate"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES
 
     ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
     poses: tuple[tuple[float, ...], ...] = _wire("float", "[x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
@@ -392,6 +399,7 @@ class TruthSetMessage(Message):
 
     TYPE: ClassVar[str] = "TruthSetMessage"
     LEAF: ClassVar[str] = "truths"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES
 
     ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
     poses: tuple[tuple[float, ...], ...] = _wire("float", "true [x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
@@ -437,6 +445,7 @@ class LinkReply(Message):
 
     TYPE: ClassVar[str] = "LinkReply"
     LEAF: ClassVar[str] = "linkrep"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     robot: int = _wire("id", "the robot behind the link")
     kind: str = _wire("str", "accepted, done, refused, observation, estopped, reset or lost", choices=LINK_REPLIES)
@@ -456,6 +465,7 @@ class LinkStats(Message):
 
     TYPE: ClassVar[str] = "LinkStats"
     LEAF: ClassVar[str] = "stats"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     port: str = _wire("str", "port name from the gateway config", pattern=RUN_PATTERN, max_length=64)
     robots: tuple[int, ...] = _wire("id", "robots behind the port", shape=(None,))
@@ -576,12 +586,12 @@ def encode(msg: Message) -> bytes:
     return msgpack.packb(body)
 
 
-def _unpack(data: Any) -> Any:
+def _unpack(data: Any, max_bytes: int = MAX_MESSAGE_BYTES) -> Any:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise MessageError("message", f"is a {type(data).__name__}, expected bytes", "undecodable")
     size = memoryview(data).nbytes
-    if size > MAX_MESSAGE_BYTES:
-        raise MessageError("message", f"{size} bytes, at most {MAX_MESSAGE_BYTES} allowed", "undecodable")
+    if size > max_bytes:
+        raise MessageError("message", f"{size} bytes, at most {max_bytes} allowed", "size")
     limit = 4 * MAX_TEXT
     try:
         return msgpack.unpackb(
@@ -662,9 +672,11 @@ def decode(
             expected = expected or type_for_key(key)
         except KeyspaceError as e:
             raise MessageError("key", str(e), "wrong-key") from None
-    raw = _unpack(data)
+    raw = _unpack(data, MAX_MESSAGE_BYTES if expected is None else expected.MAX_BYTES)
     try:
         cls = _message_class(raw, expected)
+        if memoryview(data).nbytes > cls.MAX_BYTES:
+            raise MessageError("message", f"{memoryview(data).nbytes} bytes, at most {cls.MAX_BYTES} allowed for {cls.TYPE}", "size")
     except MessageError as e:
         if e.reason == "version" and (expected is None or raw.get("type") == expected.TYPE):
             e.header = _readable_header(_BY_TYPE[raw["type"]], raw)
@@ -745,21 +757,38 @@ class CommandLimits:
 
 
 class DropCounter:
-    """Dropped messages counted by (source, reason); each drop is logged as one warning line.
+    """Dropped messages counted by (source, reason), logged at a bounded rate.
 
     ``source`` is the key the message arrived on (or its type); ``reason`` one of
-    ``REASONS``. Thread-safe: Zenoh callbacks may run concurrently.
+    ``REASONS``. The first drop on a source is logged at once; later ones at most once per
+    ``log_every_s`` per source, as one line with the count since the last line (a flood of
+    50,000 bad messages is a handful of lines, not 50,000). Thread-safe: Zenoh callbacks may
+    run concurrently.
     """
 
-    def __init__(self, logger: logging.Logger = _log) -> None:
+    LOG_EVERY_S = 5.0
+    MAX_SOURCES = 1024  # distinct sources counted one by one; beyond, drops count under "other keys"
+
+    def __init__(self, logger: logging.Logger = _log, log_every_s: float = LOG_EVERY_S) -> None:
         self._logger = logger
+        self.log_every_s = float(log_every_s)
         self._counts: dict[tuple[str, str], int] = {}
+        self._quiet: dict[str, tuple[float, int]] = {}  # source -> (last line's time, drops since)
         self._lock = threading.Lock()
 
     def drop(self, source: str, error: MessageError) -> None:
+        now = time.monotonic()
         with self._lock:
+            if source not in self._quiet and len(self._quiet) >= self.MAX_SOURCES:
+                source = "other keys"  # forged keys must not grow the tables without bound
             self._counts[source, error.reason] = self._counts.get((source, error.reason), 0) + 1
-        self._logger.warning("dropped message on %s (%s): %s", source, error.reason, error)
+            last, since = self._quiet.get(source, (-math.inf, 0))
+            if now - last < self.log_every_s:
+                self._quiet[source] = (last, since + 1)
+                return
+            self._quiet[source] = (now, 0)
+        more = f" (and {since} more on this key since the last line)" if since else ""
+        self._logger.warning("dropped message on %s (%s): %s%s", source, error.reason, error, more)
 
     @property
     def total(self) -> int:
