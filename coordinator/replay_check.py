@@ -15,8 +15,12 @@ decode are counted and left out, channels outside ``swarm/`` (derived views such
 * every step's localization: ``localize_observable(make_localizer(localizer, cfg), estimate of
   step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``,
 
-and compares each result with the recorded message exactly (float equality, no tolerance).
-It stops at the first divergence. ``rebuild_run(recorded)`` turns a recording into the
+and compares each result with the recorded message. On the floating-point platform the run was
+recorded on (``runtime.recording.mcap_log.float_platform``, in the metadata's versions) the
+comparison is exact (float equality, no tolerance); elsewhere, or for recordings that do not say,
+values may differ in their last bits (numpy's SIMD paths, BLAS kernels), so they must agree to
+``CROSS_PLATFORM_RTOL`` relative (plus ``CROSS_PLATFORM_ATOL`` absolute, for values near zero) and
+the result says the check was not exact. It stops at the first divergence. ``rebuild_run(recorded)`` turns a recording into the
 executor's ``RunResult`` (for the plots of ``swarm sim``).
 """
 
@@ -50,7 +54,7 @@ from runtime.wire.messages import (
     decode,
     observations_from_reports,
 )
-from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.recording.mcap_log import float_platform, read_messages, recording_info
 from runtime.models.state import StepCommands, SwarmEstimate
 from runtime.models.trajectory import Trajectory
 
@@ -184,6 +188,7 @@ class CheckResult:
     skipped: list[str] = field(default_factory=list)
     divergence: Divergence | None = None
     settings: dict[str, Any] = field(default_factory=dict)
+    exact: bool = True  # False: recorded on another floating-point platform, compared to CROSS_PLATFORM_RTOL
 
     @property
     def passed(self) -> bool:
@@ -191,24 +196,39 @@ class CheckResult:
 
 
 _AXES = ("x", "y", "heading")
+CROSS_PLATFORM_RTOL = 1e-9  # relative agreement required between floating-point platforms
+CROSS_PLATFORM_ATOL = 1e-15  # absolute, for values near zero (metres, radians and their squares)
 
 
-def compare_estimate(step: int, recorded: EstimateMessage, estimate: SwarmEstimate, what: str = "estimate") -> Divergence | None:
-    """The first robot and field where ``estimate`` differs from ``recorded`` (exact float comparison), or None."""
+def _differs(r: float, c: float, exact: bool) -> bool:
+    if exact:
+        return r != c or math.copysign(1, r) != math.copysign(1, c)
+    return not abs(r - c) <= CROSS_PLATFORM_RTOL * max(abs(r), abs(c)) + CROSS_PLATFORM_ATOL
+
+
+def compare_estimate(step: int, recorded: EstimateMessage, estimate: SwarmEstimate, what: str = "estimate",
+                     exact: bool = True) -> Divergence | None:
+    """The first robot and field where ``estimate`` differs from ``recorded`` (exactly, or to the cross-platform tolerance), or None."""
     got = EstimateMessage.from_estimate(estimate, run=recorded.run, step=step, stamp_ns=recorded.stamp_ns)
     if got.ids != recorded.ids:
         return Divergence(step, what, None, "ids", list(recorded.ids), list(got.ids))
     for k, robot in enumerate(recorded.ids):
         for a in range(3):
             r, c = recorded.poses[k][a], got.poses[k][a]
-            if r != c or math.copysign(1, r) != math.copysign(1, c):
+            if _differs(r, c, exact):
                 return Divergence(step, what, robot, f"pose.{_AXES[a]}", r, c)
         for a in range(3):
             for b in range(3):
                 r, c = recorded.cov[k][a][b], got.cov[k][a][b]
-                if r != c or math.copysign(1, r) != math.copysign(1, c):
+                if _differs(r, c, exact):
                     return Divergence(step, what, robot, f"cov[{a}][{b}]", r, c)
     return None
+
+
+def same_float_platform(rec: RecordedRun) -> bool:
+    """Whether ``rec`` was recorded on this floating-point platform (False when the recording does not say)."""
+    versions = rec.meta.get("versions")
+    return isinstance(versions, dict) and versions.get("float_platform") == float_platform()
 
 
 def _plan_groups(plan: Plan, ids: np.ndarray) -> tuple[tuple[int, ...], ...]:
@@ -223,7 +243,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     method = method or rec.meta.get("method")
     seed = seed if seed is not None else rec.meta.get("seed")
     cfg = recorded_model(rec, model)
-    result = CheckResult(settings={"localizer": localizer, "method": method, "seed": seed, "model": cfg.to_dict()})
+    exact = same_float_platform(rec)
+    result = CheckResult(settings={"localizer": localizer, "method": method, "seed": seed, "model": cfg.to_dict()}, exact=exact)
     if 0 not in rec.estimates:
         raise SwarmInputError(f"{rec.path}: no initial estimate (EstimateMessage of step 0): nothing to check")
     ids = np.array(rec.estimates[0].ids, dtype=np.int64)
@@ -237,7 +258,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     # step 0: the initial estimate, drawn from the seed
     if traj is not None and seed is not None and "initial_delta_m" in rec.meta:
         est0 = initial_estimate(traj, int(seed), float(rec.meta["initial_delta_m"]), float(rec.meta["initial_heading_sigma_rad"]))
-        result.divergence = compare_estimate(0, rec.estimates[0], est0, "initial estimate")
+        result.divergence = compare_estimate(0, rec.estimates[0], est0, "initial estimate", exact)
         if result.divergence:
             return result
         result.estimates += 1
@@ -298,7 +319,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
             cmds[index[robot]] = (cmd.turn_rad, cmd.drive_m)
         obs = observations_from_reports(reports[int(r)] for r in ids)
         estimate, _excluded = localize_observable(loc, prior.to_estimate(), StepCommands(ids, cmds, moving), obs, cfg)
-        result.divergence = compare_estimate(step, rec.estimates[step], estimate)
+        result.divergence = compare_estimate(step, rec.estimates[step], estimate, exact=exact)
         if result.divergence:
             return result
         result.estimates += 1

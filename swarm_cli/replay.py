@@ -156,6 +156,10 @@ def run_check(args: argparse.Namespace) -> int:
     s = result.settings
     print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"
           + (f", overriding {', '.join(sorted({**model, **selection}))}" if model or selection else ""), flush=True)
+    if not result.exact:
+        from coordinator.replay_check import CROSS_PLATFORM_RTOL  # noqa: PLC0415
+        print(f"recorded on another floating-point platform (or one the recording does not name): values are compared "
+              f"to {CROSS_PLATFORM_RTOL:g} relative, not bit for bit", flush=True)
     for what in result.skipped:
         print(f"not checked: {what}", flush=True)
     if result.divergence is not None:
@@ -164,7 +168,7 @@ def run_check(args: argparse.Namespace) -> int:
         print(f"check passed: {result.estimates} estimates, {result.plans} plans reproduced", flush=True)
     if args.json:
         d = result.divergence
-        print_json({"passed": result.passed, "estimates": result.estimates, "plans": result.plans, "skipped": result.skipped,
+        print_json({"passed": result.passed, "exact": result.exact, "estimates": result.estimates, "plans": result.plans, "skipped": result.skipped,
                     "divergence": None if d is None else {"step": d.step, "what": d.what, "robot": d.robot, "field": d.field,
                                                           "recorded": d.recorded, "recomputed": d.recomputed}})
     return 0 if result.passed else EXIT_DIVERGED

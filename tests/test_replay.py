@@ -52,6 +52,8 @@ def test_check_reproduces_the_recorded_run(recording, capsys):
     # initial estimate + 2 configurations x 2 steps; 2 plans from the seeded anchor search
     assert "check passed: 5 estimates, 2 plans reproduced" in out
     assert result["passed"] and result["estimates"] == 5 and result["plans"] == 2 and result["skipped"] == []
+    assert result["exact"] is True  # recorded on this machine: compared bit for bit
+    assert "not bit for bit" not in out
 
 
 def test_check_reports_the_first_divergence(recording, capsys):

@@ -89,8 +89,22 @@ def _version(dist: str) -> str:
         return "unknown"
 
 
+def float_platform() -> str:
+    """What decides the last bits of floating-point results here: numpy's and scipy's builds and the CPU's SIMD extensions.
+
+    numpy's vectorised functions (AVX-512 vs AVX2 paths) and the BLAS kernels bundled with numpy
+    and scipy (chosen by CPU) differ in the last bits between CPUs, so ``swarm replay --check`` is
+    exact only where this string is the same; the BLAS versions follow from the numpy and scipy versions.
+    """
+    import numpy as np  # noqa: PLC0415 - numpy is loaded by every caller anyway
+
+    simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
+    return (f"numpy {np.__version__}, scipy {_version('scipy')}, {platform.machine()} "
+            f"{'+'.join(simd.get('found', [])) or 'baseline'}")
+
+
 def software_versions() -> dict[str, str]:
-    """Versions of python, numpy, zenoh, mcap, msgpack and this package."""
+    """Versions of python, numpy, zenoh, mcap, msgpack and this package, and the floating-point platform."""
     return {
         "python": platform.python_version(),
         "numpy": _version("numpy"),
@@ -98,6 +112,7 @@ def software_versions() -> dict[str, str]:
         "mcap": _version("mcap"),
         "msgpack": _version("msgpack"),
         "inchworm-swarm": _version("inchworm-swarm"),
+        "float_platform": float_platform(),
     }
 
 
