@@ -15,8 +15,12 @@ Three parts, each through the options a user has, with real processes on loopbac
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``swarm_cli.bench_faults_gateway``.
+* ``estop_under_flood``: an emergency stop through the deploy/ TLS router (mutual TLS, access
+  control) while ``--flood`` idle TCP connections hold its TLS port, see
+  ``swarm_cli.bench_estop_flood``.
 
-``--json``: the last line is ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}}``.
+``--json``: the last line is ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}}``.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("faults", help="lost robots, hostile messages and radio faults: does every run complete, unchanged?")
     p.add_argument("--seeds", type=int, default=10, help="seeds (runs) per lost-robot and gateway row (default 10)")
     p.add_argument("--fuzz", type=int, default=10_000, help="hostile messages sent during the fuzz run (default 10000)")
+    p.add_argument("--flood", type=int, default=3000, help="idle TCP connections held on the TLS router during the stop (default 3000)")
     p.add_argument("--gateway-rows", default="0.05,0.05,0.05;0.2,0,0",
                    help="radio faults as 'drop,corrupt,delay_s;...' (default '0.05,0.05,0.05;0.2,0,0'; '' for none)")
     add_json_option(p)
@@ -215,6 +220,7 @@ def _gateway_rows(spec: str) -> list[tuple[float, float, float]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swarm_cli.bench_estop_flood import estop_under_flood  # noqa: PLC0415
     from swarm_cli.bench_faults_gateway import gateway_fault_rows  # noqa: PLC0415
 
     specs = _gateway_rows(args.gateway_rows)
@@ -228,7 +234,10 @@ def run(args: argparse.Namespace) -> int:
     _say(f"fuzz: {args.fuzz} hostile messages during a run")
     fz = fuzz(args.fuzz)
     _say(json.dumps(fz))
+    _say(f"estop under flood: {args.flood} idle TCP connections on the TLS router, then swarm estop's new session")
+    flood = estop_under_flood(connections=args.flood)
+    _say(json.dumps(flood))
     if args.json:
         print_json({"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")},
-                    "fuzz": fz})
+                    "fuzz": fz, "estop_under_flood": flood})
     return 0
