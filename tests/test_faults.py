@@ -103,7 +103,7 @@ def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
         run.finish(60)
         stops = [decode(p) for k, p, _t, _pub in read_messages(run.recording) if k.endswith("/estop")]
         assert [list(s.robots) for s in stops] == [[]] and all(isinstance(s, EmergencyStop) for s in stops)
-        assert "the run ended early (KeyboardInterrupt" in stops[0].reason
+        assert "the run ended early (StopRequested: SIGTERM)" in stops[0].reason
     finally:
         run.stop()
 
