@@ -54,8 +54,13 @@ estop`` counts them). Limits
 sees a command. A driver that raises ``DriverRefused`` gives ``Status refused`` with its
 reason; ``RobotLost`` (during a command: after a ``Status refused`` "robot lost: ...")
 drops the liveliness token (the coordinator reports the robot lost by id) and ends the
-loop (``run`` returns 3). The token is declared only once ``driver.ready`` (a gateway
-driver: its link process is up), so "agent alive" means "robot reachable".
+loop (``run`` returns 3); so does ``driver.report_lost`` while idle. Any other exception from
+``execute`` or ``sense``, or no return within ``command_timeout_s`` (when set: the call then runs
+on a thread of its own and is abandoned), is a driver fault (``DriverFault``, a ``RobotLost``):
+the robot is reported lost the same way and ``driver.estop`` is called first. Whenever the loop
+ends, ``driver.stop()`` then ``driver.detach()`` are called (docs/drivers.md). The token is
+declared only once ``driver.ready`` (a gateway driver: its link process is up), so "agent
+alive" means "robot reachable".
 
 The loop runs on the caller's thread; Zenoh callbacks only enqueue. ``stop()`` (called
 by the SIGTERM/SIGINT handlers of ``swarm agent``) ends it and the session is closed.
@@ -76,7 +81,7 @@ from collections.abc import Collection
 
 import numpy as np
 
-from robot_agent.driver import Driver, DriverRefused, PeerPoses, RobotLost
+from robot_agent.driver import Driver, DriverFault, DriverRefused, PeerPoses, RobotLost
 from runtime.wire.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
 from runtime.wire.messages import (
     CommandLimits,
@@ -120,6 +125,7 @@ class Agent:
         driver: Driver,
         limits: CommandLimits = CommandLimits(),
         ready_timeout_s: float = READY_TIMEOUT_S,
+        command_timeout_s: float | None = None,
     ) -> None:
         self.settings = settings
         self.run_id = run
@@ -129,6 +135,7 @@ class Agent:
         self.driver = driver
         self.limits = limits
         self.ready_timeout_s = float(ready_timeout_s)
+        self.command_timeout_s = command_timeout_s  # None: the driver's calls are not timed (built-in drivers bound their own)
         self.drops = DropCounter(_log)
         self.refusals = RateLimit(REFUSALS_PER_S, REFUSAL_BURST)
         self.executed = 0  # commands executed (for tests and logs)
@@ -163,8 +170,7 @@ class Agent:
         with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
             self._session = session
             self.driver.attach(session)
-            if hasattr(self.driver, "on_lost"):  # a gateway driver: its link disappearing ends an idle agent too
-                self.driver.on_lost = lambda reason: self._inbox.put((_LOST, reason.encode()))
+            self.driver.on_lost = lambda reason: self._inbox.put((_LOST, reason.encode()))  # lost while idle ends the agent too
             self._wait_for_driver()
             enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
             subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
@@ -187,13 +193,16 @@ class Agent:
                 except RobotLost as e:
                     self.lost_reason = str(e)
                     _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
+                    if isinstance(e, DriverFault):  # the robot's state is unknown: stop it for good
+                        self._bounded(self.driver.estop, max(self._last_cmd_step, 0))
                     break
                 except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
                     _log.exception("robot %d: error handling a message on %s", self.robot, key)
             token.undeclare()
             for sub in subs:
                 sub.undeclare()
-            self.driver.detach()
+            self._bounded(self.driver.stop)
+            self._bounded(self.driver.detach)
             self._stop.set()
             self._stops.put(None)  # ends the forwarder
             forwarder.join(timeout=1.0)
@@ -203,6 +212,45 @@ class Agent:
         if self.refusals.suppressed:
             _log.warning("robot %d left %d refusals unsent (rate limit)", self.robot, self.refusals.suppressed)
         return 3 if self.lost_reason is not None else 0
+
+    def _driver_call(self, fn, *args):
+        """``fn(*args)`` of the driver: ``DriverRefused`` and ``RobotLost`` pass; any other exception, or no return
+        within ``command_timeout_s`` (if set), raises ``DriverFault``."""
+        what = getattr(fn, "__name__", "call")
+        if self.command_timeout_s is None:
+            try:
+                return fn(*args)
+            except (DriverRefused, RobotLost):
+                raise
+            except Exception as e:  # noqa: BLE001 - a driver's bug is a fault of that robot, not of the agent
+                raise DriverFault(f"driver error in {what}: {type(e).__name__}: {e}") from e
+        box: list = []
+        done = threading.Event()
+
+        def target() -> None:
+            try:
+                box.append((True, fn(*args)))
+            except BaseException as e:  # noqa: BLE001 - handed to the loop thread
+                box.append((False, e))
+            done.set()
+
+        threading.Thread(target=target, name=f"agent-{self.robot}-{what}", daemon=True).start()
+        if not done.wait(self.command_timeout_s):
+            raise DriverFault(f"the driver's {what} did not return within {self.command_timeout_s:g} s")
+        ok, value = box[0]
+        if ok:
+            return value
+        if isinstance(value, (DriverRefused, RobotLost)):
+            raise value
+        raise DriverFault(f"driver error in {what}: {type(value).__name__}: {value}") from value
+
+    def _bounded(self, fn, *args) -> None:
+        """Call ``fn(*args)`` (estop, stop, detach at the end) and log a failure; with a command timeout, give up
+        waiting after that long (a hung driver must not keep the agent from ending)."""
+        try:
+            self._driver_call(fn, *args)
+        except RobotLost as e:
+            _log.error("robot %d: %s", self.robot, e)
 
     def _wait_for_driver(self) -> None:
         """Until the driver can reach the robot (a gateway driver: its link process is up), so the
@@ -228,7 +276,11 @@ class Agent:
         while (msg := self._stops.get()) is not None:
             if not forwarded:
                 _log.warning("robot %d: emergency stop", self.robot)
-                self.driver.estop(max(self._last_cmd_step, 0))
+                try:
+                    self.driver.estop(max(self._last_cmd_step, 0))
+                except Exception:  # noqa: BLE001 - not acknowledged: the stop may not have reached the robot
+                    _log.exception("robot %d: the driver failed to forward the emergency stop", self.robot)
+                    continue
                 forwarded = True
             ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="agent", name=str(self.robot),
                            robots=[self.robot])
@@ -298,7 +350,7 @@ class Agent:
             return
         self._status(cmd, "accepted")
         try:
-            self.driver.execute(cmd)
+            self._driver_call(self.driver.execute, cmd)
         except DriverRefused as e:
             self._status(cmd, "refused", str(e) or "refused")
             return
@@ -360,7 +412,7 @@ class Agent:
             return
         if self.driver.simulated and self._peers is None:
             return  # waiting for the step's truth set
-        observed, ranges, bearings = self.driver.sense(self._peers, step)
+        observed, ranges, bearings = self._driver_call(self.driver.sense, self._peers, step)
         report = ObservationReport(
             run=self.run_id, step=step, robot=self.robot, observed=observed, ranges=ranges, bearings=bearings
         )

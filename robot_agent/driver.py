@@ -7,15 +7,15 @@ and senses with the sensing model (``runtime.models.sensing.sense_robot``, noise
 in-process ``runtime.models.simulation.SimulatedSwarm`` draws for that robot with that seed.
 Sensing needs the neighbours' true poses: the agent hands them to ``sense`` (simulated
 agents exchange ``TruthMessage``s, see ``robot_agent.agent``). A hardware driver
-implements the same interface and ignores ``peers``.
+implements the same interface (``Driver``, an ABC; docs/drivers.md) and ignores ``peers``.
 """
 
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
-from dataclasses import dataclass
-from typing import Protocol
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,48 +55,86 @@ class RobotLost(Exception):
     """The robot stopped answering; the text says how."""
 
 
-class Driver(Protocol):
-    """One robot's actuators and sensors (``SimDriver`` here, ``GatewayDriver`` for robots behind a link).
+class DriverFault(RobotLost):
+    """The driver failed (raised something else, or did not return in time): the robot is treated as lost."""
 
-    ``execute`` and ``sense`` may raise ``DriverRefused`` (not executed, with the reason) or
-    ``RobotLost`` (the robot stopped answering); ``estop`` may be called from any thread.
+
+@dataclass(frozen=True)
+class DriverContext:
+    """What ``swarm agent`` knows when it builds a driver (``--driver package.module:Class`` calls ``Class(context)``).
+
+    ``pose``: the robot's initial true pose (x, y, heading; m, rad) when the agent was given one
+    (``--pose`` or ``--trajectory``), else None; ``model``: the run's noise model (``--model``
+    and the model flags); ``options``: the ``--driver-option KEY=VALUE`` pairs, as strings.
     """
 
-    simulated: bool  # True: the agent publishes TruthMessages and passes peers' true poses to sense()
+    robot: int
+    ids: tuple[int, ...]
+    run: str
+    seed: int = 0
+    pose: np.ndarray | None = None
+    model: ModelConfig = ModelConfig()
+    options: Mapping[str, str] = field(default_factory=dict)
 
-    def attach(self, session) -> None:
+
+class Driver(ABC):
+    """One robot's actuators and sensors, as the agent uses them (docs/drivers.md).
+
+    ``SimDriver`` (simulated robot) and ``robot_agent.gateway_driver.GatewayDriver`` (a robot behind
+    a link process) implement it, and so does a lab's own driver loaded with ``--driver
+    package.module:Class``. The agent calls ``execute`` and ``sense`` from its loop thread, one
+    at a time; ``estop`` may come from any thread at any time, also while ``execute`` runs.
+    ``execute`` and ``sense`` may raise ``DriverRefused`` (not executed, with the reason) or
+    ``RobotLost`` (the robot stopped answering); any other exception, or no return within the
+    agent's command timeout, is a driver fault: the agent calls ``estop``, reports the robot
+    lost and ends. A driver that notices while idle that its robot is gone calls ``report_lost``.
+    """
+
+    simulated: bool = False  # True: the agent publishes TruthMessages and passes peers' true poses to sense()
+    on_lost: Callable[[str], None] | None = None  # set by the agent; see report_lost
+
+    def attach(self, session) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """The agent's Zenoh session is open (a driver that talks to a link process subscribes here)."""
-        ...
 
-    def detach(self) -> None:
-        """The session is about to close."""
-        ...
+    def detach(self) -> None:  # noqa: B027
+        """The agent is leaving: release what ``attach`` and the constructor took (after ``stop``)."""
 
     def ready(self, timeout_s: float) -> bool:
-        """Whether the robot can be reached now, waiting up to ``timeout_s`` seconds."""
-        ...
+        """Whether the robot can be reached now, waiting up to ``timeout_s`` seconds (the agent declares
+        its liveliness token, "robot reachable", only once this is True)."""
+        return True
 
-    def estop(self, step: int = 0) -> None:
-        """Emergency stop: stop now and refuse every later command."""
-        ...
-
+    @abstractmethod
     def execute(self, command: MotionCommand) -> np.ndarray | None:
-        """Turn ``command.turn_rad`` then drive ``command.drive_m`` (body frame); the new true pose (3,) if known, else None."""
-        ...
+        """Turn ``command.turn_rad`` then drive ``command.drive_m`` (body frame), returning once the motion is over;
+        the new true pose (3,) if known, else None."""
 
-    def true_pose(self) -> np.ndarray | None:
-        """The true pose (3,) (simulation), or None (hardware)."""
-        ...
-
+    @abstractmethod
     def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(observed ids, ranges m, bearings rad in the body frame) of the neighbours after ``step``.
 
-        ``peers``: the true poses of every robot still in the run (own included), for simulated drivers.
+        ``peers``: the true poses of every robot still in the run (own included) for simulated drivers, else None.
         """
-        ...
+
+    @abstractmethod
+    def estop(self, step: int = 0) -> None:
+        """Emergency stop (any thread): stop now and refuse every later command (``DriverRefused``)."""
+
+    @abstractmethod
+    def stop(self) -> None:
+        """Halt any motion now, not latched: the agent calls it whenever it ends (signal, robot lost, fault)."""
+
+    def true_pose(self) -> np.ndarray | None:
+        """The true pose (3,) (simulation, or a tracker the driver reads), or None."""
+        return None
+
+    def report_lost(self, reason: str) -> None:
+        """Tell the agent the robot is gone while no call is in progress (any thread); the agent ends, exit 3."""
+        if self.on_lost is not None:
+            self.on_lost(reason)
 
 
-class SimDriver:
+class SimDriver(Driver):
     """A simulated robot ``robot`` of the run ``ids``, starting at ``pose``, seeded with ``seed``."""
 
     simulated = True
@@ -127,6 +165,9 @@ class SimDriver:
 
     def estop(self, step: int = 0) -> None:
         self.estopped = True
+
+    def stop(self) -> None:
+        """Nothing to halt: a simulated motion is over when ``execute`` returns."""
 
     def execute(self, command: MotionCommand) -> np.ndarray:
         if self.estopped:

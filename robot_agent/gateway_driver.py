@@ -25,14 +25,14 @@ from collections.abc import Callable
 
 import numpy as np
 
-from robot_agent.driver import DriverRefused, RobotLost
+from robot_agent.driver import Driver, DriverRefused, RobotLost
 from runtime.gateway.config import Calibration, Timing
 from runtime.wire.keys import link_alive_key, robot_key
 from runtime.wire.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
 from runtime.wire.transport import publish, subscribe, watch_liveliness
 
 
-class GatewayDriver:
+class GatewayDriver(Driver):
     """Robot ``robot`` of run ``run`` behind a link process; ``attach(session)`` before use."""
 
     simulated = False
@@ -163,6 +163,10 @@ class GatewayDriver:
         ranges = np.array([c.corrected_range(r) for r in reply.ranges], dtype=float)
         bearings = np.array([c.corrected_bearing(b) for b in reply.bearings], dtype=float)
         return np.array(reply.observed, dtype=np.int64), ranges, bearings
+
+    def stop(self) -> None:
+        """Nothing to send: the robot runs one bounded command at a time and is idle between them (the frame
+        protocol has no unlatched stop; ``estop`` halts a motion in progress)."""
 
     def estop(self, step: int = 0) -> None:
         """Forward an emergency stop to the robot at once (any thread)."""

@@ -12,7 +12,9 @@ the wire. ``--ids`` lists every robot of the run (ranges too; default with
 (one robot) or from the initial poses of ``--trajectory``;
 ``--driver gateway`` drives the real or emulated robot through the link process of its
 port (``swarm link``), with limits (drive, turn, workspace) and calibration from the
-gateway config (docs/gateway.md). Exit status 3 when a robot was lost.
+gateway config (docs/gateway.md); ``--driver package.module:Class`` (or ``file.py:Class``, or an
+``inchworm_swarm.drivers`` entry point) builds a lab's own driver with ``--driver-option KEY=VALUE``
+and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 when a robot was lost.
 
 Connects as a Zenoh client to the hub, serves commands and observation requests until
 SIGTERM/SIGINT (see ``robot_agent.agent``), then closes its session and exits 0.
@@ -29,8 +31,11 @@ import sys
 from collections.abc import Iterable
 from pathlib import Path
 
+import numpy as np
+
 from robot_agent.agent import READY_TIMEOUT_S, Agent
-from robot_agent.driver import Driver, SimDriver
+from robot_agent.driver import Driver, DriverContext, SimDriver
+from robot_agent.plugins import BUILT_IN, build_driver, driver_class
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
@@ -39,7 +44,9 @@ from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, on_stop_signals, run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list
+from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, positive
+
+PLUGIN_COMMAND_TIMEOUT_S = 30.0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -56,7 +63,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     add_connection_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
-    p.add_argument("--driver", choices=("sim", "gateway"), default="sim", help="simulated robot, or a robot behind a link process (default sim)")
+    p.add_argument("--driver", default="sim", metavar="DRIVER",
+                   help="sim (simulated robot, default), gateway (a robot behind a link process), or a lab's own driver: "
+                        "package.module:Class, file.py:Class or an inchworm_swarm.drivers entry point name (docs/drivers.md)")
+    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="an option for a lab's own driver (its DriverContext.options), repeatable")
+    p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
+                   help=f"a lab's own driver must finish each command and observation within this many seconds, else the robot "
+                        f"is stopped and reported lost (default {PLUGIN_COMMAND_TIMEOUT_S:g}; not applied to sim and gateway unless given)")
     p.add_argument("--gateway-config", type=Path, help="gateway config JSON (docs/gateway.md), required with --driver gateway")
     p.add_argument("--ready-timeout", type=float, default=READY_TIMEOUT_S,
                    help=f"seconds to wait for the robot's link process before declaring this agent alive (default {READY_TIMEOUT_S:g})")
@@ -92,8 +106,31 @@ def format_ids(ids: Iterable[int]) -> str:
     return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
 
 
-def make_driver(args: argparse.Namespace, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None) -> tuple[Driver, CommandLimits]:
-    """The driver and limits of ``robot`` the options ask for (``pose``: its initial true pose for ``--driver sim``)."""
+def driver_options(pairs: list[str]) -> dict[str, str]:
+    """``--driver-option KEY=VALUE`` pairs as a dict (a key given twice: the last value)."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise SwarmInputError(f"--driver-option must be KEY=VALUE, got {pair!r}")
+        out[key.strip()] = value
+    return out
+
+
+def initial_pose(args: argparse.Namespace) -> list[float] | None:
+    """``--pose`` as x, y, heading, or None."""
+    if args.pose is None:
+        return None
+    pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)
+    if len(pose) != 3:
+        raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
+    return pose
+
+
+def make_driver(args: argparse.Namespace, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None,
+                plugin: type[Driver] | None = None) -> tuple[Driver, CommandLimits]:
+    """The driver and limits of ``robot`` the options ask for (``pose``: its initial true pose, if known;
+    ``plugin``: the class of ``--driver package.module:Class``)."""
     if args.driver == "gateway":
         if gateway is None:
             if args.gateway_config is None:
@@ -104,12 +141,16 @@ def make_driver(args: argparse.Namespace, robot: int, ids: list[int], pose=None,
         limits = CommandLimits(max_drive_m=lim.max_drive_m, max_turn_rad=lim.max_turn_rad, workspace=lim.workspace)
         return GatewayDriver(args.run_id, robot, gateway.calibration_of(robot), gateway.timing, port.name), limits
     if pose is None:
-        if args.pose is None:
-            raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
-        pose = parse_list(args.pose, "--pose", float, minimum=-math.inf)
-        if len(pose) != 3:
-            raise SwarmInputError(f"--pose must be x,y,heading, got {args.pose!r}")
+        pose = initial_pose(args)
     limits = CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg))
+    if args.driver != "sim":
+        cls = plugin or driver_class(args.driver)
+        context = DriverContext(robot=int(robot), ids=tuple(int(i) for i in ids), run=args.run_id, seed=args.seed,
+                                pose=None if pose is None else np.array(pose, dtype=float), model=model_config(args),
+                                options=driver_options(args.driver_option))
+        return build_driver(args.driver, cls, context), limits
+    if pose is None:
+        raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
     return SimDriver(robot, ids, pose, model_config(args), args.seed, args.motion_time), limits
 
 
@@ -117,6 +158,8 @@ def make_agents(args: argparse.Namespace) -> list[Agent]:
     """The agents of ``--id`` (robots of ``--ids``), each with its own driver; options checked first."""
     settings = connection_settings(args)
     validate_run(args.run_id)
+    plugin = None if args.driver in BUILT_IN else driver_class(args.driver)
+    driver_options(args.driver_option)
     hosted = parse_ids(args.id, "--id")
     traj = Trajectory.load(args.trajectory) if args.trajectory else None
     if args.ids is not None:
@@ -129,22 +172,23 @@ def make_agents(args: argparse.Namespace) -> list[Agent]:
     if outside:
         raise SwarmInputError(f"--id names robots {outside} that are not robots of the run (--ids {args.ids or format_ids(ids)})")
     poses: dict[int, object] = {}
-    if args.driver == "sim" and args.pose is None and traj is not None:
+    if args.driver != "gateway" and args.pose is None and traj is not None:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
-        if missing:
+        if missing and args.driver == "sim":
             raise SwarmInputError(f"--id names robots {missing} that {args.trajectory} does not have")
         poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses)}
-    elif args.driver == "sim" and len(hosted) > 1:
+    elif len(hosted) > 1 and (args.driver == "sim" or (args.driver != "gateway" and args.pose is not None)):
         raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {args.id}")
     gateway = None
     if args.driver == "gateway":
         if args.gateway_config is None:
             raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
         gateway = GatewayConfig.load(args.gateway_config)
+    timeout = args.command_timeout if args.command_timeout is not None or plugin is None else PLUGIN_COMMAND_TIMEOUT_S
     agents = []
     for robot in hosted:
-        driver, limits = make_driver(args, robot, ids, poses.get(robot), gateway)
-        agents.append(Agent(settings, args.run_id, robot, ids, driver, limits, args.ready_timeout))
+        driver, limits = make_driver(args, robot, ids, poses.get(robot), gateway, plugin)
+        agents.append(Agent(settings, args.run_id, robot, ids, driver, limits, args.ready_timeout, timeout))
     return agents
 
 

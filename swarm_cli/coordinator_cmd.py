@@ -146,6 +146,7 @@ def run_metadata(args: argparse.Namespace, traj: Trajectory, cfg, selection) -> 
         "method": args.method,
         "localizer": args.localizer,
         "model": cfg.to_dict(),
+        "model_file": None if getattr(args, "model", None) is None else str(Path(args.model).resolve()),
         "selection": dataclasses.asdict(selection),
         "trajectory": traj.to_json(),
         "initial_delta_m": INITIAL_DELTA,

@@ -25,6 +25,10 @@ same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``Emergenc
 to the run, then stops every child; so does a coordinator that ends with an error or is
 killed (any exit status but 0), so no robot is left moving.
 
+``--driver package.module:Class`` (or ``file.py:Class``, an entry point name) starts the agents with a
+lab's own driver (docs/drivers.md), given ``--driver-option``s and ``--command-timeout``; a driver
+that is not ``simulated`` gets a coordinator with ``--no-truth``.
+
 ``--kill-robot ID@STEP`` SIGKILLs the agent process of robot ID (with several agents per
 process: the process hosting it, and so its other robots too) as soon as the
 coordinator sends the first command of global step STEP (fault injection for demos,
@@ -61,7 +65,8 @@ from runtime.wire.keys import estop_key, robot_wildcard, validate_run
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
-from swarm_cli.agent import format_ids
+from robot_agent.plugins import BUILT_IN, driver_class
+from swarm_cli.agent import driver_options, format_ids
 from swarm_cli.coordinator_cmd import EXIT_OUTPUT, add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
@@ -71,7 +76,7 @@ from swarm_cli.options import add_simulation_options, model_config, nonnegative,
 
 GRACE_S = 3.0
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
@@ -98,8 +103,14 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
-    p.add_argument("--driver", choices=("sim", "gateway"), default="sim",
-                   help="simulated agents, or agents driving emulated robots through link processes and ptys (default sim)")
+    p.add_argument("--driver", default="sim", metavar="DRIVER",
+                   help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
+                        "or a lab's own driver package.module:Class, file.py:Class or entry point name (docs/drivers.md)")
+    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="with a lab's own driver: an option passed to every agent's driver, repeatable")
+    p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
+                   help="with a lab's own driver: seconds each command or observation may take before the agent stops the "
+                        "robot and reports it lost (default: swarm agent's)")
     p.add_argument("--gateway-config", type=Path, default=None,
                    help="with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)")
     p.add_argument("--emulator-events", type=Path, default=None, help="with --driver gateway: the emulator's JSON-lines event log")
@@ -191,8 +202,12 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={getattr(args, name)!r}".replace("'", "") for name in names]
+    """``--name=value`` for each option given (``=`` so negative numbers pass; repr so floats are exact)."""
+    return [f"--{name.replace('_', '-')}={_arg_text(getattr(args, name))}" for name in names if getattr(args, name) is not None]
+
+
+def _arg_text(value) -> str:
+    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
 def agent_command(
@@ -312,6 +327,12 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
     return live
 
 
+def plugin_spec(spec: str) -> str:
+    """``--driver`` as the agents get it: a ``file.py:Class`` path made absolute (they may start elsewhere)."""
+    module, sep, attr = spec.rpartition(":")
+    return f"{Path(module).resolve()}:{attr}" if sep and module.endswith(".py") else spec
+
+
 def _check_writable(folder: Path, flag: str, value: Path) -> None:
     """``SwarmInputError`` naming ``flag value`` unless a file can be created in ``folder`` (created if missing)."""
     folder = folder if folder != Path("") else Path(".")
@@ -352,6 +373,9 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
                 raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
     if args.driver == "gateway" and args.gateway_config:
         GatewayConfig.load(args.gateway_config)
+    if args.driver not in BUILT_IN:
+        driver_class(args.driver)
+        driver_options(args.driver_option)
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -405,6 +429,10 @@ def run(args: argparse.Namespace) -> int:
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)
             agent_extra = list(model)
+            if args.driver not in BUILT_IN:
+                agent_extra += [f"--driver={plugin_spec(args.driver)}", *(f"--driver-option={o}" for o in args.driver_option)]
+                if args.command_timeout is not None:
+                    agent_extra.append(f"--command-timeout={args.command_timeout!r}")
             if args.driver == "gateway":
                 gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -418,6 +446,8 @@ def run(args: argparse.Namespace) -> int:
             start_agents(traj, run_id, hub, args.seed, args.motion_time, agent_extra, procs, per_process, traj_file, **tied)
             agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={args.seed}", *model]
+            if args.driver not in BUILT_IN and not driver_class(args.driver).simulated:
+                common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={args.method}",
                    f"--step-timeout={args.step_timeout!r}", f"--out={out}", *common, *_forward(args, COORD_OPTIONS),
                    f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
@@ -431,7 +461,7 @@ def run(args: argparse.Namespace) -> int:
                 cmd.append(f"--foxglove={args.foxglove}")
                 if args.linger is not None:
                     cmd.append(f"--linger={args.linger!r}")
-            what = "agents" if args.driver == "sim" else "gateway agents + emulated robots"
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(args.driver, f"agents ({args.driver})")
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
             print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
             killer = None

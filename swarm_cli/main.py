@@ -27,6 +27,7 @@ COMMANDS = (
     Command("recover", "swarm_cli.recover", "rewrite an unfinished MCAP recording as a finished, indexed file"),
     Command("replay", "swarm_cli.replay", "re-publish a recording on Zenoh (--publish) or check that it is reproduced (--check)"),
     Command("export", "swarm_cli.export", "convert a recording for other tools (--ros2: a rosbag2 with standard ROS 2 messages)"),
+    Command("calibrate", "swarm_cli.calibrate", "fit the noise model (motion, sensing) to a recorded run and a tracker's true poses"),
     Command("plot", "swarm_cli.plot", "the trajectory and error plots of swarm sim, from a recording"),
     Command("link", "swarm_cli.link", "own one serial/radio port of the gateway and bridge its robots to their agents"),
     Command("estop", "swarm_cli.estop", "emergency stop: every robot of the run stops now (latched)"),

@@ -6,7 +6,8 @@ import argparse
 import json
 import math
 import os
-
+from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from runtime.models.config import ModelConfig
@@ -65,33 +66,43 @@ def positive_int(text: str) -> int:
 
 
 def add_model_options(parser: argparse.ArgumentParser) -> None:
-    """Noise and sensing options mirroring ``ModelConfig`` (defaults: the documented ones).
+    """Noise and sensing options mirroring ``ModelConfig``, and ``--model FILE`` (a model file, docs/calibration.md).
 
     Values are checked as they are parsed, so an error names the flag and the value as typed
     (``argument --turn-sigma-deg: must be >= 0, got -1``), never ``ModelConfig``'s radians.
+    The flags default to None: ``model_config`` takes the model file's values (or the documented
+    defaults) for every flag not given.
     """
-    d = ModelConfig()
     g = parser.add_argument_group("model (noise and sensing; SI units, angles in degrees)")
-    g.add_argument("--turn-sigma-deg", type=nonnegative, default=math.degrees(d.turn_sigma_rad), help="turn noise std in degrees (default 3)")
-    g.add_argument("--drive-sigma-frac", type=nonnegative, default=d.drive_sigma_frac,
+    g.add_argument("--model", type=Path, default=None, metavar="FILE",
+                   help="noise model file (TOML, e.g. written by swarm calibrate); the flags below override its values")
+    g.add_argument("--turn-sigma-deg", type=nonnegative, default=None, help="turn noise std in degrees (default 3)")
+    g.add_argument("--drive-sigma-frac", type=nonnegative, default=None,
                    help="drive noise std as a fraction of the distance (default 0.05)")
-    g.add_argument("--range-sigma", type=nonnegative, default=d.range_sigma_m, help="range noise std in m (default 0.01)")
-    g.add_argument("--bearing-sigma-deg", type=nonnegative, default=math.degrees(d.bearing_sigma_rad),
-                   help="bearing noise std in degrees (default 2)")
-    g.add_argument("--sensing-range", type=positive, default=d.sensing_range_m, help="sensing range in m (default 0.5)")
-    g.add_argument("--dropout", type=probability, default=d.dropout_prob, help="probability an observation is lost, in [0, 1) (default 0)")
+    g.add_argument("--range-sigma", type=nonnegative, default=None, help="range noise std in m (default 0.01)")
+    g.add_argument("--bearing-sigma-deg", type=nonnegative, default=None, help="bearing noise std in degrees (default 2)")
+    g.add_argument("--sensing-range", type=positive, default=None, help="sensing range in m (default 0.5)")
+    g.add_argument("--dropout", type=probability, default=None, help="probability an observation is lost, in [0, 1) (default 0)")
+
+
+MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
+    "turn_sigma_deg": ("turn_sigma_rad", math.radians, "--turn-sigma-deg"),
+    "drive_sigma_frac": ("drive_sigma_frac", float, "--drive-sigma-frac"),
+    "range_sigma": ("range_sigma_m", float, "--range-sigma"),
+    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, "--bearing-sigma-deg"),
+    "sensing_range": ("sensing_range_m", float, "--sensing-range"),
+    "dropout": ("dropout_prob", float, "--dropout"),
+}
 
 
 def model_config(args: argparse.Namespace) -> ModelConfig:
-    """``ModelConfig`` from the options added by ``add_model_options``."""
-    return ModelConfig(
-        turn_sigma_rad=math.radians(args.turn_sigma_deg),
-        drive_sigma_frac=args.drive_sigma_frac,
-        range_sigma_m=args.range_sigma,
-        bearing_sigma_rad=math.radians(args.bearing_sigma_deg),
-        sensing_range_m=args.sensing_range,
-        dropout_prob=args.dropout,
-    )
+    """``ModelConfig`` from the options added by ``add_model_options``: the ``--model`` file's values (or the
+    defaults), overridden by the flags given."""
+    from runtime.models.model_file import load_model  # noqa: PLC0415
+
+    base = load_model(args.model) if getattr(args, "model", None) is not None else ModelConfig()
+    given = {field: to_si(getattr(args, dest)) for dest, (field, to_si, _) in MODEL_FLAGS.items() if getattr(args, dest, None) is not None}
+    return replace(base, **given)
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:

@@ -33,6 +33,7 @@ from pathlib import Path
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import ROOT
 from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.models.model_file import load_model
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 
 EXIT_DIVERGED = 1
@@ -137,7 +138,8 @@ def run_publish(args: argparse.Namespace) -> int:
 
 
 def _overrides(args: argparse.Namespace) -> tuple[dict, dict]:
-    model = {field: convert(getattr(args, name)) for name, (field, convert) in MODEL_OPTIONS.items() if getattr(args, name) is not None}
+    model = load_model(args.model).to_dict() if args.model is not None else {}  # a model file replaces the recorded model
+    model |= {field: convert(getattr(args, name)) for name, (field, convert) in MODEL_OPTIONS.items() if getattr(args, name) is not None}
     selection = {name: getattr(args, name) for name in SELECTION_OPTIONS if getattr(args, name) is not None}
     if "w_v" in selection and not 0.0 <= selection["w_v"] <= 1.0:
         raise SwarmInputError(f"--w-v must be in [0, 1], got {selection['w_v']}")

@@ -32,6 +32,8 @@ SLOW_MODULES = frozenset({
     "test_cli_sim",  # swarm sim / compare as subprocesses
     "test_deploy",  # routers, TLS, access control
     "test_distributed",  # agents + coordinator processes
+    "test_drivers",  # lab drivers under swarm launch and swarm agent
+    "test_calibrate",  # swarm calibrate on a launched run's recording
     "test_emulator",  # robot emulators on ptys
     "test_gateway",  # gateway links and agents on ptys
     "test_replay",  # swarm replay subprocesses and sessions
