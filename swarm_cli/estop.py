@@ -65,10 +65,11 @@ def publish_estop(session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[fl
     return times
 
 
-def collect_acks(inbox: queue.Queue, stamp_ns: int, until: float) -> dict[tuple[str, str], EstopAck]:
-    """The acknowledgements of the stop stamped ``stamp_ns`` arriving before monotonic time ``until``, by (by, name)."""
+def collect_acks(inbox: queue.Queue, stamp_ns: int, until: float, agents: int | None = None) -> dict[tuple[str, str], EstopAck]:
+    """The acknowledgements of the stop stamped ``stamp_ns`` arriving before monotonic time ``until``, by (by, name);
+    sooner once ``agents`` agents acknowledged, if given."""
     acks: dict[tuple[str, str], EstopAck] = {}
-    while (left := until - time.monotonic()) > 0:
+    while (left := until - time.monotonic()) > 0 and (agents is None or sum(by == "agent" for by, _ in acks) < agents):
         try:
             key, payload = inbox.get(timeout=left)
         except queue.Empty:

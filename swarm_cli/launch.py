@@ -21,9 +21,11 @@ starts ``swarm emulate-robots`` (robots speaking the frame protocol on ptys, tru
 in the emulator, which publishes them like a motion-capture system), one ``swarm link``
 per port of the gateway config (``--gateway-config``, default: ports of 5 robots each),
 and the agents with the gateway driver; the coordinator and its command line are the
-same as with ``--driver sim``. Ctrl-C (or SIGTERM) first publishes an ``EmergencyStop``
-to the run, then stops every child; so does a coordinator that ends with an error or is
-killed (any exit status but 0), so no robot is left moving.
+same as with ``--driver sim``. Ctrl-C (or SIGTERM, SIGHUP) first publishes an ``EmergencyStop``
+to the run and waits (at most ``ESTOP_ACK_S``) until every agent acknowledged it, then stops
+every child; so does a coordinator that ends with an error or is killed (any exit status but
+0 and 4), so no robot is left moving. If the launcher itself is killed, its children stop
+themselves (``swarm_cli.lifeline``).
 
 ``--driver package.module:Class`` (or ``file.py:Class``, an entry point name) starts the agents with a
 lab's own driver (docs/drivers.md), given ``--driver-option``s and ``--command-timeout``; a driver
@@ -61,20 +63,21 @@ import numpy as np
 from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
-from runtime.wire.keys import estop_key, robot_wildcard, validate_run
+from runtime.wire.keys import estop_ack_key, estop_key, robot_wildcard, validate_run
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe, subscribe_queue
 from robot_agent.plugins import BUILT_IN, driver_class
 from swarm_cli.agent import driver_options, format_ids
 from swarm_cli.coordinator_cmd import EXIT_OUTPUT, add_record_options, default_recording
 from swarm_cli.entry import StopSignals
 from swarm_cli.emulate import check_radio_faults
-from swarm_cli.estop import send_estop
+from swarm_cli.estop import collect_acks, publish_estop
 from swarm_cli.lifeline import Lifeline
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
 GRACE_S = 3.0
+ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
@@ -423,6 +426,15 @@ def run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
             hub_session = stack.enter_context(open_session(hub_settings))
+            _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
+
+            def stop_run(reason: str) -> str:
+                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it."""
+                stop = EmergencyStop(run=run_id, step=0, source=f"swarm {args.command} (pid {os.getpid()})", reason=reason)
+                sent = publish_estop(hub_session, stop)
+                heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
+                return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
+
             stack.callback(stop_children)  # before the hub closes
             lifeline.guard(Path(tmp))
             traj_file = Path(tmp) / "trajectory.json"
@@ -478,13 +490,11 @@ def run(args: argparse.Namespace) -> int:
             try:
                 status = coordinator.wait()
             except KeyboardInterrupt:
-                send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
-                print(f"swarm {args.command}: interrupted: emergency stop sent to run {run_id}", file=sys.stderr, flush=True)
+                print(f"swarm {args.command}: interrupted: {stop_run('the launcher was interrupted')}", file=sys.stderr, flush=True)
                 raise
             if status not in (0, EXIT_OUTPUT):  # an abort, an error or a killed coordinator: stop every robot
-                send_estop(hub_session, run_id, f"swarm {args.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
-                print(f"swarm {args.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}",
-                      file=sys.stderr, flush=True)
+                done = stop_run(f"the coordinator exited with status {status}")
+                print(f"swarm {args.command}: the coordinator exited with status {status}: {done}", file=sys.stderr, flush=True)
             if forwarder is not None:
                 forwarder.join(timeout=10)
             if killer is not None:
