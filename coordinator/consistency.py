@@ -12,20 +12,11 @@ of one swarm are correlated (a common drift), so the band is a guide, not a test
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import dataclass
-
 import numpy as np
 from scipy.stats import chi2
 
 from coordinator.executor import RunResult
-from coordinator.selection.selector import SelectionConfig
-from coordinator.simulate import simulate
-from runtime.models.config import ModelConfig
-from runtime.models.trajectory import random_trajectory
 
-LOCALIZERS = ("paper", "joint")
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods
 
 
@@ -55,65 +46,4 @@ def chi2_band(robots: int, trajectories: int, level: float = 0.95) -> tuple[floa
     return float(chi2.ppf(tail, dof) / dof), float(chi2.ppf(1.0 - tail, dof) / dof)
 
 
-@dataclass(frozen=True)
-class ConsistencyRow:
-    """NEES / 2 per configuration (mean over trajectories) of one localizer and method."""
-
-    localizer: str
-    method: str
-    per_config: np.ndarray  # (K,) mean over trajectories
-    per_run: np.ndarray  # (T, K)
-
-    def summary(self) -> dict:
-        finite = self.per_config
-        return {
-            "localizer": self.localizer,
-            "method": self.method,
-            "configs": int(len(finite)),
-            "nees_over_expected_median": _json_number(float(np.median(finite))),
-            "nees_over_expected_max": _json_number(float(np.max(finite))),
-            "nees_over_expected_min": _json_number(float(np.min(finite))),
-        }
-
-
-def _json_number(x: float) -> float | None:
-    """``x`` rounded to 4 significant digits; None for inf/NaN (JSON has no infinity)."""
-    return float(f"{x:.4g}") if math.isfinite(x) else None
-
-
-def consistency_study(
-    cfg: ModelConfig,
-    *,
-    localizers: tuple[str, ...] = LOCALIZERS,
-    methods: tuple[str, ...] = METHODS,
-    robots: int = 10,
-    configs: int = 100,
-    trajectories: int = 48,
-    seed: int = 0,
-    selection: SelectionConfig = SelectionConfig(),
-    progress: Callable[[int], None] | None = None,
-) -> list[ConsistencyRow]:
-    """NEES / 2 of every (localizer, method) on the same ``trajectories`` random trajectories.
-
-    Trajectory t is ``random_trajectory(robots, configs, rng [seed, t])``, run with seed t
-    (same motion and sensing noise streams for every localizer and method).
-    """
-    trajs = [
-        random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m)
-        for t in range(trajectories)
-    ]
-    rows, done = [], 0
-    for loc in localizers:
-        for method in methods:
-            runs = []
-            for t, traj in enumerate(trajs):
-                runs.append(run_nees(simulate(traj, method, cfg, localizer=loc, selection=selection, seed=seed + t)))
-                done += 1
-                if progress is not None:
-                    progress(done)
-            per_run = np.stack(runs)
-            rows.append(ConsistencyRow(loc, method, per_run.mean(axis=0), per_run))
-    return rows
-
-
-__all__ = ["ConsistencyRow", "chi2_band", "consistency_study", "position_nees", "run_nees", "LOCALIZERS", "METHODS"]
+__all__ = ["chi2_band", "position_nees", "run_nees", "METHODS"]

@@ -270,7 +270,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     if method is None or traj is None or seed is None:
         result.skipped.append("plans (no method, trajectory or seed in the metadata)")
     else:
-        strategy = make_strategy(method, len(ids), cfg, localizer, recorded_selection(rec, selection), int(seed))
+        strategy = make_strategy(method, len(ids), cfg, loc, recorded_selection(rec, selection), int(seed))
     plans_ok = strategy is not None
     plan_at_step = {p.step: p for p in rec.plans.values()}
     expected_config = 1

@@ -14,7 +14,8 @@ from collections.abc import Callable
 import numpy as np
 
 from coordinator.executor import InchwormExecutor, RunResult
-from coordinator.localization import make_localizer
+from coordinator.localization import Localizer, make_localizer
+from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.selection.selector import SelectionConfig
 from coordinator.strategies import make_strategy
 from runtime.models.config import ModelConfig
@@ -38,16 +39,18 @@ def simulate(
     method: str,
     cfg: ModelConfig,
     *,
-    localizer: str = "paper",
+    localizer: str | Localizer = DEFAULT_LOCALIZER,
     selection: SelectionConfig = SelectionConfig(),
     seed: int = 0,
     initial_delta: float = 0.01,
     initial_heading_sigma: float = math.radians(2.0),
     progress: Callable[[int, int], None] | None = None,
 ) -> RunResult:
-    """Run ``method`` along ``traj`` in the in-process simulator."""
+    """Run ``method`` along ``traj`` in the in-process simulator. ``localizer``: a registered name
+    (``registry.localizer_names``) or a localizer object; the executor and the anchor selection use the same one."""
     validate_connected(traj, cfg.sensing_range_m)
+    loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
     backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed)
-    strategy = make_strategy(method, traj.n, cfg, localizer, selection, seed)
-    executor = InchwormExecutor(backend, make_localizer(localizer, cfg), strategy, cfg, progress)
+    strategy = make_strategy(method, traj.n, cfg, loc, selection, seed)
+    executor = InchwormExecutor(backend, loc, strategy, cfg, progress)
     return executor.run(traj, initial_estimate(traj, seed, initial_delta, initial_heading_sigma))

@@ -21,6 +21,7 @@ from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
 
 if TYPE_CHECKING:  # the search (scipy) is imported when a strategy is made: METHODS stays cheap for parsers
+    from coordinator.localization import Localizer
     from coordinator.selection.selector import AnchorSelector, Selection, SelectionConfig
 
 METHODS = ("inchworm", "inchworm-equal-speed", "heuristic-fixed", "ref57", "no-anchors", "one-at-a-time")
@@ -118,9 +119,10 @@ def half(n: int, method: str) -> int:
 
 
 def make_strategy(
-    method: str, n: int, cfg: ModelConfig, localizer: str, selection: SelectionConfig, seed: int
+    method: str, n: int, cfg: ModelConfig, localizer: Localizer, selection: SelectionConfig, seed: int
 ) -> Strategy:
-    """The strategy called ``method`` for ``n`` robots; ``seed`` fixes its own random choices."""
+    """The strategy called ``method`` for ``n`` robots; ``seed`` fixes its own random choices. ``localizer`` is the
+    executor's: the online selection's Monte Carlo simulates it."""
     from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415 - scipy, only when a strategy is made
 
     if method == "inchworm":

@@ -5,11 +5,15 @@ from __future__ import annotations
 from collections.abc import Iterable
 
 
-class SwarmInputError(ValueError):
+class SwarmError(Exception):
+    """Base of every error the runtime raises on purpose (catch this one to catch them all)."""
+
+
+class SwarmInputError(SwarmError, ValueError):
     """Bad user input: malformed values, NaN/inf, unknown ids, impossible requests."""
 
 
-class LocalizationError(RuntimeError):
+class LocalizationError(SwarmError, RuntimeError):
     """Localization cannot produce a trustworthy answer for the robots in ``robots``.
 
     ``reason`` is a short machine-readable tag: ``"unobserved"``, ``"disconnected"``,

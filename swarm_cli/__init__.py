@@ -1,11 +1,5 @@
-"""The ``swarm`` command line: the top layer, built on ``runtime``, ``robot_agent`` and ``coordinator``.
+"""The ``swarm`` command line: the top layer, parsing options and printing what ``inchworm`` (the library) returns.
 
-The commands parallelise over processes (one per core), so each process keeps its BLAS
-to one thread: several BLAS threads per process only oversubscribe the cores and make
-the small batched solves of the Monte Carlo planner erratic. Set before numpy loads.
+Entry points (``swarm_cli.main.main``, ``entry.run_standalone``) limit BLAS to one thread;
+importing the package changes nothing.
 """
-
-import os
-
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")

@@ -1,50 +1,15 @@
-"""``swarm bench runtime``: coordination overhead of the distributed runtime per step.
+"""``swarm bench runtime``: per-step coordination overhead of the distributed runtime, agent memory and the Zenoh
+round trip, with real agent processes on this host (``inchworm.bench.runtime``).
 
-For each swarm size N (``--agents 10,50``) the benchmark starts, on this host, a Zenoh
-router hub in its own process and the agents of N robots (as ``swarm launch`` does,
-simulated drivers, no motion delay: one process per robot up to 50 robots, else processes
-hosting up to 50 agents each; ``--agents-per-process K`` to choose), then runs the coordinator in process: a
-``ZenohSwarmBackend`` (a client of the hub, like ``swarm coordinator``) under the same
-``InchwormExecutor``, with a fixed plan (``--method no-anchors``: everybody moves every
-step, or ``ref57``) along a random trajectory of ``--steps`` steps. A step's time runs
-from the end of the previous step (or of the plan) to the published fused estimate:
-commands out, every ``Status done`` back, observation requests out, every report (and
-simulated truth) back, localization, ``EstimateMessage`` published. No simulated motion
-time is included (``--motion-time`` 0). Reported per N:
-
-* ``step_ms_median``: median step time (ms);
-* ``zenoh_rtt_ms``: the raw Zenoh round trip between two client sessions through the
-  same hub (``runtime.wire.transport.round_trip_ms``, median), measured in the same run with
-  the agents alive, and the step time as a multiple of it;
-* beside them (table only): the median of the command round (``execute``: commands out,
-  every ``done`` back) and of the observation round (``observe``: requests out, every
-  report and truth back); the rest of a step is localization and publishing;
-* ``agents_per_process``: robot agents hosted by one agent process;
-* ``agent_rss_mb``: resident memory per robot agent after the run: the agent processes'
-  ``VmRSS`` (``/proc/<pid>/status``, MB = 2^20 bytes) summed and divided by the N agents they host.
-
-Every process started is stopped by its own pid at the end, on error and on Ctrl-C.
-Targets (issues): N = 10 under 20 ms, N = 50 under 100 ms per step, agents under 80 MB;
-N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent (issue 14).
+Every process started is stopped by its own pid at the end, on error and on Ctrl-C. Exit
+status 3 when agents did not come up or died during the benchmark.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
-import os
-import signal
-import statistics
-import subprocess
 import sys
-import tempfile
-import time
-from pathlib import Path
 
-import numpy as np
-
-from runtime.errors import SwarmInputError
-from runtime.models.trajectory import random_trajectory
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
 
 METHODS = ("no-anchors", "ref57")
@@ -68,173 +33,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-class StepTimer:
-    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate."""
-
-    def __init__(self, inner) -> None:
-        self.inner = inner
-        self.mark: float | None = None
-        self.seconds: list[float] = []
-
-    def on_plan(self, config_index, first_step, plan, selection) -> None:
-        self.inner.on_plan(config_index, first_step, plan, selection)
-        self.mark = time.perf_counter()
-
-    def on_estimate(self, step, estimate) -> None:
-        self.inner.on_estimate(step, estimate)
-        now = time.perf_counter()
-        if step > 0 and self.mark is not None:
-            self.seconds.append(now - self.mark)
-        self.mark = now
-
-
-class TimedBackend:
-    """The backend with its ``execute`` and ``observe`` calls timed (seconds)."""
-
-    def __init__(self, inner) -> None:
-        self.inner, self.ids = inner, inner.ids
-        self.execute_s: list[float] = []
-        self.observe_s: list[float] = []
-
-    def execute(self, step) -> None:
-        t = time.perf_counter()
-        self.inner.execute(step)
-        self.execute_s.append(time.perf_counter() - t)
-
-    def observe(self):
-        t = time.perf_counter()
-        obs = self.inner.observe()
-        self.observe_s.append(time.perf_counter() - t)
-        return obs
-
-    def true_poses(self):
-        return self.inner.true_poses()
-
-    def take_lost(self) -> dict[int, str]:
-        lost = self.inner.take_lost()
-        self.ids = self.inner.ids
-        return lost
-
-
-def rss_mb(pid: int) -> float | None:
-    """Resident set size of process ``pid`` in MB (VmRSS), or None if it is gone."""
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            for line in f:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        return None
-    return None
-
-
-def _say(text: str) -> None:
-    print(f"bench runtime: {text}", file=sys.stderr, flush=True)
-
-
-def _raise_interrupt(*_) -> None:
-    raise KeyboardInterrupt
-
-
-def measure(n: int, args: argparse.Namespace, driver: str = "sim") -> dict:
-    """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row.
-
-    ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
-    (``swarm_cli.launch.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
-    """
-    from coordinator.executor import InchwormExecutor  # noqa: PLC0415
-    from coordinator.localization import make_localizer  # noqa: PLC0415
-    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
-    from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
-    from swarm_cli.launch import MODEL_OPTIONS, _forward, agents_per_process, default_gateway, start_agents, start_gateway, stop_all  # noqa: PLC0415
-    cfg = model_config(args)
-    strategy = make_strategy(args.method, n, cfg, args.localizer, SelectionConfig(), args.seed)
-    per_config = strategy.fixed.n_steps
-    configs = math.ceil(args.steps / per_config)
-    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
-    per_process = agents_per_process(n, getattr(args, "agents_per_process", None))
-    run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
-    try:
-        with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="swarm-bench-") as tmp:
-            t0 = time.monotonic()
-            _say(f"{n} agents ({driver} driver, {per_process} per process): starting (run {run_id}, hub {hub})")
-            model = _forward(args, MODEL_OPTIONS)
-            extra = list(model)
-            traj_file = Path(tmp) / "trajectory.json"
-            traj.save(traj_file)
-            if driver == "gateway":
-                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs)
-                extra += ["--driver=gateway", f"--gateway-config={live}"]
-            first_agent = len(procs)
-            start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
-            with open_session(member) as session:
-                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout, args.step_timeout))
-                try:
-                    backend.wait_for_agents()
-                    _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")
-                    rtt = round_trip_ms(member, member, args.rtt_count)["median_ms"]
-                    _say(f"{n} agents: round trip {rtt:.3f} ms; timing {configs * per_config} steps ({args.method})")
-                    timer = StepTimer(backend)
-                    progress = lambda done, total: _say(f"{n} agents: configuration {done}/{total} (step {backend.step})")  # noqa: E731
-                    timed = TimedBackend(backend)
-                    executor = InchwormExecutor(timed, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=timer)
-                    executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
-                finally:
-                    backend.close()
-            agents = procs[first_agent:]
-            hosted = [traj.ids[k:k + per_process] for k in range(0, n, per_process)]
-            rss = [rss_mb(p.pid) for p in agents]
-            dead = [int(r) for robots, p in zip(hosted, agents) if p.poll() is not None for r in robots]
-            if dead or None in rss:
-                raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
-    finally:
-        emulators = 1 if driver == "gateway" else 0  # stopped last, after the links that read their ptys
-        stop_all(procs[emulators:])
-        stop_all(procs[:emulators])
-    left = [p.pid for p in procs if p.poll() is None]
-    if left:
-        raise RuntimeError(f"agent processes {left} are still running")
-    step_ms = [s * 1e3 for s in timer.seconds]
-    return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
-            "agent_rss_mb": round(sum(rss) / n, 2), "agents_per_process": per_process, "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
-            "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
-
-
-def _p90(values: list[float]) -> float:
-    return round(statistics.quantiles(values, n=10)[-1], 3) if len(values) >= 2 else round(values[0], 3)
-
-
 def run(args: argparse.Namespace) -> int:
     from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
-    sizes = parse_list(args.agents, "--agents", int, 2)
-    if args.steps < 1:
-        raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")
-    if args.rtt_count < 2:
-        raise SwarmInputError(f"--rtt-count must be >= 2, got {args.rtt_count}")
-    if args.method == "ref57" and any(n % 2 for n in sizes):
-        raise SwarmInputError("--method ref57 needs even numbers of agents")
-    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
-    rows = []
+    from inchworm.bench.runtime import RuntimeBenchOptions, bench_runtime  # noqa: PLC0415
+
+    options = RuntimeBenchOptions(tuple(parse_list(args.agents, "--agents", int, 2)), args.agents_per_process, args.steps, args.method,
+                                  args.seed, args.rtt_count, args.start_timeout, args.step_timeout, args.localizer, model_config(args))
     try:
-        for n in sizes:
-            try:
-                rows.append(measure(n, args))
-            except AgentError as exc:
-                print(f"swarm bench runtime: error: {n} agents: {exc}", file=sys.stderr, flush=True)
-                return EXIT_AGENT
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    print(f"{'agents':>6} {'per proc':>8} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} {'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'RSS MB per agent':>16}")
-    for r in rows:
-        print(f"{r['agents']:>6} {r['agents_per_process']:>8} {r['_steps']:>5} {r['step_ms_median']:>16.2f} {r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
-              f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {r['_execute_ms']:>11.2f} {r['_observe_ms']:>10.2f} {r['agent_rss_mb']:>16.2f}")
+        result = bench_runtime(options)
+    except AgentError as exc:
+        print(f"swarm bench runtime: error: {exc}", file=sys.stderr, flush=True)
+        return EXIT_AGENT
+    print(result.report())
     if args.json:
-        print_json({"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]})
+        print_json(result.to_json())
     return 0

@@ -1,139 +1,25 @@
-"""``swarm certs``: a lab certificate authority and one TLS certificate per host, for mutual TLS.
+"""``swarm certs``: a lab certificate authority and one TLS certificate per host, for mutual TLS (``inchworm.certs``).
 
     swarm certs --out certs/ [--host router=192.168.1.10,coordinator-pc.local] [--host gateway=10.0.0.7] ...
 
-Writes into ``--out`` (created if missing; files are PEM):
-
-* ``ca.pem`` / ``ca.key``: the lab CA (EC P-256, self-signed, ``--ca-days`` valid, default
-  3650). An existing pair in ``--out`` is reused, so hosts added later are signed by the
-  same CA; a lone ``ca.pem`` or ``ca.key``, or a pair that does not match, is an error.
-* ``<name>.pem`` / ``<name>.key`` per ``--host`` (default hosts: router, coordinator,
-  gateway), re-issued on every call: EC P-256, signed by the CA, ``--days`` valid
-  (default 825), common name = ``<name>`` (the subject the router's access control
-  matches, see ``deploy/zenoh-router-tls-acl.json5``), subject alternative names =
-  ``DNS:<name>``, the extra ``SAN``s given after ``=`` (IP addresses become ``IP:``,
-  anything else ``DNS:``) and always ``IP:127.0.0.1`` (so loopback works), usable as
-  TLS server and client (extended key usage serverAuth + clientAuth).
-
-Private keys are created with mode 0600, certificates 0644. Uses the ``openssl`` command-line tool (OpenSSL
-1.1.1 or 3.x). Prints one line per file written; ``--json`` adds one JSON object as the
-last line: ``{"out": DIR, "ca": {"cert", "key", "reused"}, "hosts": {name: {"cert", "key", "sans"}}}``.
-Exit status 0, 2 on bad input (bad names, missing openssl, unwritable directory).
+Writes ``ca.pem`` / ``ca.key`` (reused when ``--out`` has them) and ``<name>.pem`` /
+``<name>.key`` per ``--host`` (default hosts: router, coordinator, gateway) into ``--out``;
+see ``inchworm.certs`` for the certificates' contents. Prints one line per file written;
+``--json`` adds one JSON object as the last line: ``{"out": DIR, "ca": {"cert", "key",
+"reused"}, "hosts": {name: {"cert", "key", "sans"}}}``. Exit status 0, 2 on bad input
+(bad names, missing openssl, unwritable directory).
 """
 
 from __future__ import annotations
 
 import argparse
-import ipaddress
-import os
-import re
-import secrets
-import shutil
-import subprocess
 import sys
-import tempfile
-from dataclasses import dataclass
 from pathlib import Path
 
-from runtime.errors import SwarmInputError
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 
-DEFAULT_HOSTS = ("router", "coordinator", "gateway")
-LOOPBACK_SAN = "IP:127.0.0.1"
-CA_SUBJECT = "/O=inchworm-swarm/CN=inchworm-swarm lab CA"
-_NAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,61}[A-Za-z0-9])?")
-_DNS = re.compile(r"[A-Za-z0-9*]([A-Za-z0-9.-]{0,251}[A-Za-z0-9])?")
-_EC_KEY = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes")
-
-
-@dataclass(frozen=True)
-class HostSpec:
-    """One certificate to issue: common name ``name`` and subject alternative names ``sans`` (``DNS:x`` / ``IP:x``)."""
-
-    name: str
-    sans: tuple[str, ...]
-
-
-def parse_host(text: str) -> HostSpec:
-    """``NAME`` or ``NAME=SAN,SAN,...`` (SAN: an IP address or a DNS name) as a ``HostSpec``."""
-    name, _, extra = text.partition("=")
-    name = name.strip()
-    if not _NAME.fullmatch(name) or name.lower() == "ca":
-        raise SwarmInputError(
-            f"--host {text!r}: the name must be 1-63 characters of A-Z a-z 0-9 . - "
-            "starting and ending with a letter or digit, and not 'ca'"
-        )
-    sans = [f"DNS:{name}"]
-    for item in (s.strip() for s in extra.split(",")):
-        if not item:
-            continue
-        try:
-            sans.append(f"IP:{ipaddress.ip_address(item.strip('[]'))}")
-        except ValueError:
-            if not _DNS.fullmatch(item):
-                raise SwarmInputError(f"--host {text!r}: {item!r} is neither an IP address nor a DNS name") from None
-            sans.append(f"DNS:{item}")
-    sans.append(LOOPBACK_SAN)
-    return HostSpec(name, tuple(dict.fromkeys(sans)))  # de-duplicated, order kept
-
-
-def _openssl() -> str:
-    exe = shutil.which("openssl")
-    if exe is None:
-        raise SwarmInputError("the openssl command was not found on PATH: install it (e.g. apt-get install openssl)")
-    return exe
-
-
-def _run(openssl: str, *args: str) -> str:
-    """Run ``openssl args...`` with umask 077 (keys are never readable by others); its stdout."""
-    proc = subprocess.run([openssl, *args], capture_output=True, text=True, umask=0o077, check=False)
-    if proc.returncode != 0:
-        detail = (proc.stderr or proc.stdout).strip().splitlines()
-        raise SwarmInputError(f"openssl {args[0]} failed: {detail[-1] if detail else f'exit {proc.returncode}'}")
-    return proc.stdout
-
-
-def ensure_ca(openssl: str, out: Path, days: int) -> bool:
-    """Create ``out/ca.pem`` + ``out/ca.key`` unless both exist and match; True if reused."""
-    cert, key = out / "ca.pem", out / "ca.key"
-    if cert.exists() or key.exists():
-        if not (cert.is_file() and key.is_file()):
-            raise SwarmInputError(f"{out} holds only one of ca.pem and ca.key: remove it or restore the other")
-        cert_pub = _run(openssl, "x509", "-in", str(cert), "-noout", "-pubkey")
-        key_pub = _run(openssl, "pkey", "-in", str(key), "-pubout")
-        if cert_pub.strip() != key_pub.strip():
-            raise SwarmInputError(f"{cert} and {key} do not belong together (different public keys)")
-        return True
-    _run(openssl, "req", "-x509", *_EC_KEY, "-keyout", str(key), "-out", str(cert), "-days", str(days),
-         "-subj", CA_SUBJECT, "-addext", "basicConstraints=critical,CA:TRUE",
-         "-addext", "keyUsage=critical,keyCertSign,cRLSign")
-    os.chmod(key, 0o600)
-    os.chmod(cert, 0o644)
-    return False
-
-
-def issue(openssl: str, out: Path, host: HostSpec, days: int) -> tuple[Path, Path]:
-    """Write ``out/<name>.pem`` and ``out/<name>.key`` signed by the CA in ``out``; their paths."""
-    cert, key = out / f"{host.name}.pem", out / f"{host.name}.key"
-    with tempfile.TemporaryDirectory(prefix="swarm-certs-") as tmp:
-        csr, ext = Path(tmp) / "host.csr", Path(tmp) / "host.ext"
-        ext.write_text(
-            f"subjectAltName={','.join(host.sans)}\n"
-            "basicConstraints=critical,CA:FALSE\n"
-            "keyUsage=critical,digitalSignature\n"  # EC keys sign, never encipher
-            "extendedKeyUsage=serverAuth,clientAuth\n"
-            "subjectKeyIdentifier=hash\n"
-            "authorityKeyIdentifier=keyid,issuer\n"
-        )
-        key.unlink(missing_ok=True)  # a fresh file gets the umask's 0600
-        _run(openssl, "req", "-new", *_EC_KEY, "-keyout", str(key), "-out", str(csr), "-subj", f"/CN={host.name}")
-        _run(openssl, "x509", "-req", "-in", str(csr), "-CA", str(out / "ca.pem"), "-CAkey", str(out / "ca.key"),
-             "-set_serial", f"0x{secrets.token_hex(16)}", "-days", str(days), "-sha256",
-             "-extfile", str(ext), "-out", str(cert))
-    os.chmod(key, 0o600)
-    os.chmod(cert, 0o644)
-    return cert, key
+DEFAULT_HOSTS = ("router", "coordinator", "gateway")  # as inchworm.certs
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -153,24 +39,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    hosts = [parse_host(h) for h in (args.host or DEFAULT_HOSTS)]
-    names = [h.name for h in hosts]
-    if len(set(names)) != len(names):
-        raise SwarmInputError(f"--host names must be distinct, got {names}")
-    if args.days < 1 or args.ca_days < 1:
-        raise SwarmInputError("--days and --ca-days must be at least 1")
-    openssl = _openssl()
-    out: Path = args.out
-    if out.exists() and not out.is_dir():
-        raise SwarmInputError(f"--out {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
-    reused = ensure_ca(openssl, out, args.ca_days)
-    print(f"{'reused' if reused else 'wrote'} CA {out / 'ca.pem'} (key {out / 'ca.key'})", flush=True)
-    result: dict = {"out": str(out), "ca": {"cert": str(out / "ca.pem"), "key": str(out / "ca.key"), "reused": reused}, "hosts": {}}
-    for host in hosts:
-        cert, key = issue(openssl, out, host, args.days)
-        print(f"wrote {cert} and {key} (CN {host.name}; {', '.join(host.sans)})", flush=True)
-        result["hosts"][host.name] = {"cert": str(cert), "key": str(key), "sans": list(host.sans)}
+    from inchworm.certs import make_certs, parse_host  # noqa: PLC0415
+
+    result = make_certs(args.out, [parse_host(h) for h in (args.host or DEFAULT_HOSTS)], args.days, args.ca_days,
+                        lambda line: print(line, flush=True))
     if args.json:
         print_json(result)
     return 0

@@ -5,33 +5,26 @@
 
 One ``robot_agent.emulator.PortEmulator`` per port of the config, all in one
 ``EmulatedWorld`` built from the trajectory's initial poses (every robot of the config must
-be in the trajectory). Prints ``port NAME: DEVICE (robots 0,1,2)`` per port, then writes
-the config with the pty device paths to ``--write-config`` (atomically, once the ptys are
-ready, so a launcher can wait for the file) and, with ``--json``, one line
-``{"ports": {name: device}, "config": OUT}``. Serves until SIGTERM/SIGINT, then closes
+be in the trajectory; ``robot_agent.emulator_process``). Writes the config with the pty device
+paths to ``--write-config`` (atomically, once the ptys are ready, so a launcher can wait for
+the file), then prints ``port NAME: DEVICE (robots 0,1,2)`` per port and, with ``--json``, one
+line ``{"ports": {name: device}, "config": OUT}``. Serves until SIGTERM/SIGINT, then closes
 everything and exits 0 (2 on bad input). ``python -m swarm_cli.emulate`` is the same.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 import math
-import os
 import sys
-import threading
-import time
 from pathlib import Path
-from typing import TextIO
 
-from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
+from robot_agent.emulator import FaultPlan
+from robot_agent.emulator_process import check_radio_faults
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
-from runtime.wire.keys import validate_run
 from runtime.models.trajectory import Trajectory
-from runtime.wire.transport import open_session
-from swarm_cli.entry import on_stop_signals, run_standalone
+from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, print_json
 
 PROG = "swarm emulate-robots"
@@ -66,37 +59,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help='print {"ports": {name: device}, "config": OUT} as one JSON line when ready')
 
 
-class JsonLinesSink:
-    """An ``on_event`` callback writing each event as one JSON line, flushed (thread-safe)."""
-
-    def __init__(self, path: Path) -> None:
-        self._file: TextIO = open(path, "w", encoding="utf-8")
-        self._lock = threading.Lock()
-
-    def __call__(self, event: dict) -> None:
-        line = json.dumps(event, separators=(",", ":")) + "\n"
-        with self._lock:
-            if not self._file.closed:
-                self._file.write(line)
-                self._file.flush()
-
-    def close(self) -> None:
-        with self._lock:
-            self._file.close()
-
-
-def write_atomically(config: GatewayConfig, out: Path) -> None:
-    """``config`` to ``out`` via a temporary file and a rename: a reader sees no file or the whole file."""
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
-    try:
-        config.save(tmp)
-        os.replace(tmp, out)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
-        raise
-
-
 def _blackout(text: str | None) -> tuple[int, float] | None:
     """``--blackout STEP:SECONDS`` -> (step, seconds), checked."""
     if text is None:
@@ -115,65 +77,23 @@ def _indices(text: str, option: str) -> frozenset[int]:
     return frozenset(parse_list(text, option)) if text.strip() else frozenset()
 
 
-def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
-    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
-    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
-        if not 0.0 <= p <= 1.0:
-            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
-    if not (math.isfinite(delay) and delay >= 0):
-        raise SwarmInputError(f"--delay must be a finite number of seconds >= 0, got {delay!r}")
-
-
 def run(args: argparse.Namespace) -> int:
-    config = GatewayConfig.load(args.config)
-    traj = Trajectory.load(args.trajectory)
-    ids = traj.ids.tolist()
-    missing = [r for r in config.robots if r not in ids]
-    if missing:
-        raise SwarmInputError(f"robots {missing} of the gateway config {args.config} are not in the trajectory "
-                              f"{args.trajectory} (its robots: {ids}); every emulated robot needs an initial pose")
-    settings = connection_settings(args)
-    if (settings is None) != (args.run_id is None):
-        raise SwarmInputError("give --run together with --hub/--zenoh-config (they publish the true poses), or neither")
-    if args.run_id is not None:
-        validate_run(args.run_id)
-    if not args.motion_time >= 0:
-        raise SwarmInputError(f"--motion-time must be >= 0 s, got {args.motion_time}")
+    from robot_agent.emulator_process import serve_emulators  # noqa: PLC0415
+
     check_radio_faults(args.drop, args.corrupt, args.delay)
     faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
                        drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"), blackout=_blackout(args.blackout), seed=args.seed)
-    world = EmulatedWorld(ids, traj.initial_poses, model_config(args), args.seed,
-                          calibration=dict(config.calibration) if args.miscalibrate else None,
-                          motion_time_s=args.motion_time, heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
-    stop = threading.Event()
-    on_stop_signals(stop.set)
-    with contextlib.ExitStack() as stack:
-        sink = None
-        if args.events is not None:
-            sink = JsonLinesSink(args.events)
-            stack.callback(sink.close)
-        ports = [stack.enter_context(PortEmulator(world, p.name, p.robots, faults, on_event=sink)) for p in config.ports]
-        if settings is not None:
-            session = stack.enter_context(open_session(settings))
-            truth = stack.enter_context(TruthPublisher(world, session, args.run_id))
-            truth.start()
-        devices = {pe.port_name: pe.device for pe in ports}
+
+    def ready(ports: list, devices: dict[str, str]) -> None:
         for pe in ports:
             print(f"port {pe.port_name}: {pe.device} (robots {','.join(map(str, pe.robots))})", flush=True)
-        if args.write_config is not None:
-            write_atomically(config.with_devices(devices), args.write_config)
-        if sink is not None:
-            sink({"event": "ready", "time_ns": time.time_ns(), "ports": devices, "config": None if args.write_config is None else str(args.write_config)})
         if args.json:
             print_json({"ports": devices, "config": None if args.write_config is None else str(args.write_config)})
-        print(f"{PROG}: {len(config.robots)} robots on {len(ports)} port(s); SIGTERM or Ctrl-C stops", file=sys.stderr, flush=True)
-        while not stop.wait(0.2):
-            pass
-        for pe in ports:
-            s = pe.stats()
-            print(f"{PROG}: port {pe.port_name}: {s.rx_frames} frames in, {s.tx_frames} out, executed {s.executed}, "
-                  f"dropped rx {s.rx_dropped} tx {s.tx_dropped}, corrupted {s.tx_corrupted}, CRC errors {s.crc_errors}",
-                  file=sys.stderr, flush=True)
+
+    serve_emulators(GatewayConfig.load(args.config), args.config, Trajectory.load(args.trajectory), args.trajectory, model_config(args),
+                    args.seed, faults, settings=connection_settings(args), run_id=args.run_id, miscalibrate=args.miscalibrate,
+                    motion_time_s=args.motion_time, events=args.events, write_config=args.write_config, on_ready=ready,
+                    say=lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True))
     return 0
 
 

@@ -5,11 +5,10 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
-import contextlib
 import re
 import signal
 import sys
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from runtime.errors import LocalizationError, SwarmInputError
@@ -19,6 +18,16 @@ def plain(doc: str | None) -> str:
     """A module docstring as ``--help`` text: reStructuredText literals (````x````) and ``::`` markers removed."""
     text = re.sub(r"``([^`]+)``", r"\1", doc or "")
     return re.sub(r"::$", ":", text, flags=re.MULTILINE).strip()
+
+
+def library_doc(module: str) -> str:
+    """The docstring of ``module`` as ``--help`` text, read from its source without importing it."""
+    import ast  # noqa: PLC0415
+    import importlib.util  # noqa: PLC0415
+
+    spec = importlib.util.find_spec(module)
+    source = open(spec.origin, encoding="utf-8").read() if spec and spec.origin else ""
+    return plain(ast.get_docstring(ast.parse(source)) if source else "")
 
 
 class Command(NamedTuple):
@@ -55,58 +64,9 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
             sub.add_parser(c.name, help=c.help)
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # every one takes the same path: a clean, run-wide stop
-
-
-class StopRequested(KeyboardInterrupt):
-    """A stop signal ended the run; ``signum`` is its number (exit status 128 + ``signum``)."""
-
-    def __init__(self, signum: int) -> None:
-        super().__init__(signal.Signals(signum).name)
-        self.signum = signum
-
-
-class StopSignals:
-    """SIGINT, SIGTERM and SIGHUP as a stop request: the first one raises ``StopRequested`` (a
-    ``KeyboardInterrupt``: ends the run), later ones are only noted, and inside ``deferred()``
-    (finishing a recording, stopping children) every signal is only noted, never an exception in
-    the middle of writing a file.
-
-    ``received`` is the first signal number (None if none came). ``restore()`` puts back the
-    previous handlers. Main thread only (Python runs signal handlers there).
-    """
-
-    SIGNALS = STOP_SIGNALS
-
-    def __init__(self) -> None:
-        self.received: int | None = None
-        self._deferred = 0
-        self._previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
-
-    def _handle(self, signum: int, _frame: object) -> None:
-        first = self.received is None
-        if first:
-            self.received = signum
-        if first and not self._deferred:
-            raise StopRequested(signum)
-
-    @contextlib.contextmanager
-    def deferred(self) -> Iterator[None]:
-        """Signals arriving in this block are noted, not raised (a stop request is then ``received``)."""
-        self._deferred += 1
-        try:
-            yield
-        finally:
-            self._deferred -= 1
-
-    def restore(self) -> None:
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-
 def on_stop_signals(callback: Callable[[], object]) -> None:
     """Call ``callback()`` (it must be safe in a signal handler) on SIGINT, SIGTERM and SIGHUP."""
-    for sig in STOP_SIGNALS:
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, lambda *_: callback())
 
 
@@ -123,7 +83,23 @@ def guarded(prog: str, run: Callable[[], int | None]) -> int:
         return 2
     except KeyboardInterrupt as exc:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 128 + (exc.signum if isinstance(exc, StopRequested) else signal.SIGINT)
+        return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.stop.StopRequested carries the signal
+
+
+def limit_blas_threads() -> None:
+    """One BLAS thread in this process and the processes it starts (an entry point, before numpy loads).
+
+    The commands parallelise over processes (one per core), so each keeps its BLAS to one
+    thread: several BLAS threads per process only oversubscribe the cores and make the small
+    batched solves of the Monte Carlo planner erratic. A BLAS already loaded (``main`` called
+    from Python) is limited through threadpoolctl.
+    """
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    if "numpy" in sys.modules:
+        from threadpoolctl import threadpool_limits  # noqa: PLC0415
+
+        threadpool_limits(1)
 
 
 def run_standalone(
@@ -137,6 +113,7 @@ def run_standalone(
     from swarm_cli.lifeline import hold_lifeline  # noqa: PLC0415
 
     hold_lifeline()  # started by a launcher: end with it, whatever killed it
+    limit_blas_threads()
     parser = argparse.ArgumentParser(prog=prog)
     add_arguments(parser)
     args = parser.parse_args(argv)

@@ -22,16 +22,10 @@ from __future__ import annotations
 
 import argparse
 import os
-import queue
 import sys
-import time
 
-from runtime.wire.keys import estop_ack_key, validate_run
-from runtime.wire.messages import EmergencyStop, EstopAck, MessageError, decode, encode, message_key
-from runtime.wire.transport import open_session, publish, subscribe_queue
 from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
 
-REPEATS = 3
 EXIT_NO_ACK = 1
 
 
@@ -47,47 +41,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def send_estop(session, run_id: str, source: str, reason: str, repeat_s: float = 0.0) -> int:
-    """Publish the run's ``EmergencyStop`` (once, then again spread over ``repeat_s``); the number published."""
-    return len(publish_estop(session, EmergencyStop(run=run_id, step=0, source=source, reason=reason), repeat_s))
-
-
-def publish_estop(session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[float]:
-    """Publish ``msg`` (once, then again spread over ``repeat_s``); the monotonic times it went out."""
-    key, payload = message_key(msg), encode(msg)
-    count = 1 if repeat_s <= 0 else REPEATS
-    times = []
-    for i in range(count):
-        publish(session, key, payload)
-        times.append(time.monotonic())
-        if i + 1 < count:
-            time.sleep(repeat_s / (count - 1))
-    return times
-
-
-def collect_acks(inbox: queue.Queue, stamp_ns: int, until: float, agents: int | None = None) -> dict[tuple[str, str], EstopAck]:
-    """The acknowledgements of the stop stamped ``stamp_ns`` arriving before monotonic time ``until``, by (by, name);
-    sooner once ``agents`` agents acknowledged, if given."""
-    acks: dict[tuple[str, str], EstopAck] = {}
-    while (left := until - time.monotonic()) > 0 and (agents is None or sum(by == "agent" for by, _ in acks) < agents):
-        try:
-            key, payload = inbox.get(timeout=left)
-        except queue.Empty:
-            break
-        try:
-            ack = decode(payload, EstopAck, key=key)
-        except MessageError:
-            continue
-        if ack.stop_stamp_ns == stamp_ns:
-            acks.setdefault((ack.by, ack.name), ack)
-    return acks
-
-
 def _names(values: list) -> str:
     return ", ".join(map(str, values))
 
 
 def run(args: argparse.Namespace) -> int:
+    from coordinator.stop import collect_acks, publish_estop  # noqa: PLC0415 - zenoh, only when a command runs
+    from runtime.wire.keys import estop_ack_key, validate_run  # noqa: PLC0415
+    from runtime.wire.messages import EmergencyStop  # noqa: PLC0415
+    from runtime.wire.transport import open_session, subscribe_queue  # noqa: PLC0415
+
     validate_run(args.run_id)
     msg = EmergencyStop(run=args.run_id, step=0, source=f"swarm estop (pid {os.getpid()})", reason=args.reason)
     with open_session(connection_settings(args)) as session:

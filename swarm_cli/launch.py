@@ -21,11 +21,10 @@ starts ``swarm emulate-robots`` (robots speaking the frame protocol on ptys, tru
 in the emulator, which publishes them like a motion-capture system), one ``swarm link``
 per port of the gateway config (``--gateway-config``, default: ports of 5 robots each),
 and the agents with the gateway driver; the coordinator and its command line are the
-same as with ``--driver sim``. Ctrl-C (or SIGTERM, SIGHUP) first publishes an ``EmergencyStop``
-to the run and waits (at most ``ESTOP_ACK_S``) until every agent acknowledged it, then stops
-every child; so does a coordinator that ends with an error or is killed (any exit status but
-0 and 4), so no robot is left moving. If the launcher itself is killed, its children stop
-themselves (``swarm_cli.lifeline``).
+same as with ``--driver sim``. Ctrl-C (or SIGTERM, SIGHUP; each child also stops itself if the launcher is
+killed: ``swarm_cli.lifeline``) first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement)
+to the run, then stops every child; so does a coordinator that ends with an error or is
+killed (any exit status but 0), so no robot is left moving.
 
 ``--driver package.module:Class`` (or ``file.py:Class``, an entry point name) starts the agents with a
 lab's own driver (docs/drivers.md), given ``--driver-option``s and ``--command-timeout``; a driver
@@ -39,7 +38,7 @@ tests and ``swarm bench faults``); the launcher then times the coordinator's rea
 heard it) and prints it; with ``--json`` the last line is the coordinator's JSON object
 with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
-``agent_command``, ``start_agents`` and ``stop_all`` are the reusable pieces (also used by
+``inchworm.processes`` holds the reusable pieces (``agent_command``, ``start_agents``, ``stop_all``) (also used by
 ``swarm bench runtime``).
 """
 
@@ -49,40 +48,36 @@ import argparse
 import contextlib
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
 
+from coordinator.process import EXIT_OUTPUT, default_recording
+from coordinator.stop import StopSignals, collect_acks, publish_estop
 from coordinator.strategies import METHODS
+from inchworm.processes import (AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO, RobotKiller, agents_per_process, default_gateway, radio_faults,
+                                start_agents, start_gateway, stop_all)
 from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig, Limits, Port
-from runtime.wire.keys import estop_ack_key, estop_key, robot_wildcard, validate_run
-from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.gateway.config import GatewayConfig
+from runtime.wire.keys import estop_ack_key, validate_run
+from runtime.wire.messages import EmergencyStop
 from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe, subscribe_queue
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
+from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
-from swarm_cli.agent import driver_options, format_ids
-from swarm_cli.coordinator_cmd import EXIT_OUTPUT, add_record_options, default_recording
-from swarm_cli.entry import StopSignals
-from swarm_cli.emulate import check_radio_faults
-from swarm_cli.estop import collect_acks, publish_estop
+from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.lifeline import Lifeline
 from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
 
-GRACE_S = 3.0
-ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
-ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
-AGENTS_PER_PROCESS = 50  # at most, when they share
+ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
@@ -146,48 +141,6 @@ def _kill_spec(text: str) -> tuple[int, int]:
     return robot_id, step_no
 
 
-class RobotKiller:
-    """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
-    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
-
-    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
-        self.robot, self.step, self.process = robot, step, process
-        self.killed_ns: int | None = None
-        self.stop_stamp_ns: int | None = None
-        self.stop_heard_ns: int | None = None
-        self._subs = [subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command),
-                      subscribe(session, estop_key(run_id), self._on_estop)]
-
-    def _on_command(self, key: str, payload: bytes) -> None:
-        if self.killed_ns is not None:
-            return
-        try:
-            cmd = decode(payload, MotionCommand)
-        except MessageError:
-            return
-        if cmd.step >= self.step and self.process.poll() is None:
-            self.process.send_signal(signal.SIGKILL)
-            self.killed_ns = time.time_ns()
-
-    def _on_estop(self, key: str, payload: bytes) -> None:
-        heard = time.time_ns()
-        try:
-            stop = decode(payload, EmergencyStop)
-        except MessageError:
-            return
-        if self.robot in stop.robots and self.stop_heard_ns is None:
-            self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
-
-    def report(self) -> dict | None:
-        """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
-        for sub in self._subs:
-            sub.undeclare()
-        if self.killed_ns is None:
-            return None
-        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
-        return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
-
-
 def _forward_output(stream, last_json: list[str]) -> None:
     """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
     held = None
@@ -213,123 +166,6 @@ def _arg_text(value) -> str:
     return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
-def agent_command(
-    robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
-) -> list[str]:
-    """The command line of robot ``robot``'s agent process (``ids`` as ``--ids`` takes them, ``pose`` x, y, heading)."""
-    return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
-            f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
-            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
-
-
-def agents_per_process(n: int, requested: int | None) -> int:
-    """Robots per agent process for a swarm of ``n``: ``requested`` (``--agents-per-process``), or the default."""
-    if requested is None:
-        if n <= ONE_PER_PROCESS_UP_TO:
-            return 1
-        processes = -(-n // AGENTS_PER_PROCESS)
-        return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
-    if requested < 1:
-        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
-    return requested
-
-
-def start_agents(
-    traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
-    procs: list[subprocess.Popen] | None = None, per_process: int = 1, traj_file: Path | None = None, **popen_kwargs,
-) -> list[subprocess.Popen]:
-    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (initial
-    true pose on its command line), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``,
-    ``traj`` saved). Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
-    """
-    procs = [] if procs is None else procs
-    ids = format_ids(traj.ids)
-    if per_process == 1:
-        for robot, pose in zip(traj.ids, traj.initial_poses):
-            procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
-        return procs
-    if traj_file is None:
-        raise ValueError("start_agents needs traj_file to host several agents per process")
-    for k in range(0, traj.n, per_process):
-        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(traj.ids[k:k + per_process])}", f"--ids={ids}",
-               f"--trajectory={traj_file}", f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}",
-               f"--seed={seed}", *extra]
-        procs.append(subprocess.Popen(cmd, **popen_kwargs))
-    return procs
-
-
-def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
-    """SIGTERM every child still running, SIGKILL those still running after ``grace_s``; reap all."""
-    for p in procs:
-        if p.poll() is None:
-            try:
-                p.send_signal(signal.SIGTERM)
-            except ProcessLookupError:
-                pass
-    deadline = time.monotonic() + grace_s
-    for p in procs:
-        try:
-            p.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            p.kill()
-            p.wait()
-
-
-ROBOTS_PER_PORT = 5
-GATEWAY_READY_S = 20.0
-
-
-def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
-    """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
-    trajectory's bounding box grown by ``margin_m``; devices are filled in by the emulator."""
-    ids = [int(i) for i in traj.ids]
-    ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
-                  for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
-    xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
-    lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
-    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
-
-
-def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],
-                   **popen_kwargs) -> Path:
-    """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
-    until it wrote ``live``, the same config with its pty devices; returns ``live``."""
-    emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL, **popen_kwargs)
-    procs.append(emulator)
-    deadline = time.monotonic() + GATEWAY_READY_S
-    while not live.exists():
-        if emulator.poll() is not None:
-            raise SwarmInputError(f"the robot emulator exited with status {emulator.returncode} before its ptys were ready")
-        if time.monotonic() > deadline:
-            raise SwarmInputError(f"the robot emulator did not write {live} within {GATEWAY_READY_S:.0f} s")
-        time.sleep(0.02)
-    return live
-
-
-def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
-    """The emulator options of the radio faults ``--drop P --corrupt P --delay S``, checked (errors name the flag)."""
-    check_radio_faults(drop, corrupt, delay)
-    return [f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}"]
-
-
-def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
-                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = (), **popen_kwargs) -> Path:
-    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
-    the live gateway config (pty devices)."""
-    config = tmp / "gateway.json"
-    gateway.save(config)
-    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
-    if events is not None:
-        options.append(f"--events={events}")
-    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
-    for port in gateway.ports:
-        procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
-                                       f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
-    return live
-
-
 def plugin_spec(spec: str) -> str:
     """``--driver`` as the agents get it: a ``file.py:Class`` path made absolute (they may start elsewhere)."""
     module, sep, attr = spec.rpartition(":")
@@ -352,7 +188,8 @@ def _check_writable(folder: Path, flag: str, value: Path) -> None:
 def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: str, out: Path) -> None:
     """Everything that can fail before a process is started: the run id, the trajectory, the strategy
     options, the recording, plot and result folders, the Foxglove extra and port; each error names the flag."""
-    from coordinator.strategies import make_strategy  # noqa: PLC0415 - scipy, only when launching
+    from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy, only when launching
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
     from runtime.recording.foxglove_live import require_foxglove  # noqa: PLC0415
 
     try:
@@ -360,7 +197,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     except SwarmInputError as exc:
         raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
     validate_connected(traj, cfg.sensing_range_m)
-    make_strategy(args.method, traj.n, cfg, args.localizer, selection_config(args), args.seed)
+    make_strategy(args.method, traj.n, cfg, make_localizer(args.localizer, cfg), selection_config(args), args.seed)
     if not args.no_record:
         record = Path(args.record or default_recording(run_id))
         _check_writable(record.parent, "--record", record)
@@ -426,6 +263,8 @@ def run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
             hub_session = stack.enter_context(open_session(hub_settings))
+            stack.callback(stop_children)  # before the hub closes
+            lifeline.guard(Path(tmp))
             _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
 
             def stop_run(reason: str) -> str:
@@ -435,8 +274,6 @@ def run(args: argparse.Namespace) -> int:
                 heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
                 return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
 
-            stack.callback(stop_children)  # before the hub closes
-            lifeline.guard(Path(tmp))
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = _forward(args, MODEL_OPTIONS)

@@ -10,7 +10,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.entry import Command, add_commands, guarded, leave
+from swarm_cli.entry import Command, add_commands, guarded, leave, limit_blas_threads
+from swarm_cli.options import apply_config
 
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
@@ -49,10 +50,23 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
 ZENOH_PROCESSES = ("agent", "coordinator")  # long-lived processes whose exit skips finalization (entry.leave)
 
 
+def parse(argv: list[str]) -> argparse.Namespace:
+    """The command line; a study's ``--config FILE`` gives the defaults of its options, the flags override them."""
+    parser = build_parser(argv)
+    args = parser.parse_args(argv)
+    if getattr(args, "_study_parser", None) is not None and args.config is not None:
+        code = guarded("swarm", lambda: apply_config(args._study_parser, args.config))
+        if code:
+            sys.exit(code)
+        args = parser.parse_args(argv)
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
     standalone = argv is None
     argv = sys.argv[1:] if argv is None else list(argv)
-    args = build_parser(argv).parse_args(argv)
+    limit_blas_threads()
+    args = parse(argv)
     code = guarded(f"swarm {args.command}", lambda: args.run(args))
     if standalone and args.command in ZENOH_PROCESSES:
         leave(code)

@@ -6,10 +6,13 @@ import argparse
 import json
 import math
 import os
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
+from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
+from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -17,6 +20,7 @@ SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, wi
 
 if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
     from coordinator.selection.selector import SelectionConfig
+    from inchworm.options import RunOptions
     from runtime.wire.transport import ZenohSettings
 
 
@@ -106,11 +110,52 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--localizer", choices=["paper", "joint"], default="paper", help="localization method (default: paper, Section 5)")
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
+                        help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
 
 def add_workers_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=positive_int, default=os.cpu_count() or 1, help="parallel processes (default: all cores)")
+
+
+def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
+    """``--workers``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    add_workers_option(parser)
+    parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the study interrupted in --out: runs already kept there are not run again (same final result)")
+    parser.add_argument("--config", type=Path, default=None, metavar="TOML",
+                        help="options from a TOML file (keys as the flags, e.g. robots = 10); flags given here override it")
+    parser.set_defaults(_study_parser=parser)
+
+
+def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any, total: int, label: str, log: str = "runs") -> int:
+    """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
+    table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
+    from inchworm.progress import Progress  # noqa: PLC0415
+    from inchworm.runner import default_executor  # noqa: PLC0415
+
+    options.validate()
+    save_config(args)
+    result = study(options, executor=default_executor(args.workers), out=args.out, resume=args.resume, progress=Progress(total, label))
+    print(result.report())
+    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
+    if args.json:
+        print_json(result.to_json())
+    return 0
+
+
+def run_options(args: argparse.Namespace) -> RunOptions:
+    """The model, localizer and anchor search of ``add_simulation_options``."""
+    from inchworm.options import RunOptions  # noqa: PLC0415
+
+    return RunOptions(model_config(args), args.localizer, selection_config(args))
+
+
+def names(text: str) -> tuple[str, ...]:
+    """The items of a comma-separated option."""
+    return tuple(x.strip() for x in text.split(",") if x.strip())
 
 
 def add_json_option(parser: argparse.ArgumentParser) -> None:
@@ -120,15 +165,6 @@ def add_json_option(parser: argparse.ArgumentParser) -> None:
 def print_json(obj: object) -> None:
     """The machine-readable result: one JSON object on one line."""
     print(json.dumps(obj, separators=(",", ":")), flush=True)
-
-
-def last_json(stdout: str) -> dict | None:
-    """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
-    lines = [line for line in stdout.splitlines() if line.startswith("{")]
-    try:
-        return json.loads(lines[-1]) if lines else None
-    except json.JSONDecodeError:
-        return None
 
 
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
@@ -207,3 +243,59 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
 def connection_label(args: argparse.Namespace) -> str:
     """What the connection options say, for logs and metadata."""
     return args.hub or f"config {args.zenoh_config}"
+
+
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers"})  # how to run, not what: never read from or saved to a study file
+
+
+def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+    return {a.dest: a for a in parser._actions if a.option_strings and a.dest not in NOT_IN_CONFIG and not a.dest.startswith("_")}
+
+
+def apply_config(parser: argparse.ArgumentParser, path: Path) -> None:
+    """Make the options of the TOML file ``path`` the defaults of ``parser`` (flags given on the command line still win).
+
+    Keys are the flags' names (``robots``, ``turn-sigma-deg`` or ``turn_sigma_deg``); a list is a
+    comma-separated value. Values are checked as if typed on the command line.
+    """
+    import tomllib  # noqa: PLC0415
+
+    try:
+        doc = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SwarmInputError(f"--config {path}: not TOML ({exc})") from None
+    actions = _config_actions(parser)
+    defaults: dict[str, object] = {}
+    for key, value in doc.items():
+        action = actions.get(key.replace("-", "_"))
+        if action is None:
+            raise SwarmInputError(f"--config {path}: unknown key {key!r}")
+        flag = action.option_strings[-1]
+        if action.nargs == 0:
+            if not isinstance(value, bool):
+                raise SwarmInputError(f"--config {path}: {key} must be true or false, got {value!r}")
+        elif isinstance(value, (list, tuple)):
+            value = ",".join(str(v) for v in value)
+        elif isinstance(value, (dict, type(None))):
+            raise SwarmInputError(f"--config {path}: {key} must be a value, got {value!r}")
+        else:
+            value = str(value)
+        if action.choices is not None and value not in action.choices:
+            raise SwarmInputError(f"--config {path}: {key} ({flag}) must be one of {', '.join(map(str, action.choices))}, got {value!r}")
+        defaults[action.dest] = value
+    parser.set_defaults(**defaults)
+
+
+def save_config(args: argparse.Namespace) -> Path:
+    """The options of a study as ``--out/study.toml`` (``--config`` reads it back)."""
+    lines = [f"# swarm {args.command} {getattr(args, 'study', None) or ''}".rstrip() + ": the options of the results in this folder"]
+    for dest in _config_actions(args._study_parser):
+        value = getattr(args, dest)
+        if value is None:
+            continue
+        text = ("true" if value else "false") if isinstance(value, bool) else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value))
+        lines.append(f"{dest.replace('_', '-')} = {text}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    path = args.out / "study.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path

@@ -31,14 +31,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from coordinator.replay_check import load_recording, rebuild_run  # noqa: PLC0415 - scipy and matplotlib when it runs
-    from swarm_cli.summary import write_plots  # noqa: PLC0415
+    from inchworm.plots import write_run_plots  # noqa: PLC0415
 
     rec = load_recording(args.file)
     if not rec.complete:
         print(f"swarm plot: {args.file} is unfinished ({rec.info['problem'] or 'no summary'}): plotting what it holds",
               file=sys.stderr, flush=True)
     result = rebuild_run(rec, args.trajectory)
-    plots = write_plots(result, args.out)
+    plots = write_run_plots(result, args.out)
     k, total = len(result.configs), len(result.trajectory.configurations)
     pf = result.pf() if result.has_truth else None
     print(f"{result.method}: {k} of {total} configurations, {len(result.steps)} steps"

@@ -23,27 +23,15 @@ invalid config file, unreadable certificate, port already in use).
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import signal
 import sys
 import threading
 
-import zenoh
-
 from runtime.errors import SwarmInputError
-from runtime.wire.transport import ZenohSettings, open_session
-from swarm_cli.entry import STOP_SIGNALS, run_standalone
+from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 
-DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
-TLS_FILE_FIELDS = (
-    "root_ca_certificate",
-    "listen_certificate",
-    "listen_private_key",
-    "connect_certificate",
-    "connect_private_key",
-)
+DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -60,46 +48,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout once listening")
 
 
-def _file_endpoints(config: zenoh.Config) -> list[str]:
-    """The listen endpoints a config file gives a router (the field may be per mode)."""
-    value = json.loads(config.get_json("listen/endpoints"))
-    if isinstance(value, dict):
-        value = value.get("router", [])
-    return list(value or [])
-
-
-def check_tls_files(config: zenoh.Config, source: str) -> None:
-    """``SwarmInputError`` naming the field if a certificate or key path of ``transport/link/tls`` is unreadable."""
-    tls = json.loads(config.get_json("transport/link/tls"))
-    for field in TLS_FILE_FIELDS:
-        path = tls.get(field)
-        if path is None:
-            continue
-        if not isinstance(path, str) or not os.path.isfile(path) or not os.access(path, os.R_OK):
-            raise SwarmInputError(f"{source}: transport/link/tls/{field} {path!r} is not a readable file")
-
-
-def router_settings(listen: list[str], config_file: str | None) -> ZenohSettings:
-    """The router's ``ZenohSettings``: checks the file, its TLS paths and the endpoints (no port 0)."""
-    endpoints = tuple(listen)
-    if config_file is not None:
-        if not os.path.isfile(config_file) or not os.access(config_file, os.R_OK):
-            raise SwarmInputError(f"--config {config_file!r} is not a readable file")
-        config = ZenohSettings("router", config_file=config_file).to_config()  # SwarmInputError if invalid
-        check_tls_files(config, f"--config {config_file}")
-        if not endpoints:
-            endpoints = tuple(_file_endpoints(config))
-    settings = ZenohSettings("router", listen=endpoints or (DEFAULT_LISTEN,), config_file=config_file)
-    for endpoint in settings.listen:
-        if endpoint.split("?")[0].split("#")[0].endswith(":0"):
-            raise SwarmInputError(f"listen endpoint {endpoint!r}: give a fixed port (clients must know it)")
-    return settings
-
-
 def run(args: argparse.Namespace) -> int:
+    from runtime.wire.router import router_settings  # noqa: PLC0415 - zenoh when it runs
+    from runtime.wire.transport import open_session  # noqa: PLC0415
+
     settings = router_settings(args.listen, args.config)
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         try:
             session = open_session(settings)

@@ -5,12 +5,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from coordinator.strategies import METHODS
-from runtime.models.trajectory import Trajectory, random_trajectory
+from inchworm.progress import Progress
 from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
-from swarm_cli.progress import Progress
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -19,6 +16,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robots", type=int, default=10, help="robots of the random trajectory (default 10)")
     p.add_argument("--configs", type=int, default=5, help="configurations of the random trajectory (default 5)")
     p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
+    p.add_argument("--baseline", choices=(*METHODS, "none"), default="ref57",
+                   help="method also run on the same trajectory and noise for errors.png to compare with (default ref57; none: no second run)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectory, noise and search (default 0)")
     p.add_argument("--out", type=Path, default=Path("out/sim"), help="folder for the PNG plots (default out/sim)")
     add_simulation_options(p)
@@ -26,21 +25,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coordinator.simulate import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
-    from swarm_cli.summary import print_config_table, write_csv, write_plots  # noqa: PLC0415
+    from inchworm import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
+    from inchworm.plots import write_run_plots  # noqa: PLC0415
+    from inchworm.runner import write_rows  # noqa: PLC0415
+    from inchworm.simulation import config_rows, config_table, fallback_steps, resolve_trajectory  # noqa: PLC0415
 
-    cfg = model_config(args)
-    if args.trajectory:
-        traj = Trajectory.load(args.trajectory)
-    else:
-        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=cfg.sensing_range_m)
-    progress = Progress(len(traj.configurations), f"sim {args.method}")
-    result = simulate(traj, args.method, cfg, localizer=args.localizer, selection=selection_config(args), seed=args.seed, progress=progress)
-    plots = write_plots(result, args.out)
-    rows, fallbacks = print_config_table(result)
-    write_csv(args.out / "configs.csv", rows)
+    cfg, selection = model_config(args), selection_config(args)
+    traj = resolve_trajectory(args.trajectory, args.robots, args.configs, args.seed, cfg)
+    kw = dict(model=cfg, localizer=args.localizer, selection=selection, seed=args.seed)
+    result = simulate(traj, method=args.method, progress=Progress(len(traj.configurations), f"sim {args.method}"), **kw)
+    compared = {}
+    if args.baseline not in ("none", args.method):
+        compared[args.baseline] = simulate(traj, method=args.baseline, progress=Progress(len(traj.configurations), f"sim {args.baseline}"), **kw)
+    plots = write_run_plots(result, args.out, compared)
+    rows = config_rows(result)
+    print(config_table(result))
+    write_rows(args.out / "configs.csv", rows)
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
-                    "configs": rows, "fallback_steps": len(fallbacks), "plots": plots})
+                    "configs": rows, "fallback_steps": len(fallback_steps(result)), "plots": plots})
     return 0

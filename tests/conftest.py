@@ -38,6 +38,8 @@ SLOW_MODULES = frozenset({
     "test_gateway",  # gateway links and agents on ptys
     "test_replay",  # swarm replay subprocesses and sessions
     "test_study_anchors",  # studies
+    "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
+    "test_examples",  # the example scripts as subprocesses
     "test_transport",  # Zenoh sessions and child processes
 })
 SLOW_TESTS = frozenset({
@@ -53,6 +55,11 @@ SLOW_TESTS = frozenset({
     "test_study_selection.py::test_study_calibration_finds_the_noise_and_pairs_the_seed_sets",  # a study
     "test_localization_consistency.py::test_study_consistency_json_contract",  # a study
     "test_sample_recording.py::test_replay_check_passes_on_the_sample",  # replay over the whole sample
+    "test_localizer_registry.py::test_a_registered_localizer_runs_a_study",  # a study
+    "test_localizer_registry.py::test_an_installed_plugin_reaches_swarm_sim",  # swarm subprocesses
+    "test_inchworm_api.py::test_rows_do_not_depend_on_the_workers_or_their_order",  # a process pool
+    "test_inchworm_api.py::test_the_cli_names_an_unknown_study_file_key_in_one_line",  # subprocess
+    "test_inchworm_api.py::test_importing_the_library_and_the_cli_changes_nothing",  # subprocess
 })
 
 

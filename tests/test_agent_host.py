@@ -25,8 +25,9 @@ from runtime.wire.keys import alive_wildcard, parse_key, robot_key, robot_wildca
 from runtime.wire.messages import MotionCommand, Status, decode, encode
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
-from swarm_cli.agent import format_ids, parse_ids
-from swarm_cli.launch import agents_per_process
+from inchworm.processes import agents_per_process
+from robot_agent.assembly import format_ids
+from robot_agent.assembly import parse_ids
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

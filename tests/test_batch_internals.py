@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import coordinator.localization.batch as batch_module
+import coordinator.localization.sparse_lm as sparse_lm
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
     COMPACT_BELOW,
     MAX_ITER,
@@ -47,7 +49,7 @@ def triangle_batch(b: int):
     return [np.repeat(a[None], b, axis=0) for a in (poses, cov, commands, moving, seen, ranges, bearings)]
 
 
-@pytest.mark.parametrize("method", ["paper", "joint"])
+@pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
 def test_invalid_values_flag_only_their_sample(method):
     """Sample k gets one bad value each: 1 NaN pose, 2 infinite covariance, 3 NaN command of a moving
     robot, 4 negative drive of a moving robot, 5 negative range, 6 infinite range, 7 NaN bearing (all on
@@ -67,7 +69,7 @@ def test_invalid_values_flag_only_their_sample(method):
     seen[9, 0, 1] = False
     ranges[9, 0, 1] = np.nan
     with np.errstate(invalid="ignore"):  # dead reckoning of the NaN sample propagates NaN
-        out = localize_batch(method, CFG, poses, cov, commands, moving, seen, ranges, bearings)
+        out = localize_batch(make_localizer(method, CFG), CFG, poses, cov, commands, moving, seen, ranges, bearings)
     assert out.ok.tolist() == [True, False, False, False, False, False, False, False, True, True]
     for k in (5, 6, 7):  # invalid observations: dead reckoning, robot 0 driven 0.1 m along x
         np.testing.assert_allclose(out.poses[k, 0], [0.1, 0.0, 0.0], atol=1e-12)
@@ -77,7 +79,7 @@ def test_invalid_values_flag_only_their_sample(method):
 
 def test_no_robots_gives_empty_estimates():
     """n = 0: nothing to localize; every sample is ok and the arrays have shape (B, 0, ...)."""
-    out = localize_batch("joint", CFG, np.zeros((2, 0, 3)), np.zeros((2, 0, 3, 3)), np.zeros((2, 0, 2)),
+    out = localize_batch(make_localizer("joint", CFG), CFG, np.zeros((2, 0, 3)), np.zeros((2, 0, 3, 3)), np.zeros((2, 0, 2)),
                          np.zeros((2, 0), bool), np.zeros((2, 0, 0), bool), np.zeros((2, 0, 0)), np.zeros((2, 0, 0)))
     assert out.ok.tolist() == [True, True] and out.ok.dtype == bool
     assert out.poses.shape == (2, 0, 3) and out.cov.shape == (2, 0, 3, 3)
@@ -91,18 +93,18 @@ def test_shapes_are_checked_with_their_names():
         bad = list(arrays)
         bad[k] = arrays[k][:, :2] if k else arrays[k][..., :2]
         with pytest.raises(SwarmInputError, match=f"{name} must have shape"):
-            localize_batch("paper", CFG, *bad)
+            localize_batch(make_localizer("paper", CFG), CFG, *bad)
     with pytest.raises(SwarmInputError, match=r"prior_poses must have shape \(B, n, 3\), got \(3, 3\)"):
-        localize_batch("paper", CFG, arrays[0][0], *arrays[1:])
+        localize_batch(make_localizer("paper", CFG), CFG, arrays[0][0], *arrays[1:])
 
 
 def test_the_diagonal_of_seen_is_ignored():
     """A robot 'observing itself' (seen[b, i, i] with any value) changes nothing."""
     arrays = triangle_batch(1)
-    base = localize_batch("joint", CFG, *arrays)
+    base = localize_batch(make_localizer("joint", CFG), CFG, *arrays)
     seen, ranges = arrays[4].copy(), arrays[5].copy()
     seen[0, 1, 1], ranges[0, 1, 1] = True, 5.0
-    out = localize_batch("joint", CFG, *arrays[:4], seen, ranges, arrays[6])
+    out = localize_batch(make_localizer("joint", CFG), CFG, *arrays[:4], seen, ranges, arrays[6])
     assert out.ok.tolist() == [True]
     np.testing.assert_array_equal(out.poses, base.poses)
 
@@ -233,7 +235,7 @@ def test_lm_settles_a_sample_whose_step_predicts_no_gain(monkeypatch):
     assert x[:, 0, 0].tolist() == [3.0, 1.1]
     x, converged, _ = run_toy(costs, steps, x0, ptol=None, predicted=[1e-9, 1.0])  # without ptol: both step
     assert converged.tolist() == [True, True] and x[:, 0, 0].tolist() == [3.1, 1.1]
-    monkeypatch.setattr(batch_module, "PRED_MU_MAX", 1e-13)  # damping never negligible: ptol never settles
+    monkeypatch.setattr(sparse_lm, "PRED_MU_MAX", 1e-13)  # damping never negligible: ptol never settles
     x, _, _ = run_toy(costs, steps, x0, ptol=1e-6, predicted=[1e-9, 1.0])
     assert x[:, 0, 0].tolist() == [3.1, 1.1]
 
@@ -408,11 +410,11 @@ def test_prior_information_floors_what_only_one_minor_reveals(cov):
     np.testing.assert_allclose(_prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
 
 
-@pytest.mark.parametrize("method", ["paper", "joint"])
+@pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
 def test_a_single_robot_is_dead_reckoning(method):
     """n = 1: nobody can observe the only robot, so it is not localized (ok False) and keeps its dead
     reckoning: 0.1 m along its heading 0."""
-    out = localize_batch(method, CFG, np.zeros((2, 1, 3)), np.broadcast_to(np.eye(3) * 1e-4, (2, 1, 3, 3)),
+    out = localize_batch(make_localizer(method, CFG), CFG, np.zeros((2, 1, 3)), np.broadcast_to(np.eye(3) * 1e-4, (2, 1, 3, 3)),
                          np.array([[[0.0, 0.1]]] * 2), np.ones((2, 1), bool), np.zeros((2, 1, 1), bool),
                          np.zeros((2, 1, 1)), np.zeros((2, 1, 1)))
     assert out.ok.tolist() == [False, False]

@@ -11,7 +11,7 @@ import numpy as np
 from runtime.models.model_file import load_model
 from runtime.recording.run_log import load_run_log
 from runtime.recording.truth_csv import read_truth_csv
-from swarm_cli.options import last_json
+from inchworm.output import last_json
 
 REPO = Path(__file__).resolve().parents[1]
 # unusual noise on every parameter; sensing range smaller than the default 0.5 m

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "docs" / "examples"
 
@@ -17,7 +19,7 @@ def swarm(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "swarm_cli.main", *args], capture_output=True, text=True, timeout=300, cwd=ROOT)
 
 
-@pytest.mark.parametrize("localizer", ["paper", "joint"])
+@pytest.mark.parametrize("localizer", BUILTIN_LOCALIZERS)
 def test_topology_without_prior(localizer):
     out = swarm("localize", str(EXAMPLES / "localize-topology.json"), "--localizer", localizer)
     assert out.returncode == 0, out.stderr
@@ -86,7 +88,7 @@ def test_bench_localize_json_contract():
     from coordinator.localization import make_localizer
     from runtime.models.config import ModelConfig
     from runtime.models.scenarios import random_step
-    from swarm_cli.bench_localize import SPACING_M
+    from inchworm.bench.localize import SPACING_M
 
     out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--seed", "3", "--json")
     assert out.returncode == 0, out.stderr
@@ -94,7 +96,7 @@ def test_bench_localize_json_contract():
     assert [r["n"] for r in doc["results"]] == [10, 30]
     for r in doc["results"]:
         case = random_step(r["n"], ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3)
-        for name in ("paper", "joint"):
+        for name in BUILTIN_LOCALIZERS:
             est = make_localizer(name, ModelConfig()).localize(case.prior, case.step, case.observations)
             rms = math.sqrt(float(np.mean(np.sum((est.positions - case.true_after[:, :2]) ** 2, axis=1))))
             assert r[name]["err_rms_m"] == pytest.approx(rms, rel=1e-3), name

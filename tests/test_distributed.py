@@ -1,6 +1,6 @@
 """The distributed runtime with real processes on loopback: agents + coordinator over a Zenoh hub.
 
-Every child is started here and stopped by its pid in ``finally`` (swarm_cli.launch.stop_all).
+Every child is started here and stopped by its pid in ``finally`` (inchworm.processes.stop_all).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from runtime.wire.messages import (
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.models.trajectory import Trajectory, random_trajectory
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
-from swarm_cli.launch import stop_all
+from inchworm.processes import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
 
@@ -415,3 +415,14 @@ def test_bad_messages_do_not_disturb_a_run(tmp_path):
         run.stop()
     assert all(p.returncode is not None for p in run.children())
     assert _alive_with(run.run_id) == []
+
+
+def test_the_api_distributed_run_equals_the_in_process_one():
+    """``inchworm.run_distributed``: agent processes over a loopback hub, the coordinator in this process."""
+    import inchworm
+
+    run = inchworm.simulate(robots=4, configs=2, seed=5, method="ref57")
+    distributed = inchworm.run_distributed(run.trajectory, method="ref57", seed=5)
+    assert distributed.pf() == run.pf()
+    assert all(np.array_equal(a.estimate.poses, b.estimate.poses) for a, b in zip(run.steps, distributed.steps, strict=True))
+

@@ -13,7 +13,7 @@ import pytest
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.messages import Status, decode
 from swarm_cli.main import main
-from swarm_cli.options import last_json
+from inchworm.output import last_json
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = "examples/drivers/unicycle.py:UnicycleDriver"

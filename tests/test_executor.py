@@ -93,7 +93,7 @@ class BlindSwarm(SimulatedSwarm):
 def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
     cfg = ModelConfig()
     backend = BlindSwarm(traj.ids, traj.initial_poses, cfg, seed=0)
-    strategy = make_strategy("ref57", traj.n, cfg, "paper", FAST, seed=0)
+    strategy = make_strategy("ref57", traj.n, cfg, make_localizer("paper", cfg), FAST, seed=0)
     run = InchwormExecutor(backend, make_localizer("paper", cfg), strategy, cfg).run(traj, initial_estimate(traj, 0, 0.01, 0.03))
     assert all(s.fallback == "dead reckoning kept for robots [0, 1, 2, 3, 4, 5] (unobserved)" for s in run.steps)
 
@@ -101,7 +101,7 @@ def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
 def test_equal_speed_keeps_its_anchor_count_when_no_plan_keeps_connectivity():
     from runtime.models.state import SwarmEstimate
 
-    strategy = make_strategy("inchworm-equal-speed", 4, ModelConfig(), "paper", FAST, seed=0)
+    strategy = make_strategy("inchworm-equal-speed", 4, ModelConfig(), make_localizer("paper", ModelConfig()), FAST, seed=0)
     estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.45, 0, 0], [0.9, 0, 0], [1.35, 0, 0]], float), 0.01, 0.02)
     desired = np.array([[0, 0.1], [0.45, 0.1], [0.9, 0.1], [1.35, 0.1]]) + [[0, 0], [0.4, 0.0], [0.8, 0], [1.2, 0]]
     plan, selection = strategy.plan(estimate, desired)
@@ -124,7 +124,7 @@ def test_listener_sees_plans_and_estimates_with_global_steps_and_changes_nothing
 
     def run(listener):
         backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed=5)
-        strategy = make_strategy("ref57", traj.n, cfg, "paper", FAST, seed=5)
+        strategy = make_strategy("ref57", traj.n, cfg, make_localizer("paper", cfg), FAST, seed=5)
         return InchwormExecutor(backend, make_localizer("paper", cfg), strategy, cfg, listener=listener).run(
             traj, initial_estimate(traj, 5, 0.01, 0.03))
 

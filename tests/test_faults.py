@@ -13,8 +13,8 @@ from pathlib import Path
 
 from runtime.wire.messages import EmergencyStop, decode
 from runtime.recording.mcap_log import read_messages
-from swarm_cli.bench_faults import lost_robot
-from swarm_cli.launch import stop_all
+from inchworm.bench.faults import lost_robot
+from inchworm.processes import stop_all
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

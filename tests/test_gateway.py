@@ -34,7 +34,7 @@ from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkSta
 from runtime.recording.mcap_log import read_messages
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe, subscribe_queue
-from swarm_cli.launch import default_gateway, start_agents, start_emulator, start_gateway, stop_all
+from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -628,7 +628,7 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
 def test_radio_faults_through_swarm_launch_leave_the_results_unchanged(drop, corrupt, delay):
     """``swarm launch --driver gateway --drop --corrupt --delay`` (3 seeds, 4 robots): every run completes with the
     per-configuration table and P_f of the fault-free run of its seed, and no robot moves twice in a step."""
-    from swarm_cli.bench_faults_gateway import gateway_fault_row
+    from inchworm.bench.faults_gateway import gateway_fault_row
 
     row = gateway_fault_row(drop, corrupt, delay, seeds=[0, 1, 2], robots=4, configs=2)
     assert row == {"drop": drop, "corrupt": corrupt, "delay": delay, "runs": 3, "completed": 3, "identical": 3,

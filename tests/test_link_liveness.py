@@ -20,7 +20,7 @@ from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
 from runtime.wire.messages import LinkRequest, encode, message_key
 from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, open_session, publish
-from swarm_cli.launch import start_emulator, stop_all
+from inchworm.processes import start_emulator, stop_all
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
@@ -18,7 +19,7 @@ from runtime.models.scenarios import grid_configuration, random_step
 from runtime.models.sensing import sense_swarm
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
-METHODS = ["paper", "joint"]
+METHODS = BUILTIN_LOCALIZERS
 
 
 def in_frame_of(poses: np.ndarray, ref: int) -> np.ndarray:

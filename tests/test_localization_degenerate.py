@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import solvable_subset
 from coordinator.localization.range_bearing import GATE_SIGMAS, bearing_weights
@@ -16,7 +17,7 @@ from runtime.models.geometry import wrap_angle
 from runtime.models.scenarios import grid_configuration
 from runtime.models.sensing import measure
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from swarm_cli.localize import localize_document
+from inchworm.localize_data import localize_document
 
 CFG = ModelConfig()
 REASONS = {"unobserved", "disconnected", "no-convergence", "degenerate"}
@@ -53,7 +54,7 @@ def document(obs: Observations, prior: SwarmEstimate | None, n: int) -> dict:
     return doc
 
 
-@pytest.mark.parametrize("localizer", ["paper", "joint"])
+@pytest.mark.parametrize("localizer", BUILTIN_LOCALIZERS)
 @pytest.mark.parametrize("gap", [0.0, 0.005, 0.1])
 @pytest.mark.parametrize("exact", [True, False])
 @pytest.mark.parametrize("with_prior", [True, False])
@@ -73,7 +74,7 @@ def test_close_pair_gives_valid_answers(localizer, gap, exact, with_prior):
                     assert np.hypot(r["x"] - truth[r["id"], 0], r["y"] - truth[r["id"], 1]) < 0.08
 
 
-@pytest.mark.parametrize("localizer", ["paper", "joint"])
+@pytest.mark.parametrize("localizer", BUILTIN_LOCALIZERS)
 @pytest.mark.parametrize("gap", [0.0, 0.005, 0.1])
 def test_close_pair_covariances_are_positive_semidefinite(localizer, gap):
     loc = make_localizer(localizer, CFG)

@@ -61,7 +61,7 @@ class LossySwarm(SimulatedSwarm):
 
 def run(traj, method: str, lose: dict[int, int], seed: int = 3, **kw):
     backend = LossySwarm(traj, seed, lose)
-    strategy = make_strategy(method, traj.n, CFG, "paper", FAST, seed)
+    strategy = make_strategy(method, traj.n, CFG, make_localizer("paper", CFG), FAST, seed)
     executor = InchwormExecutor(backend, make_localizer("paper", CFG), strategy, CFG, **kw)
     return executor.run(traj, initial_estimate(traj, seed, 0.01, 0.03)), backend
 

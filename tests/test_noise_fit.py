@@ -19,7 +19,7 @@ from runtime.recording.run_log import load_run_log
 from runtime.recording.truth_csv import read_truth_csv, write_truth_csv
 from swarm_cli.main import main
 from swarm_cli.options import add_model_options, model_config
-from swarm_cli.options import last_json
+from inchworm.output import last_json
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample.mcap"
 

@@ -17,10 +17,12 @@ import pytest
 from coordinator.localization.crlb import crlb_pose_covariances, fisher_information
 from coordinator.localization.range_bearing import (
     COV_FLOOR,
+    DIST_FLOOR,
     GATE_SIGMAS,
     bearing_weights,
     joint_prior_terms,
     joint_sqrt_information,
+    observation_residuals,
     observation_terms,
     prior_terms,
     sensor_sigmas,
@@ -29,6 +31,7 @@ from coordinator.localization.range_bearing import (
 )
 from coordinator.localization.sparse_lm import PoseLayout, dense
 from runtime.models.config import ModelConfig
+from runtime.models.geometry import wrap_angle
 
 CFG = ModelConfig(range_sigma_m=0.01, bearing_sigma_rad=0.02)
 
@@ -237,3 +240,28 @@ def test_crlb_without_observations_is_the_prior():
     covs = np.stack([np.diag([1e-4, 4e-4, 1e-2]), np.array([[2e-4, 5e-5, 0], [5e-5, 1e-4, 1e-5], [0, 1e-5, 3e-3]])])
     out = crlb_pose_covariances(np.zeros((2, 3)), covs, [], [], CFG)  # empty lists are index arrays too
     np.testing.assert_allclose(out, covs, rtol=1e-9, atol=1e-18)
+
+
+def test_observation_residuals_one_definition_two_evaluations():
+    """``observation_residuals`` evaluates one swarm's observations (hypot, wrapped angle difference) and the batch's
+    (square root of the squares, angle in the rotated frame, into scratch arrays) to the same values: range and
+    bearing residuals and |d|, on random pairs, near-coincident robots (|d| floored) and directions at the +-pi seam."""
+    rng = np.random.default_rng(5)
+    k = 400
+    dx, dy = rng.normal(0.0, 0.3, k), rng.normal(0.0, 0.3, k)
+    dx[:3], dy[:3] = 0.0, [0.0, 1e-12, -2e-10]  # coincident and near-coincident
+    direction = np.arctan2(dy, dx) + rng.normal(0.0, 0.05, k)
+    direction[3:6] = np.arctan2(dy[3:6], dx[3:6]) - np.pi + np.array([1e-9, 0.0, -1e-9])  # the seam
+    direction[6:9] += 2 * np.pi * np.array([3, -2, 1])  # unwrapped headings
+    rho, w_b = np.abs(rng.normal(0.3, 0.1, k)), rng.uniform(0.5, 30.0, k)
+    one = observation_residuals(dx, dy, rho, 100.0, w_b, direction=direction)
+    scratch = tuple(np.empty(k) for _ in range(3))
+    batch = observation_residuals(dx, dy, rho, 100.0, w_b, cos_sin=(np.cos(direction), np.sin(direction)), scratch=scratch)
+    np.testing.assert_allclose(batch[0], one[0], rtol=1e-13, atol=1e-12)
+    np.testing.assert_allclose(batch[2], one[2], rtol=1e-15)
+    assert one[2][:3].tolist() == [DIST_FLOOR] * 3
+    defined = slice(1, None)  # exactly coincident robots (0): no direction (atan2 of signed zeros), gated by w_b in use
+    angle_gap = wrap_angle((batch[1] - one[1]) / w_b)[defined]  # +-pi at the seam is the same angle
+    np.testing.assert_allclose(angle_gap, 0.0, atol=1e-12)
+    want = wrap_angle(np.arctan2(dy, dx) - direction) * w_b
+    np.testing.assert_allclose(wrap_angle((one[1] - want) / w_b), 0.0, atol=1e-12)

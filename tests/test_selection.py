@@ -7,6 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from coordinator.localization import make_localizer
+
 from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -24,7 +26,7 @@ def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:
 
 def test_batch_evaluation_uses_common_random_numbers():
     estimate, desired = step_problem(6, 1)
-    mc = MonteCarlo(ModelConfig(), "paper", 6, seed=11)
+    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 6, seed=11)
     plans = enumerate_plans(6, 3)[:5]
     together = mc.localization_errors(estimate, desired, plans)
     alone = np.array([mc.localization_errors(estimate, desired, [p])[0] for p in plans])
@@ -35,7 +37,7 @@ def test_batch_evaluation_uses_common_random_numbers():
 @pytest.mark.parametrize("n_a,seed", [(3, 0), (4, 1), (4, 2)])
 def test_genetic_search_is_within_5_percent_of_exhaustive_optimum(n_a, seed):
     estimate, desired = step_problem(6, seed)
-    mc = MonteCarlo(ModelConfig(), "paper", 8, seed=seed)
+    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 8, seed=seed)
     plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     optimum = float(np.min(mc.localization_errors(estimate, desired, plans)))
 
@@ -55,8 +57,8 @@ def test_genetic_search_is_within_5_percent_of_exhaustive_optimum(n_a, seed):
 def test_selection_is_reproducible_from_its_seed():
     estimate, desired = step_problem(6, 3)
     config = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=3))
-    a = AnchorSelector(ModelConfig(), "paper", config, seed=5).select(estimate, desired)
-    b = AnchorSelector(ModelConfig(), "paper", config, seed=5).select(estimate, desired)
+    a = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
+    b = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
     assert a.plan.key() == b.plan.key()
     assert [s.e_l for s in a.scores] == [s.e_l for s in b.scores]
     assert [s.n_anchors for s in a.scores] == feasible_anchor_counts(6)
@@ -68,7 +70,7 @@ def test_single_count_selection_scores_follow_eq_1_to_3():
     P_s = 0.5 x 1/2 - 0.5 x e_l / e_l(0)), and the plan chosen partitions the robots into two groups of 3."""
     estimate, desired = step_problem(6, 3)
     config = SelectionConfig(samples=4, anchor_counts=(3,))
-    selection = AnchorSelector(ModelConfig(), "paper", config, seed=5).select(estimate, desired)
+    selection = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
     assert [s.n_anchors for s in selection.scores] == [3] and selection.plan.sizes == (3, 3)
     (score,) = selection.scores
     assert score.p_v == 0.5 and score.p_s == pytest.approx(0.25 - 0.5 * score.p_l, abs=1e-15) and score.p_l > 0
@@ -77,8 +79,8 @@ def test_single_count_selection_scores_follow_eq_1_to_3():
 def test_weights_move_the_choice_towards_speed_or_accuracy():
     estimate, desired = step_problem(6, 4)
     budget = dict(samples=4, genetic=GeneticConfig(population=6, generations=2))
-    fast = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=1.0, w_l=0.0, **budget), seed=1).select(estimate, desired)
-    careful = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=0.0, w_l=1.0, **budget), seed=1).select(estimate, desired)
+    fast = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0, **budget), seed=1).select(estimate, desired)
+    careful = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, **budget), seed=1).select(estimate, desired)
     assert fast.n_anchors == 0
     assert careful.n_anchors > 0
 
@@ -95,7 +97,7 @@ def test_no_feasible_plan_is_said_clearly():
     estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0.3, 0.3, 0]], float), 0.01, 0.02)
     desired = np.array([[0, 0], [0.3, 0], [5, 5], [5.3, 5]], float)  # two groups 7 m apart
     with pytest.raises(NoFeasiblePlanError, match="no anchor plan keeps every robot within sensing range"):
-        AnchorSelector(ModelConfig(), "paper", SelectionConfig(samples=2), seed=0).select(estimate, desired)
+        AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(samples=2), seed=0).select(estimate, desired)
 
 
 # ------------------------------------------------------------------ the search's guarantees (issue 16)
@@ -111,9 +113,9 @@ NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15)
 def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(localizer, seed):
     estimate, desired = step_problem(8, seed)
     sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0)  # accuracy only: the count(s) that could win are searched
-    result = AnchorSelector(NOISY_JOINT, localizer, sel, seed=seed).select(estimate, desired)
+    result = AnchorSelector(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), sel, seed=seed).select(estimate, desired)
     assert result.fresh_seed is not None
-    fresh = MonteCarlo(NOISY_JOINT, localizer, samples_for(sel.final_samples, 8), result.fresh_seed)
+    fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed)
     assert any(entry.searched for entry in result.scores)
     for entry in result.scores:
         assert entry.plan is not None and entry.e_l <= entry.seed_e_l
@@ -160,7 +162,7 @@ def test_race_spends_more_samples_on_contenders_and_finds_the_best():
 def test_selection_is_deterministic_for_a_seed(method):
     estimate, desired = step_problem(8, 5)
     sel = SelectionConfig(method=method)
-    a, b = (AnchorSelector(NOISY_JOINT, "joint", sel, seed=9).select(estimate, desired) for _ in range(2))
+    a, b = (AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), sel, seed=9).select(estimate, desired) for _ in range(2))
     assert a.plan.key() == b.plan.key()
     assert [(s.n_anchors, s.e_l, s.seed_e_l, s.searched) for s in a.scores] == [(s.n_anchors, s.e_l, s.seed_e_l, s.searched) for s in b.scores]
 
@@ -170,7 +172,7 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
     estimate, desired = step_problem(6, seed)
     plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     predicted = predicted_errors(NOISY_JOINT, estimate, desired, plans)
-    chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(method="crlb", anchor_counts=(n_a,)), seed=seed).select(estimate, desired)
+    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(method="crlb", anchor_counts=(n_a,)), seed=seed).select(estimate, desired)
     assert chosen.scores[0].e_l in predicted  # the prediction of one of the feasible plans, not an estimate
     assert predicted.min() <= chosen.scores[0].e_l <= 1.02 * predicted.min()  # the genetic search gets within 2 %
 
@@ -178,8 +180,8 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
 def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
     estimate, desired = step_problem(6, 2)
     plans = [p for p in enumerate_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
-    chosen = AnchorSelector(NOISY_JOINT, "joint", SelectionConfig(anchor_counts=(3,)), seed=4).select(estimate, desired).plan
-    pick, judge = (MonteCarlo(NOISY_JOINT, "joint", 256, seed=s) for s in (999, 12345))  # independent sets
+    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(anchor_counts=(3,)), seed=4).select(estimate, desired).plan
+    pick, judge = (MonteCarlo(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), 256, seed=s) for s in (999, 12345))  # independent sets
     optimum = plans[int(np.argmin(pick.localization_errors(estimate, desired, plans)))]
     e_chosen, e_optimum = judge.localization_errors(estimate, desired, [chosen, optimum])
     print(f"chosen / optimum on independent samples: {e_chosen / e_optimum:.4f}")
@@ -188,10 +190,10 @@ def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
 
 def test_counts_that_cannot_win_are_not_searched():
     estimate, desired = step_problem(8, 6)
-    speed_only = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=1.0, w_l=0.0), seed=1).select(estimate, desired)
+    speed_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0), seed=1).select(estimate, desired)
     assert not any(s.searched for s in speed_only.scores)  # P_v alone decides: n_a = 0, screening only
     assert speed_only.evaluations == len(feasible_anchor_counts(8)) and speed_only.fresh_seed is None
-    accuracy_only = AnchorSelector(ModelConfig(), "paper", SelectionConfig(w_v=0.0, w_l=1.0), seed=1).select(estimate, desired)
+    accuracy_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0), seed=1).select(estimate, desired)
     assert all(s.searched for s in accuracy_only.scores if s.n_anchors > 0)
 
 
@@ -217,6 +219,6 @@ def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
     monkeypatch.setattr(selector, "MonteCarlo", Recording)
     estimate, desired = step_problem(8, 2)
     config = SelectionConfig(samples=4, anchor_counts=(6,), genetic=GeneticConfig(generations=2))
-    selection = AnchorSelector(ModelConfig(), "paper", config, seed=1).select(estimate, desired)
+    selection = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=1).select(estimate, desired)
     assert selection.scores[0].searched and samples_for(4, 8) == 5 and search_samples(5, 2520) == 8
     assert set(sizes) == {5, 8, 16, 32, 320} and sizes[:2] == [5, 5] and sizes[2] == 8

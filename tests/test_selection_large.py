@@ -6,6 +6,8 @@ import math
 
 import numpy as np
 import pytest
+
+from coordinator.localization import make_localizer
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
@@ -73,7 +75,7 @@ def test_sensing_groups_count_a_pair_at_exactly_the_range_as_connected():
 
 def test_window_of_every_robot_is_the_whole_swarm():
     estimate, desired = step_problem(8, 2)
-    mc = MonteCarlo(ModelConfig(), "joint", 3, seed=4)
+    mc = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 3, seed=4)
     plans = [heuristic_plan(estimate.positions, desired, 4)]
     np.testing.assert_array_equal(mc.localization_errors(estimate, desired, plans, window=np.ones(8, bool)),
                                   mc.localization_errors(estimate, desired, plans))
@@ -84,7 +86,7 @@ def test_window_simulates_its_robots_alone_with_the_plan_restricted_to_them():
     estimate, desired = step_problem(12, 5)
     plan = Plan(np.array([0, 3, 6, 9, 1, 4, 7, 10, 2, 5, 8, 11]), (4, 4, 4))
     window = np.isin(np.arange(12), [0, 1, 2, 3, 4, 5])
-    mc = MonteCarlo(ModelConfig(), "paper", 3, seed=9)
+    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 3, seed=9)
     restricted = Plan(np.array([0, 3, 1, 4, 2, 5]), (2, 2, 2))  # the window robots renumbered 0..5, groups kept in order
     expected = mc.localization_errors(estimate.select(window), desired[window], [restricted])
     np.testing.assert_array_equal(mc.localization_errors(estimate, desired, [plan], window=window), expected)
@@ -95,7 +97,7 @@ def test_large_swarm_selection_screens_heuristic_plans_within_the_step_budget():
     a count is missing only if it has more than max_steps steps or w_v P_v is below an earlier count's P_s."""
     estimate, desired = step_problem(24, 7)
     cfg, config = ModelConfig(), SelectionConfig(window=12, max_steps=6)
-    result = AnchorSelector(cfg, "joint", config, seed=3).select(estimate, desired)
+    result = AnchorSelector(cfg, make_localizer("joint", cfg), config, seed=3).select(estimate, desired)
     scored = {s.n_anchors: s for s in result.scores}
     assert 0 in scored and scored[0].p_l == 1.0
     best_so_far = -np.inf
@@ -118,11 +120,11 @@ def test_large_swarm_selection_screens_heuristic_plans_within_the_step_budget():
 def test_large_swarm_selection_e_l_is_the_window_monte_carlo():
     estimate, desired = step_problem(24, 8)
     config = SelectionConfig(window=12, max_steps=2)
-    result = AnchorSelector(ModelConfig(), "paper", config, seed=6).select(estimate, desired)
+    result = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=6).select(estimate, desired)
     window = np.zeros(24, bool)
     window[np.argsort(np.linalg.norm(estimate.positions - estimate.positions.mean(axis=0), axis=1), kind="stable")[:12]] = True
     mc_seed = int(np.random.default_rng([6, 1]).integers(2**63))
-    mc = MonteCarlo(ModelConfig(), "paper", samples_for(config.samples, 12), mc_seed)
+    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), samples_for(config.samples, 12), mc_seed)
     for entry in result.scores:
         if entry.plan is not None:
             assert entry.e_l == mc.localization_errors(estimate, desired, [entry.plan], window=window)[0]
@@ -132,8 +134,8 @@ def test_large_swarm_selection_e_l_is_the_window_monte_carlo():
 def test_large_swarm_selection_with_crlb_is_deterministic_and_windowed():
     estimate, desired = step_problem(24, 9)
     config = SelectionConfig(window=12, max_steps=3, method="crlb")
-    a = AnchorSelector(ModelConfig(), "joint", config, seed=1).select(estimate, desired)
-    b = AnchorSelector(ModelConfig(), "joint", config, seed=2).select(estimate, desired)
+    a = AnchorSelector(ModelConfig(), make_localizer("joint", ModelConfig()), config, seed=1).select(estimate, desired)
+    b = AnchorSelector(ModelConfig(), make_localizer("joint", ModelConfig()), config, seed=2).select(estimate, desired)
     assert [(s.n_anchors, s.e_l) for s in a.scores] == [(s.n_anchors, s.e_l) for s in b.scores]
     assert all(np.isfinite(s.e_l) for s in a.scores if s.plan is not None)
 

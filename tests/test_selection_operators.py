@@ -14,6 +14,9 @@ import math
 import numpy as np
 import pytest
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from coordinator.localization import make_localizer
+
 from coordinator.plan import Plan, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
@@ -321,7 +324,7 @@ def test_monte_carlo_error_of_blind_robots_is_the_rayleigh_mean():
     poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 1.0], [0.0, 0.3, 2.0], [0.3, 0.3, -1.0]])
     estimate = SwarmEstimate.isotropic(np.arange(4), poses, s, 0.0)
     desired = poses[:, :2] + 0.1
-    mc = MonteCarlo(cfg, "joint", 1500, seed=3)
+    mc = MonteCarlo(cfg, make_localizer("joint", cfg), 1500, seed=3)
     per_sample = mc.localization_errors(estimate, desired, [Plan.equal(np.arange(4), 2)], per_sample=True)
     assert per_sample.shape == (1, 1500)
     assert per_sample.mean() == pytest.approx(s * math.sqrt(math.pi) / 2, rel=0.03)
@@ -342,8 +345,8 @@ def test_monte_carlo_error_of_an_exact_swarm_is_zero():
     poses = np.array([[0.0, 0.0, 0.0], [0.25, 0.0, 1.0], [0.0, 0.25, 2.0], [0.25, 0.25, -1.0]])
     estimate = SwarmEstimate.isotropic(np.arange(4), poses, 0.0, 0.0)
     plans = [Plan.equal(np.arange(4), 2), Plan.equal(np.array([3, 1, 2, 0]), 2)]
-    for method in ("paper", "joint"):
-        e_l = MonteCarlo(cfg, method, 4, seed=0).localization_errors(estimate, poses[:, :2] + [0.05, 0.0], plans)
+    for method in BUILTIN_LOCALIZERS:
+        e_l = MonteCarlo(cfg, make_localizer(method, cfg), 4, seed=0).localization_errors(estimate, poses[:, :2] + [0.05, 0.0], plans)
         np.testing.assert_allclose(e_l, 0.0, atol=1e-6)
 
 

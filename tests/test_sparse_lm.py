@@ -455,3 +455,22 @@ def test_ptol_is_relative_to_the_cost_and_waits_for_negligible_damping(monkeypat
     calls = []
     minimize(_linear_problem(calls), np.zeros(2), ptol=0.95)
     assert len(calls) == 3
+
+
+def test_minimize_a_negligible_rejected_step_means_converged():
+    """The rule ``step_outcome`` shared with the batch, on a cost that rises at any move from x = 0 (normal
+    matrix 1, so the step is -g / (1 + mu)): a step of 1e-12 is below xtol (1 + 0) = 1e-10, so its rejection
+    means x = 0 is the solution (converged, one trial). With g = -1e-3 each rejection multiplies mu by 10 from
+    1e-8 until the step 1e-3 / (1 + 1e7) < 1e-10 at the 16th trial: converged at x = 0 then. With g = -10 the step
+    is still 1e-9 when mu passes MU_MAX = 1e10 (19 trials): the solver gives up, not converged."""
+    for gradient, want, trials in ((-1e-12, True, 1), (-1e-3, True, 16), (-10.0, False, 19)):
+        calls = []
+
+        def evaluate(x: np.ndarray) -> NormalEquations:
+            calls.append(x.copy())
+            cost = 1.0 if not np.any(x) else 2.0  # any move raises the cost
+            return NormalEquations(cost, np.eye(1), np.array([gradient]))
+
+        result = minimize(evaluate, np.zeros(1), xtol=1e-10, ftol=1e-12)
+        assert result.converged is want and result.x.tolist() == [0.0]
+        assert len(calls) == 1 + trials

@@ -1,4 +1,4 @@
-"""``swarm study anchors`` (Fig. 4, Fig. 5, Appendix A): per-experiment rows, the summary and the command."""
+"""The anchor studies (Fig. 4, Fig. 5, Appendix A; ``inchworm.studies.anchors``): per-experiment rows, the summary and the command."""
 
 from __future__ import annotations
 
@@ -13,17 +13,21 @@ from coordinator.plan import n_solutions
 from coordinator.selection.heuristic import heuristic_plan
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from swarm_cli import study_anchors
-from swarm_cli.study_anchors import (
+from inchworm.runner import ProcessExecutor, run_tasks
+from inchworm.studies.anchors import (
     Job,
     choice_anchor_count,
     evaluate,
     exhaustive_plans,
     experiment_setup,
     run_experiment,
-    run_experiments,
     summarise,
 )
+from swarm_cli import study_anchors
+
+
+def run_experiments(jobs: list[Job], workers: int) -> list[dict]:
+    return run_tasks(run_experiment, jobs, executor=ProcessExecutor(workers))
 
 
 @pytest.fixture(scope="module")

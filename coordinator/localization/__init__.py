@@ -2,21 +2,28 @@
 
 A ``Localizer`` turns the pre-step estimate, the step's commands and the post-step
 observations into the post-step estimate. The motion strategy only talks to this
-interface, which is what lets it "work with any localization method".
+interface, which is what lets it "work with any localization method". Localizers are
+made by name (``registry``: built-in, registered in code, or installed as plugins); the
+executor and the anchor selection's Monte Carlo receive the same object.
+
+The localizer classes are imported on first use (they need scipy): importing this package,
+or its ``registry`` to list names for a parser, stays cheap.
 """
 
 from __future__ import annotations
 
-from typing import Protocol
+import importlib
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from coordinator.localization.joint import JointLocalizer
-from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.topology import Topology
-from runtime.models.config import ModelConfig
-from runtime.errors import SwarmInputError
+from coordinator.localization.registry import localizer_names, make_localizer, register_localizer
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
+
+if TYPE_CHECKING:
+    from coordinator.localization.joint import JointLocalizer
+    from coordinator.localization.paper import PaperLocalizer
+    from coordinator.localization.topology import Topology
 
 
 class Localizer(Protocol):
@@ -37,16 +44,17 @@ class Localizer(Protocol):
         ...
 
 
-LOCALIZERS: dict[str, type[PaperLocalizer] | type[JointLocalizer]] = {"paper": PaperLocalizer, "joint": JointLocalizer}
+_LAZY = {
+    "JointLocalizer": "coordinator.localization.joint",
+    "PaperLocalizer": "coordinator.localization.paper",
+    "Topology": "coordinator.localization.topology",
+}
 
 
-def make_localizer(name: str, cfg: ModelConfig, huber: float | None = None) -> Localizer:
-    """The localizer called ``name`` (``paper`` or ``joint``)."""
-    try:
-        cls = LOCALIZERS[name]
-    except KeyError:
-        raise SwarmInputError(f"unknown localizer {name!r}; choose one of {sorted(LOCALIZERS)}") from None
-    return cls(cfg, huber=huber)
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["Localizer", "JointLocalizer", "PaperLocalizer", "Topology", "make_localizer", "LOCALIZERS"]
+__all__ = ["Localizer", "JointLocalizer", "PaperLocalizer", "Topology", "localizer_names", "make_localizer", "register_localizer"]

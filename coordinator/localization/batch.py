@@ -36,6 +36,11 @@ Covariances are those of ``reference_localizer``: for the joint method, without 
 observability constraint (``gauge``). It removes information that builds up spuriously over
 hundreds of steps; within the few steps of one plan it changes a covariance by well under
 1 % (tests/test_localization_consistency.py), not worth its cost in the planner's inner loop.
+
+The batch is given the localizer object itself (the executor's, with its options). The built-in
+localizers without a Huber loss are solved here, vectorised; any other localizer (a registered
+one, or a built-in with ``huber`` set) localizes every sample through ``reference_localizer`` of it
+(``partial.localize_observable``, as the runtime), one sample at a time.
 """
 
 from __future__ import annotations
@@ -48,8 +53,23 @@ from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import fuse
-from coordinator.localization.range_bearing import COV_FLOOR, bearing_weights, sensor_sigmas, sqrt_information
-from coordinator.localization.sparse_lm import PRED_MU_MAX, blas_threads
+from coordinator.localization.range_bearing import (
+    COV_FLOOR,
+    bearing_weights,
+    observation_residuals,
+    pose_difference,
+    sensor_sigmas,
+    sqrt_information,
+)
+from coordinator.localization.sparse_lm import (
+    MAX_ITER,
+    MU_START,
+    blas_threads,
+    clamp_curvature,
+    damping_scale,
+    settled,
+    step_outcome,
+)
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
@@ -57,6 +77,7 @@ from coordinator.localization.topology import (
     cluster_delta_p,
     heading_sigmas,
     observation_offsets,
+    observation_residuals as topology_residuals,
     reference_robot,
     to_reference_frame,
 )
@@ -64,17 +85,16 @@ from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from coordinator.localization import make_localizer
+from coordinator.localization import Localizer
+from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.partial import localize_observable
 
-METHODS = ("paper", "joint")
 # (xtol, ftol, ptol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
 # topology) this stops up to ~3e-8 (joint) / ~6e-8 (paper) short of the exact minimum; a tighter tolerance
 # would be more accurate than the single-swarm localizers but then no longer agree with them to 1e-8.
 PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topology solve's
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
-MAX_ITER = 100  # accepted Levenberg-Marquardt steps per sample, as sparse_lm
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
 COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
@@ -89,15 +109,25 @@ class BatchEstimate:
     ok: np.ndarray  # (B,) bool: False where the sample could not be localized (poses/cov = dead reckoning)
 
 
-def reference_localizer(method: str, cfg: ModelConfig):
-    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``method``."""
-    if method == "joint":
-        return JointLocalizer(cfg, constrain_gauge=False)
-    return make_localizer(method, cfg)
+def batched_method(localizer: Localizer) -> str | None:
+    """``paper`` or ``joint`` where this module solves ``localizer``'s problem vectorised, else None
+    (every sample then goes through the localizer itself)."""
+    kind = type(localizer)
+    if kind in (PaperLocalizer, JointLocalizer) and localizer.huber is None:
+        return localizer.name
+    return None
+
+
+def reference_localizer(localizer: Localizer) -> Localizer:
+    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``localizer``: the joint
+    localizer without the observability constraint (module docstring), else ``localizer`` itself."""
+    if type(localizer) is JointLocalizer and localizer.constrain_gauge:
+        return JointLocalizer(localizer.cfg, huber=localizer.huber, constrain_gauge=False)
+    return localizer
 
 
 def localize_batch(
-    method: str,
+    localizer: Localizer,
     cfg: ModelConfig,
     prior_poses: np.ndarray,
     prior_cov: np.ndarray,
@@ -107,7 +137,7 @@ def localize_batch(
     ranges: np.ndarray,
     bearings: np.ndarray,
 ) -> BatchEstimate:
-    """Localize B swarms: ``make_localizer(method, cfg).localize`` applied to every sample.
+    """Localize B swarms: ``reference_localizer(localizer).localize`` applied to every sample.
 
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
@@ -117,8 +147,6 @@ def localize_batch(
     the runtime's partial localization (``partial.localize_observable``); where it holds
     values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
     """
-    if method not in METHODS:
-        raise SwarmInputError(f"unknown localizer {method!r}; choose one of {sorted(METHODS)}")
     prior_poses = np.asarray(prior_poses, dtype=float)
     if prior_poses.ndim != 3 or prior_poses.shape[2] != 3:
         raise SwarmInputError(f"prior_poses must have shape (B, n, 3), got {prior_poses.shape}")
@@ -134,8 +162,12 @@ def localize_batch(
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
     valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)
-    ok = valid & observable(seen)
     poses, cov = dr_poses.copy(), dr_cov.copy()
+    method = batched_method(localizer)
+    if method is None:
+        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+        return BatchEstimate(poses, cov, valid & ok)
+    ok = valid & observable(seen)
     solve = _localize_paper if method == "paper" else _localize_joint
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
@@ -144,7 +176,7 @@ def localize_batch(
         _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws)
         partial = np.flatnonzero(valid & ~ok)
         if partial.size:
-            _localize_partial(method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
+            _localize_partial(localizer, method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
     return BatchEstimate(poses, cov, ok)
 
 
@@ -158,7 +190,7 @@ def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, beari
         ok[sel[~good]] = False
 
 
-def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
+def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
     """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
     n = seen.shape[1]
     rest = index
@@ -172,15 +204,25 @@ def _localize_partial(method, cfg, index, prior_poses, prior_cov, commands, movi
         est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
-    ids = np.arange(n)
-    loc = reference_localizer(method, cfg)
-    for b in rest:
+    _localize_each(reference_localizer(localizer), cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+
+
+def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov) -> np.ndarray:
+    """The runtime's localization (``partial.localize_observable``) of samples ``index`` one by one, into poses/cov.
+
+    Returns (B,) True where no robot of the sample was left at dead reckoning.
+    """
+    ids = np.arange(seen.shape[1])
+    whole = np.zeros(len(seen), bool)
+    for b in index:
         i, j = np.nonzero(seen[b])
-        est, _ = localize_observable(
-            loc, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
+        est, excluded = localize_observable(
+            localizer, SwarmEstimate(ids, prior_poses[b], prior_cov[b]), StepCommands(ids, commands[b], moving[b]),
             Observations(i, j, ranges[b, i, j], bearings[b, i, j]), cfg,
         )
         poses[b], cov[b] = est.poses, est.cov
+        whole[b] = not excluded
+    return whole
 
 
 def observable(seen: np.ndarray) -> np.ndarray:
@@ -220,7 +262,7 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 
 
 # --------------------------------------------------------------------------------------------
-# Batched Levenberg-Marquardt (the algorithm of sparse_lm.levenberg_marquardt, per sample)
+# Batched Levenberg-Marquardt: ``sparse_lm.minimize``'s rule (its functions and constants), per sample in lock-step
 
 
 def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None) -> tuple[np.ndarray, np.ndarray]:
@@ -228,19 +270,18 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol
 
     ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
     held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu, curved)``
-    the damped Newton step (B, n, 3) (zero on fixed unknowns), with a second-order term only where ``curved``
-    (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``); ``problem.subset(index)`` the
-    problem restricted to some samples. As in ``sparse_lm``: damping mu diag(J^T J) starting
-    at mu = 1e-8; a step is accepted if it does not raise the cost (relative slack 1e-12),
-    then mu /= 10, else mu *= 10 and the sample fails beyond 1e10 or after MAX_ITER accepted
-    steps. A sample converges on a small step or a small cost decrease, or (``ptol``) where its step
-    predicts a decrease below ``ptol`` of its cost at mu <= ``PRED_MU_MAX``: it then stays where it is.
+    the damped Newton step (B, n, 3) (zero on fixed unknowns) and its predicted decrease, with a second-order
+    term only where ``curved`` (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``);
+    ``problem.subset(index)`` the problem restricted to some samples. Every sample follows ``sparse_lm.minimize``
+    step for step: the same start (``MU_START``), trial-step rule (``step_outcome``: acceptance, convergence,
+    damping, giving up), predicted-decrease stop (``settled`` with ``ptol``: the sample then stays where it is)
+    and ``MAX_ITER`` accepted steps at most.
     """
     x = np.array(x0, dtype=float, copy=True)
     converged = np.zeros(len(x), bool)
     work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
     xs, st, slot = x, problem.evaluate(x, 0), 1
-    mu = np.full(len(x), 1e-8)
+    mu = np.full(len(x), MU_START)
     iterations = np.zeros(len(x), np.int64)  # accepted steps
     active = np.isfinite(st["cost"])
     while True:  # ends: every sample converges or fails
@@ -254,26 +295,22 @@ def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol
             problem = problem.subset(keep)
             st = {key: value[keep] for key, value in st.items()}
         dx, predicted = problem.step(st, mu, iterations > 0)
-        if ptol is not None:  # converged before the step, as sparse_lm.minimize
-            settled = active & (mu <= PRED_MU_MAX) & (predicted <= ptol * st["cost"])
-            converged[work[settled]] = True
-            active &= ~settled
+        if ptol is not None:  # converged before the step
+            done_early = active & settled(predicted, st["cost"], mu, ptol)
+            converged[work[done_early]] = True
+            active &= ~done_early
         dx[~active] = 0.0
         x_new = xs + dx
         new = problem.evaluate(x_new, slot)
-        cost, cost_new = st["cost"], new["cost"]
-        accept = np.isfinite(cost_new) & (cost_new <= cost * (1 + 1e-12) + 1e-300)
-        with np.errstate(invalid="ignore"):
-            small_step = np.max(np.abs(dx), axis=(1, 2)) <= xtol * (1.0 + np.max(np.abs(xs), axis=(1, 2)))
-            small_gain = cost - cost_new <= ftol * np.maximum(cost, 1e-300)
-        rejected = active & ~accept
-        # A rejected step that is already negligible: the sample sits at its minimum (rounding).
-        done = active & ((accept & (small_step | small_gain)) | (rejected & small_step))
+        with np.errstate(invalid="ignore"):  # inactive samples may hold inf - inf
+            accept, done, mu, gave_up = step_outcome(
+                st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
+            )
+        done &= active
         converged[work[done]] = True
-        mu = np.where(accept, np.maximum(mu / 10.0, 1e-12), mu * 10.0)
         iterations += accept
-        failed = active & ~done & ((rejected & (mu > 1e10)) | (iterations >= MAX_ITER))
-        back = np.flatnonzero(rejected)
+        failed = active & ~done & (gave_up | (iterations >= MAX_ITER))
+        back = np.flatnonzero(~accept)
         if back.size:  # rejected samples keep their point and state
             x_new[back] = xs[back]
             for key, value in st.items():
@@ -364,7 +401,8 @@ def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 
 class _TopologyProblem(_Batched):
-    """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j).
+    """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j)
+    (``topology.observation_residuals``, the single-swarm problem's, on the dense (B, n, n) pair arrays).
 
     Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
     """
@@ -387,24 +425,22 @@ class _TopologyProblem(_Batched):
             block[rows, :, ref] = 0.0
             block[rows, ref, ref] = 1.0
         self.lap = lap
-        diag_x = np.maximum(degree, 1e-12)  # damping scale, as sparse_lm: max(diag(J^T J), 1e-12)
+        diag_x = damping_scale(degree)
         diag_x[rows, ref] = 0.0
         self.diag_x = np.concatenate([diag_x, diag_x], axis=1)
         self.h_theta = np.einsum("bij->bi", zx * zx + zy * zy)  # |d r_ij / d theta_i|^2 = rho_ij^2
-        self.diag_theta = np.maximum(self.h_theta, 1e-12)
+        self.diag_theta = damping_scale(self.h_theta)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
-        rzx, rzy, rx, ry = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
-        tmp = self.ws("tmp", self.w.shape)
+        out = self._state(slot, ("rzx", "rzy", "rx", "ry"), self.w.shape)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
-        np.multiply(c, self.zx, out=rzx)  # R(theta_i) z_ij: zero where (i, j) unseen
-        rzx -= np.multiply(s, self.zy, out=tmp)
-        np.multiply(s, self.zx, out=rzy)
-        rzy += np.multiply(c, self.zy, out=tmp)
-        for k, r, rz in ((0, rx, rzx), (1, ry, rzy)):  # r_ij = (R z_ij + x_i - x_j) where seen
-            np.subtract(x[:, :, None, k], x[:, None, :, k], out=r)
-            r += rz
-            r *= self.w
+        xi, xj = x[:, :, None, :2], x[:, None, :, :2]
+        # R(theta_i) z_ij (zero where (i, j) unseen) and r_ij = R z_ij + x_i - x_j, kept where seen
+        rzx, rzy, rx, ry = topology_residuals(
+            c, s, self.zx, self.zy, xi[..., 0], xi[..., 1], xj[..., 0], xj[..., 1], out=out, scratch=self.ws("tmp", self.w.shape)
+        )
+        rx *= self.w
+        ry *= self.w
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
@@ -421,7 +457,7 @@ class _TopologyProblem(_Batched):
         # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm
         # (and, as there, left out of a sample's first iteration).
         second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
-        d = self.h_theta + curved[:, None] * np.maximum(second, -0.9 * self.diag_theta) + mu[:, None] * self.diag_theta
+        d = self.h_theta + curved[:, None] * clamp_curvature(second, self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
         # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
         ct = self.ws("ct", (b, n, 2 * n))
@@ -483,8 +519,8 @@ class _JointProblem(_Batched):
 
     Only W^T W enters (cost, gradient, J^T J), so W itself is not needed.
 
-    The bearing residual wrap(atan2(x_j - x_i) - theta_i - phi_ij) is evaluated as the angle of
-    x_j - x_i rotated by -(theta_i + phi_ij) (same value, no wrap of a (B, n, n) array).
+    The observation residuals are ``range_bearing.observation_residuals`` (the single-swarm problem's) on the
+    dense (B, n, n) pair arrays, zero where unseen; the prior's difference is ``range_bearing.pose_difference``.
     """
 
     def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
@@ -502,29 +538,18 @@ class _JointProblem(_Batched):
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
         shape, ws = self.rho.shape, self.ws
         dx, dy, inv_dist, r_range, r_bearing = self._state(slot, ("dx", "dy", "inv_dist", "rr", "rb"), shape)
-        t1, t2, t3, t4 = ws("t1", shape), ws("t2", shape), ws("t3", shape), ws("t4", shape)
+        t1, t2, t3, t4, t5 = (ws(f"t{k}", shape) for k in range(1, 6))
         np.subtract(x[:, None, :, 0], x[:, :, None, 0], out=dx)  # [b, i, j] = x_j - x_i
         np.subtract(x[:, None, :, 1], x[:, :, None, 1], out=dy)
-        dist = np.multiply(dx, dx, out=t1)
-        dist += np.multiply(dy, dy, out=t2)
-        np.sqrt(dist, out=dist)
-        np.maximum(dist, 1e-9, out=dist)
-        np.subtract(dist, self.rho, out=r_range)
-        r_range *= self.w_sr  # (|d| - rho) / s_r where seen
-        np.divide(1.0, dist, out=inv_dist)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
         ca = np.multiply(c, self.cphi, out=t1)  # cos(theta_i + phi_ij), 0 where unseen
         ca -= np.multiply(s, self.sphi, out=t2)
         sa = np.multiply(s, self.cphi, out=t2)
         sa += np.multiply(c, self.sphi, out=t3)
-        along = np.multiply(dx, ca, out=t3)
-        along += np.multiply(dy, sa, out=t4)
-        across = np.multiply(dy, ca, out=t4)
-        across -= np.multiply(dx, sa, out=t1)
-        np.arctan2(across, along, out=r_bearing)
-        r_bearing *= self.w_sb  # unseen pairs hold atan2(+-0, +-0): masked
-        diff = x - self.mean
-        diff[:, :, 2] = wrap_angle(diff[:, :, 2])
+        # (|d| - rho) / s_r and the bearing residual where seen; unseen pairs hold atan2(+-0, +-0) x 0: masked
+        observation_residuals(dx, dy, self.rho, self.w_sr, self.w_sb, cos_sin=(ca, sa), out=(r_range, r_bearing, inv_dist), scratch=(t3, t4, t5))
+        np.divide(1.0, inv_dist, out=inv_dist)  # |d| -> 1 / |d|
+        diff = pose_difference(x, self.mean)
         g_prior = np.einsum("bnij,bnj->bni", self.info, diff)  # W^T W (p - mu): gradient of the prior terms
         cost = 0.5 * (
             np.einsum("bni,bni->b", diff, g_prior)
@@ -596,8 +621,8 @@ class _JointProblem(_Batched):
                 q += tmp
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
-        diag_x = np.maximum(lap.reshape(b, n2 * n2)[:, :: n2 + 1], 1e-12)
-        d_damped = d + mu[:, None] * np.maximum(d, 1e-12)
+        diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
+        d_damped = d + mu[:, None] * damping_scale(d)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 

@@ -20,10 +20,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.lapack import dposv
 
-from coordinator.localization.range_bearing import bearing_weights, observation_blocks
+from coordinator.localization.range_bearing import bearing_weights, observation_blocks, pose_difference
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
 from runtime.models.config import ModelConfig
-from runtime.models.geometry import wrap_angle
 
 
 # Entries of the normal matrix (size^2) up to which its pattern is ranked with a dense mark-and-count map
@@ -103,9 +102,7 @@ class JointProblem:
 
     def _difference(self, x: np.ndarray) -> np.ndarray:
         """p - mu (n, 3) at ``x``, heading differences wrapped."""
-        diff = x.reshape(self.n, 3) - self.mean
-        diff[:, 2] = wrap_angle(diff[:, 2])
-        return diff
+        return pose_difference(x.reshape(self.n, 3), self.mean)
 
     def _prior(self, diff: np.ndarray, information: bool = True) -> tuple[float, np.ndarray, np.ndarray | None]:
         """Cost, gradient (3n,) and Huber-weighted information of the prior terms at p - mu = ``diff``.

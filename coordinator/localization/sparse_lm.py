@@ -19,6 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import contextlib
+import math
 
 import numpy as np
 import scipy.sparse as sp
@@ -166,12 +167,85 @@ def add_diagonal(a: sp.spmatrix | np.ndarray, values: np.ndarray) -> sp.spmatrix
     return a + sp.diags(values)
 
 
+# The Levenberg-Marquardt rule, defined once for ``minimize`` (one problem) and ``batch``'s lock-step driver (many
+# problems at once): the damping and its scale, the clamp of the second-order term, acceptance and convergence.
+# The functions take floats or arrays (one value per problem).
+MU_START = 1e-8  # damping of the first step
+MU_MIN = 1e-12  # the damping never falls below this on accepted steps
+MU_MAX = 1e10  # a problem whose damping grows beyond this gives up (not converged)
+MU_FACTOR = 10.0  # damping divided by this after an accepted step, multiplied after a rejected one
+ACCEPT_SLACK = 1e-12  # relative cost increase a step may bring and still be accepted (rounding at a minimum)
+DIAG_FLOOR = 1e-12  # floor of diag(J^T J) as the damping scale D (an unknown nothing constrains yet)
+CURVATURE_FLOOR = 0.9  # the second-order term C is kept >= -0.9 D
+MAX_ITER = 100  # accepted steps at most
+_TINY = 1e-300  # keeps the relative tests meaningful at a zero cost
+
+
+def damping_scale(diagonal: np.ndarray) -> np.ndarray:
+    """D: diag(J^T J) floored at ``DIAG_FLOOR`` (the damping adds mu D)."""
+    return np.maximum(diagonal, DIAG_FLOOR)
+
+
+def clamp_curvature(curvature: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """The second-order term C kept >= -``CURVATURE_FLOOR`` D, so A + C + mu D stays positive definite."""
+    return np.maximum(curvature, -CURVATURE_FLOOR * scale)
+
+
+class ScalarOps:
+    """The numpy functions the rule uses, for one problem's Python floats (numpy's cost ~1 us per call on
+    scalars, which added ~10 % to a 10-robot step): pass ``xp=ScalarOps`` to evaluate the same expressions."""
+
+    maximum = staticmethod(max)
+    isfinite = staticmethod(math.isfinite)
+
+    @staticmethod
+    def where(condition: bool, a: float, b: float) -> float:
+        return a if condition else b
+
+    @staticmethod
+    def logical_and(a: bool, b: bool) -> bool:
+        return a and b
+
+    @staticmethod
+    def logical_or(a: bool, b: bool) -> bool:
+        return a or b
+
+    @staticmethod
+    def logical_not(a: bool) -> bool:
+        return not a
+
+
+def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, xp=np) -> tuple:
+    """What a trial step does: (accepted, converged, next damping, given up), per problem.
+
+    Arguments are arrays (one value per problem; ``xp`` numpy) or floats (``xp`` = ``ScalarOps``).
+    ``step_max`` is the step's largest |component|, ``x_max`` that of the point it started from. A step is
+    accepted when finite and not raising the cost beyond rounding (``ACCEPT_SLACK``); the damping is then
+    divided by ``MU_FACTOR`` (floor ``MU_MIN``), else multiplied. Converged: an accepted step below
+    ``xtol`` (1 + max |x|) or lowering the cost by less than ``ftol`` of it (the new point is the solution),
+    or a rejected step below ``xtol`` (1 + max |x|): the problem sits at its minimum, where rounding decides
+    the cost (the old point is the solution). Given up: a rejected step that took the damping beyond ``MU_MAX``.
+    """
+    accept = xp.logical_and(xp.isfinite(cost_new), cost_new <= cost * (1 + ACCEPT_SLACK) + _TINY)
+    gain_small = cost - cost_new <= ftol * xp.maximum(cost, _TINY)
+    converged = xp.logical_or(step_max <= xtol * (1.0 + x_max), xp.logical_and(accept, gain_small))
+    mu_next = xp.where(accept, xp.maximum(mu / MU_FACTOR, MU_MIN), mu * MU_FACTOR)
+    gave_up = xp.logical_and(xp.logical_not(xp.logical_or(accept, converged)), mu_next > MU_MAX)
+    return accept, converged, mu_next, gave_up
+
+
+def settled(predicted, cost, mu, ptol: float, xp=np):
+    """Converged before the step (``minimize``'s ``ptol``): its predicted decrease -g.dx / 2 below ``ptol`` of the
+    cost while the damping is negligible (mu <= ``PRED_MU_MAX``; a damped step under-predicts)."""
+    return xp.logical_and(mu <= PRED_MU_MAX, predicted <= ptol * cost)
+
+
 def minimize(
     evaluate: Callable[[np.ndarray], NormalEquations],
     x0: np.ndarray,
     *,
     solve: Callable[[sp.spmatrix | np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
-    max_iter: int = 100,
+    max_iter: int = MAX_ITER,
     xtol: float = 1e-10,
     ftol: float = 1e-12,
     ptol: float | None = None,
@@ -181,13 +255,13 @@ def minimize(
     ``solve(a, shift, rhs)`` solves (a + diag(shift)) dx = rhs (default: ``solve_normal``, its
     factorization reused while the pattern stays).
 
-    Step (A + C + mu D) dx = -g with D = diag(A) (floored at 1e-12) and C the curvature kept
-    >= -0.9 D from the second iteration on: the first is a Gauss-Newton step (C = 0), since the
+    Step (A + C + mu D) dx = -g with D = diag(A) (``damping_scale``) and C the curvature
+    (``clamp_curvature``) from the second iteration on: the first is a Gauss-Newton step (C = 0), since the
     second-order term is only trustworthy near a solution (from a dead-reckoning start with 3 cm
     residuals, A + C of 500 robots' topology was nearly singular: a 7.5 m step, rejected four
-    times before mu had grown enough; the Gauss-Newton step moved 2 cm). mu starts at 1e-8, is divided by 10 on an accepted step (floor 1e-12) and
-    multiplied by 10 on a rejected one (giving up above 1e10). Converged when the step is
-    below ``xtol`` relative to x or the cost decrease below ``ftol`` relative to the cost.
+    times before mu had grown enough; the Gauss-Newton step moved 2 cm). mu starts at ``MU_START``; each trial
+    step's acceptance, convergence (a step below ``xtol`` relative to x, or a cost decrease below ``ftol``
+    relative to the cost), next damping and giving up are ``step_outcome``'s.
 
     ``ptol``: also converged, at x and without evaluating x + dx, when the step just solved
     predicts a decrease -g.dx / 2 (the Newton decrement of the quadratic model) below ``ptol``
@@ -203,30 +277,30 @@ def minimize(
             return solve_normal(add_diagonal(a, shift), rhs, factor)
 
     ne = evaluate(x)
-    mu = 1e-8
+    mu = MU_START
     converged = False
     it = 0
     for it in range(1, max_iter + 1):
         a = ne.normal
-        diag = np.maximum(a.diagonal(), 1e-12)
+        scale = damping_scale(a.diagonal())
         if ne.curvature is not None and it > 1:
-            a = add_diagonal(a, np.maximum(ne.curvature, -0.9 * diag))
+            a = add_diagonal(a, clamp_curvature(ne.curvature, scale))
         while True:
-            dx = solve(a, mu * diag, -ne.gradient)
-            if ptol is not None and mu <= PRED_MU_MAX and -0.5 * float(ne.gradient @ dx) <= ptol * ne.cost:
+            dx = solve(a, mu * scale, -ne.gradient)
+            if ptol is not None and settled(-0.5 * float(ne.gradient @ dx), ne.cost, mu, ptol, ScalarOps):
                 return LsqResult(x, ne.cost, it, True, ne.normal, ne.extra)
             x_new = x + dx
             ne_new = evaluate(x_new)
-            if np.isfinite(ne_new.cost) and ne_new.cost <= ne.cost * (1 + 1e-12) + 1e-300:
-                mu = max(mu / 10.0, 1e-12)
+            step_max, x_max = (float(np.abs(dx).max()), float(np.abs(x).max())) if dx.size else (0.0, 0.0)
+            accept, done, mu, gave_up = step_outcome(float(ne.cost), float(ne_new.cost), step_max, x_max, mu, xtol, ftol, ScalarOps)
+            if accept:
                 break
-            mu *= 10.0
-            if mu > 1e10:
+            if done:  # a negligible step rejected: x is the minimum
+                return LsqResult(x, ne.cost, it, True, ne.normal, ne.extra)
+            if gave_up:
                 return LsqResult(x, ne.cost, it, converged, a, ne.extra)
-        small_step = bool(dx.size == 0 or np.abs(dx).max() <= xtol * (1.0 + np.abs(x).max()))
-        small_gain = ne.cost - ne_new.cost <= ftol * max(ne.cost, 1e-300)
         x, ne = x_new, ne_new
-        if small_step or small_gain:
+        if done:
             converged = True
             break
     return LsqResult(x, ne.cost, it, converged, ne.normal, ne.extra)
@@ -238,7 +312,7 @@ def levenberg_marquardt(
     *,
     second_order: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     huber: float | None = None,
-    max_iter: int = 100,
+    max_iter: int = MAX_ITER,
     xtol: float = 1e-10,
     ftol: float = 1e-12,
 ) -> LsqResult:

@@ -54,6 +54,38 @@ def observation_offsets(range_m: np.ndarray, bearing_rad: np.ndarray) -> np.ndar
     return np.stack([range_m * np.cos(bearing_rad), range_m * np.sin(bearing_rad)], axis=-1)
 
 
+def observation_residuals(
+    cos_i: np.ndarray,
+    sin_i: np.ndarray,
+    zx: np.ndarray,
+    zy: np.ndarray,
+    xi: np.ndarray,
+    yi: np.ndarray,
+    xj: np.ndarray,
+    yj: np.ndarray,
+    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    scratch: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. B3's residual of observations i -> j, elementwise over arrays of any (common) shape: the one
+    definition for one swarm (``estimate_topology``) and for the planner's batch (``batch``).
+
+    ``cos_i``, ``sin_i``: of the observer's heading theta_i; ``zx``, ``zy``: the offset z_ij (Eq. B1);
+    ``xi``, ``yi``, ``xj``, ``yj``: the two positions (m). Returns (R(theta_i) z_ij (two arrays), the residual
+    R(theta_i) z_ij + x_i - x_j (two arrays)); d r / d theta_i = (-(R z)_y, (R z)_x), d r / d x_i = I,
+    d r / d x_j = -I, d^2 r / d theta_i^2 = -R z. ``out``: four arrays to write them into, ``scratch`` one more.
+    """
+    o = (None, None, None, None) if out is None else out  # outputs positional: faster than ``out=`` keywords
+    rzx = np.multiply(cos_i, zx, o[0])
+    rzx -= np.multiply(sin_i, zy, scratch)
+    rzy = np.multiply(sin_i, zx, o[1])
+    rzy += np.multiply(cos_i, zy, scratch)
+    rx = np.add(rzx, xi, o[2])  # Eq. B4 minus x_j
+    rx -= xj
+    ry = np.add(rzy, yi, o[3])
+    ry -= yj
+    return rzx, rzy, rx, ry
+
+
 def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_heading: np.ndarray, ref: int) -> np.ndarray:
     """Poses from the linear relaxation of Eq. B3 in (x, y, c, s) with the gauge fixed.
 
@@ -155,21 +187,28 @@ def estimate_topology(
     rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
     ci, cj = layout.cols[observer], layout.cols[observed]
 
+    zx, zy = z[:, 0], z[:, 1]
+    ones = np.ones(m)
+    rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
+    cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
+    last: dict[str, np.ndarray] = {}  # R(theta_i) z_ij at the last point ``residuals`` saw, for ``second_order``
+
     def residuals(vec: np.ndarray) -> tuple[np.ndarray, sp.csr_matrix]:
         poses = layout.unpack(vec, start)
-        rz = rotate(poses[observer, 2], z)  # R(theta_i) z_ij
-        r = (rz + poses[observer, :2] - poses[observed, :2]).ravel()  # Eq. B4 minus x_j
-        ones = np.ones(m)
-        rows = np.concatenate([rows_x, rows_x, rows_x, rows_y, rows_y, rows_y])
-        cols = np.concatenate([ci[:, 0], cj[:, 0], ci[:, 2], ci[:, 1], cj[:, 1], ci[:, 2]])
+        heading = poses[observer, 2]
+        pi, pj = poses[observer], poses[observed]
+        rz, r = np.empty((m, 2)), np.empty((m, 2))
+        observation_residuals(np.cos(heading), np.sin(heading), zx, zy, pi[:, 0], pi[:, 1], pj[:, 0], pj[:, 1],
+                              out=(rz[:, 0], rz[:, 1], r[:, 0], r[:, 1]))
+        last["vec"], last["rz"] = vec, rz
         vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
-        return r, jacobian(2 * m, layout.size, rows, cols, vals)
+        return r.ravel(), jacobian(2 * m, layout.size, rows, cols, vals)
 
     def second_order(vec: np.ndarray, r: np.ndarray) -> np.ndarray:
         """d^2 r / d theta_i^2 = -R(theta_i) z_ij: diagonal of sum r . d^2 r on heading columns."""
-        poses = layout.unpack(vec, start)
-        rz = rotate(poses[observer, 2], z)
-        term = -np.sum(r.reshape(m, 2) * rz, axis=1)
+        if last.get("vec") is not vec:
+            residuals(vec)
+        term = -np.sum(r.reshape(m, 2) * last["rz"], axis=1)
         out = np.zeros(layout.size)
         hc = ci[:, 2]
         np.add.at(out, hc[hc >= 0], term[hc >= 0])

@@ -1,8 +1,8 @@
 """Expected localization error e_l of candidate plans by Monte Carlo simulation (Eq. 8, 9).
 
 Every candidate plan is simulated through all of its steps with the shared motion and
-sensing models and the configured localizer, vectorised over candidates x samples
-(``localize_batch``). Candidates are compared on common random numbers: the same draws
+sensing models and the executor's localizer object (with its options), vectorised over
+candidates x samples (``localize_batch``). Candidates are compared on common random numbers: the same draws
 of the initial-estimate error, of each robot's motion noise (every robot moves once per
 configuration change) and of each step's sensing noise, so differences in e_l come from
 the plans, not from the luck of the draw.
@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.localization import Localizer
 from coordinator.localization.batch import localize_batch
 from coordinator.plan import Plan
 from runtime.models.config import ModelConfig
@@ -28,7 +29,7 @@ class MonteCarlo:
     """e_l estimator for one configuration change, with its own common random numbers."""
 
     cfg: ModelConfig
-    localizer: str
+    localizer: Localizer  # the executor's (``registry.make_localizer``), options included
     samples: int
     seed: int
 

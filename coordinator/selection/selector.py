@@ -35,6 +35,7 @@ from functools import partial
 
 import numpy as np
 
+from coordinator.localization import Localizer
 from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
@@ -139,9 +140,12 @@ class Selection:
 
 
 class AnchorSelector:
-    """Online selection of (n_a, R_a)* for each configuration change (Section 4)."""
+    """Online selection of (n_a, R_a)* for each configuration change (Section 4).
 
-    def __init__(self, cfg: ModelConfig, localizer: str, selection: SelectionConfig, seed: int) -> None:
+    ``localizer`` is the executor's localizer object: the Monte Carlo simulates exactly it, options included.
+    """
+
+    def __init__(self, cfg: ModelConfig, localizer: Localizer, selection: SelectionConfig, seed: int) -> None:
         self.cfg = cfg
         self.localizer = localizer
         self.selection = selection

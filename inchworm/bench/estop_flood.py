@@ -28,10 +28,10 @@ from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, estop_ack_key
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, open_session, subscribe_queue
-from swarm_cli.estop import collect_acks, publish_estop
-from swarm_cli.launch import stop_all
+from coordinator.stop import collect_acks, publish_estop
+from inchworm.processes import stop_all
 
-DEPLOY = Path(__file__).resolve().parent.parent / "deploy"
+DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 CERT_DIR = "/etc/swarm/certs/"
 START_S = 60.0
 

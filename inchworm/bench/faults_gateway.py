@@ -1,4 +1,4 @@
-"""The gateway rows of ``swarm bench faults``: whole ``swarm launch --driver gateway`` runs on a faulty radio.
+"""The gateway rows of the faults benchmark (``swarm bench faults``): whole ``swarm launch --driver gateway`` runs on a faulty radio.
 
 For each seed, ``swarm launch --driver gateway --seed S --json`` runs twice as real
 processes (emulated robots on ptys, link processes, gateway agents, coordinator): once
@@ -26,8 +26,8 @@ from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from swarm_cli.options import last_json
-from swarm_cli.progress import Progress
+from inchworm.output import last_json
+from inchworm.progress import Progress
 
 RUN_TIMEOUT_S = 300.0  # one whole launch (busy machine); a run that takes longer counts as not completed
 

@@ -1,0 +1,374 @@
+"""The coordinator process of a distributed run (``swarm coordinator``).
+
+Connects as a Zenoh client to the hub, waits for every robot's agent, then runs the
+same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` (which also
+publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
+per-configuration summary (``swarm_cli.coordinator_cmd``).
+
+Lost robots (docs/failure-model.md): with ``--on-lost continue`` (the default) a robot
+that is lost (liveliness token gone, silent through a step, or refusing its command) is
+stopped and the run goes on without it; the summary names it and P_f is over the robots
+that finished. ``--on-lost abort``, or fewer than ``--min-robots`` robots left, ends the
+run. Every abnormal end (an abort, an error, SIGTERM or Ctrl-C) first publishes a
+run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (also with
+lost robots), 3 the run was aborted or the agents did not come up (the message names the
+robots), 2 bad input.
+
+Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
+its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
+writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
+to turn it off), with the run metadata ``swarm replay --check`` and ``swarm plot`` need (seed,
+method, localizer, model and selection configuration, trajectory). The coordinator waits until
+the recorder's subscription has reached the hub before it starts, and at the end (also after a
+failed or interrupted run) lets the last messages arrive, finishes the file and prints
+``recorded PATH: N messages on C channels``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import math
+import os
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from coordinator.stop import StopRequested, StopSignals, send_estop
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory
+from runtime.wire.keys import run_wildcard, validate_run
+
+if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
+    from coordinator.executor import RunResult
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.recording.foxglove_live import LiveView
+    from runtime.recording.mcap_log import McapRecorder
+    from runtime.wire.transport import ZenohSettings
+
+EXIT_AGENT = 3
+EXIT_OUTPUT = 4  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
+INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
+INITIAL_HEADING_SIGMA = math.radians(2.0)
+
+
+def default_recording(run_id: str) -> Path:
+    """Where a run is recorded unless told otherwise."""
+    return Path("recordings") / f"{run_id}.mcap"
+
+
+def result_json(result: RunResult) -> dict:
+    """Every step's estimate (and truth, when known) as plain JSON."""
+    def truth(t):
+        return None if t is None else t.tolist()
+
+    return {
+        "method": result.method,
+        "ids": result.initial_estimate.ids.tolist(),
+        "initial_estimate": result.initial_estimate.poses.tolist(),
+        "initial_truth": truth(result.initial_truth),
+        "lost": [{"robot": r.robot, "step": r.step, "config": r.config + 1, "reason": r.reason} for r in result.lost],
+        "steps": [
+            {"config": s.config, "step": s.step, "ids": s.estimate.ids.tolist(), "moving": s.moving.tolist(), "commands": s.commands.tolist(),
+             "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
+            for s in result.steps
+        ],
+        "final": result.configs[-1].estimate.poses.tolist() if result.configs else None,
+    }
+
+
+@dataclass(frozen=True)
+class CoordinatorOptions:
+    """One distributed run as the coordinator runs it (SI units; timeouts in seconds)."""
+
+    trajectory: Trajectory
+    run_id: str
+    settings: ZenohSettings
+    hub: str  # what the connection options said, for the metadata
+    method: str = "inchworm"
+    seed: int = 0
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+    model_file: Path | None = None  # the model file ``model`` was read from, if any (kept in the metadata)
+    selection: SelectionConfig | None = None  # None: the default search
+    start_timeout_s: float = 30.0
+    step_timeout_s: float = 5.0
+    on_lost: str = "continue"
+    min_robots: int = 2
+    truth: bool = True  # False: hardware without ground truth, no TruthMessages awaited
+    record: Path | None = None  # the MCAP file, None: no recording
+    on_record_error: str = "continue"  # when writing the recording fails: go on unrecorded, or "stop" the run
+    foxglove_port: int | None = None  # serve the live view on this port
+    command: str = ""  # the command line, for the metadata
+
+
+def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
+    """What a recording needs to re-run the coordinator's decisions (``swarm replay --check``, ``swarm plot``)."""
+    return {
+        "source": "swarm coordinator",
+        "command": o.command,
+        "hub": o.hub,
+        "seed": o.seed,
+        "method": o.method,
+        "localizer": o.localizer,
+        "model": o.model.to_dict(),
+        "model_file": None if o.model_file is None else str(Path(o.model_file).resolve()),
+        "selection": dataclasses.asdict(selection),
+        "trajectory": o.trajectory.to_json(),
+        "initial_delta_m": INITIAL_DELTA,
+        "initial_heading_sigma_rad": INITIAL_HEADING_SIGMA,
+        "step_timeout_s": o.step_timeout_s,
+    }
+
+
+class RecordingStopped(Exception):
+    """``on_record_error="stop"``: the recording failed, so the run is stopped."""
+
+
+class Recording:
+    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end.
+
+    A write error during the run is reported at once (one line, ``policy`` said) and sets ``failed``."""
+
+    SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
+    SETTLE_MAX_S = 3.0  # ... or after this long
+
+    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0,
+                 policy: str = "continue") -> None:
+        self.run_id, self.path, self.policy = run_id, path, policy
+        self.stop = threading.Event()
+        self.failed = threading.Event()
+        self._ready = threading.Event()
+        self.recorder: McapRecorder | None = None
+        self.result: dict = {}
+        self.error: BaseException | None = None
+        from runtime.recording.mcap_log import RecordingFailed, record_run  # noqa: PLC0415
+
+        def target() -> None:
+            try:
+                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready,
+                                              on_error=self._on_error))
+            except RecordingFailed as exc:  # reported by finish(); the run is not an error for it
+                self.error = exc
+                self.failed.set()
+            except BaseException as exc:  # noqa: BLE001 - reported by the main thread
+                self.error = exc
+            finally:
+                self._ready.set()
+
+        self.thread = threading.Thread(target=target, name="swarm-recorder", daemon=True)
+        self.thread.start()
+        if not self._ready.wait(timeout_s):
+            self.stop.set()
+            raise ConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
+        if self.error is not None:
+            raise self.error
+
+    def _on_ready(self, recorder: McapRecorder) -> None:
+        self.recorder = recorder
+        self._ready.set()
+
+    def _on_error(self, error: BaseException) -> None:  # the recorder's writer thread
+        detail = error.strerror if isinstance(error, OSError) and error.strerror else str(error) or type(error).__name__
+        then = "the run goes on unrecorded" if self.policy == "continue" else "stopping the run"
+        print(f"coordinator: error: recording to {self.path} failed after {self.recorder.count if self.recorder else 0} "
+              f"messages: {detail}; {then} (--on-record-error {self.policy})", file=sys.stderr, flush=True)
+        self.failed.set()
+
+    def check(self) -> None:
+        """``RecordingStopped`` if the recording failed and the policy is to stop the run."""
+        if self.policy == "stop" and self.failed.is_set():
+            raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
+
+    def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
+        """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
+        probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
+        try:
+            deadline = time.monotonic() + timeout_s
+            while not probe.matching_status.matching:
+                if time.monotonic() > deadline or self.error is not None:
+                    raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
+                time.sleep(0.005)
+        finally:
+            probe.undeclare()
+
+    def finish(self, interrupted: bool = False) -> dict | None:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``,
+        or None when writing failed (``error`` says why; the file holds what reached the disk).
+
+        ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
+        (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
+        """
+        if self.recorder is not None and self.thread.is_alive():
+            start = last_change = time.monotonic()
+            count = self.recorder.count
+            settle_max = self.SETTLE_S if interrupted else self.SETTLE_MAX_S
+            while time.monotonic() - last_change < self.SETTLE_S and time.monotonic() - start < settle_max:
+                time.sleep(0.05)
+                if self.recorder.count != count:
+                    count, last_change = self.recorder.count, time.monotonic()
+        self.stop.set()
+        self.thread.join(timeout=30)
+        if self.failed.is_set():
+            return None
+        if self.error is not None:
+            raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
+        return self.result
+
+
+class _Checked:
+    """The executor's listener (the backend), followed by ``check()`` after every plan and estimate."""
+
+    def __init__(self, listener, check) -> None:
+        self.listener, self.check = listener, check
+
+    def on_plan(self, *args) -> None:
+        self.listener.on_plan(*args)
+        self.check()
+
+    def on_estimate(self, *args) -> None:
+        self.listener.on_estimate(*args)
+        self.check()
+
+
+def recording_line(rec: dict) -> str:
+    from runtime.recording.mcap_log import counts_text  # noqa: PLC0415
+
+    return (f"recorded {rec['path']}: {counts_text(rec)}"
+            + (f" ({rec['undecodable']} undecodable)" if rec.get("undecodable") else ""))
+
+
+class Live:
+    """The ``--foxglove`` view of a run; ``keep`` (set once the run is done) keeps it open for ``linger``."""
+
+    def __init__(self, view: LiveView | None) -> None:
+        self.view, self.keep = view, False
+
+    def linger(self, seconds: float | None) -> None:
+        if self.view is None:
+            return
+        if seconds != 0:
+            until = "until Ctrl-C" if seconds is None else f"for {seconds:g} s"
+            say(f"the run is over; the live view keeps serving at {self.view.url} {until}")
+            self.view.linger(seconds)
+        self.view.close()
+
+
+
+
+def say(text: str) -> None:
+    """A progress line of the coordinator process on stderr."""
+    print(f"coordinator: {text}", file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = say) -> Iterator[Live]:
+    """With ``foxglove_port``: every message of the run also goes to a Foxglove live view while it runs;
+    the view is closed at the end unless ``keep`` was set (then ``Live.linger`` closes it)."""
+    if o.foxglove_port is None:
+        yield Live(None)
+        return
+    from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with a live view
+    from runtime.wire.transport import subscribe  # noqa: PLC0415
+
+    live = Live(LiveView(o.foxglove_port, trajectory=o.trajectory.to_json()))
+    subscriber = subscribe(session, run_wildcard(o.run_id), live.view.handle)
+    log(f"live view for the Foxglove app at {live.view.url}")
+    try:
+        yield live
+    finally:
+        subscriber.undeclare()
+        if not live.keep:
+            live.view.close()
+
+
+@dataclass
+class CoordinatorOutcome:
+    """What a coordinator run ended with: the run (None if it failed), the recording's counts, the live view, the error."""
+
+    result: RunResult | None  # with ``error`` set: the configurations completed before the end (None if nothing ran)
+    recording: dict | None
+    live: Live
+    error: Exception | None = None  # the agents did not come up, the run was aborted (lost robots) or stopped (recording)
+    recording_error: BaseException | None = None  # why the recording could not be written (it keeps what reached the disk)
+
+
+def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Callable[[int, int, int], None] | None = None,
+                    log: Callable[[str], None] = say) -> CoordinatorOutcome:
+    """Record, wait for every agent, run the executor over Zenoh; e-stop every robot on any abnormal end.
+
+    ``signals`` (the caller's, made first) turn SIGINT/SIGTERM into a stop that never interrupts
+    finishing the recording. ``on_config(done, total, step)`` is told each configuration as it ends,
+    ``log`` the progress lines of the process (default: stderr).
+    A failed or interrupted run still finishes its recording (printed as ``recorded PATH ...``).
+    """
+    from coordinator.executor import InchwormExecutor, RunAborted  # noqa: PLC0415 - the run's imports, not a parser's
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.wire.transport import open_session  # noqa: PLC0415
+
+    traj, cfg = o.trajectory, o.model
+    selection = o.selection or SelectionConfig()
+    validate_connected(traj, cfg.sensing_range_m)
+    if not 2 <= o.min_robots <= traj.n:
+        raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
+    localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
+    strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
+    validate_run(o.run_id)
+    recording = None
+    if o.record is not None:
+        with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
+            recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection), policy=o.on_record_error)
+        log(f"recording swarm/{o.run_id}/** to {o.record}")
+    recorded, completed, result, error = None, False, None, None
+    live = Live(None)
+    try:
+        if signals.received is not None:
+            raise StopRequested(signals.received)
+        with open_session(o.settings) as session, live_view(o, session, log) as live:
+            if recording is not None:
+                recording.wait_subscribed(session)
+            backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s), simulated=o.truth)
+            ended: BaseException | None = None
+            partial = None
+            try:
+                backend.wait_for_agents()
+                log(f"{traj.n} agents alive, run {o.run_id}")
+                progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731
+                listener = backend if recording is None else _Checked(backend, recording.check)
+                executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=listener,
+                                            on_lost=o.on_lost, min_robots=o.min_robots)
+                try:
+                    result = executor.run(traj, initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                finally:
+                    partial = executor.result  # the configurations completed, however the run ends
+                completed = live.keep = True
+            except (AgentError, RunAborted, RecordingStopped) as exc:
+                ended = error = exc
+                result = getattr(exc, "result", None) or (partial if isinstance(exc, RecordingStopped) else None)
+            except BaseException as exc:
+                ended = exc
+                raise
+            finally:
+                with signals.deferred():
+                    if not completed:  # whatever ended the run early: no robot may be left moving
+                        send_estop(session, o.run_id, f"swarm coordinator (pid {os.getpid()})",
+                                   f"the run ended early ({type(ended).__name__}: {ended})"[:2000])
+                    backend.close()
+    finally:
+        if recording is not None:
+            with signals.deferred():
+                recorded = recording.finish(interrupted=signals.received is not None)
+            if result is None:  # interrupted or failed run: the caller prints no summary
+                print(recording_line(recorded) if recorded else f"recording failed: {recording.error}", flush=True)
+    return CoordinatorOutcome(result, recorded, live, error, None if recording is None else recording.error)

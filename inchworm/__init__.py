@@ -1,0 +1,71 @@
+"""``inchworm``: the Python API of the inchworm swarm runtime (runs, the paper's comparison, studies, benchmarks).
+
+    import inchworm
+    run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult
+    same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
+    table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
+    table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
+
+Every study takes typed options (frozen dataclasses) and returns a result with ``rows``,
+``to_json()`` (what ``swarm ... --json`` prints), ``report()`` (its table) and
+``plot(ax)`` on a matplotlib ``Axes``; with ``out=`` each finished run is kept on disk at
+once and ``resume=True`` continues an interrupted study. Importing ``inchworm`` is cheap:
+the names below load their modules on first use. Errors are ``SwarmError`` subclasses.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from runtime.errors import LocalizationError, SwarmError, SwarmInputError
+
+if TYPE_CHECKING:
+    from coordinator.executor import RunResult
+    from coordinator.selection.selector import SelectionConfig
+    from inchworm.comparison import CompareOptions, CompareResult, compare
+    from inchworm.distributed import run_distributed
+    from inchworm.localize_data import localize, localize_document
+    from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
+    from inchworm.options import RunOptions
+    from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
+    from inchworm.simulation import simulate
+    from inchworm.studies.anchors import AnchorsOptions, AnchorsResult, study_anchors
+    from inchworm.studies.calibration import CalibrationOptions, CalibrationResult, study_calibration
+    from inchworm.studies.consistency import ConsistencyOptions, ConsistencyResult, study_consistency
+    from inchworm.studies.noise import NoiseOptions, NoiseResult, study_noise
+    from inchworm.studies.selection import SelectionStudyOptions, SelectionStudyResult, study_selection
+    from runtime.models.config import ModelConfig
+    from runtime.models.trajectory import Trajectory
+
+_WHERE = {
+    "simulate": "inchworm.simulation",
+    "run_distributed": "inchworm.distributed",
+    "RunResult": "coordinator.executor",
+    "ModelConfig": "runtime.models.config",
+    "SelectionConfig": "coordinator.selection.selector",
+    "Trajectory": "runtime.models.trajectory",
+    "RunOptions": "inchworm.options",
+    "compare": "inchworm.comparison", "CompareOptions": "inchworm.comparison", "CompareResult": "inchworm.comparison",
+    "study_anchors": "inchworm.studies.anchors", "AnchorsOptions": "inchworm.studies.anchors", "AnchorsResult": "inchworm.studies.anchors",
+    "study_noise": "inchworm.studies.noise", "NoiseOptions": "inchworm.studies.noise", "NoiseResult": "inchworm.studies.noise",
+    "study_selection": "inchworm.studies.selection", "SelectionStudyOptions": "inchworm.studies.selection",
+    "SelectionStudyResult": "inchworm.studies.selection",
+    "study_calibration": "inchworm.studies.calibration", "CalibrationOptions": "inchworm.studies.calibration",
+    "CalibrationResult": "inchworm.studies.calibration",
+    "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
+    "ConsistencyResult": "inchworm.studies.consistency",
+    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
+    "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
+    "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
+}
+
+__all__ = ["LocalizationError", "SwarmError", "SwarmInputError", *_WHERE]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _WHERE:
+        raise AttributeError(f"module 'inchworm' has no attribute {name!r}")
+    value = getattr(importlib.import_module(_WHERE[name]), name)
+    globals()[name] = value
+    return value

@@ -1,0 +1,241 @@
+"""Coordination overhead of the distributed runtime per step (``swarm bench runtime``).
+
+For each swarm size N (``agents``, e.g. 10 and 50) the benchmark starts, on this host, a Zenoh
+router hub in its own process and the agents of N robots (as ``swarm launch`` does,
+simulated drivers, no motion delay: one process per robot up to 50 robots, else processes
+hosting up to 50 agents each; ``agents_per_process`` to choose), then runs the coordinator in process: a
+``ZenohSwarmBackend`` (a client of the hub, like ``swarm coordinator``) under the same
+``InchwormExecutor``, with a fixed plan (``method`` ``no-anchors``: everybody moves every
+step, or ``ref57``) along a random trajectory of ``steps`` steps. A step's time runs
+from the end of the previous step (or of the plan) to the published fused estimate:
+commands out, every ``Status done`` back, observation requests out, every report (and
+simulated truth) back, localization, ``EstimateMessage`` published. No simulated motion
+time is included (motion time 0). Reported per N:
+
+* ``step_ms_median``: median step time (ms);
+* ``zenoh_rtt_ms``: the raw Zenoh round trip between two client sessions through the
+  same hub (``runtime.wire.transport.round_trip_ms``, median), measured in the same run with
+  the agents alive, and the step time as a multiple of it;
+* beside them (table only): the median of the command round (``execute``: commands out,
+  every ``done`` back) and of the observation round (``observe``: requests out, every
+  report and truth back); the rest of a step is localization and publishing;
+* ``agents_per_process``: robot agents hosted by one agent process;
+* ``agent_rss_mb``: resident memory per robot agent after the run: the agent processes'
+  ``VmRSS`` (``/proc/<pid>/status``, MB = 2^20 bytes) summed and divided by the N agents they host.
+
+Every process started is stopped by its own pid at the end, on error and on Ctrl-C.
+Targets (issues): N = 10 under 20 ms, N = 50 under 100 ms per step, agents under 80 MB;
+N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent (issue 14).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from inchworm.bench import BenchResult
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
+
+METHODS = ("no-anchors", "ref57")
+
+
+@dataclass(frozen=True)
+class RuntimeBenchOptions:
+    agents: tuple[int, ...] = (10, 50)  # swarm sizes
+    agents_per_process: int | None = None  # None: as swarm launch (1 up to 50 robots, else up to 50)
+    steps: int = 20  # steps timed per swarm size
+    method: str = "no-anchors"  # a fixed plan: no-anchors (all move each step) or ref57
+    seed: int = 0
+    rtt_count: int = 200  # pings of the raw Zenoh round trip
+    start_timeout_s: float = 120.0
+    step_timeout_s: float = 10.0
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+
+class StepTimer:
+    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.mark: float | None = None
+        self.seconds: list[float] = []
+
+    def on_plan(self, config_index, first_step, plan, selection) -> None:
+        self.inner.on_plan(config_index, first_step, plan, selection)
+        self.mark = time.perf_counter()
+
+    def on_estimate(self, step, estimate) -> None:
+        self.inner.on_estimate(step, estimate)
+        now = time.perf_counter()
+        if step > 0 and self.mark is not None:
+            self.seconds.append(now - self.mark)
+        self.mark = now
+
+
+class TimedBackend:
+    """The backend with its ``execute`` and ``observe`` calls timed (seconds)."""
+
+    def __init__(self, inner) -> None:
+        self.inner, self.ids = inner, inner.ids
+        self.execute_s: list[float] = []
+        self.observe_s: list[float] = []
+
+    def execute(self, step) -> None:
+        t = time.perf_counter()
+        self.inner.execute(step)
+        self.execute_s.append(time.perf_counter() - t)
+
+    def observe(self):
+        t = time.perf_counter()
+        obs = self.inner.observe()
+        self.observe_s.append(time.perf_counter() - t)
+        return obs
+
+    def true_poses(self):
+        return self.inner.true_poses()
+
+    def take_lost(self) -> dict[int, str]:
+        lost = self.inner.take_lost()
+        self.ids = self.inner.ids
+        return lost
+
+
+def rss_mb(pid: int) -> float | None:
+    """Resident set size of process ``pid`` in MB (VmRSS), or None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        return None
+    return None
+
+
+def _say(text: str) -> None:
+    print(f"bench runtime: {text}", file=sys.stderr, flush=True)
+
+
+def _raise_interrupt(*_) -> None:
+    raise KeyboardInterrupt
+
+
+def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
+    """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row.
+
+    ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
+    (``inchworm.processes.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
+    """
+    from coordinator.executor import InchwormExecutor  # noqa: PLC0415
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
+    from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, stop_all  # noqa: PLC0415
+    cfg = args.model
+    strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
+    per_config = strategy.fixed.n_steps
+    configs = math.ceil(args.steps / per_config)
+    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
+    per_process = agents_per_process(n, args.agents_per_process)
+    run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    hub = f"tcp/127.0.0.1:{port}"
+    procs: list[subprocess.Popen] = []
+    try:
+        with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="swarm-bench-") as tmp:
+            t0 = time.monotonic()
+            _say(f"{n} agents ({driver} driver, {per_process} per process): starting (run {run_id}, hub {hub})")
+            model = model_flags(cfg)
+            extra = list(model)
+            traj_file = Path(tmp) / "trajectory.json"
+            traj.save(traj_file)
+            if driver == "gateway":
+                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs)
+                extra += ["--driver=gateway", f"--gateway-config={live}"]
+            first_agent = len(procs)
+            start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
+            with open_session(member) as session:
+                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout_s, args.step_timeout_s))
+                try:
+                    backend.wait_for_agents()
+                    _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")
+                    rtt = round_trip_ms(member, member, args.rtt_count)["median_ms"]
+                    _say(f"{n} agents: round trip {rtt:.3f} ms; timing {configs * per_config} steps ({args.method})")
+                    timer = StepTimer(backend)
+                    progress = lambda done, total: _say(f"{n} agents: configuration {done}/{total} (step {backend.step})")  # noqa: E731
+                    timed = TimedBackend(backend)
+                    executor = InchwormExecutor(timed, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=timer)
+                    executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
+                finally:
+                    backend.close()
+            agents = procs[first_agent:]
+            hosted = [traj.ids[k:k + per_process] for k in range(0, n, per_process)]
+            rss = [rss_mb(p.pid) for p in agents]
+            dead = [int(r) for robots, p in zip(hosted, agents) if p.poll() is not None for r in robots]
+            if dead or None in rss:
+                raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
+    finally:
+        emulators = 1 if driver == "gateway" else 0  # stopped last, after the links that read their ptys
+        stop_all(procs[emulators:])
+        stop_all(procs[:emulators])
+    left = [p.pid for p in procs if p.poll() is None]
+    if left:
+        raise RuntimeError(f"agent processes {left} are still running")
+    step_ms = [s * 1e3 for s in timer.seconds]
+    return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
+            "agent_rss_mb": round(sum(rss) / n, 2), "agents_per_process": per_process, "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
+            "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
+
+
+def _p90(values: list[float]) -> float:
+    return round(statistics.quantiles(values, n=10)[-1], 3) if len(values) >= 2 else round(values[0], 3)
+
+
+def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> BenchResult:
+    """Time the steps of a distributed run per swarm size; ``AgentError`` if agents did not come up or died."""
+    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+
+    args = options
+    sizes = list(args.agents)
+    if not sizes or min(sizes) < 2:
+        raise SwarmInputError(f"--agents must list integers >= 2, got {args.agents}")
+    if args.steps < 1:
+        raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")
+    if args.rtt_count < 2:
+        raise SwarmInputError(f"--rtt-count must be >= 2, got {args.rtt_count}")
+    if args.method == "ref57" and any(n % 2 for n in sizes):
+        raise SwarmInputError("--method ref57 needs even numbers of agents")
+    previous = signal.signal(signal.SIGTERM, _raise_interrupt)
+    rows = []
+    try:
+        for n in sizes:
+            try:
+                rows.append(measure(n, args))
+            except AgentError as exc:
+                raise AgentError(f"{n} agents: {exc}", exc.robots) from exc
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    lines = [f"{'agents':>6} {'per proc':>8} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} {'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'RSS MB per agent':>16}"]
+    for r in rows:
+        lines.append(f"{r['agents']:>6} {r['agents_per_process']:>8} {r['_steps']:>5} {r['step_ms_median']:>16.2f} {r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
+              f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {r['_execute_ms']:>11.2f} {r['_observe_ms']:>10.2f} {r['agent_rss_mb']:>16.2f}")
+    summary = {"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]}
+    return BenchResult(rows, summary, "\n".join(lines), "agents", "step_ms_median", "step time, median (ms)",
+                       f"Coordination time per step ({args.method}, {args.localizer} localizer)")

@@ -1,0 +1,70 @@
+"""Wall time of one full anchor selection (outer + inner loop, Section 4.2) (``swarm bench select``).
+
+For each swarm size a random start and desired configuration (one Section-7 step) are
+drawn and ``AnchorSelector.select`` runs with the given budget (Monte Carlo samples,
+genetic population and generations as in ``swarm sim``). ``one_core`` pins the process
+to one core, as the targets are stated for one core.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from inchworm.bench import BenchResult
+from inchworm.options import RunOptions
+from runtime.errors import SwarmInputError
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import random_trajectory
+
+
+@dataclass(frozen=True)
+class SelectBenchOptions:
+    sizes: tuple[int, ...] = (10, 30, 100)
+    repeats: int = 3  # selections per size, each on a new random step
+    seed: int = 0
+    one_core: bool = True
+    run: RunOptions = field(default_factory=RunOptions)
+
+
+def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
+    """Time ``repeats`` selections per size; ``say`` is told each selection as it starts."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
+
+    o = options
+    if o.repeats < 1:
+        raise SwarmInputError(f"--repeats must be >= 1, got {o.repeats}")
+    if not o.sizes or min(o.sizes) < 2:
+        raise SwarmInputError(f"--sizes must list integers >= 2, got {o.sizes}")
+    if o.one_core and hasattr(os, "sched_setaffinity"):
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+    cfg = o.run.model
+    localizer = make_localizer(o.run.localizer, cfg)
+    results = []
+    lines = [f"{'n':>5} {'s_median':>9} {'s_min':>7} {'s_max':>7} {'n_a chosen':>10} {'plans evaluated':>16}"]
+    for n in o.sizes:
+        times, chosen, evaluations = [], [], []
+        for r in range(o.repeats):
+            if say:
+                say(f"n={n} selection {r + 1}/{o.repeats}")
+            traj = random_trajectory(n, 1, np.random.default_rng([o.seed, n, r]), sensing_range=cfg.sensing_range_m)
+            estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
+            selector = AnchorSelector(cfg, localizer, o.run.selection, seed=o.seed + r)
+            t0 = time.perf_counter()
+            sel = selector.select(estimate, traj.configurations[0])
+            times.append(time.perf_counter() - t0)
+            chosen.append(sel.n_anchors)
+            evaluations.append(sel.evaluations)
+        results.append({"n": n, "s_median": round(statistics.median(times), 4), "s_min": round(min(times), 4),
+                        "s_max": round(max(times), 4), "n_a": chosen, "evaluations": evaluations})
+        lines.append(f"{n:>5} {statistics.median(times):>9.3f} {min(times):>7.3f} {max(times):>7.3f} {str(chosen):>10} {str(evaluations):>16}")
+    summary = {"results": results, "localizer": o.run.localizer, "one_core": o.one_core}
+    return BenchResult(results, summary, "\n".join(lines), "n", "s_median", "selection time, median (s)",
+                       f"One anchor selection ({o.run.localizer} localizer{', one core' if o.one_core else ''})")

@@ -1,0 +1,201 @@
+"""Table I/II of the paper: P_f of every method on the same random trajectories.
+
+Each trajectory is run by every method with the same seed (``inchworm.seeding``), so the
+robots' noise streams are shared and the comparison is paired. P_f (Eq. 24) per run; per
+method the mean, standard deviation and a 97 % confidence interval of the mean (Table
+II), the p-value of the paired t-test against ``ref57``, the mean anchor count and the
+mean number of steps per configuration (speed), and the CPU seconds per run. With
+``selections=("mc", "crlb")`` the methods that select anchors online run once per
+ranking and are reported as ``method/mc`` and ``method/crlb``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from coordinator.strategies import METHODS
+from inchworm.options import RunOptions, options_dict
+from inchworm.runner import Executor, Row, StudyLog, run_tasks
+from inchworm.seeding import paired_trajectory, run_seed
+from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+
+if TYPE_CHECKING:
+    from coordinator.selection.selector import SelectionConfig
+    from matplotlib.axes import Axes
+
+REFERENCE = "ref57"
+SEARCHING = ("inchworm", "inchworm-equal-speed")  # methods that rank anchor plans (``selections``)
+RANKINGS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, without importing the search
+
+
+@dataclass(frozen=True)
+class RunTask:
+    """One (trajectory, method) run of a paired comparison; ``tags`` are prepended to its row."""
+
+    t: int
+    method: str
+    robots: int
+    configs: int
+    seed: int
+    model: ModelConfig
+    localizer: str
+    selection: SelectionConfig
+    label: str = ""
+    tags: tuple[tuple[str, Any], ...] = ()
+
+    @property
+    def key(self) -> str:
+        return "/".join([*(f"{k}={v!r}" for k, v in self.tags), str(self.t), self.label or self.method])
+
+
+def run_one(task: RunTask) -> Row:
+    """P_f (Eq. 24), mean n_a, mean steps per configuration, final e_l (m) and CPU seconds of one run."""
+    from coordinator.simulate import simulate  # noqa: PLC0415
+
+    traj = paired_trajectory(task.robots, task.configs, task.seed, task.t, task.model.sensing_range_m)
+    cpu = time.process_time()
+    result = simulate(traj, task.method, task.model, localizer=task.localizer, selection=task.selection, seed=run_seed(task.seed, task.t))
+    return {
+        **dict(task.tags),
+        "trajectory": task.t,
+        "method": task.label or task.method,
+        "cpu_s": time.process_time() - cpu,
+        "pf": result.pf(),
+        "n_a_mean": float(result.anchor_counts().mean()),
+        "steps_mean": float(result.steps_per_config().mean()),
+        "e_l_final": float(result.localization_errors()[-1]),
+        "fallback_steps": sum(1 for s in result.steps if s.fallback),
+    }
+
+
+def check_methods(methods: tuple[str, ...]) -> None:
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown or not methods:
+        raise SwarmInputError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+
+
+@dataclass(frozen=True)
+class CompareOptions:
+    """A paired comparison: ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
+
+    robots: int = 10
+    trajectories: int = 6
+    configs: int = 8
+    methods: tuple[str, ...] = METHODS
+    seed: int = 0
+    selections: tuple[str, ...] | None = None  # rankings compared for the searching methods (None: run.selection.method)
+    run: RunOptions = field(default_factory=RunOptions)
+
+    def validate(self) -> None:
+        check_methods(self.methods)
+        if self.trajectories < 1 or self.configs < 1 or self.robots < 2:
+            raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+        if self.selections is not None and (not self.selections or any(r not in RANKINGS for r in self.selections)):
+            raise SwarmInputError(f"--selections must list {' and/or '.join(RANKINGS)}, got {','.join(self.selections)!r}")
+
+    def variants(self) -> list[tuple[str, str, SelectionConfig]]:
+        """(method, label, selection) of every compared variant, in output order."""
+        selection = self.run.selection
+        rankings = list(dict.fromkeys(self.selections or (selection.method,)))
+        variants = [(m, m, selection) for m in self.methods if m not in SEARCHING or len(rankings) == 1]
+        variants += [(m, f"{m}/{r}", replace(selection, method=r)) for m in self.methods if m in SEARCHING and len(rankings) > 1
+                     for r in rankings]
+        return variants
+
+    def tasks(self) -> list[RunTask]:
+        return [RunTask(t, m, self.robots, self.configs, self.seed, self.run.model, self.run.localizer, sel, label)
+                for t in range(self.trajectories) for m, label, sel in self.variants()]
+
+
+def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
+    """Per-method P_f statistics and p-values of the paired t-test against ref57 (rows paired by ``trajectory``)."""
+    out: dict = {"methods": {}, "p_values": {}}
+    by = {m: sorted((r for r in rows if r["method"] == m), key=lambda r: r["trajectory"]) for m in methods}
+    for m in methods:
+        pf = np.array([r["pf"] for r in by[m]])
+        out["methods"][m] = {
+            "pf_mean": float(pf.mean()),
+            "pf_std": float(pf.std(ddof=1)) if len(pf) > 1 else 0.0,
+            "pf_ci97": list(mean_ci(pf, CONFIDENCE)),
+            "na_mean": float(np.mean([r["n_a_mean"] for r in by[m]])),
+            "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
+            "cpu_s_mean": float(np.mean([r["cpu_s"] for r in by[m]])),
+            "runs": len(pf),
+        }
+    if REFERENCE in by:
+        ref = np.array([r["pf"] for r in by[REFERENCE]])
+        for m in methods:
+            if m != REFERENCE and len(ref) > 1:
+                out["p_values"][m] = paired_p_value(np.array([r["pf"] for r in by[m]]), ref)
+    return out
+
+
+@dataclass
+class CompareResult:
+    """Every run (``rows``) and the per-method statistics (``summary``, the ``swarm compare --json`` object)."""
+
+    options: CompareOptions
+    rows: list[Row]
+    summary: dict[str, Any]
+
+    def to_json(self) -> dict[str, Any]:
+        return self.summary
+
+    def report(self) -> str:
+        """The table of ``swarm compare``."""
+        lines = [f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11}"]
+        for m, s in self.summary["methods"].items():
+            p = self.summary["p_values"].get(m)
+            lines.append(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} "
+                         f"{s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+        methods = self.summary["methods"]
+        if "inchworm-equal-speed" in methods and REFERENCE in methods:
+            a, b = methods["inchworm-equal-speed"]["pf_mean"], methods[REFERENCE]["pf_mean"]
+            lines.append(f"equal speed (n_a = n_r/2 for both): inchworm-equal-speed / ref57 = {a / b:.3f} (paper, Table I: 0.0477 / 0.0673 = 0.71)")
+        return "\n".join(lines)
+
+    def plot(self, ax: Axes) -> Axes:
+        """P_f per method: mean and 97 % t-interval of the mean, its lower end clipped at 0 (P_f >= 0)."""
+        from inchworm.plots import bars  # noqa: PLC0415
+
+        o = self.options
+        names = list(self.summary["methods"])
+        stats = [self.summary["methods"][m] for m in names]
+        intervals = [clipped_at_zero(*s["pf_ci97"]) for s in stats]
+        return bars(ax, names, [s["pf_mean"] for s in stats], intervals, "P_f (Eq. 24)",
+                    f"{o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
+                    "97 % CI of the mean (t, clipped at 0)")
+
+    def save(self, out: str | Path) -> list[Path]:
+        """``pf.png`` in ``out`` (``runs.csv`` is written while the runs finish)."""
+        out = Path(out)
+        from inchworm.plots import save_figure  # noqa: PLC0415
+
+        return [save_figure(self.plot, out / "pf.png", (max(6.0, 1.3 * len(self.summary["methods"])), 4.4))]
+
+
+def compare(
+    options: CompareOptions = CompareOptions(),
+    *,
+    executor: Executor | None = None,
+    out: str | Path | None = None,
+    resume: bool = False,
+    progress: Callable[[int, int], None] | None = None,
+) -> CompareResult:
+    """Run the paired comparison; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes
+    (``resume``: continue a comparison interrupted there)."""
+    options.validate()
+    log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
+    rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
+    methods = [label for _, label, _ in options.variants()]
+    if log is not None:
+        log.finish(rows)
+    return CompareResult(options, rows, summarise(rows, methods))

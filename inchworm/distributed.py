@@ -1,0 +1,75 @@
+"""A distributed run from Python: a loopback Zenoh hub, one agent process per robot, the coordinator in this process.
+
+The same run as ``swarm launch`` (agents as real processes speaking the wire protocol,
+the coordinator's executor over Zenoh), without the launcher's command line: it returns the
+``RunResult``, which equals the in-process ``simulate`` of the same trajectory, method and
+seed bit for bit (docs/protocol.md). Every process started is stopped by its pid at the end.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import tempfile
+import uuid
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from inchworm.simulation import resolve_trajectory
+from runtime.models.config import ModelConfig
+
+if TYPE_CHECKING:
+    from coordinator.executor import RunResult
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.models.trajectory import Trajectory
+
+
+def run_distributed(
+    trajectory: Trajectory | str | Path | None = None,
+    *,
+    method: str = "inchworm",
+    robots: int = 10,
+    configs: int = 3,
+    seed: int = 0,
+    model: ModelConfig | None = None,
+    localizer: str = "paper",
+    selection: SelectionConfig | None = None,
+    record: Path | None = None,
+    agents_per_process: int | None = None,
+    start_timeout_s: float | None = None,
+    step_timeout_s: float = 5.0,
+) -> RunResult:
+    """Run ``method`` along ``trajectory`` (as ``simulate`` takes it) with one agent process per robot (or
+    ``agents_per_process``); ``record``: an MCAP file of every message. Raises ``AgentError`` (a
+    ``SwarmInputError``) when the agents do not come up or the run is aborted."""
+    from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
+    from coordinator.stop import StopSignals  # noqa: PLC0415
+    from inchworm.processes import agents_per_process as per_process_for  # noqa: PLC0415
+    from inchworm.processes import model_flags, start_agents, stop_all  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
+
+    cfg = model or ModelConfig()
+    traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
+    run_id = f"api-{uuid.uuid4().hex[:8]}"
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    procs: list[subprocess.Popen] = []
+    signals = StopSignals()
+    try:
+        with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:
+            traj_file = Path(tmp) / "trajectory.json"
+            traj.save(traj_file)
+            start_agents(traj, run_id, f"tcp/127.0.0.1:{port}", seed, 0.0, model_flags(cfg), procs,
+                         per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
+            options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
+                                         start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=record,
+                                         command="inchworm.run_distributed")
+            outcome = run_coordinator(options, signals, log=lambda _line: None)
+    finally:
+        signals.restore()
+        stop_all(procs)
+    if outcome.error is not None:
+        raise outcome.error
+    return outcome.result
+
+
+__all__ = ["run_distributed"]

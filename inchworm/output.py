@@ -1,0 +1,14 @@
+"""Reading what a command printed: its machine-readable last line (``--json``)."""
+
+from __future__ import annotations
+
+import json
+
+
+def last_json(stdout: str) -> dict | None:
+    """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
+    lines = [line for line in stdout.splitlines() if line.startswith("{")]
+    try:
+        return json.loads(lines[-1]) if lines else None
+    except json.JSONDecodeError:
+        return None

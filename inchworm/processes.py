@@ -1,0 +1,197 @@
+"""Processes of a distributed run on this host: robot agents, robot emulators and gateway links.
+
+Each is started as its own Python process (``python -m swarm_cli.agent`` and so on, the
+commands a user would run) and stopped by its own pid (``stop_all``). ``swarm launch``,
+the runtime and fault benchmarks and the tests start them through these functions.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from robot_agent.assembly import format_ids
+from robot_agent.emulator_process import check_radio_faults
+from runtime.errors import SwarmInputError
+from runtime.gateway.config import GatewayConfig, Limits, Port
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory
+from runtime.wire.keys import estop_key, robot_wildcard
+from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.wire.transport import subscribe
+
+GRACE_S = 3.0  # s a child gets after SIGTERM before SIGKILL
+ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
+AGENTS_PER_PROCESS = 50  # at most, when they share
+
+
+def model_flags(cfg: ModelConfig) -> list[str]:
+    """The model options of an agent or emulator command line for ``cfg`` (angles in degrees, as the flags take them)."""
+    return [f"--turn-sigma-deg={math.degrees(cfg.turn_sigma_rad)!r}", f"--drive-sigma-frac={cfg.drive_sigma_frac!r}",
+            f"--range-sigma={cfg.range_sigma_m!r}", f"--bearing-sigma-deg={math.degrees(cfg.bearing_sigma_rad)!r}",
+            f"--sensing-range={cfg.sensing_range_m!r}", f"--dropout={cfg.dropout_prob!r}"]
+
+
+def agent_command(
+    robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
+) -> list[str]:
+    """The command line of robot ``robot``'s agent process (``ids`` as ``--ids`` takes them, ``pose`` x, y, heading)."""
+    return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
+            f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
+            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
+
+
+def agents_per_process(n: int, requested: int | None) -> int:
+    """Robots per agent process for a swarm of ``n``: ``requested`` (``--agents-per-process``), or the default."""
+    if requested is None:
+        if n <= ONE_PER_PROCESS_UP_TO:
+            return 1
+        processes = -(-n // AGENTS_PER_PROCESS)
+        return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
+    if requested < 1:
+        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
+    return requested
+
+
+def start_agents(
+    traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
+    procs: list[subprocess.Popen] | None = None, per_process: int = 1, traj_file: Path | None = None, **popen_kwargs,
+) -> list[subprocess.Popen]:
+    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (initial
+    true pose on its command line), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``,
+    ``traj`` saved). Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
+    """
+    procs = [] if procs is None else procs
+    ids = format_ids(traj.ids)
+    if per_process == 1:
+        for robot, pose in zip(traj.ids, traj.initial_poses):
+            procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
+        return procs
+    if traj_file is None:
+        raise ValueError("start_agents needs traj_file to host several agents per process")
+    for k in range(0, traj.n, per_process):
+        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(traj.ids[k:k + per_process])}", f"--ids={ids}",
+               f"--trajectory={traj_file}", f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}",
+               f"--seed={seed}", *extra]
+        procs.append(subprocess.Popen(cmd, **popen_kwargs))
+    return procs
+
+
+def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
+    """SIGTERM every child still running, SIGKILL those still running after ``grace_s``; reap all."""
+    for p in procs:
+        if p.poll() is None:
+            try:
+                p.send_signal(signal.SIGTERM)
+            except ProcessLookupError:
+                pass
+    deadline = time.monotonic() + grace_s
+    for p in procs:
+        try:
+            p.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+ROBOTS_PER_PORT = 5
+GATEWAY_READY_S = 20.0  # s the robot emulator gets to open its ptys
+
+
+def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
+    """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
+    trajectory's bounding box grown by ``margin_m``; devices are filled in by the emulator."""
+    ids = [int(i) for i in traj.ids]
+    ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
+                  for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
+    xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
+    lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
+    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
+
+
+def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],
+                   **popen_kwargs) -> Path:
+    """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
+    until it wrote ``live``, the same config with its pty devices; returns ``live``."""
+    emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
+                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL, **popen_kwargs)
+    procs.append(emulator)
+    deadline = time.monotonic() + GATEWAY_READY_S
+    while not live.exists():
+        if emulator.poll() is not None:
+            raise SwarmInputError(f"the robot emulator exited with status {emulator.returncode} before its ptys were ready")
+        if time.monotonic() > deadline:
+            raise SwarmInputError(f"the robot emulator did not write {live} within {GATEWAY_READY_S:.0f} s")
+        time.sleep(0.02)
+    return live
+
+
+def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
+    """The emulator options of the radio faults ``--drop P --corrupt P --delay S``, checked (errors name the flag)."""
+    check_radio_faults(drop, corrupt, delay)
+    return [f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}"]
+
+
+def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
+                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
+                  faults: list[str] | tuple[str, ...] = (), **popen_kwargs) -> Path:
+    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
+    the live gateway config (pty devices)."""
+    config = tmp / "gateway.json"
+    gateway.save(config)
+    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
+    if events is not None:
+        options.append(f"--events={events}")
+    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
+    for port in gateway.ports:
+        procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
+                                       f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
+    return live
+
+
+class RobotKiller:
+    """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
+    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
+
+    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
+        self.robot, self.step, self.process = robot, step, process
+        self.killed_ns: int | None = None
+        self.stop_stamp_ns: int | None = None
+        self.stop_heard_ns: int | None = None
+        self._subs = [subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command),
+                      subscribe(session, estop_key(run_id), self._on_estop)]
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        if self.killed_ns is not None:
+            return
+        try:
+            cmd = decode(payload, MotionCommand)
+        except MessageError:
+            return
+        if cmd.step >= self.step and self.process.poll() is None:
+            self.process.send_signal(signal.SIGKILL)
+            self.killed_ns = time.time_ns()
+
+    def _on_estop(self, key: str, payload: bytes) -> None:
+        heard = time.time_ns()
+        try:
+            stop = decode(payload, EmergencyStop)
+        except MessageError:
+            return
+        if self.robot in stop.robots and self.stop_heard_ns is None:
+            self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
+
+    def report(self) -> dict | None:
+        """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
+        for sub in self._subs:
+            sub.undeclare()
+        if self.killed_ns is None:
+            return None
+        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
+        return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}

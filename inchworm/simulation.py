@@ -1,0 +1,103 @@
+"""One simulated run from Python: ``simulate`` and the per-configuration table of a run."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory, random_trajectory
+
+if TYPE_CHECKING:
+    from coordinator.executor import RunResult, StepRecord
+    from coordinator.localization import Localizer
+    from coordinator.selection.selector import SelectionConfig
+    from coordinator.strategies import Strategy
+
+
+def simulate(
+    trajectory: Trajectory | str | Path | None = None,
+    *,
+    method: str | Strategy = "inchworm",
+    robots: int = 10,
+    configs: int = 5,
+    seed: int = 0,
+    model: ModelConfig | None = None,
+    localizer: str | Localizer = "paper",
+    selection: SelectionConfig | None = None,
+    initial_delta_m: float = 0.01,
+    initial_heading_sigma_rad: float = math.radians(2.0),
+    progress: Callable[[int, int], None] | None = None,
+) -> RunResult:
+    """Run ``method`` along ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of
+    ``robots`` robots and ``configs`` configurations drawn with ``seed``) in the in-process simulator.
+
+    ``method`` is a method name (``coordinator.strategies.METHODS``) or your own ``Strategy``;
+    ``localizer`` a registered name (``coordinator.localization.registry``) or your own ``Localizer`` object:
+    the executor and a searching method's Monte Carlo use the same one. Everything random derives from
+    ``seed``; the result holds every step's estimate and the truth.
+    """
+    from coordinator.executor import InchwormExecutor  # noqa: PLC0415
+    from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+
+    cfg = model or ModelConfig()
+    traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
+    validate_connected(traj, cfg.sensing_range_m)
+    loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
+    strategy = make_strategy(method, traj.n, cfg, loc, selection or SelectionConfig(), seed) if isinstance(method, str) else method
+    executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress)
+    return executor.run(traj, initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad))
+
+
+def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
+    """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
+    if trajectory is None:
+        return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m)
+    return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(Path(trajectory))
+
+
+def config_rows(result: RunResult) -> list[dict[str, Any]]:
+    """Per configuration: n_a, steps, e_l (m), following error (m), average distance travelled (m); empty without truth."""
+    if not result.has_truth:
+        return []
+    e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
+    return [{"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+             "following_error": float(follow[c]), "travelled": float(travelled[c])} for c, rec in enumerate(result.configs)]
+
+
+def fallback_steps(result: RunResult) -> list[StepRecord]:
+    """The steps that kept dead reckoning (some robots could not be localized)."""
+    return [s for s in result.steps if s.fallback]
+
+
+def config_table(result: RunResult) -> str:
+    """The per-configuration table (e_l and following error in mm) and the steps that kept dead reckoning."""
+    lines = [f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
+    rows = config_rows(result)
+    for c, rec in enumerate(result.configs):
+        if rows:
+            r = rows[c]
+            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} {r['travelled']:>13.3f}")
+        else:
+            lines.append(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
+    return "\n".join(lines)
+
+
+def summary_text(result: RunResult, method: str, localizer: str) -> str:
+    """The table of a distributed run, the robots it lost and its P_f (over the robots that finished)."""
+    lines = [config_table(result)]
+    lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
+    pf = result.pf() if result.has_truth and result.configs else None
+    over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
+    lines.append(f"P_f = {pf:.4f} ({method}, {localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
+    return "\n".join(lines)

@@ -1,0 +1,146 @@
+"""The agents of one agent process (``swarm agent``): which robots it hosts, and the driver of each.
+
+``--id`` / ``--ids`` texts name robots (``0-49``, ``0,2,5-9``); ``build_agents`` makes one
+``Agent`` per hosted robot with its driver: simulated (``sim``, from its initial true pose),
+a robot behind a gateway link (``gateway``: limits and calibration from the gateway config,
+docs/gateway.md), or a lab's own driver class (docs/drivers.md). Errors name the flag.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from robot_agent.agent import READY_TIMEOUT_S, Agent
+from robot_agent.driver import Driver, DriverContext, SimDriver
+from robot_agent.gateway_driver import GatewayDriver
+from robot_agent.plugins import BUILT_IN, build_driver, driver_class
+from runtime.errors import SwarmInputError
+from runtime.gateway.config import GatewayConfig
+from runtime.models.config import ModelConfig
+from runtime.wire.messages import CommandLimits
+
+if TYPE_CHECKING:
+    from runtime.models.trajectory import Trajectory
+    from runtime.wire.transport import ZenohSettings
+
+PLUGIN_COMMAND_TIMEOUT_S = 30.0
+
+
+def parse_ids(text: str, option: str) -> list[int]:
+    """Robot ids of an option such as ``--id 0-49`` or ``--ids 0,2,5-9`` (ranges inclusive), in the order given."""
+    ids: list[int] = []
+    for part in (p.strip() for p in str(text).split(",")):
+        match = re.fullmatch(r"(\d+)(?:-(\d+))?", part)
+        if match is None or (match[2] is not None and int(match[2]) < int(match[1])):
+            raise SwarmInputError(f"{option} must be robot ids >= 0 and ranges a-b with a <= b, comma-separated (e.g. 0-49), got {text!r}")
+        ids.extend(range(int(match[1]), int(match[2] or match[1]) + 1))
+    if len(set(ids)) != len(ids):
+        raise SwarmInputError(f"{option} names a robot twice: {text!r}")
+    return ids
+
+
+def format_ids(ids: Iterable[int]) -> str:
+    """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
+    parts: list[str] = []
+    for i in ids:
+        i = int(i)
+        if parts and parts[-1][1] == i - 1:
+            parts[-1][1] = i
+        else:
+            parts.append([i, i])
+    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in parts)
+
+
+def driver_options(pairs: list[str]) -> dict[str, str]:
+    """``--driver-option KEY=VALUE`` pairs as a dict (a key given twice: the last value)."""
+    out = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key.strip():
+            raise SwarmInputError(f"--driver-option must be KEY=VALUE, got {pair!r}")
+        out[key.strip()] = value
+    return out
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """The agents of one process: ``hosted`` robots of the run's ``ids`` and how to drive them (SI units)."""
+
+    settings: ZenohSettings
+    run_id: str
+    hosted: list[int]
+    ids: list[int] | None  # None: the robots of ``trajectory``
+    ids_text: str | None = None  # ``--ids`` as given, for messages
+    trajectory: Trajectory | None = None
+    trajectory_path: Path | None = None
+    pose: list[float] | None = None  # one simulated robot's initial true pose (x, y, heading)
+    driver: str = "sim"
+    options: dict[str, str] = field(default_factory=dict)  # a lab's driver's options
+    gateway_config: Path | None = None
+    seed: int = 0
+    model: ModelConfig = field(default_factory=ModelConfig)
+    motion_time_s: float = 0.0
+    limits: CommandLimits = field(default_factory=CommandLimits)
+    ready_timeout_s: float = READY_TIMEOUT_S
+    command_timeout_s: float | None = None  # None: a lab's driver gets PLUGIN_COMMAND_TIMEOUT_S, the others none
+
+
+def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None,
+                plugin: type[Driver] | None = None) -> tuple[Driver, CommandLimits]:
+    """The driver and limits of ``robot`` (``pose``: its initial true pose, if known; ``plugin``: a lab's driver class)."""
+    if spec.driver == "gateway":
+        if gateway is None:
+            if spec.gateway_config is None:
+                raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
+            gateway = GatewayConfig.load(spec.gateway_config)
+        port = gateway.port_of(robot)  # the robot must be behind a port of this gateway
+        lim = gateway.limits
+        limits = CommandLimits(max_drive_m=lim.max_drive_m, max_turn_rad=lim.max_turn_rad, workspace=lim.workspace)
+        return GatewayDriver(spec.run_id, robot, gateway.calibration_of(robot), gateway.timing, port.name), limits
+    if pose is None:
+        pose = spec.pose
+    if spec.driver != "sim":
+        cls = plugin or driver_class(spec.driver)
+        context = DriverContext(robot=int(robot), ids=tuple(int(i) for i in ids), run=spec.run_id, seed=spec.seed,
+                                pose=None if pose is None else np.array(pose, dtype=float), model=spec.model, options=spec.options)
+        return build_driver(spec.driver, cls, context), spec.limits
+    if pose is None:
+        raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
+    return SimDriver(robot, ids, pose, spec.model, spec.seed, spec.motion_time_s), spec.limits
+
+
+def build_agents(spec: AgentSpec) -> list[Agent]:
+    """One ``Agent`` per hosted robot, each with its own driver; everything checked before any is made."""
+    plugin = None if spec.driver in BUILT_IN else driver_class(spec.driver)
+    traj, hosted = spec.trajectory, spec.hosted
+    if spec.ids is not None:
+        ids = spec.ids
+    elif traj is not None:
+        ids = [int(i) for i in traj.ids]
+    else:
+        raise SwarmInputError("give --ids (every robot of the run, e.g. 0-9) or --trajectory FILE")
+    outside = sorted(set(hosted) - set(ids))
+    if outside:
+        raise SwarmInputError(f"--id names robots {outside} that are not robots of the run (--ids {spec.ids_text or format_ids(ids)})")
+    poses: dict[int, object] = {}
+    if spec.driver != "gateway" and spec.pose is None and traj is not None:
+        missing = sorted(set(hosted) - {int(i) for i in traj.ids})
+        if missing and spec.driver == "sim":
+            raise SwarmInputError(f"--id names robots {missing} that {spec.trajectory_path} does not have")
+        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses)}
+    elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
+        raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")
+    gateway = None
+    if spec.driver == "gateway":
+        if spec.gateway_config is None:
+            raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
+        gateway = GatewayConfig.load(spec.gateway_config)
+    timeout = spec.command_timeout_s if spec.command_timeout_s is not None or plugin is None else PLUGIN_COMMAND_TIMEOUT_S
+    return [Agent(spec.settings, spec.run_id, robot, ids, *make_driver(spec, robot, ids, poses.get(robot), gateway, plugin),
+                  spec.ready_timeout_s, timeout) for robot in hosted]
