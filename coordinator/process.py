@@ -154,7 +154,9 @@ class Recording:
             try:
                 self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready,
                                               on_error=self._on_error))
-            except RecordingFailed as exc:  # reported by finish(); the run is not an error for it
+            except RecordingFailed as exc:  # the run is not an error for it
+                if not self.failed.is_set():  # failed only while finishing the file: the one line now
+                    self._on_error(exc.error)
                 self.error = exc
                 self.failed.set()
             except BaseException as exc:  # noqa: BLE001 - reported by the main thread
