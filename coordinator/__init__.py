@@ -1,4 +1,5 @@
-"""Coordinator: centralized localization (topology fusion) and, later, anchor selection.
+"""Coordinator: centralized localization (topology fusion), anchor selection, and the executor
+that drives a swarm backend (in-process simulation or Zenoh agents) along a trajectory.
 
 Builds on ``runtime``; never imports ``robot_agent``.
 """

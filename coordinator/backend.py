@@ -1,7 +1,7 @@
 """The swarm-backend interface: all the executor knows about the robots.
 
-The in-process simulator (``runtime.models.simulation.SimulatedSwarm``) implements it now; a
-distributed Zenoh backend implements it later, and the executor does not change.
+Two backends implement it: the in-process simulator (``runtime.models.simulation.SimulatedSwarm``)
+and the distributed one over Zenoh (``coordinator.zenoh_backend``); the executor is the same for both.
 """
 
 from __future__ import annotations

@@ -118,7 +118,7 @@ def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
         "method": o.method,
         "localizer": o.localizer,
         "model": o.model.to_dict(),
-        "model_file": None if o.model_file is None else str(Path(o.model_file).resolve()),
+        "model_file": None if o.model_file is None else Path(o.model_file).name,  # its values are in "model"; no machine path
         "selection": dataclasses.asdict(selection),
         "trajectory": o.trajectory.to_json(),
         "initial_delta_m": INITIAL_DELTA,

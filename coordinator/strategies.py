@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # the search (scipy) is imported when a strategy is made: MET
     from coordinator.selection.selector import AnchorSelector, Selection, SelectionConfig
 
 METHODS = ("inchworm", "inchworm-equal-speed", "heuristic-fixed", "ref57", "no-anchors", "one-at-a-time")
+HALF_ANCHORED = ("inchworm-equal-speed", "heuristic-fixed", "ref57")  # n_a = n_r / 2: an even swarm only
 
 
 class Strategy(Protocol):

@@ -62,7 +62,8 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
     """Fig. 13/14/16: desired (red), estimated (green) and true (blue) configurations of ``run``.
 
     Hollow circles: earlier configurations; filled circles: the last one; black rings: the
-    anchors of each configuration's first step (on the estimated positions); x: the start estimate.
+    anchors of each configuration's first step, where they stood (the estimate at the start of
+    that configuration); x: the start estimate.
     """
     from matplotlib.lines import Line2D  # noqa: PLC0415
 
@@ -77,9 +78,10 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
     for _label, color, configs in series:
         ax.scatter(*configs[:-1].reshape(-1, 2).T, s=22, facecolors="none", edgecolors=color, linewidths=0.8)
         ax.scatter(*configs[-1][:, :2].T, s=40, color=color)
-    for c in run.configs:
-        anchors = np.isin(c.estimate.ids, c.anchor_ids(0))
-        ax.scatter(*c.estimate.positions[anchors].T, s=90, facecolors="none", edgecolors="black", linewidths=0.6)
+    for k, c in enumerate(run.configs):  # where the anchors stood: the estimate at the start of their configuration
+        before = run.configs[k - 1].estimate if k else run.initial_estimate
+        anchors = np.isin(before.ids, c.anchor_ids(0))
+        ax.scatter(*before.positions[anchors].T, s=90, facecolors="none", edgecolors="black", linewidths=0.8)
     ax.scatter(*run.initial_estimate.positions.T, s=30, marker="x", color="gray")
     dot = dict(marker="o", ls="none")
     handles = [Line2D([], [], color=color, ms=7, label=label, **dot) for label, color, _ in series]

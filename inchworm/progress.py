@@ -25,7 +25,7 @@ class Progress:
         elapsed = time.monotonic() - self.start
         eta = elapsed / frac - elapsed if frac > 0 else float("nan")
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
-        line = f"{self.label} [{bar}] {done}/{total} {elapsed:5.1f}s (eta {eta:4.0f}s)"
+        line = f"{self.label} [{bar}] {done}/{total} {elapsed:5.1f}s (eta {f'{eta:4.0f}' if frac > 0 else '   ?'}s)"
         if self.tty:
             sys.stderr.write("\r" + line + ("\n" if done >= total else ""))
         elif int(10 * frac) > self.last_decile:

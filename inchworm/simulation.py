@@ -80,7 +80,8 @@ def fallback_steps(result: RunResult) -> list[StepRecord]:
 
 
 def config_table(result: RunResult) -> str:
-    """The per-configuration table (e_l and following error in mm) and the steps that kept dead reckoning."""
+    """The per-configuration table (e_l and following error in mm), the steps that kept dead reckoning, and per
+    configuration who stood still and why that many (``anchor_choices``)."""
     lines = [f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
     rows = config_rows(result)
     for c, rec in enumerate(result.configs):
@@ -90,7 +91,42 @@ def config_table(result: RunResult) -> str:
         else:
             lines.append(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
-    return "\n".join(lines)
+    return "\n".join([*lines, *anchor_choices(result)])
+
+
+def _robots(ids: list[int], most: int = 20) -> str:
+    """Robot ids as ranges (``0-3,7``); a long list as its count and first ids."""
+    from robot_agent.assembly import format_ids  # noqa: PLC0415 - the id-range text the agents' --ids take
+
+    if not ids:
+        return "none"
+    return format_ids(ids) if len(ids) <= most else f"{len(ids)} robots ({format_ids(ids[:most])}, ...)"
+
+
+def anchor_choices(result: RunResult) -> list[str]:
+    """Per configuration: which robots stood still at each step and, where the plan was searched, the outer
+    loop's score of every candidate count (Eq. 3: P_s = w_v P_v - w_l P_l, P_v = 1 / n_s, P_l = e_l / e_l(0),
+    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``."""
+    lines = []
+    for c in result.configs:
+        plan = c.plan
+        still = "; ".join(f"step {k + 1}: {_robots(sorted(c.anchor_ids(k).tolist()))}" for k in range(plan.n_steps))
+        who = "no anchors, every robot moved at once" if plan.n_anchors == 0 else f"stood still {still}"
+        lines.append(f"config {c.config + 1}: n_a = {plan.n_anchors} ({who})")
+        if c.selection is None or len(c.selection.scores) < 2:
+            continue
+        lines.append(f"  {'n_a':>5} {'steps':>5} {'e_l (mm)':>9} {'P_v':>6} {'P_l':>6} {'P_s':>7}")
+        for s in c.selection.scores:
+            mark = "*" if s.n_anchors == plan.n_anchors else " "
+            steps = round(1 / s.p_v) if s.p_v > 0 else 0
+            if s.plan is None:
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {'no plan keeps the swarm connected':>30}")
+            else:
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+    if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
+        lines.append("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
+                     " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")
+    return lines
 
 
 def summary_text(result: RunResult, method: str, localizer: str) -> str:

@@ -120,6 +120,20 @@ def run_standalone(
     return guarded(prog, lambda: run(args))
 
 
+def portable_command(prog: str, args: Sequence[str]) -> str:
+    """``prog`` and ``args`` as one line for a recording's metadata, absolute paths cut to their file name
+    (``--trajectory=/tmp/x/trajectory.json`` -> ``--trajectory=trajectory.json``): recordings are shared,
+    and a machine's folder layout is neither portable nor anybody else's business."""
+    def cut(value: str) -> str:
+        return os.path.basename(value.rstrip("/")) or value if os.path.isabs(value) else value
+
+    words = []
+    for arg in args:
+        name, sep, value = arg.partition("=")
+        words.append(f"{name}={cut(value)}" if sep and name.startswith("--") else cut(arg))
+    return " ".join([prog, *words])
+
+
 def leave(code: int) -> None:
     """Exit a process that held Zenoh sessions without interpreter finalization.
 

@@ -1,6 +1,9 @@
 """``swarm estop``: emergency stop of every robot of a run.
 
-    swarm estop --run lab --hub tcp/127.0.0.1:7447 [--reason "..."] [--ack-timeout 1] [--json]
+    swarm estop --run lab [--hub tcp/127.0.0.1:7447] [--reason "..."] [--ack-timeout 1] [--json]
+
+Without ``--hub`` / ``--zenoh-config`` the hub is the one of the live run ``--run`` names on
+this host, from the run file its launcher keeps (``swarm_cli.run_file``).
 
 Publishes one ``EmergencyStop`` on ``swarm/<run>/estop``, a few times over ``--repeat-s``
 (default 0.3 s) so that it also reaches subscribers whose route is still being set up.
@@ -24,7 +27,7 @@ import argparse
 import os
 import sys
 
-from swarm_cli.options import add_connection_options, add_json_option, connection_settings, print_json
+from swarm_cli.options import add_connection_options, add_json_option, connection_label, connection_settings, print_json
 
 EXIT_NO_ACK = 1
 
@@ -61,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     links = sorted(name for by, name in acks if by == "link")
     robots = sorted({r for ack in acks.values() for r in ack.robots})
     if acks:
-        print(f"swarm estop: emergency stop of run {args.run_id} acknowledged by {len(agents)} agents"
+        print(f"swarm estop: emergency stop of run {args.run_id} on {connection_label(args)} acknowledged by {len(agents)} agents"
               f"{f' (robots {_names(agents)})' if agents else ''} and {len(links)} links"
               f"{f' (ports {_names(links)})' if links else ''}", file=sys.stderr, flush=True)
     else:

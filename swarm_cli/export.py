@@ -1,53 +1,102 @@
-"""``swarm export RUN.mcap --ros2 OUT/ | --truth OUT.csv``: a recording for other tools (docs/recording.md).
+"""``swarm export RUN.mcap --ros2 OUT/ | --foxglove-layout OUT.json | --truth OUT.csv``: a recording for other
+tools (docs/recording.md).
 
-    swarm export recordings/sample.mcap --ros2 out/sample-ros2 [--json]
+    swarm export recordings/sample.mcap --ros2 out/sample-ros2 [--distro humble|jazzy] [--json]
+    swarm export recordings/sample.mcap --foxglove-layout out/sample-layout.json
     swarm export recordings/sample.mcap --truth out/sample-truth.csv [--json]
 
 ``--truth`` writes the simulated true poses at step ends in the CSV format ``swarm calibrate``
 reads (``runtime.recording.truth_csv``, docs/calibration.md).
 
-Writes a rosbag2 folder (MCAP storage, CDR) with standard ROS 2 messages (PoseArray,
-PoseWithCovarianceStamped per robot, MarkerArray, Float64, String) that ``ros2 bag play``
-and RViz use; needs the optional extra: ``pip install -e '.[ros2]'`` (no ROS install).
-Exit status 0, 2 on bad input (unreadable recording, existing OUT, missing extra).
+``--ros2`` writes a rosbag2 folder (MCAP storage, CDR; ``runtime.recording.ros2_export``) with
+standard ROS 2 messages (PoseArray, PoseWithCovarianceStamped per robot, MarkerArray, Float64,
+String, a /tf_static map -> world) that ``ros2 bag play`` and RViz use, with the metadata the
+chosen distribution's rosbag2 parses (``--distro``, default humble); needs the optional extra:
+``pip install -e '.[ros2]'`` (no ROS install). ``--foxglove-layout`` writes the Foxglove layout
+for the run's robots and trajectory (``runtime.recording.foxglove_layout``): of the recording, or
+with ``--ros2`` of the bag (its ROS 2 topics). Exit status 0, 2
+on bad input (unreadable recording, existing OUT, missing extra).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 
+from runtime.errors import SwarmInputError
 from swarm_cli.options import add_json_option, print_json
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("export", help="convert a recording for other tools (--ros2: a rosbag2 with standard ROS 2 messages)")
     p.add_argument("file", type=Path, help="MCAP recording (finished or not)")
-    what = p.add_mutually_exclusive_group(required=True)
-    what.add_argument("--ros2", type=Path, metavar="OUT",
-                      help="write a rosbag2 folder here (MCAP storage, CDR; must not exist; pip install -e '.[ros2]')")
-    what.add_argument("--truth", type=Path, metavar="CSV",
-                      help="write the simulated true poses at step ends as robot,step,x,y,heading (docs/calibration.md)")
+    p.add_argument("--ros2", type=Path, default=None, metavar="OUT",
+                   help="write a rosbag2 folder here (MCAP storage, CDR; must not exist; pip install -e '.[ros2]')")
+    p.add_argument("--distro", choices=("humble", "jazzy"), default="humble",
+                   help="ROS 2 distribution whose rosbag2 reads the bag: humble (metadata version 5) or jazzy (version 9); default humble")
+    p.add_argument("--truth", type=Path, default=None, metavar="CSV",
+                   help="write the simulated true poses at step ends as robot,step,x,y,heading (docs/calibration.md)")
+    p.add_argument("--foxglove-layout", type=Path, default=None, metavar="OUT.json",
+                   help="write the Foxglove layout for this run's robots and trajectory (Layouts -> Import from file); "
+                        "with --ros2, for the exported bag's topics")
     add_json_option(p)
     p.set_defaults(run=run)
 
 
+def run_robots(info: dict) -> tuple[list[int], list | None]:
+    """The run's robot ids and desired configurations: from the trajectory metadata, else from its robot channels."""
+    from runtime.recording.foxglove_scene import trajectory_configurations  # noqa: PLC0415
+
+    trajectory = info["metadata"].get("run", {}).get("trajectory") if isinstance(info["metadata"].get("run"), dict) else None
+    configurations = trajectory_configurations(trajectory)
+    if configurations:
+        return sorted(configurations[0]), configurations
+    robots = sorted({int(c["topic"].split("/")[2]) for c in info["channels"]
+                     if c["topic"].startswith("/robot/") and c["topic"].split("/")[2].isdigit()})
+    return robots, None
+
+
+def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
+    """The Foxglove layout of the recording ``src`` (with ``ros2``: of its rosbag2 export) written to ``out``."""
+    from runtime.recording.foxglove_layout import layout  # noqa: PLC0415
+    from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
+
+    robots, configurations = run_robots(recording_info(src))
+    if not robots:
+        raise SwarmInputError(f"{src}: no robots found (no trajectory in its metadata, no /robot/<id>/... channel)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(layout(robots, configurations, ros2=ros2), indent=1) + "\n")
+    return {"path": str(out), "robots": len(robots), "for": "ros2" if ros2 else "recording"}
+
+
 def run(args: argparse.Namespace) -> int:
     if args.truth is not None:
+        if args.ros2 is not None or args.foxglove_layout is not None:
+            raise SwarmInputError("--truth writes a CSV on its own: give --ros2 / --foxglove-layout in another call")
         return run_truth(args)
-    from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
+    if args.ros2 is None and args.foxglove_layout is None:
+        raise SwarmInputError("give --ros2 OUT/ (a rosbag2 folder), --foxglove-layout OUT.json or --truth OUT.csv")
+    result: dict = {}
+    if args.ros2 is not None:
+        from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
 
-    result = export_ros2(args.file, args.ros2)
-    print(f"wrote {result['path']}: {result['messages']} ROS 2 messages on {len(result['topics'])} topics")
-    for topic, count in result["topics"].items():
-        print(f"  {topic:<28} {count:>6}")
+        ros2 = export_ros2(args.file, args.ros2, args.distro)
+        print(f"wrote {ros2['path']} for ROS 2 {ros2['distro']} (rosbag2 metadata version {ros2['metadata_version']}): "
+              f"{ros2['messages']} ROS 2 messages on {len(ros2['topics'])} topics; RViz: fixed frame map (/tf_static)")
+        for topic, count in ros2["topics"].items():
+            print(f"  {topic:<28} {count:>6}")
+        result.update(ros2)
+    if args.foxglove_layout is not None:
+        result["foxglove_layout"] = write_layout(args.file, args.foxglove_layout, ros2=args.ros2 is not None)
+        what = f"the bag {args.ros2}" if args.ros2 is not None else args.file
+        print(f"wrote {args.foxglove_layout}: Foxglove layout of {what} for its {result['foxglove_layout']['robots']} robots")
     if args.json:
         print_json(result)
     return 0
 
 
 def run_truth(args: argparse.Namespace) -> int:
-    from runtime.errors import SwarmInputError  # noqa: PLC0415
     from runtime.recording.run_log import load_run_log  # noqa: PLC0415
     from runtime.recording.truth_csv import write_truth_csv  # noqa: PLC0415
 

@@ -11,10 +11,16 @@ their paths. The coordinator records the run to ``recordings/<run>.mcap`` (``--r
 to choose, ``--no-record`` to turn it off) and prints the path; the launcher repeats it on
 stderr at the end. On exit, error or
 Ctrl-C it stops every child it started by its pid (SIGTERM, then SIGKILL after a grace
-period), so no process outlives it. Exit status: the coordinator's.
+period), so no process outlives it. Exit status: the coordinator's. While it runs it keeps the
+run file ``<run dir>/<run>.json`` with the hub's address (``swarm_cli.run_file``; removed at exit),
+so ``swarm estop --run RUN`` and ``swarm record --run RUN`` need no ``--hub``; a run id that is
+already live on this host is refused.
 
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
-(``random_trajectory(10, 3, seed 0)``).
+(``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
+anchors (``DEMO_SCENARIO``: the joint localizer and 4x the default motion noise; measured in
+docs/quickstart.md); ``--paper`` keeps the paper's localizer and the default noise, where it
+chooses none. Options given explicitly override either.
 
 ``--driver gateway`` runs the hardware path end to end without hardware: the launcher
 starts ``swarm emulate-robots`` (robots speaking the frame protocol on ptys, true poses
@@ -72,12 +78,18 @@ from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.lifeline import Lifeline
-from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.run_file import published_run
+from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, nonnegative, positive, print_json, selection_config
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
+DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
+PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)
+DEMO_TEXT = ("demo scenario: joint localizer, motion noise 4x the default (turn 12 deg, drive 20 %): a robot that stands "
+             "still keeps its estimate, so the others localize against it far better than when everybody moves; the "
+             "selection weighs that against the extra step and chooses anchors (--paper: the paper's localizer and noise)")
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 
 
@@ -88,9 +100,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--configs", type=int, default=3, help="configurations of the random trajectory (default 3)")
     add_run_options(p)
     p.set_defaults(run=run)
-    d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory")
+    d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory",
+                       description=f"A distributed run of 10 agent processes on a small built-in trajectory. {DEMO_TEXT}")
+    d.add_argument("--paper", action="store_true",
+                   help="the paper's localizer (Section 5) and the default noise instead of the demo scenario")
     add_run_options(d)
-    d.set_defaults(run=run_demo, trajectory=None, robots=10, configs=3)
+    d.set_defaults(run=run_demo, trajectory=None, robots=10, configs=3, **{name: None for name in DEMO_SCENARIO})
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
@@ -154,6 +169,18 @@ def _forward_output(stream, last_json: list[str]) -> None:
 
 
 def run_demo(args: argparse.Namespace) -> int:
+    """``swarm launch`` on the demo scenario (or with ``--paper`` the paper's defaults); explicit options win."""
+    scenario = PAPER_SCENARIO if args.paper else DEMO_SCENARIO
+    if args.model is not None:  # a model file gives the noise: the scenario only picks the localizer
+        scenario = {"localizer": scenario["localizer"]}
+    given = [name for name in DEMO_SCENARIO if getattr(args, name) is not None]
+    for name, value in scenario.items():
+        if getattr(args, name) is None:
+            setattr(args, name, value)
+    what = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
+            "selection chooses speed (n_a = 0)") if args.paper else DEMO_TEXT
+    over = [f"--{n.replace('_', '-')}" for n in given] + ([f"--model {args.model}"] if args.model is not None else [])
+    print(f"swarm demo: {what}" + (f" (overridden: {', '.join(over)})" if over else ""), flush=True)
     return run(args)
 
 
@@ -228,6 +255,7 @@ def run(args: argparse.Namespace) -> int:
         raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
     if args.trajectory:
         traj = Trajectory.load(args.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {args.trajectory}", launched=True)
     else:
         if args.robots < 2 or args.configs < 1:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
@@ -263,6 +291,7 @@ def run(args: argparse.Namespace) -> int:
         with contextlib.ExitStack() as stack:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
             hub_session = stack.enter_context(open_session(hub_settings))
+            stack.enter_context(published_run(run_id, hub, f"swarm {args.command}"))
             stack.callback(stop_children)  # before the hub closes
             lifeline.guard(Path(tmp))
             _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
@@ -312,7 +341,8 @@ def run(args: argparse.Namespace) -> int:
                     cmd.append(f"--linger={args.linger!r}")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(args.driver, f"agents ({args.driver})")
             hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
-            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub}", file=sys.stderr, flush=True)
+            print(f"swarm {args.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
+                  f"(emergency stop: swarm estop --run {run_id})", file=sys.stderr, flush=True)
             killer = None
             if args.kill_robot is not None:
                 robot, step = args.kill_robot

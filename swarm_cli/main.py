@@ -11,12 +11,14 @@ import argparse
 import sys
 
 from swarm_cli.entry import Command, add_commands, guarded, leave, limit_blas_threads
-from swarm_cli.options import apply_config
+from swarm_cli.options import apply_config, check_limits
+from swarm_cli.version import VersionAction
 
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
     Command("compare", "swarm_cli.compare", "Table I/II: P_f of every method on the same random trajectories"),
     Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"),
+    Command("trajectory", "swarm_cli.trajectory_cmd", "write a random trajectory file (new) or check one (check)"),
     Command("localize", "swarm_cli.localize", "localize robots from range/bearing observations in a JSON file"),
     Command("bench", "swarm_cli.bench", "benchmarks (print numbers; --json for machines)"),
     Command("agent", "swarm_cli.agent", "run the agent process of one robot, or of many (--id 0-49), in a distributed run"),
@@ -42,6 +44,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The ``swarm`` parser; with ``argv``, only the command it names is fully registered (and imported),
     without it every command is (for tests and tools that walk the parser)."""
     parser = argparse.ArgumentParser(prog="swarm", description="Inchworm swarm runtime: simulation, localization, benchmarks.")
+    parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_commands(sub, COMMANDS, argv or [], full=argv is None)
     return parser
@@ -67,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     limit_blas_threads()
     args = parse(argv)
-    code = guarded(f"swarm {args.command}", lambda: args.run(args))
+    code = guarded(f"swarm {args.command}", lambda: check_limits(args) or args.run(args))
     if standalone and args.command in ZENOH_PROCESSES:
         leave(code)
     return code

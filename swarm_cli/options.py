@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
-from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
 
@@ -69,6 +68,44 @@ def positive_int(text: str) -> int:
     return value
 
 
+MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
+MAX_ROBOTS = 2000  # simulated robots (swarm sim, compare, studies): 1000 take 5-7 s of CPU per configuration, 5000 over 200 s
+MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
+MAX_CONFIGS = 10_000  # configurations of a random trajectory
+MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study
+LIMITS = {  # option dest -> (flag, least (None: the command checks it), most, what is limited)
+    "seed": ("--seed", 0, MAX_SEED, "numpy seeds are >= 0 and int64"),
+    "configs": ("--configs", None, MAX_CONFIGS, "configurations of a random trajectory"),
+    "trajectories": ("--trajectories", 1, MAX_TRAJECTORIES, "random trajectories"),
+}
+
+
+def check_limits(args: argparse.Namespace) -> None:
+    """``SwarmInputError`` naming the flag and its limits for a negative seed or an absurd size (every command:
+    ``swarm_cli.main`` calls it before running). ``--robots``: at most ``MAX_ROBOTS`` simulated or
+    ``MAX_LAUNCHED_ROBOTS`` launched as agent processes (the least, 2, is checked where the swarm is made)."""
+    limits = dict(LIMITS)
+    launched = getattr(args, "command", None) in ("launch", "demo")
+    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
+                        "robots launched as agent processes on one host" if launched else "simulated robots")
+    for dest, (flag, least, most, what) in limits.items():
+        value = getattr(args, dest, None)
+        if not isinstance(value, int) or isinstance(value, bool) or (least is None or value >= least) and value <= most:
+            continue
+        shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
+        if least is None:
+            raise SwarmInputError(f"{flag} {value}: at most {shown} ({what})")
+        raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
+
+
+def check_swarm_size(n: int, source: str, *, launched: bool = False) -> None:
+    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows."""
+    most = MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS
+    if n > most:
+        what = "robots launched as agent processes on one host" if launched else "simulated robots"
+        raise SwarmInputError(f"{source}: {n} robots, at most {most} ({what})")
+
+
 def add_model_options(parser: argparse.ArgumentParser) -> None:
     """Noise and sensing options mirroring ``ModelConfig``, and ``--model FILE`` (a model file, docs/calibration.md).
 
@@ -110,7 +147,12 @@ def model_config(args: argparse.Namespace) -> ModelConfig:
 
 
 def add_localizer_option(parser: argparse.ArgumentParser) -> None:
-    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``)."""
+    """``--localizer``: any registered localizer, plugins included (``coordinator.localization.registry``).
+
+    Imported here, not with this module: the registry loads numpy and the entry-point metadata, which
+    ``swarm --help`` (it imports this module) need not pay for."""
+    from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names  # noqa: PLC0415
+
     parser.add_argument("--localizer", choices=localizer_names(), default=DEFAULT_LOCALIZER,
                         help=f"localization method (default: {DEFAULT_LOCALIZER}, Section 5; plugins: docs/localization.md)")
 
@@ -220,11 +262,14 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
     """How a process joins the run's Zenoh network: ``--hub ENDPOINT`` and/or ``--zenoh-config FILE``.
 
     ``--zenoh-config`` is a Zenoh JSON5 file (e.g. ``deploy/zenoh-gateway-tls.json5`` with
-    TLS certificates); ``--hub`` then overrides its connect endpoints. One of the two is
-    required unless ``required=False``.
+    TLS certificates); ``--hub`` then overrides its connect endpoints. Without either, a command
+    with ``--run RUN`` takes the hub of that live run from its run file (``swarm_cli.run_file``);
+    one of them is required unless ``required=False``.
     """
     g = parser.add_argument_group("Zenoh connection")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447")
+    g.add_argument("--hub", default=None,
+                   help="Zenoh endpoint of the run's hub or router, e.g. tcp/127.0.0.1:7447 (default: the hub of the live "
+                        "run --run names, from its run file on this host)")
     g.add_argument("--zenoh-config", default=None, help="Zenoh JSON5 config file (TLS, access control; see deploy/README.md)")
     parser.set_defaults(_connection_required=required)
 
@@ -234,9 +279,13 @@ def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     from runtime.wire.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs
 
     if args.hub is None and args.zenoh_config is None:
-        if getattr(args, "_connection_required", True):
+        if not getattr(args, "_connection_required", True):
+            return None
+        if getattr(args, "run_id", None) is None:
             raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
-        return None
+        from swarm_cli.run_file import hub_of  # noqa: PLC0415
+
+        args.hub = hub_of(args.run_id)  # so that connection_label and the metadata name it too
     return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
 
 

@@ -19,7 +19,7 @@ from pathlib import Path
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import run_wildcard, validate_run
 from runtime.recording.mcap_log import counts_text, record_run
-from swarm_cli.entry import on_stop_signals, run_standalone
+from swarm_cli.entry import on_stop_signals, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
 
@@ -41,7 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _metadata(args: argparse.Namespace) -> dict:
-    meta: dict = {"hub": connection_label(args), "command": " ".join(sys.argv)}
+    meta: dict = {"hub": connection_label(args), "command": portable_command("swarm record", sys.argv[1:])}
     if args.seed is not None:
         meta["seed"] = args.seed
     if args.trajectory is not None:

@@ -6,16 +6,20 @@
 ``--publish`` re-publishes every recorded message of the run (every channel under
 ``swarm/``; derived channels such as ``/foxglove/...`` are not Zenoh messages and are left
 out; file order, bytes unchanged, on its recorded key) with the recorded relative timing (log time) divided by ``--speed``
-(default 1; ``0`` or ``inf``: as fast as possible). Without ``--hub`` it opens its own
-loopback hub (a Zenoh router on a free port) and prints ``swarm replay: hub
-tcp/127.0.0.1:PORT`` on stderr so a subscriber can connect; with ``--hub`` it joins that hub
-as a client. It waits up to ``--wait`` seconds (default 10) for a subscriber of any recorded
+(default 1; ``0`` or ``inf``: as fast as possible). It says on stdout where it publishes:
+with ``--hub`` it joins that hub as a client; without it, the hub of the recorded run if that
+run is live on this host (its run file, ``swarm_cli.run_file``); otherwise it opens its own
+loopback hub (a Zenoh router on a free port) and keeps a run file for the recorded run id
+while it publishes, so ``swarm record --run RUN`` or a live view on this host finds it. It waits up to ``--wait`` seconds (default 10) for a subscriber of any recorded
 key before it starts. Puts use Zenoh's blocking congestion control, so nothing is dropped.
 
 ``--check`` re-runs the coordinator's localization (and, where the metadata allows, its
 initial estimate and seeded anchor selection) on the recorded inputs and compares every
-result with the recorded estimate / plan bit for bit (``coordinator.replay_check``); options
-given override the recorded settings. Prints ``check passed: N estimates, M plans
+result with the recorded estimate / plan bit for bit (``coordinator.replay_check``). Options
+fill in settings the recording's metadata lacks (a ``swarm record`` file); an option that
+contradicts a recorded setting (``--localizer joint`` on a paper-localizer run) is refused
+with exit 2 naming the recorded value, unless ``--what-if`` asks to re-run with it (a warning
+says the results are not expected to match). Prints ``check passed: N estimates, M plans
 reproduced`` (exit 0) or the first divergence (exit 1).
 
 Files that are not MCAP, damaged or cut inside the header: a message naming the file and
@@ -25,16 +29,18 @@ the problem, exit 2. Unfinished (killed) recordings are read up to their last co
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import sys
 import time
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import ROOT
+from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.models.model_file import load_model
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
+from swarm_cli.run_file import published_run, read_run
 
 EXIT_DIVERGED = 1
 MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
@@ -56,11 +62,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--check", action="store_true", help="re-run localization and anchor selection, compare bit for bit")
     g = p.add_argument_group("--publish")
     g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: open a loopback hub and print it)")
+    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live on this host, else a loopback hub of its own, printed)")
     g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
     c = p.add_argument_group("--check (options given override the recorded ones)")
     c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
     c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
+    c.add_argument("--what-if", action="store_true",
+                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report where the results part")
     add_localizer_option(p)
     add_selection_options(p)
     add_model_options(p)
@@ -70,6 +78,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     return run_check(args) if args.check else run_publish(args)
+
+
+def _valid_run(run: str) -> bool:
+    try:
+        validate_run(run)
+    except KeyspaceError:
+        return False
+    return True
 
 
 # ------------------------------------------------------------------ --publish
@@ -92,18 +108,31 @@ def run_publish(args: argparse.Namespace) -> int:
     if not info["complete"]:
         print(f"swarm replay: {args.file} is unfinished ({info['problem'] or 'no summary'}): replaying its "
               f"{len(messages)} readable messages", file=sys.stderr, flush=True)
+    run = info["metadata"].get("run", {}).get("run") if isinstance(info["metadata"].get("run"), dict) else None
+    live = read_run(run) if isinstance(run, str) and _valid_run(run) else None
+    own_run = contextlib.nullcontext()
     if args.hub:
-        settings, hub = ZenohSettings("client", connect=(args.hub,)), args.hub
+        settings, hub, where = ZenohSettings("client", connect=(args.hub,)), args.hub, "--hub"
+    elif live is not None:
+        settings, hub = ZenohSettings("client", connect=(live["hub"],)), live["hub"]
+        where = f"the hub of live run {run} (run file {live['path']})"
     else:
         port = free_tcp_port()
         settings, _ = loopback_hub(port)
         hub = f"tcp/127.0.0.1:{port}"
-    with open_session(settings) as session:
+        where = "a hub this command opened on loopback"
+        if isinstance(run, str) and _valid_run(run):
+            own_run = published_run(run, hub, "swarm replay --publish")
+            where += f"; on this host `--run {run}` finds it (swarm record --run {run}, swarm estop --run {run})"
+        else:
+            where += f"; connect with --hub {hub}"
+    with open_session(settings) as session, own_run:  # the hub is open, and findable, before anyone is told of it
+        print(f"swarm replay: publishing {len(messages)} messages of run {run or '?'} on {hub} ({where})", flush=True)
         publishers = {}
         for topic, *_ in messages:
             if topic not in publishers:
                 publishers[topic] = session.declare_publisher(topic, congestion_control=zenoh.CongestionControl.BLOCK)
-        print(f"swarm replay: hub {hub}, {len(messages)} messages on {len(publishers)} keys; "
+        print(f"swarm replay: {len(messages)} messages on {len(publishers)} keys; "
               f"waiting up to {args.wait:g} s for a subscriber", file=sys.stderr, flush=True)
         deadline = time.monotonic() + args.wait
         while publishers and not any(p.matching_status.matching for p in publishers.values()):
@@ -146,6 +175,60 @@ def _overrides(args: argparse.Namespace) -> tuple[dict, dict]:
     return model, selection
 
 
+def _recorded_selection_values(meta: dict) -> dict:
+    """The selection options as the recording's metadata states them (only those it states)."""
+    stored = meta.get("selection")
+    if not isinstance(stored, dict):
+        return {}
+    genetic = stored.get("genetic") if isinstance(stored.get("genetic"), dict) else {}
+    values = {"w_v": stored.get("w_v"), "samples": stored.get("samples"), "selection": stored.get("method"),
+              "population": genetic.get("population"), "generations": genetic.get("generations")}
+    return {k: v for k, v in values.items() if v is not None}
+
+
+def contradictions(rec, args: argparse.Namespace, model: dict, selection: dict) -> list[str]:
+    """The options given that differ from what the recording's metadata states, as ``--flag VALUE (recorded: X)``;
+    model options equal to the recorded value up to rounding are removed from ``model`` (the recorded value is used)."""
+    meta, found = rec.meta, []
+
+    def differs(a, b) -> bool:
+        if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
+            return not math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0)
+        return a != b
+
+    def note(dest: str, given, recorded, shown=None) -> None:
+        if differs(given, recorded):
+            shown_recorded = recorded if shown is None else shown
+            typed = getattr(args, dest, None)
+            flag = f"--{dest.replace('_', '-')} {typed}" if typed is not None else f"--model {args.model}: {dest} {shown_given(dest, given)}"
+            found.append(f"{flag} (recorded: {shown_recorded})")
+
+    def shown_given(dest: str, value) -> str:
+        return f"{math.degrees(value):g}" if MODEL_OPTIONS.get(dest, (None, None))[1] is math.radians else f"{value:g}"
+
+    if args.localizer is not None and "localizer" in meta:
+        note("localizer", args.localizer, meta["localizer"])
+    if args.seed is not None and "seed" in meta:
+        note("seed", args.seed, meta["seed"])
+    stored_model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
+    for dest, (field, convert) in MODEL_OPTIONS.items():
+        if field in model and field in stored_model:
+            recorded = float(stored_model[field])
+            shown = f"{math.degrees(recorded):g}" if convert is math.radians else f"{recorded:g}"
+            note(dest, model[field], recorded, shown)
+            if not differs(model[field], recorded):  # the recorded value as typed (3 for 3.0000000000000004 deg): keep the exact one
+                del model[field]
+    for dest, recorded in _recorded_selection_values(meta).items():
+        if dest in selection:
+            note(dest, selection[dest], recorded)
+    if args.trajectory is not None and isinstance(meta.get("trajectory"), dict):
+        from runtime.models.trajectory import Trajectory  # noqa: PLC0415
+
+        if Trajectory.load(args.trajectory).to_json() != meta["trajectory"]:
+            found.append(f"--trajectory {args.trajectory} (the recording has another trajectory in its metadata)")
+    return found
+
+
 def run_check(args: argparse.Namespace) -> int:
     from coordinator.replay_check import check, load_recording  # noqa: PLC0415 - scipy when checking, not for --help
 
@@ -153,6 +236,15 @@ def run_check(args: argparse.Namespace) -> int:
     rec = load_recording(args.file)
     if not rec.complete:
         print(f"swarm replay: {args.file} is unfinished ({rec.info['problem'] or 'no summary'}): checking what it holds",
+              file=sys.stderr, flush=True)
+    against = contradictions(rec, args, model, selection)
+    if against and not args.what_if:
+        raise SwarmInputError(
+            f"{', '.join(against)} contradicts {args.file}: --check reproduces the recorded run with its own settings, so "
+            f"leave these options out (they are for recordings whose metadata lacks them), or add --what-if to re-run "
+            f"the recorded inputs with them (the check then reports where the results part)")
+    if against:
+        print(f"swarm replay: what-if: {', '.join(against)}: the recorded results are not expected to be reproduced",
               file=sys.stderr, flush=True)
     result = check(rec, localizer=args.localizer, model=model, selection=selection, seed=args.seed, trajectory=args.trajectory)
     s = result.settings
@@ -165,6 +257,8 @@ def run_check(args: argparse.Namespace) -> int:
     for what in result.skipped:
         print(f"not checked: {what}", flush=True)
     if result.divergence is not None:
+        if against:
+            print(f"what-if ({', '.join(against)}): the results part from the recording", flush=True)
         print(f"check FAILED after {result.estimates} estimates and {result.plans} plans reproduced: {result.divergence}", flush=True)
     else:
         print(f"check passed: {result.estimates} estimates, {result.plans} plans reproduced", flush=True)

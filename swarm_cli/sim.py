@@ -1,13 +1,18 @@
-"""``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv`` and Fig. 13/14/17-style plots."""
+"""``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv``, Fig. 13/14/17-style plots and
+``trajectory.json``, the trajectory it followed (docs/trajectory.md; ``--trajectory`` runs it again)."""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
-from coordinator.strategies import METHODS
+from coordinator.strategies import HALF_ANCHORED, METHODS
 from inchworm.progress import Progress
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from runtime.errors import SwarmInputError
+from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, print_json, selection_config
+
+LARGE = 1000  # robots: say what is being made before the first progress line
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -16,8 +21,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--robots", type=int, default=10, help="robots of the random trajectory (default 10)")
     p.add_argument("--configs", type=int, default=5, help="configurations of the random trajectory (default 5)")
     p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
-    p.add_argument("--baseline", choices=(*METHODS, "none"), default="ref57",
-                   help="method also run on the same trajectory and noise for errors.png to compare with (default ref57; none: no second run)")
+    p.add_argument("--baseline", choices=(*METHODS, "none"), default=None,
+                   help="method also run on the same trajectory and noise for errors.png to compare with "
+                        "(default ref57, or no-anchors for an odd swarm, which ref57 cannot halve; none: no second run)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectory, noise and search (default 0)")
     p.add_argument("--out", type=Path, default=Path("out/sim"), help="folder for the PNG plots (default out/sim)")
     add_simulation_options(p)
@@ -31,17 +37,29 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.simulation import config_rows, config_table, fallback_steps, resolve_trajectory  # noqa: PLC0415
 
     cfg, selection = model_config(args), selection_config(args)
+    if args.trajectory is None and args.robots >= LARGE:
+        print(f"sim: making a random trajectory of {args.robots} robots x {args.configs} configurations", file=sys.stderr, flush=True)
     traj = resolve_trajectory(args.trajectory, args.robots, args.configs, args.seed, cfg)
+    if args.trajectory is not None:
+        check_swarm_size(traj.n, f"--trajectory {args.trajectory}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    used = args.out / "trajectory.json"
+    traj.save(used)  # what this run followed: swarm sim --trajectory out/sim/trajectory.json runs it again
     kw = dict(model=cfg, localizer=args.localizer, selection=selection, seed=args.seed)
-    result = simulate(traj, method=args.method, progress=Progress(len(traj.configurations), f"sim {args.method}"), **kw)
+    baseline = args.baseline or ("ref57" if traj.n % 2 == 0 else "no-anchors")
+    if baseline in HALF_ANCHORED and traj.n % 2:
+        raise SwarmInputError(f"--baseline {baseline} uses n_a = n_r / 2 and needs an even number of robots, got {traj.n}")
+    progress = Progress(len(traj.configurations), f"sim {args.method}")
+    progress(0)  # a first line at once: a large swarm's first configuration takes a while
+    result = simulate(traj, method=args.method, progress=progress, **kw)
     compared = {}
-    if args.baseline not in ("none", args.method):
-        compared[args.baseline] = simulate(traj, method=args.baseline, progress=Progress(len(traj.configurations), f"sim {args.baseline}"), **kw)
+    if baseline not in ("none", args.method):
+        compared[baseline] = simulate(traj, method=baseline, progress=Progress(len(traj.configurations), f"sim {baseline}"), **kw)
     plots = write_run_plots(result, args.out, compared)
     rows = config_rows(result)
     print(config_table(result))
     write_rows(args.out / "configs.csv", rows)
-    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {args.out / 'configs.csv'}, {', '.join(plots)}")
+    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
                     "configs": rows, "fallback_steps": len(fallback_steps(result)), "plots": plots})

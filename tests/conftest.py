@@ -41,6 +41,7 @@ SLOW_MODULES = frozenset({
     "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
     "test_examples",  # the example scripts as subprocesses
     "test_transport",  # Zenoh sessions and child processes
+    "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
 })
 SLOW_TESTS = frozenset({
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process

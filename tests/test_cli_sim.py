@@ -55,3 +55,14 @@ def test_compare_json_contract(tmp_path):
 def test_compare_rejects_unknown_methods():
     out = swarm("compare", "--methods", "inchworm,teleport")
     assert out.returncode == 2 and "unknown methods ['teleport']" in out.stderr
+
+
+def test_sim_of_an_odd_swarm_compares_with_no_anchors(tmp_path):
+    """ref57 cannot halve 5 robots: the default baseline becomes no-anchors; asking for ref57 fails before any run."""
+    out = swarm("sim", "--robots", "5", "--configs", "2", "--samples", "4", "--generations", "2", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    assert "sim no-anchors" in out.stderr + out.stdout
+    refused = swarm("sim", "--robots", "5", "--configs", "2", "--baseline", "ref57", "--out", str(tmp_path / "r"))
+    assert refused.returncode == 2 and "Traceback" not in refused.stderr
+    assert "--baseline ref57 uses n_a = n_r / 2 and needs an even number of robots, got 5" in refused.stderr
+    assert not (tmp_path / "r" / "configs.csv").exists()

@@ -52,8 +52,15 @@ def test_scenes_follow_the_schema_and_mark_anchors():
         for e in scene["entities"]:
             assert e["frame_id"] == "world" and set(e["timestamp"]) == {"sec", "nsec"}
     # desired = configuration 2 of the trajectory, red, labelled
-    desired = out[1][1]["entities"]
+    *desired, legend = out[1][1]["entities"]
     assert [e["id"] for e in desired] == ["desired/0", "desired/1", "desired/2"]
+    # the legend: one sample of every colour the scenes draw, each with its meaning, above the trajectory
+    drawn = {json.dumps(p["color"], sort_keys=True) for _t, scene in out for e in scene["entities"] if e["id"] != "legend"
+             for p in e["spheres"]}
+    samples = [json.dumps(p["color"], sort_keys=True) for p in legend["spheres"]]
+    assert legend["id"] == "legend" and drawn <= set(samples) and len(legend["texts"]) == len(samples)
+    assert any("anchor" in t["text"] for t in legend["texts"]) and len(legend["lines"]) == 1  # the anchor's ring
+    assert min(p["pose"]["position"]["y"] for p in legend["spheres"]) > 0.3  # above every desired position
     assert [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired] == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
     assert desired[0]["spheres"][0]["color"]["r"] > 0.5 and [e["texts"][0]["text"] for e in desired] == ["0", "1", "2"]
     # step 0: no plan, nobody marked; step 1: robot 0 moves, 1 and 2 are anchors; step 2: 0 is the anchor

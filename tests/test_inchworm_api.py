@@ -46,7 +46,7 @@ def square(task: Square) -> dict:
 def failing_at(x: int):
     def run(task: Square) -> dict:
         if task.x == x:
-            raise RuntimeError(f"task {x} failed")
+            raise RuntimeError(f"square({x}) failed")
         return square(task)
     return run
 
@@ -57,7 +57,7 @@ def without_cpu(rows: list[dict]) -> list[dict]:
 
 def test_an_interrupted_study_resumes_to_the_same_rows(tmp_path):
     tasks = [Square(x) for x in range(6)]
-    with pytest.raises(RuntimeError, match="task 4"):
+    with pytest.raises(RuntimeError, match=r"square\(4\)"):
         run_tasks(failing_at(4), tasks, log=StudyLog(tmp_path, "runs", {"n": 6}))
     kept = (tmp_path / "runs.jsonl").read_text().splitlines()
     assert len(kept) == 1 + 4 and json.loads(kept[0]) == {"options": {"n": 6}}

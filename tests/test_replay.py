@@ -57,7 +57,7 @@ def test_check_reproduces_the_recorded_run(recording, capsys):
 
 
 def test_check_reports_the_first_divergence(recording, capsys):
-    assert main(["replay", str(recording), "--check", "--bearing-sigma-deg", "3", "--json"]) == 1
+    assert main(["replay", str(recording), "--check", "--bearing-sigma-deg", "3", "--what-if", "--json"]) == 1
     out = capsys.readouterr().out
     d = json.loads(out.strip().splitlines()[-1])["divergence"]
     assert "check FAILED" in out and "divergence at step" in out
@@ -98,9 +98,9 @@ def test_publish_own_hub_as_fast_as_possible(recording):
     proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--speed", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV)
     try:
-        line = proc.stderr.readline()
-        assert "hub tcp/127.0.0.1:" in line, line
-        hub = line.split("hub ", 1)[1].split(",")[0]
+        line = proc.stdout.readline()  # where it publishes, first, on stdout
+        assert " on tcp/127.0.0.1:" in line and "a hub this command opened on loopback" in line, line
+        hub = line.split(" on ", 1)[1].split(" ")[0]
         got: list[tuple[str, bytes]] = []
         done = threading.Event()
         from runtime.wire.transport import ZenohSettings

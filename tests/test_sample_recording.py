@@ -65,3 +65,23 @@ def test_the_layout_shows_topics_and_fields_of_a_run() -> None:
         assert topic in topics, path
         if field:
             assert field in SCHEMAS[topics[topic]]["properties"], path
+
+
+def test_the_sample_carries_no_machine_paths() -> None:
+    """Nothing in the shipped file (metadata, schemas, every message decompressed) names a folder of the machine
+    that made it; the command line in its metadata shows file names only."""
+    import re
+
+    from mcap.reader import make_reader
+
+    machine = re.compile(rb"/(home|Users|tmp|work|root|opt|usr|var|mnt|srv)/")
+    with open(SAMPLE, "rb") as f:
+        reader = make_reader(f)
+        summary = reader.get_summary()
+        blobs = [m.data for _s, _c, m in reader.iter_messages()]
+        blobs += [s.data for s in summary.schemas.values()] + [c.topic.encode() for c in summary.channels.values()]
+    with open(SAMPLE, "rb") as f:
+        blobs += [json.dumps(m.metadata).encode() for m in make_reader(f).iter_metadata()]
+    found = [b[:120] for b in blobs if machine.search(b)]
+    assert found == []
+    assert recording_info(SAMPLE)["metadata"]["run"]["command"].startswith("swarm coordinator --trajectory=trajectory.json ")

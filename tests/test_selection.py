@@ -100,7 +100,7 @@ def test_no_feasible_plan_is_said_clearly():
         AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(samples=2), seed=0).select(estimate, desired)
 
 
-# ------------------------------------------------------------------ the search's guarantees (issue 16)
+# ------------------------------------------------------------------ the search's guarantees
 
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
 from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402

@@ -1,4 +1,4 @@
-"""Anchor selection for swarms larger than the Monte Carlo window (issue 14): its budget and what it keeps exact."""
+"""Anchor selection for swarms larger than the Monte Carlo window: its budget and what it keeps exact."""
 
 from __future__ import annotations
 

@@ -11,7 +11,7 @@ most times any robot executed a motion in any one step (``executed`` events of t
 emulator's JSON-lines log, ``--emulator-events``): 1 means no retransmission ever moved a
 robot twice. Fault-free runs are shared between rows (``baselines``).
 
-Targets (issue 12): every fault at 5 % together (drop 0.05, corrupt 0.05, delay 0.05 s):
+Targets: every fault at 5 % together (drop 0.05, corrupt 0.05, delay 0.05 s):
 10 of 10 seeds complete and identical, at most 1 execution per step; drop 0.2: at least
 9 of 10 complete.
 """

@@ -13,7 +13,7 @@
   gateway, sim, gateway, ...) and the medians are over every step of a driver's rounds,
   so a slow spell of the machine does not fall on one driver only.
 
-Targets (issue): codec over 100 000 frames/s, pty round trip under 2 ms, gateway step
+Targets: codec over 100 000 frames/s, pty round trip under 2 ms, gateway step
 under 1.5 x the simulated driver's.
 """
 

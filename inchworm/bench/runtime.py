@@ -24,8 +24,8 @@ time is included (motion time 0). Reported per N:
   ``VmRSS`` (``/proc/<pid>/status``, MB = 2^20 bytes) summed and divided by the N agents they host.
 
 Every process started is stopped by its own pid at the end, on error and on Ctrl-C.
-Targets (issues): N = 10 under 20 ms, N = 50 under 100 ms per step, agents under 80 MB;
-N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent (issue 14).
+Targets: N = 10 under 20 ms, N = 50 under 100 ms per step, agents under 80 MB;
+N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent.
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """In-process simulated swarm: the ground truth world behind the swarm-backend interface.
 
 Each robot draws its motion and sensing noise from its own seeded streams
-(``runtime.models.rng``), exactly as a simulated agent process will, so an in-process run and a
+(``runtime.models.rng``), exactly as a simulated agent process does, so an in-process run and a
 distributed run with the same seed produce the same numbers.
 """
 

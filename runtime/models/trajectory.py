@@ -67,25 +67,63 @@ class Trajectory:
 
     @classmethod
     def from_json(cls, data: object) -> Trajectory:
+        """The trajectory of a JSON object (module doc); a malformed row is named (``configuration 2, row 4 (robot 3)``)."""
         if not isinstance(data, dict) or not {"robots", "initial_poses", "configurations"} <= set(data):
             raise SwarmInputError("a trajectory is a JSON object with 'robots', 'initial_poses' and 'configurations'")
-        try:
-            return cls(np.asarray(data["robots"]), np.asarray(data["initial_poses"], float), np.asarray(data["configurations"], float))
-        except (TypeError, ValueError) as exc:
-            if isinstance(exc, SwarmInputError):
-                raise
-            raise SwarmInputError(f"trajectory values must be numbers in nested lists: {exc}") from None
+        robots, poses, configs = data["robots"], data["initial_poses"], data["configurations"]
+        if not isinstance(robots, list) or not all(isinstance(r, int) and not isinstance(r, bool) for r in robots):
+            raise SwarmInputError(f"'robots' must be a list of integer robot ids, got {_short(robots)}")
+        if not isinstance(configs, list) or not configs:
+            raise SwarmInputError(f"'configurations' must be a non-empty list of configurations, got {_short(configs)}")
+        table = _table(poses, 3, "initial_poses", "[x, y, heading]", robots)
+        rows = [_table(c, 2, f"configuration {k + 1}", "[x, y]", robots) for k, c in enumerate(configs)]
+        return cls(np.asarray(robots), table, np.stack(rows))
 
     def save(self, path: Path) -> None:
         Path(path).write_text(json.dumps(self.to_json()))
 
     @classmethod
     def load(cls, path: Path) -> Trajectory:
+        """The trajectory in the JSON file ``path``; ``SwarmInputError`` naming the file and what is wrong."""
         try:
             data = json.loads(Path(path).read_text())
         except json.JSONDecodeError as exc:
             raise SwarmInputError(f"{path} is not valid JSON: {exc}") from None
-        return cls.from_json(data)
+        except UnicodeDecodeError:
+            raise SwarmInputError(f"{path} is not a text (JSON) file") from None
+        try:
+            return cls.from_json(data)
+        except SwarmInputError as exc:
+            raise SwarmInputError(f"trajectory {path}: {exc}") from None
+
+
+def _short(value: object, limit: int = 60) -> str:
+    text = json.dumps(value) if not isinstance(value, str) else repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _table(rows: object, width: int, what: str, shape: str, robots: list[int]) -> np.ndarray:
+    """``rows`` as an (n, ``width``) float array, one row per robot; ``SwarmInputError`` naming the first bad row
+    (1-based, with its robot id) and what it holds. The whole table is converted at once; rows are walked only
+    to name the fault."""
+    n = len(robots)
+    if not isinstance(rows, list):
+        raise SwarmInputError(f"{what} must be a list of {n} rows {shape}, got {_short(rows)}")
+    with np.errstate(all="ignore"):
+        try:
+            table = np.asarray(rows, dtype=float)
+            if table.shape == (n, width):
+                return table
+        except (TypeError, ValueError):
+            pass
+    for i, row in enumerate(rows):
+        robot = f" (robot {robots[i]})" if i < n else ""
+        if not isinstance(row, list) or len(row) != width:
+            raise SwarmInputError(f"{what}, row {i + 1}{robot}: expected {shape}, got {_short(row)}")
+        for v in row:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise SwarmInputError(f"{what}, row {i + 1}{robot}: {_short(v)} is not a number")
+    raise SwarmInputError(f"{what} must be {n} rows of {shape} (one per robot), got {len(rows)}")
 
 
 def sensing_groups(positions: np.ndarray, sensing_range: float) -> np.ndarray:

@@ -15,7 +15,8 @@ Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
   ``TruthMessage``s), the latest truths are drawn with each ``EstimateMessage`` instead.
 * ``/foxglove/desired``: per ``PlanMessage``, the configuration it plans for, taken from
   the trajectory (``{"robots", "configurations"}``, docs/trajectory.md): one entity per
-  robot (``desired/<robot>``), a red sphere and the id.
+  robot (``desired/<robot>``), a red sphere and the id; and the entity ``legend``: one
+  sample of every marker with what it means, above the top-left corner of the trajectory.
 
 Entities with the same id replace the previous ones, so each message costs O(its robots).
 Scenes come out as compact UTF-8 JSON bytes, built from text fragments (cheap enough to
@@ -292,15 +293,57 @@ def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> bytes:
     )
 
 
-def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int) -> bytes:
-    """Red spheres and id labels at the desired positions of configuration ``config`` (1-based)."""
+def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int,
+                  legend_at: tuple[float, float] | None = None) -> bytes:
+    """Red spheres and id labels at the desired positions of configuration ``config`` (1-based);
+    with ``legend_at`` (x, y in m) also the ``legend`` entity there."""
     t = stamp(stamp_ns)
     entities = []
     for robot, (x, y) in positions.items():
         xs, ys = _num(x), _num(y)
         entities.append(entity(f"desired/{int(robot)}", t, spheres=sphere(xs, ys, SPHERE_M, RED), texts=label(xs, ys, robot, RED),
                                metadata={"robot": int(robot), "config": int(config)}))
+    if legend_at is not None:
+        entities.append(legend_entity(*legend_at, t))
     return scene_update(entities)
+
+
+LEGEND = (  # (sphere colour, diameter m, ringed, text): every marker the scenes draw
+    (RED, SPHERE_M, False, "desired: the configuration being planned"),
+    (GREEN, SPHERE_M, False, "estimated (moves this step)"),
+    (DARK_GREEN, ANCHOR_SPHERE_M, True, "anchor: stands still this step"),
+    (BLUE, TRUE_SPHERE_M, False, "true (simulation or motion capture)"),
+    (GREY, SPHERE_M, False, "lost robot (last estimate)"),
+)
+LEGEND_ROW_M = 0.08
+LEGEND_TEXT_DX_M = 0.06  # from a sample's centre to its text's left edge
+LEGEND_FONT_M = 0.035  # text height in metres (not scale invariant, so the column stays aligned when zooming)
+CHAR_WIDTH = 0.6  # of the font size, for centring a line of text at a known left edge
+
+
+def text(x: float, y: float, words: str, color: str = WHITE) -> str:
+    """A billboard ``foxglove.TextPrimitive`` of ``words`` (``LEGEND_FONT_M`` high) whose left edge is near (x, y) m."""
+    centre = _num(x + 0.5 * CHAR_WIDTH * LEGEND_FONT_M * len(words))  # Foxglove centres a text on its pose
+    return (f'{{"pose":{_pose(centre, _num(y))},"billboard":true,"font_size":{_num(LEGEND_FONT_M)},'
+            f'"scale_invariant":false,"color":{color},"text":{json.dumps(words)}}}')
+
+
+def legend_entity(x: float, y: float, stamp_json: str) -> str:
+    """The entity ``legend``: a sample of every marker of ``LEGEND`` in a column whose top-left is (x, y) m."""
+    spheres, texts, lines = [], [], []
+    for k, (col, diameter, ringed, words) in enumerate(LEGEND):
+        xs, ys = _num(x), _num(y - k * LEGEND_ROW_M)
+        spheres.append(sphere(xs, ys, diameter, col))
+        if ringed:
+            lines.append(ring(xs, ys, RING_RADIUS_M, col))
+        texts.append(text(x + LEGEND_TEXT_DX_M, y - k * LEGEND_ROW_M, words))
+    return entity("legend", stamp_json, spheres=",".join(spheres), texts=",".join(texts), lines=",".join(lines))
+
+
+def legend_corner(configurations: list[dict[int, tuple[float, float]]]) -> tuple[float, float]:
+    """Where the legend goes: above the top-left corner of every desired position (m)."""
+    xy = [p for config in configurations for p in config.values()]
+    return min(p[0] for p in xy), max(p[1] for p in xy) + 2 * LEGEND_ROW_M + (len(LEGEND) - 1) * LEGEND_ROW_M
 
 
 def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, float]]] | None:
@@ -367,7 +410,8 @@ class SceneDeriver:
         if isinstance(msg, PlanMessage):
             self.plan = msg
             if self.configurations is not None and 1 <= msg.config <= len(self.configurations):
-                return [(TOPIC_DESIRED, desired_scene(msg.config, self.configurations[msg.config - 1], msg.stamp_ns))]
+                return [(TOPIC_DESIRED, desired_scene(msg.config, self.configurations[msg.config - 1], msg.stamp_ns,
+                                                      legend_corner(self.configurations)))]
         return []
 
 

@@ -689,6 +689,7 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike) -> dict[str, Any]:
 
     Same schemas, channels, metadata, attachments and messages (bytes, times and sequence
     unchanged, file order); ids may be renumbered. Written to a temporary file first.
+    ``SwarmInputError`` (nothing written) when ``src`` holds no complete message.
     """
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
@@ -724,9 +725,10 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike) -> dict[str, Any]:
                 elif isinstance(record, Message):
                     writer.add_message(channel_ids[record.channel_id], record.log_time, record.data, record.publish_time, record.sequence)
                     messages += 1
-            if writer is None:  # a file with a header only
-                writer = Writer(out)
-                writer.start(profile=status.profile, library=status.library)
+            if not messages:  # a header, perhaps schemas and channels: a "recovered" file would hold no run
+                raise SwarmInputError(
+                    f"{src}: nothing to recover: no complete message in its {status.readable_bytes} readable bytes "
+                    f"(of {status.size}); no output written")
             writer.finish()
         os.replace(tmp, dst)
     finally:

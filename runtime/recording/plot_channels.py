@@ -1,8 +1,8 @@
 """Plottable JSON channels of a run, derived from the raw msgpack messages (docs/recording.md).
 
 Foxglove (Plot, Raw Message, State Transitions panels) and PlotJuggler read MCAP channels
-whose message encoding is ``json`` and whose schema is a ``jsonschema``; they cannot decode
-our msgpack. The recorder (``runtime.recording.mcap_log``) writes these channels next to the raw
+whose message encoding is ``json`` and whose schema is a ``jsonschema``; Foxglove cannot decode
+our msgpack, and PlotJuggler names a msgpack array's entries by position, not robot id. The recorder (``runtime.recording.mcap_log``) writes these channels next to the raw
 ones, each message right after the raw one it comes from, with its ``stamp_ns`` as publish
 time. Every field is a flat number (or, for plans and events, a short string or id list),
 so a plot path is simply ``/robot/3/estimate.x``. Units SI: m, rad.
