@@ -111,9 +111,9 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
         assert status == status_is, "".join(lines)
     tmp = record.parent / "tmp"
     deadline = time.monotonic() + 5.0
-    while list(tmp.iterdir()) and time.monotonic() < deadline:
+    while list(tmp.glob("swarm-launch-*")) and time.monotonic() < deadline:
         time.sleep(0.1)
-    assert not list(tmp.iterdir()), "a temporary folder was left behind"
+    assert not list(tmp.glob("swarm-launch-*")), "the launcher's temporary folder was left behind"
     info = recording_info(record)
     assert info["complete"] and info["indexed"] and info["reader"] == "seeking", (info["problem"], "".join(lines))
     assert info["messages"] > 0
