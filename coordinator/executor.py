@@ -39,6 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from coordinator.backend import SwarmBackend
+from coordinator.checkpoint import RunState
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -71,6 +72,20 @@ class LostRobot:
     step: int
     config: int
     reason: str
+
+
+@dataclass(frozen=True)
+class RejoinedRobot:
+    """A lost robot whose agent came back, re-localized and back in the run before configuration ``config`` (0-based),
+    after global step ``step``."""
+
+    robot: int
+    step: int
+    config: int
+
+
+REJOIN_DELTA_M = 0.5  # position std (m) of a rejoining robot's prior around the pose its neighbours' observations give
+REJOIN_HEADING_SIGMA = 0.5  # heading std (rad) of that prior
 
 
 class RunAborted(SwarmInputError):
@@ -109,6 +124,7 @@ class RunResult:
     steps: list[StepRecord] = field(default_factory=list)
     configs: list[ConfigRecord] = field(default_factory=list)
     lost: list[LostRobot] = field(default_factory=list)
+    rejoined: list[RejoinedRobot] = field(default_factory=list)
 
     @property
     def has_truth(self) -> bool:
@@ -116,8 +132,14 @@ class RunResult:
 
     @property
     def finished_ids(self) -> np.ndarray:
-        """The robots still in the run at its end: every metric is computed over them."""
-        return self.configs[-1].estimate.ids if self.configs else self.initial_estimate.ids
+        """The robots in the run from its start to its end (a robot that rejoined missed configurations): every
+        metric is computed over them."""
+        if not self.configs:
+            return self.initial_estimate.ids
+        ids = self.configs[-1].estimate.ids
+        for c in self.configs[:-1]:
+            ids = ids[np.isin(ids, c.estimate.ids)]
+        return ids
 
     def _rows(self, ids: np.ndarray) -> np.ndarray:
         """Rows of the finished robots in arrays ordered like ``ids``."""
@@ -189,6 +211,7 @@ class InchwormExecutor:
         listener: ExecutorListener | None = None,
         on_lost: str = "continue",
         min_robots: int = 2,
+        on_checkpoint: Callable[[RunState], None] | None = None,
     ) -> None:
         if on_lost not in ("continue", "abort"):
             raise SwarmInputError(f"on_lost must be 'continue' or 'abort', got {on_lost!r}")
@@ -202,21 +225,35 @@ class InchwormExecutor:
         self.listener = listener
         self.on_lost = on_lost
         self.min_robots = min_robots
+        self.on_checkpoint = on_checkpoint
+        self._full_strategy = strategy  # for the whole swarm: a rejoining robot comes back into it
         self._executed = 0  # command rounds sent in the current run (the global step in progress)
         self.result: RunResult | None = None  # the run in progress (or last run): what it completed so far
 
-    def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunResult:
-        if not np.array_equal(trajectory.ids, self.backend.ids) or not np.array_equal(initial_estimate.ids, trajectory.ids):
+    def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate, resume: RunState | None = None) -> RunResult:
+        """Follow ``trajectory`` from ``initial_estimate``; with ``resume``, go on from that state of the same run
+        (another coordinator's checkpoint: the backend's robots are the state's)."""
+        start = initial_estimate if resume is None else resume.estimate
+        if not np.array_equal(start.ids, self.backend.ids) or not np.isin(start.ids, trajectory.ids).all() or \
+                not np.array_equal(initial_estimate.ids, trajectory.ids):
             raise SwarmInputError(
                 f"trajectory robots {trajectory.ids.tolist()}, backend robots {self.backend.ids.tolist()} "
-                f"and estimate robots {initial_estimate.ids.tolist()} must be the same"
+                f"and estimate robots {start.ids.tolist()} must be the same"
             )
-        result = self.result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
-        self._executed = 0  # command rounds sent (the global step in progress)
-        if self.listener is not None:
-            self.listener.on_estimate(0, initial_estimate)
+        total = len(trajectory.configurations)
+        if resume is None:
+            result = self.result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
+            self._executed, estimate, first, group, plan, planned_ids = 0, initial_estimate, 0, 0, None, None
+            if self.listener is not None:
+                self.listener.on_estimate(0, initial_estimate)
+            self._checkpoint(result, 0, 0, estimate, None, None)
+        else:
+            result, estimate, first, group = resume.result, resume.estimate, resume.config, resume.group
+            plan, planned_ids = resume.plan, resume.planned_ids
+            self.result, self._executed = result, resume.step
+            self._restore_strategy(trajectory.ids, estimate.ids, resume.selector_calls)
         try:
-            self._run(result, trajectory, initial_estimate)
+            self._follow(result, trajectory, estimate, first, group, plan, planned_ids)
         except RunAborted as exc:
             exc.result = result  # the configurations completed before the end
             raise
@@ -225,30 +262,92 @@ class InchwormExecutor:
                 raise
             lost = sorted(r.robot for r in result.lost)
             raise RunAborted(f"after losing {_robot_list(lost)}, the robots left cannot go on after configuration "
-                             f"{len(result.configs)} of {len(trajectory.configurations)}: {exc}", lost, result) from exc
+                             f"{len(result.configs)} of {total}: {exc}", lost, result) from exc
         return result
 
-    def _run(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate) -> None:
-        total = len(trajectory.configurations)
-        for c in range(total):
-            estimate = self._drop_lost(result, c, estimate)[0]
-            while True:  # (i), again if a robot was lost meanwhile
-                desired = self._desired(trajectory, c, estimate.ids)
-                plan, selection = self.strategy.plan(estimate, desired)
-                estimate, keep = self._drop_lost(result, c, estimate)
-                if keep is None:
-                    break
-            if self.listener is not None:
-                self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
-            planned_ids = estimate.ids
-            for k, group in enumerate(plan.groups):
+    def _follow(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate, first: int, group: int,
+                plan: Plan | None, planned_ids: np.ndarray | None) -> None:
+        """Configurations ``first``.. of ``trajectory`` (the first from group ``group`` of ``plan`` if given)."""
+        total, selection = len(trajectory.configurations), None
+        for c in range(first, total):
+            if plan is None:
+                estimate = self._rejoin(result, c, self._drop_lost(result, c, estimate)[0], trajectory.ids)
                 estimate = self._drop_lost(result, c, estimate)[0]
-                moving = np.isin(estimate.ids, planned_ids[group])
+                while True:  # (i), again if a robot was lost meanwhile
+                    desired = self._desired(trajectory, c, estimate.ids)
+                    plan, selection = self.strategy.plan(estimate, desired)
+                    estimate, keep = self._drop_lost(result, c, estimate)
+                    if keep is None:
+                        break
+                if self.listener is not None:
+                    self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
+                planned_ids, group = estimate.ids, 0
+                self._checkpoint(result, c, 0, estimate, plan, planned_ids)
+            for k in range(group, len(plan.groups)):
+                estimate = self._drop_lost(result, c, estimate)[0]
+                moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
+                self._checkpoint(result, c, k + 1, estimate, plan, planned_ids)
             result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
+            plan, selection = None, None
             if self.progress:
                 self.progress(c + 1, total)
+        self._checkpoint(result, total, 0, estimate, None, None, finished=True)
+
+    def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
+                    planned_ids: np.ndarray | None, finished: bool = False) -> None:
+        """Hand the run's state to ``on_checkpoint`` (after the start, each plan, each step and at the end)."""
+        if self.on_checkpoint is not None:
+            selector = getattr(self.strategy, "selector", None)
+            self.on_checkpoint(RunState(self._executed, config, group, estimate, plan, planned_ids,
+                                        0 if selector is None else selector.calls, result, finished))
+
+    def _restore_strategy(self, all_ids: np.ndarray, ids: np.ndarray, selector_calls: int) -> None:
+        """The strategy for the robots ``ids`` of the swarm ``all_ids``, its search's random stream at
+        ``selector_calls`` (a checkpoint's, or where it was before a robot rejoined)."""
+        keep = np.isin(all_ids, ids)
+        self.strategy = self._full_strategy if keep.all() else self._full_strategy.restrict(keep)
+        selector = getattr(self.strategy, "selector", None)
+        if selector is not None:
+            selector.calls = selector_calls
+
+    def _rejoin(self, result: RunResult, config: int, estimate: SwarmEstimate, all_ids: np.ndarray) -> SwarmEstimate:
+        """Lost robots whose agents came back (``take_rejoining`` of the backend) rejoin before configuration
+        ``config`` is planned: each is asked for its observations of the current step, gets a prior with a large
+        covariance (``REJOIN_DELTA_M``, ``REJOIN_HEADING_SIGMA``) around the pose its observations of its
+        neighbours' estimates give, and the swarm is localized again with them. One that answers nothing or
+        sees fewer than two neighbours stays lost."""
+        take = getattr(self.backend, "take_rejoining", None)
+        robots = take() if take is not None and self._executed > 0 else []
+        if not robots:
+            return estimate
+        obs = self.backend.observe_rejoining(robots)  # a robot that does not answer is lost again
+        priors = {}
+        for robot in robots:
+            pose = _pose_from_neighbours(robot, obs, estimate)
+            if pose is None:
+                self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")
+            else:
+                priors[robot] = pose
+        estimate = self._drop_lost(result, config, estimate)[0]  # those that did not make it
+        joined = [r for r in sorted(priors) if r in self.backend.ids]
+        if not joined:
+            return estimate
+        new = SwarmEstimate.isotropic(joined, np.array([priors[r] for r in joined]), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA)
+        ids = np.concatenate([estimate.ids, new.ids])
+        order = np.argsort(ids, kind="stable")
+        merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
+                               np.concatenate([estimate.cov, new.cov])[order])
+        located, _ = localize_observable(self.localizer, merged, StepCommands.stationary(merged.ids),
+                                         _among(obs, merged.ids), self.cfg)
+        selector = getattr(self.strategy, "selector", None)
+        self._restore_strategy(all_ids, located.ids, 0 if selector is None else selector.calls)
+        for robot in joined:
+            result.rejoined.append(RejoinedRobot(robot, self._executed, config))
+        if self.listener is not None:
+            self.listener.on_estimate(self._executed, located)
+        return located
 
     @staticmethod
     def _desired(trajectory: Trajectory, config: int, ids: np.ndarray) -> np.ndarray:
@@ -297,6 +396,22 @@ class InchwormExecutor:
 
 def _robot_list(ids: list[int]) -> str:
     return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
+
+
+def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate) -> np.ndarray | None:
+    """The pose [x, y, heading] of ``robot`` that its range-bearing observations of robots of ``estimate`` give
+    (the heading turning the body-frame offsets onto the world ones, least squares; the position their mean), or
+    None if it saw fewer than two (one fixes no heading)."""
+    mine = (obs.observer == robot) & np.isin(obs.observed, estimate.ids)
+    if mine.sum() < 2:
+        return None
+    seen = estimate.positions[index_of(estimate.ids, obs.observed[mine], "rejoin")]
+    body = obs.range_m[mine, None] * np.stack([np.cos(obs.bearing_rad[mine]), np.sin(obs.bearing_rad[mine])], axis=1)
+    w, b = seen - seen.mean(axis=0), body - body.mean(axis=0)  # world = R(heading) body
+    heading = float(np.arctan2(np.sum(b[:, 0] * w[:, 1] - b[:, 1] * w[:, 0]), np.sum(b[:, 0] * w[:, 0] + b[:, 1] * w[:, 1])))
+    c, s = np.cos(heading), np.sin(heading)
+    position = np.mean(seen - body @ np.array([[c, s], [-s, c]]), axis=0)
+    return np.array([position[0], position[1], heading])
 
 
 def _among(obs: Observations, ids: np.ndarray) -> Observations:

@@ -14,6 +14,17 @@ run-wide ``EmergencyStop``, so no robot is left moving. Exit status: 0 done (als
 lost robots), 3 the run was aborted or the agents did not come up (the message names the
 robots), 2 bad input.
 
+One master per run (docs/protocol.md, Coordinator epochs): a coordinator started while another
+coordinator of the run is alive ends at once with ``CoordinatorConflict`` naming the live one
+(``swarm coordinator`` exits 4) and touches nothing (no recording, no stop). The run survives its
+coordinator (docs/failure-model.md): the coordinator publishes a ``Checkpoint`` after the start,
+every plan and every step, and goes on only once its recorder has it on the disk;
+``standby`` follows a live coordinator's checkpoints and, when its token disappears without the
+run having finished or been stopped, takes the run over from the last one; ``resume`` takes it
+over from the last checkpoint recorded in an MCAP file. Either continues as the same run (same
+step numbers, estimate, plan, lost robots, selection random state), so in simulation the result
+is the fault-free run's.
+
 Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
 writes every message to ``recordings/<run>.mcap`` (``--record PATH`` to choose, ``--no-record``
@@ -29,7 +40,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import math
+import logging
 import os
+import queue
 import sys
 import threading
 import time
@@ -46,6 +59,7 @@ from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import run_wildcard, validate_run
 
 if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
+    from coordinator.checkpoint import RunState
     from coordinator.executor import RunResult
     from coordinator.selection.selector import SelectionConfig
     from runtime.recording.foxglove_live import LiveView
@@ -53,14 +67,14 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
     from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
-EXIT_OUTPUT = 4  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
+EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
 
-def default_recording(run_id: str) -> Path:
-    """Where a run is recorded unless told otherwise."""
-    return Path("recordings") / f"{run_id}.mcap"
+def default_recording(run_id: str, role: str = "") -> Path:
+    """``recordings/<run>.mcap``; a standby or resuming coordinator (``role``) records to ``recordings/<run>.<role>.mcap``."""
+    return Path("recordings") / (f"{run_id}.{role}.mcap" if role else f"{run_id}.mcap")
 
 
 def result_json(result: RunResult) -> dict:
@@ -74,6 +88,7 @@ def result_json(result: RunResult) -> dict:
         "initial_estimate": result.initial_estimate.poses.tolist(),
         "initial_truth": truth(result.initial_truth),
         "lost": [{"robot": r.robot, "step": r.step, "config": r.config + 1, "reason": r.reason} for r in result.lost],
+        "rejoined": [{"robot": r.robot, "step": r.step, "config": r.config + 1} for r in result.rejoined],
         "steps": [
             {"config": s.config, "step": s.step, "ids": s.estimate.ids.tolist(), "moving": s.moving.tolist(), "commands": s.commands.tolist(),
              "poses": s.estimate.poses.tolist(), "cov": s.estimate.cov.tolist(), "truth": truth(s.truth), "fallback": s.fallback}
@@ -106,6 +121,9 @@ class CoordinatorOptions:
     on_record_error: str = "continue"  # when writing the recording fails: go on unrecorded, or "stop" the run
     foxglove_port: int | None = None  # serve the live view on this port
     command: str = ""  # the command line, for the metadata
+    standby: bool = False  # follow the live coordinator; take the run over from its last checkpoint if it dies
+    resume: Path | None = None  # take the run over from the last checkpoint in this recording
+    rejoin: bool = True  # a lost robot whose agent comes back rejoins at the next configuration
 
 
 def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
@@ -315,7 +333,14 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
+    from coordinator.zenoh_backend import (  # noqa: PLC0415
+        AgentError,
+        CoordinatorConflict,
+        Timeouts,
+        ZenohSwarmBackend,
+        conflict_message,
+        live_coordinators,
+    )
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
@@ -327,31 +352,54 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
     strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
     validate_run(o.run_id)
+    initial = initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
+    taken = read_checkpoint(o.resume, o.run_id, traj, initial) if o.resume is not None else None
     recording = None
-    if o.record is not None:
-        with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
-            recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection), policy=o.on_record_error)
-        log(f"recording swarm/{o.run_id}/** to {o.record}")
     recorded, completed, result, error = None, False, None, None
     live = Live(None)
     try:
         if signals.received is not None:
             raise StopRequested(signals.received)
         with open_session(o.settings) as session, live_view(o, session, log) as live:
-            if recording is not None:
+            live_now = live_coordinators(session, o.run_id)
+            if live_now and not o.standby:  # before anything is recorded or stopped: this run has a master
+                completed = True  # not ours to stop
+                return CoordinatorOutcome(None, None, live, CoordinatorConflict(conflict_message(o.run_id, live_now)))
+            standby = Standby(session, o.run_id, traj, initial) if o.standby else None
+            if o.record is not None:
+                with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
+                    recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection), policy=o.on_record_error)
+                log(f"recording swarm/{o.run_id}/** to {o.record}")
                 recording.wait_subscribed(session)
-            backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s), simulated=o.truth)
+            if standby is not None:
+                taken = standby.wait(o.start_timeout_s, signals)
+                if isinstance(taken, str):  # the run finished or was stopped: nothing to take over
+                    log(f"standby: {taken}; nothing to take over")
+                    completed = True
+                    stopped = None if taken.startswith("the run finished") else AgentError(taken, [])
+                    return CoordinatorOutcome(None, None, live, stopped)
+            parent, state = taken if taken is not None else (0, None)
+            try:
+                backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s),
+                                            simulated=o.truth, parent=parent, rejoin=o.rejoin)
+            except CoordinatorConflict as exc:
+                completed = True  # not ours to stop
+                return CoordinatorOutcome(None, None, live, exc)
             ended: BaseException | None = None
             partial = None
             try:
+                if state is not None:
+                    backend.resume(state)
+                    log(f"epoch {backend.epoch} takes over run {o.run_id} from epoch {parent} after step {state.step}")
                 backend.wait_for_agents()
-                log(f"{traj.n} agents alive, run {o.run_id}")
+                log(f"{len(backend.ids)} agents alive, run {o.run_id}, epoch {backend.epoch}")
                 progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731
                 listener = backend if recording is None else _Checked(backend, recording.check)
                 executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=listener,
-                                            on_lost=o.on_lost, min_robots=o.min_robots)
+                                            on_lost=o.on_lost, min_robots=o.min_robots,
+                                            on_checkpoint=durable_checkpoints(backend, recording))
                 try:
-                    result = executor.run(traj, initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA))
+                    result = executor.run(traj, initial, resume=state)
                 finally:
                     partial = executor.result  # the configurations completed, however the run ends
                 completed = live.keep = True
@@ -371,6 +419,119 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         if recording is not None:
             with signals.deferred():
                 recorded = recording.finish(interrupted=signals.received is not None)
-            if result is None:  # interrupted or failed run: the caller prints no summary
+            if result is None:  # failed, interrupted or nothing to do: the caller prints no summary
                 print(recording_line(recorded) if recorded else f"recording failed: {recording.error}", flush=True)
     return CoordinatorOutcome(result, recorded, live, error, None if recording is None else recording.error)
+
+
+def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
+    """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
+    it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on)."""
+    def checkpoint(state: RunState) -> None:
+        recorder = None if recording is None or recording.failed.is_set() else recording.recorder  # a failed one stores none
+        written = 0 if recorder is None else recorder.checkpoints
+        backend.publish_checkpoint(state)
+        if recorder is not None and not recorder.wait_checkpoints(written + 1, timeout_s):
+            logging.getLogger(__name__).warning("the recorder did not store the checkpoint of step %d within %.0f s",
+                                                state.step, timeout_s)
+    return checkpoint
+
+
+def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple[int, RunState]:
+    """``(epoch, state)`` of the last ``Checkpoint`` of run ``run_id`` recorded in ``path`` (``--resume``)."""
+    from coordinator.checkpoint import RunState  # noqa: PLC0415
+    from runtime.recording.mcap_log import read_messages  # noqa: PLC0415
+    from runtime.wire.keys import coord_key  # noqa: PLC0415
+    from runtime.wire.messages import Checkpoint, MessageError, decode  # noqa: PLC0415
+
+    if not path.is_file():
+        raise SwarmInputError(f"--resume {path}: no such file")
+    key, last = coord_key(run_id, "checkpoint"), None
+    for topic, payload, _, _ in read_messages(path):
+        if topic == key:
+            try:
+                last = decode(payload, Checkpoint, key=key)
+            except MessageError:
+                continue
+    if last is None:
+        raise SwarmInputError(f"--resume {path}: no checkpoint of run {run_id} in this recording")
+    state = RunState.from_json(last.state, traj, initial)
+    if state.finished:
+        raise SwarmInputError(f"--resume {path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
+    return last.epoch, state
+
+
+class Standby:
+    """``--standby``: follows the checkpoints of the run's live coordinator until its token disappears."""
+
+    def __init__(self, session, run_id: str, traj: Trajectory, initial) -> None:
+        from runtime.wire.keys import coord_alive_key, coord_key, estop_key, parse_coord_token  # noqa: PLC0415
+        from runtime.wire.messages import Checkpoint, DropCounter, EmergencyStop, decode_or_drop  # noqa: PLC0415
+        from runtime.wire.transport import subscribe, watch_liveliness  # noqa: PLC0415
+
+        self.run_id, self.traj, self.initial = run_id, traj, initial
+        self.latest: dict[int, Checkpoint] = {}  # by epoch
+        self.stopped: str | None = None
+        self.events: queue.SimpleQueue[tuple[tuple[int, int], bool]] = queue.SimpleQueue()
+        drops = DropCounter(logging.getLogger(__name__))
+
+        def on_checkpoint(key: str, payload: bytes) -> None:
+            msg = decode_or_drop(payload, drops, key, Checkpoint)
+            if msg is not None and (msg.epoch not in self.latest or msg.step >= self.latest[msg.epoch].step):
+                self.latest[msg.epoch] = msg  # a replayed older checkpoint never replaces a newer one
+
+        def on_estop(key: str, payload: bytes) -> None:
+            msg = decode_or_drop(payload, drops, key, EmergencyStop)
+            if msg is not None and not msg.robots:
+                self.stopped = f"the run was stopped by {msg.source} ({msg.reason})"
+
+        def on_token(key: str, alive: bool) -> None:
+            token = parse_coord_token(key)
+            if token is not None:
+                self.events.put((token, alive))
+
+        self._subs = [watch_liveliness(session, coord_alive_key(run_id), on_token), subscribe(session, estop_key(run_id), on_estop),
+                      subscribe(session, coord_key(run_id, "checkpoint"), on_checkpoint)]  # last: its match says "ready"
+
+    def wait(self, timeout_s: float, signals: StopSignals) -> tuple[int, RunState | None] | str:
+        """``(epoch, state)`` to take over once the followed coordinator is gone (``state`` None: it died before
+        its first checkpoint), or why there is nothing to take over."""
+        from coordinator.checkpoint import RunState  # noqa: PLC0415
+
+        live: dict[int, int] = {}
+        followed: int | None = None
+        deadline = time.monotonic() + timeout_s
+        try:
+            while True:
+                if signals.received is not None:
+                    raise StopRequested(signals.received)
+                try:
+                    (epoch, parent), alive = self.events.get(timeout=0.05)
+                except queue.Empty:
+                    if followed is None and time.monotonic() > deadline:
+                        return f"no coordinator of run {self.run_id} appeared within {timeout_s:.0f} s"
+                    continue
+                if alive:
+                    live[epoch] = parent
+                    if followed is None:
+                        followed = epoch
+                        say(f"standby for run {self.run_id}, following epoch {epoch}")
+                    continue
+                live.pop(epoch, None)
+                if epoch != followed:
+                    continue
+                if live:  # another coordinator took over first: follow it
+                    followed = min(live)
+                    continue
+                checkpoint = self.latest.get(epoch)
+                if self.stopped is not None:
+                    return self.stopped
+                if checkpoint is None:
+                    return epoch, None
+                state = RunState.from_json(checkpoint.state, self.traj, self.initial)
+                if state.finished:
+                    return f"the run finished (epoch {epoch})"
+                return epoch, state
+        finally:
+            for sub in self._subs:
+                sub.undeclare()

@@ -142,9 +142,11 @@ def recorded_model(rec: RecordedRun, overrides: dict[str, float] | None = None) 
 
 def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None) -> SelectionConfig:
     """The run's ``SelectionConfig`` from the metadata (defaults where absent), with ``overrides``
-    (``w_v`` (w_l = 1 - w_v), ``samples``, ``population``, ``generations``, ``selection`` (the ranking method))."""
+    (``w_v`` (w_l = 1 - w_v), ``samples``, ``population``, ``generations``, ``selection`` (the ranking method), ``mc_start``, ``mc_emax``)."""
     stored = rec.meta.get("selection") or {}
     stored = dict(stored) if isinstance(stored, dict) else {}
+    stored.setdefault("mc_start", "estimate")  # recordings made before the Monte Carlo readings were options
+    stored.setdefault("mc_emax", "mean")
     genetic = GeneticConfig(**stored.pop("genetic", {}) or {})
     counts = stored.pop("anchor_counts", None)
     known = set(SelectionConfig.__dataclass_fields__) - {"genetic", "anchor_counts"}
@@ -157,6 +159,8 @@ def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None
         sel = replace(sel, samples=o["samples"])
     if "selection" in o:
         sel = replace(sel, method=o["selection"])
+    if "mc_start" in o or "mc_emax" in o:
+        sel = replace(sel, mc_start=o.get("mc_start", sel.mc_start), mc_emax=o.get("mc_emax", sel.mc_emax))
     if "population" in o or "generations" in o:
         sel = replace(sel, genetic=replace(sel.genetic, population=o.get("population", sel.genetic.population),
                                            generations=o.get("generations", sel.genetic.generations)))

@@ -32,6 +32,14 @@ command. A lost robot gets an ``EmergencyStop`` naming it and a ``RobotEvent`` `
 at once; the waits stop waiting for it and the simulated truth sets leave it out; the
 executor learns of it through ``take_lost()``.
 All Zenoh callbacks only enqueue or set flags; the waiting happens on the caller's thread.
+
+One master per run (docs/protocol.md, Coordinator epochs): the backend draws its ``epoch``
+(random, 63 bits, never 0), stamps every ``MotionCommand``, ``ObserveRequest`` and
+``TruthSetMessage`` with it and declares its token ``coord_alive_key(run, epoch, parent)``
+only if no other coordinator's token of the run is alive, and gives up (``CoordinatorConflict``
+naming the live one) if another appeared meanwhile. ``parent`` is the epoch whose run it takes
+over (0: a new run); ``resume(state)`` then starts at the checkpoint's step.
+``publish_checkpoint`` publishes the executor's ``RunState`` as a ``Checkpoint``.
 """
 
 from __future__ import annotations
@@ -46,9 +54,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.checkpoint import RunState
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_wildcard, truth_wildcard
+from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
+    Checkpoint,
     DropCounter,
     EmergencyStop,
     EstimateMessage,
@@ -67,7 +77,7 @@ from runtime.wire.messages import (
     observations_from_reports,
 )
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from runtime.wire.transport import declare_token, publish, subscribe, watch_liveliness
+from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
 
@@ -82,6 +92,23 @@ class AgentError(SwarmInputError):
 
 class AgentLost(AgentError):
     """Agents that did not come up at the start of the run."""
+
+
+class CoordinatorConflict(SwarmInputError):
+    """Another coordinator's token of the run is alive: a run has one master at a time."""
+
+
+def live_coordinators(session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
+    """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``."""
+    tokens = (parse_coord_token(key) for key in alive_now(session, coord_alive_key(run), timeout_s))
+    return dict(t for t in tokens if t is not None)
+
+
+def conflict_message(run: str, live: dict[int, int]) -> str:
+    """One line naming the live coordinators of ``run``."""
+    names = ", ".join(f"epoch {e}" + (f" (took over epoch {p})" if p else "") for e, p in sorted(live.items()))
+    return (f"run {run} already has a live coordinator ({names}, token {coord_alive_key(run)}): one master per run; "
+            f"stop it first, or start this one with --standby to take over when it is gone")
 
 
 @dataclass(frozen=True)
@@ -99,7 +126,15 @@ def _robots(ids: list[int]) -> str:
 class ZenohSwarmBackend:
     """``SwarmBackend`` of the agents of run ``run`` with robots ``ids``, over ``session``."""
 
-    def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True) -> None:
+    def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
+                 parent: int = 0, rejoin: bool = True) -> None:
+        live = live_coordinators(session, run)
+        if live:
+            raise CoordinatorConflict(conflict_message(run, live))
+        self.epoch = secrets.randbits(63) or 1
+        self.parent = parent
+        self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
+        self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.session = session
         self.run = run
         self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
@@ -136,7 +171,36 @@ class ZenohSwarmBackend:
             subscribe(session, truth_wildcard(run), enqueue),
             watch_liveliness(session, alive_wildcard(run), self._on_liveliness),
         ]
-        self._token = declare_token(session, coord_alive_key(run))  # after the subscribers: agents answer it with truths
+        self._token = declare_token(session, coord_alive_key(run, self.epoch, parent))  # after the subscribers: agents answer it
+        others = {e: p for e, p in live_coordinators(session, run).items() if e != self.epoch}
+        if others:  # two started at once: both may give up, never both go on (each checks after declaring)
+            self.close()
+            raise CoordinatorConflict(conflict_message(run, others))
+
+    def resume(self, state: RunState) -> None:
+        """Continue another coordinator's run from its checkpoint ``state``: at its global step, with its robots
+        (the lost ones are not reported again), its estimate as the commands' start poses and, in simulation,
+        the robots' last truths."""
+        self.step = self._truths_sent = state.step
+        self.config = state.config + 1 if state.plan is not None else state.config
+        self.ids = state.estimate.ids.copy()
+        self._id_list = self.ids.tolist()
+        self._id_set = set(self._id_list)
+        with self._lock:
+            self._lost.update({x.robot: x.reason for x in state.result.lost if x.robot not in self._id_set})
+        self._estimate = {robot: list(pose) for robot, pose in zip(self._id_list, state.estimate.poses.tolist())}
+        last = state.result.steps[-1] if state.result.steps else None
+        truth = state.result.initial_truth if last is None else last.truth
+        if self.simulated and truth is not None:
+            ids = state.result.initial_estimate.ids if last is None else last.estimate.ids
+            self._truth.update({int(r): (state.step, np.array(pose, dtype=float)) for r, pose in zip(ids, truth)})
+
+    def publish_checkpoint(self, state: RunState) -> None:
+        """Publish the executor's ``RunState`` after its step as a ``Checkpoint`` (``on_checkpoint`` of the executor)."""
+        msg = Checkpoint(run=self.run, step=state.step, epoch=self.epoch, config=state.config + 1, group=state.group,
+                         selector_calls=state.selector_calls, lost=sorted({x.robot for x in state.result.lost}),
+                         state=state.to_json())
+        publish(self.session, message_key(msg), encode(msg))
 
     # -- lost robots ------------------------------------------------------------------------
 
@@ -148,7 +212,10 @@ class ZenohSwarmBackend:
         with self._lock:
             if alive:
                 self._alive.add(robot)
+                if self._started and robot in self._lost and self.rejoin:
+                    self._back.add(robot)
                 return
+            self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
         if started:
@@ -187,6 +254,50 @@ class ZenohSwarmBackend:
             self._id_list = self.ids.tolist()
             self._id_set = set(self._id_list)
         return taken
+
+    def lose(self, robot: int, reason: str) -> None:
+        """Declare ``robot`` lost (its stop and event are sent; ``take_lost`` reports it)."""
+        self._declare_lost(robot, reason)
+
+    def take_rejoining(self) -> list[int]:
+        """Lost robots whose agents came back since the last call (their tokens alive again)."""
+        with self._lock:
+            back, self._back = sorted(self._back & self._alive), set()
+        return back
+
+    def observe_rejoining(self, robots: list[int]) -> Observations:
+        """Bring ``robots`` (lost, their agents back) into the run: each is asked for its observations of the
+        current step (a simulated one first gets the step's truth set, with its own truth); those that answer are
+        in ``ids`` again and get a ``RobotEvent`` rejoined, the others are lost again. Their reports."""
+        s = self.step
+        with self._lock:
+            for robot in robots:
+                self._lost.pop(robot, None)
+        self.ids = np.array(sorted({*self._id_list, *robots}), dtype=np.int64)
+        self._id_list = self.ids.tolist()
+        self._id_set = set(self._id_list)
+        self._truths_sent = s - 1  # the set is sent again, with their truths
+        self._reports = {}
+        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
+
+        def send(targets) -> None:
+            for robot in targets:
+                publish(self.session, message_key(requests[robot]), encode(requests[robot]))
+            self._publish_truth_set(again=self._truths_sent >= s)
+
+        def missing() -> list[int]:
+            with self._lock:
+                return sorted(self._owed_obs.difference(self._lost))
+
+        self._owed_obs = set(requests)
+        send(list(requests))
+        self._wait(f"the observation request of step {s} (rejoining)", missing, send)
+        joined = [r for r in robots if r in self._reports and r not in self._lost]
+        for robot in joined:
+            event = RobotEvent(run=self.run, step=s, robot=robot, kind="rejoined", reason="its agent came back")
+            publish(self.session, message_key(event), encode(event))
+            _log.warning("robot %d rejoined the run after step %d", robot, s)
+        return observations_from_reports(self._reports[r] for r in joined)
 
     def _present(self) -> list[int]:
         """Robots of ``ids`` not lost meanwhile."""
@@ -261,7 +372,7 @@ class ZenohSwarmBackend:
         present = self._present()
         if not present or not self._truth_now.issuperset(present):
             return
-        msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present])
+        msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present], epoch=self.epoch)
         publish(self.session, message_key(msg), encode(msg))
         self._truths_sent = s
 
@@ -296,12 +407,12 @@ class ZenohSwarmBackend:
         deadline = time.monotonic() + timeout_s
         while True:
             with self._lock:
-                missing = sorted(self.known - self._alive)
-            no_truth = sorted(self.known - self._truth.keys()) if self.simulated else []
+                missing = sorted(self._id_set - self._alive)
+            no_truth = sorted(self._id_set - self._truth.keys()) if self.simulated else []
             if not missing and not no_truth:
                 with self._lock:
                     self._started = True
-                    gone = sorted(self.known - self._alive)  # a token withdrawn since the check above
+                    gone = sorted(self._id_set - self._alive)  # a token withdrawn since the check above
                 for robot in gone:
                     self._declare_lost(robot, "liveliness token gone")
                 return
@@ -329,7 +440,8 @@ class ZenohSwarmBackend:
             turn, drive = step.commands[k]
             start = () if self._estimate is None else self._estimate.get(robot, ())
             self._cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
-                                              drive_m=float(drive), start_pose=start, cmd_id=secrets.randbits(63) or 1)
+                                              drive_m=float(drive), start_pose=start, cmd_id=secrets.randbits(63) or 1,
+                                              epoch=self.epoch)
         cmds = self._cmds
 
         def send(robots) -> None:
@@ -347,7 +459,7 @@ class ZenohSwarmBackend:
     def observe(self) -> Observations:
         s = self.step
         self._reports = {}
-        requests = {r: ObserveRequest(run=self.run, step=s, robot=r) for r in self._present()}
+        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in self._present()}
 
         def send(robots) -> None:
             for robot in robots:

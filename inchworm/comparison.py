@@ -4,7 +4,9 @@ Each trajectory is run by every method with the same seed (``inchworm.seeding``)
 robots' noise streams are shared and the comparison is paired. P_f (Eq. 24) per run; per
 method the mean, standard deviation and a 97 % confidence interval of the mean (Table
 II), the p-value of the paired t-test against ``ref57``, the mean anchor count and the
-mean number of steps per configuration (speed), and the CPU seconds per run. With
+mean number of steps per configuration (speed), the mean n_a at each configuration index (the
+anchor count along the trajectory), the drift (final e_l as a percentage of the distance
+travelled, as the field reports it) and the CPU seconds per run. With
 ``selections=("mc", "crlb")`` the methods that select anchors online run once per
 ranking and are reported as ``method/mc`` and ``method/crlb``.
 """
@@ -57,12 +59,14 @@ class RunTask:
 
 
 def run_one(task: RunTask) -> Row:
-    """P_f (Eq. 24), mean n_a, mean steps per configuration, final e_l (m) and CPU seconds of one run."""
+    """P_f (Eq. 24), mean n_a and n_a per configuration, mean steps per configuration, final e_l (m), drift (final e_l
+    / distance travelled, %) and CPU seconds of one run."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
     traj = paired_trajectory(task.robots, task.configs, task.seed, task.t, task.model.sensing_range_m)
     cpu = time.process_time()
     result = simulate(traj, task.method, task.model, localizer=task.localizer, selection=task.selection, seed=run_seed(task.seed, task.t))
+    e_l_final = float(result.localization_errors()[-1])
     return {
         **dict(task.tags),
         "trajectory": task.t,
@@ -71,7 +75,9 @@ def run_one(task: RunTask) -> Row:
         "pf": result.pf(),
         "n_a_mean": float(result.anchor_counts().mean()),
         "steps_mean": float(result.steps_per_config().mean()),
-        "e_l_final": float(result.localization_errors()[-1]),
+        "e_l_final": e_l_final,
+        "drift_pct": 100.0 * e_l_final / float(result.travelled()[-1]),
+        "n_a_by_config": [int(k) for k in result.anchor_counts()],
         "fallback_steps": sum(1 for s in result.steps if s.fallback),
     }
 
@@ -115,6 +121,12 @@ class CompareOptions:
                 for t in range(self.trajectories) for m, label, sel in self.variants()]
 
 
+def anchors_along(rows: list[Row]) -> list[float]:
+    """Mean n_a at each configuration index (1, 2, ...) over the runs that reached it."""
+    longest = max((len(r["n_a_by_config"]) for r in rows), default=0)
+    return [float(np.mean([r["n_a_by_config"][k] for r in rows if len(r["n_a_by_config"]) > k])) for k in range(longest)]
+
+
 def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
     """Per-method P_f statistics and p-values of the paired t-test against ref57 (rows paired by ``trajectory``)."""
     out: dict = {"methods": {}, "p_values": {}}
@@ -128,6 +140,8 @@ def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
             "na_mean": float(np.mean([r["n_a_mean"] for r in by[m]])),
             "steps_mean": float(np.mean([r["steps_mean"] for r in by[m]])),
             "cpu_s_mean": float(np.mean([r["cpu_s"] for r in by[m]])),
+            "drift_pct_mean": float(np.mean([r["drift_pct"] for r in by[m]])),
+            "na_by_config": anchors_along(by[m]),
             "runs": len(pf),
         }
     if REFERENCE in by:
@@ -151,11 +165,14 @@ class CompareResult:
 
     def report(self) -> str:
         """The table of ``swarm compare``."""
-        lines = [f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'CPU s':>6} {'p vs ref57':>11}"]
+        lines = [f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'drift %':>8} {'CPU s':>6} {'p vs ref57':>11}"]
         for m, s in self.summary["methods"].items():
             p = self.summary["p_values"].get(m)
             lines.append(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} "
-                         f"{s['steps_mean']:>6.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+                         f"{s['steps_mean']:>6.2f} {s['drift_pct_mean']:>8.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+        for m, s in self.summary["methods"].items():
+            lines.append(f"n_a along the trajectory, {m}: {' '.join(f'{v:.1f}' for v in s['na_by_config'])}")
+        lines.append("drift %: final e_l (true vs estimated, m) / distance travelled (m bar, Eq. 25) x 100")
         methods = self.summary["methods"]
         if "inchworm-equal-speed" in methods and REFERENCE in methods:
             a, b = methods["inchworm-equal-speed"]["pf_mean"], methods[REFERENCE]["pf_mean"]

@@ -22,8 +22,8 @@ from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
-from runtime.wire.keys import estop_key, robot_wildcard
-from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, decode
+from runtime.wire.keys import coord_key, estop_key, robot_wildcard
+from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, ObserveRequest, decode
 from runtime.wire.transport import subscribe
 
 GRACE_S = 3.0  # s a child gets after SIGTERM before SIGKILL
@@ -195,3 +195,53 @@ class RobotKiller:
             return None
         ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
         return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
+
+
+class CoordinatorKiller:
+    """``--kill-coordinator``: SIGKILL the coordinator at its first command of ``step``, then time the takeover: the
+    first command or observation request of another epoch (wall clock, ns; all processes are on this host)."""
+
+    def __init__(self, session, run_id: str, step: int, process: subprocess.Popen) -> None:
+        self.step, self.process = step, process
+        self.epoch: int | None = None
+        self.killed_ns: int | None = None
+        self.taken_ns: int | None = None
+        self._subs = [subscribe(session, robot_wildcard(run_id, leaf), self._on_message) for leaf in ("cmd", "observe")]
+
+    def _on_message(self, key: str, payload: bytes) -> None:
+        heard = time.time_ns()
+        try:
+            msg = decode(payload, MotionCommand if key.endswith("/cmd") else ObserveRequest)
+        except MessageError:
+            return
+        if self.killed_ns is None:
+            if isinstance(msg, MotionCommand) and msg.step >= self.step and self.process.poll() is None:
+                self.process.send_signal(signal.SIGKILL)
+                self.killed_ns, self.epoch = time.time_ns(), msg.epoch
+        elif self.taken_ns is None and msg.epoch != self.epoch:
+            self.taken_ns = heard
+
+    def report(self) -> dict | None:
+        """``{"step", "takeover_ms"}`` once the coordinator was killed (``takeover_ms`` None if nobody took over)."""
+        for sub in self._subs:
+            sub.undeclare()
+        if self.killed_ns is None:
+            return None
+        taken = None if self.taken_ns is None else round((self.taken_ns - self.killed_ns) / 1e6, 3)
+        return {"step": self.step, "takeover_ms": taken}
+
+
+def wait_for_standby(session, run_id: str, standby: subprocess.Popen, timeout_s: float = 60.0) -> None:
+    """Until the standby coordinator follows the run's checkpoints (its subscription reached the hub), so it sees
+    the coordinator that starts next from its first checkpoint on."""
+    probe = session.declare_publisher(coord_key(run_id, "checkpoint"))  # never published on
+    try:
+        deadline = time.monotonic() + timeout_s
+        while not probe.matching_status.matching:
+            if standby.poll() is not None:
+                raise SwarmInputError(f"the standby coordinator exited with status {standby.returncode} before it was ready")
+            if time.monotonic() > deadline:
+                raise SwarmInputError(f"the standby coordinator was not ready within {timeout_s:.0f} s")
+            time.sleep(0.01)
+    finally:
+        probe.undeclare()

@@ -9,8 +9,9 @@ per line, flushed and synced) and the CSV beside it is rewritten; ``resume=True`
 rows an interrupted study kept and runs only the missing tasks, so the final rows are the
 same as those of an uninterrupted run (JSON keeps floats exactly).
 
-Another executor is one small class with ``imap``: e.g. a Dask one would submit
-``client.map(fn, tasks)`` and yield from ``distributed.as_completed``.
+Another executor is one small class with ``imap``: ``inchworm.dask_executor.DaskExecutor``
+submits every task to a Dask cluster and yields rows from ``distributed.as_completed``;
+``open_executor`` picks one from the study options (``--executor``, ``--workers``, ``--scheduler``).
 """
 
 from __future__ import annotations
@@ -88,6 +89,25 @@ class ProcessExecutor:
 def default_executor(workers: int | None = None) -> Executor:
     """The local process pool (``workers``: default every core)."""
     return ProcessExecutor(workers)
+
+
+EXECUTORS = ("local", "dask")
+
+
+@contextlib.contextmanager
+def open_executor(kind: str = "local", workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+    """The executor of a study: the local pool (``local``), a Dask ``LocalCluster`` of ``workers`` processes
+    (``dask``), or the running Dask cluster at ``scheduler`` (``tcp://HOST:PORT``; then ``kind`` and ``workers``
+    are not used); a cluster it starts is stopped on exit."""
+    if scheduler is None and kind == "local":
+        yield default_executor(workers)
+        return
+    if scheduler is None and kind != "dask":
+        raise SwarmInputError(f"--executor must be one of {', '.join(EXECUTORS)}, got {kind!r}")
+    from inchworm.dask_executor import DaskExecutor, dask_client  # noqa: PLC0415
+
+    with dask_client(scheduler, max(1, workers or os.cpu_count() or 1)) as client:
+        yield DaskExecutor(client)
 
 
 class StudyLog:

@@ -133,6 +133,7 @@ def summary_text(result: RunResult, method: str, localizer: str) -> str:
     """The table of a distributed run, the robots it lost and its P_f (over the robots that finished)."""
     lines = [config_table(result)]
     lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
+    lines += [f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on" for back in result.rejoined]
     pf = result.pf() if result.has_truth and result.configs else None
     over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
     lines.append(f"P_f = {pf:.4f} ({method}, {localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")

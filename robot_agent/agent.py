@@ -39,10 +39,22 @@ publishes its current truth as step 0 at start and whenever the coordinator's li
 token ``swarm/<run>/alive/coord`` appears, so a coordinator learns the initial true poses
 for evaluation without any sensing (which would consume the sensing stream).
 
-Runs repeat: when a coordinator's token appears, a new run begins at step 1 and every
-agent forgets the last run's steps (an emergency stop stays latched), so ``swarm
-coordinator`` can run again against the same agents (and, through the link's RUN
-handshake, the same robots).
+One master at a time (docs/protocol.md, Coordinator epochs): every coordinator declares its
+token ``coord_alive_key(run, epoch, parent)`` and stamps its commands, observation requests and
+truth sets with its ``epoch``. The agent obeys one epoch: the first live coordinator whose
+message it gets binds it, and while that token lives every other epoch is refused (a command
+answered ``Status refused`` naming the live epoch, other messages dropped as foreign); a message
+of an epoch whose token went (a dead or replayed coordinator) or without any epoch is refused,
+one of an epoch whose token has not reached the agent yet is dropped (its coordinator sends it
+again). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
+declares itself only once that token is gone), even before the agent saw the token go. When
+the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an ancestor) as its ``parent`` took the run over and continues it, so the
+step memory is kept (a command for the step already executed is answered from memory, never
+executed twice); any other starts a new run at step 1 and the agent forgets the last run's steps
+(an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
+agents (and, through the link's RUN handshake, the same robots). An agent without any step
+memory (just started, e.g. a lost robot's agent restarted) answers an observation request of any
+step of the coordinator it obeys: that is how a lost robot rejoins a run in progress.
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
@@ -82,7 +94,7 @@ from collections.abc import Collection
 import numpy as np
 
 from robot_agent.driver import Driver, DriverFault, DriverRefused, PeerPoses, RobotLost
-from runtime.wire.keys import alive_key, coord_alive_key, estop_key, robot_key, truths_key
+from runtime.wire.keys import alive_key, coord_alive_key, estop_key, parse_coord_token, robot_key, truths_key
 from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
@@ -108,6 +120,7 @@ _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
 _LOST = "__driver_lost__"  # the driver lost its robot while idle (e.g. the gateway's link process died)
 _STOP = "__stop__"  # wakes the loop so it sees stop()
+_UNSEEN = "__unseen__"  # a coordinator epoch whose token has not reached this agent yet
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
 REFUSALS_PER_S = 20.0  # refusals of commands that answer no real command, on average ...
 REFUSAL_BURST = 20  # ... and at once
@@ -142,6 +155,7 @@ class Agent:
         self._stop = threading.Event()
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
         self._last_cmd_step = -1
+        self._last_cmd: MotionCommand | None = None
         self._last_status: Status | None = None
         self._last_obs_step = -1
         self._last_report: ObservationReport | None = None
@@ -155,6 +169,10 @@ class Agent:
         self._stops: queue.SimpleQueue[EmergencyStop | None] = queue.SimpleQueue()  # for the forwarder thread
         self.estopped = False
         self.lost_reason: str | None = None
+        self._coords: dict[int, int] = {}  # live coordinator tokens: epoch -> parent
+        self.bound: int | None = None  # the epoch obeyed (its token may have gone since)
+        self._lineage: set[int] = set()  # epochs of the run the step memory belongs to
+        self._gone: set[int] = set()  # epochs whose tokens this agent saw go
 
     def stop(self) -> None:
         """Ask the loop to end (safe from a signal handler or another thread)."""
@@ -179,7 +197,8 @@ class Agent:
             forwarder.start()
             if self.driver.simulated:
                 subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-            subs.append(watch_liveliness(session, coord_alive_key(self.run_id), lambda key, alive: alive and self._inbox.put((_COORD, b""))))
+            subs.append(watch_liveliness(session, coord_alive_key(self.run_id),
+                                         lambda key, alive: self._inbox.put((_COORD, f"{key} {int(alive)}".encode()))))
             token = declare_token(session, alive_key(self.run_id, self.robot))
             if self.driver.simulated:
                 self._publish_truth(0)
@@ -294,32 +313,75 @@ class Agent:
     def _send(self, msg) -> None:
         publish(self._session, message_key(msg), encode(msg))
 
-    def _new_run(self) -> None:
-        """A coordinator appeared: a new run starts at step 1, so forget the last run's steps (an emergency
-        stop stays latched); a simulated agent publishes its truth as the new run's step 0."""
-        self._last_cmd_step, self._last_status = -1, None
-        self._last_obs_step, self._last_report = -1, None
-        self._pending, self._peers = None, None
-        if self.driver.simulated:
+    def _on_coordinator(self, event: str) -> None:
+        """A coordinator's token appeared or went; a simulated agent answers a new one (not while it obeys
+        another live one) with its current truth as step 0, so a new coordinator learns the start."""
+        key, alive = event.rsplit(" ", 1)
+        token = parse_coord_token(key)
+        if token is None:
+            return
+        epoch, parent = token
+        if alive == "0":
+            self._coords.pop(epoch, None)
+            self._gone.add(epoch)
+            return
+        obeying = self.bound is not None and self.bound in self._coords
+        self._coords[epoch] = parent
+        if self.driver.simulated and not obeying:
             self._publish_truth(0)
+
+    def _admit(self, epoch: int) -> str | None:
+        """None if a message of coordinator ``epoch`` is to be obeyed (binding the agent to it), ``_UNSEEN`` if that
+        epoch's token has not reached this agent yet (the message is dropped: its coordinator sends it again), else
+        why not."""
+        if self.bound is not None and self.bound in self._coords:
+            if epoch == self.bound:
+                return None
+            if self._coords.get(epoch) != self.bound:
+                return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys the live coordinator epoch {self.bound} "
+                        f"of run {self.run_id}")
+            self._coords.pop(self.bound)  # it took over from ours, which declared after our token had gone: gone
+            self._gone.add(self.bound)
+        if epoch not in self._coords:
+            if epoch != 0 and epoch not in self._gone:
+                return _UNSEEN
+            what = "carries no coordinator epoch" if epoch == 0 else f"comes from coordinator epoch {epoch}, which is gone"
+            return f"refused: the message {what} (run {self.run_id})"
+        if self._coords[epoch] not in self._lineage:  # a new run: forget the last run's steps (a stop stays latched)
+            self._last_cmd_step, self._last_cmd, self._last_status = -1, None, None
+            self._last_obs_step, self._last_report = -1, None
+            self._pending, self._peers = None, None
+            self._lineage = set()
+        self._lineage.add(epoch)
+        self.bound = epoch
+        _log.info("robot %d obeys coordinator epoch %d of run %s", self.robot, epoch, self.run_id)
+        return None
 
     def _handle(self, key: str, payload: bytes) -> None:
         if key == _LOST:
             raise RobotLost(payload.decode())
         if key == _COORD:
-            self._new_run()
+            self._on_coordinator(payload.decode())
         elif key == self._cmd_key:
             self._on_command(key, payload)
         elif key == self._observe_key:
             msg = decode_or_drop(payload, self.drops, key, ObserveRequest, self.known)
-            if msg is not None:
+            if msg is not None and self._obeyed(key, msg):
                 self._on_observe(msg)
         else:
             decoded = _decode_truths(payload, self.known, key)
             if isinstance(decoded, MessageError):
                 self.drops.drop(key, decoded)
-            else:
+            elif self._obeyed(key, decoded[0]):
                 self._on_truths(*decoded)
+
+    def _obeyed(self, key: str, msg: ObserveRequest | TruthSetMessage) -> bool:
+        """Whether ``msg`` comes from the coordinator obeyed; if not it is dropped as foreign."""
+        reason = self._admit(msg.epoch)
+        if reason is not None:
+            problem = f"coordinator epoch {msg.epoch} is not known yet" if reason == _UNSEEN else reason
+            self.drops.drop(key, MessageError(f"{msg.TYPE}.epoch", problem, "foreign"))
+        return reason is None
 
     def _on_command(self, key: str, payload: bytes) -> None:
         try:
@@ -330,11 +392,18 @@ class Agent:
             if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot and self.refusals.allow():
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
+        refusal = self._admit(cmd.epoch)
+        if refusal == _UNSEEN:
+            self.drops.drop(key, MessageError("MotionCommand.epoch", f"coordinator epoch {cmd.epoch} is not known yet", "foreign"))
+            return
+        if refusal is not None:
+            self._status(cmd, "refused", refusal, remember=False)
+            return
         if cmd.step < self._last_cmd_step:
             self._status(cmd, "refused", f"stale step {cmd.step}: step {self._last_cmd_step} was already handled", remember=False)
             return
         if cmd.step == self._last_cmd_step and self._last_status is not None:
-            self._send(self._last_status)  # duplicate: never execute twice
+            self._answer_again(cmd)  # duplicate: never execute twice
             return
         if self.estopped:
             self._status(cmd, "refused", "emergency stop", remember=False)
@@ -343,7 +412,7 @@ class Agent:
         if cmd.step != expected:
             self._status(cmd, "refused", f"out of sequence: step {cmd.step}, the next step of this robot is {expected}", remember=False)
             return
-        self._last_cmd_step = cmd.step
+        self._last_cmd_step, self._last_cmd = cmd.step, cmd
         reason = self.limits.refusal(cmd)
         if reason is not None:
             self._status(cmd, "refused", reason)
@@ -359,6 +428,18 @@ class Agent:
             raise
         self.executed += 1
         self._status(cmd, "done")
+
+    def _answer_again(self, cmd: MotionCommand) -> None:
+        """The answer to a command for the step already handled: a re-send gets the same ``Status``; the same
+        motion from the coordinator that took the run over gets that answer with its own ``cmd_id``."""
+        last, done = self._last_status, self._last_cmd
+        if cmd.cmd_id == last.cmd_id or done is None:
+            self._send(last)
+        elif (cmd.turn_rad, cmd.drive_m) != (done.turn_rad, done.drive_m):
+            self._status(cmd, "refused", f"step {cmd.step} was already handled with another motion "
+                                         f"(turn {done.turn_rad:.6g} rad, drive {done.drive_m:.6g} m)", remember=False)
+        else:
+            self._status(cmd, last.state, last.reason, remember=False)
 
     @property
     def _next_step(self) -> int:
@@ -382,6 +463,8 @@ class Agent:
             self._send(self._last_report)
             return
         expected = self._pending if self._pending is not None else self._next_step
+        if self._last_cmd_step < 0 and self._last_obs_step < 0 and self._pending is None:
+            expected = req.step  # no step memory: join the run at its coordinator's step (a lost robot rejoining)
         if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))

@@ -65,7 +65,8 @@ from runtime.gateway.frames import (
     fits_f32,
 )
 from runtime.gateway.config import Calibration, Limits, Port, Timing
-from runtime.wire.keys import KeyspaceError, alive_wildcard, coord_alive_key, coord_key, estop_key, link_alive_key, parse_key, robot_wildcard
+from runtime.wire.keys import (KeyspaceError, alive_wildcard, coord_alive_key, coord_key, estop_key, link_alive_key, parse_coord_token, parse_key,
+                               robot_wildcard)
 from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
@@ -229,6 +230,8 @@ class Link:
         self._subs = []
         self._coord_seen = False  # the coordinator's token appeared ...
         self._coord_gone = False  # ... and disappeared since (or the session to it was lost): the link stops feeding
+        self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
+        self._coord_live: set[int] = set()  # those whose token is alive
         self._estimate_key = coord_key(run, "estimate")
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -242,7 +245,8 @@ class Link:
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       subscribe(self.session, self._estimate_key, enqueue),
-                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("coord", alive))),
+                      watch_liveliness(self.session, coord_alive_key(self.run_id),
+                                       lambda key, alive: self._events.put(("coord", parse_coord_token(key), alive))),
                       watch_liveliness(self.session, alive_wildcard(self.run_id), lambda key, alive: self._events.put(("agent", key, alive)))]
         token = declare_token(self.session, link_alive_key(self.run_id, self.port.name))  # agents notice a dead link at once
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
@@ -368,13 +372,7 @@ class Link:
 
     def _handle(self, event: tuple) -> None:
         if event[0] == "coord":
-            if event[1]:
-                self._coord_seen, self._coord_gone = True, False
-                self._begin_run()
-            elif self._coord_seen:
-                self._coord_gone = True
-                _log.warning("port %s: the coordinator is gone; the robots are no longer kept alive", self.port.name)
-            self._publish_stats()
+            self._on_coordinator(event[1], event[2])
         elif event[0] == "agent":
             self._on_agent(event[1], event[2])
         else:
@@ -473,6 +471,41 @@ class Link:
             self._start(robot, req)
         elif all((r.kind, r.step) != (req.kind, req.step) for r in (robot.busy, *robot.waiting) if r is not None):
             robot.waiting.append(req)  # a re-sent request already in flight or queued is not queued twice
+
+    def _on_coordinator(self, token: tuple[int, int] | None, alive: bool) -> None:
+        """A coordinator token ``(epoch, parent)`` appeared or disappeared. One whose parent is an epoch of the current
+        run takes that run over (a standby or ``--resume``): the link feeds the robots again and keeps what is in
+        flight. Any other one, with no coordinator alive, begins a new run (RUN to every robot); while one is alive
+        it is a second master that the agents refuse, and ignored. When the last one is gone the link stops feeding."""
+        if token is None:
+            return
+        epoch, parent = token
+        if alive:
+            if parent in self._coord_epochs:
+                self._coord_epochs.add(epoch)
+                self._coord_live.add(epoch)
+                if self._coord_gone:
+                    self._coord_gone = False
+                    now = time.monotonic()
+                    for robot in self.robots.values():
+                        robot.unanswered_since = None  # judged again from the next frame sent to it
+                        robot.last_rx = now
+                    _log.warning("port %s: coordinator epoch %d took the run over from epoch %d; the robots are kept alive again",
+                                 self.port.name, epoch, parent)
+            elif self._coord_live:
+                _log.warning("port %s: coordinator epoch %d appeared while epoch %s runs; ignored", self.port.name, epoch,
+                             ", ".join(map(str, sorted(self._coord_live))))
+                return
+            else:
+                self._coord_epochs, self._coord_live = {epoch}, {epoch}
+                self._coord_seen, self._coord_gone = True, False
+                self._begin_run()
+        else:
+            self._coord_live.discard(epoch)
+            if self._coord_seen and not self._coord_live and not self._coord_gone:
+                self._coord_gone = True
+                _log.warning("port %s: the coordinator is gone; the robots are no longer kept alive", self.port.name)
+        self._publish_stats()
 
     def _begin_run(self) -> None:
         """The coordinator appeared: a new run. Forget the last run's requests and losses, send RUN (new epoch)."""

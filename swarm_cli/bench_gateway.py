@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from swarm_cli.entry import library_doc
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_json
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,4 @@ def run(args: argparse.Namespace) -> int:
 
     options = GatewayBenchOptions(args.robots, args.steps, args.rounds, args.frames, args.commands, args.seed, args.localizer, model_config(args))
     result = bench_gateway(options, lambda text: print(f"bench gateway: {text}", file=sys.stderr, flush=True))
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from swarm_cli.entry import library_doc
-from swarm_cli.options import add_json_option, parse_list, print_json
+from swarm_cli.options import add_json_option, parse_list, print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -29,7 +29,4 @@ def run(args: argparse.Namespace) -> int:
     options = RecordBenchOptions(tuple(parse_list(args.robots, "--robots", int, 1)), args.steps, args.steps_per_config, args.repeats,
                                  tuple(parse_list(args.step_ms, "--step-ms", float, 0)), args.seed)
     result = bench_record(options)
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_json
+from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_result
 
 METHODS = ("no-anchors", "ref57")
 EXIT_AGENT = 3
@@ -44,7 +44,4 @@ def run(args: argparse.Namespace) -> int:
     except AgentError as exc:
         print(f"swarm bench runtime: error: {exc}", file=sys.stderr, flush=True)
         return EXIT_AGENT
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

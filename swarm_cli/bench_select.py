@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.options import add_simulation_options, parse_list, print_json, run_options
+from swarm_cli.options import add_simulation_options, parse_list, print_result, run_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,7 +23,4 @@ def run(args: argparse.Namespace) -> int:
 
     options = SelectBenchOptions(tuple(parse_list(args.sizes, "--sizes", int, 2)), args.repeats, args.seed, not args.all_cores, run_options(args))
     result = bench_select(options, lambda text: print(text, file=sys.stderr, flush=True))
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

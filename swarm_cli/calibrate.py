@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from swarm_cli.options import add_json_option, print_json
+from swarm_cli.options import add_json_option, print_result
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,8 +35,4 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.noise_calibration import calibrate_noise  # noqa: PLC0415 - scipy and numpy only when a command runs
 
     result = calibrate_noise(args.file, args.truth, args.out, args.confidence)
-    print(result.report())
-    print(f"wrote {result.model_file}")
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json, f"wrote {result.model_file}")

@@ -8,9 +8,12 @@ the per-configuration summary; with ``--out DIR`` it also writes ``trajectory.pn
 default (``recordings/<run>.mcap``); a recording that cannot be written is one line and follows
 ``--on-record-error continue`` (the run goes on unrecorded) or ``stop``. Whatever ends the run,
 the summary, ``--json``, ``--result`` and the plots of the configurations completed are written.
+``--standby`` / ``--resume RECORDING``: take the run over when its coordinator is gone
+(``coordinator.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
 Exit status: 0 done (also with lost robots), 3 the run was ended by lost robots (named) or the
-agents did not come up, 4 the recording, ``--result`` or a plot could not be written (or the run
-was stopped for its recording), 2 bad input, 128 + N after signal N (SIGINT, SIGTERM, SIGHUP).
+agents did not come up, 4 another coordinator of the run is alive, 5 the recording, ``--result``
+or a plot could not be written (or the run was stopped for its recording), 2 bad input,
+128 + N after signal N (SIGINT, SIGTERM, SIGHUP).
 """
 
 from __future__ import annotations
@@ -27,7 +30,8 @@ from swarm_cli.entry import leave, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
 
 EXIT_AGENT = 3
-EXIT_OUTPUT = 4  # coordinator.process.EXIT_OUTPUT (this module stays light for --help)
+EXIT_CONFLICT = 4  # another coordinator of the run is alive
+EXIT_OUTPUT = 5  # coordinator.process.EXIT_OUTPUT (this module stays light for --help)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -52,6 +56,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages")
     p.add_argument("--result", type=Path, help="write the estimates of every step (and the truth) to this JSON file")
     p.add_argument("--out", type=Path, help="folder for the PNG plots trajectory.png and errors.png (default: no plots)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
+    takeover = p.add_mutually_exclusive_group()
+    takeover.add_argument("--standby", action="store_true",
+                          help="follow the run's live coordinator and take the run over from its last checkpoint if it dies "
+                               "(same options as the coordinator it stands by for)")
+    takeover.add_argument("--resume", type=Path, default=None, metavar="RECORDING",
+                          help="take over the run from the last checkpoint in this MCAP recording (its coordinator is gone)")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -75,21 +87,28 @@ def run(args: argparse.Namespace) -> int:
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
     from coordinator.process import CoordinatorOptions, default_recording, recording_line, result_json, run_coordinator, say  # noqa: PLC0415
+    from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
     from inchworm.plots import write_run_plots  # noqa: PLC0415
     from inchworm.simulation import config_rows, fallback_steps, summary_text  # noqa: PLC0415
 
     options = CoordinatorOptions(
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
         args.localizer, model_config(args), args.model, selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
-        truth=not args.no_truth, record=None if args.no_record else args.record or default_recording(args.run_id),
-        foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), on_record_error=args.on_record_error)
+        truth=not args.no_truth,
+        record=None if args.no_record else args.record or default_recording(args.run_id, "standby" if args.standby else "resume" if args.resume else ""),
+        foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), on_record_error=args.on_record_error,
+        standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
     outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
     status = 0
     if outcome.error is not None:
         print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
+        if isinstance(outcome.error, CoordinatorConflict):
+            return EXIT_CONFLICT
         if outcome.result is None:  # the agents did not come up: nothing ran
             return EXIT_AGENT
         status = EXIT_OUTPUT if type(outcome.error).__name__ == "RecordingStopped" else EXIT_AGENT
+    if outcome.result is None:  # a standby whose run finished without it
+        return EXIT_OUTPUT if outcome.recording_error is not None else 0
     result = outcome.result
     failed = outcome.recording_error is not None
     if args.result:

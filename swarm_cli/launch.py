@@ -46,6 +46,15 @@ with a ``"kill"`` entry added: ``{"robot", "step", "detect_ms", "estop_ms"}``.
 
 ``inchworm.processes`` holds the reusable pieces (``agent_command``, ``start_agents``, ``stop_all``) (also used by
 ``swarm bench runtime``).
+
+``--standby`` also starts a standby coordinator (``swarm coordinator --standby``, same options,
+recording to ``<record>.standby.mcap``): if the coordinator dies without a word (SIGKILL, OOM)
+the standby takes the run over from its last checkpoint, the launcher sends no emergency stop
+and waits for the standby, whose summary and exit status become the launcher's.
+``--kill-coordinator STEP`` SIGKILLs the coordinator at the first command of global step STEP
+(fault injection); the launcher times the takeover: from the kill to the first command or
+observation request of the new coordinator's epoch, and with ``--json`` adds
+``"coordinator_kill": {"step", "takeover_ms"}`` to the last line.
 """
 
 from __future__ import annotations
@@ -66,8 +75,8 @@ import numpy as np
 from coordinator.process import EXIT_OUTPUT, default_recording
 from coordinator.stop import StopSignals, collect_acks, publish_estop
 from coordinator.strategies import METHODS
-from inchworm.processes import (AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO, RobotKiller, agents_per_process, default_gateway, radio_faults,
-                                start_agents, start_gateway, stop_all)
+from inchworm.processes import (AGENTS_PER_PROCESS, GRACE_S, ONE_PER_PROCESS_UP_TO, CoordinatorKiller, RobotKiller, agents_per_process,
+                                default_gateway, radio_faults, start_agents, start_gateway, stop_all, wait_for_standby)
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import estop_ack_key, validate_run
@@ -83,7 +92,8 @@ from swarm_cli.options import add_simulation_options, check_swarm_size, model_co
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "on_lost", "min_robots", "on_record_error")
+COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "mc_start", "mc_emax", "on_lost", "min_robots", "rejoin",
+                 "on_record_error")
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
 PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)
@@ -130,8 +140,14 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
                    help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
+    p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
+                   help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--standby", action="store_true",
+                   help="also start a standby coordinator that takes the run over if the coordinator dies")
+    p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
+                   help="fault injection: SIGKILL the coordinator when global step STEP starts (with --standby: time the takeover)")
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
@@ -243,6 +259,8 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     if args.driver not in BUILT_IN:
         driver_class(args.driver)
         driver_options(args.driver_option)
+    if args.kill_coordinator is not None and args.kill_coordinator < 1:
+        raise SwarmInputError(f"--kill-coordinator {args.kill_coordinator}: the step must be >= 1")
     if args.kill_robot is not None and args.kill_robot[0] not in traj.ids:
         robot, step = args.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -273,7 +291,7 @@ def run(args: argparse.Namespace) -> int:
     py = sys.executable
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
-    coordinator: subprocess.Popen | None = None
+    coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     tied = lifeline.child_options()
@@ -281,8 +299,8 @@ def run(args: argparse.Namespace) -> int:
     def stop_children() -> None:
         """Coordinator, agents, links, emulator: in this order, while the hub still routes (called twice: idempotent)."""
         with signals.deferred():
-            if coordinator is not None:  # first, with time to finish its recording
-                stop_all([coordinator], COORDINATOR_GRACE_S)
+            if coordinators:  # first, with time to finish their recordings
+                stop_all(coordinators, COORDINATOR_GRACE_S)
             stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
             stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
             stop_all(procs[:1] if gateway_procs else [])
@@ -347,35 +365,62 @@ def run(args: argparse.Namespace) -> int:
             if args.kill_robot is not None:
                 robot, step = args.kill_robot
                 killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
-            json_hold = args.json and killer is not None
+            json_hold = args.json and (killer is not None or args.kill_coordinator is not None)
+            standby = None
+            if args.standby:
+                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
+                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
+                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+                procs.append(standby)
+                coordinators.append(standby)
+                wait_for_standby(hub_session, run_id, standby)
             coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
             procs.append(coordinator)
+            coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
+            coord_killer = None if args.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, args.kill_coordinator, coordinator)
             last: list[str] = []
-            forwarder = threading.Thread(target=_forward_output, args=(coordinator.stdout, last), daemon=True) if json_hold else None
-            if forwarder is not None:
+            forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
+                          for p in (coordinator, standby) if json_hold and p is not None]
+            for forwarder in forwarders:
                 forwarder.start()
             try:
                 status = coordinator.wait()
+                if standby is not None and status < 0:  # died without a word: the standby takes the run over
+                    print(f"swarm {args.command}: the coordinator was killed (signal {-status}); the standby takes over",
+                          file=sys.stderr, flush=True)
+                    status = standby.wait()
             except KeyboardInterrupt:
                 print(f"swarm {args.command}: interrupted: {stop_run('the launcher was interrupted')}", file=sys.stderr, flush=True)
                 raise
             if status not in (0, EXIT_OUTPUT):  # an abort, an error or a killed coordinator: stop every robot
                 done = stop_run(f"the coordinator exited with status {status}")
                 print(f"swarm {args.command}: the coordinator exited with status {status}: {done}", file=sys.stderr, flush=True)
-            if forwarder is not None:
+            if standby is not None:
+                try:
+                    standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
+                except subprocess.TimeoutExpired:
+                    stop_all([standby], COORDINATOR_GRACE_S)
+            for forwarder in forwarders:
                 forwarder.join(timeout=10)
-            if killer is not None:
-                kill = killer.report()
-                if kill is not None:
-                    print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
-                          f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
-                if json_hold:
+            kill = None if killer is None else killer.report()
+            if kill is not None:
+                print(f"swarm {args.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                      f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill", file=sys.stderr, flush=True)
+            coord_kill = None if coord_killer is None else coord_killer.report()
+            if coord_kill is not None:
+                print(f"swarm {args.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
+                      f"command came {coord_kill['takeover_ms']} ms after the kill", file=sys.stderr, flush=True)
+            if json_hold:
+                summary = {}
+                for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
                     try:
-                        summary = json.loads(last[0]) if last else {}
-                    except json.JSONDecodeError:  # the coordinator failed before its JSON line: pass it on as it was
-                        sys.stdout.write(last[0])
-                        summary = {}
-                    print_json({**summary, "kill": kill})
+                        summary = json.loads(line)
+                    except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
+                        sys.stdout.write(line)
+                extra = {} if killer is None else {"kill": kill}
+                if coord_killer is not None:
+                    extra["coordinator_kill"] = coord_kill
+                print_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
                 print(f"swarm {args.command}: recording {recording}", file=sys.stderr, flush=True)
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it

@@ -162,8 +162,10 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
-    """``--workers``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
     add_workers_option(parser)
+    parser.add_argument("--executor", choices=("local", "dask"), default="local", help="local: a process pool; dask: a Dask LocalCluster (default local)")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster instead (docs/scale-out.md)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
     parser.add_argument("--resume", action="store_true",
                         help="continue the study interrupted in --out: runs already kept there are not run again (same final result)")
@@ -176,16 +178,13 @@ def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any,
     """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
     table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
     from inchworm.progress import Progress  # noqa: PLC0415
-    from inchworm.runner import default_executor  # noqa: PLC0415
+    from inchworm.runner import open_executor  # noqa: PLC0415
 
     options.validate()
     save_config(args)
-    result = study(options, executor=default_executor(args.workers), out=args.out, resume=args.resume, progress=Progress(total, label))
-    print(result.report())
-    print("wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    with open_executor(args.executor, args.workers, args.scheduler) as executor:
+        result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))
+    return print_result(result, args.json, "wrote " + ", ".join(map(str, [args.out / f"{log}.csv", *result.save(args.out)])))
 
 
 def run_options(args: argparse.Namespace) -> RunOptions:
@@ -209,6 +208,16 @@ def print_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
+def print_result(result: Any, as_json: bool, *lines: str) -> int:
+    """A result's table, then ``lines``, and with ``as_json`` its JSON object as the last line; exit code 0."""
+    print(result.report())
+    for line in lines:
+        print(line)
+    if as_json:
+        print_json(result.to_json())
+    return 0
+
+
 def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
@@ -219,6 +228,11 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
     g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
+    g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
+                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
+                        "truths drawn from its covariance (estimate, the default until the pre-registered results); default known (docs/experiments.md)")
+    g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
+                   help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
@@ -235,6 +249,8 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
         samples=args.samples,
         genetic=GeneticConfig(population=args.population, generations=args.generations),
         method=args.selection,
+        mc_start=args.mc_start,
+        mc_emax=args.mc_emax,
     )
 
 
@@ -294,7 +310,7 @@ def connection_label(args: argparse.Namespace) -> str:
     return args.hub or f"config {args.zenoh_config}"
 
 
-NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers"})  # how to run, not what: never read from or saved to a study file
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers", "executor", "scheduler"})  # how to run, not what: never read from or saved to a study file
 
 
 def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:

@@ -24,6 +24,12 @@ reproduced`` (exit 0) or the first divergence (exit 1).
 
 Files that are not MCAP, damaged or cut inside the header: a message naming the file and
 the problem, exit 2. Unfinished (killed) recordings are read up to their last complete chunk.
+
+Unless ``--same-run``, the messages are published under a new run id (``--run NEW``, default
+``<run>-replay-<6 hex digits>``, printed): each message's ``run`` and key are rewritten, nothing
+else. Either way it first asks the hub whether an agent or a coordinator of that run id is
+alive and refuses (exit 2, naming them) if one is: a replay never drives a live run (and its
+commands, carrying the recorded coordinator's epoch, would be refused by live agents anyway).
 """
 
 from __future__ import annotations
@@ -51,7 +57,7 @@ MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
     "sensing_range": ("sensing_range_m", float),
     "dropout": ("dropout_prob", float),
 }
-SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection")
+SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -64,6 +70,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
     g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live on this host, else a loopback hub of its own, printed)")
     g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
+    target = g.add_mutually_exclusive_group()
+    target.add_argument("--run", dest="run_id", default=None, help="run id to publish under (default <run>-replay-<hex>)")
+    target.add_argument("--same-run", action="store_true", help="publish under the recorded run id, bytes unchanged")
     c = p.add_argument_group("--check (options given override the recorded ones)")
     c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
     c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
@@ -108,7 +117,7 @@ def run_publish(args: argparse.Namespace) -> int:
     if not info["complete"]:
         print(f"swarm replay: {args.file} is unfinished ({info['problem'] or 'no summary'}): replaying its "
               f"{len(messages)} readable messages", file=sys.stderr, flush=True)
-    run = info["metadata"].get("run", {}).get("run") if isinstance(info["metadata"].get("run"), dict) else None
+    messages, run = _retarget(messages, args.run_id, args.same_run)  # a new run id unless --same-run
     live = read_run(run) if isinstance(run, str) and _valid_run(run) else None
     own_run = contextlib.nullcontext()
     if args.hub:
@@ -127,6 +136,7 @@ def run_publish(args: argparse.Namespace) -> int:
         else:
             where += f"; connect with --hub {hub}"
     with open_session(settings) as session, own_run:  # the hub is open, and findable, before anyone is told of it
+        _refuse_live_run(session, run)  # a replay never publishes onto a live run
         print(f"swarm replay: publishing {len(messages)} messages of run {run or '?'} on {hub} ({where})", flush=True)
         publishers = {}
         for topic, *_ in messages:
@@ -161,6 +171,66 @@ def run_publish(args: argparse.Namespace) -> int:
         print_json({"messages": len(messages), "keys": len(publishers), "elapsed_s": elapsed, "recorded_s": span, "hub": hub,
                     "skipped": skipped})
     return 0
+
+
+def _retarget(messages: list[tuple[str, bytes, int, int]], run_id: str | None, same_run: bool) -> tuple[list, str]:
+    """The messages to publish and their run id: the recorded one (``same_run``), else ``run_id`` or a new one,
+    each message's ``run`` and key rewritten (an undecodable recorded message keeps its bytes)."""
+    import dataclasses  # noqa: PLC0415
+    import secrets  # noqa: PLC0415
+
+    from runtime.wire.keys import parse_key, validate_run  # noqa: PLC0415
+    from runtime.wire.messages import MessageError, decode, encode  # noqa: PLC0415
+
+    recorded = sorted({parse_key(topic).run for topic, *_ in messages if _parses(topic)})
+    if len(recorded) > 1:
+        raise SwarmInputError(f"the recording holds several runs ({', '.join(recorded)}): cannot choose one to replay")
+    source = recorded[0] if recorded else None
+    if same_run or source is None:
+        return messages, source or "(none)"
+    target = run_id or f"{source[:50]}-replay-{secrets.token_hex(3)}"
+    try:
+        validate_run(target)
+    except SwarmInputError as exc:
+        raise SwarmInputError(f"--run {target!r}: {exc}") from None
+    if target == source:
+        return messages, target
+    old, new = f"{ROOT}/{source}/", f"{ROOT}/{target}/"
+    out = []
+    for topic, payload, log_time, pub in messages:
+        try:
+            payload = encode(dataclasses.replace(decode(payload, key=topic), run=target))
+        except MessageError:
+            pass  # recorded as it was received (e.g. a hostile message): its bytes, on the new key
+        out.append((new + topic[len(old):] if topic.startswith(old) else topic, payload, log_time, pub))
+    return out, target
+
+
+def _parses(topic: str) -> bool:
+    from runtime.wire.keys import KeyspaceError, parse_key  # noqa: PLC0415
+
+    try:
+        parse_key(topic)
+    except KeyspaceError:
+        return False
+    return True
+
+
+def _refuse_live_run(session, run_id: str) -> None:
+    """``SwarmInputError`` naming them if an agent or a coordinator of ``run_id`` is alive on this hub."""
+    from coordinator.zenoh_backend import live_coordinators  # noqa: PLC0415
+    from runtime.wire.keys import alive_wildcard, parse_key  # noqa: PLC0415
+    from runtime.wire.transport import alive_now  # noqa: PLC0415
+
+    if run_id == "(none)":
+        return
+    robots = sorted(parse_key(key).robot for key in alive_now(session, alive_wildcard(run_id)))
+    coords = sorted(live_coordinators(session, run_id))
+    if robots or coords:
+        who = ", ".join(([f"coordinator epoch {', '.join(map(str, coords))}"] if coords else [])
+                        + ([f"agents of robots {', '.join(map(str, robots))}"] if robots else []))
+        raise SwarmInputError(f"run {run_id} is live on this hub ({who}): a replay never publishes onto a live run; "
+                              f"publish under a new run id (the default, or --run NEW)")
 
 
 # ------------------------------------------------------------------ --check

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from swarm_cli.options import add_simulation_options, add_study_options, print_json, run_options, run_study
+from swarm_cli.options import add_simulation_options, add_study_options, print_result, run_options, run_study
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -17,6 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eval-samples", type=int, default=512, help="fresh samples every reported plan is evaluated on (default 512)")
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
     add_study_options(p, "out/study-selection", "configs.jsonl, configs.csv, selection.png and study.toml")
+    p.add_argument("--no-optimum", action="store_true", help="skip the exhaustive optimum (search against the heuristic only)")
     p.add_argument("--from-csv", type=Path, default=None, help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
     p.set_defaults(run=run)
@@ -25,12 +26,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.studies.selection import SelectionStudyOptions, selection_from_csv, study_selection  # noqa: PLC0415
 
-    options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed, run_options(args))
+    options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed, run_options(args),
+                                     not args.no_optimum)
     options.validate()
     if args.from_csv is None:
         return run_study(args, study_selection, options, options.configs, "study selection", "configs")
     result = selection_from_csv(args.from_csv, options)
-    print(result.report())
-    if args.json:
-        print_json(result.to_json())
-    return 0
+    return print_result(result, args.json)

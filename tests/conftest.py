@@ -32,6 +32,7 @@ SLOW_MODULES = frozenset({
     "test_cli_sim",  # swarm sim / compare as subprocesses
     "test_deploy",  # routers, TLS, access control
     "test_distributed",  # agents + coordinator processes
+    "test_one_master",  # coordinators, standbys, agents and replays as processes
     "test_drivers",  # lab drivers under swarm launch and swarm agent
     "test_calibrate",  # swarm calibrate on a launched run's recording
     "test_emulator",  # robot emulators on ptys
@@ -41,6 +42,7 @@ SLOW_MODULES = frozenset({
     "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
     "test_examples",  # the example scripts as subprocesses
     "test_transport",  # Zenoh sessions and child processes
+    "test_dask_cluster",  # a dask scheduler and dask workers as subprocesses
     "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
 })
 SLOW_TESTS = frozenset({
@@ -61,6 +63,7 @@ SLOW_TESTS = frozenset({
     "test_inchworm_api.py::test_rows_do_not_depend_on_the_workers_or_their_order",  # a process pool
     "test_inchworm_api.py::test_the_cli_names_an_unknown_study_file_key_in_one_line",  # subprocess
     "test_inchworm_api.py::test_importing_the_library_and_the_cli_changes_nothing",  # subprocess
+    "test_dask_executor.py::test_an_unreachable_scheduler_is_one_line_and_exit_2",  # subprocess
 })
 
 

@@ -12,11 +12,12 @@ import pytest
 from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.models.config import ModelConfig
-from runtime.wire.keys import alive_wildcard, robot_key
+from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode
-from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
 
 RUN = "agent-test"
+EPOCH = 17  # the test acts as the coordinator of this epoch
 
 
 @pytest.fixture
@@ -30,9 +31,12 @@ def agent_on_hub():
         deadline = time.monotonic() + 5
         while not alive_now(hub, alive_wildcard(RUN)) and time.monotonic() < deadline:
             time.sleep(0.02)
+        token = declare_token(hub, coord_alive_key(RUN, EPOCH))
+        time.sleep(0.3)  # the agent learns of its coordinator
         try:
             yield hub, agent, statuses
         finally:
+            token.undeclare()
             agent.stop()
             thread.join(timeout=5)
 
@@ -44,7 +48,7 @@ def next_status(statuses: queue.Queue, timeout: float = 3.0) -> Status:
 
 def send(hub, step: int, turn: float, drive: float, cmd_id: int = 0) -> None:
     publish(hub, robot_key(RUN, 0, "cmd"),
-            encode(MotionCommand(run=RUN, step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, cmd_id=cmd_id)))
+            encode(MotionCommand(run=RUN, step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, cmd_id=cmd_id, epoch=EPOCH)))
 
 
 def test_command_beyond_limits_is_refused_with_a_reason_and_not_executed(agent_on_hub):

@@ -21,10 +21,10 @@ from robot_agent.driver import SimDriver
 from robot_agent.host import AgentHost
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import alive_wildcard, parse_key, robot_key, robot_wildcard
+from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
 from runtime.models.trajectory import random_trajectory
-from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
 from inchworm.processes import agents_per_process
 from robot_agent.assembly import format_ids
 from robot_agent.assembly import parse_ids
@@ -68,13 +68,16 @@ def test_hosted_agents_are_separate_agents_on_the_wire():
                 assert time.monotonic() < deadline, f"tokens alive: {alive}"
                 time.sleep(0.02)
             _, statuses = subscribe_queue(hub, robot_wildcard(RUN, "status"))
-            cmd = MotionCommand(run=RUN, step=1, robot=2, config=1, turn_rad=0.1, drive_m=0.05)
+            token = declare_token(hub, coord_alive_key(RUN, 5))  # the test is the run's coordinator, epoch 5
+            time.sleep(0.3)
+            cmd = MotionCommand(run=RUN, step=1, robot=2, config=1, turn_rad=0.1, drive_m=0.05, epoch=5)
             publish(hub, robot_key(RUN, 2, "cmd"), encode(cmd))
             got = [decode(statuses.get(timeout=5)[1], Status) for _ in range(2)]
             assert [(s.robot, s.state) for s in got] == [(2, "accepted"), (2, "done")]
             assert [a.executed for a in agents] == [0, 1, 0]  # only robot 2's agent executed it
             moved = agents[1].driver.true_pose()
             assert not np.allclose(moved, [0.4, 0.0, 0.0]) and np.allclose(agents[0].driver.true_pose(), [0.2, 0.0, 0.0])
+            token.undeclare()
         finally:
             host.stop()
             thread.join(timeout=10)

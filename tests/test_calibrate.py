@@ -57,7 +57,7 @@ def test_a_launched_run_plans_and_simulates_with_the_model_file_and_records_it(t
     model.write_text("[model]\nturn_sigma_deg = 6.5\ndropout = 0.1\nsensing_range_m = 0.45\n")
     rec = tmp_path / "run.mcap"
     run = swarm("launch", "-n", "4", "--configs", "2", "--method", "no-anchors", "--model", str(model), "--dropout", "0.05",
-                "--record", str(rec), "--out", str(tmp_path / "plots"), "--run", f"model-{tmp_path.name[-12:]}")
+                "--mc-start", "estimate", "--mc-emax", "worst", "--record", str(rec), "--out", str(tmp_path / "plots"), "--run", f"model-{tmp_path.name[-12:]}")
     assert run.returncode == 0, run.stderr[-2000:]
     from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
 
@@ -66,3 +66,4 @@ def test_a_launched_run_plans_and_simulates_with_the_model_file_and_records_it(t
     assert meta["model"]["turn_sigma_rad"] == np.radians(6.5) and meta["model"]["sensing_range_m"] == 0.45
     assert meta["model"]["dropout_prob"] == 0.05  # the flag overrides the file
     assert meta["model"]["range_sigma_m"] == 0.01  # not in the file: the default
+    assert (meta["selection"]["mc_start"], meta["selection"]["mc_emax"]) == ("estimate", "worst")  # forwarded to the coordinator

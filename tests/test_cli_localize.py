@@ -122,3 +122,29 @@ def test_solver_failure_has_its_own_exit_code_and_localizes_the_rest(tmp_path):
     strict = swarm("localize", str(path), "--localizer", "joint", "--strict")
     assert strict.returncode == 3 and "no-convergence" in strict.stderr and "Traceback" not in strict.stderr
     assert strict.stdout.strip() == ""
+
+
+def test_bench_localize_still_prior_gives_the_anchors_their_own_prior():
+    """--still-prior: the robots that do not move start with that prior std; layout, movers and draws are unchanged."""
+    import numpy as np
+
+    from runtime.models.config import ModelConfig
+    from runtime.models.scenarios import random_step
+    from inchworm.bench.localize import SPACING_M
+
+    plain = random_step(10, ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3)
+    precise = random_step(10, ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3, still_delta=0.002)
+    still = ~plain.step.moving
+    np.testing.assert_array_equal(precise.step.moving, plain.step.moving)
+    np.testing.assert_array_equal(precise.prior.poses, plain.prior.poses)
+    np.testing.assert_allclose(precise.prior.cov[~still], plain.prior.cov[~still])
+    np.testing.assert_allclose(precise.prior.cov[still, 0, 0], 0.002**2 / 2)
+    assert np.all(np.linalg.norm(precise.true_before[still, :2] - precise.prior.poses[still, :2], axis=1) <
+                  np.linalg.norm(plain.true_before[still, :2] - plain.prior.poses[still, :2], axis=1))
+    out = swarm("bench", "localize", "--sizes", "10", "--trials", "1", "--repeats", "1", "--no-gtsam", "--seed", "3",
+                "--still-prior", "0.002", "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["still_prior_m"] == 0.002 and doc["results"][0]["joint"]["err_over_crlb"] < doc["results"][0]["paper"]["err_over_crlb"]
+    bad = swarm("bench", "localize", "--still-prior", "0")
+    assert bad.returncode == 2 and "--still-prior must be > 0 m" in bad.stderr

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import subprocess
 import sys
@@ -50,6 +51,26 @@ def test_compare_json_contract(tmp_path):
     assert doc["methods"]["ref57"]["na_mean"] == 3 and doc["methods"]["no-anchors"]["steps_mean"] == 1
     assert set(doc["p_values"]) == {"no-anchors", "heuristic-fixed"}
     assert (tmp_path / "runs.csv").exists() and (tmp_path / "pf.png").exists()
+    assert doc["methods"]["ref57"]["na_by_config"] == [3.0, 3.0]  # n_a along the trajectory, per configuration index
+    runs = list(csv.DictReader(open(tmp_path / "runs.csv")))
+    for m, stats in doc["methods"].items():  # drift: final e_l as a percentage of the distance travelled
+        drifts = [float(r["drift_pct"]) for r in runs if r["method"] == m]
+        assert stats["drift_pct_mean"] == pytest.approx(sum(drifts) / len(drifts)) and 0 < stats["drift_pct_mean"] < 100
+    assert "mc-start = \"known\"" in (tmp_path / "study.toml").read_text()  # the default reading, recorded with the options
+
+
+def test_sim_records_the_monte_carlo_reading(tmp_path):
+    out = swarm("sim", "--robots", "6", "--configs", "1", "--samples", "2", "--generations", "1", "--mc-start", "known",
+                "--mc-emax", "worst", "--out", str(tmp_path), "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert (doc["mc_start"], doc["mc_emax"]) == ("known", "worst")
+
+
+def test_worst_emax_needs_the_monte_carlo(tmp_path):
+    out = swarm("sim", "--robots", "6", "--configs", "1", "--selection", "crlb", "--mc-emax", "worst", "--out", str(tmp_path))
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1].endswith("use it with the mc selection, not crlb")
 
 
 def test_compare_rejects_unknown_methods():

@@ -24,9 +24,10 @@ from pathlib import Path
 
 import pytest
 
-from runtime.wire.keys import alive_key, robot_key
+from runtime.wire.keys import alive_key, coord_alive_key, robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode, message_key
-from runtime.wire.transport import MAX_WIRE_BYTES, ZenohSettings, free_tcp_port, open_session, publish, subscribe_queue, watch_liveliness
+from runtime.wire.transport import (MAX_WIRE_BYTES, ZenohSettings, declare_token, free_tcp_port, open_session, publish, subscribe_queue,
+                                    watch_liveliness)
 from swarm_cli.main import main as swarm_main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -357,17 +358,19 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
             watch_liveliness(coord, alive_key(run, 0), lambda key, up: alive.put((key, up)))
             children.append(Child(agent_cmd))
             assert alive.get(timeout=20) == (alive_key(run, 0), True), "the agent's token never reached the coordinator"
+            token = declare_token(coord, coord_alive_key(run, 9))  # the coordinator of epoch 9
+            time.sleep(0.3)
 
             # Neither a certificate of the same CA with another name nor the gateway identity
             # gets a command through: no Status at all for 2 s.
             for session, step in ((intruder, 5), (gateway, 6)):
-                cmd = MotionCommand(run=run, step=step, robot=0, config=1, turn_rad=0.1, drive_m=0.05)
+                cmd = MotionCommand(run=run, step=step, robot=0, config=1, turn_rad=0.1, drive_m=0.05, epoch=9)
                 publish(session, message_key(cmd), encode(cmd))
             assert _statuses(statuses, 2.0) == []
 
             # The coordinator's step 1 is the first command the agent executes (had step 5 or 6
             # run, step 1 would be refused as stale; had step 1 run before, no 'accepted').
-            cmd = MotionCommand(run=run, step=1, robot=0, config=1, turn_rad=0.1, drive_m=0.05)
+            cmd = MotionCommand(run=run, step=1, robot=0, config=1, turn_rad=0.1, drive_m=0.05, epoch=9)
             publish(coord, message_key(cmd), encode(cmd))
             got = _statuses(statuses, 10.0, until_done=True)
             assert [(s.step, s.state) for s in got] == [(1, "accepted"), (1, "done")], got

@@ -251,7 +251,8 @@ def test_coordinator_records_the_run(completed):
         assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
         assert counts[truth_key(r, robot)] >= 3  # steps 0, 1, 2
     assert counts[truths_key(r)] == 2  # one truth set per motion step
-    assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), truths_key(r),
+    assert counts[coord_key(r, "checkpoint")] == 6  # the start, each plan, each step, the end
+    assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), coord_key(r, "checkpoint"), truths_key(r),
                            *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
                            *[truth_key(r, i) for i in ids]}
     meta = info["metadata"]["run"]

@@ -402,7 +402,7 @@ def test_truth_published_at_start_on_observe_and_when_the_coordinator_appears(cf
             link.expect(1)
             (observed,) = truths(1)
             assert (observed.robot, observed.step) == (1, 4)
-            token = declare_token(hub, coord_alive_key(run))
+            token = declare_token(hub, coord_alive_key(run, 1))
             again = sorted(truths(2), key=lambda m: m.robot)
             assert [(m.robot, m.step) for m in again] == [(0, 0), (1, 4)]
             token.undeclare()

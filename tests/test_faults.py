@@ -110,21 +110,25 @@ def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
 
 def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     """``swarm bench faults --json`` at a small size: radio faults at 5 % each (one seed, against its fault-free
-    run), a killed agent, and 2000 hostile messages (random bytes, wrong types, NaN/inf/huge values, future
-    steps, unknown ids, replays) on every key: every run completes with the same table and P_f; an emergency
-    stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s."""
+    run), a killed agent, a killed coordinator with a standby, and 2000 hostile messages (random bytes, wrong types,
+    NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
+    and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
                            "--gateway-rows=0.05,0.05,0.05", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert list(result) == ["gateway", "lost_robot", "fuzz", "estop_under_flood"]
+    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood"]
     assert result["gateway"] == [{"drop": 0.05, "corrupt": 0.05, "delay": 0.05, "runs": 1, "completed": 1, "identical": 1,
                                   "max_executions_per_step": 1}]
     lost = result["lost_robot"]
     assert list(lost) == ["detect_ms_median", "completed", "estop_ms_max"] and lost["completed"] is True
     assert 0 < lost["detect_ms_median"] <= lost["estop_ms_max"]
     assert result["fuzz"] == {"sent": 2000, "process_deaths": 0, "completed": True, "identical": True}
+    coordinator = result["coordinator"]  # the coordinator SIGKILLed at a random step, a standby taking over
+    assert list(coordinator) == ["runs", "completed", "identical", "takeover_ms_max"]
+    assert coordinator["runs"] == coordinator["completed"] == coordinator["identical"] == 1
+    assert 0 < coordinator["takeover_ms_max"] < 1000
     flood = result["estop_under_flood"]
     assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max"]
     assert (flood["connections"], flood["tls"], flood["reached"]) == (3000, True, flood["robots"]) and flood["robots"] >= 10

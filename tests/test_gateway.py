@@ -29,11 +29,12 @@ from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.link import Link, SerialLink
 from runtime.models.config import ModelConfig
 from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
-from runtime.wire.keys import alive_wildcard
+from runtime.wire.keys import alive_wildcard, coord_alive_key
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
 from runtime.recording.mcap_log import read_messages
 from runtime.models.trajectory import random_trajectory
-from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe, subscribe_queue
+from runtime.wire.transport import (ZenohSettings, alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe,
+                                    subscribe_queue)
 from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 
 REPO = Path(__file__).resolve().parents[1]
@@ -82,6 +83,16 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
             link.stop()
             thread.join(timeout=5)
             device.close()
+
+
+EPOCH = 3  # tests that command agents directly act as the coordinator of this epoch
+
+
+def act_as_coordinator(session, run_id: str):
+    """Declare the token of the coordinator of ``EPOCH`` for ``run_id`` (agents obey only a live coordinator); keep it."""
+    token = declare_token(session, coord_alive_key(run_id, EPOCH))
+    time.sleep(0.3)  # the agents and links learn of it
+    return token
 
 
 def command(step: int, turn: float = 0.3, drive: float = 0.1, start_pose=()) -> MotionCommand:
@@ -418,12 +429,14 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
             return _wait_for(find, 10, f"the status of robot {robot} at step {step}")
 
         found: dict = {}
+        token = act_as_coordinator(session, run_id)
         # limits: a drive beyond max_drive_m is refused by the agent, no COMMAND frame reaches the robot
-        too_far = MotionCommand(run=run_id, step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.5)
+        too_far = MotionCommand(run=run_id, step=1, robot=ids[0], config=1, turn_rad=0.0, drive_m=0.5, epoch=EPOCH)
         publish(session, message_key(too_far), encode(too_far))
         assert status_of(ids[0], 1).state == "refused" and "exceeds the limit 0.3 m" in status_of(ids[0], 1).reason
         # workspace: the move would leave [-5, 5]^2 from the coordinator's estimate of the robot
-        outside = MotionCommand(run=run_id, step=1, robot=ids[2], config=1, turn_rad=0.0, drive_m=0.2, start_pose=[4.9, 0.0, 0.0])
+        outside = MotionCommand(run=run_id, step=1, robot=ids[2], config=1, turn_rad=0.0, drive_m=0.2, start_pose=[4.9, 0.0, 0.0],
+                                epoch=EPOCH)
         publish(session, message_key(outside), encode(outside))
         assert status_of(ids[2], 1).state == "refused" and "outside the workspace" in status_of(ids[2], 1).reason
         # emergency stop
@@ -448,9 +461,10 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         rows = [json.loads(line) for line in events.read_text().splitlines() if line.strip()]
         assert not [r for r in rows if r.get("event") in ("accepted", "executed")], "a command reached a robot"
         # after the stop every agent refuses commands
-        cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1)
+        cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
         publish(session, message_key(cmd), encode(cmd))
         assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
+        token.undeclare()
 
 
 def test_swarm_estop_counts_the_agents_and_links_that_acknowledged_and_fails_when_none_did(tmp_path):
@@ -512,7 +526,8 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
             _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
-            cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1)
+            token = act_as_coordinator(session, "nolink")
+            cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
             publish(session, message_key(cmd), encode(cmd))
             assert agent.wait(timeout=20) == 3
             assert alive_now(session, alive_wildcard("nolink")) == set()
@@ -548,7 +563,8 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
                                                                                  "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
         _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/deadlink/robot/{robot}/status"])
-        cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1)
+        token = act_as_coordinator(site.session, "deadlink")
+        cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
         publish(site.session, message_key(cmd), encode(cmd))
         assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
         time.sleep(0.3)
@@ -573,7 +589,8 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
         _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
         _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/late/robot/{robot}/status"])
-        cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05)
+        token = act_as_coordinator(site.session, "late")
+        cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05, epoch=EPOCH)
         publish(site.session, message_key(cmd), encode(cmd))
         states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]
         assert states == ["accepted", "done"]

@@ -99,7 +99,7 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
         session = open_session(ZenohSettings("client", connect=(hub,)))
         try:
             _wait_for(lambda: alive_now(session, link_alive_key("dead", "radio0")), 30, "the link")
-            token = declare_token(session, coord_alive_key("dead"))  # a coordinator appears: the link begins a run
+            token = declare_token(session, coord_alive_key("dead", 1))  # a coordinator appears: the link begins a run
             _wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
             request = LinkRequest(run="dead", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(request), encode(request))
@@ -118,5 +118,37 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
         link.terminate()
         _, err = link.communicate(timeout=15)
         assert "the coordinator is gone" in err, err
+    finally:
+        stop_all(procs)
+
+
+def test_a_coordinator_takeover_keeps_the_robots_fed_and_the_accepted_motion_completes(tmp_path):
+    """A robot in the middle of a 3 s motion: the coordinator's token (epoch 1) disappears and its successor's (epoch 2,
+    parent 1) appears 0.3 s later, as a standby taking the run over. The link feeds the robots again without a new
+    RUN: the motion is not aborted and completes. A coordinator of a new run (parent 0) while epoch 2 lives is ignored."""
+    procs: list[subprocess.Popen] = []
+    try:
+        ids, live, events = _site(tmp_path, 2, procs, "--motion-time=3")
+        hub = _router(free_tcp_port(), procs)
+        link = _link(live, "takeover", hub, procs)
+        with open_session(ZenohSettings("client", connect=(hub,))) as session:
+            _wait_for(lambda: alive_now(session, link_alive_key("takeover", "radio0")), 30, "the link")
+            first = declare_token(session, coord_alive_key("takeover", 1))
+            _wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
+            request = LinkRequest(run="takeover", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
+            publish(session, message_key(request), encode(request))
+            _wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
+            first.undeclare()
+            time.sleep(0.3)
+            second = declare_token(session, coord_alive_key("takeover", 2, 1))
+            other = declare_token(session, coord_alive_key("takeover", 5))  # a second master: refused by the agents
+            _wait_for(lambda: [e for e in _events(events) if e["event"] == "executed"], 10, "the motion done")
+            assert not [e for e in _events(events) if e["event"] == "aborted"]
+            assert len([e for e in _events(events) if e["event"] == "run"]) == len(ids)  # the same run: no new RUN
+            other.undeclare()
+            second.undeclare()
+        link.terminate()
+        _, err = link.communicate(timeout=15)
+        assert "epoch 2 took the run over from epoch 1" in err and "epoch 5 appeared while epoch 2 runs; ignored" in err, err
     finally:
         stop_all(procs)

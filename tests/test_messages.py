@@ -498,7 +498,7 @@ def test_key_builders_and_parse_round_trip():
         coord_key("r1", "estimate"): ParsedKey("r1", "coord", None, "estimate"),
         truth_key("r1", 7): ParsedKey("r1", "sim", 7, "truth"),
         alive_key("r1", 7): ParsedKey("r1", "alive", 7, "alive"),
-        coord_alive_key("r1"): ParsedKey("r1", "alive", None, "alive"),
+        coord_alive_key("r1", 7, 0): ParsedKey("r1", "alive", None, "alive"),
         estop_ack_key("r1"): ParsedKey("r1", "estop", None, "ack"),
     }
     for key, parsed in cases.items():

@@ -95,7 +95,7 @@ def _collect(session, got: list, done: threading.Event, total: int) -> None:
 
 def test_publish_own_hub_as_fast_as_possible(recording):
     expected = _run_messages(recording)
-    proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--speed", "0"],
+    proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--speed", "0", "--same-run"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO, env=ENV)
     try:
         line = proc.stdout.readline()  # where it publishes, first, on stdout
@@ -127,7 +127,7 @@ def test_publish_on_a_hub_with_timing(recording):
     done = threading.Event()
     with open_session(hub_settings) as session:
         _collect(session, got, done, len(expected))
-        proc = swarm("replay", recording, "--publish", "--speed", "4", "--hub", f"tcp/127.0.0.1:{port}", "--json")
+        proc = swarm("replay", recording, "--publish", "--speed", "4", "--hub", f"tcp/127.0.0.1:{port}", "--json", "--same-run")
         done.wait(5)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -115,7 +115,7 @@ def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(locali
     sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0)  # accuracy only: the count(s) that could win are searched
     result = AnchorSelector(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), sel, seed=seed).select(estimate, desired)
     assert result.fresh_seed is not None
-    fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed)
+    fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed, sel.mc_start)
     assert any(entry.searched for entry in result.scores)
     for entry in result.scores:
         assert entry.plan is not None and entry.e_l <= entry.seed_e_l

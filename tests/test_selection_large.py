@@ -124,7 +124,7 @@ def test_large_swarm_selection_e_l_is_the_window_monte_carlo():
     window = np.zeros(24, bool)
     window[np.argsort(np.linalg.norm(estimate.positions - estimate.positions.mean(axis=0), axis=1), kind="stable")[:12]] = True
     mc_seed = int(np.random.default_rng([6, 1]).integers(2**63))
-    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), samples_for(config.samples, 12), mc_seed)
+    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), samples_for(config.samples, 12), mc_seed, config.mc_start)
     for entry in result.scores:
         if entry.plan is not None:
             assert entry.e_l == mc.localization_errors(estimate, desired, [entry.plan], window=window)[0]

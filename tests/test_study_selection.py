@@ -30,7 +30,12 @@ def test_study_selection_json_contract(tmp_path):
                 "--eval-samples", "16", "--workers", "1", "--out", str(tmp_path), "--json")
     assert out.returncode == 0, out.stderr
     last = json.loads(out.stdout.strip().splitlines()[-1])
-    assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs"]
+    assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs",
+                          "search_vs_heuristic"]
+    for v in last["search_vs_heuristic"].values():  # per count: how often the search returned or beat its seed
+        assert v["cases"] == 2 and 0 <= v["seed_returned"] <= 2 and v["beats"] + v["loses"] <= 2
+        if v["seed_returned"] == 2:  # the seed itself: no difference to beat or lose
+            assert v["beats"] == v["loses"] == 0
     assert last["configs"] == 2 and 0 <= last["na_agrees"] <= 2
     # the optimum is picked on other samples than the ratios are computed on: ratios near 1, possibly below
     assert 0.8 < last["ga_over_optimum_median"] <= last["ga_over_optimum_max"] < 1.5
@@ -51,6 +56,8 @@ def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
     per_set = [result[s]["pf"] for s in ("0", "1000")]
     for m in ("no-anchors", "ref57"):  # pooled means are the means of the two equal-sized sets
         assert math.isclose(pooled[m], np.mean([p[m] for p in per_set]), rel_tol=1e-9)
+    assert result["pooled"]["na_by_config"] == {"no-anchors": [0.0, 0.0], "ref57": [5.0, 5.0]}  # n_a along the trajectory
+    assert all(0 < v < 100 for v in result["pooled"]["drift_pct"].values())
 
 
 def test_bad_options_are_named():

@@ -23,6 +23,11 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    e_l(0) on the same set give P_l. So the search never returns a plan that is worse
    than its seed on those samples, and P_s is not biased by the search.
 
+Readings of the Monte Carlo (``docs/experiments.md``, pre-registered): ``mc_start`` is where
+each simulated configuration change starts (``"estimate"``: truths drawn from the estimate's
+covariance; ``"known"``: at its mean, Sec. 4.2), ``mc_emax`` what e_l,max is (``"mean"``: the
+mean over samples of e_l(0), Sec. 4.1.1; ``"worst"``: the largest e_l(0) over the samples).
+
 ``method = "crlb"`` ranks plans by the Cramer-Rao prediction of ``crlb_rank`` instead
 (deterministic, no sampling, so no race and no final check).
 """
@@ -40,7 +45,7 @@ from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps,
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
+from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import best_distinct, final_check, race
 from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
@@ -48,6 +53,7 @@ from runtime.models.state import SwarmEstimate
 
 
 METHODS = ("mc", "crlb")
+MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
 class NoFeasiblePlanError(SwarmInputError):
@@ -69,10 +75,17 @@ class SelectionConfig:
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
     max_steps: int = 10  # counts with more steps n_s are not screened unless ``anchor_counts`` names them
+    mc_start: str = "known"  # Monte Carlo start: one of ``MC_STARTS`` (``docs/experiments.md``: the text's reading)
+    mc_emax: str = "mean"  # e_l,max: one of ``MC_EMAX``
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise SwarmInputError(f"selection method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.mc_start not in MC_STARTS or self.mc_emax not in MC_EMAX:
+            raise SwarmInputError(f"Monte Carlo start must be one of {', '.join(MC_STARTS)} and e_l,max one of "
+                                  f"{', '.join(MC_EMAX)}, got {self.mc_start!r}, {self.mc_emax!r}")
+        if self.mc_emax == "worst" and self.method != "mc":
+            raise SwarmInputError("e_l,max 'worst' needs Monte Carlo samples: use it with the mc selection, not crlb")
         if self.final_samples < 1 or self.contenders < 1 or not 0 <= self.prune_gain <= 1:
             raise SwarmInputError(
                 f"final samples and contenders must be >= 1 and prune gain in [0, 1], got "
@@ -176,10 +189,10 @@ class AnchorSelector:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
-            return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans)
+            return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
 
         def each_sample(plans: list[Plan], count: int, seed: int) -> np.ndarray:
-            return MonteCarlo(self.cfg, self.localizer, count, seed).localization_errors(estimate, desired, plans, per_sample=True)
+            return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans, per_sample=True)
 
         screen_seed = int(rng.integers(2**63))
         if sel.method == "crlb":
@@ -195,7 +208,16 @@ class AnchorSelector:
             return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched)
 
         all_move = Plan.equal(np.arange(n), 0)
-        e_max = float(evaluate([all_move])[0])  # e_l,max = e_l(0) (Section 4.1.1)
+
+        def no_anchors(count: int, seed: int) -> tuple[float, float]:
+            """(e_l(0), e_l,max) on one sample set: e_l,max is their mean (Section 4.1.1) or, ``worst``, their largest."""
+            if sel.method == "crlb":
+                e0 = float(evaluate([all_move])[0])
+                return e0, e0
+            per = each_sample([all_move], count, seed)[0]
+            return float(per.mean()), float(per.max() if sel.mc_emax == "worst" else per.mean())
+
+        e_zero, e_max = no_anchors(samples, screen_seed)
         evaluations = 1
         scores: dict[int, CountScore] = {}
         seeds: dict[int, Plan] = {}
@@ -204,7 +226,7 @@ class AnchorSelector:
             if not feasible(seeds[n_a]):
                 scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
-                scores[n_a] = score(n_a, all_move, e_max, e_max)
+                scores[n_a] = score(n_a, all_move, e_zero, e_max)
             else:
                 e_seed = float(evaluate([seeds[n_a]])[0])
                 scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed)
@@ -228,7 +250,7 @@ class AnchorSelector:
                 continue
             champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
             if e_max_final is None:
-                e_max_final = float(sampled([all_move], final_samples, final_seed)[0])
+                e_max_final = no_anchors(final_samples, final_seed)[1]
             if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
                 kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
             else:
@@ -266,13 +288,17 @@ class AnchorSelector:
                 steps = np.stack([plan.moving(k) for k in range(plan.n_steps)])
                 return predicted_error(self.cfg, sub, sub_desired, steps[:, window])
         else:
-            mc = MonteCarlo(self.cfg, self.localizer, samples_for(sel.samples, sel.window), int(rng.integers(2**63)))
+            mc = MonteCarlo(self.cfg, self.localizer, samples_for(sel.samples, sel.window), int(rng.integers(2**63)), sel.mc_start)
 
             def evaluate(plan: Plan) -> float:
                 return float(mc.localization_errors(estimate, desired, [plan], window=window)[0])
 
         all_move = Plan.equal(np.arange(n), 0)
-        e_max = evaluate(all_move)
+        if sel.method == "crlb":
+            e_zero = e_max = evaluate(all_move)
+        else:
+            per = mc.localization_errors(estimate, desired, [all_move], per_sample=True, window=window)[0]
+            e_zero, e_max = float(per.mean()), float(per.max() if sel.mc_emax == "worst" else per.mean())
         scores: list[CountScore] = []
         bar = -np.inf
         for n_a in self.candidate_counts(n):
@@ -283,7 +309,7 @@ class AnchorSelector:
             if not plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m):
                 scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
                 continue
-            e_l = e_max if n_a == 0 else evaluate(plan)
+            e_l = e_zero if n_a == 0 else evaluate(plan)
             p_l = e_l / e_max if e_max > 0 else 0.0
             scores.append(CountScore(n_a, e_l, p_v, p_l, sel.w_v * p_v - sel.w_l * p_l, plan, e_l))
             bar = max(bar, scores[-1].p_s)

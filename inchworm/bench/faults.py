@@ -12,6 +12,12 @@ Three parts, each through the options a user has, with real processes on loopbac
   earlier messages. ``process_deaths`` counts agents or coordinator that died; ``identical``:
   the per-configuration table and P_f equal the in-process run of the same seed (which the
   distributed run reproduces bit for bit without faults).
+* ``coordinator``: ``swarm launch -n 10 --standby --kill-coordinator STEP --json`` per seed, STEP
+  drawn at random among the run's steps (seeded): the coordinator is SIGKILLed, the standby takes
+  the run over from its last checkpoint; ``completed`` counts runs that exit 0 with every
+  configuration done, ``identical`` those whose per-configuration table and P_f equal the
+  in-process run of the same seed, ``takeover_ms_max`` the longest kill -> first command of the
+  new coordinator.
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``inchworm.bench.faults_gateway``.
@@ -19,6 +25,7 @@ Three parts, each through the options a user has, with real processes on loopbac
   control) while ``flood`` idle TCP connections hold its TLS port, see ``inchworm.bench.estop_flood``.
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
+"coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
 "estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}}``.
 """
 
@@ -80,6 +87,35 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
     return {"detect_ms_median": statistics.median(k["detect_ms"] for k in kills) if kills else None,
             "completed": len(done) == seeds, "estop_ms_max": max(k["estop_ms"] for k in kills) if kills else None,
             "runs": seeds, "runs_completed": len(done), "summaries": summaries}
+
+
+# -- coordinator killed, standby taking over -----------------------------------------------------
+
+
+def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3) -> dict:
+    """``swarm launch --standby --kill-coordinator STEP`` for seeds 0..seeds-1, STEP drawn among the run's steps;
+    each run compared with the in-process run of its seed. ``summaries``: each run's JSON and ``"returncode"``."""
+    from coordinator.simulate import simulate  # noqa: PLC0415
+
+    summaries, identical = [], 0
+    progress = Progress(seeds, "coordinator")
+    for seed in range(seeds):
+        traj = random_trajectory(robots, configs, np.random.default_rng(seed))
+        ref = simulate(traj, "inchworm", ModelConfig(), seed=seed)
+        step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
+        with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
+            proc = subprocess.run(
+                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
+                 "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
+                capture_output=True, text=True, cwd=tmp, timeout=600)
+        summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
+        summaries.append(summary)
+        identical += summary["returncode"] == 0 and _same_table(summary, ref)
+        progress(seed + 1)
+    done = [s for s in summaries if s["returncode"] == 0 and len(s.get("configs", [])) == configs]
+    takeovers = [s["coordinator_kill"]["takeover_ms"] for s in summaries if s.get("coordinator_kill")]
+    return {"runs": seeds, "completed": len(done), "identical": identical,
+            "takeover_ms_max": None if not takeovers or None in takeovers else max(takeovers), "summaries": summaries}
 
 
 # -- hostile messages ---------------------------------------------------------------------------
@@ -203,7 +239,8 @@ def _same_table(summary: dict, ref) -> bool:
 
 
 def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """The gateway rows, the lost robot and the fuzz run; ``say`` is told each part's result as it ends."""
+    """The gateway rows, the lost robot, the fuzz run, the coordinator takeover and the stop under a connection flood;
+    ``say`` is told each part's result as it ends."""
     from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
 
@@ -221,10 +258,14 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"fuzz: {o.fuzz} hostile messages during a run")
     fz = fuzz(o.fuzz)
     _say(json.dumps(fz))
+    _say(f"coordinator: swarm launch -n 10 --standby --kill-coordinator STEP (random) over {o.seeds} seeds")
+    coord = {k: v for k, v in coordinator_takeover(o.seeds).items() if k != "summaries"}
+    _say(json.dumps(coord))
     _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
     flood = estop_under_flood(connections=o.flood)
     _say(json.dumps(flood))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "estop_under_flood": flood}
-    table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(flood)])
+               "coordinator": coord, "estop_under_flood": flood}
+    table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
+                       json.dumps(flood)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")

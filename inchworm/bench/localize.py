@@ -44,6 +44,7 @@ class LocalizeBenchOptions:
     seed: int = 0  # trial t uses seed + t
     gtsam: bool = True  # the GTSAM reference, when it is installed
     model: ModelConfig = field(default_factory=ModelConfig)
+    still_prior_m: float | None = None  # prior position std of the robots that do not move (anchors); None: the movers' 0.02 m
 
 
 def load_gtsam() -> Any | None:
@@ -149,7 +150,8 @@ def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any 
     for trial in range(args.trials):
         if say:
             say(f"n={n} trial {trial + 1}/{args.trials}")
-        case = random_step(n, cfg, np.random.default_rng(args.seed + trial), spacing=SPACING_M, seed=args.seed + trial)
+        case = random_step(n, cfg, np.random.default_rng(args.seed + trial), spacing=SPACING_M, seed=args.seed + trial,
+                           still_delta=args.still_prior_m)
         truth = case.true_after[:, :2]
         n_obs.append(len(case.observations))
         for name, loc in localizers.items():
@@ -237,5 +239,6 @@ def bench_localize(options: LocalizeBenchOptions = LocalizeBenchOptions(), say: 
     text = (f"swarm bench localize: {o.trials} trials x {o.repeats} repeats per size, seed {o.seed}\n"
             "err = RMS post-step position error over robots and trials; crlb = RMS Cramer-Rao bound (n <= 1000)\n\n"
             + table(results, gtsam is not None))
-    summary = {"results": results, "config": o.model.to_dict(), "seed": o.seed, "trials": o.trials, "repeats": o.repeats}
+    summary = {"results": results, "config": o.model.to_dict(), "seed": o.seed, "trials": o.trials, "repeats": o.repeats,
+               "still_prior_m": o.still_prior_m}
     return BenchResult(results, summary, text, "n", "ms_median", "paper localizer, median time (ms)", "One localization step")

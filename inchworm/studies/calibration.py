@@ -121,6 +121,8 @@ def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, se
         out[label] = {
             "pf": {m: summary["methods"][m]["pf_mean"] for m in methods},
             "na": {m: summary["methods"][m]["na_mean"] for m in methods},
+            "na_by_config": {m: summary["methods"][m]["na_by_config"] for m in methods},  # mean n_a at configuration 1, 2, ...
+            "drift_pct": {m: summary["methods"][m]["drift_pct_mean"] for m in methods},  # final e_l / distance travelled x 100
             "over_ref57": {m: summary["methods"][m]["pf_mean"] / ref for m in methods if m != REFERENCE},
             "p_values": summary["p_values"],
             "trajectories": len(subset) // len(methods),
@@ -151,6 +153,11 @@ class CalibrationResult:
                 s = r[label]
                 cells = " ".join(f"{s['over_ref57'][m]:>28.3f} {s['p_values'].get(m, float('nan')):>6.3f}" for m in others)
                 lines.append(f"{r['localizer']:<9} {r['sensing_scale']:>9g} {r['motion_scale']:>8.2f} {label:>8} {s['pf'][REFERENCE]:>10.4f} {cells}")
+        for r in self.results:
+            for m in o.methods:
+                along = " ".join(f"{v:.1f}" for v in r["pooled"]["na_by_config"][m])
+                lines.append(f"{r['localizer']}, sensing x {r['sensing_scale']:g}, {m}: drift {r['pooled']['drift_pct'][m]:.2f} %, "
+                             f"n_a along the trajectory {along}")
         lines.append(f"({o.trajectories} trajectories x {o.configs} configurations per seed set, n_r = {o.robots})")
         return "\n".join(lines)
 

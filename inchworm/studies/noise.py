@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.comparison import RunTask, run_one
+from inchworm.comparison import RunTask, anchors_along, run_one
 from inchworm.noise import scaled
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
@@ -77,6 +77,10 @@ class NoiseResult:
         lines = [f"{'localizer':<9} {'motion x':>8} {'sensing x':>9} {'n_a chosen':>10} {'P_f inchworm/ref57':>19} {'equal-speed/ref57':>18}"]
         lines += [f"{r['localizer']:<9} {r['motion_scale']:>8g} {r['sensing_scale']:>9g} {r['inchworm_na_mean']:>10.2f} "
                   f"{r['inchworm_over_ref57']:>19.3f} {r['equal_speed_over_ref57']:>18.3f}" for r in self.results]
+        for r in self.results:
+            drift = ", ".join(f"{m} {v:.2f}" for m, v in r["drift_pct"].items())
+            lines.append(f"{r['localizer']} motion x {r['motion_scale']:g} sensing x {r['sensing_scale']:g}: inchworm n_a along the "
+                         f"trajectory {' '.join(f'{v:.1f}' for v in r['inchworm_na_by_config'])}; drift % {drift}")
         return "\n".join(lines)
 
     def grid(self, localizer: str, key: str) -> np.ndarray:
@@ -127,6 +131,8 @@ def summarise(rows: list[Row], options: NoiseOptions) -> list[dict[str, Any]]:
         results.append({
             "localizer": loc, "motion_scale": ms, "sensing_scale": ss,
             "inchworm_na_mean": float(np.mean([r["n_a_mean"] for r in sel if r["method"] == "inchworm"])),
+            "inchworm_na_by_config": anchors_along([r for r in sel if r["method"] == "inchworm"]),
+            "drift_pct": {m: float(np.mean([r["drift_pct"] for r in sel if r["method"] == m])) for m in METHODS},
             "pf": pf,
             "inchworm_over_ref57": pf["inchworm"] / pf["ref57"],
             "equal_speed_over_ref57": pf["inchworm-equal-speed"] / pf["ref57"],

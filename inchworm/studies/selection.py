@@ -86,7 +86,8 @@ def run_config(task: ConfigTask) -> dict:
     localizer = mc.localizer  # one object for every Monte Carlo and selector of the experiment
     current = start[:, :2]
     sets = [int(rng.integers(2**63)) for _ in range(3)]
-    screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed) for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
+    screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed, task.selection.mc_start)  # the selection's reading of the start
+                           for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
 
     def feasible(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
@@ -104,14 +105,17 @@ def run_config(task: ConfigTask) -> dict:
         except NoFeasiblePlanError:  # no plan of this count keeps the swarm connected
             continue
         screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
-        screen_mc = MonteCarlo(job.cfg, localizer, screen_samples, int(rng.integers(2**63)))
+        screen_mc = MonteCarlo(job.cfg, localizer, screen_samples, int(rng.integers(2**63)), task.selection.mc_start)
         raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
         plans = {"heuristic": heuristic, "search": searched, "ga_raw": raw or heuristic}
         if randoms:
             plans["random"] = randoms[0]
-        exhaustive = n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
+        paired = final.localization_errors(estimate, desired, [heuristic, searched], per_sample=True)
+        row[f"na{n_a}_search_is_seed"] = int(searched.key() == heuristic.key())
+        row[f"na{n_a}_gain_se"] = float(np.std(paired[0] - paired[1], ddof=1) / np.sqrt(paired.shape[1]))  # m
+        exhaustive = job.exhaustive and n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
         if exhaustive:
             every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]
@@ -149,8 +153,27 @@ def summarise(rows: list[dict], robots: int) -> dict:
     out["pooled"] = {k: {"median": float(np.median(v)), "max": float(np.max(v))} for k, v in pooled.items() if v}
     vs = [r[f"na{k}_search"] / r[f"na{k}_heuristic"] for r in rows for k in feasible_anchor_counts(robots) if f"na{k}_search" in r]
     out["search_over_heuristic_median"] = float(np.median(vs)) if vs else None
+    out["search_vs_heuristic"] = search_vs_heuristic(rows, robots)
     bias = [r["reported_over_fresh"] for r in rows if "reported_over_fresh" in r]
     out["reported_over_fresh_median"] = float(np.median(bias)) if bias else None
+    return out
+
+
+BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation set
+
+
+def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, int]]:
+    """Per count: selections, how many returned the heuristic seed, and how many beat it (or lost to it) on the
+    evaluation set by more than ``BEYOND_NOISE`` standard errors of the paired Monte Carlo difference."""
+    from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
+    out = {}
+    for n_a in (k for k in feasible_anchor_counts(robots) if k > 0):
+        have = [r for r in rows if f"na{n_a}_gain_se" in r]
+        if not have:
+            continue
+        gain = [(r[f"na{n_a}_heuristic"] - r[f"na{n_a}_search"], BEYOND_NOISE * r[f"na{n_a}_gain_se"]) for r in have]
+        out[str(n_a)] = {"cases": len(have), "seed_returned": int(sum(r[f"na{n_a}_search_is_seed"] for r in have)),
+                         "beats": sum(g > noise for g, noise in gain), "loses": sum(-g > noise for g, noise in gain)}
     return out
 
 
@@ -176,6 +199,7 @@ class SelectionStudyOptions:
     eval_samples: int = 512
     seed: int = 0
     run: RunOptions = field(default_factory=RunOptions)
+    optimum: bool = True  # False: skip the exhaustive enumeration (the search against the heuristic only)
 
     def validate(self) -> None:
         if self.robots < 3 or self.configs < 1:
@@ -189,7 +213,7 @@ class SelectionStudyOptions:
 
     def tasks(self) -> list[ConfigTask]:
         b = self.budget()
-        return [ConfigTask(Job(c, self.robots, b.screen, self.seed, self.run.model, self.run.localizer), self.run.selection, b)
+        return [ConfigTask(Job(c, self.robots, b.screen, self.seed, self.run.model, self.run.localizer, self.optimum), self.run.selection, b)
                 for c in range(self.configs)]
 
 
@@ -209,6 +233,7 @@ class SelectionStudyResult:
             "heuristic_over_optimum_median": pooled["heuristic"]["median"] if "heuristic" in pooled else None,
             "na_agrees": sum(r["na_agrees"] for r in self.rows),
             "configs": len(self.rows),
+            "search_vs_heuristic": self.summary["search_vs_heuristic"],
         }
 
     def report(self) -> str:
@@ -222,6 +247,9 @@ class SelectionStudyResult:
                 lines.append(f"{n_a:>4} {name:<10} {s['median']:>7.4f} {s['mean']:>7.4f} {s['max']:>7.4f}")
             h = entry["search_over_heuristic"]
             lines.append(f"{n_a:>4} search / heuristic: median {h['median']:.4f}, worse in {h['worse']} of {h['cases']}")
+        for n_a, v in self.summary["search_vs_heuristic"].items():
+            lines.append(f"{n_a:>4} search returned its heuristic seed in {v['seed_returned']} of {v['cases']}; beat it by more than "
+                         f"{BEYOND_NOISE:g} standard errors in {v['beats']}, lost by as much in {v['loses']}")
         agrees = sum(r["na_agrees"] for r in self.rows)
         lines.append(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(self.rows)} (chosen: {[r['chosen_na'] for r in self.rows]})")
         if self.summary["reported_over_fresh_median"] is not None:

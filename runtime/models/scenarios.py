@@ -51,18 +51,22 @@ def random_step(
     mobile_fraction: float = 0.5,
     move: float = 0.15,
     seed: int = 0,
+    still_delta: float | None = None,
 ) -> StepCase:
     """A step of ``n`` robots on a jittered grid; a random ``mobile_fraction`` moves ~``move`` m.
 
     ``rng`` draws the layout, prior error, mobile set and motion noise; sensing uses
-    the per-robot streams of ``seed``.
+    the per-robot streams of ``seed``. ``still_delta`` (m): the prior position std of the
+    robots that do not move (anchors), if not ``prior_delta``; the draws are the same either way.
     """
     ids = np.arange(n)
     estimate = grid_configuration(n, spacing, rng)
-    prior = SwarmEstimate.isotropic(ids, estimate, prior_delta, prior_heading_sigma)
-    true_before = estimate + np.einsum("nab,nb->na", np.linalg.cholesky(prior.cov + 1e-15 * np.eye(3)), rng.normal(size=(n, 3)))
+    unit = rng.normal(size=(n, 3))
     moving = np.zeros(n, bool)
     moving[rng.choice(n, max(1, round(mobile_fraction * n)), replace=False)] = True
+    delta = np.where(moving, prior_delta, prior_delta if still_delta is None else still_delta)
+    prior = SwarmEstimate.isotropic(ids, estimate, delta, prior_heading_sigma)
+    true_before = estimate + np.einsum("nab,nb->na", np.linalg.cholesky(prior.cov + 1e-15 * np.eye(3)), unit)
     angle = rng.uniform(-np.pi, np.pi)
     targets = estimate[:, :2] + move * np.array([math.cos(angle), math.sin(angle)]) + rng.normal(0, 0.2 * move, (n, 2))
     commands = np.where(moving[:, None], command_towards(estimate, targets), 0.0)

@@ -15,7 +15,10 @@ Metadata record ``run`` (string -> string; structured values JSON-encoded) is wr
 first, ``recorder`` (message counts, clean stop) at ``close()``. Chunks are zstd-compressed,
 at most ``CHUNK_BYTES`` uncompressed, and a chunk is closed at least every ``FLUSH_S``
 seconds (``mcap.writer.Writer.flush``), so a recorder killed by SIGKILL loses about the
-last ``FLUSH_S`` seconds of messages; the file then has no summary and ``read_messages``,
+last ``FLUSH_S`` seconds of messages, but never a ``Checkpoint``: one closes its chunk at once and
+is synced to the disk (``os.fsync``) before ``checkpoints`` counts it, so a coordinator that waits
+for it (``wait_checkpoints``) can be resumed from its recording after a SIGKILL or a host reboot
+(``swarm coordinator --resume``); the file then has no summary and ``read_messages``,
 ``recording_info`` and ``recover`` read it with the stream reader up to the last complete record.
 
 Reading never trusts the file: the record framing is checked first, reads are bounded by
@@ -198,6 +201,8 @@ class McapRecorder:
         self._error: BaseException | None = None
         self.dropped = 0  # messages not written after a write error
         self.on_error = on_error
+        self.checkpoints = 0  # Checkpoint messages on the disk (chunk closed, file synced)
+        self._durable = threading.Condition()
         self._thread = threading.Thread(target=self._loop, name="mcap-recorder", daemon=True)
         self._thread.start()
 
@@ -321,11 +326,20 @@ class McapRecorder:
                 if item:
                     self._write_now(*item)
                     dirty = True
+                    if item[0].endswith("/coord/checkpoint"):  # what a resuming coordinator reads: on the disk now
+                        self._writer.flush()
+                        os.fsync(self._file.fileno())
+                        last_flush, dirty = time.monotonic(), False
+                        with self._durable:
+                            self.checkpoints += 1
+                            self._durable.notify_all()
                 if dirty and time.monotonic() - last_flush >= self.flush_s:
                     self._writer.flush()  # closes the chunk in progress and flushes the file
                     last_flush, dirty = time.monotonic(), False
         except BaseException as e:  # noqa: BLE001 - reported by on_error and close()
             self._error = e
+        with self._durable:  # no checkpoint will reach the disk: nobody waits for one
+            self._durable.notify_all()
         if self.on_error is not None:
             try:
                 self.on_error(self._error)
@@ -334,6 +348,12 @@ class McapRecorder:
         while (item := self._queue.get()) is not None:  # the rest is not written, only counted
             with self._lock:
                 self.dropped += 1
+
+    def wait_checkpoints(self, count: int, timeout_s: float) -> bool:
+        """Until ``count`` checkpoints are on the disk (True), or ``timeout_s`` seconds have passed (False)."""
+        with self._durable:
+            return self._durable.wait_for(lambda: self.checkpoints >= count or self._error is not None, timeout_s) \
+                and self.checkpoints >= count
 
     def close(self) -> None:
         """Write every queued message, the ``recorder`` metadata and the summary; close the file."""

@@ -17,7 +17,8 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
     swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
-    swarm/<run>/alive/coord          liveliness token of the coordinator
+    swarm/<run>/coord/checkpoint     Checkpoint         coordinator -> standby coordinators, recorder
+    swarm/<run>/alive/coord/<epoch>/<parent>  liveliness token of the coordinator (its epoch; the epoch it took over from, 0 = none)
     swarm/<run>/alive/link/<port>    liveliness token of the link process of a port
 
 Run ids and port names are 1-64 characters of ``[A-Za-z0-9_.-]`` starting with a letter or digit,
@@ -38,7 +39,7 @@ ROOT = "swarm"
 RUN_PATTERN = r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}"
 MAX_ROBOT_ID = 2**63 - 1
 ROBOT_LEAVES = ("cmd", "observe", "status", "obs", "linkreq", "linkrep")
-COORD_LEAVES = ("plan", "estimate", "event")
+COORD_LEAVES = ("plan", "estimate", "event", "checkpoint")
 
 _RUN = re.compile(RUN_PATTERN)
 _ID = re.compile(r"0|[1-9][0-9]{0,18}")
@@ -129,9 +130,27 @@ def link_alive_key(run: str, port: str) -> str:
     return f"{ROOT}/{validate_run(run)}/alive/link/{validate_port(port)}"
 
 
-def coord_alive_key(run: str) -> str:
-    """``swarm/<run>/alive/coord``: the liveliness token the coordinator declares while it runs."""
-    return f"{ROOT}/{validate_run(run)}/alive/coord"
+def coord_alive_key(run: str, epoch: int | None = None, parent: int = 0) -> str:
+    """The coordinator's liveliness token: with ``epoch``, ``swarm/<run>/alive/coord/<epoch>/<parent>``, the token
+    the coordinator of that epoch declares while it runs (``parent``: the epoch whose run it took over, 0 = a new
+    run); without, ``swarm/<run>/alive/coord/**``, the expression matching every coordinator's token of the run
+    (what a watcher passes to ``watch_liveliness`` or ``alive_now``; ``parse_coord_token`` reads a key)."""
+    if epoch is None:
+        return f"{ROOT}/{validate_run(run)}/alive/coord/**"
+    if not 1 <= validate_robot_id(epoch) or validate_robot_id(parent) == epoch:
+        raise KeyspaceError(f"coordinator epoch {epoch} must be >= 1 and differ from its parent {parent}")
+    return f"{ROOT}/{validate_run(run)}/alive/coord/{epoch}/{parent}"
+
+
+def parse_coord_token(key: str) -> tuple[int, int] | None:
+    """``(epoch, parent)`` of a coordinator token key (``coord_alive_key(run, epoch, parent)``), None for any other key."""
+    parts = key.split("/") if isinstance(key, str) else []
+    if len(parts) != 6 or parts[0] != ROOT or parts[2:4] != ["alive", "coord"] or not _RUN.fullmatch(parts[1]):
+        return None
+    if not (_ID.fullmatch(parts[4]) and _ID.fullmatch(parts[5])):
+        return None
+    epoch, parent = int(parts[4]), int(parts[5])
+    return (epoch, parent) if 1 <= epoch <= MAX_ROBOT_ID and parent <= MAX_ROBOT_ID and epoch != parent else None
 
 
 def robot_wildcard(run: str, leaf: str) -> str:
@@ -194,7 +213,7 @@ def parse_key(key: str) -> ParsedKey:
         return ParsedKey(run, "estop", None, "estop")
     if rest == ["estop", "ack"]:
         return ParsedKey(run, "estop", None, "ack")
-    if rest == ["alive", "coord"]:
+    if len(rest) == 4 and rest[:2] == ["alive", "coord"] and parse_coord_token(key) is not None:
         return ParsedKey(run, "alive", None, "alive")
     if len(rest) == 3 and rest[:2] == ["alive", "link"] and _RUN.fullmatch(rest[2]):
         return ParsedKey(run, "alive", None, "alive")

@@ -255,6 +255,9 @@ class MotionCommand(Message):
                  "for the agent's workspace check; [] if unknown", default=(), unit="m, m, rad", shape=(None,))
     cmd_id: int = _wire("int", "optional: the coordinator's id of this command (random, never 0), echoed in every "
                                "Status answering it; 0 = none", default=0)
+    epoch: int = _wire("int", "optional: the epoch of the coordinator that sent it (random, never 0; its liveliness token "
+                              "names it); agents obey one epoch at a time and refuse 0 (docs/protocol.md, Coordinator epochs)",
+                       default=0)
 
     def _check(self) -> None:
         if len(self.start_pose) not in (0, 3):
@@ -269,6 +272,9 @@ class ObserveRequest(Message):
     LEAF: ClassVar[str] = "observe"
 
     robot: int = _wire("id", "the robot asked")
+    epoch: int = _wire("int", "optional: the epoch of the coordinator that sent it (random, never 0; its liveliness token "
+                              "names it); agents obey one epoch at a time and refuse 0 (docs/protocol.md, Coordinator epochs)",
+                       default=0)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -403,6 +409,9 @@ class TruthSetMessage(Message):
 
     ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
     poses: tuple[tuple[float, ...], ...] = _wire("float", "true [x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
+    epoch: int = _wire("int", "optional: the epoch of the coordinator that sent it (random, never 0; its liveliness token "
+                              "names it); agents obey one epoch at a time and refuse 0 (docs/protocol.md, Coordinator epochs)",
+                       default=0)
 
     def _check(self) -> None:
         if not self.ids:
@@ -533,6 +542,25 @@ class RobotEvent(Message):
     reason: str = _wire("str", "why (lost: liveliness token gone, no answer, refused ...)")
 
 
+@dataclass(frozen=True, kw_only=True)
+class Checkpoint(Message):
+    """Coordinator -> standby coordinators, recorder: the run's state after ``step``, from which another
+    coordinator continues the run (docs/failure-model.md). Published after the initial estimate and every step."""
+
+    TYPE: ClassVar[str] = "Checkpoint"
+    LEAF: ClassVar[str] = "checkpoint"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES  # the whole run's records: as large as Zenoh's transport lets through
+
+    epoch: int = _wire("int", "the epoch of the coordinator that wrote it")
+    config: int = _wire("int", "desired configuration in progress: k for C_dk (1-based); its plan is in state")
+    group: int = _wire("int", "the next group of that configuration's plan to move (0-based; = its group count when "
+                              "the configuration is done, 0 before it is planned)")
+    selector_calls: int = _wire("int", "the anchor selection's random state: searches made so far (AnchorSelector.calls)")
+    lost: tuple[int, ...] = _wire("id", "robots lost so far", shape=(None,))
+    state: str = _wire("str", "the executor's state as JSON: estimate with covariance, plan, lost robots, the records "
+                              "of the steps and configurations done (coordinator.checkpoint)", max_length=MAX_MESSAGE_BYTES)
+
+
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     MotionCommand,
     ObserveRequest,
@@ -548,6 +576,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     EmergencyStop,
     EstopAck,
     RobotEvent,
+    Checkpoint,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
 _BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
@@ -595,7 +624,7 @@ def _unpack(data: Any, max_bytes: int = MAX_MESSAGE_BYTES) -> Any:
     limit = 4 * MAX_TEXT
     try:
         return msgpack.unpackb(
-            data, raw=False, max_str_len=limit, max_bin_len=limit, max_ext_len=limit, max_array_len=MAX_ITEMS, max_map_len=64
+            data, raw=False, max_str_len=MAX_MESSAGE_BYTES, max_bin_len=limit, max_ext_len=limit, max_array_len=MAX_ITEMS, max_map_len=64
         )
     except Exception as e:  # msgpack raises several exception types for bad input; none may escape
         raise MessageError("message", f"not valid msgpack ({type(e).__name__}: {_show(str(e))})", "undecodable") from None
