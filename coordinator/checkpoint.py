@@ -13,9 +13,10 @@ bit the one written (500 robots after 20 steps: 2 MB, encoded or read in about 3
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 
@@ -76,7 +77,7 @@ class RunState:
             return cls(d["step"], d["config"], d["group"], _from_estimate(d["estimate"]), _from_plan(d["plan"]),
                        None if d["planned_ids"] is None else np.array(d["planned_ids"], dtype=np.int64),
                        d["selector_calls"], result, d["finished"])
-        except (KeyError, TypeError, ValueError, SwarmInputError, base64.binascii.Error) as exc:
+        except (KeyError, TypeError, ValueError, SwarmInputError, binascii.Error) as exc:
             raise SwarmInputError(f"checkpoint state is not readable: {type(exc).__name__}: {exc}") from None
 
 
@@ -86,6 +87,14 @@ def _array(a: np.ndarray | None) -> dict | None:
         return None
     a = np.ascontiguousarray(a, dtype="<f8")
     return {"f64": base64.b64encode(a.tobytes()).decode("ascii"), "shape": list(a.shape)}
+
+
+@overload
+def _from_array(d: dict) -> np.ndarray: ...
+
+
+@overload
+def _from_array(d: None) -> None: ...
 
 
 def _from_array(d: dict | None) -> np.ndarray | None:
@@ -104,6 +113,14 @@ def _from_estimate(d: dict) -> SwarmEstimate:
 
 def _plan(p: Plan | None) -> dict | None:
     return None if p is None else {"order": p.order.tolist(), "sizes": list(p.sizes)}
+
+
+@overload
+def _from_plan(d: dict) -> Plan: ...
+
+
+@overload
+def _from_plan(d: None) -> None: ...
 
 
 def _from_plan(d: dict | None) -> Plan | None:

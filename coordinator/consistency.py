@@ -36,7 +36,7 @@ def position_nees(truth: np.ndarray, poses: np.ndarray, cov: np.ndarray) -> floa
 
 def run_nees(result: RunResult) -> np.ndarray:
     """Position NEES / 2 after each configuration of a simulated run (K,)."""
-    return np.array([position_nees(c.truth, c.estimate.poses, c.estimate.cov) for c in result.configs])
+    return np.array([position_nees(c.truth, c.estimate.poses, c.estimate.cov) for c in result.configs])  # type: ignore[arg-type]  # simulated: truth known
 
 
 def chi2_band(robots: int, trajectories: int, level: float = 0.95) -> tuple[float, float]:

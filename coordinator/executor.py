@@ -12,8 +12,8 @@ estimate; the step record names them and says why.
 
 Lost robots (docs/failure-model.md): the executor asks the backend which robots it lost
 (``take_lost``) before each step, after each step's observation round (a backend asks no
-robot it has lost, so the command round needs no check of its own), and after each plan. A lost robot (the backend has already stopped it) is dropped from the
-swarm: from the estimate, the remaining steps of the current plan (its groups keep their
+robot it has lost, so the command round needs no check of its own), and after each plan. A lost robot
+(the backend has already stopped it) is dropped from the swarm: from the estimate, the remaining steps of the current plan (its groups keep their
 other robots), the strategy (``restrict``: Eq. 4 and the anchor counts on the remaining
 swarm), the observations and the localization. A plan made while a robot was lost is
 made again without it. ``on_lost="abort"``, or fewer than ``min_robots`` left, ends the
@@ -45,8 +45,8 @@ from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.metrics import localization_error, trajectory_following_performance
 from runtime.models.motion import command_towards
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, index_of
@@ -147,8 +147,9 @@ class RunResult:
 
     def true_configurations(self) -> np.ndarray:
         """(k + 1, n, 2): the true start, then the truth after each completed configuration (finished robots)."""
+        assert self.initial_truth is not None, "simulated runs only"
         start = self.initial_truth[self._rows(self.initial_estimate.ids), :2]
-        return np.stack([start, *[c.truth[self._rows(c.estimate.ids), :2] for c in self.configs]])
+        return np.stack([start, *[c.truth[self._rows(c.estimate.ids), :2] for c in self.configs]])  # type: ignore[index]  # simulated
 
     def estimated_configurations(self) -> np.ndarray:
         start = self.initial_estimate.positions[self._rows(self.initial_estimate.ids)]
@@ -285,6 +286,7 @@ class InchwormExecutor:
                 self._checkpoint(result, c, 0, estimate, plan, planned_ids)
             for k in range(group, len(plan.groups)):
                 estimate = self._drop_lost(result, c, estimate)[0]
+                assert planned_ids is not None  # set with the plan (and checkpointed with it)
                 moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
@@ -322,12 +324,12 @@ class InchwormExecutor:
         robots = take() if take is not None and self._executed > 0 else []
         if not robots:
             return estimate
-        obs = self.backend.observe_rejoining(robots)  # a robot that does not answer is lost again
+        obs = self.backend.observe_rejoining(robots)  # type: ignore[attr-defined]  # with take_rejoining; a robot that does not answer is lost again
         priors = {}
         for robot in robots:
             pose = _pose_from_neighbours(robot, obs, estimate)
             if pose is None:
-                self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")
+                self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")  # type: ignore[attr-defined]
             else:
                 priors[robot] = pose
         estimate = self._drop_lost(result, config, estimate)[0]  # those that did not make it

@@ -39,8 +39,8 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import math
 import logging
+import math
 import os
 import queue
 import sys
@@ -297,15 +297,16 @@ def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = 
     from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with a live view
     from runtime.wire.transport import subscribe  # noqa: PLC0415
 
-    live = Live(LiveView(o.foxglove_port, trajectory=o.trajectory.to_json()))
-    subscriber = subscribe(session, run_wildcard(o.run_id), live.view.handle)
-    log(f"live view for the Foxglove app at {live.view.url}")
+    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json())
+    live = Live(view)
+    subscriber = subscribe(session, run_wildcard(o.run_id), view.handle)
+    log(f"live view for the Foxglove app at {view.url}")
     try:
         yield live
     finally:
         subscriber.undeclare()
         if not live.keep:
-            live.view.close()
+            view.close()
 
 
 @dataclass
@@ -353,7 +354,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
     validate_run(o.run_id)
     initial = initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
-    taken = read_checkpoint(o.resume, o.run_id, traj, initial) if o.resume is not None else None
+    taken: tuple[int, RunState | None] | None = read_checkpoint(o.resume, o.run_id, traj, initial) if o.resume is not None else None
     recording = None
     recorded, completed, result, error = None, False, None, None
     live = Live(None)
@@ -372,12 +373,13 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 log(f"recording swarm/{o.run_id}/** to {o.record}")
                 recording.wait_subscribed(session)
             if standby is not None:
-                taken = standby.wait(o.start_timeout_s, signals)
-                if isinstance(taken, str):  # the run finished or was stopped: nothing to take over
-                    log(f"standby: {taken}; nothing to take over")
+                waited = standby.wait(o.start_timeout_s, signals)
+                if isinstance(waited, str):  # the run finished or was stopped: nothing to take over
+                    log(f"standby: {waited}; nothing to take over")
                     completed = True
-                    stopped = None if taken.startswith("the run finished") else AgentError(taken, [])
+                    stopped = None if waited.startswith("the run finished") else AgentError(waited, [])
                     return CoordinatorOutcome(None, None, live, stopped)
+                taken = waited
             parent, state = taken if taken is not None else (0, None)
             try:
                 backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s),

@@ -41,8 +41,11 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.state import StepCommands, SwarmEstimate
+from runtime.models.trajectory import Trajectory
+from runtime.recording.mcap_log import float_platform, read_messages, recording_info
 from runtime.wire.keys import ROOT
 from runtime.wire.messages import (
     EstimateMessage,
@@ -54,9 +57,6 @@ from runtime.wire.messages import (
     decode,
     observations_from_reports,
 )
-from runtime.recording.mcap_log import float_platform, read_messages, recording_info
-from runtime.models.state import StepCommands, SwarmEstimate
-from runtime.models.trajectory import Trajectory
 
 
 @dataclass
@@ -282,7 +282,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     last = max(rec.estimates)
     for step in range(0, last + 1):
         plan_msg = plan_at_step.get(step)
-        if plan_msg is not None and plans_ok:
+        if plan_msg is not None and plans_ok and strategy is not None and traj is not None:  # plans_ok: both set
             before = rec.estimates.get(step - 1)
             if plan_msg.config != expected_config or before is None or plan_msg.config > len(traj.configurations):
                 result.skipped.append(f"plans from configuration {plan_msg.config} on (an earlier plan or the estimate "

@@ -16,8 +16,8 @@ import numpy as np
 
 from coordinator.plan import Plan, feasible_anchor_counts
 from coordinator.selection.heuristic import heuristic_plan
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 if TYPE_CHECKING:  # the search (scipy) is imported when a strategy is made: METHODS stays cheap for parsers

@@ -56,6 +56,7 @@ import numpy as np
 
 from coordinator.checkpoint import RunState
 from runtime.errors import SwarmInputError
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
     Checkpoint,
@@ -76,7 +77,6 @@ from runtime.wire.messages import (
     message_key,
     observations_from_reports,
 )
-from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
@@ -188,17 +188,17 @@ class ZenohSwarmBackend:
         self._id_set = set(self._id_list)
         with self._lock:
             self._lost.update({x.robot: x.reason for x in state.result.lost if x.robot not in self._id_set})
-        self._estimate = {robot: list(pose) for robot, pose in zip(self._id_list, state.estimate.poses.tolist())}
+        self._estimate = {robot: list(pose) for robot, pose in zip(self._id_list, state.estimate.poses.tolist(), strict=True)}
         last = state.result.steps[-1] if state.result.steps else None
         truth = state.result.initial_truth if last is None else last.truth
         if self.simulated and truth is not None:
             ids = state.result.initial_estimate.ids if last is None else last.estimate.ids
-            self._truth.update({int(r): (state.step, np.array(pose, dtype=float)) for r, pose in zip(ids, truth)})
+            self._truth.update({int(r): (state.step, np.array(pose, dtype=float)) for r, pose in zip(ids, truth, strict=True)})
 
     def publish_checkpoint(self, state: RunState) -> None:
         """Publish the executor's ``RunState`` after its step as a ``Checkpoint`` (``on_checkpoint`` of the executor)."""
         msg = Checkpoint(run=self.run, step=state.step, epoch=self.epoch, config=state.config + 1, group=state.group,
-                         selector_calls=state.selector_calls, lost=sorted({x.robot for x in state.result.lost}),
+                         selector_calls=state.selector_calls, lost=tuple(sorted({x.robot for x in state.result.lost})),
                          state=state.to_json())
         publish(self.session, message_key(msg), encode(msg))
 
@@ -207,7 +207,9 @@ class ZenohSwarmBackend:
     def _on_liveliness(self, key: str, alive: bool) -> None:  # Zenoh thread
         try:
             robot = parse_key(key).robot
-        except Exception:
+        except Exception:  # noqa: BLE001 - a key that is not a robot's token is not ours
+            return
+        if robot is None:  # not a robot's token either
             return
         with self._lock:
             if alive:
@@ -236,11 +238,11 @@ class ZenohSwarmBackend:
             robot, reason = item
             try:
                 stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
-                                     robots=[robot])
+                                     robots=(robot,))
                 publish(self.session, message_key(stop), encode(stop))
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
-            except Exception:  # a closed session at shutdown: the launcher's run-wide stop covers it
+            except Exception:  # noqa: BLE001 - a closed session at shutdown: the launcher's run-wide stop covers it
                 _log.exception("could not publish the emergency stop of lost robot %d", robot)
                 continue
             _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
@@ -331,6 +333,8 @@ class ZenohSwarmBackend:
             # (a motion-capture publisher, e.g. the emulator, keeps counting across runs)
             self._truth[msg.robot] = (0, np.array(msg.pose, dtype=float))
             return
+        if not isinstance(msg, (TruthMessage, ObservationReport, Status)):
+            return  # the keys subscribed carry nothing else (decode checks the type against the key)
         if msg.step != self.step:
             if msg.step > self.step:  # late answers to earlier steps are normal (re-sends); later steps are not
                 self._foreign(key, f"{msg.TYPE} for step {msg.step}, the run is at step {self.step}")
@@ -372,7 +376,8 @@ class ZenohSwarmBackend:
         present = self._present()
         if not present or not self._truth_now.issuperset(present):
             return
-        msg = TruthSetMessage(run=self.run, step=s, ids=present, poses=[self._truth[r][1] for r in present], epoch=self.epoch)
+        msg = TruthSetMessage(run=self.run, step=s, ids=tuple(present), poses=tuple(tuple(self._truth[r][1].tolist()) for r in present),
+                              epoch=self.epoch)
         publish(self.session, message_key(msg), encode(msg))
         self._truths_sent = s
 
@@ -418,7 +423,8 @@ class ZenohSwarmBackend:
                 return
             if time.monotonic() > deadline:
                 if missing:
-                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)", missing)
+                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)",
+                                    missing)
                 raise AgentLost(f"no initial true pose from {_robots(no_truth)} after {timeout_s:.1f} s", no_truth)
             self._pump(0.05)
 
@@ -438,7 +444,7 @@ class ZenohSwarmBackend:
             if robot not in present:
                 continue  # lost meanwhile: never command it again
             turn, drive = step.commands[k]
-            start = () if self._estimate is None else self._estimate.get(robot, ())
+            start = () if self._estimate is None else tuple(self._estimate.get(robot, ()))
             self._cmds[robot] = MotionCommand(run=self.run, step=s, robot=robot, config=self.config, turn_rad=float(turn),
                                               drive_m=float(drive), start_pose=start, cmd_id=secrets.randbits(63) or 1,
                                               epoch=self.epoch)
@@ -480,7 +486,7 @@ class ZenohSwarmBackend:
     def on_plan(self, config_index: int, first_step: int, plan, selection) -> None:
         """Publish the plan of configuration ``config_index`` (0-based) as ``PlanMessage`` (``config`` 1-based)."""
         self.config = config_index + 1
-        groups = [[self._id_list[int(k)] for k in group] for group in plan.groups]
+        groups = tuple(tuple(self._id_list[int(k)] for k in group) for group in plan.groups)
         msg = PlanMessage(run=self.run, step=first_step, config=self.config, n_anchors=plan.n_anchors, groups=groups)
         publish(self.session, message_key(msg), encode(msg))
 
@@ -488,7 +494,7 @@ class ZenohSwarmBackend:
         """Publish the estimate after ``step`` as ``EstimateMessage``."""
         msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
         publish(self.session, message_key(msg), encode(msg))
-        self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses)}
+        self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses, strict=True)}
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self._id_set <= self._truth.keys():

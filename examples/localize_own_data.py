@@ -24,7 +24,7 @@ PAIRS = [(0, 1), (0, 2), (1, 0), (1, 2), (2, 0)]
 def measured() -> dict:
     """Range/bearing rows [observer, observed, range, bearing] of the pairs in ``PAIRS``, a few mm and mrad off."""
     rows = []
-    for (i, j), (dr, db) in zip(PAIRS, ERRORS):
+    for (i, j), (dr, db) in zip(PAIRS, ERRORS, strict=True):
         (xi, yi, hi), (xj, yj, _) = LAYOUT[i], LAYOUT[j]
         bearing = math.atan2(yj - yi, xj - xi) - hi
         rows.append([i, j, math.hypot(xj - xi, yj - yi) + dr, math.atan2(math.sin(bearing), math.cos(bearing)) + db])

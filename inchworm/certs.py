@@ -129,7 +129,10 @@ def issue(openssl: str, out: Path, host: HostSpec, days: int) -> tuple[Path, Pat
     return cert, key
 
 
-def make_certs(out: Path, hosts: Sequence[HostSpec] = tuple(HostSpec(h, ()) for h in DEFAULT_HOSTS), days: int = 825, ca_days: int = 3650,
+_DEFAULT_SPECS = tuple(HostSpec(h, ()) for h in DEFAULT_HOSTS)
+
+
+def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int = 825, ca_days: int = 3650,
                say: Callable[[str], None] | None = None) -> dict:
     """The CA (reused if ``out`` has one) and a certificate per host in ``out``; ``say`` gets a line per file written.
 

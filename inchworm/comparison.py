@@ -30,8 +30,9 @@ from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
-    from coordinator.selection.selector import SelectionConfig
     from matplotlib.axes import Axes
+
+    from coordinator.selection.selector import SelectionConfig
 
 REFERENCE = "ref57"
 SEARCHING = ("inchworm", "inchworm-equal-speed")  # methods that rank anchor plans (``selections``)

@@ -43,8 +43,7 @@ def run_distributed(
     ``SwarmInputError``) when the agents do not come up or the run is aborted."""
     from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
     from coordinator.stop import StopSignals  # noqa: PLC0415
-    from inchworm.processes import agents_per_process as per_process_for  # noqa: PLC0415
-    from inchworm.processes import model_flags, start_agents, stop_all  # noqa: PLC0415
+    from inchworm.processes import agents_per_process as per_process_for, model_flags, start_agents, stop_all  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     cfg = model or ModelConfig()
@@ -69,6 +68,7 @@ def run_distributed(
         stop_all(procs)
     if outcome.error is not None:
         raise outcome.error
+    assert outcome.result is not None  # no error: a result
     return outcome.result
 
 

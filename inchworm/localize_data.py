@@ -20,8 +20,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 
 HUBER_SIGMAS = 3.0
@@ -113,14 +113,14 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
         topo = result
         robots = [
             {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": None if not np.isfinite(h) else float(h), "delta_p": float(dp)}
-            for r, p, h, dp in zip(ids, topo.positions, topo.headings, topo.delta_p)
+            for r, p, h, dp in zip(ids, topo.positions, topo.headings, topo.delta_p, strict=True)
         ]
         frame = {"frame": "local", "reference": int(ids[topo.reference])}
     else:
         est = result
         robots = [
             {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2]), "delta_p": float(dp)}
-            for r, p, dp in zip(est.ids, est.poses, est.delta)
+            for r, p, dp in zip(est.ids, est.poses, est.delta, strict=True)
         ]
         frame = {"frame": "global"}
     return {

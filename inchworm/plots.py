@@ -23,14 +23,15 @@ DESIRED, ESTIMATED, TRUE = "tab:red", "tab:green", "tab:blue"
 
 def title(ax: Axes, text: str, fontsize: float = 11) -> None:
     """``text`` as the title of ``ax``, wrapped to the axes' width (never cut)."""
-    fig = ax.get_figure()
+    fig = ax.get_figure(root=True)
     width_in = fig.get_size_inches()[0] * ax.get_position().width if fig is not None else 6.0
     chars = max(20, int(width_in * 72 / (0.5 * fontsize)))
     ax.set_title("\n".join(textwrap.wrap(text, chars)), fontsize=fontsize)
 
 
 def save_figure(draw: Callable[..., Any], path: str | Path, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
-    """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``), ``draw(axes)`` on it, saved as ``path``."""
+    """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``),
+    ``draw(axes)`` on it, saved as ``path``."""
     from matplotlib.figure import Figure  # noqa: PLC0415
 
     fig = Figure(figsize=size, layout="constrained")
@@ -76,14 +77,18 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
         for i in range(truths.shape[1]):
             ax.plot(truths[:, i, 0], truths[:, i, 1], color=TRUE, lw=0.5, alpha=0.4)
     for _label, color, configs in series:
-        ax.scatter(*configs[:-1].reshape(-1, 2).T, s=22, facecolors="none", edgecolors=color, linewidths=0.8)
-        ax.scatter(*configs[-1][:, :2].T, s=40, color=color)
+        x, y = configs[:-1].reshape(-1, 2).T
+        ax.scatter(x, y, s=22, facecolors="none", edgecolors=color, linewidths=0.8)
+        x, y = configs[-1][:, :2].T
+        ax.scatter(x, y, s=40, color=color)
     for k, c in enumerate(run.configs):  # where the anchors stood: the estimate at the start of their configuration
         before = run.configs[k - 1].estimate if k else run.initial_estimate
         anchors = np.isin(before.ids, c.anchor_ids(0))
-        ax.scatter(*before.positions[anchors].T, s=90, facecolors="none", edgecolors="black", linewidths=0.8)
-    ax.scatter(*run.initial_estimate.positions.T, s=30, marker="x", color="gray")
-    dot = dict(marker="o", ls="none")
+        x, y = before.positions[anchors].T
+        ax.scatter(x, y, s=90, facecolors="none", edgecolors="black", linewidths=0.8)
+    x, y = run.initial_estimate.positions.T
+    ax.scatter(x, y, s=30, marker="x", color="gray")
+    dot: dict[str, Any] = dict(marker="o", ls="none")
     handles = [Line2D([], [], color=color, ms=7, label=label, **dot) for label, color, _ in series]
     handles += [
         Line2D([], [], mfc="none", mec="0.3", ms=6, label="earlier configurations (hollow)", **dot),

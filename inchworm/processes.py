@@ -70,7 +70,7 @@ def start_agents(
     procs = [] if procs is None else procs
     ids = format_ids(traj.ids)
     if per_process == 1:
-        for robot, pose in zip(traj.ids, traj.initial_poses):
+        for robot, pose in zip(traj.ids, traj.initial_poses, strict=True):
             procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
         return procs
     if traj_file is None:
@@ -211,7 +211,7 @@ class CoordinatorKiller:
     def _on_message(self, key: str, payload: bytes) -> None:
         heard = time.time_ns()
         try:
-            msg = decode(payload, MotionCommand if key.endswith("/cmd") else ObserveRequest)
+            msg = decode(payload, MotionCommand) if key.endswith("/cmd") else decode(payload, ObserveRequest)
         except MessageError:
             return
         if self.killed_ns is None:

@@ -87,7 +87,8 @@ def config_table(result: RunResult) -> str:
     for c, rec in enumerate(result.configs):
         if rows:
             r = rows[c]
-            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} {r['travelled']:>13.3f}")
+            lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} "
+                         f"{r['travelled']:>13.3f}")
         else:
             lines.append(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]

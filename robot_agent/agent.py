@@ -48,10 +48,10 @@ of an epoch whose token went (a dead or replayed coordinator) or without any epo
 one of an epoch whose token has not reached the agent yet is dropped (its coordinator sends it
 again). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
 declares itself only once that token is gone), even before the agent saw the token go. When
-the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an ancestor) as its ``parent`` took the run over and continues it, so the
-step memory is kept (a command for the step already executed is answered from memory, never
-executed twice); any other starts a new run at step 1 and the agent forgets the last run's steps
-(an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
+the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an
+ancestor) as its ``parent`` took the run over and continues it, so the step memory is kept (a command for
+the step already executed is answered from memory, never executed twice); any other starts a new run at
+step 1 and the agent forgets the last run's steps (an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
 agents (and, through the link's RUN handshake, the same robots). An agent without any step
 memory (just started, e.g. a lost robot's agent restarted) answers an observation request of any
 step of the coordinator it obeys: that is how a lost robot rejoins a run in progress.
@@ -89,7 +89,8 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -115,6 +116,9 @@ from runtime.wire.messages import (
 )
 from runtime.wire.rate_limit import RateLimit
 from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log = logging.getLogger(__name__)
 _COORD = "__coord_alive__"
@@ -162,7 +166,7 @@ class Agent:
         self._last_truth: TruthMessage | None = None
         self._pending: int | None = None  # step of an ObserveRequest waiting for truths
         self._peers: PeerPoses | None = None  # the pending step's truth set (simulation)
-        self._session = None
+        self._session: zenoh.Session | None = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
         self._estop_key = estop_key(run)
@@ -215,7 +219,7 @@ class Agent:
                     if isinstance(e, DriverFault):  # the robot's state is unknown: stop it for good
                         self._bounded(self.driver.estop, max(self._last_cmd_step, 0))
                     break
-                except Exception:  # a bug must not silently kill a robot mid-run: log it and keep serving
+                except Exception:  # noqa: BLE001 - a bug must not silently kill a robot mid-run: log it and keep serving
                     _log.exception("robot %d: error handling a message on %s", self.robot, key)
             token.undeclare()
             for sub in subs:
@@ -232,7 +236,7 @@ class Agent:
             _log.warning("robot %d left %d refusals unsent (rate limit)", self.robot, self.refusals.suppressed)
         return 3 if self.lost_reason is not None else 0
 
-    def _driver_call(self, fn, *args):
+    def _driver_call(self, fn: Callable[..., Any], *args: Any) -> Any:
         """``fn(*args)`` of the driver: ``DriverRefused`` and ``RobotLost`` pass; any other exception, or no return
         within ``command_timeout_s`` (if set), raises ``DriverFault``."""
         what = getattr(fn, "__name__", "call")
@@ -241,7 +245,7 @@ class Agent:
                 return fn(*args)
             except (DriverRefused, RobotLost):
                 raise
-            except Exception as e:  # noqa: BLE001 - a driver's bug is a fault of that robot, not of the agent
+            except Exception as e:  # a driver's bug is a fault of that robot, not of the agent
                 raise DriverFault(f"driver error in {what}: {type(e).__name__}: {e}") from e
         box: list = []
         done = threading.Event()
@@ -302,7 +306,7 @@ class Agent:
                     continue
                 forwarded = True
             ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="agent", name=str(self.robot),
-                           robots=[self.robot])
+                           robots=(self.robot,))
             try:
                 self._send(ack)
             except Exception:  # noqa: BLE001 - a closed session at shutdown: the stop itself went out
@@ -311,6 +315,7 @@ class Agent:
     # -- message handling (loop thread only) --------------------------------------------
 
     def _send(self, msg) -> None:
+        assert self._session is not None, "while running only"
         publish(self._session, message_key(msg), encode(msg))
 
     def _on_coordinator(self, event: str) -> None:
@@ -392,12 +397,12 @@ class Agent:
             if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot and self.refusals.allow():
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
-        refusal = self._admit(cmd.epoch)
-        if refusal == _UNSEEN:
+        why = self._admit(cmd.epoch)
+        if why == _UNSEEN:
             self.drops.drop(key, MessageError("MotionCommand.epoch", f"coordinator epoch {cmd.epoch} is not known yet", "foreign"))
             return
-        if refusal is not None:
-            self._status(cmd, "refused", refusal, remember=False)
+        if why is not None:
+            self._status(cmd, "refused", why, remember=False)
             return
         if cmd.step < self._last_cmd_step:
             self._status(cmd, "refused", f"stale step {cmd.step}: step {self._last_cmd_step} was already handled", remember=False)
@@ -433,6 +438,7 @@ class Agent:
         """The answer to a command for the step already handled: a re-send gets the same ``Status``; the same
         motion from the coordinator that took the run over gets that answer with its own ``cmd_id``."""
         last, done = self._last_status, self._last_cmd
+        assert last is not None  # called when the step was answered
         if cmd.cmd_id == last.cmd_id or done is None:
             self._send(last)
         elif (cmd.turn_rad, cmd.drive_m) != (done.turn_rad, done.drive_m):
@@ -486,7 +492,8 @@ class Agent:
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
-        self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=pose)
+        assert pose is not None, "simulated drivers only"
+        self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=tuple(pose.tolist()))
         self._send(self._last_truth)
 
     def _try_report(self) -> None:

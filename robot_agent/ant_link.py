@@ -62,7 +62,7 @@ class AntLink:
             channel.set_rf_freq(rf)
             channel.set_period(PERIOD)
             channel.open()
-        except Exception as exc:  # openant raises its own and USB errors
+        except Exception as exc:  # noqa: BLE001 - openant raises its own and USB errors
             raise ConnectionError(f"cannot open the ANT channel {device}: {exc}") from None
         self._channel = channel
         self._thread = threading.Thread(target=self._node.start, name=f"ant-{number}", daemon=True)

@@ -47,7 +47,7 @@ def parse_ids(text: str, option: str) -> list[int]:
 
 def format_ids(ids: Iterable[int]) -> str:
     """The shortest ``parse_ids`` text of ``ids`` (runs of consecutive ids as ranges): [0, 1, 2, 5] -> ``0-2,5``."""
-    parts: list[str] = []
+    parts: list[list[int]] = []  # [first, last] of each run
     for i in ids:
         i = int(i)
         if parts and parts[-1][1] == i - 1:
@@ -133,7 +133,7 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
         if missing and spec.driver == "sim":
             raise SwarmInputError(f"--id names robots {missing} that {spec.trajectory_path} does not have")
-        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses)}
+        poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses, strict=True)}
     elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
         raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")
     gateway = None

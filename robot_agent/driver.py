@@ -19,12 +19,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
-from runtime.wire.messages import MotionCommand
+from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
+from runtime.wire.messages import MotionCommand
 
 
 @dataclass(frozen=True)
@@ -182,7 +182,7 @@ class SimDriver(Driver):
 
     def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         peers = None if peers is None else PeerPoses.of(peers)
-        own = None if peers is None else np.flatnonzero(peers.ids == self.robot)
+        own = np.empty(0, np.int64) if peers is None else np.flatnonzero(peers.ids == self.robot)
         if peers is None or len(own) != 1 or not np.isin(peers.ids, self._ids).all():
             got = [] if peers is None else peers.ids.tolist()
             raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "

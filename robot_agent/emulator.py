@@ -40,11 +40,12 @@ import time
 import tty
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.gateway.config import Calibration
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_ENTRIES,
@@ -65,13 +66,16 @@ from runtime.gateway.frames import (
     StepBody,
     encode_frame,
 )
-from runtime.gateway.config import Calibration
-from runtime.wire.keys import coord_alive_key, validate_port, validate_run
-from runtime.wire.messages import TruthMessage, encode, message_key
+from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
+from runtime.wire.keys import coord_alive_key, validate_port, validate_run
+from runtime.wire.messages import TruthMessage, encode, message_key
 from runtime.wire.transport import publish, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log = logging.getLogger(__name__)
 
@@ -219,8 +223,9 @@ class EmulatedWorld:
             pose = self._poses[i].copy()
             listeners = list(self._listeners) if step is not None else []
             nb, rho, phi = sense_robot(self._poses, i, self.cfg, self._sensing[robot])
-        for listener in listeners:
-            listener(robot, int(step), pose)
+        if step is not None:
+            for listener in listeners:
+                listener(robot, int(step), pose)
         return np.array(self.ids, dtype=np.int64)[nb], cal.measured_ranges(rho), cal.measured_bearings(phi)
 
 
@@ -452,7 +457,7 @@ class PortEmulator:
                 for frame in frames:
                     self._receive(frame)
                 self._watchdog(time.monotonic())
-            except Exception:  # a bug must not silently kill every robot of the port: log and serve on
+            except Exception:  # noqa: BLE001 - a bug must not silently kill every robot of the port: log and serve on
                 _log.exception("port %s: error handling frames", self.port_name)
 
     def _receive(self, frame: Frame) -> None:
@@ -524,9 +529,9 @@ class PortEmulator:
         except FrameError as exc:
             self._error(st.robot, frame.seq, ErrorCode.BAD_BODY, f"{kind.name}: {exc}")
             return
-        if kind is FrameType.COMMAND:
+        if kind is FrameType.COMMAND and isinstance(body, MotionBody):
             self._on_command(st, frame.seq, body)
-        elif kind is FrameType.OBSERVE:
+        elif kind is FrameType.OBSERVE and isinstance(body, StepBody):
             self._on_observe(st, frame.seq, body.step)
         elif kind is FrameType.HEARTBEAT:
             self._send(st.robot, frame.seq, FrameType.HEARTBEAT_ACK, body)
@@ -540,7 +545,7 @@ class PortEmulator:
             st.estopped = False
             self._event("reset", robot=st.robot, seq=frame.seq, was_estopped=was)
             self._send(st.robot, frame.seq, FrameType.RESET_ACK, EmptyBody())
-        elif kind is FrameType.RUN:
+        elif kind is FrameType.RUN and isinstance(body, RunBody):
             self._on_run(st, frame.seq, body.epoch)
 
     def _on_run(self, st: _Robot, seq: int, epoch: int) -> None:
@@ -657,7 +662,7 @@ class PortEmulator:
             return
         stamp = self.world.clock_ms()
         ids, ranges, bearings = self.world.sense(st.robot, step)  # truth listeners hear of it first
-        entries = [(int(i), float(r), float(b)) for i, r, b in zip(ids, ranges, bearings)]
+        entries = [(int(i), float(r), float(b)) for i, r, b in zip(ids, ranges, bearings, strict=True)]
         chunks = [entries[k:k + MAX_ENTRIES] for k in range(0, len(entries), MAX_ENTRIES)] or [[]]
         if len(chunks) > MAX_PARTS:
             self._error(st.robot, seq, ErrorCode.OTHER, f"{len(entries)} neighbours need {len(chunks)} parts, at most {MAX_PARTS}")
@@ -726,7 +731,7 @@ class PortEmulator:
             return
         try:
             self.on_event({"event": event, "time_ns": time.time_ns(), "port": self.port_name, **fields})
-        except Exception:
+        except Exception:  # noqa: BLE001 - the caller's callback must not break the port
             _log.exception("port %s: event callback failed", self.port_name)
 
     def _close_fds(self) -> None:
@@ -749,14 +754,14 @@ class TruthPublisher:
     answers (from the port's reader thread, never from a Zenoh callback).
     """
 
-    def __init__(self, world: EmulatedWorld, session: object, run_id: str) -> None:
+    def __init__(self, world: EmulatedWorld, session: zenoh.Session, run_id: str) -> None:
         self.world = world
         self.session = session
         self.run_id = validate_run(run_id)
         self.published = 0
         self._jobs: queue.SimpleQueue[bool] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="emulator-truth", daemon=True)
-        self._watch = None
+        self._watch: zenoh.Subscriber | None = None
         self._lock = threading.Lock()
 
     def __enter__(self) -> TruthPublisher:
@@ -770,7 +775,7 @@ class TruthPublisher:
         self._thread.start()
         self._jobs.put(True)  # step 0 (or the latest) of every robot now
         self._watch = watch_liveliness(
-            self.session, coord_alive_key(self.run_id), lambda key, alive: alive and self._jobs.put(True)
+            self.session, coord_alive_key(self.run_id), lambda key, alive: self._jobs.put(True) if alive else None
         )
 
     def close(self) -> None:
@@ -792,10 +797,10 @@ class TruthPublisher:
         self._publish(robot, step, pose)
 
     def _publish(self, robot: int, step: int, pose: np.ndarray) -> None:
-        msg = TruthMessage(run=self.run_id, step=step, robot=robot, pose=[float(v) for v in pose])
+        msg = TruthMessage(run=self.run_id, step=step, robot=robot, pose=tuple(float(v) for v in pose))
         try:
             publish(self.session, message_key(msg), encode(msg))
-        except Exception:  # a closed session at shutdown must not break a robot's answer
+        except Exception:  # noqa: BLE001 - a closed session at shutdown must not break a robot's answer
             _log.warning("truth of robot %d (step %d) not published", robot, step, exc_info=True)
             return
         with self._lock:

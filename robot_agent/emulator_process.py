@@ -73,7 +73,7 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
             sink = JsonLinesSink(events)
             stack.callback(sink.close)
         ports = [stack.enter_context(PortEmulator(world, p.name, p.robots, faults, on_event=sink)) for p in config.ports]
-        if settings is not None:
+        if settings is not None and run_id is not None:  # both or neither (checked above)
             session = stack.enter_context(open_session(settings))
             truth = stack.enter_context(TruthPublisher(world, session, run_id))
             truth.start()

@@ -22,6 +22,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -30,6 +31,9 @@ from runtime.gateway.config import Calibration, Timing
 from runtime.wire.keys import link_alive_key, robot_key
 from runtime.wire.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
 from runtime.wire.transport import publish, subscribe, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
 
 
 class GatewayDriver(Driver):
@@ -43,14 +47,14 @@ class GatewayDriver(Driver):
         self.robot = int(robot)
         self.calibration = calibration
         self.timing = timing
-        self._session = None
-        self._sub = None
+        self._session: zenoh.Session | None = None
+        self._sub: zenoh.Subscriber | None = None
         self._replies: queue.Queue[LinkReply] = queue.Queue()
         self._estopped = threading.Event()
         self.port = port
         self._link_seen = threading.Event()  # the link's liveliness token appeared
         self._link_gone = threading.Event()  # ... and disappeared since
-        self._watch = None
+        self._watch: zenoh.Subscriber | None = None
         self._req_key = robot_key(run, self.robot, "linkreq")
         self._rep_key = robot_key(run, self.robot, "linkrep")
         self.bad_replies = 0  # undecodable LinkReplies
@@ -84,8 +88,9 @@ class GatewayDriver(Driver):
             self._link_gone.clear()
         elif self._link_seen.is_set() and not self._link_gone.is_set():
             self._link_gone.set()
-            if self.on_lost is not None:
-                self.on_lost(self.lost_reason())
+            reason = self.lost_reason()
+            if self.on_lost is not None and reason is not None:
+                self.on_lost(reason)
 
     def lost_reason(self) -> str | None:
         """Why the robot cannot be reached any more (its link process is gone), or None."""
@@ -106,6 +111,7 @@ class GatewayDriver(Driver):
     def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple = ()) -> None:
         msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m,
                           start_pose=start_pose)
+        assert self._session is not None, "attach() first"
         publish(self._session, self._req_key, encode(msg))
 
     def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0,

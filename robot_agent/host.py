@@ -55,6 +55,6 @@ class AgentHost:
     def _serve(self, agent: Agent, session) -> None:
         try:
             self.results[agent.robot] = agent.run(session)
-        except Exception:  # one agent's failure to start must not take its neighbours down
+        except Exception:  # noqa: BLE001 - one agent's failure to start must not take its neighbours down
             _log.exception("robot %d: its agent failed", agent.robot)
             self.results[agent.robot] = 1

@@ -46,27 +46,38 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
+    QUIET_S,
     EmptyBody,
+    ErrorBody,
     Frame,
     FrameDecoder,
     FrameError,
     FrameType,
     HeartbeatBody,
     MotionBody,
-    QUIET_S,
     ObservationBody,
+    RefusalBody,
     RefusalCode,
     RunBody,
     StepBody,
     encode_frame,
     fits_f32,
 )
-from runtime.gateway.config import Calibration, Limits, Port, Timing
-from runtime.wire.keys import (KeyspaceError, alive_wildcard, coord_alive_key, coord_key, estop_key, link_alive_key, parse_coord_token, parse_key,
-                               robot_wildcard)
+from runtime.wire.keys import (
+    KeyspaceError,
+    alive_wildcard,
+    coord_alive_key,
+    coord_key,
+    estop_key,
+    link_alive_key,
+    parse_coord_token,
+    parse_key,
+    robot_wildcard,
+)
 from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
@@ -227,7 +238,7 @@ class Link:
         self._stop = threading.Event()
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
-        self._subs = []
+        self._subs: list = []
         self._coord_seen = False  # the coordinator's token appeared ...
         self._coord_gone = False  # ... and disappeared since (or the session to it was lost): the link stops feeding
         self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
@@ -379,44 +390,45 @@ class Link:
             key, payload = event[1], event[2]
             if key == self._estimate_key:
                 msg = decode_or_drop(payload, self.drops, key, EstimateMessage)
-                for robot, pose in zip(msg.ids if msg is not None else (), msg.poses if msg is not None else ()):
+                for robot, pose in zip(msg.ids if msg is not None else (), msg.poses if msg is not None else (), strict=True):
                     if robot in self.robots:
-                        self.robots[robot].reckoned = tuple(pose)
+                        self.robots[robot].reckoned = (float(pose[0]), float(pose[1]), float(pose[2]))
             elif key == estop_key(self.run_id):
-                msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
-                if msg is None:
+                stop = decode_or_drop(payload, self.drops, key, EmergencyStop)
+                if stop is None:
                     return
-                if msg.robots:  # a lost robot's stop: only the robots it names
-                    stopped = [r.id for r in self.robots.values() if r.id in msg.robots and not r.lost]
+                if stop.robots:  # a lost robot's stop: only the robots it names
+                    stopped = [r.id for r in self.robots.values() if r.id in stop.robots and not r.lost]
                     for robot in stopped:
-                        self._start_control(self.robots[robot], "estop", msg.step)
+                        self._start_control(self.robots[robot], "estop", stop.step)
                 else:
-                    self._estop_all(msg.step)
+                    self._estop_all(stop.step)
                     stopped = sorted(r.id for r in self.robots.values() if not r.lost)
                 if stopped:
-                    ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="link", name=self.port.name,
-                                   robots=stopped)
+                    ack = EstopAck(run=self.run_id, step=stop.step, stop_stamp_ns=stop.stamp_ns, by="link", name=self.port.name,
+                                   robots=tuple(stopped))
                     publish(self.session, message_key(ack), encode(ack))
             else:
-                msg = decode_or_drop(payload, self.drops, key, LinkRequest)
-                if msg is None:
+                req = decode_or_drop(payload, self.drops, key, LinkRequest)
+                if req is None:
                     self.counters.rejected += 1
                     return
-                if msg.robot not in self.robots:
+                if req.robot not in self.robots:
                     return  # a robot behind another port: that link's request
-                problem = self._invalid(msg)
+                problem = self._invalid(req)
                 if problem is not None:
                     self.counters.rejected += 1
                     _log.warning("port %s: request dropped: %s", self.port.name, problem)
                     return
-                self._on_request(msg)
+                self._on_request(req)
 
     def _on_agent(self, key: str, alive: bool) -> None:
         """The liveliness token of an agent appeared or disappeared: keep feeding its robot or stop."""
         try:
-            robot = self.robots.get(parse_key(key).robot)
+            robot_id = parse_key(key).robot
         except KeyspaceError:
             return
+        robot = None if robot_id is None else self.robots.get(robot_id)
         if robot is None:
             return
         if alive:
@@ -456,8 +468,8 @@ class Link:
     def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
         entries = [e for p in parts or [] for e in p.entries]
         msg = LinkReply(run=self.run_id, step=step, robot=robot, kind=kind, reason=reason,
-                        observed=[e[0] for e in entries], ranges=[max(float(e[1]), 0.0) for e in entries],
-                        bearings=[float(e[2]) for e in entries])
+                        observed=tuple(e[0] for e in entries), ranges=tuple(max(float(e[1]), 0.0) for e in entries),
+                        bearings=tuple(float(e[2]) for e in entries))
         publish(self.session, message_key(msg), encode(msg))
 
     def _on_request(self, req: LinkRequest) -> None:
@@ -533,7 +545,7 @@ class Link:
             robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
             robot.busy.motion = (req.turn_rad, self.calibration.get(robot.id, Calibration()).driven(req.drive_m))
             if robot.reckoned is None and req.start_pose:  # no estimate from the coordinator yet: start from the request's
-                robot.reckoned = tuple(req.start_pose)
+                robot.reckoned = (float(req.start_pose[0]), float(req.start_pose[1]), float(req.start_pose[2]))
         else:
             robot.busy = self._request(robot, req.kind, req.step, FrameType.OBSERVE, StepBody(req.step))
 
@@ -570,9 +582,9 @@ class Link:
             return
         robot.last_rx = now
         robot.unanswered_since = None
-        for req in robot.requests():
-            if frame.seq == req.seq:
-                req.retries = 0  # the robot answers: the retry budget starts again
+        for pending in robot.requests():
+            if frame.seq == pending.seq:
+                pending.retries = 0  # the robot answers: the retry budget starts again
         try:
             body = frame.body()
         except FrameError as exc:
@@ -591,7 +603,8 @@ class Link:
             self._reply(robot.id, control.step, "estopped" if kind == FrameType.ESTOPPED else "reset")
             return
         begin = robot.begin
-        if begin is not None and frame.seq == begin.seq and kind == FrameType.RUN_ACK and body.epoch == self.counters.epoch:
+        if (begin is not None and frame.seq == begin.seq and kind == FrameType.RUN_ACK and isinstance(body, RunBody)
+                and body.epoch == self.counters.epoch):
             self._rtt(begin.sent_at, now)
             robot.begin = None
             self._start_waiting(robot)
@@ -613,18 +626,19 @@ class Link:
                 heading += turn
                 robot.reckoned = (x + driven * math.cos(heading), y + driven * math.sin(heading), heading)
             self._finish(robot, "done")
-        elif kind == FrameType.REFUSED:
+        elif kind == FrameType.REFUSED and isinstance(body, RefusalBody):
             code = RefusalCode(body.code).name if body.code in set(RefusalCode) else str(body.code)
             self._finish(robot, "refused", f"robot {robot.id} refused ({code}): {body.reason}")
-        elif kind == FrameType.ERROR:
+        elif kind == FrameType.ERROR and isinstance(body, ErrorBody):
             self._finish(robot, "refused", f"robot {robot.id} reported error {body.code}: {body.text}")
-        elif kind == FrameType.OBSERVATION and req.kind == "observe":
+        elif kind == FrameType.OBSERVATION and isinstance(body, ObservationBody) and req.kind == "observe":
             req.parts[body.part] = body
             if len(req.parts) == body.parts and all(p.parts == body.parts for p in req.parts.values()):
                 self._finish(robot, "observation", parts=[req.parts[i] for i in range(body.parts)])
 
     def _finish(self, robot: _Robot, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
         req = robot.busy
+        assert req is not None  # called for the request in flight only
         robot.busy = None
         self._reply(robot.id, req.step, kind, reason, parts=parts)
         self._start_waiting(robot)
@@ -677,14 +691,14 @@ class Link:
             d = dataclasses.replace(self.decoder.stats)
             lost = sorted(r.id for r in self.robots.values() if r.lost)
         return LinkStats(
-            run=self.run_id, step=0, port=self.port.name, robots=sorted(self.robots),
+            run=self.run_id, step=0, port=self.port.name, robots=tuple(sorted(self.robots)),
             frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
             crc_errors=d.crc_errors, length_errors=d.length_errors, skipped_bytes=d.skipped_bytes,
             timeouts=self.counters.timeouts, rejected=self.counters.rejected,
             rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
             rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
             rtt_ms_max=max(rtts) if rtts else 0.0,
-            lost=lost,
+            lost=tuple(lost),
         )
 
     def _publish_stats(self) -> None:

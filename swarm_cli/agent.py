@@ -33,11 +33,12 @@ from robot_agent.agent import READY_TIMEOUT_S
 from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, AgentSpec, build_agents, driver_options, parse_ids
 from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
+from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
-from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, positive
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("agent", help="run the agent process of one robot, or of many (--id 0-49), in a distributed run")
@@ -67,7 +68,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--pose", help="initial true pose x,y,heading (m, m, rad) of one simulated robot (or give --trajectory)")
     p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
     p.add_argument("--max-drive", type=float, default=CommandLimits().max_drive_m, help="refuse drives longer than this (m, default 1)")
-    p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad), help="refuse turns larger than this (default 180)")
+    p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad),
+                   help="refuse turns larger than this (default 180)")
     add_model_options(p)
 
 

@@ -6,7 +6,6 @@ import argparse
 import sys
 
 from runtime.errors import SwarmInputError
-
 from swarm_cli.entry import library_doc
 from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_result
 

@@ -27,7 +27,15 @@ from pathlib import Path
 from coordinator.strategies import METHODS
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import leave, portable_command, run_standalone
-from swarm_cli.options import add_connection_options, add_simulation_options, connection_label, connection_settings, model_config, print_json, selection_config
+from swarm_cli.options import (
+    add_connection_options,
+    add_simulation_options,
+    connection_label,
+    connection_settings,
+    model_config,
+    print_json,
+    selection_config,
+)
 
 EXIT_AGENT = 3
 EXIT_CONFLICT = 4  # another coordinator of the run is alive
@@ -95,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
         args.localizer, model_config(args), args.model, selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
         truth=not args.no_truth,
-        record=None if args.no_record else args.record or default_recording(args.run_id, "standby" if args.standby else "resume" if args.resume else ""),
+        record=None if args.no_record else args.record or default_recording(args.run_id,
+                                                                             "standby" if args.standby else "resume" if args.resume else ""),
         foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), on_record_error=args.on_record_error,
         standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
     outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))

@@ -82,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
 
     check_radio_faults(args.drop, args.corrupt, args.delay)
     faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
-                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"), blackout=_blackout(args.blackout), seed=args.seed)
+                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"),
+                       blackout=_blackout(args.blackout), seed=args.seed)
 
     def ready(ports: list, devices: dict[str, str]) -> None:
         for pe in ports:

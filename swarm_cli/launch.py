@@ -75,20 +75,32 @@ import numpy as np
 from coordinator.process import EXIT_OUTPUT, default_recording
 from coordinator.stop import StopSignals, collect_acks, publish_estop
 from coordinator.strategies import METHODS
-from inchworm.processes import (AGENTS_PER_PROCESS, GRACE_S, ONE_PER_PROCESS_UP_TO, CoordinatorKiller, RobotKiller, agents_per_process,
-                                default_gateway, radio_faults, start_agents, start_gateway, stop_all, wait_for_standby)
-from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig
-from runtime.wire.keys import estop_ack_key, validate_run
-from runtime.wire.messages import EmergencyStop
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
+from inchworm.processes import (
+    AGENTS_PER_PROCESS,
+    GRACE_S,
+    ONE_PER_PROCESS_UP_TO,
+    CoordinatorKiller,
+    RobotKiller,
+    agents_per_process,
+    default_gateway,
+    radio_faults,
+    start_agents,
+    start_gateway,
+    stop_all,
+    wait_for_standby,
+)
 from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
+from runtime.errors import SwarmInputError
+from runtime.gateway.config import GatewayConfig
+from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.wire.keys import estop_ack_key, validate_run
+from runtime.wire.messages import EmergencyStop
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
 from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.lifeline import Lifeline
-from swarm_cli.run_file import published_run
 from swarm_cli.options import add_simulation_options, check_swarm_size, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.run_file import published_run
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
@@ -151,9 +163,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, "
                         f"else up to {AGENTS_PER_PROCESS} per process)")
-    p.add_argument("--drop", type=float, default=0.0, metavar="P", help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
-    p.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S", help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
+    p.add_argument("--drop", type=float, default=0.0, metavar="P",
+                   help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
+    p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
+                   help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
+    p.add_argument("--delay", type=float, default=0.0, metavar="S",
+                   help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
     add_record_options(p)
     add_simulation_options(p)
 

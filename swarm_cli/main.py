@@ -17,7 +17,8 @@ from swarm_cli.version import VersionAction
 COMMANDS = (
     Command("sim", "swarm_cli.sim", "simulate one run along a trajectory and plot it"),
     Command("compare", "swarm_cli.compare", "Table I/II: P_f of every method on the same random trajectories"),
-    Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"),
+    Command("study", "swarm_cli.study", "parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; "
+                                        "selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"),
     Command("trajectory", "swarm_cli.trajectory_cmd", "write a random trajectory file (new) or check one (check)"),
     Command("localize", "swarm_cli.localize", "localize robots from range/bearing observations in a JSON file"),
     Command("bench", "swarm_cli.bench", "benchmarks (print numbers; --json for machines)"),

@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 
 SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, without importing the search for a parser
 
@@ -162,9 +162,11 @@ def add_workers_option(parser: argparse.ArgumentParser) -> None:
 
 
 def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> None:
-    """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study (``files``: what it writes to ``--out``)."""
+    """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study
+    (``files``: what it writes to ``--out``)."""
     add_workers_option(parser)
-    parser.add_argument("--executor", choices=("local", "dask"), default="local", help="local: a process pool; dask: a Dask LocalCluster (default local)")
+    parser.add_argument("--executor", choices=("local", "dask"), default="local",
+                        help="local: a process pool; dask: a Dask LocalCluster (default local)")
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster instead (docs/scale-out.md)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
     parser.add_argument("--resume", action="store_true",
@@ -230,7 +232,8 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
     g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
                    help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
-                        "truths drawn from its covariance (estimate, the default until the pre-registered results); default known (docs/experiments.md)")
+                        "truths drawn from its covariance (estimate, the default until the pre-registered results); "
+                        "default known (docs/experiments.md)")
     g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
                    help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
 
@@ -310,7 +313,8 @@ def connection_label(args: argparse.Namespace) -> str:
     return args.hub or f"config {args.zenoh_config}"
 
 
-NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers", "executor", "scheduler"})  # how to run, not what: never read from or saved to a study file
+# how to run, not what: never read from or saved to a study file
+NOT_IN_CONFIG = frozenset({"help", "config", "resume", "json", "out", "workers", "executor", "scheduler"})
 
 
 def _config_actions(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
@@ -358,7 +362,8 @@ def save_config(args: argparse.Namespace) -> Path:
         value = getattr(args, dest)
         if value is None:
             continue
-        text = ("true" if value else "false") if isinstance(value, bool) else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value))
+        text = (("true" if value else "false") if isinstance(value, bool)
+                else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value)))
         lines.append(f"{dest.replace('_', '-')} = {text}")
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "study.toml"

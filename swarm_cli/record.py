@@ -17,8 +17,8 @@ import threading
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import run_wildcard, validate_run
 from runtime.recording.mcap_log import counts_text, record_run
+from runtime.wire.keys import run_wildcard, validate_run
 from swarm_cli.entry import on_stop_signals, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 

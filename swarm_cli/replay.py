@@ -10,8 +10,9 @@ out; file order, bytes unchanged, on its recorded key) with the recorded relativ
 with ``--hub`` it joins that hub as a client; without it, the hub of the recorded run if that
 run is live on this host (its run file, ``swarm_cli.run_file``); otherwise it opens its own
 loopback hub (a Zenoh router on a free port) and keeps a run file for the recorded run id
-while it publishes, so ``swarm record --run RUN`` or a live view on this host finds it. It waits up to ``--wait`` seconds (default 10) for a subscriber of any recorded
-key before it starts. Puts use Zenoh's blocking congestion control, so nothing is dropped.
+while it publishes, so ``swarm record --run RUN`` or a live view on this host finds it. It waits up to
+``--wait`` seconds (default 10) for a subscriber of any recorded key before it starts. Puts use Zenoh's
+blocking congestion control, so nothing is dropped.
 
 ``--check`` re-runs the coordinator's localization (and, where the metadata allows, its
 initial estimate and seeded anchor selection) on the recorded inputs and compares every
@@ -42,9 +43,9 @@ import time
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from runtime.wire.keys import ROOT, KeyspaceError, validate_run
-from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.models.model_file import load_model
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 from swarm_cli.run_file import published_run, read_run
 
@@ -68,7 +69,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     mode.add_argument("--check", action="store_true", help="re-run localization and anchor selection, compare bit for bit")
     g = p.add_argument_group("--publish")
     g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live on this host, else a loopback hub of its own, printed)")
+    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live "
+                                               "on this host, else a loopback hub of its own, printed)")
     g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
     target = g.add_mutually_exclusive_group()
     target.add_argument("--run", dest="run_id", default=None, help="run id to publish under (default <run>-replay-<hex>)")
@@ -77,7 +79,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
     c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
     c.add_argument("--what-if", action="store_true",
-                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report where the results part")
+                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report "
+                        "where the results part")
     add_localizer_option(p)
     add_selection_options(p)
     add_model_options(p)
@@ -101,9 +104,9 @@ def _valid_run(run: str) -> bool:
 
 
 def run_publish(args: argparse.Namespace) -> int:
-    import zenoh  # only when publishing
+    import zenoh  # noqa: PLC0415 - only when publishing
 
-    from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session
+    from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     speed = args.speed
     if math.isnan(speed) or speed < 0:

@@ -62,5 +62,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
-                    "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows, "fallback_steps": len(fallback_steps(result)), "plots": plots})
+                    "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows,
+                    "fallback_steps": len(fallback_steps(result)), "plots": plots})
     return 0

@@ -6,8 +6,17 @@ from __future__ import annotations
 import argparse
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS, DEFAULT_LOCALIZER
-from swarm_cli.options import (add_json_option, add_model_options, add_selection_options, add_study_options, names, parse_list,
-                               positive_int, run_options, run_study)
+from swarm_cli.options import (
+    add_json_option,
+    add_model_options,
+    add_selection_options,
+    add_study_options,
+    names,
+    parse_list,
+    positive_int,
+    run_options,
+    run_study,
+)
 
 PAPER_REF57_PF = 0.0673  # inchworm.studies.calibration.PAPER_REF57_PF, without importing the study for the parser
 

@@ -5,8 +5,16 @@ from __future__ import annotations
 import argparse
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from swarm_cli.options import (add_json_option, add_model_options, add_selection_options, add_study_options, model_config, names, run_study,
-                               selection_config)
+from swarm_cli.options import (
+    add_json_option,
+    add_model_options,
+    add_selection_options,
+    add_study_options,
+    model_config,
+    names,
+    run_study,
+    selection_config,
+)
 
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")
 

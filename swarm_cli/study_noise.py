@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.studies.noise import NoiseOptions, study_noise  # noqa: PLC0415
 
-    options = NoiseOptions(tuple(parse_list(args.motion_scales, "--motion-scales", float)), tuple(parse_list(args.sensing_scales, "--sensing-scales", float)),
+    options = NoiseOptions(tuple(parse_list(args.motion_scales, "--motion-scales", float)),
+                           tuple(parse_list(args.sensing_scales, "--sensing-scales", float)),
                            names(args.localizers), args.robots, args.trajectories, args.configs, args.seed, run_options(args))
     options.validate()
     return run_study(args, study_noise, options, len(options.tasks()), "study noise")

@@ -18,7 +18,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
     add_study_options(p, "out/study-selection", "configs.jsonl, configs.csv, selection.png and study.toml")
     p.add_argument("--no-optimum", action="store_true", help="skip the exhaustive optimum (search against the heuristic only)")
-    p.add_argument("--from-csv", type=Path, default=None, help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
+    p.add_argument("--from-csv", type=Path, default=None,
+                   help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
     p.set_defaults(run=run)
 
@@ -26,8 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.studies.selection import SelectionStudyOptions, selection_from_csv, study_selection  # noqa: PLC0415
 
-    options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed, run_options(args),
-                                     not args.no_optimum)
+    options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed,
+                                    run_options(args), not args.no_optimum)
     options.validate()
     if args.from_csv is None:
         return run_study(args, study_selection, options, options.configs, "study selection", "configs")

@@ -11,7 +11,7 @@ DISTRIBUTION = "inchworm-swarm"
 
 def installed_version() -> str:
     """The version of the installed ``inchworm-swarm`` distribution (``importlib.metadata``)."""
-    from importlib.metadata import PackageNotFoundError, version  # imported here: ~40 ms that --help need not pay
+    from importlib.metadata import PackageNotFoundError, version  # noqa: PLC0415 - ~40 ms that --help need not pay
 
     try:
         return version(DISTRIBUTION)

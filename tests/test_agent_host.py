@@ -16,18 +16,17 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inchworm.processes import agents_per_process
 from robot_agent.agent import Agent
+from robot_agent.assembly import format_ids, parse_ids
 from robot_agent.driver import SimDriver
 from robot_agent.host import AgentHost
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
-from runtime.models.trajectory import random_trajectory
 from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
-from inchworm.processes import agents_per_process
-from robot_agent.assembly import format_ids
-from robot_agent.assembly import parse_ids
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

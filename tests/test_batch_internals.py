@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 import coordinator.localization.sparse_lm as sparse_lm
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
     COMPACT_BELOW,
@@ -29,8 +28,9 @@ from coordinator.localization.batch import (
     observable,
 )
 from coordinator.localization.range_bearing import sqrt_information
-from runtime.models.config import ModelConfig
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 
 CFG = ModelConfig()
 

@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 
+from inchworm.output import last_json
 from runtime.models.model_file import load_model
 from runtime.recording.run_log import load_run_log
 from runtime.recording.truth_csv import read_truth_csv
-from inchworm.output import last_json
 
 REPO = Path(__file__).resolve().parents[1]
 # unusual noise on every parameter; sensing range smaller than the default 0.5 m
@@ -57,9 +57,10 @@ def test_a_launched_run_plans_and_simulates_with_the_model_file_and_records_it(t
     model.write_text("[model]\nturn_sigma_deg = 6.5\ndropout = 0.1\nsensing_range_m = 0.45\n")
     rec = tmp_path / "run.mcap"
     run = swarm("launch", "-n", "4", "--configs", "2", "--method", "no-anchors", "--model", str(model), "--dropout", "0.05",
-                "--mc-start", "estimate", "--mc-emax", "worst", "--record", str(rec), "--out", str(tmp_path / "plots"), "--run", f"model-{tmp_path.name[-12:]}")
+                "--mc-start", "estimate", "--mc-emax", "worst", "--record", str(rec), "--out", str(tmp_path / "plots"),
+                "--run", f"model-{tmp_path.name[-12:]}")
     assert run.returncode == 0, run.stderr[-2000:]
-    from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
+    from runtime.recording.mcap_log import recording_info
 
     meta = recording_info(rec)["metadata"]["run"]
     assert meta["model_file"] == model.name  # the file's name: recordings carry no machine paths

@@ -49,7 +49,7 @@ def test_a_run_resumed_from_every_checkpoint_ends_bit_for_bit_as_the_uninterrupt
         backend = SimulatedSwarm(traj.ids, traj.initial_poses, CFG, seed)  # the robots: they outlive the coordinator
         seen: list[RunState] = []
 
-        def die_at_k(s: RunState) -> None:
+        def die_at_k(s: RunState, seen: list[RunState] = seen, k: int = k) -> None:
             seen.append(s)
             if len(seen) == k + 1:
                 raise Died

@@ -32,7 +32,8 @@ def test_the_top_level_help_imports_no_heavy_package() -> None:
     assert not loaded & set(HEAVY), loaded & set(HEAVY)
 
 
-@pytest.mark.parametrize("command", ["sim", "compare", "localize", "demo", "launch", "coordinator", "replay", "plot", "info", "record", "export", "agent", "estop", "recover",
+@pytest.mark.parametrize("command", ["sim", "compare", "localize", "demo", "launch", "coordinator", "replay", "plot", "info", "record", "export",
+                                     "agent", "estop", "recover",
                                      "bench record", "certs", "router", "study anchors", "study noise", "study selection",
                                      "study calibration", "study consistency", "bench localize", "bench select", "bench runtime",
                                      "bench gateway", "bench faults"])

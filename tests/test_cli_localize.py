@@ -62,7 +62,8 @@ def test_strict_names_the_robot_that_cannot_be_localized():
         ('{"robots": [1, 2], "observations": [[1, 2, 0.2]]}', "observations[0]: expected [observer, observed, range_m, bearing_rad]"),
         ('{"robots": [1, 1], "observations": []}', "duplicate robot ids: [1]"),
         ('{"robots": [1, 2], "observations": [[1, 2, -0.2, 0.0]]}', "negative ranges"),
-        ('{"robots": [1, 2], "observations": [[2, 1, 0.2, 0.0], [1, 2, 0.2, 3.1]], "prior": [{"id": 1, "x": 0, "y": 0, "heading": 0, "delta": 0.01, "sigma_heading": 0.1}]}', "missing [2]"),
+        ('{"robots": [1, 2], "observations": [[2, 1, 0.2, 0.0], [1, 2, 0.2, 3.1]], '
+         '"prior": [{"id": 1, "x": 0, "y": 0, "heading": 0, "delta": 0.01, "sigma_heading": 0.1}]}', "missing [2]"),
     ],
 )
 def test_bad_input_gets_a_clear_error(tmp_path, content, message):
@@ -86,9 +87,9 @@ def test_bench_localize_json_contract():
     import numpy as np
 
     from coordinator.localization import make_localizer
+    from inchworm.bench.localize import SPACING_M
     from runtime.models.config import ModelConfig
     from runtime.models.scenarios import random_step
-    from inchworm.bench.localize import SPACING_M
 
     out = swarm("bench", "localize", "--sizes", "10,30", "--trials", "1", "--repeats", "1", "--no-gtsam", "--seed", "3", "--json")
     assert out.returncode == 0, out.stderr
@@ -108,7 +109,7 @@ def test_bench_localize_json_contract():
 def test_solver_failure_has_its_own_exit_code_and_localizes_the_rest(tmp_path):
     """Two robots at the same spot (0 mm, no prior): the joint topology does not converge with all of
     them (this draw); the robots it names are left out, the rest is localized, exit code 3."""
-    from test_localization_degenerate import close_pair_case, document  # noqa: PLC0415 - shared test scenario
+    from test_localization_degenerate import close_pair_case, document  # shared test scenario
 
     _, obs, _ = close_pair_case(6, 0.0, True, 11)
     path = tmp_path / "pair.json"
@@ -128,9 +129,9 @@ def test_bench_localize_still_prior_gives_the_anchors_their_own_prior():
     """--still-prior: the robots that do not move start with that prior std; layout, movers and draws are unchanged."""
     import numpy as np
 
+    from inchworm.bench.localize import SPACING_M
     from runtime.models.config import ModelConfig
     from runtime.models.scenarios import random_step
-    from inchworm.bench.localize import SPACING_M
 
     plain = random_step(10, ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3)
     precise = random_step(10, ModelConfig(), np.random.default_rng(3), spacing=SPACING_M, seed=3, still_delta=0.002)

@@ -26,8 +26,16 @@ import pytest
 
 from runtime.wire.keys import alive_key, coord_alive_key, robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode, message_key
-from runtime.wire.transport import (MAX_WIRE_BYTES, ZenohSettings, declare_token, free_tcp_port, open_session, publish, subscribe_queue,
-                                    watch_liveliness)
+from runtime.wire.transport import (
+    MAX_WIRE_BYTES,
+    ZenohSettings,
+    declare_token,
+    free_tcp_port,
+    open_session,
+    publish,
+    subscribe_queue,
+    watch_liveliness,
+)
 from swarm_cli.main import main as swarm_main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -358,7 +366,7 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
             watch_liveliness(coord, alive_key(run, 0), lambda key, up: alive.put((key, up)))
             children.append(Child(agent_cmd))
             assert alive.get(timeout=20) == (alive_key(run, 0), True), "the agent's token never reached the coordinator"
-            token = declare_token(coord, coord_alive_key(run, 9))  # the coordinator of epoch 9
+            _token = declare_token(coord, coord_alive_key(run, 9))  # the coordinator of epoch 9
             time.sleep(0.3)
 
             # Neither a certificate of the same CA with another name nor the gateway identity

@@ -21,6 +21,9 @@ import numpy as np
 import pytest
 
 from coordinator.simulate import simulate
+from inchworm.processes import stop_all
+from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.keys import coord_key, robot_key, robot_wildcard, truth_key, truths_key
 from runtime.wire.messages import (
     EstimateMessage,
@@ -33,10 +36,7 @@ from runtime.wire.messages import (
     encode,
     message_key,
 )
-from runtime.recording.mcap_log import read_messages, recording_info
-from runtime.models.trajectory import Trajectory, random_trajectory
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
-from inchworm.processes import stop_all
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
 
@@ -76,7 +76,7 @@ class Run:
             subscribe(self.session, key_expr, self._hear)
         ids = ",".join(str(int(i)) for i in self.traj.ids)
         common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}"]
-        for robot, pose in zip(self.traj.ids, self.traj.initial_poses):
+        for robot, pose in zip(self.traj.ids, self.traj.initial_poses, strict=True):
             log = open(self.tmp / f"agent{robot}.log", "w")
             self.agents[int(robot)] = subprocess.Popen(
                 [sys.executable, "-m", "swarm_cli.agent", f"--id={robot}", f"--ids={ids}", f"--motion-time={self.motion_time}",
@@ -166,7 +166,7 @@ def _assert_same_as_in_process(run: Run) -> None:
     ref = _in_process(run.traj, run.method, run.seed)
     assert len(got["steps"]) == len(ref.steps) > 0
     np.testing.assert_allclose(got["initial_truth"], ref.initial_truth, rtol=0, atol=1e-9)
-    for s, r in zip(got["steps"], ref.steps):
+    for s, r in zip(got["steps"], ref.steps, strict=True):
         np.testing.assert_allclose(s["poses"], r.estimate.poses, rtol=0, atol=1e-9)
         np.testing.assert_allclose(s["cov"], r.estimate.cov, rtol=0, atol=1e-9)
         np.testing.assert_allclose(s["truth"], r.truth, rtol=0, atol=1e-9)

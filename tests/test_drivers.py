@@ -10,10 +10,10 @@ from pathlib import Path
 
 import pytest
 
+from inchworm.output import last_json
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.messages import Status, decode
 from swarm_cli.main import main
-from inchworm.output import last_json
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = "examples/drivers/unicycle.py:UnicycleDriver"
@@ -98,7 +98,7 @@ def test_a_bad_driver_is_one_line_and_exit_2(tmp_path, capsys, spec, message, co
 
 def test_an_installed_entry_point_names_a_driver(tmp_path, monkeypatch):
     """``--driver NAME`` finds the entry point NAME of the group ``inchworm_swarm.drivers`` of an installed package."""
-    from robot_agent.plugins import ENTRY_POINT_GROUP, driver_class  # noqa: PLC0415
+    from robot_agent.plugins import ENTRY_POINT_GROUP, driver_class
 
     dist = tmp_path / "mylab_robots-1.0.dist-info"
     dist.mkdir()

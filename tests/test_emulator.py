@@ -25,7 +25,7 @@ import pytest
 
 from robot_agent.driver import SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator, TruthPublisher
-from runtime.models.config import ModelConfig
+from runtime.gateway.config import Calibration, GatewayConfig
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_ENTRIES,
@@ -43,10 +43,10 @@ from runtime.gateway.frames import (
     StepBody,
     encode_frame,
 )
-from runtime.gateway.config import Calibration, GatewayConfig
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import coord_alive_key, truth_wildcard
 from runtime.wire.messages import MotionCommand, TruthMessage, decode, message_key
-from runtime.models.trajectory import Trajectory
 
 ROOT = Path(__file__).resolve().parent.parent
 SEED = 7

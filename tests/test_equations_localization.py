@@ -32,8 +32,8 @@ from coordinator.localization.topology import (
     reference_robot,
     to_reference_frame,
 )
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 HALF_PI = math.pi / 2

@@ -13,14 +13,13 @@ import numpy as np
 import pytest
 
 from coordinator.localization import make_localizer
-
 from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.heuristic import MIN_SEPARATION, heuristic_plan, step_score
 from coordinator.selection.monte_carlo import plan_keeps_connectivity
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, samples_for
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 # -- Eq. 1, 6, 7, 10 ----------------------------------------------------------------
@@ -263,7 +262,8 @@ def test_eq4_disconnecting_counts_are_never_chosen():
         assert not plan_keeps_connectivity(Plan(np.array(order), (1, 1, 1)), current, desired, 0.5)
     assert plan_keeps_connectivity(Plan(np.arange(3), (3,)), current, desired, 0.5)
     estimate = SwarmEstimate.isotropic(np.arange(3), np.c_[current, np.zeros(3)], 0.01, 0.02)
-    result = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, samples=2), seed=0).select(estimate, desired)
+    result = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, samples=2),
+                            seed=0).select(estimate, desired)
     scores = {s.n_anchors: s for s in result.scores}
     assert scores[2].plan is None and scores[2].e_l == np.inf
     assert result.n_anchors == 0  # even with w_l = 1, where any feasible anchor plan would win

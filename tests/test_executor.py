@@ -35,7 +35,7 @@ def test_end_to_end_is_bounded_and_bit_for_bit_reproducible(traj):
     m_bar = sum(np.linalg.norm(truths[j] - truths[j - 1], axis=1).mean() for j in range(1, 4))
     final_error = np.linalg.norm(truths[-1] - traj.configurations[2], axis=1).mean()
     assert a.pf() == pytest.approx(final_error / m_bar, rel=1e-12)
-    for sa, sb in zip(a.steps, b.steps):
+    for sa, sb in zip(a.steps, b.steps, strict=True):
         np.testing.assert_array_equal(sa.estimate.poses, sb.estimate.poses)
         np.testing.assert_array_equal(sa.truth, sb.truth)
     assert a.pf() == b.pf()
@@ -134,7 +134,7 @@ def test_listener_sees_plans_and_estimates_with_global_steps_and_changes_nothing
     estimates = [e for e in rec.events if e[0] == "estimate"]
     assert [e[1] for e in estimates] == list(range(7))
     np.testing.assert_array_equal(estimates[0][2], heard.initial_estimate.poses)
-    for e, s, p in zip(estimates[1:], heard.steps, plain.steps):
+    for e, s, p in zip(estimates[1:], heard.steps, plain.steps, strict=True):
         np.testing.assert_array_equal(e[2], s.estimate.poses)
         np.testing.assert_array_equal(s.estimate.poses, p.estimate.poses)
     assert rec.events.index(("plan", 1, 3, 2)) == 4  # after the estimates 0, 1, 2 and before step 3's

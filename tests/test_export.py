@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from runtime.errors import SwarmInputError
-from runtime.wire.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
 from runtime.models.metrics import localization_error
 from runtime.recording.mcap_log import read_messages
+from runtime.wire.messages import EstimateMessage, PlanMessage, TruthSetMessage, decode
 from swarm_cli.main import main
 
 SAMPLE = Path(__file__).resolve().parent.parent / "recordings" / "sample.mcap"
@@ -55,7 +55,7 @@ def test_export_ros2_round_trip(tmp_path, capsys) -> None:
 
     poses = bag["/swarm/estimate"]
     assert len(poses) == len(estimates) and {s for s, *_ in poses} == {"geometry_msgs/msg/PoseArray"}
-    for (_s, _m, ros), est in zip(poses, estimates):
+    for (_s, _m, ros), est in zip(poses, estimates, strict=True):
         assert ros.header.frame_id == "world" and ros.header.stamp.sec * 10**9 + ros.header.stamp.nanosec == est.stamp_ns
         got = np.array([[p.position.x, p.position.y, _yaw(p.orientation)] for p in ros.poses])
         want = np.array(est.poses)
@@ -64,7 +64,7 @@ def test_export_ros2_round_trip(tmp_path, capsys) -> None:
 
     robot3 = bag["/robot_3/pose"]
     assert {s for s, *_ in robot3} == {"geometry_msgs/msg/PoseWithCovarianceStamped"} and len(robot3) == len(estimates)
-    for (_s, _m, ros), est in zip(robot3, estimates):
+    for (_s, _m, ros), est in zip(robot3, estimates, strict=True):
         i = list(est.ids).index(3)
         cov = np.array(ros.pose.covariance).reshape(6, 6)
         assert np.array_equal(cov[np.ix_((0, 1, 5), (0, 1, 5))], np.array(est.cov[i]))

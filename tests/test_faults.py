@@ -11,10 +11,10 @@ import sys
 import time
 from pathlib import Path
 
-from runtime.wire.messages import EmergencyStop, decode
-from runtime.recording.mcap_log import read_messages
 from inchworm.bench.faults import lost_robot
 from inchworm.processes import stop_all
+from runtime.recording.mcap_log import read_messages
+from runtime.wire.messages import EmergencyStop, decode
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -90,10 +90,10 @@ def test_a_coordinator_killed_under_launch_gets_every_robot_stopped(tmp_path):
 
 
 def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
+    import numpy as np
     from test_distributed import Run, _wait_for_command
 
     from runtime.models.trajectory import random_trajectory
-    import numpy as np
 
     run = Run(tmp_path, random_trajectory(4, 6, np.random.default_rng(2)), "ref57", 2, motion_time=0.3)
     try:

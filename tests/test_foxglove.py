@@ -22,8 +22,8 @@ from runtime.recording.foxglove_scene import (
     schema_errors,
     trajectory_configurations,
 )
-from runtime.wire.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
 from runtime.recording.mcap_log import McapRecorder, is_derived, read_messages, recording_info, recover
+from runtime.wire.messages import EstimateMessage, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage, encode, message_key
 from tests.test_recording import RUN, sample_messages
 
 TRAJ = {"robots": [0, 1, 2], "initial_poses": [[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]],
@@ -61,7 +61,8 @@ def test_scenes_follow_the_schema_and_mark_anchors():
     assert legend["id"] == "legend" and drawn <= set(samples) and len(legend["texts"]) == len(samples)
     assert any("anchor" in t["text"] for t in legend["texts"]) and len(legend["lines"]) == 1  # the anchor's ring
     assert min(p["pose"]["position"]["y"] for p in legend["spheres"]) > 0.3  # above every desired position
-    assert [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired] == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
+    centres = [(e["spheres"][0]["pose"]["position"]["x"], e["spheres"][0]["pose"]["position"]["y"]) for e in desired]
+    assert centres == [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
     assert desired[0]["spheres"][0]["color"]["r"] > 0.5 and [e["texts"][0]["text"] for e in desired] == ["0", "1", "2"]
     # step 0: no plan, nobody marked; step 1: robot 0 moves, 1 and 2 are anchors; step 2: 0 is the anchor
     def anchors(scene):
@@ -144,7 +145,7 @@ def test_recording_writes_derived_channels_and_keeps_raw_ones_identical(tmp_path
             assert ch.message_encoding == "json"
             assert schemas[ch.schema_id].name == "foxglove.SceneUpdate" and schemas[ch.schema_id].encoding == "jsonschema"
             assert json.loads(schemas[ch.schema_id].data) == SCENE_UPDATE_SCHEMA
-    for topic, data, log_time, publish_time, _seq in derived:
+    for topic, data, _log_time, _publish_time, _seq in derived:
         scene = json.loads(data)
         assert schema_errors(scene) == [], (topic, scene)
         assert scene["entities"] and all(e["frame_id"] == "world" for e in scene["entities"])

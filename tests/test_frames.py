@@ -8,8 +8,7 @@ import struct
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from runtime.gateway.frames import (
     BODIES,
@@ -27,8 +26,8 @@ from runtime.gateway.frames import (
     MotionBody,
     ObservationBody,
     RefusalBody,
-    RunBody,
     RefusalCode,
+    RunBody,
     StepBody,
     crc16,
     encode_frame,
@@ -140,7 +139,7 @@ noise = st.binary(max_size=60) | st.lists(st.sampled_from([0xA5, 0x00, 0xFF, 0x0
 @given(noise, st.lists(frames(), min_size=1, max_size=4), st.lists(noise, min_size=4, max_size=4), noise)
 @settings(derandomize=True, max_examples=300)  # derandomized: a 1-in-65536 CRC match of noise never flakes a run
 def test_noise_around_frames_loses_no_frame(lead, items, gaps, tail):
-    wire = lead + b"".join(encode_frame(f) + gap for (f, _), gap in zip(items, gaps)) + tail
+    wire = lead + b"".join(encode_frame(f) + gap for (f, _), gap in zip(items, gaps, strict=False)) + tail
     decoder = FrameDecoder()
     found = decoder.feed(wire)
     while decoder.pending:  # the line goes quiet: the reader gives up on the START it waits on

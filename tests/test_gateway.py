@@ -23,19 +23,28 @@ import msgpack
 import numpy as np
 import pytest
 
+from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
 from robot_agent.driver import DriverRefused, RobotLost, SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.link import Link, SerialLink
-from runtime.models.config import ModelConfig
 from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
+from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard, coord_alive_key
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
-from runtime.recording.mcap_log import read_messages
-from runtime.models.trajectory import random_trajectory
-from runtime.wire.transport import (ZenohSettings, alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe,
-                                    subscribe_queue)
-from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
+from runtime.wire.transport import (
+    ZenohSettings,
+    alive_now,
+    declare_token,
+    free_tcp_port,
+    loopback_hub,
+    open_session,
+    publish,
+    subscribe,
+    subscribe_queue,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -204,7 +213,7 @@ def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_worksp
             rejected = r.link.stats().rejected
             request = _request(step=step, turn_rad=math.pi if step == 1 else 0.0, drive_m=0.5, start_pose=start_pose)
             publish(session, "swarm/gw/robot/0/linkreq", encode(request))
-            _wait_for(lambda: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
+            _wait_for(lambda step=step, rejected=rejected: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
                       f"the link's answer to the request of step {step}")
         sub.undeclare()
         x = r.emulator.world.pose(0)[0]
@@ -325,7 +334,7 @@ def test_gateway_run_equals_the_simulated_run_and_is_recorded(tmp_path):
     sim = _launch(tmp_path, "sim", traj_file, "eq-sim", None)
     gw = _launch(tmp_path, "gateway", traj_file, "eq-gw", recording)
     assert len(gw["steps"]) == len(sim["steps"]) > 0
-    for a, b in zip(gw["steps"], sim["steps"]):
+    for a, b in zip(gw["steps"], sim["steps"], strict=True):
         assert a["moving"] == b["moving"]  # the same plans
         # float32 on the wire (docs/gateway-protocol.md): equal to ~1e-7 m, not bit for bit
         np.testing.assert_allclose(a["commands"], b["commands"], atol=1e-6)
@@ -356,7 +365,7 @@ def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
     with open_session(ZenohSettings("client", connect=(hub,))) as probe:
         for key in keys:
             publisher = probe.declare_publisher(key)
-            _wait_for(lambda: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
+            _wait_for(lambda publisher=publisher: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
             publisher.undeclare()
 
 
@@ -526,7 +535,7 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
             _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
             _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
-            token = act_as_coordinator(session, "nolink")
+            _token = act_as_coordinator(session, "nolink")
             cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
             publish(session, message_key(cmd), encode(cmd))
             assert agent.wait(timeout=20) == 3
@@ -563,7 +572,7 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
                                                                                  "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
         _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/deadlink/robot/{robot}/status"])
-        token = act_as_coordinator(site.session, "deadlink")
+        _token = act_as_coordinator(site.session, "deadlink")
         cmd = MotionCommand(run="deadlink", step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
         publish(site.session, message_key(cmd), encode(cmd))
         assert decode(statuses.get(timeout=10)[1], Status).state == "accepted"
@@ -589,7 +598,7 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
         _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
         _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/late/robot/{robot}/status"])
-        token = act_as_coordinator(site.session, "late")
+        _token = act_as_coordinator(site.session, "late")
         cmd = MotionCommand(run="late", step=1, robot=robot, config=1, turn_rad=0.1, drive_m=0.05, epoch=EPOCH)
         publish(site.session, message_key(cmd), encode(cmd))
         states = [decode(statuses.get(timeout=10)[1], Status).state for _ in range(2)]

@@ -218,7 +218,8 @@ def test_layering():
 
 @pytest.mark.parametrize("study, options, log", [
     ("study_anchors", inchworm.AnchorsOptions(robots=4, experiments=3, samples=2), "experiments"),
-    ("study_consistency", inchworm.ConsistencyOptions(localizers=("paper",), methods=("no-anchors", "ref57"), robots=4, configs=2, trajectories=2), "runs"),
+    ("study_consistency", inchworm.ConsistencyOptions(localizers=("paper",), methods=("no-anchors", "ref57"), robots=4, configs=2, trajectories=2),
+     "runs"),
 ])
 def test_a_study_cut_after_one_row_resumes_to_the_same_result(tmp_path, study, options, log):
     run = getattr(inchworm, study)

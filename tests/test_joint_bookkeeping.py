@@ -28,8 +28,8 @@ from coordinator.localization.joint import (
 )
 from coordinator.localization.partial import MAX_RETRIES, localize_observable, solvable_subset
 from coordinator.localization.sparse_lm import BLAS_SMALL, PoseLayout
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.sensing import sense_swarm
@@ -127,7 +127,7 @@ def observation_jacobian(poses: np.ndarray, observer, observed, h: float = 1e-6)
     def f(flat):
         p = flat.reshape(-1, 3)
         out = []
-        for i, j in zip(observer, observed):
+        for i, j in zip(observer, observed, strict=True):
             dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
             out += [math.hypot(dx, dy), math.atan2(dy, dx) - p[i, 2]]
         return np.array(out)

@@ -34,7 +34,7 @@ def reference_residuals(x, mean, w, joint, obs):
     diff[:, 2] = wrap(diff[:, 2])
     prior = w @ diff.ravel() if joint else np.einsum("nab,nb->na", w, diff).ravel()
     out = []
-    for i, j, r, b in zip(*obs):
+    for i, j, r, b in zip(*obs, strict=True):
         dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
         s_b = 0.02 * math.sqrt(1 + (0.03 / r) ** 4)
         out += [(math.hypot(dx, dy) - r) / 0.01, wrap(math.atan2(dy, dx) - p[i, 2] - b) / s_b]
@@ -85,7 +85,9 @@ def test_normal_equations_match_the_residual_reference(n, joint, h):
     problem = JointProblem(mean, w, *obs, CFG, huber=h)
     assert problem.dense == (joint or 3 * n <= DENSE_LIMIT)
     x = (truth + rng.normal(0, 0.01, truth.shape)).ravel()
-    flat = lambda v: np.concatenate(reference_residuals(v, mean, w, joint, obs))
+    def flat(v):
+        return np.concatenate(reference_residuals(v, mean, w, joint, obs))
+
     r = flat(x)
     jac = numeric_jacobian(flat, x)
     weights, cost = huber(r, h)

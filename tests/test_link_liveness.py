@@ -15,12 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from inchworm.processes import start_emulator, stop_all
 from runtime.gateway.config import GatewayConfig, Port
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
 from runtime.wire.messages import LinkRequest, encode, message_key
 from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, open_session, publish
-from inchworm.processes import start_emulator, stop_all
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
-from runtime.models.config import ModelConfig
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import rotate, transform_poses, wrap_angle
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.scenarios import grid_configuration, random_step

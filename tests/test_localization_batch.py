@@ -8,20 +8,19 @@ import numpy as np
 import pytest
 
 import coordinator.localization.batch as batch_module
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from coordinator.localization import make_localizer
 import coordinator.localization.joint as joint_module
 import coordinator.localization.topology as topology_module
+from coordinator.localization import make_localizer
 from coordinator.localization.batch import localize_batch, observable, reference_localizer
 from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays
 from coordinator.localization.graph import require_observable
 from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import sqrt_information
-from coordinator.localization.sparse_lm import PoseLayout
-from coordinator.localization.sparse_lm import dense as sparse_dense
-from runtime.models.config import ModelConfig
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from coordinator.localization.sparse_lm import PoseLayout, dense as sparse_dense
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import transform_poses, wrap_angle
 from runtime.models.motion import apply_motion
 from runtime.models.rng import Stream, robot_rngs
@@ -58,7 +57,7 @@ class Batch:
         self.rows.append((prior.poses, prior.cov, step.commands, step.moving, seen, ranges, bearings))
 
     def arrays(self) -> list[np.ndarray]:
-        return [np.stack(column) for column in zip(*self.rows)]
+        return [np.stack(column) for column in zip(*self.rows, strict=True)]
 
     def single(self, k: int) -> tuple[SwarmEstimate, StepCommands, Observations]:
         poses, cov, commands, moving, seen, ranges, bearings = self.rows[k]

@@ -9,20 +9,19 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.stats import chi2
 
 from coordinator.consistency import chi2_band, position_nees
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.gauge import constrained_solution, gauge_basis, merge_subset, transport
 from coordinator.localization.joint import JointLocalizer
-from scipy.stats import chi2
-
+from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.rng import Stream, robot_rngs
-from runtime.models.sensing import sense_swarm
-from runtime.errors import SwarmInputError
 from runtime.models.scenarios import random_step
+from runtime.models.sensing import sense_swarm
 from runtime.models.state import StepCommands, SwarmEstimate
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,17 +7,17 @@ import json
 import numpy as np
 import pytest
 
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import solvable_subset
 from coordinator.localization.range_bearing import GATE_SIGMAS, bearing_weights
-from runtime.models.config import ModelConfig
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from inchworm.localize_data import localize_document
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.scenarios import grid_configuration
 from runtime.models.sensing import measure
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from inchworm.localize_data import localize_document
 
 CFG = ModelConfig()
 REASONS = {"unobserved", "disconnected", "no-convergence", "degenerate"}
@@ -47,7 +47,8 @@ def close_pair_case(n: int, gap: float, exact: bool, seed: int):
 
 def document(obs: Observations, prior: SwarmEstimate | None, n: int) -> dict:
     doc = {"robots": list(range(n)),
-           "observations": [[int(a), int(b), float(r), float(p)] for a, b, r, p in zip(obs.observer, obs.observed, obs.range_m, obs.bearing_rad)]}
+           "observations": [[int(a), int(b), float(r), float(p)] for a, b, r, p in zip(obs.observer, obs.observed, obs.range_m, obs.bearing_rad,
+                                                                                       strict=True)]}
     if prior is not None:
         doc["prior"] = [{"id": k, "x": p[0], "y": p[1], "heading": p[2], "delta": 0.02, "sigma_heading": 0.035}
                         for k, p in enumerate(prior.poses.tolist())]

@@ -76,7 +76,7 @@ def dead_reckoning(tmp_path, monkeypatch):
     """The plugin importable in this process, registered in code as ``dr`` for the test."""
     write_plugin(tmp_path)
     monkeypatch.syspath_prepend(str(tmp_path))
-    from dr_plugin import DeadReckoningLocalizer  # noqa: PLC0415 - written by the fixture
+    from dr_plugin import DeadReckoningLocalizer  # written by the fixture
 
     register_localizer("dr", DeadReckoningLocalizer)
     yield DeadReckoningLocalizer

@@ -42,8 +42,8 @@ class LossySwarm(SimulatedSwarm):
         self.untaken.update(due)
         keep = ~np.isin(self.ids, list(due))
         self.ids, self._poses = self.ids[keep], self._poses[keep]
-        self._motion = [g for g, k in zip(self._motion, keep) if k]
-        self._sensing = [g for g, k in zip(self._sensing, keep) if k]
+        self._motion = [g for g, k in zip(self._motion, keep, strict=True) if k]
+        self._sensing = [g for g, k in zip(self._sensing, keep, strict=True) if k]
 
     def execute(self, step: StepCommands) -> None:
         super().execute(step)

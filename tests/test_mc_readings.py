@@ -32,8 +32,10 @@ def step_problem(n: int, seed: int, sigma: float = 0.02) -> tuple[SwarmEstimate,
 def test_known_start_without_noise_has_no_error(localizer):
     estimate, desired = step_problem(6, 0)
     plans = [Plan.equal(np.arange(6), 0), *enumerate_plans(6, 3)[:2]]
-    known = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="known").localization_errors(estimate, desired, plans, per_sample=True)
-    drawn = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="estimate").localization_errors(estimate, desired, plans, per_sample=True)
+    known = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="known").localization_errors(
+        estimate, desired, plans, per_sample=True)
+    drawn = MonteCarlo(NOISELESS, make_localizer(localizer, NOISELESS), 5, seed=3, start="estimate").localization_errors(
+        estimate, desired, plans, per_sample=True)
     np.testing.assert_allclose(known, 0.0, atol=1e-9)
     assert np.all(drawn > 1e-3)  # the estimate's 2 cm uncertainty is in every drawn start
 
@@ -42,8 +44,10 @@ def test_known_start_scores_only_the_added_error():
     """With noise, a known start's e_l is below the drawn start's (which carries the error before the change)."""
     estimate, desired = step_problem(10, 1, sigma=0.05)
     plans = [Plan.equal(np.arange(10), 0)]
-    known = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="known").localization_errors(estimate, desired, plans)[0]
-    drawn = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="estimate").localization_errors(estimate, desired, plans)[0]
+    known = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="known").localization_errors(
+        estimate, desired, plans)[0]
+    drawn = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 32, seed=4, start="estimate").localization_errors(
+        estimate, desired, plans)[0]
     assert 0 < known < 0.5 * drawn
 
 

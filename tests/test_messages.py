@@ -14,19 +14,18 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, given, settings, strategies as st
 
 from runtime.errors import SwarmInputError
-from runtime.wire.rate_limit import RateLimit
+from runtime.models.state import SwarmEstimate
 from runtime.wire.keys import (
     KeyspaceError,
     ParsedKey,
     alive_key,
     alive_wildcard,
     coord_alive_key,
-    estop_ack_key,
     coord_key,
+    estop_ack_key,
     parse_key,
     robot_key,
     robot_wildcard,
@@ -40,12 +39,12 @@ from runtime.wire.messages import (
     MESSAGE_TYPES,
     CommandLimits,
     DropCounter,
+    EmergencyStop,
     EstimateMessage,
+    EstopAck,
     LinkReply,
     LinkRequest,
     LinkStats,
-    EmergencyStop,
-    EstopAck,
     Message,
     MessageError,
     MotionCommand,
@@ -65,7 +64,7 @@ from runtime.wire.messages import (
     refusal_status,
     type_for_key,
 )
-from runtime.models.state import SwarmEstimate
+from runtime.wire.rate_limit import RateLimit
 
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 STAMP = 1_700_000_000_123_456_789
@@ -813,6 +812,6 @@ def test_protocol_doc_examples_decode_to_their_json():
     hexes = re.findall(r"```text\n([0-9a-f\n]+)```", doc)
     jsons = re.findall(r"```json\n(.*?)```", doc, re.S)
     assert len(hexes) == len(jsons) == 2
-    for hex_text, json_text in zip(hexes, jsons):
+    for hex_text, json_text in zip(hexes, jsons, strict=True):
         msg = decode(bytes.fromhex(hex_text.replace("\n", "")))
         assert raw_map(msg) == json.loads(json_text)

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
 from runtime.models.rng import Stream, robot_rng, robot_rngs
 from runtime.models.sensing import measure, neighbours, sense_robot, sense_swarm

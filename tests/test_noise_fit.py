@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inchworm.output import last_json
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
@@ -19,7 +20,6 @@ from runtime.recording.run_log import load_run_log
 from runtime.recording.truth_csv import read_truth_csv, write_truth_csv
 from swarm_cli.main import main
 from swarm_cli.options import add_model_options, model_config
-from inchworm.output import last_json
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample.mcap"
 

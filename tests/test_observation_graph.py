@@ -22,7 +22,7 @@ from runtime.errors import LocalizationError
 def reference_partition(n: int, observer: np.ndarray, observed: np.ndarray) -> set[frozenset[int]]:
     """Components of the undirected graph by breadth-first search."""
     nbrs: list[set[int]] = [set() for _ in range(n)]
-    for a, b in zip(observer.tolist(), observed.tolist()):
+    for a, b in zip(observer.tolist(), observed.tolist(), strict=True):
         nbrs[a].add(b)
         nbrs[b].add(a)
     seen, parts = set(), set()

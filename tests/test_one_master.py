@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from inchworm.processes import start_agents, stop_all
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
@@ -27,7 +28,6 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
-from inchworm.processes import start_agents, stop_all
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -90,7 +90,6 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
     traj, traj_file, hub_settings, hub = _run_with_agents(tmp_path, "live")
     procs: list[subprocess.Popen] = []
     # a recording of a finished run (its own hub), replayed onto the hub of a live run with the same id
-    port = free_tcp_port()
     recording = tmp_path / "rec.mcap"
     rec_traj = tmp_path / "rec"
     rec_traj.mkdir()
@@ -196,7 +195,7 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
     truths: dict[int, list[float]] = {}
     started = []
     with open_session(hub_settings) as session:
-        from runtime.wire.messages import TruthMessage  # noqa: PLC0415
+        from runtime.wire.messages import TruthMessage
 
         subscribe(session, "swarm/rejoin/sim/truth/2", lambda key, payload: truths.update({2: list(decode(payload, TruthMessage).pose)}))
         subscribe(session, robot_wildcard("rejoin", "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
@@ -244,13 +243,13 @@ def test_a_coordinator_resumed_from_the_recording_of_a_killed_one_finishes_the_r
         procs: list[subprocess.Popen] = []
         started: list[int] = []
         with open_session(hub_settings) as session:
-            subscribe(session, robot_wildcard(name, "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
+            subscribe(session, robot_wildcard(name, "cmd"), lambda key, payload, started=started: started.append(decode(payload, MotionCommand).step))
             try:
                 start_agents(traj, name, hub, 6, 0.05, (), procs, env=ENV, stderr=subprocess.DEVNULL)
                 first = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--record=run.mcap")
                 procs.append(first)
                 if name == "resumed":
-                    _wait_for(lambda: any(s >= 3 for s in started), 60, "step 3")
+                    _wait_for(lambda started=started: any(s >= 3 for s in started), 60, "step 3")
                     first.send_signal(signal.SIGKILL)
                     first.wait(timeout=10)
                     resumed = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--resume=run.mcap")

@@ -6,8 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
+from hypothesis import given, settings, strategies as st
 
 from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, swap_mutation
@@ -99,7 +98,7 @@ def test_genetic_search_finds_the_known_optimum_and_respects_feasibility():
     target_groups = target.groups
 
     def evaluate(plans):
-        return np.array([sum(len(set(g) ^ set(t)) for g, t in zip(p.groups, target_groups)) for p in plans], float)
+        return np.array([sum(len(set(g) ^ set(t)) for g, t in zip(p.groups, target_groups, strict=True)) for p in plans], float)
 
     def feasible(plan):  # robot 6 may never move first
         return 6 not in plan.groups[0]

@@ -9,9 +9,9 @@ import pytest
 from mcap.reader import make_reader
 
 from runtime.recording.foxglove_scene import schema_errors
-from runtime.wire.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
-from runtime.recording.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.recording.mcap_log import McapRecorder, recording_info
+from runtime.recording.plot_channels import SCHEMAS, PlotDeriver, is_plot_topic
+from runtime.wire.messages import EstimateMessage, RobotEvent, TruthSetMessage, encode, message_key
 from tests.test_foxglove import COV, RUN, TRAJ, run_messages
 
 
@@ -43,7 +43,7 @@ def test_known_answers_of_a_small_run() -> None:
     assert swarm[0]["localization_mean_m"] == pytest.approx(0.01) and swarm[0]["std_mean_m"] == pytest.approx(math.sqrt(2e-4))
     desired = [(0.6, 0.1), (0.8, 0.1), (0.6, 0.3)]
     truth = [(0.1 + r, 0.0) for r in range(3)]
-    follow = [math.dist(t, d) for t, d in zip(truth, desired)]
+    follow = [math.dist(t, d) for t, d in zip(truth, desired, strict=True)]
     assert swarm[0]["following_mean_m"] == pytest.approx(sum(follow) / 3) and swarm[0]["following_max_m"] == pytest.approx(max(follow))
     plan = [b for t, _s, b in out if t == "/swarm/plan"]
     assert plan == [{"step": 1, "config": 2, "n_anchors": 2, "steps": 2, "moving": 1, "anchors": [1, 2]}]

@@ -44,7 +44,7 @@ def reference_residuals(flat, observer, observed, rho, phi, s_r, s_b):
     """[range_0, bearing_0, range_1, ...] whitened, written from the module docstring."""
     p = flat.reshape(-1, 3)
     out = []
-    for i, j, r, b in zip(observer, observed, rho, phi):
+    for i, j, r, b in zip(observer, observed, rho, phi, strict=True):
         dx, dy = p[j, 0] - p[i, 0], p[j, 1] - p[i, 1]
         sigma_b = s_b * math.sqrt(1 + (3 * s_r / r) ** 4)
         out += [(math.hypot(dx, dy) - r) / s_r, float(wrap(math.atan2(dy, dx) - p[i, 2] - b)) / sigma_b]

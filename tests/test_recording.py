@@ -17,11 +17,13 @@ import uuid
 from pathlib import Path
 
 import pytest
+from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap.records import Channel, Message
 from mcap.stream_reader import StreamReader
 
 from runtime.errors import SwarmInputError
+from runtime.recording.mcap_log import McapRecorder, read_messages, record_run, recording_info, recover
 from runtime.wire.keys import coord_key, robot_key
 from runtime.wire.messages import (
     MESSAGE_TYPES,
@@ -35,7 +37,6 @@ from runtime.wire.messages import (
     json_schema,
     message_key,
 )
-from runtime.recording.mcap_log import McapRecorder, read_messages, record_run, recording_info, recover
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -173,7 +174,7 @@ def test_sigkill_loses_at_most_the_last_flush_interval(tmp_path):
     assert child.returncode == -signal.SIGKILL
 
     with open(path, "rb") as f:
-        with pytest.raises(Exception):  # the seeking reader needs the summary the killed recorder never wrote
+        with pytest.raises(McapError):  # the seeking reader needs the summary the killed recorder never wrote
             list(make_reader(f).iter_messages())
     got = list(read_messages(path))
     assert got, "no complete chunk survived"

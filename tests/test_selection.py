@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from coordinator.localization import make_localizer
-
 from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -79,8 +78,10 @@ def test_single_count_selection_scores_follow_eq_1_to_3():
 def test_weights_move_the_choice_towards_speed_or_accuracy():
     estimate, desired = step_problem(6, 4)
     budget = dict(samples=4, genetic=GeneticConfig(population=6, generations=2))
-    fast = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0, **budget), seed=1).select(estimate, desired)
-    careful = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, **budget), seed=1).select(estimate, desired)
+    fast = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0, **budget),
+                          seed=1).select(estimate, desired)
+    careful = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, **budget),
+                             seed=1).select(estimate, desired)
     assert fast.n_anchors == 0
     assert careful.n_anchors > 0
 
@@ -104,7 +105,6 @@ def test_no_feasible_plan_is_said_clearly():
 
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
 from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402
-from coordinator.selection.selector import samples_for  # noqa: E402
 
 NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15)  # motion noise x 3: anchors pay
 
@@ -172,7 +172,8 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
     estimate, desired = step_problem(6, seed)
     plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     predicted = predicted_errors(NOISY_JOINT, estimate, desired, plans)
-    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(method="crlb", anchor_counts=(n_a,)), seed=seed).select(estimate, desired)
+    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(method="crlb", anchor_counts=(n_a,)),
+                            seed=seed).select(estimate, desired)
     assert chosen.scores[0].e_l in predicted  # the prediction of one of the feasible plans, not an estimate
     assert predicted.min() <= chosen.scores[0].e_l <= 1.02 * predicted.min()  # the genetic search gets within 2 %
 
@@ -180,7 +181,8 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
 def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
     estimate, desired = step_problem(6, 2)
     plans = [p for p in enumerate_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
-    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(anchor_counts=(3,)), seed=4).select(estimate, desired).plan
+    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(anchor_counts=(3,)),
+                            seed=4).select(estimate, desired).plan
     pick, judge = (MonteCarlo(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), 256, seed=s) for s in (999, 12345))  # independent sets
     optimum = plans[int(np.argmin(pick.localization_errors(estimate, desired, plans)))]
     e_chosen, e_optimum = judge.localization_errors(estimate, desired, [chosen, optimum])
@@ -190,10 +192,12 @@ def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
 
 def test_counts_that_cannot_win_are_not_searched():
     estimate, desired = step_problem(8, 6)
-    speed_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0), seed=1).select(estimate, desired)
+    speed_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0),
+                                seed=1).select(estimate, desired)
     assert not any(s.searched for s in speed_only.scores)  # P_v alone decides: n_a = 0, screening only
     assert speed_only.evaluations == len(feasible_anchor_counts(8)) and speed_only.fresh_seed is None
-    accuracy_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0), seed=1).select(estimate, desired)
+    accuracy_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0),
+                                   seed=1).select(estimate, desired)
     assert all(s.searched for s in accuracy_only.scores if s.n_anchors > 0)
 
 
@@ -207,7 +211,7 @@ def test_search_samples_grow_with_the_log_of_the_plan_space():
 def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
     """n_r = 8, n_a = 6 (2520 plans), S = samples_for(4, 8) = 5: screening on 5 samples, the genetic search and
     the race on search_samples(5, 2520) = 8 (race rounds 8, 16, 32), the final check on samples_for(256, 8) = 320."""
-    import coordinator.selection.selector as selector  # noqa: PLC0415
+    import coordinator.selection.selector as selector
 
     sizes = []
 

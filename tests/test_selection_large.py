@@ -6,11 +6,10 @@ import math
 
 import numpy as np
 import pytest
-
-from coordinator.localization import make_localizer
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from coordinator.localization import make_localizer
 from coordinator.plan import Plan, feasible_anchor_counts, n_steps
 from coordinator.selection.heuristic import heuristic_plan, step_score
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity

@@ -14,9 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization import make_localizer
-
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.plan import Plan, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
@@ -150,7 +149,9 @@ def test_infeasible_plans_are_never_evaluated():
                                       np.random.default_rng(0), GeneticConfig(), known)
     assert (plan, e_l, asked) == (None, np.inf, []) and fresh == len(known) > 0
     assert all(v == np.inf for v in known.values())
-    feasible = lambda p: 0 not in p.groups[0]  # robot 0 may not move first
+    def feasible(p):  # robot 0 may not move first
+        return 0 not in p.groups[0]
+
     plan, e_l, _ = genetic_search(evaluate, [Plan.equal(np.array([1, 2, 0, 3]), 2)], feasible,
                                   np.random.default_rng(0), GeneticConfig())
     assert all(0 not in k[0] for k in asked)
@@ -165,7 +166,7 @@ def test_genetic_search_stops_after_patience_generations_without_improvement():
     for cfg, calls in ((GeneticConfig(patience=3, generations=8), 4), (GeneticConfig(patience=5, generations=2), 3)):
         batches = []
 
-        def evaluate(plans):
+        def evaluate(plans, batches=batches):
             batches.append(len(plans))
             return np.ones(len(plans))
 
@@ -187,7 +188,7 @@ def test_without_mutation_copies_of_one_plan_breed_only_that_plan():
 
 def swapped_pair(plan: Plan, other: Plan) -> bool:
     """Whether ``other`` is ``plan`` with exactly two robots of different groups exchanged."""
-    moved = [set(a) ^ set(b) for a, b in zip(plan.key(), other.key())]
+    moved = [set(a) ^ set(b) for a, b in zip(plan.key(), other.key(), strict=True)]
     return sum(len(m) for m in moved) == 4 and sum(bool(m) for m in moved) == 2
 
 

@@ -19,10 +19,10 @@ from coordinator.localization.sparse_lm import (
     BLAS_SMALL,
     DENSE_JACOBIAN_LIMIT,
     DENSE_LIMIT,
-    PoseLayout,
-    blas_threads,
     NormalEquations,
+    PoseLayout,
     SparseLDL,
+    blas_threads,
     dense,
     jacobian,
     levenberg_marquardt,
@@ -359,7 +359,9 @@ def test_stopping_tests_are_inclusive():
     """r = (x - 1, x + 1) from x = 0: the gradient is 0, the step exactly 0 and the cost stays 1. With
     xtol = 0 (and no gain test) the zero step still counts as small (0 <= 0); with ftol = 0 (and no step
     test) the zero gain counts as small: both converge after one iteration."""
-    problem = lambda x: (np.array([x[0] - 1.0, x[0] + 1.0]), np.ones((2, 1)))
+    def problem(x):
+        return np.array([x[0] - 1.0, x[0] + 1.0]), np.ones((2, 1))
+
     for xtol, ftol in ((0.0, -1.0), (-1.0, 0.0)):
         out = levenberg_marquardt(problem, np.array([0.0]), xtol=xtol, ftol=ftol, max_iter=5)
         assert (out.iterations, out.converged, out.cost) == (1, True, 1.0)
@@ -371,7 +373,7 @@ def test_step_test_is_relative_to_the_size_of_x():
     1e-10 (1 + 1): converged after one."""
     for start, iterations in ((0.0, 2), (1.0, 1)):
         goal = start + 1.5e-10
-        out = levenberg_marquardt(lambda x: (x - goal, np.ones((1, 1))), np.array([start]), ftol=-1.0)
+        out = levenberg_marquardt(lambda x, goal=goal: (x - goal, np.ones((1, 1))), np.array([start]), ftol=-1.0)
         assert (out.iterations, out.converged) == (iterations, True)
 
 
@@ -466,7 +468,7 @@ def test_minimize_a_negligible_rejected_step_means_converged():
     for gradient, want, trials in ((-1e-12, True, 1), (-1e-3, True, 16), (-10.0, False, 19)):
         calls = []
 
-        def evaluate(x: np.ndarray) -> NormalEquations:
+        def evaluate(x: np.ndarray, calls=calls, gradient=gradient) -> NormalEquations:
             calls.append(x.copy())
             cost = 1.0 if not np.any(x) else 2.0  # any move raises the cost
             return NormalEquations(cost, np.eye(1), np.array([gradient]))

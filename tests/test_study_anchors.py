@@ -11,8 +11,6 @@ import pytest
 
 from coordinator.plan import n_solutions
 from coordinator.selection.heuristic import heuristic_plan
-from runtime.models.config import ModelConfig
-from runtime.errors import SwarmInputError
 from inchworm.runner import ProcessExecutor, run_tasks
 from inchworm.studies.anchors import (
     Job,
@@ -23,6 +21,8 @@ from inchworm.studies.anchors import (
     run_experiment,
     summarise,
 )
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from swarm_cli import study_anchors
 
 

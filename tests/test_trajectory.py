@@ -22,7 +22,7 @@ def test_random_trajectories_change_pose_and_topology_and_stay_connected():
     for config in traj.configurations:
         assert is_connected(config, 0.5)
     shape = [np.linalg.norm(c[:, None] - c[None], axis=-1) for c in traj.configurations]
-    assert all(not np.allclose(a, b, atol=1e-3) for a, b in zip(shape, shape[1:]))  # topology changes
+    assert all(not np.allclose(a, b, atol=1e-3) for a, b in zip(shape, shape[1:], strict=False))  # topology changes
     np.testing.assert_array_equal(random_trajectory(10, 5, np.random.default_rng(3)).configurations,
                                   random_trajectory(10, 5, np.random.default_rng(3)).configurations)
 
@@ -94,7 +94,8 @@ def test_round_trip(tmp_path):
     [
         ({"robots": [0, 1]}, "'robots', 'initial_poses' and 'configurations'"),
         ({"robots": [0, 1], "initial_poses": [[0, 0, 0]], "configurations": [[[0, 0], [0.1, 0]]]}, "initial_poses must be 2 rows"),
-        ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [None, 0]]]}, "configuration 1 holds NaN/inf for robots [1]"),
+        ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [None, 0]]]},
+         "configuration 1 holds NaN/inf for robots [1]"),
         ({"robots": [0, 1], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": []}, "non-empty"),
         ({"robots": [0, 0], "initial_poses": [[0, 0, 0], [0.1, 0, 0]], "configurations": [[[0, 0], [0, 1]]]}, "duplicate robot ids"),
     ],

@@ -57,14 +57,16 @@ def cell(out: Path, reading: str, loc: str, noise: str) -> dict | None:
     meets = len(have) == 2 and 4 <= na <= 6 and ratio <= 0.8 and p < 0.03 and all(v < 1 for v in per_set.values())
     return {"seed_sets": sorted(have), "trajectories": len(a), "inchworm": (float(a.mean()), ci(a)), "ref57": (float(b.mean()), ci(b)),
             "per_set": per_set, "ratio": ratio, "p": p, "na": na, "along": [float(v) for v in along],
-            "steps": float(np.mean([r["steps"] for r in inch])), "drift": (float(np.mean([r["drift"] for r in inch])), float(np.mean([r["drift"] for r in ref]))),
+            "steps": float(np.mean([r["steps"] for r in inch])),
+            "drift": (float(np.mean([r["drift"] for r in inch])), float(np.mean([r["drift"] for r in ref]))),
             "reproduces": meets}
 
 
 def main(argv: list[str]) -> int:
     out = Path(argv[0]) if argv else Path("out/mc-readings")
     print("| reading | localizer | noise | seed sets (trajectories) | inchworm P_f [97 % CI] | ref57 P_f [97 % CI] "
-          "| ratio per seed set | ratio pooled | p (paired) | n_a mean | n_a at configuration 1..8 | steps / config | drift % (inchworm, ref57) | Table I |")
+          "| ratio per seed set | ratio pooled | p (paired) | n_a mean | n_a at configuration 1..8 | steps / config "
+          "| drift % (inchworm, ref57) | Table I |")
     print("| --- | --- | --- | --- | --- | --- | --- | ---: | ---: | ---: | --- | ---: | --- | --- |")
     missing = []
     for noise in ("calibrated", "default"):

@@ -49,10 +49,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.localization import Localizer
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
-from coordinator.localization.paper import fuse
+from coordinator.localization.paper import PaperLocalizer, fuse
+from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
     COV_FLOOR,
     bearing_weights,
@@ -81,13 +83,10 @@ from coordinator.localization.topology import (
     reference_robot,
     to_reference_frame,
 )
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from coordinator.localization import Localizer
-from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.partial import localize_observable
 
 # (xtol, ftol, ptol): sparse_lm's convergence test, so every sample takes the steps the single-swarm solver takes.
 # Where convergence is linear (Gauss-Newton of the joint problem; weakly constrained headings in the
@@ -113,7 +112,7 @@ def batched_method(localizer: Localizer) -> str | None:
     """``paper`` or ``joint`` where this module solves ``localizer``'s problem vectorised, else None
     (every sample then goes through the localizer itself)."""
     kind = type(localizer)
-    if kind in (PaperLocalizer, JointLocalizer) and localizer.huber is None:
+    if kind in (PaperLocalizer, JointLocalizer) and getattr(localizer, "huber", None) is None:
         return localizer.name
     return None
 
@@ -165,7 +164,8 @@ def localize_batch(
     poses, cov = dr_poses.copy(), dr_cov.copy()
     method = batched_method(localizer)
     if method is None:
-        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
+                            bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
     solve = _localize_paper if method == "paper" else _localize_joint
@@ -228,7 +228,7 @@ def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, movi
 def observable(seen: np.ndarray) -> np.ndarray:
     """(B,) True where every robot was observed by another and the undirected observation graph is connected."""
     b, n, _ = seen.shape
-    observed = seen.any(axis=1).all(axis=1)
+    observed: np.ndarray = np.all(np.any(seen, axis=1), axis=1)
     both = (seen | np.swapaxes(seen, 1, 2)).astype(float)
     reach = np.zeros((b, 1, n))
     reach[:, 0, 0] = 1.0
@@ -241,7 +241,7 @@ def observable(seen: np.ndarray) -> np.ndarray:
 
 
 def _shaped(values: np.ndarray, shape: tuple[int, ...], name: str, dtype: type) -> np.ndarray:
-    arr = np.asarray(values, dtype=dtype)
+    arr: np.ndarray = np.asarray(values, dtype=dtype)
     if arr.shape != shape:
         raise SwarmInputError(f"{name} must have shape {shape}, got {arr.shape}")
     return arr
@@ -336,6 +336,8 @@ class _Workspace:
 
 class _Batched:
     """A problem whose array attributes all have the batch as their first axis, with a workspace."""
+
+    ws: _Workspace
 
     def subset(self, index: np.ndarray):
         out = object.__new__(type(self))
@@ -444,7 +446,7 @@ class _TopologyProblem(_Batched):
         cost = 0.5 * (np.einsum("bij,bij->b", rx, rx) + np.einsum("bij,bij->b", ry, ry))
         return {"cost": cost, "rzx": rzx, "rzy": rzy, "rx": rx, "ry": ry}
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
@@ -600,7 +602,7 @@ class _JointProblem(_Batched):
         _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
         return lap, ct, self.d_theta
 
-    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> np.ndarray:
+    def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ws = self.ws
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape
@@ -670,8 +672,8 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
     with np.errstate(divide="ignore", invalid="ignore"):
         if n > EXACT_COV_LIMIT:  # conditional covariances
             for k in (0, 1):
-                for l in (0, 1):
-                    cov[:, :, k, l] = lap[:, k * n + i, l * n + i]
+                for m in (0, 1):
+                    cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
                 cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
             cov[:, :, 2, 2] = d
             return _inv_stack(cov)
@@ -679,8 +681,8 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
         s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
         e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
         for k in (0, 1):
-            for l in (0, 1):
-                cov[:, :, k, l] = s_inv[:, k * n + i, l * n + i]
+            for m in (0, 1):
+                cov[:, :, k, m] = s_inv[:, k * n + i, m * n + i]
             cov[:, :, k, 2] = cov[:, :, 2, k] = -e[:, k * n + i, i]
         cov[:, :, 2, 2] = 1.0 / d + np.einsum("bir,bri->bi", ctd, e)  # D^-1 + D^-1 C^T S^-1 C D^-1
     return cov

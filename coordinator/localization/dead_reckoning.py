@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.motion import apply_motion, motion_covariance
 from runtime.models.state import StepCommands, SwarmEstimate
 
@@ -43,6 +43,7 @@ def dead_reckon_parts(
 
 def propagate_joint(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) -> np.ndarray:
     """The joint covariance (3n, 3n) after ``step``: F P F^T + motion noise (block-diagonal)."""
+    assert prior.joint is not None, "propagates a joint covariance"
     n = prior.n
     commands = np.where(step.moving[:, None], step.commands, 0.0)
     noise = np.where(step.moving[:, None, None], motion_covariance(prior.poses, np.zeros((n, 3, 3)), commands, cfg), 0.0)

@@ -83,7 +83,7 @@ def constrained_covariance(
     # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
     u = np.hstack([sn, proj.T])
     v = np.vstack([-proj, (basis.T @ sn) @ proj - sn.T])
-    info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # one fresh copy
+    info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # type: ignore[union-attr]  # issparse: a sparse matrix; one fresh copy
     info += u @ v
     return inverse(info)
 
@@ -138,7 +138,7 @@ def _upper_mask(k: int) -> np.ndarray:
     return np.triu(np.ones((k, k), bool))
 
 
-def merge_subset(prior: np.ndarray, updated: np.ndarray, keep: np.ndarray) -> np.ndarray:
+def merge_subset(prior: np.ndarray | None, updated: np.ndarray, keep: np.ndarray) -> np.ndarray:
     """Joint covariance (3n, 3n) after an update of the robots ``keep`` (n,) alone, the others unchanged.
 
     ``prior`` (3n, 3n) is the covariance before the update, ``updated`` (3a, 3a) the kept robots'
@@ -149,6 +149,7 @@ def merge_subset(prior: np.ndarray, updated: np.ndarray, keep: np.ndarray) -> np
     """
     if keep.all():
         return updated
+    assert prior is not None, "the prior is needed unless every robot is kept"
     idx = np.arange(len(prior)).reshape(-1, 3)
     a, b = idx[keep].ravel(), idx[~keep].ravel()
     gain = np.linalg.solve(prior[np.ix_(a, a)], updated).T  # P_AA' P_AA^-1 (both symmetric)

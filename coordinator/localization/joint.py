@@ -25,19 +25,21 @@ whitened residual at the last iterate, the likeliest culprits, so that
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.dead_reckoning import dead_reckon_parts
 from coordinator.localization.gauge import constrained_covariance, constrained_solution, gauge_frame, inverse, merge_subset, transport
 from coordinator.localization.graph import require_observable
+from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
-from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.sparse_lm import PoseLayout, blas_threads, levenberg_marquardt, minimize
 from coordinator.localization.topology import Topology
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
@@ -233,7 +235,7 @@ class JointLocalizer:
             return poses, checked(pose_covariances(result.normal_matrix, PoseLayout(np.ones(n, bool), np.ones(n, bool)), n), ids)
         if self.constrain_gauge:
             frame = gauge_frame(mean) if frame is None else frame  # shared by the covariance and the estimate
-            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(result.extra), mean, frame)
+            cov = constrained_covariance(result.normal_matrix, problem.observation_normal(cast(np.ndarray, result.extra)), mean, frame)
             poses = constrained_solution(poses, mean, cov, problem.prior_gradient(result.x), frame)
         else:
             cov = inverse(result.normal_matrix)

@@ -24,7 +24,6 @@ from coordinator.localization.range_bearing import bearing_weights, observation_
 from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
 from runtime.models.config import ModelConfig
 
-
 # Entries of the normal matrix (size^2) up to which its pattern is ranked with a dense mark-and-count map
 # (1 MB of flags and a 4 MB count, up to ~340 robots): sorting and searching the ~25 m entry keys took ~3 x an evaluation at n = 100.
 RANK_MAP_LIMIT = 1 << 20

@@ -11,21 +11,26 @@ caller can report them.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import TypeVar
+
 import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import observable_subset
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
+
+T = TypeVar("T")  # what a solve returns
 
 MAX_RETRIES = 3  # solver failures tolerated, each setting aside the robots it names
 SOLVER_FAILURES = ("no-convergence", "degenerate")
 
 
 def solvable_subset(
-    solve, ids: np.ndarray, obs: Observations, *, retry: bool = True
-) -> tuple[np.ndarray, object, dict[int, str]]:
+    solve: Callable[[np.ndarray], T], ids: np.ndarray, obs: Observations, *, retry: bool = True
+) -> tuple[np.ndarray, T, dict[int, str]]:
     """(mask over ``ids`` of the robots solved, ``solve(mask)``'s result, {left-out id: reason}).
 
     ``solve(mask)`` localizes the robots where ``mask`` is True (observations restricted to them).

@@ -19,6 +19,8 @@ information is exactly J^T J of these residuals at the true poses.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -70,7 +72,7 @@ def observation_residuals(
     *,
     direction: np.ndarray | None = None,
     cos_sin: tuple[np.ndarray, np.ndarray] | None = None,
-    out: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+    out: Sequence[np.ndarray | None] | None = None,
     scratch: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Whitened residuals of observations i -> j, elementwise over arrays of any (common) shape: the one
@@ -104,6 +106,7 @@ def observation_residuals(
     r_range *= w_r
     if scratch is None:
         if direction is None:
+            assert cos_sin is not None, "direction or cos_sin"
             direction = np.arctan2(cos_sin[1], cos_sin[0])
         r_bearing = np.arctan2(dy, dx, r_bearing)
         r_bearing -= direction
@@ -111,7 +114,7 @@ def observation_residuals(
         np.mod(r_bearing, 2.0 * np.pi, r_bearing)
         r_bearing -= np.pi
     else:
-        cos_a, sin_a = (np.cos(direction), np.sin(direction)) if cos_sin is None else cos_sin
+        cos_a, sin_a = (np.cos(direction), np.sin(direction)) if cos_sin is None else cos_sin  # type: ignore[arg-type]  # one given
         along = np.multiply(dx, cos_a, t1)  # d in the frame of the measured direction
         along += np.multiply(dy, sin_a, t2)
         across = np.multiply(dy, cos_a, t2)

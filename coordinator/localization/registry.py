@@ -78,7 +78,7 @@ def _factory(name: str) -> LocalizerFactory:
         raise SwarmInputError(f"unknown localizer {name!r}; choose one of {', '.join(localizer_names())}")
     try:
         return plugin.load()
-    except Exception as exc:  # a broken plugin is the user's input: one clear line
+    except Exception as exc:  # noqa: BLE001 - a broken plugin is the user's input: one clear line
         raise SwarmInputError(f"localizer plugin {name!r} ({plugin.value}) cannot be loaded: {exc}") from None
 
 

@@ -15,15 +15,15 @@ on a busy 2-core machine multi-threaded OpenBLAS is many times slower for these 
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass
-
 import contextlib
 import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import overload
 
 import numpy as np
-import scipy.sparse as sp
 import qdldl
+import scipy.sparse as sp
 from threadpoolctl import ThreadpoolController
 
 DENSE_LIMIT = 64  # unknowns up to which a dense solve beats the sparse LDL^T (a 300x300 dense LU was ~3 ms)
@@ -100,7 +100,7 @@ class SparseLDL:
     """
 
     def __init__(self) -> None:
-        self._solver = None
+        self._solver: qdldl.Solver | None = None
         self._pattern: tuple[np.ndarray, np.ndarray] | None = None
 
     def solve(self, a: sp.spmatrix, b: np.ndarray) -> np.ndarray:
@@ -108,7 +108,7 @@ class SparseLDL:
         upper = sp.triu(a, format="csc")
         upper.sort_indices()
         pattern = (upper.indptr, upper.indices)
-        same = self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern))
+        same = self._pattern is not None and all(np.array_equal(x, y) for x, y in zip(pattern, self._pattern, strict=True))
         self._pattern = pattern
         return self.solve_upper(upper, b, same)
 
@@ -119,6 +119,18 @@ class SparseLDL:
         else:
             self._solver = qdldl.Solver(upper, upper=True)
         return self._solver.solve(b)
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: float) -> tuple[np.ndarray, float]: ...
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: None) -> tuple[None, float]: ...
+
+
+@overload
+def huber_weights(r: np.ndarray, huber: float | None) -> tuple[np.ndarray | None, float]: ...
 
 
 def huber_weights(r: np.ndarray, huber: float | None) -> tuple[np.ndarray | None, float]:

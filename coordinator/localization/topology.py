@@ -21,14 +21,15 @@ Decisions the paper leaves open (documented in docs/localization.md):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
-from runtime.models.config import ModelConfig
 from runtime.errors import LocalizationError
+from runtime.models.config import ModelConfig
 from runtime.models.geometry import rotate, wrap_angle
 
 # Convergence of Eq. B3's least squares (``sparse_lm.minimize``: relative step, relative cost decrease).
@@ -63,7 +64,7 @@ def observation_residuals(
     yi: np.ndarray,
     xj: np.ndarray,
     yj: np.ndarray,
-    out: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None,
+    out: Sequence[np.ndarray] | None = None,
     scratch: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Eq. B3's residual of observations i -> j, elementwise over arrays of any (common) shape: the one

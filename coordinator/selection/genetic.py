@@ -106,7 +106,7 @@ def genetic_search(
                 else:
                     cache[key] = np.inf
         if fresh:
-            for p, e in zip(fresh, evaluate(fresh)):
+            for p, e in zip(fresh, evaluate(fresh), strict=True):
                 cache[p.key()] = float(e)
         return np.array([cache[p.key()] for p in plans])
 

@@ -47,10 +47,9 @@ from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import best_distinct, final_check, race
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
-
 
 METHODS = ("mc", "crlb")
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
@@ -264,6 +263,7 @@ class AnchorSelector:
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
             )
+        assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
 
     def _select_large(self, estimate: SwarmEstimate, desired: np.ndarray, rng: np.random.Generator) -> Selection:
@@ -319,6 +319,7 @@ class AnchorSelector:
                 f"no anchor plan with at most {sel.max_steps} steps keeps every robot within sensing range "
                 f"{self.cfg.sensing_range_m} m of another after every step (tried n_a = {[s.n_anchors for s in scores]})"
             )
+        assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, scores, len(scores))
 
     def _could_win(self, entry: CountScore, bar: float) -> bool:

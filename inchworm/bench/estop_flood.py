@@ -24,12 +24,12 @@ from pathlib import Path
 
 import numpy as np
 
+from coordinator.stop import collect_acks, publish_estop
+from inchworm.processes import stop_all
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, estop_ack_key
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.transport import ZenohSettings, alive_now, free_tcp_port, open_session, subscribe_queue
-from coordinator.stop import collect_acks, publish_estop
-from inchworm.processes import stop_all
 
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"
 CERT_DIR = "/etc/swarm/certs/"
@@ -89,7 +89,7 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, ack_timeout_s: 
             router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--config={router_config}", f"--listen={endpoint}"],
                                       stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
             procs.append(router)
-            if "listening" not in router.stderr.readline():
+            if router.stderr is None or "listening" not in router.stderr.readline():
                 raise RuntimeError("the TLS router did not start")
             procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", f"--id=0-{robots - 1}", f"--trajectory={tmp / 'traj.json'}",
                                            f"--run={run_id}", f"--zenoh-config={gateway.config_file}"], stderr=subprocess.DEVNULL))

@@ -50,11 +50,11 @@ import numpy as np
 from inchworm.bench import BenchResult
 from inchworm.output import last_json
 from inchworm.progress import Progress
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
-from runtime.models.trajectory import random_trajectory
 
 
 @dataclass(frozen=True)
@@ -177,8 +177,8 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
     from coordinator.simulate import simulate  # noqa: PLC0415
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     from inchworm.processes import start_agents, stop_all  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
     traj = random_trajectory(robots, configs, np.random.default_rng(seed))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()
@@ -232,7 +232,7 @@ def _same_table(summary: dict, ref) -> bool:
         return False
     return all(row["n_a"] == c.plan.n_anchors and row["steps"] == c.plan.n_steps and same(row["e_l"], e_l[k])
                and same(row["following_error"], follow[k]) and same(row["travelled"], travelled[k])
-               for k, (row, c) in enumerate(zip(rows, ref.configs)))
+               for k, (row, c) in enumerate(zip(rows, ref.configs, strict=True)))
 
 
 # -- the command ----------------------------------------------------------------------------------

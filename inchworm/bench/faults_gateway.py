@@ -109,8 +109,10 @@ def gateway_fault_rows(rows: Iterable[tuple[float, float, float]] = DEFAULT_ROWS
     bar = Progress(len(rows) * len(seeds), "bench faults (gateway)", show_progress)
     out = []
     for i, (drop, corrupt, delay) in enumerate(rows):
-        out.append(gateway_fault_row(drop, corrupt, delay, seeds, baselines, robots, configs,
-                                     progress=lambda k, i=i: bar(i * len(seeds) + k)))
+        def progress(k: int, done: int = i * len(seeds)) -> None:
+            bar(done + k)
+
+        out.append(gateway_fault_row(drop, corrupt, delay, seeds, baselines, robots, configs, progress=progress))
     return out
 
 

@@ -80,8 +80,8 @@ def codec_frames_per_s(count: int) -> float:
 
 def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
     """COMMAND -> DONE times (ms) through a ``swarm emulate-robots`` process on a pty."""
-    from runtime.gateway.frames import Frame, FrameDecoder, FrameType, MotionBody, encode_frame  # noqa: PLC0415
     from inchworm.processes import start_emulator, stop_all  # noqa: PLC0415
+    from runtime.gateway.frames import Frame, FrameDecoder, FrameType, MotionBody, encode_frame  # noqa: PLC0415
     with tempfile.TemporaryDirectory(prefix="swarm-bench-gw-") as tmp:
         folder = Path(tmp)
         traj = random_trajectory(2, 1, np.random.default_rng(seed))

@@ -81,7 +81,7 @@ def gtsam_localize(gtsam: Any, case: StepCase, cfg: ModelConfig, covariance: boo
         initial.insert(k, pose)
     noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([cfg.bearing_sigma_rad, cfg.range_sigma_m]))
     obs = case.observations
-    for a, b, rho, phi in zip(i.tolist(), j.tolist(), obs.range_m.tolist(), obs.bearing_rad.tolist()):
+    for a, b, rho, phi in zip(i.tolist(), j.tolist(), obs.range_m.tolist(), obs.bearing_rad.tolist(), strict=True):
         graph.add(gtsam.BearingRangeFactorPose2(a, b, gtsam.Rot2(phi), rho, noise))
     values = gtsam.LevenbergMarquardtOptimizer(graph, initial).optimize()
     if covariance:
@@ -138,9 +138,9 @@ def timed(fn: Any, repeats: int) -> tuple[list[float], Any]:
 
 def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any | None, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Result object of one swarm size."""
+    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.localization.crlb import crlb_pose_covariances  # noqa: PLC0415
     from coordinator.localization.dead_reckoning import dead_reckon  # noqa: PLC0415
-    from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.localization.joint import EXACT_COV_LIMIT  # noqa: PLC0415 - the joint covariance up to this n
     from runtime.models.scenarios import random_step  # noqa: PLC0415
     localizers = {name: make_localizer(name, cfg) for name in METHODS}
@@ -155,7 +155,7 @@ def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any 
         truth = case.true_after[:, :2]
         n_obs.append(len(case.observations))
         for name, loc in localizers.items():
-            times, est = timed(lambda loc=loc: loc.localize(case.prior, case.step, case.observations), args.repeats)
+            times, est = timed(lambda loc=loc, case=case: loc.localize(case.prior, case.step, case.observations), args.repeats)
             stats[name].record(times, est.positions, truth)
         if n <= CRLB_LIMIT:
             dr = dead_reckon(case.prior, case.step, cfg)
@@ -163,10 +163,10 @@ def bench_size(n: int, cfg: ModelConfig, args: LocalizeBenchOptions, gtsam: Any 
             cov = crlb_pose_covariances(case.true_after, dr.cov, i, j, cfg)
             crlb_sq.append(cov[:, 0, 0] + cov[:, 1, 1])
         if gtsam is not None:
-            times, values = timed(lambda: gtsam_localize(gtsam, case, cfg), args.repeats)
+            times, values = timed(lambda case=case: gtsam_localize(gtsam, case, cfg), args.repeats)
             stats["gtsam"].record(times, gtsam_positions(values, n), truth)
             if n <= EXACT_COV_LIMIT:
-                times, values = timed(lambda: gtsam_localize(gtsam, case, cfg, covariance=True), args.repeats)
+                times, values = timed(lambda case=case: gtsam_localize(gtsam, case, cfg, covariance=True), args.repeats)
                 stats["gtsam_cov"].record(times, gtsam_positions(values, n), truth)
 
     crlb_rms = float(np.sqrt(np.mean(np.concatenate(crlb_sq)))) if crlb_sq else None

@@ -40,6 +40,7 @@ import numpy as np
 
 from inchworm.bench import BenchResult
 from runtime.errors import SwarmInputError
+from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
     EstimateMessage,
     MotionCommand,
@@ -52,7 +53,6 @@ from runtime.wire.messages import (
     encode,
     message_key,
 )
-from runtime.recording.mcap_log import McapRecorder
 
 RUN = "bench-record"
 SPACING_M = 0.25
@@ -136,7 +136,7 @@ def bench_record(options: RecordBenchOptions = RecordBenchOptions(), say: Callab
     lines = [f"{'N':>4} {'derived':>7} {'msgs/step':>9} {'msgs/s':>8} {'MB/s':>6} {'us/msg':>7} {'ms/step':>8} "
           f"{'step ms':>7} {'overhead':>8}  derived msgs, file MB"]
     with tempfile.TemporaryDirectory(prefix="bench-record-") as tmp:
-        for n, budget in zip(sizes, step_ms):
+        for n, budget in zip(sizes, step_ms, strict=True):
             steps = [step_messages(n, s, rng, plan=(s - 1) % args.steps_per_config == 0) for s in range(1, args.steps + 1)]
             messages = [m for step in steps for m in step]
             payload_mb = sum(len(p) for _k, p in messages) / MB

@@ -143,12 +143,13 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from coordinator.strategies import FixedPlanStrategy, make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, stop_all  # noqa: PLC0415
+    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     cfg = args.model
     strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
+    assert isinstance(strategy, FixedPlanStrategy)  # --method: a fixed plan
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
@@ -188,7 +189,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
             agents = procs[first_agent:]
             hosted = [traj.ids[k:k + per_process] for k in range(0, n, per_process)]
             rss = [rss_mb(p.pid) for p in agents]
-            dead = [int(r) for robots, p in zip(hosted, agents) if p.poll() is not None for r in robots]
+            dead = [int(r) for robots, p in zip(hosted, agents, strict=True) if p.poll() is not None for r in robots]
             if dead or None in rss:
                 raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
     finally:
@@ -200,7 +201,8 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
         raise RuntimeError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
     return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
-            "agent_rss_mb": round(sum(rss) / n, 2), "agents_per_process": per_process, "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
+            "agent_rss_mb": round(sum(r or 0.0 for r in rss) / n, 2), "agents_per_process": per_process,
+            "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
             "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
 
 
@@ -232,9 +234,11 @@ def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> Bench
                 raise AgentError(f"{n} agents: {exc}", exc.robots) from exc
     finally:
         signal.signal(signal.SIGTERM, previous)
-    lines = [f"{'agents':>6} {'per proc':>8} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} {'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'RSS MB per agent':>16}"]
+    lines = [f"{'agents':>6} {'per proc':>8} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} "
+             f"{'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'RSS MB per agent':>16}"]
     for r in rows:
-        lines.append(f"{r['agents']:>6} {r['agents_per_process']:>8} {r['_steps']:>5} {r['step_ms_median']:>16.2f} {r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
+        lines.append(f"{r['agents']:>6} {r['agents_per_process']:>8} {r['_steps']:>5} {r['step_ms_median']:>16.2f} "
+              f"{r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
               f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {r['_execute_ms']:>11.2f} {r['_observe_ms']:>10.2f} {r['agent_rss_mb']:>16.2f}")
     summary = {"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]}
     return BenchResult(rows, summary, "\n".join(lines), "agents", "step_ms_median", "step time, median (ms)",

@@ -57,8 +57,8 @@ def bench_studies(options: StudiesBenchOptions = StudiesBenchOptions(), say: Cal
         for w in o.workers:
             if say:
                 say(f"{kind} executor, {w} worker{'s' * (w > 1)}: {runs} runs")
-            wall, rows = _timed_compare(kind, w, o.compare)
-            measured.append((kind, w, wall, results_only(rows)))
+            wall, compared = _timed_compare(kind, w, o.compare)
+            measured.append((kind, w, wall, results_only(compared)))
     reference = measured[0][3]
     check = next((m[3] for m in measured[1:] if m[0] != measured[0][0]), reference)
     rows: list[dict[str, Any]] = [{"executor": kind, "workers": w, "runs": runs, "runs_per_s": round(runs / wall, 4),

@@ -206,7 +206,7 @@ def summarise(rows: list[dict], robots: int) -> dict:
         "distance_mean": _mean([r["distance_m"] for r in rows]),
         "e_l_mean": e_mean,
         "e_l_ratio": {str(k): _mean([r[f"ratio_na{k}"] for r in rows]) for k in counts},  # mean of per-experiment ratios
-        "e_l_ratio_of_means": {str(k): (e_mean[str(k)] / e_mean["0"] if e_mean["0"] else None) for k in counts},
+        "e_l_ratio_of_means": {str(k): (mk / m0 if (mk := e_mean[str(k)]) is not None and (m0 := e_mean["0"]) else None) for k in counts},
         "choice_n_anchors": choice_anchor_count(robots),
         "choice": None,
     }
@@ -260,12 +260,14 @@ def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str
     else:
         exhaustive = [r for r in rows if r["choice_plans"] > 0]
         connected = np.mean([r["choice_plans_connected"] / r["choice_plans"] for r in exhaustive])
-        lines.append(f"Fig. 5 - choice of anchors, n_a = {n_a}: all {summary['choice_plans']} plans per experiment ({100 * connected:.0f} % keep the swarm connected, Eq. 4)")
+        lines.append(f"Fig. 5 - choice of anchors, n_a = {n_a}: all {summary['choice_plans']} plans per experiment "
+                     f"({100 * connected:.0f} % keep the swarm connected, Eq. 4)")
         lines.append(f"{'anchors':<8} {'e_l mean (mm)':>14} {'std (mm)':>9} {'/ none':>7} {'fresh draws (mm)':>17} {'/ none':>7}")
         none, none_fresh = summary["choice"]["none"], summary["choice_fresh"]["none"]
         for c in CHOICES:
             v, f = summary["choice"][c], summary["choice_fresh"][c]
-            lines.append(f"{c:<8} {mm(v):>14} {_std_mm([r[f'choice_{c}'] for r in exhaustive]):>9.2f} {v / none:>7.3f} {mm(f):>17} {f / none_fresh:>7.3f}")
+            lines.append(f"{c:<8} {mm(v):>14} {_std_mm([r[f'choice_{c}'] for r in exhaustive]):>9.2f} {v / none:>7.3f} "
+                         f"{mm(f):>17} {f / none_fresh:>7.3f}")
         lines.append("(fresh draws: the same plans re-evaluated with independent random numbers; best/worst of 252 noisy estimates are biased)")
     lines.append("")
     h = summary["heuristic"]
@@ -273,7 +275,8 @@ def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str
     lines.append(f"Appendix A - heuristic (Eq. 11-13) vs random anchors, n_a = {n_a}")
     lines.append(f"{'anchors':<10} {'e_l mean (mm)':>14} {'std (mm)':>9} {'fresh draws (mm)':>17}")
     lines.append(f"{'heuristic':<10} {mm(h['e_l_mean']):>14} {_std_mm([r['heuristic_e_l'] for r in rows]):>9.2f} {mm(h['e_l_mean_fresh']):>17}")
-    lines.append(f"{'random':<10} {mm(h['random_e_l_mean']):>14} {_std_mm([r['heuristic_random_e_l'] for r in rows]):>9.2f} {mm(h['random_e_l_mean_fresh']):>17}")
+    lines.append(f"{'random':<10} {mm(h['random_e_l_mean']):>14} {_std_mm([r['heuristic_random_e_l'] for r in rows]):>9.2f} "
+                 f"{mm(h['random_e_l_mean_fresh']):>17}")
     diff = np.array([r["heuristic_e_l"] - r["heuristic_random_e_l"] for r in rows])
     se = _std_mm(list(diff)) / math.sqrt(len(diff))
     lines.append(
@@ -281,7 +284,8 @@ def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str
         f"{100 * diff.mean() / h['random_e_l_mean']:+.1f} %); heuristic better in {wins}/{len(rows)} experiments ({100 * wins / len(rows):.0f} %)"
     )
     if h["percentile_mean"] is not None:
-        lines.append(f"percentile among all plans (0 = best, 100 = worst): heuristic {h['percentile_mean']:.1f}, random {h['random_percentile_mean']:.1f}")
+        lines.append(f"percentile among all plans (0 = best, 100 = worst): heuristic {h['percentile_mean']:.1f}, "
+                     f"random {h['random_percentile_mean']:.1f}")
     lines.append(f"heuristic plans keeping the swarm connected (Eq. 4): {100 * h['connected_fraction']:.0f} %")
     return "\n".join(lines)
 
@@ -294,7 +298,7 @@ def scatter_panels(axes: Any, panels: list[tuple[str, np.ndarray]], distance: np
     from inchworm.plots import title  # noqa: PLC0415
 
     flat = list(np.ravel(axes))
-    for ax, (label, values) in zip(flat, panels):
+    for ax, (label, values) in zip(flat, panels, strict=False):
         ok = np.isfinite(values)
         ax.scatter(distance[ok], 1000 * values[ok], s=10, alpha=0.7, label="one experiment")
         if ok.any():
@@ -379,11 +383,13 @@ class AnchorsResult:
         from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
 
         letters = "abcdefghijklmnopqrstuvwxyz"
-        out = {"fig4": [(f"({letters[i % 26]}) {k} anchors", self._col(f"e_l_na{k}")) for i, k in enumerate(feasible_anchor_counts(self.options.robots))]}
+        out = {"fig4": [(f"({letters[i % 26]}) {k} anchors", self._col(f"e_l_na{k}"))
+                        for i, k in enumerate(feasible_anchor_counts(self.options.robots))]}
         if self.summary["choice"] is not None:
             names = {"none": "zero anchors", "random": "random anchors", "worst": "global worst anchors", "best": "global best anchors"}
             out["fig5"] = [(f"({letters[i]}) {names[c]}", self._col(f"choice_{c}")) for i, c in enumerate(CHOICES)]
-        out["appendix_a"] = [("(a) anchors from the heuristic", self._col("heuristic_e_l")), ("(b) random anchors", self._col("heuristic_random_e_l"))]
+        out["appendix_a"] = [("(a) anchors from the heuristic", self._col("heuristic_e_l")),
+                             ("(b) random anchors", self._col("heuristic_random_e_l"))]
         return out
 
     def plot(self, ax: Axes) -> Axes:
@@ -391,7 +397,8 @@ class AnchorsResult:
         from inchworm.plots import title  # noqa: PLC0415
 
         distance = self._col("distance_m")
-        for label, values, marker in (("heuristic anchors", self._col("heuristic_e_l"), "o"), ("random anchors", self._col("heuristic_random_e_l"), "^")):
+        for label, values, marker in (("heuristic anchors", self._col("heuristic_e_l"), "o"),
+                                      ("random anchors", self._col("heuristic_random_e_l"), "^")):
             ax.scatter(distance, 1000 * values, s=12, marker=marker, alpha=0.7, label=label)
         ax.set_xlim(left=0)
         ax.set_ylim(bottom=0)

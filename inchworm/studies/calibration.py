@@ -21,9 +21,9 @@ from typing import Any
 
 import numpy as np
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
 from inchworm.noise import scaled
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -56,7 +56,8 @@ class CalibrationOptions:
         if REFERENCE not in self.methods:
             raise SwarmInputError(f"--methods must include {REFERENCE} (the ratios are against it)")
         if min(self.trajectories, self.configs, self.calibration_trajectories, self.iterations) < 1 or self.target <= 0 or self.max_motion_scale <= 1:
-            raise SwarmInputError("--trajectories, --configs, --calibration-trajectories, --iterations must be >= 1, --target > 0, --max-motion-scale > 1")
+            raise SwarmInputError("--trajectories, --configs, --calibration-trajectories, --iterations must be >= 1, "
+                                  "--target > 0, --max-motion-scale > 1")
         if not self.seeds or not self.sensing_scales or min(self.sensing_scales) < 0 or min(self.seeds) < 0:
             raise SwarmInputError("--seeds and --sensing-scales must list numbers >= 0")
         if self.robots < 2:
@@ -147,7 +148,8 @@ class CalibrationResult:
         others = [m for m in o.methods if m != REFERENCE]
         lines = [f"{r['localizer']}, sensing x {r['sensing_scale']:g}: ref57 P_f = {r['ref57_pf_calibration']:.4f} at motion noise x "
                  f"{r['motion_scale']:.2f} (calibration set)" for r in self.results]
-        lines.append(f"{'localizer':<9} {'sensing x':>9} {'motion x':>8} {'seeds':>8} {'ref57 P_f':>10} " + " ".join(f"{m + ' / ref57':>28} {'p':>6}" for m in others))
+        lines.append(f"{'localizer':<9} {'sensing x':>9} {'motion x':>8} {'seeds':>8} {'ref57 P_f':>10} "
+                     + " ".join(f"{m + ' / ref57':>28} {'p':>6}" for m in others))
         for r in self.results:
             for label in [str(s) for s in o.seeds] + ["pooled"]:
                 s = r[label]
@@ -172,14 +174,16 @@ class CalibrationResult:
         for k, m in enumerate(o.methods):
             means, lows, highs = [], [], []
             for r in self.results:
-                pf = np.array([x["pf"] for x in self.rows if x["method"] == m and x["localizer"] == r["localizer"] and x["sensing_scale"] == r["sensing_scale"]])
+                pf = np.array([x["pf"] for x in self.rows
+                               if x["method"] == m and x["localizer"] == r["localizer"] and x["sensing_scale"] == r["sensing_scale"]])
                 lo, hi = clipped_at_zero(*mean_ci(pf, CONFIDENCE))
                 means.append(pf.mean())
                 lows.append(pf.mean() - lo)
                 highs.append(hi - pf.mean())
             x = np.arange(len(self.results)) + (k - (len(o.methods) - 1) / 2) * width
             ax.bar(x, means, width, yerr=np.nan_to_num([lows, highs]), capsize=3, label=m)
-        ax.set_xticks(range(len(self.results)), [f"{r['localizer']}, sensing x {r['sensing_scale']:g}\nmotion x {r['motion_scale']:.2f}" for r in self.results])
+        ax.set_xticks(range(len(self.results)),
+                      [f"{r['localizer']}, sensing x {r['sensing_scale']:g}\nmotion x {r['motion_scale']:.2f}" for r in self.results])
         ax.axhline(o.target, color="black", ls="--", lw=0.8, label=f"target ref57 P_f {o.target:g}")
         ax.set_ylim(bottom=0)
         ax.set_ylabel("P_f (Eq. 24)")

@@ -162,7 +162,7 @@ class ConsistencyResult:
         locs = self.options.localizers
 
         def draw(axes: Any) -> None:
-            for ax, loc in zip(np.ravel(axes), locs):
+            for ax, loc in zip(np.ravel(axes), locs, strict=False):
                 self.plot(ax, loc)
 
         return [save_figure(draw, out / "consistency.png", (6.5 * len(locs), 4.8), (1, len(locs)), squeeze=False, sharey=True)]

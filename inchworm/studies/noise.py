@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.comparison import RunTask, anchors_along, run_one
 from inchworm.noise import scaled
-from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
@@ -97,14 +97,15 @@ class NoiseResult:
         loc = localizer or o.localizers[0]
         grid = self.grid(loc, key)
         ratio = key == "inchworm_over_ref57"
-        im = ax.imshow(grid, cmap="RdBu_r" if ratio else "viridis", origin="lower", aspect="auto", **({"vmin": 0.5, "vmax": 1.5} if ratio else {}))
+        im = ax.imshow(grid, cmap="RdBu_r" if ratio else "viridis", origin="lower", aspect="auto",
+                       vmin=0.5 if ratio else None, vmax=1.5 if ratio else None)
         for (i, j), v in np.ndenumerate(grid):
             ax.text(j, i, f"{v:.2f}", ha="center", va="center", color="black" if ratio else "white")
         ax.set_xticks(range(len(o.sensing_scales)), [f"{s:g}" for s in o.sensing_scales])
         ax.set_yticks(range(len(o.motion_scales)), [f"{m:g}" for m in o.motion_scales])
         ax.set_xlabel("sensing noise scale")
         ax.set_ylabel("motion noise scale")
-        ax.get_figure().colorbar(im, ax=ax)
+        ax.figure.colorbar(im, ax=ax)
         title(ax, f"{loc}: " + ("P_f inchworm / ref57 (< 1: inchworm better)" if ratio else "n_a chosen by inchworm"))
         return ax
 

@@ -24,6 +24,7 @@ compared with that plan's e_l on the evaluation set (the bias of the reported e_
 from __future__ import annotations
 
 import csv
+import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -87,7 +88,7 @@ def run_config(task: ConfigTask) -> dict:
     current = start[:, :2]
     sets = [int(rng.integers(2**63)) for _ in range(3)]
     screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed, task.selection.mc_start)  # the selection's reading of the start
-                           for s, seed in zip((budget.screen, budget.pick, budget.eval), sets))
+                           for s, seed in zip((budget.screen, budget.pick, budget.eval), sets, strict=True))
 
     def feasible(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
@@ -106,7 +107,7 @@ def run_config(task: ConfigTask) -> dict:
             continue
         screen_samples = search_samples(samples_for(selection.samples, n), n_solutions(n, n_a))
         screen_mc = MonteCarlo(job.cfg, localizer, screen_samples, int(rng.integers(2**63)), task.selection.mc_start)
-        raw, _, _ = genetic_search(lambda ps: screen_mc.localization_errors(estimate, desired, ps), [heuristic], feasible,
+        raw, _, _ = genetic_search(functools.partial(screen_mc.localization_errors, estimate, desired), [heuristic], feasible,
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
         plans = {"heuristic": heuristic, "search": searched, "ga_raw": raw or heuristic}
@@ -120,7 +121,7 @@ def run_config(task: ConfigTask) -> dict:
             every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]
             plans["optimum"] = shortlist[int(np.argmin(_errors(pick, estimate, desired, shortlist)))]
-        e = dict(zip(plans, (float(v) for v in _errors(final, estimate, desired, list(plans.values())))))
+        e = dict(zip(plans, (float(v) for v in _errors(final, estimate, desired, list(plans.values()))), strict=True))
         for name, value in e.items():
             row[f"na{n_a}_{name}"] = value
         best = min(e.values())

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Set as AbstractSet
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -207,7 +207,7 @@ class _Parser:
     def fail(self, where: str, problem: str) -> SwarmInputError:
         return SwarmInputError(f"gateway config {self.source}: {where}: {problem}")
 
-    def obj(self, value: Any, where: str, allowed: set[str], required: set[str] = frozenset()) -> dict:
+    def obj(self, value: Any, where: str, allowed: set[str], required: AbstractSet[str] = frozenset()) -> dict:
         if not isinstance(value, dict):
             raise self.fail(where, f"must be an object, got {type(value).__name__}")
         unknown = sorted(set(value) - allowed)
@@ -293,7 +293,7 @@ class _Parser:
     def timing(self, value: Any) -> Timing:
         names = {f.name for f in dataclasses.fields(Timing)}
         t = self.obj(value, "timing", names)
-        out = {}
+        out: dict[str, Any] = {}  # max_retries an int, the rest floats
         for name in names & set(t):
             if name == "max_retries":
                 out[name] = self.integer(t[name], "timing.max_retries", 0, 100)

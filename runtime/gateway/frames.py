@@ -277,7 +277,7 @@ def _unpack(cls, payload: bytes) -> tuple:
 
 Body = EmptyBody | StepBody | MotionBody | HeartbeatBody | RefusalBody | ErrorBody | ObservationBody | RunBody
 
-BODIES: dict[FrameType, type] = {
+BODIES: dict[FrameType, type[Body]] = {
     FrameType.COMMAND: MotionBody,
     FrameType.OBSERVE: StepBody,
     FrameType.HEARTBEAT: HeartbeatBody,

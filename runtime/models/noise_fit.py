@@ -125,7 +125,7 @@ def fit_range(distances: np.ndarray, observed: np.ndarray, confidence: float = C
     if len(beyond):
         # smallest k with high^k <= 1 - confidence: the range is below the k-th unobserved distance beyond r_hat
         need = 1 if high <= 0 else (math.inf if high >= 1 else math.ceil(math.log(1 - confidence) / math.log(high)))
-        upper = float(beyond[need - 1]) if need <= len(beyond) else None
+        upper = float(beyond[int(need) - 1]) if need <= len(beyond) else None
     return RangeFit(pairs=len(distances), in_range=n, observed=k, sensing_range_m=r_hat, sensing_range_ci=(r_hat, upper),
                     dropout=dropped / n, dropout_ci=(low, high))
 

@@ -11,6 +11,7 @@ and the in-process simulator produce identical numbers for the same seed.
 from __future__ import annotations
 
 import numpy as np
+
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.state import Observations
@@ -52,7 +53,7 @@ def noisy_observations(
     Draw order per call: k dropout uniforms, k range normals, k bearing normals,
     so the stream consumption does not depend on the dropout probability.
     """
-    k = target_positions.shape[0]
+    k: int = target_positions.shape[0]
     uniform = rng.random(k)
     z_range = rng.normal(0.0, 1.0, k)
     z_bearing = rng.normal(0.0, 1.0, k)

@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from runtime.models.config import ModelConfig
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.sensing import sense_swarm

@@ -211,8 +211,8 @@ RANGE_MARGIN = 0.9  # random configurations are connected within this fraction o
 
 def _spanning_edges(xy: np.ndarray, reach: float) -> np.ndarray:
     """(m, 2) robot pairs of a minimum spanning forest of the graph 'within ``reach``' of ``xy``."""
-    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     from scipy.sparse.csgraph import minimum_spanning_tree  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     mst = minimum_spanning_tree(cKDTree(xy).sparse_distance_matrix(cKDTree(xy), reach, output_type="coo_matrix").tocsr())
     return np.column_stack(mst.nonzero())
 
@@ -225,8 +225,8 @@ def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: flo
     closer than ``sep`` to another, or when it ends a spanning edge of ``rigid`` that now joins
     two parts of the graph 'within ``reach``' (there is one while the graph is cut).
     """
-    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     scale = np.ones(len(rigid))
     for _ in range(60):
         xy = rigid + scale[:, None] * noise

@@ -40,10 +40,9 @@ from runtime.recording.foxglove_scene import (
     TOPICS,
     SceneDeriver,
 )
+from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS, PlotDeriver
 from runtime.wire.keys import KeyspaceError
 from runtime.wire.messages import MessageError, decode, type_for_key
-from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
-from runtime.recording.plot_channels import PlotDeriver
 
 INSTALL_HINT = "pip install -e '.[foxglove]'"
 REPEAT_S = 1.0  # while lingering, the latest message of each channel is logged again this often
@@ -109,7 +108,7 @@ class LiveView:
         logging.getLogger(SERVER_LOGGER).addFilter(self._filter)
         try:
             self._server = foxglove.start_server(name=name, host=host, port=int(port), context=self._context)
-        except Exception as exc:  # the SDK raises its own error types (port in use, bad host)
+        except Exception as exc:  # noqa: BLE001 - the SDK raises its own error types (port in use, bad host)
             logging.getLogger(SERVER_LOGGER).removeFilter(self._filter)
             raise SwarmInputError(f"cannot start the Foxglove WebSocket server on {host}:{port}: {exc}") from None
         self.host = host

@@ -260,7 +260,7 @@ def estimated_scene(msg: EstimateMessage, plan: PlanMessage | None = None) -> by
     moving = moving_robots(plan, msg.step)
     t = stamp(msg.stamp_ns)
     entities = []
-    for robot, pose in zip(msg.ids, msg.poses):
+    for robot, pose in zip(msg.ids, msg.poses, strict=True):
         x, y = _num(pose[0]), _num(pose[1])
         anchor = moving is not None and robot not in moving
         entities.append(entity(
@@ -364,7 +364,7 @@ def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, fl
             if len(config) != len(ids):
                 return None
             rows = {}
-            for robot, xy in zip(ids, config):
+            for robot, xy in zip(ids, config, strict=True):
                 x, y = float(xy[0]), float(xy[1])
                 if not (math.isfinite(x) and math.isfinite(y)):
                     return None
@@ -390,7 +390,7 @@ class SceneDeriver:
 
     def derive(self, msg: Message) -> list[tuple[str, bytes]]:
         if isinstance(msg, EstimateMessage):
-            self.last_estimate.update((int(r), (p[0], p[1])) for r, p in zip(msg.ids, msg.poses))
+            self.last_estimate.update((int(r), (p[0], p[1])) for r, p in zip(msg.ids, msg.poses, strict=True))
             scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
             if self.truths and not self.truth_sets:
                 poses = {robot: t.pose for robot, t in self.truths.items()}
@@ -398,7 +398,7 @@ class SceneDeriver:
             return scenes
         if isinstance(msg, TruthSetMessage):
             self.truth_sets = True
-            return [(TOPIC_TRUE, true_scene(dict(zip(msg.ids, msg.poses)), msg.step, msg.stamp_ns))]
+            return [(TOPIC_TRUE, true_scene(dict(zip(msg.ids, msg.poses, strict=True)), msg.step, msg.stamp_ns))]
         if isinstance(msg, TruthMessage):
             self.truths[msg.robot] = msg
             return []

@@ -40,7 +40,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from importlib import metadata as _pkg_metadata
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, cast
 
 import msgpack
 from mcap.exceptions import EndOfFile, McapError
@@ -55,21 +55,19 @@ from runtime.errors import SwarmInputError
 try:
     from zstandard import ZstdError as _ZstdError
 except ImportError:  # mcap's zstd support is optional; without it nothing raises this
-    class _ZstdError(Exception):
+    class _ZstdError(Exception):  # type: ignore[no-redef]  # the stand-in of the optional import
         pass
 from runtime.recording.foxglove_scene import (
     DERIVED_TYPES,
+    MESSAGE_ENCODING as DERIVED_ENCODING,
     SCENE_UPDATE_SCHEMA_BYTES,
+    SCHEMA_NAME as DERIVED_SCHEMA,
+    TOPIC_PREFIX as DERIVED_PREFIX,
     SceneDeriver,
 )
-from runtime.recording.foxglove_scene import MESSAGE_ENCODING as DERIVED_ENCODING
-from runtime.recording.foxglove_scene import SCHEMA_NAME as DERIVED_SCHEMA
-from runtime.recording.foxglove_scene import TOPIC_PREFIX as DERIVED_PREFIX
+from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES, SCHEMA_BYTES as PLOT_SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.wire.keys import KeyspaceError, run_wildcard, validate_run
 from runtime.wire.messages import MessageError, decode, json_schema, type_for_key
-from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES
-from runtime.recording.plot_channels import SCHEMA_BYTES as PLOT_SCHEMAS
-from runtime.recording.plot_channels import PlotDeriver, is_plot_topic
 
 CHUNK_BYTES = 64 * 1024  # uncompressed bytes after which a chunk is closed
 FLUSH_S = 0.25  # a chunk is closed (and the file flushed) at least this often while messages arrive
@@ -290,6 +288,7 @@ class McapRecorder:
             self._write_derived(msg, log_time)
 
     def _write_derived(self, msg, log_time: int) -> None:
+        assert self._deriver is not None and self._plotter is not None  # foxglove recordings only
         try:
             derived = [(topic, DERIVED_SCHEMA, data) for topic, data in self._deriver.derive(msg)]
             derived += self._plotter.derive(msg)
@@ -406,7 +405,7 @@ def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, 
     "messages", "channels", "raw_messages", "raw_channels", "derived_messages", "derived_channels",
     "undecodable"}`` (``messages`` and ``channels`` count raw and derived ones, as ``swarm info`` does).
     """
-    from runtime.wire.transport import open_session, subscribe  # zenoh only when recording live
+    from runtime.wire.transport import open_session, subscribe  # noqa: PLC0415 - zenoh only when recording live
 
     with open_session(settings) as session:  # fails (ConnectionError) before any file is created
         recorder = McapRecorder(path, run, metadata, on_error=on_error)
@@ -577,7 +576,7 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
         scan = _scan(path, f)
         status.complete, status.indexed, status.size = scan.complete, scan.indexed, scan.size
         status.readable_bytes, status.problem = scan.end, scan.problem
-        view = _Bounded(f, scan.end)
+        view = cast(IO[bytes], _Bounded(f, scan.end))  # duck-typed: only what mcap's readers call
         if scan.indexed and seeking:
             status.reader = "seeking"
             try:
@@ -586,6 +585,7 @@ def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = T
                 summary = reader.get_summary()
             except _READ_ERRORS as e:
                 raise _wrap(path, e, "summary") from None
+            assert summary is not None  # the scan found the summary (indexed)
             status.profile, status.library = header.profile, header.library
             status.schemas.update(summary.schemas)
             status.channels.update(summary.channels)
@@ -696,7 +696,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
         "undecodable": sum(c["undecodable"] for c in channels.values()),
         "first_ns": first,
         "last_ns": last,
-        "duration_s": (last - first) / 1e9 if firsts else 0.0,
+        "duration_s": (last - first) / 1e9 if first is not None and last is not None else 0.0,
         "schemas": sorted({s.name for s in status.schemas.values()}),
         "channels": sorted(channels.values(), key=lambda c: c["topic"]),
         "metadata": meta,
@@ -749,6 +749,7 @@ def recover(src: str | os.PathLike, dst: str | os.PathLike) -> dict[str, Any]:
                 raise SwarmInputError(
                     f"{src}: nothing to recover: no complete message in its {status.readable_bytes} readable bytes "
                     f"(of {status.size}); no output written")
+            assert writer is not None  # opened at the first record
             writer.finish()
         os.replace(tmp, dst)
     finally:

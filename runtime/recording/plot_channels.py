@@ -2,9 +2,9 @@
 
 Foxglove (Plot, Raw Message, State Transitions panels) and PlotJuggler read MCAP channels
 whose message encoding is ``json`` and whose schema is a ``jsonschema``; Foxglove cannot decode
-our msgpack, and PlotJuggler names a msgpack array's entries by position, not robot id. The recorder (``runtime.recording.mcap_log``) writes these channels next to the raw
-ones, each message right after the raw one it comes from, with its ``stamp_ns`` as publish
-time. Every field is a flat number (or, for plans and events, a short string or id list),
+our msgpack, and PlotJuggler names a msgpack array's entries by position, not robot id. The recorder
+(``runtime.recording.mcap_log``) writes these channels next to the raw ones, each message right after the
+raw one it comes from, with its ``stamp_ns`` as publish time. Every field is a flat number (or, for plans and events, a short string or id list),
 so a plot path is simply ``/robot/3/estimate.x``. Units SI: m, rad.
 
 Topics and schemas (``SCHEMAS``):
@@ -69,7 +69,8 @@ def _schema(title: str, description: str, properties: dict[str, dict[str, Any]],
 _TRUTH_FIELDS = ("true_x", "true_y", "true_heading", "localization_m", "dx", "dy", "dheading", "following_m")
 _STEP = _number("global step of the run (0 = initial localization)", "integer")
 SCHEMAS: dict[str, dict[str, Any]] = {
-    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate", "one robot after a step: estimate, uncertainty, and truth and errors when known (SI units)", {
+    "inchworm.RobotEstimate": _schema("inchworm.RobotEstimate",
+                                      "one robot after a step: estimate, uncertainty, and truth and errors when known (SI units)", {
         "step": _STEP, "robot": _number("robot id", "integer"),
         "config": _number("configuration the step heads for (1-based, 0 unknown)", "integer"),
         "x": _number("estimated x (m)"), "y": _number("estimated y (m)"), "heading": _number("estimated heading (rad)"),
@@ -168,19 +169,19 @@ class PlotDeriver:
 
     def _config(self, step: int) -> int:
         """The configuration ``step`` heads for under the current plan (0 if the plan does not cover it)."""
-        return self.plan.config if moving_robots(self.plan, step) is not None else 0
+        return self.plan.config if self.plan is not None and moving_robots(self.plan, step) is not None else 0
 
     def _robots(self, estimate: EstimateMessage, truth: TruthSetMessage | None) -> list[tuple[str, str, bytes]]:
         """One ``/robot/<id>/estimate`` message per robot (with truth and errors when ``truth`` is given),
         then ``/swarm/error`` when there is a truth."""
         step, config = int(estimate.step), self._config(estimate.step)
         moving = moving_robots(self.plan, estimate.step)
-        true = dict(zip(truth.ids, truth.poses)) if truth is not None else {}
+        true = dict(zip(truth.ids, truth.poses, strict=True)) if truth is not None else {}
         desired = self.configurations[config - 1] if self.configurations and 1 <= config <= len(self.configurations) else None
         out, loc, follow, std = [], [], [], []
-        for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov):
+        for robot, pose, cov in zip(estimate.ids, estimate.poses, estimate.cov, strict=True):
             anchor = -1 if moving is None else int(robot not in moving)
-            values = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
+            values: tuple[float, ...] = (pose[0], pose[1], pose[2], math.sqrt(max(cov[0][0], 0.0)), math.sqrt(max(cov[1][1], 0.0)),
                       math.sqrt(max(cov[2][2], 0.0)))
             text = _ESTIMATE % (step, robot, config, *values, anchor)
             t = true.get(robot)

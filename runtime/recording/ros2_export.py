@@ -13,8 +13,8 @@ Written with ``rosbags`` (pure Python, no ROS install) for one ROS 2 distributio
 
 For Humble the bag is written as rosbag2 version 8 by ``rosbags`` (QoS as numeric YAML strings,
 in the metadata and in the MCAP channels, as Humble reads them), then ``metadata.yaml`` is
-rewritten as version 5 (``humble_metadata``); for Jazzy ``rosbags`` writes version 9 itself. Frame ``world``, metres, z = 0; header stamps are the source message's
-``stamp_ns``, bag times its log time. Topics (ROS 2 names cannot have a token starting with a
+rewritten as version 5 (``humble_metadata``); for Jazzy ``rosbags`` writes version 9 itself. Frame ``world``,
+metres, z = 0; header stamps are the source message's ``stamp_ns``, bag times its log time. Topics (ROS 2 names cannot have a token starting with a
 digit, hence ``robot_<id>``):
 
 * ``/tf_static`` ``tf2_msgs/msg/TFMessage``: one identity transform ``map`` -> ``world`` at the
@@ -47,8 +47,8 @@ import numpy as np
 
 from runtime.errors import SwarmInputError
 from runtime.recording.foxglove_scene import trajectory_configurations
-from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
 from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
 
 INSTALL_HINT = "pip install -e '.[ros2]'"
 DISTROS = {"humble": 5, "jazzy": 9}  # ROS 2 distribution -> the rosbag2 metadata version written for it
@@ -216,14 +216,14 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DE
                 continue
             if isinstance(msg, EstimateMessage):
                 write("/swarm/estimate", TOPICS["/swarm/estimate"], build.pose_array(msg.stamp_ns, msg.poses), log_time)
-                for robot, pose, cov in zip(msg.ids, msg.poses, msg.cov):
+                for robot, pose, cov in zip(msg.ids, msg.poses, msg.cov, strict=True):
                     write(ROBOT_TOPIC.format(robot), ROBOT_TYPE, build.pose_with_covariance(msg.stamp_ns, pose, cov), log_time)
                 write("/swarm/markers", TOPICS["/swarm/markers"],
-                      build.markers(msg.stamp_ns, "estimated", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses)}), log_time)
+                      build.markers(msg.stamp_ns, "estimated", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses, strict=True)}), log_time)
                 truth = truths.pop(msg.step, None)
                 if truth is not None:
-                    true = dict(zip(truth.ids, truth.poses))
-                    errors = [math.dist(p[:2], true[r][:2]) for r, p in zip(msg.ids, msg.poses) if r in true]
+                    true = dict(zip(truth.ids, truth.poses, strict=True))
+                    errors = [math.dist(p[:2], true[r][:2]) for r, p in zip(msg.ids, msg.poses, strict=True) if r in true]
                     if errors:
                         write("/swarm/localization_error", TOPICS["/swarm/localization_error"],
                               build.Float64(data=sum(errors) / len(errors)), log_time)
@@ -231,7 +231,7 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DE
                 truths = {msg.step: msg}  # the coordinator publishes a step's truth before its estimate
                 write("/swarm/truth", TOPICS["/swarm/truth"], build.pose_array(msg.stamp_ns, msg.poses), log_time)
                 write("/swarm/markers", TOPICS["/swarm/markers"],
-                      build.markers(msg.stamp_ns, "true", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses)}), log_time)
+                      build.markers(msg.stamp_ns, "true", {r: (p[0], p[1]) for r, p in zip(msg.ids, msg.poses, strict=True)}), log_time)
             elif isinstance(msg, PlanMessage):
                 write("/swarm/plan", TOPICS["/swarm/plan"], build.String(data=json.dumps(
                     {"step": msg.step, "config": msg.config, "n_anchors": msg.n_anchors, "groups": [list(g) for g in msg.groups]})),

@@ -60,6 +60,8 @@ def load_run_log(path: str | os.PathLike) -> RunLog:
             msg = decode(payload, kind, key=topic)
         except MessageError:
             continue
+        if not isinstance(msg, (MotionCommand, Status, ObservationReport, TruthMessage)):
+            continue  # (decode returned the kind asked for)
         key = (int(msg.robot), int(msg.step))
         ids.add(key[0])
         if isinstance(msg, MotionCommand):

@@ -21,14 +21,15 @@ import math
 import re
 import threading
 import time
-from collections.abc import Collection, Iterable, Iterator
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Collection, Iterable, Iterator
+from dataclasses import Field, dataclass, field, fields
 from typing import Any, ClassVar, TypeVar, overload
 
 import msgpack
 import numpy as np
 
 from runtime.errors import SwarmInputError
+from runtime.models.state import Observations, SwarmEstimate
 from runtime.wire.keys import (
     COORD_LEAVES,
     MAX_ROBOT_ID,
@@ -44,7 +45,6 @@ from runtime.wire.keys import (
     truth_key,
     truths_key,
 )
-from runtime.models.state import Observations, SwarmEstimate
 
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
 MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
@@ -199,10 +199,9 @@ def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]]
     return tuple(_convert(v, wire, f"{path}[{i}]", dims, depth + 1) for i, v in enumerate(value))
 
 
-@functools.cache
-def _fields(cls: type) -> tuple:
-    """``dataclasses.fields(cls)``, computed once per message type (it is on every hot path)."""
-    return fields(cls)
+# ``dataclasses.fields(cls)``, computed once per message type (it is on every hot path). Typed as a plain
+# callable: mypy does not see a dataclass type as hashable, which the cache requires.
+_fields: Callable[[type], tuple[Field, ...]] = functools.cache(fields)
 
 
 def _leaves(value: Any, path: str, depth: int) -> Iterator[tuple[str, Any]]:
@@ -377,7 +376,7 @@ class EstimateMessage(Message):
     def from_estimate(cls, estimate: SwarmEstimate, *, run: str, step: int, stamp_ns: int | None = None) -> EstimateMessage:
         """The message of ``estimate`` (stamped now unless ``stamp_ns`` is given)."""
         stamp = time.time_ns() if stamp_ns is None else stamp_ns
-        return cls(run=run, step=step, stamp_ns=stamp, ids=estimate.ids, poses=estimate.poses, cov=estimate.cov)
+        return cls(run=run, step=step, stamp_ns=stamp, ids=estimate.ids, poses=estimate.poses, cov=estimate.cov)  # type: ignore[arg-type]  # arrays: converted by __post_init__
 
     def to_estimate(self) -> SwarmEstimate:
         """The ``SwarmEstimate`` this message carries."""
@@ -626,7 +625,7 @@ def _unpack(data: Any, max_bytes: int = MAX_MESSAGE_BYTES) -> Any:
         return msgpack.unpackb(
             data, raw=False, max_str_len=MAX_MESSAGE_BYTES, max_bin_len=limit, max_ext_len=limit, max_array_len=MAX_ITEMS, max_map_len=64
         )
-    except Exception as e:  # msgpack raises several exception types for bad input; none may escape
+    except Exception as e:  # noqa: BLE001 - msgpack raises several exception types for bad input; none may escape
         raise MessageError("message", f"not valid msgpack ({type(e).__name__}: {_show(str(e))})", "undecodable") from None
 
 
@@ -762,7 +761,7 @@ class CommandLimits:
                 raise SwarmInputError(f"CommandLimits.workspace must be finite (x_min, y_min, x_max, y_max) with min < max, got {self.workspace!r}")
             object.__setattr__(self, "workspace", w)
 
-    def refusal(self, cmd: MotionCommand) -> str | None:
+    def refusal(self, cmd: MotionCommand | LinkRequest) -> str | None:
         """Why ``cmd`` must be refused, or None when it is within the limits.
 
         The workspace is checked from ``cmd.start_pose`` (the coordinator's estimate of the
@@ -833,8 +832,20 @@ class DropCounter:
         return out
 
 
+@overload
 def decode_or_drop(
-    data: bytes, counter: DropCounter, key: str, expected: type[M] | None = None, known_ids: Collection[int] | None = None
+    data: bytes, counter: DropCounter, key: str, expected: type[M], known_ids: Collection[int] | None = None
+) -> M | None: ...
+
+
+@overload
+def decode_or_drop(
+    data: bytes, counter: DropCounter, key: str, expected: None = None, known_ids: Collection[int] | None = None
+) -> Message | None: ...
+
+
+def decode_or_drop(
+    data: bytes, counter: DropCounter, key: str, expected: type[Message] | None = None, known_ids: Collection[int] | None = None
 ) -> Message | None:
     """``decode(data, expected, known_ids, key=key)``, or None after counting and logging the drop."""
     try:
