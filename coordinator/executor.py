@@ -20,10 +20,17 @@ made again without it. ``on_lost="abort"``, or fewer than ``min_robots`` left, e
 run with ``RunAborted`` instead. Metrics (e_l, following error, P_f) are over the robots
 that finished.
 
+Bodies (docs/bodies.md): with ``cfg.robot_radius_m`` > 0 every plan is checked before its
+first command under the nominal motion of its steps; a step whose movers would come too
+close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
+so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``).
+``RunResult.contacts`` finds where the true motion brought bodies into contact.
+
 An optional ``ExecutorListener`` is told what the executor decided, without changing
 what it does: ``on_estimate(0, initial)`` at the start, ``on_plan(c, first_step, plan,
 selection)`` when configuration ``c`` (0-based) is planned, before its first command,
-and ``on_estimate(step, estimate)`` after every step. Steps are numbered globally over
+``on_estimate(step, estimate)`` after every step and, with ground truth and bodies,
+``on_contacts(contacts)`` after a step in which true bodies touched. Steps are numbered globally over
 the run, motion steps from 1 (docs/protocol.md), so the first step of configuration c
 is 1 + the steps of all earlier configurations. A distributed backend uses it to
 publish plans and estimates and to stamp its commands with their configuration; the
@@ -40,12 +47,14 @@ import numpy as np
 
 from coordinator.backend import SwarmBackend
 from coordinator.checkpoint import RunState
+from coordinator.clearance import Regrouping, clear_plan
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
 from runtime.errors import LocalizationError, SwarmInputError
+from runtime.models.bodies import step_contacts
 from runtime.models.config import ModelConfig
 from runtime.models.metrics import localization_error, trajectory_following_performance
 from runtime.models.motion import command_towards
@@ -62,6 +71,20 @@ class StepRecord:
     estimate: SwarmEstimate
     truth: np.ndarray | None  # (n, 3)
     fallback: str | None  # why dead reckoning was kept, if it was
+    truth_ids: np.ndarray | None = None  # the robots of ``truth``'s rows (None: the trajectory's; fewer after a loss)
+
+
+@dataclass(frozen=True)
+class ContactEvent:
+    """Robots ``a`` < ``b`` touched during global step ``step`` (from 1) of configuration ``config`` (0-based):
+    their true centres came ``distance`` m apart, less than two radii, ``point`` (x, y) m midway between them."""
+
+    step: int
+    config: int
+    a: int
+    b: int
+    distance: float
+    point: tuple[float, float]
 
 
 @dataclass(frozen=True)
@@ -106,6 +129,7 @@ class ConfigRecord:
     estimate: SwarmEstimate
     truth: np.ndarray | None
     planned_ids: np.ndarray | None = None  # the robots the plan's indices refer to (None: ``estimate.ids``; differs after a loss)
+    regrouped: Regrouping | None = None  # how the body constraint split the strategy's plan (None: it was clear)
 
     def anchor_ids(self, step: int = 0) -> np.ndarray:
         """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
@@ -177,10 +201,41 @@ class RunResult:
         return float(trajectory_following_performance(truths[-1], self.desired_configurations()[-1], truths))
 
     def anchor_counts(self) -> np.ndarray:
-        return np.array([c.plan.n_anchors for c in self.configs])
+        """n_a of the strategy's plan of each configuration (before any split for bodies: the steps show that)."""
+        return np.array([(c.plan if c.regrouped is None else c.regrouped.planned).n_anchors for c in self.configs])
 
     def steps_per_config(self) -> np.ndarray:
         return np.array([c.plan.n_steps for c in self.configs])
+
+    def steps_added(self) -> int:
+        """Steps the body constraint added to the strategies' plans (Eq. 6-7 count the steps taken)."""
+        return int(sum(c.plan.n_steps - c.regrouped.planned_steps for c in self.configs if c.regrouped is not None))
+
+    def contacts(self, radius: float) -> list[ContactEvent]:
+        """Contacts of bodies of ``radius`` (m) in the true motion of every step (``runtime.models.bodies.step_contacts``):
+        each pair of robots whose bodies overlapped at some time of a step, once per step. [] without ground truth."""
+        if not self.has_truth or self.initial_truth is None or radius <= 0:
+            return []
+        before, before_ids, out = self.initial_truth, self.trajectory.ids, list[ContactEvent]()
+        for number, rec in enumerate(self.steps, start=1):
+            if rec.truth is None:
+                return out
+            out += contact_events(number, rec, before, before_ids, self.trajectory.ids, radius)
+            before, before_ids = rec.truth, self.trajectory.ids if rec.truth_ids is None else rec.truth_ids
+        return out
+
+
+def contact_events(number: int, rec: StepRecord, before: np.ndarray, before_ids: np.ndarray, ids: np.ndarray,
+                   radius: float) -> list[ContactEvent]:
+    """The contacts of global step ``number`` (record ``rec``) from the true poses ``before`` it (rows: ``before_ids``)
+    among the robots in both; ``ids``: the trajectory's robots (``rec.truth``'s rows unless it names them)."""
+    assert rec.truth is not None  # a step with ground truth
+    after_ids = ids if rec.truth_ids is None else rec.truth_ids
+    common = np.intersect1d(before_ids, after_ids)
+    start, end = before[index_of(before_ids, common, "truth")], rec.truth[index_of(after_ids, common, "truth")]
+    moving = np.isin(common, rec.estimate.ids[rec.moving])
+    return [ContactEvent(number, rec.config, int(common[c.a]), int(common[c.b]), c.distance, c.point)
+            for c in step_contacts(start, end, moving, radius)]
 
 
 class ExecutorListener(Protocol):
@@ -192,6 +247,10 @@ class ExecutorListener(Protocol):
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
         """The estimate after global step ``step`` (0: the initial estimate)."""
+        ...
+
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
+        """The robots' true bodies touched during the step just made (ground truth and a body radius only; not called otherwise)."""
         ...
 
 
@@ -245,16 +304,17 @@ class InchwormExecutor:
         if resume is None:
             result = self.result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
             self._executed, estimate, first, group, plan, planned_ids = 0, initial_estimate, 0, 0, None, None
+            regrouped: Regrouping | None = None
             if self.listener is not None:
                 self.listener.on_estimate(0, initial_estimate)
             self._checkpoint(result, 0, 0, estimate, None, None)
         else:
             result, estimate, first, group = resume.result, resume.estimate, resume.config, resume.group
-            plan, planned_ids = resume.plan, resume.planned_ids
+            plan, planned_ids, regrouped = resume.plan, resume.planned_ids, resume.regrouped
             self.result, self._executed = result, resume.step
             self._restore_strategy(trajectory.ids, estimate.ids, resume.selector_calls)
         try:
-            self._follow(result, trajectory, estimate, first, group, plan, planned_ids)
+            self._follow(result, trajectory, estimate, first, group, plan, planned_ids, regrouped)
         except RunAborted as exc:
             exc.result = result  # the configurations completed before the end
             raise
@@ -267,7 +327,7 @@ class InchwormExecutor:
         return result
 
     def _follow(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate, first: int, group: int,
-                plan: Plan | None, planned_ids: np.ndarray | None) -> None:
+                plan: Plan | None, planned_ids: np.ndarray | None, regrouped: Regrouping | None) -> None:
         """Configurations ``first``.. of ``trajectory`` (the first from group ``group`` of ``plan`` if given)."""
         total, selection = len(trajectory.configurations), None
         for c in range(first, total):
@@ -280,30 +340,31 @@ class InchwormExecutor:
                     estimate, keep = self._drop_lost(result, c, estimate)
                     if keep is None:
                         break
+                plan, regrouped = clear_plan(self.cfg, plan, estimate, desired)
                 if self.listener is not None:
                     self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
                 planned_ids, group = estimate.ids, 0
-                self._checkpoint(result, c, 0, estimate, plan, planned_ids)
+                self._checkpoint(result, c, 0, estimate, plan, planned_ids, regrouped)
             for k in range(group, len(plan.groups)):
                 estimate = self._drop_lost(result, c, estimate)[0]
                 assert planned_ids is not None  # set with the plan (and checkpointed with it)
                 moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                 if moving.any():  # a group whose robots were all lost is skipped
                     estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
-                self._checkpoint(result, c, k + 1, estimate, plan, planned_ids)
-            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids))
-            plan, selection = None, None
+                self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped)
+            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids, regrouped))
+            plan, selection, regrouped = None, None, None
             if self.progress:
                 self.progress(c + 1, total)
         self._checkpoint(result, total, 0, estimate, None, None, finished=True)
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
-                    planned_ids: np.ndarray | None, finished: bool = False) -> None:
+                    planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False) -> None:
         """Hand the run's state to ``on_checkpoint`` (after the start, each plan, each step and at the end)."""
         if self.on_checkpoint is not None:
             selector = getattr(self.strategy, "selector", None)
             self.on_checkpoint(RunState(self._executed, config, group, estimate, plan, planned_ids,
-                                        0 if selector is None else selector.calls, result, finished))
+                                        0 if selector is None else selector.calls, result, finished, regrouped))
 
     def _restore_strategy(self, all_ids: np.ndarray, ids: np.ndarray, selector_calls: int) -> None:
         """The strategy for the robots ``ids`` of the swarm ``all_ids``, its search's random stream at
@@ -390,9 +451,18 @@ class InchwormExecutor:
         if excluded:
             reasons = sorted(set(excluded.values()))
             fallback = f"dead reckoning kept for robots {sorted(excluded)} ({', '.join(reasons)})"
-        result.steps.append(StepRecord(config, step, cmd.moving, cmd.commands, new, self.backend.true_poses(), fallback))
+        last = result.steps[-1] if result.steps else None
+        before = result.initial_truth if last is None else last.truth
+        before_ids = trajectory.ids if last is None or last.truth_ids is None else last.truth_ids
+        truth = self.backend.true_poses()
+        truth_ids = None if truth is None or len(truth) == trajectory.n else np.array(self.backend.ids, dtype=np.int64)
+        result.steps.append(StepRecord(config, step, cmd.moving, cmd.commands, new, truth, fallback, truth_ids))
         if self.listener is not None:
             self.listener.on_estimate(len(result.steps), new)
+            if self.cfg.robot_radius_m > 0 and before is not None and truth is not None:
+                contacts = contact_events(len(result.steps), result.steps[-1], before, before_ids, trajectory.ids, self.cfg.robot_radius_m)
+                if contacts:
+                    self.listener.on_contacts(contacts)
         return new
 
 

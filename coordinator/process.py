@@ -60,8 +60,10 @@ from runtime.wire.keys import run_wildcard, validate_run
 
 if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
     from coordinator.checkpoint import RunState
-    from coordinator.executor import RunResult
-    from coordinator.selection.selector import SelectionConfig
+    from coordinator.executor import ContactEvent, ExecutorListener, RunResult
+    from coordinator.plan import Plan
+    from coordinator.selection.selector import Selection, SelectionConfig
+    from runtime.models.state import SwarmEstimate
     from runtime.recording.foxglove_live import LiveView
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
@@ -243,17 +245,21 @@ class Recording:
 
 
 class _Checked:
-    """The executor's listener (the backend), followed by ``check()`` after every plan and estimate."""
+    """The executor's listener (the backend), followed by ``check()`` after every plan, estimate and contact report."""
 
-    def __init__(self, listener, check) -> None:
+    def __init__(self, listener: ExecutorListener, check: Callable[[], None]) -> None:
         self.listener, self.check = listener, check
 
-    def on_plan(self, *args) -> None:
-        self.listener.on_plan(*args)
+    def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
+        self.listener.on_plan(config_index, first_step, plan, selection)
         self.check()
 
-    def on_estimate(self, *args) -> None:
-        self.listener.on_estimate(*args)
+    def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
+        self.listener.on_estimate(step, estimate)
+        self.check()
+
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
+        self.listener.on_contacts(contacts)
         self.check()
 
 
@@ -297,7 +303,7 @@ def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = 
     from runtime.recording.foxglove_live import LiveView  # noqa: PLC0415 - foxglove-sdk only with a live view
     from runtime.wire.transport import subscribe  # noqa: PLC0415
 
-    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json())
+    view = LiveView(o.foxglove_port, trajectory=o.trajectory.to_json(), robot_radius=o.model.robot_radius_m)
     live = Live(view)
     subscriber = subscribe(session, run_wildcard(o.run_id), view.handle)
     log(f"live view for the Foxglove app at {view.url}")
@@ -342,12 +348,14 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         conflict_message,
         live_coordinators,
     )
+    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
     traj, cfg = o.trajectory, o.model
     selection = o.selection or SelectionConfig()
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
@@ -383,7 +391,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             parent, state = taken if taken is not None else (0, None)
             try:
                 backend = ZenohSwarmBackend(session, o.run_id, traj.ids.tolist(), Timeouts(o.start_timeout_s, o.step_timeout_s),
-                                            simulated=o.truth, parent=parent, rejoin=o.rejoin)
+                                            simulated=o.truth, parent=parent, rejoin=o.rejoin,
+                                            robot_radius_m=cfg.robot_radius_m)
             except CoordinatorConflict as exc:
                 completed = True  # not ours to stop
                 return CoordinatorOutcome(None, None, live, exc)

@@ -10,7 +10,7 @@ decode are counted and left out, channels outside ``swarm/`` (derived views such
 
 * the initial estimate (step 0) from the seed and the trajectory, when the metadata has them,
 * the anchor selection of every configuration (``make_strategy(method, n, cfg, localizer,
-  selection, seed).plan(estimate before the configuration, desired)``; the strategy is seeded
+  selection, seed).plan(estimate before the configuration, desired)`` through ``clear_plan`` (bodies); the strategy is seeded
   and stateful, so plans are re-run in order and stop at the first one whose input is missing),
 * every step's localization: ``localize_observable(make_localizer(localizer, cfg), estimate of
   step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``,
@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from coordinator.clearance import clear_plan
 from coordinator.executor import ConfigRecord, RunResult, StepRecord
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import localize_observable
@@ -136,6 +137,7 @@ def recorded_model(rec: RecordedRun, overrides: dict[str, float] | None = None) 
     """The run's ``ModelConfig`` from the metadata (defaults where absent), fields in ``overrides`` replaced."""
     stored = rec.meta.get("model") or {}
     values = {k: float(v) for k, v in stored.items() if k in MODEL_FIELDS} if isinstance(stored, dict) else {}
+    values.setdefault("robot_radius_m", 0.0)  # recorded before bodies: point robots
     values.update(overrides or {})
     return ModelConfig(**values)
 
@@ -289,7 +291,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                                       f"of step {step - 1} is not in the recording)")
                 plans_ok = False
             else:
-                plan, _ = strategy.plan(before.to_estimate(), traj.configurations[plan_msg.config - 1])
+                estimate, desired = before.to_estimate(), traj.configurations[plan_msg.config - 1]
+                plan, _ = clear_plan(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
                 groups = _plan_groups(plan, ids)
                 if groups != plan_msg.groups:
                     result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "groups",

@@ -18,6 +18,7 @@ from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.selection.selector import SelectionConfig
 from coordinator.strategies import make_strategy
+from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import SwarmEstimate
@@ -49,6 +50,7 @@ def simulate(
     """Run ``method`` along ``traj`` in the in-process simulator. ``localizer``: a registered name
     (``registry.localizer_names``) or a localizer object; the executor and the anchor selection use the same one."""
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
     backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed)
     strategy = make_strategy(method, traj.n, cfg, loc, selection, seed)

@@ -60,6 +60,7 @@ from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
     Checkpoint,
+    ContactMessage,
     DropCounter,
     EmergencyStop,
     EstimateMessage,
@@ -127,7 +128,7 @@ class ZenohSwarmBackend:
     """``SwarmBackend`` of the agents of run ``run`` with robots ``ids``, over ``session``."""
 
     def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
-                 parent: int = 0, rejoin: bool = True) -> None:
+                 parent: int = 0, rejoin: bool = True, robot_radius_m: float = 0.0) -> None:
         live = live_coordinators(session, run)
         if live:
             raise CoordinatorConflict(conflict_message(run, live))
@@ -136,6 +137,7 @@ class ZenohSwarmBackend:
         self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.session = session
+        self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
         self.ids = np.array(sorted(int(i) for i in ids), dtype=np.int64)  # robots still in the run
         self._id_list = self.ids.tolist()
@@ -495,6 +497,13 @@ class ZenohSwarmBackend:
         msg = EstimateMessage.from_estimate(estimate, run=self.run, step=step)
         publish(self.session, message_key(msg), encode(msg))
         self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses, strict=True)}
+
+    def on_contacts(self, contacts) -> None:
+        """Publish each contact of the robots' true bodies (``ContactEvent``) as ``ContactMessage``."""
+        for c in contacts:
+            msg = ContactMessage(run=self.run, step=c.step, config=c.config + 1, a=c.a, b=c.b, distance_m=c.distance,
+                                 radius_m=self.radius, point=c.point)
+            publish(self.session, message_key(msg), encode(msg))
 
     def true_poses(self) -> np.ndarray | None:
         if not self.simulated or not self._id_set <= self._truth.keys():

@@ -28,6 +28,7 @@ from inchworm.seeding import paired_trajectory, run_seed
 from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.models.trajectory import body_spacing
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -64,9 +65,10 @@ def run_one(task: RunTask) -> Row:
     / distance travelled, %) and CPU seconds of one run."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
-    traj = paired_trajectory(task.robots, task.configs, task.seed, task.t, task.model.sensing_range_m)
+    traj = paired_trajectory(task.robots, task.configs, task.seed, task.t, task.model.sensing_range_m, **body_spacing(task.model))
     cpu = time.process_time()
     result = simulate(traj, task.method, task.model, localizer=task.localizer, selection=task.selection, seed=run_seed(task.seed, task.t))
+    contacts = result.contacts(task.model.robot_radius_m)
     e_l_final = float(result.localization_errors()[-1])
     return {
         **dict(task.tags),
@@ -80,6 +82,10 @@ def run_one(task: RunTask) -> Row:
         "drift_pct": 100.0 * e_l_final / float(result.travelled()[-1]),
         "n_a_by_config": [int(k) for k in result.anchor_counts()],
         "fallback_steps": sum(1 for s in result.steps if s.fallback),
+        "contacts": len(contacts),
+        "configs_with_contact": len({c.config for c in contacts}),
+        "configs_run": len(result.configs),
+        "steps_added": result.steps_added(),
     }
 
 
@@ -122,6 +128,15 @@ class CompareOptions:
                 for t in range(self.trajectories) for m, label, sel in self.variants()]
 
 
+def contact_stats(rows: list[Row]) -> dict[str, float]:
+    """Contacts of the robots' true bodies over ``rows`` (``run_one``'s, docs/bodies.md): per 100 configuration changes,
+    the percentage of changes with a contact, and the steps the body constraint added per configuration change."""
+    changes = max(sum(r.get("configs_run", 0) for r in rows), 1)  # rows kept before bodies have none of these keys
+    return {"contacts_per_100": 100.0 * sum(r.get("contacts", 0) for r in rows) / changes,
+            "configs_with_contact_pct": 100.0 * sum(r.get("configs_with_contact", 0) for r in rows) / changes,
+            "steps_added_per_config": sum(r.get("steps_added", 0) for r in rows) / changes}
+
+
 def anchors_along(rows: list[Row]) -> list[float]:
     """Mean n_a at each configuration index (1, 2, ...) over the runs that reached it."""
     longest = max((len(r["n_a_by_config"]) for r in rows), default=0)
@@ -144,6 +159,7 @@ def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
             "drift_pct_mean": float(np.mean([r["drift_pct"] for r in by[m]])),
             "na_by_config": anchors_along(by[m]),
             "runs": len(pf),
+            **contact_stats(by[m]),
         }
     if REFERENCE in by:
         ref = np.array([r["pf"] for r in by[REFERENCE]])
@@ -166,11 +182,13 @@ class CompareResult:
 
     def report(self) -> str:
         """The table of ``swarm compare``."""
-        lines = [f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'drift %':>8} {'CPU s':>6} {'p vs ref57':>11}"]
+        lines = [f"{'method':<27} {'P_f mean':>9} {'std':>8} {'97% CI':>19} {'n_a':>5} {'steps':>6} {'drift %':>8} {'CPU s':>6} {'p vs ref57':>11} "
+                 f"{'contacts/100':>12}"]
         for m, s in self.summary["methods"].items():
             p = self.summary["p_values"].get(m)
             lines.append(f"{m:<27} {s['pf_mean']:>9.4f} {s['pf_std']:>8.4f} [{s['pf_ci97'][0]:.4f}, {s['pf_ci97'][1]:.4f}] {s['na_mean']:>5.2f} "
-                         f"{s['steps_mean']:>6.2f} {s['drift_pct_mean']:>8.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11}")
+                         f"{s['steps_mean']:>6.2f} {s['drift_pct_mean']:>8.2f} {s['cpu_s_mean']:>6.1f} {('-' if p is None else f'{p:.3g}'):>11} "
+                         f"{s['contacts_per_100']:>12.2f}")
         for m, s in self.summary["methods"].items():
             lines.append(f"n_a along the trajectory, {m}: {' '.join(f'{v:.1f}' for v in s['na_by_config'])}")
         lines.append("drift %: final e_l (true vs estimated, m) / distance travelled (m bar, Eq. 25) x 100")

@@ -104,15 +104,17 @@ ROBOTS_PER_PORT = 5
 GATEWAY_READY_S = 20.0  # s the robot emulator gets to open its ptys
 
 
-def default_gateway(traj: Trajectory, margin_m: float = 1.0) -> GatewayConfig:
+def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float = Limits().robot_radius_m) -> GatewayConfig:
     """Ports ``radio0``, ``radio1``, ... of ``ROBOTS_PER_PORT`` robots each; the workspace is the
-    trajectory's bounding box grown by ``margin_m``; devices are filled in by the emulator."""
+    trajectory's bounding box grown by ``margin_m``; the robots' body radius ``robot_radius`` (m);
+    devices are filled in by the emulator."""
     ids = [int(i) for i in traj.ids]
     ports = tuple(Port(f"radio{k}", "emulated", tuple(ids[i:i + ROBOTS_PER_PORT]))
                   for k, i in enumerate(range(0, len(ids), ROBOTS_PER_PORT)))
     xy = np.concatenate([traj.initial_poses[:, :2], *traj.configurations])
     lo, hi = xy.min(axis=0) - margin_m, xy.max(axis=0) + margin_m
-    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1])))
+    return GatewayConfig(ports, limits=Limits(max_drive_m=CommandLimits().max_drive_m, workspace=(lo[0], lo[1], hi[0], hi[1]),
+                                              robot_radius_m=robot_radius))
 
 
 def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],

@@ -24,6 +24,9 @@ def run_seed(seed: int, t: int) -> int:
     return seed + t
 
 
-def paired_trajectory(robots: int, configs: int, seed: int, t: int, sensing_range_m: float) -> Trajectory:
-    """Trajectory ``t`` of the study: ``robots`` robots, ``configs`` random configurations (connected at ``sensing_range_m``)."""
-    return random_trajectory(robots, configs, trajectory_rng(seed, t), sensing_range=sensing_range_m)
+def paired_trajectory(robots: int, configs: int, seed: int, t: int, sensing_range_m: float, robot_radius: float = 0.0,
+                      motion_sigma: float = 0.0) -> Trajectory:
+    """Trajectory ``t`` of the study: ``robots`` robots, ``configs`` random configurations (connected at ``sensing_range_m``;
+    bodies kept apart as ``random_trajectory`` does, ``runtime.models.trajectory.body_spacing``)."""
+    return random_trajectory(robots, configs, trajectory_rng(seed, t), sensing_range=sensing_range_m, robot_radius=robot_radius,
+                             motion_sigma=motion_sigma)

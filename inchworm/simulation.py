@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, random_trajectory
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 
 if TYPE_CHECKING:
     from coordinator.executor import RunResult, StepRecord
@@ -46,12 +46,14 @@ def simulate(
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
     strategy = make_strategy(method, traj.n, cfg, loc, selection or SelectionConfig(), seed) if isinstance(method, str) else method
     executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress)
@@ -61,16 +63,18 @@ def simulate(
 def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
     """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
     if trajectory is None:
-        return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m)
+        return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))
     return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(Path(trajectory))
 
 
 def config_rows(result: RunResult) -> list[dict[str, Any]]:
-    """Per configuration: n_a, steps, e_l (m), following error (m), average distance travelled (m); empty without truth."""
+    """Per configuration: n_a (of the strategy's plan), steps taken, e_l (m), following error (m), average distance
+    travelled (m); empty without truth."""
     if not result.has_truth:
         return []
     e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
-    return [{"config": c + 1, "n_a": rec.plan.n_anchors, "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+    anchors = result.anchor_counts()
+    return [{"config": c + 1, "n_a": int(anchors[c]), "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
              "following_error": float(follow[c]), "travelled": float(travelled[c])} for c, rec in enumerate(result.configs)]
 
 
@@ -80,17 +84,19 @@ def fallback_steps(result: RunResult) -> list[StepRecord]:
 
 
 def config_table(result: RunResult) -> str:
-    """The per-configuration table (e_l and following error in mm), the steps that kept dead reckoning, and per
-    configuration who stood still and why that many (``anchor_choices``)."""
+    """The per-configuration table (e_l and following error in mm), a line for each plan the body constraint
+    regrouped, the steps that kept dead reckoning, and per configuration who stood still and why that many
+    (``anchor_choices``)."""
     lines = [f"{'config':>6} {'n_a':>4} {'steps':>5} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
-    rows = config_rows(result)
+    rows, anchors = config_rows(result), result.anchor_counts()
     for c, rec in enumerate(result.configs):
         if rows:
             r = rows[c]
             lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} "
                          f"{r['travelled']:>13.3f}")
         else:
-            lines.append(f"{c + 1:>6} {rec.plan.n_anchors:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+            lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+    lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
     return "\n".join([*lines, *anchor_choices(result)])
 
@@ -110,9 +116,9 @@ def anchor_choices(result: RunResult) -> list[str]:
     e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``."""
     lines = []
     for c in result.configs:
-        plan = c.plan
-        still = "; ".join(f"step {k + 1}: {_robots(sorted(c.anchor_ids(k).tolist()))}" for k in range(plan.n_steps))
-        who = "no anchors, every robot moved at once" if plan.n_anchors == 0 else f"stood still {still}"
+        plan = c.plan if c.regrouped is None else c.regrouped.planned  # the strategy's (the steps taken: ``c.plan``)
+        still = "; ".join(f"step {k + 1}: {_robots(sorted(c.anchor_ids(k).tolist()))}" for k in range(c.plan.n_steps))
+        who = "no anchors, every robot moved at once" if c.plan.n_anchors == 0 else f"stood still {still}"
         lines.append(f"config {c.config + 1}: n_a = {plan.n_anchors} ({who})")
         if c.selection is None or len(c.selection.scores) < 2:
             continue
@@ -121,7 +127,8 @@ def anchor_choices(result: RunResult) -> list[str]:
             mark = "*" if s.n_anchors == plan.n_anchors else " "
             steps = round(1 / s.p_v) if s.p_v > 0 else 0
             if s.plan is None:
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {'no plan keeps the swarm connected':>30}")
+                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
+                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {why:>30}")
             else:
                 lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
     if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
@@ -130,9 +137,31 @@ def anchor_choices(result: RunResult) -> list[str]:
     return lines
 
 
-def summary_text(result: RunResult, method: str, localizer: str) -> str:
-    """The table of a distributed run, the robots it lost and its P_f (over the robots that finished)."""
+def contacts_text(result: RunResult, radius: float) -> str:
+    """The contacts of the robots' true bodies of ``radius`` (m) and the steps added for bodies ("" for point robots)."""
+    if radius <= 0 or not result.has_truth:
+        return ""
+    contacts = result.contacts(radius)
+    closest = f", closest {min(c.distance for c in contacts) * 1e3:.1f} mm" if contacts else ""
+    lines = [f"contacts (bodies of radius {radius:g} m): {len(contacts)}{closest}; steps added for bodies: {result.steps_added()}"]
+    lines += [f"  step {c.step} (config {c.config + 1}): robots {c.a} and {c.b}, centres {c.distance * 1e3:.1f} mm apart" for c in contacts]
+    return "\n".join(lines)
+
+
+def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
+    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added`` and ``contacts``
+    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``)."""
+    return {"robot_radius_m": radius, "steps_added": result.steps_added(),
+            "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
+                         for c in result.contacts(radius)]}
+
+
+def summary_text(result: RunResult, method: str, localizer: str, radius: float = 0.0) -> str:
+    """The table of a distributed run, its contacts (bodies of ``radius`` m), the robots it lost and its P_f
+    (over the robots that finished)."""
     lines = [config_table(result)]
+    if contacts_text(result, radius):
+        lines.append(contacts_text(result, radius))
     lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
     lines += [f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on" for back in result.rejoined]
     pf = result.pf() if result.has_truth and result.configs else None

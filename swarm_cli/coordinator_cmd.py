@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.process import CoordinatorOptions, default_recording, recording_line, result_json, run_coordinator, say  # noqa: PLC0415
     from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
     from inchworm.plots import write_run_plots  # noqa: PLC0415
-    from inchworm.simulation import config_rows, fallback_steps, summary_text  # noqa: PLC0415
+    from inchworm.simulation import config_rows, contacts_json, fallback_steps, summary_text  # noqa: PLC0415
 
     options = CoordinatorOptions(
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
@@ -133,7 +133,8 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             failed = True
             print(f"swarm coordinator: error: cannot write the plots to {args.out}: {exc.strerror or exc}", file=sys.stderr, flush=True)
-    print(summary_text(result, args.method, args.localizer))
+    radius = options.model.robot_radius_m
+    print(summary_text(result, args.method, args.localizer, radius))
     if plots:
         print(f"wrote {', '.join(plots)}")
     if outcome.recording:
@@ -145,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": pf, "configs": config_rows(result),
                     "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
                     "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots or [],
-                    "recording": outcome.recording["path"] if outcome.recording else None})
+                    "recording": outcome.recording["path"] if outcome.recording else None, **contacts_json(result, radius)})
     outcome.live.linger(args.linger)
     return EXIT_OUTPUT if failed and status == 0 else status
 

@@ -93,7 +93,8 @@ from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from runtime.models.bodies import validate_passable
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
@@ -103,7 +104,7 @@ from swarm_cli.options import add_simulation_options, check_swarm_size, model_co
 from swarm_cli.run_file import published_run
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
-MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout")
+MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
 COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "mc_start", "mc_emax", "on_lost", "min_robots", "rejoin",
                  "on_record_error")
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
@@ -255,6 +256,7 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
     except SwarmInputError as exc:
         raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
     validate_connected(traj, cfg.sensing_range_m)
+    validate_passable(traj, cfg)
     make_strategy(args.method, traj.n, cfg, make_localizer(args.localizer, cfg), selection_config(args), args.seed)
     if not args.no_record:
         record = Path(args.record or default_recording(run_id))
@@ -270,7 +272,10 @@ def check_before_start(args: argparse.Namespace, traj: Trajectory, cfg, run_id: 
             except OSError as exc:
                 raise SwarmInputError(f"--foxglove {args.foxglove}: cannot serve on 127.0.0.1:{args.foxglove}: {exc.strerror or exc}") from None
     if args.driver == "gateway" and args.gateway_config:
-        GatewayConfig.load(args.gateway_config)
+        radius = GatewayConfig.load(args.gateway_config).limits.robot_radius_m
+        if radius != cfg.robot_radius_m:
+            raise SwarmInputError(f"--robot-radius {cfg.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
+                                  f"in {args.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
     if args.driver not in BUILT_IN:
         driver_class(args.driver)
         driver_options(args.driver_option)
@@ -293,7 +298,7 @@ def run(args: argparse.Namespace) -> int:
         if args.robots < 2 or args.configs < 1:
             raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
         seed = 0 if args.command == "demo" else args.seed
-        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m)
+        traj = random_trajectory(args.robots, args.configs, np.random.default_rng(seed), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     if not 2 <= args.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {args.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, args.agents_per_process)
@@ -345,7 +350,7 @@ def run(args: argparse.Namespace) -> int:
                 if args.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={args.command_timeout!r}")
             if args.driver == "gateway":
-                gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj)
+                gateway = GatewayConfig.load(args.gateway_config) if args.gateway_config else default_gateway(traj, robot_radius=cfg.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")

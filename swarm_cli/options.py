@@ -124,6 +124,9 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--bearing-sigma-deg", type=nonnegative, default=None, help="bearing noise std in degrees (default 2)")
     g.add_argument("--sensing-range", type=positive, default=None, help="sensing range in m (default 0.5)")
     g.add_argument("--dropout", type=probability, default=None, help="probability an observation is lost, in [0, 1) (default 0)")
+    g.add_argument("--robot-radius", type=nonnegative, default=None,
+                   help="robot body radius in m: plans keep bodies apart, runs count contacts; 0 = the paper's point robots "
+                        "(default 0.011, docs/bodies.md)")
 
 
 MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
@@ -133,6 +136,7 @@ MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
     "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, "--bearing-sigma-deg"),
     "sensing_range": ("sensing_range_m", float, "--sensing-range"),
     "dropout": ("dropout_prob", float, "--dropout"),
+    "robot_radius": ("robot_radius_m", float, "--robot-radius"),
 }
 
 

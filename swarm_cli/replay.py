@@ -57,6 +57,7 @@ MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
     "bearing_sigma_deg": ("bearing_sigma_rad", math.radians),
     "sensing_range": ("sensing_range_m", float),
     "dropout": ("dropout_prob", float),
+    "robot_radius": ("robot_radius_m", float),
 }
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 

@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from inchworm import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
     from inchworm.plots import write_run_plots  # noqa: PLC0415
     from inchworm.runner import write_rows  # noqa: PLC0415
-    from inchworm.simulation import config_rows, config_table, fallback_steps, resolve_trajectory  # noqa: PLC0415
+    from inchworm.simulation import config_rows, config_table, contacts_json, contacts_text, fallback_steps, resolve_trajectory  # noqa: PLC0415
 
     cfg, selection = model_config(args), selection_config(args)
     if args.trajectory is None and args.robots >= LARGE:
@@ -58,10 +58,13 @@ def run(args: argparse.Namespace) -> int:
     plots = write_run_plots(result, args.out, compared)
     rows = config_rows(result)
     print(config_table(result))
+    if contacts_text(result, cfg.robot_radius_m):
+        print(contacts_text(result, cfg.robot_radius_m))
     write_rows(args.out / "configs.csv", rows)
     print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
                     "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows,
-                    "fallback_steps": len(fallback_steps(result)), "plots": plots})
+                    "fallback_steps": len(fallback_steps(result)), "plots": plots,
+                    **contacts_json(result, cfg.robot_radius_m)})
     return 0

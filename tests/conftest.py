@@ -30,6 +30,7 @@ SLOW_MODULES = frozenset({
     "test_bench_runtime",  # swarm bench runtime: agent processes
     "test_cli_localize",  # swarm localize as subprocesses
     "test_cli_sim",  # swarm sim / compare as subprocesses
+    "test_cli_bodies",  # swarm sim / bench collisions as subprocesses
     "test_deploy",  # routers, TLS, access control
     "test_distributed",  # agents + coordinator processes
     "test_one_master",  # coordinators, standbys, agents and replays as processes

@@ -1,5 +1,6 @@
 """Checkpoints: the executor's state round-trips exactly, and a run resumed from any checkpoint by a new executor
-(another coordinator) on the same robots ends exactly as the uninterrupted run (in-process simulated swarm)."""
+(another coordinator) on the same robots ends exactly as the uninterrupted run (in-process simulated swarm), with
+the same steps split for bodies (every method here splits some) and the same contacts."""
 
 from __future__ import annotations
 
@@ -30,6 +31,12 @@ def _executor(backend, traj, method: str, seed: int, on_checkpoint) -> InchwormE
     localizer = make_localizer("paper", CFG)
     strategy = make_strategy(method, traj.n, CFG, localizer, FAST, seed)
     return InchwormExecutor(backend, localizer, strategy, CFG, on_checkpoint=on_checkpoint)
+
+
+def _split(record) -> tuple | None:
+    """How the body constraint split a configuration's plan: the strategy's plan, robots left unclear, margin."""
+    r = record.regrouped
+    return None if r is None else (r.planned.order.tolist(), r.planned.sizes, r.unclear, r.sigmas)
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +71,10 @@ def test_a_run_resumed_from_every_checkpoint_ends_bit_for_bit_as_the_uninterrupt
             np.testing.assert_array_equal(a.estimate.cov, b.estimate.cov)
             np.testing.assert_array_equal(a.truth, b.truth)
         assert [c.plan.sizes for c in resumed.configs] == [c.plan.sizes for c in clean.configs]
+        assert [_split(c) for c in resumed.configs] == [_split(c) for c in clean.configs]
+        assert resumed.steps_added() == clean.steps_added() > 0
+        assert resumed.contacts(CFG.robot_radius_m) == clean.contacts(CFG.robot_radius_m)
+        np.testing.assert_array_equal(resumed.anchor_counts(), clean.anchor_counts())
 
 
 def test_an_unreadable_state_is_a_clear_error(traj):

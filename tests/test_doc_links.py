@@ -16,9 +16,6 @@ REPO = Path(__file__).resolve().parent.parent
 PAGES = sorted([REPO / "README.md", *(REPO / "docs").glob("*.md")])
 LINK = re.compile(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)")
 MENTION = re.compile(r"(?<![\w/.-])((?:docs|deploy|recordings)/[\w./-]+\.md)\b")
-# Pages the README links to that are written alongside it and may not have landed yet; each is checked
-# like any other link as soon as it exists.
-PENDING = frozenset({"docs/bodies.md"})
 
 
 def anchors(page: Path) -> set[str]:
@@ -46,8 +43,6 @@ def targets(page: Path) -> list[tuple[str, str]]:
 def test_every_relative_link_and_page_mention_resolves(page: Path) -> None:
     broken = []
     for path, fragment in targets(page):
-        if path in PENDING and not (REPO / path).exists():
-            continue
         file = REPO / path
         if not file.exists():
             broken.append(f"{path} (no such file)")

@@ -16,6 +16,8 @@ from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import Observations
 from runtime.models.trajectory import random_trajectory
 
+POINTS = ModelConfig(robot_radius_m=0.0)  # the paper's point robots: these tests pin its selection and execution maths (bodies: tests/test_bodies.py)
+
 FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
 
 
@@ -25,8 +27,8 @@ def traj():
 
 
 def test_end_to_end_is_bounded_and_bit_for_bit_reproducible(traj):
-    a = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=3)
-    b = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=3)
+    a = simulate(traj, "inchworm", POINTS, selection=FAST, seed=3)
+    b = simulate(traj, "inchworm", POINTS, selection=FAST, seed=3)
     assert len(a.configs) == 3
     # e_l (Eq. 8) and P_f (Eq. 24, 25) from the recorded truths and estimates, written out here
     truths = np.array([a.initial_truth[:, :2], *[c.truth[:, :2] for c in a.configs]])
@@ -39,7 +41,7 @@ def test_end_to_end_is_bounded_and_bit_for_bit_reproducible(traj):
         np.testing.assert_array_equal(sa.estimate.poses, sb.estimate.poses)
         np.testing.assert_array_equal(sa.truth, sb.truth)
     assert a.pf() == b.pf()
-    c = simulate(traj, "inchworm", ModelConfig(), selection=FAST, seed=4)
+    c = simulate(traj, "inchworm", POINTS, selection=FAST, seed=4)
     assert c.pf() != a.pf()
 
 
@@ -66,7 +68,7 @@ def test_noise_free_run_reaches_every_configuration_exactly(traj, method):
     [("ref57", 3, 2), ("no-anchors", 0, 1), ("one-at-a-time", 5, 6), ("heuristic-fixed", 3, 2), ("inchworm-equal-speed", 3, 2)],
 )
 def test_baselines_have_their_speed(traj, method, n_a, steps):
-    run = simulate(traj, method, ModelConfig(), selection=FAST, seed=1)
+    run = simulate(traj, method, POINTS, selection=FAST, seed=1)
     assert run.anchor_counts().tolist() == [n_a] * 3
     assert run.steps_per_config().tolist() == [steps] * 3
     assert len(run.steps) == 3 * steps
@@ -78,7 +80,7 @@ def test_baselines_have_their_speed(traj, method, n_a, steps):
 
 
 def test_ref57_halves_are_fixed_for_the_whole_run(traj):
-    run = simulate(traj, "ref57", ModelConfig(), seed=2)
+    run = simulate(traj, "ref57", POINTS, seed=2)
     keys = {c.plan.key() for c in run.configs}
     assert len(keys) == 1
 
@@ -91,7 +93,7 @@ class BlindSwarm(SimulatedSwarm):
 
 
 def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
-    cfg = ModelConfig()
+    cfg = POINTS
     backend = BlindSwarm(traj.ids, traj.initial_poses, cfg, seed=0)
     strategy = make_strategy("ref57", traj.n, cfg, make_localizer("paper", cfg), FAST, seed=0)
     run = InchwormExecutor(backend, make_localizer("paper", cfg), strategy, cfg).run(traj, initial_estimate(traj, 0, 0.01, 0.03))
@@ -101,7 +103,7 @@ def test_localization_failure_keeps_dead_reckoning_and_says_why(traj):
 def test_equal_speed_keeps_its_anchor_count_when_no_plan_keeps_connectivity():
     from runtime.models.state import SwarmEstimate
 
-    strategy = make_strategy("inchworm-equal-speed", 4, ModelConfig(), make_localizer("paper", ModelConfig()), FAST, seed=0)
+    strategy = make_strategy("inchworm-equal-speed", 4, POINTS, make_localizer("paper", POINTS), FAST, seed=0)
     estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.45, 0, 0], [0.9, 0, 0], [1.35, 0, 0]], float), 0.01, 0.02)
     desired = np.array([[0, 0.1], [0.45, 0.1], [0.9, 0.1], [1.35, 0.1]]) + [[0, 0], [0.4, 0.0], [0.8, 0], [1.2, 0]]
     plan, selection = strategy.plan(estimate, desired)
@@ -120,7 +122,7 @@ class Recorder:
 
 
 def test_listener_sees_plans_and_estimates_with_global_steps_and_changes_nothing(traj):
-    cfg = ModelConfig()
+    cfg = POINTS
 
     def run(listener):
         backend = SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed=5)

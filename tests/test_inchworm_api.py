@@ -88,13 +88,14 @@ def test_rows_do_not_depend_on_the_workers_or_their_order():
 
 
 def test_compare_pairs_the_methods_on_seed_plus_t():
-    """Trajectory t is drawn from [seed, t] and every method runs it with the seed seed + t."""
+    """Trajectory t is drawn from [seed, t] (keeping the model's bodies apart) and every method runs it with the seed seed + t."""
     from coordinator.simulate import simulate
     from inchworm.seeding import paired_trajectory
+    from runtime.models.trajectory import body_spacing
 
     result = inchworm.compare(SMALL, executor=SerialExecutor())
     row = next(r for r in result.rows if r["trajectory"] == 2 and r["method"] == "ref57")
-    traj = paired_trajectory(6, 2, 0, 2, ModelConfig().sensing_range_m)
+    traj = paired_trajectory(6, 2, 0, 2, ModelConfig().sensing_range_m, **body_spacing(ModelConfig()))
     assert row["pf"] == simulate(traj, "ref57", ModelConfig(), seed=2).pf()
     doc = result.to_json()
     assert list(doc) == ["methods", "p_values"] and set(doc["p_values"]) == {"no-anchors", "heuristic-fixed"}

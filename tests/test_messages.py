@@ -38,6 +38,7 @@ from runtime.wire.messages import (
     MAX_ITEMS,
     MESSAGE_TYPES,
     CommandLimits,
+    ContactMessage,
     DropCounter,
     EmergencyStop,
     EstimateMessage,
@@ -94,6 +95,7 @@ def samples() -> list[Message]:
         EmergencyStop(**head, source="swarm estop", reason="operator pressed stop", robots=[4]),
         EstopAck(**head, stop_stamp_ns=STAMP - 1, by="link", name="radio0", robots=[1, 3]),
         RobotEvent(**head, robot=4, kind="lost", reason="liveliness token gone"),
+        ContactMessage(**head, config=2, a=3, b=4, distance_m=0.0185, radius_m=0.011, point=[0.25, -0.5]),
     ]
 
 
@@ -569,8 +571,10 @@ def test_message_keys_and_key_checked_decoding():
         "EmergencyStop": "estop",
         "EstopAck": "ack",
         "RobotEvent": "event",
+        "ContactMessage": "contact",
     }
     assert message_key(SAMPLES["EstopAck"]) == estop_ack_key("r1") == "swarm/r1/estop/ack"
+    assert message_key(SAMPLES["ContactMessage"]) == "swarm/r1/sim/contact"
     assert message_key(SAMPLES["RobotEvent"]) == "swarm/r1/coord/event"
     assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
     assert message_key(SAMPLES["EmergencyStop"]) == "swarm/r1/estop"

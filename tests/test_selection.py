@@ -25,7 +25,7 @@ def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:
 
 def test_batch_evaluation_uses_common_random_numbers():
     estimate, desired = step_problem(6, 1)
-    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 6, seed=11)
+    mc = MonteCarlo(POINTS, make_localizer("paper", POINTS), 6, seed=11)
     plans = enumerate_plans(6, 3)[:5]
     together = mc.localization_errors(estimate, desired, plans)
     alone = np.array([mc.localization_errors(estimate, desired, [p])[0] for p in plans])
@@ -36,7 +36,7 @@ def test_batch_evaluation_uses_common_random_numbers():
 @pytest.mark.parametrize("n_a,seed", [(3, 0), (4, 1), (4, 2)])
 def test_genetic_search_is_within_5_percent_of_exhaustive_optimum(n_a, seed):
     estimate, desired = step_problem(6, seed)
-    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 8, seed=seed)
+    mc = MonteCarlo(POINTS, make_localizer("paper", POINTS), 8, seed=seed)
     plans = [p for p in enumerate_plans(6, n_a) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
     optimum = float(np.min(mc.localization_errors(estimate, desired, plans)))
 
@@ -56,8 +56,8 @@ def test_genetic_search_is_within_5_percent_of_exhaustive_optimum(n_a, seed):
 def test_selection_is_reproducible_from_its_seed():
     estimate, desired = step_problem(6, 3)
     config = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=3))
-    a = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
-    b = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
+    a = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=5).select(estimate, desired)
+    b = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=5).select(estimate, desired)
     assert a.plan.key() == b.plan.key()
     assert [s.e_l for s in a.scores] == [s.e_l for s in b.scores]
     assert [s.n_anchors for s in a.scores] == feasible_anchor_counts(6)
@@ -69,7 +69,7 @@ def test_single_count_selection_scores_follow_eq_1_to_3():
     P_s = 0.5 x 1/2 - 0.5 x e_l / e_l(0)), and the plan chosen partitions the robots into two groups of 3."""
     estimate, desired = step_problem(6, 3)
     config = SelectionConfig(samples=4, anchor_counts=(3,))
-    selection = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=5).select(estimate, desired)
+    selection = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=5).select(estimate, desired)
     assert [s.n_anchors for s in selection.scores] == [3] and selection.plan.sizes == (3, 3)
     (score,) = selection.scores
     assert score.p_v == 0.5 and score.p_s == pytest.approx(0.25 - 0.5 * score.p_l, abs=1e-15) and score.p_l > 0
@@ -78,9 +78,9 @@ def test_single_count_selection_scores_follow_eq_1_to_3():
 def test_weights_move_the_choice_towards_speed_or_accuracy():
     estimate, desired = step_problem(6, 4)
     budget = dict(samples=4, genetic=GeneticConfig(population=6, generations=2))
-    fast = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0, **budget),
+    fast = AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(w_v=1.0, w_l=0.0, **budget),
                           seed=1).select(estimate, desired)
-    careful = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0, **budget),
+    careful = AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(w_v=0.0, w_l=1.0, **budget),
                              seed=1).select(estimate, desired)
     assert fast.n_anchors == 0
     assert careful.n_anchors > 0
@@ -98,7 +98,7 @@ def test_no_feasible_plan_is_said_clearly():
     estimate = SwarmEstimate.isotropic([0, 1, 2, 3], np.array([[0, 0, 0], [0.3, 0, 0], [0, 0.3, 0], [0.3, 0.3, 0]], float), 0.01, 0.02)
     desired = np.array([[0, 0], [0.3, 0], [5, 5], [5.3, 5]], float)  # two groups 7 m apart
     with pytest.raises(NoFeasiblePlanError, match="no anchor plan keeps every robot within sensing range"):
-        AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(samples=2), seed=0).select(estimate, desired)
+        AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(samples=2), seed=0).select(estimate, desired)
 
 
 # ------------------------------------------------------------------ the search's guarantees
@@ -106,7 +106,9 @@ def test_no_feasible_plan_is_said_clearly():
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
 from coordinator.selection.racing import best_distinct, final_check, race  # noqa: E402
 
-NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15)  # motion noise x 3: anchors pay
+POINTS = ModelConfig(robot_radius_m=0.0)  # the paper's point robots: these tests pin its selection and execution maths (bodies: tests/test_bodies.py)
+
+NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15, robot_radius_m=0.0)  # motion noise x 3: anchors pay (point robots)
 
 
 @pytest.mark.parametrize("localizer,seed", [("paper", 0), ("joint", 1), ("joint", 2)])
@@ -192,11 +194,11 @@ def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
 
 def test_counts_that_cannot_win_are_not_searched():
     estimate, desired = step_problem(8, 6)
-    speed_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=1.0, w_l=0.0),
+    speed_only = AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(w_v=1.0, w_l=0.0),
                                 seed=1).select(estimate, desired)
     assert not any(s.searched for s in speed_only.scores)  # P_v alone decides: n_a = 0, screening only
     assert speed_only.evaluations == len(feasible_anchor_counts(8)) and speed_only.fresh_seed is None
-    accuracy_only = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), SelectionConfig(w_v=0.0, w_l=1.0),
+    accuracy_only = AnchorSelector(POINTS, make_localizer("paper", POINTS), SelectionConfig(w_v=0.0, w_l=1.0),
                                    seed=1).select(estimate, desired)
     assert all(s.searched for s in accuracy_only.scores if s.n_anchors > 0)
 
@@ -223,6 +225,6 @@ def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
     monkeypatch.setattr(selector, "MonteCarlo", Recording)
     estimate, desired = step_problem(8, 2)
     config = SelectionConfig(samples=4, anchor_counts=(6,), genetic=GeneticConfig(generations=2))
-    selection = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=1).select(estimate, desired)
+    selection = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=1).select(estimate, desired)
     assert selection.scores[0].searched and samples_for(4, 8) == 5 and search_samples(5, 2520) == 8
     assert set(sizes) == {5, 8, 16, 32, 320} and sizes[:2] == [5, 5] and sizes[2] == 8

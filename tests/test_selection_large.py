@@ -18,6 +18,8 @@ from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import random_trajectory, sensing_groups
 
+POINTS = ModelConfig(robot_radius_m=0.0)  # the paper's point robots: these tests pin its selection and execution maths (bodies: tests/test_bodies.py)
+
 
 def step_problem(n: int, seed: int) -> tuple[SwarmEstimate, np.ndarray]:
     traj = random_trajectory(n, 1, np.random.default_rng(seed))
@@ -74,7 +76,7 @@ def test_sensing_groups_count_a_pair_at_exactly_the_range_as_connected():
 
 def test_window_of_every_robot_is_the_whole_swarm():
     estimate, desired = step_problem(8, 2)
-    mc = MonteCarlo(ModelConfig(), make_localizer("joint", ModelConfig()), 3, seed=4)
+    mc = MonteCarlo(POINTS, make_localizer("joint", POINTS), 3, seed=4)
     plans = [heuristic_plan(estimate.positions, desired, 4)]
     np.testing.assert_array_equal(mc.localization_errors(estimate, desired, plans, window=np.ones(8, bool)),
                                   mc.localization_errors(estimate, desired, plans))
@@ -85,7 +87,7 @@ def test_window_simulates_its_robots_alone_with_the_plan_restricted_to_them():
     estimate, desired = step_problem(12, 5)
     plan = Plan(np.array([0, 3, 6, 9, 1, 4, 7, 10, 2, 5, 8, 11]), (4, 4, 4))
     window = np.isin(np.arange(12), [0, 1, 2, 3, 4, 5])
-    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), 3, seed=9)
+    mc = MonteCarlo(POINTS, make_localizer("paper", POINTS), 3, seed=9)
     restricted = Plan(np.array([0, 3, 1, 4, 2, 5]), (2, 2, 2))  # the window robots renumbered 0..5, groups kept in order
     expected = mc.localization_errors(estimate.select(window), desired[window], [restricted])
     np.testing.assert_array_equal(mc.localization_errors(estimate, desired, [plan], window=window), expected)
@@ -95,7 +97,7 @@ def test_large_swarm_selection_screens_heuristic_plans_within_the_step_budget():
     """n_r = 24 > window = 12: every screened count is its heuristic plan, scored on the window's Monte Carlo;
     a count is missing only if it has more than max_steps steps or w_v P_v is below an earlier count's P_s."""
     estimate, desired = step_problem(24, 7)
-    cfg, config = ModelConfig(), SelectionConfig(window=12, max_steps=6)
+    cfg, config = POINTS, SelectionConfig(window=12, max_steps=6)
     result = AnchorSelector(cfg, make_localizer("joint", cfg), config, seed=3).select(estimate, desired)
     scored = {s.n_anchors: s for s in result.scores}
     assert 0 in scored and scored[0].p_l == 1.0
@@ -119,11 +121,11 @@ def test_large_swarm_selection_screens_heuristic_plans_within_the_step_budget():
 def test_large_swarm_selection_e_l_is_the_window_monte_carlo():
     estimate, desired = step_problem(24, 8)
     config = SelectionConfig(window=12, max_steps=2)
-    result = AnchorSelector(ModelConfig(), make_localizer("paper", ModelConfig()), config, seed=6).select(estimate, desired)
+    result = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=6).select(estimate, desired)
     window = np.zeros(24, bool)
     window[np.argsort(np.linalg.norm(estimate.positions - estimate.positions.mean(axis=0), axis=1), kind="stable")[:12]] = True
     mc_seed = int(np.random.default_rng([6, 1]).integers(2**63))
-    mc = MonteCarlo(ModelConfig(), make_localizer("paper", ModelConfig()), samples_for(config.samples, 12), mc_seed, config.mc_start)
+    mc = MonteCarlo(POINTS, make_localizer("paper", POINTS), samples_for(config.samples, 12), mc_seed, config.mc_start)
     for entry in result.scores:
         if entry.plan is not None:
             assert entry.e_l == mc.localization_errors(estimate, desired, [entry.plan], window=window)[0]
@@ -133,8 +135,8 @@ def test_large_swarm_selection_e_l_is_the_window_monte_carlo():
 def test_large_swarm_selection_with_crlb_is_deterministic_and_windowed():
     estimate, desired = step_problem(24, 9)
     config = SelectionConfig(window=12, max_steps=3, method="crlb")
-    a = AnchorSelector(ModelConfig(), make_localizer("joint", ModelConfig()), config, seed=1).select(estimate, desired)
-    b = AnchorSelector(ModelConfig(), make_localizer("joint", ModelConfig()), config, seed=2).select(estimate, desired)
+    a = AnchorSelector(POINTS, make_localizer("joint", POINTS), config, seed=1).select(estimate, desired)
+    b = AnchorSelector(POINTS, make_localizer("joint", POINTS), config, seed=2).select(estimate, desired)
     assert [(s.n_anchors, s.e_l) for s in a.scores] == [(s.n_anchors, s.e_l) for s in b.scores]
     assert all(np.isfinite(s.e_l) for s in a.scores if s.plan is not None)
 

@@ -23,6 +23,12 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    e_l(0) on the same set give P_l. So the search never returns a plan that is worse
    than its seed on those samples, and P_s is not biased by the search.
 
+Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
+every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
+heuristic seeds, the genetic search and the outer loop alike. When no plan found is clear but
+some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
+and the executor splits its conflicting steps.
+
 Readings of the Monte Carlo (``docs/experiments.md``, pre-registered): ``mc_start`` is where
 each simulated configuration change starts (``"estimate"``: truths drawn from the estimate's
 covariance; ``"known"``: at its mean, Sec. 4.2), ``mc_emax`` what e_l,max is (``"mean"``: the
@@ -48,6 +54,7 @@ from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import best_distinct, final_check, race
 from runtime.errors import SwarmInputError
+from runtime.models.bodies import BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
@@ -137,6 +144,7 @@ class CountScore:
     plan: Plan | None
     seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
     searched: bool = False  # the inner loop ran for this count (else: the heuristic plan, screened)
+    crowded: bool = False  # no plan: its connected heuristic plan brings bodies too close (docs/bodies.md), none clear found
 
 
 @dataclass(frozen=True)
@@ -183,9 +191,13 @@ class AnchorSelector:
             return self._select_large(estimate, desired, rng)
         samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
+        bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
+
+        def connected(plan: Plan) -> bool:
+            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
         def feasible(plan: Plan) -> bool:
-            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
+            return connected(plan) and bodies.is_clear(plan.groups)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
@@ -201,10 +213,12 @@ class AnchorSelector:
             def evaluate(plans: list[Plan]) -> np.ndarray:
                 return sampled(plans, samples, screen_seed)
 
-        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False) -> CountScore:
+        def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False,
+                  crowded: bool = False) -> CountScore:
             p_v = speed_performance(n, n_a)
             p_l = e_l / e_max if e_max > 0 else 0.0
-            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched)
+            return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched,
+                              crowded)
 
         all_move = Plan.equal(np.arange(n), 0)
 
@@ -223,7 +237,7 @@ class AnchorSelector:
         for n_a in self.candidate_counts(n):  # 1. screening: the heuristic plan of every count
             seeds[n_a] = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
             if not feasible(seeds[n_a]):
-                scores[n_a] = score(n_a, None, np.inf, e_max)
+                scores[n_a] = score(n_a, None, np.inf, e_max, crowded=connected(seeds[n_a]))
             elif n_a == 0:
                 scores[n_a] = score(n_a, all_move, e_zero, e_max)
             else:
@@ -259,6 +273,9 @@ class AnchorSelector:
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
+            crowded = [seeds[k] for k in sorted(seeds, key=lambda k: seeds[k].n_steps) if connected(seeds[k])]
+            if crowded:  # connected but every plan found brings bodies too close: the fewest steps, split by the executor
+                return Selection(crowded[0], ordered, evaluations)
             raise NoFeasiblePlanError(
                 f"no anchor plan keeps every robot within sensing range {self.cfg.sensing_range_m} m of another "
                 f"after every step (tried n_a = {sorted(scores)})"
@@ -299,7 +316,9 @@ class AnchorSelector:
         else:
             per = mc.localization_errors(estimate, desired, [all_move], per_sample=True, window=window)[0]
             e_zero, e_max = float(per.mean()), float(per.max() if sel.mc_emax == "worst" else per.mean())
+        bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
         scores: list[CountScore] = []
+        crowded: list[Plan] = []  # connected plans that bring bodies too close, by increasing n_s
         bar = -np.inf
         for n_a in self.candidate_counts(n):
             p_v = speed_performance(n, n_a)
@@ -309,11 +328,17 @@ class AnchorSelector:
             if not plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m):
                 scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None))
                 continue
+            if not bodies.is_clear(plan.groups):
+                crowded.append(plan)
+                scores.append(CountScore(n_a, np.inf, p_v, np.inf, -np.inf, None, crowded=True))
+                continue
             e_l = e_zero if n_a == 0 else evaluate(plan)
             p_l = e_l / e_max if e_max > 0 else 0.0
             scores.append(CountScore(n_a, e_l, p_v, p_l, sel.w_v * p_v - sel.w_l * p_l, plan, e_l))
             bar = max(bar, scores[-1].p_s)
         best = max((s for s in scores if s.plan is not None), key=lambda s: s.p_s, default=None)
+        if best is None and crowded:
+            return Selection(crowded[0], scores, len(scores))
         if best is None:
             raise NoFeasiblePlanError(
                 f"no anchor plan with at most {sel.max_steps} steps keeps every robot within sensing range "

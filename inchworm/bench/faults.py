@@ -52,7 +52,7 @@ from inchworm.output import last_json
 from inchworm.progress import Progress
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
 
@@ -100,7 +100,7 @@ def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3) -> dict
     summaries, identical = [], 0
     progress = Progress(seeds, "coordinator")
     for seed in range(seeds):
-        traj = random_trajectory(robots, configs, np.random.default_rng(seed))
+        traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))  # as launch draws it
         ref = simulate(traj, "inchworm", ModelConfig(), seed=seed)
         step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
@@ -179,7 +179,7 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     from coordinator.simulate import simulate  # noqa: PLC0415
     from inchworm.processes import start_agents, stop_all  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe  # noqa: PLC0415
-    traj = random_trajectory(robots, configs, np.random.default_rng(seed))
+    traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))
     run_id = f"fuzz{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
@@ -230,7 +230,8 @@ def _same_table(summary: dict, ref) -> bool:
     same = lambda a, b: a is not None and math.isclose(a, float(b), rel_tol=1e-12, abs_tol=1e-15)  # noqa: E731 (summation order)
     if len(rows) != len(ref.configs) or not same(summary.get("pf"), ref.pf()):
         return False
-    return all(row["n_a"] == c.plan.n_anchors and row["steps"] == c.plan.n_steps and same(row["e_l"], e_l[k])
+    anchors = ref.anchor_counts()
+    return all(row["n_a"] == anchors[k] and row["steps"] == c.plan.n_steps and same(row["e_l"], e_l[k])
                and same(row["following_error"], follow[k]) and same(row["travelled"], travelled[k])
                for k, (row, c) in enumerate(zip(rows, ref.configs, strict=True)))
 

@@ -46,7 +46,7 @@ import numpy as np
 from inchworm.bench import BenchResult
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 
 METHODS = ("no-anchors", "ref57")
 
@@ -76,6 +76,9 @@ class StepTimer:
     def on_plan(self, config_index, first_step, plan, selection) -> None:
         self.inner.on_plan(config_index, first_step, plan, selection)
         self.mark = time.perf_counter()
+
+    def on_contacts(self, contacts) -> None:
+        self.inner.on_contacts(contacts)
 
     def on_estimate(self, step, estimate) -> None:
         self.inner.on_estimate(step, estimate)
@@ -152,7 +155,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     assert isinstance(strategy, FixedPlanStrategy)  # --method: a fixed plan
     per_config = strategy.fixed.n_steps
     configs = math.ceil(args.steps / per_config)
-    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m)
+    traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     per_process = agents_per_process(n, args.agents_per_process)
     run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
     port = free_tcp_port()
@@ -173,7 +176,8 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
             first_agent = len(procs)
             start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
             with open_session(member) as session:
-                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout_s, args.step_timeout_s))
+                backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout_s, args.step_timeout_s),
+                                            robot_radius_m=cfg.robot_radius_m)
                 try:
                     backend.wait_for_agents()
                     _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")

@@ -21,7 +21,7 @@ from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 
 
 @dataclass(frozen=True)
@@ -54,7 +54,7 @@ def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callab
         for r in range(o.repeats):
             if say:
                 say(f"n={n} selection {r + 1}/{o.repeats}")
-            traj = random_trajectory(n, 1, np.random.default_rng([o.seed, n, r]), sensing_range=cfg.sensing_range_m)
+            traj = random_trajectory(n, 1, np.random.default_rng([o.seed, n, r]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
             estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
             selector = AnchorSelector(cfg, localizer, o.run.selection, seed=o.seed + r)
             t0 = time.perf_counter()

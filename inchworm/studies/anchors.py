@@ -33,7 +33,7 @@ from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import trajectory_rng
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a study runs
     from matplotlib.axes import Axes
@@ -101,7 +101,7 @@ def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndar
     from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
     rng = trajectory_rng(job.seed, job.experiment)  # the study's seeding convention (inchworm.seeding)
     step = rng.uniform(*STEP_RANGE_M)  # spread the distance travelled, the x-axis of Fig. 4/5/A1
-    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step)
+    traj = random_trajectory(job.robots, 1, rng, sensing_range=job.cfg.sensing_range_m, step=step, **body_spacing(job.cfg))
     start, desired = traj.initial_poses, traj.configurations[0]
     estimate = SwarmEstimate.isotropic(traj.ids, start, START_DELTA_M, math.radians(START_HEADING_DEG))
     mc = MonteCarlo(job.cfg, make_localizer(job.localizer, job.cfg), job.samples, int(rng.integers(2**63)))

@@ -125,6 +125,7 @@ def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, se
             "na_by_config": {m: summary["methods"][m]["na_by_config"] for m in methods},  # mean n_a at configuration 1, 2, ...
             "drift_pct": {m: summary["methods"][m]["drift_pct_mean"] for m in methods},  # final e_l / distance travelled x 100
             "over_ref57": {m: summary["methods"][m]["pf_mean"] / ref for m in methods if m != REFERENCE},
+            "contacts_per_100": {m: summary["methods"][m]["contacts_per_100"] for m in methods},
             "p_values": summary["p_values"],
             "trajectories": len(subset) // len(methods),
         }

@@ -23,6 +23,7 @@ from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.models.trajectory import body_spacing
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -78,7 +79,7 @@ def run_task(task: NeesTask) -> Row:
     from coordinator.simulate import simulate  # noqa: PLC0415
 
     o = task.options
-    traj = paired_trajectory(o.robots, o.configs, o.seed, task.t, o.model.sensing_range_m)
+    traj = paired_trajectory(o.robots, o.configs, o.seed, task.t, o.model.sensing_range_m, **body_spacing(o.model))
     nees = run_nees(simulate(traj, task.method, o.model, localizer=task.localizer, selection=o.selection, seed=run_seed(o.seed, task.t)))
     return {"localizer": task.localizer, "method": task.method, "trajectory": task.t, **{f"config_{c + 1}": float(v) for c, v in enumerate(nees)}}
 

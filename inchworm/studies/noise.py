@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from inchworm.comparison import RunTask, anchors_along, run_one
+from inchworm.comparison import RunTask, anchors_along, contact_stats, run_one
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -137,6 +137,7 @@ def summarise(rows: list[Row], options: NoiseOptions) -> list[dict[str, Any]]:
             "pf": pf,
             "inchworm_over_ref57": pf["inchworm"] / pf["ref57"],
             "equal_speed_over_ref57": pf["inchworm-equal-speed"] / pf["ref57"],
+            "contacts_per_100": {m: contact_stats([r for r in sel if r["method"] == m])["contacts_per_100"] for m in METHODS},
         })
     return results
 

@@ -7,7 +7,7 @@ A JSON object (example: ``deploy/gateway.example.json``)::
                  "robots": [0, 1, 2]}],
       "calibration": {"1": {"range_bias_m": 0.01, "bearing_offset_rad": -0.02, "motion_scale": 0.97}},
       "timing": {"ack_timeout_s": 0.1, "max_retries": 5, ...},
-      "limits": {"max_drive_m": 0.3, "max_turn_rad": 3.1416, "workspace": [-1, -1, 3, 3]}
+      "limits": {"max_drive_m": 0.3, "max_turn_rad": 3.1416, "workspace": [-1, -1, 3, 3], "robot_radius_m": 0.011}
     }
 
 Only ``ports`` is required. ``GatewayConfig.load`` validates everything and raises
@@ -116,11 +116,14 @@ class Limits:
 
     |turn| <= ``max_turn_rad``, 0 <= drive <= ``max_drive_m``, and the predicted end position
     (from the latest estimate) inside ``workspace`` = (x_min, y_min, x_max, y_max) in metres, if set.
+    ``robot_radius_m``: the robots' body radius (m, docs/bodies.md); a run planned with another
+    ``--robot-radius`` is refused before it starts.
     """
 
     max_drive_m: float = 0.5
     max_turn_rad: float = math.pi
     workspace: tuple[float, float, float, float] | None = None
+    robot_radius_m: float = 0.011
 
 
 @dataclass(frozen=True)
@@ -317,7 +320,7 @@ class _Parser:
         return timing
 
     def limits(self, value: Any) -> Limits:
-        lim = self.obj(value, "limits", {"max_drive_m", "max_turn_rad", "workspace"})
+        lim = self.obj(value, "limits", {"max_drive_m", "max_turn_rad", "workspace", "robot_radius_m"})
         d = Limits()
         workspace = lim.get("workspace")
         if workspace is not None:
@@ -329,5 +332,6 @@ class _Parser:
         return Limits(
             max_drive_m=self.number(lim.get("max_drive_m", d.max_drive_m), "limits.max_drive_m", positive=True),
             max_turn_rad=self.number(lim.get("max_turn_rad", d.max_turn_rad), "limits.max_turn_rad", positive=True),
+            robot_radius_m=self.number(lim.get("robot_radius_m", d.robot_radius_m), "limits.robot_radius_m", nonneg=True),
             workspace=workspace,
         )

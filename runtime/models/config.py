@@ -23,6 +23,10 @@ class ModelConfig:
     Sensing: robot i observes robot j when |x_j - x_i| <= ``sensing_range_m``; the
     range gets N(0, ``range_sigma_m``), the bearing (in i's body frame)
     N(0, ``bearing_sigma_rad``); each observation is lost with ``dropout_prob``.
+
+    Bodies: every robot is a disc of radius ``robot_radius_m`` (default: the paper's 22 x 20 mm
+    mROBerTO, 0.011 m); plans keep bodies apart and runs count contacts
+    (``runtime.models.bodies``, docs/bodies.md). 0 is the paper's point robots.
     """
 
     turn_sigma_rad: float = math.radians(3.0)
@@ -31,6 +35,7 @@ class ModelConfig:
     bearing_sigma_rad: float = math.radians(2.0)
     sensing_range_m: float = 0.5
     dropout_prob: float = 0.0
+    robot_radius_m: float = 0.011
 
     def __post_init__(self) -> None:
         for f in fields(self):

@@ -7,6 +7,7 @@
     bearing_sigma_deg = 5.0
     dropout = 0.2
     sensing_range_m = 0.35
+    robot_radius_m = 0.011     # the robots' body radius (docs/bodies.md)
 
     [fit]                      # optional, written by `swarm calibrate`: where the numbers come from
     ...
@@ -38,6 +39,7 @@ KEYS: dict[str, tuple[str, Any, Any, float, bool, float]] = {
     "bearing_sigma_deg": ("bearing_sigma_rad", math.radians, math.degrees, 0.0, True, math.inf),
     "dropout": ("dropout_prob", float, float, 0.0, True, 1.0),
     "sensing_range_m": ("sensing_range_m", float, float, 0.0, False, math.inf),
+    "robot_radius_m": ("robot_radius_m", float, float, 0.0, True, math.inf),
 }
 SECTIONS = ("model", "fit")
 

@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
+from runtime.models.bodies import impassable_pairs
+from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
 from runtime.models.state import robot_ids
 
@@ -154,17 +156,20 @@ def validate_connected(traj: Trajectory, sensing_range: float) -> None:
             )
 
 
-def random_configuration(n: int, rng: np.random.Generator, spacing: float, sensing_range: float) -> np.ndarray:
+def random_configuration(n: int, rng: np.random.Generator, spacing: float, sensing_range: float,
+                         separation: float | None = None) -> np.ndarray:
     """A connected random configuration (n, 2) in a square of side sqrt(n) ``spacing`` (m) about the origin.
 
     Grown one robot at a time: each new robot is placed at a random distance in
-    [``spacing`` / 4, ``sensing_range``] from a random robot already placed (area-uniform
-    in that annulus) and kept if it lies in the square and no closer than ``spacing`` / 4
+    [sep, ``sensing_range``] from a random robot already placed (area-uniform
+    in that annulus) and kept if it lies in the square and no closer than sep
     to every other robot, so the cloud is connected by construction and no draw is
-    rejected as a whole (O(n^2) numpy work, ~10 ms for 1000 robots).
+    rejected as a whole (O(n^2) numpy work, ~10 ms for 1000 robots). sep = ``separation``
+    (m), by default ``spacing`` / 4.
     """
-    _check_random_options(n, 1, spacing, sensing_range)
-    half, sep = math.sqrt(n) * spacing / 2, MIN_SEPARATION * spacing
+    sep = MIN_SEPARATION * spacing if separation is None else separation
+    _check_random_options(n, 1, spacing, sensing_range, sep)
+    half = math.sqrt(n) * spacing / 2
     xy = np.empty((n, 2))
     xy[0] = rng.uniform(-half, half, 2)
     placed, tries = 1, 0
@@ -191,7 +196,7 @@ def min_separation(xy: np.ndarray) -> float:
     return float(d[:, 1].min())
 
 
-def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, **moves: float) -> None:
+def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, sep: float, **moves: float) -> None:
     """Up front, with the command-line flag each value comes from: sizes, and a range that can connect robots kept apart."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise SwarmInputError(f"a random trajectory needs at least 2 robots (--robots), got {n}")
@@ -200,10 +205,18 @@ def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, 
     for name, value in {"spacing": spacing, **moves}.items():
         if not math.isfinite(value) or value < 0 or (name == "spacing" and value == 0):
             raise SwarmInputError(f"random trajectory {name} must be a finite number > 0, got {value}")
-    sep = MIN_SEPARATION * spacing
     if not reach > sep:
         raise SwarmInputError(f"the sensing range (--sensing-range) is too small for a random trajectory: robots are kept {sep:g} m apart "
                               f"and each must be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
+
+
+END_SIGMAS = 3.0  # random configurations with bodies keep this many sigma of end-of-path error between them
+
+
+def body_spacing(cfg: ModelConfig) -> dict[str, float]:
+    """``random_trajectory``'s body options for a model: its robot radius and its larger motion noise
+    (turn sigma in rad, or drive sigma as a fraction: the lateral or the along-track error per metre driven)."""
+    return {"robot_radius": cfg.robot_radius_m, "motion_sigma": max(cfg.turn_sigma_rad, cfg.drive_sigma_frac)}
 
 
 RANGE_MARGIN = 0.9  # random configurations are connected within this fraction of the sensing range
@@ -217,13 +230,17 @@ def _spanning_edges(xy: np.ndarray, reach: float) -> np.ndarray:
     return np.column_stack(mst.nonzero())
 
 
-def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: float, sep: float) -> np.ndarray:
+def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: float, sep: float,
+             prev: np.ndarray | None = None, radius: float = 0.0) -> np.ndarray:
     """``rigid`` + ``noise``, with the noise of robots that would break the configuration halved until none does.
 
     ``rigid`` is connected along ``edges`` within ``reach`` and keeps robots ``sep`` apart, so
     halving converges to it in the worst case. A robot breaks the configuration when it is
     closer than ``sep`` to another, or when it ends a spanning edge of ``rigid`` that now joins
-    two parts of the graph 'within ``reach``' (there is one while the graph is cut).
+    two parts of the graph 'within ``reach``' (there is one while the graph is cut), or, with
+    bodies of ``radius`` > 0, when it and another cannot both come from ``prev`` without
+    touching in any order (``runtime.models.bodies.impassable_pairs``; a rigid motion of robots
+    ``sep`` > 2 ``radius`` apart turning by at most 30 degrees never has such a pair).
     """
     from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
     from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
@@ -232,6 +249,8 @@ def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: flo
         xy = rigid + scale[:, None] * noise
         tree = cKDTree(xy)
         bad = tree.query_pairs(sep, output_type="ndarray").ravel()
+        if not len(bad) and radius > 0 and prev is not None:
+            bad = impassable_pairs(prev, xy, radius).ravel()
         if not len(bad):  # the (costlier) connectivity check only once robots are apart
             parts, label = connected_components(tree.sparse_distance_matrix(tree, reach, output_type="coo_matrix"), directed=False)
             if parts == 1:
@@ -252,6 +271,8 @@ def random_trajectory(
     turn: float = math.radians(30.0),
     reshape: float = 0.06,
     margin: float = RANGE_MARGIN,
+    robot_radius: float = 0.0,
+    motion_sigma: float = 0.0,
 ) -> Trajectory:
     """A random trajectory as in Section 7: pose and topology change at every configuration.
 
@@ -266,14 +287,22 @@ def random_trajectory(
     ``spacing`` to another has its displacement halved until none does (no redrawing, so
     1000 robots take well under a second). Deterministic for a given ``rng`` state.
     Raises ``SwarmInputError`` naming the option for sizes below 2 robots / 1
-    configuration or a sensing range too small for robots kept apart.
+    configuration or a sensing range too small for robots kept apart. With ``robot_radius`` > 0
+    (m) robots are kept at least 2 ``robot_radius`` + 3 sqrt(2) ``step`` ``motion_sigma`` apart
+    (bodies, plus three standard deviations of two robots' relative end-of-path error after a
+    drive of ``step`` with relative motion noise ``motion_sigma``, see ``body_spacing``), but no
+    more than half the ``spacing`` unless the bodies need it, and every
+    change can be made without bodies touching (``runtime.models.bodies.validate_passable``);
+    ``robot_radius`` 0 draws exactly as before bodies.
     """
     reach = margin * sensing_range
-    _check_random_options(n, n_configs, spacing, reach, step=step, turn=turn, reshape=reshape)
+    sep = MIN_SEPARATION * spacing
+    if robot_radius > 0:  # room for the end-of-path error, but at most half the spacing (the swarm keeps its density)
+        sep = max(sep, 2.0 * robot_radius, min(2.0 * robot_radius + END_SIGMAS * math.sqrt(2.0) * step * motion_sigma, spacing / 2))
+    _check_random_options(n, n_configs, spacing, reach, sep, step=step, turn=turn, reshape=reshape)
     if not 0 < margin <= 1:
         raise SwarmInputError(f"random trajectory margin must be in (0, 1], got {margin}")
-    sep = MIN_SEPARATION * spacing
-    start = random_configuration(n, rng, spacing, reach)
+    start = random_configuration(n, rng, spacing, reach, sep)
     configs = []
     prev = start
     for _ in range(n_configs):
@@ -283,7 +312,7 @@ def random_trajectory(
         rot = rng.uniform(-swing, swing)
         r = np.array([[math.cos(rot), -math.sin(rot)], [math.sin(rot), math.cos(rot)]])
         rigid = (prev - c) @ r.T + c + step * np.array([math.cos(ang), math.sin(ang)])
-        nxt = _reshape(rigid, rng.normal(0, reshape, (n, 2)), _spanning_edges(rigid, reach), reach, sep)
+        nxt = _reshape(rigid, rng.normal(0, reshape, (n, 2)), _spanning_edges(rigid, reach), reach, sep, prev, robot_radius)
         configs.append(nxt)
         prev = nxt
     headings = rng.uniform(-math.pi, math.pi, n)

@@ -90,10 +90,11 @@ class LiveView:
     its own foxglove ``Context``, so several views (or other foxglove users) do not mix.
     """
 
-    def __init__(self, port: int = 8765, host: str = "127.0.0.1", *, trajectory: Any = None, name: str = "inchworm-swarm") -> None:
+    def __init__(self, port: int = 8765, host: str = "127.0.0.1", *, trajectory: Any = None, name: str = "inchworm-swarm",
+                 robot_radius: float = 0.0) -> None:
         foxglove = _import_foxglove()
         self._foxglove = foxglove
-        self._deriver = SceneDeriver(trajectory)
+        self._deriver = SceneDeriver(trajectory, robot_radius)
         self._plotter = PlotDeriver(trajectory)
         self._lock = threading.Lock()
         self.handled = 0

@@ -13,6 +13,10 @@ Topics (each a ``foxglove.SceneUpdate``, frame ``world``, metres, z = 0):
 * ``/foxglove/true``: per ``TruthSetMessage`` (one per step: every robot's true pose),
   entities ``true/<robot>``: blue spheres. Without truth sets (a stream of single
   ``TruthMessage``s), the latest truths are drawn with each ``EstimateMessage`` instead.
+  With bodies (the run's ``model.robot_radius_m`` > 0), each true robot is a flat blue disc of
+  the true body radius instead (``foxglove.CylinderPrimitive``, docs/bodies.md).
+* ``/foxglove/contacts``: per ``ContactMessage``, a red ring of the body radius midway between
+  the two robots at their closest and a label ``a-b`` (entity ``contact/<step>/<a>-<b>``, kept).
 * ``/foxglove/desired``: per ``PlanMessage``, the configuration it plans for, taken from
   the trajectory (``{"robots", "configurations"}``, docs/trajectory.md): one entity per
   robot (``desired/<robot>``), a red sphere and the id; and the entity ``legend``: one
@@ -33,7 +37,7 @@ import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-from runtime.wire.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage
+from runtime.wire.messages import ContactMessage, EstimateMessage, Message, PlanMessage, RobotEvent, TruthMessage, TruthSetMessage
 
 SCHEMA_NAME = "foxglove.SceneUpdate"
 SCHEMA_ENCODING = "jsonschema"
@@ -43,7 +47,8 @@ TOPIC_PREFIX = "/foxglove/"
 TOPIC_ESTIMATED = "/foxglove/estimated"
 TOPIC_TRUE = "/foxglove/true"
 TOPIC_DESIRED = "/foxglove/desired"
-TOPICS = (TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED)
+TOPIC_CONTACTS = "/foxglove/contacts"
+TOPICS = (TOPIC_ESTIMATED, TOPIC_TRUE, TOPIC_DESIRED, TOPIC_CONTACTS)
 
 
 
@@ -67,6 +72,7 @@ RING_THICKNESS_M = 0.006
 RING_POINTS = 16
 LABEL_PX = 12.0
 LABEL_DZ_M = 0.05
+DISC_HEIGHT_M = 0.004  # a body's disc (cylinder) height
 
 # The official JSON schema of foxglove.SceneUpdate: foxglove/foxglove-sdk,
 # schemas/jsonschema/SceneUpdate.json at commit ca8a1ced73b2737d03e2e3f282b57359a1a4cb72,
@@ -210,10 +216,17 @@ def sphere(x: str, y: str, diameter: float, color: str) -> str:
     return f'{{"pose":{_pose(x, y)},"size":{{"x":{d},"y":{d},"z":{d}}},"color":{color}}}'
 
 
-def label(x: str, y: str, text: int, color: str = WHITE) -> str:
-    """A billboard ``foxglove.TextPrimitive`` showing the integer ``text`` just above (x, y)."""
+def disc(x: str, y: str, radius: float, color: str) -> str:
+    """A flat ``foxglove.CylinderPrimitive`` of ``radius`` (m) centred on (x, y): a robot's body."""
+    d, h = _num(2.0 * radius), _num(DISC_HEIGHT_M)
+    return (f'{{"pose":{_pose(x, y)},"size":{{"x":{d},"y":{d},"z":{h}}},"bottom_scale":1.0,"top_scale":1.0,'
+            f'"color":{color}}}')
+
+
+def label(x: str, y: str, text: int | str, color: str = WHITE) -> str:
+    """A billboard ``foxglove.TextPrimitive`` showing ``text`` (an id, or ids joined by ``-``) just above (x, y)."""
     return (f'{{"pose":{_pose(x, y, _num(LABEL_DZ_M))},"billboard":true,"font_size":{_num(LABEL_PX)},'
-            f'"scale_invariant":true,"color":{color},"text":"{int(text)}"}}')
+            f'"scale_invariant":true,"color":{color},"text":"{text if isinstance(text, str) else int(text)}"}}')
 
 
 @functools.lru_cache(maxsize=8)
@@ -227,7 +240,7 @@ def ring(x: str, y: str, radius: float, color: str) -> str:
             f'"points":{_ring_points(radius)},"color":{color},"colors":[],"indices":[]}}')
 
 
-def entity(entity_id: str, stamp_json: str, *, spheres: str = "", texts: str = "", lines: str = "",
+def entity(entity_id: str, stamp_json: str, *, spheres: str = "", texts: str = "", lines: str = "", cylinders: str = "",
            metadata: Mapping[str, Any] | None = None) -> str:
     """A ``foxglove.SceneEntity`` in frame ``world``: every field the schema requires, unused primitives empty.
 
@@ -237,7 +250,7 @@ def entity(entity_id: str, stamp_json: str, *, spheres: str = "", texts: str = "
     meta = ",".join(f'{{"key":"{k}","value":"{v}"}}' for k, v in (metadata or {}).items())
     return (f'{{"timestamp":{stamp_json},"frame_id":"{FRAME}","id":"{entity_id}","lifetime":{{"sec":0,"nsec":0}},'
             f'"frame_locked":false,"metadata":[{meta}],"arrows":[],"cubes":[],"spheres":[{spheres}],'
-            f'"cylinders":[],"lines":[{lines}],"triangles":[],"texts":[{texts}],"models":[]}}')
+            f'"cylinders":[{cylinders}],"lines":[{lines}],"triangles":[],"texts":[{texts}],"models":[]}}')
 
 
 def scene_update(entities: Iterable[str]) -> bytes:
@@ -283,14 +296,32 @@ def lost_scene(robot: int, x: float, y: float, stamp_ns: int) -> bytes:
                                 metadata={"robot": int(robot), "lost": "true"})])
 
 
-def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int) -> bytes:
-    """One blue sphere per robot at its true position ``poses[robot] = (x, y, heading)`` (replaces the previous ones)."""
+def true_scene(poses: Mapping[int, Any], step: int, stamp_ns: int, radius: float = 0.0) -> bytes:
+    """One blue sphere per robot at its true position ``poses[robot] = (x, y, heading)`` (replaces the previous ones);
+    with bodies (``radius`` > 0, m) a blue disc of that radius instead."""
     t = stamp(stamp_ns)
+    if radius > 0:
+        return scene_update(
+            entity(f"true/{int(robot)}", t, cylinders=disc(_num(pose[0]), _num(pose[1]), radius, BLUE),
+                   metadata={"robot": int(robot), "step": int(step)})
+            for robot, pose in sorted(poses.items())
+        )
     return scene_update(
         entity(f"true/{int(robot)}", t, spheres=sphere(_num(pose[0]), _num(pose[1]), TRUE_SPHERE_M, BLUE),
                metadata={"robot": int(robot), "step": int(step)})
         for robot, pose in sorted(poses.items())
     )
+
+
+def contact_scene(msg: ContactMessage) -> bytes:
+    """A red ring of the body radius midway between the two robots at their closest, labelled ``a-b``."""
+    x, y = _num(msg.point[0]), _num(msg.point[1])
+    return scene_update([entity(
+        f"contact/{int(msg.step)}/{int(msg.a)}-{int(msg.b)}", stamp(msg.stamp_ns),
+        lines=ring(x, y, max(msg.radius_m, RING_THICKNESS_M), RED), texts=label(x, y, f"{int(msg.a)}-{int(msg.b)}", RED),
+        metadata={"step": int(msg.step), "config": int(msg.config), "robots": f"{int(msg.a)}-{int(msg.b)}",
+                  "distance_m": repr(float(msg.distance_m))},
+    )])
 
 
 def desired_scene(config: int, positions: Mapping[int, tuple[float, float]], stamp_ns: int,
@@ -375,14 +406,25 @@ def trajectory_configurations(trajectory: Any) -> list[dict[int, tuple[float, fl
     return out
 
 
+def metadata_radius(metadata: Mapping[str, Any] | None) -> float:
+    """The body radius (m) in a run's metadata (``model.robot_radius_m``); 0 where absent or unusable (lenient)."""
+    model = (metadata or {}).get("model")
+    try:
+        radius = float(model.get("robot_radius_m", 0.0)) if isinstance(model, Mapping) else 0.0
+    except (TypeError, ValueError):
+        return 0.0
+    return radius if math.isfinite(radius) and radius > 0 else 0.0
+
+
 class SceneDeriver:
     """Turns raw messages into ``(topic, SceneUpdate JSON bytes)`` pairs; keeps the trajectory and the latest plan.
 
     Not thread-safe: call from one thread (the recorder's writer thread) or under a lock.
     """
 
-    def __init__(self, trajectory: Any = None) -> None:
+    def __init__(self, trajectory: Any = None, robot_radius: float = 0.0) -> None:
         self.configurations = trajectory_configurations(trajectory)
+        self.radius = float(robot_radius)  # m: true robots drawn as discs of this radius (0: spheres)
         self.plan: PlanMessage | None = None
         self.truths: dict[int, TruthMessage] = {}
         self.truth_sets = False  # True once a TruthSetMessage was seen: it then draws the true scene
@@ -394,11 +436,13 @@ class SceneDeriver:
             scenes = [(TOPIC_ESTIMATED, estimated_scene(msg, self.plan))]
             if self.truths and not self.truth_sets:
                 poses = {robot: t.pose for robot, t in self.truths.items()}
-                scenes.append((TOPIC_TRUE, true_scene(poses, msg.step, msg.stamp_ns)))
+                scenes.append((TOPIC_TRUE, true_scene(poses, msg.step, msg.stamp_ns, self.radius)))
             return scenes
         if isinstance(msg, TruthSetMessage):
             self.truth_sets = True
-            return [(TOPIC_TRUE, true_scene(dict(zip(msg.ids, msg.poses, strict=True)), msg.step, msg.stamp_ns))]
+            return [(TOPIC_TRUE, true_scene(dict(zip(msg.ids, msg.poses, strict=True)), msg.step, msg.stamp_ns, self.radius))]
+        if isinstance(msg, ContactMessage):
+            return [(TOPIC_CONTACTS, contact_scene(msg))]
         if isinstance(msg, TruthMessage):
             self.truths[msg.robot] = msg
             return []
@@ -415,7 +459,7 @@ class SceneDeriver:
         return []
 
 
-DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage, RobotEvent)
+DERIVED_TYPES = (EstimateMessage, TruthSetMessage, PlanMessage, RobotEvent, ContactMessage)
 """Message types the recorder decodes for ``SceneDeriver.derive`` (single truths are only peeked there)."""
 
 

@@ -64,6 +64,7 @@ from runtime.recording.foxglove_scene import (
     SCHEMA_NAME as DERIVED_SCHEMA,
     TOPIC_PREFIX as DERIVED_PREFIX,
     SceneDeriver,
+    metadata_radius,
 )
 from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES, SCHEMA_BYTES as PLOT_SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.wire.keys import KeyspaceError, run_wildcard, validate_run
@@ -173,7 +174,7 @@ class McapRecorder:
         self.flush_s = float(flush_s)
         self.foxglove = bool(foxglove)
         trajectory = (metadata or {}).get("trajectory")
-        self._deriver = SceneDeriver(trajectory) if self.foxglove else None
+        self._deriver = SceneDeriver(trajectory, metadata_radius(metadata)) if self.foxglove else None
         self._plotter = PlotDeriver(trajectory) if self.foxglove else None
         self._derived_types: dict[str, bool] = {}  # key -> whether its type feeds the derived channels
         self._derived_channels: dict[str, int] = {}

@@ -16,6 +16,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/coord/event          RobotEvent         coordinator -> all (robot lost / rejoined)
     swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
     swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
+    swarm/<run>/sim/contact          ContactMessage     coordinator -> recorder, tools (bodies touched)
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
     swarm/<run>/coord/checkpoint     Checkpoint         coordinator -> standby coordinators, recorder
     swarm/<run>/alive/coord/<epoch>/<parent>  liveliness token of the coordinator (its epoch; the epoch it took over from, 0 = none)
@@ -165,6 +166,11 @@ def truths_key(run: str) -> str:
     return f"{ROOT}/{validate_run(run)}/sim/truths"
 
 
+def contact_key(run: str) -> str:
+    """``swarm/<run>/sim/contact``: contacts of the robots' true bodies (simulation only)."""
+    return f"{ROOT}/{validate_run(run)}/sim/contact"
+
+
 def truth_wildcard(run: str) -> str:
     """``swarm/<run>/sim/truth/*``: every simulated robot's true pose."""
     return f"{ROOT}/{validate_run(run)}/sim/truth/*"
@@ -205,6 +211,8 @@ def parse_key(key: str) -> ParsedKey:
         return ParsedKey(run, "sim", _parse_id(rest[2], key), "truth")
     if rest == ["sim", "truths"]:
         return ParsedKey(run, "sim", None, "truths")
+    if rest == ["sim", "contact"]:
+        return ParsedKey(run, "sim", None, "contact")
     if len(rest) == 3 and rest[:2] == ["alive", "robot"]:
         return ParsedKey(run, "alive", _parse_id(rest[2], key), "alive")
     if len(rest) == 3 and rest[0] == "link" and rest[2] == "stats" and _RUN.fullmatch(rest[1]):

@@ -36,6 +36,7 @@ from runtime.wire.keys import (
     ROBOT_LEAVES,
     RUN_PATTERN,
     KeyspaceError,
+    contact_key,
     coord_key,
     estop_ack_key,
     estop_key,
@@ -542,6 +543,22 @@ class RobotEvent(Message):
 
 
 @dataclass(frozen=True, kw_only=True)
+class ContactMessage(Message):
+    """Coordinator -> recorder, tools (simulation only): the true bodies of robots ``a`` < ``b`` touched during ``step``
+    (docs/bodies.md): their centres came ``distance_m`` apart, less than two radii ``radius_m``."""
+
+    TYPE: ClassVar[str] = "ContactMessage"
+    LEAF: ClassVar[str] = "contact"
+
+    config: int = _wire("int", "desired configuration being reached: k for C_dk (1-based)")
+    a: int = _wire("id", "the robot with the smaller id")
+    b: int = _wire("id", "the other robot")
+    distance_m: float = _wire("float", "closest distance of the true centres during the step", unit="m", minimum=0.0)
+    radius_m: float = _wire("float", "body radius of the run", unit="m", minimum=0.0)
+    point: tuple[float, ...] = _wire("float", "[x, y] midway between the centres at their closest", unit="m", shape=(2,))
+
+
+@dataclass(frozen=True, kw_only=True)
 class Checkpoint(Message):
     """Coordinator -> standby coordinators, recorder: the run's state after ``step``, from which another
     coordinator continues the run (docs/failure-model.md). Published after the initial estimate and every step."""
@@ -575,6 +592,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     EmergencyStop,
     EstopAck,
     RobotEvent,
+    ContactMessage,
     Checkpoint,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
@@ -596,6 +614,8 @@ def message_key(msg: Message) -> str:
         return estop_key(msg.run)
     if isinstance(msg, EstopAck):
         return estop_ack_key(msg.run)
+    if isinstance(msg, ContactMessage):
+        return contact_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
 
 

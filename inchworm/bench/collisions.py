@@ -1,0 +1,119 @@
+"""Contacts between robot bodies, planned with bodies and as points (``swarm bench collisions``, docs/bodies.md).
+
+Every method and localizer runs ``trajectories`` random trajectories of ``configs``
+configurations (``swarm compare``'s scheme, in process, the same seeds) twice: planned with
+bodies of the model's ``robot_radius_m`` (the constraint of ``docs/bodies.md``) and planned as
+the paper's point robots (radius 0). Contacts are counted at that radius either way
+(``RunResult.contacts``: true centres closer than two radii at some time of a step). The
+trajectories are drawn for bodies (kept passable), so both rows run the same ones.
+Per row: contacts per 100 configuration changes, the percentage of changes with a contact,
+steps per configuration (speed, Eq. 6-7) and the mean P_f (Eq. 24). ``to_json()``::
+
+    {"radius_m": R, "trajectories": T, "configs": C, "rows": [{"method": M, "localizer": L,
+     "bodies": true|false, "contacts_per_100": X, "configs_with_contact_pct": Y,
+     "steps_per_config": S, "pf_mean": P}, ...]}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from coordinator.strategies import METHODS
+from inchworm.bench import BenchResult
+from inchworm.options import RunOptions
+from runtime.errors import SwarmInputError
+from runtime.models.trajectory import body_spacing, random_trajectory
+
+LOCALIZERS = ("paper", "joint")
+
+
+@dataclass(frozen=True)
+class CollisionsBenchOptions:
+    robots: int = 10
+    trajectories: int = 20
+    configs: int = 20
+    methods: tuple[str, ...] = METHODS
+    localizers: tuple[str, ...] = ("paper",)
+    seed: int = 0  # trajectory t uses seed + t
+    workers: int = 1
+    run: RunOptions = field(default_factory=RunOptions)  # its localizer is not used: ``localizers`` are
+
+
+def run_one(job: tuple) -> dict:
+    """One (trajectory, method, localizer, planned with bodies or not) run; top-level for worker processes."""
+    from coordinator.simulate import simulate  # noqa: PLC0415
+
+    t, method, localizer, bodies, robots, configs, seed, cfg, selection = job
+    radius = cfg.robot_radius_m
+    traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
+    planned = cfg if bodies else replace(cfg, robot_radius_m=0.0)
+    result = simulate(traj, method, planned, localizer=localizer, selection=selection, seed=seed + t)
+    contacts = result.contacts(radius)
+    return {
+        "method": method, "localizer": localizer, "bodies": bodies, "contacts": len(contacts),
+        "configs_with_contact": len({c.config for c in contacts}), "configs": len(result.configs),
+        "steps": int(result.steps_per_config().sum()), "steps_added": result.steps_added(),
+        "unclear": sum(1 for c in result.configs if c.regrouped is not None and c.regrouped.unclear),
+        "min_distance": min((c.distance for c in contacts), default=float("nan")), "pf": result.pf(),
+    }
+
+
+def summarise(runs: list[dict], keys: list[tuple[str, str, bool]]) -> list[dict]:
+    """One row per (method, localizer, bodies) with the contract's keys, plus the extras the table prints."""
+    rows = []
+    for method, localizer, bodies in keys:
+        mine = [r for r in runs if (r["method"], r["localizer"], r["bodies"]) == (method, localizer, bodies)]
+        changes = sum(r["configs"] for r in mine)
+        rows.append({
+            "method": method, "localizer": localizer, "bodies": bodies,
+            "contacts_per_100": 100.0 * sum(r["contacts"] for r in mine) / changes,
+            "configs_with_contact_pct": 100.0 * sum(r["configs_with_contact"] for r in mine) / changes,
+            "steps_per_config": sum(r["steps"] for r in mine) / changes,
+            "pf_mean": float(np.mean([r["pf"] for r in mine])),
+            "_steps_added": sum(r["steps_added"] for r in mine), "_unclear": sum(r["unclear"] for r in mine),
+        })
+    return rows
+
+
+def check(o: CollisionsBenchOptions) -> None:
+    if o.run.model.robot_radius_m <= 0:
+        raise SwarmInputError("--robot-radius must be > 0 for counting contacts between bodies")
+    if o.trajectories < 1 or o.configs < 1 or o.robots < 2:
+        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+    if not o.methods or any(m not in METHODS for m in o.methods):
+        raise SwarmInputError(f"--methods must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}")
+    if not o.localizers or any(v not in LOCALIZERS for v in o.localizers):
+        raise SwarmInputError(f"--localizers must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}")
+
+
+def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
+                     progress: Callable[[int], None] | None = None) -> BenchResult:
+    """Run every (method, localizer, bodies or points) on every trajectory; ``progress`` is told the runs done."""
+    o = options
+    check(o)
+    cfg = o.run.model
+    keys = [(m, v, b) for v in o.localizers for m in o.methods for b in (True, False)]
+    jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection) for m, v, b in keys for t in range(o.trajectories)]
+    runs: list[dict] = []
+    with ProcessPoolExecutor(max_workers=max(1, o.workers)) as pool:
+        for run_row in pool.map(run_one, jobs):
+            runs.append(run_row)
+            if progress:
+                progress(len(runs))
+    rows = summarise(runs, keys)
+    lines = [f"radius {cfg.robot_radius_m:g} m, {o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
+             f"{'method':<22} {'localizer':<9} {'planned':<7} {'contacts/100':>12} {'changes %':>9} {'steps':>6} {'added':>6} "
+             f"{'unclear':>7} {'P_f':>8}"]
+    for r in rows:
+        lines.append(f"{r['method']:<22} {r['localizer']:<9} {'bodies' if r['bodies'] else 'points':<7} {r['contacts_per_100']:>12.2f} "
+                     f"{r['configs_with_contact_pct']:>9.2f} {r['steps_per_config']:>6.2f} {r['_steps_added']:>6} {r['_unclear']:>7} "
+                     f"{r['pf_mean']:>8.4f}")
+    lines.append("added: steps the body constraint added over all runs; unclear: configuration changes with robots no order kept clear")
+    public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
+    summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
+    return BenchResult(public, summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",
+                       "contacts between robot bodies")

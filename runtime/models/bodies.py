@@ -1,0 +1,381 @@
+"""Robot bodies: discs of radius R, the clearance a planned step keeps, and the contacts of true motion.
+
+Model (``docs/bodies.md``): a robot is a disc of radius R (m) centred on its position.
+A step's movers turn in place (the centre does not move), then drive straight; they
+start driving together and arrive together, each at a speed proportional to its
+distance, so at normalised time s in [0, 1] robot i is at p_i + s (q_i - p_i); anchors
+stay still. Two robots' relative position is then linear in s and their closest approach
+over the step is the distance from the origin to a segment (closed form, vectorised over
+all pairs). R = 0 is the paper's point robots: no clearance is checked.
+
+Planned steps (``BodyCheck``, constraint g of Eq. 4) must keep every pair with a mover at
+least 2R + margin apart. The margin covers the error between the plan and the true motion,
+from the model: robot i's position error along its worst direction at the end of a path of
+length L has standard deviation
+sigma_i = sqrt(lambda_i + L^2 max(turn_sigma^2 + heading_var_i, drive_sigma_frac^2)),
+lambda_i the largest eigenvalue of its estimated position covariance and heading_var_i its
+estimated heading variance (a still robot: L = 0); the margin of a pair is
+``CLEARANCE_SIGMAS`` x sqrt(sigma_i^2 + sigma_j^2). Where the configurations themselves put
+a pair closer than 2R + margin (at the start or at the end of the change), no plan can do
+better: the pair may then come no more than one sigma closer than that distance during a
+step (never below 2R), so slight bends of nearly parallel paths pass and crossings do not.
+"""
+
+from __future__ import annotations
+
+import copy
+import heapq
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
+
+if TYPE_CHECKING:  # trajectory.py imports this module
+    from runtime.models.trajectory import Trajectory
+
+CLEARANCE_SIGMAS = 2.0  # k of the margin k x sqrt(sigma_i^2 + sigma_j^2)
+SIGMA_LEVELS = (2.0, 1.0, 0.0)  # margins tried in turn when no order clears a change with the larger one
+TOLERANCE_M = 1e-9  # closest approaches within this of the requirement are not conflicts (rounding)
+
+
+def closest_time(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """The s in [0, 1] minimising |offset + s velocity| for (..., 2) arrays (0 when ``velocity`` is 0)."""
+    vv = np.einsum("...k,...k->...", velocity, velocity)
+    return np.clip(-np.einsum("...k,...k->...", offset, velocity) / np.where(vv > 0, vv, 1.0), 0.0, 1.0)
+
+
+def closest_approach(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """min over s in [0, 1] of |offset + s velocity| for (..., 2) arrays (m): the closest approach
+    of two robots whose relative position moves linearly from ``offset`` to ``offset + velocity``."""
+    rel = offset + closest_time(offset, velocity)[..., None] * velocity
+    return np.hypot(rel[..., 0], rel[..., 1])
+
+
+@dataclass(frozen=True)
+class Contact:
+    """Two robots (indices a < b into the step's arrays) whose bodies touched: centres ``distance`` m apart at
+    the closest, ``point`` (x, y) m midway between them then."""
+
+    a: int
+    b: int
+    distance: float
+    point: tuple[float, float]
+
+
+def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, radius: float) -> list[Contact]:
+    """Pairs (a < b) with a mover whose centres came closer than 2 ``radius`` during the step from
+    ``before`` to ``after`` (n, >= 2) under the timing model; still robots' rows are not read from ``after``."""
+    if radius <= 0:
+        return []
+    start = np.asarray(before, float)[:, :2]
+    end = np.where(np.asarray(moving)[:, None], np.asarray(after, float)[:, :2], start)
+    movers = np.flatnonzero(moving)
+    if not len(movers):
+        return []
+    disp = end - start
+    d = closest_approach(start[movers, None] - start[None], disp[movers, None] - disp[None])  # (k, n)
+    d[np.arange(len(movers)), movers] = np.inf
+    once = ~np.asarray(moving, bool)[None] | (np.arange(len(start))[None] > movers[:, None])  # each mover pair once
+    rows, cols = np.nonzero(once & (d < 2.0 * radius))
+    mover, other = movers[rows], cols
+    s = closest_time(start[mover] - start[other], disp[mover] - disp[other])[:, None]
+    mid = (start[mover] + start[other] + s * (disp[mover] + disp[other])) / 2.0
+    out = [Contact(int(min(i, j)), int(max(i, j)), float(d[r, c]), (float(m[0]), float(m[1])))
+           for i, j, r, c, m in zip(mover, other, rows, cols, mid, strict=True)]
+    return sorted(out, key=lambda c: (c.a, c.b))
+
+
+@dataclass(frozen=True)
+class Conflict:
+    """A planned pair (robot indices) closer than required: ``closest`` m against ``required`` m."""
+
+    a: int
+    b: int
+    closest: float
+    required: float
+
+
+class BodyCheck:
+    """Clearance of the steps of plans for one configuration change (``current`` -> ``desired``, (n, 2) m).
+
+    ``position_var`` (n,): the largest eigenvalue of each robot's position covariance (m^2);
+    ``heading_var`` (n,): its heading variance (rad^2). ``cfg.robot_radius_m`` = 0 checks nothing.
+    """
+
+    def __init__(self, cfg: ModelConfig, current: np.ndarray, desired: np.ndarray,
+                 position_var: np.ndarray | float = 0.0, heading_var: np.ndarray | float = 0.0) -> None:
+        self.radius = float(cfg.robot_radius_m)
+        self.current = np.asarray(current, float)[:, :2]
+        self.desired = np.asarray(desired, float)[:, :2]
+        n = len(self.current)
+        self.sigmas = CLEARANCE_SIGMAS
+        self.position_var = np.broadcast_to(np.asarray(position_var, float), (n,))
+        self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
+                                      cfg.drive_sigma_frac**2)
+
+    @classmethod
+    def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
+        """The check for moving ``estimate`` to ``desired``, with its uncertainty."""
+        return cls(cfg, estimate.positions, desired, np.linalg.eigvalsh(estimate.cov[:, :2, :2])[:, -1], estimate.cov[:, 2, 2])
+
+    @property
+    def active(self) -> bool:
+        return self.radius > 0
+
+    def _rows(self, movers: np.ndarray, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(closest approach, requirement) (k, n) of each of ``movers`` with every robot, ``moving`` moving."""
+        disp = np.where(moving[:, None], self.desired - before, 0.0)
+        closest = closest_approach(before[movers, None] - before[None], disp[movers, None] - disp[None])
+        length2 = np.einsum("nk,nk->n", disp, disp)
+        var = self.position_var + length2 * self.spread_rate
+        sigma = np.sqrt(var[movers, None] + var[None])
+        start = np.hypot(*(self.current[movers, None] - self.current[None]).transpose(2, 0, 1))
+        end = np.hypot(*(self.desired[movers, None] - self.desired[None]).transpose(2, 0, 1))
+        two_r = 2.0 * self.radius
+        floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
+        required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
+        closest[np.arange(len(movers)), movers] = np.inf
+        return closest, required
+
+    def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
+        """The conflicts of one step: robots at ``before`` (n, 2), ``moving`` (n,) drive to their desired positions."""
+        movers = np.flatnonzero(moving)
+        if not self.active or not len(movers):
+            return []
+        closest, required = self._rows(movers, before, moving)
+        bad = closest < required - TOLERANCE_M
+        bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
+        rows, cols = np.nonzero(bad)
+        return [Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]), float(required[r, c]))
+                for r, c in zip(rows, cols, strict=True)]
+
+    def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
+        closest, required = self._rows(np.array([robot]), before, moving)
+        return not np.any(closest < required - TOLERANCE_M)
+
+    def is_clear(self, groups: list[np.ndarray]) -> bool:
+        """Whether no step of ``groups`` has a conflict (constraint g of Eq. 4)."""
+        if not self.active:
+            return True
+        before = self.current.copy()
+        for group in groups:
+            moving = np.zeros(len(before), bool)
+            moving[group] = True
+            if self.step_conflicts(before, moving):
+                return False
+            before[group] = self.desired[group]
+        return True
+
+    def with_sigmas(self, sigmas: float) -> BodyCheck:
+        """The same check with a margin of ``sigmas`` standard deviations."""
+        out = copy.copy(self)
+        out.sigmas = float(sigmas)
+        return out
+
+    def regroup(self, groups: list[np.ndarray]) -> Regrouped:
+        """``groups`` split into conflict-free sub-steps, in their order (``docs/bodies.md``).
+
+        First the groups themselves (``split``); if that leaves robots that no order clears, all
+        robots one at a time where they can (``ordered_moves``); if neither clears, the same with the margin
+        lowered to each of ``SIGMA_LEVELS`` below this check's in turn (down to the bare 2R).
+        If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared.
+        """
+        groups = [np.asarray(g, dtype=np.int64) for g in groups]
+        if not self.active or self.is_clear(groups):
+            return Regrouped(groups, [], self.sigmas)
+        every = np.concatenate(groups)
+        for k in [self.sigmas, *(k for k in SIGMA_LEVELS if k < self.sigmas)]:
+            check = self.with_sigmas(k)
+            split = check.split(groups)
+            if not split.unclear:
+                return split
+            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool))
+            if not unclear:
+                return Regrouped(moves, [], k)
+        return Regrouped(moves, unclear, k)
+
+    def split(self, groups: list[np.ndarray]) -> Regrouped:
+        """``groups`` split into clear sub-steps in their order. Each group moves as the prefix-greedy subset
+        of its robots that is clear, the rest follow in further sub-steps; a group none of whose robots can
+        move yet (each would come too close to a robot still to move) waits behind the next group. If no
+        group can move, the remaining robots go one at a time where they can (``ordered_moves``)."""
+        before = self.current.copy()
+        queue, out, waited = deque(np.asarray(g).tolist() for g in groups), [], 0
+        while queue and waited <= len(queue):
+            group = queue.popleft()
+            moving, sub = np.zeros(len(before), bool), []
+            for r in group:
+                moving[r] = True
+                if self._clear_row(r, before, moving):
+                    sub.append(r)
+                else:
+                    moving[r] = False
+            if sub:
+                out.append(np.array(sub))
+                before[sub] = self.desired[sub]
+                rest = [r for r in group if r not in sub]
+                if rest:
+                    queue.appendleft(rest)
+                waited = 0
+            else:
+                queue.append(group)
+                waited += 1
+        rest = [r for g in queue for r in g]
+        if not rest:
+            return Regrouped(out, [], self.sigmas)
+        done = np.ones(len(before), bool)
+        done[rest] = False
+        moves, unclear = self.ordered_moves(np.array(rest), done)
+        return Regrouped(out + moves, unclear, self.sigmas)
+
+    def ordered_moves(self, robots: np.ndarray, done: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+        """Sub-steps that move ``robots`` one at a time where they can and together where they must, every
+        sub-step clear, and []; the robots of ``done`` stand at their desired positions, the others at their
+        current ones. When a sub-step cannot be cleared, its robots move one at a time there and are returned
+        as the second value.
+
+        In single moves robot i meets robot j either at j's current or at j's desired position: a move that
+        comes too close to j's current position must wait for j, one that comes too close to j's desired
+        position must go before j. Robots caught in a cycle of these precedences (a strongly connected
+        component, e.g. two robots overtaking each other) move together, which clears them when their joint
+        motion keeps them apart; the components go in topological order, earliest in the given order first.
+        """
+        from scipy.sparse import coo_matrix  # noqa: PLC0415 - scipy only when a plan needs reordering
+        from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
+
+        ids = [int(r) for r in robots]
+        local = {r: k for k, r in enumerate(ids)}
+        edges, stuck = [], set()  # (a, b): a must move before b
+        for r in ids:
+            near_current, near_desired = self._single_hits(r)
+            edges += [(local[j], local[r]) for j in near_current if j in local]
+            edges += [(local[r], local[j]) for j in near_desired if j in local]
+            stuck |= {r for j in near_desired if j not in local and done[j]}
+        m = len(ids)
+        a, b = (np.array([e[k] for e in edges], np.int64) for k in (0, 1))
+        graph = coo_matrix((np.ones(len(edges)), (a, b)), shape=(m, m)).tocsr()
+        _, label = connected_components(graph, directed=True, connection="strong")
+        members: dict[int, list[int]] = {}
+        for k, c in enumerate(label):
+            members.setdefault(int(c), []).append(k)
+        after: dict[int, set[int]] = {c: set() for c in members}
+        for x, y in zip(a.tolist(), b.tolist(), strict=True):
+            if label[x] != label[y]:
+                after[int(label[x])].add(int(label[y]))
+        waiting = {c: 0 for c in members}
+        for nxt in after.values():
+            for d in nxt:
+                waiting[d] += 1
+        ready = [(min(members[c]), c) for c in members if not waiting[c]]
+        heapq.heapify(ready)
+        before = np.where(done[:, None], self.desired, self.current)
+        out, unclear = [], []
+        while ready:  # Kahn's topological sort of the components
+            c = heapq.heappop(ready)[1]
+            group = [ids[k] for k in members[c]]
+            moving = np.zeros(len(before), bool)
+            moving[group] = True
+            if stuck & set(group) or (len(group) > 1 and self.step_conflicts(before, moving)):
+                unclear += group
+                out += [np.array([r]) for r in group]
+            else:
+                out.append(np.array(group))
+            before[group] = self.desired[group]
+            for d in after[c]:
+                waiting[d] -= 1
+                if not waiting[d]:
+                    heapq.heappush(ready, (min(members[d]), d))
+        return out, sorted(unclear)
+
+    def _single_hits(self, robot: int) -> tuple[list[int], list[int]]:
+        """The robots whose current / desired positions ``robot``'s single move (current -> desired) comes too close to."""
+        moving = np.zeros(len(self.current), bool)
+        moving[robot] = True
+        hits = []
+        for base in (self.current, self.desired):
+            before = base.copy()
+            before[robot] = self.current[robot]
+            closest, required = self._rows(np.array([robot]), before, moving)
+            hits.append(np.flatnonzero(closest[0] < required[0] - TOLERANCE_M).tolist())
+        return hits[0], hits[1]
+
+
+@dataclass(frozen=True)
+class Regrouped:
+    """The collision-free groups of a plan, with a margin of ``sigmas`` standard deviations; ``unclear``:
+    robots that came too close whatever the order, even with the bare 2R (moved one at a time)."""
+
+    groups: list[np.ndarray]
+    unclear: list[int]
+    sigmas: float
+
+
+def overlapping_pairs(xy: np.ndarray, radius: float) -> np.ndarray:
+    """(m, 2) index pairs i < j of positions ``xy`` (n, 2) closer than 2 ``radius`` (m)."""
+    if radius <= 0 or len(xy) < 2:
+        return np.zeros((0, 2), np.int64)
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when checked (cheap parsers)
+
+    pairs = cKDTree(xy).query_pairs(2.0 * radius, output_type="ndarray")
+    if not len(pairs):
+        return np.zeros((0, 2), np.int64)
+    d = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
+    return pairs[d < 2.0 * radius]
+
+
+def check_apart(xy: np.ndarray, ids: np.ndarray, radius: float, where: str) -> None:
+    """Raise ``SwarmInputError`` naming ``where`` and the robots whose bodies of ``radius`` overlap in ``xy``."""
+    pairs = overlapping_pairs(xy, radius)
+    if len(pairs):
+        i, j = pairs[0]
+        more = f" (and {len(pairs) - 1} more pairs)" if len(pairs) > 1 else ""
+        raise SwarmInputError(
+            f"{where}: robots {int(ids[i])} and {int(ids[j])} overlap: centres {np.linalg.norm(xy[i] - xy[j]):.4f} m apart, "
+            f"bodies of radius {radius:g} m need {2 * radius:g} m{more} (--robot-radius 0 for point robots)"
+        )
+
+
+def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.ndarray:
+    """(m, 2) index pairs i < j that cannot both go from ``start`` to ``end`` (n, 2) without their bodies of
+    ``radius`` touching, whatever the others do: i first (i's path passes j's start or j's path i's end),
+    j first, and both together all bring the centres closer than 2 ``radius`` (e.g. a swap in a tight spot)."""
+    n = len(start)
+    if radius <= 0 or n < 2:
+        return np.zeros((0, 2), np.int64)
+    i, j = np.triu_indices(n, 1)
+    path = end - start
+
+    def near(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+        return closest_approach(offset, velocity) < 2.0 * radius
+
+    i_first = near(start[i] - start[j], path[i]) | near(start[j] - end[i], path[j])  # i passes j's start, j then i's end
+    j_first = near(start[j] - start[i], path[j]) | near(start[i] - end[j], path[i])
+    together = near(start[i] - start[j], path[i] - path[j])
+    bad = i_first & j_first & together
+    return np.column_stack([i[bad], j[bad]])
+
+
+def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
+    """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj`` (a ``Trajectory``),
+    or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
+    e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
+    radius = cfg.robot_radius_m
+    if radius <= 0:
+        return
+    configs = [traj.initial_poses[:, :2], *traj.configurations]
+    for k, xy in enumerate(configs):
+        check_apart(xy, traj.ids, radius, "the initial configuration" if k == 0 else f"configuration {k}")
+    for k in range(1, len(configs)):
+        pairs = impassable_pairs(configs[k - 1], configs[k], radius)
+        if len(pairs):
+            a, b = traj.ids[pairs[0]]
+            raise SwarmInputError(
+                f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
+                f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
+                f"give them room to pass (or --robot-radius 0 for point robots)"
+            )
