@@ -53,7 +53,7 @@ from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
-from runtime.errors import SwarmInputError
+from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.bodies import step_contacts
 from runtime.models.config import ModelConfig
 from runtime.models.metrics import localization_error, trajectory_following_performance
@@ -112,11 +112,13 @@ REJOIN_HEADING_SIGMA = 0.5  # heading std (rad) of that prior
 
 
 class RunAborted(SwarmInputError):
-    """The run ended because robots were lost (``on_lost="abort"`` or fewer than ``min_robots`` left)."""
+    """The run ended because robots were lost (``on_lost="abort"``, fewer than ``min_robots`` left, or the robots
+    left cannot finish the trajectory); ``robots`` names every robot lost, ``result`` holds what was completed."""
 
-    def __init__(self, message: str, robots: list[int]) -> None:
+    def __init__(self, message: str, robots: list[int], result: RunResult | None = None) -> None:
         super().__init__(message)
         self.robots = robots
+        self.result = result
 
 
 @dataclass(frozen=True)
@@ -286,6 +288,7 @@ class InchwormExecutor:
         self.on_checkpoint = on_checkpoint
         self._full_strategy = strategy  # for the whole swarm: a rejoining robot comes back into it
         self._executed = 0  # command rounds sent in the current run (the global step in progress)
+        self.result: RunResult | None = None  # the run in progress (or last run): what it completed so far
 
     def run(self, trajectory: Trajectory, initial_estimate: SwarmEstimate, resume: RunState | None = None) -> RunResult:
         """Follow ``trajectory`` from ``initial_estimate``; with ``resume``, go on from that state of the same run
@@ -299,17 +302,34 @@ class InchwormExecutor:
             )
         total = len(trajectory.configurations)
         if resume is None:
-            result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
-            self._executed, estimate, first, group, plan, selection, planned_ids = 0, initial_estimate, 0, 0, None, None, None
-            regrouped = None
+            result = self.result = RunResult(self.strategy.name, trajectory, initial_estimate, self.backend.true_poses())
+            self._executed, estimate, first, group, plan, planned_ids = 0, initial_estimate, 0, 0, None, None
+            regrouped: Regrouping | None = None
             if self.listener is not None:
                 self.listener.on_estimate(0, initial_estimate)
             self._checkpoint(result, 0, 0, estimate, None, None)
         else:
             result, estimate, first, group = resume.result, resume.estimate, resume.config, resume.group
-            plan, selection, planned_ids, regrouped = resume.plan, None, resume.planned_ids, resume.regrouped
-            self._executed = resume.step
+            plan, planned_ids, regrouped = resume.plan, resume.planned_ids, resume.regrouped
+            self.result, self._executed = result, resume.step
             self._restore_strategy(trajectory.ids, estimate.ids, resume.selector_calls)
+        try:
+            self._follow(result, trajectory, estimate, first, group, plan, planned_ids, regrouped)
+        except RunAborted as exc:
+            exc.result = result  # the configurations completed before the end
+            raise
+        except (SwarmInputError, LocalizationError) as exc:
+            if not result.lost:
+                raise
+            lost = sorted(r.robot for r in result.lost)
+            raise RunAborted(f"after losing {_robot_list(lost)}, the robots left cannot go on after configuration "
+                             f"{len(result.configs)} of {total}: {exc}", lost, result) from exc
+        return result
+
+    def _follow(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate, first: int, group: int,
+                plan: Plan | None, planned_ids: np.ndarray | None, regrouped: Regrouping | None) -> None:
+        """Configurations ``first``.. of ``trajectory`` (the first from group ``group`` of ``plan`` if given)."""
+        total, selection = len(trajectory.configurations), None
         for c in range(first, total):
             if plan is None:
                 estimate = self._rejoin(result, c, self._drop_lost(result, c, estimate)[0], trajectory.ids)
@@ -337,7 +357,6 @@ class InchwormExecutor:
             if self.progress:
                 self.progress(c + 1, total)
         self._checkpoint(result, total, 0, estimate, None, None, finished=True)
-        return result
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
                     planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False) -> None:
@@ -445,6 +464,10 @@ class InchwormExecutor:
                 if contacts:
                     self.listener.on_contacts(contacts)
         return new
+
+
+def _robot_list(ids: list[int]) -> str:
+    return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
 
 
 def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate) -> np.ndarray | None:

@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from coordinator.stop import StopSignals, send_estop
+from coordinator.stop import StopRequested, StopSignals, send_estop
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
@@ -60,13 +60,16 @@ from runtime.wire.keys import run_wildcard, validate_run
 
 if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
     from coordinator.checkpoint import RunState
-    from coordinator.executor import RunResult
-    from coordinator.selection.selector import SelectionConfig
+    from coordinator.executor import ContactEvent, ExecutorListener, RunResult
+    from coordinator.plan import Plan
+    from coordinator.selection.selector import Selection, SelectionConfig
+    from runtime.models.state import SwarmEstimate
     from runtime.recording.foxglove_live import LiveView
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
 
 EXIT_AGENT = 3
+EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -117,6 +120,7 @@ class CoordinatorOptions:
     min_robots: int = 2
     truth: bool = True  # False: hardware without ground truth, no TruthMessages awaited
     record: Path | None = None  # the MCAP file, None: no recording
+    on_record_error: str = "continue"  # when writing the recording fails: go on unrecorded, or "stop" the run
     foxglove_port: int | None = None  # serve the live view on this port
     command: str = ""  # the command line, for the metadata
     standby: bool = False  # follow the live coordinator; take the run over from its last checkpoint if it dies
@@ -143,24 +147,38 @@ def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
     }
 
 
+class RecordingStopped(Exception):
+    """``on_record_error="stop"``: the recording failed, so the run is stopped."""
+
+
 class Recording:
-    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end."""
+    """``record_run`` on a background thread: started (subscription declared) on construction, ``finish()`` at the end.
+
+    A write error during the run is reported at once (one line, ``policy`` said) and sets ``failed``."""
 
     SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
     SETTLE_MAX_S = 3.0  # ... or after this long
 
-    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0) -> None:
-        self.run_id, self.path = run_id, path
+    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0,
+                 policy: str = "continue") -> None:
+        self.run_id, self.path, self.policy = run_id, path, policy
         self.stop = threading.Event()
+        self.failed = threading.Event()
         self._ready = threading.Event()
         self.recorder: McapRecorder | None = None
         self.result: dict = {}
         self.error: BaseException | None = None
-        from runtime.recording.mcap_log import record_run  # noqa: PLC0415
+        from runtime.recording.mcap_log import RecordingFailed, record_run  # noqa: PLC0415
 
         def target() -> None:
             try:
-                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready))
+                self.result.update(record_run(settings, run_id, path, metadata, self.stop, on_ready=self._on_ready,
+                                              on_error=self._on_error))
+            except RecordingFailed as exc:  # the run is not an error for it
+                if not self.failed.is_set():  # failed only while finishing the file: the one line now
+                    self._on_error(exc.error)
+                self.error = exc
+                self.failed.set()
             except BaseException as exc:  # noqa: BLE001 - reported by the main thread
                 self.error = exc
             finally:
@@ -178,6 +196,18 @@ class Recording:
         self.recorder = recorder
         self._ready.set()
 
+    def _on_error(self, error: BaseException) -> None:  # the recorder's writer thread
+        detail = error.strerror if isinstance(error, OSError) and error.strerror else str(error) or type(error).__name__
+        then = "the run goes on unrecorded" if self.policy == "continue" else "stopping the run"
+        print(f"coordinator: error: recording to {self.path} failed after {self.recorder.count if self.recorder else 0} "
+              f"messages: {detail}; {then} (--on-record-error {self.policy})", file=sys.stderr, flush=True)
+        self.failed.set()
+
+    def check(self) -> None:
+        """``RecordingStopped`` if the recording failed and the policy is to stop the run."""
+        if self.policy == "stop" and self.failed.is_set():
+            raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
+
     def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
         """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
         probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
@@ -190,8 +220,9 @@ class Recording:
         finally:
             probe.undeclare()
 
-    def finish(self, interrupted: bool = False) -> dict:
-        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``.
+    def finish(self, interrupted: bool = False) -> dict | None:
+        """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``,
+        or None when writing failed (``error`` says why; the file holds what reached the disk).
 
         ``interrupted``: the run was stopped by a signal; wait at most ``SETTLE_S`` for late messages
         (the launcher's grace period is short). Call it with signals deferred (``StopSignals.deferred``).
@@ -206,9 +237,30 @@ class Recording:
                     count, last_change = self.recorder.count, time.monotonic()
         self.stop.set()
         self.thread.join(timeout=30)
+        if self.failed.is_set():
+            return None
         if self.error is not None:
             raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
         return self.result
+
+
+class _Checked:
+    """The executor's listener (the backend), followed by ``check()`` after every plan, estimate and contact report."""
+
+    def __init__(self, listener: ExecutorListener, check: Callable[[], None]) -> None:
+        self.listener, self.check = listener, check
+
+    def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
+        self.listener.on_plan(config_index, first_step, plan, selection)
+        self.check()
+
+    def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
+        self.listener.on_estimate(step, estimate)
+        self.check()
+
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
+        self.listener.on_contacts(contacts)
+        self.check()
 
 
 def recording_line(rec: dict) -> str:
@@ -267,10 +319,11 @@ def live_view(o: CoordinatorOptions, session: Any, log: Callable[[str], None] = 
 class CoordinatorOutcome:
     """What a coordinator run ended with: the run (None if it failed), the recording's counts, the live view, the error."""
 
-    result: RunResult | None
+    result: RunResult | None  # with ``error`` set: the configurations completed before the end (None if nothing ran)
     recording: dict | None
     live: Live
-    error: Exception | None = None  # the agents did not come up, or the run was aborted (lost robots)
+    error: Exception | None = None  # the agents did not come up, the run was aborted (lost robots) or stopped (recording)
+    recording_error: BaseException | None = None  # why the recording could not be written (it keeps what reached the disk)
 
 
 def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Callable[[int, int, int], None] | None = None,
@@ -315,7 +368,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     live = Live(None)
     try:
         if signals.received is not None:
-            raise KeyboardInterrupt
+            raise StopRequested(signals.received)
         with open_session(o.settings) as session, live_view(o, session, log) as live:
             live_now = live_coordinators(session, o.run_id)
             if live_now and not o.standby:  # before anything is recorded or stopped: this run has a master
@@ -324,7 +377,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             standby = Standby(session, o.run_id, traj, initial) if o.standby else None
             if o.record is not None:
                 with signals.deferred():  # a signal now would leave the recorder thread with an unfinished file
-                    recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection))
+                    recording = Recording(o.settings, o.run_id, o.record, run_metadata(o, selection), policy=o.on_record_error)
                 log(f"recording swarm/{o.run_id}/** to {o.record}")
                 recording.wait_subscribed(session)
             if standby is not None:
@@ -344,6 +397,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 completed = True  # not ours to stop
                 return CoordinatorOutcome(None, None, live, exc)
             ended: BaseException | None = None
+            partial = None
             try:
                 if state is not None:
                     backend.resume(state)
@@ -351,13 +405,18 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 backend.wait_for_agents()
                 log(f"{len(backend.ids)} agents alive, run {o.run_id}, epoch {backend.epoch}")
                 progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731
-                executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=backend,
+                listener = backend if recording is None else _Checked(backend, recording.check)
+                executor = InchwormExecutor(backend, localizer, strategy, cfg, progress, listener=listener,
                                             on_lost=o.on_lost, min_robots=o.min_robots,
                                             on_checkpoint=durable_checkpoints(backend, recording))
-                result = executor.run(traj, initial, resume=state)
+                try:
+                    result = executor.run(traj, initial, resume=state)
+                finally:
+                    partial = executor.result  # the configurations completed, however the run ends
                 completed = live.keep = True
-            except (AgentError, RunAborted) as exc:
+            except (AgentError, RunAborted, RecordingStopped) as exc:
                 ended = error = exc
+                result = getattr(exc, "result", None) or (partial if isinstance(exc, RecordingStopped) else None)
             except BaseException as exc:
                 ended = exc
                 raise
@@ -372,15 +431,15 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             with signals.deferred():
                 recorded = recording.finish(interrupted=signals.received is not None)
             if result is None:  # failed, interrupted or nothing to do: the caller prints no summary
-                print(recording_line(recorded), flush=True)
-    return CoordinatorOutcome(result, recorded, live, error)
+                print(recording_line(recorded) if recorded else f"recording failed: {recording.error}", flush=True)
+    return CoordinatorOutcome(result, recorded, live, error, None if recording is None else recording.error)
 
 
 def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
     """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
     it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on)."""
     def checkpoint(state: RunState) -> None:
-        recorder = None if recording is None else recording.recorder
+        recorder = None if recording is None or recording.failed.is_set() else recording.recorder  # a failed one stores none
         written = 0 if recorder is None else recorder.checkpoints
         backend.publish_checkpoint(state)
         if recorder is not None and not recorder.wait_checkpoints(written + 1, timeout_s):
@@ -456,7 +515,7 @@ class Standby:
         try:
             while True:
                 if signals.received is not None:
-                    raise KeyboardInterrupt
+                    raise StopRequested(signals.received)
                 try:
                     (epoch, parent), alive = self.events.get(timeout=0.05)
                 except queue.Empty:
@@ -487,4 +546,3 @@ class Standby:
         finally:
             for sub in self._subs:
                 sub.undeclare()
-

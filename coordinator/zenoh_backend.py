@@ -311,9 +311,9 @@ class ZenohSwarmBackend:
     # -- inbox (caller's thread) --------------------------------------------------------
 
     def _pump(self, timeout_s: float) -> None:
-        """Handle queued messages for up to ``timeout_s`` (returns after the first batch)."""
+        """Handle queued messages for up to ``timeout_s`` (returns after the first batch; 0: only what is queued)."""
         try:
-            key, payload = self._inbox.get(timeout=timeout_s)
+            key, payload = self._inbox.get(timeout=timeout_s) if timeout_s > 0 else self._inbox.get_nowait()
         except queue.Empty:
             return
         while True:
@@ -395,6 +395,9 @@ class ZenohSwarmBackend:
                 return
             elapsed = time.monotonic() - start
             if elapsed > self.timeouts.step_s:
+                self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
+                self._publish_truth_set()
+                left = missing()
                 for robot in left:
                     self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
                 return

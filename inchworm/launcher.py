@@ -16,8 +16,9 @@ live on this host is refused. Every input is checked before a process is started
 ``driver="gateway"`` runs the hardware path end to end without hardware: ``swarm emulate-robots``
 (robots speaking the frame protocol on ptys), one ``swarm link`` per port of the gateway config
 (``gateway_config``, default: ports of 5 robots each) and agents with the gateway driver. Ctrl-C
-(or SIGTERM) first publishes an ``EmergencyStop`` to the run, then stops every child; so does a
-coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
+(or SIGTERM, SIGHUP; each child also stops itself if the launcher is killed: ``inchworm.lifeline``)
+first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement) to the run, then
+stops every child; so does a coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
 ``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
 one that is not ``simulated`` gets a coordinator with ``--no-truth``.
 
@@ -30,6 +31,7 @@ takeover (``"coordinator_kill": {"step", "takeover_ms"}``).
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import socket
@@ -44,8 +46,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coordinator.process import default_recording
-from coordinator.stop import StopSignals, send_estop
+from coordinator.process import EXIT_OUTPUT, default_recording
+from coordinator.stop import StopSignals, collect_acks, publish_estop
+from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
     GRACE_S,
@@ -66,14 +69,16 @@ from runtime.gateway.config import GatewayConfig
 from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
-from runtime.wire.keys import validate_run
+from runtime.wire.keys import estop_ack_key, validate_run
+from runtime.wire.messages import EmergencyStop
 from runtime.wire.run_file import published_run
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session
+from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
 
 if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
+ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 Say = Callable[[str], None]
 
@@ -241,11 +246,37 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     hub = f"tcp/127.0.0.1:{port}"
     py = sys.executable
     procs: list[subprocess.Popen] = []
-    coordinator: subprocess.Popen | None = None
-    signals = StopSignals()  # Ctrl-C / SIGTERM: estop, then every child stopped; never interrupts the stopping
+    gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
+    coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
+    signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
+    lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
+    tied = lifeline.child_options()
+
+    def stop_children() -> None:
+        """Coordinator, agents, links, emulator: in this order, while the hub still routes (called twice: idempotent)."""
+        with signals.deferred():
+            if coordinators:  # first, with time to finish their recordings
+                stop_all(coordinators, COORDINATOR_GRACE_S)
+            stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
+            stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
+            stop_all(procs[:1] if gateway_procs else [])
+
     try:
-        with tempfile.TemporaryDirectory(prefix="swarm-launch-") as tmp, open_session(hub_settings) as hub_session, \
-                published_run(run_id, hub, f"swarm {o.command}"):
+        with contextlib.ExitStack() as stack:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
+            hub_session = stack.enter_context(open_session(hub_settings))
+            stack.enter_context(published_run(run_id, hub, f"swarm {o.command}"))
+            stack.callback(stop_children)  # before the hub closes
+            lifeline.guard(Path(tmp))
+            _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
+
+            def stop_run(reason: str) -> str:
+                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it."""
+                stop = EmergencyStop(run=run_id, step=0, source=f"swarm {o.command} (pid {os.getpid()})", reason=reason)
+                sent = publish_estop(hub_session, stop)
+                heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
+                return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
+
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             model = flags(o.model_flags)
@@ -260,10 +291,11 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, faults)
+                                     o.emulator_events, faults, **tied)
+                gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file)
+            start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
             agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
             if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
@@ -294,10 +326,12 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if o.standby:
                 standby_record = [a for a in cmd if not a.startswith("--record=")] + (
                     [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
-                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True)
+                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+                coordinators.append(standby)
                 procs.append(standby)
                 wait_for_standby(hub_session, run_id, standby)
-            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True)
+            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+            coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
             procs.append(coordinator)
             coord_killer = None if o.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, o.kill_coordinator, coordinator)
             last: list[str] = []
@@ -311,12 +345,11 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                     say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
                     status = standby.wait()
             except KeyboardInterrupt:
-                send_estop(hub_session, run_id, f"swarm {o.command} (pid {os.getpid()})", "Ctrl-C of the launcher")
-                say(f"swarm {o.command}: interrupted: emergency stop sent to run {run_id}")
+                say(f"swarm {o.command}: interrupted: {stop_run('the launcher was interrupted')}")
                 raise
-            if status != 0:  # an abort, an error or a killed coordinator: stop every robot
-                send_estop(hub_session, run_id, f"swarm {o.command} (pid {os.getpid()})", f"the coordinator exited with status {status}")
-                say(f"swarm {o.command}: the coordinator exited with status {status}: emergency stop sent to run {run_id}")
+            if status not in (0, EXIT_OUTPUT):  # an abort, an error or a killed coordinator: stop every robot
+                done = stop_run(f"the coordinator exited with status {status}")
+                say(f"swarm {o.command}: the coordinator exited with status {status}: {done}")
             if standby is not None:
                 try:
                     standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
@@ -347,10 +380,6 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 say(f"swarm {o.command}: recording {recording}")
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
-        with signals.deferred():
-            if coordinator is not None:  # first, with time to finish its recording
-                stop_all([coordinator], COORDINATOR_GRACE_S)
-            emulators = 1 if o.driver == "gateway" else 0  # stopped last, after the links that read their ptys
-            stop_all(procs[emulators:])
-            stop_all(procs[:emulators])
+        stop_children()
+        lifeline.close()
         signals.restore()

@@ -117,11 +117,12 @@ def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float
                                               robot_radius_m=robot_radius))
 
 
-def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen]) -> Path:
+def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],
+                   **popen_kwargs) -> Path:
     """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
     until it wrote ``live``, the same config with its pty devices; returns ``live``."""
     emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL)
+                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL, **popen_kwargs)
     procs.append(emulator)
     deadline = time.monotonic() + GATEWAY_READY_S
     while not live.exists():
@@ -141,7 +142,7 @@ def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
 
 def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
                   model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = ()) -> Path:
+                  faults: list[str] | tuple[str, ...] = (), **popen_kwargs) -> Path:
     """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
     the live gateway config (pty devices)."""
     config = tmp / "gateway.json"
@@ -149,10 +150,10 @@ def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: st
     options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
     if events is not None:
         options.append(f"--events={events}")
-    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs)
+    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
     for port in gateway.ports:
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
-                                       f"--run={run_id}", f"--hub={hub}"]))
+                                       f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
     return live
 
 

@@ -164,7 +164,38 @@ def summary_text(result: RunResult, method: str, localizer: str, radius: float =
         lines.append(contacts_text(result, radius))
     lines += [f"lost robot {lost.robot} after step {lost.step} (config {lost.config + 1}): {lost.reason}" for lost in result.lost]
     lines += [f"robot {back.robot} rejoined after step {back.step}, from config {back.config + 1} on" for back in result.rejoined]
-    pf = result.pf() if result.has_truth else None
+    pf = result.pf() if result.has_truth and result.configs else None
     over = f", over the {len(result.finished_ids)} robots that finished" if result.lost else ""
     lines.append(f"P_f = {pf:.4f} ({method}, {localizer} localizer, distributed{over})" if pf is not None else "P_f: no ground truth")
     return "\n".join(lines)
+
+
+def write_run_outputs(result: RunResult, result_path: Path | None, plots_dir: Path | None) -> tuple[list[str], list[str]]:
+    """Write a distributed run's ``--result`` JSON and plots: (the plot files, one line per output that failed)."""
+    import json  # noqa: PLC0415 - only when a run ends
+
+    from coordinator.process import result_json  # noqa: PLC0415
+    from inchworm.plots import write_run_plots  # noqa: PLC0415
+
+    plots: list[str] = []
+    errors: list[str] = []
+    if result_path:
+        try:
+            result_path.write_text(json.dumps(result_json(result)))
+        except OSError as exc:
+            errors.append(f"cannot write --result {result_path}: {exc.strerror or exc}")
+    if plots_dir and result.configs:
+        try:
+            plots = write_run_plots(result, plots_dir)
+        except OSError as exc:
+            errors.append(f"cannot write the plots to {plots_dir}: {exc.strerror or exc}")
+    return plots, errors
+
+
+def run_json(result: RunResult, method: str, localizer: str, seed: int, plots: list[str], recording: str | None,
+             radius: float) -> dict[str, Any]:
+    """The ``--json`` object of a distributed run (``swarm coordinator``, ``swarm launch``)."""
+    return {"method": method, "localizer": localizer, "seed": seed, "pf": result.pf() if result.has_truth and result.configs else None,
+            "configs": config_rows(result), "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
+            "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots,
+            "recording": recording, **contacts_json(result, radius)}

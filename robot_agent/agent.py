@@ -6,7 +6,10 @@ liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
 * ``MotionCommand`` on ``.../robot/<id>/cmd``: decoded with the run's ids (a bad message
   is dropped and counted, never fatal; if its header still names this robot's run and
   step, the refusal ``refusal_status`` is published too, echoing whatever ``cmd_id`` it
-  carried, so a coordinator never acts on it). Only the next step is executed: a command
+  carried, so a coordinator never acts on it). Refusals nobody's real command needs (a bad
+  message, a stale or out-of-sequence step, a command after an emergency stop) are published
+  at most ``REFUSAL_BURST`` at once and ``REFUSALS_PER_S`` a second; the others are only counted
+  (``refusals.suppressed``), so a flood of forged commands is not answered one for one. Only the next step is executed: a command
   for step s is checked when s = (last observed step) + 1 (the coordinator observes every
   robot after every step, so a real command always follows the observation of the step
   before); then ``CommandLimits`` (``Status refused`` with the reason), else ``Status
@@ -55,7 +58,9 @@ step of the coordinator it obeys: that is how a lost robot rejoins a run in prog
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
-while the loop waits for a motion to finish); every later command is refused. Limits
+while the loop waits for a motion to finish); every later command is refused. The same thread
+acknowledges every stop it acted on with an ``EstopAck`` on ``swarm/<run>/estop/ack`` (``swarm
+estop`` counts them). Limits
 (``CommandLimits``: drive, turn, and the workspace checked from the command's
 ``start_pose``, the coordinator's estimate of the robot) are checked before the driver
 sees a command. A driver that raises ``DriverRefused`` gives ``Status refused`` with its
@@ -95,6 +100,7 @@ from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
+    EstopAck,
     MessageError,
     MotionCommand,
     ObservationReport,
@@ -108,6 +114,7 @@ from runtime.wire.messages import (
     message_key,
     refusal_status,
 )
+from runtime.wire.rate_limit import RateLimit
 from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
 
 if TYPE_CHECKING:
@@ -119,6 +126,8 @@ _LOST = "__driver_lost__"  # the driver lost its robot while idle (e.g. the gate
 _STOP = "__stop__"  # wakes the loop so it sees stop()
 _UNSEEN = "__unseen__"  # a coordinator epoch whose token has not reached this agent yet
 READY_TIMEOUT_S = 30.0  # how long an agent waits for its driver (link process) before declaring its token
+REFUSALS_PER_S = 20.0  # refusals of commands that answer no real command, on average ...
+REFUSAL_BURST = 20  # ... and at once
 
 
 class Agent:
@@ -145,6 +154,7 @@ class Agent:
         self.ready_timeout_s = float(ready_timeout_s)
         self.command_timeout_s = command_timeout_s  # None: the driver's calls are not timed (built-in drivers bound their own)
         self.drops = DropCounter(_log)
+        self.refusals = RateLimit(REFUSALS_PER_S, REFUSAL_BURST)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
         self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
@@ -160,7 +170,7 @@ class Agent:
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
         self._estop_key = estop_key(run)
-        self._estop = threading.Event()
+        self._stops: queue.SimpleQueue[EmergencyStop | None] = queue.SimpleQueue()  # for the forwarder thread
         self.estopped = False
         self.lost_reason: str | None = None
         self._coords: dict[int, int] = {}  # live coordinator tokens: epoch -> parent
@@ -217,11 +227,13 @@ class Agent:
             self._bounded(self.driver.stop)
             self._bounded(self.driver.detach)
             self._stop.set()
-            self._estop.set()  # wakes the forwarder, which sees _stop
+            self._stops.put(None)  # ends the forwarder
             forwarder.join(timeout=1.0)
             self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
+        if self.refusals.suppressed:
+            _log.warning("robot %d left %d refusals unsent (rate limit)", self.robot, self.refusals.suppressed)
         return 3 if self.lost_reason is not None else 0
 
     def _driver_call(self, fn: Callable[..., Any], *args: Any) -> Any:
@@ -279,14 +291,26 @@ class Agent:
         msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
         if msg is not None and msg.applies_to(self.robot):
             self.estopped = True
-            self._estop.set()
+            self._stops.put(msg)
 
     def _forward_estop(self) -> None:
-        self._estop.wait()
-        if self._stop.is_set() and not self.estopped:
-            return
-        _log.warning("robot %d: emergency stop", self.robot)
-        self.driver.estop(max(self._last_cmd_step, 0))
+        """Forwarder thread: the first stop goes to the driver; every stop is acknowledged."""
+        forwarded = False
+        while (msg := self._stops.get()) is not None:
+            if not forwarded:
+                _log.warning("robot %d: emergency stop", self.robot)
+                try:
+                    self.driver.estop(max(self._last_cmd_step, 0))
+                except Exception:  # noqa: BLE001 - not acknowledged: the stop may not have reached the robot
+                    _log.exception("robot %d: the driver failed to forward the emergency stop", self.robot)
+                    continue
+                forwarded = True
+            ack = EstopAck(run=self.run_id, step=msg.step, stop_stamp_ns=msg.stamp_ns, by="agent", name=str(self.robot),
+                           robots=(self.robot,))
+            try:
+                self._send(ack)
+            except Exception:  # noqa: BLE001 - a closed session at shutdown: the stop itself went out
+                _log.warning("robot %d: could not acknowledge the emergency stop", self.robot)
 
     # -- message handling (loop thread only) --------------------------------------------
 
@@ -370,7 +394,7 @@ class Agent:
         except MessageError as e:
             self.drops.drop(key, e)
             refusal = refusal_status(e)
-            if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot:
+            if refusal is not None and refusal.run == self.run_id and refusal.robot == self.robot and self.refusals.allow():
                 self._send(refusal)  # not remembered as handled: a valid command for that step still runs
             return
         why = self._admit(cmd.epoch)
@@ -434,6 +458,8 @@ class Agent:
         status = Status(run=self.run_id, step=cmd.step, robot=self.robot, state=state, reason=reason, cmd_id=cmd.cmd_id)
         if remember:
             self._last_status = status
+        elif not self.refusals.allow():
+            return  # an answer to no real command, beyond the rate limit: counted only
         self._send(status)
 
     def _on_observe(self, req: ObserveRequest) -> None:

@@ -238,7 +238,9 @@ class FaultPlan:
     outgoing frame is flipped. ``delay_s``: outgoing frames leave this much later (order
     kept). ``drop_rx``/``drop_tx``: 0-based indices of the valid frames received / frames
     sent on the port that are dropped for sure (e.g. ``drop_tx={0}`` loses the first
-    answer). ``seed`` seeds the random faults (with the port name).
+    answer). ``blackout`` = (step, seconds): the radio goes dead both ways for ``seconds`` from the
+    moment a robot of the port accepts the COMMAND of ``step`` (once). ``seed`` seeds the random faults
+    (with the port name).
     """
 
     drop_prob: float = 0.0
@@ -246,6 +248,7 @@ class FaultPlan:
     delay_s: float = 0.0
     drop_rx: frozenset[int] = frozenset()
     drop_tx: frozenset[int] = frozenset()
+    blackout: tuple[int, float] | None = None
     seed: int = 0
 
     def __post_init__(self) -> None:
@@ -260,10 +263,14 @@ class FaultPlan:
             if any(not isinstance(i, int) or i < 0 for i in indices):
                 raise SwarmInputError(f"fault {name} must hold frame indices >= 0, got {sorted(indices, key=str)}")
             object.__setattr__(self, name, indices)
+        if self.blackout is not None:
+            step, seconds = self.blackout
+            if not (isinstance(step, int) and step >= 1 and isinstance(seconds, (int, float)) and math.isfinite(seconds) and seconds > 0):
+                raise SwarmInputError(f"fault blackout must be (step >= 1, seconds > 0), got {self.blackout!r}")
 
     @property
     def active(self) -> bool:
-        return bool(self.drop_prob or self.corrupt_prob or self.delay_s or self.drop_rx or self.drop_tx)
+        return bool(self.drop_prob or self.corrupt_prob or self.delay_s or self.drop_rx or self.drop_tx or self.blackout)
 
 
 @dataclass
@@ -356,6 +363,7 @@ class PortEmulator:
         self._closed = False
         self._stats = PortStats()
         self._overflow = 0
+        self._blackout_until = -math.inf  # FaultPlan.blackout: the radio is dead until then (monotonic)
         self._decoder = FrameDecoder()
         self._fault_rng = random.Random(f"{self.faults.seed}/{self.port_name}")
         self._timers: set[threading.Timer] = set()
@@ -459,6 +467,9 @@ class PortEmulator:
                 return
             index = self._stats.rx_frames
             self._stats.rx_frames += 1
+            if self._blacked_out():
+                self._stats.rx_dropped += 1
+                return
             if self._lose(index, self.faults.drop_rx):
                 self._stats.rx_dropped += 1
                 self._event("fault", kind="drop_rx", index=index, robot=frame.robot, seq=frame.seq, type=frame.type)
@@ -480,6 +491,10 @@ class PortEmulator:
                 if st.starved:
                     st.starved = False
                     self._event("heartbeat_recovered", robot=robot)
+
+    def _blacked_out(self) -> bool:
+        """Whether the radio is dead now (``FaultPlan.blackout``)."""
+        return time.monotonic() < self._blackout_until
 
     def _lose(self, index: int, fixed: frozenset[int]) -> bool:
         if index in fixed:
@@ -578,6 +593,10 @@ class PortEmulator:
             st.last_cmd = st.moving = cmd
             self._event("accepted", robot=st.robot, seq=seq, step=body.step, turn_rad=body.turn_rad, drive_m=body.drive_m)
             self._send(st.robot, seq, FrameType.ACCEPTED, StepBody(body.step))
+            blackout = self.faults.blackout
+            if blackout is not None and body.step == blackout[0] and self._blackout_until == -math.inf:
+                self._blackout_until = time.monotonic() + blackout[1]
+                self._event("fault", kind="blackout", robot=st.robot, step=body.step, seconds=blackout[1])
             if self.world.motion_time_s <= 0:
                 self._finish(st, cmd)
             else:
@@ -661,6 +680,9 @@ class PortEmulator:
         data = bytearray(encode_frame(Frame.of(robot, seq, kind, body)))
         index = self._stats.tx_frames
         self._stats.tx_frames += 1
+        if self._blacked_out():
+            self._stats.tx_dropped += 1
+            return
         if self._lose(index, self.faults.drop_tx):
             self._stats.tx_dropped += 1
             self._event("fault", kind="drop_tx", index=index, robot=robot, seq=seq, type=int(kind))

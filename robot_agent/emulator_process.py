@@ -65,7 +65,7 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
     world = EmulatedWorld(ids, traj.initial_poses, model, seed, calibration=dict(config.calibration) if miscalibrate else None,
                           motion_time_s=motion_time_s, heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
     stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
     with contextlib.ExitStack() as stack:
         sink = None

@@ -17,7 +17,8 @@ what it had in flight, gives lost robots another chance and sends every robot RU
 fresh epoch (it forgets its step memory); requests wait until the robot answered RUN_ACK. An
 ``EmergencyStop`` on ``swarm/<run>/estop`` naming robots (the coordinator's stop of a lost
 robot) is sent as ESTOP to those robots of the port only; one naming none is sent at once as a broadcast ESTOP and then to
-each robot until it answers ESTOPPED. ``LinkStats`` go out every ``stats_period_s``, when
+each robot until it answers ESTOPPED; either is acknowledged with an ``EstopAck`` naming the port and the
+robots it stopped. ``LinkStats`` go out every ``stats_period_s``, when
 the coordinator's liveliness token appears or disappears (so a recording of the run holds
 the link's counters at its start and end) and when the link stops. While it runs it holds
 the liveliness token ``swarm/<run>/alive/link/<port>``: an agent whose link disappears
@@ -66,11 +67,23 @@ from runtime.gateway.frames import (
     encode_frame,
     fits_f32,
 )
-from runtime.wire.keys import coord_alive_key, estop_key, link_alive_key, robot_wildcard
+from runtime.wire.keys import (
+    KeyspaceError,
+    alive_wildcard,
+    coord_alive_key,
+    coord_key,
+    estop_key,
+    link_alive_key,
+    parse_coord_token,
+    parse_key,
+    robot_wildcard,
+)
 from runtime.wire.messages import (
     CommandLimits,
     DropCounter,
     EmergencyStop,
+    EstimateMessage,
+    EstopAck,
     LinkReply,
     LinkRequest,
     LinkStats,
@@ -82,6 +95,7 @@ from runtime.wire.transport import declare_token, publish, subscribe, watch_live
 
 _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000
+STALL_S = 0.5  # s between two turns of the engine beyond which the link itself was stalled (it turns every ack_timeout_s / 2)
 MAX_STEP_AHEAD = 1000  # a request more steps than this ahead of the robot's latest is refused (a step jump would strand the run)
 
 
@@ -156,6 +170,7 @@ class _Request:
     retries: int = 0  # retransmissions since the robot last answered
     accepted_at: float | None = None  # first ACCEPTED (a COMMAND being executed)
     answered: bool = False
+    motion: tuple[float, float] = (0.0, 0.0)  # a COMMAND's turn (rad) and the distance the robot really drives (m)
     parts: dict[int, ObservationBody] = field(default_factory=dict)
 
     def due(self, timing: Timing) -> float:
@@ -175,6 +190,10 @@ class _Robot:
     begin: _Request | None = None  # RUN of a new run: requests wait for its RUN_ACK
     waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
     latest: int = 0  # the latest step of a request sent this run
+    unanswered_since: float | None = None  # the first frame written to it since its last answer
+    reckoned: tuple[float, float, float] | None = None  # its pose: the coordinator's estimate, moved by every DONE since
+    agent_seen: bool = False  # its agent's liveliness token appeared ...
+    agent_gone: bool = False  # ... and disappeared since: the link stops feeding the robot
 
     def requests(self) -> tuple[_Request, ...]:
         return tuple(r for r in (self.busy, self.control, self.begin) if r is not None)
@@ -220,6 +239,11 @@ class Link:
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
         self._subs: list = []
+        self._coord_seen = False  # the coordinator's token appeared ...
+        self._coord_gone = False  # ... and disappeared since (or the session to it was lost): the link stops feeding
+        self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
+        self._coord_live: set[int] = set()  # those whose token is alive
+        self._estimate_key = coord_key(run, "estimate")
 
     # -- lifecycle ------------------------------------------------------------------------
 
@@ -231,13 +255,16 @@ class Link:
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
-                      watch_liveliness(self.session, coord_alive_key(self.run_id), lambda key, alive: self._events.put(("coord", alive)))]
+                      subscribe(self.session, self._estimate_key, enqueue),
+                      watch_liveliness(self.session, coord_alive_key(self.run_id),
+                                       lambda key, alive: self._events.put(("coord", parse_coord_token(key), alive))),
+                      watch_liveliness(self.session, alive_wildcard(self.run_id), lambda key, alive: self._events.put(("agent", key, alive)))]
         token = declare_token(self.session, link_alive_key(self.run_id, self.port.name))  # agents notice a dead link at once
         reader = threading.Thread(target=self._read_loop, name=f"link-{self.port.name}-reader", daemon=True)
         reader.start()
-        now = time.monotonic()
+        now = last_tick = time.monotonic()
         for robot in self.robots.values():
-            robot.last_rx = now  # grace: robot_timeout_s from the start
+            robot.last_rx = now
         next_stats = now
         try:
             # the reader may start a waiting request at any time: look at the timers at least this often
@@ -245,6 +272,9 @@ class Link:
             while not self._stop.is_set():
                 now = time.monotonic()
                 with self._lock:
+                    if now - last_tick > STALL_S:  # this process was stalled: the robots are not to blame
+                        self._resume(now - last_tick)
+                    last_tick = now
                     self._heartbeat(now)
                     if now >= next_stats:
                         self._publish_stats()
@@ -296,12 +326,30 @@ class Link:
         return wire
 
     def _write(self, robot_id: int, wire: bytes) -> None:
-        """Put a frame on the port; it counts as a sign of life for robot ``robot_id``."""
+        """Put a frame on the port; it counts as a sign of life for robot ``robot_id``, which owes an answer from now."""
         self.device.write(wire)
         self.counters.frames_sent += 1
         robot = self.robots.get(robot_id)
         if robot is not None:
             robot.last_tx = time.monotonic()
+            if robot.unanswered_since is None:
+                robot.unanswered_since = robot.last_tx
+
+    def _feeding(self, robot: _Robot) -> bool:
+        """Whether the link keeps ``robot`` alive (heartbeats, retransmissions): not once the coordinator or the
+        robot's agent was seen and is gone (or the session to them was lost), so the robot's own watchdog stops it."""
+        return not (self._coord_gone or robot.agent_gone)
+
+    def _resume(self, stalled_s: float) -> None:
+        """After a stall of this process: every robot's silence is counted again from the next frame sent to it,
+        and a motion's timeout is moved by the stall."""
+        _log.warning("port %s: the link was stalled for %.1f s; robots are judged again from now", self.port.name, stalled_s)
+        for robot in self.robots.values():
+            robot.unanswered_since = None
+            for req in robot.requests():
+                req.sent_at += stalled_s
+                if req.accepted_at is not None:
+                    req.accepted_at += stalled_s
 
     def _next_deadline(self) -> float:
         """The earliest time a heartbeat, retransmission or loss check is due."""
@@ -310,7 +358,13 @@ class Link:
         for robot in self.robots.values():
             if robot.lost:
                 continue
-            due = min(due, robot.last_tx + t.heartbeat_period_s, robot.last_rx + t.robot_timeout_s)
+            if robot.control is not None:
+                due = min(due, robot.control.due(t))
+            if not self._feeding(robot):
+                continue
+            due = min(due, robot.last_tx + t.heartbeat_period_s)
+            if robot.unanswered_since is not None:
+                due = min(due, robot.unanswered_since + t.robot_timeout_s)
             for req in robot.requests():
                 due = min(due, req.due(t))
                 if req.accepted_at is not None:
@@ -329,19 +383,31 @@ class Link:
 
     def _handle(self, event: tuple) -> None:
         if event[0] == "coord":
-            if event[1]:
-                self._begin_run()
-            self._publish_stats()
+            self._on_coordinator(event[1], event[2])
+        elif event[0] == "agent":
+            self._on_agent(event[1], event[2])
         else:
             key, payload = event[1], event[2]
-            if key == estop_key(self.run_id):
-                msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
-                if msg is not None and msg.robots:  # a lost robot's stop: only the robots it names
-                    for robot in self.robots.values():
-                        if robot.id in msg.robots and not robot.lost:
-                            self._start_control(robot, "estop", msg.step)
-                elif msg is not None:
-                    self._estop_all(msg.step)
+            if key == self._estimate_key:
+                msg = decode_or_drop(payload, self.drops, key, EstimateMessage)
+                for robot, pose in zip(msg.ids if msg is not None else (), msg.poses if msg is not None else (), strict=True):
+                    if robot in self.robots:
+                        self.robots[robot].reckoned = (float(pose[0]), float(pose[1]), float(pose[2]))
+            elif key == estop_key(self.run_id):
+                stop = decode_or_drop(payload, self.drops, key, EmergencyStop)
+                if stop is None:
+                    return
+                if stop.robots:  # a lost robot's stop: only the robots it names
+                    stopped = [r.id for r in self.robots.values() if r.id in stop.robots and not r.lost]
+                    for robot in stopped:
+                        self._start_control(self.robots[robot], "estop", stop.step)
+                else:
+                    self._estop_all(stop.step)
+                    stopped = sorted(r.id for r in self.robots.values() if not r.lost)
+                if stopped:
+                    ack = EstopAck(run=self.run_id, step=stop.step, stop_stamp_ns=stop.stamp_ns, by="link", name=self.port.name,
+                                   robots=tuple(stopped))
+                    publish(self.session, message_key(ack), encode(ack))
             else:
                 req = decode_or_drop(payload, self.drops, key, LinkRequest)
                 if req is None:
@@ -356,8 +422,28 @@ class Link:
                     return
                 self._on_request(req)
 
+    def _on_agent(self, key: str, alive: bool) -> None:
+        """The liveliness token of an agent appeared or disappeared: keep feeding its robot or stop."""
+        try:
+            robot_id = parse_key(key).robot
+        except KeyspaceError:
+            return
+        robot = None if robot_id is None else self.robots.get(robot_id)
+        if robot is None:
+            return
+        if alive:
+            robot.agent_seen, robot.agent_gone = True, False
+            robot.unanswered_since = None
+        elif robot.agent_seen:
+            robot.agent_gone = True
+            _log.warning("port %s: the agent of robot %d is gone; the robot is no longer kept alive", self.port.name, robot.id)
+
     def _invalid(self, req: LinkRequest) -> str | None:
-        """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits."""
+        """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits.
+
+        With a workspace configured a command must carry its start pose, and its end is checked both from that
+        pose and from the link's own ``reckoned`` pose of the robot (the coordinator's latest estimate moved by
+        every motion the robot completed since), so forged requests cannot walk a robot out of the workspace."""
         if req.run != self.run_id:
             return f"run {req.run!r} is not this link's run {self.run_id!r}"
         robot = self.robots[req.robot]
@@ -371,7 +457,12 @@ class Link:
             return f"turn {req.turn_rad!r} rad / drive {req.drive_m!r} m are not finite float32 values"
         driven = self.calibration.get(req.robot, Calibration()).driven(req.drive_m)
         pose = req.start_pose if req.start_pose and all(map(math.isfinite, req.start_pose)) else ()
+        if self.limits.workspace is not None and not pose:
+            return f"robot {req.robot}: a command needs its start pose while a workspace is configured"
         problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=pose))
+        if problem is None and self.limits.workspace is not None and robot.reckoned is not None:
+            problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=robot.reckoned))
+            problem = None if problem is None else f"from the link's reckoning of its pose, {problem}"
         return None if problem is None else f"robot {req.robot}: {problem}"
 
     def _reply(self, robot: int, step: int, kind: str, reason: str = "", parts: list[ObservationBody] | None = None) -> None:
@@ -393,6 +484,41 @@ class Link:
         elif all((r.kind, r.step) != (req.kind, req.step) for r in (robot.busy, *robot.waiting) if r is not None):
             robot.waiting.append(req)  # a re-sent request already in flight or queued is not queued twice
 
+    def _on_coordinator(self, token: tuple[int, int] | None, alive: bool) -> None:
+        """A coordinator token ``(epoch, parent)`` appeared or disappeared. One whose parent is an epoch of the current
+        run takes that run over (a standby or ``--resume``): the link feeds the robots again and keeps what is in
+        flight. Any other one, with no coordinator alive, begins a new run (RUN to every robot); while one is alive
+        it is a second master that the agents refuse, and ignored. When the last one is gone the link stops feeding."""
+        if token is None:
+            return
+        epoch, parent = token
+        if alive:
+            if parent in self._coord_epochs:
+                self._coord_epochs.add(epoch)
+                self._coord_live.add(epoch)
+                if self._coord_gone:
+                    self._coord_gone = False
+                    now = time.monotonic()
+                    for robot in self.robots.values():
+                        robot.unanswered_since = None  # judged again from the next frame sent to it
+                        robot.last_rx = now
+                    _log.warning("port %s: coordinator epoch %d took the run over from epoch %d; the robots are kept alive again",
+                                 self.port.name, epoch, parent)
+            elif self._coord_live:
+                _log.warning("port %s: coordinator epoch %d appeared while epoch %s runs; ignored", self.port.name, epoch,
+                             ", ".join(map(str, sorted(self._coord_live))))
+                return
+            else:
+                self._coord_epochs, self._coord_live = {epoch}, {epoch}
+                self._coord_seen, self._coord_gone = True, False
+                self._begin_run()
+        else:
+            self._coord_live.discard(epoch)
+            if self._coord_seen and not self._coord_live and not self._coord_gone:
+                self._coord_gone = True
+                _log.warning("port %s: the coordinator is gone; the robots are no longer kept alive", self.port.name)
+        self._publish_stats()
+
     def _begin_run(self) -> None:
         """The coordinator appeared: a new run. Forget the last run's requests and losses, send RUN (new epoch)."""
         self.counters.epoch = secrets.randbelow(MAX_U32) + 1
@@ -400,6 +526,8 @@ class Link:
         for robot in self.robots.values():
             robot.lost = False
             robot.last_rx = now
+            robot.unanswered_since = None
+            robot.reckoned = None
             robot.busy = robot.begin = None
             robot.waiting.clear()
             robot.latest = 0
@@ -415,6 +543,9 @@ class Link:
         robot.latest = max(robot.latest, req.step)
         if req.kind == "command":
             robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
+            robot.busy.motion = (req.turn_rad, self.calibration.get(robot.id, Calibration()).driven(req.drive_m))
+            if robot.reckoned is None and req.start_pose:  # no estimate from the coordinator yet: start from the request's
+                robot.reckoned = (float(req.start_pose[0]), float(req.start_pose[1]), float(req.start_pose[2]))
         else:
             robot.busy = self._request(robot, req.kind, req.step, FrameType.OBSERVE, StepBody(req.step))
 
@@ -433,7 +564,7 @@ class Link:
         """HEARTBEAT to every robot that got no frame for ``heartbeat_period_s`` (any frame is a sign of life)."""
         stamp = int(now * 1000) & 0xFFFFFFFF
         for robot in self.robots.values():
-            if now - robot.last_tx < self.timing.heartbeat_period_s:
+            if now - robot.last_tx < self.timing.heartbeat_period_s or not self._feeding(robot):
                 continue
             seq = robot.next_seq()
             self._send(Frame.of(robot.id, seq, FrameType.HEARTBEAT, HeartbeatBody(stamp)))
@@ -450,6 +581,7 @@ class Link:
         if robot is None:
             return
         robot.last_rx = now
+        robot.unanswered_since = None
         for pending in robot.requests():
             if frame.seq == pending.seq:
                 pending.retries = 0  # the robot answers: the retry budget starts again
@@ -488,6 +620,11 @@ class Link:
                 req.accepted_at = now
             return
         if kind == FrameType.DONE:
+            if req.kind == "command" and robot.reckoned is not None:
+                x, y, heading = robot.reckoned
+                turn, driven = req.motion
+                heading += turn
+                robot.reckoned = (x + driven * math.cos(heading), y + driven * math.sin(heading), heading)
             self._finish(robot, "done")
         elif kind == FrameType.REFUSED and isinstance(body, RefusalBody):
             code = RefusalCode(body.code).name if body.code in set(RefusalCode) else str(body.code)
@@ -515,7 +652,10 @@ class Link:
         for robot in self.robots.values():
             if robot.lost:
                 continue
+            feeding = self._feeding(robot)
             for req in robot.requests():
+                if not feeding and req is not robot.control:
+                    continue  # no longer kept alive: only an emergency stop is still sent
                 if req.accepted_at is not None and now - req.accepted_at > t.motion_timeout_s:
                     self.counters.timeouts += 1
                     self._lose(robot, f"robot {robot.id} still executing the command of step {req.step} after "
@@ -532,8 +672,9 @@ class Link:
                 self.counters.retransmissions += 1
                 req.retries += 1
                 req.sent_at = now
-            if not robot.lost and now - robot.last_rx > t.robot_timeout_s:
-                self._lose(robot, f"robot {robot.id} silent for {now - robot.last_rx:.1f} s on port {self.port.name}")
+            silent = None if robot.unanswered_since is None else now - robot.unanswered_since
+            if not robot.lost and feeding and silent is not None and silent > t.robot_timeout_s:
+                self._lose(robot, f"robot {robot.id} silent for {silent:.1f} s on port {self.port.name}")
 
     def _lose(self, robot: _Robot, reason: str) -> None:
         _log.error("%s", reason)

@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import logging
 import math
-import signal
 import sys
 from pathlib import Path
 
@@ -37,7 +36,7 @@ from runtime.errors import SwarmInputError
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
-from swarm_cli.entry import leave, run_standalone
+from swarm_cli.entry import leave, on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, positive
 
 
@@ -95,8 +94,7 @@ def run(args: argparse.Namespace) -> int:
     agents = build_agents(spec)
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
     server = agents[0] if len(agents) == 1 else AgentHost(agents[0].settings, agents)
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: server.stop())
+    on_stop_signals(server.stop)
     return server.run()
 
 

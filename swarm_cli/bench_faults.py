@@ -1,6 +1,6 @@
 """``swarm bench faults``: lost robots, hostile messages and radio faults, with real processes on loopback
 (``inchworm.bench.faults``; docs/failure-model.md). ``--json``: the last line is
-``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}, "coordinator": {...}}``."""
+``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}, "coordinator": {...}, "estop_under_flood": {...}}``."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("faults", help="lost robots, hostile messages and radio faults: does every run complete, unchanged?")
     p.add_argument("--seeds", type=int, default=10, help="seeds (runs) per lost-robot and gateway row (default 10)")
     p.add_argument("--fuzz", type=int, default=10_000, help="hostile messages sent during the fuzz run (default 10000)")
+    p.add_argument("--flood", type=int, default=3000, help="idle TCP connections held on the TLS router during the stop (default 3000)")
     p.add_argument("--gateway-rows", default="0.05,0.05,0.05;0.2,0,0",
                    help="radio faults as 'drop,corrupt,delay_s;...' (default '0.05,0.05,0.05;0.2,0,0'; '' for none)")
     add_json_option(p)
@@ -35,7 +36,7 @@ def gateway_rows(spec: str) -> tuple[tuple[float, float, float], ...]:
 def run(args: argparse.Namespace) -> int:
     from inchworm.bench.faults import FaultsBenchOptions, bench_faults  # noqa: PLC0415
 
-    result = bench_faults(FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows)),
+    result = bench_faults(FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows), args.flood),
                           lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
     if args.json:
         print_json(result.to_json())

@@ -5,16 +5,20 @@
 Waits for every robot's agent, runs the same executor as ``swarm sim`` over Zenoh and prints
 the per-configuration summary; with ``--out DIR`` it also writes ``trajectory.png`` (Fig.
 13/14) and ``errors.png`` (Fig. 17, needs the simulated truth) there. Recording is on by
-default (``recordings/<run>.mcap``). Exit status: 0 done (also with lost robots), 3 the run
-was aborted or the agents did not come up, 4 another coordinator of the run is alive, 2 bad input.
+default (``recordings/<run>.mcap``); a recording that cannot be written is one line and follows
+``--on-record-error continue`` (the run goes on unrecorded) or ``stop``. Whatever ends the run,
+the summary, ``--json``, ``--result`` and the plots of the configurations completed are written.
 ``--standby`` / ``--resume RECORDING``: take the run over when its coordinator is gone
 (``coordinator.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
+Exit status: 0 done (also with lost robots), 3 the run was ended by lost robots (named) or the
+agents did not come up, 4 another coordinator of the run is alive, 5 the recording, ``--result``
+or a plot could not be written (or the run was stopped for its recording), 2 bad input,
+128 + N after signal N (SIGINT, SIGTERM, SIGHUP).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
@@ -34,6 +38,7 @@ from swarm_cli.options import (
 
 EXIT_AGENT = 3
 EXIT_CONFLICT = 4  # another coordinator of the run is alive
+EXIT_OUTPUT = 5  # coordinator.process.EXIT_OUTPUT (this module stays light for --help)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -75,6 +80,8 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--record", type=Path, default=None, metavar="PATH",
                    help="MCAP file recording every message of the run (default recordings/<run>.mcap)")
     g.add_argument("--no-record", action="store_true", help="do not record the run")
+    p.add_argument("--on-record-error", choices=("continue", "stop"), default="continue",
+                   help="when writing the recording fails (disk full ...): go on unrecorded, or stop the run (default continue)")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e '.[foxglove]')")
     p.add_argument("--linger", type=float, default=None, metavar="SECONDS",
@@ -86,10 +93,9 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.stop import StopSignals  # noqa: PLC0415
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
-    from coordinator.process import CoordinatorOptions, default_recording, recording_line, result_json, run_coordinator, say  # noqa: PLC0415
+    from coordinator.process import CoordinatorOptions, default_recording, recording_line, run_coordinator, say  # noqa: PLC0415
     from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
-    from inchworm.plots import write_run_plots  # noqa: PLC0415
-    from inchworm.simulation import config_rows, contacts_json, fallback_steps, summary_text  # noqa: PLC0415
+    from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
 
     options = CoordinatorOptions(
         Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
@@ -97,32 +103,36 @@ def run(args: argparse.Namespace) -> int:
         truth=not args.no_truth,
         record=None if args.no_record else args.record or default_recording(args.run_id,
                                                                              "standby" if args.standby else "resume" if args.resume else ""),
-        foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), standby=args.standby, resume=args.resume,
-        rejoin=args.rejoin == "yes")
+        foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), on_record_error=args.on_record_error,
+        standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
     outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
+    status = 0
     if outcome.error is not None:
         print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
-        return EXIT_CONFLICT if isinstance(outcome.error, CoordinatorConflict) else EXIT_AGENT
+        if isinstance(outcome.error, CoordinatorConflict):
+            return EXIT_CONFLICT
+        if outcome.result is None:  # the agents did not come up: nothing ran
+            return EXIT_AGENT
+        status = EXIT_OUTPUT if type(outcome.error).__name__ == "RecordingStopped" else EXIT_AGENT
     if outcome.result is None:  # a standby whose run finished without it
-        return 0
+        return EXIT_OUTPUT if outcome.recording_error is not None else 0
     result = outcome.result
-    if args.result:
-        args.result.write_text(json.dumps(result_json(result)))
-    plots = write_run_plots(result, args.out) if args.out and result.configs else None
+    plots, errors = write_run_outputs(result, args.result, args.out)
+    for line in errors:
+        print(f"swarm coordinator: error: {line}", file=sys.stderr, flush=True)
+    failed = outcome.recording_error is not None or bool(errors)
     radius = options.model.robot_radius_m
     print(summary_text(result, args.method, args.localizer, radius))
     if plots:
         print(f"wrote {', '.join(plots)}")
     if outcome.recording:
         print(recording_line(outcome.recording))
+    elif outcome.recording_error is not None:
+        print(f"recording failed: {outcome.recording_error}")
     if args.json:
-        print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf() if result.has_truth else None,
-                    "configs": config_rows(result),
-                    "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
-                    "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots or [],
-                    "recording": outcome.recording["path"] if outcome.recording else None, **contacts_json(result, radius)})
+        print_json(run_json(result, args.method, args.localizer, args.seed, plots, outcome.recording["path"] if outcome.recording else None, radius))
     outcome.live.linger(args.linger)
-    return 0
+    return EXIT_OUTPUT if failed and status == 0 else status
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -15,11 +15,13 @@ everything and exits 0 (2 on bad input). ``python -m swarm_cli.emulate`` is the 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
 from robot_agent.emulator import FaultPlan
 from robot_agent.emulator_process import check_radio_faults
+from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import run_standalone
@@ -48,11 +50,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--delay", type=float, default=0.0, metavar="S", help="seconds every outgoing frame is delayed (default 0)")
     g.add_argument("--drop-rx", default="", metavar="I,J", help="0-based indices of received frames to drop (e.g. 0,5)")
     g.add_argument("--drop-tx", default="", metavar="I,J", help="0-based indices of sent frames to drop (e.g. 0 = the first answer)")
+    g.add_argument("--blackout", default=None, metavar="STEP:SECONDS",
+                   help="the radio goes dead both ways for SECONDS when a robot accepts the command of STEP (e.g. 2:1.0)")
     p.add_argument("--events", type=Path, default=None, metavar="FILE", help="write every notable event as a JSON line (flushed per line)")
     p.add_argument("--write-config", type=Path, default=None, metavar="OUT", help="write the config with the pty device paths here, atomically")
     add_connection_options(p, required=False)
     p.add_argument("--run", dest="run_id", default=None, help="run id: with --hub/--zenoh-config, publish the true poses (TruthMessage)")
     p.add_argument("--json", action="store_true", help='print {"ports": {name: device}, "config": OUT} as one JSON line when ready')
+
+
+def _blackout(text: str | None) -> tuple[int, float] | None:
+    """``--blackout STEP:SECONDS`` -> (step, seconds), checked."""
+    if text is None:
+        return None
+    step, sep, seconds = text.partition(":")
+    try:
+        value = (int(step), float(seconds))
+    except ValueError:
+        value = None
+    if not sep or value is None or value[0] < 1 or not (math.isfinite(value[1]) and value[1] > 0):
+        raise SwarmInputError(f"--blackout must be STEP:SECONDS with a step >= 1 and seconds > 0 (e.g. 2:1.0), got {text!r}")
+    return value
 
 
 def _indices(text: str, option: str) -> frozenset[int]:
@@ -64,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
 
     check_radio_faults(args.drop, args.corrupt, args.delay)
     faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
-                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"), seed=args.seed)
+                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"),
+                       blackout=_blackout(args.blackout), seed=args.seed)
 
     def ready(ports: list, devices: dict[str, str]) -> None:
         for pe in ports:

@@ -6,6 +6,7 @@ import argparse
 import importlib
 import os
 import re
+import signal
 import sys
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
@@ -63,9 +64,15 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
             sub.add_parser(c.name, help=c.help)
 
 
+def on_stop_signals(callback: Callable[[], object]) -> None:
+    """Call ``callback()`` (it must be safe in a signal handler) on SIGINT, SIGTERM and SIGHUP."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, lambda *_: callback())
+
+
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, Ctrl-C gives 130,
-    a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
+    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, a stop signal N
+    gives 128 + N (Ctrl-C 130), a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
     try:
         return int(run() or 0)
     except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
@@ -74,9 +81,9 @@ def guarded(prog: str, run: Callable[[], int | None]) -> int:
     except (SwarmInputError, LocalizationError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as exc:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.stop.StopRequested carries the signal
 
 
 def limit_blas_threads() -> None:
@@ -103,6 +110,9 @@ def run_standalone(
 ) -> int:
     """Entry point of a command started as its own module (``python -m swarm_cli.agent``):
     the launcher starts processes this way so each imports only what it needs."""
+    from inchworm.lifeline import hold_lifeline  # noqa: PLC0415
+
+    hold_lifeline()  # started by a launcher: end with it, whatever killed it
     limit_blas_threads()
     parser = argparse.ArgumentParser(prog=prog)
     add_arguments(parser)

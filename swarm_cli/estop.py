@@ -1,6 +1,6 @@
 """``swarm estop``: emergency stop of every robot of a run.
 
-    swarm estop --run lab [--hub tcp/127.0.0.1:7447] [--reason "..."]
+    swarm estop --run lab [--hub tcp/127.0.0.1:7447] [--reason "..."] [--ack-timeout 1] [--json]
 
 Without ``--hub`` / ``--zenoh-config`` the hub is the one of the live run ``--run`` names on
 this host, from the run file its launcher keeps (``runtime.wire.run_file``).
@@ -8,7 +8,17 @@ this host, from the run file its launcher keeps (``runtime.wire.run_file``).
 Publishes one ``EmergencyStop`` on ``swarm/<run>/estop``, a few times over ``--repeat-s``
 (default 0.3 s) so that it also reaches subscribers whose route is still being set up.
 Every agent forwards it to its robot at once and refuses later commands; every link
-process sends ESTOP to all robots of its port, which stay stopped until reset.
+process sends ESTOP to all robots of its port, which stay stopped until reset. Each of
+them acknowledges it with an ``EstopAck`` on ``swarm/<run>/estop/ack``; ``swarm estop``
+collects them for ``--ack-timeout`` seconds (default 1) after the first publication and
+says who acknowledged: ``emergency stop of run lab acknowledged by 10 agents (robots
+0-9) and 2 links (ports radio0, radio1)``.
+
+Exit status: 0 when at least one agent or link acknowledged, 1 when none did (a wrong
+``--run`` or hub, or nobody listening: the stop reached no robot that can be named), 2 on
+bad input. ``--json`` prints ``{"run", "published", "agents", "links", "robots"}`` last
+(``agents``: robot ids of the agents that acknowledged, ``links``: port names,
+``robots``: every robot an agent or link said it stopped).
 """
 
 from __future__ import annotations
@@ -17,10 +27,9 @@ import argparse
 import os
 import sys
 
-from coordinator.stop import send_estop
-from runtime.wire.keys import validate_run
-from runtime.wire.transport import open_session
 from swarm_cli.options import add_connection_options, add_json_option, connection_label, connection_settings, print_json
+
+EXIT_NO_ACK = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,16 +37,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     p.add_argument("--reason", default="operator", help="why, for the logs (default operator)")
     p.add_argument("--repeat-s", type=float, default=0.3, help="publish again over this many seconds (default 0.3)")
+    p.add_argument("--ack-timeout", type=float, default=1.0,
+                   help="seconds to collect the acknowledgements of agents and links (default 1)")
     add_connection_options(p)
     add_json_option(p)
     p.set_defaults(run=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    validate_run(args.run_id)
-    with open_session(connection_settings(args)) as session:
-        sent = send_estop(session, args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s)
-    print(f"swarm estop: emergency stop sent to run {args.run_id} on {connection_label(args)}", file=sys.stderr, flush=True)
+    from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
+
+    out = emergency_stop(connection_settings(args), args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
+    if out.agents or out.links:
+        print(f"swarm estop: emergency stop of run {args.run_id} on {connection_label(args)} acknowledged by {len(out.agents)} agents"
+              f"{f' (robots {', '.join(map(str, out.agents))})' if out.agents else ''} and {len(out.links)} links"
+              f"{f' (ports {', '.join(out.links)})' if out.links else ''}", file=sys.stderr, flush=True)
+    else:
+        print(f"swarm estop: emergency stop published to run {args.run_id}, but no agent or link acknowledged it "
+              f"within {args.ack_timeout:g} s: is the run id right and the run on this hub?", file=sys.stderr, flush=True)
     if args.json:
-        print_json({"run": args.run_id, "published": sent})
-    return 0
+        print_json(out.to_json())
+    return 0 if out.agents or out.links else EXIT_NO_ACK

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from robot_agent.link import Link, open_link
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
 from runtime.wire.transport import open_session
-from swarm_cli.entry import run_standalone
+from swarm_cli.entry import on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, connection_settings
 
 
@@ -48,8 +47,7 @@ def run(args: argparse.Namespace) -> int:
         with open_session(settings) as session:
             link = Link(session, args.run_id, port, config.timing, device, config.limits,
                         {r: config.calibration_of(r) for r in port.robots})
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                signal.signal(sig, lambda *_: link.stop())
+            on_stop_signals(link.stop)
             print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
                   f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
             status = link.run()

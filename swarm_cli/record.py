@@ -11,14 +11,13 @@ earlier are not recorded). Exit status 0, 2 on bad input.
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 import threading
 from pathlib import Path
 
 from runtime.recording.mcap_log import counts_text, record_run, run_metadata
 from runtime.wire.keys import run_wildcard, validate_run
-from swarm_cli.entry import portable_command, run_standalone
+from swarm_cli.entry import on_stop_signals, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
 
@@ -45,8 +44,7 @@ def run(args: argparse.Namespace) -> int:
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
     meta = run_metadata(connection_label(args), portable_command("swarm record", sys.argv[1:]), args.seed, args.trajectory, args.param)
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    on_stop_signals(stop.set)
     ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {connection_label(args)} to {rec.path}",  # noqa: E731
                               file=sys.stderr, flush=True)
     result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)

@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
 
     settings = router_settings(args.listen, args.config)
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         try:
             session = open_session(settings)

@@ -26,7 +26,16 @@ import pytest
 
 from runtime.wire.keys import alive_key, coord_alive_key, robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode, message_key
-from runtime.wire.transport import ZenohSettings, declare_token, free_tcp_port, open_session, publish, subscribe_queue, watch_liveliness
+from runtime.wire.transport import (
+    MAX_WIRE_BYTES,
+    ZenohSettings,
+    declare_token,
+    free_tcp_port,
+    open_session,
+    publish,
+    subscribe_queue,
+    watch_liveliness,
+)
 from swarm_cli.main import main as swarm_main
 
 REPO = Path(__file__).resolve().parent.parent
@@ -255,6 +264,7 @@ def test_router_configs_set_zenohs_transport_limits(config: str) -> None:
     unicast = json.loads(loaded.get_json("transport/unicast"))
     assert (unicast["accept_timeout"], unicast["accept_pending"], unicast["max_sessions"], unicast["max_links"]) == (1000, 100, 256, 1)
     assert json.loads(loaded.get_json("transport/link/tx/lease")) == 3000
+    assert json.loads(loaded.get_json("transport/link/rx/max_message_size")) == MAX_WIRE_BYTES
 
 
 def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> None:
@@ -297,8 +307,8 @@ def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> N
         estop_s = time.monotonic() - start
         print(f"after {FLOOD} idle connections: a session opened after {session_s:.2f} s ({attempts} attempts), "
               f"then swarm estop took {estop_s:.2f} s (busy machine)")
-        assert estop.returncode == 0, estop.stderr
-        assert "emergency stop sent" in estop.stderr
+        assert estop.returncode == 1, estop.stderr  # it got through; nobody runs "flood", so nobody acknowledged
+        assert "no agent or link acknowledged it" in estop.stderr
         assert session_s < 30 and estop_s < 15  # Zenoh's defaults: about 300 s
     finally:
         for sock in sockets:

@@ -347,7 +347,9 @@ def _assert_lost_cleanly(run: Run) -> None:
     err = "".join(run.stderr)
     assert run.coordinator.returncode == 3, f"exit status {run.coordinator.returncode}: {err}"
     assert "lost robot 1 (liveliness token gone); --on-lost abort ends the run" in err
-    assert not run.result_file.exists()  # the run did not complete
+    result = json.loads(run.result_file.read_text())  # what the run completed before it ended is kept
+    assert [lost["robot"] for lost in result["lost"]] == [1] and len(result["steps"]) < 8  # ref57 would have made 8 steps
+    assert "lost robot 1 after step" in "".join(run.stdout)  # the summary names it
     # the failed run's recording is finished and names its path
     assert f"recorded {run.recording}: " in "".join(run.stdout)
     info = recording_info(run.recording)

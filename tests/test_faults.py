@@ -103,21 +103,22 @@ def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
         run.finish(60)
         stops = [decode(p) for k, p, _t, _pub in read_messages(run.recording) if k.endswith("/estop")]
         assert [list(s.robots) for s in stops] == [[]] and all(isinstance(s, EmergencyStop) for s in stops)
-        assert "the run ended early (KeyboardInterrupt" in stops[0].reason
+        assert "the run ended early (StopRequested: SIGTERM)" in stops[0].reason
     finally:
         run.stop()
 
 
 def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     """``swarm bench faults --json`` at a small size: radio faults at 5 % each (one seed, against its fault-free
-    run), a killed agent, a killed coordinator with a standby, and 2000 hostile messages (random bytes, wrong types, NaN/inf/huge values, future
-    steps, unknown ids, replays) on every key: every run completes with the same table and P_f."""
+    run), a killed agent, a killed coordinator with a standby, and 2000 hostile messages (random bytes, wrong types,
+    NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
+    and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
                            "--gateway-rows=0.05,0.05,0.05", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert list(result)[:3] == ["gateway", "lost_robot", "fuzz"] and "coordinator" in result
+    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood"]
     assert result["gateway"] == [{"drop": 0.05, "corrupt": 0.05, "delay": 0.05, "runs": 1, "completed": 1, "identical": 1,
                                   "max_executions_per_step": 1}]
     lost = result["lost_robot"]
@@ -128,3 +129,7 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     assert list(coordinator) == ["runs", "completed", "identical", "takeover_ms_max"]
     assert coordinator["runs"] == coordinator["completed"] == coordinator["identical"] == 1
     assert 0 < coordinator["takeover_ms_max"] < 1000
+    flood = result["estop_under_flood"]
+    assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max"]
+    assert (flood["connections"], flood["tls"], flood["reached"]) == (3000, True, flood["robots"]) and flood["robots"] >= 10
+    assert flood["ms_max"] < 1000

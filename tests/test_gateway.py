@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import os
 import signal
 import subprocess
 import sys
@@ -22,7 +24,7 @@ import numpy as np
 import pytest
 
 from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
-from robot_agent.driver import RobotLost, SimDriver
+from robot_agent.driver import DriverRefused, RobotLost, SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.link import Link, SerialLink
@@ -32,7 +34,17 @@ from runtime.models.trajectory import random_trajectory
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard, coord_alive_key
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
-from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import (
+    ZenohSettings,
+    alive_now,
+    declare_token,
+    free_tcp_port,
+    loopback_hub,
+    open_session,
+    publish,
+    subscribe,
+    subscribe_queue,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -92,8 +104,8 @@ def act_as_coordinator(session, run_id: str):
     return token
 
 
-def command(step: int, turn: float = 0.3, drive: float = 0.1) -> MotionCommand:
-    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive)
+def command(step: int, turn: float = 0.3, drive: float = 0.1, start_pose=()) -> MotionCommand:
+    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, start_pose=start_pose)
 
 
 def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) -> np.ndarray:
@@ -162,8 +174,8 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
     drops and counts each (before any byte reaches the robot) and serves on."""
     limits = Limits(max_drive_m=0.5, workspace=(-0.5, -0.5, 0.5, 0.5))
     with rig(limits=limits) as r, open_session(r.member) as session:
-        r.driver.execute(command(1, 0.1, 0.05))  # the robot is at step 1
-        valid = msgpack.unpackb(encode(_request(step=2)))
+        r.driver.execute(command(1, 0.1, 0.05, POSES[0]))  # the robot is at step 1
+        valid = msgpack.unpackb(encode(_request(step=2, start_pose=[0.0, 0.0, 0.0])))
         hostile = [
             encode(_request(step=2**32 + 5)),  # crashed the link before: beyond the frame's u32 step
             encode(_request(step=2, turn_rad=1e39)),  # beyond float32
@@ -171,6 +183,7 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             encode(_request(step=2, drive_m=2.0)),  # 2 m past the 0.5 m limit
             encode(_request(step=2, turn_rad=4.0)),  # beyond max_turn_rad (pi)
             encode(_request(step=2, drive_m=0.2, start_pose=[0.45, 0.0, 0.0])),  # would leave the workspace
+            encode(_request(step=2, drive_m=0.2)),  # no start pose: the workspace cannot be checked
             encode(_request(step=5000)),  # far in the future: would strand the robot's step memory
             encode(_request(run="other", step=2)),  # another run's, on this run's key
             msgpack.packb(valid | {"turn_rad": float("nan")}),
@@ -183,9 +196,48 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             publish(session, "swarm/gw/robot/0/linkreq", payload)
         _wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
         assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
-        r.driver.execute(command(2, 0.1, 0.05))  # the link still serves
+        r.driver.execute(command(2, 0.1, 0.05, simulated_pose([(0.1, 0.05)])))  # the link still serves
         assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.1, 0.05)]), atol=1e-12)
+
+
+@pytest.mark.parametrize("start_pose", [[], [0.0, 0.0, 0.0]], ids=["no start pose", "a start pose that never moves"])
+def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_workspace(start_pose):
+    """Ten 0.5 m commands toward x < -1, each within the limits, published by a client allowed on the key: without a
+    start pose none is sent; with a forged one that never moves, the link's own reckoning of the pose stops them."""
+    limits = Limits(max_drive_m=0.5, workspace=(-1.2, -1.0, 1.0, 1.0))
+    with rig(limits=limits) as r, open_session(r.member) as session:
+        replies: list[LinkReply] = []
+        sub = subscribe(session, "swarm/gw/robot/0/linkrep", lambda key, payload: replies.append(decode(payload, LinkReply)))
+        for step in range(1, 11):
+            rejected = r.link.stats().rejected
+            request = _request(step=step, turn_rad=math.pi if step == 1 else 0.0, drive_m=0.5, start_pose=start_pose)
+            publish(session, "swarm/gw/robot/0/linkreq", encode(request))
+            _wait_for(lambda step=step, rejected=rejected: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
+                      f"the link's answer to the request of step {step}")
+        sub.undeclare()
+        x = r.emulator.world.pose(0)[0]
+        assert x >= -1.2, f"robot 0 was driven to x = {x:.2f} m, outside the workspace x >= -1.2 m"
+        assert r.emulator.executed(0) == (0 if not start_pose else 2)  # 0 -> -0.5 -> -1.0; the third would end at -1.5
+        assert r.link.stats().rejected == 10 - r.emulator.executed(0)
+
+
+@pytest.mark.parametrize("watchdog_s,survives", [(Timing().heartbeat_timeout_s, True), (1.0, False)],
+                         ids=["default watchdog", "a watchdog shorter than the retry budget"])
+def test_a_radio_blackout_of_a_second_during_a_motion_is_survived(watchdog_s, survives):
+    """The radio goes dead for 1.2 s right after the robot accepted a 1.5 s motion (the link retransmits, hears
+    nothing, then the DONE). The default watchdog (2 s) outlasts the retry budget (1.6 s) plus one retransmission,
+    so the motion completes; the former 1 s watchdog stopped the robot mid-motion."""
+    timing = dataclasses.replace(Timing(), heartbeat_timeout_s=watchdog_s)
+    with rig(FaultPlan(blackout=(1, 1.2)), timing=timing, motion_time_s=1.5) as r:
+        if survives:
+            r.driver.execute(command(1))
+            assert r.emulator.executed(0) == 1 and r.link.stats().lost == ()
+            assert r.emulator.stats().rx_dropped > 0  # the blackout did happen
+        else:
+            with pytest.raises(DriverRefused, match="stopped by the watchdog"):
+                r.driver.execute(command(1))
+            assert r.emulator.executed(0) == 0
 
 
 def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
@@ -265,8 +317,12 @@ def _launch(tmp: Path, driver: str, traj_file: Path, run_id: str, record: Path |
     cmd = [sys.executable, "-m", "swarm_cli.main", "launch", f"--trajectory={traj_file}", f"--driver={driver}", "--seed=2",
            f"--run={run_id}", f"--result={result}", f"--out={tmp / driver}", "--json"]
     cmd += [f"--record={record}"] if record else ["--no-record"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp)
+    scratch = tmp / f"tmp-{driver}"
+    scratch.mkdir()
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=180, cwd=tmp, env={**os.environ, "TMPDIR": str(scratch)})
     assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "ERROR" not in proc.stderr and "Traceback" not in proc.stderr, proc.stderr[-3000:]  # agents stopped before links
+    assert not list(scratch.glob("swarm-launch-*"))  # no temporary folder left (the run-file folder is the launcher's by design)
     return json.loads(result.read_text())
 
 
@@ -418,6 +474,31 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         publish(session, message_key(cmd), encode(cmd))
         assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
         token.undeclare()
+
+
+def test_swarm_estop_counts_the_agents_and_links_that_acknowledged_and_fails_when_none_did(tmp_path):
+    run_id = "acks"
+
+    def config(ids):
+        return GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))))
+
+    with emulated_site(tmp_path, 3, 2, config) as site:
+        site.link(run_id, "radio0")
+        site.link(run_id, "radio1")
+        for robot in site.ids:
+            site.agent(robot, run_id)
+        _wait_for(lambda: len(alive_now(site.session, alive_wildcard(run_id))) == len(site.ids), 30, "every agent alive")
+        estop = [sys.executable, "-m", "swarm_cli.main", "estop", f"--hub={site.hub}", "--json"]
+        done = subprocess.run([*estop, f"--run={run_id}"], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+        out = json.loads(done.stdout.splitlines()[-1])
+        assert out["published"] == 3 and out["agents"] == sorted(site.ids) and out["links"] == ["radio0", "radio1"]
+        assert out["robots"] == sorted(site.ids)
+        assert f"acknowledged by 3 agents (robots {', '.join(map(str, sorted(site.ids)))}) and 2 links (ports radio0, radio1)" in done.stderr
+        wrong = subprocess.run([*estop, "--run=acks-typo", "--ack-timeout=0.5"], capture_output=True, text=True, timeout=60)
+        assert wrong.returncode == 1, wrong.stderr
+        assert "no agent or link acknowledged it within 0.5 s" in wrong.stderr
+        assert json.loads(wrong.stdout.splitlines()[-1]) == {"run": "acks-typo", "published": 3, "agents": [], "links": [], "robots": []}
 
 
 def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):

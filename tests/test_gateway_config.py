@@ -47,6 +47,7 @@ def _base() -> dict:
     (lambda d: d.update(calibration={"1": {"range_bias_m": float("nan")}}), "must be a finite number"),
     (lambda d: d.update(calibration={"1": {"scale": 1}}), "unknown field(s) ['scale']"),
     (lambda d: d.update(timing={"heartbeat_period_s": 2.0}), "heartbeat_period_s (2.0) must be below heartbeat_timeout_s"),
+    (lambda d: d.update(timing={"heartbeat_timeout_s": 1.0}), "heartbeat_timeout_s (1) must exceed the retry budget plus one retransmission (1.7 s)"),
     (lambda d: d.update(timing={"max_retries": -1}), "timing.max_retries"),
     (lambda d: d.update(timing={"ack_timeout_s": 0.2, "max_retries": 15}), "ack_timeout_s x (max_retries + 1) = 3.2 s is too long"),
     (lambda d: d.update(timing={"robot_timeout_s": 6.0}), "timing.robot_timeout_s: 6 s must stay below the coordinator's step timeout 5 s"),

@@ -123,3 +123,16 @@ def test_abort_policy_and_minimum_robots(traj):
 def test_half_anchored_methods_keep_at_least_half_anchored():
     """n_a for n robots: n / 2 when even; else the smallest feasible count (Eq. 7) above n / 2."""
     assert [anchors_for_half(n) for n in (2, 3, 5, 6, 7, 9, 10)] == [1, 2, 4, 3, 6, 6, 5]
+
+
+def test_losing_robots_until_the_trajectory_is_infeasible_ends_the_run_naming_them_with_what_was_completed():
+    """Seed 2, six robots: after robots 0, 1 and 2 are lost in step 1, no anchor plan keeps the three left
+    connected; the run ends as aborted by lost robots (not as bad input), with the configurations completed."""
+    traj = random_trajectory(6, 3, np.random.default_rng(2))
+    with pytest.raises(RunAborted, match=r"after losing robots 0, 1, 2, the robots left cannot go on after configuration 1 of 3: "
+                                         r"no anchor plan keeps every robot within sensing range") as info:
+        run(traj, "inchworm", {0: 1, 1: 1, 2: 1})
+    assert info.value.robots == [0, 1, 2]
+    result = info.value.result
+    assert len(result.configs) == 1 and [r.robot for r in result.lost] == [0, 1, 2]
+    assert result.finished_ids.tolist() == [3, 4, 5]

@@ -25,6 +25,7 @@ from runtime.wire.keys import (
     alive_wildcard,
     coord_alive_key,
     coord_key,
+    estop_ack_key,
     parse_key,
     robot_key,
     robot_wildcard,
@@ -41,6 +42,7 @@ from runtime.wire.messages import (
     DropCounter,
     EmergencyStop,
     EstimateMessage,
+    EstopAck,
     LinkReply,
     LinkRequest,
     LinkStats,
@@ -63,6 +65,7 @@ from runtime.wire.messages import (
     refusal_status,
     type_for_key,
 )
+from runtime.wire.rate_limit import RateLimit
 
 PROTOCOL_MD = Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
 STAMP = 1_700_000_000_123_456_789
@@ -90,6 +93,7 @@ def samples() -> list[Message]:
         LinkStats(**head, port="radio0", robots=[1, 3], frames_sent=10, frames_received=9, retransmissions=1, crc_errors=2,
                   length_errors=0, skipped_bytes=5, timeouts=0, rtt_ms_median=1.5, rtt_ms_p90=2.0, rtt_ms_max=3.25, lost=[4]),
         EmergencyStop(**head, source="swarm estop", reason="operator pressed stop", robots=[4]),
+        EstopAck(**head, stop_stamp_ns=STAMP - 1, by="link", name="radio0", robots=[1, 3]),
         RobotEvent(**head, robot=4, kind="lost", reason="liveliness token gone"),
         ContactMessage(**head, config=2, a=3, b=4, distance_m=0.0185, radius_m=0.011, point=[0.25, -0.5]),
     ]
@@ -496,6 +500,7 @@ def test_key_builders_and_parse_round_trip():
         truth_key("r1", 7): ParsedKey("r1", "sim", 7, "truth"),
         alive_key("r1", 7): ParsedKey("r1", "alive", 7, "alive"),
         coord_alive_key("r1", 7, 0): ParsedKey("r1", "alive", None, "alive"),
+        estop_ack_key("r1"): ParsedKey("r1", "estop", None, "ack"),
     }
     for key, parsed in cases.items():
         assert parse_key(key) == parsed
@@ -564,9 +569,11 @@ def test_message_keys_and_key_checked_decoding():
         "LinkReply": "linkrep",
         "LinkStats": "stats",
         "EmergencyStop": "estop",
+        "EstopAck": "ack",
         "RobotEvent": "event",
         "ContactMessage": "contact",
     }
+    assert message_key(SAMPLES["EstopAck"]) == estop_ack_key("r1") == "swarm/r1/estop/ack"
     assert message_key(SAMPLES["ContactMessage"]) == "swarm/r1/sim/contact"
     assert message_key(SAMPLES["RobotEvent"]) == "swarm/r1/coord/event"
     assert message_key(SAMPLES["LinkStats"]) == "swarm/r1/link/radio0/stats"
@@ -649,7 +656,7 @@ def test_json_schema_catches_bad_values():
 
 
 def test_drop_counter_and_decode_or_drop(caplog):
-    counter = DropCounter()
+    counter = DropCounter(log_every_s=0.0)  # every drop logged
     key = "swarm/r1/robot/3/obs"
     raw = raw_map(SAMPLES["ObservationReport"])
     raw["ranges"][0] = math.nan
@@ -665,6 +672,46 @@ def test_drop_counter_and_decode_or_drop(caplog):
     lines = [r.getMessage() for r in caplog.records]
     assert len(lines) == 5 and all("\n" not in line for line in lines)
     assert lines[1] == f"dropped message on {key} (non-finite): ObservationReport.ranges[0]: nan is not finite"
+
+
+def test_a_flood_of_drops_is_counted_per_key_and_logged_at_a_bounded_rate(caplog):
+    counter = DropCounter(log_every_s=3600.0)
+    flood, other = "swarm/r1/robot/3/cmd", "swarm/r1/robot/4/cmd"
+    with caplog.at_level(logging.WARNING, logger="runtime.wire.messages"):
+        for _ in range(10_000):
+            decode_or_drop(b"\xc1", counter, flood)
+        decode_or_drop(b"\xc1", counter, other)
+        counter.log_every_s = 0.0  # the interval is over
+        decode_or_drop(b"\xc1", counter, flood)
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 3, lines  # the first of each key, then one line for the rest of the flood
+    assert lines[2].startswith(f"dropped message on {flood} (undecodable)") and lines[2].endswith("(and 9999 more on this key since the last line)")
+    assert counter.snapshot() == {flood: {"undecodable": 10_001}, other: {"undecodable": 1}}
+    forged = DropCounter(log_every_s=60)
+    for k in range(DropCounter.MAX_SOURCES + 500):  # every key a new one: the tables stay bounded
+        forged.drop(f"swarm/r1/robot/{k}/cmd", MessageError("message", "bad", "undecodable"))
+    assert len(forged.snapshot()) == DropCounter.MAX_SOURCES + 1 and forged.snapshot()["other keys"] == {"undecodable": 500}
+
+
+@pytest.mark.parametrize("cls,size", [(MotionCommand, 64 * 2**10), (ObservationReport, 2**20), (EstimateMessage, 4 * 2**20)])
+def test_each_type_has_a_size_limit_far_below_32_mib(cls, size):
+    """A payload beyond its type's limit is refused before it is parsed (a 20 MB forgery on a command key costs nothing)."""
+    assert cls.MAX_BYTES == size
+    key = message_key(SAMPLES[cls.__name__])
+    payload = encode(SAMPLES[cls.__name__])
+    assert decode(payload, key=key) == SAMPLES[cls.__name__]
+    with pytest.raises(MessageError, match=rf"{size + 1} bytes, at most {size} allowed") as info:
+        decode(payload + bytes(size + 1 - len(payload)), key=key)
+    assert info.value.reason == "size"
+    with pytest.raises(MessageError, match=r"at most 65536 allowed for MotionCommand"):  # unknown key: the type's limit still applies
+        decode(msgpack.packb({**raw_map(SAMPLES["MotionCommand"]), "pad": ["x" * 100] * 1000}))
+
+
+def test_rate_limit():
+    limit = RateLimit(per_s=10.0, burst=5)
+    assert sum(limit.allow() for _ in range(1000)) == 5 and limit.suppressed == 995
+    time.sleep(0.35)
+    assert 3 <= sum(limit.allow() for _ in range(100)) <= 5
 
 
 def test_undecodable_command_is_refused_when_its_header_is_readable():

@@ -99,7 +99,7 @@ def test_launcher_run_file_lets_estop_find_the_hub_and_is_removed(tmp_path):
         assert twin.returncode == 2 and "--run lab: that run is already live on this host" in twin.stderr, twin.stderr
         stop = swarm("estop", "--run", "lab", "--json", cwd=tmp_path, env=env)  # no --hub: the run file has it
         assert stop.returncode == 0, stop.stderr
-        assert f"emergency stop sent to run lab on {entry['hub']}" in stop.stderr
+        assert f"emergency stop of run lab on {entry['hub']} acknowledged by 3 agents (robots 0, 1, 2)" in stop.stderr
         _out, err = launcher.communicate(timeout=60)
     finally:
         if launcher.poll() is None:

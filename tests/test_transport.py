@@ -16,7 +16,9 @@ import pytest
 import zenoh
 
 from runtime.errors import SwarmInputError
+from runtime.wire.messages import MAX_MESSAGE_BYTES
 from runtime.wire.transport import (
+    MAX_WIRE_BYTES,
     ZenohSettings,
     alive_now,
     declare_token,
@@ -244,3 +246,36 @@ def test_deploy_files_configure_working_sessions() -> None:
             _wait_for(router_events, ("test/alive/1", True))  # the gateway agent's token reached the router
             assert alive_now(router_session, "test/alive/*") == {"test/alive/1"}
         router_watch.undeclare()
+
+
+def _rss_mb(pid: int) -> float:
+    return int(Path(f"/proc/{pid}/status").read_text().split("VmRSS:")[1].split()[0]) / 1024
+
+
+def test_oversized_payloads_on_a_command_key_are_dropped_by_the_router_and_its_memory_returns():
+    """Five 20 MB payloads on a command key through `swarm router`: no subscriber receives them (they exceed
+    MAX_WIRE_BYTES, which every session and the router configs set), a small message right behind them still
+    arrives at once, and the router's resident memory does not keep them."""
+    assert MAX_WIRE_BYTES >= MAX_MESSAGE_BYTES
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--listen={endpoint}"], stderr=subprocess.PIPE, text=True,
+                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parent.parent)})
+    try:
+        assert "listening" in router.stderr.readline()
+        member = ZenohSettings("client", connect=(endpoint,))
+        with open_session(member) as forger, open_session(member) as agent:
+            _sub, inbox = subscribe_queue(agent, "swarm/flood/robot/3/cmd")
+            time.sleep(0.5)
+            before = _rss_mb(router.pid)
+            for _ in range(5):
+                publish(forger, "swarm/flood/robot/3/cmd", bytes(20_000_000))
+            publish(forger, "swarm/flood/robot/3/cmd", b"small")
+            key, payload = inbox.get(timeout=5)
+            assert payload == b"small" and inbox.empty()
+            time.sleep(1.0)
+            grown = _rss_mb(router.pid) - before
+        print(f"router resident memory after 5 x 20 MB on a command key: +{grown:.1f} MB")
+        assert grown < 20
+    finally:
+        router.terminate()
+        router.wait(timeout=15)

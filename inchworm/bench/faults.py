@@ -21,9 +21,12 @@ Three parts, each through the options a user has, with real processes on loopbac
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``inchworm.bench.faults_gateway``.
+* ``estop_under_flood``: an emergency stop through the deploy/ TLS router (mutual TLS, access
+  control) while ``flood`` idle TCP connections hold its TLS port, see ``inchworm.bench.estop_flood``.
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
-"coordinator": {"runs", "completed", "identical", "takeover_ms_max"}}``.
+"coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}}``.
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ class FaultsBenchOptions:
     seeds: int = 10  # runs per lost-robot and gateway row
     fuzz: int = 10_000  # hostile messages sent during the fuzz run
     gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
+    flood: int = 3000  # idle TCP connections held on the TLS router during the emergency stop
 
 
 # -- lost robot ------------------------------------------------------------------------------
@@ -236,7 +240,9 @@ def _same_table(summary: dict, ref) -> bool:
 
 
 def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """The gateway rows, the lost robot, the fuzz run and the coordinator takeover; ``say`` is told each part's result as it ends."""
+    """The gateway rows, the lost robot, the fuzz run, the coordinator takeover and the stop under a connection flood;
+    ``say`` is told each part's result as it ends."""
+    from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
 
     o = options
@@ -256,7 +262,11 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"coordinator: swarm launch -n 10 --standby --kill-coordinator STEP (random) over {o.seeds} seeds")
     coord = {k: v for k, v in coordinator_takeover(o.seeds).items() if k != "summaries"}
     _say(json.dumps(coord))
+    _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
+    flood = estop_under_flood(connections=o.flood)
+    _say(json.dumps(flood))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "coordinator": coord}
-    table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord)])
+               "coordinator": coord, "estop_under_flood": flood}
+    table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
+                       json.dumps(flood)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")

@@ -90,7 +90,7 @@ class Timing:
     max_retries: int = 15
     motion_timeout_s: float = 4.0
     heartbeat_period_s: float = 0.1
-    heartbeat_timeout_s: float = 1.0
+    heartbeat_timeout_s: float = 2.0  # longer than retry_budget_s + ack_timeout_s: a blackout the link survives does not stop a motion
     robot_timeout_s: float = 2.0
     stats_period_s: float = 1.0
 
@@ -313,6 +313,10 @@ class _Parser:
         if timing.heartbeat_period_s >= timing.heartbeat_timeout_s:
             raise self.fail("timing", f"heartbeat_period_s ({timing.heartbeat_period_s}) must be below heartbeat_timeout_s "
                                       f"({timing.heartbeat_timeout_s}), or robots stop between heartbeats")
+        if timing.heartbeat_timeout_s <= timing.retry_budget_s + timing.ack_timeout_s:
+            raise self.fail("timing", f"heartbeat_timeout_s ({timing.heartbeat_timeout_s:g}) must exceed the retry budget plus one "
+                                      f"retransmission ({timing.retry_budget_s + timing.ack_timeout_s:g} s), or a radio blackout "
+                                      f"the link survives stops a robot in the middle of its motion")
         return timing
 
     def limits(self, value: Any) -> Limits:

@@ -160,10 +160,16 @@ class McapRecorder:
     (module docstring); the desired positions need ``metadata["trajectory"]`` (the
     trajectory JSON object). Derivation errors never stop the recording (counted in
     ``derived_errors``).
+
+    A write error (disk full, file size limit, device gone) stops the writing, never the caller:
+    ``error`` holds it, ``on_error(error)`` is called once from the writer thread, every message
+    from then on is counted in ``dropped`` and not written, and ``close()`` finishes the file as far
+    as it can (what reached the disk stays readable: ``recover``), then raises ``RecordingFailed``.
     """
 
     def __init__(self, path: str | os.PathLike, run: str, metadata: dict[str, Any] | None = None, *,
-                 chunk_bytes: int = CHUNK_BYTES, flush_s: float = FLUSH_S, foxglove: bool = True) -> None:
+                 chunk_bytes: int = CHUNK_BYTES, flush_s: float = FLUSH_S, foxglove: bool = True,
+                 on_error: Callable[[BaseException], object] | None = None) -> None:
         self.path = Path(path)
         self.run = validate_run(run)
         self.flush_s = float(flush_s)
@@ -193,6 +199,8 @@ class McapRecorder:
         self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._closed = False
         self._error: BaseException | None = None
+        self.dropped = 0  # messages not written after a write error
+        self.on_error = on_error
         self.checkpoints = 0  # Checkpoint messages on the disk (chunk closed, file synced)
         self._durable = threading.Condition()
         self._thread = threading.Thread(target=self._loop, name="mcap-recorder", daemon=True)
@@ -204,9 +212,16 @@ class McapRecorder:
         if self._closed:
             raise RuntimeError(f"recorder of {self.path} is closed")
         if self._error is not None:
-            raise RuntimeError(f"recorder of {self.path} failed: {self._error}") from self._error
+            with self._lock:
+                self.dropped += 1
+            return
         log_time = time.time_ns() if log_time_ns is None else int(log_time_ns)
         self._queue.put((str(key), bytes(payload), publish_time_ns, log_time))
+
+    @property
+    def error(self) -> BaseException | None:
+        """The write error that stopped the recording, or None."""
+        return self._error
 
     @property
     def count(self) -> int:
@@ -322,8 +337,18 @@ class McapRecorder:
                 if dirty and time.monotonic() - last_flush >= self.flush_s:
                     self._writer.flush()  # closes the chunk in progress and flushes the file
                     last_flush, dirty = time.monotonic(), False
-        except BaseException as e:  # noqa: BLE001 - reported by close()
+        except BaseException as e:  # noqa: BLE001 - reported by on_error and close()
             self._error = e
+        with self._durable:  # no checkpoint will reach the disk: nobody waits for one
+            self._durable.notify_all()
+        if self.on_error is not None:
+            try:
+                self.on_error(self._error)
+            except Exception:  # noqa: BLE001 - the callback's failure must not hide the write error
+                pass
+        while (item := self._queue.get()) is not None:  # the rest is not written, only counted
+            with self._lock:
+                self.dropped += 1
 
     def wait_checkpoints(self, count: int, timeout_s: float) -> bool:
         """Until ``count`` checkpoints are on the disk (True), or ``timeout_s`` seconds have passed (False)."""
@@ -339,17 +364,22 @@ class McapRecorder:
         self._queue.put(None)
         self._thread.join()
         try:
+            with self._lock:
+                stats = {"messages": sum(self._counts.values()), "undecodable": sum(self._bad.values()),
+                         "derived_messages": sum(self._derived_counts.values()), "derived_errors": self.derived_errors,
+                         "stopped_ns": time.time_ns(), "clean_stop": self._error is None, "dropped": self.dropped}
+            self._writer.add_metadata("recorder", _metadata_map(stats))
+            self._writer.finish()
+        except Exception as e:  # noqa: BLE001 - after a write error the summary may not fit either
             if self._error is None:
-                with self._lock:
-                    stats = {"messages": sum(self._counts.values()), "undecodable": sum(self._bad.values()),
-                             "derived_messages": sum(self._derived_counts.values()), "derived_errors": self.derived_errors,
-                             "stopped_ns": time.time_ns(), "clean_stop": True}
-                self._writer.add_metadata("recorder", _metadata_map(stats))
-                self._writer.finish()
+                self._error = e
         finally:
-            self._file.close()
+            try:
+                self._file.close()
+            except OSError:
+                pass
         if self._error is not None:
-            raise RuntimeError(f"recording to {self.path} failed: {self._error}") from self._error
+            raise RecordingFailed(self.path, self._error, self.count, self.dropped) from self._error
 
     def __enter__(self) -> McapRecorder:
         return self
@@ -358,18 +388,29 @@ class McapRecorder:
         self.close()
 
 
+class RecordingFailed(OSError):
+    """Writing a recording failed: ``path``, the ``error``, messages ``written`` before it and ``dropped`` after it."""
+
+    def __init__(self, path: Path, error: BaseException, written: int, dropped: int) -> None:
+        detail = error.strerror if isinstance(error, OSError) and error.strerror else str(error) or type(error).__name__
+        super().__init__(f"recording to {path} failed after {written} messages: {detail}; {dropped} later messages not recorded")
+        self.path, self.error, self.written, self.dropped = path, error, written, dropped
+
+
 def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, Any] | None,
-               stop_event: threading.Event, on_ready: Callable[[McapRecorder], object] | None = None) -> dict[str, Any]:
+               stop_event: threading.Event, on_ready: Callable[[McapRecorder], object] | None = None,
+               on_error: Callable[[BaseException], object] | None = None) -> dict[str, Any]:
     """Record ``swarm/<run>/**`` through a session opened with ``settings`` until ``stop_event`` is set.
 
-    ``on_ready(recorder)`` is called once the subscription is declared. Returns ``{"path",
+    ``on_ready(recorder)`` is called once the subscription is declared, ``on_error(error)`` once if
+    writing fails (the recording then goes on counting, ``close`` raises ``RecordingFailed``). Returns ``{"path",
     "messages", "channels", "raw_messages", "raw_channels", "derived_messages", "derived_channels",
     "undecodable"}`` (``messages`` and ``channels`` count raw and derived ones, as ``swarm info`` does).
     """
     from runtime.wire.transport import open_session, subscribe  # noqa: PLC0415 - zenoh only when recording live
 
     with open_session(settings) as session:  # fails (ConnectionError) before any file is created
-        recorder = McapRecorder(path, run, metadata)
+        recorder = McapRecorder(path, run, metadata, on_error=on_error)
         try:
             sub = subscribe(session, run_wildcard(run), lambda key, payload: recorder.write(key, payload))
             if on_ready is not None:

@@ -10,6 +10,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/robot/<id>/linkrep   LinkReply          link process -> gateway agent
     swarm/<run>/link/<port>/stats    LinkStats          link process -> recorder, tools
     swarm/<run>/estop                EmergencyStop      operator, launcher -> agents, links
+    swarm/<run>/estop/ack            EstopAck           agents, links -> whoever stopped the run
     swarm/<run>/coord/plan           PlanMessage        coordinator -> all
     swarm/<run>/coord/estimate       EstimateMessage    coordinator -> all
     swarm/<run>/coord/event          RobotEvent         coordinator -> all (robot lost / rejoined)
@@ -115,6 +116,11 @@ def estop_key(run: str) -> str:
     return f"{ROOT}/{validate_run(run)}/estop"
 
 
+def estop_ack_key(run: str) -> str:
+    """``swarm/<run>/estop/ack``: each agent and link acknowledges every emergency stop it acted on."""
+    return f"{ROOT}/{validate_run(run)}/estop/ack"
+
+
 def alive_key(run: str, robot_id: int) -> str:
     """``swarm/<run>/alive/robot/<id>``: the liveliness token an agent declares while it runs."""
     return f"{ROOT}/{validate_run(run)}/alive/robot/{validate_robot_id(robot_id)}"
@@ -213,6 +219,8 @@ def parse_key(key: str) -> ParsedKey:
         return ParsedKey(run, "link", None, "stats")
     if rest == ["estop"]:
         return ParsedKey(run, "estop", None, "estop")
+    if rest == ["estop", "ack"]:
+        return ParsedKey(run, "estop", None, "ack")
     if len(rest) == 4 and rest[:2] == ["alive", "coord"] and parse_coord_token(key) is not None:
         return ParsedKey(run, "alive", None, "alive")
     if len(rest) == 3 and rest[:2] == ["alive", "link"] and _RUN.fullmatch(rest[2]):

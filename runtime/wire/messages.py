@@ -38,6 +38,7 @@ from runtime.wire.keys import (
     KeyspaceError,
     contact_key,
     coord_key,
+    estop_ack_key,
     estop_key,
     link_stats_key,
     parse_key,
@@ -49,7 +50,10 @@ from runtime.wire.keys import (
 MAX_INT = MAX_ROBOT_ID  # every integer field, robot ids included, is in [0, 2^63 - 1]
 MAX_ITEMS = 100_000  # longest list of any field (robots, observations, groups)
 MAX_TEXT = 2_000  # longest string field (characters)
-MAX_MESSAGE_BYTES = 32 * 2**20
+SMALL_BYTES = 64 * 2**10  # commands, requests, answers, stops: a few hundred bytes in practice
+LIST_BYTES = 2**20  # messages with one list per robot seen or planned (observations, plans, link replies and stats)
+SWARM_BYTES = 4 * 2**20  # messages with a row per robot of the swarm (estimates, truth sets): ~110 B a robot
+MAX_MESSAGE_BYTES = SWARM_BYTES  # the largest message of any type; Zenoh drops larger ones (transport.MAX_WIRE_BYTES)
 ANGLE_SLACK = 1e-9  # rad tolerated beyond [-pi, pi] for bearings
 STATES = ("accepted", "done", "refused")
 LINK_REQUESTS = ("command", "observe", "estop", "reset")
@@ -216,6 +220,7 @@ class Message:
     TYPE: ClassVar[str] = ""
     VERSION: ClassVar[int] = 1
     LEAF: ClassVar[str] = ""  # last key chunk this type travels on (runtime.wire.keys)
+    MAX_BYTES: ClassVar[int] = SMALL_BYTES  # a larger payload on this type's keys is dropped before it is parsed
 
     run: str = _wire("str", "run id", pattern=RUN_PATTERN, max_length=64)
     step: int = _wire("int", "global step counter of the run: 0 = initial localization, motion steps from 1")
@@ -297,6 +302,7 @@ class ObservationReport(Message):
 
     TYPE: ClassVar[str] = "ObservationReport"
     LEAF: ClassVar[str] = "obs"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     robot: int = _wire("id", "the observer")
     observed: tuple[int, ...] = _wire("id", "robots observed", shape=("n",))
@@ -323,6 +329,7 @@ class PlanMessage(Message):
 
     TYPE: ClassVar[str] = "PlanMessage"
     LEAF: ClassVar[str] = "plan"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     config: int = _wire("int", "desired configuration planned for: k for C_dk (1-based)")
     n_anchors: int = _wire("int", "anchors of the largest step (robots minus the smallest group)")
@@ -349,6 +356,7 @@ class EstimateMessage(Message):
 
     TYPE: ClassVar[str] = "EstimateMessage"
     LEAF: ClassVar[str] = "estimate"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES
 
     ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
     poses: tuple[tuple[float, ...], ...] = _wire("float", "[x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
@@ -397,6 +405,7 @@ class TruthSetMessage(Message):
 
     TYPE: ClassVar[str] = "TruthSetMessage"
     LEAF: ClassVar[str] = "truths"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES
 
     ids: tuple[int, ...] = _wire("id", "robots, at least one, no duplicates; the rows below follow this order", shape=("n",))
     poses: tuple[tuple[float, ...], ...] = _wire("float", "true [x, y, heading] per robot", unit="m, m, rad", shape=("n", 3))
@@ -445,6 +454,7 @@ class LinkReply(Message):
 
     TYPE: ClassVar[str] = "LinkReply"
     LEAF: ClassVar[str] = "linkrep"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     robot: int = _wire("id", "the robot behind the link")
     kind: str = _wire("str", "accepted, done, refused, observation, estopped, reset or lost", choices=LINK_REPLIES)
@@ -464,6 +474,7 @@ class LinkStats(Message):
 
     TYPE: ClassVar[str] = "LinkStats"
     LEAF: ClassVar[str] = "stats"
+    MAX_BYTES: ClassVar[int] = LIST_BYTES
 
     port: str = _wire("str", "port name from the gateway config", pattern=RUN_PATTERN, max_length=64)
     robots: tuple[int, ...] = _wire("id", "robots behind the port", shape=(None,))
@@ -497,6 +508,23 @@ class EmergencyStop(Message):
     def applies_to(self, robot: int) -> bool:
         """Whether robot ``robot`` must stop."""
         return not self.robots or robot in self.robots
+
+
+ESTOP_ACKERS = ("agent", "link")
+
+
+@dataclass(frozen=True, kw_only=True)
+class EstopAck(Message):
+    """Agent or link -> whoever stopped the run: it acted on the ``EmergencyStop`` stamped ``stop_stamp_ns``
+    (an agent: forwarded it to its robot; a link: sent ESTOP on its port to ``robots``)."""
+
+    TYPE: ClassVar[str] = "EstopAck"
+    LEAF: ClassVar[str] = "ack"
+
+    stop_stamp_ns: int = _wire("int", "stamp_ns of the EmergencyStop acknowledged", unit="ns")
+    by: str = _wire("str", "agent or link", choices=ESTOP_ACKERS)
+    name: str = _wire("str", "the agent's robot id, or the link's port name", max_length=64)
+    robots: tuple[int, ...] = _wire("id", "the robots it stopped", shape=(None,))
 
 
 ROBOT_EVENTS = ("lost", "rejoined")
@@ -537,6 +565,7 @@ class Checkpoint(Message):
 
     TYPE: ClassVar[str] = "Checkpoint"
     LEAF: ClassVar[str] = "checkpoint"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES  # the whole run's records: as large as Zenoh's transport lets through
 
     epoch: int = _wire("int", "the epoch of the coordinator that wrote it")
     config: int = _wire("int", "desired configuration in progress: k for C_dk (1-based); its plan is in state")
@@ -561,6 +590,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     LinkReply,
     LinkStats,
     EmergencyStop,
+    EstopAck,
     RobotEvent,
     ContactMessage,
     Checkpoint,
@@ -582,6 +612,8 @@ def message_key(msg: Message) -> str:
         return link_stats_key(msg.run, msg.port)
     if isinstance(msg, EmergencyStop):
         return estop_key(msg.run)
+    if isinstance(msg, EstopAck):
+        return estop_ack_key(msg.run)
     if isinstance(msg, ContactMessage):
         return contact_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
@@ -602,12 +634,12 @@ def encode(msg: Message) -> bytes:
     return msgpack.packb(body)
 
 
-def _unpack(data: Any) -> Any:
+def _unpack(data: Any, max_bytes: int = MAX_MESSAGE_BYTES) -> Any:
     if not isinstance(data, (bytes, bytearray, memoryview)):
         raise MessageError("message", f"is a {type(data).__name__}, expected bytes", "undecodable")
     size = memoryview(data).nbytes
-    if size > MAX_MESSAGE_BYTES:
-        raise MessageError("message", f"{size} bytes, at most {MAX_MESSAGE_BYTES} allowed", "undecodable")
+    if size > max_bytes:
+        raise MessageError("message", f"{size} bytes, at most {max_bytes} allowed", "size")
     limit = 4 * MAX_TEXT
     try:
         return msgpack.unpackb(
@@ -688,9 +720,11 @@ def decode(
             expected = expected or type_for_key(key)
         except KeyspaceError as e:
             raise MessageError("key", str(e), "wrong-key") from None
-    raw = _unpack(data)
+    raw = _unpack(data, MAX_MESSAGE_BYTES if expected is None else expected.MAX_BYTES)
     try:
         cls = _message_class(raw, expected)
+        if memoryview(data).nbytes > cls.MAX_BYTES:
+            raise MessageError("message", f"{memoryview(data).nbytes} bytes, at most {cls.MAX_BYTES} allowed for {cls.TYPE}", "size")
     except MessageError as e:
         if e.reason == "version" and (expected is None or raw.get("type") == expected.TYPE):
             e.header = _readable_header(_BY_TYPE[raw["type"]], raw)
@@ -771,21 +805,38 @@ class CommandLimits:
 
 
 class DropCounter:
-    """Dropped messages counted by (source, reason); each drop is logged as one warning line.
+    """Dropped messages counted by (source, reason), logged at a bounded rate.
 
     ``source`` is the key the message arrived on (or its type); ``reason`` one of
-    ``REASONS``. Thread-safe: Zenoh callbacks may run concurrently.
+    ``REASONS``. The first drop on a source is logged at once; later ones at most once per
+    ``log_every_s`` per source, as one line with the count since the last line (a flood of
+    50,000 bad messages is a handful of lines, not 50,000). Thread-safe: Zenoh callbacks may
+    run concurrently.
     """
 
-    def __init__(self, logger: logging.Logger = _log) -> None:
+    LOG_EVERY_S = 5.0
+    MAX_SOURCES = 1024  # distinct sources counted one by one; beyond, drops count under "other keys"
+
+    def __init__(self, logger: logging.Logger = _log, log_every_s: float = LOG_EVERY_S) -> None:
         self._logger = logger
+        self.log_every_s = float(log_every_s)
         self._counts: dict[tuple[str, str], int] = {}
+        self._quiet: dict[str, tuple[float, int]] = {}  # source -> (last line's time, drops since)
         self._lock = threading.Lock()
 
     def drop(self, source: str, error: MessageError) -> None:
+        now = time.monotonic()
         with self._lock:
+            if source not in self._quiet and len(self._quiet) >= self.MAX_SOURCES:
+                source = "other keys"  # forged keys must not grow the tables without bound
             self._counts[source, error.reason] = self._counts.get((source, error.reason), 0) + 1
-        self._logger.warning("dropped message on %s (%s): %s", source, error.reason, error)
+            last, since = self._quiet.get(source, (-math.inf, 0))
+            if now - last < self.log_every_s:
+                self._quiet[source] = (last, since + 1)
+                return
+            self._quiet[source] = (now, 0)
+        more = f" (and {since} more on this key since the last line)" if since else ""
+        self._logger.warning("dropped message on %s (%s): %s%s", source, error.reason, error, more)
 
     @property
     def total(self) -> int:

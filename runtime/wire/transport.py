@@ -48,6 +48,7 @@ from runtime.errors import SwarmInputError
 
 MODES = ("peer", "client", "router")
 LOOPBACK = "127.0.0.1"
+MAX_WIRE_BYTES = 4 * 2**20 + 2**16  # the largest message (runtime.wire.messages.MAX_MESSAGE_BYTES) and room for Zenoh's framing
 
 _ENDPOINT = re.compile(
     r"(?P<proto>tcp|udp|quic|tls)/"
@@ -119,6 +120,9 @@ class ZenohSettings:
         if self.connect or self.config_file is None:
             config.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
         config.insert_json5("scouting/multicast/enabled", json.dumps(self.multicast_scouting))
+        # A larger message is dropped by the receiving transport before it is reassembled (a 20 MB forgery
+        # on a command key neither reaches Python nor stays in the router's buffers).
+        config.insert_json5("transport/link/rx/max_message_size", str(MAX_WIRE_BYTES))
         if not self.multicast_scouting:
             # The 500 ms that open() waits for multicast scouting replies would be wasted.
             config.insert_json5("scouting/delay", "0")
