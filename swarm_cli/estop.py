@@ -48,10 +48,11 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
 
     out = emergency_stop(connection_settings(args), args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
+    robots, ports = ", ".join(map(str, out.agents)), ", ".join(out.links)
     if out.agents or out.links:
         print(f"swarm estop: emergency stop of run {args.run_id} on {connection_label(args)} acknowledged by {len(out.agents)} agents"
-              f"{f' (robots {', '.join(map(str, out.agents))})' if out.agents else ''} and {len(out.links)} links"
-              f"{f' (ports {', '.join(out.links)})' if out.links else ''}", file=sys.stderr, flush=True)
+              f"{f' (robots {robots})' if robots else ''} and {len(out.links)} links{f' (ports {ports})' if ports else ''}",
+              file=sys.stderr, flush=True)
     else:
         print(f"swarm estop: emergency stop published to run {args.run_id}, but no agent or link acknowledged it "
               f"within {args.ack_timeout:g} s: is the run id right and the run on this hub?", file=sys.stderr, flush=True)
