@@ -275,6 +275,8 @@ def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> N
     """
     import socket
 
+    from inchworm.bench.estop_flood import idle_connections
+
     port = free_tcp_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     children: list[Child] = []
@@ -283,14 +285,7 @@ def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> N
         router = Child(router_cmd("--config", str(DEPLOY / "zenoh-router.json5"), "--listen", endpoint))
         children.append(router)
         router.wait_line("swarm router: listening on", 15)
-        for _ in range(FLOOD):
-            sock = socket.socket()
-            sock.setblocking(False)
-            try:
-                sock.connect(("127.0.0.1", port))
-            except BlockingIOError:
-                pass
-            sockets.append(sock)
+        sockets = idle_connections(port, FLOOD)
         start = time.monotonic()
         attempts = 0
         while True:  # each attempt waits up to Zenoh's open_timeout (10 s), as a user re-running a command would

@@ -53,7 +53,7 @@ def _client(tmp: Path, certs: Path, identity: str, endpoint: str) -> ZenohSettin
     return ZenohSettings("client", config_file=str(config))
 
 
-def _flood(port: int, connections: int) -> list[socket.socket]:
+def idle_connections(port: int, connections: int) -> list[socket.socket]:
     """``connections`` TCP connections to 127.0.0.1:``port`` that never send a byte."""
     sockets = []
     for _ in range(connections):
@@ -99,7 +99,7 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, ack_timeout_s: 
                     if time.monotonic() > deadline or any(p.poll() is not None for p in procs):
                         raise RuntimeError(f"the {robots} agents did not come up over TLS within {START_S:.0f} s")
                     time.sleep(0.1)
-                sockets = _flood(port, connections)
+                sockets = idle_connections(port, connections)
                 time.sleep(0.5)  # the router is busy with them
                 start_ns = time.time_ns()
                 with open_session(coordinator) as operator:  # what swarm estop does
