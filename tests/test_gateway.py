@@ -45,6 +45,7 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
+from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
 PY = [sys.executable, "-m"]
@@ -194,7 +195,7 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
         ]
         for payload in hostile:
             publish(session, "swarm/gw/robot/0/linkreq", payload)
-        _wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
+        wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
         assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
         r.driver.execute(command(2, 0.1, 0.05, simulated_pose([(0.1, 0.05)])))  # the link still serves
         assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
@@ -213,7 +214,7 @@ def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_worksp
             rejected = r.link.stats().rejected
             request = _request(step=step, turn_rad=math.pi if step == 1 else 0.0, drive_m=0.5, start_pose=start_pose)
             publish(session, "swarm/gw/robot/0/linkreq", encode(request))
-            _wait_for(lambda step=step, rejected=rejected: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
+            wait_for(lambda step=step, rejected=rejected: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
                       f"the link's answer to the request of step {step}")
         sub.undeclare()
         x = r.emulator.world.pose(0)[0]
@@ -245,7 +246,7 @@ def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
         failed: list[BaseException] = []
         worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
         worker.start()
-        _wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")  # the driver waits for step 1
+        wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")  # the driver waits for step 1
         forged = LinkReply(run="gw", step=99, robot=0, kind="lost", reason="forged", observed=[], ranges=[], bearings=[])
         publish(session, message_key(forged), encode(forged))
         worker.join(timeout=10)
@@ -262,7 +263,7 @@ def test_a_lost_done_after_a_long_motion_costs_one_retry_interval():
         start = time.monotonic()
         worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
         worker.start()
-        _wait_for(lambda: r.emulator.executed(0) == 0 and r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
+        wait_for(lambda: r.emulator.executed(0) == 0 and r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
         accepted = time.monotonic()
         time.sleep(max(0.0, accepted + 0.3 - time.monotonic()))
         r.emulator.faults = FaultPlan(drop_prob=1.0)  # the radio is dead around the end of the motion: DONE lost
@@ -281,7 +282,7 @@ def test_a_robot_dying_mid_motion_is_lost_within_the_retry_budget():
         failed: list[BaseException] = []
         worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
         worker.start()
-        _wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
+        wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
         start = time.monotonic()
         r.emulator.faults = FaultPlan(drop_prob=1.0)  # the radio goes dead while the robot moves
         worker.join(timeout=10)
@@ -303,7 +304,7 @@ def test_an_idle_driver_notices_its_link_disappear():
         r.driver.check()  # link alive: nothing
         r.link.stop()
         r.thread.join(timeout=5)
-        _wait_for(lambda: reasons, 5, "the lost callback")
+        wait_for(lambda: reasons, 5, "the lost callback")
         assert reasons == ["robot 0: the link process of port radio0 is gone"]
         with pytest.raises(RobotLost, match="the link process of port radio0 is gone"):
             r.driver.check()
@@ -349,15 +350,6 @@ def test_gateway_run_equals_the_simulated_run_and_is_recorded(tmp_path):
     assert {r.kind for r in replies} == {"done", "observation"}
 
 
-def _wait_for(predicate, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-
 
 def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
     """Until the hub routes each of ``keys`` to a subscriber (a probe publisher's matching status), so that
@@ -365,7 +357,7 @@ def _wait_routed(hub: str, keys: list[str], timeout_s: float = 10.0) -> None:
     with open_session(ZenohSettings("client", connect=(hub,))) as probe:
         for key in keys:
             publisher = probe.declare_publisher(key)
-            _wait_for(lambda publisher=publisher: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
+            wait_for(lambda publisher=publisher: publisher.matching_status.matching, timeout_s, f"a subscriber of {key} known to the hub")
             publisher.undeclare()
 
 
@@ -425,7 +417,7 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         site.link(run_id, "radio1")
         for robot in ids:
             site.agent(robot, run_id)
-        _wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
+        wait_for(lambda: len(alive_now(session, alive_wildcard(run_id))) == len(ids), 30, "every agent alive")
         _sub, statuses = subscribe_queue(session, f"swarm/{run_id}/robot/*/status")
         _wait_routed(site.hub, [f"swarm/{run_id}/robot/{r}/status" for r in ids])
 
@@ -435,7 +427,7 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
                     st = decode(statuses.get()[1], Status)
                     found[(st.robot, st.step)] = st
                 return found.get((robot, step))
-            return _wait_for(find, 10, f"the status of robot {robot} at step {step}")
+            return wait_for(find, 10, f"the status of robot {robot} at step {step}")
 
         found: dict = {}
         token = act_as_coordinator(session, run_id)
@@ -463,7 +455,7 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
                     first.setdefault(row["robot"], row["time_ns"])
             return first if set(first) == set(ids) else None
 
-        first = _wait_for(estops, 5, "ESTOP at every emulated robot")
+        first = wait_for(estops, 5, "ESTOP at every emulated robot")
         delays_ms = {robot: (t - t0) / 1e6 for robot, t in first.items()}
         print(f"estop delays ms: {delays_ms}")
         assert max(delays_ms.values()) < 100, delays_ms
@@ -487,7 +479,7 @@ def test_swarm_estop_counts_the_agents_and_links_that_acknowledged_and_fails_whe
         site.link(run_id, "radio1")
         for robot in site.ids:
             site.agent(robot, run_id)
-        _wait_for(lambda: len(alive_now(site.session, alive_wildcard(run_id))) == len(site.ids), 30, "every agent alive")
+        wait_for(lambda: len(alive_now(site.session, alive_wildcard(run_id))) == len(site.ids), 30, "every agent alive")
         estop = [sys.executable, "-m", "swarm_cli.main", "estop", f"--hub={site.hub}", "--json"]
         done = subprocess.run([*estop, f"--run={run_id}"], capture_output=True, text=True, timeout=60)
         assert done.returncode == 0, done.stderr
@@ -509,7 +501,7 @@ def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):
     try:
         def moving():
             return events.exists() and '"event":"accepted"' in events.read_text()
-        _wait_for(moving, 60, "a robot moving")
+        wait_for(moving, 60, "a robot moving")
         launcher.send_signal(signal.SIGINT)
         _, err = launcher.communicate(timeout=30)
     finally:
@@ -532,7 +524,7 @@ def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path)
                                   f"--hub=tcp/127.0.0.1:{port}", "--driver=gateway", f"--gateway-config={config}",
                                   "--ready-timeout=0.5"], stderr=subprocess.PIPE, text=True)
         try:
-            _wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
+            wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
             _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
             _token = act_as_coordinator(session, "nolink")
@@ -568,7 +560,7 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
         robot = site.ids[0]
         link = site.link("deadlink")
         agent = site.agent(robot, "deadlink", stderr=subprocess.PIPE, text=True)
-        _wait_for(lambda: alive_now(site.session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{robot}",
+        wait_for(lambda: alive_now(site.session, "swarm/deadlink/alive/**") >= {f"swarm/deadlink/alive/robot/{robot}",
                                                                                  "swarm/deadlink/alive/link/radio0"}, 30, "agent and link")
         _sub, statuses = subscribe_queue(site.session, f"swarm/deadlink/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/deadlink/robot/{robot}/status"])
@@ -595,7 +587,7 @@ def test_an_agent_declares_itself_alive_only_once_its_link_is_up(tmp_path):
         time.sleep(2.0)  # long enough for an agent to start; its link is not there yet
         assert alive_now(site.session, alive_wildcard("late")) == set()
         site.link("late")
-        _wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
+        wait_for(lambda: alive_now(site.session, alive_wildcard("late")), 20, "the agent's token once the link is up")
         _sub, statuses = subscribe_queue(site.session, f"swarm/late/robot/{robot}/status")
         _wait_routed(site.hub, [f"swarm/late/robot/{robot}/status"])
         _token = act_as_coordinator(site.session, "late")
@@ -621,7 +613,7 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
         with open_session(hub_settings), open_session(member) as session:
             live = start_gateway(traj_file, gateway, tmp_path, run_id, hub, 2, 0.0, [], procs, events)
             ids = {f"swarm/{run_id}/alive/link/{p.name}" for p in gateway.ports}
-            _wait_for(lambda: alive_now(session, f"swarm/{run_id}/alive/link/*") == ids, 30, "the link processes")
+            wait_for(lambda: alive_now(session, f"swarm/{run_id}/alive/link/*") == ids, 30, "the link processes")
             agents = start_agents(traj, run_id, hub, 2, 0.0, ["--driver=gateway", f"--gateway-config={live}"])
             procs += agents
             stable = list(procs)
@@ -679,10 +671,10 @@ def test_an_idle_agent_whose_link_dies_reports_its_robot_lost_and_exits_3(tmp_pa
         robot = site.ids[0]
         link = site.link("idle")
         agent = site.agent(robot, "idle", stderr=subprocess.PIPE, text=True)
-        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" in alive_now(site.session, "swarm/idle/alive/**"), 30, "the agent")
+        wait_for(lambda: f"swarm/idle/alive/robot/{robot}" in alive_now(site.session, "swarm/idle/alive/**"), 30, "the agent")
         link.kill()  # the agent is idle: no command in flight
         killed = time.monotonic()
         assert agent.wait(timeout=10) == 3
         assert time.monotonic() - killed < 3.0
-        _wait_for(lambda: f"swarm/idle/alive/robot/{robot}" not in alive_now(site.session, "swarm/idle/alive/**"), 5, "token gone")
+        wait_for(lambda: f"swarm/idle/alive/robot/{robot}" not in alive_now(site.session, "swarm/idle/alive/**"), 5, "token gone")
         assert "the link process of port radio0 is gone" in agent.stderr.read()

@@ -21,17 +21,11 @@ from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
 from runtime.wire.messages import LinkRequest, encode, message_key
 from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, open_session, publish
+from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
-
-def _wait_for(predicate, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while not (value := predicate()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-    return value
 
 
 def _events(path: Path) -> list[dict]:
@@ -72,7 +66,7 @@ def test_a_link_resuming_from_its_own_stall_heartbeats_before_it_judges_its_robo
         hub = _router(free_tcp_port(), procs)
         link = _link(live, "stall", hub, procs)
         with open_session(ZenohSettings("client", connect=(hub,))) as session:
-            _wait_for(lambda: alive_now(session, link_alive_key("stall", "radio0")), 30, "the link")
+            wait_for(lambda: alive_now(session, link_alive_key("stall", "radio0")), 30, "the link")
             time.sleep(0.5)  # heartbeats answered
             link.send_signal(signal.SIGSTOP)  # the link stalls 2.7 s, longer than robot_timeout_s (2 s); the robots are fine
             time.sleep(2.7)
@@ -98,16 +92,16 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
         link = _link(live, "dead", hub, procs)
         session = open_session(ZenohSettings("client", connect=(hub,)))
         try:
-            _wait_for(lambda: alive_now(session, link_alive_key("dead", "radio0")), 30, "the link")
+            wait_for(lambda: alive_now(session, link_alive_key("dead", "radio0")), 30, "the link")
             token = declare_token(session, coord_alive_key("dead", 1))  # a coordinator appears: the link begins a run
-            _wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
+            wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
             request = LinkRequest(run="dead", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(request), encode(request))
-            _wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
+            wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
             router.kill()
             router.wait()
             killed_ns = time.time_ns()
-            aborted = _wait_for(lambda: [e for e in _events(events) if e["event"] == "aborted"], 5, "the watchdog's stop")
+            aborted = wait_for(lambda: [e for e in _events(events) if e["event"] == "aborted"], 5, "the watchdog's stop")
             assert "watchdog" in aborted[0]["reason"]
             print(f"motion aborted by the robot's watchdog {(aborted[0]['time_ns'] - killed_ns) / 1e6:.0f} ms after the router died")
             assert aborted[0]["time_ns"] - killed_ns < 2.5e9
@@ -132,17 +126,17 @@ def test_a_coordinator_takeover_keeps_the_robots_fed_and_the_accepted_motion_com
         hub = _router(free_tcp_port(), procs)
         link = _link(live, "takeover", hub, procs)
         with open_session(ZenohSettings("client", connect=(hub,))) as session:
-            _wait_for(lambda: alive_now(session, link_alive_key("takeover", "radio0")), 30, "the link")
+            wait_for(lambda: alive_now(session, link_alive_key("takeover", "radio0")), 30, "the link")
             first = declare_token(session, coord_alive_key("takeover", 1))
-            _wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
+            wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
             request = LinkRequest(run="takeover", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
             publish(session, message_key(request), encode(request))
-            _wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
+            wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
             first.undeclare()
             time.sleep(0.3)
             second = declare_token(session, coord_alive_key("takeover", 2, 1))
             other = declare_token(session, coord_alive_key("takeover", 5))  # a second master: refused by the agents
-            _wait_for(lambda: [e for e in _events(events) if e["event"] == "executed"], 10, "the motion done")
+            wait_for(lambda: [e for e in _events(events) if e["event"] == "executed"], 10, "the motion done")
             assert not [e for e in _events(events) if e["event"] == "aborted"]
             assert len([e for e in _events(events) if e["event"] == "run"]) == len(ids)  # the same run: no new RUN
             other.undeclare()

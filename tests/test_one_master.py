@@ -28,17 +28,11 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
+from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
-
-def _wait_for(predicate, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while not (value := predicate()):
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.02)
-    return value
 
 
 def _coordinator(traj_file: Path, run_id: str, hub: str, seed: int, *extra: str) -> subprocess.Popen:
@@ -67,7 +61,7 @@ def test_a_second_coordinator_on_a_live_run_is_refused_and_the_first_finishes_al
             # the first coordinator is live (its token declared, waiting for its agents) however slow the machine
             first = _coordinator(traj_file, "twomasters", hub, 2, "--result=first.json")
             procs.append(first)
-            _wait_for(lambda: alive_now(session, coord_alive_key("twomasters")), 60, "the first coordinator's token")
+            wait_for(lambda: alive_now(session, coord_alive_key("twomasters")), 60, "the first coordinator's token")
             second = _coordinator(traj_file, "twomasters", hub, 5)
             procs.append(second)
             _, err2 = second.communicate(timeout=60)
@@ -102,7 +96,7 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
         subscribe(session, "swarm/**", lambda key, payload: heard.append(key))
         try:
             start_agents(traj, "live", hub, 2, 0.0, (), procs, env=ENV, stderr=subprocess.DEVNULL)
-            _wait_for(lambda: len(alive_now(session, alive_wildcard("live"))) == traj.n, 60, "the live run's agents")
+            wait_for(lambda: len(alive_now(session, alive_wildcard("live"))) == traj.n, 60, "the live run's agents")
             refused = subprocess.run([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--same-run",
                                       "--speed=0", f"--hub={hub}", "--wait=0"],
                                      capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=60)
@@ -134,7 +128,7 @@ def test_a_command_of_a_gone_coordinator_epoch_is_refused(tmp_path):
                               f"--hub=tcp/127.0.0.1:{port}"], env=ENV, stderr=subprocess.DEVNULL)
     try:
         with open_session(hub_settings) as hub:
-            _wait_for(lambda: alive_now(hub, alive_wildcard("stale")), 30, "the agent's token")
+            wait_for(lambda: alive_now(hub, alive_wildcard("stale")), 30, "the agent's token")
             _, statuses = subscribe_queue(hub, robot_key("stale", 0, "status"))
 
             def command(epoch: int, step: int) -> list[Status]:
@@ -205,7 +199,7 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
             start_agents(traj, "rejoin", hub, 3, 0.4, ("--sensing-range=3.0",), procs, env=ENV, stderr=subprocess.DEVNULL)
             coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}", "--sensing-range=3.0")
             procs.append(coordinator)
-            _wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
+            wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
             victim = procs[2]
             victim.send_signal(signal.SIGKILL)
             victim.wait(timeout=10)
@@ -249,7 +243,7 @@ def test_a_coordinator_resumed_from_the_recording_of_a_killed_one_finishes_the_r
                 first = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--record=run.mcap")
                 procs.append(first)
                 if name == "resumed":
-                    _wait_for(lambda started=started: any(s >= 3 for s in started), 60, "step 3")
+                    wait_for(lambda started=started: any(s >= 3 for s in started), 60, "step 3")
                     first.send_signal(signal.SIGKILL)
                     first.wait(timeout=10)
                     resumed = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--resume=run.mcap")
