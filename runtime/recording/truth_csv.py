@@ -100,27 +100,24 @@ def _at_steps(rows: dict[tuple[int, float], np.ndarray], step_times: Mapping[tup
     return out
 
 
+def _count(row: dict[str, str], col: str, where: str) -> int:
+    """Column ``col`` of ``row`` as an integer >= 0, or ``SwarmInputError`` naming the line."""
+    text = row.get(col, "")
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise SwarmInputError(f"{where}: {col} must be an integer >= 0, got {text!r}")
+    return value
+
+
 def _row(row: dict[str, str], line: int, path: Path, known: set[int] | None, by_time: bool) -> tuple[tuple[int, float], np.ndarray]:
     where = f"--truth {path}: line {line}"
-    text = row.get("robot", "")
-    try:
-        robot = int(text)
-    except ValueError:
-        raise SwarmInputError(f"{where}: robot must be an integer >= 0, got {text!r}") from None
-    if robot < 0:
-        raise SwarmInputError(f"{where}: robot must be an integer >= 0, got {text!r}")
+    robot = _count(row, "robot", where)
     if known is not None and robot not in known:
         raise SwarmInputError(f"{where}: robot {robot} is not a robot of the recording (robots {sorted(known)})")
-    if by_time:
-        when = _finite(row, "time", where)
-    else:
-        text = row.get("step", "")
-        try:
-            when = int(text)
-        except ValueError:
-            raise SwarmInputError(f"{where}: step must be an integer >= 0, got {text!r}") from None
-        if when < 0:
-            raise SwarmInputError(f"{where}: step must be an integer >= 0, got {text!r}")
+    when = _finite(row, "time", where) if by_time else _count(row, "step", where)
     return (robot, when), np.array([_finite(row, col, where) for col in ("x", "y", "heading")])
 
 
