@@ -10,6 +10,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop, EstopAck, MessageError, decode, encode, message_key
 from runtime.wire.transport import publish
 
@@ -115,8 +116,7 @@ class EstopOutcome:
 
 def emergency_stop(settings, run_id: str, source: str, reason: str, repeat_s: float, ack_timeout: float) -> EstopOutcome:
     """Publish an ``EmergencyStop`` to ``run_id`` and collect the acknowledgements for ``ack_timeout`` s (after the first publication)."""
-    from runtime.wire.keys import estop_ack_key, validate_run  # noqa: PLC0415 - zenoh, only when a stop is sent
-    from runtime.wire.transport import open_session, subscribe_queue  # noqa: PLC0415
+    from runtime.wire.transport import open_session, subscribe_queue  # noqa: PLC0415 - zenoh, only when a stop is sent
 
     validate_run(run_id)
     msg = EmergencyStop(run=run_id, step=0, source=source, reason=reason)
