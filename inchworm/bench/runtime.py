@@ -39,6 +39,7 @@ N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -74,11 +75,19 @@ class RuntimeBenchOptions:
     model: ModelConfig = field(default_factory=ModelConfig)
 
 
-class StepTimer:
-    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate."""
+class EnoughSteps(Exception):
+    """Raised by ``StepTimer`` once it timed ``limit`` steps: ends the run there (not an error)."""
 
-    def __init__(self, inner) -> None:
+
+class StepTimer:
+    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate; after
+    ``limit`` steps it raises ``EnoughSteps`` (with bodies, ``clear_plan`` splits a configuration's moves into as
+    many steps as it needs to keep them apart: hundreds at 500 robots, so the configurations alone do not bound
+    the run)."""
+
+    def __init__(self, inner, limit: int | None = None) -> None:
         self.inner = inner
+        self.limit = limit
         self.mark: float | None = None
         self.seconds: list[float] = []
         self.publish_s: list[float] = []  # the inner on_estimate of each timed step (publishing the estimate)
@@ -98,6 +107,8 @@ class StepTimer:
             self.seconds.append(now - self.mark)
             self.publish_s.append(now - start)
         self.mark = now
+        if self.limit is not None and len(self.seconds) >= self.limit:
+            raise EnoughSteps
 
 
 class TimedBackend:
@@ -215,12 +226,13 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
                     _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")
                     rtt = round_trip_ms(member, member, args.rtt_count)["median_ms"]
                     _say(f"{n} agents: round trip {rtt:.3f} ms; timing {configs * per_config} steps ({args.method})")
-                    timer = StepTimer(backend)
+                    timer = StepTimer(backend, configs * per_config)
                     progress = lambda done, total: _say(f"{n} agents: configuration {done}/{total} (step {backend.step})")  # noqa: E731
                     timed = TimedBackend(backend)
                     executor = InchwormExecutor(timed, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=timer)
                     cpu_before = (sum(cpu_seconds(p.pid) for p in procs), cpu_seconds(os.getpid()))
-                    executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
+                    with contextlib.suppress(EnoughSteps):
+                        executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
                     cpu_after = (sum(cpu_seconds(p.pid) for p in procs), cpu_seconds(os.getpid()))
                 finally:
                     backend.close()
