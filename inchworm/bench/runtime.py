@@ -6,7 +6,9 @@ simulated drivers, no motion delay: one process per robot up to 50 robots, else 
 hosting up to 50 agents each; ``agents_per_process`` to choose), then runs the coordinator in process: a
 ``ZenohSwarmBackend`` (a client of the hub, like ``swarm coordinator``) under the same
 ``InchwormExecutor``, with a fixed plan (``method`` ``no-anchors``: everybody moves every
-step, or ``ref57``) along a random trajectory of ``steps`` steps. A step's time runs
+step, or ``ref57``) along a random trajectory, for ``steps`` steps (with bodies, the model's
+``robot_radius_m`` > 0, the plan's moves are split into collision-free groups: at 500 robots one or
+two move per step; radius 0 keeps everybody moving). A step's time runs
 from the end of the previous step (or of the plan) to the published fused estimate:
 commands out, every ``Status done`` back, observation requests out, every report (and
 simulated truth) back, localization, ``EstimateMessage`` published. No simulated motion
