@@ -85,6 +85,9 @@ from runtime.wire.transport import alive_now, declare_token, publish, subscribe,
 _log = logging.getLogger(__name__)
 
 
+STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
+
+
 class AgentError(SwarmInputError):
     """A robot agent failed the run; ``robots`` names the robot ids."""
 
@@ -389,15 +392,20 @@ class ZenohSwarmBackend:
 
     def _wait(self, what: str, missing, resend) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
-        the timeout; at the timeout the robots still missing are lost."""
-        start = time.monotonic()
+        the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
+        (this process was stopped or starved: answers may still be in its socket) does not count."""
+        start = last = time.monotonic()
         resent = False
         while True:
             self._publish_truth_set()  # a robot lost meanwhile may complete the set
             left = missing()
             if not left:
                 return
-            elapsed = time.monotonic() - start
+            now = time.monotonic()
+            if now - last > STALL_S:
+                start += now - last
+            last = now
+            elapsed = now - start
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()
