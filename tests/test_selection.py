@@ -126,6 +126,11 @@ def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(locali
             continue
         seed_plan = heuristic_plan(estimate.positions, desired, entry.n_anchors)
         e_plan, e_seed = fresh.localization_errors(estimate, desired, [entry.plan, seed_plan])
+        if entry.plan.key() == seed_plan.key() and entry.e_l != pytest.approx(e_plan, rel=1e-12):  # the race kept the seed: no final check
+            screen_seed = int(np.random.default_rng([seed, 1]).integers(2**63))
+            screen = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.samples, 8), screen_seed, sel.mc_start)
+            assert entry.e_l == entry.seed_e_l == pytest.approx(screen.localization_errors(estimate, desired, [seed_plan])[0], rel=1e-12)
+            continue
         assert entry.e_l == pytest.approx(e_plan, rel=1e-12)  # the reported e_l is the fresh set's, not the search's
         assert entry.seed_e_l == pytest.approx(e_seed, rel=1e-12)
 

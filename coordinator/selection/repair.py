@@ -9,7 +9,8 @@ trying only the swaps that move a robot of a conflicting pair with one of its
 ``PARTNERS`` nearest robots (by desired position) in another group, and taking the swap with
 the fewest conflicts left (ties: the highest heuristic value, Eq. 13 summed over the steps,
 so the plan stays as close to the heuristic's choice as the bodies allow). It stops at a clear,
-connected plan, or returns None when a round removes no conflict.
+connected plan, or returns None when a round removes no conflict (or, at once, when the plan has more
+than ``MAX_CONFLICTS`` conflicting pairs: a few swaps cannot clear it).
 """
 
 from __future__ import annotations
@@ -24,13 +25,17 @@ from runtime.models.bodies import BodyCheck
 
 PARTNERS = 8  # nearest robots (by desired position) in other groups tried for each robot of a conflict
 MAX_ROUNDS = 8  # swaps at most
+MAX_CONFLICTS = 3 * MAX_ROUNDS  # more conflicting pairs than this: not tried (n_r = 10: 4-17; n_r = 30, 100: 10-200, never repaired)
 
 
-def conflicts(plan: Plan, bodies: BodyCheck) -> tuple[int, set[int]]:
-    """(conflicting pairs over all steps, the robots in them) of ``plan``'s nominal motion."""
+def conflicts(plan: Plan, bodies: BodyCheck, limit: int | None = None) -> tuple[int, set[int]]:
+    """(conflicting pairs over all steps, the robots in them) of ``plan``'s nominal motion; counting stops
+    once ``limit`` pairs are found."""
     before = bodies.current.copy()
-    count, robots = 0, set()
+    count, robots = 0, set[int]()
     for group in plan.groups:
+        if limit is not None and count >= limit:
+            break
         moving = np.zeros(len(before), bool)
         moving[group] = True
         found = bodies.step_conflicts(before, moving)
@@ -67,6 +72,8 @@ def repair(plan: Plan, bodies: BodyCheck, connected: Callable[[Plan], bool]) -> 
     count, robots = conflicts(plan, bodies)
     if count == 0:
         return plan
+    if count > MAX_CONFLICTS:
+        return None
     group_of = np.empty(plan.n_robots, np.int64)
     group_of[plan.order] = np.repeat(np.arange(plan.n_steps), plan.sizes)
     gap = np.linalg.norm(bodies.desired[:, None] - bodies.desired[None], axis=-1)
@@ -81,7 +88,7 @@ def repair(plan: Plan, bodies: BodyCheck, connected: Callable[[Plan], bool]) -> 
                     continue
                 tried.add(pair)
                 candidate = swapped(plan, *pair)
-                left, _ = conflicts(candidate, bodies)
+                left, _ = conflicts(candidate, bodies, count if best is None else best[0] + 1)
                 if left >= count or (best is not None and left > best[0]) or not connected(candidate):
                     continue
                 value = heuristic_value(candidate, bodies.current, bodies.desired)

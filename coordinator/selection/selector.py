@@ -212,7 +212,7 @@ class AnchorSelector:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
         def feasible(plan: Plan) -> bool:
-            return connected(plan) and bodies.is_clear(plan.groups)
+            return bodies.is_clear(plan.groups) and connected(plan)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
@@ -297,13 +297,23 @@ class AnchorSelector:
                 bar = max(bar, scores[n_a].p_s)
                 continue
             champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
+            evaluations += spent
+            if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
+                if seed is seeds[n_a] or count_samples == samples:
+                    e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
+                else:
+                    e_seed = float(evaluate([seed])[0])
+                    evaluations += 1
+                scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
+                bar = max(bar, scores[n_a].p_s)
+                continue
             if e_max_final is None:
                 e_max_final = no_anchors(final_samples, final_seed)[1]
             if seed is None:  # no feasible seed: the race winner, checked on the fresh set
                 kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
             else:
                 kept, e_fresh, e_seed = final_check(champion, seed, each_sample, final_samples, final_seed)
-            evaluations += spent + 2
+            evaluations += 2
             scores[n_a] = replace(score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
             if on_screen is None:
