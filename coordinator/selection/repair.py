@@ -28,21 +28,37 @@ MAX_ROUNDS = 8  # swaps at most
 MAX_CONFLICTS = 3 * MAX_ROUNDS  # more conflicting pairs than this: not tried (n_r = 10: 4-17; n_r = 30, 100: 10-200, never repaired)
 
 
-def conflicts(plan: Plan, bodies: BodyCheck, limit: int | None = None) -> tuple[int, set[int]]:
-    """(conflicting pairs over all steps, the robots in them) of ``plan``'s nominal motion; counting stops
-    once ``limit`` pairs are found."""
+def conflicts(plan: Plan, bodies: BodyCheck) -> tuple[int, set[int]]:
+    """(conflicting pairs over all steps, the robots in them) of ``plan``'s nominal motion."""
     before = bodies.current.copy()
     count, robots = 0, set[int]()
     for group in plan.groups:
-        if limit is not None and count >= limit:
-            break
-        moving = np.zeros(len(before), bool)
-        moving[group] = True
-        found = bodies.step_conflicts(before, moving)
+        found = bodies.step_conflicts(before, _mask(group, len(before)))
         count += len(found)
         robots.update(r for c in found for r in (c.a, c.b))
         before[group] = bodies.desired[group]
     return count, robots
+
+
+def step_counts(plan: Plan, bodies: BodyCheck, first: int = 0, last: int | None = None, limit: int | None = None) -> list[int]:
+    """Conflicting pairs of steps ``first`` to ``last`` (inclusive; default: to the end), stopping once ``limit`` are found."""
+    groups = plan.groups
+    before = bodies.current.copy()
+    for group in groups[:first]:
+        before[group] = bodies.desired[group]
+    out: list[int] = []
+    for group in groups[first: len(groups) if last is None else last + 1]:
+        if limit is not None and sum(out) >= limit:
+            break
+        out.append(len(bodies.step_conflicts(before, _mask(group, len(before)))))
+        before[group] = bodies.desired[group]
+    return out
+
+
+def _mask(group: np.ndarray, n: int) -> np.ndarray:
+    moving = np.zeros(n, bool)
+    moving[group] = True
+    return moving
 
 
 def heuristic_value(plan: Plan, current: np.ndarray, desired: np.ndarray) -> float:
@@ -78,6 +94,7 @@ def repair(plan: Plan, bodies: BodyCheck, connected: Callable[[Plan], bool]) -> 
     group_of[plan.order] = np.repeat(np.arange(plan.n_steps), plan.sizes)
     gap = np.linalg.norm(bodies.desired[:, None] - bodies.desired[None], axis=-1)
     for _ in range(MAX_ROUNDS):
+        per_step = step_counts(plan, bodies)  # a swap of groups a < b changes steps a..b only
         tried: set[tuple[int, int]] = set()
         best: tuple[int, float, Plan] | None = None
         for i in sorted(robots):
@@ -87,8 +104,11 @@ def repair(plan: Plan, bodies: BodyCheck, connected: Callable[[Plan], bool]) -> 
                 if pair in tried:
                     continue
                 tried.add(pair)
+                a, b = sorted((int(group_of[pair[0]]), int(group_of[pair[1]])))
+                outside = count - sum(per_step[a: b + 1])
+                limit = count if best is None else best[0] + 1
                 candidate = swapped(plan, *pair)
-                left, _ = conflicts(candidate, bodies, count if best is None else best[0] + 1)
+                left = outside + sum(step_counts(candidate, bodies, a, b, limit - outside))
                 if left >= count or (best is not None and left > best[0]) or not connected(candidate):
                     continue
                 value = heuristic_value(candidate, bodies.current, bodies.desired)
