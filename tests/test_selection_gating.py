@@ -31,9 +31,11 @@ def step_problem(n: int, seed: int, cfg: ModelConfig = POINTS) -> tuple[SwarmEst
 
 
 def test_the_gate_follows_the_measurement_and_can_be_forced():
-    assert all(genetic_pays("paper", 10, n_a, POINTS) for n_a in (5, 8, 9)) and not genetic_pays("paper", 30, 15, POINTS)
-    assert not genetic_pays("joint", 10, 5, POINTS) and genetic_pays("joint", 10, 8, POINTS) and genetic_pays("joint", 8, 6, POINTS)
-    assert not genetic_pays("my-plugin", 10, 9, POINTS)
+    assert all(genetic_pays("paper", 10, n_a, cfg) for n_a in (5, 8, 9) for cfg in (POINTS, BODIES))
+    assert genetic_pays("paper", 8, 4, BODIES)  # n_r = 8 takes the row of 10
+    assert not genetic_pays("paper", 30, 15, BODIES)  # with bodies no heuristic plan of 30 robots was ever clear: nothing to beat
+    assert not genetic_pays("joint", 10, 5, BODIES) and genetic_pays("joint", 10, 8, BODIES) and genetic_pays("joint", 10, 9, POINTS)
+    assert not genetic_pays("joint", 10, 8, POINTS) and not genetic_pays("my-plugin", 10, 9, POINTS)
     joint = make_localizer("joint", POINTS)
     assert not AnchorSelector(POINTS, joint, SelectionConfig(), 0).genetic_runs(10, 5)
     assert AnchorSelector(POINTS, joint, SelectionConfig(genetic_gate="on"), 0).genetic_runs(10, 5)

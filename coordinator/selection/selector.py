@@ -61,7 +61,14 @@ from runtime.models.state import SwarmEstimate
 
 METHODS = ("mc", "crlb")
 GENETIC_GATES = ("auto", "on", "off")  # the genetic search: where it was measured to beat its seed, always, never
-GENETIC_PAYS = {"paper": (10, 1), "joint": (10, 3)}  # localizer -> (most robots, fewest steps n_s) where it beat its seed
+# Where the genetic search beat its seed (``genetic_pays``): (localizer, with bodies) -> {measured n_r: (fewest, most) steps n_s}
+GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
+    ("paper", True): {10: (1, 10)},
+    ("paper", False): {10: (1, 10)},
+    ("joint", True): {10: (5, 10)},
+    ("joint", False): {10: (10, 10)},
+}
+MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
@@ -122,13 +129,17 @@ def samples_for(samples: int, n_robots: int) -> int:
 
 
 def genetic_pays(localizer: str, n_robots: int, n_anchors: int, cfg: ModelConfig) -> bool:
-    """Whether the genetic search beat its heuristic seed by more than the Monte Carlo's noise in at least one of
-    eight measured cases (``swarm study selection --genetic-gain``, docs/selection.md): ``GENETIC_PAYS`` gives, per
-    localizer, the largest swarm and the fewest steps n_s (Eq. 7) where it did; other localizers: never measured, off.
-    The measurement covered motion noise x 1 and x 3, radius 0.011 m and 0: neither decided it, so ``cfg`` does not."""
-    del cfg
-    rule = GENETIC_PAYS.get(localizer)
-    return rule is not None and n_robots <= rule[0] and n_steps(n_robots, n_anchors) >= rule[1]
+    """Whether the genetic search beat its heuristic seed by more than the Monte Carlo's noise (2 standard errors of
+    the paired difference on fresh samples) in at least one case in eight, pooled over motion noise x 1 and x 3,
+    where it was measured (``swarm study selection --genetic-gain``, docs/selection.md): per localizer, bodies
+    (radius > 0) or point robots, and swarm size (the measured size nearest ``n_robots`` by ratio), the range of
+    steps n_s (Eq. 7) where it did. Localizers or sizes not in ``GENETIC_PAYS``: not measured, off."""
+    rows = GENETIC_PAYS.get((localizer, cfg.robot_radius_m > 0), {})
+    size = min(MEASURED_SIZES, key=lambda m: abs(math.log(n_robots / m)))
+    if size not in rows:
+        return False
+    fewest, most = rows[size]
+    return fewest <= n_steps(n_robots, n_anchors) <= most
 
 
 REFERENCE_PLANS = 252  # plans of n_a = 5 at n_r = 10: counts with more get more search samples
