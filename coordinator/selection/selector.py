@@ -10,14 +10,20 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 1. Screening: every feasible n_a with at most ``max_steps`` steps (all of them up to
    n_r = 10) is scored with its heuristic plan on one Monte Carlo
-   set of common random numbers (``samples_for(samples)`` samples).
+   set of common random numbers (``samples_for(samples)`` samples), a crowded plan (bodies
+   too close) too: its e_l bounds its count's, though it is not a plan to return.
 2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
-   best screened P_s (every count whose P_s could win is searched, Section 4.2.1).
-3. Inner loop of every surviving count: the genetic search on the screening samples
+   bar: the best screened P_s of a clear plan, raised by each searched count's kept plan
+   (on the screening samples); counts are searched most promising first (every count whose
+   P_s could win is searched, Section 4.2.1). A searched count's crowded heuristic plan is
+   repaired by a few single swaps (``repair``); the result is its seed.
+3. Inner loop of every surviving count, where ``genetic_runs`` (else the count keeps its seed,
+   scored on the screening samples): the genetic search on the screening samples
    (more of them for a count with more than 252 plans, ``search_samples``), then a race
    (successive halving on fresh samples) among its ``contenders`` best
-   distinct plans, then the race winner and the heuristic seed on one more fresh set
+   distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
+   the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
    e_l(0) on the same set give P_l. So the search never returns a plan that is worse
@@ -171,7 +177,7 @@ class CountScore:
     plan: Plan | None
     seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
     searched: bool = False  # the count passed the outer-loop bound and its inner loop ran (else: the heuristic plan, screened)
-    crowded: bool = False  # its heuristic plan brings bodies too close (docs/bodies.md); no plan unless a clear one was found
+    crowded: bool = False  # no plan: its heuristic plan brings bodies too close (docs/bodies.md) and no clear plan was found
     genetic: bool = False  # the genetic search (with race and final check) ran for this count (``genetic_runs``)
     seed: Plan | None = None  # the plan the inner loop started from: the heuristic plan, repaired for bodies (``repair``)
 
