@@ -5,7 +5,8 @@ For ``configs`` random steps of ``robots`` robots (drawn as ``swarm bench select
 anchor count the selection screens (n_a > 0, at most ``max_steps`` steps) is searched with the
 genetic search forced on (``genetic_gate = "on"``, every count searched: ``prune_gain = 1``).
 The plan it keeps (after the race and the final check) and its seed (the heuristic plan of
-Eq. 11-13, repaired for bodies) are then evaluated on ``eval_samples`` fresh samples
+Eq. 11-13, repaired for bodies; a count without one, or without any connected plan found, counts as
+"no seed") are then evaluated on ``eval_samples`` fresh samples
 (``samples_for``-scaled, common random numbers): the paired per-sample difference says whether
 the search beat its seed by more than ``BEYOND_NOISE`` standard errors (the Monte Carlo's
 noise), lost by as much, or neither. The seconds the forced search took are recorded too.
@@ -90,7 +91,7 @@ def gain_rows(options: GeneticGainOptions, config: int) -> list[dict[str, Any]]:
     """The rows of configuration ``config``: one per screened anchor count n_a > 0."""
     from coordinator.localization import make_localizer  # noqa: PLC0415 - the search loads when a study runs
     from coordinator.selection.monte_carlo import MonteCarlo  # noqa: PLC0415
-    from coordinator.selection.selector import AnchorSelector, samples_for  # noqa: PLC0415
+    from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for  # noqa: PLC0415
     from runtime.models.state import SwarmEstimate  # noqa: PLC0415
     from runtime.models.trajectory import body_spacing, random_trajectory  # noqa: PLC0415
 
@@ -106,10 +107,13 @@ def gain_rows(options: GeneticGainOptions, config: int) -> list[dict[str, Any]]:
     for n_a in (k for k in AnchorSelector(cfg, localizer, o.run.selection, 0).candidate_counts(n) if k > 0):
         forced = replace(o.run.selection, anchor_counts=(n_a,), genetic_gate="on", prune_gain=1.0)
         t0 = time.perf_counter()
-        entry = AnchorSelector(cfg, localizer, forced, seed=config).select(estimate, desired).scores[0]
+        try:
+            entry = AnchorSelector(cfg, localizer, forced, seed=config).select(estimate, desired).scores[0]
+        except NoFeasiblePlanError:  # no connected plan of this count found: nothing to compare
+            entry = None
         row: dict[str, Any] = {"config": config, "n_a": n_a, "search_s": round(time.perf_counter() - t0, 4), "seed_e_l": None,
                                "gain": 0.0, "gain_se": 0.0, "replaced": 0, "beats": 0, "loses": 0}
-        if entry.seed is not None and entry.plan is not None:
+        if entry is not None and entry.seed is not None and entry.plan is not None:
             each = fresh.localization_errors(estimate, desired, [entry.seed, entry.plan], per_sample=True)
             diff = each[0] - each[1]  # > 0: the kept plan is better
             se = float(diff.std(ddof=1) / np.sqrt(len(diff)))
