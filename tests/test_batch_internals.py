@@ -14,11 +14,8 @@ import pytest
 import coordinator.localization.sparse_lm as sparse_lm
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
-    COMPACT_BELOW,
-    MAX_ITER,
     _diagonal,
     _inv_stack,
-    _levenberg_marquardt,
     _prior_information,
     _solve_chunks,
     _solve_stack,
@@ -29,6 +26,7 @@ from coordinator.localization.batch import (
 )
 from coordinator.localization.range_bearing import sqrt_information
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from coordinator.localization.sparse_lm import COMPACT_BELOW, MAX_ITER, BatchOps, drive
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
@@ -219,7 +217,7 @@ class ToyProblem:
 def run_toy(costs, steps, x0, xtol=1e-8, ftol=1e-8, ptol=None, predicted=None):
     log = []
     problem = ToyProblem(costs, steps, log, predicted=predicted)
-    x, converged = _levenberg_marquardt(problem, np.asarray(x0, float), xtol, ftol, ptol)
+    x, converged, _, _ = drive(problem, np.asarray(x0, float), xtol, ftol, ptol, xp=BatchOps)
     return x, converged, log
 
 

@@ -289,13 +289,13 @@ def lm_step(normal, gradient, mu: float, curvature=None) -> np.ndarray:
 
 def batch_problem(monkeypatch, method: str, cfg: ModelConfig, arrays):
     """The problem and start ``localize_batch`` hands its Levenberg-Marquardt (the first call)."""
-    seen, real = [], batch_module._levenberg_marquardt
+    seen, real = [], batch_module.drive
 
-    def spy(problem, x0, xtol, ftol, ptol):
+    def spy(problem, x0, *args, **kw):
         seen.append((problem, np.array(x0)))
-        return real(problem, x0, xtol, ftol, ptol)
+        return real(problem, x0, *args, **kw)
 
-    monkeypatch.setattr(batch_module, "_levenberg_marquardt", spy)
+    monkeypatch.setattr(batch_module, "drive", spy)
     out = localize_batch(make_localizer(method, cfg), cfg, *arrays)
     assert out.ok.all()  # every sample in the one problem, in order
     return seen[0]

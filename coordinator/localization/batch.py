@@ -63,15 +63,7 @@ from coordinator.localization.range_bearing import (
     sensor_sigmas,
     sqrt_information,
 )
-from coordinator.localization.sparse_lm import (
-    MAX_ITER,
-    MU_START,
-    blas_threads,
-    clamp_curvature,
-    damping_scale,
-    settled,
-    step_outcome,
-)
+from coordinator.localization.sparse_lm import BatchOps, blas_threads, clamp_curvature, damping_scale, drive
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
@@ -96,7 +88,6 @@ PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topolo
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
-COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
 
 
 @dataclass(frozen=True)
@@ -262,63 +253,7 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 
 
 # --------------------------------------------------------------------------------------------
-# Batched Levenberg-Marquardt: ``sparse_lm.minimize``'s rule (its functions and constants), per sample in lock-step
-
-
-def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
-
-    ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
-    held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu, curved)``
-    the damped Newton step (B, n, 3) (zero on fixed unknowns) and its predicted decrease, with a second-order
-    term only where ``curved`` (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``);
-    ``problem.subset(index)`` the problem restricted to some samples. Every sample follows ``sparse_lm.minimize``
-    step for step: the same start (``MU_START``), trial-step rule (``step_outcome``: acceptance, convergence,
-    damping, giving up), predicted-decrease stop (``settled`` with ``ptol``: the sample then stays where it is)
-    and ``MAX_ITER`` accepted steps at most.
-    """
-    x = np.array(x0, dtype=float, copy=True)
-    converged = np.zeros(len(x), bool)
-    work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
-    xs, st, slot = x, problem.evaluate(x, 0), 1
-    mu = np.full(len(x), MU_START)
-    iterations = np.zeros(len(x), np.int64)  # accepted steps
-    active = np.isfinite(st["cost"])
-    while True:  # ends: every sample converges or fails
-        n_active = int(active.sum())
-        if n_active == 0:
-            break
-        if n_active < COMPACT_BELOW * len(work):  # drop finished samples from the work set
-            keep = np.flatnonzero(active)
-            x[work] = xs
-            work, xs, mu, active, iterations = work[keep], xs[keep], mu[keep], active[keep], iterations[keep]
-            problem = problem.subset(keep)
-            st = {key: value[keep] for key, value in st.items()}
-        dx, predicted = problem.step(st, mu, iterations > 0)
-        if ptol is not None:  # converged before the step
-            done_early = active & settled(predicted, st["cost"], mu, ptol)
-            converged[work[done_early]] = True
-            active &= ~done_early
-        dx[~active] = 0.0
-        x_new = xs + dx
-        new = problem.evaluate(x_new, slot)
-        with np.errstate(invalid="ignore"):  # inactive samples may hold inf - inf
-            accept, done, mu, gave_up = step_outcome(
-                st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
-            )
-        done &= active
-        converged[work[done]] = True
-        iterations += accept
-        failed = active & ~done & (gave_up | (iterations >= MAX_ITER))
-        back = np.flatnonzero(~accept)
-        if back.size:  # rejected samples keep their point and state
-            x_new[back] = xs[back]
-            for key, value in st.items():
-                new[key][back] = value[back]
-        xs, st, slot = x_new, new, 1 - slot
-        active &= ~done & ~failed
-    x[work] = xs
-    return x, converged
+# The batched problems for ``sparse_lm.drive`` (``BatchOps``): states are dicts of per-sample arrays held in workspace slots
 
 
 class _Workspace:
@@ -484,7 +419,7 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     zx[seen], zy[seen] = z[:, 0], z[:, 1]
     start = to_reference_frame(dr_poses, dr_poses[np.arange(b), ref])
     start[:, :, 2] *= has_heading
-    x, good = _levenberg_marquardt(_TopologyProblem(w, zx, zy, ref, has_heading, ws), start, *PAPER_TOL)
+    x, good, _, _ = drive(_TopologyProblem(w, zx, zy, ref, has_heading, ws), start, *PAPER_TOL, xp=BatchOps)
 
     # Eq. B4: cluster points R(theta_i) z_ij + x_i of the observed robots j; Eq. B6.
     theta = wrap_angle(x[:, :, 2])
@@ -631,7 +566,7 @@ class _JointProblem(_Batched):
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
-    x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
+    x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
     cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3))
