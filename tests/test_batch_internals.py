@@ -16,7 +16,6 @@ from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
     _diagonal,
     _inv_stack,
-    _prior_information,
     _solve_chunks,
     _solve_stack,
     _valid,
@@ -24,7 +23,7 @@ from coordinator.localization.batch import (
     localize_batch,
     observable,
 )
-from coordinator.localization.range_bearing import sqrt_information
+from coordinator.localization.range_bearing import prior_information, sqrt_information
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization.sparse_lm import COMPACT_BELOW, MAX_ITER, BatchOps, drive
 from runtime.errors import SwarmInputError
@@ -149,7 +148,7 @@ def test_prior_information_is_the_floored_inverse():
     spd = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 0.5]])
     skew = np.array([[0, 0.05, 0], [-0.05, 0, 0], [0, 0, 0]])
     cov = np.stack([spd, np.diag([0.0, 0.0, 4.0]), np.diag([1.0, -1.0, 4.0]), spd + skew])
-    info = _prior_information(cov)
+    info = prior_information(cov)
     np.testing.assert_allclose(info[0], np.linalg.inv(spd), rtol=1e-12)
     np.testing.assert_allclose(info[1], np.diag([1e12, 1e12, 0.25]), rtol=1e-9)
     np.testing.assert_allclose(info[2], np.diag([1.0, 1e12, 0.25]), rtol=1e-9)
@@ -166,7 +165,7 @@ def test_prior_information_checks_every_leading_minor(diagonal):
     diag(1, 1, -1) the determinant (1, 1, -1); so each is inverted with its negative eigenvalues floored
     at 1e-12 (information 1e12), not plainly (information -1)."""
     want = np.diag([1.0 if v > 0 else 1e12 for v in diagonal])
-    np.testing.assert_allclose(_prior_information(np.diag(diagonal)[None])[0], want, rtol=1e-9)
+    np.testing.assert_allclose(prior_information(np.diag(diagonal)[None])[0], want, rtol=1e-9)
 
 
 def test_diagonal_is_a_writable_view():
@@ -347,7 +346,7 @@ def test_prior_information_of_a_correlated_singular_covariance():
     cov = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.0], [0.5, 0.0, 0.25]])
     u, w = np.array([1.0, 0.0, -2.0]) / np.sqrt(5), np.array([2.0, 0.0, 1.0]) / np.sqrt(5)
     want = 1e12 * np.outer(u, u) + np.diag([0.0, 1.0, 0.0]) + np.outer(w, w) / 1.25
-    info = _prior_information(cov[None])[0]
+    info = prior_information(cov[None])[0]
     np.testing.assert_allclose(info, want, rtol=1e-6, atol=1e-3)
 
 
@@ -405,7 +404,7 @@ def test_prior_information_floors_what_only_one_minor_reveals(cov):
     cov = np.array(cov)
     lam, vec = np.linalg.eigh(cov)
     want = (vec / np.maximum(lam, 1e-12)) @ vec.T
-    np.testing.assert_allclose(_prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
+    np.testing.assert_allclose(prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
 
 
 @pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)

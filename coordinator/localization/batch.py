@@ -56,12 +56,12 @@ from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, Jo
 from coordinator.localization.paper import PaperLocalizer, fuse
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
-    COV_FLOOR,
     bearing_weights,
+    observation_jacobian,
     observation_residuals,
     pose_difference,
+    prior_information,
     sensor_sigmas,
-    sqrt_information,
 )
 from coordinator.localization.sparse_lm import BatchOps, blas_threads, clamp_curvature, damping_scale, drive
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
@@ -69,7 +69,9 @@ from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
     XTOL as TOPOLOGY_XTOL,
     cluster_delta_p,
+    heading_curvature,
     heading_sigmas,
+    observation_jacobian as topology_jacobian,
     observation_offsets,
     observation_residuals as topology_residuals,
     reference_robot,
@@ -385,23 +387,24 @@ class _TopologyProblem(_Batched):
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
-        # Gradient J^T r; d r_ij / d theta_i = perp_ij = (-rzy, rzx), d / d x_i = I, d / d x_j = -I.
-        g_theta = fh * (np.einsum("bij,bij->bi", rzx, ry) - np.einsum("bij,bij->bi", rzy, rx))
+        # Gradient J^T r with d r_ij / d theta_i = ``topology.observation_jacobian``, d / d x_i = I, d / d x_j = -I.
+        jx, jy = topology_jacobian(rzx, rzy, self.ws("jtx", rx.shape))
+        g_theta = fh * (np.einsum("bij,bij->bi", jx, rx) + np.einsum("bij,bij->bi", jy, ry))
         g_xy = np.concatenate(
             [np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx), np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)], axis=1
         )
         g_xy[rows, ref] = g_xy[rows, n + ref] = 0.0
-        # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm
-        # (and, as there, left out of a sample's first iteration).
-        second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
+        # Heading diagonal: J^T J + the exact second-order term (``topology.heading_curvature``), clamped as
+        # sparse_lm (and, as there, left out of a sample's first iteration).
+        second = np.einsum("bij->bi", heading_curvature(rzx, rzy, rx, ry))
         d = self.h_theta + curved[:, None] * clamp_curvature(second, self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
-        # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
+        # C^T[i, (k, a)] = delta_ai sum_j (d r_ij / d theta_i)_k - (d r_ia / d theta_i)_k.
         ct = self.ws("ct", (b, n, 2 * n))
-        ct[:, :, :n] = rzy
-        np.negative(rzx, out=ct[:, :, n:])
-        _diagonal(ct[:, :, :n])[:] = -np.einsum("bij->bi", rzy)
-        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", rzx)
+        np.negative(jx, out=ct[:, :, :n])
+        np.negative(jy, out=ct[:, :, n:])
+        _diagonal(ct[:, :, :n])[:] = np.einsum("bij->bi", jx)
+        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", jy)
         ct[rows, :, ref] = ct[rows, :, n + ref] = 0.0  # fixed reference position
         ct[rows, ref, :] = 0.0  # fixed reference heading
         return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu, self.ws)
@@ -451,6 +454,9 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
 # Joint least squares: whitened dead-reckoning priors + range/bearing residuals
 
 
+_JACOBIAN = ("jrx", "jry", "jbx", "jby")  # workspace names of ``observation_jacobian``'s four arrays
+
+
 class _JointProblem(_Batched):
     """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
 
@@ -461,16 +467,15 @@ class _JointProblem(_Batched):
     """
 
     def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
-        self.s_r, self.ws = s_r, ws
+        self.ws = ws
         w = seen.astype(float)
         self.rho = _on_pairs(seen, ranges)
         self.w_sr, self.w_sb = w / s_r, w * bearing_weights(self.rho, cfg)  # 1 / s_b(rho) where seen, 0 elsewhere
-        self.wr, self.wb = w / s_r**2, self.w_sb**2
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
         self.mean, self.info = mean, info  # W^T W of the whitened prior residuals W (p - mu)
-        self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
+        self.d_theta = np.einsum("bij,bij->bi", self.w_sb, self.w_sb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal): w_b^2
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
         shape, ws = self.rho.shape, self.ws
@@ -498,43 +503,30 @@ class _JointProblem(_Batched):
     def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
 
-        Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
-        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b(rho)^2.
+        From each pair's Jacobian (``range_bearing.observation_jacobian``, kept in the workspace for ``step``):
+        its position block is J_j^T J_j over (range, bearing), its heading-position entries
+        d bearing / d theta_i = -w_b times d bearing / d x_j.
         """
-        ws, inv_dist, info = self.ws, st["inv_dist"], self.info
-        b, n, _ = inv_dist.shape
-        shape = inv_dist.shape
-        ux = np.multiply(st["dx"], inv_dist, out=ws("ux", shape))
-        uy = np.multiply(st["dy"], inv_dist, out=ws("uy", shape))
-        beta = np.multiply(self.wb, inv_dist, out=ws("beta", shape))
-        beta *= inv_dist
+        ws, info = self.ws, self.info
+        shape = st["inv_dist"].shape
+        b, n, _ = shape
+        jac = observation_jacobian(st["dx"], st["dy"], st["inv_dist"], self.w_sr, self.w_sb, out=[ws(name, shape) for name in _JACOBIAN])
         t1, t2 = ws("n1", shape), ws("n2", shape)
         lap = ws("lap", (b, 2 * n, 2 * n))
         for row, col in ((0, 0), (0, 1), (1, 1)):
-            if row == col:  # wr u_k^2 + beta u_other^2
-                p, q = (ux, uy) if row == 0 else (uy, ux)
-                a = np.multiply(p, p, out=t1)
-                a *= self.wr
-                b2 = np.multiply(q, q, out=t2)
-                b2 *= beta
-                a += b2
-            else:  # (wr - beta) ux uy
-                a = np.subtract(self.wr, beta, out=t1)
-                a *= ux
-                a *= uy
+            a = np.multiply(jac[row], jac[col], out=t1)  # range
+            a += np.multiply(jac[2 + row], jac[2 + col], out=t2)  # bearing
             both = np.add(a, np.swapaxes(a, 1, 2), out=t2)  # robots a and c meet as observer and as observed
             block = lap[:, row * n : row * n + n, col * n : col * n + n]
             np.negative(both, out=block)
             _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
         lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
-        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b(rho)^2 = beta (-d_y, d_x).
+        # C^T[i, (k, a)] = delta_ai (sum_j q_ij,k + info) - q_ia,k with q = w_b d bearing / d x_j.
         ct = ws("ct", (b, n, 2 * n))
-        beta_dy = np.multiply(beta, st["dy"], out=t1)
-        beta_dx = np.multiply(beta, st["dx"], out=t2)
-        ct[:, :, :n] = beta_dy
-        _diagonal(ct[:, :, :n])[:] = info[:, :, 0, 2] - np.einsum("bij->bi", beta_dy)
-        np.negative(beta_dx, out=ct[:, :, n:])
-        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
+        for k in (0, 1):
+            q = np.multiply(self.w_sb, jac[2 + k], out=t1)
+            np.negative(q, out=ct[:, :, k * n : k * n + n])
+            _diagonal(ct[:, :, k * n : k * n + n])[:] = np.einsum("bij->bi", q) + info[:, :, k, 2]
         return lap, ct, self.d_theta
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -542,22 +534,15 @@ class _JointProblem(_Batched):
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape
         shape = st["inv_dist"].shape
-        ux, uy = ws.arrays["ux"], ws.arrays["uy"]
-        rr = np.multiply(st["rr"], 1.0 / self.s_r, out=ws("n1", shape))  # range residual / s_r
-        rb = np.multiply(st["rb"], self.w_sb, out=ws("n2", shape))
-        rb *= st["inv_dist"]  # bearing residual / (s_b(rho) |d|)
-        q, tmp = ws("beta", shape), ws("tmp", shape)
+        jac = [ws.arrays[name] for name in _JACOBIAN]  # ``normal``'s
+        q, tmp = ws("n1", shape), ws("n2", shape)
         g_prior = st["gp"]
         g_xy = np.empty((b, n2))
-        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b(rho) |d|)
-            np.multiply(ux if k == 0 else uy, rr, out=q)
-            np.multiply(uy if k == 0 else ux, rb, out=tmp)
-            if k == 0:
-                q -= tmp
-            else:
-                q += tmp
+        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair (d / d x_i = -d / d x_j)
+            np.multiply(jac[k], st["rr"], out=q)
+            q += np.multiply(jac[2 + k], st["rb"], out=tmp)
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
-        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
+        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
         d_damped = d + mu[:, None] * damping_scale(d)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
@@ -565,34 +550,12 @@ class _JointProblem(_Batched):
 
 def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     s_r, _ = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
     cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3))
     return x, cov, good
-
-
-def _prior_information(cov: np.ndarray) -> np.ndarray:
-    """W^T W (..., 3, 3) for the whitening W = ``range_bearing.sqrt_information(cov)``.
-
-    That is the inverse of the symmetrised covariance with its eigenvalues floored at
-    ``COV_FLOOR``. Where every eigenvalue is clearly above the floor (Sylvester's criterion
-    on sym - 2 floor I) the floor does nothing and a plain inverse gives the same matrix,
-    much faster than the eigendecompositions; the others go through ``sqrt_information``.
-    """
-    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    m = sym - 2.0 * COV_FLOOR * np.eye(3)
-    a, b, c, d, e, f = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], m[..., 0, 1], m[..., 0, 2], m[..., 1, 2]
-    minor2 = a * b - d * d
-    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
-    clear = (a > 0) & (minor2 > 0) & (det > 0)
-    info = np.empty(cov.shape)
-    info[clear] = np.linalg.inv(sym[clear])
-    if not clear.all():
-        w = sqrt_information(cov[~clear])
-        info[~clear] = np.swapaxes(w, -1, -2) @ w
-    return 0.5 * (info + np.swapaxes(info, -1, -2))
 
 
 def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
