@@ -11,7 +11,7 @@ import coordinator.localization.batch as batch_module
 import coordinator.localization.joint as joint_module
 import coordinator.localization.topology as topology_module
 from coordinator.localization import make_localizer
-from coordinator.localization.batch import localize_batch, observable, reference_localizer
+from coordinator.localization.batch import localize_batch, observable
 from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays
 from coordinator.localization.graph import require_observable
 from coordinator.localization.joint_normal import JointProblem
@@ -117,11 +117,11 @@ def test_batch_equals_single_swarm_localizer(method, n, size):
     for k in range(size):
         prior, step, obs = batch.single(k)
         try:
-            want = reference_localizer(make_localizer(method, cfg)).localize(prior, step, obs)
+            want = make_localizer(method, cfg).localize(prior, step, obs)
         except LocalizationError as err:
             assert err.reason in ("unobserved", "disconnected")
             assert not out.ok[k]  # not fully localized: the runtime's partial answer, as in the executor
-            partial, excluded = localize_observable(reference_localizer(make_localizer(method, cfg)), prior, step, obs, cfg)
+            partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
             assert set(err.robots) <= set(excluded)
             assert_same_estimate(out.poses[k], out.cov[k], partial)
             dr = dead_reckon(prior, step, cfg)
@@ -155,7 +155,7 @@ def test_joint_block_covariances_above_the_exact_limit(monkeypatch):
     batch = random_batch(6, 4, cfg, seed=77)
     out = localize_batch(make_localizer("joint", cfg), cfg, *batch.arrays())
     for k in np.flatnonzero(out.ok):
-        assert_same_estimate(out.poses[k], out.cov[k], reference_localizer(make_localizer("joint", cfg)).localize(*batch.single(k)))
+        assert_same_estimate(out.poses[k], out.cov[k], make_localizer("joint", cfg).localize(*batch.single(k)))
     assert out.ok.sum() >= 2
 
 
@@ -188,8 +188,8 @@ def test_non_observable_samples_are_localized_like_the_runtime(method):
     for k, reason in ((1, "unobserved"), (2, "disconnected")):
         prior, step, obs = batch.single(k)
         with pytest.raises(LocalizationError, match=reason):
-            reference_localizer(make_localizer(method, cfg)).localize(prior, step, obs)
-        partial, excluded = localize_observable(reference_localizer(make_localizer(method, cfg)), prior, step, obs, cfg)
+            make_localizer(method, cfg).localize(prior, step, obs)
+        partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
         assert set(excluded.values()) == {reason} and len(excluded) < 6
         assert_same_estimate(out.poses[k], out.cov[k], partial)
         dr = dead_reckon(prior, step, cfg)
@@ -197,7 +197,7 @@ def test_non_observable_samples_are_localized_like_the_runtime(method):
         np.testing.assert_allclose(out.poses[k][left], dr.poses[left], rtol=0, atol=1e-12)
         assert np.abs(out.poses[k][~left] - dr.poses[~left]).max() > 0  # the others were localized
     alone = localize_batch(make_localizer(method, cfg), cfg, *[a[:1] for a in batch.arrays()])
-    want = reference_localizer(make_localizer(method, cfg)).localize(case.prior, case.step, case.observations)
+    want = make_localizer(method, cfg).localize(case.prior, case.step, case.observations)
     for k in (0, 3):  # the localizable samples are unaffected by their neighbours in the batch
         np.testing.assert_array_equal(out.poses[k], out.poses[0])
         np.testing.assert_allclose(out.poses[k], alone.poses[0], rtol=0, atol=1e-12)
@@ -325,7 +325,7 @@ def test_topology_problem_is_the_single_swarm_one(monkeypatch, seed):
     perturbed = x0 + 0.03 * rng.normal(size=x0.shape)
     for k in range(4):
         prior, step, obs = batch.single(k)
-        reference_localizer(make_localizer("paper", cfg)).localize(prior, step, obs)
+        make_localizer("paper", cfg).localize(prior, step, obs)
         has_heading = np.bincount(obs.observer, minlength=6) > 0
         assert has_heading[2] == (k != 1)
         free = np.arange(6) != np.argmax(has_heading)
@@ -399,7 +399,7 @@ def test_partial_localization_ignores_values_of_unseen_pairs():
     batch.add(case.prior, case.step, seen, np.where(seen, ranges, 123.0), np.where(seen, bearings, -7.0))
     out = localize_batch(make_localizer("joint", cfg), cfg, *batch.arrays())
     assert out.ok.tolist() == [False]
-    partial, excluded = localize_observable(reference_localizer(make_localizer("joint", cfg)), *batch.single(0), cfg)
+    partial, excluded = localize_observable(make_localizer("joint", cfg), *batch.single(0), cfg)
     assert excluded == {4: "unobserved"}
     assert_same_estimate(out.poses[0], out.cov[0], partial)
 

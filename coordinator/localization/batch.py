@@ -45,12 +45,14 @@ one, or a built-in with ``huber`` set) localizes every sample through ``referenc
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
+from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import PaperLocalizer, fuse
@@ -110,14 +112,6 @@ def batched_method(localizer: Localizer) -> str | None:
     return None
 
 
-def reference_localizer(localizer: Localizer) -> Localizer:
-    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``localizer``: the joint
-    localizer without the observability constraint (module docstring), else ``localizer`` itself."""
-    if type(localizer) is JointLocalizer and localizer.constrain_gauge:
-        return JointLocalizer(localizer.cfg, huber=localizer.huber, constrain_gauge=False)
-    return localizer
-
-
 def localize_batch(
     localizer: Localizer,
     cfg: ModelConfig,
@@ -129,7 +123,7 @@ def localize_batch(
     ranges: np.ndarray,
     bearings: np.ndarray,
 ) -> BatchEstimate:
-    """Localize B swarms: ``reference_localizer(localizer).localize`` applied to every sample.
+    """Localize B swarms: ``localizer.localize`` applied to every sample.
 
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
@@ -157,11 +151,11 @@ def localize_batch(
     poses, cov = dr_poses.copy(), dr_cov.copy()
     method = batched_method(localizer)
     if method is None:
-        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
+        ok = _localize_each(localizer, cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
                             bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
-    solve = _localize_paper if method == "paper" else _localize_joint
+    solve = _localize_paper if method == "paper" else functools.partial(_localize_joint, constrain=_constrained(localizer, n))
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
@@ -183,6 +177,11 @@ def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, beari
         ok[sel[~good]] = False
 
 
+def _constrained(localizer: Localizer, n: int) -> bool:
+    """Whether the joint localizer's update of n robots is observability-constrained (``JointLocalizer._solve``)."""
+    return bool(getattr(localizer, "constrain_gauge", False)) and n <= EXACT_COV_LIMIT
+
+
 def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
     """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
     n = seen.shape[1]
@@ -194,10 +193,11 @@ def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, com
             keep, _ = observable_subset(np.arange(n), i, j)
             masked[k] &= keep[:, None] & keep[None, :] if keep.sum() >= 2 else False
         dr_poses, dr_cov = poses[index], cov[index]  # dead reckoning at this point
-        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
+        keep = masked.any(axis=1) | masked.any(axis=2)  # the robots localized (the others keep their dead reckoning)
+        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws, _constrained(localizer, n), keep)
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
-    _localize_each(reference_localizer(localizer), cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+    _localize_each(localizer, cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
 
 
 def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov) -> np.ndarray:
@@ -548,36 +548,120 @@ class _JointProblem(_Batched):
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
-def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
+def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain: bool, keep: np.ndarray | None = None):
+    """``JointLocalizer._solve`` of every sample: the least-squares solution and its covariances, or with ``constrain``
+    the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all)."""
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
-    cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
+    st = problem.evaluate(x)
+    if constrain:
+        x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep)
+    else:
+        cov = _joint_covariances(*problem.normal(st))
+    cov = psd(cov)
     x[:, :, 2] = wrap_angle(x[:, :, 2])
-    good &= np.isfinite(cov).all(axis=(1, 2, 3))
+    good &= np.isfinite(cov).all(axis=(1, 2, 3)) & np.isfinite(x).all(axis=(1, 2))
     return x, cov, good
+
+
+def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
+    """Poses (B, n, 3) and covariances (B, n, 3, 3) of the observability-constrained update (``gauge``, as
+    ``JointLocalizer``), without any (3n, 3n) matrix: the correction U V of ``gauge_correction`` (of the robots
+    ``keep``, None: all) enters the inverse of J^T J = A by the Woodbury identity,
+    (A + U V)^-1 = A^-1 - L (I + V L)^-1 V A^-1 with L = A^-1 U, A^-1 applied through the Schur complement; the
+    estimate moves by ``constrained_solution``'s step (its ``gauge_gradient``), the covariance blocks by
+    ``transported_blocks`` about the whole swarm's predicted gauge.
+
+    ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
+    ``lap``, ``ct``, ``d`` J^T J in the batch's order (``_JointProblem.normal``). The gauge's matrices are ordered
+    robot by robot (x_0, y_0, heading_0, x_1, ...); ``_BatchOrder`` moves them in and out of the batch's order.
+    """
+    b, n, n2 = ct.shape
+    k = 3 * n
+    ctd, s_inv, e = _schur_parts(lap, ct, d)
+    order = _BatchOrder(n)
+
+    def normal_times(m):  # A m, m (B, 3n, c) robot by robot
+        mp, mt = order.split(m)
+        return order.join(lap @ mp + np.swapaxes(ct, 1, 2) @ mt, ct @ mp + d[:, :, None] * mt)
+
+    def inverse_times(m):  # A^-1 m through the Schur complement S = lap - C D^-1 C^T
+        mp, mt = order.split(m)
+        y = s_inv @ (mp - np.swapaxes(ctd, 1, 2) @ mt)
+        return order.join(y, mt / d[:, :, None] - ctd @ y)
+
+    frame = gauge_frame(mean, keep)
+    basis = frame[0]
+    # S N with S = H^T H = J^T J minus the prior's (block-diagonal) information
+    sn = normal_times(basis) - np.einsum("bnij,bnjk->bnik", prior_info, basis.reshape(b, n, 3, 3)).reshape(b, k, 3)
+    u, v = gauge_correction(sn, frame)
+    g = gauge_gradient(prior_gradient.reshape(b, k), frame)
+    solved = inverse_times(np.concatenate([u, np.swapaxes(v, 1, 2), g[:, :, None]], axis=2))
+    low, right_t, inv_g = solved[:, :, :6], solved[:, :, 6:12], solved[:, :, 12]  # A^-1 U, (V A^-1)^T, A^-1 g
+    with np.errstate(invalid="ignore"):
+        try:
+            m = np.linalg.solve(np.eye(6) + v @ low, np.swapaxes(right_t, 1, 2))  # (I + V L)^-1 V A^-1, (B, 6, 3n)
+        except np.linalg.LinAlgError:
+            m = np.full((b, 6, k), np.nan)
+    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g) and the covariance blocks
+    step = inv_g - np.einsum("bkr,br->bk", low, np.einsum("brk,bk->br", m, g))
+    poses = x - step.reshape(b, n, 3)
+    low_a = low.reshape(b, n, 3, 6)
+    blocks = _joint_covariances(lap, ct, d) - low_a @ np.swapaxes(m.reshape(b, 6, n, 3), 1, 2)
+    full = frame if keep is None else gauge_frame(mean)  # transported about the whole swarm's gauge
+    inv_pt = low[:, :, 3:] if keep is None else inverse_times(np.swapaxes(full[1], 1, 2))  # A^-1 Pi^T (U holds Pi^T)
+    pc = np.swapaxes(inv_pt, 1, 2) - (full[1] @ low) @ m  # Pi C = Pi A^-1 - Pi L m
+    pcp = pc @ np.swapaxes(full[1], 1, 2)
+    return poses, transported_blocks(blocks, transport_offset(mean, poses, full), pc, pcp)
+
+
+class _BatchOrder:
+    """Between the gauge's robot-by-robot order (x_0, y_0, heading_0, x_1, ...) and the batch's (x of every robot, then
+    y, then headings) of (B, 3n, c) arrays."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot index 3 a + c
+        self.to_batch = np.argsort(self.to_robots)
+
+    def split(self, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(positions (B, 2n, c), headings (B, n, c)) of robot-ordered ``m``."""
+        z = m[:, self.to_batch]
+        return z[:, : 2 * self.n], z[:, 2 * self.n :]
+
+    def join(self, positions: np.ndarray, headings: np.ndarray) -> np.ndarray:
+        return np.concatenate([positions, headings], axis=1)[:, self.to_robots]
+
+
+def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(D^-1 C^T, S^-1, S^-1 C D^-1) of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T), S = lap - C D^-1 C^T: the
+    inverse is [[S^-1, -S^-1 C D^-1], [., D^-1 + D^-1 C^T S^-1 C D^-1]]. NaN where singular."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ctd = ct / d[:, :, None]
+        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
+        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
+    return ctd, s_inv, e
 
 
 def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
     """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T).
 
-    Exact up to ``EXACT_COV_LIMIT`` robots; above, each robot's 3x3 information block is
+    Exact up to ``EXACT_COV_LIMIT`` robots (``_schur_parts``); above, each robot's 3x3 information block is
     inverted alone, like ``joint.pose_covariances``.
     """
     b, n, n2 = ct.shape
     i = np.arange(n)
     cov = np.empty((b, n, 3, 3))
+    if n > EXACT_COV_LIMIT:  # conditional covariances
+        for k in (0, 1):
+            for m in (0, 1):
+                cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
+            cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
+        cov[:, :, 2, 2] = d
+        return _inv_stack(cov)
+    ctd, s_inv, e = _schur_parts(lap, ct, d)
     with np.errstate(divide="ignore", invalid="ignore"):
-        if n > EXACT_COV_LIMIT:  # conditional covariances
-            for k in (0, 1):
-                for m in (0, 1):
-                    cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
-                cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
-            cov[:, :, 2, 2] = d
-            return _inv_stack(cov)
-        ctd = ct / d[:, :, None]  # inverse by the Schur complement S = A - C D^-1 C^T:
-        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
-        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
         for k in (0, 1):
             for m in (0, 1):
                 cov[:, :, k, m] = s_inv[:, k * n + i, m * n + i]
