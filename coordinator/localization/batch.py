@@ -2,21 +2,27 @@
 
 The planner localizes B = (candidate plans x Monte Carlo samples) swarms per step. This
 module solves all of them together with numpy over a leading batch axis, with the same
-model and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointLocalizer``):
+model, maths and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointLocalizer``):
 
 * observations are dense (B, n, n) arrays: ``seen[b, i, j]`` means robot i observed robot j
   in sample b, with ``ranges``/``bearings`` holding the measurement (ignored elsewhere);
-* per-pair residuals and 2x3 Jacobian blocks are formed on those dense pair arrays and the
-  normal matrix J^T J is assembled from them directly (no (B, 2 n^2, 3 n) Jacobian);
+* the residuals and Jacobians are the single-swarm problems' own functions, elementwise on those
+  dense pair arrays (``range_bearing.observation_residuals``/``observation_jacobian``,
+  ``topology.observation_residuals``/``observation_jacobian``/``heading_curvature``, the prior's
+  ``pose_difference``/``prior_information``); only the assembly differs: the normal matrix J^T J is
+  formed from the per-pair blocks directly (no (B, 2 n^2, 3 n) Jacobian);
 * headings couple only with positions in J^T J (their block is diagonal), so each Newton
   step eliminates them (Schur complement) and solves a (B, 2n, 2n) stack with
   ``np.linalg.solve``;
-* the solver is the Levenberg-Marquardt of ``sparse_lm`` (same start, damping, clamped
-  second-order heading term for the paper's topology, acceptance and convergence tests),
-  run per sample in lock-step until each sample has converged or failed; converged samples
-  drop out of the work set. Every sample thus takes the steps the single-swarm solver takes:
-  the results agree to rounding (~1e-15 in poses; ~1e-9 on the rare samples where the
-  solver converges slowly and the stopping test fires one step apart);
+* the solver is ``sparse_lm.drive``, the Levenberg-Marquardt driver of the single-swarm localizers, with
+  ``BatchOps``: every sample runs in lock-step until it has converged or failed, finished samples leave
+  the work set, and each takes the steps the single-swarm solver takes: the results agree to rounding
+  (poses ~1e-12 m, covariances ~1e-12 relative; ~5e-9 relative on exact priors, whose 1e12 information
+  leaves the inverse at rounding);
+* the joint localizer's observability constraint (``gauge``, on by default) is applied as in the runtime:
+  the same correction (``gauge.gauge_correction``) enters the inverse of J^T J through the Woodbury
+  identity, the estimate takes ``constrained_solution``'s step and the covariances are transported
+  (``gauge.transported_blocks``), without forming any (3n, 3n) matrix;
 * the batch is processed in chunks of about ``CHUNK_PAIRS`` pair entries with reused work
   arrays: large fresh numpy temporaries cost page faults on every Newton iteration.
 
@@ -28,18 +34,14 @@ A sample that cannot be fully localized (a robot nobody observed, a disconnected
 graph, a degenerate topology, no convergence) gets ``ok = False`` and the runtime's answer
 (``partial.localize_observable``): the largest observable group is localized, the other
 robots keep dead reckoning. For the joint method that is the batched solve with the other
-robots' observations removed (a robot without observations keeps its prior exactly);
-samples that still fail, and the paper's method, go through the single-swarm runtime code.
+robots' observations removed (a robot without observations keeps its prior exactly; the gauge is
+the localized robots', as in ``JointLocalizer.localize_subset``); samples that still fail, and the
+paper's method, go through the single-swarm runtime code.
 Samples holding invalid values get ``ok = False`` and dead reckoning; no exception is raised.
-
-Covariances are those of ``reference_localizer``: for the joint method, without the runtime's
-observability constraint (``gauge``). It removes information that builds up spuriously over
-hundreds of steps; within the few steps of one plan it changes a covariance by well under
-1 % (tests/test_localization_consistency.py), not worth its cost in the planner's inner loop.
 
 The batch is given the localizer object itself (the executor's, with its options). The built-in
 localizers without a Huber loss are solved here, vectorised; any other localizer (a registered
-one, or a built-in with ``huber`` set) localizes every sample through ``reference_localizer`` of it
+one, or a built-in with ``huber`` set) localizes every sample through the localizer itself
 (``partial.localize_observable``, as the runtime), one sample at a time.
 """
 
@@ -179,7 +181,7 @@ def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, beari
 
 def _constrained(localizer: Localizer, n: int) -> bool:
     """Whether the joint localizer's update of n robots is observability-constrained (``JointLocalizer._solve``)."""
-    return bool(getattr(localizer, "constrain_gauge", False)) and n <= EXACT_COV_LIMIT
+    return isinstance(localizer, JointLocalizer) and localizer.constrain_gauge and n <= EXACT_COV_LIMIT
 
 
 def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
