@@ -338,6 +338,41 @@ def test_lm_finished_samples_leave_the_work_set():
     assert float(log[-1][1][0]) == 1e-12
 
 
+class ScalarToy:
+    """Sample ``s`` of a ``ToyProblem`` as one problem for ``drive`` with ``ScalarOps`` (floats, a (1, 3) x)."""
+
+    def __init__(self, toy, s):
+        self.toy, self.s = toy, s
+
+    def evaluate(self, x, slot=0):
+        return {"cost": float(self.toy.costs[self.s](x))}
+
+    def step(self, st, mu, curved):
+        self.toy.log.append((np.array([self.s]), np.array([mu]), np.array([curved])))
+        return self.toy.steps[self.s].copy(), float(self.toy.predicted[self.s])
+
+
+def test_one_driver_for_one_problem_and_for_the_batch():
+    """``drive`` with ``ScalarOps`` (one problem, floats: ``minimize``) takes each sample through the same trials as
+    with ``BatchOps`` (the batch): the same points, convergence, damping and curvature flags, trial by trial. The
+    samples: a rejected first step then convergence, a settled one (ptol), one that gives up, one at MAX_ITER."""
+    costs = [lambda p: 0.5 * float(np.sum((p - 5.0) ** 2)), lambda p: 1.0, lambda p: 0.5 * float(np.sum(p**2)), lambda p: 1e6 - p[0, 0]]
+    steps = [[[1e-12, 0, 0]], [[0.1, 0, 0]], [[1.0, 0, 0]], [[1.0, 0, 0]]]
+    x0 = np.zeros((4, 1, 3))
+    x0[0] = 5.0
+    predicted = [np.inf, 1e-9, np.inf, np.inf]
+    x, converged, log = run_toy(costs, steps, x0, ptol=1e-6, predicted=predicted)
+    assert converged.tolist() == [True, True, False, False]
+    for s in range(4):
+        toy = ToyProblem(costs, steps, [], predicted=predicted)
+        one_x, one_converged, iterations, _ = drive(ScalarToy(toy, s), x0[s], 1e-8, 1e-8, 1e-6, xp=sparse_lm.ScalarOps)
+        np.testing.assert_array_equal(one_x, x[s])
+        assert one_converged == converged[s]
+        batch_trials = [(float(mu[list(index).index(s)]), bool(curved[list(index).index(s)])) for index, mu, curved in log if s in index]
+        assert [(float(mu[0]), bool(c[0])) for _, mu, c in toy.log] == batch_trials[: len(toy.log)]
+        assert iterations >= 1
+
+
 def test_prior_information_of_a_correlated_singular_covariance():
     """cov = [[1, 0, 0.5], [0, 1, 0], [0.5, 0, 0.25]] (x and heading perfectly correlated) is singular: its
     eigenvectors u = (1, 0, -2)/sqrt(5), e_y, w = (2, 0, 1)/sqrt(5) have eigenvalues 0, 1, 1.25. Its leading
