@@ -576,29 +576,31 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     ``transported_blocks`` about the whole swarm's predicted gauge.
 
     ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
-    ``lap``, ``ct``, ``d`` J^T J in the batch's order (``_JointProblem.normal``). The gauge's matrices are ordered
-    robot by robot (x_0, y_0, heading_0, x_1, ...); ``_BatchOrder`` moves them in and out of the batch's order.
+    ``lap``, ``ct``, ``d`` J^T J in the batch's order (x of every robot, then y, then headings:
+    ``_JointProblem.normal``); the gauge's (N, Pi) and the prior's gradient are moved from their robot-by-robot order
+    (x_0, y_0, heading_0, x_1, ...) into it, and the results back.
     """
     b, n, n2 = ct.shape
     k = 3 * n
-    ctd, s_inv, e = _schur_parts(lap, ct, d)
-    order = _BatchOrder(n)
+    parts = _schur_parts(lap, ct, d)
+    ctd, s_inv, _ = parts
+    to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot-order index 3 a + c
+    to_batch = np.argsort(to_robots)
 
-    def normal_times(m):  # A m, m (B, 3n, c) robot by robot
-        mp, mt = order.split(m)
-        return order.join(lap @ mp + np.swapaxes(ct, 1, 2) @ mt, ct @ mp + d[:, :, None] * mt)
+    def inverse_times(m):  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
+        y = s_inv @ (m[:, :n2] - np.swapaxes(ctd, 1, 2) @ m[:, n2:])
+        return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
 
-    def inverse_times(m):  # A^-1 m through the Schur complement S = lap - C D^-1 C^T
-        mp, mt = order.split(m)
-        y = s_inv @ (mp - np.swapaxes(ctd, 1, 2) @ mt)
-        return order.join(y, mt / d[:, :, None] - ctd @ y)
+    def batch_order(frame):  # (N, Pi) in the batch's order
+        return frame[0][:, to_batch], frame[1][:, :, to_batch]
 
-    frame = gauge_frame(mean, keep)
-    basis = frame[0]
+    robot_frame = gauge_frame(mean, keep)
+    basis, proj = frame = batch_order(robot_frame)
     # S N with S = H^T H = J^T J minus the prior's (block-diagonal) information
-    sn = normal_times(basis) - np.einsum("bnij,bnjk->bnik", prior_info, basis.reshape(b, n, 3, 3)).reshape(b, k, 3)
-    u, v = gauge_correction(sn, frame)
-    g = gauge_gradient(prior_gradient.reshape(b, k), frame)
+    prior_n = np.einsum("bnij,bnjk->bnik", prior_info, robot_frame[0].reshape(b, n, 3, 3)).reshape(b, k, 3)[:, to_batch]
+    sn = np.concatenate([lap @ basis[:, :n2] + np.swapaxes(ct, 1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
+    u, v = gauge_correction(sn - prior_n, frame)
+    g = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)
     solved = inverse_times(np.concatenate([u, np.swapaxes(v, 1, 2), g[:, :, None]], axis=2))
     low, right_t, inv_g = solved[:, :, :6], solved[:, :, 6:12], solved[:, :, 12]  # A^-1 U, (V A^-1)^T, A^-1 g
     with np.errstate(invalid="ignore"):
@@ -608,32 +610,18 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
             m = np.full((b, 6, k), np.nan)
     # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g) and the covariance blocks
     step = inv_g - np.einsum("bkr,br->bk", low, np.einsum("brk,bk->br", m, g))
-    poses = x - step.reshape(b, n, 3)
-    low_a = low.reshape(b, n, 3, 6)
-    blocks = _joint_covariances(lap, ct, d) - low_a @ np.swapaxes(m.reshape(b, 6, n, 3), 1, 2)
-    full = frame if keep is None else gauge_frame(mean)  # transported about the whole swarm's gauge
-    inv_pt = low[:, :, 3:] if keep is None else inverse_times(np.swapaxes(full[1], 1, 2))  # A^-1 Pi^T (U holds Pi^T)
-    pc = np.swapaxes(inv_pt, 1, 2) - (full[1] @ low) @ m  # Pi C = Pi A^-1 - Pi L m
-    pcp = pc @ np.swapaxes(full[1], 1, 2)
-    return poses, transported_blocks(blocks, transport_offset(mean, poses, full), pc, pcp)
-
-
-class _BatchOrder:
-    """Between the gauge's robot-by-robot order (x_0, y_0, heading_0, x_1, ...) and the batch's (x of every robot, then
-    y, then headings) of (B, 3n, c) arrays."""
-
-    def __init__(self, n: int) -> None:
-        self.n = n
-        self.to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot index 3 a + c
-        self.to_batch = np.argsort(self.to_robots)
-
-    def split(self, m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(positions (B, 2n, c), headings (B, n, c)) of robot-ordered ``m``."""
-        z = m[:, self.to_batch]
-        return z[:, : 2 * self.n], z[:, 2 * self.n :]
-
-    def join(self, positions: np.ndarray, headings: np.ndarray) -> np.ndarray:
-        return np.concatenate([positions, headings], axis=1)[:, self.to_robots]
+    poses = x - step[:, to_robots].reshape(b, n, 3)
+    low_a = low[:, to_robots].reshape(b, n, 3, 6)
+    blocks = _joint_covariances(lap, ct, d, parts) - low_a @ np.swapaxes(m[:, :, to_robots].reshape(b, 6, n, 3), 1, 2)
+    if keep is None:
+        whole, inv_pt = robot_frame, low[:, :, 3:]  # A^-1 Pi^T: U holds Pi^T
+    else:  # transported about the whole swarm's gauge
+        whole = gauge_frame(mean)
+        proj = batch_order(whole)[1]
+        inv_pt = inverse_times(np.swapaxes(proj, 1, 2))
+    pc = np.swapaxes(inv_pt, 1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
+    pcp = pc @ np.swapaxes(proj, 1, 2)
+    return poses, transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
 
 
 def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -646,11 +634,11 @@ def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.nda
     return ctd, s_inv, e
 
 
-def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tuple | None = None) -> np.ndarray:
     """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T).
 
-    Exact up to ``EXACT_COV_LIMIT`` robots (``_schur_parts``); above, each robot's 3x3 information block is
-    inverted alone, like ``joint.pose_covariances``.
+    Exact up to ``EXACT_COV_LIMIT`` robots (``_schur_parts``, or ``parts`` when the caller has them); above, each
+    robot's 3x3 information block is inverted alone, like ``joint.pose_covariances``.
     """
     b, n, n2 = ct.shape
     i = np.arange(n)
@@ -662,7 +650,7 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.nda
             cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
         cov[:, :, 2, 2] = d
         return _inv_stack(cov)
-    ctd, s_inv, e = _schur_parts(lap, ct, d)
+    ctd, s_inv, e = _schur_parts(lap, ct, d) if parts is None else parts
     with np.errstate(divide="ignore", invalid="ignore"):
         for k in (0, 1):
             for m in (0, 1):
