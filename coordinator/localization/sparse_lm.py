@@ -1,5 +1,8 @@
 """Sparse Levenberg-Marquardt over pose unknowns, shared by every localizer.
 
+One driver (``drive``) runs the rule for one problem (``minimize``, ``ScalarOps``) and for many in lock-step
+(the planner's batch, ``BatchOps``).
+
 Residuals and Jacobians are assembled vectorised (COO triplets); the normal equations
 (J^T J + mu diag(J^T J)) dx = -J^T r are solved densely for small problems and with a
 sparse LDL^T factorization (QDLDL with an approximate-minimum-degree ordering, its symbolic analysis reused
