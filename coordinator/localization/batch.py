@@ -569,10 +569,10 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
 
 def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     """Poses (B, n, 3) and covariances (B, n, 3, 3) of the observability-constrained update (``gauge``, as
-    ``JointLocalizer``), without any (3n, 3n) matrix: the correction U V of ``gauge_correction`` (of the robots
+    ``JointLocalizer``), without any (3n, 3n) matrix: the correction U K U^T of ``gauge_correction`` (of the robots
     ``keep``, None: all) enters the inverse of J^T J = A by the Woodbury identity,
-    (A + U V)^-1 = A^-1 - L (I + V L)^-1 V A^-1 with L = A^-1 U, A^-1 applied through the Schur complement; the
-    estimate moves by ``constrained_solution``'s step (its ``gauge_gradient``), the covariance blocks by
+    (A + U K U^T)^-1 = A^-1 - L (K^-1 + U^T L)^-1 L^T with L = A^-1 U, A^-1 applied through the Schur complement;
+    the estimate moves by ``constrained_solution``'s step (its ``gauge_gradient``), the covariance blocks by
     ``transported_blocks`` about the whole swarm's predicted gauge.
 
     ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
@@ -597,19 +597,19 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     robot_frame = gauge_frame(mean, keep)
     basis, proj = frame = batch_order(robot_frame)
     # S N with S = H^T H = J^T J minus the prior's (block-diagonal) information
-    prior_n = np.einsum("bnij,bnjk->bnik", prior_info, robot_frame[0].reshape(b, n, 3, 3)).reshape(b, k, 3)[:, to_batch]
+    prior_n = (prior_info @ robot_frame[0].reshape(b, n, 3, 3)).reshape(b, k, 3)[:, to_batch]
     sn = np.concatenate([lap @ basis[:, :n2] + np.swapaxes(ct, 1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
-    u, v = gauge_correction(sn - prior_n, frame)
-    g = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)
-    solved = inverse_times(np.concatenate([u, np.swapaxes(v, 1, 2), g[:, :, None]], axis=2))
-    low, right_t, inv_g = solved[:, :, :6], solved[:, :, 6:12], solved[:, :, 12]  # A^-1 U, (V A^-1)^T, A^-1 g
+    u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
+    low = inverse_times(u)  # L = A^-1 U
     with np.errstate(invalid="ignore"):
-        try:
-            m = np.linalg.solve(np.eye(6) + v @ low, np.swapaxes(right_t, 1, 2))  # (I + V L)^-1 V A^-1, (B, 6, 3n)
+        try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
+            m = np.linalg.solve(np.eye(6) + kmat @ (np.swapaxes(u, 1, 2) @ low), kmat @ np.swapaxes(low, 1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
-    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g) and the covariance blocks
-    step = inv_g - np.einsum("bkr,br->bk", low, np.einsum("brk,bk->br", m, g))
+    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
+    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
+    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
+    step = (low[:, :, 3:] @ along[:, :, None] - low @ (m @ g[:, :, None]))[:, :, 0]
     poses = x - step[:, to_robots].reshape(b, n, 3)
     low_a = low[:, to_robots].reshape(b, n, 3, 6)
     blocks = _joint_covariances(lap, ct, d, parts) - low_a @ np.swapaxes(m[:, :, to_robots].reshape(b, 6, n, 3), 1, 2)

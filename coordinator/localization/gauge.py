@@ -75,18 +75,19 @@ def gauge_frame(predicted: np.ndarray, keep: np.ndarray | None = None) -> tuple[
 
 
 def gauge_correction(observed_basis: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    """(U (..., 3n, 6), V (..., 6, 3n)) with H~^T H~ - H^T H = U V, H~ = H projected off the predicted gauge.
+    """(U (..., 3n, 6), K (..., 6, 6)) with H~^T H~ - H^T H = U K U^T, H~ = H projected off the predicted gauge.
 
     ``observed_basis`` is S N (..., 3n, 3), S = H^T H the observations' (whitened) information, N and
     Pi = (N^T N)^-1 N^T from ``frame``: H~^T H~ = S - S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi, a correction of
-    rank <= 6: U = [S N, Pi^T], V = [-Pi; -(S N)^T + (N^T S N) Pi]. The one definition of the constraint, for one
-    swarm (``constrained_covariance``) and the planner's batch (``batch``, through the Woodbury identity).
+    rank <= 6: U = [S N, Pi^T], K = [[0, -I], [-I, N^T S N]] (symmetric). The one definition of the constraint,
+    for one swarm (``constrained_covariance``) and the planner's batch (``batch``, through the Woodbury identity).
     """
     basis, proj = frame
-    sn_t = np.swapaxes(observed_basis, -1, -2)
     u = np.concatenate([observed_basis, np.swapaxes(proj, -1, -2)], axis=-1)
-    v = np.concatenate([-proj, (sn_t @ basis) @ proj - sn_t], axis=-2)
-    return u, v
+    k = np.zeros(observed_basis.shape[:-2] + (6, 6))
+    k[..., :3, 3:] = k[..., 3:, :3] = -np.eye(3)
+    k[..., 3:, 3:] = np.swapaxes(basis, -1, -2) @ observed_basis
+    return u, k
 
 
 def constrained_covariance(
@@ -102,17 +103,16 @@ def constrained_covariance(
     the correction is ``gauge_correction``'s. ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
     frame = gauge_frame(predicted) if frame is None else frame
-    u, v = gauge_correction(np.asarray(observed @ frame[0]), frame)
+    u, k = gauge_correction(np.asarray(observed @ frame[0]), frame)
     info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # type: ignore[union-attr]  # issparse: a sparse matrix; one fresh copy
-    info += u @ v
+    info += u @ (k @ u.T)
     return inverse(info)
 
 
 def gauge_gradient(prior_gradient: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """Pi^T N^T g (..., 3n): the part of the prior's gradient g (..., 3n) along the predicted gauge, which
+    """N^T g (..., 3): the prior's gradient g (..., 3n) along the predicted gauge, whose Pi^T N^T g
     ``constrained_solution`` takes out of the update (through the constrained covariance)."""
-    basis, proj = frame
-    return np.einsum("...ik,...i->...k", proj, np.einsum("...ki,...k->...i", basis, prior_gradient))
+    return np.einsum("...ki,...k->...i", frame[0], prior_gradient)
 
 
 def constrained_solution(
@@ -132,7 +132,8 @@ def constrained_solution(
     swarm's estimated global rotation took a noise-driven step at every update that no covariance accounted for.
     ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    step = np.einsum("...ij,...j->...i", cov, gauge_gradient(prior_gradient, gauge_frame(predicted) if frame is None else frame))
+    basis, proj = gauge_frame(predicted) if frame is None else frame
+    step = np.einsum("...ij,...j->...i", cov, np.einsum("...ik,...i->...k", proj, gauge_gradient(prior_gradient, (basis, proj))))
     return solution - step.reshape(solution.shape)
 
 
@@ -219,9 +220,8 @@ def transported_blocks(blocks: np.ndarray, offset: np.ndarray, pc: np.ndarray, p
     shape = blocks.shape
     d = offset.reshape(shape[:-3] + (shape[-3], 3, 3))  # D_a (3, 3) of each robot
     pc_a = np.swapaxes(pc.reshape(shape[:-3] + (3, shape[-3], 3)), -3, -2)  # (Pi C)_{:, a} (3, 3) of each robot
-    cross = d @ pc_a
-    out = blocks + cross + np.swapaxes(cross, -1, -2) + d @ pcp[..., None, :, :] @ np.swapaxes(d, -1, -2)
-    return 0.5 * (out + np.swapaxes(out, -1, -2))
+    half = d @ (pc_a + 0.5 * (pcp[..., None, :, :] @ np.swapaxes(d, -1, -2)))  # D Pi C + D (Pi C Pi^T) D^T / 2
+    return blocks + half + np.swapaxes(half, -1, -2)
 
 
 __all__ = [

@@ -213,7 +213,7 @@ def prior_information(cov: np.ndarray) -> np.ndarray:
 
     That is the inverse of the symmetrised covariance with its eigenvalues floored at
     ``COV_FLOOR``. Where every eigenvalue is clearly above the floor (Sylvester's criterion
-    on sym - 2 floor I) the floor does nothing and a plain inverse gives the same matrix,
+    on sym - 2 floor I) the floor does nothing and the plain inverse (by cofactors) gives the same matrix,
     much faster than the eigendecompositions; the others go through ``sqrt_information``.
     """
     sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
@@ -222,8 +222,11 @@ def prior_information(cov: np.ndarray) -> np.ndarray:
     minor2 = a * b - d * d
     det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
     clear = (a > 0) & (minor2 > 0) & (det > 0)
-    info = np.empty(cov.shape)
-    info[clear] = np.linalg.inv(sym[clear])
+    a, b, c, d, e, f = sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2], sym[..., 0, 1], sym[..., 0, 2], sym[..., 1, 2]
+    cofactors = np.stack([b * c - f * f, e * f - d * c, d * f - b * e, a * c - e * e, d * e - a * f, a * b - d * d], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        upper = cofactors / (a * cofactors[..., 0] + d * cofactors[..., 1] + e * cofactors[..., 2])[..., None]
+    info = upper[..., [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(cov.shape)  # the inverse of sym by its cofactors (symmetric)
     if not clear.all():
         w = sqrt_information(cov[~clear])
         info[~clear] = np.swapaxes(w, -1, -2) @ w
