@@ -37,6 +37,8 @@ from scipy.linalg.lapack import dpotrf, dpotri
 
 from coordinator.localization.sparse_lm import BLAS_SMALL, blas_threads, dense
 
+_ROTATION = np.array([0.0, 0.0, 1.0])  # the rotation's share of N^T N
+
 
 def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None, keep: np.ndarray | None = None) -> np.ndarray:
     """N (..., 3n, 3): the swarm's global translation (x, y) and rotation about ``center`` (..., 2) (default: the
@@ -62,7 +64,7 @@ def gauge_frame(predicted: np.ndarray, keep: np.ndarray | None = None) -> tuple[
     (computed once per step). ``keep`` (..., n): the gauge of these robots alone (rotation about their centroid;
     the others' rows of N and columns of Pi are zero)."""
     if keep is None:
-        count = np.full(predicted.shape[:-2], float(predicted.shape[-2]))
+        count: float | np.ndarray = float(predicted.shape[-2])
         center = predicted[..., :2].mean(axis=-2)
     else:
         count = np.maximum(keep.sum(axis=-1), 1).astype(float)  # none kept: a zero frame
@@ -70,7 +72,7 @@ def gauge_frame(predicted: np.ndarray, keep: np.ndarray | None = None) -> tuple[
     basis = gauge_basis(predicted, center, keep)
     # About the centroid the offsets c_i sum to zero, so N^T N = diag(k, k, k + sum |c_i|^2): no solve.
     offsets = np.sum(basis[..., 0::3, 2] ** 2 + basis[..., 1::3, 2] ** 2, axis=-1)  # sum |c_i|^2 (rotation column: (-c_y, c_x))
-    scale = np.stack([count, count, count + offsets], axis=-1)
+    scale = np.asarray(count)[..., None] + offsets[..., None] * _ROTATION
     return basis, np.swapaxes(basis, -1, -2) / scale[..., :, None]
 
 
@@ -112,7 +114,7 @@ def constrained_covariance(
 def gauge_gradient(prior_gradient: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """N^T g (..., 3): the prior's gradient g (..., 3n) along the predicted gauge, whose Pi^T N^T g
     ``constrained_solution`` takes out of the update (through the constrained covariance)."""
-    return np.einsum("...ki,...k->...i", frame[0], prior_gradient)
+    return (np.swapaxes(frame[0], -1, -2) @ prior_gradient[..., None])[..., 0]
 
 
 def constrained_solution(
@@ -132,8 +134,8 @@ def constrained_solution(
     swarm's estimated global rotation took a noise-driven step at every update that no covariance accounted for.
     ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    basis, proj = gauge_frame(predicted) if frame is None else frame
-    step = np.einsum("...ij,...j->...i", cov, np.einsum("...ik,...i->...k", proj, gauge_gradient(prior_gradient, (basis, proj))))
+    frame = gauge_frame(predicted) if frame is None else frame
+    step = (cov @ (np.swapaxes(frame[1], -1, -2) @ gauge_gradient(prior_gradient, frame)[..., None]))[..., 0]
     return solution - step.reshape(solution.shape)
 
 

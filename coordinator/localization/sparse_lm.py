@@ -19,6 +19,7 @@ on a busy 2-core machine multi-threaded OpenBLAS is many times slower for these 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -214,18 +215,11 @@ class ScalarOps:
     maximum = staticmethod(max)
     isfinite = staticmethod(math.isfinite)
     any = staticmethod(bool)
+    quiet = staticmethod(contextlib.nullcontext)  # floats raise no numpy warnings
 
     @staticmethod
     def where(condition: bool, a: float, b: float) -> float:
         return a if condition else b
-
-    @staticmethod
-    def logical_and(a: bool, b: bool) -> bool:
-        return a and b
-
-    @staticmethod
-    def logical_or(a: bool, b: bool) -> bool:
-        return a or b
 
     @staticmethod
     def logical_not(a: bool) -> bool:
@@ -252,12 +246,11 @@ class BatchOps:
     they cost page faults at every iteration)."""
 
     batched = True
+    quiet = staticmethod(functools.partial(np.errstate, invalid="ignore"))  # finished problems may hold inf - inf
     maximum = staticmethod(np.maximum)
     isfinite = staticmethod(np.isfinite)
     any = staticmethod(np.any)
     where = staticmethod(np.where)
-    logical_and = staticmethod(np.logical_and)
-    logical_or = staticmethod(np.logical_or)
     logical_not = staticmethod(np.logical_not)
 
     @staticmethod
@@ -292,18 +285,18 @@ def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, 
     or a rejected step below ``xtol`` (1 + max |x|): the problem sits at its minimum, where rounding decides
     the cost (the old point is the solution). Given up: a rejected step that took the damping beyond ``MU_MAX``.
     """
-    accept = xp.logical_and(xp.isfinite(cost_new), cost_new <= cost * (1 + ACCEPT_SLACK) + _TINY)
+    accept = xp.isfinite(cost_new) & (cost_new <= cost * (1 + ACCEPT_SLACK) + _TINY)  # & and |: bools or bool arrays
     gain_small = cost - cost_new <= ftol * xp.maximum(cost, _TINY)
-    converged = xp.logical_or(step_max <= xtol * (1.0 + x_max), xp.logical_and(accept, gain_small))
+    converged = (step_max <= xtol * (1.0 + x_max)) | (accept & gain_small)
     mu_next = xp.where(accept, xp.maximum(mu / MU_FACTOR, MU_MIN), mu * MU_FACTOR)
-    gave_up = xp.logical_and(xp.logical_not(xp.logical_or(accept, converged)), mu_next > MU_MAX)
+    gave_up = xp.logical_not(accept | converged) & (mu_next > MU_MAX)
     return accept, converged, mu_next, gave_up
 
 
 def settled(predicted, cost, mu, ptol: float, xp=np):
     """Converged before the step (``minimize``'s ``ptol``): its predicted decrease -g.dx / 2 below ``ptol`` of the
     cost while the damping is negligible (mu <= ``PRED_MU_MAX``; a damped step under-predicts)."""
-    return xp.logical_and(mu <= PRED_MU_MAX, predicted <= ptol * cost)
+    return (mu <= PRED_MU_MAX) & (predicted <= ptol * cost)
 
 
 COMPACT_BELOW = 0.5  # ``drive`` drops finished problems from its work set once fewer than this fraction is active
@@ -331,8 +324,8 @@ def drive(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None 
     st, slot = problem.evaluate(x, 0), 1
     cost = st["cost"]
     mu, iterations = xp.full(cost, MU_START), xp.full(cost, 0)
-    active = xp.logical_and(xp.isfinite(cost), max_iter > 0)
-    converged = xp.logical_and(active, False)
+    active = xp.isfinite(cost) & (max_iter > 0)  # & and |: bools or bool arrays, as the problems are held
+    converged = active & False
     accepted = xp.logical_not(converged)  # the last trial's acceptance (none yet)
     if xp.batched:
         full_x, full_converged, work = x, converged.copy(), np.arange(len(x))
@@ -345,22 +338,21 @@ def drive(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None 
             st = {key: value[keep] for key, value in st.items()}
         dx, predicted = problem.step(st, mu, iterations > 0)
         if ptol is not None:  # converged before the step
-            early = xp.logical_and(active, settled(predicted, st["cost"], mu, ptol, xp))
-            converged = xp.logical_or(converged, early)
-            accepted = xp.logical_and(accepted, xp.logical_not(early))
-            active = xp.logical_and(active, xp.logical_not(early))
+            early = active & settled(predicted, st["cost"], mu, ptol, xp)
+            converged = converged | early
+            accepted = accepted & xp.logical_not(early)
+            active = active & xp.logical_not(early)
             if not xp.any(active):
                 break
         x_new = x + xp.keep(active, dx, 0.0)
         new = problem.evaluate(x_new, slot)
-        with np.errstate(invalid="ignore"):  # batched, finished problems may hold inf - inf
+        with xp.quiet():
             accepted, done, mu, gave_up = step_outcome(st["cost"], new["cost"], xp.largest(dx), xp.largest(x), mu, xtol, ftol, xp)
-        done = xp.logical_and(done, active)
-        converged = xp.logical_or(converged, done)
+        converged = converged | (done & active)
         iterations = iterations + accepted
-        failed = xp.logical_and(xp.logical_and(active, xp.logical_not(done)), xp.logical_or(gave_up, iterations >= max_iter))
         x, st, slot = xp.keep(accepted, x_new, x), xp.keep(accepted, new, st), 1 - slot
-        active = xp.logical_and(active, xp.logical_not(xp.logical_or(done, failed)))
+        # finished: converged, or failed (given up, or out of accepted steps)
+        active = active & xp.logical_not(done | gave_up | (iterations >= max_iter))
     started = iterations + xp.logical_not(accepted)
     if xp.batched:
         full_x[work], full_converged[work] = x, converged
