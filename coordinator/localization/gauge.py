@@ -67,8 +67,9 @@ def gauge_frame(predicted: np.ndarray, keep: np.ndarray | None = None) -> tuple[
         count: float | np.ndarray = float(predicted.shape[-2])
         center = predicted[..., :2].mean(axis=-2)
     else:
-        count = np.maximum(keep.sum(axis=-1), 1).astype(float)  # none kept: a zero frame
-        center = np.einsum("...n,...nk->...k", keep, predicted[..., :2]) / count[..., None]
+        kept = np.maximum(keep.sum(axis=-1), 1).astype(float)  # none kept: a zero frame
+        center = np.einsum("...n,...nk->...k", keep, predicted[..., :2]) / kept[..., None]
+        count = kept
     basis = gauge_basis(predicted, center, keep)
     # About the centroid the offsets c_i sum to zero, so N^T N = diag(k, k, k + sum |c_i|^2): no solve.
     offsets = np.sum(basis[..., 0::3, 2] ** 2 + basis[..., 1::3, 2] ** 2, axis=-1)  # sum |c_i|^2 (rotation column: (-c_y, c_x))
