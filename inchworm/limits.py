@@ -72,9 +72,9 @@ def model_from_flags(model_file: Path | None, flags: Mapping[str, float | None])
 
 
 def selection_from(w_v: float, samples: int, population: int, generations: int, method: str, mc_start: str = "known",
-                   mc_emax: str = "mean") -> SelectionConfig:
-    """The anchor search of Eq. 3 weights (``w_v``, ``w_l = 1 - w_v``), the Monte Carlo / genetic budget and the
-    Monte Carlo readings (``mc_start``, ``mc_emax``: ``SelectionConfig``)."""
+                   mc_emax: str = "mean", genetic: str = "auto") -> SelectionConfig:
+    """The anchor search of Eq. 3 weights (``w_v``, ``w_l = 1 - w_v``), the Monte Carlo / genetic budget, the
+    Monte Carlo readings (``mc_start``, ``mc_emax``) and where the genetic search runs (``genetic``: ``SelectionConfig``)."""
     from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a run starts
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
 
@@ -84,4 +84,4 @@ def selection_from(w_v: float, samples: int, population: int, generations: int, 
         raise SwarmInputError("--population must be >= 2 and --generations >= 0")
     return SelectionConfig(w_v=w_v, w_l=1.0 - w_v, samples=samples,
                            genetic=GeneticConfig(population=population, generations=generations), method=method,
-                           mc_start=mc_start, mc_emax=mc_emax)
+                           mc_start=mc_start, mc_emax=mc_emax, genetic_gate=genetic)

@@ -86,8 +86,7 @@ def add_model_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--model", type=Path, default=None, metavar="FILE",
                    help="noise model file (TOML, e.g. written by swarm calibrate); the flags below override its values")
     g.add_argument("--turn-sigma-deg", type=nonnegative, default=None, help="turn noise std in degrees (default 3)")
-    g.add_argument("--drive-sigma-frac", type=nonnegative, default=None,
-                   help="drive noise std as a fraction of the distance (default 0.05)")
+    g.add_argument("--drive-sigma-frac", type=nonnegative, default=None, help="drive noise std as a fraction of the distance (default 0.05)")
     g.add_argument("--range-sigma", type=nonnegative, default=None, help="range noise std in m (default 0.01)")
     g.add_argument("--bearing-sigma-deg", type=nonnegative, default=None, help="bearing noise std in degrees (default 2)")
     g.add_argument("--sensing-range", type=positive, default=None, help="sensing range in m (default 0.5)")
@@ -124,8 +123,7 @@ def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> 
     """``--workers``, ``--executor``, ``--scheduler``, ``--out``, ``--resume`` and ``--config`` of a study
     (``files``: what it writes to ``--out``)."""
     add_workers_option(parser)
-    parser.add_argument("--executor", choices=("local", "dask"), default="local",
-                        help="local: a process pool; dask: a Dask LocalCluster (default local)")
+    parser.add_argument("--executor", choices=("local", "dask"), default="local", help="local: a process pool; dask: a Dask LocalCluster (default)")
     parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster instead (docs/scale-out.md)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"folder for {files} (default {out})")
     parser.add_argument("--resume", action="store_true",
@@ -183,25 +181,23 @@ def add_selection_options(parser: argparse.ArgumentParser) -> None:
     """Weights of Eq. 3 and the Monte Carlo / genetic search budget."""
     g = parser.add_argument_group("anchor selection (Section 4)")
     g.add_argument("--w-v", type=float, default=0.5, help="speed weight w_v of Eq. 3 (w_l = 1 - w_v; default 0.5)")
-    g.add_argument("--samples", type=positive_int, default=16,
-                   help="Monte Carlo samples per candidate plan for 10 robots, scaled by 10/n_r (default 16)")
+    g.add_argument("--samples", type=positive_int, default=16, help="Monte Carlo samples per plan for 10 robots, scaled by 10/n_r (default 16)")
     g.add_argument("--population", type=int, default=12, help="genetic population, at least 2 (default 12)")
     g.add_argument("--generations", type=int, default=8, help="genetic generations at most (default 8)")
     g.add_argument("--selection", choices=SELECTION_METHODS, default="mc",
                    help="rank anchor plans by Monte Carlo e_l (mc) or by the Cramer-Rao prediction of each step (crlb, no sampling); default mc")
     g.add_argument("--mc-start", choices=("estimate", "known"), default="known",
-                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2) or "
-                        "truths drawn from its covariance (estimate, the default until the pre-registered results); "
-                        "default known (docs/experiments.md)")
+                   help="where the Monte Carlo's configuration change starts: at the estimate's mean (known, Sec. 4.2, the default) "
+                        "or truths drawn from its covariance (estimate, the default until the pre-registered results, docs/experiments.md)")
     g.add_argument("--mc-emax", choices=("mean", "worst"), default="mean",
                    help="e_l,max of P_l: the mean of e_l(0) over the samples (mean, Sec. 4.1.1) or their largest (worst); default mean")
+    g.add_argument("--genetic", choices=("auto", "on", "off"), default="auto", help="genetic search: where measured to pay (auto), always, never")
 
 
 def selection_config(args: argparse.Namespace) -> SelectionConfig:
     from inchworm.limits import selection_from  # noqa: PLC0415
 
-    return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection,
-                          args.mc_start, args.mc_emax)
+    return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection, args.mc_start, args.mc_emax, args.genetic)
 
 
 def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:

@@ -18,6 +18,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="configuration c uses the seed [seed, c] (default 0)")
     add_study_options(p, "out/study-selection", "configs.jsonl, configs.csv, selection.png and study.toml")
     p.add_argument("--no-optimum", action="store_true", help="skip the exhaustive optimum (search against the heuristic only)")
+    p.add_argument("--genetic-gain", action="store_true", help="instead: where the forced genetic search beats its seed (docs/selection.md)")
     p.add_argument("--from-csv", type=Path, default=None,
                    help="summarise the rows of an earlier (possibly interrupted) study's configs.csv instead of running")
     add_simulation_options(p)
@@ -27,6 +28,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.studies.selection import SelectionStudyOptions, selection_from_csv, study_selection  # noqa: PLC0415
 
+    if args.genetic_gain:
+        from inchworm.studies.genetic_gain import GeneticGainOptions as Gain, study_genetic_gain  # noqa: PLC0415
+        return print_result(study_genetic_gain(Gain(args.robots, args.configs, args.eval_samples, args.seed, run_options(args))), args.json)
     options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed,
                                     run_options(args), not args.no_optimum)
     options.validate()

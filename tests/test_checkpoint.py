@@ -72,7 +72,8 @@ def test_a_run_resumed_from_every_checkpoint_ends_bit_for_bit_as_the_uninterrupt
             np.testing.assert_array_equal(a.truth, b.truth)
         assert [c.plan.sizes for c in resumed.configs] == [c.plan.sizes for c in clean.configs]
         assert [_split(c) for c in resumed.configs] == [_split(c) for c in clean.configs]
-        assert resumed.steps_added() == clean.steps_added() > 0
+        assert resumed.steps_added() == clean.steps_added()
+        assert clean.steps_added() > 0 or method == "inchworm"  # its selection repairs crowded plans: no split needed here
         assert resumed.contacts(CFG.robot_radius_m) == clean.contacts(CFG.robot_radius_m)
         np.testing.assert_array_equal(resumed.anchor_counts(), clean.anchor_counts())
 

@@ -114,7 +114,7 @@ NOISY_JOINT = ModelConfig(turn_sigma_rad=math.radians(9), drive_sigma_frac=0.15,
 @pytest.mark.parametrize("localizer,seed", [("paper", 0), ("joint", 1), ("joint", 2)])
 def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(localizer, seed):
     estimate, desired = step_problem(8, seed)
-    sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0)  # accuracy only: the count(s) that could win are searched
+    sel = SelectionConfig(anchor_counts=(4, 6), w_v=0.0, w_l=1.0, genetic_gate="on")  # accuracy only: the count(s) that could win are searched
     result = AnchorSelector(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), sel, seed=seed).select(estimate, desired)
     assert result.fresh_seed is not None
     fresh = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.final_samples, 8), result.fresh_seed, sel.mc_start)
@@ -126,6 +126,11 @@ def test_search_never_returns_a_plan_worse_than_its_seed_on_the_fresh_set(locali
             continue
         seed_plan = heuristic_plan(estimate.positions, desired, entry.n_anchors)
         e_plan, e_seed = fresh.localization_errors(estimate, desired, [entry.plan, seed_plan])
+        if entry.plan.key() == seed_plan.key() and entry.e_l != pytest.approx(e_plan, rel=1e-12):  # the race kept the seed: no final check
+            screen_seed = int(np.random.default_rng([seed, 1]).integers(2**63))
+            screen = MonteCarlo(NOISY_JOINT, make_localizer(localizer, NOISY_JOINT), samples_for(sel.samples, 8), screen_seed, sel.mc_start)
+            assert entry.e_l == entry.seed_e_l == pytest.approx(screen.localization_errors(estimate, desired, [seed_plan])[0], rel=1e-12)
+            continue
         assert entry.e_l == pytest.approx(e_plan, rel=1e-12)  # the reported e_l is the fresh set's, not the search's
         assert entry.seed_e_l == pytest.approx(e_seed, rel=1e-12)
 
@@ -183,7 +188,7 @@ def test_crlb_search_is_near_exhaustive_enumeration_on_small_swarms(n_a, seed):
 def test_mc_search_is_near_the_exhaustive_optimum_on_independent_samples():
     estimate, desired = step_problem(6, 2)
     plans = [p for p in enumerate_plans(6, 3) if plan_keeps_connectivity(p, estimate.positions, desired, 0.5)]
-    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(anchor_counts=(3,)),
+    chosen = AnchorSelector(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), SelectionConfig(anchor_counts=(3,), genetic_gate="on"),
                             seed=4).select(estimate, desired).plan
     pick, judge = (MonteCarlo(NOISY_JOINT, make_localizer("joint", NOISY_JOINT), 256, seed=s) for s in (999, 12345))  # independent sets
     optimum = plans[int(np.argmin(pick.localization_errors(estimate, desired, plans)))]

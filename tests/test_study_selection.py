@@ -44,6 +44,18 @@ def test_study_selection_json_contract(tmp_path):
     assert json.loads(again.stdout.strip().splitlines()[-1]) == last  # the CSV keeps everything the summary needs
 
 
+def test_genetic_gain_json_contract():
+    out = swarm("study", "selection", "--genetic-gain", "--robots", "6", "--configs", "2", "--eval-samples", "8", "--robot-radius", "0", "--json")
+    assert out.returncode == 0, out.stderr
+    last = json.loads(out.stdout.strip().splitlines()[-1])
+    assert last["robots"] == 6 and last["configs"] == 2 and last["localizer"] == "paper" and last["robot_radius_m"] == 0
+    assert set(last["counts"]) == {"3", "4", "5"}  # every count n_a > 0 with at most 10 steps (Eq. 7)
+    for c in last["counts"].values():
+        assert c["cases"] == 2 and c["beats"] + c["loses"] <= c["replaced"] <= c["cases"] - c["no_seed"] and c["search_s_median"] > 0
+    assert last["cases"] == 6 and last["beats"] == sum(c["beats"] for c in last["counts"].values())
+    assert "beats its seed in" in out.stdout
+
+
 def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
     out = swarm("study", "calibration", "--localizers", "paper", "--trajectories", "2", "--configs", "2",
                 "--calibration-trajectories", "2", "--iterations", "3", "--seeds", "0,1000", "--methods", "no-anchors,ref57",
@@ -63,5 +75,7 @@ def test_study_calibration_finds_the_noise_and_pairs_the_seed_sets(tmp_path):
 def test_bad_options_are_named():
     out = swarm("study", "selection", "--configs", "0")
     assert out.returncode != 0 and "--configs" in out.stderr and "Traceback" not in out.stderr
+    out = swarm("sim", "--genetic", "sometimes")
+    assert out.returncode == 2 and "--genetic" in out.stderr and "Traceback" not in out.stderr
     out = swarm("compare", "--selections", "mc,bogus")
     assert out.returncode != 0 and "--selections" in out.stderr and "Traceback" not in out.stderr

@@ -10,14 +10,20 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 1. Screening: every feasible n_a with at most ``max_steps`` steps (all of them up to
    n_r = 10) is scored with its heuristic plan on one Monte Carlo
-   set of common random numbers (``samples_for(samples)`` samples).
+   set of common random numbers (``samples_for(samples)`` samples), a crowded plan (bodies
+   too close) too: its e_l bounds its count's, though it is not a plan to return.
 2. Bound: the inner loop of a count can only lower its e_l; a count is searched unless
    even ``prune_gain`` less e_l than its heuristic plan's would leave its P_s below the
-   best screened P_s (every count whose P_s could win is searched, Section 4.2.1).
-3. Inner loop of every surviving count: the genetic search on the screening samples
+   bar: the best screened P_s of a clear plan, raised by each searched count's kept plan
+   (on the screening samples); counts are searched most promising first (every count whose
+   P_s could win is searched, Section 4.2.1). A searched count's crowded heuristic plan is
+   repaired by a few single swaps (``repair``); the result is its seed.
+3. Inner loop of every surviving count, where ``genetic_runs`` (else the count keeps its seed,
+   scored on the screening samples): the genetic search on the screening samples
    (more of them for a count with more than 252 plans, ``search_samples``), then a race
    (successive halving on fresh samples) among its ``contenders`` best
-   distinct plans, then the race winner and the heuristic seed on one more fresh set
+   distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
+   the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
    e_l(0) on the same set give P_l. So the search never returns a plan that is worse
@@ -41,7 +47,7 @@ mean over samples of e_l(0), Sec. 4.1.1; ``"worst"``: the largest e_l(0) over th
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
@@ -53,12 +59,22 @@ from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import best_distinct, final_check, race
+from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
 from runtime.models.bodies import BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 METHODS = ("mc", "crlb")
+GENETIC_GATES = ("auto", "on", "off")  # the genetic search: where it was measured to beat its seed, always, never
+# Where the genetic search beat its seed (``genetic_pays``): (localizer, with bodies) -> {measured n_r: (fewest, most) steps n_s}
+GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
+    ("paper", True): {10: (1, 10)},
+    ("paper", False): {10: (1, 10)},  # it also beat its seed at 30 and 100 points, at 3-200 s a count: off (docs)
+    ("joint", True): {10: (5, 10)},
+    ("joint", False): {10: (10, 10)},
+}
+MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
@@ -83,6 +99,7 @@ class SelectionConfig:
     max_steps: int = 10  # counts with more steps n_s are not screened unless ``anchor_counts`` names them
     mc_start: str = "known"  # Monte Carlo start: one of ``MC_STARTS`` (``docs/experiments.md``: the text's reading)
     mc_emax: str = "mean"  # e_l,max: one of ``MC_EMAX``
+    genetic_gate: str = "auto"  # one of ``GENETIC_GATES``: where the genetic search runs (``genetic_pays``)
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -90,6 +107,8 @@ class SelectionConfig:
         if self.mc_start not in MC_STARTS or self.mc_emax not in MC_EMAX:
             raise SwarmInputError(f"Monte Carlo start must be one of {', '.join(MC_STARTS)} and e_l,max one of "
                                   f"{', '.join(MC_EMAX)}, got {self.mc_start!r}, {self.mc_emax!r}")
+        if self.genetic_gate not in GENETIC_GATES:
+            raise SwarmInputError(f"genetic search must be one of {', '.join(GENETIC_GATES)}, got {self.genetic_gate!r}")
         if self.mc_emax == "worst" and self.method != "mc":
             raise SwarmInputError("e_l,max 'worst' needs Monte Carlo samples: use it with the mc selection, not crlb")
         if self.final_samples < 1 or self.contenders < 1 or not 0 <= self.prune_gain <= 1:
@@ -113,6 +132,21 @@ def samples_for(samples: int, n_robots: int) -> int:
     comparison between plans while a 100-robot selection stays affordable.
     """
     return max(2, -(-samples * 10 // n_robots))
+
+
+def genetic_pays(localizer: str, n_robots: int, n_anchors: int, cfg: ModelConfig) -> bool:
+    """Whether the genetic search beat its heuristic seed by more than the Monte Carlo's noise (2 standard errors of
+    the paired difference on fresh samples) in at least one case in eight, pooled over motion noise x 1 and x 3,
+    where it was measured (``swarm study selection --genetic-gain``, docs/selection.md): per localizer, bodies
+    (radius > 0) or point robots, and swarm size (the measured size nearest ``n_robots`` by ratio), the range of
+    steps n_s (Eq. 7) where it did. Localizers or sizes not in ``GENETIC_PAYS``: off (not measured; or, for 30 and
+    100 point robots with the paper's localizer, paying 1-6 % of e_l at 3-200 s a count, too slow to be online)."""
+    rows = GENETIC_PAYS.get((localizer, cfg.robot_radius_m > 0), {})
+    size = min(MEASURED_SIZES, key=lambda m: abs(math.log(n_robots / m)))
+    if size not in rows:
+        return False
+    fewest, most = rows[size]
+    return fewest <= n_steps(n_robots, n_anchors) <= most
 
 
 REFERENCE_PLANS = 252  # plans of n_a = 5 at n_r = 10: counts with more get more search samples
@@ -143,8 +177,10 @@ class CountScore:
     p_s: float
     plan: Plan | None
     seed_e_l: float = float("nan")  # e_l of the heuristic seed on the same samples as ``e_l``
-    searched: bool = False  # the inner loop ran for this count (else: the heuristic plan, screened)
-    crowded: bool = False  # no plan: its connected heuristic plan brings bodies too close (docs/bodies.md), none clear found
+    searched: bool = False  # the count passed the outer-loop bound and its inner loop ran (else: the heuristic plan, screened)
+    crowded: bool = False  # no plan: its heuristic plan brings bodies too close (docs/bodies.md) and no clear plan was found
+    genetic: bool = False  # the genetic search (with race and final check) ran for this count (``genetic_runs``)
+    seed: Plan | None = None  # the plan the inner loop started from: the heuristic plan, repaired for bodies (``repair``)
 
 
 @dataclass(frozen=True)
@@ -197,7 +233,7 @@ class AnchorSelector:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
 
         def feasible(plan: Plan) -> bool:
-            return connected(plan) and bodies.is_clear(plan.groups)
+            return bodies.is_clear(plan.groups) and connected(plan)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
@@ -214,11 +250,11 @@ class AnchorSelector:
                 return sampled(plans, samples, screen_seed)
 
         def score(n_a: int, plan: Plan | None, e_l: float, e_max: float, seed_e_l: float = np.nan, searched: bool = False,
-                  crowded: bool = False) -> CountScore:
+                  crowded: bool = False, genetic: bool = False) -> CountScore:
             p_v = speed_performance(n, n_a)
             p_l = e_l / e_max if e_max > 0 else 0.0
             return CountScore(n_a, float(e_l), p_v, float(p_l), float(sel.w_v * p_v - sel.w_l * p_l), plan, float(seed_e_l), searched,
-                              crowded)
+                              crowded, genetic)
 
         all_move = Plan.equal(np.arange(n), 0)
 
@@ -236,40 +272,75 @@ class AnchorSelector:
         seeds: dict[int, Plan] = {}
         for n_a in self.candidate_counts(n):  # 1. screening: the heuristic plan of every count
             seeds[n_a] = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
-            if not feasible(seeds[n_a]):
-                scores[n_a] = score(n_a, None, np.inf, e_max, crowded=connected(seeds[n_a]))
+            if not connected(seeds[n_a]):
+                scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
-                scores[n_a] = score(n_a, all_move, e_zero, e_max)
-            else:
+                scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not bodies.is_clear(all_move.groups))
+            else:  # a crowded seed (bodies too close) is screened too: its e_l bounds the count's (step 2)
                 e_seed = float(evaluate([seeds[n_a]])[0])
-                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed)
+                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not bodies.is_clear(seeds[n_a].groups))
                 evaluations += 1
-        bar = max((s.p_s for s in scores.values() if s.plan is not None), default=-np.inf)
-        searched = [k for k in scores if k != 0 and self._could_win(scores[k], bar)]  # 2. bound
+        screened = {k: s.p_s for k, s in scores.items()}  # P_s on the screening samples (the crowded too)
+        bar = max((s.p_s for s in scores.values() if s.plan is not None and not s.crowded), default=-np.inf)
+        for k, s in list(scores.items()):  # a crowded count keeps no plan unless its inner loop finds a clear one
+            if s.crowded:
+                scores[k] = replace(s, plan=None, e_l=np.inf, p_l=np.inf, p_s=-np.inf)
         final_seed = int(rng.integers(2**63))
         e_max_final = None
-        for n_a in searched:  # 3. inner loop, race and final fresh check of every count that could win
-            known = {seeds[n_a].key(): scores[n_a].e_l} if scores[n_a].plan is not None else {}
+        # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
+        for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
+            if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
+                continue
+            seed = repair(seeds[n_a], bodies, connected) if connected(seeds[n_a]) else None
+            genetic = self.genetic_runs(n, n_a)
+            if not genetic:  # gated off (``genetic_runs``): the count's plan is its (repaired) heuristic plan
+                if seed is None:
+                    scores[n_a] = replace(scores[n_a], searched=True)
+                    continue
+                e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else float(evaluate([seed])[0])
+                evaluations += seed is not seeds[n_a]
+                scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True), seed=seed)
+                bar = max(bar, scores[n_a].p_s)
+                continue
+            starts = [seed] if seed is not None else [seeds[n_a]]
+            known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
             count_samples = samples if sel.method == "crlb" else search_samples(samples, n_solutions(n, n_a))
             search = evaluate
             if count_samples != samples:  # a large plan space: more samples (the seed's screened e_l is not on them)
                 known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
-            plan, e_l, k = genetic_search(search, [seeds[n_a]], feasible, rng, sel.genetic, known)
+            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known)
             evaluations += k
             if plan is None:
+                scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
                 continue
             if sel.method == "crlb":  # elitism: never above the seed's prediction
-                scores[n_a] = score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True)
+                scores[n_a] = replace(score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True, genetic=True), seed=seed)
+                bar = max(bar, scores[n_a].p_s)
                 continue
             champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
+            evaluations += spent
+            if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
+                if seed is seeds[n_a] or count_samples == samples:
+                    e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
+                else:
+                    e_seed = float(evaluate([seed])[0])
+                    evaluations += 1
+                scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
+                bar = max(bar, scores[n_a].p_s)
+                continue
             if e_max_final is None:
                 e_max_final = no_anchors(final_samples, final_seed)[1]
-            if scores[n_a].plan is None:  # no feasible seed: the race winner, checked on the fresh set
+            if seed is None:  # no feasible seed: the race winner, checked on the fresh set
                 kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
             else:
-                kept, e_fresh, e_seed = final_check(champion, seeds[n_a], each_sample, final_samples, final_seed)
-            evaluations += spent + 2
-            scores[n_a] = score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True)
+                kept, e_fresh, e_seed = final_check(champion, seed, each_sample, final_samples, final_seed)
+            evaluations += 2
+            scores[n_a] = replace(score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True, genetic=True), seed=seed)
+            on_screen = known.get(kept.key()) if count_samples == samples else None
+            if on_screen is None:
+                on_screen = float(evaluate([kept])[0])
+                evaluations += 1
+            bar = max(bar, score(n_a, kept, on_screen, e_max).p_s)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
@@ -347,8 +418,15 @@ class AnchorSelector:
         assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, scores, len(scores))
 
-    def _could_win(self, entry: CountScore, bar: float) -> bool:
-        """Whether the inner loop could lift this count's P_s to ``bar``: e_l lowered by ``prune_gain``
-        (P_l >= 0 when its heuristic plan is infeasible and nothing was measured)."""
-        p_l = 0.0 if entry.plan is None else entry.p_l * (1.0 - self.selection.prune_gain)
-        return self.selection.w_v * entry.p_v - self.selection.w_l * p_l >= bar
+    def _optimistic(self, p_s: float, p_v: float) -> float:
+        """The count's P_s if its inner loop lowered the screened e_l by ``prune_gain`` (Section 4.2.1's bound;
+        w_v P_v, i.e. P_l = 0, when its heuristic plan broke connectivity and nothing was measured)."""
+        if not np.isfinite(p_s):
+            return self.selection.w_v * p_v
+        return p_s + self.selection.prune_gain * (self.selection.w_v * p_v - p_s)
+
+    def genetic_runs(self, n: int, n_a: int) -> bool:
+        """Whether the genetic search runs for ``n_a`` of ``n`` robots (``SelectionConfig.genetic_gate``; ``auto``: where
+        ``genetic_pays``, and always with ``crlb``, whose deterministic prediction needs no race and no final check)."""
+        gate, sel = self.selection.genetic_gate, self.selection
+        return gate == "on" or (gate == "auto" and (sel.method == "crlb" or genetic_pays(self.localizer.name, n, n_a, self.cfg)))
