@@ -228,11 +228,11 @@ class Agent:
             token.undeclare()
             for sub in subs:
                 sub.undeclare()
+            self._stops.put(None)  # ends the forwarder once it forwarded the stops queued: none reaches a detached driver
+            forwarder.join(timeout=1.0)
             self._bounded(self.driver.stop)
             self._bounded(self.driver.detach)
             self._stop.set()
-            self._stops.put(None)  # ends the forwarder
-            forwarder.join(timeout=1.0)
             self._session = None
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
