@@ -19,9 +19,10 @@ from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands
-from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key, run_wildcard, truths_key
+from runtime.wire.keys import alive_wildcard, robot_key, run_wildcard, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, decode, encode
-from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from tests.agent_hub import agent_on_hub
 
 RUN = "truth-round"
 EPOCH = 23  # the test acts as the coordinator of this epoch
@@ -38,21 +39,8 @@ def _wait_alive(session, count: int) -> None:
 @pytest.fixture
 def agent_and_run():
     """Robot 0's agent (simulated) on a hub; everything published on the run, decoded, in a queue."""
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as hub:
-        agent = Agent(member, RUN, 0, [0, 1], SimDriver(0, [0, 1], np.array(ROBOT_POSES[0]), ModelConfig(), seed=1))
-        thread = threading.Thread(target=agent.run, daemon=True)
-        thread.start()
-        _, seen = subscribe_queue(hub, run_wildcard(RUN))
-        _wait_alive(hub, 1)
-        token = declare_token(hub, coord_alive_key(RUN, EPOCH))
-        time.sleep(0.3)  # the agent learns of its coordinator
-        try:
-            yield hub, agent, seen
-        finally:
-            token.undeclare()
-            agent.stop()
-            thread.join(timeout=5)
+    with agent_on_hub(RUN, EPOCH, np.array(ROBOT_POSES[0]), run_wildcard(RUN)) as running:
+        yield running
 
 
 def _agent_messages(seen: queue.Queue, until: type, timeout_s: float = 5.0) -> list:
