@@ -195,6 +195,26 @@ def test_merge_subset_is_the_linear_update_of_the_kept_robots():
     np.testing.assert_array_equal(merge_subset(prior, c_a, np.ones(3, bool)), c_a)
 
 
+def test_merge_subset_takes_a_pose_known_exactly():
+    """A kept robot with zero prior variance (the planner's known start): the same linear update, in its
+    covariance form C_A = P_AA - K H P_AA, K = P_AA H^T (H P_AA H^T + I)^-1, and no error is raised."""
+    rng = np.random.default_rng(7)
+    prior = random_joint(4, 8)
+    prior[0:3, :] = 0.0
+    prior[:, 0:3] = 0.0  # robot 0 known exactly: no variance, no correlation
+    keep = np.array([True, False, True, True])
+    a, b = np.r_[0:3, 6:12], np.r_[3:6]
+    h = rng.normal(size=(7, 9))
+    p_aa = prior[np.ix_(a, a)]
+    gain = p_aa @ h.T @ np.linalg.inv(h @ p_aa @ h.T + np.eye(7))
+    c_a = p_aa - gain @ h @ p_aa
+    got = merge_subset(prior, c_a, keep)
+    assert np.isfinite(got).all()
+    np.testing.assert_allclose(got[np.ix_(a, b)], (np.eye(9) - gain @ h) @ prior[np.ix_(a, b)], rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(got[np.ix_(b, b)], prior[np.ix_(b, b)])
+    np.testing.assert_allclose(got[0:3], 0.0, atol=1e-12)
+
+
 def test_transport_is_the_rank_three_map_of_the_gauge():
     rng = np.random.default_rng(6)
     predicted = np.column_stack([rng.uniform(-1, 1, (5, 2)), rng.uniform(-3, 3, 5)])

@@ -175,14 +175,19 @@ def merge_subset(prior: np.ndarray | None, updated: np.ndarray, keep: np.ndarray
     covariance after it (``constrained_covariance`` of their solve, before ``transport``). The
     observations touched only the kept robots A, so their update was linear in their prior error,
     e_A' = (I - K H) e_A + K v with (I - K H) = P_AA' P_AA^-1, and the others B keep theirs:
-    P_A'B = P_AA' P_AA^-1 P_AB, P_BB unchanged. Positive semi-definite whenever P_AA' <= P_AA.
+    P_A'B = P_AA' P_AA^-1 P_AB, P_BB unchanged. Positive semi-definite whenever P_AA' <= P_AA. A singular
+    P_AA (a pose known exactly) takes the pseudo-inverse: no error there to carry over.
     """
     if keep.all():
         return updated
     assert prior is not None, "the prior is needed unless every robot is kept"
     idx = np.arange(len(prior)).reshape(-1, 3)
     a, b = idx[keep].ravel(), idx[~keep].ravel()
-    gain = np.linalg.solve(prior[np.ix_(a, a)], updated).T  # P_AA' P_AA^-1 (both symmetric)
+    p_aa = prior[np.ix_(a, a)]
+    try:
+        gain = np.linalg.solve(p_aa, updated).T  # P_AA' P_AA^-1 (both symmetric)
+    except np.linalg.LinAlgError:  # a pose known exactly (zero prior variance, e.g. the planner's known start): the limit
+        gain = (np.linalg.pinv(p_aa, hermitian=True) @ updated).T
     out = prior.copy()
     out[np.ix_(a, a)] = updated
     out[np.ix_(a, b)] = gain @ prior[np.ix_(a, b)]
