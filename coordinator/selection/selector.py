@@ -58,7 +58,7 @@ from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.racing import best_distinct, final_check, race
+from coordinator.selection.racing import best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
 from runtime.models.bodies import BodyCheck
@@ -92,7 +92,8 @@ class SelectionConfig:
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
     final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
-    contenders: int = 8  # best distinct plans of the genetic search that enter the race
+    contenders: int = 2  # best distinct plans of the genetic search that enter the race
+    final_looks: int = 4  # looks of the sequential final check (``racing.fresh_blocks``); 1 = one fixed set
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
@@ -111,10 +112,10 @@ class SelectionConfig:
             raise SwarmInputError(f"genetic search must be one of {', '.join(GENETIC_GATES)}, got {self.genetic_gate!r}")
         if self.mc_emax == "worst" and self.method != "mc":
             raise SwarmInputError("e_l,max 'worst' needs Monte Carlo samples: use it with the mc selection, not crlb")
-        if self.final_samples < 1 or self.contenders < 1 or not 0 <= self.prune_gain <= 1:
+        if self.final_samples < 1 or self.contenders < 1 or self.final_looks < 1 or not 0 <= self.prune_gain <= 1:
             raise SwarmInputError(
-                f"final samples and contenders must be >= 1 and prune gain in [0, 1], got "
-                f"{self.final_samples}, {self.contenders}, {self.prune_gain}"
+                f"final samples, contenders and final looks must be >= 1 and prune gain in [0, 1], got "
+                f"{self.final_samples}, {self.contenders}, {self.final_looks}, {self.prune_gain}"
             )
         if not (self.w_v >= 0 and self.w_l >= 0 and abs(self.w_v + self.w_l - 1.0) < 1e-9):
             raise SwarmInputError(f"weights must be >= 0 and sum to 1 (Eq. 3), got w_v={self.w_v}, w_l={self.w_l}")
@@ -286,7 +287,15 @@ class AnchorSelector:
             if s.crowded:
                 scores[k] = replace(s, plan=None, e_l=np.inf, p_l=np.inf, p_s=-np.inf)
         final_seed = int(rng.integers(2**63))
-        e_max_final = None
+        blocks = fresh_blocks(final_samples, final_seed, sel.final_looks)
+        no_anchor_blocks: list[np.ndarray] = []  # e_l(0) per sample of each fresh block, as far as a final check looked
+
+        def fresh_emax(looked: int) -> float:
+            """e_l,max on the first ``looked`` blocks of the fresh set (the kept plan's e_l is on the same samples)."""
+            while len(no_anchor_blocks) < looked:
+                no_anchor_blocks.append(each_sample([all_move], *blocks[len(no_anchor_blocks)])[0])
+            per = np.concatenate(no_anchor_blocks[:looked])
+            return float(per.max() if sel.mc_emax == "worst" else per.mean())
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
@@ -304,11 +313,16 @@ class AnchorSelector:
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
             known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
-            count_samples = samples if sel.method == "crlb" else search_samples(samples, n_solutions(n, n_a))
+            screen = sel.method == "mc" and sel.genetic.screened > 0  # Monte Carlo only for the best-predicted plans
+            plans = n_solutions(n, n_a)
+            if screen:  # plans compared by Monte Carlo: seeds + 2 x screened + screened a generation
+                plans = min(plans, len(starts) + sel.genetic.screened * (sel.genetic.generations + 2))
+            count_samples = samples if sel.method == "crlb" else search_samples(samples, plans)
             search = evaluate
-            if count_samples != samples:  # a large plan space: more samples (the seed's screened e_l is not on them)
+            if count_samples != samples:  # many plans compared: more samples (the seed's screened e_l is not on them)
                 known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
-            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known)
+            predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
+            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
             if plan is None:
                 scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
@@ -328,14 +342,13 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
                 bar = max(bar, scores[n_a].p_s)
                 continue
-            if e_max_final is None:
-                e_max_final = no_anchors(final_samples, final_seed)[1]
-            if seed is None:  # no feasible seed: the race winner, checked on the fresh set
-                kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
+            if seed is None:  # no feasible seed: the race winner, checked on the whole fresh set
+                looked = len(blocks)
+                kept, e_fresh, e_seed = champion, float(np.mean(np.concatenate([each_sample([champion], *b)[0] for b in blocks]))), np.nan
             else:
-                kept, e_fresh, e_seed = final_check(champion, seed, each_sample, final_samples, final_seed)
-            evaluations += 2
-            scores[n_a] = replace(score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True, genetic=True), seed=seed)
+                kept, e_fresh, e_seed, looked = final_check(champion, seed, each_sample, final_samples, final_seed, looks=sel.final_looks)
+            evaluations += 2 * looked
+            scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
             if on_screen is None:
                 on_screen = float(evaluate([kept])[0])
@@ -352,7 +365,7 @@ class AnchorSelector:
                 f"after every step (tried n_a = {sorted(scores)})"
             )
         assert best.plan is not None  # chosen among the plans found
-        return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
+        return Selection(best.plan, ordered, evaluations, final_seed if no_anchor_blocks else None)
 
     def _select_large(self, estimate: SwarmEstimate, desired: np.ndarray, rng: np.random.Generator) -> Selection:
         """Selection for n_r > ``window`` with a budget that does not grow with n_r (``docs/selection.md``).
