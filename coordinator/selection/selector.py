@@ -19,15 +19,19 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    P_s could win is searched, Section 4.2.1). A searched count's crowded heuristic plan is
    repaired by a few single swaps (``repair``); the result is its seed.
 3. Inner loop of every surviving count, where ``genetic_runs`` (else the count keeps its seed,
-   scored on the screening samples): the genetic search on the screening samples
-   (more of them for a count with more than 252 plans, ``search_samples``), then a race
+   scored on the screening samples): the genetic search on the screening samples, its new plans
+   screened by the Cramer-Rao prediction (``crlb_rank``; only the best-predicted few of each
+   generation are evaluated by Monte Carlo, ``GeneticConfig.screened``; without screening, a count
+   with more than 252 plans gets more samples, ``search_samples``), then a race
    (successive halving on fresh samples) among its ``contenders`` best
    distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
    the race winner and the seed on one more fresh set
-   (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
+   (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
+   difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
-   e_l(0) on the same set give P_l. So the search never returns a plan that is worse
-   than its seed on those samples, and P_s is not biased by the search.
+   e_l(0) on the same samples give P_l. So the search never returns a plan that is worse
+   than its seed on those samples, and P_s is not biased by the search. Every budget is a
+   number of evaluations, never a time: a selection is a function of its seed.
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
@@ -189,7 +193,7 @@ class Selection:
     plan: Plan
     scores: list[CountScore]
     evaluations: int
-    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its samples: ``samples_for(final_samples)``)
+    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its blocks: ``racing.fresh_blocks``)
 
     @property
     def n_anchors(self) -> int:
