@@ -45,6 +45,8 @@ SLOW_MODULES = frozenset({
     "test_transport",  # Zenoh sessions and child processes
     "test_dask_cluster",  # a dask scheduler and dask workers as subprocesses
     "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
+    "test_run_outcomes",  # swarm launch with faults injected
+    "test_link_liveness",  # router, emulators on ptys and links as processes
 })
 SLOW_TESTS = frozenset({
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process

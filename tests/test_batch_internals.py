@@ -14,12 +14,8 @@ import pytest
 import coordinator.localization.sparse_lm as sparse_lm
 from coordinator.localization import make_localizer
 from coordinator.localization.batch import (
-    COMPACT_BELOW,
-    MAX_ITER,
     _diagonal,
     _inv_stack,
-    _levenberg_marquardt,
-    _prior_information,
     _solve_chunks,
     _solve_stack,
     _valid,
@@ -27,8 +23,9 @@ from coordinator.localization.batch import (
     localize_batch,
     observable,
 )
-from coordinator.localization.range_bearing import sqrt_information
+from coordinator.localization.range_bearing import prior_information, sqrt_information
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from coordinator.localization.sparse_lm import COMPACT_BELOW, MAX_ITER, BatchOps, drive
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
@@ -151,7 +148,7 @@ def test_prior_information_is_the_floored_inverse():
     spd = np.array([[2.0, 0.3, 0.1], [0.3, 1.0, -0.2], [0.1, -0.2, 0.5]])
     skew = np.array([[0, 0.05, 0], [-0.05, 0, 0], [0, 0, 0]])
     cov = np.stack([spd, np.diag([0.0, 0.0, 4.0]), np.diag([1.0, -1.0, 4.0]), spd + skew])
-    info = _prior_information(cov)
+    info = prior_information(cov)
     np.testing.assert_allclose(info[0], np.linalg.inv(spd), rtol=1e-12)
     np.testing.assert_allclose(info[1], np.diag([1e12, 1e12, 0.25]), rtol=1e-9)
     np.testing.assert_allclose(info[2], np.diag([1.0, 1e12, 0.25]), rtol=1e-9)
@@ -168,7 +165,7 @@ def test_prior_information_checks_every_leading_minor(diagonal):
     diag(1, 1, -1) the determinant (1, 1, -1); so each is inverted with its negative eigenvalues floored
     at 1e-12 (information 1e12), not plainly (information -1)."""
     want = np.diag([1.0 if v > 0 else 1e12 for v in diagonal])
-    np.testing.assert_allclose(_prior_information(np.diag(diagonal)[None])[0], want, rtol=1e-9)
+    np.testing.assert_allclose(prior_information(np.diag(diagonal)[None])[0], want, rtol=1e-9)
 
 
 def test_diagonal_is_a_writable_view():
@@ -219,7 +216,7 @@ class ToyProblem:
 def run_toy(costs, steps, x0, xtol=1e-8, ftol=1e-8, ptol=None, predicted=None):
     log = []
     problem = ToyProblem(costs, steps, log, predicted=predicted)
-    x, converged = _levenberg_marquardt(problem, np.asarray(x0, float), xtol, ftol, ptol)
+    x, converged, _, _ = drive(problem, np.asarray(x0, float), xtol, ftol, ptol, xp=BatchOps)
     return x, converged, log
 
 
@@ -341,6 +338,41 @@ def test_lm_finished_samples_leave_the_work_set():
     assert float(log[-1][1][0]) == 1e-12
 
 
+class ScalarToy:
+    """Sample ``s`` of a ``ToyProblem`` as one problem for ``drive`` with ``ScalarOps`` (floats, a (1, 3) x)."""
+
+    def __init__(self, toy, s):
+        self.toy, self.s = toy, s
+
+    def evaluate(self, x, slot=0):
+        return {"cost": float(self.toy.costs[self.s](x))}
+
+    def step(self, st, mu, curved):
+        self.toy.log.append((np.array([self.s]), np.array([mu]), np.array([curved])))
+        return self.toy.steps[self.s].copy(), float(self.toy.predicted[self.s])
+
+
+def test_one_driver_for_one_problem_and_for_the_batch():
+    """``drive`` with ``ScalarOps`` (one problem, floats: ``minimize``) takes each sample through the same trials as
+    with ``BatchOps`` (the batch): the same points, convergence, damping and curvature flags, trial by trial. The
+    samples: a rejected first step then convergence, a settled one (ptol), one that gives up, one at MAX_ITER."""
+    costs = [lambda p: 0.5 * float(np.sum((p - 5.0) ** 2)), lambda p: 1.0, lambda p: 0.5 * float(np.sum(p**2)), lambda p: 1e6 - p[0, 0]]
+    steps = [[[1e-12, 0, 0]], [[0.1, 0, 0]], [[1.0, 0, 0]], [[1.0, 0, 0]]]
+    x0 = np.zeros((4, 1, 3))
+    x0[0] = 5.0
+    predicted = [np.inf, 1e-9, np.inf, np.inf]
+    x, converged, log = run_toy(costs, steps, x0, ptol=1e-6, predicted=predicted)
+    assert converged.tolist() == [True, True, False, False]
+    for s in range(4):
+        toy = ToyProblem(costs, steps, [], predicted=predicted)
+        one_x, one_converged, iterations, _ = drive(ScalarToy(toy, s), x0[s], 1e-8, 1e-8, 1e-6, xp=sparse_lm.ScalarOps)
+        np.testing.assert_array_equal(one_x, x[s])
+        assert one_converged == converged[s]
+        batch_trials = [(float(mu[list(index).index(s)]), bool(curved[list(index).index(s)])) for index, mu, curved in log if s in index]
+        assert [(float(mu[0]), bool(c[0])) for _, mu, c in toy.log] == batch_trials[: len(toy.log)]
+        assert iterations >= 1
+
+
 def test_prior_information_of_a_correlated_singular_covariance():
     """cov = [[1, 0, 0.5], [0, 1, 0], [0.5, 0, 0.25]] (x and heading perfectly correlated) is singular: its
     eigenvectors u = (1, 0, -2)/sqrt(5), e_y, w = (2, 0, 1)/sqrt(5) have eigenvalues 0, 1, 1.25. Its leading
@@ -349,7 +381,7 @@ def test_prior_information_of_a_correlated_singular_covariance():
     cov = np.array([[1.0, 0.0, 0.5], [0.0, 1.0, 0.0], [0.5, 0.0, 0.25]])
     u, w = np.array([1.0, 0.0, -2.0]) / np.sqrt(5), np.array([2.0, 0.0, 1.0]) / np.sqrt(5)
     want = 1e12 * np.outer(u, u) + np.diag([0.0, 1.0, 0.0]) + np.outer(w, w) / 1.25
-    info = _prior_information(cov[None])[0]
+    info = prior_information(cov[None])[0]
     np.testing.assert_allclose(info, want, rtol=1e-6, atol=1e-3)
 
 
@@ -407,7 +439,7 @@ def test_prior_information_floors_what_only_one_minor_reveals(cov):
     cov = np.array(cov)
     lam, vec = np.linalg.eigh(cov)
     want = (vec / np.maximum(lam, 1e-12)) @ vec.T
-    np.testing.assert_allclose(_prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
+    np.testing.assert_allclose(prior_information(cov[None])[0], want, rtol=1e-6, atol=1e-3)
 
 
 @pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)

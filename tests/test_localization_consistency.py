@@ -14,7 +14,15 @@ from scipy.stats import chi2
 from coordinator.consistency import chi2_band, position_nees
 from coordinator.localization import make_localizer
 from coordinator.localization.dead_reckoning import dead_reckon
-from coordinator.localization.gauge import constrained_solution, gauge_basis, merge_subset, transport
+from coordinator.localization.gauge import (
+    constrained_solution,
+    gauge_basis,
+    gauge_frame,
+    merge_subset,
+    transport,
+    transport_offset,
+    transported_blocks,
+)
 from coordinator.localization.joint import JointLocalizer
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -202,6 +210,37 @@ def test_transport_is_the_rank_three_map_of_the_gauge():
     np.testing.assert_array_equal(g[:, :, 0], np.tile([1.0, 0.0, 0.0], (5, 1)))
     np.testing.assert_allclose(g[:, :2, 2], np.column_stack([-(predicted[:, 1] - predicted[:, 1].mean()), predicted[:, 0] - predicted[:, 0].mean()]))
     np.testing.assert_array_equal(g[:, 2, 2], np.ones(5))
+
+
+def test_gauge_functions_take_a_batch_axis_and_a_subset():
+    """Batched (two swarms stacked), ``gauge_frame`` and ``transport`` equal the single-swarm calls swarm by swarm;
+    ``transported_blocks`` (from the blocks, Pi C and Pi C Pi^T) equals the 3x3 diagonal blocks of ``transport``;
+    ``gauge_frame(keep)`` is the kept robots' own frame (rotation about their centroid, Pi = (N^T N)^-1 N^T) with
+    zero rows / columns for the others."""
+    rng = np.random.default_rng(11)
+    predicted = np.stack([np.column_stack([rng.uniform(-1, 1, (5, 2)), rng.uniform(-3, 3, 5)]) for _ in range(2)])
+    solution = predicted + rng.normal(0, 0.02, predicted.shape)
+    cov = np.stack([random_joint(5, 7), random_joint(5, 8)])
+    basis, proj = gauge_frame(predicted)
+    moved = transport(cov, predicted, solution, (basis, proj))
+    idx = np.arange(15).reshape(5, 3)
+    for k in range(2):
+        one_basis, one_proj = gauge_frame(predicted[k])
+        np.testing.assert_allclose(basis[k], one_basis, rtol=0, atol=0)
+        np.testing.assert_allclose(proj[k], one_proj, rtol=1e-15, atol=0)
+        np.testing.assert_allclose(moved[k], transport(cov[k], predicted[k], solution[k]), rtol=1e-13, atol=1e-18)
+        pc = proj[k] @ cov[k]
+        blocks = transported_blocks(cov[k][idx[:, :, None], idx[:, None, :]], transport_offset(predicted[k], solution[k], (basis[k], proj[k])), pc,
+                                    pc @ proj[k].T)
+        np.testing.assert_allclose(blocks, moved[k][idx[:, :, None], idx[:, None, :]], rtol=1e-12, atol=1e-18)
+    keep = np.array([True, False, True, True, False])
+    sub_basis, sub_proj = gauge_frame(predicted[0], keep)
+    own_basis, own_proj = gauge_frame(predicted[0][keep])
+    rows = idx[keep].ravel()
+    np.testing.assert_allclose(sub_basis[rows], own_basis, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(sub_proj[:, rows], own_proj, rtol=1e-14, atol=1e-16)
+    assert not sub_basis[idx[~keep].ravel()].any() and not sub_proj[:, idx[~keep].ravel()].any()
+    np.testing.assert_allclose(sub_proj @ sub_basis, np.eye(3), atol=1e-14)
 
 
 def test_one_update_is_consistent_in_monte_carlo():

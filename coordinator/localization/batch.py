@@ -2,21 +2,27 @@
 
 The planner localizes B = (candidate plans x Monte Carlo samples) swarms per step. This
 module solves all of them together with numpy over a leading batch axis, with the same
-model and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointLocalizer``):
+model, maths and decisions as the single-swarm localizers (``PaperLocalizer``, ``JointLocalizer``):
 
 * observations are dense (B, n, n) arrays: ``seen[b, i, j]`` means robot i observed robot j
   in sample b, with ``ranges``/``bearings`` holding the measurement (ignored elsewhere);
-* per-pair residuals and 2x3 Jacobian blocks are formed on those dense pair arrays and the
-  normal matrix J^T J is assembled from them directly (no (B, 2 n^2, 3 n) Jacobian);
+* the residuals and Jacobians are the single-swarm problems' own functions, elementwise on those
+  dense pair arrays (``range_bearing.observation_residuals``/``observation_jacobian``,
+  ``topology.observation_residuals``/``observation_jacobian``/``heading_curvature``, the prior's
+  ``pose_difference``/``prior_information``); only the assembly differs: the normal matrix J^T J is
+  formed from the per-pair blocks directly (no (B, 2 n^2, 3 n) Jacobian);
 * headings couple only with positions in J^T J (their block is diagonal), so each Newton
   step eliminates them (Schur complement) and solves a (B, 2n, 2n) stack with
   ``np.linalg.solve``;
-* the solver is the Levenberg-Marquardt of ``sparse_lm`` (same start, damping, clamped
-  second-order heading term for the paper's topology, acceptance and convergence tests),
-  run per sample in lock-step until each sample has converged or failed; converged samples
-  drop out of the work set. Every sample thus takes the steps the single-swarm solver takes:
-  the results agree to rounding (~1e-15 in poses; ~1e-9 on the rare samples where the
-  solver converges slowly and the stopping test fires one step apart);
+* the solver is ``sparse_lm.drive``, the Levenberg-Marquardt driver of the single-swarm localizers, with
+  ``BatchOps``: every sample runs in lock-step until it has converged or failed, finished samples leave
+  the work set, and each takes the steps the single-swarm solver takes: the results agree to rounding
+  (poses ~1e-12 m, covariances ~1e-12 relative; ~5e-9 relative on exact priors, whose 1e12 information
+  leaves the inverse at rounding);
+* the joint localizer's observability constraint (``gauge``, on by default) is applied as in the runtime:
+  the same correction (``gauge.gauge_correction``) enters the inverse of J^T J through the Woodbury
+  identity, the estimate takes ``constrained_solution``'s step and the covariances are transported
+  (``gauge.transported_blocks``), without forming any (3n, 3n) matrix;
 * the batch is processed in chunks of about ``CHUNK_PAIRS`` pair entries with reused work
   arrays: large fresh numpy temporaries cost page faults on every Newton iteration.
 
@@ -28,56 +34,48 @@ A sample that cannot be fully localized (a robot nobody observed, a disconnected
 graph, a degenerate topology, no convergence) gets ``ok = False`` and the runtime's answer
 (``partial.localize_observable``): the largest observable group is localized, the other
 robots keep dead reckoning. For the joint method that is the batched solve with the other
-robots' observations removed (a robot without observations keeps its prior exactly);
-samples that still fail, and the paper's method, go through the single-swarm runtime code.
+robots' observations removed (a robot without observations keeps its prior exactly; the gauge is
+the localized robots', as in ``JointLocalizer.localize_subset``); samples that still fail, and the
+paper's method, go through the single-swarm runtime code.
 Samples holding invalid values get ``ok = False`` and dead reckoning; no exception is raised.
-
-Covariances are those of ``reference_localizer``: for the joint method, without the runtime's
-observability constraint (``gauge``). It removes information that builds up spuriously over
-hundreds of steps; within the few steps of one plan it changes a covariance by well under
-1 % (tests/test_localization_consistency.py), not worth its cost in the planner's inner loop.
 
 The batch is given the localizer object itself (the executor's, with its options). The built-in
 localizers without a Huber loss are solved here, vectorised; any other localizer (a registered
-one, or a built-in with ``huber`` set) localizes every sample through ``reference_localizer`` of it
+one, or a built-in with ``huber`` set) localizes every sample through the localizer itself
 (``partial.localize_observable``, as the runtime), one sample at a time.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
+from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
 from coordinator.localization.paper import PaperLocalizer, fuse
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
-    COV_FLOOR,
     bearing_weights,
+    observation_jacobian,
     observation_residuals,
     pose_difference,
+    prior_information,
     sensor_sigmas,
-    sqrt_information,
 )
-from coordinator.localization.sparse_lm import (
-    MAX_ITER,
-    MU_START,
-    blas_threads,
-    clamp_curvature,
-    damping_scale,
-    settled,
-    step_outcome,
-)
+from coordinator.localization.sparse_lm import BatchOps, blas_threads, clamp_curvature, damping_scale, drive
 from coordinator.localization.superimpose import MIN_SPREAD, fusion_weights, weighted_procrustes
 from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
     XTOL as TOPOLOGY_XTOL,
     cluster_delta_p,
+    heading_curvature,
     heading_sigmas,
+    observation_jacobian as topology_jacobian,
     observation_offsets,
     observation_residuals as topology_residuals,
     reference_robot,
@@ -96,7 +94,6 @@ PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topolo
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
-COMPACT_BELOW = 0.5  # drop converged samples from the work set once fewer than this fraction is active
 
 
 @dataclass(frozen=True)
@@ -117,14 +114,6 @@ def batched_method(localizer: Localizer) -> str | None:
     return None
 
 
-def reference_localizer(localizer: Localizer) -> Localizer:
-    """The single-swarm localizer whose results ``localize_batch`` reproduces for ``localizer``: the joint
-    localizer without the observability constraint (module docstring), else ``localizer`` itself."""
-    if type(localizer) is JointLocalizer and localizer.constrain_gauge:
-        return JointLocalizer(localizer.cfg, huber=localizer.huber, constrain_gauge=False)
-    return localizer
-
-
 def localize_batch(
     localizer: Localizer,
     cfg: ModelConfig,
@@ -136,7 +125,7 @@ def localize_batch(
     ranges: np.ndarray,
     bearings: np.ndarray,
 ) -> BatchEstimate:
-    """Localize B swarms: ``reference_localizer(localizer).localize`` applied to every sample.
+    """Localize B swarms: ``localizer.localize`` applied to every sample.
 
     ``prior_poses`` (B, n, 3), ``prior_cov`` (B, n, 3, 3), ``commands`` (B, n, 2) body-frame
     (turn rad, drive m; ignored where not ``moving``), ``moving`` (B, n), ``seen`` (B, n, n) with
@@ -164,11 +153,11 @@ def localize_batch(
     poses, cov = dr_poses.copy(), dr_cov.copy()
     method = batched_method(localizer)
     if method is None:
-        ok = _localize_each(reference_localizer(localizer), cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
+        ok = _localize_each(localizer, cfg, np.flatnonzero(valid), prior_poses, prior_cov, commands, moving, seen, ranges,
                             bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
-    solve = _localize_paper if method == "paper" else _localize_joint
+    solve = _localize_paper if method == "paper" else functools.partial(_localize_joint, constrain=_constrained(localizer, n))
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
@@ -190,6 +179,11 @@ def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, beari
         ok[sel[~good]] = False
 
 
+def _constrained(localizer: Localizer, n: int) -> bool:
+    """Whether the joint localizer's update of n robots is observability-constrained (``JointLocalizer._solve``)."""
+    return isinstance(localizer, JointLocalizer) and localizer.constrain_gauge and n <= EXACT_COV_LIMIT
+
+
 def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
     """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
     n = seen.shape[1]
@@ -201,10 +195,11 @@ def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, com
             keep, _ = observable_subset(np.arange(n), i, j)
             masked[k] &= keep[:, None] & keep[None, :] if keep.sum() >= 2 else False
         dr_poses, dr_cov = poses[index], cov[index]  # dead reckoning at this point
-        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws)
+        keep = masked.any(axis=1) | masked.any(axis=2)  # the robots localized (the others keep their dead reckoning)
+        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws, _constrained(localizer, n), keep)
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
-    _localize_each(reference_localizer(localizer), cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
+    _localize_each(localizer, cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
 
 
 def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov) -> np.ndarray:
@@ -262,63 +257,7 @@ def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> 
 
 
 # --------------------------------------------------------------------------------------------
-# Batched Levenberg-Marquardt: ``sparse_lm.minimize``'s rule (its functions and constants), per sample in lock-step
-
-
-def _levenberg_marquardt(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None) -> tuple[np.ndarray, np.ndarray]:
-    """Minimise every sample's cost from ``x0`` (B, n, 3). Returns (x, converged (B,)).
-
-    ``problem.evaluate(x, slot)`` returns a dict of per-sample arrays including ``cost`` (B,),
-    held in the problem's workspace ``slot`` (0 or 1, so two states coexist); ``problem.step(state, mu, curved)``
-    the damped Newton step (B, n, 3) (zero on fixed unknowns) and its predicted decrease, with a second-order
-    term only where ``curved`` (B,) (a sample's first iteration is Gauss-Newton, as in ``sparse_lm.minimize``);
-    ``problem.subset(index)`` the problem restricted to some samples. Every sample follows ``sparse_lm.minimize``
-    step for step: the same start (``MU_START``), trial-step rule (``step_outcome``: acceptance, convergence,
-    damping, giving up), predicted-decrease stop (``settled`` with ``ptol``: the sample then stays where it is)
-    and ``MAX_ITER`` accepted steps at most.
-    """
-    x = np.array(x0, dtype=float, copy=True)
-    converged = np.zeros(len(x), bool)
-    work = np.arange(len(x))  # samples in the work set, with their x, state and damping:
-    xs, st, slot = x, problem.evaluate(x, 0), 1
-    mu = np.full(len(x), MU_START)
-    iterations = np.zeros(len(x), np.int64)  # accepted steps
-    active = np.isfinite(st["cost"])
-    while True:  # ends: every sample converges or fails
-        n_active = int(active.sum())
-        if n_active == 0:
-            break
-        if n_active < COMPACT_BELOW * len(work):  # drop finished samples from the work set
-            keep = np.flatnonzero(active)
-            x[work] = xs
-            work, xs, mu, active, iterations = work[keep], xs[keep], mu[keep], active[keep], iterations[keep]
-            problem = problem.subset(keep)
-            st = {key: value[keep] for key, value in st.items()}
-        dx, predicted = problem.step(st, mu, iterations > 0)
-        if ptol is not None:  # converged before the step
-            done_early = active & settled(predicted, st["cost"], mu, ptol)
-            converged[work[done_early]] = True
-            active &= ~done_early
-        dx[~active] = 0.0
-        x_new = xs + dx
-        new = problem.evaluate(x_new, slot)
-        with np.errstate(invalid="ignore"):  # inactive samples may hold inf - inf
-            accept, done, mu, gave_up = step_outcome(
-                st["cost"], new["cost"], np.max(np.abs(dx), axis=(1, 2)), np.max(np.abs(xs), axis=(1, 2)), mu, xtol, ftol
-            )
-        done &= active
-        converged[work[done]] = True
-        iterations += accept
-        failed = active & ~done & (gave_up | (iterations >= MAX_ITER))
-        back = np.flatnonzero(~accept)
-        if back.size:  # rejected samples keep their point and state
-            x_new[back] = xs[back]
-            for key, value in st.items():
-                new[key][back] = value[back]
-        xs, st, slot = x_new, new, 1 - slot
-        active &= ~done & ~failed
-    x[work] = xs
-    return x, converged
+# The batched problems for ``sparse_lm.drive`` (``BatchOps``): states are dicts of per-sample arrays held in workspace slots
 
 
 class _Workspace:
@@ -450,23 +389,24 @@ class _TopologyProblem(_Batched):
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
-        # Gradient J^T r; d r_ij / d theta_i = perp_ij = (-rzy, rzx), d / d x_i = I, d / d x_j = -I.
-        g_theta = fh * (np.einsum("bij,bij->bi", rzx, ry) - np.einsum("bij,bij->bi", rzy, rx))
+        # Gradient J^T r with d r_ij / d theta_i = ``topology.observation_jacobian``, d / d x_i = I, d / d x_j = -I.
+        jx, jy = topology_jacobian(rzx, rzy, self.ws("jtx", rx.shape))
+        g_theta = fh * (np.einsum("bij,bij->bi", jx, rx) + np.einsum("bij,bij->bi", jy, ry))
         g_xy = np.concatenate(
             [np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx), np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)], axis=1
         )
         g_xy[rows, ref] = g_xy[rows, n + ref] = 0.0
-        # Heading diagonal: J^T J + the exact second-order term -sum_j r_ij . R z_ij, clamped as sparse_lm
-        # (and, as there, left out of a sample's first iteration).
-        second = -(np.einsum("bij,bij->bi", rx, rzx) + np.einsum("bij,bij->bi", ry, rzy))
+        # Heading diagonal: J^T J + the exact second-order term (``topology.heading_curvature``), clamped as
+        # sparse_lm (and, as there, left out of a sample's first iteration).
+        second = np.einsum("bij->bi", heading_curvature(rzx, rzy, rx, ry))
         d = self.h_theta + curved[:, None] * clamp_curvature(second, self.diag_theta) + mu[:, None] * self.diag_theta
         d = fh * d + (1.0 - fh)
-        # C^T[i, (k, a)] = delta_ai sum_j perp_ij,k - perp_ia,k.
+        # C^T[i, (k, a)] = delta_ai sum_j (d r_ij / d theta_i)_k - (d r_ia / d theta_i)_k.
         ct = self.ws("ct", (b, n, 2 * n))
-        ct[:, :, :n] = rzy
-        np.negative(rzx, out=ct[:, :, n:])
-        _diagonal(ct[:, :, :n])[:] = -np.einsum("bij->bi", rzy)
-        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", rzx)
+        np.negative(jx, out=ct[:, :, :n])
+        np.negative(jy, out=ct[:, :, n:])
+        _diagonal(ct[:, :, :n])[:] = np.einsum("bij->bi", jx)
+        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", jy)
         ct[rows, :, ref] = ct[rows, :, n + ref] = 0.0  # fixed reference position
         ct[rows, ref, :] = 0.0  # fixed reference heading
         return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu, self.ws)
@@ -484,7 +424,7 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
     zx[seen], zy[seen] = z[:, 0], z[:, 1]
     start = to_reference_frame(dr_poses, dr_poses[np.arange(b), ref])
     start[:, :, 2] *= has_heading
-    x, good = _levenberg_marquardt(_TopologyProblem(w, zx, zy, ref, has_heading, ws), start, *PAPER_TOL)
+    x, good, _, _ = drive(_TopologyProblem(w, zx, zy, ref, has_heading, ws), start, *PAPER_TOL, xp=BatchOps)
 
     # Eq. B4: cluster points R(theta_i) z_ij + x_i of the observed robots j; Eq. B6.
     theta = wrap_angle(x[:, :, 2])
@@ -516,6 +456,9 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
 # Joint least squares: whitened dead-reckoning priors + range/bearing residuals
 
 
+_JACOBIAN = ("jrx", "jry", "jbx", "jby")  # workspace names of ``observation_jacobian``'s four arrays
+
+
 class _JointProblem(_Batched):
     """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
 
@@ -526,16 +469,15 @@ class _JointProblem(_Batched):
     """
 
     def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
-        self.s_r, self.ws = s_r, ws
+        self.ws = ws
         w = seen.astype(float)
         self.rho = _on_pairs(seen, ranges)
         self.w_sr, self.w_sb = w / s_r, w * bearing_weights(self.rho, cfg)  # 1 / s_b(rho) where seen, 0 elsewhere
-        self.wr, self.wb = w / s_r**2, self.w_sb**2
         phi = bearings[seen]
         self.cphi, self.sphi = np.zeros(seen.shape), np.zeros(seen.shape)
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
         self.mean, self.info = mean, info  # W^T W of the whitened prior residuals W (p - mu)
-        self.d_theta = np.einsum("bij->bi", self.wb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal)
+        self.d_theta = np.einsum("bij,bij->bi", self.w_sb, self.w_sb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal): w_b^2
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
         shape, ws = self.rho.shape, self.ws
@@ -563,43 +505,30 @@ class _JointProblem(_Batched):
     def normal(self, st: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """J^T J as (position block (B, 2n, 2n), heading-position block C^T (B, n, 2n), heading diagonal (B, n)).
 
-        Per observation, d range / d x_j = u = d / |d| and d bearing / d x_j = b = (-d_y, d_x) / |d|^2,
-        so the position block of the pair is u u^T / s_r^2 + b b^T / s_b(rho)^2.
+        From each pair's Jacobian (``range_bearing.observation_jacobian``, kept in the workspace for ``step``):
+        its position block is J_j^T J_j over (range, bearing), its heading-position entries
+        d bearing / d theta_i = -w_b times d bearing / d x_j.
         """
-        ws, inv_dist, info = self.ws, st["inv_dist"], self.info
-        b, n, _ = inv_dist.shape
-        shape = inv_dist.shape
-        ux = np.multiply(st["dx"], inv_dist, out=ws("ux", shape))
-        uy = np.multiply(st["dy"], inv_dist, out=ws("uy", shape))
-        beta = np.multiply(self.wb, inv_dist, out=ws("beta", shape))
-        beta *= inv_dist
+        ws, info = self.ws, self.info
+        shape = st["inv_dist"].shape
+        b, n, _ = shape
+        jac = observation_jacobian(st["dx"], st["dy"], st["inv_dist"], self.w_sr, self.w_sb, out=[ws(name, shape) for name in _JACOBIAN])
         t1, t2 = ws("n1", shape), ws("n2", shape)
         lap = ws("lap", (b, 2 * n, 2 * n))
         for row, col in ((0, 0), (0, 1), (1, 1)):
-            if row == col:  # wr u_k^2 + beta u_other^2
-                p, q = (ux, uy) if row == 0 else (uy, ux)
-                a = np.multiply(p, p, out=t1)
-                a *= self.wr
-                b2 = np.multiply(q, q, out=t2)
-                b2 *= beta
-                a += b2
-            else:  # (wr - beta) ux uy
-                a = np.subtract(self.wr, beta, out=t1)
-                a *= ux
-                a *= uy
+            a = np.multiply(jac[row], jac[col], out=t1)  # range
+            a += np.multiply(jac[2 + row], jac[2 + col], out=t2)  # bearing
             both = np.add(a, np.swapaxes(a, 1, 2), out=t2)  # robots a and c meet as observer and as observed
             block = lap[:, row * n : row * n + n, col * n : col * n + n]
             np.negative(both, out=block)
             _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
         lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
-        # C^T[i, (k, a)] = delta_ai (sum_j p_ij,k + info) - p_ia,k with p = b / s_b(rho)^2 = beta (-d_y, d_x).
+        # C^T[i, (k, a)] = delta_ai (sum_j q_ij,k + info) - q_ia,k with q = w_b d bearing / d x_j.
         ct = ws("ct", (b, n, 2 * n))
-        beta_dy = np.multiply(beta, st["dy"], out=t1)
-        beta_dx = np.multiply(beta, st["dx"], out=t2)
-        ct[:, :, :n] = beta_dy
-        _diagonal(ct[:, :, :n])[:] = info[:, :, 0, 2] - np.einsum("bij->bi", beta_dy)
-        np.negative(beta_dx, out=ct[:, :, n:])
-        _diagonal(ct[:, :, n:])[:] = np.einsum("bij->bi", beta_dx) + info[:, :, 1, 2]
+        for k in (0, 1):
+            q = np.multiply(self.w_sb, jac[2 + k], out=t1)
+            np.negative(q, out=ct[:, :, k * n : k * n + n])
+            _diagonal(ct[:, :, k * n : k * n + n])[:] = np.einsum("bij->bi", q) + info[:, :, k, 2]
         return lap, ct, self.d_theta
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -607,79 +536,122 @@ class _JointProblem(_Batched):
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape
         shape = st["inv_dist"].shape
-        ux, uy = ws.arrays["ux"], ws.arrays["uy"]
-        rr = np.multiply(st["rr"], 1.0 / self.s_r, out=ws("n1", shape))  # range residual / s_r
-        rb = np.multiply(st["rb"], self.w_sb, out=ws("n2", shape))
-        rb *= st["inv_dist"]  # bearing residual / (s_b(rho) |d|)
-        q, tmp = ws("beta", shape), ws("tmp", shape)
+        jac = [ws.arrays[name] for name in _JACOBIAN]  # ``normal``'s
+        q, tmp = ws("n1", shape), ws("n2", shape)
         g_prior = st["gp"]
         g_xy = np.empty((b, n2))
-        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair: u rr / s_r + (-u_y, u_x) rb / (s_b(rho) |d|)
-            np.multiply(ux if k == 0 else uy, rr, out=q)
-            np.multiply(uy if k == 0 else ux, rb, out=tmp)
-            if k == 0:
-                q -= tmp
-            else:
-                q += tmp
+        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair (d / d x_i = -d / d x_j)
+            np.multiply(jac[k], st["rr"], out=q)
+            q += np.multiply(jac[2 + k], st["rb"], out=tmp)
             g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
-        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)
+        g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
         d_damped = d + mu[:, None] * damping_scale(d)
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
-def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
+def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain: bool, keep: np.ndarray | None = None):
+    """``JointLocalizer._solve`` of every sample: the least-squares solution and its covariances, or with ``constrain``
+    the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all)."""
     s_r, _ = sensor_sigmas(cfg)
-    problem = _JointProblem(seen, ranges, bearings, dr_poses, _prior_information(dr_cov), s_r, cfg, ws)
-    x, good = _levenberg_marquardt(problem, dr_poses, *JOINT_TOL)
-    cov = psd(_joint_covariances(*problem.normal(problem.evaluate(x))))
+    problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
+    x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
+    st = problem.evaluate(x)
+    if constrain:
+        x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep)
+    else:
+        cov = _joint_covariances(*problem.normal(st))
+    cov = psd(cov)
     x[:, :, 2] = wrap_angle(x[:, :, 2])
-    good &= np.isfinite(cov).all(axis=(1, 2, 3))
+    good &= np.isfinite(cov).all(axis=(1, 2, 3)) & np.isfinite(x).all(axis=(1, 2))
     return x, cov, good
 
 
-def _prior_information(cov: np.ndarray) -> np.ndarray:
-    """W^T W (..., 3, 3) for the whitening W = ``range_bearing.sqrt_information(cov)``.
+def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
+    """Poses (B, n, 3) and covariances (B, n, 3, 3) of the observability-constrained update (``gauge``, as
+    ``JointLocalizer``), without any (3n, 3n) matrix: the correction U K U^T of ``gauge_correction`` (of the robots
+    ``keep``, None: all) enters the inverse of J^T J = A by the Woodbury identity,
+    (A + U K U^T)^-1 = A^-1 - L (K^-1 + U^T L)^-1 L^T with L = A^-1 U, A^-1 applied through the Schur complement;
+    the estimate moves by ``constrained_solution``'s step (its ``gauge_gradient``), the covariance blocks by
+    ``transported_blocks`` about the whole swarm's predicted gauge.
 
-    That is the inverse of the symmetrised covariance with its eigenvalues floored at
-    ``COV_FLOOR``. Where every eigenvalue is clearly above the floor (Sylvester's criterion
-    on sym - 2 floor I) the floor does nothing and a plain inverse gives the same matrix,
-    much faster than the eigendecompositions; the others go through ``sqrt_information``.
+    ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
+    ``lap``, ``ct``, ``d`` J^T J in the batch's order (x of every robot, then y, then headings:
+    ``_JointProblem.normal``); the gauge's (N, Pi) and the prior's gradient are moved from their robot-by-robot order
+    (x_0, y_0, heading_0, x_1, ...) into it, and the results back.
     """
-    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
-    m = sym - 2.0 * COV_FLOOR * np.eye(3)
-    a, b, c, d, e, f = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], m[..., 0, 1], m[..., 0, 2], m[..., 1, 2]
-    minor2 = a * b - d * d
-    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
-    clear = (a > 0) & (minor2 > 0) & (det > 0)
-    info = np.empty(cov.shape)
-    info[clear] = np.linalg.inv(sym[clear])
-    if not clear.all():
-        w = sqrt_information(cov[~clear])
-        info[~clear] = np.swapaxes(w, -1, -2) @ w
-    return 0.5 * (info + np.swapaxes(info, -1, -2))
+    b, n, n2 = ct.shape
+    k = 3 * n
+    parts = _schur_parts(lap, ct, d)
+    ctd, s_inv, _ = parts
+    to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot-order index 3 a + c
+    to_batch = np.argsort(to_robots)
+
+    def inverse_times(m):  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
+        y = s_inv @ (m[:, :n2] - np.swapaxes(ctd, 1, 2) @ m[:, n2:])
+        return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
+
+    def batch_order(frame):  # (N, Pi) in the batch's order
+        return frame[0][:, to_batch], frame[1][:, :, to_batch]
+
+    robot_frame = gauge_frame(mean, keep)
+    basis, proj = frame = batch_order(robot_frame)
+    # S N with S = H^T H = J^T J minus the prior's (block-diagonal) information
+    prior_n = (prior_info @ robot_frame[0].reshape(b, n, 3, 3)).reshape(b, k, 3)[:, to_batch]
+    sn = np.concatenate([lap @ basis[:, :n2] + np.swapaxes(ct, 1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
+    u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
+    low = inverse_times(u)  # L = A^-1 U
+    with np.errstate(invalid="ignore"):
+        try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
+            m = np.linalg.solve(np.eye(6) + kmat @ (np.swapaxes(u, 1, 2) @ low), kmat @ np.swapaxes(low, 1, 2))
+        except np.linalg.LinAlgError:
+            m = np.full((b, 6, k), np.nan)
+    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
+    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
+    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
+    step = (low[:, :, 3:] @ along[:, :, None] - low @ (m @ g[:, :, None]))[:, :, 0]
+    poses = x - step[:, to_robots].reshape(b, n, 3)
+    low_a = low[:, to_robots].reshape(b, n, 3, 6)
+    blocks = _joint_covariances(lap, ct, d, parts) - low_a @ np.swapaxes(m[:, :, to_robots].reshape(b, 6, n, 3), 1, 2)
+    if keep is None:
+        whole, inv_pt = robot_frame, low[:, :, 3:]  # A^-1 Pi^T: U holds Pi^T
+    else:  # transported about the whole swarm's gauge
+        whole = gauge_frame(mean)
+        proj = batch_order(whole)[1]
+        inv_pt = inverse_times(np.swapaxes(proj, 1, 2))
+    pc = np.swapaxes(inv_pt, 1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
+    pcp = pc @ np.swapaxes(proj, 1, 2)
+    return poses, transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
 
 
-def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> np.ndarray:
+def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(D^-1 C^T, S^-1, S^-1 C D^-1) of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T), S = lap - C D^-1 C^T: the
+    inverse is [[S^-1, -S^-1 C D^-1], [., D^-1 + D^-1 C^T S^-1 C D^-1]]. NaN where singular."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ctd = ct / d[:, :, None]
+        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
+        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
+    return ctd, s_inv, e
+
+
+def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tuple | None = None) -> np.ndarray:
     """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T).
 
-    Exact up to ``EXACT_COV_LIMIT`` robots; above, each robot's 3x3 information block is
-    inverted alone, like ``joint.pose_covariances``.
+    Exact up to ``EXACT_COV_LIMIT`` robots (``_schur_parts``, or ``parts`` when the caller has them); above, each
+    robot's 3x3 information block is inverted alone, like ``joint.pose_covariances``.
     """
     b, n, n2 = ct.shape
     i = np.arange(n)
     cov = np.empty((b, n, 3, 3))
+    if n > EXACT_COV_LIMIT:  # conditional covariances
+        for k in (0, 1):
+            for m in (0, 1):
+                cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
+            cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
+        cov[:, :, 2, 2] = d
+        return _inv_stack(cov)
+    ctd, s_inv, e = _schur_parts(lap, ct, d) if parts is None else parts
     with np.errstate(divide="ignore", invalid="ignore"):
-        if n > EXACT_COV_LIMIT:  # conditional covariances
-            for k in (0, 1):
-                for m in (0, 1):
-                    cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
-                cov[:, :, k, 2] = cov[:, :, 2, k] = ct[:, i, k * n + i]
-            cov[:, :, 2, 2] = d
-            return _inv_stack(cov)
-        ctd = ct / d[:, :, None]  # inverse by the Schur complement S = A - C D^-1 C^T:
-        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
-        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
         for k in (0, 1):
             for m in (0, 1):
                 cov[:, :, k, m] = s_inv[:, k * n + i, m * n + i]

@@ -37,31 +37,60 @@ from scipy.linalg.lapack import dpotrf, dpotri
 
 from coordinator.localization.sparse_lm import BLAS_SMALL, blas_threads, dense
 
+_ROTATION = np.array([0.0, 0.0, 1.0])  # the rotation's share of N^T N
 
-def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None) -> np.ndarray:
-    """N (3n, 3): the swarm's global translation (x, y) and rotation about ``center`` (2,) (default: the
-    centroid) at ``poses`` (n, 3).
+
+def gauge_basis(poses: np.ndarray, center: np.ndarray | None = None, keep: np.ndarray | None = None) -> np.ndarray:
+    """N (..., 3n, 3): the swarm's global translation (x, y) and rotation about ``center`` (..., 2) (default: the
+    centroid) at ``poses`` (..., n, 3), one swarm or a batch. ``keep`` (..., n): only these robots move (the other
+    rows are zero: the gauge of a subset, in the whole swarm's coordinates).
 
     Relative range and bearing observations do not change along these directions, to first
     order at ``poses``: H(poses) N = 0.
     """
-    n = len(poses)
-    c = poses[:, :2] - (poses[:, :2].mean(axis=0) if center is None else center)
-    basis = np.zeros((n, 3, 3))
-    basis[:, 0, 0] = basis[:, 1, 1] = basis[:, 2, 2] = 1.0
-    basis[:, 0, 2], basis[:, 1, 2] = -c[:, 1], c[:, 0]
-    return basis.reshape(3 * n, 3)
+    n = poses.shape[-2]
+    c = poses[..., :2] - (poses[..., :2].mean(axis=-2) if center is None else center)[..., None, :]
+    basis = np.zeros(poses.shape[:-1] + (3, 3))
+    basis[..., 0, 0] = basis[..., 1, 1] = basis[..., 2, 2] = 1.0
+    basis[..., 0, 2], basis[..., 1, 2] = -c[..., 1], c[..., 0]
+    if keep is not None:
+        basis *= keep[..., None, None]
+    return basis.reshape(poses.shape[:-2] + (3 * n, 3))
 
 
-def gauge_frame(predicted: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(N, Pi = (N^T N)^-1 N^T) at the predicted poses (n, 3), rotation about their centroid (Pi gives the
-    coordinates along N of a state vector): what
-    ``constrained_covariance`` and ``transport`` of one update share (computed once per step)."""
-    basis = gauge_basis(predicted)
-    # About the centroid the offsets c_i sum to zero, so N^T N = diag(n, n, n + sum |c_i|^2): no solve.
-    n = len(predicted)
-    offsets = basis[0::3, 2] ** 2 + basis[1::3, 2] ** 2  # |c_i|^2 (the rotation column holds (-c_y, c_x))
-    return basis, basis.T / np.array([n, n, n + offsets.sum()])[:, None]
+def gauge_frame(predicted: np.ndarray, keep: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(N, Pi = (N^T N)^-1 N^T) at the predicted poses (..., n, 3), rotation about their centroid (Pi gives the
+    coordinates along N of a state vector): what ``gauge_correction`` and ``transport`` of one update share
+    (computed once per step). ``keep`` (..., n): the gauge of these robots alone (rotation about their centroid;
+    the others' rows of N and columns of Pi are zero)."""
+    if keep is None:
+        count: float | np.ndarray = float(predicted.shape[-2])
+        center = predicted[..., :2].mean(axis=-2)
+    else:
+        kept = np.maximum(keep.sum(axis=-1), 1).astype(float)  # none kept: a zero frame
+        center = np.einsum("...n,...nk->...k", keep, predicted[..., :2]) / kept[..., None]
+        count = kept
+    basis = gauge_basis(predicted, center, keep)
+    # About the centroid the offsets c_i sum to zero, so N^T N = diag(k, k, k + sum |c_i|^2): no solve.
+    offsets = np.sum(basis[..., 0::3, 2] ** 2 + basis[..., 1::3, 2] ** 2, axis=-1)  # sum |c_i|^2 (rotation column: (-c_y, c_x))
+    scale = np.asarray(count)[..., None] + offsets[..., None] * _ROTATION
+    return basis, np.swapaxes(basis, -1, -2) / scale[..., :, None]
+
+
+def gauge_correction(observed_basis: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """(U (..., 3n, 6), K (..., 6, 6)) with H~^T H~ - H^T H = U K U^T, H~ = H projected off the predicted gauge.
+
+    ``observed_basis`` is S N (..., 3n, 3), S = H^T H the observations' (whitened) information, N and
+    Pi = (N^T N)^-1 N^T from ``frame``: H~^T H~ = S - S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi, a correction of
+    rank <= 6: U = [S N, Pi^T], K = [[0, -I], [-I, N^T S N]] (symmetric). The one definition of the constraint,
+    for one swarm (``constrained_covariance``) and the planner's batch (``batch``, through the Woodbury identity).
+    """
+    basis, proj = frame
+    u = np.concatenate([observed_basis, np.swapaxes(proj, -1, -2)], axis=-1)
+    k = np.zeros(observed_basis.shape[:-2] + (6, 6))
+    k[..., :3, 3:] = k[..., 3:, :3] = -np.eye(3)
+    k[..., 3:, 3:] = np.swapaxes(basis, -1, -2) @ observed_basis
+    return u, k
 
 
 def constrained_covariance(
@@ -73,19 +102,20 @@ def constrained_covariance(
     """(J^T J - H^T H + H~^T H~)^-1 (3n, 3n), H~ = H projected off N(``predicted``); NaN where singular.
 
     ``normal`` is J^T J at the solution (whitened prior and observations), ``observed`` the
-    observations' share H^T H of it (whitened), ``predicted`` the dead-reckoning poses (n, 3).
-    With S = H^T H and Pi = (N^T N)^-1 N^T: H~^T H~ = S - S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi.
-    ``frame``: ``gauge_frame(predicted)`` when the caller has it.
+    observations' share H^T H of it (whitened), ``predicted`` the dead-reckoning poses (n, 3);
+    the correction is ``gauge_correction``'s. ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    basis, proj = gauge_frame(predicted) if frame is None else frame
-    sn = np.asarray(observed @ basis)  # S N, (3n, 3)
-    # The correction -S N Pi - (S N Pi)^T + Pi^T (N^T S N) Pi has rank <= 6: U V with U = [S N, Pi^T] and
-    # V = [-Pi; -(S N)^T + (N^T S N) Pi], added in one pass.
-    u = np.hstack([sn, proj.T])
-    v = np.vstack([-proj, (basis.T @ sn) @ proj - sn.T])
+    frame = gauge_frame(predicted) if frame is None else frame
+    u, k = gauge_correction(np.asarray(observed @ frame[0]), frame)
     info = normal.toarray() if sp.issparse(normal) else np.array(normal, dtype=float)  # type: ignore[union-attr]  # issparse: a sparse matrix; one fresh copy
-    info += u @ v
+    info += u @ (k @ u.T)
     return inverse(info)
+
+
+def gauge_gradient(prior_gradient: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """N^T g (..., 3): the prior's gradient g (..., 3n) along the predicted gauge, whose Pi^T N^T g
+    ``constrained_solution`` takes out of the update (through the constrained covariance)."""
+    return (np.swapaxes(frame[0], -1, -2) @ prior_gradient[..., None])[..., 0]
 
 
 def constrained_solution(
@@ -95,18 +125,18 @@ def constrained_solution(
     prior_gradient: np.ndarray,
     frame: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
-    """Poses (n, 3) of the observability-constrained update, one Gauss-Newton step from the least-squares ``solution``.
+    """Poses (..., n, 3) of the observability-constrained update, one Gauss-Newton step from the least-squares ``solution``.
 
     Huang, Mourikis & Roumeliotis (2010) use the constrained Jacobian H~ for the state update too, not only for the
-    covariance. At the least-squares solution x* the prior's gradient g = P^-1 (x* - mu) (``prior_gradient``, (3n,))
+    covariance. At the least-squares solution x* the prior's gradient g = P^-1 (x* - mu) (``prior_gradient``, (..., 3n))
     equals the observations' H^T r; its part along the predicted gauge, N^T H^T r, is the spurious information
     (H~ is blind to N). Replacing H^T r by H~^T r = H^T r - Pi^T N^T g and linearizing about x* gives
-    x = x* - C Pi^T N^T g, with C = ``cov`` the constrained covariance (3n, 3n, before ``transport``). Without it the
+    x = x* - C Pi^T N^T g (``gauge_gradient``), with C = ``cov`` the constrained covariance (..., 3n, 3n, before ``transport``). Without it the
     swarm's estimated global rotation took a noise-driven step at every update that no covariance accounted for.
     ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    basis, proj = gauge_frame(predicted) if frame is None else frame
-    step = cov @ (proj.T @ (basis.T @ prior_gradient))
+    frame = gauge_frame(predicted) if frame is None else frame
+    step = (cov @ (np.swapaxes(frame[1], -1, -2) @ gauge_gradient(prior_gradient, frame)[..., None]))[..., 0]
     return solution - step.reshape(solution.shape)
 
 
@@ -160,22 +190,53 @@ def merge_subset(prior: np.ndarray | None, updated: np.ndarray, keep: np.ndarray
     return out
 
 
+def transport_offset(predicted: np.ndarray, solution: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """D = N(solution) - N(predicted) (..., 3n, 3), both rotations about the predicted centroid: ``transport``'s
+    T = I + D Pi."""
+    return gauge_basis(solution, predicted[..., :2].mean(axis=-2)) - frame[0]
+
+
 def transport(
     cov: np.ndarray, predicted: np.ndarray, solution: np.ndarray, frame: tuple[np.ndarray, np.ndarray] | None = None
 ) -> np.ndarray:
-    """T cov T^T with T = I + (N(solution) - N(predicted)) (N^T N)^-1 N^T (a rank-3 update, O(n^2)).
+    """T cov T^T with T = I + (N(solution) - N(predicted)) (N^T N)^-1 N^T (a rank-3 update, O(n^2)), one swarm
+    ((3n, 3n), poses (n, 3)) or a batch (leading axes).
 
     Both rotations are about the same point (the predicted centroid): the symmetry that moves
     ``predicted`` rotates ``solution`` about that point too, and so does the next propagation.
     ``frame``: ``gauge_frame(predicted)`` when the caller has it.
     """
-    center = predicted[:, :2].mean(axis=0)
-    basis, proj = gauge_frame(predicted) if frame is None else frame
-    d = gauge_basis(solution, center) - basis  # (3n, 3)
-    pc = proj @ cov  # (3, 3n)
+    frame = gauge_frame(predicted) if frame is None else frame
+    d = transport_offset(predicted, solution, frame)  # (..., 3n, 3)
+    d_t = np.swapaxes(d, -1, -2)
+    pc = frame[1] @ cov  # (..., 3, 3n)
     # T cov T^T = cov + D Pi cov + (D Pi cov)^T + D (Pi cov Pi^T) D^T = cov + [D, (Pi cov)^T] [Pi cov + (Pi cov Pi^T) D^T; D^T]
-    out = cov + np.hstack([d, pc.T]) @ np.vstack([pc + (pc @ proj.T) @ d.T, d.T])
-    return 0.5 * (out + out.T)
+    left = np.concatenate([d, np.swapaxes(pc, -1, -2)], axis=-1)
+    out = cov + left @ np.concatenate([pc + (pc @ np.swapaxes(frame[1], -1, -2)) @ d_t, d_t], axis=-2)
+    return 0.5 * (out + np.swapaxes(out, -1, -2))
 
 
-__all__ = ["constrained_covariance", "constrained_solution", "gauge_basis", "gauge_frame", "inverse", "merge_subset", "transport"]
+def transported_blocks(blocks: np.ndarray, offset: np.ndarray, pc: np.ndarray, pcp: np.ndarray) -> np.ndarray:
+    """The 3x3 diagonal blocks (..., n, 3, 3) of ``transport``'s T cov T^T from cov's own (``blocks``), D
+    (``offset``, ``transport_offset``), Pi cov (``pc`` (..., 3, 3n)) and Pi cov Pi^T (``pcp`` (..., 3, 3)): the same
+    C + D Pi C + (D Pi C)^T + D (Pi C Pi^T) D^T, robot by robot, without the whole matrix (the planner's batch)."""
+    shape = blocks.shape
+    d = offset.reshape(shape[:-3] + (shape[-3], 3, 3))  # D_a (3, 3) of each robot
+    pc_a = np.swapaxes(pc.reshape(shape[:-3] + (3, shape[-3], 3)), -3, -2)  # (Pi C)_{:, a} (3, 3) of each robot
+    half = d @ (pc_a + 0.5 * (pcp[..., None, :, :] @ np.swapaxes(d, -1, -2)))  # D Pi C + D (Pi C Pi^T) D^T / 2
+    return blocks + half + np.swapaxes(half, -1, -2)
+
+
+__all__ = [
+    "constrained_covariance",
+    "constrained_solution",
+    "gauge_basis",
+    "gauge_correction",
+    "gauge_frame",
+    "gauge_gradient",
+    "inverse",
+    "merge_subset",
+    "transport",
+    "transport_offset",
+    "transported_blocks",
+]

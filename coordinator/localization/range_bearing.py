@@ -124,6 +124,35 @@ def observation_residuals(
     return r_range, r_bearing, dist
 
 
+def observation_jacobian(
+    dx: np.ndarray,
+    dy: np.ndarray,
+    inv_dist: np.ndarray,
+    w_r: np.ndarray | float,
+    w_b: np.ndarray,
+    out: Sequence[np.ndarray | None] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Derivatives of ``observation_residuals``' whitened residuals with respect to the observed robot's position
+    x_j, elementwise over arrays of any (common) shape: the one definition of the joint problem's Jacobian, for one
+    swarm (``observation_blocks``, the sparse assembly) and for the planner's batch (its dense J^T J).
+
+    ``dx``, ``dy``: d = x_j - x_i (m); ``inv_dist``: 1 / |d| (as floored by ``observation_residuals``); ``w_r``,
+    ``w_b``: the whitening weights. Returns (d range / d x_j = w_r d / |d| (two arrays), d bearing / d x_j =
+    w_b (-d_y, d_x) / |d|^2 (two arrays)). The rest of the 2 x 5 block over (x_i, y_i, theta_i, x_j, y_j) follows:
+    d / d x_i = -d / d x_j, d range / d theta_i = 0, d bearing / d theta_i = -w_b. ``out``: four arrays to write into.
+    """
+    o = (None, None, None, None) if out is None else out  # outputs positional: faster than ``out=`` keywords
+    f = np.multiply(inv_dist, w_r, o[1])  # w_r / |d|
+    range_x = np.multiply(dx, f, o[0])
+    range_y = np.multiply(dy, f, f)
+    g = np.multiply(inv_dist, w_b, o[3])
+    g *= inv_dist  # w_b / |d|^2
+    bearing_x = np.multiply(dy, g, o[2])
+    np.negative(bearing_x, bearing_x)
+    bearing_y = np.multiply(dx, g, g)
+    return range_x, range_y, bearing_x, bearing_y
+
+
 def observation_blocks(
     poses: np.ndarray,
     observer: np.ndarray,
@@ -146,14 +175,11 @@ def observation_blocks(
     direction = at_i[:, 2] + bearing_rad
     residual = np.empty((len(observer), 2))
     _, _, dist = observation_residuals(d[:, 0], d[:, 1], range_m, 1.0 / s_r, w_b, direction=direction, out=(residual[:, 0], residual[:, 1], None))
-    u = d / (dist * s_r)[:, None]  # d range / d x_j, whitened
-    b = d * (w_b / dist**2)[:, None]  # (dx, dy) w_b / dist^2: d bearing / d x_j = (-dy, dx) w_b / dist^2
     jac = np.empty((len(observer), 2, 5))  # filled column by column (one np.stack each cost more at n = 10)
-    jac[:, 0, 3:] = u
-    np.negative(u, out=jac[:, 0, :2])
+    observation_jacobian(d[:, 0], d[:, 1], 1.0 / dist, 1.0 / s_r, w_b, out=(jac[:, 0, 3], jac[:, 0, 4], jac[:, 1, 3], jac[:, 1, 4]))
+    np.negative(jac[:, :, 3:], out=jac[:, :, :2])  # d / d x_i = -d / d x_j
     jac[:, 0, 2] = 0.0
-    jac[:, 1, 0], jac[:, 1, 1], jac[:, 1, 2] = b[:, 1], -b[:, 0], -w_b
-    jac[:, 1, 3], jac[:, 1, 4] = -b[:, 1], b[:, 0]
+    np.negative(w_b, out=jac[:, 1, 2])
     return residual, jac
 
 
@@ -180,6 +206,31 @@ def pose_difference(poses: np.ndarray, mean: np.ndarray) -> np.ndarray:
     diff = poses - mean
     diff[..., 2] = wrap_angle(diff[..., 2])
     return diff
+
+
+def prior_information(cov: np.ndarray) -> np.ndarray:
+    """W^T W (..., 3, 3) for the whitening W = ``sqrt_information(cov)`` of the prior terms, one swarm or a batch.
+
+    That is the inverse of the symmetrised covariance with its eigenvalues floored at
+    ``COV_FLOOR``. Where every eigenvalue is clearly above the floor (Sylvester's criterion
+    on sym - 2 floor I) the floor does nothing and the plain inverse (by cofactors) gives the same matrix,
+    much faster than the eigendecompositions; the others go through ``sqrt_information``.
+    """
+    sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
+    m = sym - 2.0 * COV_FLOOR * np.eye(3)
+    a, b, c, d, e, f = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2], m[..., 0, 1], m[..., 0, 2], m[..., 1, 2]
+    minor2 = a * b - d * d
+    det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
+    clear = (a > 0) & (minor2 > 0) & (det > 0)
+    a, b, c, d, e, f = sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2], sym[..., 0, 1], sym[..., 0, 2], sym[..., 1, 2]
+    cofactors = np.stack([b * c - f * f, e * f - d * c, d * f - b * e, a * c - e * e, d * e - a * f, a * b - d * d], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        upper = cofactors / (a * cofactors[..., 0] + d * cofactors[..., 1] + e * cofactors[..., 2])[..., None]
+    info = upper[..., [0, 1, 2, 1, 3, 4, 2, 4, 5]].reshape(cov.shape)  # the inverse of sym by its cofactors (symmetric)
+    if not clear.all():
+        w = sqrt_information(cov[~clear])
+        info[~clear] = np.swapaxes(w, -1, -2) @ w
+    return 0.5 * (info + np.swapaxes(info, -1, -2))
 
 
 def prior_terms(

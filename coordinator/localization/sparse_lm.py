@@ -1,5 +1,8 @@
 """Sparse Levenberg-Marquardt over pose unknowns, shared by every localizer.
 
+One driver (``drive``) runs the rule for one problem (``minimize``, ``ScalarOps``) and for many in lock-step
+(the planner's batch, ``BatchOps``).
+
 Residuals and Jacobians are assembled vectorised (COO triplets); the normal equations
 (J^T J + mu diag(J^T J)) dx = -J^T r are solved densely for small problems and with a
 sparse LDL^T factorization (QDLDL with an approximate-minimum-degree ordering, its symbolic analysis reused
@@ -16,6 +19,7 @@ on a busy 2-core machine multi-threaded OpenBLAS is many times slower for these 
 from __future__ import annotations
 
 import contextlib
+import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -179,8 +183,8 @@ def add_diagonal(a: sp.spmatrix | np.ndarray, values: np.ndarray) -> sp.spmatrix
     return a + sp.diags(values)
 
 
-# The Levenberg-Marquardt rule, defined once for ``minimize`` (one problem) and ``batch``'s lock-step driver (many
-# problems at once): the damping and its scale, the clamp of the second-order term, acceptance and convergence.
+# The Levenberg-Marquardt rule, defined once for ``drive``, which runs one problem (``minimize``) or many in lock-step
+# (the planner's ``batch``): the damping and its scale, the clamp of the second-order term, acceptance and convergence.
 # The functions take floats or arrays (one value per problem).
 MU_START = 1e-8  # damping of the first step
 MU_MIN = 1e-12  # the damping never falls below this on accepted steps
@@ -204,33 +208,76 @@ def clamp_curvature(curvature: np.ndarray, scale: np.ndarray) -> np.ndarray:
 
 
 class ScalarOps:
-    """The numpy functions the rule uses, for one problem's Python floats (numpy's cost ~1 us per call on
-    scalars, which added ~10 % to a 10-robot step): pass ``xp=ScalarOps`` to evaluate the same expressions."""
+    """The operations of the rule and of ``drive`` for one problem held in Python floats and bools (numpy's cost
+    ~1 us per call on scalars, which added ~10 % to a 10-robot step): the same expressions as ``BatchOps``."""
 
+    batched = False
     maximum = staticmethod(max)
     isfinite = staticmethod(math.isfinite)
+    any = staticmethod(bool)
+    quiet = staticmethod(contextlib.nullcontext)  # floats raise no numpy warnings
 
     @staticmethod
     def where(condition: bool, a: float, b: float) -> float:
         return a if condition else b
 
     @staticmethod
-    def logical_and(a: bool, b: bool) -> bool:
-        return a and b
-
-    @staticmethod
-    def logical_or(a: bool, b: bool) -> bool:
-        return a or b
-
-    @staticmethod
     def logical_not(a: bool) -> bool:
         return not a
+
+    @staticmethod
+    def full(like: float, value: float) -> float:
+        return value
+
+    @staticmethod
+    def largest(a: np.ndarray) -> float:
+        """max |a| (0 for no unknowns)."""
+        return float(np.abs(a).max()) if a.size else 0.0
+
+    @staticmethod
+    def keep(mask: bool, a, b):
+        """``a`` where ``mask``, else ``b`` (points, steps and states)."""
+        return a if mask else b
+
+
+class BatchOps:
+    """The same operations for many problems at once: numpy arrays with the problems on their first axis; a state
+    is a dict of such arrays. ``keep`` overwrites ``a`` in place where ``mask`` is False (no fresh arrays:
+    they cost page faults at every iteration)."""
+
+    batched = True
+    quiet = staticmethod(functools.partial(np.errstate, invalid="ignore"))  # finished problems may hold inf - inf
+    maximum = staticmethod(np.maximum)
+    isfinite = staticmethod(np.isfinite)
+    any = staticmethod(np.any)
+    where = staticmethod(np.where)
+    logical_not = staticmethod(np.logical_not)
+
+    @staticmethod
+    def full(like: np.ndarray, value: float) -> np.ndarray:
+        return np.full(np.shape(like), value)
+
+    @staticmethod
+    def largest(a: np.ndarray) -> np.ndarray:
+        """max |a| of each problem."""
+        return np.max(np.abs(a), axis=tuple(range(1, a.ndim)))
+
+    @staticmethod
+    def keep(mask: np.ndarray, a, b):
+        back = np.flatnonzero(~mask)
+        if back.size:
+            if isinstance(a, dict):
+                for key, value in a.items():
+                    value[back] = b[key][back]
+            else:
+                a[back] = b if np.isscalar(b) else b[back]
+        return a
 
 
 def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, xp=np) -> tuple:
     """What a trial step does: (accepted, converged, next damping, given up), per problem.
 
-    Arguments are arrays (one value per problem; ``xp`` numpy) or floats (``xp`` = ``ScalarOps``).
+    Arguments are arrays (one value per problem; ``xp`` numpy or ``BatchOps``) or floats (``xp`` = ``ScalarOps``).
     ``step_max`` is the step's largest |component|, ``x_max`` that of the point it started from. A step is
     accepted when finite and not raising the cost beyond rounding (``ACCEPT_SLACK``); the damping is then
     divided by ``MU_FACTOR`` (floor ``MU_MIN``), else multiplied. Converged: an accepted step below
@@ -238,18 +285,103 @@ def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, 
     or a rejected step below ``xtol`` (1 + max |x|): the problem sits at its minimum, where rounding decides
     the cost (the old point is the solution). Given up: a rejected step that took the damping beyond ``MU_MAX``.
     """
-    accept = xp.logical_and(xp.isfinite(cost_new), cost_new <= cost * (1 + ACCEPT_SLACK) + _TINY)
+    accept = xp.isfinite(cost_new) & (cost_new <= cost * (1 + ACCEPT_SLACK) + _TINY)  # & and |: bools or bool arrays
     gain_small = cost - cost_new <= ftol * xp.maximum(cost, _TINY)
-    converged = xp.logical_or(step_max <= xtol * (1.0 + x_max), xp.logical_and(accept, gain_small))
+    converged = (step_max <= xtol * (1.0 + x_max)) | (accept & gain_small)
     mu_next = xp.where(accept, xp.maximum(mu / MU_FACTOR, MU_MIN), mu * MU_FACTOR)
-    gave_up = xp.logical_and(xp.logical_not(xp.logical_or(accept, converged)), mu_next > MU_MAX)
+    gave_up = xp.logical_not(accept | converged) & (mu_next > MU_MAX)
     return accept, converged, mu_next, gave_up
 
 
 def settled(predicted, cost, mu, ptol: float, xp=np):
     """Converged before the step (``minimize``'s ``ptol``): its predicted decrease -g.dx / 2 below ``ptol`` of the
     cost while the damping is negligible (mu <= ``PRED_MU_MAX``; a damped step under-predicts)."""
-    return xp.logical_and(mu <= PRED_MU_MAX, predicted <= ptol * cost)
+    return (mu <= PRED_MU_MAX) & (predicted <= ptol * cost)
+
+
+COMPACT_BELOW = 0.5  # ``drive`` drops finished problems from its work set once fewer than this fraction is active
+
+
+def drive(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None = None, max_iter: int = MAX_ITER, xp=BatchOps) -> tuple:
+    """The Levenberg-Marquardt driver of every localizer: one problem (``xp=ScalarOps``, ``minimize``) or many in
+    lock-step (``xp=BatchOps``, the planner's batch: ``x0`` (B, ...) with the problems on the first axis).
+
+    ``problem.evaluate(x, slot)`` returns the state at x, a dict holding at least ``cost``, kept in ``slot`` (0 or
+    1: the current point's state and the trial's coexist); ``problem.step(state, mu, curved)`` the damped step
+    (A + C + mu D) dx = -g and its predicted decrease -g.dx / 2, with the second-order term C only where
+    ``curved`` (from a problem's second iteration: the first is Gauss-Newton); batched, ``problem.subset(index)``
+    the problem restricted to some of its problems. Every problem starts at ``MU_START``; each trial step's
+    acceptance, convergence, next damping and giving up are ``step_outcome``'s; with ``ptol`` a problem whose
+    step predicts a negligible decrease (``settled``) stops where it is, without evaluating the step; a problem
+    fails after ``max_iter`` accepted steps or when it gives up, and never starts where its cost is not finite.
+    A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active.
+
+    Returns (x, converged, iterations, state): iterations counts the iterations started (accepted steps, plus
+    one when the last trial was not accepted), state is the final point's (of one problem; batched, of the
+    problems in the last work set).
+    """
+    x = np.array(x0, dtype=float, copy=True)
+    st, slot = problem.evaluate(x, 0), 1
+    cost = st["cost"]
+    mu, iterations = xp.full(cost, MU_START), xp.full(cost, 0)
+    active = xp.isfinite(cost) & (max_iter > 0)  # & and |: bools or bool arrays, as the problems are held
+    converged = active & False
+    accepted = xp.logical_not(converged)  # the last trial's acceptance (none yet)
+    if xp.batched:
+        full_x, full_converged, work = x, converged.copy(), np.arange(len(x))
+    while xp.any(active):
+        if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # drop finished problems
+            full_x[work], full_converged[work] = x, converged
+            keep = np.flatnonzero(active)
+            work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
+            problem = problem.subset(keep)
+            st = {key: value[keep] for key, value in st.items()}
+        dx, predicted = problem.step(st, mu, iterations > 0)
+        if ptol is not None:  # converged before the step
+            early = active & settled(predicted, st["cost"], mu, ptol, xp)
+            converged = converged | early
+            accepted = accepted & xp.logical_not(early)
+            active = active & xp.logical_not(early)
+            if not xp.any(active):
+                break
+        x_new = x + xp.keep(active, dx, 0.0)
+        new = problem.evaluate(x_new, slot)
+        with xp.quiet():
+            accepted, done, mu, gave_up = step_outcome(st["cost"], new["cost"], xp.largest(dx), xp.largest(x), mu, xtol, ftol, xp)
+        converged = converged | (done & active)
+        iterations = iterations + accepted
+        x, st, slot = xp.keep(accepted, x_new, x), xp.keep(accepted, new, st), 1 - slot
+        # finished: converged, or failed (given up, or out of accepted steps)
+        active = active & xp.logical_not(done | gave_up | (iterations >= max_iter))
+    started = iterations + xp.logical_not(accepted)
+    if xp.batched:
+        full_x[work], full_converged[work] = x, converged
+        return full_x, full_converged, started, st
+    return x, converged, started, st
+
+
+class _NormalProblem:
+    """One problem given by its normal equations, for ``drive``: ``minimize``'s callbacks."""
+
+    def __init__(self, evaluate: Callable[[np.ndarray], NormalEquations], solve: Callable) -> None:
+        self._evaluate, self._solve = evaluate, solve
+        self._system: tuple = (None, None, None, None)  # (state, curved, A (+ C), D) of the last step: rejected trials reuse it
+
+    def evaluate(self, x: np.ndarray, slot: int) -> dict:
+        ne = self._evaluate(x)
+        return {"cost": float(ne.cost), "ne": ne}
+
+    def step(self, st: dict, mu: float, curved: bool) -> tuple[np.ndarray, float]:
+        ne = st["ne"]
+        if self._system[0] is not ne or self._system[1] != curved:
+            a = ne.normal
+            scale = damping_scale(a.diagonal())
+            if ne.curvature is not None and curved:
+                a = add_diagonal(a, clamp_curvature(ne.curvature, scale))
+            self._system = (ne, curved, a, scale)
+        _, _, a, scale = self._system
+        dx = self._solve(a, mu * scale, -ne.gradient)
+        return dx, -0.5 * float(ne.gradient @ dx)
 
 
 def minimize(
@@ -262,7 +394,7 @@ def minimize(
     ftol: float = 1e-12,
     ptol: float | None = None,
 ) -> LsqResult:
-    """Levenberg-Marquardt on the normal equations ``evaluate(x)`` returns.
+    """Levenberg-Marquardt on the normal equations ``evaluate(x)`` returns: ``drive`` with one problem.
 
     ``solve(a, shift, rhs)`` solves (a + diag(shift)) dx = rhs (default: ``solve_normal``, its
     factorization reused while the pattern stays).
@@ -281,41 +413,15 @@ def minimize(
     under-predicts). x is then within about sqrt(2 ptol cost) whitened units of the minimum:
     the evaluation of a step whose gain no one could use is saved.
     """
-    x = np.asarray(x0, dtype=float).copy()
     if solve is None:
         factor = SparseLDL()
 
         def solve(a, shift, rhs):
             return solve_normal(add_diagonal(a, shift), rhs, factor)
 
-    ne = evaluate(x)
-    mu = MU_START
-    converged = False
-    it = 0
-    for it in range(1, max_iter + 1):
-        a = ne.normal
-        scale = damping_scale(a.diagonal())
-        if ne.curvature is not None and it > 1:
-            a = add_diagonal(a, clamp_curvature(ne.curvature, scale))
-        while True:
-            dx = solve(a, mu * scale, -ne.gradient)
-            if ptol is not None and settled(-0.5 * float(ne.gradient @ dx), ne.cost, mu, ptol, ScalarOps):
-                return LsqResult(x, ne.cost, it, True, ne.normal, ne.extra)
-            x_new = x + dx
-            ne_new = evaluate(x_new)
-            step_max, x_max = (float(np.abs(dx).max()), float(np.abs(x).max())) if dx.size else (0.0, 0.0)
-            accept, done, mu, gave_up = step_outcome(float(ne.cost), float(ne_new.cost), step_max, x_max, mu, xtol, ftol, ScalarOps)
-            if accept:
-                break
-            if done:  # a negligible step rejected: x is the minimum
-                return LsqResult(x, ne.cost, it, True, ne.normal, ne.extra)
-            if gave_up:
-                return LsqResult(x, ne.cost, it, converged, a, ne.extra)
-        x, ne = x_new, ne_new
-        if done:
-            converged = True
-            break
-    return LsqResult(x, ne.cost, it, converged, ne.normal, ne.extra)
+    x, converged, iterations, st = drive(_NormalProblem(evaluate, solve), x0, xtol, ftol, ptol, max_iter, ScalarOps)
+    ne = st["ne"]
+    return LsqResult(x, ne.cost, int(iterations), bool(converged), ne.normal, ne.extra)
 
 
 def levenberg_marquardt(

@@ -87,6 +87,19 @@ def observation_residuals(
     return rzx, rzy, rx, ry
 
 
+def observation_jacobian(rzx: np.ndarray, rzy: np.ndarray, out: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """d r_ij / d theta_i = (-(R z)_y, (R z)_x) of Eq. B3's residual, elementwise from ``observation_residuals``'
+    R(theta_i) z_ij: the one definition for one swarm's sparse Jacobian and the batch's J^T J (d r / d x_i = I and
+    d r / d x_j = -I). ``out``: an array for the first component (the second is ``rzx`` itself)."""
+    return np.negative(rzy, out), rzx
+
+
+def heading_curvature(rzx: np.ndarray, rzy: np.ndarray, rx: np.ndarray, ry: np.ndarray) -> np.ndarray:
+    """r . d^2 r / d theta_i^2 = -r . R(theta_i) z_ij of each observation, elementwise: the second-order term of the
+    observer's heading that Gauss-Newton drops (``sparse_lm``'s curvature)."""
+    return -(rx * rzx + ry * rzy)
+
+
 def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_heading: np.ndarray, ref: int) -> np.ndarray:
     """Poses from the linear relaxation of Eq. B3 in (x, y, c, s) with the gauge fixed.
 
@@ -202,14 +215,16 @@ def estimate_topology(
         observation_residuals(np.cos(heading), np.sin(heading), zx, zy, pi[:, 0], pi[:, 1], pj[:, 0], pj[:, 1],
                               out=(rz[:, 0], rz[:, 1], r[:, 0], r[:, 1]))
         last["vec"], last["rz"] = vec, rz
-        vals = np.concatenate([ones, -ones, -rz[:, 1], ones, -ones, rz[:, 0]])
+        d_theta = observation_jacobian(rz[:, 0], rz[:, 1])
+        vals = np.concatenate([ones, -ones, d_theta[0], ones, -ones, d_theta[1]])
         return r.ravel(), jacobian(2 * m, layout.size, rows, cols, vals)
 
     def second_order(vec: np.ndarray, r: np.ndarray) -> np.ndarray:
         """d^2 r / d theta_i^2 = -R(theta_i) z_ij: diagonal of sum r . d^2 r on heading columns."""
         if last.get("vec") is not vec:
             residuals(vec)
-        term = -np.sum(r.reshape(m, 2) * last["rz"], axis=1)
+        r2, rz = r.reshape(m, 2), last["rz"]
+        term = heading_curvature(rz[:, 0], rz[:, 1], r2[:, 0], r2[:, 1])
         out = np.zeros(layout.size)
         hc = ci[:, 2]
         np.add.at(out, hc[hc >= 0], term[hc >= 0])
