@@ -238,3 +238,12 @@ def test_a_large_count_is_searched_and_raced_on_more_samples(monkeypatch):
     selection = AnchorSelector(POINTS, make_localizer("paper", POINTS), config, seed=1).select(estimate, desired)
     assert selection.scores[0].searched and samples_for(4, 8) == 5 and search_samples(5, 2520) == 8
     assert set(sizes) == {5, 8, 16, 32, 320} and sizes[:2] == [5, 5] and sizes[2] == 8
+
+
+def test_only_the_joint_localizers_search_is_screened_by_the_prediction():
+    """The Cramer-Rao prediction ranks plans as the joint localizer reaches them, not as the paper's (Eq. 23) does."""
+    joint, paper = (make_localizer(name, POINTS) for name in ("joint", "paper"))
+    assert AnchorSelector(POINTS, joint, SelectionConfig(), seed=0).screens()
+    assert not AnchorSelector(POINTS, paper, SelectionConfig(), seed=0).screens()
+    assert not AnchorSelector(POINTS, joint, SelectionConfig(method="crlb"), seed=0).screens()  # the prediction is the fitness
+    assert not AnchorSelector(POINTS, joint, SelectionConfig(genetic=GeneticConfig(screened=0)), seed=0).screens()

@@ -79,6 +79,7 @@ GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
     ("joint", False): {10: (10, 10)},
 }
 MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
+SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
@@ -96,7 +97,8 @@ class SelectionConfig:
     genetic: GeneticConfig = field(default_factory=GeneticConfig)
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
     final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
-    contenders: int = 2  # best distinct plans of the genetic search that enter the race
+    contenders: int = 8  # best distinct plans of the genetic search that enter the race
+    screened_contenders: int = 2  # ... of a search screened by prediction (``screens``: at most 21 plans were sampled)
     final_looks: int = 4  # looks of the sequential final check (``racing.fresh_blocks``); 1 = one fixed set
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
@@ -116,10 +118,10 @@ class SelectionConfig:
             raise SwarmInputError(f"genetic search must be one of {', '.join(GENETIC_GATES)}, got {self.genetic_gate!r}")
         if self.mc_emax == "worst" and self.method != "mc":
             raise SwarmInputError("e_l,max 'worst' needs Monte Carlo samples: use it with the mc selection, not crlb")
-        if self.final_samples < 1 or self.contenders < 1 or self.final_looks < 1 or not 0 <= self.prune_gain <= 1:
+        if min(self.final_samples, self.contenders, self.screened_contenders, self.final_looks) < 1 or not 0 <= self.prune_gain <= 1:
             raise SwarmInputError(
                 f"final samples, contenders and final looks must be >= 1 and prune gain in [0, 1], got "
-                f"{self.final_samples}, {self.contenders}, {self.final_looks}, {self.prune_gain}"
+                f"{self.final_samples}, {self.contenders}/{self.screened_contenders}, {self.final_looks}, {self.prune_gain}"
             )
         if not (self.w_v >= 0 and self.w_l >= 0 and abs(self.w_v + self.w_l - 1.0) < 1e-9):
             raise SwarmInputError(f"weights must be >= 0 and sum to 1 (Eq. 3), got w_v={self.w_v}, w_l={self.w_l}")
@@ -317,7 +319,7 @@ class AnchorSelector:
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
             known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
-            screen = sel.method == "mc" and sel.genetic.screened > 0  # Monte Carlo only for the best-predicted plans
+            screen = self.screens()  # Monte Carlo only for the best-predicted plans
             plans = n_solutions(n, n_a)
             if screen:  # plans compared by Monte Carlo: seeds + 2 x screened + screened a generation
                 plans = min(plans, len(starts) + sel.genetic.screened * (sel.genetic.generations + 2))
@@ -335,7 +337,7 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True, genetic=True), seed=seed)
                 bar = max(bar, scores[n_a].p_s)
                 continue
-            champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
+            champion, spent = race(best_distinct(known, sel.screened_contenders if screen else sel.contenders), sampled, count_samples, rng)
             evaluations += spent
             if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:
@@ -441,6 +443,14 @@ class AnchorSelector:
         if not np.isfinite(p_s):
             return self.selection.w_v * p_v
         return p_s + self.selection.prune_gain * (self.selection.w_v * p_v - p_s)
+
+    def screens(self) -> bool:
+        """Whether the genetic search screens its plans by the Cramer-Rao prediction (``GeneticConfig.screened`` > 0):
+        only with the Monte Carlo and a localizer in ``SCREENED_LOCALIZERS``, whose errors the prediction ranks
+        (the joint localizer reaches the bound; the paper's stays 1.5-2.7x above it and ranks plans otherwise:
+        screened, its search lost quality in ``swarm study selection``, docs/selection.md)."""
+        sel = self.selection
+        return sel.method == "mc" and sel.genetic.screened > 0 and self.localizer.name in SCREENED_LOCALIZERS
 
     def genetic_runs(self, n: int, n_a: int) -> bool:
         """Whether the genetic search runs for ``n_a`` of ``n`` robots (``SelectionConfig.genetic_gate``; ``auto``: where
