@@ -19,11 +19,11 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    P_s could win is searched, Section 4.2.1). A searched count's crowded heuristic plan is
    repaired by a few single swaps (``repair``); the result is its seed.
 3. Inner loop of every surviving count, where ``genetic_runs`` (else the count keeps its seed,
-   scored on the screening samples): the genetic search on the screening samples, its new plans
-   screened by the Cramer-Rao prediction (``crlb_rank``; only the best-predicted few of each
-   generation are evaluated by Monte Carlo, ``GeneticConfig.screened``; without screening, a count
-   with more than 252 plans gets more samples, ``search_samples``), then a race
-   (successive halving on fresh samples) among its ``contenders`` best
+   scored on the screening samples): the genetic search on the screening samples (more of them
+   for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
+   screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
+   generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
+   (successive halving on fresh samples) among its ``contenders`` (screened: ``screened_contenders``) best
    distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
    the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
