@@ -22,6 +22,7 @@ settings.load_profile("behaviour")
 
 SLOW_MODULES = frozenset({
     "test_agent",  # agent on a Zenoh hub
+    "test_truth_round",  # agents and a coordinator on a Zenoh hub
     "test_agent_host",  # agent hosts: launches and Zenoh sessions
     "test_export",  # reads a recording made by a launch
     "test_faults",  # fault injection through swarm launch, bench faults

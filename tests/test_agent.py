@@ -3,18 +3,15 @@
 from __future__ import annotations
 
 import queue
-import threading
 import time
 
 import numpy as np
 import pytest
 
-from robot_agent.agent import Agent
-from robot_agent.driver import SimDriver
-from runtime.models.config import ModelConfig
-from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key
+from runtime.wire.keys import robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode
-from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import publish
+from tests.agent_hub import agent_on_hub as agent_on_hub_of
 
 RUN = "agent-test"
 EPOCH = 17  # the test acts as the coordinator of this epoch
@@ -22,23 +19,8 @@ EPOCH = 17  # the test acts as the coordinator of this epoch
 
 @pytest.fixture
 def agent_on_hub():
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as hub:
-        agent = Agent(member, RUN, 0, [0, 1], SimDriver(0, [0, 1], np.zeros(3), ModelConfig(), seed=1))
-        thread = threading.Thread(target=agent.run, daemon=True)
-        thread.start()
-        _, statuses = subscribe_queue(hub, robot_key(RUN, 0, "status"))
-        deadline = time.monotonic() + 5
-        while not alive_now(hub, alive_wildcard(RUN)) and time.monotonic() < deadline:
-            time.sleep(0.02)
-        token = declare_token(hub, coord_alive_key(RUN, EPOCH))
-        time.sleep(0.3)  # the agent learns of its coordinator
-        try:
-            yield hub, agent, statuses
-        finally:
-            token.undeclare()
-            agent.stop()
-            thread.join(timeout=5)
+    with agent_on_hub_of(RUN, EPOCH, np.zeros(3), robot_key(RUN, 0, "status")) as running:
+        yield running
 
 
 def next_status(statuses: queue.Queue, timeout: float = 3.0) -> Status:

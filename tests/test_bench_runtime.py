@@ -44,7 +44,13 @@ def test_bench_runtime_json_contract_and_cleanup(per_process):
     last = json.loads(stdout.strip().splitlines()[-1])
     assert list(last) == ["results"] and len(last["results"]) == 1
     row = last["results"][0]
-    assert list(row) == ["agents", "step_ms_median", "zenoh_rtt_ms", "agent_rss_mb", "agents_per_process"]
+    assert list(row)[:5] == ["agents", "step_ms_median", "zenoh_rtt_ms", "agent_rss_mb", "agents_per_process"]  # the contract
+    assert list(row)[5:] == ["breakdown_ms", "cpu_ms_per_step"]  # added keys
+    parts = row["breakdown_ms"]
+    assert list(parts) == ["commands", "observe", "localize", "publish_estimate"]
+    assert all(v >= 0 for v in parts.values()) and 0 < parts["commands"] + parts["observe"] < 2 * row["step_ms_median"]
+    # CPU is counted in clock ticks (10 ms): 0 on a run this short
+    assert set(row["cpu_ms_per_step"]) == {"agents", "coordinator"} and all(v >= 0 for v in row["cpu_ms_per_step"].values())
     assert row["agents"] == 3 and row["agents_per_process"] == per_process
     # a step is command -> status -> observe request -> observations -> estimate: at least two
     # sequential Zenoh round trips between the coordinator and the agents, so never faster than one

@@ -6,7 +6,9 @@ simulated drivers, no motion delay: one process per robot up to 50 robots, else 
 hosting up to 50 agents each; ``agents_per_process`` to choose), then runs the coordinator in process: a
 ``ZenohSwarmBackend`` (a client of the hub, like ``swarm coordinator``) under the same
 ``InchwormExecutor``, with a fixed plan (``method`` ``no-anchors``: everybody moves every
-step, or ``ref57``) along a random trajectory of ``steps`` steps. A step's time runs
+step, or ``ref57``) along a random trajectory, for ``steps`` steps (with bodies, the model's
+``robot_radius_m`` > 0, the plan's moves are split into collision-free groups: at 500 robots one or
+two move per step; radius 0 keeps everybody moving). A step's time runs
 from the end of the previous step (or of the plan) to the published fused estimate:
 commands out, every ``Status done`` back, observation requests out, every report (and
 simulated truth) back, localization, ``EstimateMessage`` published. No simulated motion
@@ -19,6 +21,15 @@ time is included (motion time 0). Reported per N:
 * beside them (table only): the median of the command round (``execute``: commands out,
   every ``done`` back) and of the observation round (``observe``: requests out, every
   report and truth back); the rest of a step is localization and publishing;
+* ``breakdown_ms``: where a step's time goes (medians over the steps, ms): ``commands``
+  (commands out, every ``done`` back), ``observe`` (observation requests out, every report and
+  truth back), ``localize`` (the rest of the step before the estimate goes out: localization
+  and the executor's bookkeeping) and ``publish_estimate`` (the ``EstimateMessage``);
+* ``cpu_ms_per_step``: CPU time (user + system, ms) per timed step of the ``agents`` (every
+  process the benchmark started: agent processes, and with the gateway driver the link
+  processes and the emulator) and of the ``coordinator`` (this process: the coordinator, its
+  Zenoh session and the hub). Above the wall time of a step times the cores, the step is
+  waiting for a core;
 * ``agents_per_process``: robot agents hosted by one agent process;
 * ``agent_rss_mb``: resident memory per robot agent after the run: the agent processes'
   ``VmRSS`` (``/proc/<pid>/status``, MB = 2^20 bytes) summed and divided by the N agents they host.
@@ -30,6 +41,7 @@ N = 200 under 400 ms, N = 500 under 1 s, under 15 MB per agent.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 import signal
@@ -65,13 +77,22 @@ class RuntimeBenchOptions:
     model: ModelConfig = field(default_factory=ModelConfig)
 
 
-class StepTimer:
-    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate."""
+class EnoughSteps(Exception):
+    """Raised by ``StepTimer`` once it timed ``limit`` steps: ends the run there (not an error)."""
 
-    def __init__(self, inner) -> None:
+
+class StepTimer:
+    """``ExecutorListener`` that forwards to ``inner`` and times each step up to its published estimate; after
+    ``limit`` steps it raises ``EnoughSteps`` (with bodies, ``clear_plan`` splits a configuration's moves into as
+    many steps as it needs to keep them apart: hundreds at 500 robots, so the configurations alone do not bound
+    the run)."""
+
+    def __init__(self, inner, limit: int | None = None) -> None:
         self.inner = inner
+        self.limit = limit
         self.mark: float | None = None
         self.seconds: list[float] = []
+        self.publish_s: list[float] = []  # the inner on_estimate of each timed step (publishing the estimate)
 
     def on_plan(self, config_index, first_step, plan, selection) -> None:
         self.inner.on_plan(config_index, first_step, plan, selection)
@@ -81,11 +102,15 @@ class StepTimer:
         self.inner.on_contacts(contacts)
 
     def on_estimate(self, step, estimate) -> None:
+        start = time.perf_counter()
         self.inner.on_estimate(step, estimate)
         now = time.perf_counter()
         if step > 0 and self.mark is not None:
             self.seconds.append(now - self.mark)
+            self.publish_s.append(now - start)
         self.mark = now
+        if self.limit is not None and len(self.seconds) >= self.limit:
+            raise EnoughSteps
 
 
 class TimedBackend:
@@ -126,6 +151,26 @@ def rss_mb(pid: int) -> float | None:
     except OSError:
         return None
     return None
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of process ``pid`` so far (s; its threads included), 0 if it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def breakdown(timer: StepTimer, timed: TimedBackend) -> dict[str, float]:
+    """Medians (ms) of a step's parts: the command round, the observation round, the rest up to the estimate
+    (localization, bookkeeping) and publishing the estimate (``timer`` and ``timed`` time the same steps)."""
+    parts = list(zip(timer.seconds, timed.execute_s[-len(timer.seconds):], timed.observe_s[-len(timer.seconds):],
+                     timer.publish_s, strict=True))
+    med = lambda values: round(statistics.median(values) * 1e3, 3)  # noqa: E731
+    return {"commands": med([c for _, c, _, _ in parts]), "observe": med([o for _, _, o, _ in parts]),
+            "localize": med([s - c - o - p for s, c, o, p in parts]), "publish_estimate": med([p for _, _, _, p in parts])}
 
 
 def _say(text: str) -> None:
@@ -183,11 +228,14 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
                     _say(f"{n} agents: all alive after {time.monotonic() - t0:.1f} s; raw Zenoh round trip ...")
                     rtt = round_trip_ms(member, member, args.rtt_count)["median_ms"]
                     _say(f"{n} agents: round trip {rtt:.3f} ms; timing {configs * per_config} steps ({args.method})")
-                    timer = StepTimer(backend)
+                    timer = StepTimer(backend, configs * per_config)
                     progress = lambda done, total: _say(f"{n} agents: configuration {done}/{total} (step {backend.step})")  # noqa: E731
                     timed = TimedBackend(backend)
                     executor = InchwormExecutor(timed, make_localizer(args.localizer, cfg), strategy, cfg, progress, listener=timer)
-                    executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
+                    cpu_before = (sum(cpu_seconds(p.pid) for p in procs), cpu_seconds(os.getpid()))
+                    with contextlib.suppress(EnoughSteps):
+                        executor.run(traj, initial_estimate(traj, args.seed, 0.01, math.radians(2.0)))
+                    cpu_after = (sum(cpu_seconds(p.pid) for p in procs), cpu_seconds(os.getpid()))
                 finally:
                     backend.close()
             agents = procs[first_agent:]
@@ -204,10 +252,12 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     if left:
         raise RuntimeError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
+    steps = len(timed.execute_s)  # every step run (CPU includes the planning between configurations)
+    cpu = {"agents": round((cpu_after[0] - cpu_before[0]) * 1e3 / steps, 3), "coordinator": round((cpu_after[1] - cpu_before[1]) * 1e3 / steps, 3)}
     return {"agents": n, "step_ms_median": round(statistics.median(step_ms), 3), "zenoh_rtt_ms": round(rtt, 4),
             "agent_rss_mb": round(sum(r or 0.0 for r in rss) / n, 2), "agents_per_process": per_process,
-            "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms),
-            "_execute_ms": round(statistics.median(timed.execute_s) * 1e3, 2), "_observe_ms": round(statistics.median(timed.observe_s) * 1e3, 2)}
+            "breakdown_ms": breakdown(timer, timed), "cpu_ms_per_step": cpu,
+            "_steps": len(step_ms), "_step_ms": step_ms, "_step_ms_p90": _p90(step_ms)}
 
 
 def _p90(values: list[float]) -> float:
@@ -239,11 +289,14 @@ def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> Bench
     finally:
         signal.signal(signal.SIGTERM, previous)
     lines = [f"{'agents':>6} {'per proc':>8} {'steps':>5} {'step ms (median)':>16} {'p90':>7} {'zenoh rtt ms':>12} "
-             f"{'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'RSS MB per agent':>16}"]
+             f"{'step / rtt':>10} {'commands ms':>11} {'observe ms':>10} {'localize ms':>11} {'estimate ms':>11} "
+             f"{'CPU ms agents':>13} {'CPU ms coord':>12} {'RSS MB per agent':>16}"]
     for r in rows:
+        b, c = r["breakdown_ms"], r["cpu_ms_per_step"]
         lines.append(f"{r['agents']:>6} {r['agents_per_process']:>8} {r['_steps']:>5} {r['step_ms_median']:>16.2f} "
               f"{r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
-              f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {r['_execute_ms']:>11.2f} {r['_observe_ms']:>10.2f} {r['agent_rss_mb']:>16.2f}")
+              f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {b['commands']:>11.2f} {b['observe']:>10.2f} {b['localize']:>11.2f} "
+              f"{b['publish_estimate']:>11.2f} {c['agents']:>13.2f} {c['coordinator']:>12.2f} {r['agent_rss_mb']:>16.2f}")
     summary = {"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]}
     return BenchResult(rows, summary, "\n".join(lines), "agents", "step_ms_median", "step time, median (ms)",
                        f"Coordination time per step ({args.method}, {args.localizer} localizer)")

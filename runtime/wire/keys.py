@@ -29,6 +29,7 @@ so they never hold a key separator or a Zenoh wildcard. Robot ids are integers i
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import NamedTuple
 
@@ -196,6 +197,13 @@ def parse_key(key: str) -> ParsedKey:
     """Split a concrete swarm key (no wildcards); anything else raises ``KeyspaceError``."""
     if not isinstance(key, str):
         raise KeyspaceError(f"key {key!r} is not a string")
+    return _parse_str(key)
+
+
+@functools.lru_cache(maxsize=8192)
+def _parse_str(key: str) -> ParsedKey:
+    """``parse_key`` of a string, cached: every message is parsed twice (its type, its header) and a run reuses
+    a few keys per robot (an exception, for a key outside the key space, is not cached)."""
     parts = key.split("/")
     if len(parts) < 3 or parts[0] != ROOT:
         raise KeyspaceError(f"key {key!r} is not a swarm key (swarm/<run>/...)")
