@@ -149,7 +149,10 @@ def recorded_selection(rec: RecordedRun, overrides: dict[str, Any] | None = None
     stored = dict(stored) if isinstance(stored, dict) else {}
     stored.setdefault("mc_start", "estimate")  # recordings made before the Monte Carlo readings were options
     stored.setdefault("mc_emax", "mean")
-    genetic = GeneticConfig(**stored.pop("genetic", {}) or {})
+    stored.setdefault("final_looks", 1)  # recordings made before the sequential final check: one fixed set
+    genetic_stored = dict(stored.pop("genetic", {}) or {})
+    genetic_stored.setdefault("screened", 0)  # ... and before the search screened its plans by prediction
+    genetic = GeneticConfig(**genetic_stored)
     counts = stored.pop("anchor_counts", None)
     known = set(SelectionConfig.__dataclass_fields__) - {"genetic", "anchor_counts"}
     sel = SelectionConfig(**{k: v for k, v in stored.items() if k in known}, genetic=genetic,

@@ -403,9 +403,10 @@ def test_final_check_is_a_one_sided_paired_test():
         rows = {champion.key(): seed_e[:samples] + np.array([-0.5, -0.2, 0.1])[:samples], seed.key(): seed_e[:samples]}
         return np.stack([rows[p.key()] for p in plans])
 
-    kept, e_kept, e_seed = final_check(champion, seed, evaluate, 3, 0)
+    kept, e_kept, e_seed, looked = final_check(champion, seed, evaluate, 3, 0)
+    assert looked == 1
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.8) and e_seed == pytest.approx(1.0)
-    kept, e_kept, _ = final_check(champion, seed, evaluate, 1, 0)
+    kept, e_kept, _, _ = final_check(champion, seed, evaluate, 1, 0)
     assert kept.key() == champion.key() and e_kept == pytest.approx(0.5)
     # Two samples, differences (-0.5, -0.2): mean -0.35, std 0.212, standard error 0.15: champion kept.
     assert final_check(champion, seed, evaluate, 2, 0)[0].key() == champion.key()
@@ -422,7 +423,7 @@ def test_final_check_with_two_samples_uses_their_spread():
         rows = {champion.key(): np.array([0.7, 1.1]), seed.key(): np.array([1.0, 1.0])}
         return np.stack([rows[p.key()] for p in plans])
 
-    assert final_check(champion, seed, evaluate, 2, 0) == (seed, 1.0, 1.0)
+    assert final_check(champion, seed, evaluate, 2, 0) == (seed, 1.0, 1.0, 1)
 
 
 @pytest.mark.parametrize(
@@ -444,3 +445,77 @@ def test_selection_config_bounds(field, value, ok):
     else:
         with pytest.raises(SwarmInputError):
             replace(SelectionConfig(), **{field: value})
+
+
+# ---------------------------------------------------------------------------------------------
+# Budgets in evaluations: screening by prediction, sequential final check
+
+
+def test_screened_search_keeps_the_seed_when_nothing_beats_it():
+    """The prediction says every other plan is better (0.1 against 0.5), Monte Carlo says the seed is best:
+    the search returns the seed with its Monte Carlo e_l, having evaluated at most seeds + 2 x screened +
+    screened per generation plans by Monte Carlo."""
+    seed = Plan.equal(np.arange(8), 4)
+    evaluated: list[int] = []
+
+    def evaluate(plans):
+        evaluated.append(len(plans))
+        return np.array([0.5 if p.key() == seed.key() else 1.0 for p in plans])
+
+    def predict(plans):
+        return np.array([0.5 if p.key() == seed.key() else 0.1 for p in plans])
+
+    cfg = GeneticConfig(screened=2)
+    plan, e_l, fresh = genetic_search(evaluate, [seed], lambda p: True, np.random.default_rng(1), cfg, {}, predict)
+    assert plan.key() == seed.key() and e_l == 0.5
+    assert evaluated[0] == 1 and max(evaluated[1:2]) <= 2 * cfg.screened and max(evaluated[2:], default=0) <= cfg.screened
+    assert fresh == sum(evaluated) <= 1 + cfg.screened * (cfg.generations + 2)
+
+
+def test_screened_search_evaluates_the_best_predicted_and_finds_the_needle():
+    """With a prediction that points at the needle (one swap from the seed, 2520 plans), the screened search
+    finds it as often as the unscreened one (22 of 50 random seeds, test above: >= 18), spending Monte Carlo
+    only on the seed and the best-predicted plans (at most 1 + 2 x 10 = 21 instead of a whole population per generation)."""
+    seed = Plan.equal(np.arange(8), 6)
+    order = seed.order.copy()
+    order[0], order[7] = order[7], order[0]
+    target = Plan(order, seed.sizes)
+    e_of = needle(seed, target)
+    found = 0
+    for s in range(50):
+        known: dict[tuple, float] = {}
+        plan, e_l, fresh = genetic_search(e_of, [seed], lambda p: True, np.random.default_rng(s), GeneticConfig(), known,
+                                          lambda plans: e_of(plans) + 0.01)
+        found += plan.key() == target.key() and e_l == 0.0
+        assert fresh == len(known) <= 1 + GeneticConfig().screened * (GeneticConfig().generations + 2)
+    assert found >= 18
+
+
+def test_sequential_final_check_never_stops_on_an_undecided_difference():
+    """4 looks of 8 + 8 + 16 + 32 = 64 samples. A champion better by 0.1 with per-sample spread 1 is undecided
+    at every interim look (|mean| < 2 standard errors): every block is evaluated and the last look decides by
+    one standard error. A champion better (or worse) by 1 with spread 0.1 is decided at the first look."""
+    from coordinator.selection.racing import EARLY_MARGIN, final_check, fresh_blocks
+
+    champion, seed = Plan.equal(np.arange(4), 2), Plan.equal(np.array([2, 3, 0, 1]), 2)
+    blocks = fresh_blocks(64, 7, 4)
+    assert [m for m, _ in blocks] == [8, 8, 16, 32] and blocks[0][1] == 7 and len({s for _, s in blocks}) == 4
+    asked: list[tuple[int, int]] = []
+
+    def evaluator(shift: float, spread: float):
+        def evaluate(plans, samples, fresh):
+            asked.append((samples, fresh))
+            wobble = spread * np.where(np.arange(samples) % 2 == 0, 1.0, -1.0)  # mean 0, sample std ~ spread
+            rows = {seed.key(): np.ones(samples), champion.key(): 1.0 + shift + wobble}
+            return np.stack([rows[p.key()] for p in plans])
+        return evaluate
+
+    kept, e_kept, e_seed, looked = final_check(champion, seed, evaluator(-0.1, 1.0), 64, 7, looks=4)
+    assert asked == blocks and looked == 4  # never stopped: 0.1 < EARLY_MARGIN x 1 / sqrt(m) at m = 8, 16, 32
+    assert EARLY_MARGIN / math.sqrt(32) > 0.1 and kept.key() == seed.key() and e_kept == e_seed == 1.0  # 0.1 < 1 / sqrt(64) too
+    asked.clear()
+    kept, e_kept, _, looked = final_check(champion, seed, evaluator(-1.0, 0.1), 64, 7, looks=4)
+    assert looked == 1 and asked == blocks[:1] and kept.key() == champion.key() and e_kept == pytest.approx(0.0)
+    asked.clear()
+    kept, _, _, looked = final_check(champion, seed, evaluator(1.0, 0.1), 64, 7, looks=4)
+    assert looked == 1 and kept.key() == seed.key()

@@ -12,6 +12,14 @@ heuristic plan, while in a small one they cover most of it and the swaps only na
 search (measurements in ``docs/selection.md``);
 the fitness is the Monte Carlo e_l on common random numbers, evaluated once per
 distinct partition (cached) and for a whole generation in one vectorised batch.
+
+Screening (``predict``, the Cramer-Rao prediction of ``crlb_rank``, no sampling): of each
+generation's new plans only the ``screened`` with the lowest prediction (``2 x screened`` in the
+first generation, besides the seeds) are evaluated by Monte Carlo; the others get a surrogate
+fitness, their prediction x the median ratio of Monte Carlo e_l to prediction over the plans
+evaluated so far, so they can still be parents, but the search returns and the caller races
+only Monte Carlo-evaluated plans. The budget is fixed in evaluations, not in time, so a search
+is a function of its random numbers.
 """
 
 from __future__ import annotations
@@ -32,6 +40,7 @@ class GeneticConfig:
     elite: int = 2
     mutation: float = 0.4  # probability that a child gets one swap
     swaps: int = 6  # single swaps of the seed added to the first generation of a large plan space (``covers``)
+    screened: int = 2  # with a predictor: new plans per generation evaluated by Monte Carlo (twice as many in the first)
 
     def covers(self, plans: int) -> bool:
         """Whether the search can visit ``plans`` plans (then no swaps are added)."""
@@ -82,20 +91,25 @@ def genetic_search(
     rng: np.random.Generator,
     cfg: GeneticConfig = GeneticConfig(),
     known: dict[tuple, float] | None = None,
+    predict: Callable[[list[Plan]], np.ndarray] | None = None,
 ) -> tuple[Plan | None, float, int]:
     """Best plan found, its e_l, and the number of distinct plans newly evaluated.
 
     ``evaluate`` maps plans to e_l (lower is better); infeasible plans get e_l = inf.
     ``known`` holds e_l already computed on the same random numbers, by ``Plan.key()``;
     when given, every newly evaluated plan is added to it (the caller races the best of them).
+    ``predict`` (a cheap prediction of e_l, same order as ``evaluate``) screens each generation's
+    new plans: only ``cfg.screened`` of them are evaluated (module docstring); the seeds always are.
     Returns (None, inf, k) when no feasible plan was found.
     """
     sizes = seeds[0].sizes
     n = seeds[0].n_robots
     cache: dict[tuple, float] = known if known is not None else {}
     preset = len(cache)
+    guessed: dict[tuple, float] = {}  # surrogate fitness of screened-out plans (``predict``)
+    predicted: dict[tuple, float] = {}
 
-    def score(plans: list[Plan]) -> np.ndarray:
+    def score(plans: list[Plan], limit: int | None = None) -> np.ndarray:
         fresh, seen = [], set()
         for p in plans:
             key = p.key()
@@ -105,18 +119,36 @@ def genetic_search(
                     fresh.append(p)
                 else:
                     cache[key] = np.inf
+        if predict is not None and limit is not None and len(fresh) > limit:
+            unknown = [p for p in fresh if p.key() not in predicted]
+            if unknown:
+                predicted.update((p.key(), float(e)) for p, e in zip(unknown, predict(unknown), strict=True))
+            fresh = sorted(fresh, key=lambda p: predicted[p.key()])  # stable: ties keep the generation's order
+            fresh, rest = fresh[:limit], fresh[limit:]
+        else:
+            rest = []
         if fresh:
             for p, e in zip(fresh, evaluate(fresh), strict=True):
                 cache[p.key()] = float(e)
-        return np.array([cache[p.key()] for p in plans])
+                guessed.pop(p.key(), None)
+        if rest:
+            ratios = [cache[k] / predicted[k] for k in predicted if k in cache and np.isfinite(cache[k]) and predicted[k] > 0]
+            ratio = float(np.median(ratios)) if ratios else 1.0
+            guessed.update((p.key(), predicted[p.key()] * ratio) for p in rest)
+        return np.array([cache[p.key()] if p.key() in cache else guessed[p.key()] for p in plans])
+
+    def measured_best() -> float:
+        return min((e for e in cache.values() if np.isfinite(e)), default=np.inf)
 
     population = list(seeds)
+    if predict is not None:
+        score(seeds)  # the seeds are always evaluated
     while len(population) < cfg.population:
         population.append(Plan(rng.permutation(n), sizes))
     if not cfg.covers(n_partitions(sizes)):
         population += single_swaps(seeds[0], cfg.swaps, rng)
-    fitness = score(population)
-    best, stale = float(np.min(fitness)), 0
+    fitness = score(population, 2 * cfg.screened)
+    best, stale = measured_best(), 0
     for _ in range(cfg.generations):
         order = np.argsort(fitness, kind="stable")
         children = [population[k] for k in order[: cfg.elite]]
@@ -126,13 +158,19 @@ def genetic_search(
             if rng.random() < cfg.mutation:
                 child = swap_mutation(child, sizes, rng)
             children.append(Plan(child, sizes))
-        population, fitness = children, score(children)
-        current = float(np.min(fitness))
+        population, fitness = children, score(children, cfg.screened)
+        current = measured_best()
         stale = 0 if current < best else stale + 1
         best = min(best, current)
         if stale >= cfg.patience:
             break
-    k = int(np.argmin(fitness))
-    if not np.isfinite(fitness[k]):
+    if predict is None:
+        k = int(np.argmin(fitness))
+        if not np.isfinite(fitness[k]):
+            return None, np.inf, len(cache) - preset
+        return population[k], float(fitness[k]), len(cache) - preset
+    keys = [k for k, e in cache.items() if np.isfinite(e)]  # Monte Carlo-evaluated only
+    if not keys:
         return None, np.inf, len(cache) - preset
-    return population[k], float(fitness[k]), len(cache) - preset
+    key = min(keys, key=lambda k: cache[k])
+    return Plan(np.concatenate([np.asarray(g, dtype=np.int64) for g in key]), tuple(len(g) for g in key)), cache[key], len(cache) - preset

@@ -13,6 +13,10 @@ biased low (the minimum of noisy estimates). Two steps remove that:
   difference (a one-sided paired test), so the selection never does worse than its
   seed on those samples and rarely on others; P_s (Eq. 3) is computed from the kept
   plan's e_l on that set, which took no part in choosing among the search's candidates.
+  With ``looks`` > 1 the set is drawn in blocks (``fresh_blocks``: a quarter, a quarter, a half for
+  3 looks) and the check stops at an interim look once the paired difference is decided by
+  ``EARLY_MARGIN`` standard errors either way (a sequential test: an undecided difference goes on
+  to the next block, and the last look applies ``margin``); e_l is then over the blocks seen.
 """
 
 from __future__ import annotations
@@ -26,6 +30,7 @@ from coordinator.plan import Plan
 Evaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan
 SampleEvaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan and sample
 MARGIN = 1.0  # standard errors by which a challenger must beat the seed in the final check
+EARLY_MARGIN = 2.0  # standard errors that decide the paired difference at an interim look of the final check
 
 
 def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Generator) -> tuple[Plan, int]:
@@ -49,21 +54,47 @@ def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Ge
     return plans[alive[0]], spent
 
 
+def fresh_blocks(samples: int, fresh: int, looks: int = 1) -> list[tuple[int, int]]:
+    """(samples, Monte Carlo seed) of each block of a fresh set of ``samples`` seen in ``looks`` looks.
+
+    Look j (0-based) has seen ``samples`` / 2^(looks - 1 - j) samples in all (fewer looks when
+    ``samples`` is too small to halve); block 0 is drawn from ``fresh``, block b from a seed derived
+    from (``fresh``, b). With one look: the one set of ``samples`` drawn from ``fresh``.
+    """
+    looks = max(1, min(looks, samples.bit_length()))
+    seen = [max(1, samples >> (looks - 1 - j)) for j in range(looks)]
+    sizes = [seen[0]] + [b - a for a, b in zip(seen, seen[1:], strict=False)]
+    return [(m, fresh if b == 0 else int(np.random.default_rng([fresh, b]).integers(2**63))) for b, m in enumerate(sizes)]
+
+
 def final_check(champion: Plan, seed: Plan, evaluate: SampleEvaluator, samples: int, fresh: int,
-                margin: float = MARGIN) -> tuple[Plan, float, float]:
-    """(kept plan, its e_l, the seed's e_l) on the fresh set of ``samples`` drawn from seed ``fresh``.
+                margin: float = MARGIN, looks: int = 1) -> tuple[Plan, float, float, int]:
+    """(kept plan, its e_l, the seed's e_l, blocks seen) on the fresh set of ``samples`` drawn from ``fresh``.
 
     The champion is kept only if its mean e_l is below the seed's by more than ``margin``
     standard errors of the per-sample difference (common random numbers pair the samples).
+    With ``looks`` > 1 the blocks of ``fresh_blocks`` are evaluated one after the other and the
+    check stops early once the difference is beyond ``EARLY_MARGIN`` standard errors either way.
     """
+    blocks = fresh_blocks(samples, fresh, looks)
     if champion.key() == seed.key():
-        e_seed = float(evaluate([seed], samples, fresh)[0].mean())
-        return seed, e_seed, e_seed
-    each = evaluate([champion, seed], samples, fresh)
-    diff = each[0] - each[1]
-    e_champion, e_seed = float(each[0].mean()), float(each[1].mean())
-    se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else 0.0
-    return (champion, e_champion, e_seed) if diff.mean() + margin * se < 0 else (seed, e_seed, e_seed)
+        e_seed = float(evaluate([seed], *blocks[0])[0].mean())
+        return seed, e_seed, e_seed, 1
+    each = np.zeros((2, 0))
+    for b, (count, block_seed) in enumerate(blocks):
+        each = np.concatenate([each, evaluate([champion, seed], count, block_seed)], axis=1)
+        diff, last = each[0] - each[1], b == len(blocks) - 1
+        if len(diff) > 1:
+            se = float(diff.std(ddof=1) / np.sqrt(len(diff)))
+        else:  # one sample: no spread; undecided at an interim look
+            se = 0.0 if last else np.inf
+        z = margin if last else EARLY_MARGIN
+        if diff.mean() + z * se < 0:
+            return champion, float(each[0].mean()), float(each[1].mean()), b + 1
+        if last or diff.mean() - z * se > 0:
+            break
+    e_seed = float(each[1].mean())
+    return seed, e_seed, e_seed, b + 1  # blocks is never empty
 
 
 def best_distinct(cache: dict[tuple, float], count: int) -> list[Plan]:

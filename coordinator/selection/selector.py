@@ -19,15 +19,19 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    P_s could win is searched, Section 4.2.1). A searched count's crowded heuristic plan is
    repaired by a few single swaps (``repair``); the result is its seed.
 3. Inner loop of every surviving count, where ``genetic_runs`` (else the count keeps its seed,
-   scored on the screening samples): the genetic search on the screening samples
-   (more of them for a count with more than 252 plans, ``search_samples``), then a race
-   (successive halving on fresh samples) among its ``contenders`` best
+   scored on the screening samples): the genetic search on the screening samples (more of them
+   for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
+   screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
+   generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
+   (successive halving on fresh samples) among its ``contenders`` (screened: ``screened_contenders``) best
    distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
    the race winner and the seed on one more fresh set
-   (``samples_for(final_samples)``): the winner replaces the seed only if it is better by
+   (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
+   difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
-   e_l(0) on the same set give P_l. So the search never returns a plan that is worse
-   than its seed on those samples, and P_s is not biased by the search.
+   e_l(0) on the same samples give P_l. So the search never returns a plan that is worse
+   than its seed on those samples, and P_s is not biased by the search. Every budget is a
+   number of evaluations, never a time: a selection is a function of its seed.
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
@@ -58,7 +62,7 @@ from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.racing import best_distinct, final_check, race
+from coordinator.selection.racing import best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
 from runtime.models.bodies import BodyCheck
@@ -75,6 +79,7 @@ GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
     ("joint", False): {10: (10, 10)},
 }
 MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
+SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
@@ -93,6 +98,8 @@ class SelectionConfig:
     anchor_counts: tuple[int, ...] | None = None  # None = every feasible n_a (Eq. 7)
     final_samples: int = 256  # samples of the final fresh check for 10 robots (scaled like ``samples``)
     contenders: int = 8  # best distinct plans of the genetic search that enter the race
+    screened_contenders: int = 2  # ... of a search screened by prediction (``screens``: at most 21 plans were sampled)
+    final_looks: int = 4  # looks of the sequential final check (``racing.fresh_blocks``); 1 = one fixed set
     prune_gain: float = 0.25  # a count is searched if its P_s with this much less e_l could win
     method: str = "mc"  # "mc": Monte Carlo e_l; "crlb": Cramer-Rao prediction (no sampling)
     window: int = 100  # larger swarms: the Monte Carlo simulates this many robots, heuristic plans only (``docs/selection.md``)
@@ -111,10 +118,10 @@ class SelectionConfig:
             raise SwarmInputError(f"genetic search must be one of {', '.join(GENETIC_GATES)}, got {self.genetic_gate!r}")
         if self.mc_emax == "worst" and self.method != "mc":
             raise SwarmInputError("e_l,max 'worst' needs Monte Carlo samples: use it with the mc selection, not crlb")
-        if self.final_samples < 1 or self.contenders < 1 or not 0 <= self.prune_gain <= 1:
+        if min(self.final_samples, self.contenders, self.screened_contenders, self.final_looks) < 1 or not 0 <= self.prune_gain <= 1:
             raise SwarmInputError(
-                f"final samples and contenders must be >= 1 and prune gain in [0, 1], got "
-                f"{self.final_samples}, {self.contenders}, {self.prune_gain}"
+                f"final samples, contenders and final looks must be >= 1 and prune gain in [0, 1], got "
+                f"{self.final_samples}, {self.contenders}/{self.screened_contenders}, {self.final_looks}, {self.prune_gain}"
             )
         if not (self.w_v >= 0 and self.w_l >= 0 and abs(self.w_v + self.w_l - 1.0) < 1e-9):
             raise SwarmInputError(f"weights must be >= 0 and sum to 1 (Eq. 3), got w_v={self.w_v}, w_l={self.w_l}")
@@ -188,7 +195,7 @@ class Selection:
     plan: Plan
     scores: list[CountScore]
     evaluations: int
-    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its samples: ``samples_for(final_samples)``)
+    fresh_seed: int | None = None  # Monte Carlo seed of the final check (its blocks: ``racing.fresh_blocks``)
 
     @property
     def n_anchors(self) -> int:
@@ -286,7 +293,15 @@ class AnchorSelector:
             if s.crowded:
                 scores[k] = replace(s, plan=None, e_l=np.inf, p_l=np.inf, p_s=-np.inf)
         final_seed = int(rng.integers(2**63))
-        e_max_final = None
+        blocks = fresh_blocks(final_samples, final_seed, sel.final_looks)
+        no_anchor_blocks: list[np.ndarray] = []  # e_l(0) per sample of each fresh block, as far as a final check looked
+
+        def fresh_emax(looked: int) -> float:
+            """e_l,max on the first ``looked`` blocks of the fresh set (the kept plan's e_l is on the same samples)."""
+            while len(no_anchor_blocks) < looked:
+                no_anchor_blocks.append(each_sample([all_move], *blocks[len(no_anchor_blocks)])[0])
+            per = np.concatenate(no_anchor_blocks[:looked])
+            return float(per.max() if sel.mc_emax == "worst" else per.mean())
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
@@ -304,11 +319,16 @@ class AnchorSelector:
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
             known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
-            count_samples = samples if sel.method == "crlb" else search_samples(samples, n_solutions(n, n_a))
+            screen = self.screens()  # Monte Carlo only for the best-predicted plans
+            plans = n_solutions(n, n_a)
+            if screen:  # plans compared by Monte Carlo: seeds + 2 x screened + screened a generation
+                plans = min(plans, len(starts) + sel.genetic.screened * (sel.genetic.generations + 2))
+            count_samples = samples if sel.method == "crlb" else search_samples(samples, plans)
             search = evaluate
-            if count_samples != samples:  # a large plan space: more samples (the seed's screened e_l is not on them)
+            if count_samples != samples:  # many plans compared: more samples (the seed's screened e_l is not on them)
                 known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
-            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known)
+            predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
+            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
             if plan is None:
                 scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
@@ -317,7 +337,7 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True, genetic=True), seed=seed)
                 bar = max(bar, scores[n_a].p_s)
                 continue
-            champion, spent = race(best_distinct(known, sel.contenders), sampled, count_samples, rng)
+            champion, spent = race(best_distinct(known, sel.screened_contenders if screen else sel.contenders), sampled, count_samples, rng)
             evaluations += spent
             if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:
@@ -328,14 +348,13 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
                 bar = max(bar, scores[n_a].p_s)
                 continue
-            if e_max_final is None:
-                e_max_final = no_anchors(final_samples, final_seed)[1]
-            if seed is None:  # no feasible seed: the race winner, checked on the fresh set
-                kept, e_fresh, e_seed = champion, float(sampled([champion], final_samples, final_seed)[0]), np.nan
+            if seed is None:  # no feasible seed: the race winner, checked on the whole fresh set
+                looked = len(blocks)
+                kept, e_fresh, e_seed = champion, float(np.mean(np.concatenate([each_sample([champion], *b)[0] for b in blocks]))), np.nan
             else:
-                kept, e_fresh, e_seed = final_check(champion, seed, each_sample, final_samples, final_seed)
-            evaluations += 2
-            scores[n_a] = replace(score(n_a, kept, e_fresh, e_max_final, e_seed, searched=True, genetic=True), seed=seed)
+                kept, e_fresh, e_seed, looked = final_check(champion, seed, each_sample, final_samples, final_seed, looks=sel.final_looks)
+            evaluations += 2 * looked
+            scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
             if on_screen is None:
                 on_screen = float(evaluate([kept])[0])
@@ -352,7 +371,7 @@ class AnchorSelector:
                 f"after every step (tried n_a = {sorted(scores)})"
             )
         assert best.plan is not None  # chosen among the plans found
-        return Selection(best.plan, ordered, evaluations, None if e_max_final is None else final_seed)
+        return Selection(best.plan, ordered, evaluations, final_seed if no_anchor_blocks else None)
 
     def _select_large(self, estimate: SwarmEstimate, desired: np.ndarray, rng: np.random.Generator) -> Selection:
         """Selection for n_r > ``window`` with a budget that does not grow with n_r (``docs/selection.md``).
@@ -424,6 +443,14 @@ class AnchorSelector:
         if not np.isfinite(p_s):
             return self.selection.w_v * p_v
         return p_s + self.selection.prune_gain * (self.selection.w_v * p_v - p_s)
+
+    def screens(self) -> bool:
+        """Whether the genetic search screens its plans by the Cramer-Rao prediction (``GeneticConfig.screened`` > 0):
+        only with the Monte Carlo and a localizer in ``SCREENED_LOCALIZERS``, whose errors the prediction ranks
+        (the joint localizer reaches the bound; the paper's stays 1.5-2.7x above it and ranks plans otherwise:
+        screened, its search lost quality in ``swarm study selection``, docs/selection.md)."""
+        sel = self.selection
+        return sel.method == "mc" and sel.genetic.screened > 0 and self.localizer.name in SCREENED_LOCALIZERS
 
     def genetic_runs(self, n: int, n_a: int) -> bool:
         """Whether the genetic search runs for ``n_a`` of ``n`` robots (``SelectionConfig.genetic_gate``; ``auto``: where
