@@ -27,6 +27,7 @@ import pytest
 from runtime.wire.keys import alive_key, coord_alive_key, robot_key
 from runtime.wire.messages import MotionCommand, Status, decode, encode, message_key
 from runtime.wire.transport import (
+    DROP_WAIT_US,
     MAX_WIRE_BYTES,
     ZenohSettings,
     declare_token,
@@ -468,3 +469,12 @@ def test_netns_gateway_and_coordinator_in_separate_namespaces(tmp_path: Path) ->
         stop(children)
         for kind, name in reversed(made):
             _ip(kind, "del", name)
+
+
+@pytest.mark.parametrize("config_file", [None, "zenoh-router.json5"])
+def test_every_session_waits_for_a_full_queue_before_zenoh_drops_a_sample(config_file: str | None) -> None:
+    """Zenoh's default 1 ms before dropping a sample on a full transmit queue lost answers on a busy host;
+    every session the runtime opens, from a deploy file or not, waits DROP_WAIT_US."""
+    settings = ZenohSettings("router", listen=("tcp/127.0.0.1:0",), config_file=None if config_file is None else str(DEPLOY / config_file))
+    drop = json.loads(settings.to_config().get_json("transport/link/tx/queue/congestion_control/drop"))
+    assert drop["wait_before_drop"] == DROP_WAIT_US > 1000

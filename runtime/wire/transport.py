@@ -49,6 +49,7 @@ from runtime.errors import SwarmInputError
 MODES = ("peer", "client", "router")
 LOOPBACK = "127.0.0.1"
 MAX_WIRE_BYTES = 4 * 2**20 + 2**16  # the largest message (runtime.wire.messages.MAX_MESSAGE_BYTES) and room for Zenoh's framing
+DROP_WAIT_US = 20_000  # us a sample may wait for a full transmit queue before Zenoh drops it (Zenoh default: 1000)
 
 _ENDPOINT = re.compile(
     r"(?P<proto>tcp|udp|quic|tls)/"
@@ -123,6 +124,10 @@ class ZenohSettings:
         # A larger message is dropped by the receiving transport before it is reassembled (a 20 MB forgery
         # on a command key neither reaches Python nor stays in the router's buffers).
         config.insert_json5("transport/link/rx/max_message_size", str(MAX_WIRE_BYTES))
+        # Zenoh drops a sample whose transmit queue stays full for wait_before_drop (default 1 ms); on a busy
+        # host (500 agents on 2 cores) scheduling alone stalls a queue that long, and a dropped answer costs
+        # the step the re-send at half its timeout. 20 ms removes those drops and bounds the wait on a dead peer.
+        config.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop", str(DROP_WAIT_US))
         if not self.multicast_scouting:
             # The 500 ms that open() waits for multicast scouting replies would be wasted.
             config.insert_json5("scouting/delay", "0")
