@@ -6,8 +6,10 @@
   ``MotionCommand`` (step s, a fresh random ``cmd_id``) to each moving robot, then waits
   until every one of them answered ``Status done`` carrying that ``cmd_id``.
 * ``observe()``: ``ObserveRequest`` (step s) to every robot; waits for every robot's
-  ``ObservationReport`` of step s (and, for simulated agents, its ``TruthMessage``) and
-  returns the observations in the order of ``ids`` (the in-process simulator's order).
+  ``ObservationReport`` of step s (and, for simulated agents, its ``TruthMessage``: a robot
+  that moved sent it with its ``Status done``, so it is usually in already) and returns the
+  observations in the order of ``ids`` (the in-process simulator's order). The step's
+  ``TruthSetMessage`` goes out once every truth is in, never before the requests.
 * ``true_poses()``: the latest truths of the robots (simulation), or None.
 * ``take_lost()``: the robots lost since the last call (see below), dropped from ``ids``.
 
@@ -161,6 +163,7 @@ class ZenohSwarmBackend:
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
+        self._asked = 0  # last step whose ObserveRequests went out (its truth set never precedes them)
         self._owed_done: set[int] = set()  # robots whose Status done the command round still needs (O(1) per message)
         self._owed_obs: set[int] = set()  # robots whose report (and truth) the observation round still needs
         self._estimate: dict[int, list[float]] | None = None  # latest published pose per robot: commands' start_pose
@@ -297,6 +300,7 @@ class ZenohSwarmBackend:
                 return sorted(self._owed_obs.difference(self._lost))
 
         self._owed_obs = set(requests)
+        self._asked = s
         send(list(requests))
         self._wait(f"the observation request of step {s} (rejoining)", missing, send)
         joined = [r for r in robots if r in self._reports and r not in self._lost]
@@ -374,8 +378,8 @@ class ZenohSwarmBackend:
         """Simulation: once every present robot's truth of the current step is in, send them to the agents as
         one ``TruthSetMessage`` (n messages per step instead of n^2); ``again`` re-sends it (a resend round)."""
         s = self.step
-        if not self.simulated or s == 0 or (s <= self._truths_sent and not again):
-            return
+        if not self.simulated or s == 0 or s > self._asked or (s <= self._truths_sent and not again):
+            return  # (the moving agents' truths come with their Status done: the set waits for the requests)
         if len(self._truth_now) < len(self._id_list) - len(self._lost):  # O(1) until the set can be complete
             return
         present = self._present()
@@ -487,6 +491,7 @@ class ZenohSwarmBackend:
                 return sorted(self._owed_obs.difference(self._lost))
 
         self._owed_obs = set(requests)
+        self._asked = s
         send(list(requests))
         self._wait(f"the observation request of step {s}", missing, send)
         return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)

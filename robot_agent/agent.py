@@ -24,9 +24,11 @@ liveliness token ``swarm/<run>/alive/robot/<id>`` and serves (docs/protocol.md):
   forged or replayed request never consumes a sensing draw.
 
 Synchronisation of simulated sensing (``driver.simulated``): sensing needs every
-robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
+robot's true pose *after* step s, so an agent
 
-1. first publishes its own ``TruthMessage(step=s)`` on ``swarm/<run>/sim/truth/<id>``,
+1. first publishes its own ``TruthMessage(step=s)`` on ``swarm/<run>/sim/truth/<id>``: right
+   after its ``Status done`` if it moved in step s (the coordinator gathers the truths during the
+   command round), else on ``ObserveRequest(step=s)`` (and again on a re-sent request),
 2. then waits (while still serving other messages) for the coordinator's
    ``TruthSetMessage(step=s)`` on ``swarm/<run>/sim/truths``, which the coordinator
    sends once it holds the step-s truth of every robot of the run (one message per
@@ -34,7 +36,8 @@ robot's true pose *after* step s, so on ``ObserveRequest(step=s)`` an agent
 3. then senses and publishes its ``ObservationReport(step=s)``.
 
 Only the truth set of the pending step is used (a real one always follows this agent's own
-truth of that step); others are dropped and counted. A simulated agent also
+truth of that step; one that overtook its step's request, which Zenoh may deliver later as it
+travels on another key, is kept until the request comes); others are dropped and counted. A simulated agent also
 publishes its current truth as step 0 at start and whenever the coordinator's liveliness
 token ``swarm/<run>/alive/coord`` appears, so a coordinator learns the initial true poses
 for evaluation without any sensing (which would consume the sensing stream).
@@ -166,6 +169,7 @@ class Agent:
         self._last_truth: TruthMessage | None = None
         self._pending: int | None = None  # step of an ObserveRequest waiting for truths
         self._peers: PeerPoses | None = None  # the pending step's truth set (simulation)
+        self._early: tuple[int, PeerPoses] | None = None  # a truth set that came before its step's request
         self._session: zenoh.Session | None = None
         self._cmd_key = robot_key(run, self.robot, "cmd")
         self._observe_key = robot_key(run, self.robot, "observe")
@@ -355,7 +359,7 @@ class Agent:
         if self._coords[epoch] not in self._lineage:  # a new run: forget the last run's steps (a stop stays latched)
             self._last_cmd_step, self._last_cmd, self._last_status = -1, None, None
             self._last_obs_step, self._last_report = -1, None
-            self._pending, self._peers = None, None
+            self._pending, self._peers, self._early = None, None, None
             self._lineage = set()
         self._lineage.add(epoch)
         self.bound = epoch
@@ -433,6 +437,8 @@ class Agent:
             raise
         self.executed += 1
         self._status(cmd, "done")
+        if self.driver.simulated:  # the pose after the motion, while the others still move: see _on_observe
+            self._publish_truth(cmd.step)
 
     def _answer_again(self, cmd: MotionCommand) -> None:
         """The answer to a command for the step already handled: a re-send gets the same ``Status``; the same
@@ -444,8 +450,11 @@ class Agent:
         elif (cmd.turn_rad, cmd.drive_m) != (done.turn_rad, done.drive_m):
             self._status(cmd, "refused", f"step {cmd.step} was already handled with another motion "
                                          f"(turn {done.turn_rad:.6g} rad, drive {done.drive_m:.6g} m)", remember=False)
+            return
         else:
             self._status(cmd, last.state, last.reason, remember=False)
+        if last.state == "done" and self._last_truth is not None and self._last_truth.step == cmd.step:
+            self._send(self._last_truth)  # the truth that followed the done may be lost too (or went to the coordinator taken over)
 
     @property
     def _next_step(self) -> int:
@@ -475,14 +484,21 @@ class Agent:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))
             return
+        first = self._pending is None
         self._pending = req.step
-        if self.driver.simulated:
-            self._publish_truth(req.step)
+        if self._early is not None and self._early[0] == req.step:
+            self._peers = self._early[1]
+        self._early = None
+        if self.driver.simulated and not (first and self._last_truth is not None and self._last_truth.step == req.step):
+            self._publish_truth(req.step)  # not again after this step's motion (a re-sent request gets it again)
         self._try_report()
 
     def _on_truths(self, msg: TruthSetMessage, poses: PeerPoses) -> None:
         """The truth set ``msg`` with its ``poses`` by robot (shared read-only by the agents of a process)."""
         if msg.step != self._pending:
+            if self._pending is None and msg.step == self._next_step and self._last_truth is not None and self._last_truth.step == msg.step:
+                self._early = (msg.step, poses)  # Zenoh does not keep the order of different keys: its request is on the way
+                return
             if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
                 self.drops.drop(truths_key(self.run_id), MessageError(
                     "TruthSetMessage.step", f"{msg.step} is not the pending step {self._pending}", "out-of-range"))
