@@ -287,22 +287,7 @@ class ZenohSwarmBackend:
         self._id_list = self.ids.tolist()
         self._id_set = set(self._id_list)
         self._truths_sent = s - 1  # the set is sent again, with their truths
-        self._reports = {}
-        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
-
-        def send(targets) -> None:
-            for robot in targets:
-                publish(self.session, message_key(requests[robot]), encode(requests[robot]))
-            self._publish_truth_set(again=self._truths_sent >= s)
-
-        def missing() -> list[int]:
-            with self._lock:
-                return sorted(self._owed_obs.difference(self._lost))
-
-        self._owed_obs = set(requests)
-        self._asked = s
-        send(list(requests))
-        self._wait(f"the observation request of step {s} (rejoining)", missing, send)
+        self._observe_round(robots, f"the observation request of step {s} (rejoining)")
         joined = [r for r in robots if r in self._reports and r not in self._lost]
         for robot in joined:
             event = RobotEvent(run=self.run, step=s, robot=robot, kind="rejoined", reason="its agent came back")
@@ -477,14 +462,21 @@ class ZenohSwarmBackend:
         self._wait(f"the command of step {s}", missing, send)
 
     def observe(self) -> Observations:
+        self._observe_round(self._present(), f"the observation request of step {self.step}")
+        return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)
+
+    def _observe_round(self, robots: list[int], what: str) -> None:
+        """``ObserveRequest`` (the current step) to ``robots``, then wait for their reports (and truths) in
+        ``self._reports``; the step's truth set goes out once complete, never before the requests, and again
+        with every re-send (an agent may have missed it)."""
         s = self.step
         self._reports = {}
-        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in self._present()}
+        requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
 
-        def send(robots) -> None:
-            for robot in robots:
+        def send(targets) -> None:
+            for robot in targets:
                 publish(self.session, message_key(requests[robot]), encode(requests[robot]))
-            self._publish_truth_set(again=True)  # a resend round: agents may have missed it
+            self._publish_truth_set(again=True)
 
         def missing() -> list[int]:
             with self._lock:
@@ -493,8 +485,7 @@ class ZenohSwarmBackend:
         self._owed_obs = set(requests)
         self._asked = s
         send(list(requests))
-        self._wait(f"the observation request of step {s}", missing, send)
-        return observations_from_reports(self._reports[r] for r in self._present() if r in self._reports)
+        self._wait(what, missing, send)
 
     # -- ExecutorListener ---------------------------------------------------------------
 
