@@ -5,7 +5,7 @@ whitened range and bearing residuals of every observation. An observation i -> j
 five unknowns, (x_i, y_i, theta_i, x_j, y_j) (``range_bearing.observation_blocks``), so its share
 of J^T J is a 5 x 5 block and of J^T r a 5-vector. They are summed straight into the normal
 matrix with ``np.bincount`` at positions computed once per problem: the pattern does not change
-between Levenberg-Marquardt iterations, so the sparse factorization (``sparse_lm.SparseLDL``) only
+between Levenberg-Marquardt iterations, so the sparse factorization (``sparse_lm.SparseFactor``) only
 refactorizes numerically (``JointProblem.solve``), and no sparse Jacobian is built (its construction dominated a step).
 
 Dense up to ``sparse_lm.DENSE_LIMIT`` unknowns or with a dense prior (the carried joint
@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from scipy.linalg.lapack import dposv
 
 from coordinator.localization.range_bearing import bearing_weights, observation_blocks, pose_difference
-from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseLDL, huber_weights
+from coordinator.localization.sparse_lm import DENSE_LIMIT, NormalEquations, SparseFactor, huber_weights
 from runtime.models.config import ModelConfig
 
 # Entries of the normal matrix (size^2) up to which its pattern is ranked with a dense mark-and-count map
@@ -90,14 +90,14 @@ class JointProblem:
         self._indices = cols.astype(np.int32)
         self._indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=size))]).astype(np.int32)
         # The lower triangle in CSR order is the upper triangle in CSC order (the matrix is symmetric),
-        # QDLDL's input; each row's diagonal entry is its last lower one.
+        # the sparse factorization's input; each row's diagonal entry is its last lower one.
         lower = cols <= rows
         self._lower_at = np.flatnonzero(lower)
         lower_indptr = np.concatenate([[0], np.cumsum(np.bincount(rows[lower], minlength=size))]).astype(np.int32)
         self._lower_diag = lower_indptr[1:] - 1
         # One CSC matrix per problem whose values ``solve`` overwrites (no matrix construction per iteration).
         self._upper = sp.csc_matrix((np.zeros(len(self._lower_at)), self._indices[lower], lower_indptr), shape=(size, size))
-        self._ldl = SparseLDL()
+        self._ldl = SparseFactor()
 
     def _difference(self, x: np.ndarray) -> np.ndarray:
         """p - mu (n, 3) at ``x``, heading differences wrapped."""
@@ -161,8 +161,8 @@ class JointProblem:
         return NormalEquations(cost_obs + cost_p, normal, gradient, None, blocks)
 
     def solve(self, normal: sp.spmatrix | np.ndarray, shift: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-        """(normal + diag(shift))^-1 rhs (``sparse_lm.minimize``'s step): dense Cholesky, or QDLDL on the fixed
-        pattern, refactorized numerically after the first call."""
+        """(normal + diag(shift))^-1 rhs (``sparse_lm.minimize``'s step): dense Cholesky, or the sparse factorization on the
+        fixed pattern, refactorized numerically after the first call."""
         if self.dense:  # LAPACK's Cholesky solve called directly (np.linalg.solve's wrapper: 2.5x its time at n = 10)
             a = normal.copy()
             a.flat[:: self.size + 1] += shift
