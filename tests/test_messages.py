@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
+import runtime.wire.messages as messages
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
 from runtime.wire.keys import (
@@ -466,6 +467,44 @@ def test_fuzz_fields_of_valid_messages(name, data):
     if data.draw(st.booleans()) and isinstance(SAMPLES[name], ObservationReport):
         raw["ranges"] = data.draw(st.lists(st.floats(), min_size=3, max_size=3))
     only_message_errors(msgpack.packb(raw))
+
+
+leafy = st.one_of(
+    st.floats(), st.integers(-5, 2**64), st.booleans(), st.text(max_size=3),
+    st.sampled_from([math.inf, -math.inf, math.nan, math.pi + 2e-9, -0.0, 2**63, np.float32(0.5), np.int64(3), True]),
+)
+shaped = st.one_of(leafy, st.recursive(leafy, lambda inner: st.lists(inner, max_size=4) | st.tuples(inner, inner, inner), max_leaves=12))
+
+
+def outcome(cls, values: dict):
+    """``cls(**values)``: its fields, or the error's (path, reason)."""
+    try:
+        msg = cls(**values)
+    except MessageError as e:
+        return ("error", str(e), e.reason)
+    return ("ok", *(repr(getattr(msg, f.name)) for f in fields(cls)))
+
+
+@settings(max_examples=600, suppress_health_check=[HealthCheck.too_slow])
+@given(st.sampled_from(sorted(SAMPLES)), st.data())
+def test_the_fast_validation_path_changes_no_outcome(name, data):
+    """Construction checks plain fields with compiled predicates and list fields level by level in C before the
+    general walk; with those fast paths disabled every message (values mutated with NaN, infinities, bools,
+    ints for floats, float32, nested lists of wrong lengths) gives the same fields or the same error."""
+    sample = SAMPLES[name]
+    cls = type(sample)
+    values = {f.name: getattr(sample, f.name) for f in fields(cls)}
+    for key in data.draw(st.lists(st.sampled_from(sorted(values)), max_size=3)):
+        values[key] = data.draw(shaped)
+    fast = outcome(cls, values)
+    plan, plain = messages._plan, messages._plain_nested
+    try:
+        messages._plan = lambda c: tuple((n, w, None) for n, w, _ in plan(c))
+        messages._plain_nested = lambda *args: None
+        slow = outcome(cls, values)
+    finally:
+        messages._plan, messages._plain_nested = plan, plain
+    assert fast == slow
 
 
 @pytest.mark.parametrize("name", SAMPLES)

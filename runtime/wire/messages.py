@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import logging
 import math
 import re
+import sys
 import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Iterator
@@ -137,7 +139,7 @@ def _scalar(x: Any, wire: Wire, path: str) -> Any:
             raise MessageError(path, f"{len(x)} characters, at most {wire.max_length} allowed", "size")
         if wire.choices and x not in wire.choices:
             raise MessageError(path, f"{_show(x)} is not one of {', '.join(wire.choices)}", "out-of-range")
-        if wire.pattern and not re.fullmatch(wire.pattern, x):
+        if wire.pattern and not _compiled(wire.pattern).fullmatch(x):
             raise MessageError(path, f"{_show(x)} does not match {wire.pattern}", "out-of-range")
         return str(x)
     expected = "a number" if wire.kind == "float" else "an integer"
@@ -174,6 +176,67 @@ def _plain_leaves(values: list | tuple, wire: Wire) -> tuple | None:
         plain = wire.kind != "str" and set(map(type, values)) <= {int}
         ok = plain and (not values or 0 <= min(values) and max(values) <= MAX_INT)
     return tuple(values) if ok else None
+
+
+_compiled: Callable[[str], re.Pattern[str]] = functools.cache(re.compile)
+
+
+def _fast_scalar(wire: Wire) -> Callable[[Any], bool]:
+    """A predicate true for the values ``_scalar`` returns unchanged: an exact int, float or str passing every
+    check of ``wire`` (the common case, a few comparisons); anything else takes ``_convert``'s path."""
+    if wire.kind in ("int", "id"):
+        return lambda x: type(x) is int and 0 <= x <= MAX_INT
+    if wire.kind == "float":  # finite bounds: NaN fails every comparison and infinity the bounds
+        lo = -sys.float_info.max if wire.minimum is None else wire.minimum - wire.slack
+        hi = sys.float_info.max if wire.maximum is None else wire.maximum + wire.slack
+        return lambda x: type(x) is float and lo <= x <= hi
+    match = _compiled(wire.pattern).fullmatch if wire.pattern else None
+    choices, longest = frozenset(wire.choices), wire.max_length
+    return lambda x: (type(x) is str and len(x) <= longest and (not choices or x in choices)
+                      and (match is None or match(x) is not None))
+
+
+def _plain_nested(value: Any, wire: Wire, dims: dict[str, tuple[int, str]], path: Callable[[], str]) -> tuple | None:
+    """``value`` (a list field) as nested tuples if it is well formed with plain valid leaves, the common case,
+    checked level by level in C (``map``, ``set``, ``itertools.chain``); else None (``_convert`` then names the
+    problem). Records the length of a lettered first dimension in ``dims`` (at ``path()``) as ``_convert`` does."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if type(value) is not list and type(value) is not tuple:
+        return None
+    n, first = len(value), wire.shape[0]
+    if n > MAX_ITEMS or (isinstance(first, int) and n != first):
+        return None
+    seen = dims.get(first) if isinstance(first, str) else None
+    if seen is not None and seen[0] != n:
+        return None
+    if len(wire.shape) == 1:
+        plain = _plain_leaves(value, wire)
+    else:
+        level = value
+        for dim in wire.shape[1:]:
+            lengths = set(map(len, level)) if set(map(type, level)) <= {list, tuple} else {-1}
+            if isinstance(dim, str) or -1 in lengths or (isinstance(dim, int) and not lengths <= {dim}) or max(lengths, default=0) > MAX_ITEMS:
+                return None
+            level = list(itertools.chain.from_iterable(level))
+        if _plain_leaves(level, wire) is None:
+            return None
+        plain = tuple(map(tuple, value)) if len(wire.shape) == 2 else tuple(_nested_tuples(v, len(wire.shape) - 1) for v in value)
+    if plain is not None and isinstance(first, str) and seen is None:
+        dims[first] = (n, path())
+    return plain
+
+
+def _nested_tuples(value: Any, depth: int) -> tuple:
+    """A list nested ``depth`` levels as nested tuples."""
+    return tuple(value) if depth == 1 else tuple(_nested_tuples(v, depth - 1) for v in value)
+
+
+@functools.cache
+def _plan(cls: type) -> tuple[tuple[str, Wire, Callable[[Any], bool] | None], ...]:
+    """Per field of message type ``cls``: its name, wire spec and fast scalar check (None for lists)."""
+    return tuple((f.name, f.metadata["wire"], None if f.metadata["wire"].shape else _fast_scalar(f.metadata["wire"]))
+                 for f in _fields(cls))
 
 
 def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]], depth: int = 0) -> Any:
@@ -230,9 +293,15 @@ class Message:
 
     def __post_init__(self) -> None:
         dims: dict[str, tuple[int, str]] = {}
-        for f in _fields(type(self)):
-            value = _convert(getattr(self, f.name), f.metadata["wire"], f"{self.TYPE}.{f.name}", dims)
-            object.__setattr__(self, f.name, value)
+        for name, wire, fast in _plan(type(self)):
+            value = getattr(self, name)
+            if fast is not None:
+                if fast(value):
+                    continue  # already the plain valid scalar ``_convert`` would return
+            elif (plain := _plain_nested(value, wire, dims, lambda: f"{self.TYPE}.{name}")) is not None:  # noqa: B023 - called at once
+                object.__setattr__(self, name, plain)
+                continue
+            object.__setattr__(self, name, _convert(value, wire, f"{self.TYPE}.{name}", dims))
         self._check()
 
     def _check(self) -> None:
