@@ -61,11 +61,12 @@ def propagate_joint(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig) 
 def dead_reckon_arrays(
     poses: np.ndarray, cov: np.ndarray, commands: np.ndarray, moving: np.ndarray, cfg: ModelConfig
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Dead-reckoning poses (..., n, 3) and covariances (..., n, 3, 3), broadcasting over leading batch axes.
+    """Dead-reckoning poses (..., n, 3) and covariances (..., n, 3, 3), with the same leading batch axes on every argument.
 
     ``commands`` (..., n, 2) of robots that are not ``moving`` (..., n) are ignored, as in ``StepCommands``.
     """
-    commands = np.where(moving[..., None], commands, 0.0)
-    out = np.where(moving[..., None], apply_motion(poses, commands), poses)
-    out_cov = np.where(moving[..., None, None], motion_covariance(poses, cov, commands, cfg), cov)
+    moved = np.nonzero(moving)  # the others keep their pose and covariance: computed for the movers only
+    out, out_cov = np.array(poses, dtype=float), np.array(cov, dtype=float)
+    out[moved] = apply_motion(poses[moved], commands[moved])
+    out_cov[moved] = motion_covariance(poses[moved], cov[moved], commands[moved], cfg)
     return out, out_cov
