@@ -458,7 +458,20 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
 # Joint least squares: whitened dead-reckoning priors + range/bearing residuals
 
 
-_JACOBIAN = ("jrx", "jry", "jbx", "jby")  # workspace names of ``observation_jacobian``'s four arrays
+
+
+@functools.cache
+def _lap_diagonal(n: int) -> np.ndarray:
+    """Flat indices into (2n, 2n) of the diagonals of its four (n, n) blocks, in (block row, robot, block column) order."""
+    r, i, c = np.meshgrid(np.arange(2), np.arange(n), np.arange(2), indexing="ij")
+    return ((r * n + i) * 2 * n + c * n + i).ravel()
+
+
+@functools.cache
+def _ct_diagonal(n: int) -> np.ndarray:
+    """Flat indices into (n, 2n) of the diagonals of its two (n, n) blocks, in (robot, block) order."""
+    i, k = np.meshgrid(np.arange(n), np.arange(2), indexing="ij")
+    return (i * 2 * n + k * n + i).ravel()
 
 
 class _JointProblem(_Batched):
@@ -514,23 +527,20 @@ class _JointProblem(_Batched):
         ws, info = self.ws, self.info
         shape = st["inv_dist"].shape
         b, n, _ = shape
-        jac = observation_jacobian(st["dx"], st["dy"], st["inv_dist"], self.w_sr, self.w_sb, out=[ws(name, shape) for name in _JACOBIAN])
-        t1, t2 = ws("n1", shape), ws("n2", shape)
+        jac = ws("jac", (4, b, n, n))  # d range / d x_j, d range / d y_j, d bearing / d x_j, d bearing / d y_j of every pair
+        observation_jacobian(st["dx"], st["dy"], st["inv_dist"], self.w_sr, self.w_sb, out=list(jac))
+        # the 2x2 position blocks of every pair at once: a[r, c] = J_r J_c over (range, bearing); (1, 0) is (0, 1)
+        a = np.multiply(jac[:2, None], jac[None, :2], out=ws("n22", (2, 2) + shape))
+        a += np.multiply(jac[2:, None], jac[None, 2:], out=ws("m22", (2, 2) + shape))
+        both = np.add(a, np.swapaxes(a, -1, -2), out=ws("m22", (2, 2) + shape))  # robots a and c meet as observer and as observed
         lap = ws("lap", (b, 2 * n, 2 * n))
-        for row, col in ((0, 0), (0, 1), (1, 1)):
-            a = np.multiply(jac[row], jac[col], out=t1)  # range
-            a += np.multiply(jac[2 + row], jac[2 + col], out=t2)  # bearing
-            both = np.add(a, np.swapaxes(a, 1, 2), out=t2)  # robots a and c meet as observer and as observed
-            block = lap[:, row * n : row * n + n, col * n : col * n + n]
-            np.negative(both, out=block)
-            _diagonal(block)[:] = np.einsum("bij->bi", both) + info[:, :, row, col]
-        lap[:, n:, :n] = lap[:, :n, n:]  # symmetric blocks (each is symmetric)
+        np.negative(both.transpose(2, 0, 3, 1, 4), out=lap.reshape(b, 2, n, 2, n))
+        lap.reshape(b, 4 * n * n)[:, _lap_diagonal(n)] = (np.einsum("rcbij->bric", both) + info[:, :, :2, :2].transpose(0, 2, 1, 3)).reshape(b, 4 * n)
         # C^T[i, (k, a)] = delta_ai (sum_j q_ij,k + info) - q_ia,k with q = w_b d bearing / d x_j.
+        q = np.multiply(self.w_sb, jac[2:], out=ws("n22", (2,) + shape))
         ct = ws("ct", (b, n, 2 * n))
-        for k in (0, 1):
-            q = np.multiply(self.w_sb, jac[2 + k], out=t1)
-            np.negative(q, out=ct[:, :, k * n : k * n + n])
-            _diagonal(ct[:, :, k * n : k * n + n])[:] = np.einsum("bij->bi", q) + info[:, :, k, 2]
+        np.negative(q.transpose(1, 2, 0, 3), out=ct.reshape(b, n, 2, n))
+        ct.reshape(b, 2 * n * n)[:, _ct_diagonal(n)] = (np.einsum("kbij->bik", q) + info[:, :, :2, 2]).reshape(b, 2 * n)
         return lap, ct, self.d_theta
 
     def step(self, st: dict[str, np.ndarray], mu: np.ndarray, curved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -538,14 +548,12 @@ class _JointProblem(_Batched):
         lap, ct, d = self.normal(st)
         b, n, n2 = ct.shape
         shape = st["inv_dist"].shape
-        jac = [ws.arrays[name] for name in _JACOBIAN]  # ``normal``'s
-        q, tmp = ws("n1", shape), ws("n2", shape)
+        jac = ws.arrays["jac"]  # ``normal``'s
         g_prior = st["gp"]
-        g_xy = np.empty((b, n2))
-        for k in (0, 1):  # q = (d r / d x_j)^T r of each pair (d / d x_i = -d / d x_j)
-            np.multiply(jac[k], st["rr"], out=q)
-            q += np.multiply(jac[2 + k], st["rb"], out=tmp)
-            g_xy[:, k * n : k * n + n] = np.einsum("bij->bj", q) - np.einsum("bij->bi", q) + g_prior[:, :, k]
+        # q = (d r / d x_j)^T r of each pair, x and y at once (d / d x_i = -d / d x_j)
+        q = np.multiply(jac[:2], st["rr"], out=ws("n22", (2,) + shape))
+        q += np.multiply(jac[2:], st["rb"], out=ws("m22", (2,) + shape))
+        g_xy = (np.einsum("kbij->bkj", q) - np.einsum("kbij->bki", q) + np.swapaxes(g_prior[:, :, :2], 1, 2)).reshape(b, n2)
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
         d_damped = d + mu[:, None] * damping_scale(d)
