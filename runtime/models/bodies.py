@@ -117,6 +117,7 @@ class BodyCheck:
         self.position_var = np.broadcast_to(np.asarray(position_var, float), (n,))
         self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
                                       cfg.drive_sigma_frac**2)
+        self._conflicts: dict[bytes, tuple[Conflict, ...]] = {}  # step_conflicts by (before, moving): plans share steps
 
     @classmethod
     def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
@@ -147,12 +148,16 @@ class BodyCheck:
         movers = np.flatnonzero(moving)
         if not self.active or not len(movers):
             return []
-        closest, required = self._rows(movers, before, moving)
-        bad = closest < required - TOLERANCE_M
-        bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
-        rows, cols = np.nonzero(bad)
-        return [Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]), float(required[r, c]))
-                for r, c in zip(rows, cols, strict=True)]
+        key = np.asarray(before, float).tobytes() + np.asarray(moving, bool).tobytes()
+        found = self._conflicts.get(key)
+        if found is None:
+            closest, required = self._rows(movers, before, moving)
+            bad = closest < required - TOLERANCE_M
+            bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
+            rows, cols = np.nonzero(bad)
+            found = self._conflicts[key] = tuple(Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]),
+                                                          float(required[r, c])) for r, c in zip(rows, cols, strict=True))
+        return list(found)
 
     def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
         closest, required = self._rows(np.array([robot]), before, moving)
@@ -175,6 +180,7 @@ class BodyCheck:
         """The same check with a margin of ``sigmas`` standard deviations."""
         out = copy.copy(self)
         out.sigmas = float(sigmas)
+        out._conflicts = {}
         return out
 
     def regroup(self, groups: list[np.ndarray]) -> Regrouped:
