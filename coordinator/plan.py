@@ -88,7 +88,8 @@ class Plan:
     @property
     def groups(self) -> list[np.ndarray]:
         """Mobile robot indices of each step."""
-        return np.split(self.order, np.cumsum(self.sizes)[:-1])
+        ends = list(itertools.accumulate(self.sizes))
+        return [self.order[end - size : end] for size, end in zip(self.sizes, ends, strict=True)]
 
     def moving(self, step: int) -> np.ndarray:
         """Mask (n,) of the robots that move at ``step``."""

@@ -226,7 +226,7 @@ def observable(seen: np.ndarray) -> np.ndarray:
     """(B,) True where every robot was observed by another and the undirected observation graph is connected."""
     b, n, _ = seen.shape
     observed: np.ndarray = np.all(np.any(seen, axis=1), axis=1)
-    both = (seen | np.swapaxes(seen, 1, 2)).astype(float)
+    both = (seen | seen.swapaxes(1, 2)).astype(float)
     reach = np.zeros((b, 1, n))
     reach[:, 0, 0] = 1.0
     for _ in range(n):  # breadth-first search from robot 0 in every sample at once
@@ -302,7 +302,7 @@ def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, 
     """
     b, n, n2 = ct.shape
     ctd = np.divide(ct, d[:, :, None], out=ws("ctd", ct.shape))
-    s = np.matmul(np.swapaxes(ct, 1, 2), ctd, out=ws("schur", (b, n2, n2)))
+    s = np.matmul(ct.swapaxes(1, 2), ctd, out=ws("schur", (b, n2, n2)))
     np.subtract(lap, s, out=s)
     s.reshape(b, n2 * n2)[:, :: n2 + 1] += mu[:, None] * diag_x
     rhs = np.matmul(g_theta[:, None, :], ctd)[:, 0, :] - g_xy
@@ -357,7 +357,7 @@ class _TopologyProblem(_Batched):
         self.free_head = has_heading.astype(float)
         self.free_head[rows, ref] = 0.0
         # J^T J of the positions does not depend on the unknowns: a graph Laplacian per axis.
-        both = w + np.swapaxes(w, 1, 2)
+        both = w + w.swapaxes(1, 2)
         degree = np.einsum("bij->bi", both)
         lap = np.zeros((b, 2 * n, 2 * n))
         for k in (0, n):
@@ -532,7 +532,7 @@ class _JointProblem(_Batched):
         # the 2x2 position blocks of every pair at once: a[r, c] = J_r J_c over (range, bearing); (1, 0) is (0, 1)
         a = np.multiply(jac[:2, None], jac[None, :2], out=ws("n22", (2, 2) + shape))
         a += np.multiply(jac[2:, None], jac[None, 2:], out=ws("m22", (2, 2) + shape))
-        both = np.add(a, np.swapaxes(a, -1, -2), out=ws("m22", (2, 2) + shape))  # robots a and c meet as observer and as observed
+        both = np.add(a, a.swapaxes(-1, -2), out=ws("m22", (2, 2) + shape))  # robots a and c meet as observer and as observed
         lap = ws("lap", (b, 2 * n, 2 * n))
         np.negative(both.transpose(2, 0, 3, 1, 4), out=lap.reshape(b, 2, n, 2, n))
         lap.reshape(b, 4 * n * n)[:, _lap_diagonal(n)] = (np.einsum("rcbij->bric", both) + info[:, :, :2, :2].transpose(0, 2, 1, 3)).reshape(b, 4 * n)
@@ -553,7 +553,7 @@ class _JointProblem(_Batched):
         # q = (d r / d x_j)^T r of each pair, x and y at once (d / d x_i = -d / d x_j)
         q = np.multiply(jac[:2], st["rr"], out=ws("n22", (2,) + shape))
         q += np.multiply(jac[2:], st["rb"], out=ws("m22", (2,) + shape))
-        g_xy = (np.einsum("kbij->bkj", q) - np.einsum("kbij->bki", q) + np.swapaxes(g_prior[:, :, :2], 1, 2)).reshape(b, n2)
+        g_xy = (np.einsum("kbij->bkj", q) - np.einsum("kbij->bki", q) + g_prior[:, :, :2].swapaxes(1, 2)).reshape(b, n2)
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
         d_damped = d + mu[:, None] * damping_scale(d)
@@ -598,7 +598,7 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     to_batch = np.argsort(to_robots)
 
     def inverse_times(m):  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
-        y = s_inv @ (m[:, :n2] - np.swapaxes(ctd, 1, 2) @ m[:, n2:])
+        y = s_inv @ (m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:])
         return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
 
     def batch_order(frame):  # (N, Pi) in the batch's order
@@ -608,12 +608,12 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     basis, proj = frame = batch_order(robot_frame)
     # S N with S = H^T H = J^T J minus the prior's (block-diagonal) information
     prior_n = (prior_info @ robot_frame[0].reshape(b, n, 3, 3)).reshape(b, k, 3)[:, to_batch]
-    sn = np.concatenate([lap @ basis[:, :n2] + np.swapaxes(ct, 1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
+    sn = np.concatenate([lap @ basis[:, :n2] + ct.swapaxes(1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
-            m = np.linalg.solve(np.eye(6) + kmat @ (np.swapaxes(u, 1, 2) @ low), kmat @ np.swapaxes(low, 1, 2))
+            m = np.linalg.solve(np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low), kmat @ low.swapaxes(1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
     # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
@@ -628,9 +628,9 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     else:  # transported about the whole swarm's gauge
         whole = gauge_frame(mean)
         proj = batch_order(whole)[1]
-        inv_pt = inverse_times(np.swapaxes(proj, 1, 2))
-    pc = np.swapaxes(inv_pt, 1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
-    pcp = pc @ np.swapaxes(proj, 1, 2)
+        inv_pt = inverse_times(proj.swapaxes(1, 2))
+    pc = inv_pt.swapaxes(1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
+    pcp = pc @ proj.swapaxes(1, 2)
     return poses, transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
 
 
@@ -639,8 +639,8 @@ def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.nda
     inverse is [[S^-1, -S^-1 C D^-1], [., D^-1 + D^-1 C^T S^-1 C D^-1]]. NaN where singular."""
     with np.errstate(divide="ignore", invalid="ignore"):
         ctd = ct / d[:, :, None]
-        s_inv = _inv_stack(lap - np.matmul(np.swapaxes(ct, 1, 2), ctd))  # position block of the inverse
-        e = np.matmul(s_inv, np.swapaxes(ctd, 1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
+        s_inv = _inv_stack(lap - np.matmul(ct.swapaxes(1, 2), ctd))  # position block of the inverse
+        e = np.matmul(s_inv, ctd.swapaxes(1, 2))  # S^-1 C D^-1 = -(position-heading block of the inverse)
     return ctd, s_inv, e
 
 
