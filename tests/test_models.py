@@ -9,6 +9,7 @@ import pytest
 
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.models.geometry import WRAP_IN_PLACE, wrap_angle
 from runtime.models.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
 from runtime.models.rng import Stream, robot_rng, robot_rngs
 from runtime.models.sensing import measure, neighbours, sense_robot, sense_swarm
@@ -95,6 +96,27 @@ def test_measure_known_answer_and_wrap():
     expected = (math.atan2(-0.2, -1.0) - (math.pi - 0.1) + math.pi) % (2 * math.pi) - math.pi
     assert brg == pytest.approx(expected)
     assert -math.pi <= brg < math.pi
+
+
+def test_wrap_angle_of_large_arrays_is_the_formula_to_the_last_bit():
+    """Large arrays take the remainder only outside [-pi, pi): the result is (a + pi) mod 2 pi - pi bit for bit,
+    at the seams (+-pi, multiples of 2 pi), far out of range, for integers and float32, with NaN and infinities."""
+    rng = np.random.default_rng(7)
+    angles = np.concatenate([rng.normal(0, 1, 500), rng.normal(0, 40, 500), rng.uniform(-1e7, 1e7, 200),
+                             [math.pi, -math.pi, np.nextafter(math.pi, 0), np.nextafter(-math.pi, -4), 2 * math.pi, -2 * math.pi,
+                              0.0, -0.0, np.nan, np.inf, -np.inf]])
+    assert angles.size >= WRAP_IN_PLACE
+    with np.errstate(invalid="ignore"):
+        for a in (angles, angles.reshape(11, -1) if angles.size % 11 == 0 else angles[:1100].reshape(11, 100),
+                  angles.astype(np.float32), np.arange(-600, 600)):
+            got, want = wrap_angle(a), (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+            assert got.dtype == want.dtype and got.shape == want.shape
+            np.testing.assert_array_equal(got, want)
+    finite = wrap_angle(angles[np.isfinite(angles)])
+    assert np.all(np.abs(finite) <= math.pi)  # [-pi, pi) up to the rounding of a + pi
+    kept = angles.copy()
+    wrap_angle(kept)
+    np.testing.assert_array_equal(kept, angles)  # the input is not written
 
 
 def test_sensing_respects_range_and_dropout():

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 
-
 WRAP_IN_PLACE = 256  # elements from which ``wrap_angle`` takes the remainder only where needed
 
 
