@@ -93,11 +93,23 @@ class MonteCarlo:
         return e_l if per_sample else e_l.mean(axis=1)
 
 
-def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float) -> bool:
-    """Constraint g (Eq. 4): after every step the expected configuration is connected within sensing range."""
+def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float,
+                            known: dict[bytes, bool] | None = None) -> bool:
+    """Constraint g (Eq. 4): after every step the expected configuration is connected within sensing range.
+
+    ``known``: configurations already checked (by their bytes; the caller's, for one ``current`` -> ``desired``
+    change): the plans of a selection share most of their steps' configurations.
+    """
     positions = np.array(current, dtype=float)
     for group in plan.groups:
         positions[group] = desired[group]
-        if not is_connected(positions, sensing_range):
+        if known is None:
+            connected = is_connected(positions, sensing_range)
+        else:
+            key = positions.tobytes()
+            connected = known.get(key)
+            if connected is None:
+                connected = known[key] = is_connected(positions, sensing_range)
+        if not connected:
             return False
     return True

@@ -236,8 +236,10 @@ class AnchorSelector:
         current = estimate.positions
         bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
 
+        checked: dict[bytes, bool] = {}  # connectivity of the step configurations seen (plans share them)
+
         def connected(plan: Plan) -> bool:
-            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m)
+            return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m, checked)
 
         def feasible(plan: Plan) -> bool:
             return bodies.is_clear(plan.groups) and connected(plan)
