@@ -426,7 +426,8 @@ class Agent:
         if reason is not None:
             self._status(cmd, "refused", reason)
             return
-        self._status(cmd, "accepted")
+        if not self.driver.instantaneous:  # a motion that takes time: say it is under way
+            self._status(cmd, "accepted")
         try:
             self._driver_call(self.driver.execute, cmd)
         except DriverRefused as e:
