@@ -93,7 +93,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Collection
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -133,6 +133,12 @@ REFUSALS_PER_S = 20.0  # refusals of commands that answer no real command, on av
 REFUSAL_BURST = 20  # ... and at once
 
 
+class Inbox(Protocol):
+    """Where an agent's Zenoh callbacks and ``stop()`` put ``(key, payload)``: its own queue, or a host's feed."""
+
+    def put(self, item: tuple[str, bytes]) -> None: ...
+
+
 class Agent:
     """Robot ``robot`` of the run ``run`` with robots ``ids``, driving ``driver``."""
 
@@ -160,7 +166,11 @@ class Agent:
         self.refusals = RateLimit(REFUSALS_PER_S, REFUSAL_BURST)
         self.executed = 0  # commands executed (for tests and logs)
         self._stop = threading.Event()
-        self._inbox: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # put() is safe from a signal handler
+        self._queue: queue.SimpleQueue[tuple[str, bytes]] = queue.SimpleQueue()  # ``run``'s inbox; put() is signal-safe
+        self._inbox: Inbox = self._queue  # where callbacks and stop() put messages (``open`` may be given another)
+        self._subs: list[Any] = []
+        self._forwarder: threading.Thread | None = None
+        self._token: zenoh.LivelinessToken | None = None
         self._last_cmd_step = -1
         self._last_cmd: MotionCommand | None = None
         self._last_status: Status | None = None
@@ -187,6 +197,11 @@ class Agent:
         self._stop.set()
         self._inbox.put((_STOP, b""))
 
+    @property
+    def stopped(self) -> bool:
+        """Whether ``stop()`` was called (or the agent ended)."""
+        return self._stop.is_set()
+
     def run(self, session=None) -> int:
         """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
 
@@ -194,46 +209,70 @@ class Agent:
         return; with one (its host's, shared with other agents) it leaves it open.
         """
         with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
-            self._session = session
-            self.driver.attach(session)
-            self.driver.on_lost = lambda reason: self._inbox.put((_LOST, reason.encode()))  # lost while idle ends the agent too
-            self._wait_for_driver()
-            enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
-            subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
-                    subscribe(session, self._estop_key, self._on_estop)]
-            forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
-            forwarder.start()
-            if self.driver.simulated:
-                subs.append(subscribe(session, truths_key(self.run_id), enqueue))
-            subs.append(watch_liveliness(session, coord_alive_key(self.run_id),
-                                         lambda key, alive: self._inbox.put((_COORD, f"{key} {int(alive)}".encode()))))
-            token = declare_token(session, alive_key(self.run_id, self.robot))
-            if self.driver.simulated:
-                self._publish_truth(0)
-            _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
+            self.open(session)
             while not self._stop.is_set():
-                key, payload = self._inbox.get()
-                if key == _STOP:
-                    continue
-                try:
-                    self._handle(key, payload)
-                except RobotLost as e:
-                    self.lost_reason = str(e)
-                    _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
-                    if isinstance(e, DriverFault):  # the robot's state is unknown: stop it for good
-                        self._bounded(self.driver.estop, max(self._last_cmd_step, 0))
+                if not self.serve(*self._queue.get()):
                     break
-                except Exception:  # noqa: BLE001 - a bug must not silently kill a robot mid-run: log it and keep serving
-                    _log.exception("robot %d: error handling a message on %s", self.robot, key)
-            token.undeclare()
-            for sub in subs:
-                sub.undeclare()
-            self._stops.put(None)  # ends the forwarder once it forwarded the stops queued: none reaches a detached driver
-            forwarder.join(timeout=1.0)
-            self._bounded(self.driver.stop)
-            self._bounded(self.driver.detach)
-            self._stop.set()
-            self._session = None
+            self.close()
+        return self.outcome()
+
+    def open(self, session, inbox: Inbox | None = None) -> None:
+        """Attach the driver and start serving on ``session``: subscriptions (enqueueing into ``inbox``, by default
+        the agent's own), the stop forwarder, the liveliness token; a simulated robot publishes its step-0 truth.
+        A host that serves several agents from one thread (``robot_agent.host``) passes one inbox per agent that
+        feeds its shared queue, and calls ``serve`` for each message and ``close`` at the end."""
+        if inbox is not None:
+            self._inbox = inbox
+        self._session = session
+        self.driver.attach(session)
+        self.driver.on_lost = lambda reason: self._inbox.put((_LOST, reason.encode()))  # lost while idle ends the agent too
+        self._wait_for_driver()
+        enqueue = lambda key, payload: self._inbox.put((key, payload))  # noqa: E731 (Zenoh thread: enqueue only)
+        self._subs = [subscribe(session, self._cmd_key, enqueue), subscribe(session, self._observe_key, enqueue),
+                      subscribe(session, self._estop_key, self._on_estop)]
+        self._forwarder = threading.Thread(target=self._forward_estop, name=f"agent-{self.robot}-estop", daemon=True)
+        self._forwarder.start()
+        if self.driver.simulated:
+            self._subs.append(subscribe(session, truths_key(self.run_id), enqueue))
+        self._subs.append(watch_liveliness(session, coord_alive_key(self.run_id),
+                                           lambda key, alive: self._inbox.put((_COORD, f"{key} {int(alive)}".encode()))))
+        self._token = declare_token(session, alive_key(self.run_id, self.robot))
+        if self.driver.simulated:
+            self._publish_truth(0)
+        _log.info("robot %d of run %s ready (robots %s)", self.robot, self.run_id, self.ids)
+
+    def serve(self, key: str, payload: bytes) -> bool:
+        """Handle one message of the inbox; False once the agent is to end (``stop()``, or its robot lost)."""
+        if key != _STOP:
+            try:
+                self._handle(key, payload)
+            except RobotLost as e:
+                self.lost_reason = str(e)
+                _log.error("robot %d lost: %s; dropping the liveliness token", self.robot, e)
+                if isinstance(e, DriverFault):  # the robot's state is unknown: stop it for good
+                    self._bounded(self.driver.estop, max(self._last_cmd_step, 0))
+                return False
+            except Exception:  # noqa: BLE001 - a bug must not silently kill a robot mid-run: log it and keep serving
+                _log.exception("robot %d: error handling a message on %s", self.robot, key)
+        return not self._stop.is_set()
+
+    def close(self) -> None:
+        """Stop serving: drop the token and subscriptions, end the stop forwarder (after the stops queued), then
+        ``driver.stop()`` and ``driver.detach()``; the session stays open."""
+        if self._token is not None:
+            self._token.undeclare()
+        for sub in self._subs:
+            sub.undeclare()
+        self._stops.put(None)  # ends the forwarder once it forwarded the stops queued: none reaches a detached driver
+        if self._forwarder is not None:
+            self._forwarder.join(timeout=1.0)
+        self._bounded(self.driver.stop)
+        self._bounded(self.driver.detach)
+        self._stop.set()
+        self._session = None
+
+    def outcome(self) -> int:
+        """``run``'s status once closed: 3 if the robot was lost, else 0 (drops and refusals logged)."""
         if self.drops.total:
             _log.warning("robot %d dropped %d bad messages: %s", self.robot, self.drops.total, self.drops.snapshot())
         if self.refusals.suppressed:
@@ -426,7 +465,8 @@ class Agent:
         if reason is not None:
             self._status(cmd, "refused", reason)
             return
-        self._status(cmd, "accepted")
+        if not self.driver.instantaneous:  # a motion that takes time: say it is under way
+            self._status(cmd, "accepted")
         try:
             self._driver_call(self.driver.execute, cmd)
         except DriverRefused as e:

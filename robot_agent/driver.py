@@ -91,6 +91,7 @@ class Driver(ABC):
     """
 
     simulated: bool = False  # True: the agent publishes TruthMessages and passes peers' true poses to sense()
+    instantaneous: bool = False  # True: ``execute`` takes no wall time, so the agent answers with ``done`` alone (no ``accepted``)
     on_lost: Callable[[str], None] | None = None  # set by the agent; see report_lost
 
     def attach(self, session) -> None:  # noqa: B027 - optional hook, nothing to do by default
@@ -150,6 +151,7 @@ class SimDriver(Driver):
             raise SwarmInputError(f"initial pose of robot {robot} must be finite, got {self._pose.tolist()}")
         self.cfg = cfg
         self.motion_time_s = float(motion_time_s)  # wall time a motion takes (to make runs observable)
+        self.instantaneous = self.motion_time_s == 0
         self._motion = robot_rng(seed, robot, Stream.MOTION)
         self._sensing = robot_rng(seed, robot, Stream.SENSING)
         self.estopped = False

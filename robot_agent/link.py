@@ -76,7 +76,7 @@ from runtime.wire.keys import (
     link_alive_key,
     parse_coord_token,
     parse_key,
-    robot_wildcard,
+    robot_key,
 )
 from runtime.wire.messages import (
     CommandLimits,
@@ -253,7 +253,8 @@ class Link:
     def run(self) -> int:
         """Serve until ``stop()``; publishes final stats; returns 0."""
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
-        self._subs = [subscribe(self.session, robot_wildcard(self.run_id, "linkreq"), enqueue),
+        # one subscription per robot of this port: another port's requests never reach (nor cost) this link
+        self._subs = [*(subscribe(self.session, robot_key(self.run_id, r, "linkreq"), enqueue) for r in sorted(self.robots)),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       subscribe(self.session, self._estimate_key, enqueue),
                       watch_liveliness(self.session, coord_alive_key(self.run_id),

@@ -18,15 +18,17 @@ from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loop
 
 
 @contextlib.contextmanager
-def agent_on_hub(run: str, epoch: int, pose: np.ndarray, watch_key: str) -> Iterator[tuple[object, Agent, queue.Queue]]:
-    """(hub session, robot 0's agent of robots [0, 1] at ``pose``, queue of what is published on ``watch_key``).
+def agent_on_hub(run: str, epoch: int, pose: np.ndarray, watch_key: str, motion_time_s: float = 0.0) -> Iterator[tuple[object, Agent, queue.Queue]]:
+    """(hub session, robot 0's agent of robots [0, 1] at ``pose`` (motions taking ``motion_time_s``), queue of what is
+    published on ``watch_key``).
 
     The agent is up (its liveliness token seen) and has learnt of the coordinator token of ``epoch``
     before the block runs; on leaving, the token is withdrawn and the agent stopped.
     """
     hub_settings, member = loopback_hub(free_tcp_port())
     with open_session(hub_settings) as hub:
-        agent = Agent(member, run, 0, [0, 1], SimDriver(0, [0, 1], np.asarray(pose, dtype=float), ModelConfig(), seed=1))
+        agent = Agent(member, run, 0, [0, 1], SimDriver(0, [0, 1], np.asarray(pose, dtype=float), ModelConfig(), seed=1,
+                                                                motion_time_s=motion_time_s))
         thread = threading.Thread(target=agent.run, daemon=True)
         thread.start()
         _, seen = subscribe_queue(hub, watch_key)

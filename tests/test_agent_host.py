@@ -5,6 +5,7 @@ to one process per agent. Real Zenoh sessions on loopback and real processes, st
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import subprocess
@@ -52,39 +53,100 @@ def test_default_agents_per_process():
         agents_per_process(10, 0)
 
 
-def test_hosted_agents_are_separate_agents_on_the_wire():
+class ThreadRecordingDriver(SimDriver):
+    """A simulated robot that records the thread each of its motions ran on."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.threads: list[int] = []
+
+    def execute(self, command):
+        self.threads.append(threading.get_ident())
+        return super().execute(command)
+
+
+@contextlib.contextmanager
+def hosted_run(motion_time_s: float):
+    """(hub, agents of robots 1-3 of [0..3] in one running host, the host, status queue, host.run()'s result list);
+    the test is the coordinator of epoch 5. On leaving, the host is stopped, its thread joined and every token gone."""
     ids = [0, 1, 2, 3]
     hub_settings, member = loopback_hub(free_tcp_port())
     with open_session(hub_settings) as hub:
-        agents = [Agent(member, RUN, r, ids, SimDriver(r, ids, np.array([0.2 * r, 0.0, 0.0]), ModelConfig(), seed=1)) for r in (1, 2, 3)]
+        agents = [Agent(member, RUN, r, ids, ThreadRecordingDriver(r, ids, np.array([0.2 * r, 0.0, 0.0]), ModelConfig(), seed=1,
+                                                                 motion_time_s=motion_time_s)) for r in (1, 2, 3)]
         host = AgentHost(member, agents)
         done: list[int] = []
         thread = threading.Thread(target=lambda: done.append(host.run()), daemon=True)
         thread.start()
         try:
             deadline = time.monotonic() + 10
-            while (alive := sorted(parse_key(k).robot for k in alive_now(hub, alive_wildcard(RUN)))) != [1, 2, 3]:
-                assert time.monotonic() < deadline, f"tokens alive: {alive}"
+            while sorted(parse_key(k).robot for k in alive_now(hub, alive_wildcard(RUN))) != [1, 2, 3]:
+                assert time.monotonic() < deadline, "the hosted agents did not come up"
                 time.sleep(0.02)
             _, statuses = subscribe_queue(hub, robot_wildcard(RUN, "status"))
-            token = declare_token(hub, coord_alive_key(RUN, 5))  # the test is the run's coordinator, epoch 5
+            token = declare_token(hub, coord_alive_key(RUN, 5))
             time.sleep(0.3)
-            cmd = MotionCommand(run=RUN, step=1, robot=2, config=1, turn_rad=0.1, drive_m=0.05, epoch=5)
-            publish(hub, robot_key(RUN, 2, "cmd"), encode(cmd))
-            got = [decode(statuses.get(timeout=5)[1], Status) for _ in range(2)]
-            assert [(s.robot, s.state) for s in got] == [(2, "accepted"), (2, "done")]
-            assert [a.executed for a in agents] == [0, 1, 0]  # only robot 2's agent executed it
-            moved = agents[1].driver.true_pose()
-            assert not np.allclose(moved, [0.4, 0.0, 0.0]) and np.allclose(agents[0].driver.true_pose(), [0.2, 0.0, 0.0])
+            yield hub, agents, host, thread, statuses, done
             token.undeclare()
         finally:
             host.stop()
             thread.join(timeout=10)
-        assert done == [0]
         deadline = time.monotonic() + 5
         while alive_now(hub, alive_wildcard(RUN)):
             assert time.monotonic() < deadline, "tokens of a stopped host are still alive"
             time.sleep(0.02)
+
+
+def command_all(hub, statuses, robots, step: int = 1) -> list[tuple[int, str]]:
+    for r in robots:
+        publish(hub, robot_key(RUN, r, "cmd"), encode(MotionCommand(run=RUN, step=step, robot=r, config=1, turn_rad=0.1,
+                                                                    drive_m=0.05, epoch=5)))
+    got: list[tuple[int, str]] = []
+    while sum(state == "done" for _, state in got) < len(robots):
+        status = decode(statuses.get(timeout=10)[1], Status)
+        got.append((status.robot, status.state))
+    return sorted(got)
+
+
+@pytest.mark.parametrize(("motion_time_s", "threads"), [(0.0, 1), (0.05, 3)])
+def test_instantaneous_agents_share_one_thread_and_others_get_one_each(motion_time_s, threads):
+    """Simulated robots without motion time are served by the host's one thread (each message wakes it, not one
+    of 3 agent threads); robots whose motions take time (0.05 s) each run on their own thread, so one robot's
+    motion never waits for another's. On the wire both are the same: each robot answers its own command."""
+    with hosted_run(motion_time_s) as (hub, agents, host, thread, statuses, done):
+        got = command_all(hub, statuses, [1, 2, 3])
+        expected = [(r, "done") for r in (1, 2, 3)] + ([] if motion_time_s == 0 else [(r, "accepted") for r in (1, 2, 3)])
+        assert got == sorted(expected)
+        used = {t for a in agents for t in a.driver.threads}
+        assert len(used) == threads and all(len(a.driver.threads) == 1 for a in agents)
+        if threads == 1:
+            assert used == {thread.ident}  # the host's own thread
+    assert done == [0] and not thread.is_alive()
+
+
+def test_a_robot_lost_in_a_host_ends_its_agent_only():
+    """Robot 2's driver reports its robot lost while idle: its agent ends and drops its token, robots 1 and 3 keep
+    serving (their next command is done) and the host returns 3 (a robot was lost) once stopped."""
+    with hosted_run(0.0) as (hub, agents, host, thread, statuses, done):
+        agents[1].driver.report_lost("radio link gone")
+        deadline = time.monotonic() + 10
+        while (alive := sorted(parse_key(k).robot for k in alive_now(hub, alive_wildcard(RUN)))) != [1, 3]:
+            assert time.monotonic() < deadline, f"tokens alive: {alive}"
+            time.sleep(0.02)
+        assert command_all(hub, statuses, [1, 3]) == [(1, "done"), (3, "done")]
+        assert agents[1].stopped and agents[1].lost_reason == "radio link gone" and agents[1].executed == 0
+    assert done == [3] and host.results == {2: 3, 1: 0, 3: 0}
+
+
+def test_hosted_agents_are_separate_agents_on_the_wire():
+    """Three agents in one host: three tokens; a command to robot 2 is answered and executed by robot 2's agent
+    alone; once stopped, the host returns 0 and every token is gone (``hosted_run`` checks)."""
+    with hosted_run(0.0) as (hub, agents, host, thread, statuses, done):
+        assert command_all(hub, statuses, [2]) == [(2, "done")]  # motions of no wall time: done alone
+        assert [a.executed for a in agents] == [0, 1, 0]  # only robot 2's agent executed it
+        moved = agents[1].driver.true_pose()
+        assert not np.allclose(moved, [0.4, 0.0, 0.0]) and np.allclose(agents[0].driver.true_pose(), [0.2, 0.0, 0.0])
+    assert done == [0]
 
 
 def _launch(tmp: Path, traj_file: Path, name: str, *extra: str) -> str:

@@ -348,7 +348,7 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
     run = f"acl{uuid.uuid4().hex[:8]}"
     gateway_cfg = client_config(tmp_path, certs, "gateway", tls_router)
     agent_cmd = [sys.executable, "-m", "swarm_cli.agent", "--id", "0", "--ids", "0", "--run", run,
-                 "--zenoh-config", str(gateway_cfg.config_file), "--pose", "0,0,0"]
+                 "--zenoh-config", str(gateway_cfg.config_file), "--pose", "0,0,0", "--motion-time", "0.05"]  # says 'accepted' too
     children: list[Child] = []
     try:
         with (

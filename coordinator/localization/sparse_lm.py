@@ -131,8 +131,8 @@ class _Cholmod:
     """
 
     def __init__(self, upper: sp.csc_matrix) -> None:
-        from cvxopt import matrix, spmatrix  # noqa: PLC0415 - optional dependency, present when this class is used
-        self._cholmod, self._matrix = cholmod_module(), matrix
+        from cvxopt import cholmod, matrix, spmatrix  # noqa: PLC0415 - optional dependency, present when this class is used
+        self._cholmod, self._matrix = cholmod, matrix
         size = upper.shape[0]
         cols = np.repeat(np.arange(size, dtype=np.int64), np.diff(upper.indptr))
         self._a = spmatrix(matrix(upper.data), matrix(upper.indices.astype(np.int64)), matrix(cols), (size, size))

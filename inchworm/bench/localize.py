@@ -236,9 +236,11 @@ def bench_localize(options: LocalizeBenchOptions = LocalizeBenchOptions(), say: 
         raise SwarmInputError(f"--sizes must list integers >= 2, got {o.sizes}")
     gtsam = load_gtsam() if o.gtsam else None
     results = [bench_size(n, o.model, o, gtsam, say) for n in o.sizes]
-    text = (f"swarm bench localize: {o.trials} trials x {o.repeats} repeats per size, seed {o.seed}\n"
+    from coordinator.localization.sparse_lm import sparse_backend  # noqa: PLC0415
+    text = (f"swarm bench localize: {o.trials} trials x {o.repeats} repeats per size, seed {o.seed}, "
+            f"sparse factorization {sparse_backend()}\n"
             "err = RMS post-step position error over robots and trials; crlb = RMS Cramer-Rao bound (n <= 1000)\n\n"
             + table(results, gtsam is not None))
     summary = {"results": results, "config": o.model.to_dict(), "seed": o.seed, "trials": o.trials, "repeats": o.repeats,
-               "still_prior_m": o.still_prior_m}
+               "still_prior_m": o.still_prior_m, "sparse_backend": sparse_backend()}
     return BenchResult(results, summary, text, "n", "ms_median", "paper localizer, median time (ms)", "One localization step")

@@ -297,6 +297,8 @@ def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> Bench
               f"{r['_step_ms_p90']:>7.2f} {r['zenoh_rtt_ms']:>12.3f} "
               f"{r['step_ms_median'] / r['zenoh_rtt_ms']:>10.0f} {b['commands']:>11.2f} {b['observe']:>10.2f} {b['localize']:>11.2f} "
               f"{b['publish_estimate']:>11.2f} {c['agents']:>13.2f} {c['coordinator']:>12.2f} {r['agent_rss_mb']:>16.2f}")
+    from coordinator.localization.sparse_lm import sparse_backend  # noqa: PLC0415
+    lines.append(f"sparse factorization of the localizers: {sparse_backend()}")
     summary = {"results": [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]}
     return BenchResult(rows, summary, "\n".join(lines), "agents", "step_ms_median", "step time, median (ms)",
                        f"Coordination time per step ({args.method}, {args.localizer} localizer)")

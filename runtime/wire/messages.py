@@ -232,11 +232,13 @@ def _nested_tuples(value: Any, depth: int) -> tuple:
     return tuple(value) if depth == 1 else tuple(_nested_tuples(v, depth - 1) for v in value)
 
 
-@functools.cache
-def _plan(cls: type) -> tuple[tuple[str, Wire, Callable[[Any], bool] | None], ...]:
+def _field_plan(cls: type) -> tuple[tuple[str, Wire, Callable[[Any], bool] | None], ...]:
     """Per field of message type ``cls``: its name, wire spec and fast scalar check (None for lists)."""
     return tuple((f.name, f.metadata["wire"], None if f.metadata["wire"].shape else _fast_scalar(f.metadata["wire"]))
                  for f in _fields(cls))
+
+
+_plan: Callable[[type], tuple[tuple[str, Wire, Callable[[Any], bool] | None], ...]] = functools.cache(_field_plan)  # once per type
 
 
 def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]], depth: int = 0) -> Any:
