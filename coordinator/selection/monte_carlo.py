@@ -104,12 +104,12 @@ def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray
     for group in plan.groups:
         positions[group] = desired[group]
         if known is None:
-            connected = is_connected(positions, sensing_range)
-        else:
-            key = positions.tobytes()
-            connected = known.get(key)
-            if connected is None:
-                connected = known[key] = is_connected(positions, sensing_range)
-        if not connected:
+            if not is_connected(positions, sensing_range):
+                return False
+            continue
+        key = positions.tobytes()
+        if key not in known:
+            known[key] = is_connected(positions, sensing_range)
+        if not known[key]:
             return False
     return True
