@@ -19,7 +19,8 @@ import sys
 M_TRIM_THRESHOLD = -1  # glibc's mallopt parameters (malloc.h)
 M_MMAP_THRESHOLD = -3
 RETAIN_BYTES = 64 << 20  # free memory at the top of the heap kept for reuse (bytes)
-HEAP_BLOCK_BYTES = 4 << 20  # allocations up to this size come from the heap, larger ones from mmap (bytes)
+HEAP_BLOCK_BYTES = 32 << 20  # allocations up to this size come from the heap, larger ones from mmap (bytes): the largest
+# threshold glibc allows, which its dynamic threshold reaches on its own; fixed, it stays there from the start
 
 
 @functools.cache
