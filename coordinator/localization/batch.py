@@ -458,8 +458,6 @@ def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
 # Joint least squares: whitened dead-reckoning priors + range/bearing residuals
 
 
-
-
 @functools.cache
 def _lap_diagonal(n: int) -> np.ndarray:
     """Flat indices into (2n, 2n) of the diagonals of its four (n, n) blocks, in (block row, robot, block column) order."""
