@@ -154,6 +154,7 @@ class SimDriver(Driver):
         self.instantaneous = self.motion_time_s == 0
         self._motion = robot_rng(seed, robot, Stream.MOTION)
         self._sensing = robot_rng(seed, robot, Stream.SENSING)
+        self._order_cache: tuple[bytes, np.ndarray, int] | None = None  # ``_run_order``'s last answer
         self.estopped = False
 
     def attach(self, session) -> None:
@@ -184,17 +185,28 @@ class SimDriver(Driver):
 
     def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         peers = None if peers is None else PeerPoses.of(peers)
-        own = np.empty(0, np.int64) if peers is None else np.flatnonzero(peers.ids == self.robot)
-        if peers is None or len(own) != 1 or not np.isin(peers.ids, self._ids).all():
-            got = [] if peers is None else peers.ids.tolist()
+        if peers is None:
             raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "
-                                  f"(its own included, run robots only); got {got}")
-        sorter = np.argsort(self._ids)
-        rank = sorter[np.searchsorted(self._ids, peers.ids, sorter=sorter)]  # position in the run's order
-        order = np.argsort(rank)  # the run's order, as the noise streams are drawn; lost robots are absent
-        present = peers.ids[order]
+                                  f"(its own included, run robots only); got []")
+        order, index = self._run_order(peers.ids)
         poses = peers.poses[order]
-        index = int(np.flatnonzero(present == self.robot)[0])
         poses[index] = self._pose
         nb, rho, phi = sense_robot(poses, index, self.cfg, self._sensing)
-        return present[nb], rho, phi
+        return peers.ids[order][nb], rho, phi
+
+    def _run_order(self, ids: np.ndarray) -> tuple[np.ndarray, int]:
+        """(permutation putting ``ids`` in the run's order, as the noise streams are drawn (lost robots absent),
+        this robot's position in it); the last answer is kept, since the robots present rarely change."""
+        key = ids.tobytes()
+        if self._order_cache is not None and self._order_cache[0] == key:
+            return self._order_cache[1], self._order_cache[2]
+        own = np.flatnonzero(ids == self.robot)
+        if len(own) != 1 or not np.isin(ids, self._ids).all():
+            raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "
+                                  f"(its own included, run robots only); got {ids.tolist()}")
+        sorter = np.argsort(self._ids)
+        rank = sorter[np.searchsorted(self._ids, ids, sorter=sorter)]  # position in the run's order
+        order = np.argsort(rank)
+        index = int(np.flatnonzero(ids[order] == self.robot)[0])
+        self._order_cache = (key, order, index)
+        return order, index

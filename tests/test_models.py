@@ -12,7 +12,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.geometry import WRAP_IN_PLACE, wrap_angle
 from runtime.models.motion import apply_motion, command_towards, draw_motion_noise, execute_command, motion_covariance
 from runtime.models.rng import Stream, robot_rng, robot_rngs
-from runtime.models.sensing import measure, neighbours, sense_robot, sense_swarm
+from runtime.models.sensing import add_sensing_noise, measure, sense_robot, sense_swarm
 
 
 def test_turn_then_drive_known_answer():
@@ -122,10 +122,26 @@ def test_wrap_angle_of_large_arrays_is_the_formula_to_the_last_bit():
 
 def test_sensing_respects_range_and_dropout():
     poses = np.array([[0, 0, 0], [0.5, 0, 0], [0.51, 0, 0], [0.2, 0.2, 0]], float)
-    np.testing.assert_array_equal(neighbours(poses[:, :2], 0, 0.5), [1, 3])
+    np.testing.assert_array_equal(sense_robot(poses, 0, ModelConfig(), np.random.default_rng(0))[0], [1, 3])  # 0.51 m: out
     cfg = ModelConfig(dropout_prob=0.3)
     kept = [len(sense_robot(poses, 0, cfg, np.random.default_rng(s))[0]) for s in range(4000)]
     assert abs(np.mean(kept) / 2 - 0.7) < 0.03
+
+
+def test_sensing_draws_its_noise_in_the_documented_order(cfg):
+    """Robot 1 of four sees robots 0 and 3 (2 of 0.4 m away is out of range): its observations are ``measure``
+    plus ``add_sensing_noise`` of 2 uniforms, 2 range normals, 2 bearing normals drawn in that order from its stream
+    (what recorded runs and the emulator's robots reproduce), with a heading near pi so the bearings wrap."""
+    cfg = ModelConfig(dropout_prob=0.25, sensing_range_m=0.35)
+    poses = np.array([[0.0, 0.0, 0.2], [0.3, 0.0, math.pi - 1e-9], [0.7, 0.0, 0.0], [0.3, 0.3, -1.0]])
+    got = sense_robot(poses, 1, cfg, np.random.default_rng(7))
+    draws = np.random.default_rng(7)
+    uniform, z_range, z_bearing = draws.random(2), draws.normal(0.0, 1.0, 2), draws.normal(0.0, 1.0, 2)
+    rho, phi = measure(poses[1], poses[[0, 3], :2])
+    rho, phi, keep = add_sensing_noise(rho, phi, uniform, z_range, z_bearing, cfg)
+    np.testing.assert_array_equal(got[0], np.array([0, 3])[keep])
+    np.testing.assert_array_equal(got[1], rho[keep])
+    np.testing.assert_array_equal(got[2], phi[keep])
 
 
 def test_sensing_noise_statistics(cfg):

@@ -25,14 +25,6 @@ def measure(observer_poses: np.ndarray, target_positions: np.ndarray) -> tuple[n
     return rng, brg
 
 
-def neighbours(positions: np.ndarray, index: int, sensing_range: float) -> np.ndarray:
-    """Indices j != index (ascending) within ``sensing_range`` of robot ``index``."""
-    d = np.hypot(*(positions - positions[index]).T)
-    mask = d <= sensing_range
-    mask[index] = False
-    return np.flatnonzero(mask)
-
-
 def add_sensing_noise(
     rho: np.ndarray, phi: np.ndarray, uniform: np.ndarray, z_range: np.ndarray, z_bearing: np.ndarray, cfg: ModelConfig
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -45,31 +37,24 @@ def add_sensing_noise(
     return noisy_rho, wrap_angle(phi + z_bearing * cfg.bearing_sigma_rad), keep
 
 
-def noisy_observations(
-    observer_poses: np.ndarray, target_positions: np.ndarray, cfg: ModelConfig, rng: np.random.Generator
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(range, bearing, kept) for k targets, drawing exactly 3k numbers from ``rng``.
-
-    Draw order per call: k dropout uniforms, k range normals, k bearing normals,
-    so the stream consumption does not depend on the dropout probability.
-    """
-    k: int = target_positions.shape[0]
-    uniform = rng.random(k)
-    z_range = rng.normal(0.0, 1.0, k)
-    z_bearing = rng.normal(0.0, 1.0, k)
-    rho, phi = measure(observer_poses, target_positions)
-    return add_sensing_noise(rho, phi, uniform, z_range, z_bearing, cfg)
-
-
 def sense_robot(
     poses: np.ndarray, index: int, cfg: ModelConfig, rng: np.random.Generator
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Robot ``index``'s observations of its neighbours given all true poses (n, 3).
 
-    Returns (neighbour indices, ranges m, bearings rad) after dropout.
+    Returns (neighbour indices, ranges m, bearings rad) after dropout. Neighbours are the robots j != index
+    within the sensing range, ascending; for k of them ``rng`` gives k dropout uniforms, then k range normals,
+    then k bearing normals, so the stream's use does not depend on the dropout probability.
     """
-    nb = neighbours(poses[:, :2], index, cfg.sensing_range_m)
-    rho, phi, keep = noisy_observations(poses[index], poses[nb, :2], cfg, rng)
+    d = poses[:, :2] - poses[index, :2]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    mask = dist <= cfg.sensing_range_m
+    mask[index] = False
+    nb = np.flatnonzero(mask)
+    k = len(nb)
+    uniform, z_range, z_bearing = rng.random(k), rng.normal(0.0, 1.0, k), rng.normal(0.0, 1.0, k)  # noisy_observations' order
+    phi = wrap_angle(np.arctan2(d[nb, 1], d[nb, 0]) - poses[index, 2])
+    rho, phi, keep = add_sensing_noise(dist[nb], phi, uniform, z_range, z_bearing, cfg)
     return nb[keep], rho[keep], phi[keep]
 
 
