@@ -184,11 +184,8 @@ class SimDriver(Driver):
         return self._pose.copy()
 
     def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        peers = None if peers is None else PeerPoses.of(peers)
-        if peers is None:
-            raise SwarmInputError(f"simulated sensing of robot {self.robot} needs the true poses of the robots present "
-                                  f"(its own included, run robots only); got []")
-        order, index = self._run_order(peers.ids)
+        peers = PeerPoses(np.empty(0, np.int64), np.empty((0, 3))) if peers is None else PeerPoses.of(peers)
+        order, index = self._run_order(peers.ids)  # raises for no peers, as for any set without this robot
         poses = peers.poses[order]
         poses[index] = self._pose
         nb, rho, phi = sense_robot(poses, index, self.cfg, self._sensing)

@@ -73,16 +73,18 @@ class AgentHost:
                 self.results[agent.robot] = 1
                 continue
             active.add(agent)
-        for agent in [a for a in active if a.stopped]:  # stopped while the others opened: its stop went to its own queue
+
+        def end(agent: Agent) -> None:
             agent.close()
             active.discard(agent)
             self.results[agent.robot] = agent.outcome()
+
+        for agent in [a for a in active if a.stopped]:  # stopped while the others opened: its stop went to its own queue
+            end(agent)
         while active:
             agent, (key, payload) = shared.get()
             if agent in active and not agent.serve(key, payload):
-                agent.close()
-                active.discard(agent)
-                self.results[agent.robot] = agent.outcome()
+                end(agent)
 
     def _serve(self, agent: Agent, session) -> None:
         try:

@@ -414,8 +414,6 @@ class Link:
                 if req is None:
                     self.counters.rejected += 1
                     return
-                if req.robot not in self.robots:
-                    return  # a robot behind another port: that link's request
                 problem = self._invalid(req)
                 if problem is not None:
                     self.counters.rejected += 1

@@ -193,8 +193,8 @@ class SparseFactor:
             try:
                 self._factor.refactor(upper)
             except ArithmeticError:  # not positive definite for CHOLMOD's Cholesky: QDLDL's LDL^T
-                self._factor = None
-        if not same_pattern or self._factor is None:
+                self._factor = _Qdldl(upper)
+        else:
             self._factor = self._new(upper)
         return self._factor.solve(b)
 

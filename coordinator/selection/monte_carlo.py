@@ -101,12 +101,9 @@ def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray
     change): the plans of a selection share most of their steps' configurations.
     """
     positions = np.array(current, dtype=float)
+    known = {} if known is None else known
     for group in plan.groups:
         positions[group] = desired[group]
-        if known is None:
-            if not is_connected(positions, sensing_range):
-                return False
-            continue
         key = positions.tobytes()
         if key not in known:
             known[key] = is_connected(positions, sensing_range)

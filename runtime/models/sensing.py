@@ -52,7 +52,7 @@ def sense_robot(
     mask[index] = False
     nb = np.flatnonzero(mask)
     k = len(nb)
-    uniform, z_range, z_bearing = rng.random(k), rng.normal(0.0, 1.0, k), rng.normal(0.0, 1.0, k)  # noisy_observations' order
+    uniform, z_range, z_bearing = rng.random(k), rng.normal(0.0, 1.0, k), rng.normal(0.0, 1.0, k)  # the order above
     phi = wrap_angle(np.arctan2(d[nb, 1], d[nb, 0]) - poses[index, 2])
     rho, phi, keep = add_sensing_noise(dist[nb], phi, uniform, z_range, z_bearing, cfg)
     return nb[keep], rho[keep], phi[keep]

@@ -221,15 +221,17 @@ def _plain_nested(value: Any, wire: Wire, dims: dict[str, tuple[int, str]], path
             level = list(itertools.chain.from_iterable(level))
         if _plain_leaves(level, wire) is None:
             return None
-        plain = tuple(map(tuple, value)) if len(wire.shape) == 2 else tuple(_nested_tuples(v, len(wire.shape) - 1) for v in value)
+        plain = _nested_tuples(value, len(wire.shape))
     if plain is not None and isinstance(first, str) and seen is None:
         dims[first] = (n, path())
     return plain
 
 
 def _nested_tuples(value: Any, depth: int) -> tuple:
-    """A list nested ``depth`` levels as nested tuples."""
-    return tuple(value) if depth == 1 else tuple(_nested_tuples(v, depth - 1) for v in value)
+    """A list nested ``depth`` levels as nested tuples (two levels in C: the common case of a row per robot)."""
+    if depth <= 2:
+        return tuple(value) if depth == 1 else tuple(map(tuple, value))
+    return tuple(_nested_tuples(v, depth - 1) for v in value)
 
 
 def _field_plan(cls: type) -> tuple[tuple[str, Wire, Callable[[Any], bool] | None], ...]:
