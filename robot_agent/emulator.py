@@ -44,6 +44,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from robot_agent.write_batch import WriteBatch
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import Calibration
 from runtime.gateway.frames import (
@@ -365,6 +366,7 @@ class PortEmulator:
         self._overflow = 0
         self._blackout_until = -math.inf  # FaultPlan.blackout: the radio is dead until then (monotonic)
         self._decoder = FrameDecoder()
+        self._writes = WriteBatch(self._write)  # the answers to one read's frames go out in one write
         self._fault_rng = random.Random(f"{self.faults.seed}/{self.port_name}")
         self._timers: set[threading.Timer] = set()
         self._delayed: list[tuple[float, int, bytes]] = []
@@ -454,9 +456,10 @@ class PortEmulator:
                     time.sleep(POLL_S)
             frames = self._decoder.receive(data, time.monotonic())  # with the quiet-line rule
             try:
-                for frame in frames:
-                    self._receive(frame)
-                self._watchdog(time.monotonic())
+                with self._writes.collect():
+                    for frame in frames:
+                        self._receive(frame)
+                    self._watchdog(time.monotonic())
             except Exception:  # noqa: BLE001 - a bug must not silently kill every robot of the port: log and serve on
                 _log.exception("port %s: error handling frames", self.port_name)
 
@@ -698,7 +701,7 @@ class PortEmulator:
                 heapq.heappush(self._delayed, (time.monotonic() + self.faults.delay_s, index, bytes(data)))
                 self._delay_cond.notify()
         else:
-            self._write(bytes(data))
+            self._writes.write(bytes(data))
 
     def _delay_loop(self) -> None:
         while True:

@@ -46,6 +46,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from robot_agent.write_batch import WriteBatch
 from runtime.gateway.config import Calibration, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
@@ -230,6 +231,7 @@ class Link:
         self.calibration = dict(calibration or {})
         self.device = device
         self.decoder = FrameDecoder()
+        self._writes = WriteBatch(device.write)  # the frames of one turn of the engine or the reader go out in one write
         self.counters = LinkCounters()
         self.drops = DropCounter(_log)
         self.robots = {r: _Robot(r) for r in port.robots}
@@ -272,7 +274,7 @@ class Link:
             tick = self.timing.ack_timeout_s / 2
             while not self._stop.is_set():
                 now = time.monotonic()
-                with self._lock:
+                with self._lock, self._writes.collect():
                     if now - last_tick > STALL_S:  # this process was stalled: the robots are not to blame
                         self._resume(now - last_tick)
                     last_tick = now
@@ -286,7 +288,7 @@ class Link:
                     event = self._events.get(timeout=wait)
                 except queue.Empty:
                     continue
-                with self._lock:
+                with self._lock, self._writes.collect():
                     self._handle_safely(event)
                     while True:  # drain what is queued before the timers again
                         try:
@@ -317,7 +319,7 @@ class Link:
             frames = self.decoder.receive(data, now)
             if not frames:
                 continue
-            with self._lock:
+            with self._lock, self._writes.collect():
                 for frame in frames:
                     self._on_frame(frame, now)
 
@@ -328,7 +330,7 @@ class Link:
 
     def _write(self, robot_id: int, wire: bytes) -> None:
         """Put a frame on the port; it counts as a sign of life for robot ``robot_id``, which owes an answer from now."""
-        self.device.write(wire)
+        self._writes.write(wire)
         self.counters.frames_sent += 1
         robot = self.robots.get(robot_id)
         if robot is not None:
