@@ -14,16 +14,19 @@ live on this host is refused. Every input is checked before a process is started
 (``check_before_start``).
 
 ``driver="gateway"`` runs the hardware path end to end without hardware: ``swarm emulate-robots``
-(robots speaking the frame protocol on ptys), one ``swarm link`` per port of the gateway config
-(``gateway_config``, default: ports of 5 robots each) and agents with the gateway driver. Ctrl-C
+(robots speaking the frame protocol on ptys) and, as on a gateway PC, one agent process per port of the
+gateway config (``gateway_config``, default: ports of 5 robots each) running the port's link and the
+agents of its robots with the gateway driver (``swarm agent --link``); with ``agents_per_process``, one
+``swarm link`` process per port and the agents as for the other drivers. Ctrl-C
 (or SIGTERM, SIGHUP; each child also stops itself if the launcher is killed: ``inchworm.lifeline``)
 first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement) to the run, then
 stops every child; so does a coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
 ``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
 one that is not ``simulated`` gets a coordinator with ``--no-truth``.
 
-Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID at the first
-command of global step STEP and times the coordinator's targeted ``EmergencyStop`` (the JSON
+Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID (with the gateway's port
+processes: the port's link and agents) at the first command of global step STEP and times the
+coordinator's targeted ``EmergencyStop`` (the JSON
 object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``); ``standby`` also starts a
 standby coordinator, and ``kill_coordinator=STEP`` SIGKILLs the coordinator at STEP and times the
 takeover (``"coordinator_kill": {"step", "takeover_ms"}``).
@@ -59,6 +62,7 @@ from inchworm.processes import (
     radio_faults,
     start_agents,
     start_gateway,
+    start_port_hosts,
     stop_all,
     wait_for_standby,
 )
@@ -238,6 +242,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, o.agents_per_process)
+    port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
     check_before_start(o, traj, run_id, out)
@@ -291,12 +296,15 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, faults, **tied)
+                                     o.emulator_events, faults, links=not port_hosts, **tied)
                 gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
-            agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            if port_hosts:  # one process per port: its link and its robots' agents
+                agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **tied)
+            else:
+                start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
+                agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
             if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
                 common.append("--no-truth")  # the lab's robots publish no true poses
@@ -314,7 +322,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
-            hosts = "" if per_process == 1 else f" in {-(-traj.n // per_process)} processes"
+            hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
             killer = None

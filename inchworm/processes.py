@@ -142,19 +142,37 @@ def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
 
 def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
                   model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = (), **popen_kwargs) -> Path:
-    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and one link process per port;
-    the live gateway config (pty devices)."""
+                  faults: list[str] | tuple[str, ...] = (), links: bool = True, **popen_kwargs) -> Path:
+    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and, with ``links``, one link process
+    per port (without: the agent processes run them, ``start_port_hosts``); the live gateway config (pty devices)."""
     config = tmp / "gateway.json"
     gateway.save(config)
     options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
     if events is not None:
         options.append(f"--events={events}")
     live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
-    for port in gateway.ports:
+    for port in gateway.ports if links else ():
         procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
                                        f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
     return live
+
+
+def start_port_hosts(traj: Trajectory, live: Path, run_id: str, hub: str, seed: int, motion_time: float, extra: list[str],
+                     procs: list[subprocess.Popen], traj_file: Path, **popen_kwargs) -> dict[int, subprocess.Popen]:
+    """The gateway PC's layout: one agent process per port of the live gateway config ``live``, hosting the agents of
+    the port's robots of ``traj`` and the port's link (``swarm agent --link``); robot -> its process. ``extra`` holds
+    ``--driver=gateway --gateway-config=...`` and the model flags."""
+    ids, run_robots = format_ids(traj.ids), {int(i) for i in traj.ids}
+    hosts: dict[int, subprocess.Popen] = {}
+    for port in GatewayConfig.load(live).ports:
+        robots = [r for r in port.robots if r in run_robots]
+        if not robots:
+            continue
+        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(robots)}", f"--ids={ids}", f"--trajectory={traj_file}",
+               f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--link", *extra]
+        procs.append(subprocess.Popen(cmd, **popen_kwargs))
+        hosts.update((r, procs[-1]) for r in robots)
+    return hosts
 
 
 class RobotKiller:

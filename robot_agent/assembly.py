@@ -3,7 +3,8 @@
 ``--id`` / ``--ids`` texts name robots (``0-49``, ``0,2,5-9``); ``build_agents`` makes one
 ``Agent`` per hosted robot with its driver: simulated (``sim``, from its initial true pose),
 a robot behind a gateway link (``gateway``: limits and calibration from the gateway config,
-docs/gateway.md), or a lab's own driver class (docs/drivers.md). Errors name the flag.
+docs/gateway.md), or a lab's own driver class (docs/drivers.md); ``build_links`` the links this
+process runs itself (``--link``). Errors name the flag.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -19,6 +21,7 @@ import numpy as np
 from robot_agent.agent import READY_TIMEOUT_S, Agent
 from robot_agent.driver import Driver, DriverContext, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
+from robot_agent.host import LinkFactory
 from robot_agent.plugins import BUILT_IN, build_driver, driver_class
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
@@ -89,6 +92,7 @@ class AgentSpec:
     limits: CommandLimits = field(default_factory=CommandLimits)
     ready_timeout_s: float = READY_TIMEOUT_S
     command_timeout_s: float | None = None  # None: a lab's driver gets PLUGIN_COMMAND_TIMEOUT_S, the others none
+    link: bool = False  # also run the link of the hosted robots' port(s) in this process (``build_links``)
 
 
 def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None,
@@ -113,6 +117,26 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway:
     if pose is None:
         raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
     return SimDriver(robot, ids, pose, spec.model, spec.seed, spec.motion_time_s), spec.limits
+
+
+def build_links(spec: AgentSpec, ids: list[int]) -> list[LinkFactory]:
+    """With ``spec.link`` (``--link``): the link of every port behind which a hosted robot is, to run on the host's
+    session (``AgentHost``). Each such port's robots that are in the run (``ids``) must all be hosted here: a port has
+    one link, and its robots' requests reach it inside this process only."""
+    if not spec.link:
+        return []
+    if spec.driver != "gateway" or spec.gateway_config is None:
+        raise SwarmInputError("--link runs the link of a port of the gateway: it needs --driver gateway and --gateway-config FILE")
+    from robot_agent.link import Link  # noqa: PLC0415 - keeps the link off the import path of agents that run none
+
+    gateway = GatewayConfig.load(spec.gateway_config)
+    ports = {gateway.port_of(r).name: gateway.port_of(r) for r in spec.hosted}
+    for port in ports.values():
+        elsewhere = sorted(set(port.robots) & set(ids) - set(spec.hosted))
+        if elsewhere:
+            raise SwarmInputError(f"--link: robots {elsewhere} of port {port.name} are robots of the run but not hosted by this "
+                                  f"process (--id {format_ids(spec.hosted)}): host every robot of the port, or run `swarm link` for it")
+    return [partial(Link.open, run=spec.run_id, port=port, config=gateway) for port in ports.values()]
 
 
 def build_agents(spec: AgentSpec) -> list[Agent]:

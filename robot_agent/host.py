@@ -13,6 +13,13 @@ thread serves them all from one queue (``serve_together``): a message wakes one 
 agent's, and a host of 50 agents no longer switches among 100 threads each step. Agents with drivers
 whose motions take time (the gateway, a lab's driver) each get a thread of their own, so one robot's
 motion never delays another's command.
+
+With ``links`` (``swarm agent --link``, the gateway PC's layout: one process per radio port) the host also
+runs the link of its robots' port on its session, on a thread of its own: the agents' requests and the
+link's replies are the same messages on the same keys, but Zenoh delivers them inside the process (a
+recorder still gets them through the hub). The links start before the agents, which wait for their
+tokens, and stop after the last agent ended; a link that stops by itself (its device failed) drops its
+token, so its robots' agents report them lost.
 """
 
 from __future__ import annotations
@@ -20,10 +27,17 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
 
 from robot_agent.agent import Agent
 from runtime.wire.transport import ZenohSettings, open_session
+
+if TYPE_CHECKING:
+    from robot_agent.link import Link
+
+LinkFactory = Callable[[object], "Link"]  # session -> the link of one port, its device opened (``Link.open``)
+LINK_JOIN_S = 2.0  # s a link gets to publish its final stats once asked to stop
 
 _log = logging.getLogger(__name__)
 
@@ -31,12 +45,14 @@ _log = logging.getLogger(__name__)
 class AgentHost:
     """Serves ``agents`` (distinct robots of one run) on one session opened from ``settings``."""
 
-    def __init__(self, settings: ZenohSettings, agents: Sequence[Agent]) -> None:
+    def __init__(self, settings: ZenohSettings, agents: Sequence[Agent], links: Sequence[LinkFactory] = ()) -> None:
         robots = [a.robot for a in agents]
         if not robots or len(set(robots)) != len(robots):
             raise ValueError(f"an agent host needs distinct robots, got {robots}")
         self.settings = settings
         self.agents = list(agents)
+        self.links = list(links)
+        self.link_summaries: list[str] = []  # one line per link that ran (``Link.summary``), once ``run`` returned
         self.results: dict[int, int] = {}  # robot -> its agent's run() status, once it returned
 
     def stop(self) -> None:
@@ -47,15 +63,19 @@ class AgentHost:
     def run(self) -> int:
         """Serve until ``stop()`` and every agent has ended; 3 if a robot was lost, else 0. Closes the session."""
         with open_session(self.settings) as session:
-            if all(agent.driver.instantaneous for agent in self.agents):
-                self.serve_together(session)
-            else:
-                threads = [threading.Thread(target=self._serve, args=(agent, session), name=f"agent-{agent.robot}", daemon=True)
-                           for agent in self.agents]
-                for thread in threads:
-                    thread.start()
-                for thread in threads:
-                    thread.join()
+            links = self._start_links(session)
+            try:
+                if all(agent.driver.instantaneous for agent in self.agents):
+                    self.serve_together(session)
+                else:
+                    threads = [threading.Thread(target=self._serve, args=(agent, session), name=f"agent-{agent.robot}", daemon=True)
+                               for agent in self.agents]
+                    for thread in threads:
+                        thread.start()
+                    for thread in threads:
+                        thread.join()
+            finally:
+                self._stop_links(links)
         lost = sorted(r for r, status in self.results.items() if status == 3)
         if lost:
             _log.error("robots %s were lost", lost)
@@ -85,6 +105,28 @@ class AgentHost:
             agent, (key, payload) = shared.get()
             if agent in active and not agent.serve(key, payload):
                 end(agent)
+
+    def _start_links(self, session) -> list[tuple[Link, threading.Thread]]:
+        """Open each link's device and run it on a thread; a device that cannot be opened stops the ones started and raises."""
+        started: list[tuple[Link, threading.Thread]] = []
+        try:
+            for factory in self.links:
+                link = factory(session)
+                thread = threading.Thread(target=link.run, name=f"link-{link.port.name}", daemon=True)
+                started.append((link, thread))
+                thread.start()
+        except BaseException:
+            self._stop_links(started)
+            raise
+        return started
+
+    def _stop_links(self, links: list[tuple[Link, threading.Thread]]) -> None:
+        for link, _thread in links:
+            link.stop()
+        for link, thread in links:
+            thread.join(timeout=LINK_JOIN_S)
+            link.close()
+            self.link_summaries.append(link.summary())
 
     def _serve(self, agent: Agent, session) -> None:
         try:

@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from robot_agent.write_batch import WriteBatch
-from runtime.gateway.config import Calibration, Limits, Port, Timing
+from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
@@ -247,10 +247,27 @@ class Link:
         self._coord_live: set[int] = set()  # those whose token is alive
         self._estimate_key = coord_key(run, "estimate")
 
+    @classmethod
+    def open(cls, session, run: str, port: Port, config: GatewayConfig) -> Link:
+        """The link of ``port`` with the gateway ``config``'s timing, limits and calibration, its device opened
+        (``ConnectionError`` if it cannot be); ``close()`` it after ``run``."""
+        device = open_link(port)
+        return cls(session, run, port, config.timing, device, config.limits, {r: config.calibration_of(r) for r in port.robots})
+
     # -- lifecycle ------------------------------------------------------------------------
 
     def stop(self) -> None:
         self._stop.set()
+
+    def close(self) -> None:
+        """Close the device (after ``run`` returned)."""
+        self.device.close()
+
+    def summary(self) -> str:
+        """One line of the port's counters, for the end of a run."""
+        s = self.stats()
+        return (f"port {self.port.name}: {s.frames_sent} frames sent, {s.frames_received} received, {s.retransmissions} retransmissions, "
+                f"{s.crc_errors} CRC errors, {s.rejected} requests rejected, round trip median {s.rtt_ms_median:.2f} ms")
 
     def run(self) -> int:
         """Serve until ``stop()``; publishes final stats; returns 0."""

@@ -3,6 +3,7 @@
     swarm agent --id 3 --ids 0,1,2,3 --run demo --hub tcp/127.0.0.1:7447 --seed 0 --pose 0.1,0.2,1.57
     swarm agent --id 3 --ids 0,1,2,3 --run lab --hub tcp/127.0.0.1:7447 --driver gateway --gateway-config gw.json
     swarm agent --id 0-49 --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0
+    swarm agent --id 0-4 --ids 0-9 --run lab --hub tcp/127.0.0.1:7447 --driver gateway --gateway-config gw.json --link
 
 ``--id`` is this process's robot, or robots (``0-49``, ``0,2,5-9``): several are served
 by one process on one Zenoh session (``robot_agent.host``), each still its own agent on
@@ -11,7 +12,7 @@ the wire. ``--ids`` lists every robot of the run (ranges too; default with
 ``--driver sim`` (default) simulates the robots in this process, starting from ``--pose``
 (one robot) or from the initial poses of ``--trajectory``;
 ``--driver gateway`` drives the real or emulated robot through the link process of its
-port (``swarm link``), with limits (drive, turn, workspace) and calibration from the
+port (``swarm link``, or with ``--link`` run in this process for its hosted robots), with limits (drive, turn, workspace) and calibration from the
 gateway config (docs/gateway.md); ``--driver package.module:Class`` (or ``file.py:Class``, or an
 ``inchworm_swarm.drivers`` entry point) builds a lab's own driver with ``--driver-option KEY=VALUE``
 and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 when a robot was lost.
@@ -30,7 +31,7 @@ import sys
 from pathlib import Path
 
 from robot_agent.agent import READY_TIMEOUT_S
-from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, AgentSpec, build_agents, driver_options, parse_ids
+from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, AgentSpec, build_agents, build_links, driver_options, parse_ids
 from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
 from runtime.models.trajectory import Trajectory
@@ -63,6 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"a lab's own driver must finish each command and observation within this many seconds, else the robot "
                         f"is stopped and reported lost (default {PLUGIN_COMMAND_TIMEOUT_S:g}; not applied to sim and gateway unless given)")
     p.add_argument("--gateway-config", type=Path, help="gateway config JSON (docs/gateway.md), required with --driver gateway")
+    p.add_argument("--link", action="store_true", help="also run the link of the hosted robots' port in this process, instead of "
+                                                         "`swarm link` (host every robot of the port: --id; docs/gateway.md)")
     p.add_argument("--ready-timeout", type=float, default=READY_TIMEOUT_S,
                    help=f"seconds to wait for the robot's link process before declaring this agent alive (default {READY_TIMEOUT_S:g})")
     p.add_argument("--pose", help="initial true pose x,y,heading (m, m, rad) of one simulated robot (or give --trajectory)")
@@ -90,12 +93,16 @@ def run(args: argparse.Namespace) -> int:
                      Trajectory.load(args.trajectory) if args.trajectory else None, args.trajectory, initial_pose(args), args.driver,
                      driver_options(args.driver_option), args.gateway_config, args.seed, model_config(args), args.motion_time,
                      CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg)), args.ready_timeout,
-                     args.command_timeout)
+                     args.command_timeout, args.link)
     agents = build_agents(spec)
+    links = build_links(spec, agents[0].ids)
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
-    server = agents[0] if len(agents) == 1 else AgentHost(agents[0].settings, agents)
+    server = agents[0] if len(agents) == 1 and not links else AgentHost(agents[0].settings, agents, links)
     on_stop_signals(server.stop)
-    return server.run()
+    status = server.run()
+    for line in getattr(server, "link_summaries", ()):
+        print(f"swarm link: {line}", file=sys.stderr, flush=True)
+    return status
 
 
 def main(argv: list[str] | None = None) -> int:

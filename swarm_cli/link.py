@@ -11,11 +11,12 @@ Runs until SIGTERM/SIGINT; exit 0. ``python -m swarm_cli.link`` is the same comm
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import sys
 from pathlib import Path
 
-from robot_agent.link import Link, open_link
+from robot_agent.link import Link
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
 from runtime.wire.transport import open_session
@@ -41,23 +42,13 @@ def run(args: argparse.Namespace) -> int:
     config = GatewayConfig.load(args.config)
     port = config.port(args.port)
     validate_run(args.run_id)
-    settings = connection_settings(args)
-    device = open_link(port)
-    try:
-        with open_session(settings) as session:
-            link = Link(session, args.run_id, port, config.timing, device, config.limits,
-                        {r: config.calibration_of(r) for r in port.robots})
-            on_stop_signals(link.stop)
-            print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
-                  f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
-            status = link.run()
-            stats = link.stats()
-            print(f"swarm link: port {port.name}: {stats.frames_sent} frames sent, {stats.frames_received} received, "
-                  f"{stats.retransmissions} retransmissions, {stats.crc_errors} CRC errors, {stats.rejected} requests rejected, "
-                  f"round trip median {stats.rtt_ms_median:.2f} ms", file=sys.stderr, flush=True)
-            return status
-    finally:
-        device.close()
+    with open_session(connection_settings(args)) as session, contextlib.closing(Link.open(session, args.run_id, port, config)) as link:
+        on_stop_signals(link.stop)
+        print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
+              f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
+        status = link.run()
+        print(f"swarm link: {link.summary()}", file=sys.stderr, flush=True)
+        return status
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,7 +32,7 @@ from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Tim
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.recording.mcap_log import read_messages
-from runtime.wire.keys import alive_wildcard, coord_alive_key
+from runtime.wire.keys import alive_wildcard, coord_alive_key, link_alive_key
 from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
 from runtime.wire.transport import (
     ZenohSettings,
@@ -45,6 +45,7 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
+from swarm_cli.agent import main as agent_main
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[1]
@@ -376,7 +377,7 @@ class Site:
         self.procs.append(proc)
         return proc
 
-    def agent(self, robot: int, run: str, *extra: str, **popen: object) -> subprocess.Popen:
+    def agent(self, robot: int | str, run: str, *extra: str, **popen: object) -> subprocess.Popen:
         proc = subprocess.Popen(PY + ["swarm_cli.agent", f"--id={robot}", f"--ids={','.join(map(str, self.ids))}", f"--run={run}",
                                       f"--hub={self.hub}", "--driver=gateway", f"--gateway-config={self.live}", *extra], **popen)
         self.procs.append(proc)
@@ -678,3 +679,58 @@ def test_an_idle_agent_whose_link_dies_reports_its_robot_lost_and_exits_3(tmp_pa
         assert time.monotonic() - killed < 3.0
         wait_for(lambda: f"swarm/idle/alive/robot/{robot}" not in alive_now(site.session, "swarm/idle/alive/**"), 5, "token gone")
         assert "the link process of port radio0 is gone" in agent.stderr.read()
+
+
+
+# -- one process per port: its link and its robots' agents (``swarm agent --link``) ------------------------------
+
+
+def _one_port(ids):
+    return GatewayConfig((Port("radio0", "emulated", tuple(ids)),))
+
+
+def _robot_tokens(session, run: str) -> set[str]:
+    return alive_now(session, alive_wildcard(run))
+
+
+def test_a_port_process_runs_its_link_and_agents_and_stops_cleanly(tmp_path):
+    """``swarm agent --id <the port's robots> --link``: the robots answer through the link in the process; SIGTERM ends
+    it with status 0, every token gone and the link's counters printed."""
+    with emulated_site(tmp_path, 3, 4, _one_port) as site:
+        run = "porthost"
+        host = site.agent(",".join(map(str, site.ids)), run, "--link", stderr=subprocess.PIPE, text=True)
+        wait_for(lambda: len(_robot_tokens(site.session, run)) == 3, 20, "the three agents' tokens")
+        assert alive_now(site.session, link_alive_key(run, "radio0")), "the link's token, from the same process"
+        host.send_signal(signal.SIGTERM)
+        _, err = host.communicate(timeout=20)
+        assert host.returncode == 0, err[-2000:]
+        assert "swarm link: port radio0:" in err and "ERROR" not in err and "Traceback" not in err, err[-2000:]
+        assert _robot_tokens(site.session, run) == set() and not alive_now(site.session, link_alive_key(run, "radio0"))
+
+
+def test_a_port_process_whose_radio_dies_reports_its_robots_lost_and_exits_3(tmp_path):
+    """The radio (the emulator's pty) disappears under a port process: its link stops, the agents see the link's token
+    go and report their robots lost; the process ends with status 3, no traceback, every token gone."""
+    with emulated_site(tmp_path, 3, 5, _one_port) as site:
+        run = "radiodies"
+        host = site.agent(",".join(map(str, site.ids)), run, "--link", stderr=subprocess.PIPE, text=True)
+        wait_for(lambda: len(_robot_tokens(site.session, run)) == 3, 20, "the three agents' tokens")
+        emulator = site.procs[0]
+        emulator.kill()
+        emulator.wait()
+        _, err = host.communicate(timeout=20)
+        assert host.returncode == 3, err[-2000:]
+        assert "read failed" in err and err.count("lost: robot") == 3 and "Traceback" not in err, err[-2000:]
+        assert _robot_tokens(site.session, run) == set()
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["--id=0", "--driver=sim", "--pose=0,0,0", "--link"], "--link runs the link of a port of the gateway: it needs --driver gateway"),
+    (["--driver=gateway", "--link"], "robots [2, 3] of port radio0 are robots of the run but not hosted by this process (--id 0-1)"),
+])
+def test_link_in_an_agent_process_needs_the_gateway_and_every_robot_of_the_port(tmp_path, capsys, args, message):
+    config = tmp_path / "gw.json"
+    _one_port([0, 1, 2, 3]).save(config)
+    assert agent_main(["--id=0-1", "--ids=0-3", "--run=r", "--hub=tcp/127.0.0.1:9", f"--gateway-config={config}", *args]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err, err

@@ -152,11 +152,12 @@ def test_stopping_leaves_a_finished_recording_and_no_process(tmp_path: Path, how
 
 @pytest.mark.parametrize("signum", [signal.SIGKILL, signal.SIGHUP])
 def test_a_killed_gateway_launcher_leaves_no_process_no_folder_and_a_finished_recording(tmp_path: Path, signum: int) -> None:
-    """SIGKILL of ``swarm launch --driver gateway``: nothing can run in the launcher, so its children (emulator, link,
-    agents, coordinator) notice it gone by themselves and exit within seconds; the guardian removes the temporary folder."""
+    """SIGKILL of ``swarm launch --driver gateway``: nothing can run in the launcher, so its children (emulator, the port
+    processes of links and agents, coordinator) notice it gone by themselves and exit within seconds; the guardian
+    removes the temporary folder."""
     proc, record, lines = _launch_until_running(tmp_path, "--driver=gateway")
     descendants = _children(proc.pid)
-    assert any("swarm_cli.link" in _cmdline(p) for p in descendants) and any("swarm_cli.emulate" in _cmdline(p) for p in descendants)
+    assert any("--link" in _cmdline(p) for p in descendants) and any("swarm_cli.emulate" in _cmdline(p) for p in descendants)
     try:
         os.kill(proc.pid, signum)
         _check_stopped(proc, record, lines, descendants, 128 + signum if signum != signal.SIGKILL else -signal.SIGKILL, within_s=10.0)

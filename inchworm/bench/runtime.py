@@ -184,8 +184,10 @@ def _raise_interrupt(*_) -> None:
 def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row.
 
-    ``driver="gateway"``: the agents drive emulated robots through link processes and ptys
-    (``inchworm.processes.start_gateway``, default gateway config), as ``swarm demo --driver gateway``.
+    ``driver="gateway"``: the agents drive emulated robots through their links and ptys
+    (``inchworm.processes.start_gateway``, default gateway config), as ``swarm demo --driver gateway``: without
+    ``agents_per_process``, one process per port runs its link and its robots' agents (``start_port_hosts``), with it,
+    link processes apart.
     """
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
@@ -193,7 +195,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import FixedPlanStrategy, make_strategy  # noqa: PLC0415
     from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, stop_all  # noqa: PLC0415
+    from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, start_port_hosts, stop_all  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     cfg = args.model
     strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
@@ -202,6 +204,9 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     per_process = agents_per_process(n, args.agents_per_process)
+    port_hosts = driver == "gateway" and args.agents_per_process is None
+    if port_hosts:
+        per_process = max(len(p.robots) for p in default_gateway(traj).ports)
     run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
@@ -216,10 +221,15 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             if driver == "gateway":
-                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs)
+                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs,
+                                     links=not port_hosts)
                 extra += ["--driver=gateway", f"--gateway-config={live}"]
             first_agent = len(procs)
-            start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
+            if port_hosts:
+                hosts = start_port_hosts(traj, live, run_id, hub, args.seed, 0.0, extra, procs, traj_file, stdout=subprocess.DEVNULL)
+            else:
+                start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
+                hosts = {int(r): procs[first_agent + k // per_process] for k, r in enumerate(traj.ids)}
             with open_session(member) as session:
                 backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout_s, args.step_timeout_s),
                                             robot_radius_m=cfg.robot_radius_m)
@@ -238,10 +248,8 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
                     cpu_after = (sum(cpu_seconds(p.pid) for p in procs), cpu_seconds(os.getpid()))
                 finally:
                     backend.close()
-            agents = procs[first_agent:]
-            hosted = [traj.ids[k:k + per_process] for k in range(0, n, per_process)]
-            rss = [rss_mb(p.pid) for p in agents]
-            dead = [int(r) for robots, p in zip(hosted, agents, strict=True) if p.poll() is not None for r in robots]
+            rss = [rss_mb(p.pid) for p in procs[first_agent:]]
+            dead = sorted(r for r, p in hosts.items() if p.poll() is not None)
             if dead or None in rss:
                 raise AgentError(f"agent processes of robots {dead} exited during the benchmark", dead)
     finally:
