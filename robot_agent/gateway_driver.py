@@ -35,6 +35,8 @@ from runtime.wire.transport import publish, subscribe, watch_liveliness
 if TYPE_CHECKING:
     import zenoh
 
+    from robot_agent.link import Link
+
 
 class GatewayDriver(Driver):
     """Robot ``robot`` of run ``run`` behind a link process; ``attach(session)`` before use."""
@@ -60,11 +62,19 @@ class GatewayDriver(Driver):
         self.bad_replies = 0  # undecodable LinkReplies
         self.ignored_replies = 0  # `lost` replies for a step not waited on
         self.on_lost: Callable[[str], None] | None = None  # called once (Zenoh thread) when the link disappears
+        self._submit: Callable[[LinkRequest], None] | None = None  # the link in this process (``use_link``)
+
+    def use_link(self, link: Link) -> None:
+        """Talk to ``link``, which runs in this process (``swarm agent --link``), directly; call before ``attach``.
+        Requests go to it on the calling thread and its replies come back without a Zenoh hop; both are still
+        published on the robot's keys, so a recording holds the same messages as with a link process."""
+        self._submit = link.serve_locally(self.robot, self._replies.put)
 
     def attach(self, session) -> None:
         """Start talking to the link over ``session`` (the agent's)."""
         self._session = session
-        self._sub = subscribe(session, self._rep_key, self._on_reply)
+        if self._submit is None:
+            self._sub = subscribe(session, self._rep_key, self._on_reply)
         if self.port is not None:
             self._watch = watch_liveliness(session, link_alive_key(self.run_id, self.port), self._on_link)
 
@@ -113,6 +123,8 @@ class GatewayDriver(Driver):
                           start_pose=start_pose)
         assert self._session is not None, "attach() first"
         publish(self._session, self._req_key, encode(msg))
+        if self._submit is not None:
+            self._submit(msg)
 
     def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0,
                   start_pose: tuple = ()) -> LinkReply:

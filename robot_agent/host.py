@@ -15,11 +15,11 @@ whose motions take time (the gateway, a lab's driver) each get a thread of their
 motion never delays another's command.
 
 With ``links`` (``swarm agent --link``, the gateway PC's layout: one process per radio port) the host also
-runs the link of its robots' port on its session, on a thread of its own: the agents' requests and the
-link's replies are the same messages on the same keys, but Zenoh delivers them inside the process (a
-recorder still gets them through the hub). The links start before the agents, which wait for their
-tokens, and stop after the last agent ended; a link that stops by itself (its device failed) drops its
-token, so its robots' agents report them lost.
+runs the link of its robots' port on its session, on a thread of its own. Its agents hand their requests
+to the link directly and get its replies back without a Zenoh hop (``GatewayDriver.use_link``); the
+requests and replies are still published on the robots' keys, so a recorder gets the same messages. The
+links start before the agents, which wait for their tokens, and stop after the last agent ended; a link
+that stops by itself (its device failed) drops its token, so its robots' agents report them lost.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
 from robot_agent.agent import Agent
+from robot_agent.gateway_driver import GatewayDriver
 from runtime.wire.transport import ZenohSettings, open_session
 
 if TYPE_CHECKING:
@@ -112,6 +113,9 @@ class AgentHost:
         try:
             for factory in self.links:
                 link = factory(session)
+                for agent in self.agents:  # its robots' requests and replies stay in this process (``GatewayDriver.use_link``)
+                    if isinstance(agent.driver, GatewayDriver) and agent.driver.port == link.port.name:
+                        agent.driver.use_link(link)
                 thread = threading.Thread(target=link.run, name=f"link-{link.port.name}", daemon=True)
                 started.append((link, thread))
                 thread.start()

@@ -43,6 +43,7 @@ import statistics
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -246,6 +247,7 @@ class Link:
         self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
         self._coord_live: set[int] = set()  # those whose token is alive
         self._estimate_key = coord_key(run, "estimate")
+        self._local: dict[int, Callable[[LinkReply], object]] = {}  # robots whose agents run in this process -> their reply sink
 
     @classmethod
     def open(cls, session, run: str, port: Port, config: GatewayConfig) -> Link:
@@ -263,6 +265,22 @@ class Link:
         """Close the device (after ``run`` returned)."""
         self.device.close()
 
+    def serve_locally(self, robot: int, on_reply: Callable[[LinkReply], object]) -> Callable[[LinkRequest], None]:
+        """Serve the agent of ``robot`` running in this process (``AgentHost`` with ``--link``); call before ``run``.
+
+        Its requests come through the function returned, handled on the caller's thread (no Zenoh thread, no engine
+        turn in between); its replies go to ``on_reply`` (from the reader's or the engine's thread). Both still go out
+        on Zenoh for the record (a recorder gets them), but the link does not subscribe to that robot's requests."""
+        if robot not in self.robots:
+            raise ValueError(f"robot {robot} is not behind port {self.port.name}")
+        self._local[robot] = on_reply
+        return self.submit
+
+    def submit(self, req: LinkRequest) -> None:
+        """A request of a robot served locally (``serve_locally``), handled now, on this thread."""
+        with self._lock, self._writes.collect():
+            self._handle_safely(("local", req))
+
     def summary(self) -> str:
         """One line of the port's counters, for the end of a run."""
         s = self.stats()
@@ -273,7 +291,7 @@ class Link:
         """Serve until ``stop()``; publishes final stats; returns 0."""
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         # one subscription per robot of this port: another port's requests never reach (nor cost) this link
-        self._subs = [*(subscribe(self.session, robot_key(self.run_id, r, "linkreq"), enqueue) for r in sorted(self.robots)),
+        self._subs = [*(subscribe(self.session, robot_key(self.run_id, r, "linkreq"), enqueue) for r in sorted(self.robots) if r not in self._local),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       subscribe(self.session, self._estimate_key, enqueue),
                       watch_liveliness(self.session, coord_alive_key(self.run_id),
@@ -406,6 +424,8 @@ class Link:
             self._on_coordinator(event[1], event[2])
         elif event[0] == "agent":
             self._on_agent(event[1], event[2])
+        elif event[0] == "local":
+            self._take(event[1])
         else:
             key, payload = event[1], event[2]
             if key == self._estimate_key:
@@ -433,12 +453,16 @@ class Link:
                 if req is None:
                     self.counters.rejected += 1
                     return
-                problem = self._invalid(req)
-                if problem is not None:
-                    self.counters.rejected += 1
-                    _log.warning("port %s: request dropped: %s", self.port.name, problem)
-                    return
-                self._on_request(req)
+                self._take(req)
+
+    def _take(self, req: LinkRequest) -> None:
+        """A request, checked (``_invalid``: dropped and counted) and then served."""
+        problem = self._invalid(req)
+        if problem is not None:
+            self.counters.rejected += 1
+            _log.warning("port %s: request dropped: %s", self.port.name, problem)
+            return
+        self._on_request(req)
 
     def _on_agent(self, key: str, alive: bool) -> None:
         """The liveliness token of an agent appeared or disappeared: keep feeding its robot or stop."""
@@ -489,6 +513,9 @@ class Link:
                         observed=tuple(e[0] for e in entries), ranges=tuple(max(float(e[1]), 0.0) for e in entries),
                         bearings=tuple(float(e[2]) for e in entries))
         publish(self.session, message_key(msg), encode(msg))
+        local = self._local.get(robot)
+        if local is not None:
+            local(msg)
 
     def _on_request(self, req: LinkRequest) -> None:
         robot = self.robots[req.robot]

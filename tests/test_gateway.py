@@ -67,10 +67,12 @@ class Rig:
 
 @contextmanager
 def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Calibration = Calibration(),
-        port_robots: tuple[int, ...] = (0,), run: str = "gw", limits: Limits = Limits(), motion_time_s: float = 0.0) -> Iterator[Rig]:
+        port_robots: tuple[int, ...] = (0,), run: str = "gw", limits: Limits = Limits(), motion_time_s: float = 0.0,
+        local: bool = False) -> Iterator[Rig]:
     """Robot 0 of a world of robots 0 and 1 (seed 3) behind an emulated port with ``port_robots``, a link
     engine (with ``limits``) and robot 0's gateway driver correcting ``calibration``, which is also robot 0's
-    true deviation; motions take ``motion_time_s``."""
+    true deviation; motions take ``motion_time_s``. ``local``: the driver and the link share a session and talk
+    directly (``GatewayDriver.use_link``, as in a port process), else over Zenoh from another session."""
     world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s,
                           calibration={0: calibration}, motion_time_s=motion_time_s)
     hub_settings, member = loopback_hub(free_tcp_port())
@@ -78,10 +80,12 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
             open_session(member) as link_session, open_session(member) as agent_session:
         device = SerialLink(emulator.device, 115200)
         link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device, limits, {0: calibration})
+        driver = GatewayDriver(run, 0, calibration, timing, port="radio0")
+        if local:
+            driver.use_link(link)
         thread = threading.Thread(target=link.run, daemon=True)
         thread.start()
-        driver = GatewayDriver(run, 0, calibration, timing, port="radio0")
-        driver.attach(agent_session)
+        driver.attach(link_session if local else agent_session)
         try:
             deadline = time.monotonic() + 5
             while not link.counters.rtts_ms and faults.drop_prob < 1:  # the first heartbeat was answered: the path is up
@@ -124,8 +128,9 @@ def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) 
     (FaultPlan(drop_tx=frozenset({1, 2})), "both answers lost"),
     (FaultPlan(drop_rx=frozenset({1})), "the command frame lost"),
 ])
-def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what):
-    with rig(faults) as r:
+@pytest.mark.parametrize("local", [False, True], ids=["over Zenoh", "in one process"])
+def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what, local):
+    with rig(faults, local=local) as r:
         r.driver.execute(command(1))
         assert r.link.counters.retransmissions == 1, what
         assert r.emulator.executed(0) == 1, what
@@ -134,9 +139,10 @@ def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what):
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.3, 0.1), (-0.2, 0.05)]), atol=1e-12)
 
 
-def test_observations_and_calibration_through_the_link():
+@pytest.mark.parametrize("local", [False, True], ids=["over Zenoh", "in one process"])
+def test_observations_and_calibration_through_the_link(local):
     cal = Calibration(range_bias_m=0.02, bearing_offset_rad=0.1, motion_scale=0.9)
-    with rig(calibration=cal, port_robots=(0, 1)) as r:
+    with rig(calibration=cal, port_robots=(0, 1), local=local) as r:
         r.driver.execute(command(1, 0.0, 0.1))
         observed, ranges, bearings = r.driver.sense(None, 1)
     # the same robot simulated without miscalibration: the corrections undo the emulated deviations
@@ -146,6 +152,25 @@ def test_observations_and_calibration_through_the_link():
     assert observed.tolist() == exp_ids.tolist() == [1]
     np.testing.assert_allclose(ranges, exp_r, atol=1e-6)
     np.testing.assert_allclose(bearings, exp_b, atol=1e-6)
+
+
+def test_a_robot_served_in_the_links_process_is_recorded_the_same_and_takes_no_requests_from_the_wire():
+    """A driver talking to its link directly (``use_link``) still publishes its requests and gets the link's replies
+    published, so a recorder sees the same messages; a request someone else publishes for that robot is not served."""
+    with rig(local=True) as r, open_session(r.member) as other:
+        seen: list[tuple[str, bytes]] = []
+        _subs = [subscribe(other, f"swarm/gw/robot/0/{k}", lambda key, payload: seen.append((key, payload))) for k in ("linkreq", "linkrep")]
+        for key in ("swarm/gw/robot/0/linkreq", "swarm/gw/robot/0/linkrep"):  # the link's session knows the subscriber
+            probe = r.link.session.declare_publisher(key)
+            wait_for(lambda probe=probe: probe.matching_status.matching, 10, f"a subscriber of {key} known to the link's session")
+            probe.undeclare()
+        r.driver.execute(command(1))
+        wait_for(lambda: any(k.endswith("linkrep") for k, _ in seen), 5, "the link's reply, published")
+        assert decode(next(p for k, p in seen if k.endswith("linkreq")), LinkRequest).kind == "command"
+        assert decode(next(p for k, p in seen if k.endswith("linkrep")), LinkReply).kind == "done"
+        publish(other, "swarm/gw/robot/0/linkreq", encode(_request(step=2)))  # well-formed, but not from the robot's agent
+        time.sleep(0.5)
+        assert r.emulator.executed(0) == 1 and r.link.stats().rejected == 0
 
 
 def test_a_silent_robot_is_reported_lost_by_id():
@@ -349,6 +374,10 @@ def test_gateway_run_equals_the_simulated_run_and_is_recorded(tmp_path):
     assert stats[-1].frames_received > 0 and stats[-1].lost == ()
     replies = [decode(p, LinkReply) for k, v in keys.items() if k.endswith("/linkrep") for p in v]
     assert {r.kind for r in replies} == {"done", "observation"}
+    # the port processes hand requests and replies to their link directly, and still publish them for the record
+    requests = [decode(p, LinkRequest) for k, v in keys.items() if k.endswith("/linkreq") for p in v]
+    assert {r.kind for r in requests} == {"command", "observe"}
+    assert sum(r.kind == "done" for r in replies) == sum(r.kind == "command" for r in requests) == sum(sum(s["moving"]) for s in gw["steps"])
 
 
 
