@@ -1,7 +1,7 @@
 """The gateway rows of the faults benchmark (``swarm bench faults``): whole ``swarm launch --driver gateway`` runs on a faulty radio.
 
 For each seed, ``swarm launch --driver gateway --seed S --json`` runs twice as real
-processes (emulated robots on ptys, link processes, gateway agents, coordinator): once
+processes (emulated robots on ptys, one process per port with its link and gateway agents, coordinator): once
 fault-free and once with the emulator's radio faults ``--drop P --corrupt P --delay S``
 (each frame lost with probability ``drop`` in either direction, one byte of a robot's
 answer flipped with probability ``corrupt``, every answer ``delay`` seconds late). A row
