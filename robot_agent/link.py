@@ -478,7 +478,9 @@ class Link:
             robot.unanswered_since = None
         elif robot.agent_seen:
             robot.agent_gone = True
-            _log.warning("port %s: the agent of robot %d is gone; the robot is no longer kept alive", self.port.name, robot.id)
+            # once the coordinator has left, agents leaving is the run's normal end: not a warning
+            _log.log(logging.INFO if self._coord_gone else logging.WARNING,
+                     "port %s: the agent of robot %d is gone; the robot is no longer kept alive", self.port.name, robot.id)
 
     def _invalid(self, req: LinkRequest) -> str | None:
         """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits.
