@@ -61,6 +61,20 @@ def test_kill_robot_through_launch_over_seeds_completes_with_the_others():
     assert result["estop_ms_max"] == max(s["kill"]["estop_ms"] for s in result["summaries"])
 
 
+def test_kill_robot_of_a_gateway_run_kills_its_port_process_and_the_others_complete(tmp_path):
+    """``swarm launch --driver gateway`` hosts each radio port's link and agents in one process: ``--kill-robot 5@2``
+    SIGKILLs that process, so the coordinator loses the three robots of robot 5's port (ports of five: 0-4, 5-7) and
+    finishes with the other five."""
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "--driver=gateway", "-n=8", "--configs=2", "--seed=1",
+                           "--kill-robot=5@2", "--no-record", f"--out={tmp_path}", "--json"],
+                          capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert summary["finished_robots"] == 5 and len(summary["configs"]) == 2
+    assert sorted(lost["robot"] for lost in summary["lost"]) == [5, 6, 7]
+    assert 0 < summary["kill"]["detect_ms"] <= summary["kill"]["estop_ms"] and "Traceback" not in proc.stderr
+
+
 def test_a_coordinator_killed_under_launch_gets_every_robot_stopped(tmp_path):
     log = tmp_path / "launch.log"
     with open(log, "w") as stderr:
