@@ -28,6 +28,10 @@ Threads, sharing the state under one lock: the reader (device -> frames, ``Frame
 with ``resync`` on a quiet line) handles the robots' answers itself and publishes the
 replies; the engine (``run``) handles the agents' requests, emergency stops and timers
 (heartbeats, retransmissions, losses, stats). Zenoh callbacks only enqueue for the engine.
+In a port process (``swarm agent --link``, ``robot_agent.host``) the agents of the port's
+robots run beside the link: their requests are handled on their own threads (``submit``)
+and the replies handed to them directly (``serve_locally``); both are still published.
+The frames of one turn of the engine, of the reader or of a ``submit`` go out in one write.
 """
 
 from __future__ import annotations
