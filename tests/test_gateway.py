@@ -763,3 +763,17 @@ def test_link_in_an_agent_process_needs_the_gateway_and_every_robot_of_the_port(
     assert agent_main(["--id=0-1", "--ids=0-3", "--run=r", "--hub=tcp/127.0.0.1:9", f"--gateway-config={config}", *args]) == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err, err
+
+
+def test_a_port_process_whose_device_cannot_be_opened_exits_2_naming_it(tmp_path):
+    """The device is opened before any agent declares itself: a wrong device is one line and status 2, no agent appears."""
+    config = tmp_path / "gw.json"
+    GatewayConfig((Port("radio0", str(tmp_path / "ttyNOPE"), (0, 1)),)).save(config)
+    port = free_tcp_port()
+    hub_settings, member = loopback_hub(port)
+    with open_session(hub_settings), open_session(member) as session:
+        proc = subprocess.run(PY + ["swarm_cli.agent", "--id=0,1", "--ids=0,1", "--run=nodevice", f"--hub=tcp/127.0.0.1:{port}",
+                                    "--driver=gateway", f"--gateway-config={config}", "--link"], capture_output=True, text=True, timeout=60)
+        assert alive_now(session, alive_wildcard("nodevice")) == set()
+    assert proc.returncode == 2 and f"cannot open serial device {tmp_path / 'ttyNOPE'}" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
