@@ -493,7 +493,7 @@ class Agent:
             return
         else:
             self._status(cmd, last.state, last.reason, remember=False)
-        if last.state == "done" and self._last_truth is not None and self._last_truth.step == cmd.step:
+        if last.state == "done" and self._truth_published(cmd.step):
             self._send(self._last_truth)  # the truth that followed the done may be lost too (or went to the coordinator taken over)
 
     @property
@@ -513,7 +513,7 @@ class Agent:
 
     def _on_observe(self, req: ObserveRequest) -> None:
         if req.step == self._last_obs_step and self._last_report is not None:
-            if self._last_truth is not None and self._last_truth.step == req.step:
+            if self._truth_published(req.step):
                 self._send(self._last_truth)
             self._send(self._last_report)
             return
@@ -529,14 +529,14 @@ class Agent:
         if self._early is not None and self._early[0] == req.step:
             self._peers = self._early[1]
         self._early = None
-        if self.driver.simulated and not (first and self._last_truth is not None and self._last_truth.step == req.step):
+        if self.driver.simulated and not (first and self._truth_published(req.step)):
             self._publish_truth(req.step)  # not again after this step's motion (a re-sent request gets it again)
         self._try_report()
 
     def _on_truths(self, msg: TruthSetMessage, poses: PeerPoses) -> None:
         """The truth set ``msg`` with its ``poses`` by robot (shared read-only by the agents of a process)."""
         if msg.step != self._pending:
-            if self._pending is None and msg.step == self._next_step and self._last_truth is not None and self._last_truth.step == msg.step:
+            if self._pending is None and msg.step == self._next_step and self._truth_published(msg.step):
                 self._early = (msg.step, poses)  # Zenoh does not keep the order of different keys: its request is on the way
                 return
             if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
@@ -545,6 +545,10 @@ class Agent:
             return
         self._peers = poses
         self._try_report()
+
+    def _truth_published(self, step: int) -> bool:
+        """Whether this agent's latest ``TruthMessage`` is of ``step``."""
+        return self._last_truth is not None and self._last_truth.step == step
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()

@@ -204,9 +204,10 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     per_process = agents_per_process(n, args.agents_per_process)
-    port_hosts = driver == "gateway" and args.agents_per_process is None
-    if port_hosts:
-        per_process = max(len(p.robots) for p in default_gateway(traj).ports)
+    gateway = default_gateway(traj) if driver == "gateway" else None
+    port_hosts = gateway is not None and args.agents_per_process is None
+    if gateway is not None and port_hosts:
+        per_process = max(len(p.robots) for p in gateway.ports)
     run_id = f"bench-runtime-{os.getpid()}-{n}-{driver}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
@@ -220,8 +221,8 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
             extra = list(model)
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            if driver == "gateway":
-                live = start_gateway(traj_file, default_gateway(traj), Path(tmp), run_id, hub, args.seed, 0.0, model, procs,
+            if gateway is not None:
+                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, 0.0, model, procs,
                                      links=not port_hosts)
                 extra += ["--driver=gateway", f"--gateway-config={live}"]
             first_agent = len(procs)
