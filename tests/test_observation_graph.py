@@ -74,7 +74,8 @@ def test_require_observable_names_the_robots():
     everyone observed but {0, 1, 2} and {3, 4} are two groups: ids 13 and 14 lie outside the largest."""
     ids = np.arange(10, 15)
     obs, seen = np.array([0, 1, 2, 3, 4]), np.array([1, 0, 0, 4, 3])
-    with pytest.raises(LocalizationError, match=r"^unobserved: robots \[12\] \(no robot observed them\)$") as err:
+    message = r"^unobserved: robots \[12\] \(no robot observed them, and what they observed does not fix them\)$"
+    with pytest.raises(LocalizationError, match=message) as err:
         require_observable(ids, obs, seen)
     assert (err.value.reason, err.value.robots) == ("unobserved", [12])
     obs, seen = np.append(obs, 0), np.append(seen, 2)
