@@ -12,6 +12,8 @@ import pytest
 from coordinator.localization.graph import (
     SMALL_GRAPH,
     components,
+    fixed_poses,
+    localizable_subset,
     observable_subset,
     require_observable,
     unobserved,
@@ -141,3 +143,54 @@ def test_component_labels_are_numbered_by_lowest_node():
     np.testing.assert_array_equal(component_labels(7, np.array([3, 1, 5]), np.array([1, 0, 4])), [0, 0, 1, 0, 2, 2, 3])
     np.testing.assert_array_equal(component_labels(7, np.arange(6, 0, -1), np.arange(5, -1, -1)), np.zeros(7))
     assert component_labels(0, np.zeros(0, int), np.zeros(0, int)).shape == (0,)
+
+
+def test_fixed_poses_follow_one_way_sightings():
+    """Robot 2 sees 0 and 1, nobody sees 2: from 2 (the gauge) both positions are fixed, their headings not.
+    From 0 (it sees nobody, no gauge heading): only 0 itself."""
+    pos, head = fixed_poses(3, np.array([2, 2]), np.array([0, 1]), 2)
+    assert pos.tolist() == [True, True, True] and head.tolist() == [False, False, True]
+
+
+def test_fixed_poses_by_hand():
+    """0 -> 1 -> 2: 1 is put by 0's pose, but 1's heading is free (it sees only 2, whose position is not
+    fixed), so 2 can be anywhere on a circle around 1. Adding 2 -> 0 and 2 -> 1 (two fixed targets) fixes
+    2's pose, then 1's heading. With every heading known from a prior, 0 -> 1 -> 2 already fixes all."""
+    i, j = np.array([0, 1]), np.array([1, 2])
+    pos, head = fixed_poses(3, i, j, 0)
+    assert pos.tolist() == [True, True, False] and head.tolist() == [True, False, False]
+    pos, head = fixed_poses(3, np.append(i, [2, 2]), np.append(j, [0, 1]), 0)
+    assert pos.all() and head.all()
+    assert fixed_poses(3, i, j, 0, np.ones(3, bool))[0].all()
+
+
+def test_localizable_subset_keeps_a_silent_sensor_and_what_depends_on_it():
+    """ids 10..14. 0 <-> 1, 0 -> 2, 1 -> 2, 3 <-> 0, 4 -> 0, 4 -> 1: robot 2's sensor is silent (it observed
+    nobody) and 4 was seen by nobody. A run's rule drops 4; measured data keeps everyone (4 saw two robots
+    of fixed position)."""
+    ids = np.arange(10, 15)
+    obs, seen = np.array([0, 1, 0, 1, 3, 0, 4, 4]), np.array([1, 0, 2, 2, 0, 3, 0, 1])
+    assert observable_subset(ids, obs, seen)[1] == {14: "unobserved"}
+    keep, why = localizable_subset(ids, obs, seen)
+    assert keep.all() and why == {}
+    require_observable(ids, obs, seen)  # 4 is fixed by what it saw
+
+
+def test_localizable_subset_names_why():
+    """ids 10..17. 0 <-> 1, 1 -> 2 (2 seen by exactly one robot, whose pose is fixed: kept), 2 -> 3 (2's
+    heading is free: 3 undetermined), 4 alone (unobserved), 5 <-> 6 (a second, smaller group: disconnected),
+    7 -> 0 (seen by nobody, sees one robot: undetermined; a prior's heading would fix it)."""
+    ids = np.arange(10, 18)
+    obs, seen = np.array([0, 1, 1, 2, 5, 6, 7]), np.array([1, 0, 2, 3, 6, 5, 0])
+    keep, why = localizable_subset(ids, obs, seen)
+    assert keep.tolist() == [True, True, True, False, False, False, False, False]
+    assert why == {13: "undetermined", 14: "unobserved", 15: "disconnected", 16: "disconnected", 17: "undetermined"}
+    keep, why = localizable_subset(ids, obs, seen, headings_known=True)
+    assert keep.tolist() == [True, True, True, True, False, False, False, True]
+
+
+def test_a_triangle_of_one_way_sightings_is_left_partly_out():
+    """0 -> 1 -> 2 -> 0 has a mirror solution (2 on either side of the line 0-1): the rule is sufficient,
+    not necessary, and keeps the first pair only."""
+    keep, why = localizable_subset(np.arange(3), np.array([0, 1, 2]), np.array([1, 2, 0]))
+    assert keep.tolist() == [True, True, False] and why == {2: "undetermined"}
