@@ -50,7 +50,7 @@ def solvable_subset(
         excluded.update(sub_excluded)
         keep[np.flatnonzero(keep)[~sub_keep]] = False
         if keep.sum() < 2:
-            raise LocalizationError(_main_reason(excluded), ids[~keep] if (~keep).any() else ids, "fewer than two robots can be localized")
+            raise LocalizationError("unobserved", ids[~keep] if (~keep).any() else ids, "fewer than two robots can be localized")
         try:
             return keep, solve(keep), excluded
         except LocalizationError as exc:
@@ -62,12 +62,6 @@ def solvable_subset(
                 excluded[int(r)] = exc.reason
             keep &= ~named
     raise AssertionError("unreachable")
-
-
-def _main_reason(excluded: dict[int, str]) -> str:
-    """The most frequent reason robots were left out (``unobserved`` when none was)."""
-    reasons = list(excluded.values())
-    return max(set(reasons), key=lambda r: (reasons.count(r), r)) if reasons else "unobserved"
 
 
 def _reindex(keep: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
