@@ -296,8 +296,10 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
         if plan_msg is not None and plans_ok and strategy is not None and full is not None and traj is not None:  # plans_ok: all set
             before = chain.prior(step)
             if plan_msg.config != expected_config or before is None or plan_msg.config > len(traj.configurations):
-                result.skipped.append(f"plans from configuration {plan_msg.config} on (an earlier plan or the estimate "
-                                      f"of step {step - 1} is not in the recording{chain.why(step)})")
+                why = ("an earlier plan is not in the recording" if plan_msg.config != expected_config
+                       else f"the trajectory has {len(traj.configurations)} configurations" if plan_msg.config > len(traj.configurations)
+                       else chain.why(step) if step - 1 in rec.estimates else f"the estimate of step {step - 1} is not in the recording")
+                result.skipped.append(f"plans from configuration {plan_msg.config} on ({why})")
                 plans_ok = False
             else:
                 planned = [r for group in plan_msg.groups for r in group]
@@ -361,13 +363,11 @@ class _Chain:
         return msg.to_estimate()
 
     def why(self, step: int) -> str:
-        """``"; ..."``: why the chain broke before ``step``, if it did."""
-        if self.at == step - 1 or not carried_fields(self.estimate):
-            return ""
+        """Why there is no prior for ``step`` although the recording holds the estimate of the step before."""
         broke = max((s for s in self.broken if s < step), default=None)
-        why = f" at step {broke} ({self.broken[broke]})" if broke is not None else ""
-        return (f"; the {self.loc.name} localizer carries {', '.join(carried_fields(self.estimate))} from step to step, "
-                f"which the recording does not hold, and the recomputed chain broke{why}")
+        where = f" at step {broke} ({self.broken[broke]})" if broke is not None else ""
+        return (f"the {self.loc.name} localizer carries {', '.join(carried_fields(self.estimate))} from step to step, "
+                f"which the recording does not hold, and the recomputed chain broke{where}")
 
     def _break(self, step: int, why: str) -> None:
         self.broken.setdefault(step, why)
@@ -439,7 +439,7 @@ class _Chain:
     def gaps_text(self) -> str:
         first, last = self.gaps[0], self.gaps[-1]
         steps = f"step {first}" if first == last else f"{len(self.gaps)} steps from {first} to {last}"
-        return f"{steps} ({self.why(first).removeprefix('; ')})"
+        return f"{steps} ({self.why(first)})"
 
 
 def _restricted(full, strategy, all_ids: np.ndarray, strategy_ids: np.ndarray, ids: np.ndarray):

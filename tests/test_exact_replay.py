@@ -55,11 +55,26 @@ def test_a_taken_over_run_replays_exactly_and_equals_the_in_process_run(tmp_path
     summary = json.loads(proc.stdout.strip().splitlines()[-1])
     assert summary["coordinator_kill"]["step"] == KILL and summary["localizer"] == localizer
 
-    checked = check(load_recording(tmp_path / "run.standby.mcap"))
+    rec = load_recording(tmp_path / "run.standby.mcap")
+    checked = check(rec)
     ref = simulate(traj, "ref57", cfg, localizer=localizer, seed=SEED)
     assert checked.passed, str(checked.divergence)
     assert checked.exact and checked.skipped == []
     assert checked.estimates == len(ref.steps) + 1 and checked.plans == CONFIGS  # the initial estimate and every step
+
+    # a recording without step 2's reports: the paper localizer goes on from the recorded estimate of step 2; the
+    # joint one cannot (that estimate lacks the joint covariance), and the check says so instead of diverging
+    del rec.reports[KILL][0]
+    gapped = check(rec)
+    assert gapped.passed and gapped.skipped[0] == f"step {KILL} (no observation report from robots [0])"
+    if localizer == "paper":
+        assert (gapped.estimates, gapped.plans, len(gapped.skipped)) == (len(ref.steps), CONFIGS, 1)
+    else:
+        assert gapped.estimates == KILL and gapped.plans == 1  # the initial estimate and step 1; configuration 1's plan
+        why = (f"the joint localizer carries joint from step to step, which the recording does not hold, and the recomputed "
+               f"chain broke at step {KILL} (no observation report from robots [0])")
+        assert gapped.skipped[1:] == [f"plans from configuration 2 on ({why})",
+                                      f"{len(ref.steps) - KILL} steps from {KILL + 1} to {len(ref.steps)} ({why})"]
 
     got = json.loads((tmp_path / "result.json").read_text())["steps"]
     assert len(got) == len(ref.steps) > KILL
