@@ -13,7 +13,10 @@ decode are counted and left out, channels outside ``swarm/`` (derived views such
   selection, seed).plan(estimate before the configuration, desired)`` through ``clear_plan`` (bodies); the strategy is seeded
   and stateful, so plans are re-run in order and stop at the first one whose input is missing),
 * every step's localization: ``localize_observable(make_localizer(localizer, cfg), estimate of
-  step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``,
+  step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``, for the
+  robots of the step's recorded estimate (lost ones dropped), and after robots rejoined
+  ``executor.localize_rejoined``; the estimate of step - 1 is the one the check recomputed, carried
+  from step 0 on with whatever the localizer keeps in it beyond the recorded 3x3 covariances (``_Chain``),
 
 and compares each result with the recorded message. On the floating-point platform the run was
 recorded on (``runtime.recording.mcap_log.float_platform``, in the metadata's versions) the
@@ -322,7 +325,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                 expected_config += 1
         if step == 0 or step not in rec.estimates:
             continue
-        if chain.step_(step, ids):
+        if chain.localize(step, ids):
             return result
         if chain.rejoin(step):
             return result
@@ -373,7 +376,7 @@ class _Chain:
         self.broken.setdefault(step, why)
         self.result.skipped.append(f"step {step} ({why})")
 
-    def step_(self, step: int, all_ids: np.ndarray) -> bool:
+    def localize(self, step: int, all_ids: np.ndarray) -> bool:
         """Localize ``step`` and compare; True at a divergence (in ``result``)."""
         rec = self.rec
         prior = self.prior(step)
