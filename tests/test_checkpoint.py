@@ -5,6 +5,8 @@ too, whose estimate carries its joint covariance from step to step."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -110,6 +112,11 @@ def test_the_joint_covariance_travels_as_its_upper_triangle_and_is_left_out_only
     short = RunState.from_json(small, traj, start)
     assert short.estimate.joint is None and short.dropped == ("joint",)
     np.testing.assert_array_equal(short.estimate.cov, estimate.cov)
+    old = json.loads(state.bounded_json(0)[0])  # as written before checkpoints carried anything: no "dropped", no joint
+    del old["dropped"]
+    legacy = RunState.from_json(json.dumps(old), traj, start)
+    assert legacy.estimate.joint is None and legacy.dropped == ()
+    np.testing.assert_array_equal(legacy.estimate.cov, estimate.cov)
     skew = joint.copy()
     skew[0, 1] = np.nextafter(skew[0, 1], np.inf)  # not symmetric bit for bit: every entry travels
     skewed = RunState(0, 0, 0, SwarmEstimate.from_joint(traj.ids, start.poses, skew), None, None, 0, RunResult("ref57", traj, start, None))
