@@ -55,6 +55,7 @@ from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
     GRACE_S,
+    AgentErrors,
     CoordinatorKiller,
     RobotKiller,
     agents_per_process,
@@ -145,6 +146,18 @@ def flags(values: dict[str, Any]) -> list[str]:
 
 def _arg_text(value) -> str:
     return str(value) if isinstance(value, (str, Path)) else repr(value)
+
+
+def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
+    """The coordinator's exit status, or the error line of an agent process that exited 2 first (its driver failed to
+    start, ...: the coordinator would wait for it until its start timeout)."""
+    while True:
+        try:
+            return coordinator.wait(timeout=0.1)
+        except subprocess.TimeoutExpired:
+            failure = errors.failure(agents)
+            if failure is not None:
+                return failure
 
 
 def plugin_spec(spec: str) -> str:
@@ -300,11 +313,17 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            if port_hosts:  # one process per port: its link and its robots' agents
-                agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **tied)
-            else:
-                start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
-                agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            agent_errors = AgentErrors()
+            piped = {**tied, **agent_errors.popen_kwargs()}
+            try:
+                if port_hosts:  # one process per port: its link and its robots' agents
+                    agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **piped)
+                else:
+                    start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **piped)
+                    agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            finally:
+                agent_errors.watch(procs[first:])
+            agent_list = procs[first:]
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
             if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
                 common.append("--no-truth")  # the lab's robots publish no true poses
@@ -348,7 +367,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             for forwarder in forwarders:
                 forwarder.start()
             try:
-                status = coordinator.wait()
+                status = _wait_for(coordinator, agent_list, agent_errors)
+                if isinstance(status, str):  # an agent could not start (no command was sent): its one line, every child stopped
+                    raise SwarmInputError(status)
                 if standby is not None and status < 0:  # died without a word: the standby takes the run over
                     say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
                     status = standby.wait()
