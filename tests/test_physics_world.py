@@ -9,12 +9,12 @@ import pytest
 
 pytest.importorskip("pymunk")
 
-from runtime.errors import SwarmInputError  # noqa: E402
-from runtime.models.config import ModelConfig  # noqa: E402
-from runtime.world.params import PhysicsParams, parse_physics_params  # noqa: E402
-from runtime.world.physics import Contact, Stuck, World  # noqa: E402
-from runtime.world.profiles import Trapezoid, TurnDriveProfile  # noqa: E402
-from runtime.world.sensing import visible  # noqa: E402
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+from runtime.world.params import PhysicsParams, parse_physics_params
+from runtime.world.physics import Contact, Stuck, World
+from runtime.world.profiles import Trapezoid, TurnDriveProfile
+from runtime.world.sensing import visible
 
 P = PhysicsParams()
 
