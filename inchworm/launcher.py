@@ -129,6 +129,9 @@ class LaunchOptions:
     json: bool = False
     model_flags: dict[str, Any] = field(default_factory=dict)
     coordinator_flags: dict[str, Any] = field(default_factory=dict)
+    world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
+    physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
+    physics_speed: float = 0.0
 
 
 def _stderr(text: str) -> None:
@@ -238,6 +241,19 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     if o.driver not in BUILT_IN:
         driver_class(o.driver)
         driver_options(list(o.driver_options))
+    if o.world == "physics":
+        from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+        from runtime.world.physics import require_pymunk  # noqa: PLC0415
+
+        require_pymunk()
+        parse_physics_params(list(o.physics_params), o.model)
+        if o.driver != "sim":
+            raise SwarmInputError(f"--world physics drives simulated robots: it needs --driver sim, got --driver {o.driver}")
+        if o.agents_per_process not in (None, traj.n):
+            raise SwarmInputError(f"--world physics steps one world in one agent process: --agents-per-process must be the "
+                                  f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
+    elif o.physics_params:
+        raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
     if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
@@ -254,7 +270,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     traj = launch_trajectory(o)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
-    per_process = agents_per_process(traj.n, o.agents_per_process)
+    per_process = traj.n if o.world == "physics" else agents_per_process(traj.n, o.agents_per_process)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
@@ -303,6 +319,8 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
+            if o.world == "physics":
+                agent_extra += ["--world=physics", f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -341,6 +359,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            what += " in the physical world" if o.world == "physics" else ""
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
