@@ -30,8 +30,8 @@ from runtime.wire.messages import CommandLimits
 
 if TYPE_CHECKING:
     from runtime.models.trajectory import Trajectory
-    from runtime.world.params import PhysicsParams
     from runtime.wire.transport import ZenohSettings
+    from runtime.world.params import PhysicsParams
 
 PLUGIN_COMMAND_TIMEOUT_S = 30.0
 

@@ -18,9 +18,9 @@ from collections.abc import Mapping
 import numpy as np
 
 from robot_agent.driver import Driver, DriverRefused, PeerPoses
+from runtime.wire.messages import MotionCommand, PhysicsEvent, encode, message_key
 from runtime.world.physics import Contact, Stuck, World, WorldEvent
 from runtime.world.realtime import RealtimeWorld
-from runtime.wire.messages import MotionCommand, PhysicsEvent, encode, message_key
 
 _log = logging.getLogger(__name__)
 

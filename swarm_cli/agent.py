@@ -39,7 +39,15 @@ from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
 from swarm_cli.entry import leave, on_stop_signals, run_standalone
 from swarm_cli.options import (
-    add_connection_options, add_model_options, add_world_options, connection_settings, model_config, parse_list, physics_params, positive)
+    add_connection_options,
+    add_model_options,
+    add_world_options,
+    connection_settings,
+    model_config,
+    parse_list,
+    physics_params,
+    positive,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:

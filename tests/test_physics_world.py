@@ -152,3 +152,24 @@ def test_bad_input_names_what_is_wrong():
         parse_physics_params(["fov_rad=7"], ModelConfig())
     p = parse_physics_params(["mass_kg=0.02", "occlusion=false"], ModelConfig(robot_radius_m=0.02, sensing_range_m=0.3))
     assert (p.mass_kg, p.occlusion, p.radius_m, p.sensing_range_m) == (0.02, False, 0.02, 0.3)
+
+
+def test_an_in_process_run_in_the_physical_world_is_reproducible_and_not_the_model():
+    from inchworm import simulate
+
+    a, b = (simulate(robots=6, configs=2, method="no-anchors", seed=2, world="physics") for _ in range(2))
+    model = simulate(robots=6, configs=2, method="no-anchors", seed=2)
+    assert np.array_equal(a.true_configurations(), b.true_configurations()) and a.world_events == b.world_events
+    assert not np.allclose(a.true_configurations(), model.true_configurations())
+    assert a.pf() == b.pf() and 0 < a.pf() < 1 and model.world_events == []
+
+
+def test_without_pymunk_the_commands_name_the_extra(monkeypatch, capsys):
+    from swarm_cli.main import main
+
+    monkeypatch.setitem(__import__("sys").modules, "pymunk", None)
+    assert main(["sim", "--world", "physics", "--robots", "4", "--configs", "1", "--baseline", "none"]) == 2
+    assert capsys.readouterr().err.strip() == ("swarm sim: error: the physical world needs pymunk 7: "
+                                               "pip install 'inchworm-swarm[physics]'")
+    assert main(["launch", "--world", "physics"]) == 2
+    assert "pip install 'inchworm-swarm[physics]'" in capsys.readouterr().err

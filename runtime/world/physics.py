@@ -87,12 +87,13 @@ class _Robot:
     gear: object
     motion: np.random.Generator
     sensing: np.random.Generator
-    wheels: np.ndarray = field(default_factory=lambda: np.zeros(2))  # applied (left, right) m/s
+    wheels: list[float] = field(default_factory=lambda: [0.0, 0.0])  # applied (left, right) m/s
     target: np.ndarray = field(default_factory=lambda: np.zeros(2))  # direct wheel-speed command
     profile: TurnDriveProfile | None = None
     started_s: float = 0.0
-    scale: np.ndarray = field(default_factory=lambda: np.ones(2))  # this command's wheel-speed factors
+    scale: list[float] = field(default_factory=lambda: [1.0, 1.0])  # this command's wheel-speed factors
     drive_start: np.ndarray | None = None  # position when the drive phase began
+    moving: bool = False  # whether its joints hold the drive force (else the hold force)
 
 
 @dataclass
@@ -146,7 +147,7 @@ class World:
             space.add(body, shape, control, pivot, gear)
             self._robots.append(_Robot(robot, body, control, pivot, gear, robot_rng(seed, robot, Stream.MOTION),
                                        robot_rng(seed, robot, Stream.SENSING)))
-            self._hold(self._robots[-1], moving=False)
+            self._hold(self._robots[-1], False)
         space.on_collision(1, 1, begin=self._begin, post_solve=self._post_solve, separate=self._separate)
 
     # -- lifecycle ------------------------------------------------------------------------
@@ -190,7 +191,7 @@ class World:
             raise SwarmInputError(f"robot {robot}: turn {turn_rad} rad / drive {drive_m} m must be finite")
         p = self.params
         common = 1.0 + r.motion.normal() * p.wheel_scale_sigma
-        r.scale = common * (1.0 + r.motion.normal(0.0, 1.0, 2) * p.wheel_diff_sigma)
+        r.scale = [float(x) for x in common * (1.0 + r.motion.normal(0.0, 1.0, 2) * p.wheel_diff_sigma)]
         r.profile = TurnDriveProfile(float(turn_rad), float(drive_m), p.track_m, p.max_wheel_speed_m_s, p.max_wheel_accel_m_s2)
         r.started_s = self.time_s
         r.target[:] = 0.0
@@ -220,7 +221,7 @@ class World:
     def busy(self, robot: int | None = None) -> bool:
         """Whether ``robot`` (None: any robot) has a command in progress or turning wheels."""
         robots = self._robots if robot is None else [self._robots[self.index(robot)]]
-        return any(r.profile is not None or r.target.any() or r.wheels.any() for r in robots)
+        return any(r.profile is not None or r.target.any() or r.wheels[0] != 0.0 or r.wheels[1] != 0.0 for r in robots)
 
     def at_rest(self) -> bool:
         """Whether every body is still (speed and turn rate below the rest thresholds)."""
@@ -256,30 +257,37 @@ class World:
         p = self.params
         if r.profile is not None:
             t = self.time_s - r.started_s
-            target = np.array(r.profile.wheels(t)) * r.scale
+            left, right = r.profile.wheels(t)
+            target = (left * r.scale[0], right * r.scale[1])
             if r.drive_start is None and r.profile.in_drive(t):
                 r.drive_start = np.array(r.body.position)  # type: ignore[attr-defined]
         else:
-            target = r.target
-        step = p.max_wheel_accel_m_s2 * dt
-        r.wheels = np.clip(r.wheels + np.clip(target - r.wheels, -step, step), -p.max_wheel_speed_m_s, p.max_wheel_speed_m_s)
-        v = 0.5 * (r.wheels[0] + r.wheels[1])
-        w = (r.wheels[1] - r.wheels[0]) / p.track_m
+            target = (float(r.target[0]), float(r.target[1]))
+        step, vmax = p.max_wheel_accel_m_s2 * dt, p.max_wheel_speed_m_s
+        wheels = r.wheels
+        for k in (0, 1):  # plain floats: numpy costs more than it saves on two numbers
+            change = min(max(target[k] - wheels[k], -step), step)
+            wheels[k] = min(max(wheels[k] + change, -vmax), vmax)
+        v = 0.5 * (wheels[0] + wheels[1])
+        w = (wheels[1] - wheels[0]) / p.track_m
         angle = r.body.angle  # type: ignore[attr-defined]
         r.control.velocity = (v * math.cos(angle), v * math.sin(angle))  # type: ignore[attr-defined]
         r.control.angular_velocity = w  # type: ignore[attr-defined]
-        self._hold(r, moving=bool(r.profile is not None or r.target.any() or r.wheels.any()))
+        moving = r.profile is not None or wheels[0] != 0.0 or wheels[1] != 0.0 or r.target.any()
+        if moving != r.moving:
+            self._hold(r, moving)
 
     def _hold(self, r: _Robot, moving: bool) -> None:
+        r.moving = moving
         force = self.params.drive_force_n if moving else self.params.hold_force_n
         r.pivot.max_force = force  # type: ignore[attr-defined]
         r.gear.max_force = force * self.params.track_m / 2.0  # type: ignore[attr-defined]
 
     def _finish(self, r: _Robot) -> None:
         """End the command of ``r`` once its profile is over and its wheels stopped; report a stalled drive."""
-        if r.profile is None or self.time_s - r.started_s < r.profile.duration or r.wheels.any():
+        if r.profile is None or self.time_s - r.started_s < r.profile.duration or r.wheels[0] != 0.0 or r.wheels[1] != 0.0:
             return  # the limiter brings the wheels to exactly 0 once the profile's speed is 0
-        commanded = abs(r.profile.drive_m) * float(np.mean(r.scale))
+        commanded = abs(r.profile.drive_m) * 0.5 * (r.scale[0] + r.scale[1])
         if r.drive_start is not None and abs(r.profile.drive_m) >= STUCK_MIN_M:
             achieved = float(np.hypot(*(np.array(r.body.position) - r.drive_start)))  # type: ignore[attr-defined]
             if achieved < STUCK_FRACTION * commanded:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -24,17 +25,24 @@ class Trapezoid:
     vmax: float
     amax: float
 
-    @property
+    @cached_property
     def peak(self) -> float:
         """The highest speed reached (vmax, or less when the distance is too short to reach it)."""
         return min(self.vmax, math.sqrt(self.distance * self.amax))
 
-    @property
+    @cached_property
     def duration(self) -> float:
         if self.distance <= 0:
             return 0.0
         v = self.peak
         return 2.0 * v / self.amax + (self.distance - v * v / self.amax) / v
+
+    def speed_at(self, t: float) -> float:
+        """``speed`` of one time (plain floats: the world asks every robot every step)."""
+        total = self.duration
+        if self.distance <= 0 or t < 0 or t > total:
+            return 0.0
+        return max(min(self.amax * t, self.peak, self.amax * (total - t)), 0.0)
 
     def speed(self, t: np.ndarray | float) -> np.ndarray:
         """Speed (>= 0) at times ``t`` (s) from the start; 0 outside [0, duration]."""
@@ -56,15 +64,15 @@ class TurnDriveProfile:
     vmax: float
     amax: float
 
-    @property
+    @cached_property
     def turn(self) -> Trapezoid:
         return Trapezoid(abs(self.turn_rad) * self.track_m / 2.0, self.vmax, self.amax)
 
-    @property
+    @cached_property
     def drive(self) -> Trapezoid:
         return Trapezoid(abs(self.drive_m), self.vmax, self.amax)
 
-    @property
+    @cached_property
     def duration(self) -> float:
         return self.turn.duration + self.drive.duration
 
@@ -76,7 +84,7 @@ class TurnDriveProfile:
         """(left, right) wheel speed at time ``t`` (s) since the command started."""
         t_turn = self.turn.duration
         if t < t_turn:
-            w = float(self.turn.speed(t)) * math.copysign(1.0, self.turn_rad)
+            w = self.turn.speed_at(t) * math.copysign(1.0, self.turn_rad)
             return -w, w
-        v = float(self.drive.speed(t - t_turn)) * math.copysign(1.0, self.drive_m)
+        v = self.drive.speed_at(t - t_turn) * math.copysign(1.0, self.drive_m)
         return v, v
