@@ -247,9 +247,11 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
 
         require_pymunk()
         parse_physics_params(list(o.physics_params), o.model)
-        if o.driver != "sim":
-            raise SwarmInputError(f"--world physics drives simulated robots: it needs --driver sim, got --driver {o.driver}")
-        if o.agents_per_process not in (None, traj.n):
+        if o.driver not in ("sim", "gateway"):
+            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, got --driver {o.driver}")
+        if o.motion_time:
+            raise SwarmInputError("--motion-time is the noise model's motion time: in --world physics the wheels take the time")
+        if o.driver == "sim" and o.agents_per_process not in (None, traj.n):
             raise SwarmInputError(f"--world physics steps one world in one agent process: --agents-per-process must be the "
                                   f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
     elif o.physics_params:
@@ -270,7 +272,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     traj = launch_trajectory(o)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
-    per_process = traj.n if o.world == "physics" else agents_per_process(traj.n, o.agents_per_process)
+    per_process = traj.n if o.world == "physics" and o.driver == "sim" else agents_per_process(traj.n, o.agents_per_process)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
@@ -319,15 +321,17 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
-            if o.world == "physics":
-                agent_extra += ["--world=physics", f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
+            world_flags = [f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
+            if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
+                agent_extra += ["--world=physics", *world_flags]
+            emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, faults, links=not port_hosts, **tied)
+                                     o.emulator_events, [*faults, *emulator_extra], links=not port_hosts, **tied)
                 gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)

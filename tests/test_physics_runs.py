@@ -13,9 +13,9 @@ import pytest
 
 pytest.importorskip("pymunk")
 
-from runtime.recording.mcap_log import read_messages  # noqa: E402
-from runtime.wire.messages import PhysicsEvent, TruthMessage, decode  # noqa: E402
-from swarm_cli.main import main  # noqa: E402
+from runtime.recording.mcap_log import read_messages
+from runtime.wire.messages import PhysicsEvent, TruthMessage, decode
+from swarm_cli.main import main
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}

@@ -137,7 +137,7 @@ class World:
             shape.elasticity = params.elasticity
             shape.friction = params.contact_friction
             shape.collision_type = 1
-            shape.robot_index = k  # type: ignore[attr-defined]  # read back in the contact callbacks
+            shape.robot_index = k  # read back in the contact callbacks
             control = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             control.position = body.position
             pivot = pymunk.PivotJoint(control, body, (0.0, 0.0), (0.0, 0.0))
@@ -273,7 +273,7 @@ class World:
         angle = r.body.angle  # type: ignore[attr-defined]
         r.control.velocity = (v * math.cos(angle), v * math.sin(angle))  # type: ignore[attr-defined]
         r.control.angular_velocity = w  # type: ignore[attr-defined]
-        moving = r.profile is not None or wheels[0] != 0.0 or wheels[1] != 0.0 or r.target.any()
+        moving = r.profile is not None or wheels[0] != 0.0 or wheels[1] != 0.0 or bool(r.target.any())
         if moving != r.moving:
             self._hold(r, moving)
 
@@ -291,7 +291,8 @@ class World:
         if r.drive_start is not None and abs(r.profile.drive_m) >= STUCK_MIN_M:
             achieved = float(np.hypot(*(np.array(r.body.position) - r.drive_start)))  # type: ignore[attr-defined]
             if achieved < STUCK_FRACTION * commanded:
-                self._stuck.append(Stuck(self.time_s, r.robot, commanded, achieved, tuple(self._pose(r).tolist())))  # type: ignore[arg-type]
+                x, y, h = self._pose(r).tolist()
+                self._stuck.append(Stuck(self.time_s, r.robot, commanded, achieved, (x, y, h)))
         r.profile = None
         r.drive_start = None
 
