@@ -4,7 +4,8 @@ Each of ``trajectories`` random trajectories (``swarm compare``'s scheme, the sa
 with the same model (e.g. the one ``swarm calibrate`` fitted to a physics run): in the noise model's world,
 where the plan's assumptions hold (the prediction), and in the physical world (the measurement). Per world:
 P_f (Eq. 24), the final localization error e_l (Eq. 8) against the anchor selection's Monte Carlo estimate
-of it for the chosen plans (the planner's own prediction, where it searched), and contacts per 100
+of it for the chosen plans (the planner's own prediction of one change from a known start, where it searched and a
+clear plan existed: a lower bound of the accumulated e_l), and contacts per 100
 configuration changes: the plans keep every pair 2R + margin apart (docs/bodies.md), so zero are planned;
 the model's world counts bodies closer than 2R along the straight paths between true poses, the physical
 world the bodies that touched (and drives that stalled). ``to_json()``::
@@ -58,6 +59,7 @@ def run_one(job: tuple) -> dict:
                       world=world, physics=params)
     planned = [next(s.e_l for s in c.selection.scores if s.n_anchors == c.selection.n_anchors)
                for c in result.configs if c.selection is not None and c.selection.scores]
+    planned = [x for x in planned if np.isfinite(x)]  # inf: no plan was clear and the fallback was taken (docs/bodies.md)
     events = [e for _, e in result.world_events]
     return {"world": world, "pf": result.pf(), "e_l": float(result.localization_errors()[-1]),
             "e_l_planned": [float(x) for x in planned], "e_l_all": [float(x) for x in result.localization_errors()],
