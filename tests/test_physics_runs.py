@@ -54,3 +54,17 @@ def test_a_physics_run_is_recorded_replayed_and_calibrated(tmp_path, capsys):
     fitted = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert fitted["samples"]["drives"] == 8 and 0 < fitted["drive_sigma_frac"] < 0.5
     assert (tmp_path / "fitted.toml").exists()
+
+
+def test_bench_physics_json_contract_and_bad_input(capsys):
+    """``swarm bench physics`` (in this process, one worker): both worlds' rows with the documented keys."""
+    assert main(["bench", "physics", "--robots", "4", "--trajectories", "2", "--configs", "1", "--method", "no-anchors",
+                 "--workers", "1", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert (out["trajectories"], out["configs"], out["robots"], out["method"]) == (2, 1, 4, "no-anchors")
+    assert [r["world"] for r in out["rows"]] == ["model", "physics"]
+    keys = {"world", "pf_mean", "pf_sd", "e_l_mean", "e_l_planned_mean", "contacts_per_100", "stuck_per_100"}
+    assert all(set(r) == keys and r["pf_mean"] > 0 for r in out["rows"]) and out["pf_ratio"] > 0
+    assert main(["bench", "physics", "--physics-param", "fov_rad=9"]) == 2
+    assert "fov_rad must be at most 2 pi" in capsys.readouterr().err
+

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -173,3 +174,18 @@ def test_without_pymunk_the_commands_name_the_extra(monkeypatch, capsys):
                                                "pip install 'inchworm-swarm[physics]'")
     assert main(["launch", "--world", "physics"]) == 2
     assert "pip install 'inchworm-swarm[physics]'" in capsys.readouterr().err
+
+
+def test_a_physics_agent_process_hosts_every_robot_of_the_run():
+    from robot_agent.assembly import AgentSpec, build_agents
+    from runtime.models.trajectory import random_trajectory
+    from runtime.wire.transport import ZenohSettings
+
+    traj = random_trajectory(3, 1, np.random.default_rng(0))
+    spec = AgentSpec(ZenohSettings("client", connect=("tcp/127.0.0.1:7447",)), "r", [0, 1], None, trajectory=traj, physics=P)
+    with pytest.raises(SwarmInputError, match=r"host them all in this process \(--id 0-2\), got --id 0-1"):
+        build_agents(spec)
+    example = f"{Path(__file__).resolve().parents[1] / 'examples' / 'drivers' / 'unicycle.py'}:UnicycleDriver"
+    with pytest.raises(SwarmInputError, match="needs --driver sim, got --driver .*unicycle.py:UnicycleDriver"):
+        build_agents(AgentSpec(ZenohSettings("client", connect=("tcp/127.0.0.1:7447",)), "r", [0, 1, 2], None, trajectory=traj,
+                               physics=P, driver=example))
