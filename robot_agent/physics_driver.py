@@ -25,8 +25,9 @@ from runtime.world.realtime import RealtimeWorld
 _log = logging.getLogger(__name__)
 
 
-def physics_events(run: str, step: int, events: list[WorldEvent], ids: tuple[int, ...], poses: np.ndarray) -> list[PhysicsEvent]:
-    """The ``PhysicsEvent`` messages of one quiet moment of the world: its contacts and stalls, then every true pose."""
+def physics_events(run: str, step: int, time_s: float, events: list[WorldEvent], ids: tuple[int, ...],
+                   poses: np.ndarray) -> list[PhysicsEvent]:
+    """The ``PhysicsEvent`` messages of one quiet moment (world time ``time_s``): its contacts and stalls, then every true pose."""
     row = {r: k for k, r in enumerate(ids)}
     out = []
     for e in events:
@@ -34,24 +35,13 @@ def physics_events(run: str, step: int, events: list[WorldEvent], ids: tuple[int
             end = e.end_s
             out.append(PhysicsEvent(run=run, step=step, kind="contact", time_s=e.start_s, robots=(e.a, e.b),
                                     poses=(tuple(poses[row[e.a]]), tuple(poses[row[e.b]])), point=e.point,
-                                    duration_s=max(0.0, (end if end is not None else _latest(events, e.start_s)) - e.start_s),
+                                    duration_s=max(0.0, (end if end is not None else time_s) - e.start_s),
                                     ongoing=int(end is None), impulse_n_s=e.impulse_n_s))
         elif isinstance(e, Stuck):
             out.append(PhysicsEvent(run=run, step=step, kind="stuck", time_s=e.time_s, robots=(e.robot,), poses=(e.pose,),
                                     commanded_m=max(0.0, e.commanded_m), achieved_m=e.achieved_m))
-    time_s = max([_time(e) for e in events], default=0.0)
     out.append(PhysicsEvent(run=run, step=step, kind="poses", time_s=time_s, robots=ids, poses=tuple(map(tuple, poses))))
     return out
-
-
-def _time(e: WorldEvent) -> float:
-    if isinstance(e, Contact):
-        return e.end_s if e.end_s is not None else e.start_s
-    return e.time_s
-
-
-def _latest(events: list[WorldEvent], floor: float) -> float:
-    return max([floor, *(_time(e) for e in events)])
 
 
 class SharedWorld:
@@ -81,14 +71,14 @@ class SharedWorld:
         if last:
             self.realtime.close()
 
-    def _publish(self, step: int, events: list[WorldEvent], ids: tuple[int, ...], poses: np.ndarray) -> None:
+    def _publish(self, step: int, time_s: float, events: list[WorldEvent], ids: tuple[int, ...], poses: np.ndarray) -> None:
         from runtime.wire.transport import publish  # noqa: PLC0415 - zenoh only in processes that publish
 
         with self._lock:
             session = self._session
         if session is None:
             return
-        for msg in physics_events(self.run, step, events, ids, poses):
+        for msg in physics_events(self.run, step, time_s, events, ids, poses):
             try:
                 publish(session, message_key(msg), encode(msg))
             except Exception:  # noqa: BLE001 - a closed session at shutdown must not stop the world

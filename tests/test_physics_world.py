@@ -189,3 +189,19 @@ def test_a_physics_agent_process_hosts_every_robot_of_the_run():
     with pytest.raises(SwarmInputError, match="needs --driver sim, got --driver .*unicycle.py:UnicycleDriver"):
         build_agents(AgentSpec(ZenohSettings("client", connect=("tcp/127.0.0.1:7447",)), "r", [0, 1, 2], None, trajectory=traj,
                                physics=P, driver=example))
+
+
+def test_world_events_become_physics_event_messages():
+    from robot_agent.physics_driver import physics_events
+    from runtime.wire.messages import PhysicsEvent, decode, encode
+
+    w = World([3, 5], np.array([[0.0, 0.0, 0.0], [0.06, 0.0, math.pi]]), P, seed=1)
+    w.command(3, 0.0, 0.2)
+    w.command(5, 0.0, 0.2)
+    w.settle()
+    msgs = physics_events("r1", 4, w.time_s, w.take_events(), w.ids, w.poses())
+    assert [m.kind for m in msgs] == ["contact", "stuck", "stuck", "poses"]
+    contact, poses = msgs[0], msgs[-1]
+    assert contact.robots == (3, 5) and contact.ongoing == 1 and contact.duration_s == pytest.approx(w.time_s - contact.time_s)
+    assert poses.time_s == w.time_s and np.array_equal(np.array(poses.poses), w.poses()) and poses.step == 4
+    assert all(decode(encode(m), PhysicsEvent) == m for m in msgs)

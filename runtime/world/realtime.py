@@ -6,8 +6,9 @@ starts each command at once (``begin``) and steps the world while anything moves
 world seconds per wall-clock second, or as fast as it computes (``speed`` 0). When an idle world
 gets a command it waits ``gather_s`` of wall time before stepping, so the commands of one step
 (sent together) start at the same world time. Once every command is over and every body is at
-rest, the waiting callers are answered and ``on_quiet(step, events, ids, poses)`` hears what
-happened since the last quiet moment (``step``: the highest step commanded meanwhile).
+rest, the waiting callers are answered and ``on_quiet(step, time_s, events, ids, poses)`` hears what
+happened since the last quiet moment (``step``: the highest step commanded meanwhile; ``time_s``: the
+world time it became still).
 Unlike ``World`` itself, a run on it depends on when the commands arrive, so it is not
 reproducible bit for bit (the in-process ``PhysicsSwarm`` is).
 """
@@ -27,7 +28,7 @@ GATHER_S = 0.02  # wall seconds an idle world waits for the rest of a step's com
 CHUNK_STEPS = 10  # world steps per turn of the stepping thread
 SETTLE_S = 600.0  # world seconds a caller waits at most for the world to come to rest
 
-QuietListener = Callable[[int, list[WorldEvent], tuple[int, ...], np.ndarray], None]
+QuietListener = Callable[[int, float, list[WorldEvent], tuple[int, ...], np.ndarray], None]
 Done = Callable[[np.ndarray], None]
 
 
@@ -139,7 +140,7 @@ class RealtimeWorld:
                         self._waiting = []
                         events = self.world.take_events()
                         poses = {robot: self.world.pose(robot) for robot, _, _ in answered}
-                        report = (self._step, events, self.world.ids, self.world.poses())
+                        report = (self._step, self.world.time_s, events, self.world.ids, self.world.poses())
                         break
                     self.world.step(CHUNK_STEPS)
                     world_time = self.world.time_s
