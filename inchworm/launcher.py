@@ -286,6 +286,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
+    agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
     tied = lifeline.child_options()
 
     def stop_children() -> None:
@@ -335,7 +336,6 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            agent_errors = AgentErrors()
             piped = {**tied, **agent_errors.popen_kwargs()}
             try:
                 if port_hosts:  # one process per port: its link and its robots' agents
@@ -433,5 +433,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         stop_children()
+        for line in agent_errors.held():  # an agent's error that did not end the start: as it printed it
+            say(line)
         lifeline.close()
         signals.restore()

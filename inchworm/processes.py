@@ -110,6 +110,7 @@ class AgentErrors:
 
     def __init__(self) -> None:
         self._lines: dict[int, str] = {}  # pid -> the error line (without the prefix)
+        self._reported: set[int] = set()
         self._threads: dict[int, threading.Thread] = {}
         self._lock = threading.Lock()
 
@@ -136,15 +137,25 @@ class AgentErrors:
             sys.stderr.flush()
 
     def failure(self, procs: list[subprocess.Popen]) -> str | None:
-        """The error line of the first of ``procs`` that exited with status 2 (bad input), else None."""
+        """The error line of the first of ``procs`` that exited with status 2 (bad input), else None; that line is
+        then the caller's to report (``held`` no longer returns it)."""
         for p in procs:
             if p.poll() == 2:
                 thread = self._threads.get(p.pid)
                 if thread is not None:
                     thread.join(timeout=2.0)  # its last line is read by now (the pipe closed at its exit)
                 with self._lock:
+                    self._reported.add(p.pid)
                     return self._lines.get(p.pid, f"an agent process (pid {p.pid}) exited with status 2")
         return None
+
+    def held(self) -> list[str]:
+        """The error lines kept back and not reported by ``failure`` (an agent that failed after the run started),
+        each as the agent printed it; call once the agents have ended."""
+        for thread in self._threads.values():
+            thread.join(timeout=2.0)
+        with self._lock:
+            return [AGENT_ERROR + line for pid, line in self._lines.items() if pid not in self._reported]
 
 
 ROBOTS_PER_PORT = 5
