@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -149,6 +149,7 @@ class RunResult:
     configs: list[ConfigRecord] = field(default_factory=list)
     lost: list[LostRobot] = field(default_factory=list)
     rejoined: list[RejoinedRobot] = field(default_factory=list)
+    world_events: list[tuple[int, Any]] = field(default_factory=list)  # a physical world's (global step, Contact | Stuck)
 
     @property
     def has_truth(self) -> bool:

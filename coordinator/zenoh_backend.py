@@ -430,7 +430,8 @@ class ZenohSwarmBackend:
                 return
             if time.monotonic() > deadline:
                 if missing:
-                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)",
+                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (an agent that failed to start says why on its "
+                                    f"own stderr; one that runs may have another run id or hub)",
                                     missing)
                 raise AgentLost(f"no initial true pose from {_robots(no_truth)} after {timeout_s:.1f} s", no_truth)
             self._pump(0.05)

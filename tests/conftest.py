@@ -36,6 +36,7 @@ SLOW_MODULES = frozenset({
     "test_distributed",  # agents + coordinator processes
     "test_one_master",  # coordinators, standbys, agents and replays as processes
     "test_drivers",  # lab drivers under swarm launch and swarm agent
+    "test_physics_runs",  # swarm launch --world physics, replay, calibrate
     "test_calibrate",  # swarm calibrate on a launched run's recording
     "test_emulator",  # robot emulators on ptys
     "test_gateway",  # gateway links and agents on ptys
