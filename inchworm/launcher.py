@@ -22,7 +22,10 @@ agents of its robots with the gateway driver (``swarm agent --link``); with ``ag
 first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement) to the run, then
 stops every child; so does a coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
 ``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
-one that is not ``simulated`` gets a coordinator with ``--no-truth``.
+one that is not ``simulated`` gets a coordinator with ``--no-truth``. ``driver="ros2"`` drives robots speaking
+ROS 2 (docs/ros2.md): the lab's, or with ``ros2_robots`` simulated ones started first (``swarm ros2 robots``, whose
+ground truth the agents then read, so the run has truths); ``ros2`` also runs the live bridge
+(``swarm ros2 bridge``), and both are stopped after the agents.
 
 Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID (with the gateway's port
 processes: the port's link and agents) at the first command of global step STEP and times the
@@ -128,6 +131,8 @@ class LaunchOptions:
     json: bool = False
     model_flags: dict[str, Any] = field(default_factory=dict)
     coordinator_flags: dict[str, Any] = field(default_factory=dict)
+    ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
+    ros2_robots: bool = False  # with driver "ros2": also start simulated ROS 2 robots (``swarm ros2 robots``)
 
 
 def _stderr(text: str) -> None:
@@ -225,11 +230,31 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     if o.driver not in BUILT_IN:
         driver_class(o.driver)
         driver_options(list(o.driver_options))
+    if o.ros2_robots and o.driver != "ros2":
+        raise SwarmInputError("--ros2-robots starts simulated ROS 2 robots for the ROS 2 driver: it needs --driver ros2")
+    if o.driver == "ros2" or o.ros2:
+        from runtime.wire.ros2 import require_ros2  # noqa: PLC0415 - ROS 2 only for ROS 2 runs
+
+        require_ros2(f"swarm {o.command} --driver ros2" if o.driver == "ros2" else f"swarm {o.command} --ros2")
+    if o.driver == "ros2":
+        ros2_settings(o)
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
     if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
         robot, step = o.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+
+
+def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
+    """The ROS 2 driver's options of the agents (with ``ros2_robots``: their ground truth), and whether the
+    robots publish a ground truth (then the run has truths: P_f and contacts)."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+
+    options = list(o.driver_options)
+    given = driver_options(options)
+    if o.ros2_robots and "ground_truth" not in given:
+        options.append("ground_truth=ground_truth")
+    return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
 
 
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
@@ -253,6 +278,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
+    ros2_procs: list[subprocess.Popen] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     tied = lifeline.child_options()
@@ -263,6 +289,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if coordinators:  # first, with time to finish their recordings
                 stop_all(coordinators, COORDINATOR_GRACE_S)
             stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
+            stop_all(ros2_procs)
             stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
             stop_all(procs[:1] if gateway_procs else [])
 
@@ -290,6 +317,19 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
+            truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
+            if o.driver == "ros2":
+                ros2_options, truth = ros2_settings(o)
+                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
+                if o.ros2_robots:
+                    config = driver_options(ros2_options).get("config")
+                    ros2_procs.append(subprocess.Popen(
+                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
+                         *([f"--config={Path(config).resolve()}"] if config else [])], **tied))
+            if o.ros2:
+                ros2_procs.append(subprocess.Popen(
+                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
+                     f"--robot-radius={o.model.robot_radius_m!r}"], **tied))
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -306,7 +346,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
                 agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
-            if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
+            if not truth:
                 common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
                    f"--step-timeout={o.step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
@@ -321,7 +361,8 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 cmd.append(f"--foxglove={o.foxglove}")
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
-            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
+                    "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.ros2_robots else "")}.get(o.driver, f"agents ({o.driver})")
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")

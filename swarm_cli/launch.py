@@ -58,6 +58,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
     p.add_argument("--driver", default="sim", metavar="DRIVER",
                    help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
+                        "ros2: robots speaking ROS 2 (cmd_vel, odom, neighbors; docs/ros2.md); "
                         "or a lab's own driver package.module:Class, file.py:Class or entry point name (docs/drivers.md)")
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="with a lab's own driver: an option passed to every agent's driver, repeatable")
@@ -87,6 +88,11 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
     p.add_argument("--delay", type=float, default=0.0, metavar="S",
                    help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
+    p.add_argument("--ros2", action="store_true",
+                   help="show the run live in ROS 2: /swarm/estimates, /swarm/robot<id>/pose, /swarm/markers, service /swarm/estop "
+                        "(swarm ros2 bridge; extra ros2, docs/ros2.md)")
+    p.add_argument("--ros2-robots", action="store_true",
+                   help="with --driver ros2: also start simulated ROS 2 robots of the trajectory (swarm ros2 robots) to drive")
     add_record_options(p)
     add_simulation_options(p)
 
@@ -130,5 +136,6 @@ def run(args: argparse.Namespace) -> int:
         0 if args.command == "demo" else args.seed, args.method, args.seed, args.run_id, args.out, args.result, args.motion_time,
         args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
         args.min_robots, args.kill_robot, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
-        args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS))
+        args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
+        ros2=args.ros2, ros2_robots=args.ros2_robots)
     return launch(options, emit_json=print_json)
