@@ -86,6 +86,7 @@ if TYPE_CHECKING:
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
+DEFAULT_STEP_TIMEOUT_S = 5.0
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 Say = Callable[[str], None]
 
@@ -110,7 +111,7 @@ class LaunchOptions:
     out: Path | None = None  # default out/<command>
     result: Path | None = None
     motion_time: float = 0.0
-    step_timeout: float = 5.0
+    step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
     driver: str = "sim"
     driver_options: tuple[str, ...] = ()
     command_timeout: float | None = None
@@ -257,6 +258,16 @@ def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
     return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
 
 
+def ros2_step_timeout(options: list[str]) -> float:
+    """The coordinator's step timeout for ROS 2 robots: the slowest motion the agents' default limits allow (turn pi,
+    drive ``max_drive_m``) at the driver's speeds and accelerations, 1.5 times, plus the sensing window and 2 s."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.wire.messages import CommandLimits  # noqa: PLC0415
+
+    cfg, limits = Ros2Config.load(driver_options(options)), CommandLimits()
+    return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
+
+
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
     """Run it (module doc); the exit status: the coordinator's, 128 + N if it was killed by signal N.
     ``say``: the launcher's notes (stderr); ``emit_json``: the amended JSON object of a run with a kill."""
@@ -318,8 +329,11 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
             truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
+            step_timeout = DEFAULT_STEP_TIMEOUT_S if o.step_timeout is None else o.step_timeout
             if o.driver == "ros2":
                 ros2_options, truth = ros2_settings(o)
+                if o.step_timeout is None:
+                    step_timeout = ros2_step_timeout(ros2_options)
                 agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
                 if o.ros2_robots:
                     config = driver_options(ros2_options).get("config")
@@ -349,7 +363,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if not truth:
                 common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
-                   f"--step-timeout={o.step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
+                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
                    f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
             if o.result:
                 cmd.append(f"--result={o.result}")

@@ -552,7 +552,9 @@ class Agent:
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
-        assert pose is not None, "simulated drivers only"
+        if pose is None:  # a tracker's or simulator's truth that has not come (yet): nothing to tell
+            _log.warning("robot %d: no true pose for step %d (the driver has none yet)", self.robot, step)
+            return
         self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=tuple(pose.tolist()))
         self._send(self._last_truth)
 

@@ -104,6 +104,12 @@ class Ros2Config:
     def frame_of(self, robot: int) -> str:
         return self.frame.replace("{id}", str(int(robot)))
 
+    def motion_time_s(self, turn_rad: float, drive_m: float) -> float:
+        """How long the driver takes to execute (turn, drive): both profiles at ``rate_hz``, then ``settle_s``."""
+        dt = 1.0 / self.rate_hz
+        steps = len(velocity_profile(turn_rad, self.max_angular_speed, self.angular_accel, dt))
+        return (steps + len(velocity_profile(drive_m, self.max_linear_speed, self.linear_accel, dt))) * dt + self.settle_s
+
 
 def _flatten(data: dict, path: str) -> dict[str, object]:
     out: dict[str, object] = {}

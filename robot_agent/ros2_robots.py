@@ -63,7 +63,7 @@ class SimRobots:
         self.nodes, self._odom_pubs, self._truth_pubs, self._seen_pubs = [], [], [], []
         try:
             for k, robot in enumerate(self.ids):
-                node = RosProcess.add(f"sim_robot_{robot}", self.cfg.namespace_of(robot))
+                node = RosProcess.add("sim_robot", self.cfg.namespace_of(robot))
                 self.nodes.append(node)
                 node.create_subscription(Twist, self.cfg.cmd_vel, lambda msg, k=k: self._on_cmd(k, msg), qos("best_effort", 10))
                 self._odom_pubs.append(node.create_publisher(Odometry, self.cfg.odom, sensor))

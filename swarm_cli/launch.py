@@ -55,13 +55,16 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
-    p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    p.add_argument("--step-timeout", type=positive, default=None,
+                   help="seconds the coordinator waits for a step's answers (default 5; --driver ros2: the slowest motion "
+                        "its speeds allow, x 1.5, + 2 s)")
     p.add_argument("--driver", default="sim", metavar="DRIVER",
                    help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
                         "ros2: robots speaking ROS 2 (cmd_vel, odom, neighbors; docs/ros2.md); "
                         "or a lab's own driver package.module:Class, file.py:Class or entry point name (docs/drivers.md)")
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="with a lab's own driver: an option passed to every agent's driver, repeatable")
+                   help="with a lab's own driver or ros2 (config=FILE, settings; docs/ros2.md): an option passed to every agent's "
+                        "driver, repeatable")
     p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
                    help="with a lab's own driver: seconds each command or observation may take before the agent stops the "
                         "robot and reports it lost (default: swarm agent's)")

@@ -34,7 +34,7 @@ EXIT_NO_RUN = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("ros2", help="simulated ROS 2 robots (robots), a run live in ROS 2 (bridge)",
+    p = sub.add_parser("ros2", help="simulated ROS 2 robots (robots), a run live in ROS 2 (bridge); extra ros2",
                        description="Simulated ROS 2 robots, and a run live in ROS 2 (docs/ros2.md).")
     add_arguments(p)
 
