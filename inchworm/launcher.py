@@ -252,8 +252,7 @@ def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
     from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
 
     options = list(o.driver_options)
-    given = driver_options(options)
-    if o.ros2_robots and "ground_truth" not in given:
+    if o.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
         options.append("ground_truth=ground_truth")
     return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
 
@@ -335,11 +334,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.step_timeout is None:
                     step_timeout = ros2_step_timeout(ros2_options)
                 agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
-                if o.ros2_robots:
-                    config = driver_options(ros2_options).get("config")
+                if o.ros2_robots:  # the same settings: namespaces, frame, topics
                     ros2_procs.append(subprocess.Popen(
                         [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
-                         *([f"--config={Path(config).resolve()}"] if config else [])], **tied))
+                         *(f"--driver-option={x}" for x in ros2_options)], **tied))
             if o.ros2:
                 ros2_procs.append(subprocess.Popen(
                     [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",

@@ -168,6 +168,16 @@ def velocity_profile(distance: float, vmax: float, amax: float, dt: float) -> np
     return math.copysign(1.0, distance) * v
 
 
+def closed_loop_speed(remaining: float, elapsed: float, vmax: float, amax: float, dt: float) -> float:
+    """The speed (>= 0) towards a target ``remaining`` away (negative: passed), ``elapsed`` s into the motion: ramped up at
+    ``amax``, capped at ``vmax``, braking so it could stop at the target (sqrt(2 a d)), never below ``amax * dt`` (so it
+    arrives); 0 once within half a period at that crawl, or past."""
+    crawl = amax * dt
+    if remaining <= crawl * dt / 2:
+        return 0.0
+    return max(crawl, min(vmax, amax * (elapsed + dt), math.sqrt(2.0 * amax * remaining)))
+
+
 class SightingWindow:
     """The ``neighbors`` sightings of robot ``robot`` (of the run ``ids``) as they arrive, and one window's observations.
 

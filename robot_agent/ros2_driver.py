@@ -21,6 +21,7 @@ idle ``report_lost``. A namespace where no robot ever appears is not ready, and 
 from __future__ import annotations
 
 import logging
+import math
 import threading
 import time
 from collections.abc import Mapping
@@ -29,12 +30,13 @@ from typing import Any
 import numpy as np
 
 from robot_agent.driver import Driver, DriverContext, DriverRefused, PeerPoses, RobotLost
-from robot_agent.ros2_config import Ros2Config, SightingWindow, velocity_profile
+from robot_agent.ros2_config import Ros2Config, SightingWindow, closed_loop_speed, velocity_profile
 from runtime.wire.messages import MotionCommand
 from runtime.wire.ros2 import RosProcess, qos, require_ros2, stamp_ns, yaw_of
 
 _log = logging.getLogger(__name__)
 AT_REST = 1e-3  # m/s and rad/s: odom twist below this is standing still
+REST_WAIT_SILENCES = 5  # after a zero twist, messages stamped later must come within this many silence_s
 WATCH_S = 0.1  # how often the idle watchdog looks
 
 
@@ -56,7 +58,7 @@ class Ros2Driver(Driver):
         self.estopped = False
         self._lock = threading.Lock()
         self._heard: dict[str, float] = {}  # periodic topic -> monotonic time last heard
-        self._odom: tuple[int, float, float] | None = None  # (stamp ns, |v|, |w|) of the latest odom
+        self._odom: tuple[int, float, float, np.ndarray] | None = None  # (stamp ns, |v|, |w|, pose) of the latest odom
         self._truth: tuple[int, np.ndarray] | None = None  # (stamp ns, pose) of the latest ground truth
         self._subscribed = 0.0  # monotonic time cmd_vel last had a subscriber (0: never)
         self._busy = False
@@ -75,8 +77,9 @@ class Ros2Driver(Driver):
 
     def _on_odom(self, msg: Any) -> None:
         self._heard["odom"] = time.monotonic()
-        tw = msg.twist.twist
-        self._odom = (stamp_ns(msg.header.stamp), abs(tw.linear.x), abs(tw.angular.z))
+        tw, p = msg.twist.twist, msg.pose.pose
+        self._odom = (stamp_ns(msg.header.stamp), abs(tw.linear.x), abs(tw.angular.z),
+                      np.array([p.position.x, p.position.y, yaw_of(p.orientation)]))
 
     def _on_truth(self, msg: Any) -> None:
         self._heard["ground_truth"] = time.monotonic()
@@ -148,8 +151,12 @@ class Ros2Driver(Driver):
         try:
             dt = 1.0 / self.cfg.rate_hz
             c = self.cfg
-            self._follow(velocity_profile(command.turn_rad, c.max_angular_speed, c.angular_accel, dt), dt, angular=True)
-            self._follow(velocity_profile(command.drive_m, c.max_linear_speed, c.linear_accel, dt), dt, angular=False)
+            if self._odom_fresh():  # closed on the odometry: exact in odometry terms, whatever the delays
+                self._close(command.turn_rad, c.max_angular_speed, c.angular_accel, dt, angular=True)
+                self._close(command.drive_m, c.max_linear_speed, c.linear_accel, dt, angular=False)
+            else:
+                self._follow(velocity_profile(command.turn_rad, c.max_angular_speed, c.angular_accel, dt), dt, angular=True)
+                self._follow(velocity_profile(command.drive_m, c.max_linear_speed, c.linear_accel, dt), dt, angular=False)
             self._publish(0.0, 0.0)
             if not self._halt.is_set():
                 self._settle(time.time_ns())
@@ -158,6 +165,41 @@ class Ros2Driver(Driver):
         finally:
             self._busy = False
         return self.true_pose()
+
+    def _odom_fresh(self) -> bool:
+        heard = self._heard.get("odom")
+        return self._odom is not None and heard is not None and time.monotonic() - heard < self.cfg.silence_s
+
+    def _close(self, target: float, vmax: float, amax: float, dt: float, *, angular: bool) -> None:
+        """Turn by ``target`` rad or drive ``target`` m, measured on the odometry (``closed_loop_speed`` each ``dt``)."""
+        if target == 0.0 or self._odom is None:
+            return
+        start = self._odom[3]
+        done, last_yaw = 0.0, start[2]
+        began = time.monotonic()
+        limit = 3.0 * len(velocity_profile(target, vmax, amax, dt)) * dt + 2.0 * self.cfg.silence_s
+        while not self._halt.is_set():
+            self._check()
+            pose = self._odom[3]
+            if angular:
+                done += math.remainder(pose[2] - last_yaw, 2 * math.pi)
+                last_yaw = pose[2]
+            else:
+                done = math.hypot(pose[0] - start[0], pose[1] - start[1])
+            elapsed = time.monotonic() - began
+            speed = closed_loop_speed(abs(target) - math.copysign(1.0, target) * done if angular else abs(target) - done,
+                                      elapsed, vmax, amax, dt)
+            if speed == 0.0:
+                return
+            if elapsed > limit:
+                raise RobotLost(f"robot {self.robot} did not complete its {'turn' if angular else 'drive'} of {target:.4g} "
+                                f"{'rad' if angular else 'm'} in {elapsed:.1f} s: its odometry shows {done:.4g}")
+            v = math.copysign(speed, target)
+            if angular:
+                self._publish(0.0, v)
+            else:
+                self._publish(v, 0.0)
+            self._halt.wait(dt)
 
     def _follow(self, speeds: np.ndarray, dt: float, *, angular: bool) -> None:
         """Publish ``speeds`` one per ``dt`` (absolute schedule), checking the robot is still there."""
@@ -177,17 +219,26 @@ class Ros2Driver(Driver):
         """Until the robot stands still after the zero twist at ``zero_ns``: its odom (when heard) says so in a
         message stamped ``settle_s`` later, and its ground truth (when configured) is as recent."""
         after = zero_ns + int(self.cfg.settle_s * 1e9)
-        deadline = time.monotonic() + self.cfg.settle_s + self.cfg.silence_s
+        moving_since: float | None = None  # odometry stamped after the zero twist that still shows motion
+        deadline = time.monotonic() + self.cfg.settle_s + REST_WAIT_SILENCES * self.cfg.silence_s
         while not self._halt.is_set():
             odom, truth = self._odom, self._truth
-            odom_ok = "odom" not in self._heard or (odom is not None and odom[0] >= after and odom[1] < AT_REST and odom[2] < AT_REST)
+            fresh = odom is not None and odom[0] >= after
+            at_rest = fresh and odom is not None and odom[1] < AT_REST and odom[2] < AT_REST
+            odom_ok = "odom" not in self._heard or at_rest
             truth_ok = not self.cfg.ground_truth or (truth is not None and truth[0] >= after)
             if odom_ok and truth_ok and time.time_ns() >= after:
                 return
             self._check()
-            if time.monotonic() > deadline:
-                raise RobotLost(f"robot {self.robot} did not come to rest within {self.cfg.settle_s + self.cfg.silence_s:.1f} s "
-                                f"of the zero twist on {self._where(self.cfg.cmd_vel)}")
+            now = time.monotonic()
+            moving_since = (moving_since or now) if fresh and not at_rest else None
+            if moving_since is not None and now - moving_since > self.cfg.silence_s:
+                raise RobotLost(f"robot {self.robot} keeps moving after the zero twist on {self._where(self.cfg.cmd_vel)} "
+                                f"(its odometry, {now - moving_since:.1f} s)")
+            if now > deadline:
+                what = "odometry" if not odom_ok else "ground truth"
+                raise RobotLost(f"robot {self.robot}: no {what} stamped after its zero twist within {now - deadline + self.cfg.settle_s:.1f} s "
+                                f"(its clock behind the agent's, or its messages that late)")
             self._halt.wait(0.01)
         self._publish(0.0, 0.0)
 

@@ -94,7 +94,7 @@ class SimRobots:
             if self._stop.wait(max(0.0, start + tick * self.dt - time.monotonic())):
                 return
             now = time.monotonic()
-            self._step(min(now - last, 5 * self.dt), now)
+            self._step(now - last, now)  # the elapsed time, late ticks included: world time is wall time
             last = now
             self._publish_state()
             if now >= next_sense:

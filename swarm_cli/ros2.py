@@ -1,6 +1,6 @@
 """``swarm ros2``: simulated ROS 2 robots, and a run live in ROS 2 (extra ``ros2``; docs/ros2.md).
 
-    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic] [--config FILE]
+    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic] [--driver-option config=FILE]
     swarm ros2 bridge --run RUN [--hub ENDPOINT] [--trajectory traj.json] [--wait S]
 
 ``robots`` starts one simulated robot per robot of the trajectory at its initial pose, each speaking the
@@ -45,10 +45,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots and their initial poses")
     r.add_argument("--seed", type=int, default=0, help="seed of the motion and sensing noise (default 0)")
     r.add_argument("--world", default="kinematic", help="the world the robots move in (default kinematic: the project's model)")
-    r.add_argument("--config", type=Path, default=None, help="the ROS 2 driver's TOML settings: namespaces, frame, topic names")
+    r.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, topic names "
+                        "(docs/ros2.md); repeatable")
     r.add_argument("--rate", type=positive, default=50.0, help="world steps and odometry per second (default 50)")
     r.add_argument("--sensing-rate", type=positive, default=10.0, help="sensor frames per second on neighbors (default 10)")
-    r.add_argument("--ground-truth", default="ground_truth", help="topic of the true pose, '' for none (default ground_truth)")
+    r.add_argument("--no-ground-truth", action="store_true",
+                   help="publish no true pose (default: on the settings' ground_truth topic, else ground_truth)")
     r.add_argument("--no-odom", default="", metavar="IDS", help="robots that publish no odometry (e.g. 1,3)")
     r.add_argument("--silent", action="append", default=[], metavar="ID@N",
                    help="fault: robot ID stops publishing (and moving) when its N-th motion starts; repeatable")
@@ -77,7 +80,7 @@ def _silent(specs: list[str]) -> dict[int, int]:
 
 
 def run_robots(args: argparse.Namespace) -> int:
-    from robot_agent.assembly import parse_ids  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
+    from robot_agent.assembly import driver_options, parse_ids  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
     from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415
     from robot_agent.ros2_robots import SimRobots  # noqa: PLC0415
     from runtime.models.trajectory import Trajectory  # noqa: PLC0415
@@ -93,9 +96,10 @@ def run_robots(args: argparse.Namespace) -> int:
         raise SwarmInputError(f"robots {unknown} of --no-odom/--silent are not robots of {args.trajectory}")
     if args.late_sightings < 0:
         raise SwarmInputError(f"--late-sightings must be >= 0, got {args.late_sightings:g}")
-    cfg = Ros2Config.load({"config": str(args.config)} if args.config else {})
+    cfg = Ros2Config.load(driver_options(args.driver_option))
     world = make_world(args.world, traj.ids, traj.initial_poses, model_config(args), args.seed)
-    robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=args.ground_truth, no_odom=no_odom,
+    truth = "" if args.no_ground_truth else cfg.ground_truth or "ground_truth"
+    robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=truth, no_odom=no_odom,
                        silent=silent, twice=args.sightings_twice, late_s=args.late_sightings)
     on_stop_signals(robots.stop)
     domain = os.environ.get("ROS_DOMAIN_ID", "0")
