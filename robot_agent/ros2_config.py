@@ -169,13 +169,13 @@ def velocity_profile(distance: float, vmax: float, amax: float, dt: float) -> np
 
 
 def closed_loop_speed(remaining: float, elapsed: float, vmax: float, amax: float, dt: float) -> float:
-    """The speed (>= 0) towards a target ``remaining`` away (negative: passed), ``elapsed`` s into the motion: ramped up at
-    ``amax``, capped at ``vmax``, braking so it could stop at the target (sqrt(2 a d)), never below ``amax * dt`` (so it
-    arrives); 0 once within half a period at that crawl, or past."""
+    """The speed (>= 0) for the next ``dt`` towards a target ``remaining`` away (negative: passed), ``elapsed`` s into the
+    motion: ramped up at ``amax``, capped at ``vmax``, braking so it could stop at the target (sqrt(2 a d)), at least
+    ``amax * dt`` (so it arrives) but never past the target in one period; 0 once there (within 1 % of a crawl's period)."""
     crawl = amax * dt
-    if remaining <= crawl * dt / 2:
+    if remaining <= crawl * dt * 0.01:
         return 0.0
-    return max(crawl, min(vmax, amax * (elapsed + dt), math.sqrt(2.0 * amax * remaining)))
+    return min(max(crawl, min(vmax, amax * (elapsed + dt), math.sqrt(2.0 * amax * remaining))), remaining / dt)
 
 
 class SightingWindow:

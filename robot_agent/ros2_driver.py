@@ -171,30 +171,34 @@ class Ros2Driver(Driver):
         return self._odom is not None and heard is not None and time.monotonic() - heard < self.cfg.silence_s
 
     def _close(self, target: float, vmax: float, amax: float, dt: float, *, angular: bool) -> None:
-        """Turn by ``target`` rad or drive ``target`` m, measured on the odometry (``closed_loop_speed`` each ``dt``)."""
+        """Turn by ``target`` rad or drive ``target`` m, measured on the odometry (``closed_loop_speed`` each ``dt``). What
+        the odometry cannot show yet, the speeds sent after its stamp, counts as done: delays do not make it overshoot."""
         if target == 0.0 or self._odom is None:
             return
         start = self._odom[3]
         done, last_yaw = 0.0, start[2]
+        sent: list[tuple[int, float]] = []  # (time ns, speed) of every twist of this motion
         began = time.monotonic()
         limit = 3.0 * len(velocity_profile(target, vmax, amax, dt)) * dt + 2.0 * self.cfg.silence_s
         while not self._halt.is_set():
             self._check()
-            pose = self._odom[3]
+            odom_ns, *_, pose = self._odom
             if angular:
                 done += math.remainder(pose[2] - last_yaw, 2 * math.pi)
                 last_yaw = pose[2]
             else:
                 done = math.hypot(pose[0] - start[0], pose[1] - start[1])
+            pending = sum(abs(v) * min(max(t + dt * 1e9 - max(t, odom_ns), 0.0), dt * 1e9) for t, v in sent) / 1e9
             elapsed = time.monotonic() - began
-            speed = closed_loop_speed(abs(target) - math.copysign(1.0, target) * done if angular else abs(target) - done,
-                                      elapsed, vmax, amax, dt)
+            progress = math.copysign(1.0, target) * done if angular else done
+            speed = closed_loop_speed(abs(target) - progress - pending, elapsed, vmax, amax, dt)
             if speed == 0.0:
                 return
             if elapsed > limit:
                 raise RobotLost(f"robot {self.robot} did not complete its {'turn' if angular else 'drive'} of {target:.4g} "
                                 f"{'rad' if angular else 'm'} in {elapsed:.1f} s: its odometry shows {done:.4g}")
             v = math.copysign(speed, target)
+            sent.append((time.time_ns(), v))
             if angular:
                 self._publish(0.0, v)
             else:

@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from robot_agent.ros2_config import Ros2Config, SightingWindow, velocity_profile
+from robot_agent.ros2_config import Ros2Config, SightingWindow, closed_loop_speed, velocity_profile
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.motion import apply_motion, execute_command
@@ -70,6 +70,30 @@ def test_velocity_profiles_cover_the_distance_within_the_limits(distance, vmax, 
     dv = np.diff(np.concatenate([[0.0], np.abs(v), [0.0]]))
     assert np.abs(dv).max() <= amax * dt * 1.5 + 1e-12  # a trapezoid sampled at the middle of each period
     assert velocity_profile(0.0, vmax, amax, dt).size == 0
+
+
+@pytest.mark.parametrize("target, vmax, amax, dt, lag", [(0.4, 0.2, 0.5, 0.05, 0), (3.1, 1.0, 2.0, 0.05, 3), (0.002, 1.5, 6.0, 0.02, 2),
+                                                      (1.0, 0.2, 0.5, 0.05, 6)])
+def test_closing_on_delayed_odometry_arrives_at_the_target(target, vmax, amax, dt, lag):
+    """The odometry comes ``lag`` periods late (transport, a busy machine); counting the speeds sent since as done, as
+    the driver does, the motion ends on the target, within the limits."""
+    moved, speeds = [0.0], []
+    for k in range(10_000):
+        pending = sum(speeds[len(speeds) - lag:]) * dt if lag else 0.0
+        v = closed_loop_speed(target - moved[max(0, len(moved) - 1 - lag)] - pending, k * dt, vmax, amax, dt)
+        if v == 0.0:
+            break
+        speeds.append(v)
+        moved.append(moved[-1] + v * dt)
+    assert moved[-1] == pytest.approx(target, abs=1e-12)
+    assert max(speeds) <= vmax and np.all(np.diff(speeds[: len(speeds) // 2]) <= amax * dt + 1e-12)
+    assert closed_loop_speed(-0.1, 1.0, vmax, amax, dt) == 0.0 and closed_loop_speed(1.0, 0.0, vmax, amax, dt) == min(vmax, amax * dt)
+
+
+def test_the_driver_motion_time_bounds_its_profiles():
+    cfg = Ros2Config.load({"rate_hz": "20", "settle_s": "0.1"})
+    want = (len(velocity_profile(math.pi, 1.0, 2.0, 0.05)) + len(velocity_profile(1.0, 0.2, 0.5, 0.05))) * 0.05 + 0.1
+    assert cfg.motion_time_s(math.pi, 1.0) == pytest.approx(want) and 9.0 < want < 9.3  # 3.65 s turn + 5.4 s drive + settle
 
 
 def test_a_sensing_window_keeps_the_newest_sighting_of_each_robot_taken_in_it():
