@@ -188,7 +188,7 @@ class Ros2Driver(Driver):
                 last_yaw = pose[2]
             else:
                 done = math.hypot(pose[0] - start[0], pose[1] - start[1])
-            pending = sum(abs(v) * min(max(t + dt * 1e9 - max(t, odom_ns), 0.0), dt * 1e9) for t, v in sent) / 1e9
+            pending = _unseen(sent, odom_ns, time.time_ns())
             elapsed = time.monotonic() - began
             progress = math.copysign(1.0, target) * done if angular else done
             speed = closed_loop_speed(abs(target) - progress - pending, elapsed, vmax, amax, dt)
@@ -280,5 +280,13 @@ class Ros2Driver(Driver):
 
     def detach(self) -> None:
         self._closed.set()
+        self._watchdog.join(timeout=2 * WATCH_S + 1.0)
         RosProcess.remove(self._node)
+
+
+def _unseen(sent: list[tuple[int, float]], since_ns: int, now_ns: int) -> float:
+    """How far the speeds ``sent`` (time ns, speed; each held until the next, the last until ``now_ns``) took the robot
+    after ``since_ns``: what odometry stamped then cannot show yet (m or rad)."""
+    ends = [t for t, _ in sent[1:]] + [now_ns] if sent else []
+    return sum(abs(v) * max(end - max(t, since_ns), 0) for (t, v), end in zip(sent, ends, strict=True)) / 1e9
 

@@ -104,7 +104,8 @@ def run_robots(args: argparse.Namespace) -> int:
     on_stop_signals(robots.stop)
     domain = os.environ.get("ROS_DOMAIN_ID", "0")
     print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
-          f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}", file=sys.stderr, flush=True)
+          f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}"
+          + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
     try:
         robots.run()
     finally:

@@ -90,6 +90,14 @@ def test_closing_on_delayed_odometry_arrives_at_the_target(target, vmax, amax, d
     assert closed_loop_speed(-0.1, 1.0, vmax, amax, dt) == 0.0 and closed_loop_speed(1.0, 0.0, vmax, amax, dt) == min(vmax, amax * dt)
 
 
+def test_what_the_odometry_cannot_show_yet_counts_every_speed_until_it_was_replaced():
+    from robot_agent.ros2_driver import _unseen
+
+    sent = [(0, 0.5), (50_000_000, -1.0), (200_000_000, 0.25)]  # the second held 150 ms (the sender woke up late)
+    assert _unseen(sent, 100_000_000, 300_000_000) == pytest.approx(1.0 * 0.1 + 0.25 * 0.1)
+    assert _unseen(sent, -1, 200_000_000) == pytest.approx(0.5 * 0.05 + 1.0 * 0.15) and _unseen([], 0, 10) == 0.0
+
+
 def test_the_driver_motion_time_bounds_its_profiles():
     cfg = Ros2Config.load({"rate_hz": "20", "settle_s": "0.1"})
     want = (len(velocity_profile(math.pi, 1.0, 2.0, 0.05)) + len(velocity_profile(1.0, 0.2, 0.5, 0.05))) * 0.05 + 0.1
