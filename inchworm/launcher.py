@@ -57,6 +57,7 @@ from coordinator.stop import StopSignals, collect_acks, publish_estop
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
+    AGENTS_PER_PROCESS,
     GRACE_S,
     CoordinatorKiller,
     RobotKiller,
@@ -277,6 +278,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, o.agents_per_process)
+    if o.driver == "ros2" and o.agents_per_process is None:  # one DDS participant for up to 50 robots: lighter, steadier loops
+        processes = -(-traj.n // AGENTS_PER_PROCESS)
+        per_process = -(-traj.n // processes)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command

@@ -2,9 +2,11 @@
 
 Per robot, in its namespace (default ``/robot<id>``), on one node per robot of this process's rclpy context:
 
-* publishes ``cmd_vel`` (``geometry_msgs/Twist``): a command is executed open-loop as two velocity profiles
-  within the limits, the turn (``angular.z``) then the drive (``linear.x``), at ``rate_hz``, then a zero
-  twist; the robot is at rest once its ``odom`` says so, or ``settle_s`` after the zero twist without odom.
+* publishes ``cmd_vel`` (``geometry_msgs/Twist``): a command is executed as two velocity profiles within the
+  limits, the turn (``angular.z``) then the drive (``linear.x``), at ``rate_hz``, then a zero twist: closed on
+  the odometry when the robot publishes it (``closed_loop_speed``; the speeds sent after the odometry's stamp
+  count as done), else open-loop (``velocity_profile``); the robot is at rest once its ``odom`` says so, or
+  ``settle_s`` after the zero twist without odom.
   An emergency stop publishes a zero twist at once and refuses every later command (latched).
 * subscribes ``odom`` (``nav_msgs/Odometry``, optional): motion completion and liveness;
   ``ground_truth`` (``nav_msgs/Odometry`` in the world frame, when configured: a tracker or simulator): the
@@ -38,6 +40,7 @@ _log = logging.getLogger(__name__)
 AT_REST = 1e-3  # m/s and rad/s: odom twist below this is standing still
 REST_WAIT_SILENCES = 5  # after a zero twist, messages stamped later must come within this many silence_s
 WATCH_S = 0.1  # how often the idle watchdog looks
+RECHECK_S = 0.05  # a silence is confirmed this much later
 
 
 class Ros2Driver(Driver):
@@ -104,8 +107,10 @@ class Ros2Driver(Driver):
             return f"nothing subscribes to {self._where(self.cfg.cmd_vel)} any more"
         heard = dict(self._heard)
         if heard and now - max(heard.values()) > self.cfg.silence_s:
-            topics = " and ".join(self._where(t) for t in sorted(heard))
-            return f"robot {self.robot} went silent: nothing on {topics} for {now - max(heard.values()):.1f} s"
+            time.sleep(RECHECK_S)  # this process may have been the one starved: let its executor take what is queued
+            if time.monotonic() - max(self._heard.values()) > self.cfg.silence_s + RECHECK_S:
+                topics = " and ".join(self._where(t) for t in sorted(heard))
+                return f"robot {self.robot} went silent: nothing on {topics} for {time.monotonic() - max(self._heard.values()):.1f} s"
         return None
 
     def _check(self) -> None:
