@@ -155,6 +155,20 @@ def test_bad_settings_are_one_line_naming_the_key(tmp_path, text, options, messa
         Ros2Config.load({"config": str(tmp_path / "missing.toml")})
 
 
+def test_the_bridge_highlights_the_robots_that_stood_still_and_draws_two_sigma_ellipses():
+    from inchworm.ros2_bridge import anchors_of, ellipse
+    from runtime.wire.messages import PlanMessage
+
+    plan = PlanMessage(run="r", step=3, config=2, n_anchors=2, groups=((1, 2), (0,)))
+    ids = np.array([0, 1, 2, 3])
+    assert anchors_of(plan, 3, ids) == {0, 3} and anchors_of(plan, 4, ids) == {1, 2, 3}
+    assert anchors_of(plan, 5, ids) == set() and anchors_of(plan, 2, ids) == set() and anchors_of(None, 3, ids) == set()
+    cov = np.array([[4e-4, 3.9e-4], [3.9e-4, 4e-4]])  # strongly correlated
+    pts = ellipse(cov)
+    assert np.allclose(np.einsum("ni,ij,nj->n", pts, np.linalg.inv(cov), pts), 4.0) and np.allclose(pts[0], pts[-1])
+    assert np.allclose(ellipse(np.zeros((2, 2))), 0.0)  # a robot known exactly: a point, not NaN
+
+
 @pytest.mark.parametrize("argv", [["ros2", "robots", "--trajectory", "t.json"], ["ros2", "bridge", "--run", "r"],
                                   ["launch", "--driver", "ros2", "-n", "3", "--configs", "1"], ["launch", "--ros2", "-n", "3", "--configs", "1"]])
 def test_without_ros2_the_commands_name_the_extra(monkeypatch, capsys, tmp_path, argv):
