@@ -3,7 +3,8 @@
 The launcher opens the run's Zenoh router hub itself on a free loopback port, writes the
 trajectory to a temporary file, starts one ``swarm agent`` process per robot (initial true pose
 from the trajectory), or one per ``agents_per_process`` robots (default: one per robot up to
-``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``),
+``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``; driver
+``ros2`` without ``kill_robot``: processes of at most ``AGENTS_PER_PROCESS`` from the start, one DDS participant each),
 then ``swarm coordinator``, and waits for the coordinator, whose summary appears on stdout; the
 coordinator writes the Fig. 13/14/17 plots to ``out`` and records the run (``record``, default
 ``recordings/<run>.mcap``; ``no_record``). On exit, error or Ctrl-C it stops every child it
@@ -278,7 +279,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = agents_per_process(traj.n, o.agents_per_process)
-    if o.driver == "ros2" and o.agents_per_process is None:  # one DDS participant for up to 50 robots: lighter, steadier loops
+    if o.driver == "ros2" and o.agents_per_process is None and o.kill_robot is None:  # one DDS participant for up to 50 robots
         processes = -(-traj.n // AGENTS_PER_PROCESS)
         per_process = -(-traj.n // processes)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)

@@ -324,7 +324,7 @@ class Agent:
         deadline = time.monotonic() + self.ready_timeout_s
         while not self._stop.is_set() and not self.driver.ready(0.1):
             if time.monotonic() > deadline:
-                _log.warning("robot %d: its driver is not ready after %.1f s (no link process?); serving anyway",
+                _log.warning("robot %d: its driver is not ready after %.1f s (no link process? no robot in its ROS 2 namespace?); serving anyway",
                              self.robot, self.ready_timeout_s)
                 return
 

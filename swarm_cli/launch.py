@@ -85,7 +85,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, else up to "
                         f"{AGENTS_PER_PROCESS}; gateway: one process per port with its link, given: link processes apart; ros2: up to "
-                        f"{AGENTS_PER_PROCESS} in one)")
+                        f"{AGENTS_PER_PROCESS} in one, unless --kill-robot)")
     p.add_argument("--drop", type=float, default=0.0, metavar="P",
                    help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
     p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
