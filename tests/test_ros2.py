@@ -73,12 +73,13 @@ def stop(proc: subprocess.Popen) -> str:
 class Listener:
     """A node in this test process: the bridge's topics, counted; its estop service called."""
 
-    def __init__(self, domain: str) -> None:
+    def __init__(self, monkeypatch, env: dict[str, str]) -> None:
         from geometry_msgs.msg import PoseArray, PoseWithCovarianceStamped
         from std_srvs.srv import Trigger
         from visualization_msgs.msg import MarkerArray
 
-        os.environ["ROS_DOMAIN_ID"], os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = domain, "LOCALHOST"
+        for name in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):  # this process joins the test's domain
+            monkeypatch.setenv(name, env[name])
         self.node = RosProcess.add(f"test_listener_{os.getpid()}")
         self.estimates: list = []
         self.poses: list = []
@@ -106,12 +107,12 @@ class Listener:
         RosProcess.remove(self.node)
 
 
-def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_path, trajectory):
+def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_path, trajectory, monkeypatch):
     """Robot 1 publishes no odometry, every sighting comes twice and again 0.4 s late, robot 3 goes silent when its second
     motion starts: the run finishes with P_f and contacts, robot 3 lost as silent, the bridge publishes it all, and the
     recording replays."""
     env = ros_env(1)
-    listener = Listener(env["ROS_DOMAIN_ID"])
+    listener = Listener(monkeypatch, env)
     sim = robots(trajectory, env, "--no-odom=1", "--sightings-twice", "--late-sightings=0.4", "--silent=3@2")
     run_id = f"ros2-rough-{os.getpid()}"
     try:
@@ -144,12 +145,12 @@ def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_pat
     assert check.returncode == 0 and "check passed" in check.stdout, check.stdout + check.stderr
 
 
-def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_says_there_is_none(tmp_path, trajectory):
+def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_says_there_is_none(tmp_path, trajectory, monkeypatch):
     env = ros_env(2)
     run_id = f"ros2-estop-{os.getpid()}"
     bridge = subprocess.Popen([sys.executable, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", "--wait=60"], env=env, cwd=REPO,
                               stderr=subprocess.PIPE, text=True)
-    listener = Listener(env["ROS_DOMAIN_ID"])
+    listener = Listener(monkeypatch, env)
     try:
         proc = launch(trajectory, tmp_path, run_id, env, "--ros2-robots", "--driver-option=max_linear_speed=0.05")
         assert listener.first.wait(60), "no estimate on /swarm/estimates"
