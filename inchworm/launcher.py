@@ -338,6 +338,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 ros2_options, truth = ros2_settings(o)
                 if o.step_timeout is None:
                     step_timeout = ros2_step_timeout(ros2_options)
+                if not truth:
+                    say(f"swarm {o.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
+                        f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
                 agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
                 if o.ros2_robots:  # the same settings: namespaces, frame, topics
                     ros2_procs.append(subprocess.Popen(

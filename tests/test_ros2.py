@@ -173,6 +173,23 @@ def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_
         f"swarm ros2 bridge: no live run {run_id!r} on this host (give --hub ENDPOINT, or --wait S to wait for it)"]
 
 
+def test_robots_without_a_ground_truth_are_driven_to_the_end_without_truths(tmp_path, trajectory):
+    """Real robots: no tracker, so the agents publish no truths and the coordinator runs without them."""
+    env = ros_env(4)
+    sim = robots(trajectory, env, "--no-ground-truth")
+    run_id = f"ros2-lab-{os.getpid()}"
+    try:
+        proc = launch(trajectory, tmp_path, run_id, env)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        stop(sim)
+    assert proc.returncode == 0, err[-3000:]
+    assert "name no ground truth" in err and (result := last_json(out)) is not None and result["lost"] == [], out[-2000:]
+    assert result["pf"] is None
+    topics = [topic for topic, *_ in read_messages(tmp_path / "run.mcap")]
+    assert not any("/sim/truth" in t for t in topics) and sum(t.endswith("/obs") for t in topics) == 8  # 4 robots, 2 steps
+
+
 def test_a_namespace_without_a_robot_is_not_ready_and_its_command_is_lost(monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", ros_env(3)["ROS_DOMAIN_ID"])
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
