@@ -3,7 +3,8 @@
 The launcher opens the run's Zenoh router hub itself on a free loopback port, writes the
 trajectory to a temporary file, starts one ``swarm agent`` process per robot (initial true pose
 from the trajectory), or one per ``agents_per_process`` robots (default: one per robot up to
-``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``),
+``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``; driver
+``ros2`` without ``kill_robot``: processes of at most ``AGENTS_PER_PROCESS`` from the start, one DDS participant each),
 then ``swarm coordinator``, and waits for the coordinator, whose summary appears on stdout; the
 coordinator writes the Fig. 13/14/17 plots to ``out`` and records the run (``record``, default
 ``recordings/<run>.mcap``; ``no_record``). On exit, error or Ctrl-C it stops every child it
@@ -22,7 +23,10 @@ agents of its robots with the gateway driver (``swarm agent --link``); with ``ag
 first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement) to the run, then
 stops every child; so does a coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
 ``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
-one that is not ``simulated`` gets a coordinator with ``--no-truth``.
+one that is not ``simulated`` gets a coordinator with ``--no-truth``. ``driver="ros2"`` drives robots speaking
+ROS 2 (docs/ros2.md): the lab's, or with ``ros2_robots`` simulated ones started first (``swarm ros2 robots``, whose
+ground truth the agents then read, so the run has truths); ``ros2`` also runs the live bridge
+(``swarm ros2 bridge``), and both are stopped after the agents.
 
 Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID (with the gateway's port
 processes: the port's link and agents) at the first command of global step STEP and times the
@@ -54,6 +58,7 @@ from coordinator.stop import StopSignals, collect_acks, publish_estop
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
+    AGENTS_PER_PROCESS,
     GRACE_S,
     AgentErrors,
     CoordinatorKiller,
@@ -84,6 +89,7 @@ if TYPE_CHECKING:
 
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
+DEFAULT_STEP_TIMEOUT_S = 5.0
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 Say = Callable[[str], None]
 
@@ -108,7 +114,7 @@ class LaunchOptions:
     out: Path | None = None  # default out/<command>
     result: Path | None = None
     motion_time: float = 0.0
-    step_timeout: float = 5.0
+    step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
     driver: str = "sim"
     driver_options: tuple[str, ...] = ()
     command_timeout: float | None = None
@@ -132,6 +138,8 @@ class LaunchOptions:
     world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
     physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
     physics_speed: float = 0.0
+    ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
+    ros2_robots: bool = False  # with driver "ros2": also start simulated ROS 2 robots (``swarm ros2 robots``)
 
 
 def _stderr(text: str) -> None:
@@ -256,11 +264,40 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
                                   f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
     elif o.physics_params:
         raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
+    if o.ros2_robots and o.driver != "ros2":
+        raise SwarmInputError("--ros2-robots starts simulated ROS 2 robots for the ROS 2 driver: it needs --driver ros2")
+    if o.driver == "ros2" or o.ros2:
+        from runtime.wire.ros2 import require_ros2  # noqa: PLC0415 - ROS 2 only for ROS 2 runs
+
+        require_ros2(f"swarm {o.command} --driver ros2" if o.driver == "ros2" else f"swarm {o.command} --ros2")
+    if o.driver == "ros2":
+        ros2_settings(o)
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
     if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
         robot, step = o.kill_robot
         raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+
+
+def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
+    """The ROS 2 driver's options of the agents (with ``ros2_robots``: their ground truth), and whether the
+    robots publish a ground truth (then the run has truths: P_f and contacts)."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+
+    options = list(o.driver_options)
+    if o.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
+        options.append("ground_truth=ground_truth")
+    return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
+
+
+def ros2_step_timeout(options: list[str]) -> float:
+    """The coordinator's step timeout for ROS 2 robots: the slowest motion the agents' default limits allow (turn pi,
+    drive ``max_drive_m``) at the driver's speeds and accelerations, 1.5 times, plus the sensing window and 2 s."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.wire.messages import CommandLimits  # noqa: PLC0415
+
+    cfg, limits = Ros2Config.load(driver_options(options)), CommandLimits()
+    return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
@@ -273,6 +310,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = traj.n if o.world == "physics" and o.driver == "sim" else agents_per_process(traj.n, o.agents_per_process)
+    if o.driver == "ros2" and o.agents_per_process is None and o.kill_robot is None:  # one DDS participant for up to 50 robots
+        processes = -(-traj.n // AGENTS_PER_PROCESS)
+        per_process = -(-traj.n // processes)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
@@ -284,6 +324,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
+    ros2_procs: list[subprocess.Popen] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
@@ -295,6 +336,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if coordinators:  # first, with time to finish their recordings
                 stop_all(coordinators, COORDINATOR_GRACE_S)
             stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
+            stop_all(ros2_procs)
             stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
             stop_all(procs[:1] if gateway_procs else [])
 
@@ -326,6 +368,24 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
                 agent_extra += ["--world=physics", *world_flags]
             emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
+            truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
+            step_timeout = DEFAULT_STEP_TIMEOUT_S if o.step_timeout is None else o.step_timeout
+            if o.driver == "ros2":
+                ros2_options, truth = ros2_settings(o)
+                if o.step_timeout is None:
+                    step_timeout = ros2_step_timeout(ros2_options)
+                if not truth:
+                    say(f"swarm {o.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
+                        f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
+                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
+                if o.ros2_robots:  # the same settings: namespaces, frame, topics
+                    ros2_procs.append(subprocess.Popen(
+                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
+                         *(f"--driver-option={x}" for x in ros2_options)], **tied))
+            if o.ros2:
+                ros2_procs.append(subprocess.Popen(
+                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
+                     f"--robot-radius={o.model.robot_radius_m!r}"], **tied))
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -347,10 +407,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_errors.watch(procs[first:])
             agent_list = procs[first:]
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
-            if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
+            if not truth:
                 common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
-                   f"--step-timeout={o.step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
+                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
                    f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
             if o.result:
                 cmd.append(f"--result={o.result}")
@@ -362,7 +422,8 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 cmd.append(f"--foxglove={o.foxglove}")
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
-            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
+                    "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.ros2_robots else "")}.get(o.driver, f"agents ({o.driver})")
             what += " in the physical world" if o.world == "physics" else ""
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "

@@ -324,7 +324,7 @@ class Agent:
         deadline = time.monotonic() + self.ready_timeout_s
         while not self._stop.is_set() and not self.driver.ready(0.1):
             if time.monotonic() > deadline:
-                _log.warning("robot %d: its driver is not ready after %.1f s (no link process?); serving anyway",
+                _log.warning("robot %d: its driver is not ready after %.1f s (no link process? no robot in its ROS 2 namespace?); serving anyway",
                              self.robot, self.ready_timeout_s)
                 return
 
@@ -552,7 +552,9 @@ class Agent:
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
-        assert pose is not None, "simulated drivers only"
+        if pose is None:  # a tracker's or simulator's truth that has not come (yet): nothing to tell
+            _log.warning("robot %d: no true pose for step %d (the driver has none yet)", self.robot, step)
+            return
         self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=tuple(pose.tolist()))
         self._send(self._last_truth)
 

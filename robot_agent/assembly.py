@@ -3,8 +3,8 @@
 ``--id`` / ``--ids`` texts name robots (``0-49``, ``0,2,5-9``); ``build_agents`` makes one
 ``Agent`` per hosted robot with its driver: simulated (``sim``, from its initial true pose),
 a robot behind a gateway link (``gateway``: limits and calibration from the gateway config,
-docs/gateway.md), or a lab's own driver class (docs/drivers.md); ``build_links`` the links this
-process runs itself (``--link``). Errors name the flag.
+docs/gateway.md), a robot speaking ROS 2 (``ros2``, docs/ros2.md), or a lab's own driver class
+(docs/drivers.md); ``build_links`` the links this process runs itself (``--link``). Errors name the flag.
 """
 
 from __future__ import annotations
@@ -113,7 +113,12 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway:
     if pose is None:
         pose = spec.pose
     if spec.driver != "sim":
-        cls = plugin or driver_class(spec.driver)
+        if spec.driver == "ros2":
+            from robot_agent.ros2_driver import Ros2Driver  # noqa: PLC0415 - rclpy only for ROS 2 robots
+
+            cls: type[Driver] = Ros2Driver
+        else:
+            cls = plugin or driver_class(spec.driver)
         context = DriverContext(robot=int(robot), ids=tuple(int(i) for i in ids), run=spec.run_id, seed=spec.seed,
                                 pose=None if pose is None else np.array(pose, dtype=float), model=spec.model, options=spec.options)
         return build_driver(spec.driver, cls, context), spec.limits

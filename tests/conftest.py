@@ -50,6 +50,7 @@ SLOW_MODULES = frozenset({
     "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
     "test_run_outcomes",  # swarm launch with faults injected
     "test_link_liveness",  # router, emulators on ptys and links as processes
+    "test_ros2",  # ROS 2 robots, agents, bridge and launches as processes; DDS participants
 })
 SLOW_TESTS = frozenset({
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process
