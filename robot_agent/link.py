@@ -9,7 +9,10 @@ as ``LinkReply``s on ``.../linkrep`` (not ACCEPTED, which only shows the robot i
 agent waits for DONE). Every answer restarts the count of ``max_retries``; a robot silent
 through all of them (``Timing.retry_budget_s``), silent for ``robot_timeout_s``, or still
 moving after ``motion_timeout_s`` is reported ``lost``. It sends a HEARTBEAT to every
-robot that got no other frame for ``heartbeat_period_s``. The link trusts no request: one
+robot that got no other frame for ``heartbeat_period_s``. The link trusts no request: a
+motion goes to a robot only as the live coordinator commanded it (its own ``MotionCommand``
+on ``robot/<id>/cmd``, of the live run's epochs, same step, turn and calibrated drive, the
+robot's next step; ``_authority``), with no coordinator alive only stops go out, and one
 that does not fit the frame's wire types (u32 step, float32 turn and drive) or breaks the
 gateway config's limits or workspace is dropped and counted (``LinkStats.rejected``), never
 sent. When the coordinator's liveliness token appears, a new run begins: the link forgets
@@ -298,7 +301,8 @@ class Link:
         """One line of the port's counters, for the end of a run."""
         s = self.stats()
         return (f"port {self.port.name}: {s.frames_sent} frames sent, {s.frames_received} received, {s.retransmissions} retransmissions, "
-                f"{s.crc_errors} CRC errors, {s.rejected} requests rejected ({s.unauthorised} unauthorised), round trip median {s.rtt_ms_median:.2f} ms")
+                f"{s.crc_errors} CRC errors, {s.rejected} requests rejected ({s.unauthorised} unauthorised), "
+                f"round trip median {s.rtt_ms_median:.2f} ms")
 
     def run(self) -> int:
         """Serve until ``stop()``; publishes final stats; returns 0."""
