@@ -108,7 +108,6 @@ def forged_link_requests(robots: int = 5, configs: int = 2, seed: int = 0) -> di
     hub_settings, member = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
     procs: list[subprocess.Popen] = []
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
     with tempfile.TemporaryDirectory(prefix="swarm-bench-forged-") as tmp, open_session(hub_settings), \
             open_session(member) as session:
         folder = Path(tmp)
@@ -119,7 +118,8 @@ def forged_link_requests(robots: int = 5, configs: int = 2, seed: int = 0) -> di
         try:
             live = start_gateway(traj_file, default_gateway(traj), folder, run_id, hub, seed, 0.0, model, procs, events,
                                  stderr=subprocess.DEVNULL)  # the emulator's stdout is taken already
-            start_agents(traj, run_id, hub, seed, 0.0, [*model, "--driver=gateway", f"--gateway-config={live}"], procs, **quiet)
+            start_agents(traj, run_id, hub, seed, 0.0, [*model, "--driver=gateway", f"--gateway-config={live}"], procs,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
             coordinator = subprocess.run(
                 [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--run={run_id}", f"--hub={hub}",
                  f"--seed={seed}", f"--out={folder}", "--no-record", *model], capture_output=True, text=True, timeout=300)
