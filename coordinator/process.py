@@ -343,6 +343,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     from coordinator.zenoh_backend import (  # noqa: PLC0415
         AgentError,
         CoordinatorConflict,
+        HubLost,
         Timeouts,
         ZenohSwarmBackend,
         conflict_message,
@@ -416,7 +417,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 completed = live.keep = True
             except (AgentError, RunAborted, RecordingStopped) as exc:
                 ended = error = exc
-                result = getattr(exc, "result", None) or (partial if isinstance(exc, RecordingStopped) else None)
+                result = getattr(exc, "result", None) or (partial if isinstance(exc, (RecordingStopped, HubLost)) else None)
             except BaseException as exc:
                 ended = exc
                 raise

@@ -61,6 +61,20 @@ def test_kill_robot_through_launch_over_seeds_completes_with_the_others():
     assert result["estop_ms_max"] == max(s["kill"]["estop_ms"] for s in result["summaries"])
 
 
+def test_kill_robot_given_three_times_kills_each(tmp_path):
+    """``--kill-robot`` is repeatable: three robots of a 6-robot run are each SIGKILLed at their step, each is lost and
+    reported (``"kills"``, ``"kill"`` the first), and the other three finish."""
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n=6", "--configs=3", "--seed=0", "--motion-time=0.1",
+                           "--kill-robot=1@1", "--kill-robot=3@2", "--kill-robot=4@2", "--no-record", f"--out={tmp_path}", "--json"],
+                          capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert sorted(lost["robot"] for lost in summary["lost"]) == [1, 3, 4] and summary["finished_robots"] == 3
+    assert [(k["robot"], k["step"]) for k in summary["kills"]] == [(1, 1), (3, 2), (4, 2)] and summary["kill"] == summary["kills"][0]
+    assert all(0 < k["detect_ms"] <= k["estop_ms"] for k in summary["kills"])
+    assert proc.stderr.count("killed the agent of robot") == 3
+
+
 def test_kill_robot_of_a_gateway_run_kills_its_port_process_and_the_others_complete(tmp_path):
     """``swarm launch --driver gateway`` hosts each radio port's link and agents in one process: ``--kill-robot 5@2``
     SIGKILLs that process, so the coordinator loses the three robots of robot 5's port (ports of five: 0-4, 5-7) and
