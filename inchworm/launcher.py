@@ -73,6 +73,7 @@ from runtime.gateway.config import GatewayConfig
 from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.run_file import published_run
@@ -395,7 +396,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                     extra["coordinator_kill"] = coord_kill
                 emit_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
-                say(f"swarm {o.command}: recording {recording}")
+                say(f"swarm {o.command}: recording {recording}" if is_finished(recording) else
+                    f"swarm {o.command}: recording {recording} is incomplete: the recording failed (what reached the disk: "
+                    f"swarm info {recording}; swarm recover {recording})")
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         stop_children()

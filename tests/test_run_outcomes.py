@@ -22,7 +22,8 @@ import pytest
 from inchworm.processes import start_agents, stop_all
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
-from runtime.recording.mcap_log import recording_info
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.messages import Checkpoint, decode
 from runtime.wire.transport import free_tcp_port
 
 REPO = Path(__file__).resolve().parent.parent
@@ -60,9 +61,15 @@ def test_a_recording_that_fails_mid_run_loses_nothing_else(tmp_path: Path, polic
     assert "recording failed: recording to" in proc.stdout and "P_f = " in proc.stdout
     info = recording_info(tmp_path / "run.mcap")  # kept as far as it got, readable
     assert info["messages"] > 100 and not info["complete"]
+    assert "swarm launch: recording " in err and "is incomplete: the recording failed" in err, err[-3000:]  # not "recording X"
     stopped = [line for line in err.splitlines() if line.endswith(": emergency stop")]  # each agent's "robot N: emergency stop"
     if policy == "stop":
         assert len(stopped) == 10  # the run was stopped as an error: every robot stopped
+        # stopped before the next step: no step after the one during which the recording failed (the recorder writes in
+        # order, so that step's checkpoint is the first thing that did not reach the disk)
+        checkpoints = [decode(payload, Checkpoint).step for topic, payload, _, _ in read_messages(tmp_path / "run.mcap")
+                       if topic == "swarm/fullrec/coord/checkpoint"]
+        assert len(result["steps"]) <= max(checkpoints) + 1, (len(result["steps"]), max(checkpoints))
     else:
         assert not stopped and "emergency stop sent" not in err  # a completed run is not e-stopped by the launcher
 
