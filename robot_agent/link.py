@@ -508,15 +508,17 @@ class Link:
         taking the run over may appear). A command only as the coordinator commanded it: the coordinator's own
         ``MotionCommand`` of the same step (on ``robot/<id>/cmd``, which only its identity may publish), of the live
         run's epochs, with the same turn and (calibrated) drive, and only the robot's next step (a step already sent
-        goes again only if the robot executed it, which it then answers from memory). The request's own claims
-        (``start_pose``) count for nothing."""
+        goes again only if the robot executed it, which it then answers from memory). Nothing for a robot whose
+        agent's token went. The request's own claims (``start_pose``) count for nothing."""
         if req.kind in ("estop", "reset"):
             return None
         if not self._coord_live:
             return _HOLD
+        robot = self.robots[req.robot]
+        if robot.agent_gone:
+            return f"robot {req.robot}: {req.kind} of step {req.step} while the robot's agent is gone"
         if req.kind != "command":
             return None
-        robot = self.robots[req.robot]
         who = f"robot {req.robot}: command of step {req.step}"
         if req.epoch not in self._coord_epochs:
             return f"{who} carries coordinator epoch {req.epoch}, not the live run's ({', '.join(map(str, sorted(self._coord_epochs)))})"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import resource
 import signal
 import subprocess
 import sys
@@ -71,8 +72,6 @@ def test_resume_with_other_options_is_refused_and_keeps_the_log(tmp_path):
 
 
 def _file_limit() -> None:
-    import resource  # noqa: PLC0415 - the child's limit only
-
     resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_LIMIT, FILE_LIMIT))  # a full disk as a user can make one: ulimit -f
 
 

@@ -116,7 +116,7 @@ class ZenohSettings:
             try:
                 config = zenoh.Config.from_file(self.config_file)
             except zenoh.ZError as exc:
-                raise SwarmInputError(f"zenoh config file {self.config_file!r} is invalid: {exc}") from exc
+                raise SwarmInputError(f"zenoh config file {self.config_file!r} is invalid: {zenoh_error_text(exc)}") from None
         config.insert_json5("mode", json.dumps(self.mode))
         if self.listen or self.config_file is None:
             config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
