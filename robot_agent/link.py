@@ -97,6 +97,7 @@ from runtime.wire.messages import (
     LinkRequest,
     LinkStats,
     MotionCommand,
+    ObserveRequest,
     decode_or_drop,
     encode,
     message_key,
@@ -203,6 +204,7 @@ class _Robot:
     waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
     latest: int = 0  # the latest step of a request sent this run
     ordered: MotionCommand | None = None  # the coordinator's latest MotionCommand for this robot (its own key, its identity)
+    asked: ObserveRequest | None = None  # ... and its latest ObserveRequest
     commanded: int = 0  # the step of the latest COMMAND sent this run ...
     executed: bool = False  # ... and whether the robot reported it DONE (only then is it sent again: answered from memory)
     held: list[tuple[LinkRequest, float]] = field(default_factory=list)  # commands awaiting their coordinator's: (request, until)
@@ -263,6 +265,7 @@ class Link:
         self._coord_live: set[int] = set()  # those whose token is alive
         self._estimate_key = coord_key(run, "estimate")
         self._cmd_keys = {robot_key(run, r, "cmd"): r for r in port.robots}  # the coordinator's own commands (its identity only)
+        self._observe_keys = {robot_key(run, r, "observe"): r for r in port.robots}  # ... and observation requests
         self._local: dict[int, Callable[[LinkReply], object]] = {}  # robots whose agents run in this process -> their reply sink
 
     @classmethod
@@ -309,7 +312,7 @@ class Link:
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         # one subscription per robot of this port: another port's requests never reach (nor cost) this link
         self._subs = [*(subscribe(self.session, robot_key(self.run_id, r, "linkreq"), enqueue) for r in sorted(self.robots) if r not in self._local),
-                      *(subscribe(self.session, key, enqueue) for key in self._cmd_keys),
+                      *(subscribe(self.session, key, enqueue) for key in (*self._cmd_keys, *self._observe_keys)),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       subscribe(self.session, self._estimate_key, enqueue),
                       watch_liveliness(self.session, coord_alive_key(self.run_id),
@@ -448,6 +451,8 @@ class Link:
             key, payload = event[1], event[2]
             if key in self._cmd_keys:
                 self._on_ordered(self.robots[self._cmd_keys[key]], decode_or_drop(payload, self.drops, key, MotionCommand))
+            elif key in self._observe_keys:
+                self._on_ordered(self.robots[self._observe_keys[key]], decode_or_drop(payload, self.drops, key, ObserveRequest))
             elif key == self._estimate_key:
                 msg = decode_or_drop(payload, self.drops, key, EstimateMessage)
                 if msg is None or not self._coord_live:
@@ -505,7 +510,8 @@ class Link:
         """None if ``req`` may go to the robot, ``_HOLD`` if that may still be proven, else why not.
 
         Emergency stops and resets always may. Anything else only while a coordinator is alive (held meanwhile: one
-        taking the run over may appear). A command only as the coordinator commanded it: the coordinator's own
+        taking the run over may appear). An observation only of the step the coordinator's latest ``ObserveRequest``
+        for the robot asks (``robot/<id>/observe``). A command only as the coordinator commanded it: the coordinator's own
         ``MotionCommand`` of the same step (on ``robot/<id>/cmd``, which only its identity may publish), of the live
         run's epochs, with the same turn and (calibrated) drive, and only the robot's next step (a step already sent
         goes again only if the robot executed it, which it then answers from memory). Nothing for a robot whose
@@ -517,8 +523,12 @@ class Link:
         robot = self.robots[req.robot]
         if robot.agent_gone:
             return f"robot {req.robot}: {req.kind} of step {req.step} while the robot's agent is gone"
-        if req.kind != "command":
-            return None
+        if req.kind == "observe":  # as the coordinator asked: a forged future step would make the robot refuse the real one
+            asked = robot.asked
+            if asked is None or asked.step < req.step or asked.epoch not in self._coord_epochs:
+                return _HOLD
+            stale = f"robot {req.robot}: observe of step {req.step} is stale: the coordinator asks step {asked.step}"
+            return None if asked.step == req.step else stale
         who = f"robot {req.robot}: command of step {req.step}"
         if req.epoch not in self._coord_epochs:
             return f"{who} carries coordinator epoch {req.epoch}, not the live run's ({', '.join(map(str, sorted(self._coord_epochs)))})"
@@ -559,11 +569,14 @@ class Link:
         for req, until in held:
             self._take(req, until)
 
-    def _on_ordered(self, robot: _Robot, cmd: MotionCommand | None) -> None:
-        """The coordinator's command for ``robot`` (``None``: undecodable, already counted)."""
-        if cmd is None or cmd.robot != robot.id:
+    def _on_ordered(self, robot: _Robot, msg: MotionCommand | ObserveRequest | None) -> None:
+        """The coordinator's command or observation request for ``robot`` (``None``: undecodable, already counted)."""
+        if msg is None or msg.robot != robot.id:
             return
-        robot.ordered = cmd
+        if isinstance(msg, MotionCommand):
+            robot.ordered = msg
+        else:
+            robot.asked = msg
         if robot.held:
             self._retake(robot)
 
@@ -686,7 +699,7 @@ class Link:
             robot.waiting.clear()
             robot.latest = robot.commanded = 0
             robot.executed = False
-            robot.ordered = None
+            robot.ordered = robot.asked = None
             robot.begin = self._request(robot, "run", 0, FrameType.RUN, RunBody(self.counters.epoch))
 
     def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body) -> _Request:

@@ -33,7 +33,18 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard, coord_alive_key, link_alive_key
-from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
+from runtime.wire.messages import (
+    EmergencyStop,
+    LinkReply,
+    LinkRequest,
+    LinkStats,
+    MotionCommand,
+    ObserveRequest,
+    Status,
+    decode,
+    encode,
+    message_key,
+)
 from runtime.wire.transport import (
     ZenohSettings,
     alive_now,
@@ -74,6 +85,12 @@ class Rig:
         """The coordinator commands ``cmd`` and the agent's driver executes it."""
         self.order(cmd)
         self.driver.execute(cmd)
+
+    def sense(self, step: int):
+        """The coordinator asks robot 0 for its observations of ``step`` and the agent's driver senses them."""
+        ask = ObserveRequest(run="gw", step=step, robot=0, epoch=EPOCH)
+        publish(self.coordinator, message_key(ask), encode(ask))
+        return self.driver.sense(None, step)
 
 
 @contextmanager
@@ -162,7 +179,7 @@ def test_observations_and_calibration_through_the_link(local):
     cal = Calibration(range_bias_m=0.02, bearing_offset_rad=0.1, motion_scale=0.9)
     with rig(calibration=cal, port_robots=(0, 1), local=local) as r:
         r.execute(command(1, 0.0, 0.1))
-        observed, ranges, bearings = r.driver.sense(None, 1)
+        observed, ranges, bearings = r.sense(1)
     # the same robot simulated without miscalibration: the corrections undo the emulated deviations
     sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
     sim.execute(MotionCommand(run="gw", step=1, robot=0, config=1, turn_rad=0.0, drive_m=float(np.float32(0.1 / 0.9)) * 0.9))
@@ -286,6 +303,7 @@ FORGERIES = {  # what a client with the gateway identity (allowed to publish lin
     "a stale step": lambda: _request(step=1, turn_rad=0.0, drive_m=0.5, epoch=EPOCH),
     "another epoch": lambda: _request(step=2, turn_rad=0.3, drive_m=0.1, epoch=EPOCH + 1),
     "no coordinator alive": lambda: _request(step=2, turn_rad=0.3, drive_m=0.1, epoch=EPOCH),
+    "an observation of a future step": lambda: _request(step=50, kind="observe", turn_rad=0.0, drive_m=0.0),
 }
 
 
@@ -293,8 +311,8 @@ FORGERIES = {  # what a client with the gateway identity (allowed to publish lin
 def test_forged_link_requests_never_move_a_robot(forgery):
     """Through the gateway identity (a client allowed on ``linkreq``), against a real link and an emulated robot: the
     robot executed step 1; the coordinator commands step 2 (turn 0.3, drive 0.1) unless it is gone. The forgery is
-    dropped and counted as unauthorised, the robot does not move, and its step counter is not taken over: the
-    coordinator's step 2 then executes as commanded."""
+    dropped and counted as unauthorised, the robot does not move, and its step memory is not taken over: the
+    coordinator's observation of step 1 and its step 2 then go through as asked."""
     with rig() as r, open_session(r.member) as forger:
         r.execute(command(1, 0.1, 0.05))
         pose = r.emulator.world.pose(0).copy()
@@ -311,6 +329,7 @@ def test_forged_link_requests_never_move_a_robot(forgery):
         assert r.emulator.executed(0) == 1
         np.testing.assert_array_equal(r.emulator.world.pose(0), pose)
         if forgery != "no coordinator alive":
+            r.sense(1)  # the coordinator's observation of step 1
             r.execute(command(2))  # the coordinator's step 2 executes as commanded
             assert r.emulator.executed(0) == 2
             np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.3, 0.1)]), atol=1e-12)
