@@ -64,7 +64,7 @@ def test_kill_robot_through_launch_over_seeds_completes_with_the_others():
 def test_kill_robot_given_three_times_kills_each(tmp_path):
     """``--kill-robot`` is repeatable: three robots of a 6-robot run are each SIGKILLed at their step, each is lost and
     reported (``"kills"``, ``"kill"`` the first), and the other three finish."""
-    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n=6", "--configs=3", "--seed=0", "--motion-time=0.1",
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n=6", "--configs=2", "--seed=0",
                            "--kill-robot=1@1", "--kill-robot=3@2", "--kill-robot=4@2", "--no-record", f"--out={tmp_path}", "--json"],
                           capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
