@@ -102,6 +102,13 @@ class AgentLost(AgentError):
     """Agents that did not come up at the start of the run."""
 
 
+class HubLost(AgentError):
+    """This coordinator's own connection to the hub (router) is gone: no message reaches any robot any more."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, [])
+
+
 class CoordinatorConflict(SwarmInputError):
     """Another coordinator's token of the run is alive: a run has one master at a time."""
 
@@ -161,6 +168,7 @@ class ZenohSwarmBackend:
         self._alive: set[int] = set()
         self._started = False  # after wait_for_agents: a token that disappears is a lost robot
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
+        self._hub_lost: str | None = None  # why this process lost its connection to the hub (then no robot is lost)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
         self._stops: queue.Queue[tuple[int, str] | None] = queue.Queue()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
@@ -236,8 +244,29 @@ class ZenohSwarmBackend:
             self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
-        if started:
+        if started and self._connected():
             self._declare_lost(robot, "liveliness token gone")
+
+    def _connected(self) -> bool:
+        """Whether this session still reaches the hub; if not, note it (every robot's token vanishes with the hub,
+        but the robots are not to blame) and wake the caller's wait (any thread)."""
+        info = self.session.info
+        if list(info.routers_zid()) or list(info.peers_zid()):
+            return True
+        with self._lock:
+            first = self._hub_lost is None
+            if first:
+                self._hub_lost = (f"lost the connection to the hub after step {self.step}: no message, not even an emergency stop, "
+                                  f"reaches the robots any more (each link stops feeding its robots, whose watchdogs stop them; "
+                                  f"agents never move without a command)")
+        if first:
+            self._inbox.put(("", b""))  # wake a wait in progress
+        return False
+
+    def _check_hub(self) -> None:
+        """Raise ``HubLost`` once the hub is gone (caller's thread)."""
+        if self._hub_lost is not None:
+            raise HubLost(self._hub_lost)
 
     def _declare_lost(self, robot: int, reason: str) -> None:
         """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread)."""
@@ -264,7 +293,8 @@ class ZenohSwarmBackend:
             _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
 
     def take_lost(self) -> dict[int, str]:
-        """The robots lost since the last call, with why; they leave ``ids``."""
+        """The robots lost since the last call, with why; they leave ``ids``. ``HubLost`` once the hub is gone."""
+        self._check_hub()
         with self._lock:
             taken, self._untaken = self._untaken, {}
         if taken:
@@ -311,13 +341,18 @@ class ZenohSwarmBackend:
     # -- inbox (caller's thread) --------------------------------------------------------
 
     def _pump(self, timeout_s: float) -> None:
-        """Handle queued messages for up to ``timeout_s`` (returns after the first batch; 0: only what is queued)."""
+        """Handle queued messages for up to ``timeout_s`` (returns after the first batch; 0: only what is queued);
+        ``HubLost`` once the hub is gone."""
+        self._check_hub()
         try:
             key, payload = self._inbox.get(timeout=timeout_s) if timeout_s > 0 else self._inbox.get_nowait()
         except queue.Empty:
             return
         while True:
-            self._handle(key, payload)
+            if key:
+                self._handle(key, payload)
+            else:
+                self._check_hub()
             try:
                 key, payload = self._inbox.get_nowait()
             except queue.Empty:

@@ -28,10 +28,10 @@ ROS 2 (docs/ros2.md): the lab's, or with ``ros2_robots`` simulated ones started 
 ground truth the agents then read, so the run has truths); ``ros2`` also runs the live bridge
 (``swarm ros2 bridge``), and both are stopped after the agents.
 
-Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID (with the gateway's port
-processes: the port's link and agents) at the first command of global step STEP and times the
-coordinator's targeted ``EmergencyStop`` (the JSON
-object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``); ``standby`` also starts a
+Fault injection: ``kill_robot=(ID, STEP)`` (or several such pairs) SIGKILLs the agent process of robot ID (with the
+gateway's port processes: the port's link and agents) at the first command of global step STEP and times the
+coordinator's targeted ``EmergencyStop`` (the JSON object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``
+of the first pair and ``"kills"``, one such object per pair, None for a step the run never reached); ``standby`` also starts a
 standby coordinator, and ``kill_coordinator=STEP`` SIGKILLs the coordinator at STEP and times the
 takeover (``"coordinator_kill": {"step", "takeover_ms"}``).
 """
@@ -79,6 +79,7 @@ from runtime.gateway.config import GatewayConfig
 from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.run_file import published_run
@@ -121,7 +122,17 @@ class LaunchOptions:
     gateway_config: Path | None = None
     emulator_events: Path | None = None
     min_robots: int = 2
-    kill_robot: tuple[int, int] | None = None
+    kill_robot: tuple[int, int] | tuple[tuple[int, int], ...] | None = None  # one (ID, STEP) or several
+
+    @property
+    def kills(self) -> list[tuple[int, int]]:
+        """Every ``(robot, step)`` of ``kill_robot``."""
+        spec = self.kill_robot
+        if not spec:
+            return []
+        if isinstance(spec[0], int):
+            return [(int(spec[0]), int(spec[1]))]
+        return [(int(robot), int(step)) for robot, step in spec]
     standby: bool = False
     kill_coordinator: int | None = None
     agents_per_process: int | None = None
@@ -274,9 +285,9 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
         ros2_settings(o)
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
-    if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
-        robot, step = o.kill_robot
-        raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+    for robot, step in o.kills:
+        if robot not in traj.ids:
+            raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
 
 
 def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
@@ -428,11 +439,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
-            killer = None
-            if o.kill_robot is not None:
-                robot, step = o.kill_robot
-                killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
-            json_hold = o.json and (killer is not None or o.kill_coordinator is not None)
+            killed: dict[int, int] = {}  # pid -> when it was killed: robots hosted by one process die together
+            killers = [RobotKiller(hub_session, run_id, robot, step, agent_procs[robot], killed) for robot, step in o.kills]
+            json_hold = o.json and (bool(killers) or o.kill_coordinator is not None)
             standby = None
             if o.standby:
                 standby_record = [a for a in cmd if not a.startswith("--record=")] + (
@@ -470,8 +479,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                     stop_all([standby], COORDINATOR_GRACE_S)
             for forwarder in forwarders:
                 forwarder.join(timeout=10)
-            kill = None if killer is None else killer.report()
-            if kill is not None:
+            kills = [killer.report() for killer in killers]
+            for kill in kills:
+                if kill is None:
+                    continue
                 say(f"swarm {o.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
                     f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill")
             coord_kill = None if coord_killer is None else coord_killer.report()
@@ -485,12 +496,14 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                         summary = json.loads(line)
                     except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
                         sys.stdout.write(line)
-                extra = {} if killer is None else {"kill": kill}
+                extra = {} if not killers else {"kill": kills[0], "kills": kills}
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
                 emit_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
-                say(f"swarm {o.command}: recording {recording}")
+                say(f"swarm {o.command}: recording {recording}" if is_finished(recording) else
+                    f"swarm {o.command}: recording {recording} is incomplete: the recording failed (what reached the disk: "
+                    f"swarm info {recording}; swarm recover {recording})")
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         stop_children()

@@ -118,7 +118,7 @@ from runtime.wire.messages import (
     refusal_status,
 )
 from runtime.wire.rate_limit import RateLimit
-from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+from runtime.wire.transport import ZenohSettings, claim_identities, declare_token, open_session, publish, subscribe, watch_liveliness
 
 if TYPE_CHECKING:
     import zenoh
@@ -206,9 +206,13 @@ class Agent:
         """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
 
         Without ``session`` the agent opens its own from ``settings`` and closes it on
-        return; with one (its host's, shared with other agents) it leaves it open.
+        return, refusing (``SwarmInputError``) a robot that already has a live agent; with one (its host's, shared
+        with other agents) it leaves it open.
         """
-        with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
+        own = session is None
+        with open_session(self.settings) if own else contextlib.nullcontext(session) as session:
+            if own:  # a host checks its robots itself, once
+                claim_identities(session, self.run_id, [self.robot])
             self.open(session)
             while not self._stop.is_set():
                 if not self.serve(*self._queue.get()):

@@ -127,12 +127,12 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway:
     return SimDriver(robot, ids, pose, spec.model, spec.seed, spec.motion_time_s), spec.limits
 
 
-def build_links(spec: AgentSpec, ids: list[int]) -> list[LinkFactory]:
-    """With ``spec.link`` (``--link``): the link of every port behind which a hosted robot is, to run on the host's
+def build_links(spec: AgentSpec, ids: list[int]) -> dict[str, LinkFactory]:
+    """With ``spec.link`` (``--link``): the link of every port behind which a hosted robot is (port name -> its factory), to run on the host's
     session (``AgentHost``). Each such port's robots that are in the run (``ids``) must all be hosted here: a port has
     one link, and its robots' requests reach it inside this process only."""
     if not spec.link:
-        return []
+        return {}
     if spec.driver != "gateway" or spec.gateway_config is None:
         raise SwarmInputError("--link runs the link of a port of the gateway: it needs --driver gateway and --gateway-config FILE")
     from robot_agent.link import Link  # noqa: PLC0415 - keeps the link off the import path of agents that run none
@@ -144,7 +144,7 @@ def build_links(spec: AgentSpec, ids: list[int]) -> list[LinkFactory]:
         if elsewhere:
             raise SwarmInputError(f"--link: robots {elsewhere} of port {port.name} are robots of the run but not hosted by this "
                                   f"process (--id {format_ids(spec.hosted)}): host every robot of the port, or run `swarm link` for it")
-    return [partial(Link.open, run=spec.run_id, port=port, config=gateway) for port in ports.values()]
+    return {name: partial(Link.open, run=spec.run_id, port=port, config=gateway) for name, port in ports.items()}
 
 
 def build_agents(spec: AgentSpec) -> list[Agent]:

@@ -76,8 +76,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
     p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
                    help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
-    p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
-                   help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--kill-robot", type=_kill_spec, action="append", default=None, metavar="ID@STEP",
+                   help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2); repeatable")
     p.add_argument("--standby", action="store_true",
                    help="also start a standby coordinator that takes the run over if the coordinator dies")
     p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         model_config(args), args.localizer, selection_config(args), args.command, args.trajectory, args.robots, args.configs,
         0 if args.command == "demo" else args.seed, args.method, args.seed, args.run_id, args.out, args.result, args.motion_time,
         args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
-        args.min_robots, args.kill_robot, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
+        args.min_robots, tuple(args.kill_robot or ()) or None, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
         args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
         world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
         ros2=args.ros2, ros2_robots=args.ros2_robots)
