@@ -28,6 +28,7 @@ naming the file, the offset and what is wrong.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import json
 import os
@@ -100,11 +101,16 @@ def float_platform() -> str:
     and scipy differ in the last bits between CPUs, so ``swarm replay --check`` is exact only where
     this string is the same. OpenBLAS picks its kernels by CPU model, not by the SIMD extensions
     alone (two AVX-512 CPUs may run its SkylakeX or its Haswell kernels), so each library's kernel
-    name is part of the string.
+    name is part of the string: numpy's, scipy's and, where the ``cholmod`` extra is installed, cvxopt's (the
+    localizers' sparse factorization), each loaded here so that every process names the same libraries whatever
+    it has loaded so far.
     """
     import numpy as np  # noqa: PLC0415 - numpy is loaded by every caller anyway
     import scipy.linalg  # noqa: F401, PLC0415 - loads scipy's BLAS, so that its kernels are listed
     from threadpoolctl import threadpool_info  # noqa: PLC0415
+
+    with contextlib.suppress(ImportError):
+        import cvxopt  # noqa: F401, PLC0415 - the cholmod extra's BLAS (coordinator.localization.sparse_lm)
 
     simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
     blas = sorted({f"{info.get('internal_api')} {info.get('architecture') or '?'}" for info in threadpool_info()
