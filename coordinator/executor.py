@@ -45,7 +45,7 @@ from typing import Protocol
 
 import numpy as np
 
-from coordinator.backend import SwarmBackend
+from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.localization import Localizer
@@ -317,6 +317,8 @@ class InchwormExecutor:
             self._follow(result, trajectory, estimate, first, group, plan, planned_ids, regrouped)
         except RunAborted as exc:
             exc.result = result  # the configurations completed before the end
+            raise
+        except BackendEnded:
             raise
         except (SwarmInputError, LocalizationError) as exc:
             if not result.lost:

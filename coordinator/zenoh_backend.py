@@ -42,6 +42,19 @@ only if no other coordinator's token of the run is alive, and gives up (``Coordi
 naming the live one) if another appeared meanwhile. ``parent`` is the epoch whose run it takes
 over (0: a new run); ``resume(state)`` then starts at the checkpoint's step.
 ``publish_checkpoint`` publishes the executor's ``RunState`` as a ``Checkpoint``.
+
+Stalls (docs/failure-model.md): a coordinator stalled beyond its session lease (10 s: swapped out,
+SIGSTOP) loses its session to the hub, and every robot's token disappears from its view at once, with
+the hub. A token gone while the session has no router is no robot lost: the robot is *suspect* and
+checked again once the session is back (its token alive then, it never was lost). When a coordinator
+whose ``parent`` is this epoch appears (a standby took the run over meanwhile) or an agent refuses a
+command because it obeys another live coordinator, this one *steps down*: ``SteppedDown`` (a
+``CoordinatorConflict``) at its next wait, and from then on it declares no robot lost and sends
+nothing. A run-wide ``EmergencyStop`` heard while the run is in progress ends it (``RunStopped``):
+a coordinator never commands a stopped run. A robot that refuses a command because its watchdog
+stopped it (``NO_HEARTBEAT``: its link or radio stalled) did not move and is still served by its agent:
+it is dropped like a lost robot but gets no emergency stop, and it is re-admitted at the next
+configuration like a rejoining robot (``take_rejoining``).
 """
 
 from __future__ import annotations
@@ -56,10 +69,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.backend import BackendEnded
 from coordinator.checkpoint import RunState
 from runtime.errors import SwarmInputError
+from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
+from runtime.wire.keys import (
+    alive_wildcard,
+    coord_alive_key,
+    estop_key,
+    parse_coord_token,
+    parse_key,
+    robot_wildcard,
+    truth_wildcard,
+)
 from runtime.wire.messages import (
     Checkpoint,
     ContactMessage,
@@ -86,6 +109,9 @@ _log = logging.getLogger(__name__)
 
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
+WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
+SUSPECT_S = 1.0  # s after a stall during which a token that goes is checked again before its robot is lost
+OTHER_MASTER = "obeys the live coordinator epoch"  # in an agent's refusal: another coordinator holds the run
 
 
 class AgentError(SwarmInputError):
@@ -102,6 +128,14 @@ class AgentLost(AgentError):
 
 class CoordinatorConflict(SwarmInputError):
     """Another coordinator's token of the run is alive: a run has one master at a time."""
+
+
+class SteppedDown(CoordinatorConflict, BackendEnded):
+    """Another coordinator took this one's run over (it stalled beyond its session lease): it steps down."""
+
+
+class RunStopped(AgentError, BackendEnded):
+    """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
 def live_coordinators(session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
@@ -141,6 +175,11 @@ class ZenohSwarmBackend:
         self.parent = parent
         self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
+        self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
+        self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
+        self._suspect: dict[int, float] = {}  # robots whose token went just after a stall of this process: since when
+        self._hub_client = any(True for _ in session.info.routers_zid())  # connected to a router: it can lose it
+        self._tick = self._resumed = time.monotonic()  # the stopper thread's last turn; the end of the last stall
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
@@ -159,7 +198,7 @@ class ZenohSwarmBackend:
         self._started = False  # after wait_for_agents: a token that disappears is a lost robot
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
-        self._stops: queue.Queue[tuple[int, str] | None] = queue.Queue()
+        self._stops: queue.Queue[tuple[int, str, bool] | None] = queue.Queue()
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
@@ -178,6 +217,8 @@ class ZenohSwarmBackend:
             subscribe(session, robot_wildcard(run, "obs"), enqueue),
             subscribe(session, truth_wildcard(run), enqueue),
             watch_liveliness(session, alive_wildcard(run), self._on_liveliness),
+            watch_liveliness(session, coord_alive_key(run), self._on_coordinator),
+            subscribe(session, estop_key(run), self._on_estop),
         ]
         self._token = declare_token(session, coord_alive_key(run, self.epoch, parent))  # after the subscribers: agents answer it
         others = {e: p for e, p in live_coordinators(session, run).items() if e != self.epoch}
@@ -222,38 +263,103 @@ class ZenohSwarmBackend:
         with self._lock:
             if alive:
                 self._alive.add(robot)
+                self._suspect.pop(robot, None)
                 if self._started and robot in self._lost and self.rejoin:
                     self._back.add(robot)
                 return
             self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
+            if started and self._stalled():
+                self._suspect.setdefault(robot, time.monotonic())  # checked again once the session is back
+                return
         if started:
             self._declare_lost(robot, "liveliness token gone")
 
-    def _declare_lost(self, robot: int, reason: str) -> None:
-        """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread)."""
+    def _on_coordinator(self, key: str, alive: bool) -> None:  # Zenoh thread
+        """A coordinator whose parent is this epoch took the run over (this one stalled beyond its lease): step down."""
+        token = parse_coord_token(key)
+        if alive and token is not None and token[0] != self.epoch and token[1] == self.epoch and self.superseded is None:
+            self.superseded = (f"coordinator epoch {token[0]} took run {self.run} over from this one (epoch {self.epoch}), "
+                               f"which had lost its session to the hub; stepping down: no robot is declared lost, nothing is stopped")
+
+    def _on_estop(self, key: str, payload: bytes) -> None:  # Zenoh thread
+        msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
+        if msg is not None and not msg.robots and self.stopped_by is None:
+            self.stopped_by = f"the run was stopped by {msg.source} ({msg.reason})"
+
+    def _stalled(self) -> bool:
+        """Whether this process is just back from a stall (its stopper thread, which turns every 0.2 s, did not turn
+        for ``STALL_S``, or did so less than ``SUSPECT_S`` ago) or its session has lost the hub: tokens going now
+        went with the session, not with the robots."""
+        now = time.monotonic()
+        if now - self._tick > STALL_S or now - self._resumed < SUSPECT_S:
+            return True
+        return self._hub_client and not any(True for _ in self.session.info.routers_zid())
+
+    def _check(self) -> None:
+        """``SteppedDown`` once another coordinator holds the run, ``RunStopped`` once a run-wide stop was heard."""
+        if self.superseded is not None:
+            raise SteppedDown(self.superseded)
+        if self.stopped_by is not None:
+            raise RunStopped(self.stopped_by, [])
+
+    def _recheck_suspects(self) -> None:
+        """Stopper thread: once the session has the hub again, the suspects whose tokens are still gone are lost."""
+        now = time.monotonic()
         with self._lock:
-            if robot not in self.known or robot in self._lost:
+            suspects = [r for r, since in self._suspect.items() if now - since > SUSPECT_S]
+        if not suspects or self._stalled():
+            return
+        alive = {parse_key(key).robot for key in alive_now(self.session, alive_wildcard(self.run))}
+        with self._lock:
+            gone = [r for r in suspects if r in self._suspect and r not in alive and r not in self._alive]
+            for robot in suspects:
+                self._suspect.pop(robot, None)
+        for robot in gone:
+            self._declare_lost(robot, "liveliness token gone (still gone once this coordinator's session was back)")
+
+    def _declare_lost(self, robot: int, reason: str, stop: bool = True) -> None:
+        """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread); ``stop``
+        False: it stands still already (its watchdog stopped it) and may come back at the next configuration."""
+        with self._lock:
+            if robot not in self.known or robot in self._lost or self.superseded is not None:
                 return
             self._lost[robot] = reason
             self._untaken[robot] = reason
-        self._stops.put((robot, reason))
+            if not stop and self.rejoin:
+                self._back.add(robot)  # its agent serves on: re-admitted at the next configuration
+        self._stops.put((robot, reason, stop))
 
     def _stop_lost(self) -> None:
-        """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order."""
-        while (item := self._stops.get()) is not None:
-            robot, reason = item
+        """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order; the
+        suspects of a lost session checked again meanwhile."""
+        while True:
             try:
-                stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
-                                     robots=(robot,))
-                publish(self.session, message_key(stop), encode(stop))
+                item = self._stops.get(timeout=0.2)
+            except queue.Empty:
+                item = ()
+            now = time.monotonic()
+            if now - self._tick > STALL_S:
+                self._resumed = now
+            self._tick = now
+            if item == ():
+                self._recheck_suspects()
+                continue
+            if item is None:
+                return
+            robot, reason, stop_it = item
+            try:
+                if stop_it:
+                    stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
+                                         robots=(robot,))
+                    publish(self.session, message_key(stop), encode(stop))
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
             except Exception:  # noqa: BLE001 - a closed session at shutdown: the launcher's run-wide stop covers it
                 _log.exception("could not publish the emergency stop of lost robot %d", robot)
                 continue
-            _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
+            _log.warning("robot %d lost (%s)%s", robot, reason, ": emergency stop sent" if stop_it else "")
 
     def take_lost(self) -> dict[int, str]:
         """The robots lost since the last call, with why; they leave ``ids``."""
@@ -356,8 +462,12 @@ class ZenohSwarmBackend:
                 self._status[msg.robot] = msg
             if msg.state == "done":
                 self._owed_done.discard(msg.robot)
+            elif msg.state == "refused" and OTHER_MASTER in msg.reason:
+                self.superseded = self.superseded or (f"robot {msg.robot} refused the command of step {msg.step}: {msg.reason}; "
+                                                      "stepping down: no robot is declared lost, nothing is stopped")
             elif msg.state == "refused":
-                self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}")
+                self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}",
+                                   stop=WATCHDOG_REFUSAL not in msg.reason)
 
     def _publish_truth_set(self, again: bool = False) -> None:
         """Simulation: once every present robot's truth of the current step is in, send them to the agents as
@@ -382,6 +492,7 @@ class ZenohSwarmBackend:
         start = last = time.monotonic()
         resent = False
         while True:
+            self._check()
             self._publish_truth_set()  # a robot lost meanwhile may complete the set
             left = missing()
             if not left:
@@ -432,6 +543,7 @@ class ZenohSwarmBackend:
     def execute(self, step: StepCommands) -> None:
         if not np.array_equal(step.ids, self.ids):
             raise SwarmInputError(f"commands for robots {step.ids.tolist()}, swarm has {self._id_list}")
+        self._check()  # never a command once another coordinator holds the run or it was stopped
         self.step += 1
         s = self.step
         self._status = {}
@@ -469,6 +581,7 @@ class ZenohSwarmBackend:
         """``ObserveRequest`` (the current step) to ``robots``, then wait for their reports (and truths) in
         ``self._reports``; the step's truth set goes out once complete, never before the requests, and again
         with every re-send (an agent may have missed it)."""
+        self._check()
         s = self.step
         self._reports = {}
         requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
