@@ -39,6 +39,7 @@ in-process runs pass none.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -107,6 +108,7 @@ class RejoinedRobot:
     config: int
 
 
+_log = logging.getLogger(__name__)
 REJOIN_DELTA_M = 0.5  # position std (m) of a rejoining robot's prior around the pose its neighbours' observations give
 REJOIN_HEADING_SIGMA = 0.5  # heading std (rad) of that prior
 
@@ -381,25 +383,32 @@ class InchwormExecutor:
         """Lost robots whose agents came back (``take_rejoining`` of the backend) rejoin before configuration
         ``config`` is planned: each is asked for its observations of the current step, gets a prior with a large
         covariance (``REJOIN_DELTA_M``, ``REJOIN_HEADING_SIGMA``) around the pose its observations of its
-        neighbours' estimates give, and the swarm is localized again with them. One that answers nothing or
-        sees fewer than two neighbours stays lost."""
+        neighbours' estimates give, and the swarm is localized again with them. One that sees fewer than two robots
+        (the swarm moved on out of its sensing range) comes back at its last estimate before it was lost, its
+        covariance grown by the same amounts: it is planned and commanded like the others, so dead reckoning
+        drives it to its place in the configuration, among its neighbours, and the localizer fixes it once they
+        observe each other (until then the step records name it as kept at dead reckoning). One that answers
+        nothing stays lost."""
         take = getattr(self.backend, "take_rejoining", None)
         robots = take() if take is not None and self._executed > 0 else []
         if not robots:
             return estimate
         obs = self.backend.observe_rejoining(robots)  # type: ignore[attr-defined]  # with take_rejoining; a robot that does not answer is lost again
-        priors = {}
+        grow = SwarmEstimate.isotropic([0], np.zeros((1, 3)), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA).cov[0]  # the prior's spread
+        priors: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for robot in robots:
             pose = _pose_from_neighbours(robot, obs, estimate)
             if pose is None:
-                self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")  # type: ignore[attr-defined]
-            else:
-                priors[robot] = pose
-        estimate = self._drop_lost(result, config, estimate)[0]  # those that did not make it
+                seen = int(np.sum((obs.observer == robot) & np.isin(obs.observed, estimate.ids)))
+                _log.warning("robot %d rejoins at its last estimate (it observes %d robot(s) of the run): dead reckoning "
+                             "brings it among its neighbours", robot, seen)
+            priors[robot] = _last_estimate(result, robot, grow) if pose is None else (pose, grow)
+        estimate = self._drop_lost(result, config, estimate)[0]  # those that did not answer
         joined = [r for r in sorted(priors) if r in self.backend.ids]
         if not joined:
             return estimate
-        new = SwarmEstimate.isotropic(joined, np.array([priors[r] for r in joined]), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA)
+        new = SwarmEstimate(np.array(joined, dtype=np.int64), np.array([priors[r][0] for r in joined]),
+                            np.array([priors[r][1] for r in joined]))
         ids = np.concatenate([estimate.ids, new.ids])
         order = np.argsort(ids, kind="stable")
         merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
@@ -486,6 +495,16 @@ def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate
     c, s = np.cos(heading), np.sin(heading)
     position = np.mean(seen - body @ np.array([[c, s], [-s, c]]), axis=0)
     return np.array([position[0], position[1], heading])
+
+
+def _last_estimate(result: RunResult, robot: int, grow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The last pose estimated for ``robot`` before it was lost (the run's steps, else the initial estimate) and its
+    covariance plus ``grow``."""
+    for est in [*(s.estimate for s in reversed(result.steps)), result.initial_estimate]:
+        row = np.flatnonzero(est.ids == robot)
+        if row.size:
+            return est.poses[row[0]].copy(), est.cov[row[0]] + grow
+    raise SwarmInputError(f"robot {robot} has no estimate in this run")
 
 
 def _among(obs: Observations, ids: np.ndarray) -> Observations:

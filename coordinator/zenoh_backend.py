@@ -75,6 +75,7 @@ from runtime.errors import SwarmInputError
 from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import (
+    alive_key,
     alive_wildcard,
     coord_alive_key,
     estop_key,
@@ -110,7 +111,7 @@ _log = logging.getLogger(__name__)
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
-SUSPECT_S = 1.0  # s after a stall during which a token that goes is checked again before its robot is lost
+SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 OTHER_MASTER = "obeys the live coordinator epoch"  # in an agent's refusal: another coordinator holds the run
 
 
@@ -177,9 +178,8 @@ class ZenohSwarmBackend:
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
-        self._suspect: dict[int, float] = {}  # robots whose token went just after a stall of this process: since when
+        self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
         self._hub_client = any(True for _ in session.info.routers_zid())  # connected to a router: it can lose it
-        self._tick = self._resumed = time.monotonic()  # the stopper thread's last turn; the end of the last stall
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
@@ -198,7 +198,8 @@ class ZenohSwarmBackend:
         self._started = False  # after wait_for_agents: a token that disappears is a lost robot
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
-        self._stops: queue.Queue[tuple[int, str, bool] | None] = queue.Queue()
+        self._stops: queue.Queue[tuple[int, str | None, float] | None] = queue.Queue()  # (robot, reason, stop it?) or
+        # (robot, None, when its token went)
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
@@ -263,18 +264,14 @@ class ZenohSwarmBackend:
         with self._lock:
             if alive:
                 self._alive.add(robot)
-                self._suspect.pop(robot, None)
                 if self._started and robot in self._lost and self.rejoin:
                     self._back.add(robot)
                 return
             self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
-            if started and self._stalled():
-                self._suspect.setdefault(robot, time.monotonic())  # checked again once the session is back
-                return
         if started:
-            self._declare_lost(robot, "liveliness token gone")
+            self._stops.put((robot, None, time.monotonic()))  # the stopper thread asks the hub first
 
     def _on_coordinator(self, key: str, alive: bool) -> None:  # Zenoh thread
         """A coordinator whose parent is this epoch took the run over (this one stalled beyond its lease): step down."""
@@ -288,14 +285,24 @@ class ZenohSwarmBackend:
         if msg is not None and not msg.robots and self.stopped_by is None:
             self.stopped_by = f"the run was stopped by {msg.source} ({msg.reason})"
 
-    def _stalled(self) -> bool:
-        """Whether this process is just back from a stall (its stopper thread, which turns every 0.2 s, did not turn
-        for ``STALL_S``, or did so less than ``SUSPECT_S`` ago) or its session has lost the hub: tokens going now
-        went with the session, not with the robots."""
-        now = time.monotonic()
-        if now - self._tick > STALL_S or now - self._resumed < SUSPECT_S:
-            return True
-        return self._hub_client and not any(True for _ in self.session.info.routers_zid())
+    def _connected(self) -> bool:
+        """Whether the session has the hub (a client session that lost its router sees every token go with it)."""
+        return not self._hub_client or any(True for _ in self.session.info.routers_zid())
+
+    def _token_gone(self, robot: int, since: float) -> None:
+        """Stopper thread: ``robot``'s token went from this session's view at ``since`` (monotonic). Lost if the hub
+        says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub);
+        if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
+        time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
+        if not self._connected():
+            self._suspect.add(robot)
+            return
+        if robot in self._alive or alive_now(self.session, alive_key(self.run, robot)):
+            return  # back already: it went with this session's link to the hub, not with the robot
+        if not self._connected():
+            self._suspect.add(robot)
+            return
+        self._declare_lost(robot, "liveliness token gone")
 
     def _check(self) -> None:
         """``SteppedDown`` once another coordinator holds the run, ``RunStopped`` once a run-wide stop was heard."""
@@ -306,16 +313,13 @@ class ZenohSwarmBackend:
 
     def _recheck_suspects(self) -> None:
         """Stopper thread: once the session has the hub again, the suspects whose tokens are still gone are lost."""
-        now = time.monotonic()
-        with self._lock:
-            suspects = [r for r, since in self._suspect.items() if now - since > SUSPECT_S]
-        if not suspects or self._stalled():
+        if not self._suspect or not self._connected():
             return
         alive = {parse_key(key).robot for key in alive_now(self.session, alive_wildcard(self.run))}
-        with self._lock:
-            gone = [r for r in suspects if r in self._suspect and r not in alive and r not in self._alive]
-            for robot in suspects:
-                self._suspect.pop(robot, None)
+        if not self._connected():
+            return
+        gone = sorted(r for r in self._suspect if r not in alive and r not in self._alive)
+        self._suspect.clear()
         for robot in gone:
             self._declare_lost(robot, "liveliness token gone (still gone once this coordinator's session was back)")
 
@@ -329,7 +333,7 @@ class ZenohSwarmBackend:
             self._untaken[robot] = reason
             if not stop and self.rejoin:
                 self._back.add(robot)  # its agent serves on: re-admitted at the next configuration
-        self._stops.put((robot, reason, stop))
+        self._stops.put((robot, reason, float(stop)))
 
     def _stop_lost(self) -> None:
         """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order; the
@@ -338,17 +342,14 @@ class ZenohSwarmBackend:
             try:
                 item = self._stops.get(timeout=0.2)
             except queue.Empty:
-                item = ()
-            now = time.monotonic()
-            if now - self._tick > STALL_S:
-                self._resumed = now
-            self._tick = now
-            if item == ():
                 self._recheck_suspects()
                 continue
             if item is None:
                 return
             robot, reason, stop_it = item
+            if reason is None:
+                self._token_gone(robot, float(stop_it))
+                continue
             try:
                 if stop_it:
                     stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
