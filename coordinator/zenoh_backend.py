@@ -61,6 +61,7 @@ from __future__ import annotations
 
 import logging
 import queue
+import re
 import secrets
 import threading
 import time
@@ -112,7 +113,7 @@ _log = logging.getLogger(__name__)
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
-OTHER_MASTER = "obeys the live coordinator epoch"  # in an agent's refusal: another coordinator holds the run
+OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
 
 class AgentError(SwarmInputError):
@@ -179,6 +180,7 @@ class ZenohSwarmBackend:
         self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
+        self._session_lost = False  # this session lost the hub at least once (this process stalled beyond its lease)
         self._hub_client = any(True for _ in session.info.routers_zid())  # connected to a router: it can lose it
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
@@ -295,11 +297,14 @@ class ZenohSwarmBackend:
         if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
         time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
         if not self._connected():
+            self._session_lost = True
             self._suspect.add(robot)
             return
         if robot in self._alive or alive_now(self.session, alive_key(self.run, robot)):
-            return  # back already: it went with this session's link to the hub, not with the robot
+            self._session_lost = True  # back already: it went with this session's link to the hub, not with the robot
+            return
         if not self._connected():
+            self._session_lost = True
             self._suspect.add(robot)
             return
         self._declare_lost(robot, "liveliness token gone")
@@ -463,7 +468,7 @@ class ZenohSwarmBackend:
                 self._status[msg.robot] = msg
             if msg.state == "done":
                 self._owed_done.discard(msg.robot)
-            elif msg.state == "refused" and OTHER_MASTER in msg.reason:
+            elif msg.state == "refused" and OTHER_MASTER.search(msg.reason):
                 self.superseded = self.superseded or (f"robot {msg.robot} refused the command of step {msg.step}: {msg.reason}; "
                                                       "stepping down: no robot is declared lost, nothing is stopped")
             elif msg.state == "refused":
@@ -507,6 +512,13 @@ class ZenohSwarmBackend:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()
                 left = missing()
+                with self._lock:
+                    alive = [r for r in left if r in self._alive]
+                if self._session_lost and alive and self.superseded is None:  # they serve another coordinator, not us
+                    self.superseded = (f"{_robots(alive)} alive but silent to this coordinator (epoch {self.epoch}) since it lost "
+                                       f"its session to the hub: another coordinator has held run {self.run}; stepping down: "
+                                       "no robot is declared lost, nothing is stopped")
+                    self._check()
                 for robot in left:
                     self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
                 return

@@ -49,7 +49,9 @@ message it gets binds it, and while that token lives every other epoch is refuse
 answered ``Status refused`` naming the live epoch, other messages dropped as foreign); a message
 of an epoch whose token went (a dead or replayed coordinator) or without any epoch is refused,
 one of an epoch whose token has not reached the agent yet is dropped (its coordinator sends it
-again). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
+again). An epoch that was taken over stays refused, also when its token comes back once its successor is gone
+(a coordinator that stalled beyond its session lease; its session re-declares the token when it resumes: it
+steps down on the refusal). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
 declares itself only once that token is gone), even before the agent saw the token go. When
 the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an
 ancestor) as its ``parent`` took the run over and continues it, so the step memory is kept (a command for
@@ -392,6 +394,9 @@ class Agent:
                         f"of run {self.run_id}")
             self._coords.pop(self.bound)  # it took over from ours, which declared after our token had gone: gone
             self._gone.add(self.bound)
+        if epoch in self._lineage and epoch != self.bound:  # its token came back after another took its run over
+            return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys coordinator epoch {self.bound}, which took "
+                    f"run {self.run_id} over from it")
         if epoch not in self._coords:
             if epoch != 0 and epoch not in self._gone:
                 return _UNSEEN

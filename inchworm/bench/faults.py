@@ -26,7 +26,9 @@ Three parts, each through the options a user has, with real processes on loopbac
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
-"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}}``.
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"},
+"rejoin": {"runs", "rejoined", "sensing_range_m"}, "coordinator_stall": {"stall_s", "runs", "completed"}}``
+(``inchworm.bench.faults_stalls``).
 """
 
 from __future__ import annotations
@@ -244,6 +246,7 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     ``say`` is told each part's result as it ends."""
     from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
+    from inchworm.bench.faults_stalls import coordinator_stall, rejoin  # noqa: PLC0415
 
     o = options
     _say = say or (lambda _text: None)
@@ -265,8 +268,14 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
     flood = estop_under_flood(connections=o.flood)
     _say(json.dumps(flood))
+    _say(f"rejoin: a robot's agent killed and restarted after the swarm moved on, at 0.5 m, over {o.seeds} seeds")
+    back = rejoin(o.seeds)
+    _say(json.dumps(back))
+    _say(f"coordinator stall: swarm launch -n 10 --standby --stall-coordinator STEP:12 over {o.seeds} seeds")
+    stall = coordinator_stall(o.seeds)
+    _say(json.dumps(stall))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "coordinator": coord, "estop_under_flood": flood}
+               "coordinator": coord, "estop_under_flood": flood, "rejoin": back, "coordinator_stall": stall}
     table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
-                       json.dumps(flood)])
+                       json.dumps(flood), json.dumps(back), json.dumps(stall)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")
