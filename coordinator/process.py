@@ -366,7 +366,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     initial = initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
     taken: tuple[int, RunState | None] | None = read_checkpoint(o.resume, o.run_id, traj, initial) if o.resume is not None else None
     recording = None
-    recorded, completed, result, error = None, False, None, None
+    recorded, completed, result = None, False, None
+    error: Exception | None = None
     live = Live(None)
     try:
         if signals.received is not None:
