@@ -112,6 +112,7 @@ _log = logging.getLogger(__name__)
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
+RESEND_AFTER_STALL_S = 0.3  # s after a stall of this process a wait re-sends its requests (its session is back by then)
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
@@ -181,6 +182,7 @@ class ZenohSwarmBackend:
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
         self._session_lost = False  # this session lost the hub at least once (this process stalled beyond its lease)
+        self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
         self._hub_client = any(True for _ in session.info.routers_zid())  # connected to a router: it can lose it
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
@@ -494,19 +496,25 @@ class ZenohSwarmBackend:
     def _wait(self, what: str, missing, resend) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
         the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
-        (this process was stopped or starved: answers may still be in its socket) does not count."""
+        (this process was stopped or starved: answers may still be in its socket) does not count, and the requests
+        are re-sent ``RESEND_AFTER_STALL_S`` later (a stall beyond the session lease loses the answers sent meanwhile),
+        as are those of a round that begins within twice that of a stall."""
         start = last = time.monotonic()
+        if start - self._stalled_at < 2 * RESEND_AFTER_STALL_S:  # just back from a stall: its session may have been lost
+            start -= self.timeouts.step_s / 2 - RESEND_AFTER_STALL_S  # with the requests sent meanwhile: re-sent soon
         resent = False
         while True:
+            now = time.monotonic()
+            if now - last > STALL_S:  # re-sent soon: answers sent while its session was gone (beyond the lease) are lost
+                start = min(start + now - last, now - self.timeouts.step_s / 2 + RESEND_AFTER_STALL_S)
+                resent = False
+                self._stalled_at = now
+            last = now
             self._check()
             self._publish_truth_set()  # a robot lost meanwhile may complete the set
             left = missing()
             if not left:
                 return
-            now = time.monotonic()
-            if now - last > STALL_S:
-                start += now - last
-            last = now
             elapsed = now - start
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
