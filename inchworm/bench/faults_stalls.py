@@ -123,3 +123,9 @@ def coordinator_stall(runs: int, robots: int = 10, configs: int = 3, stall_s: fl
         completed += proc.returncode == 0 and len(summary.get("configs", [])) == configs and summary.get("lost") == []
         progress(seed + 1)
     return {"stall_s": stall_s, "runs": runs, "completed": completed}
+
+
+if __name__ == "__main__":  # python -m inchworm.bench.faults_stalls [SEEDS]: both rows, one JSON line each
+    seeds = int(sys.argv[1]) if len(sys.argv) > 1 else 10
+    print(json.dumps({"rejoin": rejoin(seeds)}), flush=True)
+    print(json.dumps({"coordinator_stall": coordinator_stall(seeds)}), flush=True)
