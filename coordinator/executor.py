@@ -111,6 +111,8 @@ class RejoinedRobot:
 _log = logging.getLogger(__name__)
 REJOIN_DELTA_M = 0.5  # position std (m) of a rejoining robot's prior around the pose its neighbours' observations give
 REJOIN_HEADING_SIGMA = 0.5  # heading std (rad) of that prior
+REJOIN_DRIVE_M = 0.5  # longest drive (m) of a step for a robot known only to REJOIN_DELTA_M / sqrt(2) or worse (half the
+# agents' default limit, CommandLimits.max_drive_m: one far from its place gets there over several steps)
 
 
 class RunAborted(SwarmInputError):
@@ -387,8 +389,8 @@ class InchwormExecutor:
         (the swarm moved on out of its sensing range) comes back at its last estimate before it was lost, its
         covariance grown by the same amounts: it is planned and commanded like the others, so dead reckoning
         drives it to its place in the configuration, among its neighbours, and the localizer fixes it once they
-        observe each other (until then the step records name it as kept at dead reckoning). One that answers
-        nothing stays lost."""
+        observe each other (until then the step records name it as kept at dead reckoning, and it drives at most
+        ``REJOIN_DRIVE_M`` a step). One that answers nothing stays lost."""
         take = getattr(self.backend, "take_rejoining", None)
         robots = take() if take is not None and self._executed > 0 else []
         if not robots:
@@ -449,6 +451,8 @@ class InchwormExecutor:
     ) -> SwarmEstimate:
         desired = self._desired(trajectory, config, estimate.ids)
         commands = np.where(moving[:, None], command_towards(estimate.poses, desired), 0.0)
+        unsure = estimate.cov[:, 0, 0] + estimate.cov[:, 1, 1] > REJOIN_DELTA_M**2 / 2  # a robot rejoining by dead reckoning
+        commands[unsure, 1] = np.minimum(commands[unsure, 1], REJOIN_DRIVE_M)  # approaches in steps an agent accepts
         cmd = StepCommands(estimate.ids, commands, moving)
         self._executed += 1
         self.backend.execute(cmd)  # (iii)

@@ -45,8 +45,9 @@ def _wait_step(steps: list[int], step: int, proc: subprocess.Popen, timeout_s: f
     return True
 
 
-def rejoin_run(seed: int, tmp: Path) -> bool:
-    """One run (module doc): whether robot ``VICTIM`` rejoined and finished the run with the others."""
+def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
+    """One run (module doc): whether robot ``VICTIM`` rejoined and finished the run with the others (``log``: where the
+    coordinator's stderr goes)."""
     traj = random_trajectory(6, 6, np.random.default_rng(seed))
     traj_file = tmp / "traj.json"
     traj.save(traj_file)
@@ -71,7 +72,7 @@ def rejoin_run(seed: int, tmp: Path) -> bool:
             coordinator = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", "--method=ref57",
                                             f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", f"--out={tmp}",
                                             f"--result={tmp / 'result.json'}"],
-                                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=tmp)
+                                           stdout=subprocess.DEVNULL, stderr=log, cwd=tmp)
             procs.append(coordinator)
             if not _wait_step(steps, KILL_STEP, coordinator):
                 return False
