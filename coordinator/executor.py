@@ -42,7 +42,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -153,6 +153,7 @@ class RunResult:
     configs: list[ConfigRecord] = field(default_factory=list)
     lost: list[LostRobot] = field(default_factory=list)
     rejoined: list[RejoinedRobot] = field(default_factory=list)
+    world_events: list[tuple[int, Any]] = field(default_factory=list)  # a physical world's (global step, Contact | Stuck)
 
     @property
     def has_truth(self) -> bool:
@@ -386,37 +387,28 @@ class InchwormExecutor:
         ``config`` is planned: each is asked for its observations of the current step, gets a prior with a large
         covariance (``REJOIN_DELTA_M``, ``REJOIN_HEADING_SIGMA``) around the pose its observations of its
         neighbours' estimates give, and the swarm is localized again with them. One that sees fewer than two robots
-        (the swarm moved on out of its sensing range) comes back at its last estimate before it was lost, its
-        covariance grown by the same amounts: it is planned and commanded like the others, so dead reckoning
-        drives it to its place in the configuration, among its neighbours, and the localizer fixes it once they
-        observe each other (until then the step records name it as kept at dead reckoning, and it drives at most
-        ``REJOIN_DRIVE_M`` a step). One that answers nothing stays lost."""
+        (the swarm moved on out of its sensing range) comes back at its last estimate before it was lost
+        (``last_estimate``), its covariance grown by the same amounts: it is planned and commanded like the others,
+        so dead reckoning drives it to its place in the configuration, among its neighbours, and the localizer fixes
+        it once they observe each other (until then the step records name it as kept at dead reckoning, and it
+        drives at most ``REJOIN_DRIVE_M`` a step). One that answers nothing stays lost."""
         take = getattr(self.backend, "take_rejoining", None)
         robots = take() if take is not None and self._executed > 0 else []
         if not robots:
             return estimate
         obs = self.backend.observe_rejoining(robots)  # type: ignore[attr-defined]  # with take_rejoining; a robot that does not answer is lost again
-        grow = SwarmEstimate.isotropic([0], np.zeros((1, 3)), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA).cov[0]  # the prior's spread
-        priors: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-        for robot in robots:
-            pose = _pose_from_neighbours(robot, obs, estimate)
-            if pose is None:
-                seen = int(np.sum((obs.observer == robot) & np.isin(obs.observed, estimate.ids)))
-                _log.warning("robot %d rejoins at its last estimate (it observes %d robot(s) of the run): dead reckoning "
-                             "brings it among its neighbours", robot, seen)
-            priors[robot] = _last_estimate(result, robot, grow) if pose is None else (pose, grow)
+        priors = rejoin_priors(robots, obs, estimate)
         estimate = self._drop_lost(result, config, estimate)[0]  # those that did not answer
-        joined = [r for r in sorted(priors) if r in self.backend.ids]
+        joined = [r for r in sorted(robots) if r in self.backend.ids]
         if not joined:
             return estimate
-        new = SwarmEstimate(np.array(joined, dtype=np.int64), np.array([priors[r][0] for r in joined]),
-                            np.array([priors[r][1] for r in joined]))
-        ids = np.concatenate([estimate.ids, new.ids])
-        order = np.argsort(ids, kind="stable")
-        merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
-                               np.concatenate([estimate.cov, new.cov])[order])
-        located, _ = localize_observable(self.localizer, merged, StepCommands.stationary(merged.ids),
-                                         _among(obs, merged.ids), self.cfg)
+        reckoned = {robot: last_estimate(result, robot) for robot in joined if robot not in priors}
+        for robot in reckoned:
+            seen = int(np.sum((obs.observer == robot) & np.isin(obs.observed, estimate.ids)))
+            _log.warning("robot %d rejoins at its last estimate (it observes %d robot(s) of the run): dead reckoning "
+                         "brings it among its neighbours", robot, seen)
+        located = localize_rejoined(self.localizer, estimate, {r: priors[r] for r in joined if r in priors}, obs, self.cfg,
+                                    reckoned)
         selector = getattr(self.strategy, "selector", None)
         self._restore_strategy(all_ids, located.ids, 0 if selector is None else selector.calls)
         for robot in joined:
@@ -460,7 +452,7 @@ class InchwormExecutor:
         estimate, keep = self._drop_lost(result, config, estimate)
         if keep is not None:
             cmd = cmd.select(keep)
-        observations = _among(observations, estimate.ids)
+        observations = among(observations, estimate.ids)
         new, excluded = localize_observable(self.localizer, estimate, cmd, observations, self.cfg)  # (iv)
         fallback = None
         if excluded:
@@ -485,6 +477,44 @@ def _robot_list(ids: list[int]) -> str:
     return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
 
 
+def rejoin_priors(robots: list[int], obs: Observations, estimate: SwarmEstimate) -> dict[int, np.ndarray]:
+    """The pose of each of ``robots`` that its observations ``obs`` of the robots of ``estimate`` give (those that saw
+    fewer than two are left out: they stay lost)."""
+    poses = {robot: _pose_from_neighbours(robot, obs, estimate) for robot in robots}
+    return {robot: pose for robot, pose in poses.items() if pose is not None}
+
+
+def last_estimate(result: RunResult, robot: int) -> tuple[np.ndarray, np.ndarray]:
+    """The last pose estimated for ``robot`` before it was lost (the run's steps, else the initial estimate) and its
+    3x3 covariance: where a rejoining robot that sees fewer than two robots comes back."""
+    for est in [*(s.estimate for s in reversed(result.steps)), result.initial_estimate]:
+        row = np.flatnonzero(est.ids == robot)
+        if row.size:
+            return est.poses[row[0]].copy(), est.cov[row[0]].copy()
+    raise SwarmInputError(f"robot {robot} has no estimate in this run")
+
+
+def localize_rejoined(localizer: Localizer, estimate: SwarmEstimate, priors: dict[int, np.ndarray], obs: Observations,
+                      cfg: ModelConfig, reckoned: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> SwarmEstimate:
+    """The swarm of ``estimate`` with the robots of ``priors`` and ``reckoned`` back in it (ids sorted), localized
+    again from the rejoining robots' observations ``obs``: each rejoining robot's prior is its pose from ``priors``
+    with ``REJOIN_DELTA_M`` / ``REJOIN_HEADING_SIGMA``, or (one that saw fewer than two robots) its last estimate
+    ``reckoned`` (pose, 3x3 covariance, ``last_estimate``) with the covariance grown by as much; the others' their
+    estimate's poses and 3x3 covariances (what the estimate carries beyond them, e.g. a joint covariance, is not:
+    the cross-covariances with the newcomers are unknown)."""
+    grow = SwarmEstimate.isotropic([0], np.zeros((1, 3)), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA).cov[0]
+    rows = {**{r: (pose, grow) for r, pose in priors.items()}, **{r: (p, c + grow) for r, (p, c) in (reckoned or {}).items()}}
+    joined = sorted(rows)
+    new = SwarmEstimate(np.array(joined, dtype=np.int64), np.array([rows[r][0] for r in joined], dtype=float).reshape(-1, 3),
+                        np.array([rows[r][1] for r in joined]).reshape(-1, 3, 3))
+    ids = np.concatenate([estimate.ids, new.ids])
+    order = np.argsort(ids, kind="stable")
+    merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
+                           np.concatenate([estimate.cov, new.cov])[order])
+    located, _ = localize_observable(localizer, merged, StepCommands.stationary(merged.ids), among(obs, merged.ids), cfg)
+    return located
+
+
 def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate) -> np.ndarray | None:
     """The pose [x, y, heading] of ``robot`` that its range-bearing observations of robots of ``estimate`` give
     (the heading turning the body-frame offsets onto the world ones, least squares; the position their mean), or
@@ -501,17 +531,7 @@ def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate
     return np.array([position[0], position[1], heading])
 
 
-def _last_estimate(result: RunResult, robot: int, grow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The last pose estimated for ``robot`` before it was lost (the run's steps, else the initial estimate) and its
-    covariance plus ``grow``."""
-    for est in [*(s.estimate for s in reversed(result.steps)), result.initial_estimate]:
-        row = np.flatnonzero(est.ids == robot)
-        if row.size:
-            return est.poses[row[0]].copy(), est.cov[row[0]] + grow
-    raise SwarmInputError(f"robot {robot} has no estimate in this run")
-
-
-def _among(obs: Observations, ids: np.ndarray) -> Observations:
+def among(obs: Observations, ids: np.ndarray) -> Observations:
     """The observations between robots of ``ids`` (a robot dropped from the run may still be seen by others)."""
     inside = np.isin(obs.observer, ids) & np.isin(obs.observed, ids)
     return obs if inside.all() else obs.select(inside)

@@ -86,6 +86,7 @@ from runtime.wire.keys import (
     truth_wildcard,
 )
 from runtime.wire.messages import (
+    MAX_MESSAGE_BYTES,
     Checkpoint,
     ContactMessage,
     DropCounter,
@@ -108,6 +109,7 @@ from runtime.wire.messages import (
 from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
+CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint, with room for its other fields
 
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
@@ -177,6 +179,7 @@ class ZenohSwarmBackend:
         self.epoch = secrets.randbits(63) or 1
         self.parent = parent
         self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
+        self._dropped_warned = False  # a checkpoint left out the estimate's carried fields (said once)
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
@@ -251,9 +254,14 @@ class ZenohSwarmBackend:
 
     def publish_checkpoint(self, state: RunState) -> None:
         """Publish the executor's ``RunState`` after its step as a ``Checkpoint`` (``on_checkpoint`` of the executor)."""
+        text, dropped = state.bounded_json(CHECKPOINT_STATE_CHARS)
         msg = Checkpoint(run=self.run, step=state.step, epoch=self.epoch, config=state.config + 1, group=state.group,
                          selector_calls=state.selector_calls, lost=tuple(sorted({x.robot for x in state.result.lost})),
-                         state=state.to_json())
+                         state=text)
+        if dropped and not self._dropped_warned:
+            self._dropped_warned = True
+            _log.warning("the checkpoint of step %d leaves out the estimate's %s (too large for a message): a takeover "
+                         "from it is not bit for bit", state.step, ", ".join(dropped))
         publish(self.session, message_key(msg), encode(msg))
 
     # -- lost robots ------------------------------------------------------------------------
@@ -554,7 +562,8 @@ class ZenohSwarmBackend:
                 return
             if time.monotonic() > deadline:
                 if missing:
-                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (is every agent started with this run id and hub?)",
+                    raise AgentLost(f"{_robots(missing)} not alive after {timeout_s:.1f} s (an agent that failed to start says why on its "
+                                    f"own stderr; one that runs may have another run id or hub)",
                                     missing)
                 raise AgentLost(f"no initial true pose from {_robots(no_truth)} after {timeout_s:.1f} s", no_truth)
             self._pump(0.05)

@@ -59,6 +59,7 @@ from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
     GRACE_S,
+    AgentErrors,
     CoordinatorKiller,
     ProcessStaller,
     RobotKiller,
@@ -134,6 +135,9 @@ class LaunchOptions:
     json: bool = False
     model_flags: dict[str, Any] = field(default_factory=dict)
     coordinator_flags: dict[str, Any] = field(default_factory=dict)
+    world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
+    physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
+    physics_speed: float = 0.0
     stall_coordinator: tuple[int, float] | None = None  # (STEP, SECONDS): SIGSTOP the coordinator at STEP, SIGCONT SECONDS later
     stall_link: tuple[int, float] | None = None  # the same for the process of the first port's link (--driver gateway)
 
@@ -153,6 +157,18 @@ def flags(values: dict[str, Any]) -> list[str]:
 
 def _arg_text(value) -> str:
     return str(value) if isinstance(value, (str, Path)) else repr(value)
+
+
+def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
+    """The coordinator's exit status, or the error line of an agent process that exited 2 first (its driver failed to
+    start, ...: the coordinator would wait for it until its start timeout)."""
+    while True:
+        try:
+            return coordinator.wait(timeout=0.1)
+        except subprocess.TimeoutExpired:
+            failure = errors.failure(agents)
+            if failure is not None:
+                return failure
 
 
 def plugin_spec(spec: str) -> str:
@@ -233,6 +249,21 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     if o.driver not in BUILT_IN:
         driver_class(o.driver)
         driver_options(list(o.driver_options))
+    if o.world == "physics":
+        from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+        from runtime.world.physics import require_pymunk  # noqa: PLC0415
+
+        require_pymunk()
+        parse_physics_params(list(o.physics_params), o.model)
+        if o.driver not in ("sim", "gateway"):
+            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, got --driver {o.driver}")
+        if o.motion_time:
+            raise SwarmInputError("--motion-time is the noise model's motion time: in --world physics the wheels take the time")
+        if o.driver == "sim" and o.agents_per_process not in (None, traj.n):
+            raise SwarmInputError(f"--world physics steps one world in one agent process: --agents-per-process must be the "
+                                  f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
+    elif o.physics_params:
+        raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
     for flag, stall in (("--stall-coordinator", o.stall_coordinator), ("--stall-link", o.stall_link)):
@@ -254,7 +285,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     traj = launch_trajectory(o)
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
-    per_process = agents_per_process(traj.n, o.agents_per_process)
+    per_process = traj.n if o.world == "physics" and o.driver == "sim" else agents_per_process(traj.n, o.agents_per_process)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
@@ -268,6 +299,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
+    agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
     tied = lifeline.child_options()
 
     def stop_children() -> None:
@@ -303,21 +335,30 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
                 if o.command_timeout is not None:
                     agent_extra.append(f"--command-timeout={o.command_timeout!r}")
+            world_flags = [f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
+            if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
+                agent_extra += ["--world=physics", *world_flags]
+            emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
                 live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, faults, links=not port_hosts, **tied)
+                                     o.emulator_events, [*faults, *emulator_extra], links=not port_hosts, **tied)
                 gateway_procs = len(procs)
                 agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
             first = len(procs)
-            if port_hosts:  # one process per port: its link and its robots' agents
-                agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **tied)
-            else:
-                start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **tied)
-                agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            piped = {**tied, **agent_errors.popen_kwargs()}
+            try:
+                if port_hosts:  # one process per port: its link and its robots' agents
+                    agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **piped)
+                else:
+                    start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **piped)
+                    agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
+            finally:
+                agent_errors.watch(procs[first:])
+            agent_list = procs[first:]
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
             if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
                 common.append("--no-truth")  # the lab's robots publish no true poses
@@ -335,6 +376,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            what += " in the physical world" if o.world == "physics" else ""
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
@@ -369,7 +411,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             for forwarder in forwarders:
                 forwarder.start()
             try:
-                status = coordinator.wait()
+                status = _wait_for(coordinator, agent_list, agent_errors)
+                if isinstance(status, str):  # an agent could not start (no command was sent): its one line, every child stopped
+                    raise SwarmInputError(status)
                 if standby is not None and status < 0:  # died without a word: the standby takes the run over
                     say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
                     status = standby.wait()
@@ -418,5 +462,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         stop_children()
+        for line in agent_errors.held():  # an agent's error that did not end the start: as it printed it
+            say(line)
         lifeline.close()
         signals.restore()

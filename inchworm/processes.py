@@ -101,6 +101,63 @@ def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
             p.wait()
 
 
+AGENT_ERROR = "swarm agent: error: "  # how an agent process that exits 2 (bad input) says why (swarm_cli.entry)
+
+
+class AgentErrors:
+    """Forwards the agent processes' stderr to ours, keeping back their ``swarm agent: error:`` line: an agent that
+    exits 2 (its driver failed to start, ...) ends the run with that line once (``failure``), not one per agent."""
+
+    def __init__(self) -> None:
+        self._lines: dict[int, str] = {}  # pid -> the error line (without the prefix)
+        self._reported: set[int] = set()
+        self._threads: dict[int, threading.Thread] = {}
+        self._lock = threading.Lock()
+
+    def popen_kwargs(self) -> dict:
+        """What ``subprocess.Popen`` needs for ``watch`` (stderr piped, text)."""
+        return {"stderr": subprocess.PIPE, "text": True, "errors": "replace"}
+
+    def watch(self, procs: list[subprocess.Popen]) -> None:
+        """Start forwarding the stderr of ``procs`` (started with ``popen_kwargs``; others are left alone)."""
+        for p in procs:
+            if p.stderr is not None and p.pid not in self._threads:
+                thread = threading.Thread(target=self._forward, args=(p,), name=f"agent-stderr-{p.pid}", daemon=True)
+                self._threads[p.pid] = thread
+                thread.start()
+
+    def _forward(self, proc: subprocess.Popen) -> None:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            if line.startswith(AGENT_ERROR):
+                with self._lock:
+                    self._lines.setdefault(proc.pid, line[len(AGENT_ERROR):].rstrip("\n"))
+                continue
+            sys.stderr.write(line)
+            sys.stderr.flush()
+
+    def failure(self, procs: list[subprocess.Popen]) -> str | None:
+        """The error line of the first of ``procs`` that exited with status 2 (bad input), else None; that line is
+        then the caller's to report (``held`` no longer returns it)."""
+        for p in procs:
+            if p.poll() == 2:
+                thread = self._threads.get(p.pid)
+                if thread is not None:
+                    thread.join(timeout=2.0)  # its last line is read by now (the pipe closed at its exit)
+                with self._lock:
+                    self._reported.add(p.pid)
+                    return self._lines.get(p.pid, f"an agent process (pid {p.pid}) exited with status 2")
+        return None
+
+    def held(self) -> list[str]:
+        """The error lines kept back and not reported by ``failure`` (an agent that failed after the run started),
+        each as the agent printed it; call once the agents have ended."""
+        for thread in self._threads.values():
+            thread.join(timeout=2.0)
+        with self._lock:
+            return [AGENT_ERROR + line for pid, line in self._lines.items() if pid not in self._reported]
+
+
 ROBOTS_PER_PORT = 5
 GATEWAY_READY_S = 20.0  # s the robot emulator gets to open its ptys
 

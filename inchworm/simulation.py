@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 
@@ -17,6 +18,7 @@ if TYPE_CHECKING:
     from coordinator.localization import Localizer
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
+    from runtime.world.params import PhysicsParams
 
 
 def simulate(
@@ -32,9 +34,16 @@ def simulate(
     initial_delta_m: float = 0.01,
     initial_heading_sigma_rad: float = math.radians(2.0),
     progress: Callable[[int, int], None] | None = None,
+    world: str = "model",
+    physics: PhysicsParams | None = None,
 ) -> RunResult:
     """Run ``method`` along ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of
     ``robots`` robots and ``configs`` configurations drawn with ``seed``) in the in-process simulator.
+
+    ``world``: ``"model"`` (the robots move and sense by the noise model, as the planner assumes) or
+    ``"physics"`` (a rigid-body world, ``runtime.world``, of ``physics`` parameters, default
+    ``PhysicsParams.for_model(model)``; needs the ``physics`` extra; its contacts and stalls in
+    ``result.world_events``).
 
     ``method`` is a method name (``coordinator.strategies.METHODS``) or your own ``Strategy``;
     ``localizer`` a registered name (``coordinator.localization.registry``) or your own ``Localizer`` object:
@@ -56,8 +65,21 @@ def simulate(
     validate_passable(traj, cfg)
     loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
     strategy = make_strategy(method, traj.n, cfg, loc, selection or SelectionConfig(), seed) if isinstance(method, str) else method
-    executor = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress)
-    return executor.run(traj, initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad))
+    start = initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad)
+    if world not in ("model", "physics"):
+        raise SwarmInputError(f"world must be 'model' or 'physics', got {world!r}")
+    if world == "physics":
+        from runtime.world.params import PhysicsParams  # noqa: PLC0415 - the physics extra, only when asked for
+        from runtime.world.swarm import PhysicsSwarm  # noqa: PLC0415
+
+        physical = PhysicsSwarm(traj.ids, traj.initial_poses, physics or PhysicsParams.for_model(cfg), seed)
+        try:
+            result = InchwormExecutor(physical, loc, strategy, cfg, progress).run(traj, start)
+        finally:
+            physical.close()
+        result.world_events = physical.events
+        return result
+    return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress).run(traj, start)
 
 
 def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
@@ -199,3 +221,34 @@ def run_json(result: RunResult, method: str, localizer: str, seed: int, plots: l
             "configs": config_rows(result), "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
             "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots,
             "recording": recording, **contacts_json(result, radius)}
+
+
+def world_text(result: RunResult) -> str:
+    """The physical world's contacts and stalls of a run ("" for a run in the noise model's world)."""
+    from runtime.world.physics import Contact, Stuck  # noqa: PLC0415
+
+    contacts = [(s, e) for s, e in result.world_events if isinstance(e, Contact)]
+    stuck = [(s, e) for s, e in result.world_events if isinstance(e, Stuck)]
+    if not result.world_events:
+        return ""
+    lines = [f"physical world: {len(contacts)} contacts between {len({(e.a, e.b) for _, e in contacts})} pairs, "
+             f"{len(stuck)} stalled drives"]
+    lines += [f"  step {s}: robots {e.a} and {e.b} touched at t = {e.start_s:.2f} s, impulse {e.impulse_n_s * 1e3:.2f} mN s"
+              for s, e in contacts[:20]]
+    lines += [f"  step {s}: robot {e.robot} stalled: drove {e.achieved_m * 1e3:.0f} of {e.commanded_m * 1e3:.0f} mm" for s, e in stuck[:20]]
+    return "\n".join(lines)
+
+
+def world_json(result: RunResult, world: str) -> dict[str, Any]:
+    """The additive ``--json`` keys of the world: ``world`` and, for ``physics``, ``world_contacts`` (each ``step``,
+    ``robots`` [a, b], ``start_s``, ``end_s`` (null: still touching), ``point``, ``impulse_n_s``) and ``world_stuck``
+    (each ``step``, ``robot``, ``commanded_m``, ``achieved_m``)."""
+    if world != "physics":
+        return {"world": world}
+    from runtime.world.physics import Contact, Stuck  # noqa: PLC0415
+
+    return {"world": world,
+            "world_contacts": [{"step": s, "robots": [e.a, e.b], "start_s": e.start_s, "end_s": e.end_s, "point": list(e.point),
+                                "impulse_n_s": e.impulse_n_s} for s, e in result.world_events if isinstance(e, Contact)],
+            "world_stuck": [{"step": s, "robot": e.robot, "commanded_m": e.commanded_m, "achieved_m": e.achieved_m}
+                            for s, e in result.world_events if isinstance(e, Stuck)]}

@@ -31,6 +31,7 @@ from runtime.wire.messages import CommandLimits
 if TYPE_CHECKING:
     from runtime.models.trajectory import Trajectory
     from runtime.wire.transport import ZenohSettings
+    from runtime.world.params import PhysicsParams
 
 PLUGIN_COMMAND_TIMEOUT_S = 30.0
 
@@ -93,6 +94,8 @@ class AgentSpec:
     ready_timeout_s: float = READY_TIMEOUT_S
     command_timeout_s: float | None = None  # None: a lab's driver gets PLUGIN_COMMAND_TIMEOUT_S, the others none
     link: bool = False  # also run the link of the hosted robots' port(s) in this process (``build_links``)
+    physics: PhysicsParams | None = None  # the physical world (``--world physics``), else the noise model's
+    physics_speed: float = 0.0  # world seconds per wall second (0: as fast as it computes)
 
 
 def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None,
@@ -166,5 +169,27 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
             raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
         gateway = GatewayConfig.load(spec.gateway_config)
     timeout = spec.command_timeout_s if spec.command_timeout_s is not None or plugin is None else PLUGIN_COMMAND_TIMEOUT_S
+    if spec.physics is not None:
+        return _physics_agents(spec, ids, poses, timeout)
     return [Agent(spec.settings, spec.run_id, robot, ids, *make_driver(spec, robot, ids, poses.get(robot), gateway, plugin),
                   spec.ready_timeout_s, timeout) for robot in hosted]
+
+
+def _physics_agents(spec: AgentSpec, ids: list[int], poses: dict[int, object], timeout: float | None) -> list[Agent]:
+    """``--world physics``: every robot of the run in one world, hosted by this process (docs/physics.md)."""
+    from robot_agent.physics_driver import PhysicsDriver, SharedWorld  # noqa: PLC0415 - the physics extra, only when asked for
+    from runtime.world.physics import World  # noqa: PLC0415
+
+    if spec.driver != "sim":
+        raise SwarmInputError(f"--world physics drives simulated robots: it needs --driver sim, got --driver {spec.driver}")
+    if sorted(spec.hosted) != sorted(ids):
+        raise SwarmInputError(f"--world physics steps one world for every robot of the run: host them all in this process "
+                              f"(--id {format_ids(sorted(ids))}), got --id {format_ids(spec.hosted)}")
+    missing = sorted(set(ids) - set(poses))
+    if missing:
+        raise SwarmInputError(f"--world physics needs every robot's initial pose from --trajectory FILE; robots {missing} have none")
+    assert spec.physics is not None
+    world = World(ids, np.array([poses[r] for r in ids], dtype=float), spec.physics, spec.seed)
+    shared = SharedWorld(world, spec.run_id, spec.physics_speed)
+    return [Agent(spec.settings, spec.run_id, robot, ids, PhysicsDriver(robot, shared), spec.limits, spec.ready_timeout_s, timeout)
+            for robot in spec.hosted]

@@ -99,6 +99,8 @@ class EmulatedWorld:
     the watchdog of every robot (gateway-protocol.md, Heartbeat watchdog).
     """
 
+    physical = False  # True: motions happen in a physical world (``begin``), ``robot_agent.emulator_physics``
+
     def __init__(
         self,
         traj_ids: Iterable[int],
@@ -201,6 +203,16 @@ class EmulatedWorld:
         with self._lock:
             if listener in self._listeners:
                 self._listeners.remove(listener)
+
+    def begin(self, robot: int, turn_rad: float, drive_m: float, step: int, done: Callable[[], None]) -> None:
+        """A physical world starts the motion and calls ``done()`` when it is over; this one applies motions at once (``move``)."""
+        raise NotImplementedError("the noise model's world moves a robot at once: move()")
+
+    def halt(self, robot: int) -> None:
+        """Stop a motion in progress (a physical world's; this one has none in progress)."""
+
+    def close(self) -> None:
+        """Release what the world holds (a physical world's stepping thread)."""
 
     def move(self, robot: int, turn_rad: float, drive_m: float) -> np.ndarray:
         """Execute (turn, drive) with ``robot``'s motion stream and true ``motion_scale``; its new true pose (3,)."""
@@ -600,7 +612,9 @@ class PortEmulator:
             if blackout is not None and body.step == blackout[0] and self._blackout_until == -math.inf:
                 self._blackout_until = time.monotonic() + blackout[1]
                 self._event("fault", kind="blackout", robot=st.robot, step=body.step, seconds=blackout[1])
-            if self.world.motion_time_s <= 0:
+            if self.world.physical:  # the world moves it now; DONE once the world is still
+                self.world.begin(st.robot, body.turn_rad, body.drive_m, body.step, lambda: self._finish_later(st.robot, cmd))
+            elif self.world.motion_time_s <= 0:
                 self._finish(st, cmd)
             else:
                 timer = threading.Timer(self.world.motion_time_s, self._finish_later, (st.robot, cmd))
@@ -649,6 +663,7 @@ class PortEmulator:
             cmd.timer.cancel()
             self._timers.discard(cmd.timer)
         st.moving = None
+        self.world.halt(st.robot)
         cmd.answer = (FrameType.REFUSED, RefusalBody(cmd.step, int(code), reason))
         self._event("aborted", robot=st.robot, seq=cmd.seq, step=cmd.step, code=int(code), reason=reason)
         self._send(st.robot, cmd.seq, FrameType.REFUSED, cmd.answer[1])

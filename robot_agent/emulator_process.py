@@ -26,6 +26,7 @@ if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launc
     from runtime.models.config import ModelConfig
     from runtime.models.trajectory import Trajectory
     from runtime.wire.transport import ZenohSettings
+    from runtime.world.params import PhysicsParams
 
 
 def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
@@ -40,11 +41,13 @@ def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
 def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, traj_path: Path, model: ModelConfig, seed: int,
                     faults: FaultPlan, *, settings: ZenohSettings | None, run_id: str | None, miscalibrate: bool, motion_time_s: float,
                     events: Path | None, write_config: Path | None, on_ready: Callable[[list[PortEmulator], dict[str, str]], None],
-                    say: Callable[[str], None]) -> None:
+                    say: Callable[[str], None], physics: PhysicsParams | None = None, physics_speed: float = 0.0) -> None:
     """Emulate the robots of ``config`` until SIGTERM/SIGINT; with ``settings`` and ``run_id`` also publish their true poses.
 
     ``on_ready(ports, devices)`` is called once every pty is open (and ``write_config`` written);
-    ``say`` gets the progress lines.
+    ``say`` gets the progress lines. With ``physics`` the robots move in a physical world of those parameters
+    (``robot_agent.emulator_physics``; ``physics_speed`` world s per wall s, 0 = as fast as it computes; ``motion_time_s``
+    must be 0), whose ``PhysicsEvent``s go to the run's session when there is one.
     """
     from robot_agent.emulator import EmulatedWorld, PortEmulator, TruthPublisher  # noqa: PLC0415
     from robot_agent.emulator_files import JsonLinesSink, write_atomically  # noqa: PLC0415
@@ -62,12 +65,24 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         validate_run(run_id)
     if not motion_time_s >= 0:
         raise SwarmInputError(f"--motion-time must be >= 0 s, got {motion_time_s}")
-    world = EmulatedWorld(ids, traj.initial_poses, model, seed, calibration=dict(config.calibration) if miscalibrate else None,
-                          motion_time_s=motion_time_s, heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
+    calibration = dict(config.calibration) if miscalibrate else None
+    physical = None
+    if physics is not None:
+        from robot_agent.emulator_physics import PhysicalEmulatedWorld  # noqa: PLC0415 - the physics extra, only when asked for
+
+        if motion_time_s:
+            raise SwarmInputError("--motion-time is the noise model's motion time: with --physics the world's wheels take the time")
+        physical = PhysicalEmulatedWorld(ids, traj.initial_poses, model, seed, physics, physics_speed, run_id or "emulated", calibration,
+                                         config.timing.heartbeat_timeout_s)
+        world: EmulatedWorld = physical
+    else:
+        world = EmulatedWorld(ids, traj.initial_poses, model, seed, calibration=calibration, motion_time_s=motion_time_s,
+                              heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
     stop = threading.Event()
     for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, lambda *_: stop.set())
     with contextlib.ExitStack() as stack:
+        stack.callback(world.close)  # after the ports (closed first, in reverse order)
         sink = None
         if events is not None:
             sink = JsonLinesSink(events)
@@ -77,6 +92,9 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
             session = stack.enter_context(open_session(settings))
             truth = stack.enter_context(TruthPublisher(world, session, run_id))
             truth.start()
+            if physical is not None:
+                physical.shared.attach(session)  # its events go out on the run's session
+                stack.callback(physical.shared.detach)
         devices = {pe.port_name: pe.device for pe in ports}
         if write_config is not None:
             write_atomically(config.with_devices(devices), write_config)

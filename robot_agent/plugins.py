@@ -49,13 +49,38 @@ def _module(spec: str, name: str):
             raise SwarmInputError(f"--driver {spec}: importing {path} failed: {type(exc).__name__}: {exc}") from None
         return module
     try:
-        return importlib.import_module(name)
+        try:
+            return importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if not (_missing(exc, name) and _add_working_directory()):
+                raise
+            return importlib.import_module(name)  # again, with the working directory searched
     except ModuleNotFoundError as exc:
-        if exc.name is not None and (name == exc.name or name.startswith(exc.name + ".")):
+        if _missing(exc, name):
             raise SwarmInputError(f"--driver {spec}: no module named {name!r}") from None
         raise SwarmInputError(f"--driver {spec}: importing {name} failed: {exc}") from None
     except Exception as exc:  # noqa: BLE001
         raise SwarmInputError(f"--driver {spec}: importing {name} failed: {type(exc).__name__}: {exc}") from None
+
+
+def _missing(exc: ModuleNotFoundError, name: str) -> bool:
+    """Whether ``exc`` says ``name`` itself (or a package above it) is not there, not something it imports."""
+    return exc.name is not None and (name == exc.name or name.startswith(exc.name + "."))
+
+
+def _add_working_directory() -> bool:
+    """Put the working directory first on ``sys.path`` as ``python -m`` does (the ``swarm`` script's path has its own
+    folder instead); False if it is searched already."""
+    cwd = Path.cwd().resolve()
+    for entry in sys.path:
+        try:
+            if Path(entry or ".").resolve() == cwd:
+                return False
+        except OSError:
+            continue
+    sys.path.insert(0, str(cwd))
+    importlib.invalidate_caches()
+    return True
 
 
 def driver_class(spec: str) -> type[Driver]:

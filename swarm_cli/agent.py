@@ -38,7 +38,16 @@ from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
 from swarm_cli.entry import leave, on_stop_signals, run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, positive
+from swarm_cli.options import (
+    add_connection_options,
+    add_model_options,
+    add_world_options,
+    connection_settings,
+    model_config,
+    parse_list,
+    physics_params,
+    positive,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -74,6 +83,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad),
                    help="refuse turns larger than this (default 180)")
     add_model_options(p)
+    add_world_options(p, speed=True)
 
 
 def initial_pose(args: argparse.Namespace) -> list[float] | None:
@@ -93,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
                      Trajectory.load(args.trajectory) if args.trajectory else None, args.trajectory, initial_pose(args), args.driver,
                      driver_options(args.driver_option), args.gateway_config, args.seed, model_config(args), args.motion_time,
                      CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg)), args.ready_timeout,
-                     args.command_timeout, args.link)
+                     args.command_timeout, args.link, physics_params(args), args.physics_speed)
     agents = build_agents(spec)
     links = build_links(spec, agents[0].ids)
     logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)

@@ -25,7 +25,7 @@ from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, parse_list, print_json
+from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, nonnegative, parse_list, print_json
 
 PROG = "swarm emulate-robots"
 
@@ -44,6 +44,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--miscalibrate", action="store_true",
                    help="give each robot the config's calibration as true deviations (drive x motion_scale, range + bias, bearing + offset)")
     add_model_options(p)
+    w = p.add_argument_group("physical world (docs/physics.md)")
+    w.add_argument("--physics", action="store_true",
+                   help="the robots drive in a rigid-body world (they collide, push, stall; sensing with occlusion) instead of the "
+                        "noise model; needs pip install 'inchworm-swarm[physics]'")
+    w.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --physics: a parameter of the world (runtime.world.params.PhysicsParams), repeatable")
+    w.add_argument("--physics-speed", type=nonnegative, default=0.0, metavar="X",
+                   help="with --physics: world seconds per wall-clock second (0: as fast as it computes, the default)")
     g = p.add_argument_group("fault injection (per port; rx = frames from the gateway, tx = frames to it)")
     g.add_argument("--drop", type=float, default=0.0, metavar="P", help="probability a frame is lost, both directions (default 0)")
     g.add_argument("--corrupt", type=float, default=0.0, metavar="P", help="probability one byte of an outgoing frame is flipped (default 0)")
@@ -91,10 +99,20 @@ def run(args: argparse.Namespace) -> int:
         if args.json:
             print_json({"ports": devices, "config": None if args.write_config is None else str(args.write_config)})
 
+    physics = None
+    if args.physics:
+        from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+        from runtime.world.physics import require_pymunk  # noqa: PLC0415
+
+        require_pymunk()
+        physics = parse_physics_params(list(args.physics_param), model_config(args))
+    elif args.physics_param:
+        raise SwarmInputError("--physics-param sets the physical world: it needs --physics")
     serve_emulators(GatewayConfig.load(args.config), args.config, Trajectory.load(args.trajectory), args.trajectory, model_config(args),
                     args.seed, faults, settings=connection_settings(args), run_id=args.run_id, miscalibrate=args.miscalibrate,
                     motion_time_s=args.motion_time, events=args.events, write_config=args.write_config, on_ready=ready,
-                    say=lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True))
+                    say=lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True), physics=physics,
+                    physics_speed=args.physics_speed)
     return 0
 
 

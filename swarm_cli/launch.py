@@ -21,7 +21,7 @@ from pathlib import Path
 from coordinator.strategies import METHODS
 from inchworm.processes import AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO
 from swarm_cli.coordinator_cmd import add_record_options
-from swarm_cli.options import add_simulation_options, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.options import add_simulation_options, add_world_options, model_config, nonnegative, positive, print_json, selection_config
 
 MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout",
                  "robot_radius")
@@ -96,6 +96,7 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
     add_record_options(p)
     add_simulation_options(p)
+    add_world_options(p, speed=True)
 
 
 def _kill_spec(text: str) -> tuple[int, int]:
@@ -152,5 +153,6 @@ def run(args: argparse.Namespace) -> int:
         args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
         args.min_robots, args.kill_robot, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
         args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
+        world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
         stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
     return launch(options, emit_json=print_json)

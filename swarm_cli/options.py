@@ -312,3 +312,30 @@ def save_config(args: argparse.Namespace) -> Path:
     path = args.out / "study.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
+
+
+def add_world_options(parser: argparse.ArgumentParser, *, speed: bool = False) -> None:
+    """``--world model|physics`` and ``--physics-param NAME=VALUE`` (docs/physics.md); ``speed``: also ``--physics-speed``."""
+    g = parser.add_argument_group("world the robots drive in (docs/physics.md)")
+    g.add_argument("--world", choices=("model", "physics"), default="model",
+                   help="model: robots move and sense by the noise model (default); physics: a rigid-body world of disc robots "
+                        "with a differential drive that collide, push and stall (needs pip install 'inchworm-swarm[physics]')")
+    g.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter of the physical world (runtime.world.params.PhysicsParams, e.g. max_wheel_speed_m_s=0.1), repeatable")
+    if speed:
+        g.add_argument("--physics-speed", type=nonnegative, default=0.0, metavar="X",
+                       help="with --world physics: world seconds per wall-clock second (0: as fast as it computes, the default)")
+
+
+def physics_params(args: argparse.Namespace):
+    """The ``PhysicsParams`` of ``--world physics`` (None for the model's world); ``SwarmInputError`` naming the extra
+    to install when pymunk is missing, or the bad ``--physics-param``."""
+    if args.world != "physics":
+        if args.physics_param:
+            raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
+        return None
+    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+    from runtime.world.physics import require_pymunk  # noqa: PLC0415
+
+    require_pymunk()
+    return parse_physics_params(list(args.physics_param), model_config(args))

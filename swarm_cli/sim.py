@@ -11,7 +11,7 @@ from coordinator.strategies import HALF_ANCHORED, METHODS
 from inchworm.limits import check_swarm_size
 from inchworm.progress import Progress
 from runtime.errors import SwarmInputError
-from swarm_cli.options import add_simulation_options, model_config, print_json, selection_config
+from swarm_cli.options import add_simulation_options, add_world_options, model_config, physics_params, print_json, selection_config
 
 LARGE = 1000  # robots: say what is being made before the first progress line
 
@@ -28,6 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectory, noise and search (default 0)")
     p.add_argument("--out", type=Path, default=Path("out/sim"), help="folder for the PNG plots (default out/sim)")
     add_simulation_options(p)
+    add_world_options(p)
     p.set_defaults(run=run)
 
 
@@ -35,9 +36,19 @@ def run(args: argparse.Namespace) -> int:
     from inchworm import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
     from inchworm.plots import write_run_plots  # noqa: PLC0415
     from inchworm.runner import write_rows  # noqa: PLC0415
-    from inchworm.simulation import config_rows, config_table, contacts_json, contacts_text, fallback_steps, resolve_trajectory  # noqa: PLC0415
+    from inchworm.simulation import (  # noqa: PLC0415
+        config_rows,
+        config_table,
+        contacts_json,
+        contacts_text,
+        fallback_steps,
+        resolve_trajectory,
+        world_json,
+        world_text,
+    )
 
     cfg, selection = model_config(args), selection_config(args)
+    physics = physics_params(args)
     if args.trajectory is None and args.robots >= LARGE:
         print(f"sim: making a random trajectory of {args.robots} robots x {args.configs} configurations", file=sys.stderr, flush=True)
     traj = resolve_trajectory(args.trajectory, args.robots, args.configs, args.seed, cfg)
@@ -46,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     used = args.out / "trajectory.json"
     traj.save(used)  # what this run followed: swarm sim --trajectory out/sim/trajectory.json runs it again
-    kw = dict(model=cfg, localizer=args.localizer, selection=selection, seed=args.seed)
+    kw = dict(model=cfg, localizer=args.localizer, selection=selection, seed=args.seed, world=args.world, physics=physics)
     baseline = args.baseline or ("ref57" if traj.n % 2 == 0 else "no-anchors")
     if baseline in HALF_ANCHORED and traj.n % 2:
         raise SwarmInputError(f"--baseline {baseline} uses n_a = n_r / 2 and needs an even number of robots, got {traj.n}")
@@ -61,11 +72,15 @@ def run(args: argparse.Namespace) -> int:
     print(config_table(result))
     if contacts_text(result, cfg.robot_radius_m):
         print(contacts_text(result, cfg.robot_radius_m))
+    if world_text(result):
+        print(world_text(result))
     write_rows(args.out / "configs.csv", rows)
-    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer); wrote {used}, {args.out / 'configs.csv'}, {', '.join(plots)}")
+    world = ", physical world" if physics else ""
+    print(f"P_f = {result.pf():.4f} ({args.method}, {args.localizer} localizer{world}); wrote {used}, {args.out / 'configs.csv'}, "
+          f"{', '.join(plots)}")
     if args.json:
         print_json({"method": args.method, "localizer": args.localizer, "seed": args.seed, "pf": result.pf(),
                     "mc_start": selection.mc_start, "mc_emax": selection.mc_emax, "configs": rows,
                     "fallback_steps": len(fallback_steps(result)), "plots": plots,
-                    **contacts_json(result, cfg.robot_radius_m)})
+                    **contacts_json(result, cfg.robot_radius_m), **world_json(result, args.world)})
     return 0

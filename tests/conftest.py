@@ -36,10 +36,12 @@ SLOW_MODULES = frozenset({
     "test_distributed",  # agents + coordinator processes
     "test_one_master",  # coordinators, standbys, agents and replays as processes
     "test_drivers",  # lab drivers under swarm launch and swarm agent
+    "test_physics_runs",  # swarm launch --world physics, replay, calibrate
     "test_calibrate",  # swarm calibrate on a launched run's recording
     "test_emulator",  # robot emulators on ptys
     "test_gateway",  # gateway links and agents on ptys
     "test_replay",  # swarm replay subprocesses and sessions
+    "test_exact_replay",  # swarm launch with a standby, the coordinator killed, per localizer, driver and bodies
     "test_study_anchors",  # studies
     "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
     "test_examples",  # the example scripts as subprocesses

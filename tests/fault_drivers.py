@@ -90,3 +90,12 @@ class LostWhileIdleDriver(_Logged):
             self.log("fault", step=step)
             threading.Timer(0.05, self.report_lost, args=(f"robot {self.robot_id}: battery flat",)).start()
         return result
+
+
+class FailingStartDriver(_Logged):
+    """Its robot ``fail_robot`` cannot be opened: the constructor raises (a wrong port, a robot switched off)."""
+
+    def __init__(self, ctx) -> None:
+        super().__init__(ctx)
+        if self.robot_id == self.fail_robot:
+            raise RuntimeError(f"no robot {self.robot_id} on /dev/ttyUSB{self.robot_id}")

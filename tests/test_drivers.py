@@ -33,10 +33,10 @@ def processes_of(run_id: str) -> list[int]:
     return pids
 
 
-def launch(tmp_path: Path, run_id: str, *extra: str) -> subprocess.CompletedProcess:
+def launch(tmp_path: Path, run_id: str, *extra: str, timeout: float = 180) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "swarm_cli.main", "launch", "-n", "4", "--configs", "3", "--method", "no-anchors", "--run", run_id,
            "--record", str(tmp_path / "run.mcap"), "--out", str(tmp_path / "plots"), "--json", *extra]
-    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=180)
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout)
     assert processes_of(run_id) == [], "a process of the run outlived swarm launch"
     return proc
 
@@ -108,3 +108,40 @@ def test_an_installed_entry_point_names_a_driver(tmp_path, monkeypatch):
     monkeypatch.syspath_prepend(str(tmp_path))
     cls = driver_class("unicycle")
     assert cls.__name__ == "UnicycleDriver" and cls.__module__ == "mylab_unicycle"
+
+
+PACKAGE_DRIVER = '''
+from robot_agent.plugins import driver_class
+
+Unicycle = driver_class("{example}")
+
+
+class BiasedDiffDrive(Unicycle):
+    """The example robot, from a package in the working directory."""
+'''
+
+
+def test_a_package_in_the_working_directory_is_found_without_pythonpath(tmp_path):
+    """``--driver mybot.diffdrive:Class`` from the folder holding ``mybot/``, by a ``swarm`` whose own folder is first on
+    ``sys.path`` (``-P``: as the installed script starts); the kill-robot check right after the driver's ends it at once."""
+    (tmp_path / "mybot").mkdir()
+    (tmp_path / "mybot" / "__init__.py").write_text("")
+    (tmp_path / "mybot" / "diffdrive.py").write_text(PACKAGE_DRIVER.format(example=REPO / EXAMPLE))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in [str(REPO), os.environ.get("PYTHONPATH", "")] if p)}
+    proc = subprocess.run([sys.executable, "-P", "-m", "swarm_cli.main", "launch", "-n", "2", "--driver", "mybot.diffdrive:BiasedDiffDrive",
+                           "--kill-robot", "9@1", "--no-record", "--out", str(tmp_path / "o")],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == ["swarm launch: error: --kill-robot 9@1: robot 9 is not one of the run's robots [0, 1]"]
+
+
+def test_a_driver_whose_constructor_raises_ends_the_launch_in_one_line(tmp_path):
+    """The agent of robot 1 cannot build its driver: the launch ends with that agent's error and exit 2 as soon as it exits,
+    not after the coordinator's 30 s start timeout (the subprocess timeout would catch that wait)."""
+    spec = f"{FAULTS}:FailingStartDriver"
+    proc = launch(tmp_path, f"drv-start-{os.getpid()}", "--driver", spec, "--driver-option", "fail_robot=1", "--configs", "1",
+                  timeout=25)
+    assert proc.returncode == 2, proc.stderr
+    errors = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert errors == [f"swarm launch: error: --driver {REPO / spec}: robot 1: the driver failed to start: RuntimeError: no robot 1 on /dev/ttyUSB1"]
+    assert "not alive after" not in proc.stderr

@@ -9,6 +9,7 @@ real subprocess.
 from __future__ import annotations
 
 import json
+import math
 import os
 import queue
 import select
@@ -527,3 +528,36 @@ def test_repeated_command_while_moving_is_answered_accepted_and_run_aborts_the_m
     assert (refused.seq, refused.type, refused.body().code) == (1, FrameType.REFUSED, RefusalCode.OTHER)
     assert (ack.type, ack.body()) == (FrameType.RUN_ACK, RunBody(5))
     assert port.executed(1) == 0 and [e["event"] for e in events].count("accepted") == 1
+
+
+def test_physical_robots_collide_stall_and_stop_on_an_emergency_stop(cfg):
+    """``--physics``: the robots of a step move together in the rigid-body world; DONE comes once it is still."""
+    pytest.importorskip("pymunk")
+    from robot_agent.emulator_physics import PhysicalEmulatedWorld
+    from runtime.world.params import PhysicsParams
+
+    poses = np.array([[0.0, 0.0, 0.0], [0.06, 0.0, math.pi], [0.0, 0.3, 0.0]])
+    world = PhysicalEmulatedWorld([0, 1, 2], poses, cfg, SEED, PhysicsParams(), speed=2.0, heartbeat_timeout_s=30.0)
+    port = PortEmulator(world, "radio0", (0, 1, 2))
+    link = Link(port.device)
+    try:
+        link.send(0, 1, FrameType.COMMAND, MotionBody(1, 0.0, 0.2))
+        link.send(1, 1, FrameType.COMMAND, MotionBody(1, 0.0, 0.2))
+        frames = link.expect(4, timeout=20.0)  # head-on: both stall; the world is still after ~4.4 s of world time
+        assert sorted(kinds(frames)) == [(0, 1, "ACCEPTED"), (0, 1, "DONE"), (1, 1, "ACCEPTED"), (1, 1, "DONE")]
+        assert np.linalg.norm(world.pose(0)[:2] - world.pose(1)[:2]) == pytest.approx(0.022, abs=1e-3)
+        ids, ranges, _ = world.sense(2)
+        assert ids.tolist() == [0, 1] and np.all(ranges > 0.25)
+        link.send(2, 2, FrameType.COMMAND, MotionBody(2, 0.0, 0.3))
+        assert kinds(link.expect(1)) == [(2, 2, "ACCEPTED")]
+        time.sleep(0.5)
+        link.send(2, 3, FrameType.ESTOP, EmptyBody())
+        answers = kinds(link.expect(2, timeout=5.0))
+        assert answers == [(2, 2, "REFUSED"), (2, 3, "ESTOPPED")]
+        time.sleep(0.5)
+        assert 0.0 < world.pose(2)[0] < 0.1  # it started, then stopped within its deceleration
+    finally:
+        link.close()
+        port.close()
+        world.close()
+    assert_no_emulator_threads()

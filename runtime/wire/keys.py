@@ -17,6 +17,7 @@ Every key starts with ``swarm/<run>``::
     swarm/<run>/sim/truth/<id>       TruthMessage       simulated agent -> coordinator, recorder
     swarm/<run>/sim/truths           TruthSetMessage    coordinator -> simulated agents
     swarm/<run>/sim/contact          ContactMessage     coordinator -> recorder, tools (bodies touched)
+    swarm/<run>/sim/physics          PhysicsEvent       the physical world's host -> recorder, tools (true poses, contacts, stalls)
     swarm/<run>/alive/robot/<id>     liveliness token of an agent
     swarm/<run>/coord/checkpoint     Checkpoint         coordinator -> standby coordinators, recorder
     swarm/<run>/alive/coord/<epoch>/<parent>  liveliness token of the coordinator (its epoch; the epoch it took over from, 0 = none)
@@ -167,6 +168,11 @@ def truths_key(run: str) -> str:
     return f"{ROOT}/{validate_run(run)}/sim/truths"
 
 
+def physics_key(run: str) -> str:
+    """``swarm/<run>/sim/physics``: what the physical world did (docs/physics.md): true poses, contacts, stalls."""
+    return f"{ROOT}/{validate_run(run)}/sim/physics"
+
+
 def contact_key(run: str) -> str:
     """``swarm/<run>/sim/contact``: contacts of the robots' true bodies (simulation only)."""
     return f"{ROOT}/{validate_run(run)}/sim/contact"
@@ -221,6 +227,8 @@ def _parse_str(key: str) -> ParsedKey:
         return ParsedKey(run, "sim", None, "truths")
     if rest == ["sim", "contact"]:
         return ParsedKey(run, "sim", None, "contact")
+    if rest == ["sim", "physics"]:
+        return ParsedKey(run, "sim", None, "physics")
     if len(rest) == 3 and rest[:2] == ["alive", "robot"]:
         return ParsedKey(run, "alive", _parse_id(rest[2], key), "alive")
     if len(rest) == 3 and rest[0] == "link" and rest[2] == "stats" and _RUN.fullmatch(rest[1]):

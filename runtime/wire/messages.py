@@ -44,6 +44,7 @@ from runtime.wire.keys import (
     estop_key,
     link_stats_key,
     parse_key,
+    physics_key,
     robot_key,
     truth_key,
     truths_key,
@@ -631,6 +632,44 @@ class ContactMessage(Message):
     point: tuple[float, ...] = _wire("float", "[x, y] midway between the centres at their closest", unit="m", shape=(2,))
 
 
+PHYSICS_EVENTS = ("poses", "contact", "stuck")
+
+
+@dataclass(frozen=True, kw_only=True)
+class PhysicsEvent(Message):
+    """The physical world's host -> recorder, tools (``--world physics``, docs/physics.md): what the world did in ``step``.
+
+    ``poses``: the true poses of every robot once the step's motions are over and the world is still; ``contact``: robots
+    ``robots`` = [a, b] touched (from ``time_s``, for ``duration_s``; ``ongoing`` if still touching when reported);
+    ``stuck``: robot ``robots`` = [r] covered ``achieved_m`` of a drive of ``commanded_m``."""
+
+    TYPE: ClassVar[str] = "PhysicsEvent"
+    LEAF: ClassVar[str] = "physics"
+    MAX_BYTES: ClassVar[int] = SWARM_BYTES
+
+    kind: str = _wire("str", "poses, contact or stuck", choices=PHYSICS_EVENTS)
+    time_s: float = _wire("float", "world time of the event (poses: when the world came to rest; contact: first touch)", unit="s",
+                          minimum=0.0)
+    robots: tuple[int, ...] = _wire("id", "poses: every robot; contact: the two robots, smaller id first; stuck: the robot",
+                                    shape=("n",))
+    poses: tuple[tuple[float, ...], ...] = _wire("float", "true [x, y, heading] of each of robots at time_s (poses, stuck) "
+                                                          "or at the report (contact)", unit="m, m, rad", shape=("n", 3))
+    point: tuple[float, ...] = _wire("float", "contact: [x, y] of the first touch; else []", unit="m", shape=(None,), default=())
+    duration_s: float = _wire("float", "contact: how long the bodies touched (until the report if ongoing); else 0", unit="s",
+                              minimum=0.0, default=0.0)
+    ongoing: int = _wire("int", "contact: 1 if the bodies still touched when it was reported, else 0", maximum=1, default=0)
+    impulse_n_s: float = _wire("float", "contact: normal impulse exchanged; else 0", unit="N s", minimum=0.0, default=0.0)
+    commanded_m: float = _wire("float", "stuck: the distance the wheels rolled; else 0", unit="m", minimum=0.0, default=0.0)
+    achieved_m: float = _wire("float", "stuck: the distance the body moved; else 0", unit="m", minimum=0.0, default=0.0)
+
+    def _check(self) -> None:
+        want = {"contact": 2, "stuck": 1}.get(self.kind)
+        if want is not None and len(self.robots) != want:
+            raise MessageError("PhysicsEvent.robots", f"a {self.kind} names {want} robot(s), got {len(self.robots)}", "size")
+        if self.kind == "contact" and len(self.point) != 2:
+            raise MessageError("PhysicsEvent.point", f"a contact has an [x, y] point, got {len(self.point)} values", "size")
+
+
 @dataclass(frozen=True, kw_only=True)
 class Checkpoint(Message):
     """Coordinator -> standby coordinators, recorder: the run's state after ``step``, from which another
@@ -667,6 +706,7 @@ MESSAGE_TYPES: tuple[type[Message], ...] = (
     RobotEvent,
     ContactMessage,
     Checkpoint,
+    PhysicsEvent,
 )
 _BY_TYPE = {cls.TYPE: cls for cls in MESSAGE_TYPES}
 _BY_LEAF = {cls.LEAF: cls for cls in MESSAGE_TYPES}
@@ -689,6 +729,8 @@ def message_key(msg: Message) -> str:
         return estop_ack_key(msg.run)
     if isinstance(msg, ContactMessage):
         return contact_key(msg.run)
+    if isinstance(msg, PhysicsEvent):
+        return physics_key(msg.run)
     return truth_key(msg.run, msg.robot)  # type: ignore[attr-defined]
 
 
