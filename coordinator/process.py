@@ -207,7 +207,8 @@ class Recording:
 
     def check(self) -> None:
         """``RecordingStopped`` if the recording failed and the policy is to stop the run."""
-        if self.policy == "stop" and self.failed.is_set():
+        failed = self.failed.is_set() or (self.recorder is not None and self.recorder.error is not None)
+        if self.policy == "stop" and failed:
             raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
 
     def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
@@ -345,6 +346,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     from coordinator.zenoh_backend import (  # noqa: PLC0415
         AgentError,
         CoordinatorConflict,
+        HubLost,
         Timeouts,
         ZenohSwarmBackend,
         conflict_message,
@@ -425,7 +427,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 ended = error = exc
             except (AgentError, RunAborted, RecordingStopped) as exc:
                 ended = error = exc
-                result = getattr(exc, "result", None) or (partial if isinstance(exc, RecordingStopped) else None)
+                result = getattr(exc, "result", None) or (partial if isinstance(exc, (RecordingStopped, HubLost)) else None)
             except BaseException as exc:
                 ended = exc
                 raise
@@ -446,7 +448,9 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
 
 def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
     """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
-    it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on)."""
+    it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on); with
+    ``--on-record-error stop`` a recording that failed meanwhile stops the run here, before the next step (the
+    recorder writes in order: whatever the step published is on the disk, or failed, once its checkpoint is)."""
     def checkpoint(state: RunState) -> None:
         recorder = None if recording is None or recording.failed.is_set() else recording.recorder  # a failed one stores none
         written = 0 if recorder is None else recorder.checkpoints
@@ -454,6 +458,8 @@ def durable_checkpoints(backend, recording: Recording | None, timeout_s: float =
         if recorder is not None and not recorder.wait_checkpoints(written + 1, timeout_s):
             logging.getLogger(__name__).warning("the recorder did not store the checkpoint of step %d within %.0f s",
                                                 state.step, timeout_s)
+        if recording is not None:
+            recording.check()
     return checkpoint
 
 

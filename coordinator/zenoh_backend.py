@@ -115,6 +115,7 @@ CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint,
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
 RESEND_AFTER_STALL_S = 0.3  # s after a stall of this process a wait re-sends its requests (its session is back by then)
+HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
@@ -129,6 +130,13 @@ class AgentError(SwarmInputError):
 
 class AgentLost(AgentError):
     """Agents that did not come up at the start of the run."""
+
+
+class HubLost(AgentError):
+    """This coordinator's own connection to the hub (router) is gone: no message reaches any robot any more."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, [])
 
 
 class CoordinatorConflict(SwarmInputError):
@@ -186,7 +194,7 @@ class ZenohSwarmBackend:
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
         self._session_lost = False  # this session lost the hub at least once (this process stalled beyond its lease)
         self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
-        self._hub_client = any(True for _ in session.info.routers_zid())  # connected to a router: it can lose it
+        self._hub_gone_since: float | None = None  # monotonic time this session was first seen without the hub (since back)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
@@ -204,6 +212,7 @@ class ZenohSwarmBackend:
         self._alive: set[int] = set()
         self._started = False  # after wait_for_agents: a token that disappears is a lost robot
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
+        self._hub_lost: str | None = None  # why this process lost its connection to the hub (then no robot is lost)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
         self._stops: queue.Queue[tuple[int, str | None, float] | None] = queue.Queue()  # (robot, reason, stop it?) or
         # (robot, None, when its token went)
@@ -298,8 +307,29 @@ class ZenohSwarmBackend:
             self.stopped_by = f"the run was stopped by {msg.source} ({msg.reason})"
 
     def _connected(self) -> bool:
-        """Whether the session has the hub (a client session that lost its router sees every token go with it)."""
-        return not self._hub_client or any(True for _ in self.session.info.routers_zid())
+        """Whether this session reaches the hub (a session that lost it sees every robot's token go with it: the robots
+        are not to blame); a loss is noted, and once it lasts ``HUB_GRACE_S`` (not a stall this process is back from,
+        whose session reconnects within milliseconds) the run ends with ``HubLost`` (any thread)."""
+        info = self.session.info
+        if list(info.routers_zid()) or list(info.peers_zid()):
+            self._hub_gone_since = None
+            return True
+        with self._lock:
+            if self._hub_gone_since is None:
+                self._hub_gone_since = time.monotonic()
+        return False
+
+    def _check_hub(self) -> None:
+        """Raise ``HubLost`` once the hub has been gone for ``HUB_GRACE_S`` (caller's thread)."""
+        since = self._hub_gone_since
+        if since is None or time.monotonic() - since < HUB_GRACE_S or self._connected():
+            return
+        with self._lock:
+            if self._hub_lost is None:
+                self._hub_lost = (f"lost the connection to the hub after step {self.step}: no message, not even an emergency stop, "
+                                  f"reaches the robots any more (each link stops feeding its robots, whose watchdogs stop them; "
+                                  f"agents never move without a command)")
+        raise HubLost(self._hub_lost)
 
     def _token_gone(self, robot: int, since: float) -> None:
         """Stopper thread: ``robot``'s token went from this session's view at ``since`` (monotonic). Lost if the hub
@@ -378,7 +408,8 @@ class ZenohSwarmBackend:
             _log.warning("robot %d lost (%s)%s", robot, reason, ": emergency stop sent" if stop_it else "")
 
     def take_lost(self) -> dict[int, str]:
-        """The robots lost since the last call, with why; they leave ``ids``."""
+        """The robots lost since the last call, with why; they leave ``ids``. ``HubLost`` once the hub is gone."""
+        self._check_hub()
         with self._lock:
             taken, self._untaken = self._untaken, {}
         if taken:
@@ -425,13 +456,18 @@ class ZenohSwarmBackend:
     # -- inbox (caller's thread) --------------------------------------------------------
 
     def _pump(self, timeout_s: float) -> None:
-        """Handle queued messages for up to ``timeout_s`` (returns after the first batch; 0: only what is queued)."""
+        """Handle queued messages for up to ``timeout_s`` (returns after the first batch; 0: only what is queued);
+        ``HubLost`` once the hub is gone."""
+        self._check_hub()
         try:
             key, payload = self._inbox.get(timeout=timeout_s) if timeout_s > 0 else self._inbox.get_nowait()
         except queue.Empty:
             return
         while True:
-            self._handle(key, payload)
+            if key:
+                self._handle(key, payload)
+            else:
+                self._check_hub()
             try:
                 key, payload = self._inbox.get_nowait()
             except queue.Empty:
@@ -524,6 +560,9 @@ class ZenohSwarmBackend:
             if not left:
                 return
             elapsed = now - start
+            if elapsed > self.timeouts.step_s and not self._connected():
+                self._pump(0.05)  # no robot is to blame while the hub is gone: back soon, or HubLost after HUB_GRACE_S
+                continue
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()

@@ -3,7 +3,8 @@
 The launcher opens the run's Zenoh router hub itself on a free loopback port, writes the
 trajectory to a temporary file, starts one ``swarm agent`` process per robot (initial true pose
 from the trajectory), or one per ``agents_per_process`` robots (default: one per robot up to
-``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``),
+``ONE_PER_PROCESS_UP_TO`` robots, larger swarms in processes of at most ``AGENTS_PER_PROCESS``; driver
+``ros2`` without ``kill_robot``: processes of at most ``AGENTS_PER_PROCESS`` from the start, one DDS participant each),
 then ``swarm coordinator``, and waits for the coordinator, whose summary appears on stdout; the
 coordinator writes the Fig. 13/14/17 plots to ``out`` and records the run (``record``, default
 ``recordings/<run>.mcap``; ``no_record``). On exit, error or Ctrl-C it stops every child it
@@ -22,12 +23,15 @@ agents of its robots with the gateway driver (``swarm agent --link``); with ``ag
 first publishes an ``EmergencyStop`` (waiting for every agent's acknowledgement) to the run, then
 stops every child; so does a coordinator that ends with an error or is killed. ``driver="package.module:Class"`` (or
 ``file.py:Class``, an entry point name) starts the agents with a lab's own driver (docs/drivers.md);
-one that is not ``simulated`` gets a coordinator with ``--no-truth``.
+one that is not ``simulated`` gets a coordinator with ``--no-truth``. ``driver="ros2"`` drives robots speaking
+ROS 2 (docs/ros2.md): the lab's, or with ``ros2_robots`` simulated ones started first (``swarm ros2 robots``, whose
+ground truth the agents then read, so the run has truths); ``ros2`` also runs the live bridge
+(``swarm ros2 bridge``), and both are stopped after the agents.
 
-Fault injection: ``kill_robot=(ID, STEP)`` SIGKILLs the agent process of robot ID (with the gateway's port
-processes: the port's link and agents) at the first command of global step STEP and times the
-coordinator's targeted ``EmergencyStop`` (the JSON
-object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``); ``standby`` also starts a
+Fault injection: ``kill_robot=(ID, STEP)`` (or several such pairs) SIGKILLs the agent process of robot ID (with the
+gateway's port processes: the port's link and agents) at the first command of global step STEP and times the
+coordinator's targeted ``EmergencyStop`` (the JSON object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``
+of the first pair and ``"kills"``, one such object per pair, None for a step the run never reached); ``standby`` also starts a
 standby coordinator, and ``kill_coordinator=STEP`` SIGKILLs the coordinator at STEP and times the
 takeover (``"coordinator_kill": {"step", "takeover_ms"}``). ``stall_coordinator=(STEP, SECONDS)`` SIGSTOPs the
 coordinator at STEP and SIGCONTs it SECONDS later (``"coordinator_stall": {"step", "stall_s"}``); beyond the Zenoh
@@ -58,6 +62,7 @@ from coordinator.stop import StopSignals, collect_acks, publish_estop
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.processes import (
+    AGENTS_PER_PROCESS,
     GRACE_S,
     AgentErrors,
     CoordinatorKiller,
@@ -79,6 +84,7 @@ from runtime.gateway.config import GatewayConfig
 from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.run_file import published_run
@@ -90,6 +96,7 @@ if TYPE_CHECKING:
 EXIT_STEPPED_DOWN = 4  # swarm coordinator's status when another coordinator holds the run (it stepped down or never began)
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
+DEFAULT_STEP_TIMEOUT_S = 5.0
 START_S_PER_ROBOT = 0.1  # the coordinator waits this long per robot (at least 30 s) for every agent: 500 took 22-30 s on a busy 2-core machine
 Say = Callable[[str], None]
 
@@ -114,14 +121,24 @@ class LaunchOptions:
     out: Path | None = None  # default out/<command>
     result: Path | None = None
     motion_time: float = 0.0
-    step_timeout: float = 5.0
+    step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
     driver: str = "sim"
     driver_options: tuple[str, ...] = ()
     command_timeout: float | None = None
     gateway_config: Path | None = None
     emulator_events: Path | None = None
     min_robots: int = 2
-    kill_robot: tuple[int, int] | None = None
+    kill_robot: tuple[int, int] | tuple[tuple[int, int], ...] | None = None  # one (ID, STEP) or several
+
+    @property
+    def kills(self) -> list[tuple[int, int]]:
+        """Every ``(robot, step)`` of ``kill_robot``."""
+        spec = self.kill_robot
+        if not spec:
+            return []
+        if isinstance(spec[0], int):
+            return [(int(spec[0]), int(spec[1]))]
+        return [(int(robot), int(step)) for robot, step in spec]
     standby: bool = False
     kill_coordinator: int | None = None
     agents_per_process: int | None = None
@@ -138,6 +155,8 @@ class LaunchOptions:
     world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
     physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
     physics_speed: float = 0.0
+    ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
+    ros2_robots: bool = False  # with driver "ros2": also start simulated ROS 2 robots (``swarm ros2 robots``)
     stall_coordinator: tuple[int, float] | None = None  # (STEP, SECONDS): SIGSTOP the coordinator at STEP, SIGCONT SECONDS later
     stall_link: tuple[int, float] | None = None  # the same for the process of the first port's link (--driver gateway)
 
@@ -264,6 +283,14 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
                                   f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
     elif o.physics_params:
         raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
+    if o.ros2_robots and o.driver != "ros2":
+        raise SwarmInputError("--ros2-robots starts simulated ROS 2 robots for the ROS 2 driver: it needs --driver ros2")
+    if o.driver == "ros2" or o.ros2:
+        from runtime.wire.ros2 import require_ros2  # noqa: PLC0415 - ROS 2 only for ROS 2 runs
+
+        require_ros2(f"swarm {o.command} --driver ros2" if o.driver == "ros2" else f"swarm {o.command} --ros2")
+    if o.driver == "ros2":
+        ros2_settings(o)
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
     for flag, stall in (("--stall-coordinator", o.stall_coordinator), ("--stall-link", o.stall_link)):
@@ -271,9 +298,30 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
             raise SwarmInputError(f"{flag} {stall[0]}:{stall[1]:g}: the step must be >= 1 and the seconds > 0")
     if o.stall_link is not None and o.driver != "gateway":
         raise SwarmInputError("--stall-link stalls a link process: it needs --driver gateway")
-    if o.kill_robot is not None and o.kill_robot[0] not in traj.ids:
-        robot, step = o.kill_robot
-        raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+    for robot, step in o.kills:
+        if robot not in traj.ids:
+            raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+
+
+def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
+    """The ROS 2 driver's options of the agents (with ``ros2_robots``: their ground truth), and whether the
+    robots publish a ground truth (then the run has truths: P_f and contacts)."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+
+    options = list(o.driver_options)
+    if o.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
+        options.append("ground_truth=ground_truth")
+    return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
+
+
+def ros2_step_timeout(options: list[str]) -> float:
+    """The coordinator's step timeout for ROS 2 robots: the slowest motion the agents' default limits allow (turn pi,
+    drive ``max_drive_m``) at the driver's speeds and accelerations, 1.5 times, plus the sensing window and 2 s."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.wire.messages import CommandLimits  # noqa: PLC0415
+
+    cfg, limits = Ros2Config.load(driver_options(options)), CommandLimits()
+    return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
@@ -286,6 +334,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     if not 2 <= o.min_robots <= traj.n:
         raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
     per_process = traj.n if o.world == "physics" and o.driver == "sim" else agents_per_process(traj.n, o.agents_per_process)
+    if o.driver == "ros2" and o.agents_per_process is None and o.kill_robot is None:  # one DDS participant for up to 50 robots
+        processes = -(-traj.n // AGENTS_PER_PROCESS)
+        per_process = -(-traj.n // processes)
     port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.run_id or f"launch-{os.getpid()}"
     out = o.out or Path("out") / o.command
@@ -297,6 +348,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
+    ros2_procs: list[subprocess.Popen] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
@@ -308,6 +360,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if coordinators:  # first, with time to finish their recordings
                 stop_all(coordinators, COORDINATOR_GRACE_S)
             stop_all(procs[gateway_procs:])  # the agents, before the links they talk through (no "link gone" at the end)
+            stop_all(ros2_procs)
             stop_all(procs[1:gateway_procs])  # the links, before the emulator whose ptys they read
             stop_all(procs[:1] if gateway_procs else [])
 
@@ -339,6 +392,24 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
                 agent_extra += ["--world=physics", *world_flags]
             emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
+            truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
+            step_timeout = DEFAULT_STEP_TIMEOUT_S if o.step_timeout is None else o.step_timeout
+            if o.driver == "ros2":
+                ros2_options, truth = ros2_settings(o)
+                if o.step_timeout is None:
+                    step_timeout = ros2_step_timeout(ros2_options)
+                if not truth:
+                    say(f"swarm {o.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
+                        f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
+                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
+                if o.ros2_robots:  # the same settings: namespaces, frame, topics
+                    ros2_procs.append(subprocess.Popen(
+                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
+                         *(f"--driver-option={x}" for x in ros2_options)], **tied))
+            if o.ros2:
+                ros2_procs.append(subprocess.Popen(
+                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
+                     f"--robot-radius={o.model.robot_radius_m!r}"], **tied))
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
@@ -360,10 +431,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 agent_errors.watch(procs[first:])
             agent_list = procs[first:]
             common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
-            if o.driver not in BUILT_IN and not driver_class(o.driver).simulated:
+            if not truth:
                 common.append("--no-truth")  # the lab's robots publish no true poses
             cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
-                   f"--step-timeout={o.step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
+                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
                    f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
             if o.result:
                 cmd.append(f"--result={o.result}")
@@ -375,21 +446,20 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 cmd.append(f"--foxglove={o.foxglove}")
                 if o.linger is not None:
                     cmd.append(f"--linger={o.linger!r}")
-            what = {"sim": "agents", "gateway": "gateway agents + emulated robots"}.get(o.driver, f"agents ({o.driver})")
+            what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
+                    "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.ros2_robots else "")}.get(o.driver, f"agents ({o.driver})")
             what += " in the physical world" if o.world == "physics" else ""
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
             say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
-            killer = None
-            if o.kill_robot is not None:
-                robot, step = o.kill_robot
-                killer = RobotKiller(hub_session, run_id, robot, step, agent_procs[robot])
+            killed: dict[int, int] = {}  # pid -> when it was killed: robots hosted by one process die together
+            killers = [RobotKiller(hub_session, run_id, robot, step, agent_procs[robot], killed) for robot, step in o.kills]
             stallers: dict[str, ProcessStaller] = {}
             if o.stall_link is not None:
                 first_port = GatewayConfig.load(live).ports[0]
                 link_proc = agent_procs[first_port.robots[0]] if port_hosts else procs[1]
                 stallers["link_stall"] = ProcessStaller(hub_session, run_id, *o.stall_link, link_proc)
-            json_hold = o.json and (killer is not None or o.kill_coordinator is not None or bool(stallers) or
+            json_hold = o.json and (bool(killers) or o.kill_coordinator is not None or bool(stallers) or
                                     o.stall_coordinator is not None)
             standby = None
             if o.standby:
@@ -433,8 +503,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                     stop_all([standby], COORDINATOR_GRACE_S)
             for forwarder in forwarders:
                 forwarder.join(timeout=10)
-            kill = None if killer is None else killer.report()
-            if kill is not None:
+            kills = [killer.report() for killer in killers]
+            for kill in kills:
+                if kill is None:
+                    continue
                 say(f"swarm {o.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
                     f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill")
             coord_kill = None if coord_killer is None else coord_killer.report()
@@ -452,13 +524,15 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                         summary = json.loads(line)
                     except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
                         sys.stdout.write(line)
-                extra = {} if killer is None else {"kill": kill}
+                extra = {} if not killers else {"kill": kills[0], "kills": kills}
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
                 extra.update(stalls)
                 emit_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
-                say(f"swarm {o.command}: recording {recording}")
+                say(f"swarm {o.command}: recording {recording}" if is_finished(recording) else
+                    f"swarm {o.command}: recording {recording} is incomplete: the recording failed (what reached the disk: "
+                    f"swarm info {recording}; swarm recover {recording})")
             return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
     finally:
         stop_children()

@@ -235,10 +235,13 @@ def start_port_hosts(traj: Trajectory, live: Path, run_id: str, hub: str, seed: 
 
 class RobotKiller:
     """``--kill-robot``: SIGKILL robot ``robot``'s agent process at the first command of ``step``, then time
-    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host)."""
+    the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host). Killers of robots
+    hosted by one process share ``killed`` (pid -> when it was killed): the times count from the process's death."""
 
-    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen) -> None:
+    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen,
+                 killed: dict[int, int] | None = None) -> None:
         self.robot, self.step, self.process = robot, step, process
+        self._killed = {} if killed is None else killed
         self.killed_ns: int | None = None
         self.stop_stamp_ns: int | None = None
         self.stop_heard_ns: int | None = None
@@ -252,9 +255,11 @@ class RobotKiller:
             cmd = decode(payload, MotionCommand)
         except MessageError:
             return
-        if cmd.step >= self.step and self.process.poll() is None:
-            self.process.send_signal(signal.SIGKILL)
-            self.killed_ns = time.time_ns()
+        if cmd.step >= self.step:
+            if self.process.pid not in self._killed and self.process.poll() is None:
+                self.process.send_signal(signal.SIGKILL)
+                self._killed[self.process.pid] = time.time_ns()
+            self.killed_ns = self._killed.get(self.process.pid)
 
     def _on_estop(self, key: str, payload: bytes) -> None:
         heard = time.time_ns()

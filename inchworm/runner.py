@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OutputError, SwarmInputError
 
 T = TypeVar("T")
 Row = dict[str, Any]
@@ -153,10 +153,14 @@ class StudyLog:
                 self._csv_rows[entry["task"]] = entry["row"]
 
     def _write(self, obj: dict) -> None:
-        with open(self.jsonl, "a") as f:
-            f.write(json.dumps(obj, separators=(",", ":")) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        try:
+            with open(self.jsonl, "a") as f:
+                f.write(json.dumps(obj, separators=(",", ":")) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:
+            raise OutputError(f"cannot write the study log {self.jsonl}: {exc.strerror or exc} (the runs before are kept: "
+                              f"--resume goes on from them)") from None
 
     def add(self, key: str, row: Row, csv: bool = True) -> None:
         """Keep one finished row (``csv``: also in the CSV, rewritten now); a Ctrl-C meanwhile waits until both files agree."""
@@ -224,9 +228,14 @@ def write_rows(path: Path, rows: list[Row]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=keys)
-        writer.writeheader()
-        writer.writerows({k: r.get(k, "") for k in keys} for r in rows)
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=keys)
+            writer.writeheader()
+            writer.writerows({k: r.get(k, "") for k in keys} for r in rows)
+        os.replace(tmp, path)
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     return path

@@ -215,12 +215,13 @@ def write_run_outputs(result: RunResult, result_path: Path | None, plots_dir: Pa
 
 
 def run_json(result: RunResult, method: str, localizer: str, seed: int, plots: list[str], recording: str | None,
-             radius: float) -> dict[str, Any]:
-    """The ``--json`` object of a distributed run (``swarm coordinator``, ``swarm launch``)."""
+             radius: float, ended_early: str | None = None) -> dict[str, Any]:
+    """The ``--json`` object of a distributed run (``swarm coordinator``, ``swarm launch``); ``ended_early``: why the
+    run ended before its last configuration (lost robots, the hub lost, a recording failure), None if it did not."""
     return {"method": method, "localizer": localizer, "seed": seed, "pf": result.pf() if result.has_truth and result.configs else None,
             "configs": config_rows(result), "lost": [{"robot": r.robot, "step": r.step, "reason": r.reason} for r in result.lost],
             "finished_robots": len(result.finished_ids), "fallback_steps": len(fallback_steps(result)), "plots": plots,
-            "recording": recording, **contacts_json(result, radius)}
+            "recording": recording, **contacts_json(result, radius), "ended_early": ended_early}
 
 
 def world_text(result: RunResult) -> str:

@@ -122,7 +122,7 @@ from runtime.wire.messages import (
     refusal_status,
 )
 from runtime.wire.rate_limit import RateLimit
-from runtime.wire.transport import ZenohSettings, declare_token, open_session, publish, subscribe, watch_liveliness
+from runtime.wire.transport import ZenohSettings, claim_identities, declare_token, open_session, publish, subscribe, watch_liveliness
 
 if TYPE_CHECKING:
     import zenoh
@@ -210,9 +210,13 @@ class Agent:
         """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
 
         Without ``session`` the agent opens its own from ``settings`` and closes it on
-        return; with one (its host's, shared with other agents) it leaves it open.
+        return, refusing (``SwarmInputError``) a robot that already has a live agent; with one (its host's, shared
+        with other agents) it leaves it open.
         """
-        with open_session(self.settings) if session is None else contextlib.nullcontext(session) as session:
+        own = session is None
+        with open_session(self.settings) if own else contextlib.nullcontext(session) as session:
+            if own:  # a host checks its robots itself, once
+                claim_identities(session, self.run_id, [self.robot])
             self.open(session)
             while not self._stop.is_set():
                 if not self.serve(*self._queue.get()):
@@ -328,7 +332,7 @@ class Agent:
         deadline = time.monotonic() + self.ready_timeout_s
         while not self._stop.is_set() and not self.driver.ready(0.1):
             if time.monotonic() > deadline:
-                _log.warning("robot %d: its driver is not ready after %.1f s (no link process?); serving anyway",
+                _log.warning("robot %d: its driver is not ready after %.1f s (no link process? no robot in its ROS 2 namespace?); serving anyway",
                              self.robot, self.ready_timeout_s)
                 return
 
@@ -573,7 +577,9 @@ class Agent:
 
     def _publish_truth(self, step: int) -> None:
         pose = self.driver.true_pose()
-        assert pose is not None, "simulated drivers only"
+        if pose is None:  # a tracker's or simulator's truth that has not come (yet): nothing to tell
+            _log.warning("robot %d: no true pose for step %d (the driver has none yet)", self.robot, step)
+            return
         self._last_truth = TruthMessage(run=self.run_id, step=step, robot=self.robot, pose=tuple(pose.tolist()))
         self._send(self._last_truth)
 

@@ -3,8 +3,8 @@
 ``--id`` / ``--ids`` texts name robots (``0-49``, ``0,2,5-9``); ``build_agents`` makes one
 ``Agent`` per hosted robot with its driver: simulated (``sim``, from its initial true pose),
 a robot behind a gateway link (``gateway``: limits and calibration from the gateway config,
-docs/gateway.md), or a lab's own driver class (docs/drivers.md); ``build_links`` the links this
-process runs itself (``--link``). Errors name the flag.
+docs/gateway.md), a robot speaking ROS 2 (``ros2``, docs/ros2.md), or a lab's own driver class
+(docs/drivers.md); ``build_links`` the links this process runs itself (``--link``). Errors name the flag.
 """
 
 from __future__ import annotations
@@ -113,7 +113,12 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway:
     if pose is None:
         pose = spec.pose
     if spec.driver != "sim":
-        cls = plugin or driver_class(spec.driver)
+        if spec.driver == "ros2":
+            from robot_agent.ros2_driver import Ros2Driver  # noqa: PLC0415 - rclpy only for ROS 2 robots
+
+            cls: type[Driver] = Ros2Driver
+        else:
+            cls = plugin or driver_class(spec.driver)
         context = DriverContext(robot=int(robot), ids=tuple(int(i) for i in ids), run=spec.run_id, seed=spec.seed,
                                 pose=None if pose is None else np.array(pose, dtype=float), model=spec.model, options=spec.options)
         return build_driver(spec.driver, cls, context), spec.limits
@@ -122,12 +127,12 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway:
     return SimDriver(robot, ids, pose, spec.model, spec.seed, spec.motion_time_s), spec.limits
 
 
-def build_links(spec: AgentSpec, ids: list[int]) -> list[LinkFactory]:
-    """With ``spec.link`` (``--link``): the link of every port behind which a hosted robot is, to run on the host's
+def build_links(spec: AgentSpec, ids: list[int]) -> dict[str, LinkFactory]:
+    """With ``spec.link`` (``--link``): the link of every port behind which a hosted robot is (port name -> its factory), to run on the host's
     session (``AgentHost``). Each such port's robots that are in the run (``ids``) must all be hosted here: a port has
     one link, and its robots' requests reach it inside this process only."""
     if not spec.link:
-        return []
+        return {}
     if spec.driver != "gateway" or spec.gateway_config is None:
         raise SwarmInputError("--link runs the link of a port of the gateway: it needs --driver gateway and --gateway-config FILE")
     from robot_agent.link import Link  # noqa: PLC0415 - keeps the link off the import path of agents that run none
@@ -139,7 +144,7 @@ def build_links(spec: AgentSpec, ids: list[int]) -> list[LinkFactory]:
         if elsewhere:
             raise SwarmInputError(f"--link: robots {elsewhere} of port {port.name} are robots of the run but not hosted by this "
                                   f"process (--id {format_ids(spec.hosted)}): host every robot of the port, or run `swarm link` for it")
-    return [partial(Link.open, run=spec.run_id, port=port, config=gateway) for port in ports.values()]
+    return {name: partial(Link.open, run=spec.run_id, port=port, config=gateway) for name, port in ports.items()}
 
 
 def build_agents(spec: AgentSpec) -> list[Agent]:

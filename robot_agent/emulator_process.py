@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import math
 import signal
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -78,9 +77,9 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
     else:
         world = EmulatedWorld(ids, traj.initial_poses, model, seed, calibration=calibration, motion_time_s=motion_time_s,
                               heartbeat_timeout_s=config.timing.heartbeat_timeout_s)
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-        signal.signal(sig, lambda *_: stop.set())
+    stopping: list[int] = []  # the stop signals received; the handler takes no lock (an Event's set() inside the main
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):  # thread's own wait() on it deadlocked: 1 in 20 SIGKILLs)
+        signal.signal(sig, lambda signum, _frame: stopping.append(signum))
     with contextlib.ExitStack() as stack:
         stack.callback(world.close)  # after the ports (closed first, in reverse order)
         sink = None
@@ -102,8 +101,8 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         if sink is not None:
             sink({"event": "ready", "time_ns": time.time_ns(), "ports": devices, "config": None if write_config is None else str(write_config)})
         say(f"{len(config.robots)} robots on {len(ports)} port(s); SIGTERM or Ctrl-C stops")
-        while not stop.wait(0.2):
-            pass
+        while not stopping:
+            time.sleep(0.2)
         for pe in ports:
             st = pe.stats()
             say(f"port {pe.port_name}: {st.rx_frames} frames in, {st.tx_frames} out, executed {st.executed}, "

@@ -2,7 +2,7 @@
 
 Same ``Driver`` interface as ``SimDriver``; the agent does not know which one it has.
 ``execute`` publishes a ``LinkRequest`` ``command`` (drive corrected by the robot's
-``motion_scale``, and the command's ``start_pose`` for the link's workspace check) on
+``motion_scale``, the command's coordinator ``epoch``, and its ``start_pose`` for the record) on
 ``swarm/<run>/robot/<id>/linkreq`` and waits for the link's ``LinkReply`` ``done``;
 ``sense`` asks for ``observe`` and corrects the raw measurements (range bias, bearing
 offset: ``runtime.gateway.config.Calibration``). A ``refused`` answer raises
@@ -118,16 +118,17 @@ class GatewayDriver(Driver):
         except MessageError:
             self.bad_replies += 1
 
-    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple = ()) -> None:
+    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple = (),
+                 epoch: int = 0) -> None:
         msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m,
-                          start_pose=start_pose)
+                          start_pose=start_pose, epoch=epoch)
         assert self._session is not None, "attach() first"
         publish(self._session, self._req_key, encode(msg))
         if self._submit is not None:
             self._submit(msg)
 
     def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0,
-                  start_pose: tuple = ()) -> LinkReply:
+                  start_pose: tuple = (), epoch: int = 0) -> LinkReply:
         """Send the request, then wait for its reply of kind ``final``; raises on refusal, loss, stop or timeout.
 
         The request is sent again whenever the link has been silent about it for ``_resend_s``
@@ -136,7 +137,7 @@ class GatewayDriver(Driver):
         (docs/gateway-protocol.md), so nothing runs twice.
         """
         resend_s, timeout_s = self.timing.resend_s, self.timing.answer_timeout_s(motion)
-        self._request(step, kind, turn_rad, drive_m, start_pose)
+        self._request(step, kind, turn_rad, drive_m, start_pose, epoch)
         start = time.monotonic()
         deadline, next_resend = start + timeout_s, start + resend_s
         while True:
@@ -150,7 +151,7 @@ class GatewayDriver(Driver):
                 reply = self._replies.get(timeout=min(left, 0.05))
             except queue.Empty:
                 if time.monotonic() >= next_resend:
-                    self._request(step, kind, turn_rad, drive_m, start_pose)
+                    self._request(step, kind, turn_rad, drive_m, start_pose, epoch)
                     next_resend = time.monotonic() + resend_s
                 continue
             if reply.step != step:
@@ -169,7 +170,7 @@ class GatewayDriver(Driver):
         if self._estopped.is_set():
             raise DriverRefused("emergency stop")
         self._exchange(command.step, "done", True, "command", command.turn_rad, self.calibration.corrected_drive(command.drive_m),
-                       tuple(command.start_pose))
+                       tuple(command.start_pose), command.epoch)
         return None
 
     def true_pose(self) -> None:

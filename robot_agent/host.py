@@ -27,12 +27,12 @@ from __future__ import annotations
 import logging
 import queue
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import TYPE_CHECKING
 
 from robot_agent.agent import Agent
 from robot_agent.gateway_driver import GatewayDriver
-from runtime.wire.transport import ZenohSettings, open_session
+from runtime.wire.transport import ZenohSettings, claim_identities, open_session
 
 if TYPE_CHECKING:
     from robot_agent.link import Link
@@ -44,15 +44,17 @@ _log = logging.getLogger(__name__)
 
 
 class AgentHost:
-    """Serves ``agents`` (distinct robots of one run) on one session opened from ``settings``."""
+    """Serves ``agents`` (distinct robots of one run) on one session opened from ``settings``, and the ``links``
+    (port name -> its factory) of their ports. Refuses (``SwarmInputError``) to start when one of these robots or
+    ports already has a live agent or link on the run."""
 
-    def __init__(self, settings: ZenohSettings, agents: Sequence[Agent], links: Sequence[LinkFactory] = ()) -> None:
+    def __init__(self, settings: ZenohSettings, agents: Sequence[Agent], links: Mapping[str, LinkFactory] | None = None) -> None:
         robots = [a.robot for a in agents]
         if not robots or len(set(robots)) != len(robots):
             raise ValueError(f"an agent host needs distinct robots, got {robots}")
         self.settings = settings
         self.agents = list(agents)
-        self.links = list(links)
+        self.links = dict(links or {})
         self.link_summaries: list[str] = []  # one line per link that ran (``Link.summary``), once ``run`` returned
         self.results: dict[int, int] = {}  # robot -> its agent's run() status, once it returned
 
@@ -64,6 +66,7 @@ class AgentHost:
     def run(self) -> int:
         """Serve until ``stop()`` and every agent has ended; 3 if a robot was lost, else 0. Closes the session."""
         with open_session(self.settings) as session:
+            claim_identities(session, self.agents[0].run_id, [a.robot for a in self.agents], self.links)
             links = self._start_links(session)
             try:
                 if all(agent.driver.instantaneous for agent in self.agents):
@@ -111,7 +114,7 @@ class AgentHost:
         """Open each link's device and run it on a thread; a device that cannot be opened stops the ones started and raises."""
         started: list[tuple[Link, threading.Thread]] = []
         try:
-            for factory in self.links:
+            for factory in self.links.values():
                 link = factory(session)
                 for agent in self.agents:  # its robots' requests and replies stay in this process (``GatewayDriver.use_link``)
                     if isinstance(agent.driver, GatewayDriver) and agent.driver.port == link.port.name:

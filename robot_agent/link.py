@@ -9,7 +9,10 @@ as ``LinkReply``s on ``.../linkrep`` (not ACCEPTED, which only shows the robot i
 agent waits for DONE). Every answer restarts the count of ``max_retries``; a robot silent
 through all of them (``Timing.retry_budget_s``), silent for ``robot_timeout_s``, or still
 moving after ``motion_timeout_s`` is reported ``lost``. It sends a HEARTBEAT to every
-robot that got no other frame for ``heartbeat_period_s``. The link trusts no request: one
+robot that got no other frame for ``heartbeat_period_s``. The link trusts no request: a
+motion goes to a robot only as the live coordinator commanded it (its own ``MotionCommand``
+on ``robot/<id>/cmd``, of the live run's epochs, same step, turn and calibrated drive, the
+robot's next step; ``_authority``), with no coordinator alive only stops go out, and one
 that does not fit the frame's wire types (u32 step, float32 turn and drive) or breaks the
 gateway config's limits or workspace is dropped and counted (``LinkStats.rejected``), never
 sent. When the coordinator's liveliness token appears, a new run begins: the link forgets
@@ -93,6 +96,8 @@ from runtime.wire.messages import (
     LinkReply,
     LinkRequest,
     LinkStats,
+    MotionCommand,
+    ObserveRequest,
     decode_or_drop,
     encode,
     message_key,
@@ -103,6 +108,8 @@ _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000
 STALL_S = 0.5  # s between two turns of the engine beyond which the link itself was stalled (it turns every ack_timeout_s / 2)
 MAX_STEP_AHEAD = 1000  # a request more steps than this ahead of the robot's latest is refused (a step jump would strand the run)
+MAX_HELD = 4  # commands per robot held until their coordinator's MotionCommand arrives (the oldest is dropped beyond)
+_HOLD = "hold"  # ``_authority``: not proven yet, the coordinator's command may still be on its way
 
 
 class ByteLink(Protocol):
@@ -196,6 +203,11 @@ class _Robot:
     begin: _Request | None = None  # RUN of a new run: requests wait for its RUN_ACK
     waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
     latest: int = 0  # the latest step of a request sent this run
+    ordered: MotionCommand | None = None  # the coordinator's latest MotionCommand for this robot (its own key, its identity)
+    asked: ObserveRequest | None = None  # ... and its latest ObserveRequest
+    commanded: int = 0  # the step of the latest COMMAND sent this run ...
+    executed: bool = False  # ... and whether the robot reported it DONE (only then is it sent again: answered from memory)
+    held: list[tuple[LinkRequest, float]] = field(default_factory=list)  # commands awaiting their coordinator's: (request, until)
     unanswered_since: float | None = None  # the first frame written to it since its last answer
     reckoned: tuple[float, float, float] | None = None  # its pose: the coordinator's estimate, moved by every DONE since
     agent_seen: bool = False  # its agent's liveliness token appeared ...
@@ -215,6 +227,7 @@ class LinkCounters:
     retransmissions: int = 0
     timeouts: int = 0
     rejected: int = 0
+    unauthorised: int = 0  # of ``rejected``: requests no live coordinator commanded (forged, stale, future, none alive)
     epoch: int = 0  # the run epoch last begun (0: none yet)
     rtts_ms: deque = field(default_factory=lambda: deque(maxlen=RTT_WINDOW))
 
@@ -251,6 +264,8 @@ class Link:
         self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
         self._coord_live: set[int] = set()  # those whose token is alive
         self._estimate_key = coord_key(run, "estimate")
+        self._cmd_keys = {robot_key(run, r, "cmd"): r for r in port.robots}  # the coordinator's own commands (its identity only)
+        self._observe_keys = {robot_key(run, r, "observe"): r for r in port.robots}  # ... and observation requests
         self._local: dict[int, Callable[[LinkReply], object]] = {}  # robots whose agents run in this process -> their reply sink
 
     @classmethod
@@ -289,13 +304,15 @@ class Link:
         """One line of the port's counters, for the end of a run."""
         s = self.stats()
         return (f"port {self.port.name}: {s.frames_sent} frames sent, {s.frames_received} received, {s.retransmissions} retransmissions, "
-                f"{s.crc_errors} CRC errors, {s.rejected} requests rejected, round trip median {s.rtt_ms_median:.2f} ms")
+                f"{s.crc_errors} CRC errors, {s.rejected} requests rejected ({s.unauthorised} unauthorised), "
+                f"round trip median {s.rtt_ms_median:.2f} ms")
 
     def run(self) -> int:
         """Serve until ``stop()``; publishes final stats; returns 0."""
         enqueue = lambda key, payload: self._events.put(("zenoh", key, payload))  # noqa: E731 (Zenoh thread)
         # one subscription per robot of this port: another port's requests never reach (nor cost) this link
         self._subs = [*(subscribe(self.session, robot_key(self.run_id, r, "linkreq"), enqueue) for r in sorted(self.robots) if r not in self._local),
+                      *(subscribe(self.session, key, enqueue) for key in (*self._cmd_keys, *self._observe_keys)),
                       subscribe(self.session, estop_key(self.run_id), enqueue),
                       subscribe(self.session, self._estimate_key, enqueue),
                       watch_liveliness(self.session, coord_alive_key(self.run_id),
@@ -432,9 +449,15 @@ class Link:
             self._take(event[1])
         else:
             key, payload = event[1], event[2]
-            if key == self._estimate_key:
+            if key in self._cmd_keys:
+                self._on_ordered(self.robots[self._cmd_keys[key]], decode_or_drop(payload, self.drops, key, MotionCommand))
+            elif key in self._observe_keys:
+                self._on_ordered(self.robots[self._observe_keys[key]], decode_or_drop(payload, self.drops, key, ObserveRequest))
+            elif key == self._estimate_key:
                 msg = decode_or_drop(payload, self.drops, key, EstimateMessage)
-                for robot, pose in zip(msg.ids if msg is not None else (), msg.poses if msg is not None else (), strict=True):
+                if msg is None or not self._coord_live:
+                    return
+                for robot, pose in zip(msg.ids, msg.poses, strict=True):
                     if robot in self.robots:
                         self.robots[robot].reckoned = (float(pose[0]), float(pose[1]), float(pose[2]))
             elif key == estop_key(self.run_id):
@@ -459,14 +482,103 @@ class Link:
                     return
                 self._take(req)
 
-    def _take(self, req: LinkRequest) -> None:
-        """A request, checked (``_invalid``: dropped and counted) and then served."""
+    def _take(self, req: LinkRequest, until: float | None = None) -> None:
+        """A request, checked (``_authority``: held until ``until`` or dropped; ``_invalid``: dropped; both counted),
+        then served."""
+        if req.run != self.run_id:
+            self._drop(f"run {req.run!r} is not this link's run {self.run_id!r}")
+            return
+        problem = self._authority(req)
+        if problem == _HOLD:
+            self._hold(req, until)
+            return
+        if problem is not None:
+            self._drop(problem, unauthorised=True)
+            return
         problem = self._invalid(req)
         if problem is not None:
-            self.counters.rejected += 1
-            _log.warning("port %s: request dropped: %s", self.port.name, problem)
+            self._drop(problem)
             return
         self._on_request(req)
+
+    def _drop(self, problem: str, unauthorised: bool = False) -> None:
+        self.counters.rejected += 1
+        self.counters.unauthorised += unauthorised
+        _log.warning("port %s: request dropped: %s", self.port.name, problem)
+
+    def _authority(self, req: LinkRequest) -> str | None:
+        """None if ``req`` may go to the robot, ``_HOLD`` if that may still be proven, else why not.
+
+        Emergency stops and resets always may. Anything else only while a coordinator is alive (held meanwhile: one
+        taking the run over may appear). An observation only of the step the coordinator's latest ``ObserveRequest``
+        for the robot asks (``robot/<id>/observe``). A command only as the coordinator commanded it: the coordinator's own
+        ``MotionCommand`` of the same step (on ``robot/<id>/cmd``, which only its identity may publish), of the live
+        run's epochs, with the same turn and (calibrated) drive, and only the robot's next step (a step already sent
+        goes again only if the robot executed it, which it then answers from memory). Nothing for a robot whose
+        agent's token went. The request's own claims (``start_pose``) count for nothing."""
+        if req.kind in ("estop", "reset"):
+            return None
+        if not self._coord_live:
+            return _HOLD
+        robot = self.robots[req.robot]
+        if robot.agent_gone:
+            return f"robot {req.robot}: {req.kind} of step {req.step} while the robot's agent is gone"
+        if req.kind == "observe":  # as the coordinator asked: a forged future step would make the robot refuse the real one
+            asked = robot.asked
+            if asked is None or asked.step < req.step or asked.epoch not in self._coord_epochs:
+                return _HOLD
+            stale = f"robot {req.robot}: observe of step {req.step} is stale: the coordinator asks step {asked.step}"
+            return None if asked.step == req.step else stale
+        who = f"robot {req.robot}: command of step {req.step}"
+        if req.epoch not in self._coord_epochs:
+            return f"{who} carries coordinator epoch {req.epoch}, not the live run's ({', '.join(map(str, sorted(self._coord_epochs)))})"
+        in_flight = any(r.kind == "command" and r.step == req.step for r in (robot.busy, *robot.waiting) if r is not None)
+        if not in_flight and (req.step < robot.commanded or (req.step == robot.commanded and not robot.executed)):
+            return f"{who} is not the robot's next step (step {robot.commanded} was sent{' and executed' * robot.executed})"
+        ordered = robot.ordered
+        if ordered is None or ordered.step < req.step or ordered.epoch not in self._coord_epochs:
+            return _HOLD
+        if ordered.step > req.step:
+            return f"{who} is stale: the coordinator commands step {ordered.step}"
+        drive = self.calibration.get(req.robot, Calibration()).corrected_drive(ordered.drive_m)
+        if not (math.isclose(req.turn_rad, ordered.turn_rad, rel_tol=1e-9, abs_tol=1e-12)
+                and math.isclose(req.drive_m, drive, rel_tol=1e-9, abs_tol=1e-12)):
+            return (f"{who} (turn {req.turn_rad:.6g} rad, drive {req.drive_m:.6g} m) is not the coordinator's "
+                    f"(turn {ordered.turn_rad:.6g} rad, drive {drive:.6g} m)")
+        return None
+
+    def _hold(self, req: LinkRequest, until: float | None) -> None:
+        """Keep ``req`` until its coordinator's command (or a coordinator) arrives, until ``until`` (default: the
+        retry budget from now); then it is dropped and counted."""
+        robot = self.robots[req.robot]
+        same = (req.kind, req.step, req.turn_rad, req.drive_m, req.epoch)
+        if any((held.kind, held.step, held.turn_rad, held.drive_m, held.epoch) == same for held, _ in robot.held):
+            return  # a re-sent copy
+        robot.held.append((req, time.monotonic() + self.timing.retry_budget_s if until is None else until))
+        if len(robot.held) > MAX_HELD:
+            self._drop(self._unproven(robot.held.pop(0)[0]), unauthorised=True)
+
+    def _unproven(self, req: LinkRequest) -> str:
+        if not self._coord_live:
+            return f"robot {req.robot}: {req.kind} of step {req.step} while no coordinator is alive (only stops are sent)"
+        return f"robot {req.robot}: command of step {req.step}, which no live coordinator commanded"
+
+    def _retake(self, robot: _Robot) -> None:
+        """Try the held requests of ``robot`` again (a coordinator or its command arrived)."""
+        held, robot.held = robot.held, []
+        for req, until in held:
+            self._take(req, until)
+
+    def _on_ordered(self, robot: _Robot, msg: MotionCommand | ObserveRequest | None) -> None:
+        """The coordinator's command or observation request for ``robot`` (``None``: undecodable, already counted)."""
+        if msg is None or msg.robot != robot.id:
+            return
+        if isinstance(msg, MotionCommand):
+            robot.ordered = msg
+        else:
+            robot.asked = msg
+        if robot.held:
+            self._retake(robot)
 
     def _on_agent(self, key: str, alive: bool) -> None:
         """The liveliness token of an agent appeared or disappeared: keep feeding its robot or stop."""
@@ -489,11 +601,9 @@ class Link:
     def _invalid(self, req: LinkRequest) -> str | None:
         """Why ``req`` must not reach a robot, or None: foreign, not representable on the wire, or beyond the limits.
 
-        With a workspace configured a command must carry its start pose, and its end is checked both from that
-        pose and from the link's own ``reckoned`` pose of the robot (the coordinator's latest estimate moved by
-        every motion the robot completed since), so forged requests cannot walk a robot out of the workspace."""
-        if req.run != self.run_id:
-            return f"run {req.run!r} is not this link's run {self.run_id!r}"
+        With a workspace configured the coordinator's command must carry its start pose, and the end is checked both
+        from that pose and from the link's own ``reckoned`` pose of the robot (the coordinator's latest estimate moved
+        by every motion the robot reported DONE since), never from the request's ``start_pose``."""
         robot = self.robots[req.robot]
         if req.step > MAX_U32:
             return f"step {req.step} does not fit the frame's u32 step"
@@ -504,9 +614,10 @@ class Link:
         if not (fits_f32(req.turn_rad) and fits_f32(req.drive_m)):
             return f"turn {req.turn_rad!r} rad / drive {req.drive_m!r} m are not finite float32 values"
         driven = self.calibration.get(req.robot, Calibration()).driven(req.drive_m)
-        pose = req.start_pose if req.start_pose and all(map(math.isfinite, req.start_pose)) else ()
+        ordered = robot.ordered.start_pose if robot.ordered is not None else ()
+        pose = ordered if ordered and all(map(math.isfinite, ordered)) else ()
         if self.limits.workspace is not None and not pose:
-            return f"robot {req.robot}: a command needs its start pose while a workspace is configured"
+            return f"robot {req.robot}: the coordinator's command has no start pose while a workspace is configured"
         problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=pose))
         if problem is None and self.limits.workspace is not None and robot.reckoned is not None:
             problem = self.limits.refusal(dataclasses.replace(req, drive_m=driven, start_pose=robot.reckoned))
@@ -555,6 +666,9 @@ class Link:
                         robot.last_rx = now
                     _log.warning("port %s: coordinator epoch %d took the run over from epoch %d; the robots are kept alive again",
                                  self.port.name, epoch, parent)
+                    for robot in self.robots.values():
+                        self._start_waiting(robot)
+                        self._retake(robot)
             elif self._coord_live:
                 _log.warning("port %s: coordinator epoch %d appeared while epoch %s runs; ignored", self.port.name, epoch,
                              ", ".join(map(str, sorted(self._coord_live))))
@@ -563,6 +677,8 @@ class Link:
                 self._coord_epochs, self._coord_live = {epoch}, {epoch}
                 self._coord_seen, self._coord_gone = True, False
                 self._begin_run()
+                for robot in self.robots.values():
+                    self._retake(robot)  # requests that came before the coordinator's token was handled here
         else:
             self._coord_live.discard(epoch)
             if self._coord_seen and not self._coord_live and not self._coord_gone:
@@ -581,7 +697,9 @@ class Link:
             robot.reckoned = None
             robot.busy = robot.begin = None
             robot.waiting.clear()
-            robot.latest = 0
+            robot.latest = robot.commanded = 0
+            robot.executed = False
+            robot.ordered = robot.asked = None
             robot.begin = self._request(robot, "run", 0, FrameType.RUN, RunBody(self.counters.epoch))
 
     def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body) -> _Request:
@@ -595,8 +713,10 @@ class Link:
         if req.kind == "command":
             robot.busy = self._request(robot, req.kind, req.step, FrameType.COMMAND, MotionBody(req.step, req.turn_rad, req.drive_m))
             robot.busy.motion = (req.turn_rad, self.calibration.get(robot.id, Calibration()).driven(req.drive_m))
-            if robot.reckoned is None and req.start_pose:  # no estimate from the coordinator yet: start from the request's
-                robot.reckoned = (float(req.start_pose[0]), float(req.start_pose[1]), float(req.start_pose[2]))
+            robot.commanded, robot.executed = req.step, False
+            pose = robot.ordered.start_pose if robot.ordered is not None else ()
+            if robot.reckoned is None and pose:  # no estimate from the coordinator yet: start from its command's start pose
+                robot.reckoned = (float(pose[0]), float(pose[1]), float(pose[2]))
         else:
             robot.busy = self._request(robot, req.kind, req.step, FrameType.OBSERVE, StepBody(req.step))
 
@@ -671,6 +791,7 @@ class Link:
                 req.accepted_at = now
             return
         if kind == FrameType.DONE:
+            robot.executed = robot.executed or req.kind == "command"  # the step in flight is the one last commanded
             if req.kind == "command" and robot.reckoned is not None:
                 x, y, heading = robot.reckoned
                 turn, driven = req.motion
@@ -695,12 +816,14 @@ class Link:
         self._start_waiting(robot)
 
     def _start_waiting(self, robot: _Robot) -> None:
-        while robot.busy is None and robot.begin is None and robot.waiting:
+        while not self._coord_gone and robot.busy is None and robot.begin is None and robot.waiting:
             self._start(robot, robot.waiting.popleft())
 
     def _check_timers(self, now: float) -> None:
         t = self.timing
         for robot in self.robots.values():
+            while robot.held and robot.held[0][1] <= now:
+                self._drop(self._unproven(robot.held.pop(0)[0]), unauthorised=True)
             if robot.lost:
                 continue
             feeding = self._feeding(robot)
@@ -745,7 +868,7 @@ class Link:
             run=self.run_id, step=0, port=self.port.name, robots=tuple(sorted(self.robots)),
             frames_sent=self.counters.frames_sent, frames_received=d.frames, retransmissions=self.counters.retransmissions,
             crc_errors=d.crc_errors, length_errors=d.length_errors, skipped_bytes=d.skipped_bytes,
-            timeouts=self.counters.timeouts, rejected=self.counters.rejected,
+            timeouts=self.counters.timeouts, rejected=self.counters.rejected, unauthorised=self.counters.unauthorised,
             rtt_ms_median=statistics.median(rtts) if rtts else 0.0,
             rtt_ms_p90=statistics.quantiles(rtts, n=10)[-1] if len(rtts) >= 2 else (rtts[0] if rtts else 0.0),
             rtt_ms_max=max(rtts) if rtts else 0.0,

@@ -1,6 +1,6 @@
 """Drivers a lab writes itself, loaded by ``--driver`` (docs/drivers.md).
 
-``--driver`` takes, besides ``sim`` and ``gateway``:
+``--driver`` takes, besides ``sim``, ``gateway`` and ``ros2``:
 
 * ``package.module:Class``: ``Class`` of an importable module (on ``sys.path``, e.g. installed,
   or in the working directory);
@@ -26,7 +26,7 @@ from robot_agent.driver import Driver, DriverContext
 from runtime.errors import SwarmInputError
 
 ENTRY_POINT_GROUP = "inchworm_swarm.drivers"
-BUILT_IN = ("sim", "gateway")
+BUILT_IN = ("sim", "gateway", "ros2")
 
 
 def _module(spec: str, name: str):
@@ -84,7 +84,7 @@ def _add_working_directory() -> bool:
 
 
 def driver_class(spec: str) -> type[Driver]:
-    """The driver class ``spec`` names (not ``sim`` or ``gateway``, which the agent builds itself)."""
+    """The driver class ``spec`` names (not ``sim``, ``gateway`` or ``ros2``, which the agent builds itself)."""
     if ":" in spec:
         module_name, _, attr = spec.rpartition(":")
         if not module_name or not attr:
@@ -95,7 +95,7 @@ def driver_class(spec: str) -> type[Driver]:
     else:
         found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == spec]
         if not found:
-            raise SwarmInputError(f"--driver {spec}: not sim, gateway, package.module:Class, file.py:Class "
+            raise SwarmInputError(f"--driver {spec}: not sim, gateway, ros2, package.module:Class, file.py:Class "
                                   f"or an installed {ENTRY_POINT_GROUP} entry point")
         try:
             cls = found[0].load()

@@ -13,6 +13,11 @@ class SwarmInputError(SwarmError, ValueError):
     """Bad user input: malformed values, NaN/inf, unknown ids, impossible requests."""
 
 
+class OutputError(SwarmError):
+    """An output could not be written (disk full, file size limit, permissions): the message names the file. Commands
+    exit 5 for it, as a run whose recording or result failed."""
+
+
 class LocalizationError(SwarmError, RuntimeError):
     """Localization cannot produce a trustworthy answer for the robots in ``robots``.
 

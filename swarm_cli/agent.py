@@ -4,6 +4,7 @@
     swarm agent --id 3 --ids 0,1,2,3 --run lab --hub tcp/127.0.0.1:7447 --driver gateway --gateway-config gw.json
     swarm agent --id 0-49 --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0
     swarm agent --id 0-4 --ids 0-9 --run lab --hub tcp/127.0.0.1:7447 --driver gateway --gateway-config gw.json --link
+    swarm agent --id 0-3 --ids 0-3 --run lab --hub tcp/127.0.0.1:7447 --driver ros2 --driver-option config=lab.toml
 
 ``--id`` is this process's robot, or robots (``0-49``, ``0,2,5-9``): several are served
 by one process on one Zenoh session (``robot_agent.host``), each still its own agent on
@@ -13,7 +14,9 @@ the wire. ``--ids`` lists every robot of the run (ranges too; default with
 (one robot) or from the initial poses of ``--trajectory``;
 ``--driver gateway`` drives the real or emulated robot through the link process of its
 port (``swarm link``, or with ``--link`` run in this process for its hosted robots), with limits (drive, turn, workspace) and calibration from the
-gateway config (docs/gateway.md); ``--driver package.module:Class`` (or ``file.py:Class``, or an
+gateway config (docs/gateway.md); ``--driver ros2`` drives a robot speaking ROS 2 (``cmd_vel``, ``odom``,
+``neighbors`` in its namespace; ``--driver-option config=FILE`` and settings, docs/ros2.md);
+``--driver package.module:Class`` (or ``file.py:Class``, or an
 ``inchworm_swarm.drivers`` entry point) builds a lab's own driver with ``--driver-option KEY=VALUE``
 and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 when a robot was lost.
 
@@ -65,10 +68,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_connection_options(p)
     p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
     p.add_argument("--driver", default="sim", metavar="DRIVER",
-                   help="sim (simulated robot, default), gateway (a robot behind a link process), or a lab's own driver: "
+                   help="sim (simulated robot, default), gateway (a robot behind a link process), ros2 (a robot speaking ROS 2, "
+                        "docs/ros2.md), or a lab's own driver: "
                         "package.module:Class, file.py:Class or an inchworm_swarm.drivers entry point name (docs/drivers.md)")
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="an option for a lab's own driver (its DriverContext.options), repeatable")
+                   help="an option for a lab's own driver (its DriverContext.options) or the ROS 2 driver (config=FILE, settings), "
+                        "repeatable")
     p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
                    help=f"a lab's own driver must finish each command and observation within this many seconds, else the robot "
                         f"is stopped and reported lost (default {PLUGIN_COMMAND_TIMEOUT_S:g}; not applied to sim and gateway unless given)")

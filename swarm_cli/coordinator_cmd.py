@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
     elif outcome.recording_error is not None:
         print(f"recording failed: {outcome.recording_error}")
     if args.json:
-        print_json(run_json(result, args.method, args.localizer, args.seed, plots, outcome.recording["path"] if outcome.recording else None, radius))
+        print_json(run_json(result, args.method, args.localizer, args.seed, plots, outcome.recording["path"] if outcome.recording else None,
+                            radius, None if outcome.error is None else str(outcome.error)))
     outcome.live.linger(args.linger)
     return EXIT_OUTPUT if failed and status == 0 else status
 

@@ -8,10 +8,13 @@ import os
 import re
 import signal
 import sys
+import threading
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
-from runtime.errors import LocalizationError, SwarmInputError
+from runtime.errors import LocalizationError, OutputError, SwarmInputError
+
+EXIT_OUTPUT = 5  # an output could not be written (coordinator.process.EXIT_OUTPUT)
 
 
 def plain(doc: str | None) -> str:
@@ -65,19 +68,32 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
 
 
 def on_stop_signals(callback: Callable[[], object]) -> None:
-    """Call ``callback()`` (it must be safe in a signal handler) on SIGINT, SIGTERM and SIGHUP."""
+    """Call ``callback()`` on SIGINT, SIGTERM and SIGHUP, on a thread of its own: never inside the interrupted main
+    thread, which may hold the very lock the callback takes (an ``Event.set()`` while the main thread is in that
+    Event's ``wait()`` deadlocks). The handler only writes a byte to a pipe."""
+    read_end, write_end = os.pipe()
+
+    def watch() -> None:
+        while os.read(read_end, 1):
+            callback()
+
+    threading.Thread(target=watch, name="stop-signals", daemon=True).start()
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, lambda *_: callback())
+        signal.signal(sig, lambda *_: os.write(write_end, b"s"))
 
 
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2, a stop signal N
+    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2 (an output that could not
+    be written, ``OutputError``: 5), a stop signal N
     gives 128 + N (Ctrl-C 130), a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
     try:
         return int(run() or 0)
     except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout at exit
         return 141
+    except OutputError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return EXIT_OUTPUT
     except (SwarmInputError, LocalizationError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

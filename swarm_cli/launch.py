@@ -56,12 +56,16 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
     p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
     p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
-    p.add_argument("--step-timeout", type=positive, default=5.0, help="seconds the coordinator waits for a step's answers (default 5)")
+    p.add_argument("--step-timeout", type=positive, default=None,
+                   help="seconds the coordinator waits for a step's answers (default 5; --driver ros2: the slowest motion "
+                        "its speeds allow, x 1.5, + 2 s)")
     p.add_argument("--driver", default="sim", metavar="DRIVER",
                    help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
+                        "ros2: robots speaking ROS 2 (cmd_vel, odom, neighbors; docs/ros2.md); "
                         "or a lab's own driver package.module:Class, file.py:Class or entry point name (docs/drivers.md)")
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="with a lab's own driver: an option passed to every agent's driver, repeatable")
+                   help="with a lab's own driver or ros2 (config=FILE, settings; docs/ros2.md): an option passed to every agent's "
+                        "driver, repeatable")
     p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
                    help="with a lab's own driver: seconds each command or observation may take before the agent stops the "
                         "robot and reports it lost (default: swarm agent's)")
@@ -73,8 +77,8 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
     p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
                    help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
-    p.add_argument("--kill-robot", type=_kill_spec, default=None, metavar="ID@STEP",
-                   help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2)")
+    p.add_argument("--kill-robot", type=_kill_spec, action="append", default=None, metavar="ID@STEP",
+                   help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2); repeatable")
     p.add_argument("--standby", action="store_true",
                    help="also start a standby coordinator that takes the run over if the coordinator dies")
     p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
@@ -87,13 +91,19 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                         "STEP starts and SIGCONT it SECONDS later (e.g. 2:3: its robots' watchdogs stop them)")
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, else up to "
-                        f"{AGENTS_PER_PROCESS}; gateway: one process per port with its link, given: link processes apart)")
+                        f"{AGENTS_PER_PROCESS}; gateway: one process per port with its link, given: link processes apart; ros2: up to "
+                        f"{AGENTS_PER_PROCESS} in one, unless --kill-robot)")
     p.add_argument("--drop", type=float, default=0.0, metavar="P",
                    help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
     p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
                    help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
     p.add_argument("--delay", type=float, default=0.0, metavar="S",
                    help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
+    p.add_argument("--ros2", action="store_true",
+                   help="show the run live in ROS 2: /swarm/estimates, /swarm/robot<id>/pose, /swarm/markers, service /swarm/estop "
+                        "(swarm ros2 bridge; extra ros2, docs/ros2.md)")
+    p.add_argument("--ros2-robots", action="store_true",
+                   help="with --driver ros2: also start simulated ROS 2 robots of the trajectory (swarm ros2 robots) to drive")
     add_record_options(p)
     add_simulation_options(p)
     add_world_options(p, speed=True)
@@ -151,8 +161,8 @@ def run(args: argparse.Namespace) -> int:
         model_config(args), args.localizer, selection_config(args), args.command, args.trajectory, args.robots, args.configs,
         0 if args.command == "demo" else args.seed, args.method, args.seed, args.run_id, args.out, args.result, args.motion_time,
         args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
-        args.min_robots, args.kill_robot, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
+        args.min_robots, tuple(args.kill_robot or ()) or None, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
         args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
         world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
-        stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
+        ros2=args.ros2, ros2_robots=args.ros2_robots, stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
     return launch(options, emit_json=print_json)

@@ -19,7 +19,7 @@ from pathlib import Path
 from robot_agent.link import Link
 from runtime.gateway.config import GatewayConfig
 from runtime.wire.keys import validate_run
-from runtime.wire.transport import open_session
+from runtime.wire.transport import claim_identities, open_session
 from swarm_cli.entry import on_stop_signals, run_standalone
 from swarm_cli.options import add_connection_options, connection_settings
 
@@ -42,13 +42,15 @@ def run(args: argparse.Namespace) -> int:
     config = GatewayConfig.load(args.config)
     port = config.port(args.port)
     validate_run(args.run_id)
-    with open_session(connection_settings(args)) as session, contextlib.closing(Link.open(session, args.run_id, port, config)) as link:
-        on_stop_signals(link.stop)
-        print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
-              f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
-        status = link.run()
-        print(f"swarm link: {link.summary()}", file=sys.stderr, flush=True)
-        return status
+    with open_session(connection_settings(args)) as session:
+        claim_identities(session, args.run_id, ports=[port.name])  # before the device is opened: one link per port
+        with contextlib.closing(Link.open(session, args.run_id, port, config)) as link:
+            on_stop_signals(link.stop)
+            print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
+                  f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
+            status = link.run()
+            print(f"swarm link: {link.summary()}", file=sys.stderr, flush=True)
+            return status
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -37,6 +37,7 @@ COMMANDS = (
     Command("estop", "swarm_cli.estop", "emergency stop: every robot of the run stops now (latched)"),
     Command("router", "swarm_cli.router", "run the Zenoh router of a multi-host swarm until Ctrl-C / SIGTERM"),
     Command("certs", "swarm_cli.certs", "create a lab CA and per-host TLS certificates (mutual TLS, see deploy/README.md)"),
+    Command("ros2", "swarm_cli.ros2", "simulated ROS 2 robots (robots), a run live in ROS 2 (bridge); extra ros2"),
     Command("emulate-robots", "swarm_cli.emulate", "emulate the robots of a gateway config on pseudo-terminals (frame protocol)"),
 )
 
@@ -51,7 +52,7 @@ def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     return parser
 
 
-ZENOH_PROCESSES = ("agent", "coordinator")  # long-lived processes whose exit skips finalization (entry.leave)
+ZENOH_PROCESSES = ("agent", "coordinator", "ros2")  # long-lived processes whose exit skips finalization (entry.leave)
 
 
 def parse(argv: list[str]) -> argparse.Namespace:

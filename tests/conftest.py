@@ -33,6 +33,7 @@ SLOW_MODULES = frozenset({
     "test_cli_sim",  # swarm sim / compare as subprocesses
     "test_cli_bodies",  # swarm sim / bench collisions as subprocesses
     "test_deploy",  # routers, TLS, access control
+    "test_identity",  # agents and links refused for a live identity: processes on a hub
     "test_distributed",  # agents + coordinator processes
     "test_one_master",  # coordinators, standbys, agents and replays as processes
     "test_drivers",  # lab drivers under swarm launch and swarm agent
@@ -50,6 +51,7 @@ SLOW_MODULES = frozenset({
     "test_quick_start",  # swarm demo, launch, replay, record as subprocesses
     "test_run_outcomes",  # swarm launch with faults injected
     "test_link_liveness",  # router, emulators on ptys and links as processes
+    "test_ros2",  # ROS 2 robots, agents, bridge and launches as processes; DDS participants
     "test_stalls",  # coordinators, agents, links SIGSTOPped under real runs
 })
 SLOW_TESTS = frozenset({

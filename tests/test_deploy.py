@@ -409,6 +409,46 @@ def test_mtls_refuses_clients_without_a_certificate_of_the_ca(certs: Path, tmp_p
         assert session.info.routers_zid()
 
 
+def _broken_certs(certs: Path, tmp: Path) -> dict[str, tuple[Path, str]]:
+    """A copy of the gateway's certificate and key per fault; the message each must give."""
+    pem, key = (certs / "gateway.pem").read_text(), (certs / "gateway.key").read_text()
+    lines = pem.splitlines()
+    cases = {
+        "corrupted certificate": ("\n".join(lines[:3] + lines[4:]), key, "the certificate is corrupted"),  # a base64 line lost
+        "truncated certificate": (pem[: len(pem) * 2 // 3], key, "the certificate is corrupted or truncated"),
+        "truncated key": (pem, key[: len(key) // 2], "the private key is corrupted or truncated"),
+        "key of another host": (pem, (certs / "coordinator.key").read_text(), "is not the key of connect_certificate"),
+        "a key for the certificate": (key, key, "no PEM certificate in it"),
+        "empty key": (pem, "", "the file is empty"),
+    }
+    out = {}
+    for label, (cert_text, key_text, message) in cases.items():
+        folder = tmp / label.replace(" ", "-")
+        folder.mkdir()
+        shutil.copy(certs / "ca.pem", folder / "ca.pem")
+        (folder / "gateway.pem").write_text(cert_text)
+        (folder / "gateway.key").write_text(key_text)
+        out[label] = folder, message
+    return out
+
+
+def test_broken_certificate_or_key_files_are_named_before_connecting(certs: Path, tmp_path: Path) -> None:
+    """Each broken file gives one line naming the config field, the file and what is wrong (not "Unable to connect",
+    which a dead router gives); a dead TLS router gives no Rust source path."""
+    for label, (folder, message) in _broken_certs(certs, tmp_path).items():
+        settings = client_config(tmp_path, folder, "gateway", "tls/127.0.0.1:9")
+        proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "estop", "--run=lab", f"--zenoh-config={settings.config_file}"],
+                              capture_output=True, text=True, timeout=60, env=ENV)
+        err = proc.stderr
+        assert proc.returncode == 2 and message in err and str(folder) in err and "Unable to connect" not in err, (label, err)
+        assert "transport/link/tls/" in err and len(err.strip().splitlines()) == 1, (label, err)
+    settings = client_config(tmp_path, certs, "gateway", f"tls/127.0.0.1:{free_tcp_port()}")  # good files, no router
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "estop", "--run=lab", f"--zenoh-config={settings.config_file}"],
+                          capture_output=True, text=True, timeout=60, env=ENV)
+    assert proc.returncode == 2 and "the router is down, unreachable, or refused them" in proc.stderr, proc.stderr
+    assert ".rs:" not in proc.stderr, proc.stderr
+
+
 # -- network namespaces ------------------------------------------------------------------------------
 
 

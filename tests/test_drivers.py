@@ -85,7 +85,7 @@ def test_a_failing_driver_loses_its_robot_stopped_and_the_run_goes_on(tmp_path, 
     ("robot_agent.driver:PeerPoses", "is not a driver (a subclass of robot_agent.driver.Driver)"),
     ("robot_agent.driver:Driver", "Driver does not implement estop, execute, sense, stop"),
     ("missing/file.py:Robot", "no such file missing/file.py"),
-    ("turtlebot", "not sim, gateway, package.module:Class, file.py:Class or an installed inchworm_swarm.drivers entry point"),
+    ("turtlebot", "not sim, gateway, ros2, package.module:Class, file.py:Class or an installed inchworm_swarm.drivers entry point"),
 ])
 @pytest.mark.parametrize("command", ["agent", "launch"])
 def test_a_bad_driver_is_one_line_and_exit_2(tmp_path, capsys, spec, message, command):

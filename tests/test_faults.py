@@ -61,6 +61,20 @@ def test_kill_robot_through_launch_over_seeds_completes_with_the_others():
     assert result["estop_ms_max"] == max(s["kill"]["estop_ms"] for s in result["summaries"])
 
 
+def test_kill_robot_given_three_times_kills_each(tmp_path):
+    """``--kill-robot`` is repeatable: three robots of a 6-robot run are each SIGKILLed at their step, each is lost and
+    reported (``"kills"``, ``"kill"`` the first), and the other three finish."""
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "-n=6", "--configs=2", "--seed=0",
+                           "--kill-robot=1@1", "--kill-robot=3@2", "--kill-robot=4@2", "--no-record", f"--out={tmp_path}", "--json"],
+                          capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert sorted(lost["robot"] for lost in summary["lost"]) == [1, 3, 4] and summary["finished_robots"] == 3
+    assert [(k["robot"], k["step"]) for k in summary["kills"]] == [(1, 1), (3, 2), (4, 2)] and summary["kill"] == summary["kills"][0]
+    assert all(0 < k["detect_ms"] <= k["estop_ms"] for k in summary["kills"])
+    assert proc.stderr.count("killed the agent of robot") == 3
+
+
 def test_kill_robot_of_a_gateway_run_kills_its_port_process_and_the_others_complete(tmp_path):
     """``swarm launch --driver gateway`` hosts each radio port's link and agents in one process: ``--kill-robot 5@2``
     SIGKILLs that process, so the coordinator loses the three robots of robot 5's port (ports of five: 0-4, 5-7) and
@@ -126,15 +140,16 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     """``swarm bench faults --json`` at a small size: radio faults at 5 % each (one seed, against its fault-free
     run), a killed agent, a killed coordinator with a standby (paper and joint localizers), and 2000 hostile messages (random bytes, wrong types,
     NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
-    and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s; a
-    killed agent restarted out of everybody's 0.5 m range rejoins; a coordinator stalled 12 s hands over to its standby."""
+    and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s;
+    LinkRequests forged through the gateway identity during and after a run move no robot; a killed agent restarted
+    out of everybody's 0.5 m range rejoins; a coordinator stalled 12 s hands over to its standby."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
                            "--gateway-rows=0.05,0.05,0.05", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood", "coordinator_joint", "rejoin",
-                            "coordinator_stall"]
+    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood", "coordinator_joint", "forged_link_requests",
+                            "rejoin", "coordinator_stall"]
     assert result["rejoin"] == {"runs": 1, "rejoined": 1, "sensing_range_m": 0.5}  # a killed agent restarted out of range
     assert result["coordinator_stall"] == {"stall_s": 12.0, "runs": 1, "completed": 1}  # beyond the lease, with a standby
     assert result["gateway"] == [{"drop": 0.05, "corrupt": 0.05, "delay": 0.05, "runs": 1, "completed": 1, "identical": 1,
@@ -153,3 +168,6 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max"]
     assert (flood["connections"], flood["tls"], flood["reached"]) == (3000, True, flood["robots"]) and flood["robots"] >= 10
     assert flood["ms_max"] < 1000
+    forged = result["forged_link_requests"]  # the gateway identity forging LinkRequests during and after a run
+    assert list(forged) == ["sent", "executed", "completed"] and forged["sent"] > 20
+    assert forged["executed"] == 0 and forged["completed"] is True

@@ -15,7 +15,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -33,7 +33,18 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard, coord_alive_key, link_alive_key
-from runtime.wire.messages import EmergencyStop, LinkReply, LinkRequest, LinkStats, MotionCommand, Status, decode, encode, message_key
+from runtime.wire.messages import (
+    EmergencyStop,
+    LinkReply,
+    LinkRequest,
+    LinkStats,
+    MotionCommand,
+    ObserveRequest,
+    Status,
+    decode,
+    encode,
+    message_key,
+)
 from runtime.wire.transport import (
     ZenohSettings,
     alive_now,
@@ -63,6 +74,23 @@ class Rig:
     driver: GatewayDriver
     member: object
     thread: threading.Thread  # the link engine's
+    coordinator: object  # the session acting as the live coordinator of ``EPOCH`` ...
+    token: object  # ... and its liveliness token (None once undeclared)
+
+    def order(self, cmd: MotionCommand) -> None:
+        """Publish ``cmd`` as the coordinator does, on the robot's own key."""
+        publish(self.coordinator, message_key(cmd), encode(cmd))
+
+    def execute(self, cmd: MotionCommand) -> None:
+        """The coordinator commands ``cmd`` and the agent's driver executes it."""
+        self.order(cmd)
+        self.driver.execute(cmd)
+
+    def sense(self, step: int):
+        """The coordinator asks robot 0 for its observations of ``step`` and the agent's driver senses them."""
+        ask = ObserveRequest(run="gw", step=step, robot=0, epoch=EPOCH)
+        publish(self.coordinator, message_key(ask), encode(ask))
+        return self.driver.sense(None, step)
 
 
 @contextmanager
@@ -77,7 +105,7 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
                           calibration={0: calibration}, motion_time_s=motion_time_s)
     hub_settings, member = loopback_hub(free_tcp_port())
     with PortEmulator(world, "radio0", port_robots, faults) as emulator, open_session(hub_settings), \
-            open_session(member) as link_session, open_session(member) as agent_session:
+            open_session(member) as link_session, open_session(member) as agent_session, open_session(member) as coord_session:
         device = SerialLink(emulator.device, 115200)
         link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device, limits, {0: calibration})
         driver = GatewayDriver(run, 0, calibration, timing, port="radio0")
@@ -92,7 +120,13 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
                 assert time.monotonic() < deadline, "no heartbeat answer from the emulator"
                 time.sleep(0.005)
             assert driver.ready(5), "the link's liveliness token (declared after its subscriptions) never came"
-            yield Rig(emulator, link, driver, member, thread)
+            token = declare_token(coord_session, coord_alive_key(run, EPOCH))  # a live coordinator: the link begins a run
+            wait_for(lambda: link.counters.epoch != 0 and all(rb.begin is None for rb in link.robots.values()), 5,
+                     "the run begun at every robot (RUN_ACK)")
+            r = Rig(emulator, link, driver, member, thread, coord_session, token)
+            yield r
+            if r.token is not None:
+                r.token.undeclare()
         finally:
             driver.detach()
             link.stop()
@@ -111,7 +145,7 @@ def act_as_coordinator(session, run_id: str):
 
 
 def command(step: int, turn: float = 0.3, drive: float = 0.1, start_pose=()) -> MotionCommand:
-    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, start_pose=start_pose)
+    return MotionCommand(run="gw", step=step, robot=0, config=1, turn_rad=turn, drive_m=drive, start_pose=start_pose, epoch=EPOCH)
 
 
 def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) -> np.ndarray:
@@ -123,18 +157,19 @@ def simulated_pose(turns_drives: list[tuple[float, float]], scale: float = 1.0) 
     return sim.true_pose()
 
 
-# tx frame 0 is the answer to the first heartbeat; tx 1, 2 are ACCEPTED and DONE of the first command
+# rx/tx frame 0 is the first heartbeat and its answer, 1 the coordinator's RUN and its RUN_ACK; tx 2, 3 are ACCEPTED and
+# DONE of the first command (rx 2)
 @pytest.mark.parametrize("faults,what", [
-    (FaultPlan(drop_tx=frozenset({1, 2})), "both answers lost"),
-    (FaultPlan(drop_rx=frozenset({1})), "the command frame lost"),
+    (FaultPlan(drop_tx=frozenset({2, 3})), "both answers lost"),
+    (FaultPlan(drop_rx=frozenset({2})), "the command frame lost"),
 ])
 @pytest.mark.parametrize("local", [False, True], ids=["over Zenoh", "in one process"])
 def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what, local):
     with rig(faults, local=local) as r:
-        r.driver.execute(command(1))
+        r.execute(command(1))
         assert r.link.counters.retransmissions == 1, what
         assert r.emulator.executed(0) == 1, what
-        r.driver.execute(command(2, -0.2, 0.05))  # the next command goes through untouched
+        r.execute(command(2, -0.2, 0.05))  # the next command goes through untouched
         assert r.link.counters.retransmissions == 1 and r.emulator.executed(0) == 2
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.3, 0.1), (-0.2, 0.05)]), atol=1e-12)
 
@@ -143,8 +178,8 @@ def test_a_lost_frame_costs_one_retransmission_and_one_execution(faults, what, l
 def test_observations_and_calibration_through_the_link(local):
     cal = Calibration(range_bias_m=0.02, bearing_offset_rad=0.1, motion_scale=0.9)
     with rig(calibration=cal, port_robots=(0, 1), local=local) as r:
-        r.driver.execute(command(1, 0.0, 0.1))
-        observed, ranges, bearings = r.driver.sense(None, 1)
+        r.execute(command(1, 0.0, 0.1))
+        observed, ranges, bearings = r.sense(1)
     # the same robot simulated without miscalibration: the corrections undo the emulated deviations
     sim = SimDriver(0, [0, 1], POSES[0], CFG, seed=3)
     sim.execute(MotionCommand(run="gw", step=1, robot=0, config=1, turn_rad=0.0, drive_m=float(np.float32(0.1 / 0.9)) * 0.9))
@@ -164,7 +199,7 @@ def test_a_robot_served_in_the_links_process_is_recorded_the_same_and_takes_no_r
             probe = r.link.session.declare_publisher(key)
             wait_for(lambda probe=probe: probe.matching_status.matching, 10, f"a subscriber of {key} known to the link's session")
             probe.undeclare()
-        r.driver.execute(command(1))
+        r.execute(command(1))
         wait_for(lambda: any(k.endswith("linkrep") for k, _ in seen), 5, "the link's reply, published")
         assert decode(next(p for k, p in seen if k.endswith("linkreq")), LinkRequest).kind == "command"
         assert decode(next(p for k, p in seen if k.endswith("linkrep")), LinkReply).kind == "done"
@@ -174,10 +209,11 @@ def test_a_robot_served_in_the_links_process_is_recorded_the_same_and_takes_no_r
 
 
 def test_a_silent_robot_is_reported_lost_by_id():
-    with rig(FaultPlan(drop_prob=1.0)) as r:
+    with rig() as r:
+        r.emulator.faults = FaultPlan(drop_prob=1.0)
         start = time.monotonic()
         with pytest.raises(RobotLost, match=r"robot 0 did not answer the command of step 1 after 3 retransmissions"):
-            r.driver.execute(command(1))
+            r.execute(command(1))
         assert time.monotonic() - start < 2.0
         assert r.link.stats().lost == (0,) and r.link.counters.timeouts == 1 and r.emulator.executed(0) == 0
 
@@ -185,14 +221,14 @@ def test_a_silent_robot_is_reported_lost_by_id():
 def test_corrupted_answers_are_rejected_and_recovered():
     with rig(FaultPlan(corrupt_prob=0.3, seed=1)) as r:
         for step in range(1, 9):
-            r.driver.execute(command(step, 0.05, 0.02))
+            r.execute(command(step, 0.05, 0.02))
         stats = r.link.stats()
         assert r.emulator.executed(0) == 8
         assert stats.crc_errors > 0 and stats.retransmissions > 0
         assert r.emulator.stats().tx_corrupted >= stats.crc_errors
 
 
-def _request(**fields) -> LinkRequest:
+def _request(**fields) -> LinkRequest:  # a request as anyone allowed on ``linkreq`` may publish it
     return LinkRequest(**({"run": "gw", "step": 1, "robot": 0, "kind": "command", "turn_rad": 0.1, "drive_m": 0.1} | fields))
 
 
@@ -201,7 +237,7 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
     drops and counts each (before any byte reaches the robot) and serves on."""
     limits = Limits(max_drive_m=0.5, workspace=(-0.5, -0.5, 0.5, 0.5))
     with rig(limits=limits) as r, open_session(r.member) as session:
-        r.driver.execute(command(1, 0.1, 0.05, POSES[0]))  # the robot is at step 1
+        r.execute(command(1, 0.1, 0.05, POSES[0]))  # the robot is at step 1
         valid = msgpack.unpackb(encode(_request(step=2, start_pose=[0.0, 0.0, 0.0])))
         hostile = [
             encode(_request(step=2**32 + 5)),  # crashed the link before: beyond the frame's u32 step
@@ -223,30 +259,93 @@ def test_hostile_link_requests_are_dropped_counted_and_never_sent():
             publish(session, "swarm/gw/robot/0/linkreq", payload)
         wait_for(lambda: r.link.stats().rejected == len(hostile), 10, "every hostile request counted")
         assert r.thread.is_alive() and r.emulator.executed(0) == 1  # none of them moved the robot
-        r.driver.execute(command(2, 0.1, 0.05, simulated_pose([(0.1, 0.05)])))  # the link still serves
+        r.execute(command(2, 0.1, 0.05, simulated_pose([(0.1, 0.05)])))  # the link still serves
         assert r.emulator.executed(0) == 2 and r.link.stats().rejected == len(hostile)
         np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.1, 0.05)]), atol=1e-12)
 
 
-@pytest.mark.parametrize("start_pose", [[], [0.0, 0.0, 0.0]], ids=["no start pose", "a start pose that never moves"])
-def test_forged_requests_within_the_limits_cannot_walk_a_robot_out_of_the_workspace(start_pose):
-    """Ten 0.5 m commands toward x < -1, each within the limits, published by a client allowed on the key: without a
-    start pose none is sent; with a forged one that never moves, the link's own reckoning of the pose stops them."""
+def _answer_or_drop(r: Rig, replies: list[LinkReply], step: int, send: Callable[[], None]) -> str:
+    """``send()`` a request of ``step``, then what the link made of it: ``"answered"`` or ``"dropped"``."""
+    rejected = r.link.stats().rejected
+    send()
+    wait_for(lambda: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
+             f"the link's answer to the request of step {step}, or its drop")
+    return "answered" if any(rep.step == step for rep in replies) else "dropped"
+
+
+def test_the_link_checks_the_coordinators_own_commands_against_its_reckoning_of_the_workspace():
+    """The coordinator commands ten 0.5 m moves toward x < -1 with a start pose that never moves (a stale estimate):
+    the link's own reckoning (moved by every DONE) stops them at the workspace's edge; a command beyond the limits is
+    dropped even though the coordinator sent it."""
     limits = Limits(max_drive_m=0.5, workspace=(-1.2, -1.0, 1.0, 1.0))
-    with rig(limits=limits) as r, open_session(r.member) as session:
+    with rig(limits=limits) as r, open_session(r.member) as agent:
         replies: list[LinkReply] = []
-        sub = subscribe(session, "swarm/gw/robot/0/linkrep", lambda key, payload: replies.append(decode(payload, LinkReply)))
+        sub = subscribe(agent, "swarm/gw/robot/0/linkrep", lambda key, payload: replies.append(decode(payload, LinkReply)))
+        outcomes = []
         for step in range(1, 11):
-            rejected = r.link.stats().rejected
-            request = _request(step=step, turn_rad=math.pi if step == 1 else 0.0, drive_m=0.5, start_pose=start_pose)
-            publish(session, "swarm/gw/robot/0/linkreq", encode(request))
-            wait_for(lambda step=step, rejected=rejected: any(rep.step == step for rep in replies) or r.link.stats().rejected > rejected, 5,
-                      f"the link's answer to the request of step {step}")
+            cmd = command(step, math.pi if step == 1 else 0.0, 0.5, [0.0, 0.0, 0.0])
+            request = _request(step=step, turn_rad=cmd.turn_rad, drive_m=0.5, start_pose=[0.0, 0.0, 0.0], epoch=EPOCH)
+            outcomes.append(_answer_or_drop(r, replies, step, lambda cmd=cmd, request=request: (
+                r.order(cmd), publish(agent, "swarm/gw/robot/0/linkreq", encode(request)))))
+        assert outcomes == ["answered"] * 2 + ["dropped"] * 8  # 0 -> -0.5 -> -1.0; the third would end at -1.5
+        assert r.emulator.executed(0) == 2 and r.emulator.world.pose(0)[0] >= -1.2
+        beyond = command(11, 0.0, 0.8, [-1.0, 0.0, math.pi])  # beyond max_drive_m: a coordinator with other limits
+        request = _request(step=11, turn_rad=0.0, drive_m=0.8, epoch=EPOCH)
+        assert _answer_or_drop(r, replies, 11, lambda: (r.order(beyond), publish(agent, "swarm/gw/robot/0/linkreq", encode(request)))) == "dropped"
         sub.undeclare()
-        x = r.emulator.world.pose(0)[0]
-        assert x >= -1.2, f"robot 0 was driven to x = {x:.2f} m, outside the workspace x >= -1.2 m"
-        assert r.emulator.executed(0) == (0 if not start_pose else 2)  # 0 -> -0.5 -> -1.0; the third would end at -1.5
-        assert r.link.stats().rejected == 10 - r.emulator.executed(0)
+        assert r.emulator.executed(0) == 2 and r.link.counters.unauthorised == 0  # commanded, but beyond the limits
+
+
+FORGERIES = {  # what a client with the gateway identity (allowed to publish linkreq) sends, and why it must not move
+    "a made-up start pose": lambda: _request(step=2, turn_rad=0.0, drive_m=0.5, start_pose=[0.0, 0.0, 0.0], epoch=EPOCH),
+    "the next step with another motion": lambda: _request(step=2, turn_rad=0.0, drive_m=0.5, epoch=EPOCH),
+    "a future step": lambda: _request(step=101, turn_rad=0.0, drive_m=0.5, epoch=EPOCH),
+    "a stale step": lambda: _request(step=1, turn_rad=0.0, drive_m=0.5, epoch=EPOCH),
+    "another epoch": lambda: _request(step=2, turn_rad=0.3, drive_m=0.1, epoch=EPOCH + 1),
+    "no coordinator alive": lambda: _request(step=2, turn_rad=0.3, drive_m=0.1, epoch=EPOCH),
+    "an observation of a future step": lambda: _request(step=50, kind="observe", turn_rad=0.0, drive_m=0.0),
+}
+
+
+@pytest.mark.parametrize("forgery", list(FORGERIES))
+def test_forged_link_requests_never_move_a_robot(forgery):
+    """Through the gateway identity (a client allowed on ``linkreq``), against a real link and an emulated robot: the
+    robot executed step 1; the coordinator commands step 2 (turn 0.3, drive 0.1) unless it is gone. The forgery is
+    dropped and counted as unauthorised, the robot does not move, and its step memory is not taken over: the
+    coordinator's observation of step 1 and its step 2 then go through as asked."""
+    with rig() as r, open_session(r.member) as forger:
+        r.execute(command(1, 0.1, 0.05))
+        pose = r.emulator.world.pose(0).copy()
+        if forgery == "no coordinator alive":
+            r.token.undeclare()  # the coordinator is gone (the run ended, or it died)
+            r.token = None
+            wait_for(lambda: r.link._coord_gone, 5, "the link sees no coordinator alive")
+        elif forgery != "a made-up start pose":
+            r.order(command(2))
+        unauthorised = r.link.counters.unauthorised
+        publish(forger, "swarm/gw/robot/0/linkreq", encode(FORGERIES[forgery]()))
+        wait_for(lambda: r.link.counters.unauthorised > unauthorised, 5, "the forgery dropped and counted")
+        time.sleep(0.1)
+        assert r.emulator.executed(0) == 1
+        np.testing.assert_array_equal(r.emulator.world.pose(0), pose)
+        if forgery != "no coordinator alive":
+            r.sense(1)  # the coordinator's observation of step 1
+            r.execute(command(2))  # the coordinator's step 2 executes as commanded
+            assert r.emulator.executed(0) == 2
+            np.testing.assert_allclose(r.emulator.world.pose(0), simulated_pose([(0.1, 0.05), (0.3, 0.1)]), atol=1e-12)
+
+
+def test_the_coordinators_own_command_forwarded_again_moves_nothing():
+    """A copy of the coordinator's command of the step just executed (a re-send, or a replay by the gateway
+    identity) is sent to the robot, which answers DONE from memory without moving."""
+    with rig() as r, open_session(r.member) as forger:
+        r.execute(command(1, 0.1, 0.05))
+        replies: list[LinkReply] = []
+        sub = subscribe(forger, "swarm/gw/robot/0/linkrep", lambda key, payload: replies.append(decode(payload, LinkReply)))
+        copy = _request(step=1, turn_rad=0.1, drive_m=0.05, epoch=EPOCH)
+        assert _answer_or_drop(r, replies, 1, lambda: publish(forger, "swarm/gw/robot/0/linkreq", encode(copy))) == "answered"
+        sub.undeclare()
+        assert replies[-1].kind == "done" and r.emulator.executed(0) == 1
 
 
 @pytest.mark.parametrize("watchdog_s,survives", [(Timing().heartbeat_timeout_s, True), (1.0, False)],
@@ -258,19 +357,19 @@ def test_a_radio_blackout_of_a_second_during_a_motion_is_survived(watchdog_s, su
     timing = dataclasses.replace(Timing(), heartbeat_timeout_s=watchdog_s)
     with rig(FaultPlan(blackout=(1, 1.2)), timing=timing, motion_time_s=1.5) as r:
         if survives:
-            r.driver.execute(command(1))
+            r.execute(command(1))
             assert r.emulator.executed(0) == 1 and r.link.stats().lost == ()
             assert r.emulator.stats().rx_dropped > 0  # the blackout did happen
         else:
             with pytest.raises(DriverRefused, match="stopped by the watchdog"):
-                r.driver.execute(command(1))
+                r.execute(command(1))
             assert r.emulator.executed(0) == 0
 
 
 def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
     with rig(motion_time_s=0.5) as r, open_session(r.member) as session:
         failed: list[BaseException] = []
-        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker = threading.Thread(target=lambda: _catch(lambda: r.execute(command(1)), failed))
         worker.start()
         wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")  # the driver waits for step 1
         forged = LinkReply(run="gw", step=99, robot=0, kind="lost", reason="forged", observed=[], ranges=[], bearings=[])
@@ -287,7 +386,7 @@ def test_a_lost_done_after_a_long_motion_costs_one_retry_interval():
     with rig(timing=timing, motion_time_s=0.5) as r:
         failed: list[BaseException] = []
         start = time.monotonic()
-        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker = threading.Thread(target=lambda: _catch(lambda: r.execute(command(1)), failed))
         worker.start()
         wait_for(lambda: r.emulator.executed(0) == 0 and r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
         accepted = time.monotonic()
@@ -306,7 +405,7 @@ def test_a_robot_dying_mid_motion_is_lost_within_the_retry_budget():
     timing = dataclasses.replace(FAST, ack_timeout_s=0.05, max_retries=3, motion_timeout_s=30.0)
     with rig(timing=timing, motion_time_s=20.0) as r:
         failed: list[BaseException] = []
-        worker = threading.Thread(target=lambda: _catch(lambda: r.driver.execute(command(1)), failed))
+        worker = threading.Thread(target=lambda: _catch(lambda: r.execute(command(1)), failed))
         worker.start()
         wait_for(lambda: r.emulator.stats().tx_frames >= 2, 5, "ACCEPTED")
         start = time.monotonic()

@@ -19,7 +19,7 @@ from inchworm.processes import start_emulator, stop_all
 from runtime.gateway.config import GatewayConfig, Port
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
-from runtime.wire.messages import LinkRequest, encode, message_key
+from runtime.wire.messages import LinkRequest, MotionCommand, encode, message_key
 from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, open_session, publish
 from tests.waiting import wait_for
 
@@ -59,6 +59,14 @@ def _link(live: Path, run: str, hub: str, procs: list[subprocess.Popen]) -> subp
     return link
 
 
+def _command(session, run: str, robot: int, epoch: int) -> None:
+    """Command step 1 (0.1 m) of ``robot`` as coordinator ``epoch`` does, and forward it to the link as its agent does."""
+    cmd = MotionCommand(run=run, step=1, robot=robot, config=1, turn_rad=0.0, drive_m=0.1, epoch=epoch)
+    request = LinkRequest(run=run, step=1, robot=robot, kind="command", turn_rad=0.0, drive_m=0.1, epoch=epoch)
+    for msg in (cmd, request):
+        publish(session, message_key(msg), encode(msg))
+
+
 def test_a_link_resuming_from_its_own_stall_heartbeats_before_it_judges_its_robots(tmp_path):
     procs: list[subprocess.Popen] = []
     try:
@@ -95,8 +103,7 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
             wait_for(lambda: alive_now(session, link_alive_key("dead", "radio0")), 30, "the link")
             token = declare_token(session, coord_alive_key("dead", 1))  # a coordinator appears: the link begins a run
             wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
-            request = LinkRequest(run="dead", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
-            publish(session, message_key(request), encode(request))
+            _command(session, "dead", ids[0], 1)
             wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
             router.kill()
             router.wait()
@@ -129,8 +136,7 @@ def test_a_coordinator_takeover_keeps_the_robots_fed_and_the_accepted_motion_com
             wait_for(lambda: alive_now(session, link_alive_key("takeover", "radio0")), 30, "the link")
             first = declare_token(session, coord_alive_key("takeover", 1))
             wait_for(lambda: len([e for e in _events(events) if e["event"] == "run"]) == len(ids), 10, "RUN at every robot")
-            request = LinkRequest(run="takeover", step=1, robot=ids[0], kind="command", turn_rad=0.0, drive_m=0.1)
-            publish(session, message_key(request), encode(request))
+            _command(session, "takeover", ids[0], 1)
             wait_for(lambda: [e for e in _events(events) if e["event"] == "accepted"], 10, "the robot moving")
             first.undeclare()
             time.sleep(0.3)

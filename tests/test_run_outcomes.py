@@ -16,9 +16,15 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from runtime.recording.mcap_log import recording_info
+from inchworm.processes import start_agents, stop_all
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import body_spacing, random_trajectory
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.messages import Checkpoint, decode
+from runtime.wire.transport import free_tcp_port
 
 REPO = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -55,9 +61,15 @@ def test_a_recording_that_fails_mid_run_loses_nothing_else(tmp_path: Path, polic
     assert "recording failed: recording to" in proc.stdout and "P_f = " in proc.stdout
     info = recording_info(tmp_path / "run.mcap")  # kept as far as it got, readable
     assert info["messages"] > 100 and not info["complete"]
+    assert "swarm launch: recording " in err and "is incomplete: the recording failed" in err, err[-3000:]  # not "recording X"
     stopped = [line for line in err.splitlines() if line.endswith(": emergency stop")]  # each agent's "robot N: emergency stop"
     if policy == "stop":
         assert len(stopped) == 10  # the run was stopped as an error: every robot stopped
+        # stopped before the next step: no step after the one during which the recording failed (the recorder writes in
+        # order, so that step's checkpoint is the first thing that did not reach the disk)
+        checkpoints = [decode(payload, Checkpoint).step for topic, payload, _, _ in read_messages(tmp_path / "run.mcap")
+                       if topic == "swarm/fullrec/coord/checkpoint"]
+        assert len(result["steps"]) <= max(checkpoints) + 1, (len(result["steps"]), max(checkpoints))
     else:
         assert not stopped and "emergency stop sent" not in err  # a completed run is not e-stopped by the launcher
 
@@ -105,3 +117,37 @@ def test_answers_received_during_a_coordinator_stall_count(tmp_path: Path) -> No
     assert proc.returncode == 0, "".join(lines)[-3000:]
     summary = json.loads(out.splitlines()[-1])
     assert summary["lost"] == [] and summary["finished_robots"] == 4, "".join(lines)[-3000:]
+
+
+def test_a_coordinator_that_loses_its_hub_says_so_and_blames_no_robot(tmp_path: Path) -> None:
+    """The router is SIGKILLed after the first configuration: every agent's token vanishes from the coordinator's view
+    with it, but the robots are not lost and no stop can be sent. One line names the hub; ``--json`` has no lost robot
+    and says why the run ended early; exit 3."""
+    hub = f"tcp/127.0.0.1:{free_tcp_port()}"
+    traj = random_trajectory(3, 4, np.random.default_rng(0), **body_spacing(ModelConfig()))
+    traj.save(tmp_path / "traj.json")
+    router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--listen={hub}"], env=ENV, stderr=subprocess.PIPE, text=True)
+    procs = [router]
+    try:
+        assert "listening" in router.stderr.readline()
+        start_agents(traj, "hubgone", hub, 0, 0.5, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+        coordinator = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={tmp_path / 'traj.json'}",
+                                        "--run=hubgone", f"--hub={hub}", "--no-record", "--json", f"--out={tmp_path}"],
+                                       env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(coordinator)
+        err = ""
+        while "config 1/" not in err:
+            line = coordinator.stderr.readline()
+            assert line, err
+            err += line
+        router.kill()
+        out, rest = coordinator.communicate(timeout=60)
+        err += rest
+    finally:
+        stop_all(procs)
+    assert coordinator.returncode == 3, err
+    assert "swarm coordinator: error: lost the connection to the hub after step" in err, err
+    assert "emergency stop sent" not in err and "lost robot" not in out and "Traceback" not in err, err
+    summary = json.loads(out.splitlines()[-1])
+    assert summary["lost"] == [] and summary["ended_early"].startswith("lost the connection to the hub")
+    assert 1 <= len(summary["configs"]) < 4

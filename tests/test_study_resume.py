@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import json
+import resource
 import signal
 import subprocess
 import sys
@@ -68,3 +69,31 @@ def test_resume_with_other_options_is_refused_and_keeps_the_log(tmp_path):
     again = swarm(*COMPARE[:7], "--trajectories", "1", "--configs", "1", "--methods", "ref57", "--seed", "5", "--out", str(tmp_path), "--resume")
     assert again.returncode == 2 and "--resume" in again.stderr and "seed = 0, not 5" in again.stderr
     assert (tmp_path / "runs.jsonl").read_text() == before
+
+
+def _file_limit() -> None:
+    resource.setrlimit(resource.RLIMIT_FSIZE, (FILE_LIMIT, FILE_LIMIT))  # a full disk as a user can make one: ulimit -f
+
+
+FILE_LIMIT = 2500  # bytes: the study's CSV outgrows it after a few runs (writes then fail with EFBIG; Python ignores SIGXFSZ)
+
+
+def test_a_study_whose_output_cannot_be_written_names_it_exits_5_and_leaves_no_temporary_file(tmp_path):
+    out = tmp_path / "full"
+    proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", *COMPARE, "--workers", "1", "--out", str(out)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600, preexec_fn=_file_limit)
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 5, proc.stderr[-2000:]
+    assert lines[-1].startswith("swarm compare: error: cannot write ") and str(out / "runs.") in lines[-1], lines[-1]
+    assert "File too large" in lines[-1] and "Traceback" not in proc.stderr, proc.stderr[-2000:]
+    assert not list(out.glob("*.tmp")), sorted(p.name for p in out.iterdir())
+
+
+def test_a_csv_that_cannot_be_written_is_named_and_its_temporary_file_removed(tmp_path):
+    """``write_rows`` (every study's CSV) past the file size limit: ``OutputError`` naming the CSV, no ``.tmp`` left."""
+    code = (f"from pathlib import Path; from inchworm.runner import write_rows; from runtime.errors import OutputError\n"
+            f"try:\n    write_rows(Path({str(tmp_path / 'runs.csv')!r}), [{{'x': 'y' * 100}}] * 100)\n"
+            f"except OutputError as e:\n    print(e)")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60, preexec_fn=_file_limit)
+    assert proc.stdout.strip() == f"cannot write {tmp_path / 'runs.csv'}: File too large", proc.stdout + proc.stderr
+    assert list(tmp_path.iterdir()) == []

@@ -24,12 +24,15 @@ Three parts, each through the options a user has, with real processes on loopbac
   ``inchworm.bench.faults_gateway``.
 * ``estop_under_flood``: an emergency stop through the deploy/ TLS router (mutual TLS, access
   control) while ``flood`` idle TCP connections hold its TLS port, see ``inchworm.bench.estop_flood``.
+* ``forged_link_requests``: a gateway run (link processes apart) while a client allowed on ``linkreq``
+  forges requests for every command, and after the coordinator exited; ``executed`` counts the motions
+  no coordinator asked for (must be 0), see ``inchworm.bench.forged_links``.
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
 "estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}, "coordinator_joint": {as "coordinator"},
-"rejoin": {"runs", "rejoined", "sensing_range_m"}, "coordinator_stall": {"stall_s", "runs", "completed"}}``
-(``inchworm.bench.faults_stalls``).
+"forged_link_requests": {"sent", "executed", "completed"}, "rejoin": {"runs", "rejoined", "sensing_range_m"},
+"coordinator_stall": {"stall_s", "runs", "completed"}}`` (``inchworm.bench.faults_stalls``).
 """
 
 from __future__ import annotations
@@ -250,6 +253,7 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
     from inchworm.bench.faults_stalls import coordinator_stall, rejoin  # noqa: PLC0415
+    from inchworm.bench.forged_links import forged_link_requests  # noqa: PLC0415
 
     o = options
     _say = say or (lambda _text: None)
@@ -274,6 +278,9 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
     flood = estop_under_flood(connections=o.flood)
     _say(json.dumps(flood))
+    _say("forged link requests: a gateway run (links apart) while the gateway identity forges LinkRequests, and after it")
+    forged = forged_link_requests()
+    _say(json.dumps(forged))
     _say(f"rejoin: a robot's agent killed and restarted after the swarm moved on, at 0.5 m, over {o.seeds} seeds")
     back = rejoin(o.seeds)
     _say(json.dumps(back))
@@ -281,8 +288,8 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     stall = coordinator_stall(o.seeds)
     _say(json.dumps(stall))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "coordinator": coord, "estop_under_flood": flood, "coordinator_joint": coord_joint, "rejoin": back,
-               "coordinator_stall": stall}
+               "coordinator": coord, "estop_under_flood": flood, "coordinator_joint": coord_joint, "forged_link_requests": forged,
+               "rejoin": back, "coordinator_stall": stall}
     table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
-                       json.dumps(coord_joint), json.dumps(flood), json.dumps(back), json.dumps(stall)])
+                       json.dumps(coord_joint), json.dumps(flood), json.dumps(forged), json.dumps(back), json.dumps(stall)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")

@@ -553,6 +553,15 @@ def _bad(path: Path, problem: str) -> SwarmInputError:
     return SwarmInputError(f"{path}: {problem}")
 
 
+def is_finished(path: str | os.PathLike) -> bool:
+    """Whether the MCAP file at ``path`` was finished (footer and closing magic): False for a recording cut short."""
+    try:
+        with open(path, "rb") as f:
+            return _has_footer(f, os.fstat(f.fileno()).st_size)
+    except OSError:
+        return False
+
+
 def _has_footer(f: io.BufferedReader, size: int) -> bool:
     """Whether the file ends like a finished MCAP: a 20-byte footer record, then the magic."""
     if size < 8 + 9 + 20 + 8:

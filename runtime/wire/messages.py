@@ -510,8 +510,12 @@ class LinkRequest(Message):
     turn_rad: float = _wire("float", "command only (else 0): turn before driving, counter-clockwise positive", unit="rad")
     drive_m: float = _wire("float", "command only (else 0): straight distance after the turn", unit="m", minimum=0.0)
     start_pose: tuple[float, ...] = _wire(
-        "float", "optional, command only: the coordinator's estimate [x, y, heading] of the robot before the move "
-                 "(the MotionCommand's), for the link's workspace check; [] if unknown", default=(), unit="m, m, rad", shape=(None,))
+        "float", "optional, command only: the MotionCommand's start pose, for the record; the link checks the workspace "
+                 "from the coordinator's own command and its reckoning, never from this; [] if unknown",
+        default=(), unit="m, m, rad", shape=(None,))
+    epoch: int = _wire("int", "command only: the epoch of the coordinator whose MotionCommand this is (the link forwards a "
+                              "motion only of the live coordinator's run and only as that coordinator commanded it); 0 = none",
+                       default=0)
 
     def _check(self) -> None:
         if len(self.start_pose) not in (0, 3):
@@ -563,8 +567,10 @@ class LinkStats(Message):
     rtt_ms_p90: float = _wire("float", "90th percentile round trip", unit="ms", minimum=0.0)
     rtt_ms_max: float = _wire("float", "longest round trip", unit="ms", minimum=0.0)
     lost: tuple[int, ...] = _wire("id", "robots that stopped answering", shape=(None,))
-    rejected: int = _wire("int", "requests dropped unsent: undecodable, foreign, not representable on the wire "
-                                 "or beyond the gateway config's limits", default=0)
+    rejected: int = _wire("int", "requests dropped unsent: undecodable, foreign, not representable on the wire, "
+                                 "beyond the gateway config's limits, or unauthorised", default=0)
+    unauthorised: int = _wire("int", "of rejected: requests no live coordinator commanded (forged, stale, future, another "
+                                     "epoch's, or while no coordinator is alive)", default=0)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -8,35 +8,16 @@ import os
 import zenoh
 
 from runtime.errors import SwarmInputError
+from runtime.wire.tls_files import check_tls_files
 from runtime.wire.transport import ZenohSettings
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
-TLS_FILE_FIELDS = (
-    "root_ca_certificate",
-    "listen_certificate",
-    "listen_private_key",
-    "connect_certificate",
-    "connect_private_key",
-)
-
-
 def _file_endpoints(config: zenoh.Config) -> list[str]:
     """The listen endpoints a config file gives a router (the field may be per mode)."""
     value = json.loads(config.get_json("listen/endpoints"))
     if isinstance(value, dict):
         value = value.get("router", [])
     return list(value or [])
-
-
-def check_tls_files(config: zenoh.Config, source: str) -> None:
-    """``SwarmInputError`` naming the field if a certificate or key path of ``transport/link/tls`` is unreadable."""
-    tls = json.loads(config.get_json("transport/link/tls"))
-    for field in TLS_FILE_FIELDS:
-        path = tls.get(field)
-        if path is None:
-            continue
-        if not isinstance(path, str) or not os.path.isfile(path) or not os.access(path, os.R_OK):
-            raise SwarmInputError(f"{source}: transport/link/tls/{field} {path!r} is not a readable file")
 
 
 def router_settings(listen: list[str], config_file: str | None) -> ZenohSettings:

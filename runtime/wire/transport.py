@@ -39,12 +39,14 @@ import statistics
 import threading
 import time
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import zenoh
 
 from runtime.errors import SwarmInputError
+from runtime.wire.keys import alive_key, link_alive_key
+from runtime.wire.tls_files import check_tls_files
 
 MODES = ("peer", "client", "router")
 LOOPBACK = "127.0.0.1"
@@ -114,7 +116,7 @@ class ZenohSettings:
             try:
                 config = zenoh.Config.from_file(self.config_file)
             except zenoh.ZError as exc:
-                raise SwarmInputError(f"zenoh config file {self.config_file!r} is invalid: {exc}") from exc
+                raise SwarmInputError(f"zenoh config file {self.config_file!r} is invalid: {zenoh_error_text(exc)}") from None
         config.insert_json5("mode", json.dumps(self.mode))
         if self.listen or self.config_file is None:
             config.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
@@ -166,15 +168,32 @@ def loopback_hub(port: int) -> tuple[ZenohSettings, ZenohSettings]:
     return ZenohSettings("router", listen=(endpoint,)), ZenohSettings("client", connect=(endpoint,))
 
 
+def zenoh_error_text(exc: BaseException) -> str:
+    """A Zenoh error's text for a user: without the Rust source locations it carries (``at src/x.rs:447``)."""
+    return _RUST_LOCATION.sub("", str(exc)).strip()
+
+
+_RUST_LOCATION = re.compile(r"\s*\bat\s+\S+\.rs:\d+(?::\d+)?\.?")
+
+
 def open_session(settings: ZenohSettings) -> zenoh.Session:
-    """An open session; use it as ``with open_session(settings) as session:`` so it is closed."""
+    """An open session; use it as ``with open_session(settings) as session:`` so it is closed.
+
+    The certificates and keys of a config file are checked first (``runtime.wire.tls_files``: a bad file is
+    named, not reported as a failure to connect); a failure to connect names the endpoints."""
+    config = settings.to_config()
+    if settings.config_file is not None:
+        check_tls_files(config, f"zenoh config {settings.config_file}")
     try:
-        return zenoh.open(settings.to_config())
+        return zenoh.open(config)
     except zenoh.ZError as exc:
-        raise ConnectionError(
-            f"cannot open a zenoh {settings.mode} session (listen={list(settings.listen)}, "
-            f"connect={list(settings.connect)}): {exc}"
-        ) from exc
+        endpoints = list(settings.connect) or json.loads(config.get_json("connect/endpoints")) or []
+        if isinstance(endpoints, dict):  # per mode in a config file
+            endpoints = [e for per_mode in endpoints.values() for e in per_mode]
+        tls = " (its certificate and key files were checked: the router is down, unreachable, or refused them)" \
+            if settings.config_file is not None and any(str(e).startswith("tls/") for e in endpoints) else ""
+        raise ConnectionError(f"cannot open a zenoh {settings.mode} session (listen={list(settings.listen)}, "
+                              f"connect={endpoints}){tls}: {zenoh_error_text(exc)}") from None
 
 
 def publish(session: zenoh.Session, key: str, payload: bytes) -> None:
@@ -286,3 +305,20 @@ class _Pinger:
             except queue.Empty:
                 break
         return False
+
+
+def claim_identities(session: zenoh.Session, run: str, robots: Iterable[int] = (), ports: Iterable[str] = ()) -> None:
+    """Refuse (``SwarmInputError``) to serve a robot or port of ``run`` whose liveliness token is already alive.
+
+    Call before declaring the tokens: a second agent of a robot or a second link of a port would obey (or send)
+    every command twice. A process killed by any signal loses its token within milliseconds, so a restarted one
+    is admitted."""
+    wanted = {alive_key(run, r): f"robot {r} of run {run} already has a live agent" for r in robots}
+    wanted |= {link_alive_key(run, p): f"port {p} of run {run} already has a live link" for p in ports}
+    if not wanted:
+        return
+    alive = alive_now(session, f"swarm/{run}/alive/**")
+    taken = sorted(key for key in wanted if key in alive)
+    if taken:
+        raise SwarmInputError(f"{wanted[taken[0]]} (its liveliness token {taken[0]} is alive): stop that process first"
+                              + (f"; also taken: {', '.join(taken[1:])}" if taken[1:] else ""))
