@@ -143,17 +143,21 @@ def test_the_coordinator_that_took_a_run_over_stops_commanding_on_a_run_wide_sto
 
 def test_a_link_stall_past_the_watchdog_reports_the_port_robots_lost_then_readmits_them(tmp_path):
     """``swarm launch --driver gateway --stall-link 2:3``: the first port's link process is SIGSTOPped 3 s, longer
-    than the robots' 2 s watchdog; its robots refuse the next command (NO_HEARTBEAT), get no emergency stop, and are
-    re-admitted at the next configuration; the run completes with all 10."""
-    result = tmp_path / "result.json"
+    than the robots' 2 s watchdog, which stops them (the emulator's event log says so). A robot that refuses its next
+    command (NO_HEARTBEAT: the command reached it before the link's first heartbeat did) gets no emergency stop and is
+    re-admitted at the next configuration; either way the run completes with all 10 and nobody is stopped."""
+    result, events = tmp_path / "result.json", tmp_path / "events.jsonl"
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "launch", "--driver=gateway", "-n=10", "--configs=3",
                            "--agents-per-process=5", "--motion-time=0.1", "--stall-link=2:3", "--no-record", f"--out={tmp_path}",
-                           f"--result={result}", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
+                           f"--result={result}", f"--emulator-events={events}", "--json"],
+                          capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary, saved = json.loads(proc.stdout.strip().splitlines()[-1]), json.loads(result.read_text())
     assert summary["link_stall"]["step"] == 2 and summary["link_stall"]["stall_s"] >= 3.0
+    starved = {e["robot"] for e in map(json.loads, events.read_text().splitlines()) if e.get("event") == "heartbeat_timeout"}
+    assert starved and starved <= {0, 1, 2, 3, 4}, starved  # the watchdogs of the stalled port's robots stopped them
     lost = {x["robot"] for x in saved["lost"]}
-    assert lost and lost <= {0, 1, 2, 3, 4} and all("NO_HEARTBEAT" in x["reason"] for x in saved["lost"]), saved["lost"]
+    assert lost <= starved and all("NO_HEARTBEAT" in x["reason"] for x in saved["lost"]), saved["lost"]
     assert {x["robot"] for x in saved["rejoined"]} == lost
     assert sorted(saved["steps"][-1]["ids"]) == list(range(10))
     assert "dropping the liveliness token" not in proc.stderr, proc.stderr[-3000:]  # no agent gave its robot up
