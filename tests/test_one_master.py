@@ -183,9 +183,10 @@ def test_sigkill_of_the_coordinator_at_a_random_step_the_standby_finishes_the_ru
 @pytest.mark.parametrize("rejoin", ["yes", "no"])
 def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_path, rejoin):
     """SIGKILL robot 2's agent when step 2 starts, restart it (same id, where the robot stands) at the default 0.5 m
-    sensing range: it rejoins at the next configuration (seeing fewer than two robots, the swarm having moved on, it
-    comes back at its last estimate and dead reckoning brings it among its neighbours), the run completes with it
-    localized, and the restarted agent drops no message (``--rejoin no``: it stays out, as before). The joint
+    sensing range once the swarm moved on: it rejoins at the next configuration (from what it sees of its neighbours or,
+    seeing fewer than two, at its last estimate, dead reckoning bringing it among them: which, depends on where the
+    run is when its agent is up; tests/test_lost_robots.py checks the second deterministically), the run completes
+    with it localized, and the restarted agent drops no message (``--rejoin no``: it stays out, as before). The joint
     localizer's run, recorded, replays bit for bit through the loss (its joint covariance marginalised) and the
     rejoin (``executor.localize_rejoined``)."""
     traj, traj_file, hub_settings, hub = _run_with_agents(tmp_path, "rejoin", robots=6, configs=5, seed=3)
@@ -233,7 +234,6 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
     row = last["ids"].index(2)
     assert np.linalg.norm(np.subtract(last["poses"][row][:2], last["truth"][row][:2])) < 0.1  # localized, not guessed
     assert "robot 2 rejoined after step" in out
-    assert "robot 2 rejoins at its last estimate" in err  # out of everybody's range when it came back
 
 
 def test_a_coordinator_resumed_from_the_recording_of_a_killed_one_finishes_the_run_bit_for_bit(tmp_path):
