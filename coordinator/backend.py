@@ -13,6 +13,11 @@ import numpy as np
 from runtime.models.state import Observations, StepCommands
 
 
+class BackendEnded(Exception):
+    """The backend ended the run for a reason of its own (another coordinator holds the run, a run-wide stop was
+    heard): not a fault of the robots, so the executor passes it on as it is."""
+
+
 class SwarmBackend(Protocol):
     ids: np.ndarray
 

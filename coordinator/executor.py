@@ -39,13 +39,14 @@ in-process runs pass none.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 import numpy as np
 
-from coordinator.backend import SwarmBackend
+from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.localization import Localizer
@@ -107,8 +108,11 @@ class RejoinedRobot:
     config: int
 
 
+_log = logging.getLogger(__name__)
 REJOIN_DELTA_M = 0.5  # position std (m) of a rejoining robot's prior around the pose its neighbours' observations give
 REJOIN_HEADING_SIGMA = 0.5  # heading std (rad) of that prior
+REJOIN_DRIVE_M = 0.5  # longest drive (m) of a step for a robot known only to REJOIN_DELTA_M / sqrt(2) or worse (half the
+# agents' default limit, CommandLimits.max_drive_m: one far from its place gets there over several steps)
 
 
 class RunAborted(SwarmInputError):
@@ -319,6 +323,8 @@ class InchwormExecutor:
         except RunAborted as exc:
             exc.result = result  # the configurations completed before the end
             raise
+        except BackendEnded:
+            raise
         except (SwarmInputError, LocalizationError) as exc:
             if not result.lost:
                 raise
@@ -380,22 +386,29 @@ class InchwormExecutor:
         """Lost robots whose agents came back (``take_rejoining`` of the backend) rejoin before configuration
         ``config`` is planned: each is asked for its observations of the current step, gets a prior with a large
         covariance (``REJOIN_DELTA_M``, ``REJOIN_HEADING_SIGMA``) around the pose its observations of its
-        neighbours' estimates give, and the swarm is localized again with them. One that answers nothing or
-        sees fewer than two neighbours stays lost."""
+        neighbours' estimates give, and the swarm is localized again with them. One that sees fewer than two robots
+        (the swarm moved on out of its sensing range) comes back at its last estimate before it was lost
+        (``last_estimate``), its covariance grown by the same amounts: it is planned and commanded like the others,
+        so dead reckoning drives it to its place in the configuration, among its neighbours, and the localizer fixes
+        it once they observe each other (until then the step records name it as kept at dead reckoning, and it
+        drives at most ``REJOIN_DRIVE_M`` a step). One that answers nothing stays lost."""
         take = getattr(self.backend, "take_rejoining", None)
         robots = take() if take is not None and self._executed > 0 else []
         if not robots:
             return estimate
         obs = self.backend.observe_rejoining(robots)  # type: ignore[attr-defined]  # with take_rejoining; a robot that does not answer is lost again
         priors = rejoin_priors(robots, obs, estimate)
-        for robot in robots:
-            if robot not in priors:
-                self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")  # type: ignore[attr-defined]
-        estimate = self._drop_lost(result, config, estimate)[0]  # those that did not make it
-        joined = [r for r in sorted(priors) if r in self.backend.ids]
+        estimate = self._drop_lost(result, config, estimate)[0]  # those that did not answer
+        joined = [r for r in sorted(robots) if r in self.backend.ids]
         if not joined:
             return estimate
-        located = localize_rejoined(self.localizer, estimate, {r: priors[r] for r in joined}, obs, self.cfg)
+        reckoned = {robot: last_estimate(result, robot) for robot in joined if robot not in priors}
+        for robot in reckoned:
+            seen = int(np.sum((obs.observer == robot) & np.isin(obs.observed, estimate.ids)))
+            _log.warning("robot %d rejoins at its last estimate (it observes %d robot(s) of the run): dead reckoning "
+                         "brings it among its neighbours", robot, seen)
+        located = localize_rejoined(self.localizer, estimate, {r: priors[r] for r in joined if r in priors}, obs, self.cfg,
+                                    reckoned)
         selector = getattr(self.strategy, "selector", None)
         self._restore_strategy(all_ids, located.ids, 0 if selector is None else selector.calls)
         for robot in joined:
@@ -430,6 +443,8 @@ class InchwormExecutor:
     ) -> SwarmEstimate:
         desired = self._desired(trajectory, config, estimate.ids)
         commands = np.where(moving[:, None], command_towards(estimate.poses, desired), 0.0)
+        unsure = estimate.cov[:, 0, 0] + estimate.cov[:, 1, 1] > REJOIN_DELTA_M**2 / 2  # a robot rejoining by dead reckoning
+        commands[unsure, 1] = np.minimum(commands[unsure, 1], REJOIN_DRIVE_M)  # approaches in steps an agent accepts
         cmd = StepCommands(estimate.ids, commands, moving)
         self._executed += 1
         self.backend.execute(cmd)  # (iii)
@@ -469,15 +484,29 @@ def rejoin_priors(robots: list[int], obs: Observations, estimate: SwarmEstimate)
     return {robot: pose for robot, pose in poses.items() if pose is not None}
 
 
+def last_estimate(result: RunResult, robot: int) -> tuple[np.ndarray, np.ndarray]:
+    """The last pose estimated for ``robot`` before it was lost (the run's steps, else the initial estimate) and its
+    3x3 covariance: where a rejoining robot that sees fewer than two robots comes back."""
+    for est in [*(s.estimate for s in reversed(result.steps)), result.initial_estimate]:
+        row = np.flatnonzero(est.ids == robot)
+        if row.size:
+            return est.poses[row[0]].copy(), est.cov[row[0]].copy()
+    raise SwarmInputError(f"robot {robot} has no estimate in this run")
+
+
 def localize_rejoined(localizer: Localizer, estimate: SwarmEstimate, priors: dict[int, np.ndarray], obs: Observations,
-                      cfg: ModelConfig) -> SwarmEstimate:
-    """The swarm of ``estimate`` with the robots of ``priors`` back in it (ids sorted), localized again from the
-    rejoining robots' observations ``obs``: each rejoining robot's prior is its pose from ``priors`` with
-    ``REJOIN_DELTA_M`` / ``REJOIN_HEADING_SIGMA``, the others' their estimate's poses and 3x3 covariances (what
-    the estimate carries beyond them, e.g. a joint covariance, is not: the cross-covariances with the
-    newcomers are unknown)."""
-    joined = sorted(priors)
-    new = SwarmEstimate.isotropic(joined, np.array([priors[r] for r in joined]), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA)
+                      cfg: ModelConfig, reckoned: dict[int, tuple[np.ndarray, np.ndarray]] | None = None) -> SwarmEstimate:
+    """The swarm of ``estimate`` with the robots of ``priors`` and ``reckoned`` back in it (ids sorted), localized
+    again from the rejoining robots' observations ``obs``: each rejoining robot's prior is its pose from ``priors``
+    with ``REJOIN_DELTA_M`` / ``REJOIN_HEADING_SIGMA``, or (one that saw fewer than two robots) its last estimate
+    ``reckoned`` (pose, 3x3 covariance, ``last_estimate``) with the covariance grown by as much; the others' their
+    estimate's poses and 3x3 covariances (what the estimate carries beyond them, e.g. a joint covariance, is not:
+    the cross-covariances with the newcomers are unknown)."""
+    grow = SwarmEstimate.isotropic([0], np.zeros((1, 3)), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA).cov[0]
+    rows = {**{r: (pose, grow) for r, pose in priors.items()}, **{r: (p, c + grow) for r, (p, c) in (reckoned or {}).items()}}
+    joined = sorted(rows)
+    new = SwarmEstimate(np.array(joined, dtype=np.int64), np.array([rows[r][0] for r in joined], dtype=float).reshape(-1, 3),
+                        np.array([rows[r][1] for r in joined]).reshape(-1, 3, 3))
     ids = np.concatenate([estimate.ids, new.ids])
     order = np.argsort(ids, kind="stable")
     merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],

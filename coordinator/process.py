@@ -23,7 +23,9 @@ every plan and every step, and goes on only once its recorder has it on the disk
 run having finished or been stopped, takes the run over from the last one; ``resume`` takes it
 over from the last checkpoint recorded in an MCAP file. Either continues as the same run (same
 step numbers, estimate, plan, lost robots, selection random state), so in simulation the result
-is the fault-free run's.
+is the fault-free run's. A coordinator that stalled beyond its session lease steps down when another one took
+its run over meanwhile (``SteppedDown``, exit 4: it declares no robot lost and stops nothing); with nobody else
+holding the run it goes on with every robot whose token is alive again (``coordinator.zenoh_backend``, Stalls).
 
 Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
@@ -366,7 +368,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     initial = initial_estimate(traj, o.seed, INITIAL_DELTA, INITIAL_HEADING_SIGMA)
     taken: tuple[int, RunState | None] | None = read_checkpoint(o.resume, o.run_id, traj, initial) if o.resume is not None else None
     recording = None
-    recorded, completed, result, error = None, False, None, None
+    recorded, completed, result = None, False, None
+    error: Exception | None = None
     live = Live(None)
     try:
         if signals.received is not None:
@@ -419,6 +422,9 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 finally:
                     partial = executor.result  # the configurations completed, however the run ends
                 completed = live.keep = True
+            except CoordinatorConflict as exc:  # it stepped down: another coordinator holds the run, not ours to stop
+                completed = True
+                ended = error = exc
             except (AgentError, RunAborted, RecordingStopped) as exc:
                 ended = error = exc
                 result = getattr(exc, "result", None) or (partial if isinstance(exc, (RecordingStopped, HubLost)) else None)

@@ -431,13 +431,29 @@ class _Chain:
         stay = base.select(np.isin(base.ids, ids))
         obs = observations_from_reports(reports[r] for r in joined)
         priors = rejoin_priors(joined, obs, stay)
-        estimate = localize_rejoined(self.loc, stay, {r: priors[r] for r in joined if r in priors}, obs, self.cfg)
+        reckoned = {r: self.last_estimate(r, step) for r in joined if r not in priors}  # out of range: where it was lost
+        if any(v is None for v in reckoned.values()):
+            self._break(step, f"robots {joined} rejoined without an earlier estimate of them in the recording")
+            return False
+        estimate = localize_rejoined(self.loc, stay, {r: priors[r] for r in joined if r in priors}, obs, self.cfg,
+                                     {r: v for r, v in reckoned.items() if v is not None})
         self.result.divergence = compare_estimate(step, recorded, estimate, "estimate after robots rejoined", self.exact)
         if self.result.divergence:
             return True
         self.result.estimates += 1
         self.estimate, self.at = estimate, step
         return False
+
+    def last_estimate(self, robot: int, step: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """``robot``'s pose and 3x3 covariance in the last recorded step estimate up to ``step`` that has it
+        (``executor.last_estimate``), or None."""
+        for s in sorted((s for s in self.rec.estimates if s <= step), reverse=True):
+            est = self.rec.estimates[s]
+            if robot in est.ids:
+                e = est.to_estimate()
+                row = int(np.flatnonzero(e.ids == robot)[0])
+                return e.poses[row].copy(), e.cov[row].copy()
+        return None
 
     def gaps_text(self) -> str:
         first, last = self.gaps[0], self.gaps[-1]

@@ -42,12 +42,26 @@ only if no other coordinator's token of the run is alive, and gives up (``Coordi
 naming the live one) if another appeared meanwhile. ``parent`` is the epoch whose run it takes
 over (0: a new run); ``resume(state)`` then starts at the checkpoint's step.
 ``publish_checkpoint`` publishes the executor's ``RunState`` as a ``Checkpoint``.
+
+Stalls (docs/failure-model.md): a coordinator stalled beyond its session lease (10 s: swapped out,
+SIGSTOP) loses its session to the hub, and every robot's token disappears from its view at once, with
+the hub. A token gone while the session has no router is no robot lost: the robot is *suspect* and
+checked again once the session is back (its token alive then, it never was lost). When a coordinator
+whose ``parent`` is this epoch appears (a standby took the run over meanwhile) or an agent refuses a
+command because it obeys another live coordinator, this one *steps down*: ``SteppedDown`` (a
+``CoordinatorConflict``) at its next wait, and from then on it declares no robot lost and sends
+nothing. A run-wide ``EmergencyStop`` heard while the run is in progress ends it (``RunStopped``):
+a coordinator never commands a stopped run. A robot that refuses a command because its watchdog
+stopped it (``NO_HEARTBEAT``: its link or radio stalled) did not move and is still served by its agent:
+it is dropped like a lost robot but gets no emergency stop, and it is re-admitted at the next
+configuration like a rejoining robot (``take_rejoining``).
 """
 
 from __future__ import annotations
 
 import logging
 import queue
+import re
 import secrets
 import threading
 import time
@@ -56,10 +70,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from coordinator.backend import BackendEnded
 from coordinator.checkpoint import RunState
 from runtime.errors import SwarmInputError
+from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
-from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
+from runtime.wire.keys import (
+    alive_key,
+    alive_wildcard,
+    coord_alive_key,
+    estop_key,
+    parse_coord_token,
+    parse_key,
+    robot_wildcard,
+    truth_wildcard,
+)
 from runtime.wire.messages import (
     MAX_MESSAGE_BYTES,
     Checkpoint,
@@ -88,6 +113,11 @@ CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint,
 
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
+WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
+RESEND_AFTER_STALL_S = 0.3  # s after a stall of this process a wait re-sends its requests (its session is back by then)
+HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
+SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
+OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
 
 class AgentError(SwarmInputError):
@@ -111,6 +141,14 @@ class HubLost(AgentError):
 
 class CoordinatorConflict(SwarmInputError):
     """Another coordinator's token of the run is alive: a run has one master at a time."""
+
+
+class SteppedDown(CoordinatorConflict, BackendEnded):
+    """Another coordinator took this one's run over (it stalled beyond its session lease): it steps down."""
+
+
+class RunStopped(AgentError, BackendEnded):
+    """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
 def live_coordinators(session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
@@ -151,6 +189,12 @@ class ZenohSwarmBackend:
         self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
         self._dropped_warned = False  # a checkpoint left out the estimate's carried fields (said once)
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
+        self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
+        self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
+        self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
+        self._session_lost = False  # this session lost the hub at least once (this process stalled beyond its lease)
+        self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
+        self._hub_gone_since: float | None = None  # monotonic time this session was first seen without the hub (since back)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
@@ -170,7 +214,8 @@ class ZenohSwarmBackend:
         self._lost: dict[int, str] = {}  # every robot lost so far (guarded by _lock)
         self._hub_lost: str | None = None  # why this process lost its connection to the hub (then no robot is lost)
         self._untaken: dict[int, str] = {}  # lost, not yet reported by take_lost (guarded by _lock)
-        self._stops: queue.Queue[tuple[int, str] | None] = queue.Queue()
+        self._stops: queue.Queue[tuple[int, str | None, float] | None] = queue.Queue()  # (robot, reason, stop it?) or
+        # (robot, None, when its token went)
         self._truth: dict[int, tuple[int, np.ndarray]] = {}
         self._truth_now: set[int] = set()  # robots whose truth of the current step is in
         self._truths_sent = 0  # last step whose TruthSetMessage went out
@@ -189,6 +234,8 @@ class ZenohSwarmBackend:
             subscribe(session, robot_wildcard(run, "obs"), enqueue),
             subscribe(session, truth_wildcard(run), enqueue),
             watch_liveliness(session, alive_wildcard(run), self._on_liveliness),
+            watch_liveliness(session, coord_alive_key(run), self._on_coordinator),
+            subscribe(session, estop_key(run), self._on_estop),
         ]
         self._token = declare_token(session, coord_alive_key(run, self.epoch, parent))  # after the subscribers: agents answer it
         others = {e: p for e, p in live_coordinators(session, run).items() if e != self.epoch}
@@ -244,53 +291,121 @@ class ZenohSwarmBackend:
             self._back.discard(robot)
             self._alive.discard(robot)
             started = self._started
-        if started and self._connected():
-            self._declare_lost(robot, "liveliness token gone")
+        if started:
+            self._stops.put((robot, None, time.monotonic()))  # the stopper thread asks the hub first
+
+    def _on_coordinator(self, key: str, alive: bool) -> None:  # Zenoh thread
+        """A coordinator whose parent is this epoch took the run over (this one stalled beyond its lease): step down."""
+        token = parse_coord_token(key)
+        if alive and token is not None and token[0] != self.epoch and token[1] == self.epoch and self.superseded is None:
+            self.superseded = (f"coordinator epoch {token[0]} took run {self.run} over from this one (epoch {self.epoch}), "
+                               f"which had lost its session to the hub; stepping down: no robot is declared lost, nothing is stopped")
+
+    def _on_estop(self, key: str, payload: bytes) -> None:  # Zenoh thread
+        msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
+        if msg is not None and not msg.robots and self.stopped_by is None:
+            self.stopped_by = f"the run was stopped by {msg.source} ({msg.reason})"
 
     def _connected(self) -> bool:
-        """Whether this session still reaches the hub; if not, note it (every robot's token vanishes with the hub,
-        but the robots are not to blame) and wake the caller's wait (any thread)."""
+        """Whether this session reaches the hub (a session that lost it sees every robot's token go with it: the robots
+        are not to blame); a loss is noted, and once it lasts ``HUB_GRACE_S`` (not a stall this process is back from,
+        whose session reconnects within milliseconds) the run ends with ``HubLost`` (any thread)."""
         info = self.session.info
         if list(info.routers_zid()) or list(info.peers_zid()):
+            self._hub_gone_since = None
             return True
         with self._lock:
-            first = self._hub_lost is None
-            if first:
-                self._hub_lost = (f"lost the connection to the hub after step {self.step}: no message, not even an emergency stop, "
-                                  f"reaches the robots any more (each link stops feeding its robots, whose watchdogs stop them; "
-                                  f"agents never move without a command)")
-        if first:
-            self._inbox.put(("", b""))  # wake a wait in progress
+            if self._hub_gone_since is None:
+                self._hub_gone_since = time.monotonic()
         return False
 
     def _check_hub(self) -> None:
-        """Raise ``HubLost`` once the hub is gone (caller's thread)."""
-        if self._hub_lost is not None:
-            raise HubLost(self._hub_lost)
-
-    def _declare_lost(self, robot: int, reason: str) -> None:
-        """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread)."""
+        """Raise ``HubLost`` once the hub has been gone for ``HUB_GRACE_S`` (caller's thread)."""
+        since = self._hub_gone_since
+        if since is None or time.monotonic() - since < HUB_GRACE_S or self._connected():
+            return
         with self._lock:
-            if robot not in self.known or robot in self._lost:
+            if self._hub_lost is None:
+                self._hub_lost = (f"lost the connection to the hub after step {self.step}: no message, not even an emergency stop, "
+                                  f"reaches the robots any more (each link stops feeding its robots, whose watchdogs stop them; "
+                                  f"agents never move without a command)")
+        raise HubLost(self._hub_lost)
+
+    def _token_gone(self, robot: int, since: float) -> None:
+        """Stopper thread: ``robot``'s token went from this session's view at ``since`` (monotonic). Lost if the hub
+        says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub);
+        if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
+        time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
+        if not self._connected():
+            self._session_lost = True
+            self._suspect.add(robot)
+            return
+        if robot in self._alive or alive_now(self.session, alive_key(self.run, robot)):
+            self._session_lost = True  # back already: it went with this session's link to the hub, not with the robot
+            return
+        if not self._connected():
+            self._session_lost = True
+            self._suspect.add(robot)
+            return
+        self._declare_lost(robot, "liveliness token gone")
+
+    def _check(self) -> None:
+        """``SteppedDown`` once another coordinator holds the run, ``RunStopped`` once a run-wide stop was heard."""
+        if self.superseded is not None:
+            raise SteppedDown(self.superseded)
+        if self.stopped_by is not None:
+            raise RunStopped(self.stopped_by, [])
+
+    def _recheck_suspects(self) -> None:
+        """Stopper thread: once the session has the hub again, the suspects whose tokens are still gone are lost."""
+        if not self._suspect or not self._connected():
+            return
+        alive = {parse_key(key).robot for key in alive_now(self.session, alive_wildcard(self.run))}
+        if not self._connected():
+            return
+        gone = sorted(r for r in self._suspect if r not in alive and r not in self._alive)
+        self._suspect.clear()
+        for robot in gone:
+            self._declare_lost(robot, "liveliness token gone (still gone once this coordinator's session was back)")
+
+    def _declare_lost(self, robot: int, reason: str, stop: bool = True) -> None:
+        """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread); ``stop``
+        False: it stands still already (its watchdog stopped it) and may come back at the next configuration."""
+        with self._lock:
+            if robot not in self.known or robot in self._lost or self.superseded is not None:
                 return
             self._lost[robot] = reason
             self._untaken[robot] = reason
-        self._stops.put((robot, reason))
+            if not stop and self.rejoin:
+                self._back.add(robot)  # its agent serves on: re-admitted at the next configuration
+        self._stops.put((robot, reason, float(stop)))
 
     def _stop_lost(self) -> None:
-        """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order."""
-        while (item := self._stops.get()) is not None:
-            robot, reason = item
+        """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order; the
+        suspects of a lost session checked again meanwhile."""
+        while True:
             try:
-                stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
-                                     robots=(robot,))
-                publish(self.session, message_key(stop), encode(stop))
+                item = self._stops.get(timeout=0.2)
+            except queue.Empty:
+                self._recheck_suspects()
+                continue
+            if item is None:
+                return
+            robot, reason, stop_it = item
+            if reason is None:
+                self._token_gone(robot, float(stop_it))
+                continue
+            try:
+                if stop_it:
+                    stop = EmergencyStop(run=self.run, step=self.step, source="swarm coordinator", reason=f"robot lost: {reason}",
+                                         robots=(robot,))
+                    publish(self.session, message_key(stop), encode(stop))
                 event = RobotEvent(run=self.run, step=self.step, robot=robot, kind="lost", reason=reason[:2000])
                 publish(self.session, message_key(event), encode(event))
             except Exception:  # noqa: BLE001 - a closed session at shutdown: the launcher's run-wide stop covers it
                 _log.exception("could not publish the emergency stop of lost robot %d", robot)
                 continue
-            _log.warning("robot %d lost (%s): emergency stop sent", robot, reason)
+            _log.warning("robot %d lost (%s)%s", robot, reason, ": emergency stop sent" if stop_it else "")
 
     def take_lost(self) -> dict[int, str]:
         """The robots lost since the last call, with why; they leave ``ids``. ``HubLost`` once the hub is gone."""
@@ -399,8 +514,12 @@ class ZenohSwarmBackend:
                 self._status[msg.robot] = msg
             if msg.state == "done":
                 self._owed_done.discard(msg.robot)
+            elif msg.state == "refused" and OTHER_MASTER.search(msg.reason):
+                self.superseded = self.superseded or (f"robot {msg.robot} refused the command of step {msg.step}: {msg.reason}; "
+                                                      "stepping down: no robot is declared lost, nothing is stopped")
             elif msg.state == "refused":
-                self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}")
+                self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}",
+                                   stop=WATCHDOG_REFUSAL not in msg.reason)
 
     def _publish_truth_set(self, again: bool = False) -> None:
         """Simulation: once every present robot's truth of the current step is in, send them to the agents as
@@ -421,23 +540,40 @@ class ZenohSwarmBackend:
     def _wait(self, what: str, missing, resend) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
         the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
-        (this process was stopped or starved: answers may still be in its socket) does not count."""
+        (this process was stopped or starved: answers may still be in its socket) does not count, and the requests
+        are re-sent ``RESEND_AFTER_STALL_S`` later (a stall beyond the session lease loses the answers sent meanwhile),
+        as are those of a round that begins within twice that of a stall."""
         start = last = time.monotonic()
+        if start - self._stalled_at < 2 * RESEND_AFTER_STALL_S:  # just back from a stall: its session may have been lost
+            start -= self.timeouts.step_s / 2 - RESEND_AFTER_STALL_S  # with the requests sent meanwhile: re-sent soon
         resent = False
         while True:
+            now = time.monotonic()
+            if now - last > STALL_S:  # re-sent soon: answers sent while its session was gone (beyond the lease) are lost
+                start = min(start + now - last, now - self.timeouts.step_s / 2 + RESEND_AFTER_STALL_S)
+                resent = False
+                self._stalled_at = now
+            last = now
+            self._check()
             self._publish_truth_set()  # a robot lost meanwhile may complete the set
             left = missing()
             if not left:
                 return
-            now = time.monotonic()
-            if now - last > STALL_S:
-                start += now - last
-            last = now
             elapsed = now - start
+            if elapsed > self.timeouts.step_s and not self._connected():
+                self._pump(0.05)  # no robot is to blame while the hub is gone: back soon, or HubLost after HUB_GRACE_S
+                continue
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()
                 left = missing()
+                with self._lock:
+                    alive = [r for r in left if r in self._alive]
+                if self._session_lost and alive and self.superseded is None:  # they serve another coordinator, not us
+                    self.superseded = (f"{_robots(alive)} alive but silent to this coordinator (epoch {self.epoch}) since it lost "
+                                       f"its session to the hub: another coordinator has held run {self.run}; stepping down: "
+                                       "no robot is declared lost, nothing is stopped")
+                    self._check()
                 for robot in left:
                     self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
                 return
@@ -476,6 +612,7 @@ class ZenohSwarmBackend:
     def execute(self, step: StepCommands) -> None:
         if not np.array_equal(step.ids, self.ids):
             raise SwarmInputError(f"commands for robots {step.ids.tolist()}, swarm has {self._id_list}")
+        self._check()  # never a command once another coordinator holds the run or it was stopped
         self.step += 1
         s = self.step
         self._status = {}
@@ -513,6 +650,7 @@ class ZenohSwarmBackend:
         """``ObserveRequest`` (the current step) to ``robots``, then wait for their reports (and truths) in
         ``self._reports``; the step's truth set goes out once complete, never before the requests, and again
         with every re-send (an agent may have missed it)."""
+        self._check()
         s = self.step
         self._reports = {}
         requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}

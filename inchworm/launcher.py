@@ -33,7 +33,11 @@ gateway's port processes: the port's link and agents) at the first command of gl
 coordinator's targeted ``EmergencyStop`` (the JSON object gets ``"kill": {"robot", "step", "detect_ms", "estop_ms"}``
 of the first pair and ``"kills"``, one such object per pair, None for a step the run never reached); ``standby`` also starts a
 standby coordinator, and ``kill_coordinator=STEP`` SIGKILLs the coordinator at STEP and times the
-takeover (``"coordinator_kill": {"step", "takeover_ms"}``).
+takeover (``"coordinator_kill": {"step", "takeover_ms"}``). ``stall_coordinator=(STEP, SECONDS)`` SIGSTOPs the
+coordinator at STEP and SIGCONTs it SECONDS later (``"coordinator_stall": {"step", "stall_s"}``); beyond the Zenoh
+lease a standby takes over and the stalled coordinator steps down (exit 4): the launcher then waits for the standby.
+``stall_link=(STEP, SECONDS)`` does the same to the process serving the first port's link (``--driver gateway``:
+the port process, or its ``swarm link`` process with ``agents_per_process``; ``"link_stall": {"step", "stall_s"}``).
 """
 
 from __future__ import annotations
@@ -62,6 +66,7 @@ from inchworm.processes import (
     GRACE_S,
     AgentErrors,
     CoordinatorKiller,
+    ProcessStaller,
     RobotKiller,
     agents_per_process,
     default_gateway,
@@ -88,6 +93,7 @@ from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, su
 if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
 
+EXIT_STEPPED_DOWN = 4  # swarm coordinator's status when another coordinator holds the run (it stepped down or never began)
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
 ESTOP_ACK_S = 2.0  # s the launcher waits for every agent to acknowledge its run-wide stop before it stops them
 DEFAULT_STEP_TIMEOUT_S = 5.0
@@ -151,6 +157,8 @@ class LaunchOptions:
     physics_speed: float = 0.0
     ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
     ros2_robots: bool = False  # with driver "ros2": also start simulated ROS 2 robots (``swarm ros2 robots``)
+    stall_coordinator: tuple[int, float] | None = None  # (STEP, SECONDS): SIGSTOP the coordinator at STEP, SIGCONT SECONDS later
+    stall_link: tuple[int, float] | None = None  # the same for the process of the first port's link (--driver gateway)
 
 
 def _stderr(text: str) -> None:
@@ -285,6 +293,11 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
         ros2_settings(o)
     if o.kill_coordinator is not None and o.kill_coordinator < 1:
         raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
+    for flag, stall in (("--stall-coordinator", o.stall_coordinator), ("--stall-link", o.stall_link)):
+        if stall is not None and (stall[0] < 1 or not stall[1] > 0):
+            raise SwarmInputError(f"{flag} {stall[0]}:{stall[1]:g}: the step must be >= 1 and the seconds > 0")
+    if o.stall_link is not None and o.driver != "gateway":
+        raise SwarmInputError("--stall-link stalls a link process: it needs --driver gateway")
     for robot, step in o.kills:
         if robot not in traj.ids:
             raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
@@ -441,7 +454,13 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 f"(emergency stop: swarm estop --run {run_id})")
             killed: dict[int, int] = {}  # pid -> when it was killed: robots hosted by one process die together
             killers = [RobotKiller(hub_session, run_id, robot, step, agent_procs[robot], killed) for robot, step in o.kills]
-            json_hold = o.json and (bool(killers) or o.kill_coordinator is not None)
+            stallers: dict[str, ProcessStaller] = {}
+            if o.stall_link is not None:
+                first_port = GatewayConfig.load(live).ports[0]
+                link_proc = agent_procs[first_port.robots[0]] if port_hosts else procs[1]
+                stallers["link_stall"] = ProcessStaller(hub_session, run_id, *o.stall_link, link_proc)
+            json_hold = o.json and (bool(killers) or o.kill_coordinator is not None or bool(stallers) or
+                                    o.stall_coordinator is not None)
             standby = None
             if o.standby:
                 standby_record = [a for a in cmd if not a.startswith("--record=")] + (
@@ -454,6 +473,8 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
             procs.append(coordinator)
             coord_killer = None if o.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, o.kill_coordinator, coordinator)
+            if o.stall_coordinator is not None:
+                stallers["coordinator_stall"] = ProcessStaller(hub_session, run_id, *o.stall_coordinator, coordinator)
             last: list[str] = []
             forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
                           for p in (coordinator, standby) if json_hold and p is not None]
@@ -465,6 +486,9 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                     raise SwarmInputError(status)
                 if standby is not None and status < 0:  # died without a word: the standby takes the run over
                     say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
+                    status = standby.wait()
+                elif standby is not None and status == EXIT_STEPPED_DOWN:  # it stalled past its lease: the standby holds the run
+                    say(f"swarm {o.command}: the coordinator stepped down (another coordinator holds the run); waiting for the standby")
                     status = standby.wait()
             except KeyboardInterrupt:
                 say(f"swarm {o.command}: interrupted: {stop_run('the launcher was interrupted')}")
@@ -489,6 +513,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             if coord_kill is not None:
                 say(f"swarm {o.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
                     f"command came {coord_kill['takeover_ms']} ms after the kill")
+            stalls = {name: staller.report() for name, staller in stallers.items()}
+            for name, stall in stalls.items():
+                if stall is not None:
+                    say(f"swarm {o.command}: stalled the {name.split('_')[0]} (SIGSTOP) at step {stall['step']} for {stall['stall_s']} s")
             if json_hold:
                 summary = {}
                 for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
@@ -499,6 +527,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 extra = {} if not killers else {"kill": kills[0], "kills": kills}
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
+                extra.update(stalls)
                 emit_json({**summary, **extra})
             if recording is not None and Path(recording).exists():
                 say(f"swarm {o.command}: recording {recording}" if is_finished(recording) else

@@ -314,6 +314,49 @@ class CoordinatorKiller:
         return {"step": self.step, "takeover_ms": taken}
 
 
+class ProcessStaller:
+    """``--stall-coordinator`` / ``--stall-link``: SIGSTOP ``process`` at the first command of ``step`` and SIGCONT it
+    ``seconds`` later (a process swapped out or hung that comes back), as a user would with ``kill -STOP`` / ``-CONT``."""
+
+    def __init__(self, session, run_id: str, step: int, seconds: float, process: subprocess.Popen) -> None:
+        self.step, self.seconds, self.process = step, seconds, process
+        self.stopped_ns: int | None = None
+        self.resumed_ns: int | None = None
+        self._timer: threading.Timer | None = None
+        self._sub = subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command)
+
+    def _on_command(self, key: str, payload: bytes) -> None:
+        if self.stopped_ns is not None:
+            return
+        try:
+            cmd = decode(payload, MotionCommand)
+        except MessageError:
+            return
+        if cmd.step >= self.step and self.process.poll() is None:
+            self.process.send_signal(signal.SIGSTOP)
+            self.stopped_ns = time.time_ns()
+            self._timer = threading.Timer(self.seconds, self.resume)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def resume(self) -> None:
+        """SIGCONT the process (at once if the stall is still on; idempotent)."""
+        if self.stopped_ns is not None and self.resumed_ns is None:
+            self.resumed_ns = time.time_ns()
+            if self.process.poll() is None:
+                self.process.send_signal(signal.SIGCONT)
+
+    def report(self) -> dict | None:
+        """``{"step", "stall_s"}`` once the process was stalled (``stall_s`` as measured), else None; resumes it if still stopped."""
+        self._sub.undeclare()
+        if self._timer is not None:
+            self._timer.cancel()
+        self.resume()
+        if self.stopped_ns is None or self.resumed_ns is None:
+            return None
+        return {"step": self.step, "stall_s": round((self.resumed_ns - self.stopped_ns) / 1e9, 3)}
+
+
 def wait_for_standby(session, run_id: str, standby: subprocess.Popen, timeout_s: float = 60.0) -> None:
     """Until the standby coordinator follows the run's checkpoints (its subscription reached the hub), so it sees
     the coordinator that starts next from its first checkpoint on."""

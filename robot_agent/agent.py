@@ -49,15 +49,19 @@ message it gets binds it, and while that token lives every other epoch is refuse
 answered ``Status refused`` naming the live epoch, other messages dropped as foreign); a message
 of an epoch whose token went (a dead or replayed coordinator) or without any epoch is refused,
 one of an epoch whose token has not reached the agent yet is dropped (its coordinator sends it
-again). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
+again). An epoch that was taken over stays refused, also when its token comes back once its successor is gone
+(a coordinator that stalled beyond its session lease; its session re-declares the token when it resumes: it
+steps down on the refusal). A coordinator that names the bound epoch as its ``parent`` proves that epoch gone (it
 declares itself only once that token is gone), even before the agent saw the token go. When
 the bound token is gone the next live coordinator may bind it: one that names the agent's epoch (or an
 ancestor) as its ``parent`` took the run over and continues it, so the step memory is kept (a command for
 the step already executed is answered from memory, never executed twice); any other starts a new run at
 step 1 and the agent forgets the last run's steps (an emergency stop stays latched), so ``swarm coordinator`` can run again against the same
 agents (and, through the link's RUN handshake, the same robots). An agent without any step
-memory (just started, e.g. a lost robot's agent restarted) answers an observation request of any
-step of the coordinator it obeys: that is how a lost robot rejoins a run in progress.
+memory (just started, e.g. a lost robot's agent restarted), or whose last command it refused (the coordinator
+dropped it, e.g. after its watchdog stopped it), answers an observation request of any later step of the
+coordinator it obeys: that is how a lost robot rejoins a run in progress. Meanwhile it ignores the run's truth
+sets without counting them as drops.
 
 Emergency stop: an ``EmergencyStop`` on ``swarm/<run>/estop`` naming this robot (or no
 robot: the whole run) is forwarded to the driver at once by a thread of its own (``driver.estop``: a gateway driver sends it to its link, even
@@ -394,6 +398,9 @@ class Agent:
                         f"of run {self.run_id}")
             self._coords.pop(self.bound)  # it took over from ours, which declared after our token had gone: gone
             self._gone.add(self.bound)
+        if epoch in self._lineage and epoch != self.bound:  # its token came back after another took its run over
+            return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys coordinator epoch {self.bound}, which took "
+                    f"run {self.run_id} over from it")
         if epoch not in self._coords:
             if epoch != 0 and epoch not in self._gone:
                 return _UNSEEN
@@ -501,6 +508,18 @@ class Agent:
             self._send(self._last_truth)  # the truth that followed the done may be lost too (or went to the coordinator taken over)
 
     @property
+    def _outside(self) -> bool:
+        """Whether this robot is outside the run's steps, so the coordinator may ask it to rejoin at a later step: it
+        has no step memory (just started, e.g. restarted after a crash), or it refused its last command (the
+        coordinator dropped it: a robot its watchdog stopped is re-admitted at the next configuration)."""
+        if self._pending is not None:
+            return False
+        if self._last_cmd_step < 0 and self._last_obs_step < 0:
+            return True
+        last = self._last_status
+        return last is not None and last.state == "refused" and last.step == self._last_cmd_step > self._last_obs_step
+
+    @property
     def _next_step(self) -> int:
         """The only step this robot may move or sense at next: the coordinator observes every robot after every
         step, so a real command or request always follows the observation of the step before (step 1 first)."""
@@ -522,8 +541,8 @@ class Agent:
             self._send(self._last_report)
             return
         expected = self._pending if self._pending is not None else self._next_step
-        if self._last_cmd_step < 0 and self._last_obs_step < 0 and self._pending is None:
-            expected = req.step  # no step memory: join the run at its coordinator's step (a lost robot rejoining)
+        if self._outside and req.step >= expected:
+            expected = req.step  # join the run at its coordinator's step (a lost robot rejoining)
         if req.step != expected:
             self.drops.drop(self._observe_key, MessageError(
                 "ObserveRequest.step", f"{req.step} out of sequence (expected step {expected})", "out-of-range"))
@@ -543,7 +562,9 @@ class Agent:
             if self._pending is None and msg.step == self._next_step and self._truth_published(msg.step):
                 self._early = (msg.step, poses)  # Zenoh does not keep the order of different keys: its request is on the way
                 return
-            if msg.step != self._last_obs_step:  # a late duplicate of the last set is normal; anything else is not
+            passed_by = self._outside and (msg.step > self._next_step or self._last_cmd_step >= 0)  # a step made without it
+            if msg.step != self._last_obs_step and not passed_by:  # a late duplicate of the last set is normal, and so are
+                # the sets of the steps the run makes while this robot is outside them (before it rejoins); nothing else
                 self.drops.drop(truths_key(self.run_id), MessageError(
                     "TruthSetMessage.step", f"{msg.step} is not the pending step {self._pending}", "out-of-range"))
             return

@@ -1,9 +1,10 @@
 """``swarm launch`` and ``swarm demo``: a whole distributed run on this host (``inchworm.launcher``: what it
-starts, checks and stops, and the fault injection of ``--kill-robot ID@STEP``, ``--standby`` and
-``--kill-coordinator STEP``). While it runs, ``swarm estop --run RUN`` and ``swarm record --run RUN``
-find its hub (its run file); a run id already live on this host is refused. Exit status: the
-coordinator's (128 + N if it was killed by signal N); with ``--json`` and a kill, the last line is
-the coordinator's JSON object with ``"kill"`` / ``"coordinator_kill"`` added.
+starts, checks and stops, and the fault injection of ``--kill-robot ID@STEP``, ``--standby``,
+``--kill-coordinator STEP``, ``--stall-coordinator STEP:SECONDS`` and ``--stall-link STEP:SECONDS``). While it
+runs, ``swarm estop --run RUN`` and ``swarm record --run RUN`` find its hub (its run file); a run id already
+live on this host is refused. Exit status: the coordinator's (128 + N if it was killed by signal N; the standby's
+when the coordinator stepped down); with ``--json`` and a kill or stall, the last line is the coordinator's JSON
+object with ``"kill"`` / ``"coordinator_kill"`` / ``"coordinator_stall"`` / ``"link_stall"`` added.
 
 ``swarm demo`` is ``swarm launch`` with 10 agents on a built-in small trajectory
 (``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
@@ -82,6 +83,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help="also start a standby coordinator that takes the run over if the coordinator dies")
     p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
                    help="fault injection: SIGKILL the coordinator when global step STEP starts (with --standby: time the takeover)")
+    p.add_argument("--stall-coordinator", type=_stall_spec, default=None, metavar="STEP:SECONDS",
+                   help="fault injection: SIGSTOP the coordinator when global step STEP starts and SIGCONT it SECONDS later "
+                        "(e.g. 2:12; beyond the 10 s Zenoh lease a --standby takes the run over and the stalled one steps down)")
+    p.add_argument("--stall-link", type=_stall_spec, default=None, metavar="STEP:SECONDS",
+                   help="fault injection with --driver gateway: SIGSTOP the process of the first port's link when global step "
+                        "STEP starts and SIGCONT it SECONDS later (e.g. 2:3: its robots' watchdogs stop them)")
     p.add_argument("--agents-per-process", type=int, default=None,
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, else up to "
                         f"{AGENTS_PER_PROCESS}; gateway: one process per port with its link, given: link processes apart; ros2: up to "
@@ -116,6 +123,20 @@ def _kill_spec(text: str) -> tuple[int, int]:
     return robot_id, step_no
 
 
+def _stall_spec(text: str) -> tuple[int, float]:
+    """``STEP:SECONDS`` -> (step >= 1, seconds > 0)."""
+    step, sep, seconds = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        step_no, secs = int(step), float(seconds)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not STEP:SECONDS (e.g. 2:12)") from None
+    if step_no < 1 or not 0 < secs < 3600:
+        raise argparse.ArgumentTypeError(f"{text!r}: the step must be >= 1 and the seconds between 0 and 3600")
+    return step_no, secs
+
+
 def run_demo(args: argparse.Namespace) -> int:
     """``swarm launch`` on the demo scenario (or with ``--paper`` the paper's defaults); explicit options win."""
     scenario = PAPER_SCENARIO if args.paper else DEMO_SCENARIO
@@ -143,5 +164,5 @@ def run(args: argparse.Namespace) -> int:
         args.min_robots, tuple(args.kill_robot or ()) or None, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
         args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
         world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
-        ros2=args.ros2, ros2_robots=args.ros2_robots)
+        ros2=args.ros2, ros2_robots=args.ros2_robots, stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
     return launch(options, emit_json=print_json)

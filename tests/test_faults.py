@@ -141,13 +141,17 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     run), a killed agent, a killed coordinator with a standby (paper and joint localizers), and 2000 hostile messages (random bytes, wrong types,
     NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
     and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s;
-    LinkRequests forged through the gateway identity during and after a run move no robot."""
+    LinkRequests forged through the gateway identity during and after a run move no robot; a killed agent restarted
+    out of everybody's 0.5 m range rejoins; a coordinator stalled 12 s hands over to its standby."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
                            "--gateway-rows=0.05,0.05,0.05", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood", "coordinator_joint", "forged_link_requests"]
+    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood", "coordinator_joint", "forged_link_requests",
+                            "rejoin", "coordinator_stall"]
+    assert result["rejoin"] == {"runs": 1, "rejoined": 1, "sensing_range_m": 0.5}  # a killed agent restarted out of range
+    assert result["coordinator_stall"] == {"stall_s": 12.0, "runs": 1, "completed": 1}  # beyond the lease, with a standby
     assert result["gateway"] == [{"drop": 0.05, "corrupt": 0.05, "delay": 0.05, "runs": 1, "completed": 1, "identical": 1,
                                   "max_executions_per_step": 1}]
     lost = result["lost_robot"]

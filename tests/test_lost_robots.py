@@ -10,7 +10,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.executor import InchwormExecutor, RunAborted
+from coordinator.executor import (
+    REJOIN_DRIVE_M,
+    InchwormExecutor,
+    RejoinedRobot,
+    RunAborted,
+    RunResult,
+    last_estimate,
+    localize_rejoined,
+)
 from coordinator.localization import make_localizer
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
@@ -19,7 +27,7 @@ from coordinator.strategies import METHODS, anchors_for_half, make_strategy
 from runtime.models.config import ModelConfig
 from runtime.models.metrics import trajectory_following_performance
 from runtime.models.simulation import SimulatedSwarm
-from runtime.models.state import Observations, StepCommands
+from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.models.trajectory import random_trajectory
 
 FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
@@ -200,3 +208,34 @@ def test_losing_robots_until_the_trajectory_is_infeasible_ends_the_run_naming_th
     result = info.value.result
     assert len(result.configs) == 1 and [r.robot for r in result.lost] == [0, 1, 2]
     assert result.finished_ids.tolist() == [3, 4, 5]
+
+
+def test_a_robot_rejoining_out_of_range_comes_back_at_its_last_estimate_and_drives_back_in_steps_an_agent_accepts():
+    """A rejoining robot that sees nobody (the swarm moved on beyond its 0.5 m range): it is back in the estimate at the
+    pose estimated last before it was lost, its covariance grown by the rejoin prior's (correlated x-y included), kept
+    at dead reckoning; the executor's command for it drives at most ``REJOIN_DRIVE_M`` a step."""
+    traj = random_trajectory(4, 1, np.random.default_rng(7))
+    cov = np.tile(np.array([[4e-4, 3e-4, 0.0], [3e-4, 4e-4, 0.0], [0.0, 0.0, 1e-3]]), (4, 1, 1))  # correlated x-y
+    start = SwarmEstimate(traj.ids, traj.initial_poses.copy(), cov)
+    result = RunResult("inchworm", traj, start, None, rejoined=[RejoinedRobot(3, 0, 0)])
+    pose, last_cov = last_estimate(result, 3)
+    assert np.array_equal(pose, traj.initial_poses[3]) and np.array_equal(last_cov, cov[3])
+    others = start.select(np.array([True, True, True, False]))
+    seen = Observations(np.array([0]), np.array([1]), np.array([0.3]), np.array([0.1]))  # nobody sees robot 3, nor it anyone
+    located = localize_rejoined(make_localizer("paper", CFG), others, {}, seen, CFG, {3: (pose, last_cov)})
+    row = int(np.flatnonzero(located.ids == 3)[0])
+    prior = SwarmEstimate.isotropic([3], pose[None], 0.5, 0.5).cov[0]
+    assert np.array_equal(located.ids, traj.ids) and np.allclose(located.poses[row], pose)
+    assert np.allclose(located.cov[row], last_cov + prior)  # honest: its old uncertainty and the rejoin's
+    poses = located.poses.copy()
+    poses[row, :2] += 2.0  # estimated 2.8 m from its place: an agent refuses a drive beyond 1 m
+    away = SwarmEstimate(located.ids, poses, located.cov)
+    swarm = SimulatedSwarm(traj.ids, poses, CFG, 0)
+    localizer = make_localizer("paper", CFG)
+    executor = InchwormExecutor(swarm, localizer, make_strategy("inchworm", 4, CFG, localizer, FAST, 0), CFG)
+    sent: list[StepCommands] = []
+    execute = swarm.execute
+    swarm.execute = lambda cmd: (sent.append(cmd), execute(cmd))[1]  # type: ignore[method-assign]  # record, then move
+    executor._step(RunResult("inchworm", traj, away, None), 0, 0, np.ones(4, dtype=bool), away, traj)
+    drives = sent[0].commands[:, 1]
+    assert drives[row] == pytest.approx(REJOIN_DRIVE_M) and np.all(np.delete(drives, row) < REJOIN_DRIVE_M)

@@ -31,7 +31,8 @@ Three parts, each through the options a user has, with real processes on loopbac
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
 "estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}, "coordinator_joint": {as "coordinator"},
-"forged_link_requests": {"sent", "executed", "completed"}}``.
+"forged_link_requests": {"sent", "executed", "completed"}, "rejoin": {"runs", "rejoined", "sensing_range_m"},
+"coordinator_stall": {"stall_s", "runs", "completed"}}`` (``inchworm.bench.faults_stalls``).
 """
 
 from __future__ import annotations
@@ -251,6 +252,7 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     ``say`` is told each part's result as it ends."""
     from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
+    from inchworm.bench.faults_stalls import coordinator_stall, rejoin  # noqa: PLC0415
     from inchworm.bench.forged_links import forged_link_requests  # noqa: PLC0415
 
     o = options
@@ -279,8 +281,15 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say("forged link requests: a gateway run (links apart) while the gateway identity forges LinkRequests, and after it")
     forged = forged_link_requests()
     _say(json.dumps(forged))
+    _say(f"rejoin: a robot's agent killed and restarted after the swarm moved on, at 0.5 m, over {o.seeds} seeds")
+    back = rejoin(o.seeds)
+    _say(json.dumps(back))
+    _say(f"coordinator stall: swarm launch -n 10 --standby --stall-coordinator STEP:12 over {o.seeds} seeds")
+    stall = coordinator_stall(o.seeds)
+    _say(json.dumps(stall))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "coordinator": coord, "estop_under_flood": flood, "coordinator_joint": coord_joint, "forged_link_requests": forged}
+               "coordinator": coord, "estop_under_flood": flood, "coordinator_joint": coord_joint, "forged_link_requests": forged,
+               "rejoin": back, "coordinator_stall": stall}
     table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
-                       json.dumps(coord_joint), json.dumps(flood), json.dumps(forged)])
+                       json.dumps(coord_joint), json.dumps(flood), json.dumps(forged), json.dumps(back), json.dumps(stall)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")
