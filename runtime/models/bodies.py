@@ -36,6 +36,8 @@ from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 if TYPE_CHECKING:  # trajectory.py imports this module
+    from scipy.spatial import cKDTree
+
     from runtime.models.trajectory import Trajectory
 
 CLEARANCE_SIGMAS = 2.0  # k of the margin k x sqrt(sigma_i^2 + sigma_j^2)
@@ -56,6 +58,39 @@ def closest_approach(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.hypot(rel[..., 0], rel[..., 1])
 
 
+INDEX_MIN = 128  # robots from which candidate pairs come from a k-d tree (fewer: every pair, as cheap)
+_SLACK_M = 1e-9  # candidate bounds are widened by this (rounding); conflicts are still decided exactly
+
+
+def all_pairs(rows: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every (i, j), i of ``rows``, j != i of ``n`` robots, in (position of i in ``rows``, j) order."""
+    i = np.repeat(np.asarray(rows, np.int64), n)
+    j = np.tile(np.arange(n), len(rows))
+    keep = i != j
+    return i[keep], j[keep]
+
+
+def near_pairs(rows: np.ndarray, mid: np.ndarray, reach: np.ndarray, points: np.ndarray, spread: np.ndarray,
+               tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs (i, j), i of ``rows``, j != i, in (position of i in ``rows``, j) order: every pair with
+    |``mid``_i - ``points``_j| < ``reach``_i + ``spread``_j (+ rounding slack), found with a k-d tree of ``points``
+    (``tree``, or built here). A pair of robots whose swept discs come within d of each other is kept when
+    ``mid``/``reach`` bound robot i's disc over the step (its path's midpoint; half its length plus its pad) and
+    every position robot j takes and its pad lie within ``spread``_j of ``points``_j, with the pads adding to d."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when checked (cheap parsers)
+
+    rows = np.asarray(rows, np.int64)
+    if tree is None:
+        tree = cKDTree(points)
+    lists = tree.query_ball_point(mid[rows], reach[rows] + float(spread.max()) + _SLACK_M, return_sorted=True)
+    counts = np.fromiter((len(x) for x in lists), np.int64, len(rows))
+    i = np.repeat(rows, counts)
+    j = np.concatenate(lists).astype(np.int64) if counts.sum() else np.zeros(0, np.int64)
+    gap = np.hypot(*(mid[i] - points[j]).T)
+    keep = (i != j) & (gap < reach[i] + spread[j] + _SLACK_M)
+    return i[keep], j[keep]
+
+
 @dataclass(frozen=True)
 class Contact:
     """Two robots (indices a < b into the step's arrays) whose bodies touched: centres ``distance`` m apart at
@@ -74,19 +109,25 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
         return []
     start = np.asarray(before, float)[:, :2]
     end = np.where(np.asarray(moving)[:, None], np.asarray(after, float)[:, :2], start)
+    moving = np.asarray(moving, bool)
     movers = np.flatnonzero(moving)
     if not len(movers):
         return []
     disp = end - start
-    d = closest_approach(start[movers, None] - start[None], disp[movers, None] - disp[None])  # (k, n)
-    d[np.arange(len(movers)), movers] = np.inf
-    once = ~np.asarray(moving, bool)[None] | (np.arange(len(start))[None] > movers[:, None])  # each mover pair once
-    rows, cols = np.nonzero(once & (d < 2.0 * radius))
-    mover, other = movers[rows], cols
-    s = closest_time(start[mover] - start[other], disp[mover] - disp[other])[:, None]
-    mid = (start[mover] + start[other] + s * (disp[mover] + disp[other])) / 2.0
-    out = [Contact(int(min(i, j)), int(max(i, j)), float(d[r, c]), (float(m[0]), float(m[1])))
-           for i, j, r, c, m in zip(mover, other, rows, cols, mid, strict=True)]
+    if len(start) < INDEX_MIN:
+        i, j = all_pairs(movers, len(start))
+    else:  # i's centre stays within half its path of its midpoint, j's within its path of its start
+        length = np.hypot(*disp.T)
+        i, j = near_pairs(movers, start + disp / 2.0, length / 2.0 + radius, start, length + radius)
+    once = ~moving[j] | (j > i)  # each mover pair once
+    i, j = i[once], j[once]
+    d = closest_approach(start[i] - start[j], disp[i] - disp[j])
+    hit = d < 2.0 * radius
+    i, j, d = i[hit], j[hit], d[hit]
+    s = closest_time(start[i] - start[j], disp[i] - disp[j])[:, None]
+    mid = (start[i] + start[j] + s * (disp[i] + disp[j])) / 2.0
+    out = [Contact(int(min(a, b)), int(max(a, b)), float(x), (float(m[0]), float(m[1])))
+           for a, b, x, m in zip(i, j, d, mid, strict=True)]
     return sorted(out, key=lambda c: (c.a, c.b))
 
 
@@ -118,6 +159,7 @@ class BodyCheck:
         self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
                                       cfg.drive_sigma_frac**2)
         self._conflicts: dict[bytes, tuple[Conflict, ...]] = {}  # step_conflicts by (before, moving): plans share steps
+        self._trees: dict[bytes, tuple[cKDTree, np.ndarray]] = {}  # ``_index`` by positions
 
     @classmethod
     def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
@@ -128,20 +170,44 @@ class BodyCheck:
     def active(self) -> bool:
         return self.radius > 0
 
-    def _rows(self, movers: np.ndarray, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(closest approach, requirement) (k, n) of each of ``movers`` with every robot, ``moving`` moving."""
+    def _pairs(self, movers: np.ndarray, before: np.ndarray, moving: np.ndarray,
+               base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(i, j, closest approach, requirement) of each of ``movers`` (i) with every robot j != i that may come
+        too close, ``moving`` moving, in (position of i in ``movers``, j) order. Below ``INDEX_MIN`` robots every
+        pair; from there the candidates of a k-d tree of ``base`` (default ``before``; it must equal ``before``
+        except at ``movers``), which keeps every pair that can conflict (``near_pairs``)."""
         disp = np.where(moving[:, None], self.desired - before, 0.0)
-        closest = closest_approach(before[movers, None] - before[None], disp[movers, None] - disp[None])
-        length2 = np.einsum("nk,nk->n", disp, disp)
-        var = self.position_var + length2 * self.spread_rate
-        sigma = np.sqrt(var[movers, None] + var[None])
-        start = np.hypot(*(self.current[movers, None] - self.current[None]).transpose(2, 0, 1))
-        end = np.hypot(*(self.desired[movers, None] - self.desired[None]).transpose(2, 0, 1))
+        var = self.position_var + np.einsum("nk,nk->n", disp, disp) * self.spread_rate
+        if len(before) < INDEX_MIN:
+            i, j = all_pairs(movers, len(before))
+        else:  # a conflict needs |mid_i - base_j| < half_i + L_j + (R + k sd_i) + (R + k sd_j) (requirement <= 2R + k (sd_i + sd_j))
+            tree, spread = self._index(before if base is None else base)
+            length = np.hypot(*disp.T)
+            reach = length / 2.0 + self.radius + self.sigmas * np.sqrt(var)
+            i, j = near_pairs(movers, before + disp / 2.0, reach, tree.data, spread, tree)
+        closest = closest_approach(before[i] - before[j], disp[i] - disp[j])
+        sigma = np.sqrt(var[i] + var[j])
+        start = np.hypot(*(self.current[i] - self.current[j]).T)
+        end = np.hypot(*(self.desired[i] - self.desired[j]).T)
         two_r = 2.0 * self.radius
         floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
         required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
-        closest[np.arange(len(movers)), movers] = np.inf
-        return closest, required
+        return i, j, closest, required
+
+    def _index(self, base: np.ndarray) -> tuple[cKDTree, np.ndarray]:
+        """A k-d tree of the positions ``base`` and each robot's spread there: its whole remaining path
+        (``base`` -> desired) plus its largest pad R + k sd (the sd of a drive of that path), in m."""
+        key = base.tobytes()
+        found = self._trees.get(key)
+        if found is None:
+            from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only for large swarms
+
+            path2 = np.einsum("nk,nk->n", self.desired - base, self.desired - base)
+            spread = np.sqrt(path2) + self.radius + self.sigmas * np.sqrt(self.position_var + path2 * self.spread_rate)
+            if len(self._trees) >= 64:  # plans of a large swarm share few step configurations
+                self._trees.clear()
+            found = self._trees[key] = (cKDTree(base), spread)
+        return found
 
     def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
         """The conflicts of one step: robots at ``before`` (n, 2), ``moving`` (n,) drive to their desired positions."""
@@ -151,16 +217,14 @@ class BodyCheck:
         key = np.asarray(before, float).tobytes() + np.asarray(moving, bool).tobytes()
         found = self._conflicts.get(key)
         if found is None:
-            closest, required = self._rows(movers, before, moving)
-            bad = closest < required - TOLERANCE_M
-            bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
-            rows, cols = np.nonzero(bad)
-            found = self._conflicts[key] = tuple(Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]),
-                                                          float(required[r, c])) for r, c in zip(rows, cols, strict=True))
+            i, j, closest, required = self._pairs(movers, before, moving)
+            bad = (closest < required - TOLERANCE_M) & (~moving[j] | (j > i))  # each mover pair once
+            found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(r))
+                                                 for a, b, c, r in zip(i[bad], j[bad], closest[bad], required[bad], strict=True))
         return list(found)
 
     def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
-        closest, required = self._rows(np.array([robot]), before, moving)
+        _, _, closest, required = self._pairs(np.array([robot]), before, moving)
         return not np.any(closest < required - TOLERANCE_M)
 
     def is_clear(self, groups: list[np.ndarray]) -> bool:
@@ -180,7 +244,7 @@ class BodyCheck:
         """The same check with a margin of ``sigmas`` standard deviations."""
         out = copy.copy(self)
         out.sigmas = float(sigmas)
-        out._conflicts = {}
+        out._conflicts, out._trees = {}, {}
         return out
 
     def regroup(self, groups: list[np.ndarray]) -> Regrouped:
@@ -306,8 +370,8 @@ class BodyCheck:
         for base in (self.current, self.desired):
             before = base.copy()
             before[robot] = self.current[robot]
-            closest, required = self._rows(np.array([robot]), before, moving)
-            hits.append(np.flatnonzero(closest[0] < required[0] - TOLERANCE_M).tolist())
+            _, j, closest, required = self._pairs(np.array([robot]), before, moving, base)
+            hits.append(j[closest < required - TOLERANCE_M].tolist())
         return hits[0], hits[1]
 
 
@@ -353,8 +417,13 @@ def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.nd
     n = len(start)
     if radius <= 0 or n < 2:
         return np.zeros((0, 2), np.int64)
-    i, j = np.triu_indices(n, 1)
     path = end - start
+    if n < INDEX_MIN:
+        i, j = np.triu_indices(n, 1)
+    else:  # all three need the paths' discs within 2R: |mid_i - mid_j| < half_i + half_j + 2R
+        half = np.hypot(*path.T) / 2.0 + radius
+        i, j = near_pairs(np.arange(n), start + path / 2.0, half, start + path / 2.0, half)
+        i, j = i[i < j], j[i < j]
 
     def near(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         return closest_approach(offset, velocity) < 2.0 * radius
