@@ -170,29 +170,55 @@ class BodyCheck:
     def active(self) -> bool:
         return self.radius > 0
 
-    def _pairs(self, movers: np.ndarray, before: np.ndarray, moving: np.ndarray,
-               base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(i, j, closest approach, requirement) of each of ``movers`` (i) with every robot j != i that may come
-        too close, ``moving`` moving, in (position of i in ``movers``, j) order. Below ``INDEX_MIN`` robots every
-        pair; from there the candidates of a k-d tree of ``base`` (default ``before``; it must equal ``before``
-        except at ``movers``), which keeps every pair that can conflict (``near_pairs``)."""
-        disp = np.where(moving[:, None], self.desired - before, 0.0)
-        var = self.position_var + np.einsum("nk,nk->n", disp, disp) * self.spread_rate
+    def _candidates(self, rows: np.ndarray, before: np.ndarray, disp: np.ndarray, var: np.ndarray,
+                    base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (i, j), i of ``rows`` driving ``disp``_i (its variance ``var``_i), j != i at ``base`` (default
+        ``before``) or on its way from there to its desired position, that may come too close, in (position of i
+        in ``rows``, j) order. Below ``INDEX_MIN`` robots every pair; from there the candidates of a k-d tree of
+        ``base``: a conflict needs |mid_i - base_j| < half_i + L_j + (R + k sd_i) + (R + k sd_j), since the
+        requirement is at most 2R + k (sd_i + sd_j) (``near_pairs``)."""
+        rows = np.asarray(rows, np.int64)
         if len(before) < INDEX_MIN:
-            i, j = all_pairs(movers, len(before))
-        else:  # a conflict needs |mid_i - base_j| < half_i + L_j + (R + k sd_i) + (R + k sd_j) (requirement <= 2R + k (sd_i + sd_j))
-            tree, spread = self._index(before if base is None else base)
-            length = np.hypot(*disp.T)
-            reach = length / 2.0 + self.radius + self.sigmas * np.sqrt(var)
-            i, j = near_pairs(movers, before + disp / 2.0, reach, tree.data, spread, tree)
-        closest = closest_approach(before[i] - before[j], disp[i] - disp[j])
-        sigma = np.sqrt(var[i] + var[j])
+            return all_pairs(rows, len(before))
+        tree, spread = self._index(before if base is None else base)
+        reach = np.hypot(*disp[rows].T) / 2.0 + self.radius + self.sigmas * np.sqrt(var[rows])
+        mid = np.zeros_like(before)
+        mid[rows] = before[rows] + disp[rows] / 2.0
+        full = np.zeros(len(before))
+        full[rows] = reach
+        return near_pairs(rows, mid, full, tree.data, spread, tree)
+
+    def _verdict(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
+                 var_i: np.ndarray, var_j: np.ndarray) -> np.ndarray:
+        """Whether each pair (i, j) comes too close: relative position ``offset`` + s ``velocity`` (m), end-of-path
+        variances ``var_i``, ``var_j`` (m^2) against the requirement of the module docstring."""
+        return self._closeness(i, j, offset, velocity, var_i, var_j)[0]
+
+    def _closeness(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
+                   var_i: np.ndarray, var_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(too close, closest approach, requirement) of the pairs of ``_verdict``."""
+        closest = closest_approach(offset, velocity)
+        sigma = np.sqrt(var_i + var_j)
         start = np.hypot(*(self.current[i] - self.current[j]).T)
         end = np.hypot(*(self.desired[i] - self.desired[j]).T)
         two_r = 2.0 * self.radius
         floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
         required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
-        return i, j, closest, required
+        return closest < required - TOLERANCE_M, closest, required
+
+    def _motion(self, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(displacement (n, 2), end-of-path variance (n,)) of every robot when ``moving`` drive from ``before``."""
+        disp = np.where(moving[:, None], self.desired - before, 0.0)
+        return disp, self.position_var + np.einsum("nk,nk->n", disp, disp) * self.spread_rate
+
+    def _pairs(self, movers: np.ndarray, before: np.ndarray,
+               moving: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(i, j, too close, closest approach, requirement) of each of ``movers`` (i) with every robot j != i that
+        may come too close (``_candidates``), ``moving`` moving."""
+        disp, var = self._motion(before, moving)
+        i, j = self._candidates(movers, before, disp, var)
+        bad, closest, required = self._closeness(i, j, before[i] - before[j], disp[i] - disp[j], var[i], var[j])
+        return i, j, bad, closest, required
 
     def _index(self, base: np.ndarray) -> tuple[cKDTree, np.ndarray]:
         """A k-d tree of the positions ``base`` and each robot's spread there: its whole remaining path
@@ -217,15 +243,36 @@ class BodyCheck:
         key = np.asarray(before, float).tobytes() + np.asarray(moving, bool).tobytes()
         found = self._conflicts.get(key)
         if found is None:
-            i, j, closest, required = self._pairs(movers, before, moving)
-            bad = (closest < required - TOLERANCE_M) & (~moving[j] | (j > i))  # each mover pair once
+            i, j, bad, closest, required = self._pairs(movers, before, moving)
+            bad &= ~moving[j] | (j > i)  # each mover pair once
             found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(r))
                                                  for a, b, c, r in zip(i[bad], j[bad], closest[bad], required[bad], strict=True))
         return list(found)
 
-    def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
-        _, _, closest, required = self._pairs(np.array([robot]), before, moving)
-        return not np.any(closest < required - TOLERANCE_M)
+    def greedy(self, units: list[list[int]], before: np.ndarray) -> list[bool]:
+        """Which of ``units`` (lists of robots, in order) move together in one clear step from ``before``, taken
+        greedily: a unit joins when none of its robots comes too close to any robot, those of the units taken
+        so far and its own moving, the others standing at ``before``."""
+        robots = np.array([r for u in units for r in u], np.int64)
+        unit_of = np.full(len(before), -1, np.int64)
+        unit_of[robots] = np.repeat(np.arange(len(units)), [len(u) for u in units])
+        potential = unit_of >= 0
+        disp, var = self._motion(before, potential)
+        i, j = self._candidates(robots, before, disp, var)
+        offset = before[i] - before[j]
+        with_j_moving = self._verdict(i, j, offset, disp[i] - disp[j], var[i], var[j])
+        with_j_still = self._verdict(i, j, offset, disp[i], var[i], self.position_var[j])
+        ui, uj = unit_of[i], unit_of[j]
+        blocked = np.zeros(len(units), bool)  # by a robot of no unit (standing) or by its own unit (moving)
+        blocked[ui[((uj < 0) & with_j_still) | ((uj == ui) & with_j_moving)]] = True
+        other = np.flatnonzero((uj >= 0) & (uj != ui) & (with_j_moving | with_j_still))
+        depends: dict[int, list[tuple[int, bool, bool]]] = {}
+        for k in other.tolist():
+            depends.setdefault(int(ui[k]), []).append((int(uj[k]), bool(with_j_moving[k]), bool(with_j_still[k])))
+        taken = [False] * len(units)
+        for u in range(len(units)):
+            taken[u] = not blocked[u] and not any(m if taken[v] else st for v, m, st in depends.get(u, ()))
+        return taken
 
     def is_clear(self, groups: list[np.ndarray]) -> bool:
         """Whether no step of ``groups`` has a conflict (constraint g of Eq. 4)."""
@@ -259,12 +306,14 @@ class BodyCheck:
         if not self.active or self.is_clear(groups):
             return Regrouped(groups, [], self.sigmas)
         every = np.concatenate(groups)
+        part = np.zeros(len(self.current), np.int64)  # each robot's group in the plan
+        part[every] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
         for k in [self.sigmas, *(k for k in SIGMA_LEVELS if k < self.sigmas)]:
             check = self.with_sigmas(k)
             split = check.split(groups)
             if not split.unclear:
                 return split
-            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool))
+            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool), part)
             if not unclear:
                 return Regrouped(moves, [], k)
         return Regrouped(moves, unclear, k)
@@ -278,13 +327,7 @@ class BodyCheck:
         queue, out, waited = deque(np.asarray(g).tolist() for g in groups), [], 0
         while queue and waited <= len(queue):
             group = queue.popleft()
-            moving, sub = np.zeros(len(before), bool), []
-            for r in group:
-                moving[r] = True
-                if self._clear_row(r, before, moving):
-                    sub.append(r)
-                else:
-                    moving[r] = False
+            sub = [r for r, ok in zip(group, self.greedy([[r] for r in group], before), strict=True) if ok]
             if sub:
                 out.append(np.array(sub))
                 before[sub] = self.desired[sub]
@@ -300,10 +343,13 @@ class BodyCheck:
             return Regrouped(out, [], self.sigmas)
         done = np.ones(len(before), bool)
         done[rest] = False
-        moves, unclear = self.ordered_moves(np.array(rest), done)
+        part = np.zeros(len(before), np.int64)
+        for k, g in enumerate(queue):
+            part[g] = k
+        moves, unclear = self.ordered_moves(np.array(rest), done, part)
         return Regrouped(out + moves, unclear, self.sigmas)
 
-    def ordered_moves(self, robots: np.ndarray, done: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+    def ordered_moves(self, robots: np.ndarray, done: np.ndarray, part: np.ndarray | None = None) -> tuple[list[np.ndarray], list[int]]:
         """Sub-steps that move ``robots`` one at a time where they can and together where they must, every
         sub-step clear, and []; the robots of ``done`` stand at their desired positions, the others at their
         current ones. When a sub-step cannot be cleared, its robots move one at a time there and are returned
@@ -320,19 +366,21 @@ class BodyCheck:
 
         ids = [int(r) for r in robots]
         local = {r: k for k, r in enumerate(ids)}
+        if part is None:
+            part = np.zeros(len(self.current), np.int64)
         edges, stuck = [], set()  # (a, b): a must move before b
+        near_current, near_desired = self._single_hits(np.array(ids, np.int64))
         for r in ids:
-            near_current, near_desired = self._single_hits(r)
-            edges += [(local[j], local[r]) for j in near_current if j in local]
-            edges += [(local[r], local[j]) for j in near_desired if j in local]
-            stuck |= {r for j in near_desired if j not in local and done[j]}
+            edges += [(local[j], local[r]) for j in near_current[r] if j in local]
+            edges += [(local[r], local[j]) for j in near_desired[r] if j in local]
+            stuck |= {r for j in near_desired[r] if j not in local and done[j]}
         m = len(ids)
         a, b = (np.array([e[k] for e in edges], np.int64) for k in (0, 1))
         graph = coo_matrix((np.ones(len(edges)), (a, b)), shape=(m, m)).tocsr()
         _, label = connected_components(graph, directed=True, connection="strong")
         members: dict[int, list[int]] = {}
         for k, c in enumerate(label):
-            members.setdefault(int(c), []).append(k)
+            members.setdefault(int(c), []).append(ids[k])
         after: dict[int, set[int]] = {c: set() for c in members}
         for x, y in zip(a.tolist(), b.tolist(), strict=True):
             if label[x] != label[y]:
@@ -341,38 +389,57 @@ class BodyCheck:
         for nxt in after.values():
             for d in nxt:
                 waiting[d] += 1
-        ready = [(min(members[c]), c) for c in members if not waiting[c]]
+        first = {c: min(local[r] for r in g) for c, g in members.items()}
+        ready = [(first[c], c) for c in members if not waiting[c]]
         heapq.heapify(ready)
         before = np.where(done[:, None], self.desired, self.current)
         out, unclear = [], []
-        while ready:  # Kahn's topological sort of the components
-            c = heapq.heappop(ready)[1]
-            group = [ids[k] for k in members[c]]
-            moving = np.zeros(len(before), bool)
-            moving[group] = True
-            if stuck & set(group) or (len(group) > 1 and self.step_conflicts(before, moving)):
-                unclear += group
-                out += [np.array([r]) for r in group]
-            else:
-                out.append(np.array(group))
-            before[group] = self.desired[group]
+
+        def release(c: int) -> None:
             for d in after[c]:
                 waiting[d] -= 1
                 if not waiting[d]:
-                    heapq.heappush(ready, (min(members[d]), d))
+                    heapq.heappush(ready, (first[d], d))
+
+        while ready:  # Kahn's topological sort of the components, in waves of ready ones that move together clear
+            popped = [heapq.heappop(ready)[1] for _ in range(len(ready))]
+            lead = popped[0]
+            parts = {int(part[r]) for r in members[lead]}  # a wave keeps to the plan's groups
+            units = [lead] + [c for c in popped[1:] if not stuck & set(members[c]) and {int(part[r]) for r in members[c]} <= parts]
+            taken = self.greedy([members[c] for c in units], before)
+            if stuck & set(members[lead]) or not taken[0]:  # its robots cannot move clear: one at a time here
+                units, taken = [lead], [True]
+                unclear += members[lead]
+                out += [np.array([r]) for r in members[lead]]
+            else:
+                out.append(np.array([r for c, t in zip(units, taken, strict=True) if t for r in members[c]]))
+            moved = [c for c, t in zip(units, taken, strict=True) if t]
+            for c in popped:
+                if c not in moved:
+                    heapq.heappush(ready, (first[c], c))
+            for c in moved:
+                before[members[c]] = self.desired[members[c]]
+                release(c)
         return out, sorted(unclear)
 
-    def _single_hits(self, robot: int) -> tuple[list[int], list[int]]:
-        """The robots whose current / desired positions ``robot``'s single move (current -> desired) comes too close to."""
-        moving = np.zeros(len(self.current), bool)
-        moving[robot] = True
-        hits = []
+    def _single_hits(self, robots: np.ndarray) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
+        """For each of ``robots``: the robots whose current / desired positions its single move (current -> desired),
+        the others standing there, comes too close to."""
+        out = []
+        path = self.desired - self.current
+        var = self.position_var + np.einsum("nk,nk->n", path, path) * self.spread_rate
         for base in (self.current, self.desired):
+            disp = np.zeros_like(path)
+            disp[robots] = path[robots]
             before = base.copy()
-            before[robot] = self.current[robot]
-            _, j, closest, required = self._pairs(np.array([robot]), before, moving, base)
-            hits.append(j[closest < required - TOLERANCE_M].tolist())
-        return hits[0], hits[1]
+            before[robots] = self.current[robots]
+            i, j = self._candidates(robots, before, disp, var, base)
+            bad = self._verdict(i, j, self.current[i] - base[j], path[i], var[i], self.position_var[j])
+            hits: dict[int, list[int]] = {int(r): [] for r in robots}
+            for x, y in zip(i[bad].tolist(), j[bad].tolist(), strict=True):
+                hits[x].append(y)
+            out.append(hits)
+        return out[0], out[1]
 
 
 @dataclass(frozen=True)
