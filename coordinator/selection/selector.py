@@ -57,7 +57,7 @@ from functools import partial
 import numpy as np
 
 from coordinator.localization import Localizer
-from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
+from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -80,7 +80,8 @@ GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
 }
 MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
-MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
+MC_EMAX = ("mean", "worst")
+ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)  # e_l,max: mean over the samples of e_l(0), or their largest
 
 
 class NoFeasiblePlanError(SwarmInputError):
@@ -309,7 +310,8 @@ class AnchorSelector:
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
                 continue
             seed = repair(seeds[n_a], bodies, connected) if connected(seeds[n_a]) else None
-            genetic = self.genetic_runs(n, n_a)
+            # a crowded heuristic plan: its repair only makes a plan clear, so the count is searched wherever the search may run
+            genetic = self.genetic_runs(n, n_a) or (scores[n_a].crowded and sel.genetic_gate != "off")
             if not genetic:  # gated off (``genetic_runs``): the count's plan is its (repaired) heuristic plan
                 if seed is None:
                     scores[n_a] = replace(scores[n_a], searched=True)
@@ -332,6 +334,12 @@ class AnchorSelector:
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
             plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
+            if plan is None and n_solutions(n, n_a) <= ENUMERATED:  # no clear plan met: every plan of the count, if one is clear
+                clear = [p for p in enumerate_plans(n, n_a) if feasible(p)]
+                if clear:
+                    known.update((p.key(), float(e)) for p, e in zip(clear, search(clear), strict=True))
+                    plan = min(clear, key=lambda p: known[p.key()])
+                    evaluations += len(clear)
             if plan is None:
                 scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
                 continue
