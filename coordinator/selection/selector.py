@@ -80,8 +80,8 @@ GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
 }
 MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
-MC_EMAX = ("mean", "worst")
-ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)  # e_l,max: mean over the samples of e_l(0), or their largest
+MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
+ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)
 
 
 class NoFeasiblePlanError(SwarmInputError):
