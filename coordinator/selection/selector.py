@@ -35,7 +35,10 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
-heuristic seeds, the genetic search and the outer loop alike. When no plan found is clear but
+heuristic seeds, the genetic search and the outer loop alike. A searched count whose heuristic plan is
+crowded runs the genetic search from its repaired plan wherever the gate is not ``off`` (the repair makes
+a plan clear, not good), and one whose search met no clear plan is enumerated for clear plans when it has
+at most ``ENUMERATED`` plans (all of them evaluated, then raced as the search's). When no plan found is clear but
 some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
 and the executor splits its conflicting steps.
 
