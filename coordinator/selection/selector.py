@@ -36,9 +36,11 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
 heuristic seeds, the genetic search and the outer loop alike. A searched count whose heuristic plan is
-crowded runs the genetic search from its repaired plan wherever the gate is not ``off`` (the repair makes
-a plan clear, not good), and one whose search met no clear plan is enumerated for clear plans when it has
-at most ``ENUMERATED`` plans (all of them evaluated, then raced as the search's). When no plan found is clear but
+crowded runs the genetic search wherever the gate is not ``off`` (the repair makes a plan clear, not good):
+from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
+predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
+small count (all evaluated, then raced as the search's), or, with one mover a step, an order of single moves
+that keeps each clear (``BodyCheck.ordered_moves``). When no plan found is clear but
 some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
 and the executor splits its conflicting steps.
 
@@ -54,6 +56,7 @@ mean over samples of e_l(0), Sec. 4.1.1; ``"worst"``: the largest e_l(0) over th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 
@@ -325,6 +328,11 @@ class AnchorSelector:
                 bar = max(bar, scores[n_a].p_s)
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
+            clear = self._clear_plans(n, n_a, feasible) if scores[n_a].crowded else None
+            if clear:  # clear plans are few and far from the heuristic's: the search starts from the best-predicted
+                ranked = [clear[k] for k in np.argsort(predicted_errors(self.cfg, estimate, desired, clear), kind="stable")]
+                starts = ([seed] if seed is not None else []) + [p for p in ranked if seed is None or p.key() != seed.key()]
+                starts = starts[: sel.genetic.population]
             known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
             screen = self.screens()  # Monte Carlo only for the best-predicted plans
             plans = n_solutions(n, n_a)
@@ -337,12 +345,16 @@ class AnchorSelector:
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
             plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
-            if plan is None and n_solutions(n, n_a) <= ENUMERATED:  # no clear plan met: every plan of the count, if one is clear
-                clear = [p for p in enumerate_plans(n, n_a) if feasible(p)]
-                if clear:
-                    known.update((p.key(), float(e)) for p, e in zip(clear, search(clear), strict=True))
-                    plan = min(clear, key=lambda p: known[p.key()])
-                    evaluations += len(clear)
+            if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
+                found = self._clear_plans(n, n_a, feasible) if clear is None else clear
+                if not found and n - n_a == 1:
+                    moves, unclear = bodies.ordered_moves(np.arange(n), np.zeros(n, bool), np.arange(n))
+                    single = Plan(np.concatenate(moves), (1,) * n) if not unclear and len(moves) == n else None
+                    found = [single] if single is not None and feasible(single) else []
+                if found:
+                    known.update((p.key(), float(e)) for p, e in zip(found, search(found), strict=True))
+                    plan = min(found, key=lambda p: known[p.key()])
+                    evaluations += len(found)
             if plan is None:
                 scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
                 continue
@@ -449,6 +461,13 @@ class AnchorSelector:
             )
         assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, scores, len(scores))
+
+    @staticmethod
+    def _clear_plans(n: int, n_a: int, feasible: Callable[[Plan], bool]) -> list[Plan] | None:
+        """Every feasible plan of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans, else None."""
+        if n_solutions(n, n_a) > ENUMERATED:
+            return None
+        return [p for p in enumerate_plans(n, n_a) if feasible(p)]
 
     def _optimistic(self, p_s: float, p_v: float) -> float:
         """The count's P_s if its inner loop lowered the screened e_l by ``prune_gain`` (Section 4.2.1's bound;
