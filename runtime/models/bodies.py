@@ -82,13 +82,15 @@ def near_pairs(rows: np.ndarray, mid: np.ndarray, reach: np.ndarray, points: np.
     rows = np.asarray(rows, np.int64)
     if tree is None:
         tree = cKDTree(points)
-    lists = tree.query_ball_point(mid[rows], reach[rows] + float(spread.max()) + _SLACK_M, return_sorted=True)
-    counts = np.fromiter((len(x) for x in lists), np.int64, len(rows))
-    i = np.repeat(rows, counts)
-    j = np.concatenate(lists).astype(np.int64) if counts.sum() else np.zeros(0, np.int64)
-    gap = np.hypot(*(mid[i] - points[j]).T)
-    keep = (i != j) & (gap < reach[i] + spread[j] + _SLACK_M)
-    return i[keep], j[keep]
+    if not len(rows):
+        return rows, rows
+    reach_rows = reach[rows]
+    found = cKDTree(mid[rows]).sparse_distance_matrix(tree, float(reach_rows.max() + spread.max()) + _SLACK_M, output_type="ndarray")
+    k, j = found["i"].astype(np.int64), found["j"].astype(np.int64)
+    keep = (rows[k] != j) & (found["v"] < reach_rows[k] + spread[j] + _SLACK_M)
+    k, j = k[keep], j[keep]
+    order = np.lexsort((j, k))
+    return rows[k[order]], j[order]
 
 
 @dataclass(frozen=True)
