@@ -156,7 +156,8 @@ class BodyCheck:
         self.current = np.asarray(current, float)[:, :2]
         self.desired = np.asarray(desired, float)[:, :2]
         n = len(self.current)
-        self.sigmas = CLEARANCE_SIGMAS
+        self.sigmas = CLEARANCE_SIGMAS  # the margin in standard deviations (the largest, when ``levels`` are set)
+        self.levels: np.ndarray | None = None  # per robot, when margins differ (``with_levels``)
         self.position_var = np.broadcast_to(np.asarray(position_var, float), (n,))
         self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
                                       cfg.drive_sigma_frac**2)
@@ -204,8 +205,9 @@ class BodyCheck:
         start = np.hypot(*(self.current[i] - self.current[j]).T)
         end = np.hypot(*(self.desired[i] - self.desired[j]).T)
         two_r = 2.0 * self.radius
-        floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
-        required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
+        k = self.sigmas if self.levels is None else np.minimum(self.levels[i], self.levels[j])  # a pair keeps its lower margin
+        floor = np.minimum(start, end) - np.minimum(k, 1.0) * sigma  # the configurations' own closeness, less one sigma
+        required = np.maximum(two_r, np.minimum(two_r + k * sigma, floor))
         return closest < required - TOLERANCE_M, closest, required
 
     def _motion(self, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -292,17 +294,26 @@ class BodyCheck:
     def with_sigmas(self, sigmas: float) -> BodyCheck:
         """The same check with a margin of ``sigmas`` standard deviations."""
         out = copy.copy(self)
-        out.sigmas = float(sigmas)
+        out.sigmas, out.levels = float(sigmas), None
         out._conflicts, out._trees = {}, {}
+        return out
+
+    def with_levels(self, levels: np.ndarray) -> BodyCheck:
+        """The same check with a margin of ``levels`` (n,) standard deviations per robot; a pair keeps the lower."""
+        if np.all(levels == levels[0]):
+            return self.with_sigmas(float(levels[0]))
+        out = self.with_sigmas(float(np.max(levels)))
+        out.levels = np.asarray(levels, float).copy()
         return out
 
     def regroup(self, groups: list[np.ndarray]) -> Regrouped:
         """``groups`` split into conflict-free sub-steps, in their order (``docs/bodies.md``).
 
         First the groups themselves (``split``); if that leaves robots that no order clears, all
-        robots one at a time where they can (``ordered_moves``); if neither clears, the same with the margin
-        lowered to each of ``SIGMA_LEVELS`` below this check's in turn (down to the bare 2R).
-        If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared.
+        robots in order (``ordered_moves``); if neither clears, the same with the margin of the robots that
+        order left unclear lowered to the next of ``SIGMA_LEVELS`` (down to the bare 2R), the others keeping
+        theirs, in turn. If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared;
+        ``sigmas`` is the lowest margin kept.
         """
         groups = [np.asarray(g, dtype=np.int64) for g in groups]
         if not self.active or self.is_clear(groups):
@@ -310,15 +321,18 @@ class BodyCheck:
         every = np.concatenate(groups)
         part = np.zeros(len(self.current), np.int64)  # each robot's group in the plan
         part[every] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        for k in [self.sigmas, *(k for k in SIGMA_LEVELS if k < self.sigmas)]:
-            check = self.with_sigmas(k)
+        levels = np.full(len(self.current), self.sigmas)
+        while True:
+            check = self.with_levels(levels)
             split = check.split(groups)
             if not split.unclear:
-                return split
+                return Regrouped(split.groups, [], float(levels.min()))
             moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool), part)
-            if not unclear:
-                return Regrouped(moves, [], k)
-        return Regrouped(moves, unclear, k)
+            lower = [r for r in unclear if levels[r] > min(SIGMA_LEVELS)]
+            if not unclear or not lower:
+                return Regrouped(moves, unclear, float(levels.min()))
+            for r in lower:  # only the robots no order clears get the next lower margin
+                levels[r] = max(k for k in SIGMA_LEVELS if k < levels[r])
 
     def split(self, groups: list[np.ndarray]) -> Regrouped:
         """``groups`` split into clear sub-steps in their order. Each group moves as the prefix-greedy subset
