@@ -88,3 +88,20 @@ def test_robots_that_go_in_order_move_in_clear_waves():
         before[group] = desired[group]
     one_each = check.regroup([np.array([r]) for r in range(120)])  # a plan of single moves stays one at a time
     assert all(len(g) == 1 for g in one_each.groups)
+
+
+def test_a_pair_keeps_the_lower_margin_of_its_robots():
+    current, desired, position_var, heading_var = rough_change(40, 3)
+    check = BodyCheck(CFG, current, desired, position_var, heading_var)
+    moving = np.arange(40) % 2 == 0
+    first = BodyCheck(CFG, current, desired, position_var, heading_var).step_conflicts(current, moving)
+    levels = np.full(40, 2.0)
+    levels[[first[0].a, first[-1].b]] = [1.0, 0.0]  # two robots of conflicts at 2 sigma
+    mixed = {(c.a, c.b): c.required for c in check.with_levels(levels).step_conflicts(current, moving)}
+    by_level = {k: {(c.a, c.b): c.required for c in check.with_sigmas(k).step_conflicts(current, moving)} for k in (2.0, 1.0, 0.0)}
+    expected = {}
+    for k, found in by_level.items():
+        expected.update({pair: r for pair, r in found.items() if min(levels[pair[0]], levels[pair[1]]) == k})
+    assert mixed == expected
+    assert any(r < by_level[2.0][pair] for pair, r in mixed.items())  # the lowered robots' pairs require less
+    assert check.with_levels(np.full(40, 2.0)).levels is None  # equal margins: the plain check
