@@ -3,8 +3,9 @@
 Every configuration is one random step of ``study anchors`` (random connected start,
 desired configuration 0.1-0.6 m away, start estimate 0.01 m / 2 deg). For every anchor
 count whose ordered partitions (Eq. 10) number at most ``EXHAUSTIVE_LIMIT``
-(n_r = 8: n_a = 4 with 70 plans and n_a = 6 with 2520), the optimum is found in three
-independent Monte Carlo sets (common random numbers within each):
+(n_r = 8: n_a = 4 with 70 plans and n_a = 6 with 2520), the optimum among the plans the search may
+return (connected after every step and, with bodies, every step clear: ``BodyCheck`` of the start
+estimate, docs/bodies.md) is found in three independent Monte Carlo sets (common random numbers within each):
 
 1. every plan on ``--screen-samples`` samples -> the ``SHORTLIST`` best,
 2. the shortlist on ``--pick-samples`` fresh samples -> the optimum,
