@@ -1,7 +1,7 @@
 """``swarm bench collisions``: contacts between robot bodies per method, planned with bodies and as points
 (``inchworm.bench.collisions``; docs/bodies.md). ``--json``: the last line is
 ``{"radius_m", "trajectories", "configs", "rows": [{"method", "localizer", "bodies", "contacts_per_100",
-"configs_with_contact_pct", "steps_per_config", "pf_mean"}, ...]}``."""
+"configs_with_contact_pct", "steps_per_config", "pf_mean", "noise_scale"}, ...]}``."""
 
 from __future__ import annotations
 
@@ -28,6 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--methods", default=",".join(METHODS), help="comma-separated methods (default: all)")
     p.add_argument("--localizers", default="paper", help="comma-separated localizers: paper, joint (default paper)")
     p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
+    p.add_argument("--noise-scales", default="1,3,5.58",
+                   help="comma-separated factors of the motion noise (turn and drive sigma) run in turn (default 1,3,5.58)")
     add_workers_option(p)
     add_selection_options(p)
     add_model_options(p)
@@ -39,8 +41,13 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.bench.collisions import CollisionsBenchOptions, bench_collisions  # noqa: PLC0415
     from inchworm.options import RunOptions  # noqa: PLC0415
     from inchworm.progress import Progress  # noqa: PLC0415
+    from runtime.errors import SwarmInputError  # noqa: PLC0415
 
+    try:
+        scales = tuple(float(k) for k in names(args.noise_scales))
+    except ValueError:
+        raise SwarmInputError(f"--noise-scales must list numbers, got {args.noise_scales!r}") from None
     options = CollisionsBenchOptions(args.robots, args.trajectories, args.configs, names(args.methods), names(args.localizers),
-                                     args.seed, args.workers, RunOptions(model=model_config(args), selection=selection_config(args)))
-    runs = 2 * len(options.methods) * len(options.localizers) * options.trajectories
+                                     args.seed, args.workers, scales, RunOptions(model=model_config(args), selection=selection_config(args)))
+    runs = 2 * len(options.methods) * len(options.localizers) * len(scales) * options.trajectories
     return print_result(bench_collisions(options, Progress(runs, "bench collisions")), args.json)

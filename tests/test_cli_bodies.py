@@ -60,21 +60,27 @@ def test_radius_zero_prints_the_numbers_of_the_point_robots(tmp_path):
 
 
 def test_bench_collisions_json_contract():
-    out = swarm("bench", "collisions", "--trajectories", "2", "--configs", "2", "--methods", "ref57,one-at-a-time", "--workers", "1", "--json")
+    out = swarm("bench", "collisions", "--trajectories", "2", "--configs", "2", "--methods", "ref57,one-at-a-time", "--workers", "1",
+                "--noise-scales", "1,3", "--json")
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert list(doc) == ["radius_m", "trajectories", "configs", "rows"]
     assert (doc["radius_m"], doc["trajectories"], doc["configs"]) == (0.011, 2, 2)
-    assert [(r["method"], r["localizer"], r["bodies"]) for r in doc["rows"]] == [
-        ("ref57", "paper", True), ("ref57", "paper", False), ("one-at-a-time", "paper", True), ("one-at-a-time", "paper", False)]
+    assert [(r["noise_scale"], r["method"], r["localizer"], r["bodies"]) for r in doc["rows"]] == [
+        (k, m, "paper", b) for k in (1.0, 3.0) for m in ("ref57", "one-at-a-time") for b in (True, False)]
     for row in doc["rows"]:
-        assert list(row) == ["method", "localizer", "bodies", "contacts_per_100", "configs_with_contact_pct", "steps_per_config", "pf_mean"]
+        assert list(row) == ["method", "localizer", "bodies", "contacts_per_100", "configs_with_contact_pct", "steps_per_config", "pf_mean",
+                             "noise_scale"]
         assert row["contacts_per_100"] >= row["configs_with_contact_pct"] >= 0 and row["pf_mean"] > 0
-    by = {(r["method"], r["bodies"]): r for r in doc["rows"]}
-    assert by[("ref57", True)]["steps_per_config"] >= by[("ref57", False)]["steps_per_config"] == 2
-    assert by[("one-at-a-time", True)]["steps_per_config"] == by[("one-at-a-time", False)]["steps_per_config"] == 10
+    by = {(r["method"], r["bodies"], r["noise_scale"]): r for r in doc["rows"]}
+    for k in (1.0, 3.0):
+        assert by[("ref57", True, k)]["steps_per_config"] >= by[("ref57", False, k)]["steps_per_config"] == 2
+        assert by[("one-at-a-time", True, k)]["steps_per_config"] == by[("one-at-a-time", False, k)]["steps_per_config"] == 10
+    assert by[("ref57", False, 3.0)]["pf_mean"] > by[("ref57", False, 1.0)]["pf_mean"]  # three times the motion noise
     bad = swarm("bench", "collisions", "--robot-radius", "0")
     assert bad.returncode == 2 and "--robot-radius must be > 0" in bad.stderr
+    bad = swarm("bench", "collisions", "--noise-scales", "1,x")
+    assert bad.returncode == 2 and "--noise-scales must list numbers" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_a_gateway_whose_robots_have_other_bodies_is_refused_before_anything_starts(tmp_path):

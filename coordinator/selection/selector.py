@@ -35,7 +35,12 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
-heuristic seeds, the genetic search and the outer loop alike. When no plan found is clear but
+heuristic seeds, the genetic search and the outer loop alike. A searched count whose heuristic plan is
+crowded runs the genetic search wherever the gate is not ``off`` (the repair makes a plan clear, not good):
+from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
+predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
+small count (all evaluated, then raced as the search's), or, with one mover a step, an order of single moves
+that keeps each clear (``BodyCheck.ordered_moves``). When no plan found is clear but
 some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
 and the executor splits its conflicting steps.
 
@@ -51,13 +56,14 @@ mean over samples of e_l(0), Sec. 4.1.1; ``"worst"``: the largest e_l(0) over th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import partial
 
 import numpy as np
 
 from coordinator.localization import Localizer
-from coordinator.plan import Plan, feasible_anchor_counts, n_solutions, n_steps, speed_performance
+from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -81,6 +87,7 @@ GENETIC_PAYS: dict[tuple[str, bool], dict[int, tuple[int, int]]] = {
 MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row of the nearest (by ratio)
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
+ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)
 
 
 class NoFeasiblePlanError(SwarmInputError):
@@ -309,7 +316,8 @@ class AnchorSelector:
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
                 continue
             seed = repair(seeds[n_a], bodies, connected) if connected(seeds[n_a]) else None
-            genetic = self.genetic_runs(n, n_a)
+            # a crowded heuristic plan: its repair only makes a plan clear, so the count is searched wherever the search may run
+            genetic = self.genetic_runs(n, n_a) or (scores[n_a].crowded and sel.genetic_gate != "off")
             if not genetic:  # gated off (``genetic_runs``): the count's plan is its (repaired) heuristic plan
                 if seed is None:
                     scores[n_a] = replace(scores[n_a], searched=True)
@@ -320,6 +328,11 @@ class AnchorSelector:
                 bar = max(bar, scores[n_a].p_s)
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
+            clear = self._clear_plans(n, n_a, feasible) if scores[n_a].crowded else None
+            if clear:  # clear plans are few and far from the heuristic's: the search starts from the best-predicted
+                ranked = [clear[k] for k in np.argsort(predicted_errors(self.cfg, estimate, desired, clear), kind="stable")]
+                starts = ([seed] if seed is not None else []) + [p for p in ranked if seed is None or p.key() != seed.key()]
+                starts = starts[: sel.genetic.population]
             known = {seed.key(): scores[n_a].seed_e_l} if seed is seeds[n_a] else {}
             screen = self.screens()  # Monte Carlo only for the best-predicted plans
             plans = n_solutions(n, n_a)
@@ -332,6 +345,16 @@ class AnchorSelector:
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
             plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
+            if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
+                found = self._clear_plans(n, n_a, feasible) if clear is None else clear
+                if not found and n - n_a == 1:
+                    moves, unclear = bodies.ordered_moves(np.arange(n), np.zeros(n, bool), np.arange(n))
+                    single = Plan(np.concatenate(moves), (1,) * n) if not unclear and len(moves) == n else None
+                    found = [single] if single is not None and feasible(single) else []
+                if found:
+                    known.update((p.key(), float(e)) for p, e in zip(found, search(found), strict=True))
+                    plan = min(found, key=lambda p: known[p.key()])
+                    evaluations += len(found)
             if plan is None:
                 scores[n_a] = replace(scores[n_a], searched=True, genetic=True)
                 continue
@@ -438,6 +461,13 @@ class AnchorSelector:
             )
         assert best.plan is not None  # chosen among the plans found
         return Selection(best.plan, scores, len(scores))
+
+    @staticmethod
+    def _clear_plans(n: int, n_a: int, feasible: Callable[[Plan], bool]) -> list[Plan] | None:
+        """Every feasible plan of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans, else None."""
+        if n_solutions(n, n_a) > ENUMERATED:
+            return None
+        return [p for p in enumerate_plans(n, n_a) if feasible(p)]
 
     def _optimistic(self, p_s: float, p_v: float) -> float:
         """The count's P_s if its inner loop lowered the screened e_l by ``prune_gain`` (Section 4.2.1's bound;

@@ -6,12 +6,15 @@ bodies of the model's ``robot_radius_m`` (the constraint of ``docs/bodies.md``) 
 the paper's point robots (radius 0). Contacts are counted at that radius either way
 (``RunResult.contacts``: true centres closer than two radii at some time of a step). The
 trajectories are drawn for bodies (kept passable), so both rows run the same ones.
+Every row is run at each of ``noise_scales``: the model's motion noise (turn sigma and drive
+sigma fraction) times that factor (x3: 9 deg and 0.15 from the defaults), the trajectories
+drawn and the plans made for that noise.
 Per row: contacts per 100 configuration changes, the percentage of changes with a contact,
 steps per configuration (speed, Eq. 6-7) and the mean P_f (Eq. 24). ``to_json()``::
 
     {"radius_m": R, "trajectories": T, "configs": C, "rows": [{"method": M, "localizer": L,
      "bodies": true|false, "contacts_per_100": X, "configs_with_contact_pct": Y,
-     "steps_per_config": S, "pf_mean": P}, ...]}
+     "steps_per_config": S, "pf_mean": P, "noise_scale": K}, ...]}
 """
 
 from __future__ import annotations
@@ -26,9 +29,11 @@ from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
 from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 LOCALIZERS = ("paper", "joint")
+NOISE_SCALES = (1.0, 3.0, 5.58)  # motion noise x1, x3 (9 deg, 0.15) and x5.58 (16.74 deg, 0.279)
 
 
 @dataclass(frozen=True)
@@ -40,21 +45,28 @@ class CollisionsBenchOptions:
     localizers: tuple[str, ...] = ("paper",)
     seed: int = 0  # trajectory t uses seed + t
     workers: int = 1
+    noise_scales: tuple[float, ...] = NOISE_SCALES  # factors of the model's turn and drive noise
     run: RunOptions = field(default_factory=RunOptions)  # its localizer is not used: ``localizers`` are
+
+
+def scaled(cfg: ModelConfig, factor: float) -> ModelConfig:
+    """``cfg`` with its motion noise (turn sigma, drive sigma fraction) times ``factor``."""
+    return replace(cfg, turn_sigma_rad=cfg.turn_sigma_rad * factor, drive_sigma_frac=cfg.drive_sigma_frac * factor)
 
 
 def run_one(job: tuple) -> dict:
     """One (trajectory, method, localizer, planned with bodies or not) run; top-level for worker processes."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
-    t, method, localizer, bodies, robots, configs, seed, cfg, selection = job
+    t, method, localizer, bodies, robots, configs, seed, cfg, selection, scale = job
+    cfg = scaled(cfg, scale)
     radius = cfg.robot_radius_m
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     planned = cfg if bodies else replace(cfg, robot_radius_m=0.0)
     result = simulate(traj, method, planned, localizer=localizer, selection=selection, seed=seed + t)
     contacts = result.contacts(radius)
     return {
-        "method": method, "localizer": localizer, "bodies": bodies, "contacts": len(contacts),
+        "method": method, "localizer": localizer, "bodies": bodies, "noise_scale": scale, "contacts": len(contacts),
         "configs_with_contact": len({c.config for c in contacts}), "configs": len(result.configs),
         "steps": int(result.steps_per_config().sum()), "steps_added": result.steps_added(),
         "unclear": sum(1 for c in result.configs if c.regrouped is not None and c.regrouped.unclear),
@@ -62,18 +74,18 @@ def run_one(job: tuple) -> dict:
     }
 
 
-def summarise(runs: list[dict], keys: list[tuple[str, str, bool]]) -> list[dict]:
-    """One row per (method, localizer, bodies) with the contract's keys, plus the extras the table prints."""
+def summarise(runs: list[dict], keys: list[tuple[str, str, bool, float]]) -> list[dict]:
+    """One row per (method, localizer, bodies, noise scale) with the contract's keys, plus the extras the table prints."""
     rows = []
-    for method, localizer, bodies in keys:
-        mine = [r for r in runs if (r["method"], r["localizer"], r["bodies"]) == (method, localizer, bodies)]
+    for method, localizer, bodies, scale in keys:
+        mine = [r for r in runs if (r["method"], r["localizer"], r["bodies"], r["noise_scale"]) == (method, localizer, bodies, scale)]
         changes = sum(r["configs"] for r in mine)
         rows.append({
             "method": method, "localizer": localizer, "bodies": bodies,
             "contacts_per_100": 100.0 * sum(r["contacts"] for r in mine) / changes,
             "configs_with_contact_pct": 100.0 * sum(r["configs_with_contact"] for r in mine) / changes,
             "steps_per_config": sum(r["steps"] for r in mine) / changes,
-            "pf_mean": float(np.mean([r["pf"] for r in mine])),
+            "pf_mean": float(np.mean([r["pf"] for r in mine])), "noise_scale": scale,
             "_steps_added": sum(r["steps_added"] for r in mine), "_unclear": sum(r["unclear"] for r in mine),
         })
     return rows
@@ -88,6 +100,8 @@ def check(o: CollisionsBenchOptions) -> None:
         raise SwarmInputError(f"--methods must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}")
     if not o.localizers or any(v not in LOCALIZERS for v in o.localizers):
         raise SwarmInputError(f"--localizers must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}")
+    if not o.noise_scales or not all(np.isfinite(k) and k > 0 for k in o.noise_scales):
+        raise SwarmInputError(f"--noise-scales must list factors > 0, got {','.join(map(str, o.noise_scales))!r}")
 
 
 def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
@@ -96,8 +110,8 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
     o = options
     check(o)
     cfg = o.run.model
-    keys = [(m, v, b) for v in o.localizers for m in o.methods for b in (True, False)]
-    jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection) for m, v, b in keys for t in range(o.trajectories)]
+    keys = [(m, v, b, k) for k in o.noise_scales for v in o.localizers for m in o.methods for b in (True, False)]
+    jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection, k) for m, v, b, k in keys for t in range(o.trajectories)]
     runs: list[dict] = []
     with ProcessPoolExecutor(max_workers=max(1, o.workers)) as pool:
         for run_row in pool.map(run_one, jobs):
@@ -105,11 +119,13 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
             if progress:
                 progress(len(runs))
     rows = summarise(runs, keys)
-    lines = [f"radius {cfg.robot_radius_m:g} m, {o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
-             f"{'method':<22} {'localizer':<9} {'planned':<7} {'contacts/100':>12} {'changes %':>9} {'steps':>6} {'added':>6} "
+    lines = [f"radius {cfg.robot_radius_m:g} m, {o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}; "
+             f"noise: motion noise x the model's ({np.degrees(cfg.turn_sigma_rad):g} deg, {cfg.drive_sigma_frac:g})",
+             f"{'noise':>5} {'method':<22} {'localizer':<9} {'planned':<7} {'contacts/100':>12} {'changes %':>9} {'steps':>6} {'added':>6} "
              f"{'unclear':>7} {'P_f':>8}"]
     for r in rows:
-        lines.append(f"{r['method']:<22} {r['localizer']:<9} {'bodies' if r['bodies'] else 'points':<7} {r['contacts_per_100']:>12.2f} "
+        lines.append(f"{r['noise_scale']:>5g} {r['method']:<22} {r['localizer']:<9} {'bodies' if r['bodies'] else 'points':<7} "
+                     f"{r['contacts_per_100']:>12.2f} "
                      f"{r['configs_with_contact_pct']:>9.2f} {r['steps_per_config']:>6.2f} {r['_steps_added']:>6} {r['_unclear']:>7} "
                      f"{r['pf_mean']:>8.4f}")
     lines.append("added: steps the body constraint added over all runs; unclear: configuration changes with robots no order kept clear")

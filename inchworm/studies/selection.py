@@ -3,8 +3,9 @@
 Every configuration is one random step of ``study anchors`` (random connected start,
 desired configuration 0.1-0.6 m away, start estimate 0.01 m / 2 deg). For every anchor
 count whose ordered partitions (Eq. 10) number at most ``EXHAUSTIVE_LIMIT``
-(n_r = 8: n_a = 4 with 70 plans and n_a = 6 with 2520), the optimum is found in three
-independent Monte Carlo sets (common random numbers within each):
+(n_r = 8: n_a = 4 with 70 plans and n_a = 6 with 2520), the optimum among the plans the search may
+return (connected after every step and, with bodies, every step clear: ``BodyCheck`` of the start
+estimate, docs/bodies.md) is found in three independent Monte Carlo sets (common random numbers within each):
 
 1. every plan on ``--screen-samples`` samples -> the ``SHORTLIST`` best,
 2. the shortlist on ``--pick-samples`` fresh samples -> the optimum,
@@ -81,6 +82,7 @@ def run_config(task: ConfigTask) -> dict:
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
     from coordinator.selection.selector import AnchorSelector, NoFeasiblePlanError, samples_for, search_samples  # noqa: PLC0415
+    from runtime.models.bodies import BodyCheck  # noqa: PLC0415
     job, selection, budget = task.job, task.selection, task.budget
     n = job.robots
     rng, start, desired, estimate, mc = experiment_setup(job)
@@ -90,8 +92,10 @@ def run_config(task: ConfigTask) -> dict:
     screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed, task.selection.mc_start)  # the selection's reading of the start
                            for s, seed in zip((budget.screen, budget.pick, budget.eval), sets, strict=True))
 
+    bodies = BodyCheck.of_estimate(job.cfg, estimate, desired)  # the search's collision constraint (docs/bodies.md)
+
     def feasible(plan: Plan) -> bool:
-        return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
+        return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m) and bodies.is_clear(plan.groups)
 
     online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
     row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
@@ -111,6 +115,7 @@ def run_config(task: ConfigTask) -> dict:
                                    np.random.default_rng([job.seed, job.experiment, n_a]), selection.genetic)
         randoms = [p for p in (Plan.equal(rng.permutation(n), n_a) for _ in range(20)) if feasible(p)][:1]
         plans = {"heuristic": heuristic, "search": searched, "ga_raw": raw or heuristic}
+        row[f"na{n_a}_search_clear"] = int(feasible(searched))  # 0: the search found no plan that keeps bodies apart
         if randoms:
             plans["random"] = randoms[0]
         paired = final.localization_errors(estimate, desired, [heuristic, searched], per_sample=True)
@@ -119,12 +124,17 @@ def run_config(task: ConfigTask) -> dict:
         exhaustive = job.exhaustive and n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
         if exhaustive:
             every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
+            row[f"na{n_a}_clear_plans"] = len(every)
+        if exhaustive and every:
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]
             plans["optimum"] = shortlist[int(np.argmin(_errors(pick, estimate, desired, shortlist)))]
         e = dict(zip(plans, (float(v) for v in _errors(final, estimate, desired, list(plans.values()))), strict=True))
         for name, value in e.items():
             row[f"na{n_a}_{name}"] = value
-        best = min(e.values())
+        valid = [v for name, v in e.items() if feasible(plans[name])]  # the heuristic or the search may be crowded
+        if not valid:
+            continue
+        best = min(valid)
         best_p_s[n_a] = selection.w_v * speed_performance(n, n_a) - selection.w_l * best / e0
         if online.n_anchors == n_a:
             reported = next(s.e_l for s in online.scores if s.n_anchors == n_a)
@@ -145,16 +155,21 @@ def summarise(rows: list[dict], robots: int) -> dict:
             continue
         entry = {}
         for name in ("search", "ga_raw", "heuristic", "random"):
-            ratios = [r[f"na{n_a}_{name}"] / r[f"na{n_a}_optimum"] for r in with_opt if f"na{n_a}_{name}" in r]
+            ratios = [r[f"na{n_a}_{name}"] / r[f"na{n_a}_optimum"] for r in with_opt if f"na{n_a}_{name}" in r
+                      and (name != "search" or r.get(f"na{n_a}_search_clear", 1))]  # a crowded plan is no plan
             pooled.setdefault(name, []).extend(ratios)
-            entry[name] = {"median": float(np.median(ratios)), "max": float(np.max(ratios)), "mean": float(np.mean(ratios))}
+            entry[name] = ({"median": float(np.median(ratios)), "max": float(np.max(ratios)), "mean": float(np.mean(ratios))}
+                           if ratios else {"median": np.nan, "max": np.nan, "mean": np.nan})
         vs = [r[f"na{n_a}_search"] / r[f"na{n_a}_heuristic"] for r in with_opt]
-        entry["search_over_heuristic"] = {"median": float(np.median(vs)), "worse": int(sum(v > 1 for v in vs)), "cases": len(vs)}
+        entry["search_over_heuristic"] = {"median": float(np.median(vs)) if vs else np.nan, "worse": int(sum(v > 1 for v in vs)),
+                                          "cases": len(vs)}
         out["counts"][str(n_a)] = entry
     out["pooled"] = {k: {"median": float(np.median(v)), "max": float(np.max(v))} for k, v in pooled.items() if v}
     vs = [r[f"na{k}_search"] / r[f"na{k}_heuristic"] for r in rows for k in feasible_anchor_counts(robots) if f"na{k}_search" in r]
     out["search_over_heuristic_median"] = float(np.median(vs)) if vs else None
     out["search_vs_heuristic"] = search_vs_heuristic(rows, robots)
+    out["search_missing"] = sum(1 for r in rows for k in feasible_anchor_counts(robots)
+                                if r.get(f"na{k}_clear_plans", 0) > 0 and not r.get(f"na{k}_search_clear", 1))
     bias = [r["reported_over_fresh"] for r in rows if "reported_over_fresh" in r]
     out["reported_over_fresh_median"] = float(np.median(bias)) if bias else None
     return out
@@ -235,6 +250,7 @@ class SelectionStudyResult:
             "na_agrees": sum(r["na_agrees"] for r in self.rows),
             "configs": len(self.rows),
             "search_vs_heuristic": self.summary["search_vs_heuristic"],
+            "search_missing": self.summary["search_missing"],
         }
 
     def report(self) -> str:
@@ -251,6 +267,7 @@ class SelectionStudyResult:
         for n_a, v in self.summary["search_vs_heuristic"].items():
             lines.append(f"{n_a:>4} search returned its heuristic seed in {v['seed_returned']} of {v['cases']}; beat it by more than "
                          f"{BEYOND_NOISE:g} standard errors in {v['beats']}, lost by as much in {v['loses']}")
+        lines.append(f"counts with a clear plan (bodies kept apart) where the search returned none: {self.summary['search_missing']}")
         agrees = sum(r["na_agrees"] for r in self.rows)
         lines.append(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(self.rows)} (chosen: {[r['chosen_na'] for r in self.rows]})")
         if self.summary["reported_over_fresh_median"] is not None:

@@ -36,6 +36,8 @@ from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
 if TYPE_CHECKING:  # trajectory.py imports this module
+    from scipy.spatial import cKDTree
+
     from runtime.models.trajectory import Trajectory
 
 CLEARANCE_SIGMAS = 2.0  # k of the margin k x sqrt(sigma_i^2 + sigma_j^2)
@@ -56,6 +58,41 @@ def closest_approach(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     return np.hypot(rel[..., 0], rel[..., 1])
 
 
+INDEX_MIN = 128  # robots from which candidate pairs come from a k-d tree (fewer: every pair, as cheap)
+_SLACK_M = 1e-9  # candidate bounds are widened by this (rounding); conflicts are still decided exactly
+
+
+def all_pairs(rows: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every (i, j), i of ``rows``, j != i of ``n`` robots, in (position of i in ``rows``, j) order."""
+    i = np.repeat(np.asarray(rows, np.int64), n)
+    j = np.tile(np.arange(n), len(rows))
+    keep = i != j
+    return i[keep], j[keep]
+
+
+def near_pairs(rows: np.ndarray, mid: np.ndarray, reach: np.ndarray, points: np.ndarray, spread: np.ndarray,
+               tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Candidate pairs (i, j), i of ``rows``, j != i, in (position of i in ``rows``, j) order: every pair with
+    |``mid``_i - ``points``_j| < ``reach``_i + ``spread``_j (+ rounding slack), found with a k-d tree of ``points``
+    (``tree``, or built here). A pair of robots whose swept discs come within d of each other is kept when
+    ``mid``/``reach`` bound robot i's disc over the step (its path's midpoint; half its length plus its pad) and
+    every position robot j takes and its pad lie within ``spread``_j of ``points``_j, with the pads adding to d."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when checked (cheap parsers)
+
+    rows = np.asarray(rows, np.int64)
+    if tree is None:
+        tree = cKDTree(points)
+    if not len(rows):
+        return rows, rows
+    reach_rows = reach[rows]
+    found = cKDTree(mid[rows]).sparse_distance_matrix(tree, float(reach_rows.max() + spread.max()) + _SLACK_M, output_type="ndarray")
+    k, j = found["i"].astype(np.int64), found["j"].astype(np.int64)
+    keep = (rows[k] != j) & (found["v"] < reach_rows[k] + spread[j] + _SLACK_M)
+    k, j = k[keep], j[keep]
+    order = np.lexsort((j, k))
+    return rows[k[order]], j[order]
+
+
 @dataclass(frozen=True)
 class Contact:
     """Two robots (indices a < b into the step's arrays) whose bodies touched: centres ``distance`` m apart at
@@ -74,19 +111,25 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
         return []
     start = np.asarray(before, float)[:, :2]
     end = np.where(np.asarray(moving)[:, None], np.asarray(after, float)[:, :2], start)
+    moving = np.asarray(moving, bool)
     movers = np.flatnonzero(moving)
     if not len(movers):
         return []
     disp = end - start
-    d = closest_approach(start[movers, None] - start[None], disp[movers, None] - disp[None])  # (k, n)
-    d[np.arange(len(movers)), movers] = np.inf
-    once = ~np.asarray(moving, bool)[None] | (np.arange(len(start))[None] > movers[:, None])  # each mover pair once
-    rows, cols = np.nonzero(once & (d < 2.0 * radius))
-    mover, other = movers[rows], cols
-    s = closest_time(start[mover] - start[other], disp[mover] - disp[other])[:, None]
-    mid = (start[mover] + start[other] + s * (disp[mover] + disp[other])) / 2.0
-    out = [Contact(int(min(i, j)), int(max(i, j)), float(d[r, c]), (float(m[0]), float(m[1])))
-           for i, j, r, c, m in zip(mover, other, rows, cols, mid, strict=True)]
+    if len(start) < INDEX_MIN:
+        i, j = all_pairs(movers, len(start))
+    else:  # i's centre stays within half its path of its midpoint, j's within its path of its start
+        length = np.hypot(*disp.T)
+        i, j = near_pairs(movers, start + disp / 2.0, length / 2.0 + radius, start, length + radius)
+    once = ~moving[j] | (j > i)  # each mover pair once
+    i, j = i[once], j[once]
+    d = closest_approach(start[i] - start[j], disp[i] - disp[j])
+    hit = d < 2.0 * radius
+    i, j, d = i[hit], j[hit], d[hit]
+    s = closest_time(start[i] - start[j], disp[i] - disp[j])[:, None]
+    mid = (start[i] + start[j] + s * (disp[i] + disp[j])) / 2.0
+    out = [Contact(int(min(a, b)), int(max(a, b)), float(x), (float(m[0]), float(m[1])))
+           for a, b, x, m in zip(i, j, d, mid, strict=True)]
     return sorted(out, key=lambda c: (c.a, c.b))
 
 
@@ -113,11 +156,13 @@ class BodyCheck:
         self.current = np.asarray(current, float)[:, :2]
         self.desired = np.asarray(desired, float)[:, :2]
         n = len(self.current)
-        self.sigmas = CLEARANCE_SIGMAS
+        self.sigmas = CLEARANCE_SIGMAS  # the margin in standard deviations (the largest, when ``levels`` are set)
+        self.levels: np.ndarray | None = None  # per robot, when margins differ (``with_levels``)
         self.position_var = np.broadcast_to(np.asarray(position_var, float), (n,))
         self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
                                       cfg.drive_sigma_frac**2)
         self._conflicts: dict[bytes, tuple[Conflict, ...]] = {}  # step_conflicts by (before, moving): plans share steps
+        self._trees: dict[bytes, tuple[cKDTree, np.ndarray]] = {}  # ``_index`` by positions
 
     @classmethod
     def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
@@ -128,20 +173,71 @@ class BodyCheck:
     def active(self) -> bool:
         return self.radius > 0
 
-    def _rows(self, movers: np.ndarray, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(closest approach, requirement) (k, n) of each of ``movers`` with every robot, ``moving`` moving."""
-        disp = np.where(moving[:, None], self.desired - before, 0.0)
-        closest = closest_approach(before[movers, None] - before[None], disp[movers, None] - disp[None])
-        length2 = np.einsum("nk,nk->n", disp, disp)
-        var = self.position_var + length2 * self.spread_rate
-        sigma = np.sqrt(var[movers, None] + var[None])
-        start = np.hypot(*(self.current[movers, None] - self.current[None]).transpose(2, 0, 1))
-        end = np.hypot(*(self.desired[movers, None] - self.desired[None]).transpose(2, 0, 1))
+    def _candidates(self, rows: np.ndarray, before: np.ndarray, disp: np.ndarray, var: np.ndarray,
+                    base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (i, j), i of ``rows`` driving ``disp``_i (its variance ``var``_i), j != i at ``base`` (default
+        ``before``) or on its way from there to its desired position, that may come too close, in (position of i
+        in ``rows``, j) order. Below ``INDEX_MIN`` robots every pair; from there the candidates of a k-d tree of
+        ``base``: a conflict needs |mid_i - base_j| < half_i + L_j + (R + k sd_i) + (R + k sd_j), since the
+        requirement is at most 2R + k (sd_i + sd_j) (``near_pairs``)."""
+        rows = np.asarray(rows, np.int64)
+        if len(before) < INDEX_MIN:
+            return all_pairs(rows, len(before))
+        tree, spread = self._index(before if base is None else base)
+        reach = np.hypot(*disp[rows].T) / 2.0 + self.radius + self.sigmas * np.sqrt(var[rows])
+        mid = np.zeros_like(before)
+        mid[rows] = before[rows] + disp[rows] / 2.0
+        full = np.zeros(len(before))
+        full[rows] = reach
+        return near_pairs(rows, mid, full, tree.data, spread, tree)
+
+    def _verdict(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
+                 var_i: np.ndarray, var_j: np.ndarray) -> np.ndarray:
+        """Whether each pair (i, j) comes too close: relative position ``offset`` + s ``velocity`` (m), end-of-path
+        variances ``var_i``, ``var_j`` (m^2) against the requirement of the module docstring."""
+        return self._closeness(i, j, offset, velocity, var_i, var_j)[0]
+
+    def _closeness(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
+                   var_i: np.ndarray, var_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(too close, closest approach, requirement) of the pairs of ``_verdict``."""
+        closest = closest_approach(offset, velocity)
+        sigma = np.sqrt(var_i + var_j)
+        start = np.hypot(*(self.current[i] - self.current[j]).T)
+        end = np.hypot(*(self.desired[i] - self.desired[j]).T)
         two_r = 2.0 * self.radius
-        floor = np.minimum(start, end) - min(self.sigmas, 1.0) * sigma  # the configurations' own closeness, less one sigma
-        required = np.maximum(two_r, np.minimum(two_r + self.sigmas * sigma, floor))
-        closest[np.arange(len(movers)), movers] = np.inf
-        return closest, required
+        k = self.sigmas if self.levels is None else np.minimum(self.levels[i], self.levels[j])  # a pair keeps its lower margin
+        floor = np.minimum(start, end) - np.minimum(k, 1.0) * sigma  # the configurations' own closeness, less one sigma
+        required = np.maximum(two_r, np.minimum(two_r + k * sigma, floor))
+        return closest < required - TOLERANCE_M, closest, required
+
+    def _motion(self, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(displacement (n, 2), end-of-path variance (n,)) of every robot when ``moving`` drive from ``before``."""
+        disp = np.where(moving[:, None], self.desired - before, 0.0)
+        return disp, self.position_var + np.einsum("nk,nk->n", disp, disp) * self.spread_rate
+
+    def _pairs(self, movers: np.ndarray, before: np.ndarray,
+               moving: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(i, j, too close, closest approach, requirement) of each of ``movers`` (i) with every robot j != i that
+        may come too close (``_candidates``), ``moving`` moving."""
+        disp, var = self._motion(before, moving)
+        i, j = self._candidates(movers, before, disp, var)
+        bad, closest, required = self._closeness(i, j, before[i] - before[j], disp[i] - disp[j], var[i], var[j])
+        return i, j, bad, closest, required
+
+    def _index(self, base: np.ndarray) -> tuple[cKDTree, np.ndarray]:
+        """A k-d tree of the positions ``base`` and each robot's spread there: its whole remaining path
+        (``base`` -> desired) plus its largest pad R + k sd (the sd of a drive of that path), in m."""
+        key = base.tobytes()
+        found = self._trees.get(key)
+        if found is None:
+            from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only for large swarms
+
+            path2 = np.einsum("nk,nk->n", self.desired - base, self.desired - base)
+            spread = np.sqrt(path2) + self.radius + self.sigmas * np.sqrt(self.position_var + path2 * self.spread_rate)
+            if len(self._trees) >= 64:  # plans of a large swarm share few step configurations
+                self._trees.clear()
+            found = self._trees[key] = (cKDTree(base), spread)
+        return found
 
     def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
         """The conflicts of one step: robots at ``before`` (n, 2), ``moving`` (n,) drive to their desired positions."""
@@ -151,17 +247,36 @@ class BodyCheck:
         key = np.asarray(before, float).tobytes() + np.asarray(moving, bool).tobytes()
         found = self._conflicts.get(key)
         if found is None:
-            closest, required = self._rows(movers, before, moving)
-            bad = closest < required - TOLERANCE_M
-            bad[:, moving] &= np.arange(len(before))[None, moving] > movers[:, None]  # each mover pair once
-            rows, cols = np.nonzero(bad)
-            found = self._conflicts[key] = tuple(Conflict(int(min(movers[r], c)), int(max(movers[r], c)), float(closest[r, c]),
-                                                          float(required[r, c])) for r, c in zip(rows, cols, strict=True))
+            i, j, bad, closest, required = self._pairs(movers, before, moving)
+            bad &= ~moving[j] | (j > i)  # each mover pair once
+            found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(r))
+                                                 for a, b, c, r in zip(i[bad], j[bad], closest[bad], required[bad], strict=True))
         return list(found)
 
-    def _clear_row(self, robot: int, before: np.ndarray, moving: np.ndarray) -> bool:
-        closest, required = self._rows(np.array([robot]), before, moving)
-        return not np.any(closest < required - TOLERANCE_M)
+    def greedy(self, units: list[list[int]], before: np.ndarray) -> list[bool]:
+        """Which of ``units`` (lists of robots, in order) move together in one clear step from ``before``, taken
+        greedily: a unit joins when none of its robots comes too close to any robot, those of the units taken
+        so far and its own moving, the others standing at ``before``."""
+        robots = np.array([r for u in units for r in u], np.int64)
+        unit_of = np.full(len(before), -1, np.int64)
+        unit_of[robots] = np.repeat(np.arange(len(units)), [len(u) for u in units])
+        potential = unit_of >= 0
+        disp, var = self._motion(before, potential)
+        i, j = self._candidates(robots, before, disp, var)
+        offset = before[i] - before[j]
+        with_j_moving = self._verdict(i, j, offset, disp[i] - disp[j], var[i], var[j])
+        with_j_still = self._verdict(i, j, offset, disp[i], var[i], self.position_var[j])
+        ui, uj = unit_of[i], unit_of[j]
+        blocked = np.zeros(len(units), bool)  # by a robot of no unit (standing) or by its own unit (moving)
+        blocked[ui[((uj < 0) & with_j_still) | ((uj == ui) & with_j_moving)]] = True
+        other = np.flatnonzero((uj >= 0) & (uj != ui) & (with_j_moving | with_j_still))
+        depends: dict[int, list[tuple[int, bool, bool]]] = {}
+        for k in other.tolist():
+            depends.setdefault(int(ui[k]), []).append((int(uj[k]), bool(with_j_moving[k]), bool(with_j_still[k])))
+        taken = [False] * len(units)
+        for u in range(len(units)):
+            taken[u] = not blocked[u] and not any(m if taken[v] else st for v, m, st in depends.get(u, ()))
+        return taken
 
     def is_clear(self, groups: list[np.ndarray]) -> bool:
         """Whether no step of ``groups`` has a conflict (constraint g of Eq. 4)."""
@@ -179,31 +294,45 @@ class BodyCheck:
     def with_sigmas(self, sigmas: float) -> BodyCheck:
         """The same check with a margin of ``sigmas`` standard deviations."""
         out = copy.copy(self)
-        out.sigmas = float(sigmas)
-        out._conflicts = {}
+        out.sigmas, out.levels = float(sigmas), None
+        out._conflicts, out._trees = {}, {}
+        return out
+
+    def with_levels(self, levels: np.ndarray) -> BodyCheck:
+        """The same check with a margin of ``levels`` (n,) standard deviations per robot; a pair keeps the lower."""
+        if np.all(levels == levels[0]):
+            return self.with_sigmas(float(levels[0]))
+        out = self.with_sigmas(float(np.max(levels)))
+        out.levels = np.asarray(levels, float).copy()
         return out
 
     def regroup(self, groups: list[np.ndarray]) -> Regrouped:
         """``groups`` split into conflict-free sub-steps, in their order (``docs/bodies.md``).
 
         First the groups themselves (``split``); if that leaves robots that no order clears, all
-        robots one at a time where they can (``ordered_moves``); if neither clears, the same with the margin
-        lowered to each of ``SIGMA_LEVELS`` below this check's in turn (down to the bare 2R).
-        If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared.
+        robots in order (``ordered_moves``); if neither clears, the same with the margin of the robots that
+        order left unclear lowered to the next of ``SIGMA_LEVELS`` (down to the bare 2R), the others keeping
+        theirs, in turn. If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared;
+        ``sigmas`` is the lowest margin kept.
         """
         groups = [np.asarray(g, dtype=np.int64) for g in groups]
         if not self.active or self.is_clear(groups):
             return Regrouped(groups, [], self.sigmas)
         every = np.concatenate(groups)
-        for k in [self.sigmas, *(k for k in SIGMA_LEVELS if k < self.sigmas)]:
-            check = self.with_sigmas(k)
+        part = np.zeros(len(self.current), np.int64)  # each robot's group in the plan
+        part[every] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
+        levels = np.full(len(self.current), self.sigmas)
+        while True:
+            check = self.with_levels(levels)
             split = check.split(groups)
             if not split.unclear:
-                return split
-            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool))
-            if not unclear:
-                return Regrouped(moves, [], k)
-        return Regrouped(moves, unclear, k)
+                return Regrouped(split.groups, [], float(levels.min()))
+            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool), part)
+            lower = [r for r in unclear if levels[r] > min(SIGMA_LEVELS)]
+            if not unclear or not lower:
+                return Regrouped(moves, unclear, float(levels.min()))
+            for r in lower:  # only the robots no order clears get the next lower margin
+                levels[r] = max(k for k in SIGMA_LEVELS if k < levels[r])
 
     def split(self, groups: list[np.ndarray]) -> Regrouped:
         """``groups`` split into clear sub-steps in their order. Each group moves as the prefix-greedy subset
@@ -214,13 +343,7 @@ class BodyCheck:
         queue, out, waited = deque(np.asarray(g).tolist() for g in groups), [], 0
         while queue and waited <= len(queue):
             group = queue.popleft()
-            moving, sub = np.zeros(len(before), bool), []
-            for r in group:
-                moving[r] = True
-                if self._clear_row(r, before, moving):
-                    sub.append(r)
-                else:
-                    moving[r] = False
+            sub = [r for r, ok in zip(group, self.greedy([[r] for r in group], before), strict=True) if ok]
             if sub:
                 out.append(np.array(sub))
                 before[sub] = self.desired[sub]
@@ -236,10 +359,13 @@ class BodyCheck:
             return Regrouped(out, [], self.sigmas)
         done = np.ones(len(before), bool)
         done[rest] = False
-        moves, unclear = self.ordered_moves(np.array(rest), done)
+        part = np.zeros(len(before), np.int64)
+        for k, g in enumerate(queue):
+            part[g] = k
+        moves, unclear = self.ordered_moves(np.array(rest), done, part)
         return Regrouped(out + moves, unclear, self.sigmas)
 
-    def ordered_moves(self, robots: np.ndarray, done: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+    def ordered_moves(self, robots: np.ndarray, done: np.ndarray, part: np.ndarray | None = None) -> tuple[list[np.ndarray], list[int]]:
         """Sub-steps that move ``robots`` one at a time where they can and together where they must, every
         sub-step clear, and []; the robots of ``done`` stand at their desired positions, the others at their
         current ones. When a sub-step cannot be cleared, its robots move one at a time there and are returned
@@ -256,19 +382,21 @@ class BodyCheck:
 
         ids = [int(r) for r in robots]
         local = {r: k for k, r in enumerate(ids)}
+        if part is None:
+            part = np.zeros(len(self.current), np.int64)
         edges, stuck = [], set()  # (a, b): a must move before b
+        near_current, near_desired = self._single_hits(np.array(ids, np.int64))
         for r in ids:
-            near_current, near_desired = self._single_hits(r)
-            edges += [(local[j], local[r]) for j in near_current if j in local]
-            edges += [(local[r], local[j]) for j in near_desired if j in local]
-            stuck |= {r for j in near_desired if j not in local and done[j]}
+            edges += [(local[j], local[r]) for j in near_current[r] if j in local]
+            edges += [(local[r], local[j]) for j in near_desired[r] if j in local]
+            stuck |= {r for j in near_desired[r] if j not in local and done[j]}
         m = len(ids)
         a, b = (np.array([e[k] for e in edges], np.int64) for k in (0, 1))
         graph = coo_matrix((np.ones(len(edges)), (a, b)), shape=(m, m)).tocsr()
         _, label = connected_components(graph, directed=True, connection="strong")
         members: dict[int, list[int]] = {}
         for k, c in enumerate(label):
-            members.setdefault(int(c), []).append(k)
+            members.setdefault(int(c), []).append(ids[k])
         after: dict[int, set[int]] = {c: set() for c in members}
         for x, y in zip(a.tolist(), b.tolist(), strict=True):
             if label[x] != label[y]:
@@ -277,38 +405,57 @@ class BodyCheck:
         for nxt in after.values():
             for d in nxt:
                 waiting[d] += 1
-        ready = [(min(members[c]), c) for c in members if not waiting[c]]
+        first = {c: min(local[r] for r in g) for c, g in members.items()}
+        ready = [(first[c], c) for c in members if not waiting[c]]
         heapq.heapify(ready)
         before = np.where(done[:, None], self.desired, self.current)
         out, unclear = [], []
-        while ready:  # Kahn's topological sort of the components
-            c = heapq.heappop(ready)[1]
-            group = [ids[k] for k in members[c]]
-            moving = np.zeros(len(before), bool)
-            moving[group] = True
-            if stuck & set(group) or (len(group) > 1 and self.step_conflicts(before, moving)):
-                unclear += group
-                out += [np.array([r]) for r in group]
-            else:
-                out.append(np.array(group))
-            before[group] = self.desired[group]
+
+        def release(c: int) -> None:
             for d in after[c]:
                 waiting[d] -= 1
                 if not waiting[d]:
-                    heapq.heappush(ready, (min(members[d]), d))
+                    heapq.heappush(ready, (first[d], d))
+
+        while ready:  # Kahn's topological sort of the components, in waves of ready ones that move together clear
+            popped = [heapq.heappop(ready)[1] for _ in range(len(ready))]
+            lead = popped[0]
+            parts = {int(part[r]) for r in members[lead]}  # a wave keeps to the plan's groups
+            units = [lead] + [c for c in popped[1:] if not stuck & set(members[c]) and {int(part[r]) for r in members[c]} <= parts]
+            taken = self.greedy([members[c] for c in units], before)
+            if stuck & set(members[lead]) or not taken[0]:  # its robots cannot move clear: one at a time here
+                units, taken = [lead], [True]
+                unclear += members[lead]
+                out += [np.array([r]) for r in members[lead]]
+            else:
+                out.append(np.array([r for c, t in zip(units, taken, strict=True) if t for r in members[c]]))
+            moved = [c for c, t in zip(units, taken, strict=True) if t]
+            for c in popped:
+                if c not in moved:
+                    heapq.heappush(ready, (first[c], c))
+            for c in moved:
+                before[members[c]] = self.desired[members[c]]
+                release(c)
         return out, sorted(unclear)
 
-    def _single_hits(self, robot: int) -> tuple[list[int], list[int]]:
-        """The robots whose current / desired positions ``robot``'s single move (current -> desired) comes too close to."""
-        moving = np.zeros(len(self.current), bool)
-        moving[robot] = True
-        hits = []
+    def _single_hits(self, robots: np.ndarray) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
+        """For each of ``robots``: the robots whose current / desired positions its single move (current -> desired),
+        the others standing there, comes too close to."""
+        out = []
+        path = self.desired - self.current
+        var = self.position_var + np.einsum("nk,nk->n", path, path) * self.spread_rate
         for base in (self.current, self.desired):
+            disp = np.zeros_like(path)
+            disp[robots] = path[robots]
             before = base.copy()
-            before[robot] = self.current[robot]
-            closest, required = self._rows(np.array([robot]), before, moving)
-            hits.append(np.flatnonzero(closest[0] < required[0] - TOLERANCE_M).tolist())
-        return hits[0], hits[1]
+            before[robots] = self.current[robots]
+            i, j = self._candidates(robots, before, disp, var, base)
+            bad = self._verdict(i, j, self.current[i] - base[j], path[i], var[i], self.position_var[j])
+            hits: dict[int, list[int]] = {int(r): [] for r in robots}
+            for x, y in zip(i[bad].tolist(), j[bad].tolist(), strict=True):
+                hits[x].append(y)
+            out.append(hits)
+        return out[0], out[1]
 
 
 @dataclass(frozen=True)
@@ -353,8 +500,13 @@ def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.nd
     n = len(start)
     if radius <= 0 or n < 2:
         return np.zeros((0, 2), np.int64)
-    i, j = np.triu_indices(n, 1)
     path = end - start
+    if n < INDEX_MIN:
+        i, j = np.triu_indices(n, 1)
+    else:  # all three need the paths' discs within 2R: |mid_i - mid_j| < half_i + half_j + 2R
+        half = np.hypot(*path.T) / 2.0 + radius
+        i, j = near_pairs(np.arange(n), start + path / 2.0, half, start + path / 2.0, half)
+        i, j = i[i < j], j[i < j]
 
     def near(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
         return closest_approach(offset, velocity) < 2.0 * radius
