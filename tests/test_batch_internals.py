@@ -23,6 +23,7 @@ from coordinator.localization.batch import (
     localize_batch,
     observable,
 )
+from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
 from coordinator.localization.range_bearing import prior_information, sqrt_information
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization.sparse_lm import COMPACT_BELOW, MAX_ITER, BatchOps, drive
@@ -44,6 +45,16 @@ def triangle_batch(b: int):
     moving = np.array([True, False, False])
     cov = np.broadcast_to(np.diag([1e-4, 1e-4, 1e-3]), (3, 3, 3))
     return [np.repeat(a[None], b, axis=0) for a in (poses, cov, commands, moving, seen, ranges, bearings)]
+
+
+def driven_x(localizer, cov: np.ndarray, drive: float) -> float:
+    """x of the dead reckoning of a robot at the origin, heading 0, covariance ``cov``, after driving ``drive`` m:
+    ``drive`` for the paper's first order, ``drive`` exp(-s^2 / 2) (s^2 = heading variance + turn variance) for the
+    joint localizer's exact mean."""
+    x, _ = dead_reckon_arrays(np.zeros((1, 3)), cov[None], np.array([[0.0, drive]]), np.ones(1, bool), CFG, exact_moments(localizer))
+    want = drive * np.exp(-(cov[2, 2] + CFG.turn_sigma_rad**2) / 2) if exact_moments(localizer) else drive
+    assert x[0, 0] == pytest.approx(want, rel=1e-14)
+    return float(x[0, 0])
 
 
 @pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
@@ -68,8 +79,9 @@ def test_invalid_values_flag_only_their_sample(method):
     with np.errstate(invalid="ignore"):  # dead reckoning of the NaN sample propagates NaN
         out = localize_batch(make_localizer(method, CFG), CFG, poses, cov, commands, moving, seen, ranges, bearings)
     assert out.ok.tolist() == [True, False, False, False, False, False, False, False, True, True]
+    driven = driven_x(make_localizer(method, CFG), cov[0, 0], 0.1)
     for k in (5, 6, 7):  # invalid observations: dead reckoning, robot 0 driven 0.1 m along x
-        np.testing.assert_allclose(out.poses[k, 0], [0.1, 0.0, 0.0], atol=1e-12)
+        np.testing.assert_allclose(out.poses[k, 0], [driven, 0.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(out.poses[k, 1:], poses[k, 1:], atol=0)
     np.testing.assert_array_equal(out.poses[8], out.poses[0])
 
@@ -450,4 +462,5 @@ def test_a_single_robot_is_dead_reckoning(method):
                          np.array([[[0.0, 0.1]]] * 2), np.ones((2, 1), bool), np.zeros((2, 1, 1), bool),
                          np.zeros((2, 1, 1)), np.zeros((2, 1, 1)))
     assert out.ok.tolist() == [False, False]
-    np.testing.assert_allclose(out.poses[:, 0], [[0.1, 0.0, 0.0]] * 2, atol=1e-15)
+    driven = driven_x(make_localizer(method, CFG), np.eye(3) * 1e-4, 0.1)
+    np.testing.assert_allclose(out.poses[:, 0], [[driven, 0.0, 0.0]] * 2, atol=1e-15)

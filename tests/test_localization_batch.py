@@ -15,7 +15,7 @@ import coordinator.localization.topology as topology_module
 from coordinator.localization import make_localizer
 from coordinator.localization.allocator import retain_freed_memory
 from coordinator.localization.batch import localize_batch, observable
-from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays
+from coordinator.localization.dead_reckoning import dead_reckon, dead_reckon_arrays, exact_moments
 from coordinator.localization.graph import require_observable
 from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.partial import localize_observable
@@ -25,7 +25,6 @@ from coordinator.localization.sparse_lm import PoseLayout, dense as sparse_dense
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import transform_poses, wrap_angle
-from runtime.models.motion import apply_motion
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.scenarios import grid_configuration, random_step
 from runtime.models.sensing import measure, sense_swarm
@@ -129,7 +128,7 @@ def test_batch_equals_single_swarm_localizer(method, n, size):
             partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
             assert set(err.robots) <= set(excluded)
             assert_same_estimate(out.poses[k], out.cov[k], partial)
-            dr = dead_reckon(prior, step, cfg)
+            dr = dead_reckon(prior, step, cfg, exact_moments(make_localizer(method, cfg)))
             kept_dr = np.isin(prior.ids, list(excluded))
             np.testing.assert_allclose(out.poses[k][kept_dr], dr.poses[kept_dr], rtol=0, atol=1e-12)
             continue
@@ -197,7 +196,7 @@ def test_non_observable_samples_are_localized_like_the_runtime(method):
         partial, excluded = localize_observable(make_localizer(method, cfg), prior, step, obs, cfg)
         assert set(excluded.values()) == {reason} and len(excluded) < 6
         assert_same_estimate(out.poses[k], out.cov[k], partial)
-        dr = dead_reckon(prior, step, cfg)
+        dr = dead_reckon(prior, step, cfg, exact_moments(make_localizer(method, cfg)))
         left = np.isin(prior.ids, list(excluded))
         np.testing.assert_allclose(out.poses[k][left], dr.poses[left], rtol=0, atol=1e-12)
         assert np.abs(out.poses[k][~left] - dr.poses[~left]).max() > 0  # the others were localized
@@ -222,9 +221,10 @@ def test_noise_free_sensing_and_motion_recover_the_truth(method):
         ids = np.arange(n)
         moving = rng.random(n) < 0.5
         commands = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(0.05, 0.15, n)]) * moving[:, None]
-        after = np.where(moving[:, None], apply_motion(poses, commands), poses)  # executed exactly
+        prior, step = SwarmEstimate.isotropic(ids, poses, 0.01, 0.02), StepCommands(ids, commands, moving)
+        after = dead_reckon(prior, step, cfg, exact_moments(make_localizer(method, cfg))).poses  # the motion the localizer expects
         obs = sense_swarm(after, ids, cfg, robot_rngs(k, ids, Stream.SENSING))
-        batch.add(SwarmEstimate.isotropic(ids, poses, 0.01, 0.02), StepCommands(ids, commands, moving), *dense(obs, n))
+        batch.add(prior, step, *dense(obs, n))
         truths.append(after)
     out = localize_batch(make_localizer(method, cfg), cfg, *batch.arrays())
     assert out.ok.all()
@@ -363,7 +363,7 @@ def test_joint_problem_is_the_single_swarm_one(monkeypatch):
     batch = random_batch(6, 4, cfg, seed=8)
     arrays = batch.arrays()
     problem, x0 = batch_problem(monkeypatch, "joint", cfg, arrays)
-    dr_poses, dr_cov = dead_reckon_arrays(*arrays[:4], cfg)
+    dr_poses, dr_cov = dead_reckon_arrays(*arrays[:4], cfg, exact=True)
     np.testing.assert_array_equal(x0, dr_poses)
     singles = []
     for k in range(4):

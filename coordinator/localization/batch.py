@@ -54,7 +54,7 @@ import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.localization.allocator import retain_freed_memory
-from coordinator.localization.dead_reckoning import dead_reckon_arrays
+from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
 from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
@@ -148,7 +148,7 @@ def localize_batch(
     ranges = _shaped(ranges, (b, n, n), "ranges", float)
     bearings = _shaped(bearings, (b, n, n), "bearings", float)
 
-    dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
+    dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg, exact_moments(localizer))
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
     valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)

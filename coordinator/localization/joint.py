@@ -156,6 +156,7 @@ class JointLocalizer:
     """All poses at once: whitened dead-reckoning priors + range/bearing observations."""
 
     name = "joint"
+    exact_motion = True  # dead reckoning with the exact moments of the motion (``motion.motion_moments``)
 
     def __init__(self, cfg: ModelConfig, huber: float | None = None, constrain_gauge: bool = True) -> None:
         self.cfg = cfg
@@ -176,7 +177,7 @@ class JointLocalizer:
         """
         keep = np.asarray(keep, bool)
         with blas_threads(3 * prior.n):
-            mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
+            mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg, self.exact_motion)  # arrays: no re-validation
             exact = prior.n <= EXACT_COV_LIMIT
             i, j = obs.indexed(prior.ids)
             if keep.all():  # the whole swarm: one gauge frame serves the constrained covariance and its transport
