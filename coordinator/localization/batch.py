@@ -57,7 +57,7 @@ from coordinator.localization.allocator import retain_freed_memory
 from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
 from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
+from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, implausible, psd, rescue_start
 from coordinator.localization.paper import PaperLocalizer, fuse
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
@@ -565,6 +565,9 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
     st = problem.evaluate(x)
+    wrong = np.flatnonzero(good & implausible(st["cost"], seen.sum(axis=(1, 2))))
+    if wrong.size and _rescue(cfg, problem, x, st["cost"], wrong, seen, ranges, bearings, dr_poses, dr_cov):
+        st = problem.evaluate(x)
     if constrain:
         x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep)
     else:
@@ -573,6 +576,29 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3)) & np.isfinite(x).all(axis=(1, 2))
     return x, cov, good
+
+
+def _rescue(cfg, problem, x, cost, wrong, seen, ranges, bearings, dr_poses, dr_cov) -> bool:
+    """``JointLocalizer._solve``'s second solve of samples ``wrong`` (an implausible cost: a wrong local minimum) from
+    ``joint.rescue_start``, into x where its cost is lower; the robots without observations stay at the prior mean,
+    as they are not in the single-swarm problem. Returns whether any sample took it."""
+    starts, tried = dr_poses[wrong].copy(), np.zeros(wrong.size, bool)
+    for k, b in enumerate(wrong):
+        i, j = np.nonzero(seen[b])
+        kept = np.zeros(seen.shape[1], bool)
+        kept[i], kept[j] = True, True
+        obs = Observations(i, j, ranges[b, i, j], bearings[b, i, j])  # robot ids = their indices, as in ``_localize_each``
+        start = rescue_start(cfg, np.flatnonzero(kept), obs, dr_poses[b, kept], dr_cov[b, kept])
+        if start is not None:
+            starts[k, kept], tried[k] = start, True
+    wrong, starts = wrong[tried], starts[tried]
+    if not wrong.size:
+        return False
+    sub = problem.subset(wrong)
+    again, converged, _, _ = drive(sub, starts, *JOINT_TOL, xp=BatchOps)
+    better = converged & (sub.evaluate(again)["cost"] < cost[wrong])
+    x[wrong[better]] = again[better]
+    return bool(better.any())
 
 
 def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
