@@ -89,18 +89,16 @@ def motion_moments(
     """Exact mean (..., 3), expected Jacobian Fx (..., 3, 3) and noise W (..., 3, 3) of the pose after ``commands``:
     its covariance is Fx P Fx^T + W exactly.
 
-    The pre-step pose is Gaussian (``poses``, ``prior_cov``), the executed turn and relative drive errors are
+    The pre-step pose is Gaussian (``poses``, ``prior_cov`` P), the executed turn and relative drive errors are
     ``apply_motion``'s. The heading after the turn, phi = theta + turn + turn noise, is Gaussian with variance
-    s^2 = P_theta + sigma_turn^2; the position p + d (1 + e) (cos phi, sin phi) is not (a banana when s is large),
-    but its mean and covariance have a closed form: with k = exp(-s^2 / 2) and u, u_perp the unit vectors
-    along and across the expected heading,
-    E = p + d k u;  Cov(p') = Fx P Fx^T + d^2 [((1 + s_d^2)(1 - k^2 + k^4 ... )] (see docs/localization.md),
-    where Fx is the Jacobian with d replaced by d k, which is also the exact regression of the post-step pose
-    on the pre-step pose (Stein's lemma: Cov(p', x) = Fx Cov(p, x) for any Gaussian x correlated with the pose).
-    First order (``motion_covariance``) the position error across the heading is d (theta error) exactly and
-    the product of the drive and heading errors, d e sin(delta), is lost: with a 17 deg turn noise and a 28 %
-    drive noise, the linearized covariance is ~10x overconfident in that direction.
-    Robots with a zero command keep their pose and prior covariance (their Jacobian is the identity).
+    s^2 = P_theta + sigma_turn^2; the position p + d (1 + e) (cos phi, sin phi) is not (a banana when s is large), but
+    its mean and covariance have a closed form. With k = exp(-s^2 / 2): the mean is p + d k u (u along the commanded
+    heading), Fx is the first-order Jacobian with d replaced by d k, and by Stein's lemma Fx is also the exact
+    regression of the post-step pose on the pre-step pose (Cov(x', x) = Fx Cov(p, x) for any x jointly Gaussian with
+    it); W, the rest of the covariance, is uncorrelated with the pre-step pose (docs/localization.md has it written out).
+    First order (``motion_covariance``) the position error across the heading is exactly d times the heading error and
+    the product of the drive and heading errors is lost: at a 17 deg turn noise and a 28 % drive noise that covariance
+    is several times overconfident. Robots with a zero command keep their pose (Fx = I, W = 0).
     """
     d = commands[..., 1]
     moved = (commands[..., 0] != 0.0) | (d != 0.0)
