@@ -55,9 +55,18 @@ import numpy as np
 from coordinator.localization import Localizer
 from coordinator.localization.allocator import retain_freed_memory
 from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
-from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
+from coordinator.localization.gauge import (
+    constrained_covariance,
+    constrained_solution,
+    gauge_correction,
+    gauge_frame,
+    gauge_gradient,
+    transport,
+    transport_offset,
+    transported_blocks,
+)
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, implausible, psd, rescue_start
+from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, block_diagonal, implausible, psd, rescue_start
 from coordinator.localization.paper import PaperLocalizer, fuse
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
@@ -95,6 +104,10 @@ PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topolo
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
+# Above this condition number of the Woodbury identity's 6x6 system (I + K U^T L) the observability-constrained update
+# is done densely, as the single-swarm localizer does it (measured: up to 1.5e7 at the default noise, 4e9 at a quarter
+# of its sensing noise; 7e28 with noise-free sensing and a prior that disagrees with it, where the identity gave 3e7 m)
+WOODBURY_COND_LIMIT = 1e11
 
 
 @dataclass(frozen=True)
@@ -635,9 +648,10 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     sn = np.concatenate([lap @ basis[:, :n2] + ct.swapaxes(1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
+    small = np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low)
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
-            m = np.linalg.solve(np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low), kmat @ low.swapaxes(1, 2))
+            m = np.linalg.solve(small, kmat @ low.swapaxes(1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
     # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
@@ -655,7 +669,19 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
         inv_pt = inverse_times(proj.swapaxes(1, 2))
     pc = inv_pt.swapaxes(1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
     pcp = pc @ proj.swapaxes(1, 2)
-    return poses, transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
+    blocks = transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
+    with np.errstate(invalid="ignore", over="ignore"):
+        dense = np.flatnonzero(~(np.linalg.cond(small) <= WOODBURY_COND_LIMIT))
+    for s in dense:  # the Woodbury identity has lost the digits: the single-swarm localizer's dense update
+        full = np.block([[lap[s], ct[s].swapaxes(0, 1)], [ct[s], np.diag(d[s])]])[np.ix_(to_robots, to_robots)]
+        observed = full - block_diagonal(prior_info[s])
+        own = gauge_frame(mean[s], None if keep is None else keep[s])
+        cov = constrained_covariance(full, observed, mean[s], own)
+        poses[s] = constrained_solution(x[s], mean[s], cov, prior_gradient[s].ravel(), own)
+        cov = transport(cov, mean[s], poses[s], gauge_frame(mean[s]))
+        idx = np.arange(k).reshape(n, 3)
+        blocks[s] = cov[idx[:, :, None], idx[:, None, :]]
+    return poses, blocks
 
 
 def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
