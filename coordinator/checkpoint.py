@@ -8,12 +8,21 @@ the final summary, P_f and ``--result`` are those of one uninterrupted run). It 
 JSON ``state`` of a ``Checkpoint`` message; float arrays travel as base64 of their little-endian
 float64 bytes with their shape (``{"f64": ..., "shape": [...]}``), so a state read back is bit for
 bit the one written (500 robots after 20 steps: 2 MB, encoded or read in about 30 ms here).
+
+The current estimate travels with everything a localizer carries from one step to the next in its
+``SwarmEstimate`` (every field, e.g. the joint localizer's (3n, 3n) ``joint`` covariance; an exactly
+symmetric matrix as its upper triangle, ``"triangle": "upper"``), so the next step is computed from
+the same prior as in the uninterrupted run. The records of the steps done keep poses and 3x3
+covariances only. A state that would not fit in ``max_chars`` with those fields (the joint of about
+290 robots fills a 4 MiB message) leaves them out and names them in ``"dropped"``: the run then
+continues from the per-robot covariances, no longer bit for bit (``RunState.dropped``).
 """
 
 from __future__ import annotations
 
 import base64
 import binascii
+import dataclasses
 import json
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, overload
@@ -44,12 +53,29 @@ class RunState:
     result: RunResult
     finished: bool = False  # the run completed (nothing is left to take over)
     regrouped: Regrouping | None = None  # how the body constraint split the strategy's plan of ``config`` (None: clear)
+    dropped: tuple[str, ...] = ()  # fields of ``estimate`` its checkpoint could not carry (read back: they are None)
 
     def to_json(self) -> str:
+        """The state as JSON, with everything the estimate carries."""
+        return self._json(carry=True)
+
+    def bounded_json(self, max_chars: int) -> tuple[str, list[str]]:
+        """The state as JSON within ``max_chars`` if the estimate's carried fields are all that make it too long (they
+        are then left out), and the fields left out (module doc)."""
+        carried = carried_fields(self.estimate)
+        least = sum(np.asarray(getattr(self.estimate, name)).nbytes for name in carried) * 2 // 3  # base64 of a triangle
+        if least <= max_chars:  # else not worth encoding (500 robots: 0.3 s)
+            text = self._json(carry=True)
+            if len(text) <= max_chars or not carried:
+                return text, []
+        return self._json(carry=False), carried
+
+    def _json(self, carry: bool) -> str:
         r = self.result
+        dropped = list(self.dropped) + ([] if carry else carried_fields(self.estimate))
         return json.dumps({
             "step": self.step, "config": self.config, "group": self.group, "finished": self.finished,
-            "estimate": _estimate(self.estimate), "plan": _plan(self.plan),
+            "estimate": _estimate(self.estimate, carry=carry), "dropped": dropped, "plan": _plan(self.plan),
             "planned_ids": None if self.planned_ids is None else self.planned_ids.tolist(),
             "regrouped": _regrouping(self.regrouped),
             "selector_calls": self.selector_calls, "method": r.method, "initial_truth": _array(r.initial_truth),
@@ -84,7 +110,8 @@ class RunState:
                               for c in d["configs"]]
             return cls(d["step"], d["config"], d["group"], _from_estimate(d["estimate"]), _from_plan(d["plan"]),
                        None if d["planned_ids"] is None else np.array(d["planned_ids"], dtype=np.int64),
-                       d["selector_calls"], result, d["finished"], _from_regrouping(d["regrouped"]))
+                       d["selector_calls"], result, d["finished"], _from_regrouping(d["regrouped"]),
+                       tuple(str(x) for x in d.get("dropped", ())))  # written before carried fields: nothing dropped
         except (KeyError, TypeError, ValueError, SwarmInputError, binascii.Error) as exc:
             raise SwarmInputError(f"checkpoint state is not readable: {type(exc).__name__}: {exc}") from None
 
@@ -108,15 +135,43 @@ def _from_array(d: None) -> None: ...
 def _from_array(d: dict | None) -> np.ndarray | None:
     if d is None:
         return None
-    return np.frombuffer(base64.b64decode(d["f64"], validate=True), dtype="<f8").reshape(d["shape"]).astype(float)
+    values = np.frombuffer(base64.b64decode(d["f64"], validate=True), dtype="<f8").astype(float)
+    if d.get("triangle") != "upper":
+        return values.reshape(d["shape"])
+    k = int(d["shape"][0])
+    out = np.zeros((k, k))
+    rows, cols = np.triu_indices(k)
+    out[rows, cols] = values
+    out[cols, rows] = values
+    return out
 
 
-def _estimate(e: SwarmEstimate) -> dict:
-    return {"ids": e.ids.tolist(), "poses": _array(e.poses), "cov": _array(e.cov)}
+def _symmetric_array(a: np.ndarray) -> dict | None:
+    """``_array``, as the upper triangle when ``a`` is a square matrix equal to its transpose bit for bit."""
+    a = np.asarray(a, dtype=float)
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or not np.array_equal(a, a.T):
+        return _array(a)
+    upper = _array(a[np.triu_indices(len(a))])
+    return None if upper is None else upper | {"shape": list(a.shape), "triangle": "upper"}
+
+
+BASE_FIELDS = ("ids", "poses", "cov")  # what every estimate is (and what an EstimateMessage carries)
+
+
+def carried_fields(e: SwarmEstimate) -> list[str]:
+    """The fields of ``e`` beyond ids, poses and 3x3 covariances that are set (a localizer's state for its next step)."""
+    return [f.name for f in dataclasses.fields(e) if f.name not in BASE_FIELDS and getattr(e, f.name) is not None]
+
+
+def _estimate(e: SwarmEstimate, carry: bool = False) -> dict:
+    """ids, poses and covariances; with ``carry`` every other field that is set (``carried_fields``)."""
+    out = {"ids": e.ids.tolist(), "poses": _array(e.poses), "cov": _array(e.cov)}
+    return out | ({name: _symmetric_array(getattr(e, name)) for name in carried_fields(e)} if carry else {})
 
 
 def _from_estimate(d: dict) -> SwarmEstimate:
-    return SwarmEstimate(np.array(d["ids"], dtype=np.int64), _from_array(d["poses"]), _from_array(d["cov"]))
+    carried = {f.name: _from_array(d[f.name]) for f in dataclasses.fields(SwarmEstimate) if f.name not in BASE_FIELDS and d.get(f.name) is not None}
+    return SwarmEstimate(np.array(d["ids"], dtype=np.int64), _from_array(d["poses"]), _from_array(d["cov"]), **carried)
 
 
 def _plan(p: Plan | None) -> dict | None:

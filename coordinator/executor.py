@@ -386,24 +386,15 @@ class InchwormExecutor:
         if not robots:
             return estimate
         obs = self.backend.observe_rejoining(robots)  # type: ignore[attr-defined]  # with take_rejoining; a robot that does not answer is lost again
-        priors = {}
+        priors = rejoin_priors(robots, obs, estimate)
         for robot in robots:
-            pose = _pose_from_neighbours(robot, obs, estimate)
-            if pose is None:
+            if robot not in priors:
                 self.backend.lose(robot, "rejoining: it observed fewer than two robots of the run")  # type: ignore[attr-defined]
-            else:
-                priors[robot] = pose
         estimate = self._drop_lost(result, config, estimate)[0]  # those that did not make it
         joined = [r for r in sorted(priors) if r in self.backend.ids]
         if not joined:
             return estimate
-        new = SwarmEstimate.isotropic(joined, np.array([priors[r] for r in joined]), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA)
-        ids = np.concatenate([estimate.ids, new.ids])
-        order = np.argsort(ids, kind="stable")
-        merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
-                               np.concatenate([estimate.cov, new.cov])[order])
-        located, _ = localize_observable(self.localizer, merged, StepCommands.stationary(merged.ids),
-                                         _among(obs, merged.ids), self.cfg)
+        located = localize_rejoined(self.localizer, estimate, {r: priors[r] for r in joined}, obs, self.cfg)
         selector = getattr(self.strategy, "selector", None)
         self._restore_strategy(all_ids, located.ids, 0 if selector is None else selector.calls)
         for robot in joined:
@@ -445,7 +436,7 @@ class InchwormExecutor:
         estimate, keep = self._drop_lost(result, config, estimate)
         if keep is not None:
             cmd = cmd.select(keep)
-        observations = _among(observations, estimate.ids)
+        observations = among(observations, estimate.ids)
         new, excluded = localize_observable(self.localizer, estimate, cmd, observations, self.cfg)  # (iv)
         fallback = None
         if excluded:
@@ -470,6 +461,30 @@ def _robot_list(ids: list[int]) -> str:
     return f"robot {ids[0]}" if len(ids) == 1 else f"robots {', '.join(map(str, ids))}"
 
 
+def rejoin_priors(robots: list[int], obs: Observations, estimate: SwarmEstimate) -> dict[int, np.ndarray]:
+    """The pose of each of ``robots`` that its observations ``obs`` of the robots of ``estimate`` give (those that saw
+    fewer than two are left out: they stay lost)."""
+    poses = {robot: _pose_from_neighbours(robot, obs, estimate) for robot in robots}
+    return {robot: pose for robot, pose in poses.items() if pose is not None}
+
+
+def localize_rejoined(localizer: Localizer, estimate: SwarmEstimate, priors: dict[int, np.ndarray], obs: Observations,
+                      cfg: ModelConfig) -> SwarmEstimate:
+    """The swarm of ``estimate`` with the robots of ``priors`` back in it (ids sorted), localized again from the
+    rejoining robots' observations ``obs``: each rejoining robot's prior is its pose from ``priors`` with
+    ``REJOIN_DELTA_M`` / ``REJOIN_HEADING_SIGMA``, the others' their estimate's poses and 3x3 covariances (what
+    the estimate carries beyond them, e.g. a joint covariance, is not: the cross-covariances with the
+    newcomers are unknown)."""
+    joined = sorted(priors)
+    new = SwarmEstimate.isotropic(joined, np.array([priors[r] for r in joined]), REJOIN_DELTA_M, REJOIN_HEADING_SIGMA)
+    ids = np.concatenate([estimate.ids, new.ids])
+    order = np.argsort(ids, kind="stable")
+    merged = SwarmEstimate(ids[order], np.concatenate([estimate.poses, new.poses])[order],
+                           np.concatenate([estimate.cov, new.cov])[order])
+    located, _ = localize_observable(localizer, merged, StepCommands.stationary(merged.ids), among(obs, merged.ids), cfg)
+    return located
+
+
 def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate) -> np.ndarray | None:
     """The pose [x, y, heading] of ``robot`` that its range-bearing observations of robots of ``estimate`` give
     (the heading turning the body-frame offsets onto the world ones, least squares; the position their mean), or
@@ -486,7 +501,7 @@ def _pose_from_neighbours(robot: int, obs: Observations, estimate: SwarmEstimate
     return np.array([position[0], position[1], heading])
 
 
-def _among(obs: Observations, ids: np.ndarray) -> Observations:
+def among(obs: Observations, ids: np.ndarray) -> Observations:
     """The observations between robots of ``ids`` (a robot dropped from the run may still be seen by others)."""
     inside = np.isin(obs.observer, ids) & np.isin(obs.observed, ids)
     return obs if inside.all() else obs.select(inside)

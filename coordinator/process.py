@@ -402,6 +402,9 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
                 if state is not None:
                     backend.resume(state)
                     log(f"epoch {backend.epoch} takes over run {o.run_id} from epoch {parent} after step {state.step}")
+                    if state.dropped:
+                        log(f"the checkpoint could not carry the estimate's {', '.join(state.dropped)} (too large for a "
+                            "message): the run goes on from per-robot covariances, not bit for bit as without the takeover")
                 backend.wait_for_agents()
                 log(f"{len(backend.ids)} agents alive, run {o.run_id}, epoch {backend.epoch}")
                 progress = lambda done, total: on_config(done, total, backend.step) if on_config else None  # noqa: E731

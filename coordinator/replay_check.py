@@ -13,7 +13,10 @@ decode are counted and left out, channels outside ``swarm/`` (derived views such
   selection, seed).plan(estimate before the configuration, desired)`` through ``clear_plan`` (bodies); the strategy is seeded
   and stateful, so plans are re-run in order and stop at the first one whose input is missing),
 * every step's localization: ``localize_observable(make_localizer(localizer, cfg), estimate of
-  step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``,
+  step - 1, the step's MotionCommands, the step's ObservationReports in id order, cfg)``, for the
+  robots of the step's recorded estimate (lost ones dropped), and after robots rejoined
+  ``executor.localize_rejoined``; the estimate of step - 1 is the one the check recomputed, carried
+  from step 0 on with whatever the localizer keeps in it beyond the recorded 3x3 covariances (``_Chain``),
 
 and compares each result with the recorded message. On the floating-point platform the run was
 recorded on (``runtime.recording.mcap_log.float_platform``, in the metadata's versions) the
@@ -33,8 +36,9 @@ from typing import Any
 
 import numpy as np
 
+from coordinator.checkpoint import carried_fields
 from coordinator.clearance import clear_plan
-from coordinator.executor import ConfigRecord, RunResult, StepRecord
+from coordinator.executor import ConfigRecord, RunResult, StepRecord, among, localize_rejoined, rejoin_priors
 from coordinator.localization import make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -44,7 +48,7 @@ from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
-from runtime.models.state import StepCommands, SwarmEstimate
+from runtime.models.state import StepCommands, SwarmEstimate, index_of
 from runtime.models.trajectory import Trajectory
 from runtime.recording.mcap_log import float_platform, read_messages, recording_info
 from runtime.wire.keys import ROOT
@@ -72,6 +76,7 @@ class RecordedRun:
     commands: dict[int, dict[int, MotionCommand]] = field(default_factory=dict)
     reports: dict[int, dict[int, ObservationReport]] = field(default_factory=dict)
     truths: dict[int, dict[int, TruthMessage]] = field(default_factory=dict)
+    rejoins: dict[int, EstimateMessage] = field(default_factory=dict)  # a second estimate of a step: robots rejoined after it
     undecodable: int = 0
     messages: int = 0
 
@@ -115,7 +120,9 @@ def load_recording(path: str | Path) -> RecordedRun:
         if run is not None and msg.run != run:
             continue
         if isinstance(msg, EstimateMessage):
-            rec.estimates.setdefault(msg.step, msg)
+            first = rec.estimates.setdefault(msg.step, msg)
+            if first.ids != msg.ids and set(first.ids) < set(msg.ids):
+                rec.rejoins.setdefault(msg.step, msg)
         elif isinstance(msg, PlanMessage):
             rec.plans.setdefault(msg.config, msg)
         elif isinstance(msg, MotionCommand):
@@ -273,6 +280,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
         result.estimates += 1
     else:
         result.skipped.append("initial estimate (no seed, trajectory or initial uncertainty in the metadata)")
+    chain = _Chain(rec, loc, cfg, exact, result)
 
     # plans, in configuration order (the seeded strategy is stateful)
     strategy = None
@@ -280,6 +288,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
         result.skipped.append("plans (no method, trajectory or seed in the metadata)")
     else:
         strategy = make_strategy(method, len(ids), cfg, loc, recorded_selection(rec, selection), int(seed))
+    full, strategy_ids = strategy, ids
     plans_ok = strategy is not None
     plan_at_step = {p.step: p for p in rec.plans.values()}
     expected_config = 1
@@ -287,16 +296,23 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     last = max(rec.estimates)
     for step in range(0, last + 1):
         plan_msg = plan_at_step.get(step)
-        if plan_msg is not None and plans_ok and strategy is not None and traj is not None:  # plans_ok: both set
-            before = rec.estimates.get(step - 1)
+        if plan_msg is not None and plans_ok and strategy is not None and full is not None and traj is not None:  # plans_ok: all set
+            before = chain.prior(step)
             if plan_msg.config != expected_config or before is None or plan_msg.config > len(traj.configurations):
-                result.skipped.append(f"plans from configuration {plan_msg.config} on (an earlier plan or the estimate "
-                                      f"of step {step - 1} is not in the recording)")
+                why = ("an earlier plan is not in the recording" if plan_msg.config != expected_config
+                       else f"the trajectory has {len(traj.configurations)} configurations" if plan_msg.config > len(traj.configurations)
+                       else chain.why(step) if step - 1 in rec.estimates else f"the estimate of step {step - 1} is not in the recording")
+                result.skipped.append(f"plans from configuration {plan_msg.config} on ({why})")
                 plans_ok = False
             else:
-                estimate, desired = before.to_estimate(), traj.configurations[plan_msg.config - 1]
+                planned = [r for group in plan_msg.groups for r in group]
+                estimate = before.select(np.isin(before.ids, planned))  # a robot lost before the plan was made: dropped
+                if not np.array_equal(estimate.ids, strategy_ids):  # robots lost or rejoined: as the executor does
+                    strategy = _restricted(full, strategy, ids, strategy_ids, estimate.ids)
+                    strategy_ids = estimate.ids
+                desired = traj.configurations[plan_msg.config - 1][index_of(traj.ids, estimate.ids, "trajectory")]
                 plan, _ = clear_plan(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
-                groups = _plan_groups(plan, ids)
+                groups = _plan_groups(plan, estimate.ids)
                 if groups != plan_msg.groups:
                     result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "groups",
                                                    [list(g) for g in plan_msg.groups], [list(g) for g in groups])
@@ -309,31 +325,138 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                 expected_config += 1
         if step == 0 or step not in rec.estimates:
             continue
-        prior = rec.estimates.get(step - 1)
-        commands = rec.commands.get(step, {})
-        reports = rec.reports.get(step, {})
-        missing = [int(r) for r in ids if r not in reports]
-        if prior is None or not commands or missing:
-            why = ("no estimate of the previous step" if prior is None else "no motion command" if not commands
-                   else f"no observation report from robots {missing}")
-            result.skipped.append(f"step {step} ({why})")
-            continue
-        index = {int(r): k for k, r in enumerate(ids)}
+        if chain.localize(step, ids):
+            return result
+        if chain.rejoin(step):
+            return result
+    if chain.gaps:
+        result.skipped.append(chain.gaps_text())
+    return result
+
+
+class _Chain:
+    """The estimates the check recomputes, each the prior of the next step as in the run.
+
+    A localizer may carry state from one step to the next in its ``SwarmEstimate`` beyond what an
+    ``EstimateMessage`` holds (``checkpoint.carried_fields``: the joint localizer's joint covariance,
+    (3n, 3n), not recorded: 18 MB a step for 500 robots). The check carries it itself: every step is
+    localized from the estimate it recomputed for the step before (which, compared equal to the
+    recorded one, is the coordinator's), from step 0 on, through lost robots (marginalised, as the
+    executor drops them) and rejoined ones (``executor.localize_rejoined``, which starts again from
+    poses and 3x3 covariances). Where the chain breaks (a step the recording cannot support) the
+    recorded estimate is the next prior: exact for a localizer that carries nothing more; for one that
+    does, the steps up to the next rejoin are not checked and ``gaps`` says why.
+    """
+
+    def __init__(self, rec: RecordedRun, loc, cfg: ModelConfig, exact: bool, result: CheckResult) -> None:
+        self.rec, self.loc, self.cfg, self.exact, self.result = rec, loc, cfg, exact, result
+        self.estimate: SwarmEstimate = rec.estimates[0].to_estimate()  # step 0 carries nothing more (a drawn estimate)
+        self.at = 0  # the step ``estimate`` is of
+        self.broken: dict[int, str] = {}  # step -> why the chain broke there
+        self.gaps: list[int] = []  # steps not checked because the chain broke before them
+
+    def prior(self, step: int) -> SwarmEstimate | None:
+        """The estimate after step ``step - 1``: the recomputed one, else the recorded one when that is all there is
+        to carry, else None."""
+        if self.at == step - 1:
+            return self.estimate
+        msg = self.rec.estimates.get(step - 1)
+        if msg is None or carried_fields(self.estimate):
+            return None
+        return msg.to_estimate()
+
+    def why(self, step: int) -> str:
+        """Why there is no prior for ``step`` although the recording holds the estimate of the step before."""
+        broke = max((s for s in self.broken if s < step), default=None)
+        where = f" at step {broke} ({self.broken[broke]})" if broke is not None else ""
+        return (f"the {self.loc.name} localizer carries {', '.join(carried_fields(self.estimate))} from step to step, "
+                f"which the recording does not hold, and the recomputed chain broke{where}")
+
+    def _break(self, step: int, why: str) -> None:
+        self.broken.setdefault(step, why)
+        self.result.skipped.append(f"step {step} ({why})")
+
+    def localize(self, step: int, all_ids: np.ndarray) -> bool:
+        """Localize ``step`` and compare; True at a divergence (in ``result``)."""
+        rec = self.rec
+        prior = self.prior(step)
+        commands, reports = rec.commands.get(step, {}), rec.reports.get(step, {})
+        if prior is None:
+            if step - 1 in rec.estimates:
+                self.gaps.append(step)
+            else:
+                self._break(step, "no estimate of the previous step")
+            return False
+        recorded = rec.estimates[step]
+        index = {int(r): k for k, r in enumerate(all_ids)}
         unknown = sorted(set(commands) - set(index))
         if unknown:
             raise SwarmInputError(f"{rec.path}: step {step} has commands for robots {unknown} outside the run")
-        moving = np.zeros(len(ids), bool)
+        ids = np.array(recorded.ids, dtype=np.int64)
+        keep = np.isin(prior.ids, ids)
+        missing = [int(r) for r in ids if r not in reports]
+        why = ("no motion command" if not commands else f"no observation report from robots {missing}" if missing
+               else "robots not in the previous estimate" if not np.array_equal(prior.ids[keep], ids) else None)
+        if why is not None:
+            self._break(step, why)
+            return False
+        prior = prior if keep.all() else prior.select(keep)  # robots lost during the step: as the executor drops them
+        moving = np.isin(ids, list(commands))
         cmds = np.zeros((len(ids), 2))
-        for robot, cmd in commands.items():
-            moving[index[robot]] = True
-            cmds[index[robot]] = (cmd.turn_rad, cmd.drive_m)
-        obs = observations_from_reports(reports[int(r)] for r in ids)
-        estimate, _excluded = localize_observable(loc, prior.to_estimate(), StepCommands(ids, cmds, moving), obs, cfg)
-        result.divergence = compare_estimate(step, rec.estimates[step], estimate, exact=exact)
-        if result.divergence:
-            return result
-        result.estimates += 1
-    return result
+        for k in np.flatnonzero(moving):
+            cmd = commands[int(ids[k])]
+            cmds[k] = (cmd.turn_rad, cmd.drive_m)
+        obs = among(observations_from_reports(reports[int(r)] for r in ids), ids)
+        estimate, _excluded = localize_observable(self.loc, prior, StepCommands(ids, cmds, moving), obs, self.cfg)
+        self.result.divergence = compare_estimate(step, recorded, estimate, exact=self.exact)
+        if self.result.divergence:
+            return True
+        self.result.estimates += 1
+        self.estimate, self.at = estimate, step
+        return False
+
+    def rejoin(self, step: int) -> bool:
+        """Robots that rejoined after ``step`` (a second estimate of that step): re-localize and compare; True at a
+        divergence. Their estimate starts from poses and 3x3 covariances, so a broken chain is whole again."""
+        recorded = self.rec.rejoins.get(step)
+        if recorded is None:
+            return False
+        base = self.estimate if self.at == step else self.rec.estimates[step].to_estimate()
+        ids = np.array(recorded.ids, dtype=np.int64)
+        joined = [int(r) for r in ids if r not in set(base.ids.tolist())]
+        reports = self.rec.reports.get(step, {})
+        if not joined or any(r not in reports for r in joined):
+            self._break(step, f"robots {joined} rejoined without their observation reports in the recording")
+            return False
+        stay = base.select(np.isin(base.ids, ids))
+        obs = observations_from_reports(reports[r] for r in joined)
+        priors = rejoin_priors(joined, obs, stay)
+        estimate = localize_rejoined(self.loc, stay, {r: priors[r] for r in joined if r in priors}, obs, self.cfg)
+        self.result.divergence = compare_estimate(step, recorded, estimate, "estimate after robots rejoined", self.exact)
+        if self.result.divergence:
+            return True
+        self.result.estimates += 1
+        self.estimate, self.at = estimate, step
+        return False
+
+    def gaps_text(self) -> str:
+        first, last = self.gaps[0], self.gaps[-1]
+        steps = f"step {first}" if first == last else f"{len(self.gaps)} steps from {first} to {last}"
+        return f"{steps} ({self.why(first)})"
+
+
+def _restricted(full, strategy, all_ids: np.ndarray, strategy_ids: np.ndarray, ids: np.ndarray):
+    """The strategy for the robots ``ids``, as the executor has it: ``restrict`` when robots were lost, the whole
+    swarm's strategy restricted to ``ids`` (its search's random stream where it was) when robots rejoined."""
+    selector = getattr(strategy, "selector", None)
+    calls = None if selector is None else selector.calls
+    if np.isin(ids, strategy_ids).all():
+        return strategy.restrict(np.isin(strategy_ids, ids))
+    keep = np.isin(all_ids, ids)
+    out = full if keep.all() else full.restrict(keep)
+    if calls is not None:
+        out.selector.calls = calls
+    return out
 
 
 # ------------------------------------------------------------------ rebuild for plots

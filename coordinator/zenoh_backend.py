@@ -61,6 +61,7 @@ from runtime.errors import SwarmInputError
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_coord_token, parse_key, robot_wildcard, truth_wildcard
 from runtime.wire.messages import (
+    MAX_MESSAGE_BYTES,
     Checkpoint,
     ContactMessage,
     DropCounter,
@@ -83,6 +84,7 @@ from runtime.wire.messages import (
 from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
 
 _log = logging.getLogger(__name__)
+CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint, with room for its other fields
 
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
@@ -140,6 +142,7 @@ class ZenohSwarmBackend:
         self.epoch = secrets.randbits(63) or 1
         self.parent = parent
         self.rejoin = rejoin  # a lost robot whose token comes back may rejoin (take_rejoining)
+        self._dropped_warned = False  # a checkpoint left out the estimate's carried fields (said once)
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
@@ -205,9 +208,14 @@ class ZenohSwarmBackend:
 
     def publish_checkpoint(self, state: RunState) -> None:
         """Publish the executor's ``RunState`` after its step as a ``Checkpoint`` (``on_checkpoint`` of the executor)."""
+        text, dropped = state.bounded_json(CHECKPOINT_STATE_CHARS)
         msg = Checkpoint(run=self.run, step=state.step, epoch=self.epoch, config=state.config + 1, group=state.group,
                          selector_calls=state.selector_calls, lost=tuple(sorted({x.robot for x in state.result.lost})),
-                         state=state.to_json())
+                         state=text)
+        if dropped and not self._dropped_warned:
+            self._dropped_warned = True
+            _log.warning("the checkpoint of step %d leaves out the estimate's %s (too large for a message): a takeover "
+                         "from it is not bit for bit", state.step, ", ".join(dropped))
         publish(self.session, message_key(msg), encode(msg))
 
     # -- lost robots ------------------------------------------------------------------------

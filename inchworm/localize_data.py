@@ -5,8 +5,9 @@ Without a prior the answer is the topology in the local frame of the reference r
 its heading). With a prior for every robot the answer is global: the prior is fused
 with the observations as a step in which nobody moved.
 
-Real data: robots that cannot be localized (unobserved, or cut off from the rest) are
-left out and listed under ``excluded`` unless ``strict``; outliers are resisted by
+Real data: a robot is localized when the observations in either direction (and, for the
+joint localizer, the prior's headings) fix it (``graph.localizable_subset``); the others
+are left out and listed under ``excluded`` unless ``strict``. Outliers are resisted by
 a Huber loss unless ``robust=False``. When the solver fails (no convergence, singular
 information), the robots it names are left out too and the rest is localized.
 """
@@ -20,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from inchworm.localize_checks import duplicate_rows, observation_checks
+from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 
@@ -82,12 +84,29 @@ def _parse_prior(prior: Any, ids: np.ndarray) -> SwarmEstimate | None:
     return SwarmEstimate.isotropic(ids, values[:, :3], values[:, 3], values[:, 4])
 
 
+def _fixed_headings(prior: SwarmEstimate | None, localizer: str) -> bool:
+    """Whether the prior fixes every heading for the localizer: the joint one solves the prior with the
+    observations; the paper's topology (and a plugin's, as far as we know) ignores it."""
+    return prior is not None and localizer == "joint"
+
+
+def _left_out_error(excluded: dict[int, str]) -> LocalizationError:
+    """``--strict``: the error naming the robots left out, under the reason most of them share."""
+    reasons = list(excluded.values())
+    reason = max(set(reasons), key=lambda r: (reasons.count(r), r))
+    others = sorted({f"{r} {k}" for k, r in excluded.items() if r != reason})
+    return LocalizationError(reason, [k for k, r in excluded.items() if r == reason],
+                             "cannot be localized" + (f"; also {', '.join(others)}" if others else ""))
+
+
 def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> dict:
     """The output document for one input document."""
     from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy when localizing, not for --help
+    from coordinator.localization.graph import localizable_subset  # noqa: PLC0415
     from coordinator.localization.partial import solvable_subset  # noqa: PLC0415
 
     ids, obs, prior = parse_input(data)
+    unique = duplicate_rows(obs) < 0
     all_ids, i, j = ids, *obs.indexed(ids)
     if localizer == "paper":
         options = {"huber": HUBER_SIGMAS * math.hypot(cfg.range_sigma_m, cfg.sensing_range_m * cfg.bearing_sigma_rad) if robust else None}
@@ -96,50 +115,70 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
     else:  # a registered localizer: its own defaults (the Huber threshold's unit is each localizer's)
         options = {}
     loc = make_localizer(localizer, cfg, **options)
+    headings_known = _fixed_headings(prior, localizer)
+
+    def subset(sub_ids: np.ndarray, observer: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
+        return localizable_subset(sub_ids, observer, observed, headings_known=headings_known)
 
     def solve(keep: np.ndarray):
-        sub_obs = obs.select(keep[i] & keep[j])
+        sub_obs = obs.select(keep[i] & keep[j] & unique)
         if prior is None:
             return loc.topology(all_ids[keep], sub_obs)
         return loc.localize(prior.select(keep), StepCommands.stationary(all_ids[keep]), sub_obs)
 
-    excluded: dict[int, str] = {}
+    unique_obs = obs.select(unique)
     if strict:
-        result = solve(np.ones(len(ids), bool))
+        keep, excluded = subset(ids, *unique_obs.indexed(ids))
+        if excluded:
+            raise _left_out_error(excluded)
+        result = solve(keep)
     else:
-        keep, result, excluded = solvable_subset(solve, ids, obs)
-        ids = ids[keep]
+        keep, result, excluded = solvable_subset(solve, ids, unique_obs, subset=subset)
+    ids = ids[keep]
     if prior is None:
         topo = result
+        poses = np.column_stack([topo.positions, topo.headings])
         robots = [
-            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": None if not np.isfinite(h) else float(h), "delta_p": float(dp)}
-            for r, p, h, dp in zip(ids, topo.positions, topo.headings, topo.delta_p, strict=True)
+            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": _finite(p[2]), "delta_p": float(dp), "sigma_heading": _finite(sh)}
+            for r, p, dp, sh in zip(ids, poses, topo.delta_p, topo.heading_sigma, strict=True)
         ]
         frame = {"frame": "local", "reference": int(ids[topo.reference])}
     else:
         est = result
+        poses = est.poses
         robots = [
-            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2]), "delta_p": float(dp)}
-            for r, p, dp in zip(est.ids, est.poses, est.delta, strict=True)
+            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2]), "delta_p": float(dp),
+             "sigma_heading": float(np.sqrt(max(c[2, 2], 0.0)))}
+            for r, p, dp, c in zip(est.ids, est.poses, est.delta, est.cov, strict=True)
         ]
         frame = {"frame": "global"}
+    used = keep[i] & keep[j] & unique
     return {
         "localizer": localizer,
         **frame,
         "robots": robots,
         "excluded": [{"id": k, "reason": v} for k, v in sorted(excluded.items())],
+        **observation_checks(obs, used, poses, ids, cfg),
     }
+
+
+def _finite(x: float) -> float | None:
+    """JSON has no NaN or infinity: an unknown heading or its infinite sigma is null."""
+    return float(x) if np.isfinite(x) else None
 
 
 def localize(source: str | Path | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
              strict: bool = False, robust: bool = True) -> dict:
     """Localize the robots of a JSON file (or its decoded document): the ``swarm localize`` answer
-    (frame, poses in m and rad with their covariances, and the robots left out with why)."""
+    (frame, poses in m and rad with their uncertainties, the robots left out with why, and the checks of
+    the rows: residuals, suspects, duplicates, ranges beyond the sensing range, ``localize_checks``)."""
     if isinstance(source, dict):
         data = source
     else:
         try:
-            data = json.loads(Path(source).read_text())
+            data = json.loads(Path(source).read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError) as exc:
+            raise SwarmInputError(f"{source}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
         except json.JSONDecodeError as exc:
             raise SwarmInputError(f"{source} is not valid JSON: {exc}") from None
     return localize_document(data, model or ModelConfig(), localizer, strict=strict, robust=robust)

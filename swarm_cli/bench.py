@@ -15,6 +15,7 @@ BENCHMARKS = (
     Command("record", "swarm_cli.bench_record", "MCAP recording throughput (msgs/s, MB/s) and its CPU cost per step"),
     Command("gateway", "swarm_cli.bench_gateway", "frame codec throughput, pty round trip, gateway vs simulated step time"),
     Command("collisions", "swarm_cli.bench_collisions", "contacts between robot bodies per method, planned with bodies and as points"),
+    Command("envelope", "swarm_cli.bench_envelope", "replay, takeover, NEES, contacts and speed across noise, size, localizer and sensing range"),
     Command("faults", "swarm_cli.bench_faults", "lost robots, hostile messages and radio faults: does every run complete, unchanged?"),
     Command("studies", "swarm_cli.bench_studies", "study runs/s and parallel efficiency on the local pool and on Dask (1 and 2 workers)"),
 )

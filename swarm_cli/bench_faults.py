@@ -1,6 +1,7 @@
 """``swarm bench faults``: lost robots, hostile messages and radio faults, with real processes on loopback
 (``inchworm.bench.faults``; docs/failure-model.md). ``--json``: the last line is
-``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}, "coordinator": {...}, "estop_under_flood": {...}}``."""
+``{"gateway": [...], "lost_robot": {...}, "fuzz": {...}, "coordinator": {...}, "estop_under_flood": {...},
+"coordinator_joint": {...}}``."""
 
 from __future__ import annotations
 

@@ -3,6 +3,8 @@
 Robots that cannot be localized are left out and listed under ``excluded`` unless
 ``--strict``. When the solver fails (no convergence, singular information) for some or
 all robots, the exit code is ``EXIT_NOT_LOCALIZED``: see docs/localize-input.md.
+The checks of the rows (duplicates, ranges beyond the sensing range, suspects) are
+warned on stderr, one line each, and listed in the JSON document.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_localizer_option(p)
     p.add_argument("--strict", action="store_true", help="fail instead of leaving out robots that cannot be localized")
     p.add_argument("--no-robust", action="store_true", help="plain least squares (no Huber loss against outliers)")
+    p.add_argument("--json", action="store_true", help="accepted for uniformity: the output is always one JSON object")
     add_model_options(p)
     p.set_defaults(run=run)
 
@@ -40,5 +43,7 @@ def run(args: argparse.Namespace) -> int:
         return EXIT_NOT_LOCALIZED
     for item in result["excluded"]:
         print(f"swarm localize: left out robot {item['id']}: {item['reason']}", file=sys.stderr)
+    for line in result["warnings"]:
+        print(f"swarm localize: warning: {line}", file=sys.stderr)
     print_json(result)
     return EXIT_NOT_LOCALIZED if any(item["reason"] in SOLVER_FAILURES for item in result["excluded"]) else 0

@@ -40,6 +40,7 @@ SLOW_MODULES = frozenset({
     "test_emulator",  # robot emulators on ptys
     "test_gateway",  # gateway links and agents on ptys
     "test_replay",  # swarm replay subprocesses and sessions
+    "test_exact_replay",  # swarm launch with a standby, the coordinator killed, per localizer, driver and bodies
     "test_study_anchors",  # studies
     "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
     "test_examples",  # the example scripts as subprocesses

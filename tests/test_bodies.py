@@ -110,12 +110,13 @@ def test_selection_returns_only_collision_free_plans():
         assert check.is_clear(scores.plan.groups)
 
 
-def test_radius_zero_reproduces_the_point_robot_numbers_exactly():
-    # P_f of the same runs on the code before bodies (commit 1f0c31b), printed with repr
+def test_radius_zero_reproduces_the_point_robot_numbers():
+    # P_f of the same runs on the code before bodies (commit 1f0c31b), printed with repr; the last bits follow the
+    # BLAS kernels of the CPU (runtime.recording.mcap_log.float_platform), so equal to 1e-12 relative, the same plans
     traj = random_trajectory(8, 4, np.random.default_rng(7))
     for method, pf in (("inchworm", 0.024423905004254565), ("ref57", 0.020555234950629487), ("one-at-a-time", 0.018372817325195565)):
         run = simulate(traj, method, POINTS, selection=FAST, seed=7)
-        assert run.pf() == pf and run.steps_added() == 0 and all(c.regrouped is None for c in run.configs)
+        assert run.pf() == pytest.approx(pf, rel=1e-12, abs=0) and run.steps_added() == 0 and all(c.regrouped is None for c in run.configs)
     assert np.array_equal(random_trajectory(8, 4, np.random.default_rng(7), **body_spacing(POINTS)).configurations, traj.configurations)
 
 

@@ -149,3 +149,23 @@ def test_bench_localize_still_prior_gives_the_anchors_their_own_prior():
     assert doc["still_prior_m"] == 0.002 and doc["results"][0]["joint"]["err_over_crlb"] < doc["results"][0]["paper"]["err_over_crlb"]
     bad = swarm("bench", "localize", "--still-prior", "0")
     assert bad.returncode == 2 and "--still-prior must be > 0 m" in bad.stderr
+
+
+def test_one_way_sightings_far_ranges_and_a_duplicate(tmp_path):
+    """Robot 3 sees 1 and 2 at 2 m (4x the default 0.5 m sensing range), nobody sees 3, and row 2 repeats
+    row 0: every robot is localized (exit 0), 1 and 2 without a heading; stderr warns once per finding,
+    naming the rows, and the JSON lists them."""
+    path = tmp_path / "in.json"
+    path.write_text('{"robots": [1, 2, 3], "observations": [[3, 1, 2.0, 0.5], [3, 2, 2.0, -0.7], [3, 1, 2.0, 0.5]]}')
+    out = swarm("localize", str(path), "--json")
+    assert out.returncode == 0, out.stderr
+    doc = json.loads(out.stdout.strip().splitlines()[-1])
+    assert doc["excluded"] == [] and doc["reference"] == 3
+    assert [(r["id"], r["heading"], r["sigma_heading"]) for r in doc["robots"][:2]] == [(1, None, None), (2, None, None)]
+    assert doc["duplicates"] == [2] and doc["beyond_sensing_range"] == [0, 1, 2] and doc["suspects"] == []
+    assert [o["used"] for o in doc["observations"]] == [True, True, False]
+    assert out.stderr.splitlines() == [
+        "swarm localize: warning: duplicated observation rows 2 (the same as an earlier row) are used once",
+        "swarm localize: warning: observation rows 0, 1, 2 have ranges beyond the sensing range 0.5 m (+3 range sigmas): "
+        "set --sensing-range (or --model FILE) to your sensor's",
+    ]

@@ -124,7 +124,7 @@ def test_sigterm_of_the_coordinator_publishes_a_run_wide_stop(tmp_path):
 
 def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     """``swarm bench faults --json`` at a small size: radio faults at 5 % each (one seed, against its fault-free
-    run), a killed agent, a killed coordinator with a standby, and 2000 hostile messages (random bytes, wrong types,
+    run), a killed agent, a killed coordinator with a standby (paper and joint localizers), and 2000 hostile messages (random bytes, wrong types,
     NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
     and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
@@ -132,7 +132,7 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
-    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood"]
+    assert list(result) == ["gateway", "lost_robot", "fuzz", "coordinator", "estop_under_flood", "coordinator_joint"]
     assert result["gateway"] == [{"drop": 0.05, "corrupt": 0.05, "delay": 0.05, "runs": 1, "completed": 1, "identical": 1,
                                   "max_executions_per_step": 1}]
     lost = result["lost_robot"]
@@ -143,6 +143,8 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     assert list(coordinator) == ["runs", "completed", "identical", "takeover_ms_max"]
     assert coordinator["runs"] == coordinator["completed"] == coordinator["identical"] == 1
     assert 0 < coordinator["takeover_ms_max"] < 1000
+    joint = result["coordinator_joint"]  # the same with the joint localizer: its joint covariance travels in the checkpoint
+    assert list(joint) == list(coordinator) and joint["runs"] == joint["completed"] == joint["identical"] == 1
     flood = result["estop_under_flood"]
     assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max"]
     assert (flood["connections"], flood["tls"], flood["reached"]) == (3000, True, flood["robots"]) and flood["robots"] >= 10

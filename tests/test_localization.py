@@ -130,13 +130,20 @@ def test_robot_observing_nobody_keeps_dead_reckoning_heading(cfg):
 
 @pytest.mark.parametrize("method", METHODS)
 def test_unobserved_robot_is_named(method, cfg):
+    """Robot 5 with no observation either way is named; seen by nobody but seeing others, it is localized
+    from what it saw (its uncertainty shrinks below dead reckoning's, and the truth lies within 3 of it)."""
     case = random_step(8, cfg, np.random.default_rng(7), spacing=0.2)
     obs = case.observations
-    keep = obs.observed != 5
-    blind = obs.select(keep)
+    silent = obs.select((obs.observed != 5) & (obs.observer != 5))
     with pytest.raises(LocalizationError, match=r"unobserved: robots \[5\]") as info:
-        make_localizer(method, cfg).localize(case.prior, case.step, blind)
+        make_localizer(method, cfg).localize(case.prior, case.step, silent)
     assert info.value.robots == [5]
+    blind = obs.select(obs.observed != 5)
+    assert (blind.observer == 5).sum() >= 2
+    est = make_localizer(method, cfg).localize(case.prior, case.step, blind)
+    dr = dead_reckon(case.prior, case.step, cfg)
+    assert est.delta[5] < 0.8 * dr.delta[5]
+    assert np.hypot(*(est.poses[5, :2] - case.true_after[5, :2])) < 3 * est.delta[5]
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -19,7 +19,7 @@ from coordinator.strategies import METHODS, anchors_for_half, make_strategy
 from runtime.models.config import ModelConfig
 from runtime.models.metrics import trajectory_following_performance
 from runtime.models.simulation import SimulatedSwarm
-from runtime.models.state import StepCommands
+from runtime.models.state import Observations, StepCommands
 from runtime.models.trajectory import random_trajectory
 
 FAST = SelectionConfig(samples=4, genetic=GeneticConfig(population=6, generations=2))
@@ -64,6 +64,70 @@ def run(traj, method: str, lose: dict[int, int], seed: int = 3, **kw):
     strategy = make_strategy(method, traj.n, CFG, make_localizer("paper", CFG), FAST, seed)
     executor = InchwormExecutor(backend, make_localizer("paper", CFG), strategy, CFG, **kw)
     return executor.run(traj, initial_estimate(traj, seed, 0.01, 0.03)), backend
+
+
+class StillSeenSwarm:
+    """Declares robot ``victim`` lost after motion step ``at`` (its agent stopped answering) while the robot
+    stays where it is: the others still observe it and report it; its own observations no longer arrive."""
+
+    def __init__(self, traj, seed: int, victim: int, at: int) -> None:
+        self.world = SimulatedSwarm(traj.ids, traj.initial_poses, CFG, seed)
+        self.ids, self.victim, self.at, self.steps = self.world.ids.copy(), victim, at, 0
+        self.untaken: dict[int, str] = {}
+        self.reported_victim = 0  # observations naming the lost robot handed to the executor
+
+    def execute(self, step: StepCommands) -> None:
+        full = np.isin(self.world.ids, step.ids)
+        commands = np.zeros((len(full), 2))
+        moving = np.zeros(len(full), bool)
+        commands[full], moving[full] = step.commands, step.moving
+        self.world.execute(StepCommands(self.world.ids, commands, moving))
+        self.steps += 1
+        if self.steps == self.at:
+            self.ids = self.ids[self.ids != self.victim]
+            self.untaken[self.victim] = f"no answer after step {self.at}"
+
+    def observe(self) -> Observations:
+        obs = self.world.observe()
+        if self.victim in self.ids:
+            return obs
+        obs = obs.select(obs.observer != self.victim)  # its agent is gone; the others still see the robot
+        self.reported_victim += int((obs.observed == self.victim).sum())
+        return obs
+
+    def true_poses(self) -> np.ndarray:
+        return self.world.true_poses()[np.isin(self.world.ids, self.ids)]
+
+    def take_lost(self) -> dict[int, str]:
+        taken, self.untaken = self.untaken, {}
+        return taken
+
+
+class Recording:
+    """A localizer that records, per call, the motion steps executed so far and the robots of its observations."""
+
+    def __init__(self, inner, backend: StillSeenSwarm) -> None:
+        self.inner, self.name, self.backend, self.calls = inner, inner.name, backend, []
+
+    def localize_subset(self, prior, step, obs, keep):
+        self.calls.append((self.backend.steps, set(obs.observer.tolist()) | set(obs.observed.tolist())))
+        return self.inner.localize_subset(prior, step, obs, keep)
+
+
+@pytest.mark.parametrize("localizer", ["paper", "joint"])
+def test_a_robot_lost_while_others_still_observe_it_leaves_the_estimate(traj, localizer):
+    """Robot 4 is declared lost after step 2 but stays in the field, seen by the others: their observations
+    of it are reported, yet none reaches the localizer after it was lost, and it is in no later estimate."""
+    backend = StillSeenSwarm(traj, 3, victim=4, at=2)
+    loc = Recording(make_localizer(localizer, CFG), backend)
+    strategy = make_strategy("no-anchors", traj.n, CFG, make_localizer(localizer, CFG), FAST, 3)
+    result = InchwormExecutor(backend, loc, strategy, CFG).run(traj, initial_estimate(traj, 3, 0.01, 0.03))
+    assert [(r.robot, r.step) for r in result.lost] == [(4, 2)] and len(result.configs) == 3
+    assert backend.reported_victim > 0  # the others did see it
+    assert loc.calls[0][0] == 1 and all(4 in robots for steps, robots in loc.calls if steps < 2)
+    assert all(4 not in robots for steps, robots in loc.calls if steps >= 2) and loc.calls[-1][0] > 2
+    assert [4 in rec.estimate.ids for rec in result.steps] == [True] + [False] * (len(result.steps) - 1)
+    assert result.finished_ids.tolist() == [0, 1, 2, 3, 5]
 
 
 @pytest.fixture(scope="module")

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coordinator.replay_check import check, load_recording
 from inchworm.processes import start_agents, stop_all
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key, robot_wildcard
@@ -183,7 +184,8 @@ def test_sigkill_of_the_coordinator_at_a_random_step_the_standby_finishes_the_ru
 def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_path, rejoin):
     """SIGKILL robot 2's agent when step 2 starts, restart it (same id, where the robot stands): it rejoins at the
     next configuration, re-localized from its observations of its neighbours, and the run completes with it
-    (``--rejoin no``: it stays out, as before)."""
+    (``--rejoin no``: it stays out, as before). The joint localizer's run, recorded, replays bit for bit through the
+    loss (its joint covariance marginalised) and the rejoin (``executor.localize_rejoined``)."""
     traj, traj_file, hub_settings, hub = _run_with_agents(tmp_path, "rejoin", robots=6, configs=5, seed=3)
     procs: list[subprocess.Popen] = []
     truths: dict[int, list[float]] = {}
@@ -197,7 +199,8 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
             # a sensing range of 3 m: the robot left behind still sees the others when it comes back (out of
             # everybody's range it could not be re-localized and would stay lost)
             start_agents(traj, "rejoin", hub, 3, 0.4, ("--sensing-range=3.0",), procs, env=ENV, stderr=subprocess.DEVNULL)
-            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}", "--sensing-range=3.0")
+            coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}", "--sensing-range=3.0",
+                                       "--localizer=joint", "--record=run.mcap")
             procs.append(coordinator)
             wait_for(lambda: any(s >= 2 for s in started), 60, "step 2")
             victim = procs[2]
@@ -214,6 +217,9 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
     assert coordinator.returncode == 0, err[-3000:]
     result = json.loads((tmp_path / "result.json").read_text())
     assert [lost["robot"] for lost in result["lost"]] == [2], (result["lost"], err[-3000:])
+    checked = check(load_recording(tmp_path / "run.mcap"))
+    assert checked.passed and checked.skipped == [], (checked.divergence, checked.skipped)
+    assert checked.estimates == len(result["steps"]) + 1 + (rejoin == "yes") and checked.plans == 5  # the rejoin's own estimate
     if rejoin == "no":
         assert result["rejoined"] == [] and 2 not in result["steps"][-1]["ids"] and "rejoined" not in out
         return

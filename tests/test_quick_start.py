@@ -1,6 +1,6 @@
 """The first minutes of a new user, as the user runs them: the CLI in subprocesses, real files, real processes.
 
-`swarm demo` chooses anchors and says why; `--paper` keeps the paper's defaults; nothing a user
+`swarm demo` chooses anchors and says why, and its recording replays exactly (`replay --check`); `--paper` keeps the paper's defaults; nothing a user
 does leaves a mess: a run file lets `swarm estop --run` find the hub and is gone afterwards,
 `swarm replay --publish` says where it publishes and is found by run id, `recover` refuses a
 file with nothing in it, `replay --check` refuses options that contradict the recording, absurd
@@ -38,8 +38,8 @@ def _env(tmp_path: Path) -> dict:
     return {**os.environ, "SWARM_RUN_DIR": str(tmp_path / "runs")}
 
 
-def test_demo_chooses_anchors_in_every_configuration_and_says_why(tmp_path):
-    proc = swarm("demo", "--no-record", "--out", "plots", "--json", cwd=tmp_path, env=_env(tmp_path))
+def test_demo_chooses_anchors_in_every_configuration_and_says_why_and_its_recording_replays_exactly(tmp_path):
+    proc = swarm("demo", "--out", "plots", "--json", cwd=tmp_path, env=_env(tmp_path))
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout
     assert out.startswith("swarm demo: demo scenario: joint localizer, motion noise 4x the default")
@@ -62,6 +62,14 @@ def test_demo_chooses_anchors_in_every_configuration_and_says_why(tmp_path):
     assert "P_s = w_v P_v - w_l P_l, Eq. 3" in out
     assert (tmp_path / "plots" / "trajectory.png").stat().st_size > 10_000
     assert not list((tmp_path / "runs").glob("*.json"))  # the run file is gone with the launcher
+    # the README's next command: the demo's recording checks bit for bit (the joint localizer's joint covariance,
+    # which the recording does not hold, carried by the check from step to step)
+    recorded = next(line.split()[1].rstrip(":") for line in out.splitlines() if line.startswith("recorded recordings/"))
+    check = swarm("replay", recorded, "--check", "--json", cwd=tmp_path, env=_env(tmp_path))
+    assert check.returncode == 0, check.stdout + check.stderr
+    result = last_json(check.stdout)
+    assert result["passed"] and result["exact"] and result["skipped"] == [] and result["plans"] == 3
+    assert result["estimates"] == 1 + sum(c["steps"] for c in summary["configs"])  # the initial estimate and every step
 
 
 def test_demo_paper_keeps_the_papers_defaults(tmp_path):

@@ -252,7 +252,7 @@ class JointLocalizer:
         when the caller has it.
         """
         i, j = obs.indexed(ids) if index is None else index
-        require_observable(ids, i, j)
+        require_observable(ids, i, j, headings_known=True)  # the prior fixes every heading
         n = len(ids)
         u = sqrt_information(cov) if joint is None else joint_sqrt_information(joint)
         problem = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)

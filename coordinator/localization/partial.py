@@ -23,31 +23,34 @@ from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 T = TypeVar("T")  # what a solve returns
+Subset = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, dict[int, str]]]  # (ids, observer, observed) -> (keep, why)
 
 MAX_RETRIES = 3  # solver failures tolerated, each setting aside the robots it names
 SOLVER_FAILURES = ("no-convergence", "degenerate")
 
 
 def solvable_subset(
-    solve: Callable[[np.ndarray], T], ids: np.ndarray, obs: Observations, *, retry: bool = True
+    solve: Callable[[np.ndarray], T], ids: np.ndarray, obs: Observations, *, retry: bool = True, subset: Subset = observable_subset
 ) -> tuple[np.ndarray, T, dict[int, str]]:
     """(mask over ``ids`` of the robots solved, ``solve(mask)``'s result, {left-out id: reason}).
 
     ``solve(mask)`` localizes the robots where ``mask`` is True (observations restricted to them).
-    Robots outside the largest observable group are left out first; then, while ``retry`` and
+    Robots outside the largest observable group (``subset``: a run's rule, ``graph.observable_subset``,
+    or measured data's, ``graph.localizable_subset``) are left out first; then, while ``retry`` and
     ``solve`` fails with a solver failure naming some (not all) robots, those are left out too.
-    The last ``LocalizationError`` propagates when nothing is left to solve.
+    The last ``LocalizationError`` propagates when nothing is left to solve; when fewer than two
+    robots are left, it names those left out.
     """
     i, j = obs.indexed(ids)
     keep = np.ones(len(ids), bool)
     excluded: dict[int, str] = {}
     for attempt in range(MAX_RETRIES + 1):
         live = keep[i] & keep[j]
-        sub_keep, sub_excluded = observable_subset(ids[keep], *_reindex(keep, i[live], j[live]))
+        sub_keep, sub_excluded = subset(ids[keep], *_reindex(keep, i[live], j[live]))
         excluded.update(sub_excluded)
         keep[np.flatnonzero(keep)[~sub_keep]] = False
         if keep.sum() < 2:
-            raise LocalizationError("unobserved", ids, "fewer than two robots can be localized")
+            raise LocalizationError("unobserved", ids[~keep] if (~keep).any() else ids, "fewer than two robots can be localized")
         try:
             return keep, solve(keep), excluded
         except LocalizationError as exc:

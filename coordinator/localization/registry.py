@@ -11,6 +11,10 @@ A localizer factory is called as ``factory(cfg, **options)`` and returns an obje
 
 Names are listed without importing anything (a parser's ``--localizer`` choices); a factory is
 imported when a localizer is made.
+
+A localizer whose result depends on its inputs alone, with everything it carries to its next step kept in
+the ``SwarmEstimate`` it returns (e.g. ``joint``), is reproduced exactly by ``swarm replay --check`` and by a
+coordinator that takes a run over from a checkpoint (docs/localization.md).
 """
 
 from __future__ import annotations

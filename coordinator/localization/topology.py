@@ -17,6 +17,9 @@ Decisions the paper leaves open (documented in docs/localization.md):
   never below half of one observation's expected spread sqrt(s_r^2 + (rho s_b)^2)
   (a cluster of one point has exactly that spread), so a robot seen once or twice
   cannot receive an unbounded weight in Eq. 22.
+* A robot nobody observed (measured data; a run leaves it out first) has no cluster: its position is
+  the solution of Eq. B2, fixed by what it observed, and delta_p that of one observation at the mean
+  range it measured over sqrt(observations made).
 """
 
 from __future__ import annotations
@@ -247,8 +250,12 @@ def estimate_topology(
     centroid = np.stack([np.bincount(observed, use * points[:, k], n) for k in range(2)], axis=1) / safe[:, None]
     sq = np.stack([np.bincount(observed, use * points[:, k] ** 2, n) for k in range(2)], axis=1)
     mean_range = np.bincount(observed, use * range_m, n) / safe
-    delta_p = cluster_delta_p(count, centroid, sq, mean_range, cfg)
+    made = np.bincount(observer, minlength=n)
+    unseen = count == 0  # measured data: a robot nobody saw, fixed by what it saw
+    if unseen.any():
+        mean_range = np.where(unseen, np.bincount(observer, range_m, n) / np.maximum(made, 1), mean_range)
+    delta_p = cluster_delta_p(count, centroid, sq, mean_range, cfg) / np.sqrt(np.where(unseen, np.maximum(made, 1), 1))
     centroid = np.where(count[:, None] > 0, centroid, poses[:, :2])
-    heading_sigma = heading_sigmas(np.bincount(observer, minlength=n), cfg)
+    heading_sigma = heading_sigmas(made, cfg)
     headings = np.where(has_heading, poses[:, 2], np.nan)
     return Topology(centroid, poses[:, :2].copy(), headings, delta_p, heading_sigma, ref)

@@ -17,7 +17,8 @@ Three parts, each through the options a user has, with real processes on loopbac
   the run over from its last checkpoint; ``completed`` counts runs that exit 0 with every
   configuration done, ``identical`` those whose per-configuration table and P_f equal the
   in-process run of the same seed, ``takeover_ms_max`` the longest kill -> first command of the
-  new coordinator.
+  new coordinator. ``coordinator_joint``: the same with ``--localizer joint``, whose estimate carries its joint
+  covariance from step to step (in the checkpoint too), against the in-process run with that localizer.
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``inchworm.bench.faults_gateway``.
@@ -26,7 +27,7 @@ Three parts, each through the options a user has, with real processes on loopbac
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
-"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}}``.
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}, "coordinator_joint": {as "coordinator"}}``.
 """
 
 from __future__ import annotations
@@ -92,21 +93,23 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
 # -- coordinator killed, standby taking over -----------------------------------------------------
 
 
-def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3) -> dict:
-    """``swarm launch --standby --kill-coordinator STEP`` for seeds 0..seeds-1, STEP drawn among the run's steps;
-    each run compared with the in-process run of its seed. ``summaries``: each run's JSON and ``"returncode"``."""
+def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localizer: str = "paper") -> dict:
+    """``swarm launch --localizer LOCALIZER --standby --kill-coordinator STEP`` for seeds 0..seeds-1, STEP drawn among
+    the run's steps; each run compared with the in-process run of its seed. ``summaries``: each run's JSON and
+    ``"returncode"``."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
     summaries, identical = [], 0
-    progress = Progress(seeds, "coordinator")
+    progress = Progress(seeds, f"coordinator ({localizer} localizer)")
     for seed in range(seeds):
         traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))  # as launch draws it
-        ref = simulate(traj, "inchworm", ModelConfig(), seed=seed)
+        ref = simulate(traj, "inchworm", ModelConfig(), localizer=localizer, seed=seed)
         step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
             proc = subprocess.run(
                 [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
+                 f"--localizer={localizer}", "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record",
+                 f"--out={tmp}", "--json"],
                 capture_output=True, text=True, cwd=tmp, timeout=600)
         summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
         summaries.append(summary)
@@ -262,11 +265,14 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"coordinator: swarm launch -n 10 --standby --kill-coordinator STEP (random) over {o.seeds} seeds")
     coord = {k: v for k, v in coordinator_takeover(o.seeds).items() if k != "summaries"}
     _say(json.dumps(coord))
+    _say(f"coordinator, joint localizer: swarm launch -n 10 --localizer joint --standby --kill-coordinator STEP over {o.seeds} seeds")
+    coord_joint = {k: v for k, v in coordinator_takeover(o.seeds, localizer="joint").items() if k != "summaries"}
+    _say(json.dumps(coord_joint))
     _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
     flood = estop_under_flood(connections=o.flood)
     _say(json.dumps(flood))
     summary = {"gateway": rows, "lost_robot": {k: lost[k] for k in ("detect_ms_median", "completed", "estop_ms_max")}, "fuzz": fz,
-               "coordinator": coord, "estop_under_flood": flood}
+               "coordinator": coord, "estop_under_flood": flood, "coordinator_joint": coord_joint}
     table = "\n".join([*(json.dumps(r) for r in rows), json.dumps(summary["lost_robot"]), json.dumps(fz), json.dumps(coord),
-                       json.dumps(flood)])
+                       json.dumps(coord_joint), json.dumps(flood)])
     return BenchResult(rows, summary, table, "drop", "completed", "completed runs", "Runs completed under radio faults")

@@ -93,17 +93,24 @@ def _version(dist: str) -> str:
 
 
 def float_platform() -> str:
-    """What decides the last bits of floating-point results here: numpy's and scipy's builds and the CPU's SIMD extensions.
+    """What decides the last bits of floating-point results here: numpy's and scipy's builds, the CPU's SIMD
+    extensions numpy dispatches to and the kernels their OpenBLAS libraries chose for this CPU.
 
     numpy's vectorised functions (AVX-512 vs AVX2 paths) and the BLAS kernels bundled with numpy
-    and scipy (chosen by CPU) differ in the last bits between CPUs, so ``swarm replay --check`` is
-    exact only where this string is the same; the BLAS versions follow from the numpy and scipy versions.
+    and scipy differ in the last bits between CPUs, so ``swarm replay --check`` is exact only where
+    this string is the same. OpenBLAS picks its kernels by CPU model, not by the SIMD extensions
+    alone (two AVX-512 CPUs may run its SkylakeX or its Haswell kernels), so each library's kernel
+    name is part of the string.
     """
     import numpy as np  # noqa: PLC0415 - numpy is loaded by every caller anyway
+    import scipy.linalg  # noqa: F401, PLC0415 - loads scipy's BLAS, so that its kernels are listed
+    from threadpoolctl import threadpool_info  # noqa: PLC0415
 
     simd = np.show_config(mode="dicts").get("SIMD Extensions", {})
+    blas = sorted({f"{info.get('internal_api')} {info.get('architecture') or '?'}" for info in threadpool_info()
+                   if info.get("user_api") == "blas"})
     return (f"numpy {np.__version__}, scipy {_version('scipy')}, {platform.machine()} "
-            f"{'+'.join(simd.get('found', [])) or 'baseline'}")
+            f"{'+'.join(simd.get('found', [])) or 'baseline'}, {' + '.join(blas) or 'no BLAS'}")
 
 
 def software_versions() -> dict[str, str]:
