@@ -12,6 +12,7 @@ from swarm_cli.options import (
     add_study_options,
     model_config,
     names,
+    parse_list,
     run_study,
     selection_config,
 )
@@ -29,6 +30,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trajectories", type=int, default=48,
                    help="random trajectories (default 48: with 16 a consistent filter leaves [0.7, 1.5] at some configuration quite often)")
     p.add_argument("--seed", type=int, default=0, help="seed of the trajectories and the noise (default 0)")
+    p.add_argument("--motion-scales", default="1", help="factors on the turn and drive sigmas, one noise setting each (default 1)")
+    p.add_argument("--sensing-scales", default="1", help="factors on the range and bearing sigmas, crossed with --motion-scales (default 1)")
     add_study_options(p, "out/study-consistency", "runs.jsonl, runs.csv, consistency.png and study.toml")
     add_selection_options(p)
     add_model_options(p)
@@ -40,6 +43,8 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.studies.consistency import ConsistencyOptions, study_consistency  # noqa: PLC0415
 
     options = ConsistencyOptions(names(args.localizers), names(args.methods), args.robots, args.configs, args.trajectories, args.seed,
-                                 model_config(args), selection_config(args))
+                                 model_config(args), selection_config(args),
+                                 tuple(parse_list(args.motion_scales, "--motion-scales", float)),
+                                 tuple(parse_list(args.sensing_scales, "--sensing-scales", float)))
     options.validate()
     return run_study(args, study_consistency, options, len(options.tasks()), "study consistency")

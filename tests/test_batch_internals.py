@@ -23,6 +23,7 @@ from coordinator.localization.batch import (
     localize_batch,
     observable,
 )
+from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
 from coordinator.localization.range_bearing import prior_information, sqrt_information
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization.sparse_lm import COMPACT_BELOW, MAX_ITER, BatchOps, drive
@@ -44,6 +45,16 @@ def triangle_batch(b: int):
     moving = np.array([True, False, False])
     cov = np.broadcast_to(np.diag([1e-4, 1e-4, 1e-3]), (3, 3, 3))
     return [np.repeat(a[None], b, axis=0) for a in (poses, cov, commands, moving, seen, ranges, bearings)]
+
+
+def driven_x(localizer, cov: np.ndarray, drive: float) -> float:
+    """x of the dead reckoning of a robot at the origin, heading 0, covariance ``cov``, after driving ``drive`` m:
+    ``drive`` for the paper's first order, ``drive`` exp(-s^2 / 2) (s^2 = heading variance + turn variance) for the
+    joint localizer's exact mean."""
+    x, _ = dead_reckon_arrays(np.zeros((1, 3)), cov[None], np.array([[0.0, drive]]), np.ones(1, bool), CFG, exact_moments(localizer))
+    want = drive * np.exp(-(cov[2, 2] + CFG.turn_sigma_rad**2) / 2) if exact_moments(localizer) else drive
+    assert x[0, 0] == pytest.approx(want, rel=1e-14)
+    return float(x[0, 0])
 
 
 @pytest.mark.parametrize("method", BUILTIN_LOCALIZERS)
@@ -68,8 +79,9 @@ def test_invalid_values_flag_only_their_sample(method):
     with np.errstate(invalid="ignore"):  # dead reckoning of the NaN sample propagates NaN
         out = localize_batch(make_localizer(method, CFG), CFG, poses, cov, commands, moving, seen, ranges, bearings)
     assert out.ok.tolist() == [True, False, False, False, False, False, False, False, True, True]
+    driven = driven_x(make_localizer(method, CFG), cov[0, 0], 0.1)
     for k in (5, 6, 7):  # invalid observations: dead reckoning, robot 0 driven 0.1 m along x
-        np.testing.assert_allclose(out.poses[k, 0], [0.1, 0.0, 0.0], atol=1e-12)
+        np.testing.assert_allclose(out.poses[k, 0], [driven, 0.0, 0.0], atol=1e-12)
         np.testing.assert_allclose(out.poses[k, 1:], poses[k, 1:], atol=0)
     np.testing.assert_array_equal(out.poses[8], out.poses[0])
 
@@ -450,4 +462,39 @@ def test_a_single_robot_is_dead_reckoning(method):
                          np.array([[[0.0, 0.1]]] * 2), np.ones((2, 1), bool), np.zeros((2, 1, 1), bool),
                          np.zeros((2, 1, 1)), np.zeros((2, 1, 1)))
     assert out.ok.tolist() == [False, False]
-    np.testing.assert_allclose(out.poses[:, 0], [[0.1, 0.0, 0.0]] * 2, atol=1e-15)
+    driven = driven_x(make_localizer(method, CFG), np.eye(3) * 1e-4, 0.1)
+    np.testing.assert_allclose(out.poses[:, 0], [[driven, 0.0, 0.0]] * 2, atol=1e-15)
+
+
+def test_an_ill_conditioned_constrained_update_is_done_densely():
+    """Noise-free sensing (whitening 1e9) and a prior that disagrees with it by 0.1 mm: the Woodbury identity's 6x6
+    system has a condition number ~1e28 and gave poses 3e7 m off; the batch then does the dense update of the
+    single-swarm localizer, and both put every robot within 0.3 mm of the truth (the prior's disagreement)."""
+    from runtime.models.motion import apply_motion
+    from runtime.models.rng import Stream, robot_rngs
+    from runtime.models.scenarios import grid_configuration
+    from runtime.models.sensing import sense_swarm
+    from runtime.models.state import Observations, StepCommands, SwarmEstimate
+
+    cfg = ModelConfig(range_sigma_m=0.0, bearing_sigma_rad=0.0)
+    rng = np.random.default_rng(40)
+    n = 10
+    poses = grid_configuration(n, 0.22, rng)
+    ids = np.arange(n)
+    moving = rng.random(n) < 0.5
+    commands = np.column_stack([rng.uniform(-1, 1, n), rng.uniform(0.05, 0.15, n)]) * moving[:, None]
+    after = np.where(moving[:, None], apply_motion(poses, commands), poses)
+    obs = sense_swarm(after, ids, cfg, robot_rngs(0, ids, Stream.SENSING))
+    prior = SwarmEstimate.isotropic(ids, poses + rng.normal(0, 1e-4, poses.shape), 0.01, 0.02)
+    seen = np.zeros((n, n), bool)
+    seen[obs.observer, obs.observed] = True
+    ranges, bearings = np.zeros((n, n)), np.zeros((n, n))
+    ranges[obs.observer, obs.observed], bearings[obs.observer, obs.observed] = obs.range_m, obs.bearing_rad
+    out = localize_batch(make_localizer("joint", cfg), cfg, prior.poses[None], prior.cov[None], commands[None], moving[None],
+                         seen[None], ranges[None], bearings[None])
+    observations = Observations(*np.nonzero(seen), ranges[seen], bearings[seen])
+    single = make_localizer("joint", cfg).localize(prior, StepCommands(ids, commands, moving), observations)
+    assert out.ok[0]
+    assert np.abs(out.poses[0, :, :2] - after[:, :2]).max() < 3e-4
+    assert np.abs(single.poses[:, :2] - after[:, :2]).max() < 3e-4
+    assert np.isfinite(out.cov).all()

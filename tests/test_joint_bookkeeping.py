@@ -317,7 +317,7 @@ def test_localize_observable_falls_back_to_dead_reckoning():
     empty = Observations(np.zeros(0, int), np.zeros(0, int), np.zeros(0), np.zeros(0))
     est, why = localize_observable(JointLocalizer(CFG), prior, step, empty, CFG)
     assert why == {4: "unobserved", 5: "unobserved", 6: "unobserved"}
-    dr = dead_reckon(prior, step, CFG)
+    dr = dead_reckon(prior, step, CFG, exact=True)  # the joint localizer's: the exact moments of the motion
     np.testing.assert_array_equal(est.poses, dr.poses)
     np.testing.assert_array_equal(est.cov, dr.cov)
 
@@ -480,7 +480,7 @@ def test_localize_subset_updates_the_kept_robots_only():
     joint_prior = SwarmEstimate.from_joint(ids, poses, spd(15, 12, 0.005))
     loc = JointLocalizer(CFG, constrain_gauge=False)
     est = loc.localize_subset(joint_prior, step, obs, keep)
-    dr = dead_reckon(joint_prior, step, CFG)
+    dr = dead_reckon(joint_prior, step, CFG, exact=True)
     np.testing.assert_array_equal(est.poses[4], dr.poses[4])
     a, b = np.arange(12), np.arange(12, 15)
     np.testing.assert_allclose(est.joint[np.ix_(b, b)], dr.joint[np.ix_(b, b)], rtol=1e-12)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coordinator.localization import make_localizer
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.dead_reckoning import dead_reckon, exact_moments
 from coordinator.localization.graph import observable_subset
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from runtime.errors import LocalizationError, SwarmInputError
@@ -58,11 +58,10 @@ def test_noise_free_step_recovers_true_configuration(method, exact_sensing):
     moving = np.arange(10) % 2 == 0
     commands = np.column_stack([rng.uniform(-1, 1, 10), rng.uniform(0.05, 0.15, 10)])
     step = StepCommands(ids, commands, moving)
-    from runtime.models.motion import apply_motion
-
-    after = np.where(moving[:, None], apply_motion(poses, commands), poses)  # executed exactly
+    loc = make_localizer(method, exact_sensing)
+    after = dead_reckon(prior, step, exact_sensing, exact_moments(loc)).poses  # the motion the localizer expects
     obs = sense_swarm(after, ids, exact_sensing, robot_rngs(0, ids, Stream.SENSING))
-    est = make_localizer(method, exact_sensing).localize(prior, step, obs)
+    est = loc.localize(prior, step, obs)
     np.testing.assert_allclose(est.positions, after[:, :2], atol=1e-9)
     np.testing.assert_allclose(wrap_angle(est.poses[:, 2] - after[:, 2]), 0.0, atol=1e-9)
 
@@ -234,7 +233,7 @@ def test_partial_localization_keeps_dead_reckoning_only_for_the_lost_robot(metho
     loc = make_localizer(method, cfg)
     est, excluded = localize_observable(loc, case.prior, case.step, lost, cfg)
     assert excluded == {7: "unobserved"}
-    dr = dead_reckon(case.prior, case.step, cfg)
+    dr = dead_reckon(case.prior, case.step, cfg, exact_moments(loc))
     np.testing.assert_array_equal(est.poses[7], dr.poses[7])
     others = np.arange(10) != 7
     assert not np.allclose(est.poses[others], dr.poses[others])

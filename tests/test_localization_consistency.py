@@ -13,7 +13,7 @@ from scipy.stats import chi2
 
 from coordinator.consistency import chi2_band, position_nees
 from coordinator.localization import make_localizer
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.dead_reckoning import dead_reckon, propagate_joint
 from coordinator.localization.gauge import (
     constrained_solution,
     gauge_basis,
@@ -24,9 +24,11 @@ from coordinator.localization.gauge import (
     transported_blocks,
 )
 from coordinator.localization.joint import JointLocalizer
+from inchworm.noise import scaled
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
+from runtime.models.motion import apply_motion, draw_motion_noise, motion_covariance, motion_moments
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.scenarios import random_step
 from runtime.models.sensing import sense_swarm
@@ -55,12 +57,13 @@ def test_select_marginalises_the_joint_covariance():
         SwarmEstimate([1, 2], np.zeros((2, 3)), plain.cov, np.eye(3))
 
 
-def test_dead_reckoning_propagates_the_joint_covariance_consistently_with_the_marginals():
+@pytest.mark.parametrize("exact", [False, True])
+def test_dead_reckoning_propagates_the_joint_covariance_consistently_with_the_marginals(exact):
     case = random_step(6, CFG, np.random.default_rng(1))
     joint = random_joint(6, 1)
     prior = SwarmEstimate.from_joint(case.prior.ids, case.prior.poses, joint)
-    dr = dead_reckon(prior, case.step, CFG)
-    marginal = dead_reckon(SwarmEstimate(prior.ids, prior.poses, prior.cov), case.step, CFG)
+    dr = dead_reckon(prior, case.step, CFG, exact)
+    marginal = dead_reckon(SwarmEstimate(prior.ids, prior.poses, prior.cov), case.step, CFG, exact)
     np.testing.assert_allclose(dr.cov, marginal.cov, rtol=1e-12, atol=1e-18)
     np.testing.assert_array_equal(dr.poses, marginal.poses)
     still = ~case.step.moving
@@ -287,12 +290,115 @@ def test_one_update_is_consistent_in_monte_carlo():
     assert low < np.sum(nees) / dof < high
 
 
+HIGH = scaled(CFG, 5.58)  # the calibrated motion noise of docs/experiments.md: turn 16.7 deg, drive 28 %
+
+
+def test_motion_moments_are_the_moments_of_the_motion():
+    """Monte Carlo (200k draws) of apply_motion from a correlated Gaussian pose (heading at the +-pi seam) with
+    large turn and drive noise: motion_moments' mean and covariance are the sample's (the first order's
+    covariance is not: it misses the product of the drive and heading errors), and its Jacobian Fx is the
+    regression of the post-step pose on the pre-step pose, Cov(x', x) = Fx P."""
+    rng = np.random.default_rng(4)
+    p = np.array([[4e-4, 1e-4, 2e-4], [1e-4, 2e-4, -1e-4], [2e-4, -1e-4, 0.1**2]])
+    pose, command = np.array([0.2, -0.1, np.pi - 0.05]), np.array([0.4, 0.45])
+    mean, fx, noise = motion_moments(pose, p, command, HIGH)
+    draws = 200_000
+    start = pose + rng.normal(size=(draws, 3)) @ np.linalg.cholesky(p).T
+    turn, drive = draw_motion_noise(rng, (draws,), HIGH)
+    after = apply_motion(start, np.broadcast_to(command, (draws, 2)), turn, drive)
+    err = after - mean
+    err[:, 2] = wrap_angle(err[:, 2])  # the mean heading is wrapped: it crossed the seam
+    want = np.cov(err.T)
+    cov = fx @ p @ fx.T + noise
+    assert np.all(np.abs(err.mean(axis=0)) < 4 * np.sqrt(np.diag(cov) / draws))
+    assert np.abs((cov - want) / np.sqrt(np.outer(np.diag(want), np.diag(want)))).max() < 0.01  # as correlations
+    cross = (err - err.mean(axis=0)).T @ (start - start.mean(axis=0)) / draws
+    assert np.abs((cross - fx @ p) / np.sqrt(np.outer(np.diag(want), np.diag(p)))).max() < 0.01
+    nees = np.einsum("ka,ab,kb->k", err, np.linalg.inv(cov), err) / 3
+    assert nees.mean() == pytest.approx(1.0, abs=0.02)
+    first = motion_covariance(pose, p, command, HIGH)
+    first_err = after - apply_motion(pose, command)
+    first_err[:, 2] = wrap_angle(first_err[:, 2])
+    first_nees = np.einsum("ka,ab,kb->k", first_err, np.linalg.inv(first), first_err) / 3
+    assert first_nees.mean() > 2.0  # first order: overconfident at this noise
+    small = motion_moments(pose, p * 1e-4, command, scaled(CFG, 0.01))  # vanishing noise: the first order
+    np.testing.assert_allclose(small[1] @ (p * 1e-4) @ small[1].T + small[2], motion_covariance(pose, p * 1e-4, command, scaled(CFG, 0.01)),
+                               rtol=1e-3, atol=1e-15)
+
+
+def test_exact_joint_propagation_regresses_on_the_other_robots():
+    """propagate_joint(exact): the cross-covariance of a mover with any other robot is Fx_i P_ij (Stein's lemma),
+    its own block motion_moments', a robot that does not move keeps its rows."""
+    case = random_step(4, HIGH, np.random.default_rng(2))
+    prior = SwarmEstimate.from_joint(case.prior.ids, case.prior.poses, random_joint(4, 2) * 30)
+    out = propagate_joint(prior, case.step, HIGH, exact=True)
+    cmd = np.where(case.step.moving[:, None], case.step.commands, 0.0)
+    _, fx, noise = motion_moments(prior.poses, prior.cov, cmd, HIGH)
+    p = prior.joint.reshape(4, 3, 4, 3)
+    for i in range(4):
+        for j in range(4):
+            want = fx[i] @ p[i, :, j] @ fx[j].T + (noise[i] if i == j else 0.0)
+            np.testing.assert_allclose(out[3 * i : 3 * i + 3, 3 * j : 3 * j + 3], want, rtol=1e-12, atol=1e-18)
+    still = np.flatnonzero(~case.step.moving)
+    assert still.size and np.array_equal(fx[still], np.broadcast_to(np.eye(3), (still.size, 3, 3))) and not noise[still].any()
+
+
+def test_a_moving_update_is_consistent_at_high_motion_noise():
+    """One step at the calibrated noise (turn 16.7 deg, drive 28 %): truths drawn from a correlated prior (a heading at
+    the +-pi seam), four robots driving 0.25 m towards four standing ones, observations from the truths. The joint
+    NEES of the update over its 3n components is 1 within its chi-square band. With the first-order dead reckoning it
+    was 1.30 (positions 1.44): the prior claimed the position across a mover's heading known to the heading's error
+    times the drive, and the drive error times the heading error was missing."""
+    rng = np.random.default_rng(1)
+    n, draws = 8, 150
+    moving = np.arange(n) >= 4
+    mean = np.column_stack([0.3 * (np.arange(n) % 4), np.where(moving, 0.45, 0.0), np.where(moving, -np.pi / 2 - 0.4, 0.3)])
+    mean[6, 2] = np.pi / 2 - 0.4 - 1e-3  # faces away, turns back over the seam
+    cmd = np.column_stack([np.where(moving, 0.4, 0.0), np.where(moving, 0.25, 0.0)])
+    cmd[6, 0] = 0.4 - np.pi
+    cov = np.broadcast_to(np.array([[1e-4, 5e-5, 1e-5], [5e-5, 1e-4, -2e-5], [1e-5, -2e-5, 0.03**2]]), (n, 3, 3)).copy()
+    prior, step = SwarmEstimate(np.arange(n), mean, cov), StepCommands(np.arange(n), cmd, moving)
+    chol = np.linalg.cholesky(cov)
+    loc = make_localizer("joint", HIGH)
+    full = pos = 0.0
+    for k in range(draws):
+        start = mean + np.einsum("nab,nb->na", chol, rng.normal(size=(n, 3)))
+        turn, drive = draw_motion_noise(rng, (n,), HIGH)
+        truth = np.where(moving[:, None], apply_motion(start, cmd, turn, drive), start)
+        est = loc.localize(prior, step, sense_swarm(truth, prior.ids, HIGH, robot_rngs(k, prior.ids, Stream.SENSING)))
+        e = truth - est.poses
+        e[:, 2] = wrap_angle(e[:, 2])
+        full += e.ravel() @ np.linalg.solve(est.joint, e.ravel())
+        pos += 2 * n * position_nees(truth, est.poses, est.cov)
+    dof = 3 * n * draws
+    low, high = chi2.ppf([0.001, 0.999], dof) / dof
+    assert low < full / dof < high
+    assert 0.85 < pos / (2 * n * draws) < 1.15  # robots' errors are correlated: no chi-square band for their sum
+
+
 def _block(cov: np.ndarray) -> np.ndarray:
     n = len(cov)
     out = np.zeros((3 * n, 3 * n))
     for k in range(n):
         out[3 * k : 3 * k + 3, 3 * k : 3 * k + 3] = cov[k]
     return out
+
+
+def test_position_nees_takes_correlated_covariances():
+    """Known answer with correlated (non-diagonal) 2x2 position blocks and headings near +-pi: e^T P^-1 e / 2 by a
+    linear solve, robot by robot; an error along the long axis of a thin ellipse counts little, across it a lot."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(5, 3, 3)) * 0.01
+    cov = a @ np.swapaxes(a, 1, 2) + np.diag([1e-6, 1e-6, 1e-4])
+    truth = np.column_stack([rng.normal(size=(5, 2)), np.full(5, np.pi - 1e-3)])
+    poses = truth + np.column_stack([rng.normal(0, 0.01, (5, 2)), np.full(5, 2e-3)])
+    e = truth[:, :2] - poses[:, :2]
+    want = np.mean([e[k] @ np.linalg.solve(cov[k, :2, :2], e[k]) for k in range(5)]) / 2
+    assert position_nees(truth, poses, cov) == pytest.approx(want, rel=1e-10)
+    thin = np.array([[[1.0, 0.999, 0.0], [0.999, 1.0, 0.0], [0.0, 0.0, 1.0]]]) * 1e-4
+    along, across = np.array([[0.01, 0.01, 0.0]]), np.array([[0.01, -0.01, 0.0]])
+    assert position_nees(along, np.zeros((1, 3)), thin) == pytest.approx(0.5 * 2e-4 / (1.999e-4), rel=1e-12)
+    assert position_nees(across, np.zeros((1, 3)), thin) == pytest.approx(0.5 * 2e-4 / (0.001e-4), rel=1e-9)
 
 
 def test_position_nees_known_answer():
@@ -309,19 +415,23 @@ def test_position_nees_known_answer():
 def test_study_consistency_json_contract(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "swarm_cli.main", "study", "consistency", "--configs", "2", "--trajectories", "1",
-         "--robots", "6", "--methods", "no-anchors,ref57", "--out", str(tmp_path), "--json"],
+         "--robots", "6", "--methods", "no-anchors,ref57", "--motion-scales", "1,2", "--out", str(tmp_path), "--json"],
         capture_output=True, text=True, timeout=600, cwd=ROOT,
     )
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert list(doc) == ["rows"]
-    assert [(r["localizer"], r["method"]) for r in doc["rows"]] == [
-        ("paper", "no-anchors"), ("paper", "ref57"), ("joint", "no-anchors"), ("joint", "ref57")]
+    assert [(r["motion_scale"], r["sensing_scale"], r["localizer"], r["method"]) for r in doc["rows"]] == [
+        (m, 1.0, loc, method) for m in (1.0, 2.0) for loc in ("paper", "joint") for method in ("no-anchors", "ref57")]
     for r in doc["rows"]:
         assert list(r) == ["localizer", "method", "configs", "nees_over_expected_median", "nees_over_expected_max",
-                           "nees_over_expected_min"]
+                           "nees_over_expected_min", "nees_over_expected_p95", "motion_scale", "sensing_scale"]
         assert r["configs"] == 2 and 0 < r["nees_over_expected_min"] <= r["nees_over_expected_median"] <= r["nees_over_expected_max"]
+        assert r["nees_over_expected_median"] <= r["nees_over_expected_p95"] <= r["nees_over_expected_max"]
     assert (tmp_path / "consistency.png").stat().st_size > 0
     bad = subprocess.run([sys.executable, "-m", "swarm_cli.main", "study", "consistency", "--methods", "nope"],
                          capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert bad.returncode == 2 and "--methods" in bad.stderr and "Traceback" not in bad.stderr
+    bad = subprocess.run([sys.executable, "-m", "swarm_cli.main", "study", "consistency", "--sensing-scales", "1,-4"],
+                         capture_output=True, text=True, timeout=120, cwd=ROOT)
+    assert bad.returncode == 2 and "--sensing-scales" in bad.stderr and "Traceback" not in bad.stderr

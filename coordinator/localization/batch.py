@@ -54,10 +54,19 @@ import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.localization.allocator import retain_freed_memory
-from coordinator.localization.dead_reckoning import dead_reckon_arrays
-from coordinator.localization.gauge import gauge_correction, gauge_frame, gauge_gradient, transport_offset, transported_blocks
+from coordinator.localization.dead_reckoning import dead_reckon_arrays, exact_moments
+from coordinator.localization.gauge import (
+    constrained_covariance,
+    constrained_solution,
+    gauge_correction,
+    gauge_frame,
+    gauge_gradient,
+    transport,
+    transport_offset,
+    transported_blocks,
+)
 from coordinator.localization.graph import observable_subset
-from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, psd
+from coordinator.localization.joint import EXACT_COV_LIMIT, FTOL, PTOL, XTOL, JointLocalizer, block_diagonal, implausible, psd, rescue_start
 from coordinator.localization.paper import PaperLocalizer, fuse
 from coordinator.localization.partial import localize_observable
 from coordinator.localization.range_bearing import (
@@ -95,6 +104,10 @@ PAPER_TOL = (TOPOLOGY_XTOL, TOPOLOGY_FTOL, None)  # the paper localizer's topolo
 JOINT_TOL = (XTOL, FTOL, PTOL)  # the single-swarm joint localizer's (joint.XTOL, FTOL, PTOL)
 CHUNK_PAIRS = 40_000  # samples x n^2 solved together (about 400 swarms of 10 robots, 4 of 100)
 MIN_CHUNK = 4  # samples
+# Above this condition number of the Woodbury identity's 6x6 system (I + K U^T L) the observability-constrained update
+# is done densely, as the single-swarm localizer does it (measured: up to 1.5e7 at the default noise, 4e9 at a quarter
+# of its sensing noise; 7e28 with noise-free sensing and a prior that disagrees with it, where the identity gave 3e7 m)
+WOODBURY_COND_LIMIT = 1e11
 
 
 @dataclass(frozen=True)
@@ -148,7 +161,7 @@ def localize_batch(
     ranges = _shaped(ranges, (b, n, n), "ranges", float)
     bearings = _shaped(bearings, (b, n, n), "bearings", float)
 
-    dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg)
+    dr_poses, dr_cov = dead_reckon_arrays(prior_poses, prior_cov, commands, moving, cfg, exact_moments(localizer))
     if n == 0:
         return BatchEstimate(dr_poses, dr_cov, np.ones(b, bool))
     valid = _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings)
@@ -565,6 +578,9 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
     st = problem.evaluate(x)
+    wrong = np.flatnonzero(good & implausible(st["cost"], seen.sum(axis=(1, 2))))
+    if wrong.size and _rescue(cfg, problem, x, st["cost"], wrong, seen, ranges, bearings, dr_poses, dr_cov):
+        st = problem.evaluate(x)
     if constrain:
         x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep)
     else:
@@ -573,6 +589,29 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
     x[:, :, 2] = wrap_angle(x[:, :, 2])
     good &= np.isfinite(cov).all(axis=(1, 2, 3)) & np.isfinite(x).all(axis=(1, 2))
     return x, cov, good
+
+
+def _rescue(cfg, problem, x, cost, wrong, seen, ranges, bearings, dr_poses, dr_cov) -> bool:
+    """``JointLocalizer._solve``'s second solve of samples ``wrong`` (an implausible cost: a wrong local minimum) from
+    ``joint.rescue_start``, into x where its cost is lower; the robots without observations stay at the prior mean,
+    as they are not in the single-swarm problem. Returns whether any sample took it."""
+    starts, tried = dr_poses[wrong].copy(), np.zeros(wrong.size, bool)
+    for k, b in enumerate(wrong):
+        i, j = np.nonzero(seen[b])
+        kept = np.zeros(seen.shape[1], bool)
+        kept[i], kept[j] = True, True
+        obs = Observations(i, j, ranges[b, i, j], bearings[b, i, j])  # robot ids = their indices, as in ``_localize_each``
+        start = rescue_start(cfg, np.flatnonzero(kept), obs, dr_poses[b, kept], dr_cov[b, kept])
+        if start is not None:
+            starts[k, kept], tried[k] = start, True
+    wrong, starts = wrong[tried], starts[tried]
+    if not wrong.size:
+        return False
+    sub = problem.subset(wrong)
+    again, converged, _, _ = drive(sub, starts, *JOINT_TOL, xp=BatchOps)
+    better = converged & (sub.evaluate(again)["cost"] < cost[wrong])
+    x[wrong[better]] = again[better]
+    return bool(better.any())
 
 
 def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
@@ -609,9 +648,10 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     sn = np.concatenate([lap @ basis[:, :n2] + ct.swapaxes(1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
+    small = np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low)
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
-            m = np.linalg.solve(np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low), kmat @ low.swapaxes(1, 2))
+            m = np.linalg.solve(small, kmat @ low.swapaxes(1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
     # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
@@ -629,7 +669,19 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
         inv_pt = inverse_times(proj.swapaxes(1, 2))
     pc = inv_pt.swapaxes(1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
     pcp = pc @ proj.swapaxes(1, 2)
-    return poses, transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
+    blocks = transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
+    with np.errstate(invalid="ignore", over="ignore"):
+        dense = np.flatnonzero(~(np.linalg.cond(small) <= WOODBURY_COND_LIMIT))
+    for s in dense:  # the Woodbury identity has lost the digits: the single-swarm localizer's dense update
+        full = np.block([[lap[s], ct[s].swapaxes(0, 1)], [ct[s], np.diag(d[s])]])[np.ix_(to_robots, to_robots)]
+        observed = full - block_diagonal(prior_info[s])
+        own = gauge_frame(mean[s], None if keep is None else keep[s])
+        cov = constrained_covariance(full, observed, mean[s], own)
+        poses[s] = constrained_solution(x[s], mean[s], cov, prior_gradient[s].ravel(), own)
+        cov = transport(cov, mean[s], poses[s], gauge_frame(mean[s]))
+        idx = np.arange(k).reshape(n, 3)
+        blocks[s] = cov[idx[:, :, None], idx[:, None, :]]
+    return poses, blocks
 
 
 def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -37,10 +37,11 @@ from coordinator.localization.joint_normal import JointProblem
 from coordinator.localization.paper import PaperLocalizer
 from coordinator.localization.range_bearing import joint_sqrt_information, observation_terms, sqrt_information, stack_terms
 from coordinator.localization.sparse_lm import PoseLayout, blas_threads, levenberg_marquardt, minimize
+from coordinator.localization.superimpose import weighted_procrustes
 from coordinator.localization.topology import Topology
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
-from runtime.models.geometry import wrap_angle
+from runtime.models.geometry import rotate, wrap_angle
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 EXACT_COV_LIMIT = 500  # robots
@@ -53,6 +54,11 @@ XTOL, FTOL = 1e-8, 1e-8
 # (``sparse_lm.minimize``'s ptol): the solution is then within ~sqrt(2e-6 cost) whitened units of the
 # minimum, about 0.01 sigma over a 10-robot swarm, and the last one or two evaluations are saved.
 PTOL = 1e-6
+# A solution whose cost (half the sum of whitened squares) is implausible for its 2 m observation residuals is a
+# wrong local minimum: the solve is run again from the observations' own configuration (``rescue_start``).
+# Threshold: the chi-square(2 m) quantile at 1 - 1e-6 (Wilson-Hilferty), so a consistent step triggers it about once
+# in a million; a wrong minimum (a mover's heading tens of degrees off) has a cost of thousands.
+RESCUE_Z = 4.75  # standard normal quantile at 1 - 1e-6
 
 
 def psd(cov: np.ndarray) -> np.ndarray:
@@ -144,6 +150,29 @@ def worst_observation(residual: np.ndarray, observer: np.ndarray, observed: np.n
     return ids[[observer[k], observed[k]]]
 
 
+def implausible(cost: np.ndarray | float, observations: np.ndarray | int) -> np.ndarray:
+    """Whether a solution's ``cost`` (half its sum of whitened squares) is beyond the chi-square quantile of
+    2 ``observations`` residuals at 1 - 1e-6 (Wilson-Hilferty's approximation), elementwise."""
+    k = np.maximum(2.0 * np.asarray(observations, dtype=float), 1.0)
+    a = 2.0 / (9.0 * k)
+    return np.asarray(2.0 * np.asarray(cost) > k * (1.0 - a + RESCUE_Z * np.sqrt(a)) ** 3)
+
+
+def rescue_start(cfg: ModelConfig, ids: np.ndarray, obs: Observations, mean: np.ndarray, cov: np.ndarray) -> np.ndarray | None:
+    """A start (k, 3) for the joint solve from the observations alone: the joint topology (no prior; the paper's topology
+    from the linear relaxation, refined) superimposed on the dead reckoning ``mean`` (k, 3) by weighted Procrustes
+    (weights 1 / the trace of each position covariance ``cov`` (k, 3, 3)); a robot without a topology heading keeps its
+    dead-reckoned one, headings are unwrapped about ``mean``'s. None where the topology cannot be solved."""
+    try:
+        topo = JointLocalizer(cfg).topology(ids, obs)
+    except LocalizationError:
+        return None
+    w = 1.0 / np.maximum(cov[:, 0, 0] + cov[:, 1, 1], 1e-12)
+    theta, t, _ = weighted_procrustes(topo.solved_positions, mean[:, :2], w)
+    heading = np.where(np.isfinite(topo.headings), np.nan_to_num(topo.headings) + theta, mean[:, 2])
+    return np.column_stack([rotate(theta, topo.solved_positions) + t, mean[:, 2] + wrap_angle(heading - mean[:, 2])])
+
+
 def checked(cov: np.ndarray, ids: np.ndarray) -> np.ndarray:
     """``cov`` if every entry is finite, else ``LocalizationError("degenerate")`` naming the robots concerned."""
     bad = ~np.isfinite(cov).all(axis=(1, 2))
@@ -156,6 +185,7 @@ class JointLocalizer:
     """All poses at once: whitened dead-reckoning priors + range/bearing observations."""
 
     name = "joint"
+    exact_motion = True  # dead reckoning with the exact moments of the motion (``motion.motion_moments``)
 
     def __init__(self, cfg: ModelConfig, huber: float | None = None, constrain_gauge: bool = True) -> None:
         self.cfg = cfg
@@ -176,7 +206,7 @@ class JointLocalizer:
         """
         keep = np.asarray(keep, bool)
         with blas_threads(3 * prior.n):
-            mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg)  # arrays: no re-validation
+            mean, dr_cov, dr_joint = dead_reckon_parts(prior, step, self.cfg, self.exact_motion)  # arrays: no re-validation
             exact = prior.n <= EXACT_COV_LIMIT
             i, j = obs.indexed(prior.ids)
             if keep.all():  # the whole swarm: one gauge frame serves the constrained covariance and its transport
@@ -227,6 +257,11 @@ class JointLocalizer:
         u = sqrt_information(cov) if joint is None else joint_sqrt_information(joint)
         problem = JointProblem(mean, u, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)
         result = minimize(problem.evaluate, mean.ravel(), solve=problem.solve, xtol=XTOL, ftol=FTOL, ptol=PTOL)
+        if result.converged and implausible(result.cost, len(i)):  # a wrong local minimum: start from the observations
+            start = rescue_start(self.cfg, ids, obs, mean, cov)
+            again = None if start is None else minimize(problem.evaluate, start.ravel(), solve=problem.solve, xtol=XTOL, ftol=FTOL, ptol=PTOL)
+            if again is not None and again.converged and again.cost < result.cost:
+                result = again
         if not result.converged:
             suspects = worst_observation(problem.residuals(result.x)[1], i, j, ids)
             raise LocalizationError("no-convergence", suspects, "joint least squares did not converge")

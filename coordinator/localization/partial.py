@@ -16,7 +16,7 @@ from typing import TypeVar
 
 import numpy as np
 
-from coordinator.localization.dead_reckoning import dead_reckon
+from coordinator.localization.dead_reckoning import dead_reckon, exact_moments
 from coordinator.localization.graph import observable_subset
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
@@ -85,7 +85,7 @@ def localize_observable(
     try:
         _keep, estimate, excluded = solvable_subset(solve, prior.ids, obs)
     except LocalizationError as exc:
-        return dead_reckon(prior, step, cfg), {int(r): exc.reason for r in prior.ids}
+        return dead_reckon(prior, step, cfg, exact_moments(localizer)), {int(r): exc.reason for r in prior.ids}
     return estimate, excluded
 
 

@@ -1,10 +1,12 @@
 """Is the reported uncertainty honest? Position NEES along trajectories (``swarm study consistency``).
 
-Every (localizer, method) runs the same random trajectories (``inchworm.seeding``) in the
+Every (noise setting, localizer, method) runs the same random trajectories (``inchworm.seeding``) in the
 in-process simulator; after each configuration the position NEES / 2
 (``coordinator.consistency``) is averaged over robots and trajectories and plotted per
 configuration with its chi-square band. Near 1: the covariances match the errors; above:
-overconfident; below: pessimistic.
+overconfident; below: pessimistic. Noise settings: the model's motion sigmas (turn, drive) times each
+of ``motion_scales`` and its sensing sigmas (range, bearing) times each of ``sensing_scales``
+(``inchworm.noise.scaled``, as ``swarm study noise``).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from inchworm.noise import scaled
 from inchworm.options import check_at_least, check_localizers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
@@ -35,7 +38,9 @@ METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed p
 
 @dataclass(frozen=True)
 class ConsistencyOptions:
-    """Every (localizer, method) on the same ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
+    """Every (noise setting, localizer, method) on the same ``trajectories`` random trajectories of ``robots`` robots and
+    ``configs`` configurations; a noise setting is ``model`` with its motion sigmas times a motion scale and its
+    sensing sigmas times a sensing scale."""
 
     localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
     methods: tuple[str, ...] = METHODS
@@ -45,6 +50,8 @@ class ConsistencyOptions:
     seed: int = 0
     model: ModelConfig = field(default_factory=ModelConfig)
     selection: SelectionConfig = field(default_factory=default_selection)
+    motion_scales: tuple[float, ...] = (1.0,)
+    sensing_scales: tuple[float, ...] = (1.0,)
 
     def validate(self) -> None:
         from coordinator.strategies import METHODS as ALL_METHODS  # noqa: PLC0415
@@ -56,9 +63,17 @@ class ConsistencyOptions:
         check_at_least("robots", self.robots, 2)
         check_at_least("configs", self.configs, 1)
         check_at_least("trajectories", self.trajectories, 1)
+        for flag, values in (("motion-scales", self.motion_scales), ("sensing-scales", self.sensing_scales)):
+            if not values or min(values) < 0 or not all(math.isfinite(v) for v in values):
+                raise SwarmInputError(f"--{flag} must list numbers >= 0, got {list(values)}")
+
+    def settings(self) -> list[tuple[float, float]]:
+        """(motion scale, sensing scale) of every noise setting."""
+        return [(ms, ss) for ms in self.motion_scales for ss in self.sensing_scales]
 
     def tasks(self) -> list[NeesTask]:
-        return [NeesTask(loc, m, t, self) for loc in self.localizers for m in self.methods for t in range(self.trajectories)]
+        return [NeesTask(loc, m, t, self, ms, ss) for ms, ss in self.settings() for loc in self.localizers for m in self.methods
+                for t in range(self.trajectories)]
 
 
 @dataclass(frozen=True)
@@ -67,10 +82,17 @@ class NeesTask:
     method: str
     t: int
     options: ConsistencyOptions
+    motion_scale: float = 1.0
+    sensing_scale: float = 1.0
 
     @property
     def key(self) -> str:
-        return f"{self.localizer}/{self.method}/{self.t}"
+        noise = "" if (self.motion_scale, self.sensing_scale) == (1.0, 1.0) else f"m{self.motion_scale:g}/s{self.sensing_scale:g}/"
+        return f"{noise}{self.localizer}/{self.method}/{self.t}"
+
+    @property
+    def model(self) -> ModelConfig:
+        return scaled(self.options.model, self.motion_scale, self.sensing_scale)
 
 
 def run_task(task: NeesTask) -> Row:
@@ -78,10 +100,11 @@ def run_task(task: NeesTask) -> Row:
     from coordinator.consistency import run_nees  # noqa: PLC0415
     from coordinator.simulate import simulate  # noqa: PLC0415
 
-    o = task.options
-    traj = paired_trajectory(o.robots, o.configs, o.seed, task.t, o.model.sensing_range_m, **body_spacing(o.model))
-    nees = run_nees(simulate(traj, task.method, o.model, localizer=task.localizer, selection=o.selection, seed=run_seed(o.seed, task.t)))
-    return {"localizer": task.localizer, "method": task.method, "trajectory": task.t, **{f"config_{c + 1}": float(v) for c, v in enumerate(nees)}}
+    o, model = task.options, task.model
+    traj = paired_trajectory(o.robots, o.configs, o.seed, task.t, model.sensing_range_m, **body_spacing(model))
+    nees = run_nees(simulate(traj, task.method, model, localizer=task.localizer, selection=o.selection, seed=run_seed(o.seed, task.t)))
+    return {"localizer": task.localizer, "method": task.method, "trajectory": task.t, "motion_scale": task.motion_scale,
+            "sensing_scale": task.sensing_scale, **{f"config_{c + 1}": float(v) for c, v in enumerate(nees)}}
 
 
 def _json_number(x: float) -> float | None:
@@ -91,14 +114,17 @@ def _json_number(x: float) -> float | None:
 
 @dataclass(frozen=True)
 class ConsistencyRow:
-    """NEES / 2 per configuration (mean over trajectories) of one localizer and method."""
+    """NEES / 2 per configuration (mean over trajectories) of one localizer and method at one noise setting."""
 
     localizer: str
     method: str
     per_config: np.ndarray  # (K,) mean over trajectories
     per_run: np.ndarray  # (T, K)
+    motion_scale: float = 1.0
+    sensing_scale: float = 1.0
 
     def summary(self) -> dict[str, Any]:
+        """Median, 95th percentile (linear interpolation), max and min over the configurations."""
         return {
             "localizer": self.localizer,
             "method": self.method,
@@ -106,6 +132,9 @@ class ConsistencyRow:
             "nees_over_expected_median": _json_number(float(np.median(self.per_config))),
             "nees_over_expected_max": _json_number(float(np.max(self.per_config))),
             "nees_over_expected_min": _json_number(float(np.min(self.per_config))),
+            "nees_over_expected_p95": _json_number(float(np.percentile(self.per_config, 95))),
+            "motion_scale": self.motion_scale,
+            "sensing_scale": self.sensing_scale,
         }
 
 
@@ -124,15 +153,17 @@ class ConsistencyResult:
         o, (lo, hi) = self.options, self.band
         lines = [f"position NEES / 2 per configuration, mean over {o.trajectories} trajectories of {o.robots} robots"
                  f" (chi-square 95 % band {lo:.2f}-{hi:.2f} if errors were independent; target 0.7-1.5)",
-                 f"{'localizer':<9} {'method':<16} {'configs':>7} {'median':>8} {'max':>8} {'min':>8}"]
+                 f"{'motion':>6} {'sensing':>7} {'localizer':<9} {'method':<16} {'configs':>7} {'median':>8} {'p95':>8} {'max':>8} {'min':>8}"]
         fmt = lambda x: "inf" if x is None else f"{x:.3g}"  # noqa: E731
         for s in self.to_json()["rows"]:
-            lines.append(f"{s['localizer']:<9} {s['method']:<16} {s['configs']:>7} {fmt(s['nees_over_expected_median']):>8} "
+            lines.append(f"{s['motion_scale']:>6g} {s['sensing_scale']:>7g} {s['localizer']:<9} {s['method']:<16} {s['configs']:>7} "
+                         f"{fmt(s['nees_over_expected_median']):>8} {fmt(s['nees_over_expected_p95']):>8} "
                          f"{fmt(s['nees_over_expected_max']):>8} {fmt(s['nees_over_expected_min']):>8}")
         return "\n".join(lines)
 
     def plot(self, ax: Axes, localizer: str | None = None) -> Axes:
-        """NEES / 2 per configuration of every method of ``localizer`` (log scale), with the chi-square band and the target."""
+        """NEES / 2 per configuration of every method (and noise setting, when there are several) of ``localizer``
+        (log scale), with the chi-square band and the target."""
         from matplotlib.ticker import MaxNLocator  # noqa: PLC0415
 
         from inchworm.plots import title  # noqa: PLC0415
@@ -142,7 +173,8 @@ class ConsistencyResult:
         for r in self.rows:
             if r.localizer == loc:
                 k = len(r.per_config)
-                ax.plot(np.arange(1, k + 1), np.clip(r.per_config, 1e-3, 1e6), label=r.method)
+                noise = "" if len(self.options.settings()) == 1 else f" (motion x{r.motion_scale:g}, sensing x{r.sensing_scale:g})"
+                ax.plot(np.arange(1, k + 1), np.clip(r.per_config, 1e-3, 1e6), label=r.method + noise)
         ax.axhspan(*self.band, color="0.85", label="chi-square 95 % band")
         ax.axhline(1.0, color="k", lw=0.8, label="consistent (1)")
         ax.axhspan(0.7, 1.5, fill=False, ls="--", ec="tab:green", label="target 0.7-1.5")
@@ -186,8 +218,10 @@ def study_consistency(
     if log is not None:
         log.finish(runs)
     rows = []
-    for loc in options.localizers:
-        for m in options.methods:
-            per_run = np.array([[r[f"config_{c + 1}"] for c in range(options.configs)] for r in runs if r["localizer"] == loc and r["method"] == m])
-            rows.append(ConsistencyRow(loc, m, per_run.mean(axis=0), per_run))
+    for ms, ss in options.settings():
+        for loc in options.localizers:
+            for m in options.methods:
+                per_run = np.array([[r[f"config_{c + 1}"] for c in range(options.configs)] for r in runs
+                                    if (r["localizer"], r["method"], r.get("motion_scale", 1.0), r.get("sensing_scale", 1.0)) == (loc, m, ms, ss)])
+                rows.append(ConsistencyRow(loc, m, per_run.mean(axis=0), per_run, ms, ss))
     return ConsistencyResult(options, rows, chi2_band(options.robots, options.trajectories))

@@ -81,3 +81,53 @@ def motion_covariance(poses: np.ndarray, prior_cov: np.ndarray, commands: np.nda
     q[..., 0, 0] = np.where(moved, cfg.turn_sigma_rad**2, 0.0)
     q[..., 1, 1] = cfg.drive_sigma_frac**2
     return fx @ prior_cov @ np.swapaxes(fx, -1, -2) + fu @ q @ np.swapaxes(fu, -1, -2)
+
+
+def motion_moments(
+    poses: np.ndarray, prior_cov: np.ndarray, commands: np.ndarray, cfg: ModelConfig
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exact mean (..., 3), expected Jacobian Fx (..., 3, 3) and noise W (..., 3, 3) of the pose after ``commands``:
+    its covariance is Fx P Fx^T + W exactly.
+
+    The pre-step pose is Gaussian (``poses``, ``prior_cov`` P), the executed turn and relative drive errors are
+    ``apply_motion``'s. The heading after the turn, phi = theta + turn + turn noise, is Gaussian with variance
+    s^2 = P_theta + sigma_turn^2; the position p + d (1 + e) (cos phi, sin phi) is not (a banana when s is large), but
+    its mean and covariance have a closed form. With k = exp(-s^2 / 2): the mean is p + d k u (u along the commanded
+    heading), Fx is the first-order Jacobian with d replaced by d k, and by Stein's lemma Fx is also the exact
+    regression of the post-step pose on the pre-step pose (Cov(x', x) = Fx Cov(p, x) for any x jointly Gaussian with
+    it); W, the rest of the covariance, is uncorrelated with the pre-step pose (docs/localization.md has it written out).
+    First order (``motion_covariance``) the position error across the heading is exactly d times the heading error and
+    the product of the drive and heading errors is lost: at a 17 deg turn noise and a 28 % drive noise that covariance
+    is several times overconfident. Robots with a zero command keep their pose (Fx = I, W = 0).
+    """
+    d = commands[..., 1]
+    moved = (commands[..., 0] != 0.0) | (d != 0.0)
+    turn_var = np.where(moved, cfg.turn_sigma_rad**2, 0.0)
+    p_theta = prior_cov[..., 2, 2]
+    s2 = p_theta + turn_var
+    k2 = np.exp(-s2)  # k^2
+    a = -np.expm1(-s2)  # 1 - k^2, accurate for small s
+    dk = d * np.sqrt(k2)
+    heading = poses[..., 2] + commands[..., 0]
+    c, s = np.cos(heading), np.sin(heading)
+    mean = np.array(poses, dtype=float, copy=True)
+    mean[..., 0] += dk * c
+    mean[..., 1] += dk * s
+    mean[..., 2] = wrap_angle(heading)
+    shape = poses.shape[:-1]
+    fx = np.broadcast_to(np.eye(3), shape + (3, 3)).copy()
+    fx[..., 0, 2] = -dk * s
+    fx[..., 1, 2] = dk * c
+    # the part of the covariance the pre-step pose does not explain (uncorrelated with it, by Stein's lemma):
+    # along u: d^2 [s_d^2 E[cos^2 delta] + Var(cos delta)], across: d^2 [(1 + s_d^2) E[sin^2 delta] - k^2 P_theta]
+    sd2 = cfg.drive_sigma_frac**2
+    along = d**2 * (sd2 * (1.0 - a + 0.5 * a * a) + 0.5 * a * a)
+    across = np.maximum(d**2 * ((1.0 + sd2) * 0.5 * a * (2.0 - a) - k2 * p_theta), 0.0)
+    noise = np.zeros(shape + (3, 3))
+    noise[..., 0, 0] = along * c * c + across * s * s
+    noise[..., 1, 1] = along * s * s + across * c * c
+    noise[..., 0, 1] = noise[..., 1, 0] = (along - across) * c * s
+    noise[..., 0, 2] = noise[..., 2, 0] = -dk * turn_var * s
+    noise[..., 1, 2] = noise[..., 2, 1] = dk * turn_var * c
+    noise[..., 2, 2] = turn_var
+    return mean, fx, noise
