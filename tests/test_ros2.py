@@ -95,13 +95,19 @@ class Listener:
         self.estimates.append(msg)
         self.first.set()
 
-    def call_estop(self, timeout: float = 10.0):
+    def call_estop(self, timeout: float = 30.0, retry_s: float = 5.0):
+        """The service's answer; the request is sent again every ``retry_s`` unanswered (a request that races the
+        service's discovery can be lost in DDS; a stop is idempotent), for ``timeout`` s at most."""
         assert self.estop.wait_for_service(timeout_sec=timeout), "no /swarm/estop service"
-        future = self.estop.call_async(self._trigger.Request())
         deadline = time.monotonic() + timeout
-        while not future.done() and time.monotonic() < deadline:
-            time.sleep(0.02)
-        return future.result()
+        while time.monotonic() < deadline:
+            future = self.estop.call_async(self._trigger.Request())
+            resend = min(deadline, time.monotonic() + retry_s)
+            while not future.done() and time.monotonic() < resend:
+                time.sleep(0.02)
+            if future.done():
+                return future.result()
+        raise AssertionError(f"/swarm/estop did not answer within {timeout} s")
 
     def close(self) -> None:
         RosProcess.remove(self.node)
