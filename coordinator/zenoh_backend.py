@@ -192,9 +192,9 @@ class ZenohSwarmBackend:
         self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
-        self._session_lost = False  # this session lost the hub at least once (this process stalled beyond its lease)
+        self._session_lost = False  # the coordinator's Zenoh link lost the hub at least once (this process stalled beyond its lease)
         self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
-        self._hub_gone_since: float | None = None  # monotonic time this session was first seen without the hub (since back)
+        self._hub_gone_since: float | None = None  # monotonic time the Zenoh link was first seen without the hub (since back)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
         self.run = run
@@ -307,7 +307,7 @@ class ZenohSwarmBackend:
             self.stopped_by = f"the run was stopped by {msg.source} ({msg.reason})"
 
     def _connected(self) -> bool:
-        """Whether this session reaches the hub (a session that lost it sees every robot's token go with it: the robots
+        """Whether the Zenoh link reaches the hub (a link that lost it sees every robot's token go with it: the robots
         are not to blame); a loss is noted, and once it lasts ``HUB_GRACE_S`` (not a stall this process is back from,
         whose session reconnects within milliseconds) the run ends with ``HubLost`` (any thread)."""
         info = self.session.info
@@ -332,7 +332,7 @@ class ZenohSwarmBackend:
         raise HubLost(self._hub_lost)
 
     def _token_gone(self, robot: int, since: float) -> None:
-        """Stopper thread: ``robot``'s token went from this session's view at ``since`` (monotonic). Lost if the hub
+        """Stopper thread: ``robot``'s token went from the Zenoh link's view at ``since`` (monotonic). Lost if the hub
         says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub);
         if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
         time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
@@ -341,7 +341,7 @@ class ZenohSwarmBackend:
             self._suspect.add(robot)
             return
         if robot in self._alive or alive_now(self.session, alive_key(self.run, robot)):
-            self._session_lost = True  # back already: it went with this session's link to the hub, not with the robot
+            self._session_lost = True  # back already: it went with the Zenoh link to the hub, not with the robot
             return
         if not self._connected():
             self._session_lost = True
