@@ -58,13 +58,39 @@ def sense_robot(
     return nb[keep], rho[keep], phi[keep]
 
 
+INDEX_MIN = 128  # robots from which sense_swarm finds neighbours with a k-d tree (fewer: every pair, as cheap)
+
+
+def neighbour_pairs(positions: np.ndarray, sensing_range: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(i, j, distance) of every ordered pair j != i with |x_j - x_i| <= ``sensing_range``, in (i, j) order, the
+    distance computed as ``sense_robot`` does (the same bits). Candidates from a k-d tree from ``INDEX_MIN`` robots
+    (radius widened for rounding, then the exact test), from every pair below."""
+    n = len(positions)
+    if n < INDEX_MIN:
+        i, j = np.repeat(np.arange(n), n), np.tile(np.arange(n), n)
+    else:
+        from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only for large swarms (cheap agent imports)
+
+        pairs = cKDTree(positions).query_pairs(sensing_range * (1.0 + 1e-9) + 1e-12, output_type="ndarray")
+        i, j = np.concatenate([pairs[:, 0], pairs[:, 1]]), np.concatenate([pairs[:, 1], pairs[:, 0]])
+        order = np.lexsort((j, i))
+        i, j = i[order].astype(np.int64), j[order].astype(np.int64)
+    d = positions[j] - positions[i]
+    dist = np.hypot(d[:, 0], d[:, 1])
+    keep = (dist <= sensing_range) & (i != j)
+    return i[keep], j[keep], dist[keep]
+
+
 def sense_swarm(poses: np.ndarray, ids: np.ndarray, cfg: ModelConfig, rngs: list[np.random.Generator]) -> Observations:
-    """Every robot's observations, robot i drawing from ``rngs[i]`` (its own stream)."""
-    observer, observed, ranges, bearings = [], [], [], []
-    for i, rng in enumerate(rngs):
-        nb, rho, phi = sense_robot(poses, i, cfg, rng)
-        observer.append(np.full(len(nb), ids[i]))
-        observed.append(ids[nb])
-        ranges.append(rho)
-        bearings.append(phi)
-    return Observations(np.concatenate(observer), np.concatenate(observed), np.concatenate(ranges), np.concatenate(bearings))
+    """Every robot's observations, robot i drawing from ``rngs[i]`` (its own stream): the numbers of ``sense_robot``
+    for each robot in turn, its neighbours found for all robots at once (``neighbour_pairs``)."""
+    poses = np.asarray(poses, float)
+    i, j, dist = neighbour_pairs(poses[:, :2], cfg.sensing_range_m)
+    counts = np.bincount(i, minlength=len(poses))
+    draws = [(rng.random(k), rng.normal(0.0, 1.0, k), rng.normal(0.0, 1.0, k)) for rng, k in zip(rngs, counts.tolist(), strict=True)]
+    uniform, z_range, z_bearing = (np.concatenate([d[c] for d in draws]) if draws else np.zeros(0) for c in range(3))
+    d = poses[j, :2] - poses[i, :2]
+    phi = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - poses[i, 2])
+    rho, phi, keep = add_sensing_noise(dist, phi, uniform, z_range, z_bearing, cfg)
+    ids = np.asarray(ids)
+    return Observations(ids[i[keep]], ids[j[keep]], rho[keep], phi[keep])
