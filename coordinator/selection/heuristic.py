@@ -22,6 +22,7 @@ from coordinator.plan import Plan
 
 ENUMERATE_LIMIT = 4000  # candidate groups evaluated exhaustively per step
 MIN_SEPARATION = 1e-9  # m, keeps 1 / s_k finite
+SWAP_CHUNK = 1 << 16  # single swaps bounded at a time (``_promising_swaps``): memory stays small for large swarms
 
 
 def step_score(groups: np.ndarray, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
@@ -72,7 +73,7 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
     at c (it is convex in the centroid) and above by the tangent plus a curvature bound. A
     swap whose upper bound is below the best lower bound cannot be the best single swap, so
     the exact scores of the rest (``step_score``) pick the same swap as scoring all of them:
-    O(size x outside) instead of O(size x outside x n).
+    O(size x outside) instead of O(size x outside x n), in chunks of ``SWAP_CHUNK`` swaps.
     """
     n = len(base)
     anchor = np.ones(n, bool)
@@ -84,19 +85,36 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
     total = dist.sum()
     pull = np.sum(off / np.maximum(dist, MIN_SEPARATION)[:, None], axis=0)  # minus the gradient of the sum at c
     out_, in_ = base[group] - centroid_a, base[outside] - centroid_a  # robots leaving the group / joining it
-    dx = (out_[:, 0, None] - in_[None, :, 0]) / n_a  # (size, outside): the swap's anchor-centroid shift delta
-    dy = (out_[:, 1, None] - in_[None, :, 1]) / n_a
-    tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[:, 0, None] - dx, out_[:, 1, None] - dy) \
-        - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
-    step = float(np.sqrt(np.max(dx * dx + dy * dy)))
-    room = dist - step
-    curvature = np.sum(np.where(room > 0, step * step / (2 * np.maximum(room, MIN_SEPARATION)), 2 * step))
     leave = base[group] / n_a + desired[group] / n_m  # Eq. 12 gap c_a' - c_m' = c_a - c_m + leave[a] - join[b]
     join = base[outside] / n_a + desired[outside] / n_m
     lead = centroid_a - desired[group].mean(axis=0) + leave
-    inverse_s = 1.0 / np.maximum(np.hypot(lead[:, 0, None] - join[None, :, 0], lead[:, 1, None] - join[None, :, 1]), MIN_SEPARATION)
-    low = (tangent / n_a + inverse_s).ravel()
-    return np.flatnonzero(low + (curvature + 1e-9 * (1 + total)) / n_a >= low.max())
+    # Rows of ``group`` in chunks of about SWAP_CHUNK swaps, the same numbers as all at once in bounded memory: a first
+    # pass finds the largest centroid shift (the curvature bound's), the second keeps each chunk's swaps within the
+    # margin of the best bound so far and, at the end, of the best of all.
+    rows = max(1, SWAP_CHUNK // len(outside))
+    chunks = [slice(a0, a0 + rows) for a0 in range(0, len(group), rows)]
+
+    def shift(sl: slice) -> tuple[np.ndarray, np.ndarray]:  # (rows, outside): the swap's anchor-centroid shift delta
+        return (out_[sl, 0, None] - in_[None, :, 0]) / n_a, (out_[sl, 1, None] - in_[None, :, 1]) / n_a
+
+    step = float(np.sqrt(max(float(np.max(dx * dx + dy * dy)) for dx, dy in map(shift, chunks))))
+    room = dist - step
+    curvature = np.sum(np.where(room > 0, step * step / (2 * np.maximum(room, MIN_SEPARATION)), 2 * step))
+    margin = (curvature + 1e-9 * (1 + total)) / n_a
+    best, kept, lows = -np.inf, [], []
+    for sl in chunks:
+        dx, dy = shift(sl)
+        tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[sl, 0, None] - dx, out_[sl, 1, None] - dy) \
+            - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
+        inverse_s = 1.0 / np.maximum(np.hypot(lead[sl, 0, None] - join[None, :, 0], lead[sl, 1, None] - join[None, :, 1]),
+                                     MIN_SEPARATION)
+        low = (tangent / n_a + inverse_s).ravel()
+        best = max(best, float(low.max()))
+        near = np.flatnonzero(low + margin >= best)
+        kept.append(near + sl.start * len(outside))
+        lows.append(low[near])
+    flat, low = np.concatenate(kept), np.concatenate(lows)
+    return flat[low + margin >= best]
 
 
 def _mask(group: np.ndarray, n: int) -> np.ndarray:
