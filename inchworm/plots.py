@@ -75,7 +75,7 @@ def plot_trajectory(run: RunResult, ax: Axes) -> Axes:
     if run.has_truth:
         truths = run.true_configurations()
         series.append(("true", TRUE, truths))
-        ax.add_collection(LineCollection(truths.swapaxes(0, 1), colors=TRUE, linewidths=0.5, alpha=0.4))  # one artist: 10,000 robots
+        ax.add_collection(LineCollection(list(truths.swapaxes(0, 1)), colors=TRUE, linewidths=0.5, alpha=0.4))  # one artist: 10,000 robots
     for _label, color, configs in series:
         x, y = configs[:-1].reshape(-1, 2).T
         ax.scatter(x, y, s=22, facecolors="none", edgecolors=color, linewidths=0.8)
