@@ -4,11 +4,11 @@
 
 Per size, in a process of its own (so its peak memory is its own): the random trajectory (drawn with bodies kept
 apart), the validation of its changes (``validate_passable``), the whole run (``inchworm.simulate``: the
-validation again, selection, body regrouping, steps, localization) and within it the anchor selection (the
-strategy's ``plan``), the body regrouping (``clear_plan``), the sensing (``SimulatedSwarm.observe``) and the
-localization (``localize_observable``), then the contacts counted afterwards; the steps taken and added for
-bodies; the process's CPU time (less sensitive to other jobs than the wall times on a shared machine) and its
-peak resident memory. Prints one row per size and, last, one JSON object.
+validation again, selection, body regrouping, steps, localization), then the contacts counted afterwards, in wall
+seconds; the CPU seconds of the whole and, within the run, of the anchor selection (the strategy's ``plan``), the
+body regrouping (``clear_plan``), the sensing (``SimulatedSwarm.observe``) and the localization
+(``localize_observable``) (CPU: less sensitive to other jobs than wall times on a shared machine); the steps
+taken and added for bodies; the peak resident memory. Prints one row per size and, last, one JSON object.
 """
 
 from __future__ import annotations
@@ -33,7 +33,8 @@ PHASES = {"select_s": ("coordinator.strategies", ("SelectedStrategy", "FixedPlan
 
 @contextmanager
 def timed_phases(spent: dict[str, float]) -> Iterator[None]:
-    """Add the wall time spent in each of ``PHASES`` (module, classes (none: a module function), name) to ``spent``."""
+    """Add the CPU time (the process's: on a shared machine it depends less on other jobs than the wall time) spent in
+    each of ``PHASES`` (module, classes (none: a module function), name) to ``spent``."""
     import importlib  # noqa: PLC0415
 
     undo = []
@@ -43,11 +44,11 @@ def timed_phases(spent: dict[str, float]) -> Iterator[None]:
             original = getattr(owner, name)
 
             def wrapper(*args, _original=original, _key=key, **kwargs):
-                t = time.perf_counter()
+                t = time.process_time()
                 try:
                     return _original(*args, **kwargs)
                 finally:
-                    spent[_key] += time.perf_counter() - t
+                    spent[_key] += time.process_time() - t
 
             setattr(owner, name, wrapper)
             undo.append((owner, name, original))
@@ -84,8 +85,8 @@ def run(n: int, configs: int, method: str, localizer: str, seed: int) -> dict:
 
 
 COLUMNS = (("robots", "robots", 7, "d"), ("trajectory_s", "traj s", 7, ".2f"), ("validate_s", "valid s", 7, ".2f"),
-           ("run_s", "run s", 8, ".1f"), ("select_s", "select s", 8, ".1f"), ("regroup_s", "regroup s", 9, ".1f"),
-           ("sense_s", "sense s", 7, ".1f"), ("localize_s", "localize s", 10, ".1f"), ("contacts_s", "contacts s", 10, ".2f"),
+           ("run_s", "run s", 8, ".1f"), ("select_s", "select cpu", 10, ".1f"), ("regroup_s", "regroup cpu", 11, ".1f"),
+           ("sense_s", "sense cpu", 9, ".1f"), ("localize_s", "localize cpu", 12, ".1f"), ("contacts_s", "contacts s", 10, ".2f"),
            ("total_s", "total s", 8, ".1f"), ("cpu_s", "cpu s", 8, ".1f"), ("peak_rss_mb", "RSS MB", 7, ".0f"),
            ("steps", "steps", 6, "d"), ("steps_added", "added", 6, "d"), ("contacts", "contacts", 8, "d"))
 
