@@ -23,6 +23,7 @@ from coordinator.plan import Plan
 ENUMERATE_LIMIT = 4000  # candidate groups evaluated exhaustively per step
 MIN_SEPARATION = 1e-9  # m, keeps 1 / s_k finite
 SWAP_CHUNK = 1 << 16  # single swaps bounded at a time (``_promising_swaps``): memory stays small for large swarms
+ROW_SLACK = 1e-9  # relative slack of the per-row bounds that skip rows (``_row_bounds``): far above rounding (~1e-15)
 
 
 def step_score(groups: np.ndarray, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
@@ -73,7 +74,8 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
     at c (it is convex in the centroid) and above by the tangent plus a curvature bound. A
     swap whose upper bound is below the best lower bound cannot be the best single swap, so
     the exact scores of the rest (``step_score``) pick the same swap as scoring all of them:
-    O(size x outside) instead of O(size x outside x n), in chunks of ``SWAP_CHUNK`` swaps.
+    O(size x outside) instead of O(size x outside x n), in chunks of ``SWAP_CHUNK`` swaps, and only for the rows
+    (robots leaving) whose bounds over all their swaps (``_row_bounds``) can reach the best: the same swaps.
     """
     n = len(base)
     anchor = np.ones(n, bool)
@@ -88,33 +90,59 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
     leave = base[group] / n_a + desired[group] / n_m  # Eq. 12 gap c_a' - c_m' = c_a - c_m + leave[a] - join[b]
     join = base[outside] / n_a + desired[outside] / n_m
     lead = centroid_a - desired[group].mean(axis=0) + leave
-    # Rows of ``group`` in chunks of about SWAP_CHUNK swaps, the same numbers as all at once in bounded memory: a first
-    # pass finds the largest centroid shift (the curvature bound's), the second keeps each chunk's swaps within the
-    # margin of the best bound so far and, at the end, of the best of all.
-    rows = max(1, SWAP_CHUNK // len(outside))
-    chunks = [slice(a0, a0 + rows) for a0 in range(0, len(group), rows)]
+    # Rows of ``group`` in chunks of about SWAP_CHUNK swaps, the same numbers as all at once in bounded memory; rows that
+    # cannot matter are skipped by bounds that hold for every swap of the row (``_row_bounds``), with a slack far
+    # above rounding: the same swaps and the same numbers as scoring every row.
+    size = max(1, SWAP_CHUNK // len(outside))
 
-    def shift(sl: slice) -> tuple[np.ndarray, np.ndarray]:  # (rows, outside): the swap's anchor-centroid shift delta
-        return (out_[sl, 0, None] - in_[None, :, 0]) / n_a, (out_[sl, 1, None] - in_[None, :, 1]) / n_a
+    def chunks(rows: np.ndarray) -> list[np.ndarray]:
+        return [rows[k:k + size] for k in range(0, len(rows), size)]
 
-    step = float(np.sqrt(max(float(np.max(dx * dx + dy * dy)) for dx, dy in map(shift, chunks))))
+    def shift(r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # (rows, outside): the swap's anchor-centroid shift delta
+        return (out_[r, 0, None] - in_[None, :, 0]) / n_a, (out_[r, 1, None] - in_[None, :, 1]) / n_a
+
+    def bounds(r: np.ndarray) -> np.ndarray:  # (rows, outside): each swap's lower bound of the best score
+        dx, dy = shift(r)
+        tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[r, 0, None] - dx, out_[r, 1, None] - dy) \
+            - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
+        inverse_s = 1.0 / np.maximum(np.hypot(lead[r, 0, None] - join[None, :, 0], lead[r, 1, None] - join[None, :, 1]),
+                                     MIN_SEPARATION)
+        return tangent / n_a + inverse_s
+
+    reach, top = _row_bounds(out_, in_, lead, join, total, pull, n_a)
+    far = int(np.argmax(reach))
+    widest = float(np.max(sum(d * d for d in shift(np.array([far])))))  # one row's largest shift, squared
+    rows = np.flatnonzero(reach * reach >= widest * (1.0 - ROW_SLACK))  # the only rows that can shift further
+    step = float(np.sqrt(max(float(np.max(dx * dx + dy * dy)) for dx, dy in map(shift, chunks(rows)))))
     room = dist - step
     curvature = np.sum(np.where(room > 0, step * step / (2 * np.maximum(room, MIN_SEPARATION)), 2 * step))
     margin = (curvature + 1e-9 * (1 + total)) / n_a
+    first = float(bounds(np.argsort(-top, kind="stable")[:size]).max())  # the rows of the highest bounds first
+    rows = np.flatnonzero(top + margin + ROW_SLACK * (1.0 + abs(first)) >= first)
     best, kept, lows = -np.inf, [], []
-    for sl in chunks:
-        dx, dy = shift(sl)
-        tangent = total - dx * pull[0] - dy * pull[1] + np.hypot(out_[sl, 0, None] - dx, out_[sl, 1, None] - dy) \
-            - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
-        inverse_s = 1.0 / np.maximum(np.hypot(lead[sl, 0, None] - join[None, :, 0], lead[sl, 1, None] - join[None, :, 1]),
-                                     MIN_SEPARATION)
-        low = (tangent / n_a + inverse_s).ravel()
+    for r in chunks(rows):
+        low = bounds(r)
         best = max(best, float(low.max()))
-        near = np.flatnonzero(low + margin >= best)
-        kept.append(near + sl.start * len(outside))
-        lows.append(low[near])
+        k, b = np.nonzero(low + margin >= best)
+        kept.append(r[k] * len(outside) + b)
+        lows.append(low[k, b])
     flat, low = np.concatenate(kept), np.concatenate(lows)
     return flat[low + margin >= best]
+
+
+def _row_bounds(out_: np.ndarray, in_: np.ndarray, lead: np.ndarray, join: np.ndarray, total: float, pull: np.ndarray,
+                n_a: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per robot a leaving the group, upper bounds over every robot b joining it: of |delta| = |out_a - in_b| / n_a
+    (the triangle inequality) and of the swap's lower bound of ``_promising_swaps``: its tangent term is at most
+    total + |out_a| - |in_b| + |delta| (|pull| + 2) and 1 / s at most 1 / (the distance from lead_a to the nearest
+    join_b, from a k-d tree)."""
+    from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when swaps are bounded
+
+    out_len, in_len = np.hypot(out_[:, 0], out_[:, 1]), np.hypot(in_[:, 0], in_[:, 1])
+    reach = (out_len + in_len.max()) / n_a
+    nearest, _ = cKDTree(join).query(lead)
+    tangent = total + out_len - in_len.min() + reach * (float(np.hypot(pull[0], pull[1])) + 2.0)
+    return reach, tangent / n_a + 1.0 / np.maximum(nearest, MIN_SEPARATION)
 
 
 def _mask(group: np.ndarray, n: int) -> np.ndarray:
