@@ -33,6 +33,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -156,7 +157,7 @@ def stop_once(settings: ZenohSettings, run_id: str, robots: int, ack_timeout_s: 
 
 
 def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: float = 60.0, after_s: float | None = None,
-                      ack_timeout_s: float = 2.0, say=None) -> dict:
+                      ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None) -> dict:
     """``{"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
     "public_blocked"}`` (``after_s`` defaults to ``min(duration_s, 60)``; ``ms_max`` None if no robot was reached)."""
     after_s = min(duration_s, 60.0) if after_s is None else after_s
@@ -218,7 +219,14 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
             "public_blocked": probes.count(False)}
 
 
+def main(argv: list[str]) -> None:
+    """``python -m inchworm.bench.estop_flood [ROBOTS [CONNECTIONS [DURATION_S [AFTER_S]]]]``: the JSON on stdout, progress on stderr."""
+    robots = int(argv[0]) if argv else 10
+    connections = int(argv[1]) if len(argv) > 1 else 3000
+    duration_s = float(argv[2]) if len(argv) > 2 else 60.0
+    after_s = float(argv[3]) if len(argv) > 3 else None
+    print(json.dumps(estop_under_flood(robots, connections, duration_s, after_s, say=lambda text: print(text, file=sys.stderr, flush=True))))
+
+
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    print(json.dumps(estop_under_flood(int(args[0]) if args else 10, int(args[1]) if len(args) > 1 else 3000,
-                                       *(float(a) for a in args[2:4]), say=lambda text: print(text, file=sys.stderr, flush=True))))
+    main(sys.argv[1:])
