@@ -331,7 +331,7 @@ def test_the_stop_gets_through_a_flood_of_the_public_listener(certs: Path, tmp_p
     router_config = rewrite(DEPLOY / "zenoh-router-tls-acl.json5", tmp_path / "router.json5", {CERT_DIR: f"{certs}/"})
     listen = ("--listen", f"{public}#tls_handshake_timeout_ms=1000", "--listen", operator)
     estop_config = rewrite(DEPLOY / "zenoh-estop-tls.json5", tmp_path / "estop.json5", {
-        f"{CERT_DIR}ca.pem": str(certs / "ca.pem"), f"{CERT_DIR}estop.": f"{certs / 'estop'}.", "tls/127.0.0.1:7448": operator})
+        f"{CERT_DIR}ca.pem": str(certs / "ca.pem"), f"{CERT_DIR}estop.": f"{certs / 'estop'}.", "tls/127.0.0.1:7449": operator})
     random_trajectory(robots, 1, np.random.default_rng(0)).save(tmp_path / "traj.json")
     children: list[Child] = []
     try:

@@ -35,6 +35,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -66,7 +67,7 @@ def _rewrite(src: Path, out: Path, replacements: dict[str, str]) -> Path:
 def _client(tmp: Path, certs: Path, config: str, identity: str, endpoint: str) -> ZenohSettings:
     """deploy/``config`` with the certificates of ``identity`` in ``certs``, connecting to ``endpoint``."""
     dialled = {"zenoh-gateway-tls.json5": "tls/coordinator-pc.local:7447", "zenoh-coordinator-tls.json5": "tls/127.0.0.1:7447",
-               "zenoh-estop-tls.json5": "tls/127.0.0.1:7448"}[config]
+               "zenoh-estop-tls.json5": "tls/127.0.0.1:7449"}[config]
     out = _rewrite(DEPLOY / config, tmp / f"{identity}.json5", {
         f"{CERT_DIR}ca.pem": str(certs / "ca.pem"), f"{CERT_DIR}{identity}.": f"{certs / identity}.", dialled: endpoint})
     return ZenohSettings("client", config_file=str(out))
@@ -106,8 +107,7 @@ class Flood:
     def _hold(self) -> None:
         while not self._stop.is_set():
             for key, _events in self._selector.select(0.2):
-                sock = key.fileobj
-                assert isinstance(sock, socket.socket)
+                sock = cast(socket.socket, key.fileobj)
                 try:
                     if sock.recv(64):  # a TLS server says nothing first; data would be a surprise, keep the connection
                         continue
@@ -124,7 +124,7 @@ class Flood:
         self._stop.set()
         self._thread.join()
         for key in list(self._selector.get_map().values()):
-            key.fileobj.close()  # type: ignore[union-attr]
+            cast(socket.socket, key.fileobj).close()
         self._selector.close()
 
 
