@@ -335,8 +335,10 @@ def test_the_stop_gets_through_a_flood_of_the_public_listener(certs: Path, tmp_p
     random_trajectory(robots, 1, np.random.default_rng(0)).save(tmp_path / "traj.json")
     children: list[Child] = []
     try:
-        children.append(Child(router_cmd("--config", str(router_config), *listen)))
+        # 1024 open files: enough for this flood; the router warns that a larger one would block every listener.
+        children.append(Child(["sh", "-c", 'ulimit -n 1024 && exec "$@"', "sh", *router_cmd("--config", str(router_config), *listen)]))
         children[0].wait_line("swarm router: listening on", 15)
+        children[0].wait_line("swarm router: warning: 1024 open files allowed: a flood of that many connections blocks every listener", 5)
         children.append(Child([sys.executable, "-m", "swarm_cli.agent", f"--id=0-{robots - 1}", f"--trajectory={tmp_path / 'traj.json'}",
                                f"--run={run}", "--zenoh-config", str(client_config(tmp_path, certs, "gateway", public).config_file)]))
         with open_session(client_config(tmp_path, certs, "coordinator", public)) as observer:
