@@ -157,9 +157,11 @@ def stop_once(settings: ZenohSettings, run_id: str, robots: int, ack_timeout_s: 
 
 
 def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: float = 60.0, after_s: float | None = None,
-                      ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None) -> dict:
+                      ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None, path: str = "operator") -> dict:
     """``{"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
-    "public_blocked"}`` (``after_s`` defaults to ``min(duration_s, 60)``; ``ms_max`` None if no robot was reached)."""
+    "public_blocked"}`` (``after_s`` defaults to ``min(duration_s, 60)``; ``ms_max`` None if no robot was reached).
+    ``path="public"``: the stops go as before the operator listener, with the coordinator identity through the
+    flooded public listener (the comparison in docs/benchmarks.md)."""
     after_s = min(duration_s, 60.0) if after_s is None else after_s
     procs: list[subprocess.Popen] = []
     run_id = f"flood{int(time.time())}"
@@ -200,8 +202,8 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
                 end = time.monotonic() + seconds
                 while (now := time.monotonic()) < end:
                     probes.append(tls_handshake_ok(port, certs, "coordinator"))
-                    stops.append(stop_once(estop, run_id, robots, ack_timeout_s))
-                    if say and len(stops) % 30 == 0:
+                    stops.append(stop_once(estop if path == "operator" else coordinator, run_id, robots, ack_timeout_s))
+                    if say and (len(stops) % 30 == 0 or path == "public"):
                         say(f"estop under flood: {phase}, {len(stops)} stops, the last reached {len(stops[-1])} robots "
                             f"({max(stops[-1], default=float('nan')):.0f} ms); public TLS handshake {'ok' if probes[-1] else 'blocked'}")
                     time.sleep(max(0.0, now + CYCLE_S - time.monotonic()))
@@ -220,12 +222,17 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
 
 
 def main(argv: list[str]) -> None:
-    """``python -m inchworm.bench.estop_flood [ROBOTS [CONNECTIONS [DURATION_S [AFTER_S]]]]``: the JSON on stdout, progress on stderr."""
+    """``python -m inchworm.bench.estop_flood [ROBOTS [CONNECTIONS [DURATION_S [AFTER_S [operator|public]]]]]``: the JSON on
+    stdout, progress on stderr."""
     robots = int(argv[0]) if argv else 10
     connections = int(argv[1]) if len(argv) > 1 else 3000
     duration_s = float(argv[2]) if len(argv) > 2 else 60.0
     after_s = float(argv[3]) if len(argv) > 3 else None
-    print(json.dumps(estop_under_flood(robots, connections, duration_s, after_s, say=lambda text: print(text, file=sys.stderr, flush=True))))
+    path = argv[4] if len(argv) > 4 else "operator"
+    if path not in ("operator", "public"):
+        raise SystemExit(f"estop_flood: the stop path is operator or public, not {path!r}")
+    print(json.dumps(estop_under_flood(robots, connections, duration_s, after_s, say=lambda text: print(text, file=sys.stderr, flush=True),
+                                       path=path)))
 
 
 if __name__ == "__main__":
