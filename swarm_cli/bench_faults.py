@@ -41,8 +41,7 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.bench.faults import FaultsBenchOptions, bench_faults  # noqa: PLC0415
 
     options = FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows), args.flood, args.flood_s)
-    result = bench_faults(options,
-                          lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
+    result = bench_faults(options, lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
     if args.json:
         print_json(result.to_json())
     return 0
