@@ -174,3 +174,12 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     forged = result["forged_link_requests"]  # the gateway identity forging LinkRequests during and after a run
     assert list(forged) == ["sent", "executed", "completed"] and forged["sent"] > 20
     assert forged["executed"] == 0 and forged["completed"] is True
+
+
+def test_bench_faults_refuses_a_flood_out_of_range_before_running_anything(capsys):
+    from swarm_cli.main import main as swarm_main
+
+    assert swarm_main(["bench", "faults", "--flood-s=0.5"]) == 2
+    assert swarm_main(["bench", "faults", "--flood=0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("--flood must be >= 1 and --flood-s between 1 and 3600") == 2 and "Traceback" not in err
