@@ -25,6 +25,7 @@ acknowledgement's stamp (one host, one clock). ``reached`` is the fewest robots 
 from __future__ import annotations
 
 import json
+import resource
 import selectors
 import socket
 import ssl
@@ -141,6 +142,10 @@ def tls_handshake_ok(port: int, certs: Path, identity: str, timeout_s: float = P
         return False
 
 
+def _limit_files(files: int) -> None:
+    resource.setrlimit(resource.RLIMIT_NOFILE, (files, files))
+
+
 def stop_once(settings: ZenohSettings, run_id: str, robots: int, ack_timeout_s: float) -> list[float]:
     """What ``swarm estop`` does: a new session, the run's ``EmergencyStop``, the agents' acknowledgements;
     the ms from the start (before the session) to each agent's acknowledgement."""
@@ -157,11 +162,13 @@ def stop_once(settings: ZenohSettings, run_id: str, robots: int, ack_timeout_s: 
 
 
 def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: float = 60.0, after_s: float | None = None,
-                      ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None, path: str = "operator") -> dict:
+                      ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None, path: str = "operator",
+                      router_files: int | None = None) -> dict:
     """``{"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
     "public_blocked"}`` (``after_s`` defaults to ``min(duration_s, 60)``; ``ms_max`` None if no robot was reached).
     ``path="public"``: the stops go as before the operator listener, with the coordinator identity through the
-    flooded public listener (the comparison in docs/benchmarks.md)."""
+    flooded public listener (the comparison in docs/benchmarks.md). ``router_files``: the router may open that many
+    files (soft and hard limit; default: this process's limits)."""
     after_s = min(duration_s, 60.0) if after_s is None else after_s
     procs: list[subprocess.Popen] = []
     run_id = f"flood{int(time.time())}"
@@ -185,7 +192,8 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
         traj.save(tmp / "traj.json")
         try:
             router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--config={router_config}", f"--listen={public}",
-                                       f"--listen={operator}"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                       f"--listen={operator}"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                      preexec_fn=None if router_files is None else lambda: _limit_files(router_files))
             procs.append(router)
             if router.stderr is None or "listening" not in router.stderr.readline():
                 raise RuntimeError("the TLS router did not start")
@@ -203,7 +211,7 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
                 while (now := time.monotonic()) < end:
                     probes.append(tls_handshake_ok(port, certs, "coordinator"))
                     stops.append(stop_once(estop if path == "operator" else coordinator, run_id, robots, ack_timeout_s))
-                    if say and (len(stops) % 30 == 0 or path == "public"):
+                    if say and (len(stops) % 30 == 0 or path == "public" or router_files is not None):
                         say(f"estop under flood: {phase}, {len(stops)} stops, the last reached {len(stops[-1])} robots "
                             f"({max(stops[-1], default=float('nan')):.0f} ms); public TLS handshake {'ok' if probes[-1] else 'blocked'}")
                     time.sleep(max(0.0, now + CYCLE_S - time.monotonic()))
@@ -222,8 +230,8 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
 
 
 def main(argv: list[str]) -> None:
-    """``python -m inchworm.bench.estop_flood [ROBOTS [CONNECTIONS [DURATION_S [AFTER_S [operator|public]]]]]``: the JSON on
-    stdout, progress on stderr."""
+    """``python -m inchworm.bench.estop_flood [ROBOTS [CONNECTIONS [DURATION_S [AFTER_S [operator|public [ROUTER_FILES]]]]]]``:
+    the JSON on stdout, progress on stderr."""
     robots = int(argv[0]) if argv else 10
     connections = int(argv[1]) if len(argv) > 1 else 3000
     duration_s = float(argv[2]) if len(argv) > 2 else 60.0
@@ -231,8 +239,9 @@ def main(argv: list[str]) -> None:
     path = argv[4] if len(argv) > 4 else "operator"
     if path not in ("operator", "public"):
         raise SystemExit(f"estop_flood: the stop path is operator or public, not {path!r}")
+    router_files = int(argv[5]) if len(argv) > 5 else None
     print(json.dumps(estop_under_flood(robots, connections, duration_s, after_s, say=lambda text: print(text, file=sys.stderr, flush=True),
-                                       path=path)))
+                                       path=path, router_files=router_files)))
 
 
 if __name__ == "__main__":
