@@ -13,7 +13,10 @@ tools connect to it as clients (``--hub`` / ``--zenoh-config``; see ``deploy/REA
   ``tls/192.168.1.10:7447``; overrides the file's endpoints. Default: the file's
   endpoints, else ``tcp/0.0.0.0:7447``. Port 0 is refused (clients could not know it).
 
-``swarm router: listening on ...`` on stderr means the session is open and listening;
+``swarm router: listening on ...`` on stderr means the session is open and listening; a warning
+follows when the process may open fewer than 65536 files (Zenoh raises the soft limit to the hard
+one): a connection flood that exhausts them blocks every listener, the operator listener of the
+stop path too (deploy/README.md, "The stop path").
 ``--json`` then prints ``{"zid": ..., "listen": [...], "config": ...}`` as the only (so also
 the last) line on stdout. Exit status 0, 2 on bad input (bad endpoint, unreadable or
 invalid config file, unreadable certificate, port already in use).
@@ -23,6 +26,7 @@ invalid config file, unreadable certificate, port already in use).
 from __future__ import annotations
 
 import argparse
+import resource
 import signal
 import sys
 import threading
@@ -32,6 +36,7 @@ from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
+SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -64,6 +69,11 @@ def run(args: argparse.Namespace) -> int:
             source = f" (config {args.config})" if args.config else ""
             print(f"swarm router: listening on {', '.join(settings.listen)}{source}; zid {session.info.zid()}",
                   file=sys.stderr, flush=True)
+            files = resource.getrlimit(resource.RLIMIT_NOFILE)[0]  # Zenoh raised the soft limit to the hard one
+            if files < SAFE_OPEN_FILES:
+                print(f"swarm router: warning: {files} open files allowed: a flood of that many connections blocks every listener, "
+                      f"the stop path's too (raise the hard limit to {SAFE_OPEN_FILES}, e.g. LimitNOFILE= of its systemd unit; "
+                      "deploy/README.md, \"The stop path\")", file=sys.stderr, flush=True)
             if args.json:
                 print_json({"zid": str(session.info.zid()), "listen": list(settings.listen), "config": args.config})
             while not stop.wait(0.5):

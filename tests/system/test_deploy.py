@@ -164,10 +164,10 @@ def client_config(tmp: Path, certs: Path, identity: str, endpoint: str, *, mtls:
 
 @pytest.fixture(scope="module")
 def certs(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A lab CA with router, coordinator, gateway and intruder certificates (``swarm certs``)."""
+    """A lab CA with router, coordinator, gateway, estop and intruder certificates (``swarm certs``)."""
     out = tmp_path_factory.mktemp("certs")
-    result = make_certs(out, "router", "coordinator", "gateway", "intruder")
-    assert set(result["hosts"]) == {"router", "coordinator", "gateway", "intruder"} and not result["ca"]["reused"]
+    result = make_certs(out, "router", "coordinator", "gateway", "estop", "intruder")
+    assert set(result["hosts"]) == {"router", "coordinator", "gateway", "estop", "intruder"} and not result["ca"]["reused"]
     return out
 
 
@@ -312,6 +312,57 @@ def test_idle_connection_flood_does_not_starve_new_sessions(tmp_path: Path) -> N
         stop(children)
 
 
+def test_the_stop_gets_through_a_flood_of_the_public_listener(certs: Path, tmp_path: Path) -> None:
+    """300 idle connections held on the TLS router's public listener jam it once their TLS handshakes time out
+    (1 s here, ``#tls_handshake_timeout_ms``; Zenoh's default 10 s): Zenoh's TLS accept loop then sleeps 100 ms
+    after each, so a mutual-TLS handshake there does not complete within 1 s. `swarm estop --zenoh-config
+    zenoh-estop-tls.json5` through the operator listener is acknowledged by every agent during the flood, and
+    a stop right after the flood closed (the public listener still draining it) reaches every agent too."""
+    import numpy as np
+
+    from inchworm.bench.estop_flood import Flood, stop_once, tls_handshake_ok
+    from runtime.models.trajectory import random_trajectory
+    from runtime.wire.keys import alive_wildcard
+    from runtime.wire.transport import alive_now
+
+    robots, run = 5, f"flood{uuid.uuid4().hex[:8]}"
+    port, operator_port = free_tcp_port(), free_tcp_port()
+    public, operator = f"tls/127.0.0.1:{port}", f"tls/127.0.0.1:{operator_port}"
+    router_config = rewrite(DEPLOY / "zenoh-router-tls-acl.json5", tmp_path / "router.json5", {CERT_DIR: f"{certs}/"})
+    listen = ("--listen", f"{public}#tls_handshake_timeout_ms=1000", "--listen", operator)
+    estop_config = rewrite(DEPLOY / "zenoh-estop-tls.json5", tmp_path / "estop.json5", {
+        f"{CERT_DIR}ca.pem": str(certs / "ca.pem"), f"{CERT_DIR}estop.": f"{certs / 'estop'}.", "tls/127.0.0.1:7449": operator})
+    random_trajectory(robots, 1, np.random.default_rng(0)).save(tmp_path / "traj.json")
+    children: list[Child] = []
+    try:
+        # 1024 open files: enough for this flood; the router warns that a larger one would block every listener.
+        children.append(Child(["sh", "-c", 'ulimit -n 1024 && exec "$@"', "sh", *router_cmd("--config", str(router_config), *listen)]))
+        children[0].wait_line("swarm router: listening on", 15)
+        children[0].wait_line("swarm router: warning: 1024 open files allowed: a flood of that many connections blocks every listener", 5)
+        children.append(Child([sys.executable, "-m", "swarm_cli.agent", f"--id=0-{robots - 1}", f"--trajectory={tmp_path / 'traj.json'}",
+                               f"--run={run}", "--zenoh-config", str(client_config(tmp_path, certs, "gateway", public).config_file)]))
+        with open_session(client_config(tmp_path, certs, "coordinator", public)) as observer:
+            deadline = time.monotonic() + 30
+            while len(alive_now(observer, alive_wildcard(run))) < robots:
+                assert time.monotonic() < deadline and children[1].proc.poll() is None, children[1].stderr
+                time.sleep(0.1)
+        assert tls_handshake_ok(port, certs, "coordinator")
+        with Flood(port, 300):
+            time.sleep(1.2)
+            estop = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "estop", f"--run={run}", "--zenoh-config", str(estop_config),
+                                      "--repeat-s=0", "--ack-timeout=0.5", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                     text=True, env=ENV)
+            jammed = not tls_handshake_ok(port, certs, "coordinator")
+            out, err = estop.communicate(timeout=60)
+        assert jammed, "the flood did not jam the public listener"
+        assert estop.returncode == 0, err
+        assert json.loads(out.strip().splitlines()[-1])["agents"] == list(range(robots))
+        settings = ZenohSettings("client", config_file=str(estop_config))
+        assert len(stop_once(settings, run, robots, 2.0)) == robots  # the flood closed, its connections still queued
+    finally:
+        stop(children)
+
+
 # -- mutual TLS and access control -------------------------------------------------------------------
 
 
@@ -344,7 +395,7 @@ def _statuses(inbox: queue.Queue[tuple[str, bytes]], wait_s: float, until_done: 
 
 
 def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path, tls_router: str) -> None:
-    """A real agent with the gateway identity obeys the coordinator identity only."""
+    """A real agent with the gateway identity obeys the coordinator identity only (not the gateway, estop or intruder ones)."""
     run = f"acl{uuid.uuid4().hex[:8]}"
     gateway_cfg = client_config(tmp_path, certs, "gateway", tls_router)
     agent_cmd = [sys.executable, "-m", "swarm_cli.agent", "--id", "0", "--ids", "0", "--run", run,
@@ -354,10 +405,12 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
         with (
             open_session(client_config(tmp_path, certs, "coordinator", tls_router)) as coord,
             open_session(client_config(tmp_path, certs, "intruder", tls_router)) as intruder,
+            open_session(client_config(tmp_path, certs, "estop", tls_router)) as estop,
             open_session(gateway_cfg) as gateway,
         ):
             _sub, statuses = subscribe_queue(coord, robot_key(run, 0, "status"))
             _isub, intruder_inbox = subscribe_queue(intruder, f"swarm/{run}/**")
+            _esub, estop_inbox = subscribe_queue(estop, f"swarm/{run}/**")
             alive: queue.Queue[tuple[str, bool]] = queue.Queue()
             watch_liveliness(coord, alive_key(run, 0), lambda key, up: alive.put((key, up)))
             children.append(Child(agent_cmd))
@@ -365,9 +418,9 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
             _token = declare_token(coord, coord_alive_key(run, 9))  # the coordinator of epoch 9
             time.sleep(0.3)
 
-            # Neither a certificate of the same CA with another name nor the gateway identity
-            # gets a command through: no Status at all for 2 s.
-            for session, step in ((intruder, 5), (gateway, 6)):
+            # Neither a certificate of the same CA with another name, nor the gateway identity, nor
+            # the estop identity (it may only stop) gets a command through: no Status at all for 2 s.
+            for session, step in ((intruder, 5), (gateway, 6), (estop, 7)):
                 cmd = MotionCommand(run=run, step=step, robot=0, config=1, turn_rad=0.1, drive_m=0.05, epoch=9)
                 publish(session, message_key(cmd), encode(cmd))
             assert _statuses(statuses, 2.0) == []
@@ -379,12 +432,14 @@ def test_acl_only_the_coordinator_commands_the_agent(certs: Path, tmp_path: Path
             got = _statuses(statuses, 10.0, until_done=True)
             assert [(s.step, s.state) for s in got] == [(1, "accepted"), (1, "done")], got
 
-            # The intruder received nothing from anyone (only its own command, delivered locally).
+            # Neither the intruder nor the estop identity received anything from anyone (only its own
+            # command, delivered locally: the estop identity hears acknowledgements of stops only).
             time.sleep(0.2)
-            keys = set()
-            while not intruder_inbox.empty():
-                keys.add(intruder_inbox.get()[0])
-            assert keys == {robot_key(run, 0, "cmd")}
+            for inbox in (intruder_inbox, estop_inbox):
+                keys = set()
+                while not inbox.empty():
+                    keys.add(inbox.get()[0])
+                assert keys == {robot_key(run, 0, "cmd")}
             assert children[0].proc.poll() is None, children[0].stderr
     finally:
         stop(children)

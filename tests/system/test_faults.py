@@ -140,11 +140,12 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     """``swarm bench faults --json`` at a small size: radio faults at 5 % each (one seed, against its fault-free
     run), a killed agent, a killed coordinator with a standby (paper and joint localizers), and 2000 hostile messages (random bytes, wrong types,
     NaN/inf/huge values, future steps, unknown ids, replays) on every key: every run completes with the same table
-    and P_f; an emergency stop through the TLS router flooded by 3000 idle connections reaches every robot within 1 s;
+    and P_f; emergency stops through the TLS router's operator listener, one a second while 3000 idle connections are
+    held on its public listener for 3 s (``--flood-s=3``) and 3 s after, reach every robot within 1 s;
     LinkRequests forged through the gateway identity during and after a run move no robot; a killed agent restarted
     out of everybody's 0.5 m range rejoins; a coordinator stalled 12 s hands over to its standby."""
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "bench", "faults", "--seeds=1", "--fuzz=2000",
-                           "--gateway-rows=0.05,0.05,0.05", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
+                           "--gateway-rows=0.05,0.05,0.05", "--flood-s=3", "--json"], capture_output=True, text=True, cwd=tmp_path, env=ENV,
                           timeout=900)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])
@@ -165,9 +166,20 @@ def test_bench_faults_json_contract_and_every_fault_survived(tmp_path):
     joint = result["coordinator_joint"]  # the same with the joint localizer: its joint covariance travels in the checkpoint
     assert list(joint) == list(coordinator) and joint["runs"] == joint["completed"] == joint["identical"] == 1
     flood = result["estop_under_flood"]
-    assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max"]
+    assert list(flood) == ["connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
+                           "public_blocked"]
     assert (flood["connections"], flood["tls"], flood["reached"]) == (3000, True, flood["robots"]) and flood["robots"] >= 10
+    assert (flood["duration_s"], flood["after_s"], flood["late"]) == (3.0, 3.0, 0) and flood["stops"] == flood["probes"] >= 4
     assert flood["ms_max"] < 1000
     forged = result["forged_link_requests"]  # the gateway identity forging LinkRequests during and after a run
     assert list(forged) == ["sent", "executed", "completed"] and forged["sent"] > 20
     assert forged["executed"] == 0 and forged["completed"] is True
+
+
+def test_bench_faults_refuses_a_flood_out_of_range_before_running_anything(capsys):
+    from swarm_cli.main import main as swarm_main
+
+    assert swarm_main(["bench", "faults", "--flood-s=0.5"]) == 2
+    assert swarm_main(["bench", "faults", "--flood=0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("--flood must be >= 1 and --flood-s between 1 and 3600") == 2 and "Traceback" not in err
