@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

@@ -9,6 +9,8 @@ import sys
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
+
+
 def test_the_cli_names_an_unknown_study_file_key_in_one_line(tmp_path):
     (tmp_path / "s.toml").write_text("trajectories = 2\nlocaliser = 'joint'\n")
     out = subprocess.run([sys.executable, "-m", "swarm_cli.main", "compare", "--config", str(tmp_path / "s.toml"), "--out", str(tmp_path)],

@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
 def test_study_consistency_json_contract(tmp_path):
     out = subprocess.run(
         [sys.executable, "-m", "swarm_cli.main", "study", "consistency", "--configs", "2", "--trajectories", "1",
