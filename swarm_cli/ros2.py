@@ -1,11 +1,14 @@
 """``swarm ros2``: simulated ROS 2 robots, and a run live in ROS 2 (extra ``ros2``; docs/ros2.md).
 
-    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic] [--driver-option config=FILE]
+    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic|physics] [--physics-param NAME=VALUE]
+                      [--run RUN [--hub ENDPOINT]] [--driver-option config=FILE]
     swarm ros2 bridge --run RUN [--hub ENDPOINT] [--trajectory traj.json] [--wait S]
 
 ``robots`` starts one simulated robot per robot of the trajectory at its initial pose, each speaking the
 ``--driver ros2`` interface in its namespace (``cmd_vel``, ``odom``, ``neighbors``, ``ground_truth``;
 ``robot_agent.ros2_robots``) on a world (``--world``: ``runtime.models.world``), until Ctrl-C / SIGTERM.
+In the physical world with ``--run`` its contacts, stalls and still poses go to the run's record
+(``robot_agent.ros2_physics``).
 Fault options (``--no-odom``, ``--silent``, ``--sightings-twice``, ``--late-sightings``) rehearse the
 driver's rough cases.
 
@@ -19,6 +22,7 @@ discovery range and middleware (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RAN
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import os
 import sys
@@ -44,7 +48,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r = what.add_parser("robots", help="simulated robots of a trajectory speaking the ROS 2 driver's topics, until Ctrl-C")
     r.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots and their initial poses")
     r.add_argument("--seed", type=int, default=0, help="seed of the motion and sensing noise (default 0)")
-    r.add_argument("--world", default="kinematic", help="the world the robots move in (default kinematic: the project's model)")
+    r.add_argument("--world", default="kinematic",
+                   help="the world the robots move in: kinematic (the project's noise model, the default) or physics (a rigid-body "
+                        "world: wheels within their limits that slip, bodies that push; pip install 'inchworm-swarm[physics]')")
+    r.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --world physics: a parameter of the physical world (docs/physics.md), repeatable")
+    r.add_argument("--run", dest="run_id", default=None,
+                   help="with --world physics: the run whose record gets the world's contacts, stalls and poses (PhysicsEvent)")
+    r.add_argument("--hub", default=None, help="with --run: the run's Zenoh endpoint (default: the run file of a run on this host)")
     r.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, topic names "
                         "(docs/ros2.md); repeatable")
@@ -97,20 +108,70 @@ def run_robots(args: argparse.Namespace) -> int:
     if args.late_sightings < 0:
         raise SwarmInputError(f"--late-sightings must be >= 0, got {args.late_sightings:g}")
     cfg = Ros2Config.load(driver_options(args.driver_option))
-    world = make_world(args.world, traj.ids, traj.initial_poses, model_config(args), args.seed)
-    truth = "" if args.no_ground_truth else cfg.ground_truth or "ground_truth"
-    robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=truth, no_odom=no_odom,
-                       silent=silent, twice=args.sightings_twice, late_s=args.late_sightings)
-    on_stop_signals(robots.stop)
-    domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
-          f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}"
-          + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
-    try:
-        robots.run()
-    finally:
-        robots.close()
+    if args.world != "physics" and (args.physics_param or args.run_id or args.hub):
+        raise SwarmInputError("--physics-param, --run and --hub are for the physical world: they need --world physics")
+    if args.hub and not args.run_id:
+        raise SwarmInputError("--hub names the Zenoh endpoint of a run: it needs --run RUN")
+    if args.world == "physics":
+        world, note = _physics_world(args, traj, cfg)
+    else:
+        world, note = make_world(args.world, traj.ids, traj.initial_poses, model_config(args), args.seed), ""
+    with contextlib.ExitStack() as stack:
+        recorder = _recorder(args, world, stack) if args.run_id else None
+        truth = "" if args.no_ground_truth else cfg.ground_truth or "ground_truth"
+        robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=truth, no_odom=no_odom,
+                           silent=silent, twice=args.sightings_twice, late_s=args.late_sightings,
+                           after_step=recorder.poll if recorder else None)
+        on_stop_signals(robots.stop)
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
+              f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}{note}"
+              + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
+        try:
+            robots.run()
+        finally:
+            robots.close()
+        if recorder is not None:
+            print(f"swarm ros2 robots: {recorder.published} physics events published to run {args.run_id}", file=sys.stderr, flush=True)
     return 0
+
+
+def _physics_world(args: argparse.Namespace, traj, cfg):
+    """The physical world of ``--physics-param`` (pymunk 7 needed), and a note when the driver's default speeds
+    exceed its wheels' (the driver would count on speeds the wheels cannot reach)."""
+    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+    from runtime.world.physics import require_pymunk  # noqa: PLC0415
+    from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415
+
+    require_pymunk()
+    params = parse_physics_params(list(args.physics_param), model_config(args))
+    world = PhysicsWorld(traj.ids, traj.initial_poses, params, args.seed)
+    half = params.track_m / 2.0
+    over = (max(cfg.max_linear_speed, cfg.max_angular_speed * half) > params.max_wheel_speed_m_s
+            or max(cfg.linear_accel, cfg.angular_accel * half) > params.max_wheel_accel_m_s2)
+    note = (f" (wheels at most {params.max_wheel_speed_m_s:g} m/s, {params.max_wheel_accel_m_s2:g} m/s^2: give the driver "
+            f"limits within them, docs/ros2.md)") if over else ""
+    return world, note
+
+
+def _recorder(args: argparse.Namespace, world, stack: contextlib.ExitStack):
+    """The ``PhysicsRecorder`` of ``--run`` on a session of its own (``--hub``, else the run file of a live run)."""
+    from robot_agent.ros2_physics import PhysicsRecorder  # noqa: PLC0415
+    from runtime.wire.keys import validate_run  # noqa: PLC0415
+    from runtime.wire.run_file import read_run  # noqa: PLC0415
+    from runtime.wire.transport import ZenohSettings, open_session  # noqa: PLC0415
+
+    validate_run(args.run_id)
+    hub = args.hub
+    if not hub:
+        entry = read_run(args.run_id)
+        if entry is None:
+            raise SwarmInputError(f"--run {args.run_id}: no live run of that id on this host (give --hub ENDPOINT)")
+        hub = entry["hub"]
+    session = stack.enter_context(open_session(ZenohSettings("client", connect=(hub,))))
+    recorder = PhysicsRecorder(session, args.run_id, world)
+    stack.callback(recorder.close)
+    return recorder
 
 
 def _hub_settings(args: argparse.Namespace):

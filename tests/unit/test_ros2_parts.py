@@ -58,8 +58,8 @@ def test_sightings_are_the_sensing_model_with_the_robots_stream():
         ids, rho, phi = world.sightings(0)
         nb, want_rho, want_phi = sense_robot(poses, 0, cfg, rng)
         assert ids.tolist() == [[2, 5, 9, 11][i] for i in nb] and np.array_equal(rho, want_rho) and np.array_equal(phi, want_phi)
-    with pytest.raises(SwarmInputError, match="--world physics: not one of kinematic"):
-        make_world("physics", np.array([0]), np.zeros((1, 3)), cfg, 0)
+    with pytest.raises(SwarmInputError, match="--world rigid: not one of kinematic, physics"):
+        make_world("rigid", np.array([0]), np.zeros((1, 3)), cfg, 0)
 
 
 @pytest.mark.parametrize("distance, vmax, amax, dt", [(0.3, 0.2, 0.5, 0.05), (-2.5, 1.0, 4.0, 0.02), (1e-4, 1.0, 2.0, 0.05), (3.14, 6.0, 30.0, 0.01)])
