@@ -286,7 +286,7 @@ class World:
 
     def _drive(self, r: _Robot, dt: float) -> None:
         """Apply this step's wheel speeds. A command's profile is limited on the ground (its factors applied first);
-        direct control limits the motor speeds (what the encoders count), the ground getting them times the factors."""
+        direct control limits the motors' speeds (what the encoders count), the ground getting them times the factors."""
         p = self.params
         step, vmax = p.max_wheel_accel_m_s2 * dt, p.max_wheel_speed_m_s
         wheels = r.wheels
@@ -302,10 +302,9 @@ class World:
         else:
             for k in (0, 1):
                 factor = r.scale[k] if r.scale[k] > 0 else 1.0
-                cap = vmax / max(factor, 1.0)  # the ground never faster than the limit
                 counted = wheels[k] / factor
                 change = min(max(float(r.target[k]) - counted, -step), step)
-                wheels[k] = min(max(counted + change, -cap), cap) * factor
+                wheels[k] = min(max(counted + change, -vmax), vmax) * factor
         v = 0.5 * (wheels[0] + wheels[1])
         w = (wheels[1] - wheels[0]) / p.track_m
         angle = r.body.angle  # type: ignore[attr-defined]
