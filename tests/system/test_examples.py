@@ -70,3 +70,13 @@ def test_custom_strategy():
     lines = example("custom_strategy.py", "--robots", "6", "--configs", "2").splitlines()
     assert [line.split(" P_f")[0].strip() for line in lines] == [
         "leaders-first, paper localizer", "ref57, paper localizer", "leaders-first, dead reckoning"]
+
+
+def test_paper_experiment_in_the_physical_world(tmp_path):
+    """Sec. 6.2 cheaply: one configuration in this process (``--through ros2`` is the launch tests/test_ros2.py runs)."""
+    pytest.importorskip("pymunk")
+    lines = example("paper_experiment.py", "--through", "in-process", "--configs", "1", "--out", str(tmp_path)).splitlines()
+    assert lines[0].startswith("Sec. 6.2: 6 robots, 1 configurations") and "n_a = 3 throughout" in lines[1]
+    fixed = lines.index(next(line for line in lines if line.startswith("inchworm-equal-speed: P_f")))
+    assert lines[fixed + 2].split()[:3] == ["1", "3", "3"]  # n_a = n_r / 2, the paper's 3
+    assert (tmp_path / "trajectory.json").exists() and lines[2].startswith("inchworm: P_f ")

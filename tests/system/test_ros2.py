@@ -21,7 +21,7 @@ from robot_agent.driver import DriverContext, RobotLost
 from robot_agent.ros2_driver import Ros2Driver
 from runtime.models.trajectory import Trajectory
 from runtime.recording.mcap_log import read_messages
-from runtime.wire.messages import EstimateMessage, MotionCommand, ObservationReport, Status, TruthMessage, decode
+from runtime.wire.messages import EstimateMessage, MotionCommand, ObservationReport, PhysicsEvent, Status, TruthMessage, decode
 from runtime.wire.ros2 import RosProcess, qos
 from tests.system.test_drivers import processes_of
 
@@ -218,3 +218,43 @@ def test_a_namespace_without_a_robot_is_not_ready_and_its_command_is_lost(monkey
     finally:
         driver.stop()
         driver.detach()
+
+
+def test_ros2_robots_in_the_physical_world_push_a_robot_off_its_place_and_the_run_is_recorded(tmp_path):
+    """``swarm launch --driver ros2 --ros2-robots --world physics``: bodies larger than the planner's (a rough case) so robot 0,
+    driving up to robot 1, pushes it away after robot 1's own motion ended; the run finishes with P_f, the world's contact
+    is on the record with the still poses of each step, and the recording replays."""
+    poses = [[0.0, 0.0, 0.0], [0.3, 0.0, 3.1], [0.0, 0.3, 0.0], [0.3, 0.3, -3.1]]
+    configs = [[[0.25, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]], [[0.22, 0.1], [0.3, 0.1], [0.0, 0.4], [0.3, 0.4]]]
+    traj = tmp_path / "push.json"
+    Trajectory(np.arange(4), np.array(poses), np.array(configs)).save(traj)
+    env = ros_env(5)
+    run_id = f"ros2-physics-{os.getpid()}"
+    world = ["radius_m=0.05", "max_wheel_speed_m_s=0.15", "max_wheel_accel_m_s2=1"]
+    driver = ["rate_hz=50", "max_angular_speed=3", "angular_accel=20", "sensing_window_s=0.25"]  # linear: the wheels' (launcher)
+    cmd = [sys.executable, "-m", "swarm_cli.main", "launch", "--driver", "ros2", "--ros2-robots", "--world", "physics", "--trajectory",
+           str(traj), "--run", run_id, "--method", "no-anchors", "--record", str(tmp_path / "run.mcap"), "--out", str(tmp_path / "plots"),
+           "--json", *(f"--physics-param={p}" for p in world), *(f"--driver-option={o}" for o in driver)]
+    proc = subprocess.run(cmd, env=env, cwd=REPO, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert processes_of(run_id) == [], "a process of the run outlived swarm launch"
+    assert "in the physical world" in proc.stderr and "physics events published to run" in proc.stderr, proc.stderr[-2000:]
+    result = last_json(proc.stdout)
+    assert result is not None and 0 < result["pf"] < 1 and result["lost"] == [] and "contacts" in result, proc.stdout[-2000:]
+    physics, truths = [], {}
+    for topic, payload, _, _ in read_messages(tmp_path / "run.mcap"):
+        if topic.endswith("/sim/physics"):
+            physics.append(decode(payload, PhysicsEvent))
+        elif "/sim/truth/" in topic:
+            t = decode(payload, TruthMessage)
+            truths[t.step, t.robot] = np.array(t.pose)
+    still = {e.step: np.array(e.poses) for e in physics if e.kind == "poses"}
+    assert sorted(still) == [1, 2], [(e.kind, e.step) for e in physics]
+    contacts = [e for e in physics if e.kind == "contact"]
+    assert any(e.step == 1 and e.robots == (0, 1) and e.impulse_n_s > 0 for e in contacts), contacts
+    pushed = np.hypot(*(still[1][1, :2] - truths[1, 1][:2]))  # robot 1: where the world left it against where its motion ended
+    assert pushed > 0.02 and np.hypot(*(still[1][1, :2] - still[1][0, :2])) > 2 * 0.05 - 0.005, (pushed, still[1])
+    assert np.allclose([truths[2, r][:2] for r in range(4)], still[2][:, :2], atol=0.011)  # no push in step 2: the truths are the world's
+    check = subprocess.run([sys.executable, "-m", "swarm_cli.main", "replay", str(tmp_path / "run.mcap"), "--check"], env=env,
+                           cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert check.returncode == 0 and "check passed" in check.stdout, check.stdout + check.stderr

@@ -9,12 +9,15 @@ import sys
 import numpy as np
 import pytest
 
+from coordinator.selection.selector import SelectionConfig
+from inchworm.launcher import LaunchOptions, ros2_settings, ros2_step_timeout
 from robot_agent.ros2_config import Ros2Config, SightingWindow, closed_loop_speed, velocity_profile
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.motion import apply_motion, execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
+from runtime.models.trajectory import Trajectory
 from runtime.models.world import KinematicWorld, make_world
 from swarm_cli.main import main
 
@@ -177,3 +180,31 @@ def test_without_ros2_the_commands_name_the_extra(monkeypatch, capsys, tmp_path,
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "needs ROS 2" in err[0] and "pip install 'inchworm-swarm[ros2]'" in err[0], err
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--physics-param", "radius_m=0.02"], "--physics-param, --run and --hub are for the physical world: they need --world physics"),
+    (["--world", "physics", "--hub", "tcp/127.0.0.1:1"], "--hub names the Zenoh endpoint of a run: it needs --run RUN"),
+    (["--world", "physics", "--physics-param", "mass_kg=heavy"], "--physics-param mass_kg=heavy: 'heavy' is not a number"),
+    (["--world", "rigid"], "--world rigid: not one of kinematic, physics"),
+    (["--world", "physics", "--run", "nosuchrun-x"], "--run nosuchrun-x: no live run of that id on this host (give --hub ENDPOINT)"),
+])
+def test_ros2_robots_world_options_are_checked_in_one_line(capsys, tmp_path, extra, message):
+    pytest.importorskip("rclpy")
+    pytest.importorskip("pymunk")
+    traj = tmp_path / "t.json"
+    Trajectory(np.arange(2), np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0]]), np.array([[[0.1, 0.0], [0.3, 0.0]]])).save(traj)
+    assert main(["ros2", "robots", "--trajectory", str(traj), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_launch_gives_the_ros2_driver_the_wheels_limits_of_the_physical_world():
+    """Defaults above the wheels' limits become them; what the lab set stays (the robots then say it exceeds the wheels)."""
+    pytest.importorskip("pymunk")
+    o = LaunchOptions(ModelConfig(), "paper", SelectionConfig(), driver="ros2", ros2_robots=True, world="physics",
+                      physics_params=("max_wheel_speed_m_s=0.1",), driver_options=("linear_accel=0.4",))
+    options, truth = ros2_settings(o)
+    assert truth and options[0] == "max_linear_speed=0.1" and "linear_accel=0.4" in options and "ground_truth=ground_truth" in options
+    assert not any(o.startswith(("max_angular_speed", "angular_accel")) for o in options)  # 1 rad/s, 2 rad/s^2: within the wheels
+    assert ros2_step_timeout(options) > ros2_step_timeout(["ground_truth=ground_truth"])  # slower wheels, longer steps
