@@ -30,14 +30,19 @@ from pathlib import Path
 
 import numpy as np
 
+import inchworm
+from inchworm.simulation import config_rows
+from runtime.models.config import ModelConfig
+from runtime.models.trajectory import body_spacing, random_trajectory
+from runtime.recording.mcap_log import read_messages
+from runtime.wire.messages import PhysicsEvent, decode
+
 ROOT = Path(__file__).resolve().parents[1]
 ROBOTS, PAPER_CONFIGS, PAPER_NA = 6, 9, 3  # Sec. 6.2
 
 
 def trajectory(configs: int, seed: int, out: Path):
     """The random trajectory of 6 robots the run follows, saved as ``out/trajectory.json``."""
-    from runtime.models.config import ModelConfig
-    from runtime.models.trajectory import body_spacing, random_trajectory
 
     model = ModelConfig()
     traj = random_trajectory(ROBOTS, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))
@@ -48,8 +53,6 @@ def trajectory(configs: int, seed: int, out: Path):
 
 def through_ros2(method: str, seed: int, out: Path) -> tuple[dict, int]:
     """``swarm launch --driver ros2 --ros2-robots --world physics``: its JSON object and the world's contacts recorded."""
-    from runtime.recording.mcap_log import read_messages
-    from runtime.wire.messages import PhysicsEvent, decode
 
     record = out / f"{method}.mcap"
     env = {**os.environ, "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")}
@@ -66,12 +69,9 @@ def through_ros2(method: str, seed: int, out: Path) -> tuple[dict, int]:
 
 def in_process(traj, method: str, seed: int) -> tuple[dict, int]:
     """The same physical world in this process: the JSON object's ``pf`` and ``configs``, and the world's contacts."""
-    import inchworm
-    from inchworm.simulation import config_rows
-    from runtime.world.physics import Contact
 
     run = inchworm.simulate(traj, method=method, seed=seed, world="physics")
-    return {"pf": run.pf(), "configs": config_rows(run)}, sum(isinstance(e, Contact) for _, e in run.world_events)
+    return {"pf": run.pf(), "configs": config_rows(run)}, sum(type(e).__name__ == "Contact" for _, e in run.world_events)
 
 
 def report(method: str, result: dict, contacts: int) -> str:
