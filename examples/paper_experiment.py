@@ -36,6 +36,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.messages import PhysicsEvent, decode
+from runtime.world.physics import Contact
 
 ROOT = Path(__file__).resolve().parents[1]
 ROBOTS, PAPER_CONFIGS, PAPER_NA = 6, 9, 3  # Sec. 6.2
@@ -71,7 +72,7 @@ def in_process(traj, method: str, seed: int) -> tuple[dict, int]:
     """The same physical world in this process: the JSON object's ``pf`` and ``configs``, and the world's contacts."""
 
     run = inchworm.simulate(traj, method=method, seed=seed, world="physics")
-    return {"pf": run.pf(), "configs": config_rows(run)}, sum(type(e).__name__ == "Contact" for _, e in run.world_events)
+    return {"pf": run.pf(), "configs": config_rows(run)}, sum(isinstance(e, Contact) for _, e in run.world_events)
 
 
 def report(method: str, result: dict, contacts: int) -> str:
