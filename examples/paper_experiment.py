@@ -35,7 +35,7 @@ from inchworm.simulation import config_rows
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.recording.mcap_log import read_messages
-from runtime.wire.messages import PhysicsEvent, decode
+from runtime.wire.messages import MotionCommand, PhysicsEvent, TruthMessage, decode
 from runtime.world.physics import Contact
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,8 +64,36 @@ def through_ros2(method: str, seed: int, out: Path) -> tuple[dict, int]:
     lines = [line for line in proc.stdout.splitlines() if line.startswith("{")]
     if proc.returncode != 0 or not lines:
         sys.exit(f"paper_experiment.py: swarm launch failed ({proc.returncode}): {proc.stderr.strip().splitlines()[-1:]}")
+    result = json.loads(lines[-1])
+    result["execution"] = execution(record)
     contacts = sum(decode(p, PhysicsEvent).kind == "contact" for topic, p, _, _ in read_messages(record) if topic.endswith("/sim/physics"))
-    return json.loads(lines[-1]), contacts
+    return result, contacts
+
+
+def execution(record: Path) -> tuple[np.ndarray, np.ndarray]:
+    """Per command of the recording: the true end heading less the start's and the commanded turn (rad), and the true
+    distance over the commanded drive less 1 (drives of 5 cm or more); the truths are the agents' (docs/ros2.md)."""
+    commands, truths = {}, {}
+    for topic, payload, _, _ in read_messages(record):
+        if topic.endswith("/cmd"):
+            c = decode(payload, MotionCommand)
+            commands[c.step, c.robot] = (c.turn_rad, c.drive_m)
+        elif "/sim/truth/" in topic:
+            t = decode(payload, TruthMessage)
+            truths[t.step, t.robot] = np.array(t.pose)
+    last: dict[int, int] = {}  # robot -> step of its latest truth
+    turn, drive = [], []
+    for step, robot in sorted(truths):
+        before = last.get(robot)
+        last[robot] = step
+        if before is None or (step, robot) not in commands:
+            continue
+        a, b = truths[before, robot], truths[step, robot]
+        commanded_turn, commanded_drive = commands[step, robot]
+        turn.append(np.remainder(b[2] - a[2] - commanded_turn + np.pi, 2 * np.pi) - np.pi)
+        if commanded_drive >= 0.05:
+            drive.append(np.hypot(*(b[:2] - a[:2])) / commanded_drive - 1.0)
+    return np.array(turn), np.array(drive)
 
 
 def in_process(traj, method: str, seed: int) -> tuple[dict, int]:
@@ -77,8 +105,13 @@ def in_process(traj, method: str, seed: int) -> tuple[dict, int]:
 
 def report(method: str, result: dict, contacts: int) -> str:
     """The per-configuration table beside the paper's Sec. 6.2 / Fig. 17."""
-    lines = [f"{method}: P_f {result['pf']:.4f}, {contacts} contacts in the physical world",
-             f"{'config':>6} {'n_a':>4} {'paper n_a':>9} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
+    lines = [f"{method}: P_f {result['pf']:.4f}, {contacts} contacts in the physical world"]
+    if "execution" in result:
+        turn, drive = result["execution"]
+        lines.append(f"  executed ({len(turn)} commands): end heading - commanded turn {np.degrees(turn.mean()):+.2f} deg, sd "
+                     f"{np.degrees(turn.std()):.2f} deg; drive / commanded - 1 {drive.mean() * 100:+.2f} %, sd {drive.std() * 100:.2f} %")
+    lines += [
+              f"{'config':>6} {'n_a':>4} {'paper n_a':>9} {'e_l (mm)':>9} {'follow (mm)':>11} {'travelled (m)':>13}"]
     for row in result["configs"]:
         lines.append(f"{row['config']:>6} {row['n_a']:>4} {PAPER_NA:>9} {row['e_l'] * 1e3:>9.1f} {row['following_error'] * 1e3:>11.1f} "
                      f"{row['travelled']:>13.3f}")
