@@ -208,3 +208,12 @@ def test_launch_gives_the_ros2_driver_the_wheels_limits_of_the_physical_world():
     assert truth and options[0] == "max_linear_speed=0.1" and "linear_accel=0.4" in options and "ground_truth=ground_truth" in options
     assert not any(o.startswith(("max_angular_speed", "angular_accel")) for o in options)  # 1 rad/s, 2 rad/s^2: within the wheels
     assert ros2_step_timeout(options) > ros2_step_timeout(["ground_truth=ground_truth"])  # slower wheels, longer steps
+
+
+def test_launch_in_the_physical_world_drives_simulated_ros2_robots_only(capsys, tmp_path, monkeypatch):
+    """A lab's ROS 2 robots are not in the physical world: --world physics needs --ros2-robots (one line, exit 2)."""
+    pytest.importorskip("pymunk")
+    monkeypatch.chdir(tmp_path)
+    assert main(["launch", "--driver", "ros2", "--world", "physics", "-n", "3", "--configs", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "it needs --driver sim or gateway, or --driver ros2 --ros2-robots, got --driver ros2" in err[0], err
