@@ -55,7 +55,7 @@ def test_the_same_seed_gives_the_same_world_and_a_new_motion_new_wheel_factors()
         return w.poses()
 
     assert np.array_equal(run(1), run(1)) and not np.allclose(run(1), run(2))
-    w = World([0], np.zeros((1, 3)), P, seed=0)
+    w = World([0], np.zeros((1, 3)), P, seed=0, encoders=True)
     w.set_twist(0, 0.04, 0.0)
     w.step(10)
     first = w._robots[0].scale
@@ -99,3 +99,8 @@ def test_the_world_registry_builds_the_physical_world_with_the_models_body():
     assert seen.tolist() == [8] and rho[0] == pytest.approx(0.2, abs=0.05)
     with pytest.raises(SwarmInputError, match="must be finite"):
         w.world.set_twist(3, math.nan, 0.0)
+
+
+def test_a_world_without_encoders_says_so():
+    with World([0], np.zeros((1, 3)), P, seed=0) as w, pytest.raises(SwarmInputError, match="counts no wheel encoders"):
+        w.odometry()

@@ -13,8 +13,8 @@ Each robot is a dynamic disc driven through a kinematic control body (the pymunk
 idiom): a pivot joint makes its velocity follow the wheels' forward speed along its heading and
 a gear joint its turn rate, each with a force limit, the ground's traction; past it the wheels
 slip. A robot standing still holds its place with the smaller hold force, so a mover can push
-it, and two movers head-on stall. Contacts and stalls are events. Each robot's wheel encoders
-integrate its odometry: the wheels' speeds divided by the motion's wheel-speed factors (what the
+it, and two movers head-on stall. Contacts and stalls are events. With ``encoders`` each robot's
+wheel encoders integrate its odometry: the wheels' speeds divided by the motion's wheel-speed factors (what the
 encoders count), so odometry sees neither those factors, nor slip, nor pushes.
 
 Not thread-safe: one thread drives a ``World`` (``runtime.world.realtime.RealtimeWorld`` shares one
@@ -113,7 +113,8 @@ class _Touch:
 class World:
     """Robots ``ids`` at ``poses`` (n, 3: x, y, heading) in a world of ``params``, seeded with ``seed``."""
 
-    def __init__(self, ids: Iterable[int], poses: np.ndarray, params: PhysicsParams = PhysicsParams(), seed: int = 0) -> None:
+    def __init__(self, ids: Iterable[int], poses: np.ndarray, params: PhysicsParams = PhysicsParams(), seed: int = 0, *,
+                 encoders: bool = False) -> None:
         pymunk = require_pymunk()
         self.ids = tuple(int(i) for i in ids)
         if not self.ids or len(set(self.ids)) != len(self.ids):
@@ -123,6 +124,7 @@ class World:
             raise SwarmInputError(f"initial poses must be {len(self.ids)} finite rows of [x, y, heading], got shape {poses.shape}")
         self.params = params
         self.seed = int(seed)
+        self.encoders = bool(encoders)  # whether the wheel encoders count (``odometry``): a cost per robot and step
         self.time_s = 0.0
         self._steps = 0
         self._index = {r: k for k, r in enumerate(self.ids)}
@@ -310,7 +312,8 @@ class World:
         angle = r.body.angle  # type: ignore[attr-defined]
         r.control.velocity = (v * math.cos(angle), v * math.sin(angle))  # type: ignore[attr-defined]
         r.control.angular_velocity = w  # type: ignore[attr-defined]
-        self._count(r, dt)
+        if self.encoders:
+            self._count(r, dt)
         moving = r.profile is not None or wheels[0] != 0.0 or wheels[1] != 0.0 or bool(r.target.any())
         if moving != r.moving:
             self._hold(r, moving)
@@ -405,12 +408,16 @@ class World:
         return np.array([self._pose(r) for r in self._robots]).reshape(len(self.ids), 3)
 
     def odometry(self) -> np.ndarray:
-        """Every robot's wheel odometry (n, 3: x, y, heading), from its initial pose, rows in ``ids`` order."""
+        """Every robot's wheel odometry (n, 3: x, y, heading), from its initial pose, rows in ``ids`` order (``encoders``)."""
         self._live()
+        if not self.encoders:
+            raise SwarmInputError("this world counts no wheel encoders: make it with World(..., encoders=True)")
         return np.array([r.odom for r in self._robots]).reshape(len(self.ids), 3)
 
     def encoder_twists(self) -> np.ndarray:
-        """Every robot's (v m/s, w rad/s) as its encoders counted it in the last step (n, 2)."""
+        """Every robot's (v m/s, w rad/s) as its encoders counted it in the last step (n, 2; ``encoders``)."""
+        if not self.encoders:
+            raise SwarmInputError("this world counts no wheel encoders: make it with World(..., encoders=True)")
         return np.array([r.encoder for r in self._robots]).reshape(len(self.ids), 2)
 
     def sense(self, robot: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ class PhysicsWorld:
 
     def __init__(self, ids: np.ndarray, poses: np.ndarray, params: PhysicsParams, seed: int) -> None:
         self.ids = np.asarray(ids, dtype=np.int64)
-        self.world = World(self.ids.tolist(), poses, params, seed)
+        self.world = World(self.ids.tolist(), poses, params, seed, encoders=True)
         self._robots = [int(i) for i in self.ids]
         self._twists = np.zeros((len(self.ids), 2))  # as last set
         self._carry = 0.0  # world time owed to the next step (s)
