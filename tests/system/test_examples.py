@@ -73,7 +73,7 @@ def test_custom_strategy():
 
 
 def test_paper_experiment_in_the_physical_world(tmp_path):
-    """Sec. 6.2 cheaply: one configuration in this process (``--through ros2`` is the launch tests/test_ros2.py runs)."""
+    """Sec. 6.2 cheaply: one configuration in this process (``--through ros2`` is the launch tests/system/test_ros2.py runs)."""
     pytest.importorskip("pymunk")
     lines = example("paper_experiment.py", "--through", "in-process", "--configs", "1", "--out", str(tmp_path)).splitlines()
     assert lines[0].startswith("Sec. 6.2: 6 robots, 1 configurations") and "n_a = 3 throughout" in lines[1]
