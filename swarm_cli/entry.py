@@ -9,8 +9,8 @@ import re
 import signal
 import sys
 import threading
-from collections.abc import Callable, Sequence
 import typing
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from runtime.errors import LocalizationError, OutputError, SwarmInputError
