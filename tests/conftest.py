@@ -44,6 +44,7 @@ SLOW_MODULES = frozenset({
     "test_replay",  # swarm replay subprocesses and sessions
     "test_exact_replay",  # swarm launch with a standby, the coordinator killed, per localizer, driver and bodies
     "test_study_anchors",  # studies
+    "test_readme_claims",  # README's findings: their studies and comparisons at a small size
     "test_study_resume",  # swarm compare interrupted by SIGINT and resumed
     "test_examples",  # the example scripts as subprocesses
     "test_transport",  # Zenoh sessions and child processes
