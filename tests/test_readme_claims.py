@@ -26,10 +26,10 @@ def run_json(capsys, tmp_path, *argv: str) -> dict:
 def test_anchors_buy_little_with_the_papers_localizer(capsys, tmp_path) -> None:
     """README: "`swarm study anchors --experiments 200`: e_l(n_a) / e_l(0) = 0.83, 0.68, 0.64 for n_a = 5, 8, 9
     (Fig. 4's diminishing returns reproduce)"."""
-    ratio = run_json(capsys, tmp_path, "study", "anchors", "--experiments", "8")["e_l_ratio"]
-    assert 0.72 <= ratio["5"] <= 0.92 and 0.58 <= ratio["8"] <= 0.78 and 0.54 <= ratio["9"] <= 0.74
-    assert ratio["5"] > ratio["8"] > ratio["9"]  # diminishing returns: each anchor more buys less
-    assert ratio["8"] - ratio["9"] < 1 - ratio["5"]
+    ratio = run_json(capsys, tmp_path, "study", "anchors", "--experiments", "5")["e_l_ratio"]
+    assert 0.75 <= ratio["5"] <= 0.92 and 0.58 <= ratio["8"] <= 0.76 and 0.55 <= ratio["9"] <= 0.76, ratio
+    assert ratio["5"] > ratio["8"] and ratio["9"] <= ratio["8"] + 0.02, ratio  # diminishing returns: the ninth buys ~nothing
+    assert 1 - ratio["5"] < 0.25, ratio  # five anchors, half the speed, less than a quarter off the error
 
 
 def test_table_one_does_not_reproduce(capsys, tmp_path) -> None:
@@ -37,7 +37,7 @@ def test_table_one_does_not_reproduce(capsys, tmp_path) -> None:
     `inchworm` P_f = 0.0088 +- 0.0071 with n_a = 0 in all 10,000 configuration changes, `ref57` ... 0.0076 +- 0.0061 ...,
     against the paper's 0.0477 and 0.0673" (the ratio 1.16 needs the full size: at a few trajectories the per-trajectory
     ratios scatter from 0.4 to 2.2)."""
-    out = run_json(capsys, tmp_path, "compare", "--trajectories", "2", "--configs", "8", "--methods", "inchworm,ref57,no-anchors",
+    out = run_json(capsys, tmp_path, "compare", "--trajectories", "1", "--configs", "8", "--methods", "inchworm,ref57,no-anchors",
                    "--robot-radius", "0")
     inchworm, ref57 = out["methods"]["inchworm"], out["methods"]["ref57"]
     assert inchworm["na_mean"] == 0.0 and set(inchworm["na_by_config"]) == {0.0}  # n_a = 0 in every configuration change
@@ -97,7 +97,7 @@ def test_contacts_grow_with_motion_noise() -> None:
     from inchworm.bench.envelope import EnvelopeBenchOptions, bench_envelope
 
     o = EnvelopeBenchOptions(noise_scales=(1.0, 5.58), robots=(10,), localizers=("joint",), sensing_ranges_m=(0.5,),
-                             trajectories=2, configs=4, distributed=False)
+                             trajectories=1, configs=4, distributed=False)
     rows = bench_envelope(o).to_json()["rows"]
     assert rows[0]["contacts_per_100"] < rows[1]["contacts_per_100"], rows
 
