@@ -401,6 +401,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             except CoordinatorConflict as exc:
                 completed = True  # not ours to stop
                 return CoordinatorOutcome(None, None, live, exc)
+            backend.stop_requested = lambda: signals.received is not None  # agents leaving with our stop signal are not lost
             ended: BaseException | None = None
             partial = None
             try:

@@ -45,11 +45,13 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -341,6 +343,28 @@ def ros2_step_timeout(options: list[str]) -> float:
     return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
+def stop_answers(acks: queue.Queue, stamp_ns: int, until: float, hosts: dict[int, subprocess.Popen]) -> tuple[set[int], set[int]]:
+    """The robots whose agents acknowledged the stop stamped ``stamp_ns`` and those whose agent process (``hosts``: robot ->
+    its process) had exited without acknowledging (a Ctrl-C reaches the agents too: they stop with it); waits until
+    every robot is one or the other, or monotonic time ``until``."""
+    heard: set[int] = set()
+    while True:
+        exited = {robot for robot, proc in hosts.items() if proc.poll() is not None} - heard
+        if len(heard | exited) >= len(hosts) or time.monotonic() >= until:
+            return heard, exited
+        got = collect_acks(acks, stamp_ns, min(until, time.monotonic() + 0.05))
+        heard |= {int(name) for by, name in got if by == "agent"}
+
+
+def stop_text(run_id: str, heard: int, exited: int, robots: int) -> str:
+    """What the launcher says of its run-wide stop: acknowledged by ``heard`` agents, ``exited`` had exited already."""
+    if exited == robots:
+        return f"emergency stop sent to run {run_id}; its {robots} agents had already exited (a stop signal reached them too)"
+    gone = f"; the other {exited} had already exited" if exited and heard + exited == robots else (
+        f"; {exited} had already exited" if exited else "")
+    return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {robots} agents{gone})"
+
+
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
     """Run it (module doc); the exit status: the coordinator's, 128 + N if it was killed by signal N.
     ``say``: the launcher's notes (stderr); ``emit_json``: the amended JSON object of a run with a kill."""
@@ -391,11 +415,11 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
 
             def stop_run(reason: str) -> str:
-                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it."""
+                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it or has exited."""
                 stop = EmergencyStop(run=run_id, step=0, source=f"swarm {o.command} (pid {os.getpid()})", reason=reason)
                 sent = publish_estop(hub_session, stop)
-                heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
-                return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
+                heard, exited = stop_answers(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, agent_procs)
+                return stop_text(run_id, len(heard), len(exited), traj.n)
 
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)

@@ -9,6 +9,7 @@ import re
 import signal
 import sys
 import threading
+import typing
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
@@ -31,6 +32,14 @@ def library_doc(module: str) -> str:
     spec = importlib.util.find_spec(module)
     source = open(spec.origin, encoding="utf-8").read() if spec and spec.origin else ""
     return plain(ast.get_docstring(ast.parse(source)) if source else "")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line (``prog: error: ...``) without the usage block before them;
+    its subparsers are of the same class (argparse's ``add_subparsers`` default)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 class Command(NamedTuple):
@@ -130,7 +139,7 @@ def run_standalone(
 
     hold_lifeline()  # started by a launcher: end with it, whatever killed it
     limit_blas_threads()
-    parser = argparse.ArgumentParser(prog=prog)
+    parser = OneLineParser(prog=prog)
     add_arguments(parser)
     args = parser.parse_args(argv)
     return guarded(prog, lambda: run(args))

@@ -10,7 +10,8 @@ object with ``"kill"`` / ``"coordinator_kill"`` / ``"coordinator_stall"`` / ``"l
 (``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
 anchors (``DEMO_SCENARIO``: the joint localizer and 4x the default motion noise; measured in
 docs/quickstart.md); ``--paper`` keeps the paper's localizer and the default noise, where it
-chooses none. Options given explicitly override either.
+chooses none unless moving every robot at once would bring bodies together (``PAPER_TEXT``). Options given
+explicitly override either.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command def
 DEMO_TEXT = ("demo scenario: joint localizer, motion noise 4x the default (turn 12 deg, drive 20 %): a robot that stands "
              "still keeps its estimate, so the others localize against it far better than when everybody moves; the "
              "selection weighs that against the extra step and chooses anchors (--paper: the paper's localizer and noise)")
+
+PAPER_TEXT = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
+              "selection chooses speed, n_a = 0, wherever moving every robot at once keeps the bodies apart; where it "
+              "does not, the best-scoring anchor count with a plan that does (the tables below say which)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -146,8 +151,7 @@ def run_demo(args: argparse.Namespace) -> int:
     for name, value in scenario.items():
         if getattr(args, name) is None:
             setattr(args, name, value)
-    what = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
-            "selection chooses speed (n_a = 0)") if args.paper else DEMO_TEXT
+    what = PAPER_TEXT if args.paper else DEMO_TEXT
     over = [f"--{n.replace('_', '-')}" for n in given] + ([f"--model {args.model}"] if args.model is not None else [])
     print(f"swarm demo: {what}" + (f" (overridden: {', '.join(over)})" if over else ""), flush=True)
     return run(args)

@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
-from swarm_cli.entry import guarded, leave, limit_blas_threads, on_stop_signals
+from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads, on_stop_signals
 from swarm_cli.options import add_connection_options, add_model_options, model_config, positive
 
 EXIT_NO_RUN = 1
@@ -229,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
     hold_lifeline()
     limit_blas_threads()
     logging.basicConfig(level=logging.WARNING, format="swarm ros2: %(levelname)s %(message)s", stream=sys.stderr)
-    parser = argparse.ArgumentParser(prog="swarm ros2")
+    parser = OneLineParser(prog="swarm ros2")
     add_arguments(parser)
     args = parser.parse_args(argv)
     return guarded(f"swarm ros2 {args.ros2_command}", lambda: args.run(args))

@@ -12,6 +12,7 @@ from inchworm.output import last_json
 from runtime.models.model_file import load_model
 from runtime.recording.run_log import load_run_log
 from runtime.recording.truth_csv import read_truth_csv
+from tests.doc_samples import sample, shapes
 
 REPO = Path(__file__).resolve().parents[2]
 # unusual noise on every parameter; sensing range smaller than the default 0.5 m
@@ -43,6 +44,10 @@ def test_calibrate_recovers_every_parameter_within_ten_percent(tmp_path):
 
     fitted = swarm("calibrate", str(rec), "--truth", str(truth), "--out", str(model), "--json")
     assert fitted.returncode == 0, fitted.stderr
+    # docs/calibration.md's sample output is what this command prints, line for line (numbers aside; the JSON line added)
+    documented, printed = sample("calibration.md", "the run is deterministic for its seed"), fitted.stdout.splitlines()[:-1]
+    assert shapes(printed[:-1]) == shapes(documented[:-1]) and len(printed) == len(documented)
+    assert documented[-1] == "wrote run.model.toml" and printed[-1] == f"wrote {model}"
     result = last_json(fitted.stdout)
     assert result["samples"]["turns"] == ROBOTS * CONFIGS
     for key, true in TRUE.items():

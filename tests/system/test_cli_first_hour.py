@@ -140,3 +140,26 @@ def test_info_into_a_closed_pipe_is_quiet() -> None:
                           stderr=subprocess.PIPE, text=True, env=ENV, timeout=120)
     os.close(write_end)
     assert proc.stderr == "" and proc.returncode == 141
+
+
+@pytest.mark.parametrize("argv, named", [
+    (["sim", "--robots", "abc"], "argument --robots: invalid int value: 'abc'"),
+    (["demo", "--localizer", "bogus"], "argument --localizer: invalid choice: 'bogus'"),
+    (["launch", "--method", "bogus"], "argument --method"),
+    (["compare", "--configs", "1.5"], "argument --configs: invalid int value: '1.5'"),
+    (["study", "consistency", "--workers", "x"], "argument --workers"),
+    (["study", "calibration", "--selection", "exact"], "argument --selection: invalid choice: 'exact'"),
+    (["bench", "select", "--sizes"], "argument --sizes: expected one argument"),
+    (["export", "x.mcap", "--distro", "rolling"], "argument --distro: invalid choice: 'rolling'"),
+    (["replay"], "the following arguments are required"),
+    (["bogus"], "argument COMMAND: invalid choice: 'bogus'"),
+])
+def test_a_value_argparse_refuses_is_one_line_without_the_usage(argv, named, capsys) -> None:
+    """argparse's own refusals (types, choices, missing values) are one line like every other bad input, not the
+    usage block first."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    captured = capsys.readouterr()
+    (line,) = captured.err.splitlines()
+    assert exc.value.code == 2 and captured.out == "" and named in line and "usage:" not in line
+    assert line.startswith("swarm") and line.endswith("--help)")

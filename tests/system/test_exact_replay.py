@@ -1,7 +1,9 @@
 """Exact replay and takeover for every localizer, driver and body setting, with real processes.
 
 One ``swarm launch`` per combination (each pair of settings meets in one of the four runs: every localizer with
-every driver, every localizer and every driver with and without bodies; 4 robots, 2 configurations, ``ref57``: two steps a configuration, so every
+every driver, every localizer and every driver with and without bodies; pairwise rather than all 8 combinations
+because each run is a real launch with a standby and a killed coordinator, about 6 s of CPU, and the suite is
+already over its time budget; 4 robots, 2 configurations, ``ref57``: two steps a configuration, so every
 localization after the first starts from a prior the previous step built): its coordinator is SIGKILLed when step 2
 starts and the standby takes the run over from the checkpoint after step 1 (``--standby --kill-coordinator 2``).
 Then

@@ -237,3 +237,30 @@ def test_foxglove_layout_of_the_ros2_bag_refers_to_its_topics_and_fields(tmp_pat
             value = value[int(index)] if index else value
         assert isinstance(value, (float, str)), path
     assert set(config["3D!swarm"]["topics"]) <= set(first)
+
+
+def test_an_unfinished_recording_is_exported_with_a_warning_and_an_empty_one_refused(tmp_path, capsys) -> None:
+    pytest.importorskip("rosbags")
+    data = SAMPLE.read_bytes()
+    cut = tmp_path / "killed.mcap"
+    cut.write_bytes(data[: len(data) // 2])  # killed half way: the messages of the first complete records remain
+    assert main(["export", str(cut), "--ros2", str(tmp_path / "bag"), "--json"]) == 0
+    captured = capsys.readouterr()
+    result = json.loads(captured.out.strip().splitlines()[-1])
+    (warning,) = captured.err.strip().splitlines()
+    assert warning.startswith(f"swarm export: warning: {cut} is unfinished") and f"{result['messages']} ROS 2 messages" in warning
+    assert result["complete"] is False and 0 < result["recorded_messages"] < sum(1 for _ in read_messages(SAMPLE))
+    assert f"first {result['readable_bytes']} of {len(data) // 2} bytes" in warning
+    assert sum(_read_bag(tmp_path / "bag")[t].__len__() for t in result["topics"]) == result["messages"] > 0
+
+    assert main(["export", str(cut), "--truth", str(tmp_path / "truth.csv")]) == 0
+    assert "swarm export: warning:" in capsys.readouterr().err
+
+    header_only = tmp_path / "header.mcap"
+    header_only.write_bytes(data[:3000])  # no complete message of the run
+    assert main(["export", str(header_only), "--ros2", str(tmp_path / "empty")]) == 2
+    (error,) = capsys.readouterr().err.strip().splitlines()
+    assert error.startswith(f"swarm export: error: {header_only}: nothing to export") and not (tmp_path / "empty").exists()
+
+    assert main(["export", str(SAMPLE), "--ros2", str(tmp_path / "whole")]) == 0
+    assert capsys.readouterr().err == ""  # a finished recording: no warning

@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from swarm_cli.options import last_json
+from tests.doc_samples import sample, shapes
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "recordings" / "sample.mcap"
@@ -51,15 +52,25 @@ def test_demo_chooses_anchors_in_every_configuration_and_says_why_and_its_record
         block = out.split(f"config {config}: n_a = 5 (stood still step 1: ", 1)[1].split("config ", 1)[0]
         lines = block.splitlines()
         assert "; step 2: " in lines[0]
-        every = {int(line.replace("*", " ").split()[0]): line for line in lines[2:6]}  # n_a column (after the optional *)
-        assert sorted(every) == [0, 5, 8, 9] and every[5].lstrip().startswith("*")
-        rows = {k: line for k, line in every.items() if "no plan" not in line}  # counts with a feasible plan (docs/bodies.md)
-        assert {0, 5} <= set(rows)
+        rows, unplanned = {}, []
+        for line in lines[2:]:
+            words = line.replace("*", " ").split()
+            if words and words[0].isdigit():  # a scored count: n_a column (after the optional *)
+                rows[int(words[0])] = line
+            elif line.lstrip().startswith("n_a = ") and "no plan" in line:  # the counts without a plan, one line per reason
+                unplanned += [int(n) for n in line.split(":")[0].split("=")[1].split(",")]
+            else:
+                break
+        assert sorted([*rows, *unplanned]) == [0, 5, 8, 9] and rows[5].lstrip().startswith("*") and {0, 5} <= set(rows)
         p_s = {k: float(line.split()[-1]) for k, line in rows.items()}
         assert max(p_s, key=p_s.get) == 5 and p_s[0] == 0.0
         e_l = {k: float(line.split()[-4]) for k, line in rows.items()}
         assert e_l[5] < 0.6 * e_l[0]  # the anchors matter: the predicted error falls by more than 40 %
     assert "P_s = w_v P_v - w_l P_l, Eq. 3" in out
+    # docs/quickstart.md's sample of configuration 1 has the lines the demo prints (numbers and robot ids aside)
+    documented = sample("quickstart.md", "**Who stood still, and why that many.**")
+    first = out.split("config 1: n_a = ", 1)[1].splitlines()[: len(documented)]
+    assert shapes([f"config 1: n_a = {first[0]}", *first[1:]]) == shapes(documented)
     assert (tmp_path / "plots" / "trajectory.png").stat().st_size > 10_000
     assert not list((tmp_path / "runs").glob("*.json"))  # the run file is gone with the launcher
     # the README's next command: the demo's recording checks bit for bit (the joint localizer's joint covariance,

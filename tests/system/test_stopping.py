@@ -92,7 +92,7 @@ def _cleanup(proc: subprocess.Popen) -> list[int]:
 
 
 def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], descendants: list[int], status_is: int | None = None,
-                   within_s: float = 60.0) -> None:
+                   within_s: float = 60.0) -> str:
     try:
         status = proc.wait(timeout=60)
     except subprocess.TimeoutExpired:
@@ -123,6 +123,7 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
         assert reader.get_summary().statistics.message_count == info["messages"]
         assert sum(1 for _ in reader.iter_messages()) == info["messages"]
     assert "recorder" in info["metadata"] and info["metadata"]["recorder"]["clean_stop"] is True
+    return stdout
 
 
 @pytest.mark.parametrize("how", ["ctrl-c to the process group", "SIGTERM to the coordinator", "SIGINT to the launcher",
@@ -144,7 +145,14 @@ def test_stopping_leaves_a_finished_recording_and_no_process(tmp_path: Path, how
         else:
             os.kill(proc.pid, signal.SIGTERM)
         expected = {"SIGHUP to the launcher": 128 + signal.SIGHUP, "SIGTERM to the launcher": 128 + signal.SIGTERM}.get(how)
-        _check_stopped(proc, record, lines, descendants, expected)
+        said = _check_stopped(proc, record, lines, descendants, expected) + "".join(lines)
+        # a user's stop is a clean stop: no robot declared lost by it, and what the launcher says of its run-wide stop is true
+        assert " lost" not in said, said
+        stopped = next(line for line in said.splitlines() if "emergency stop sent to run" in line)
+        if how in ("ctrl-c to the process group", "SIGTERM to the coordinator"):  # the agents got the signal too / the run is over
+            assert "acknowledged by 0 of" not in stopped, stopped
+        if how != "ctrl-c to the process group":  # only the launcher was signalled: every agent was there to acknowledge
+            assert "acknowledged by 4 of 4 agents" in stopped, stopped
     finally:
         if proc.poll() is None:
             _cleanup(proc)
@@ -164,3 +172,33 @@ def test_a_killed_gateway_launcher_leaves_no_process_no_folder_and_a_finished_re
     finally:
         if proc.poll() is None:
             _cleanup(proc)
+
+
+def test_the_stop_counts_acknowledgements_and_agents_that_had_exited() -> None:
+    """``stop_answers``: an agent process that exited before the stop (a Ctrl-C reached it too) is counted as exited, not as
+    silent, and the wait ends as soon as every robot is one or the other."""
+    import queue as queues
+
+    from inchworm.launcher import stop_answers, stop_text
+    from runtime.wire.keys import estop_ack_key
+    from runtime.wire.messages import EstopAck, encode
+
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    serving = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        inbox: queues.Queue = queues.Queue()
+        for robot in (2, 3):  # robots 2 and 3 share the serving process; 0 and 1 the exited one
+            inbox.put((estop_ack_key("r"), encode(EstopAck(run="r", step=0, stop_stamp_ns=7, by="agent", name=str(robot), robots=(robot,)))))
+        inbox.put((estop_ack_key("r"), encode(EstopAck(run="r", step=0, stop_stamp_ns=6, by="agent", name="1", robots=(1,)))))  # an older stop
+        start = time.monotonic()
+        heard, exited = stop_answers(inbox, 7, time.monotonic() + 10.0, {0: gone, 1: gone, 2: serving, 3: serving})
+        assert (heard, exited) == ({2, 3}, {0, 1}) and time.monotonic() - start < 5.0
+        heard, exited = stop_answers(queues.Queue(), 8, time.monotonic() + 0.3, {0: gone, 2: serving})
+        assert (heard, exited) == (set(), {0})  # robot 2 did not answer within the wait
+    finally:
+        serving.kill()
+        serving.wait()
+    assert stop_text("r", 2, 2, 4) == "emergency stop sent to run r (acknowledged by 2 of 4 agents; the other 2 had already exited)"
+    assert stop_text("r", 0, 4, 4).endswith("its 4 agents had already exited (a stop signal reached them too)")
+    assert stop_text("r", 1, 1, 4) == "emergency stop sent to run r (acknowledged by 1 of 4 agents; 1 had already exited)"
