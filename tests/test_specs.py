@@ -172,8 +172,8 @@ def test_the_commands_build_the_specs_from_their_flags():
     spec = coordinator_cmd.spec_of(args)
     assert spec.selection == SelectionSpec(w_v=0.3, method="crlb", genetic="off") and spec.no_record and spec.standby and not spec.rejoin
     assert spec.model.robot_radius_m == 0.0 and spec.label == "standby"
-    from swarm_cli.launch import spec_of  # noqa: PLC0415
-    from swarm_cli.main import build_parser  # noqa: PLC0415
+    from swarm_cli.launch import spec_of
+    from swarm_cli.main import build_parser
 
     argv = ["launch", "--kill-robot=3@2", "--kill-robot=1@4", "--stall-link=2:1.5", "--seed=5", "--robot-radius=0.02", "--driver=gateway"]
     spec = spec_of(build_parser(argv).parse_args(argv))
