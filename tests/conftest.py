@@ -56,6 +56,7 @@ SLOW_MODULES = frozenset({
 })
 SLOW_TESTS = frozenset({
     "test_specs.py::test_the_spawn_entry_point_refuses_a_bad_spec_with_one_line_and_exit_2",  # child processes
+    "test_specs.py::test_a_spawned_router_stops_cleanly_on_sigint_and_a_bad_one_is_its_commands_one_line",  # child processes, Zenoh
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process
     "test_recording.py::test_cli_info_recover_and_errors",  # subprocess
     "test_recording.py::test_record_run_over_zenoh",  # Zenoh session

@@ -203,3 +203,20 @@ def test_no_library_module_assembles_a_command_line():
     assert not found, "\n".join(found)
     assert COMMAND_LINE.search('[sys.executable, "-m", "swarm_cli.agent", f"--id={robot}"]')  # the pattern finds what it is for
     assert COMMAND_LINE.search('cmd = [f"--seed={seed}"]') and not COMMAND_LINE.search('raise SwarmInputError(f"--seed {seed}: bad")')
+
+
+def test_a_spawned_router_stops_cleanly_on_sigint_and_a_bad_one_is_its_commands_one_line():
+    """``Spawned`` / ``run_process`` with real children: a router listening until ``stop()`` (SIGINT first: a clean exit 0),
+    and a router refusing its endpoint with ``swarm router``'s own line and exit status."""
+    from inchworm.spawn import Spawned, run_process
+    from runtime.wire.transport import free_tcp_port
+
+    router = Spawned(RouterSpec(listen=(f"tcp/127.0.0.1:{free_tcp_port()}",)), stderr=subprocess.PIPE, text=True)
+    try:
+        assert router.stderr is not None and "swarm router: listening on" in router.stderr.readline()
+        assert router.args[-1] == "router" and router.stop() == 0
+    finally:
+        router.kill()
+        router.wait()
+    bad = run_process(RouterSpec(listen=("nonsense",)), timeout=60)
+    assert bad.returncode == 2 and bad.stderr.startswith("swarm router: error: ") and bad.stderr.count("\n") == 1, bad.stderr
