@@ -5,7 +5,7 @@ emulator, simulated ROS 2 robots, the ROS 2 bridge, a Zenoh router, a whole ``sw
 once as JSON (``encode_spec``) and read back by the child (``decode_spec``; ``python -m inchworm.spawn``). The
 ``swarm`` commands build the same Structs from their flags and run the same function (``inchworm.process_mains``),
 so a spec and the command line it stands for behave alike. Units SI (angles in radians, times in seconds); paths
-are strings; the model is ``ModelConfig`` itself (``model_to_dict`` / ``model_from_dict``: its one encoding).
+are strings; the model is ``ModelConfig`` itself, encoded as ``ModelConfig.to_dict()`` (read back: ``model_from_dict``).
 
 A spec is a JSON object with ``"kind"`` (its tag) and ``"version"``; a version this build does not read, an
 unknown kind or field, or a value of the wrong type is one ``SpecError`` naming it.
@@ -293,13 +293,9 @@ def _check_model_keys(values: object, prefix: str = "", suffix: str = "") -> Non
         raise SpecError(f"{prefix}unknown model field {unknown[0]!r} (fields: {', '.join(sorted(MODEL_FIELDS))}){suffix}")
 
 
-def model_to_dict(model: ModelConfig) -> dict[str, Any]:
-    """``ModelConfig`` as the plain dict every spec carries (SI units)."""
-    return msgspec.to_builtins(model)
-
-
 def model_from_dict(values: dict[str, Any]) -> ModelConfig:
-    """``ModelConfig`` of ``model_to_dict``'s dict (missing keys: the defaults); ``SpecError`` naming a bad field."""
+    """``ModelConfig`` of its dict (``ModelConfig.to_dict()``, what every spec carries; missing keys: the defaults);
+    ``SpecError`` naming a bad field."""
     _check_model_keys(values, "model: ")
     try:
         return msgspec.convert(values, ModelConfig)

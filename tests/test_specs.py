@@ -34,7 +34,6 @@ from inchworm.specs import (
     decode_spec,
     encode_spec,
     model_from_dict,
-    model_to_dict,
 )
 from runtime.models.config import ModelConfig
 
@@ -94,7 +93,7 @@ def test_every_field_survives_the_codec(cls):
 
 
 def test_the_model_has_one_encoding_with_every_field():
-    values = model_to_dict(MODEL)
+    values = MODEL.to_dict()
     assert values["robot_radius_m"] == 0.0425 and set(values) == {f.name for f in dataclasses.fields(ModelConfig)}
     assert model_from_dict(values) == MODEL
     assert json.loads(encode_spec(FULL[AgentHostSpec]))["model"] == values  # the same dict inside every spec
