@@ -157,7 +157,7 @@ class LaunchOptions:
     on_lost: str = "continue"  # the coordinator's --on-lost
     rejoin: bool = True
     on_record_error: str = "continue"
-    world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
+    world: str = "model"  # or "physics": the simulated agents (all in one process) or ROS 2 robots drive in the rigid-body world (docs/physics.md)
     physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
     physics_speed: float = 0.0
     ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
@@ -270,8 +270,9 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
 
         require_pymunk()
         parse_physics_params(list(o.physics_params), o.model)
-        if o.driver not in ("sim", "gateway"):
-            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, got --driver {o.driver}")
+        if o.driver not in ("sim", "gateway") and not o.ros2_robots:
+            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, "
+                                  f"or --driver ros2 --ros2-robots, got --driver {o.driver}")
         if o.motion_time:
             raise SwarmInputError("--motion-time is the noise model's motion time: in --world physics the wheels take the time")
         if o.driver == "sim" and o.agents_per_process not in (None, traj.n):
@@ -307,7 +308,23 @@ def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
     options = list(o.driver_options)
     if o.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
         options.append("ground_truth=ground_truth")
+    if o.ros2_robots and o.world == "physics":
+        options = wheel_limits(o, options) + options
     return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
+
+
+def wheel_limits(o: LaunchOptions, options: list[str]) -> list[str]:
+    """The driver's speed and acceleration limits the physical world's wheels reach (``--physics-param``), for those of
+    ``options`` (and their config file) left at the defaults: the driver must not count on speeds the wheels cannot give."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+
+    params, given, default = parse_physics_params(list(o.physics_params), o.model), Ros2Config.load(driver_options(options)), Ros2Config()
+    half = params.track_m / 2.0
+    wanted = {"max_linear_speed": params.max_wheel_speed_m_s, "linear_accel": params.max_wheel_accel_m_s2,
+              "max_angular_speed": params.max_wheel_speed_m_s / half, "angular_accel": params.max_wheel_accel_m_s2 / half}
+    return [f"{name}={limit!r}" for name, limit in wanted.items()
+            if getattr(given, name) == getattr(default, name) and getattr(default, name) > limit]
 
 
 def ros2_step_timeout(options: list[str]) -> float:
@@ -393,8 +410,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                         f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
                 agent = replace(agent, driver="ros2", driver_options=tuple(ros2_options))
                 if o.ros2_robots:  # the same settings: namespaces, frame, topics
-                    ros2_procs.append(Spawned(Ros2RobotsSpec(trajectory=str(traj_file), seed=o.seed, model=o.model,
-                                                             driver_options=tuple(ros2_options)), **tied))
+                    sim_robots = Ros2RobotsSpec(trajectory=str(traj_file), seed=o.seed, model=o.model, driver_options=tuple(ros2_options))
+                    if o.world == "physics":  # its contacts, stalls and still poses go to the run's record
+                        sim_robots = replace(sim_robots, world="physics", physics_params=o.physics_params, run_id=run_id, hub=hub)
+                    ros2_procs.append(Spawned(sim_robots, **tied))
             if o.ros2:
                 ros2_procs.append(Spawned(Ros2BridgeSpec(run_id=run_id, hub=hub, trajectory=str(traj_file),
                                                          robot_radius=o.model.robot_radius_m), **tied))

@@ -40,6 +40,7 @@ EXIT_AGENT = 3
 EXIT_CONFLICT = 4  # another coordinator of the run is alive
 EXIT_OUTPUT = 5
 EXIT_NO_RUN = 1  # swarm ros2 bridge: no live run
+SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
 
 
 def connection(hub: str | None, zenoh_config: str | None, run_id: str | None, *, required: bool = True) -> tuple[ZenohSettings | None, str]:
@@ -220,7 +221,10 @@ def run_emulator(spec: EmulatorSpec) -> int:
 
 
 def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
-    """``swarm ros2 robots``: simulated robots speaking the ROS 2 driver's topics until SIGTERM/SIGINT."""
+    """``swarm ros2 robots``: simulated robots speaking the ROS 2 driver's topics until SIGTERM/SIGINT (in the physical
+    world with ``run_id``: its physics events published to that run)."""
+    import contextlib  # noqa: PLC0415
+
     from robot_agent.assembly import driver_options  # noqa: PLC0415 - numpy and ROS 2 only when it runs
     from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415
     from robot_agent.ros2_robots import SimRobots  # noqa: PLC0415
@@ -239,20 +243,69 @@ def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
     if spec.late_sightings < 0:
         raise SwarmInputError(f"--late-sightings must be >= 0, got {spec.late_sightings:g}")
     cfg = Ros2Config.load(driver_options(list(spec.driver_options)))
-    world = make_world(spec.world, traj.ids, traj.initial_poses, spec.model, spec.seed)
-    truth = "" if spec.no_ground_truth else cfg.ground_truth or "ground_truth"
-    robots = SimRobots(world, cfg, rate_hz=spec.rate, sensing_hz=spec.sensing_rate, ground_truth=truth, no_odom=frozenset(spec.no_odom),
-                       silent=dict(spec.silent), twice=spec.sightings_twice, late_s=spec.late_sightings)
-    on_stop_signals(robots.stop)
-    domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
-          f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {spec.world}"
-          + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
-    try:
-        robots.run()
-    finally:
-        robots.close()
+    if spec.world != "physics" and (spec.physics_params or spec.run_id or spec.hub):
+        raise SwarmInputError("--physics-param, --run and --hub are for the physical world: they need --world physics")
+    if spec.hub and not spec.run_id:
+        raise SwarmInputError("--hub names the Zenoh endpoint of a run: it needs --run RUN")
+    if spec.world == "physics":
+        world, note = _ros2_physics_world(spec, traj, cfg)
+    else:
+        world, note = make_world(spec.world, traj.ids, traj.initial_poses, spec.model, spec.seed), ""
+    with contextlib.ExitStack() as stack:
+        recorder = _ros2_physics_recorder(spec, world, stack) if spec.run_id else None
+        truth = "" if spec.no_ground_truth else cfg.ground_truth or "ground_truth"
+        robots = SimRobots(world, cfg, rate_hz=spec.rate, sensing_hz=spec.sensing_rate, ground_truth=truth, no_odom=frozenset(spec.no_odom),
+                           silent=dict(spec.silent), twice=spec.sightings_twice, late_s=spec.late_sightings,
+                           after_step=recorder.poll if recorder else None)
+        on_stop_signals(robots.stop)
+        domain = os.environ.get("ROS_DOMAIN_ID", "0")
+        print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
+              f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {spec.world}{note}"
+              + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
+        try:
+            robots.run()
+        finally:
+            robots.close()
+        if recorder is not None:
+            print(f"swarm ros2 robots: {recorder.published} physics events published to run {spec.run_id}", file=sys.stderr, flush=True)
     return 0
+
+
+def _ros2_physics_world(spec: Ros2RobotsSpec, traj, cfg):
+    """The physical world of ``physics_params`` (pymunk 7 needed), and a note when the driver's default speeds
+    exceed its wheels' (the driver would count on speeds the wheels cannot reach)."""
+    from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415 - the physics extra, only when asked for
+
+    params = physical_world(True, spec.physics_params, spec.model, "--world physics")
+    assert params is not None, "on"
+    world = PhysicsWorld(traj.ids, traj.initial_poses, params, spec.seed)
+    half = params.track_m / 2.0
+    over = (max(cfg.max_linear_speed, cfg.max_angular_speed * half) > params.max_wheel_speed_m_s
+            or max(cfg.linear_accel, cfg.angular_accel * half) > params.max_wheel_accel_m_s2)
+    note = (f" (wheels at most {params.max_wheel_speed_m_s:g} m/s, {params.max_wheel_accel_m_s2:g} m/s^2: give the driver "
+            f"limits within them, docs/ros2.md)") if over else ""
+    return world, note
+
+
+def _ros2_physics_recorder(spec: Ros2RobotsSpec, world, stack):
+    """The ``PhysicsRecorder`` of ``run_id`` on a session of its own (``hub``, else the run file of a live run)."""
+    from robot_agent.ros2_physics import PhysicsRecorder  # noqa: PLC0415
+    from runtime.wire.keys import validate_run  # noqa: PLC0415
+    from runtime.wire.run_file import read_run  # noqa: PLC0415
+    from runtime.wire.transport import ZenohSettings, open_session  # noqa: PLC0415
+
+    assert spec.run_id is not None, "a recorder needs the run"
+    validate_run(spec.run_id)
+    hub = spec.hub
+    if not hub:
+        entry = read_run(spec.run_id)
+        if entry is None:
+            raise SwarmInputError(f"--run {spec.run_id}: no live run of that id on this host (give --hub ENDPOINT)")
+        hub = entry["hub"]
+    session = stack.enter_context(open_session(ZenohSettings("client", connect=(hub,))))
+    recorder = PhysicsRecorder(session, spec.run_id, world)
+    stack.callback(recorder.close)
+    return recorder
 
 
 def run_ros2_bridge(spec: Ros2BridgeSpec) -> int:
@@ -298,6 +351,7 @@ def run_ros2_bridge(spec: Ros2BridgeSpec) -> int:
 
 def run_router(spec: RouterSpec) -> int:
     """``swarm router``: a Zenoh router until SIGINT/SIGTERM/SIGHUP."""
+    import resource  # noqa: PLC0415
     import signal  # noqa: PLC0415
 
     from runtime.wire.router import router_settings  # noqa: PLC0415 - zenoh when it runs
@@ -315,6 +369,11 @@ def run_router(spec: RouterSpec) -> int:
             source = f" (config {spec.config})" if spec.config else ""
             print(f"swarm router: listening on {', '.join(settings.listen)}{source}; zid {session.info.zid()}",
                   file=sys.stderr, flush=True)
+            files = resource.getrlimit(resource.RLIMIT_NOFILE)[0]  # Zenoh raised the soft limit to the hard one
+            if files < SAFE_OPEN_FILES:
+                print(f"swarm router: warning: {files} open files allowed: a flood of that many connections blocks every listener, "
+                      f"the stop path's too (raise the hard limit to {SAFE_OPEN_FILES}, e.g. LimitNOFILE= of its systemd unit; "
+                      "deploy/README.md, \"The stop path\")", file=sys.stderr, flush=True)
             if spec.json:
                 print_json({"zid": str(session.info.zid()), "listen": list(settings.listen), "config": spec.config})
             while not stop.wait(0.5):

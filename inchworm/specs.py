@@ -160,12 +160,17 @@ class EmulatorSpec(ProcessSpec, frozen=True, tag="emulator"):
 
 
 class Ros2RobotsSpec(ProcessSpec, frozen=True, tag="ros2-robots"):
-    """``swarm ros2 robots``: simulated ROS 2 robots of ``trajectory``; ``silent``: robot -> the motion it falls silent at."""
+    """``swarm ros2 robots``: simulated ROS 2 robots of ``trajectory``; ``silent``: robot -> the motion it falls silent at.
+    In the physical world (``world`` "physics", ``physics_params``) with ``run_id`` its physics events go to that run
+    (``hub``, else the run file of a run on this host)."""
 
     trajectory: str
     seed: int = 0
     model: ModelConfig = msgspec.field(default_factory=ModelConfig)
     world: str = "kinematic"
+    physics_params: tuple[str, ...] = ()
+    run_id: str | None = None
+    hub: str | None = None
     driver_options: tuple[str, ...] = ()
     rate: float = 50.0
     sensing_rate: float = 10.0

@@ -1,11 +1,14 @@
 """``swarm ros2``: simulated ROS 2 robots, and a run live in ROS 2 (extra ``ros2``; docs/ros2.md).
 
-    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic] [--driver-option config=FILE]
+    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic|physics] [--physics-param NAME=VALUE]
+                      [--run RUN [--hub ENDPOINT]] [--driver-option config=FILE]
     swarm ros2 bridge --run RUN [--hub ENDPOINT] [--trajectory traj.json] [--wait S]
 
 ``robots`` starts one simulated robot per robot of the trajectory at its initial pose, each speaking the
 ``--driver ros2`` interface in its namespace (``cmd_vel``, ``odom``, ``neighbors``, ``ground_truth``;
 ``robot_agent.ros2_robots``) on a world (``--world``: ``runtime.models.world``), until Ctrl-C / SIGTERM.
+In the physical world with ``--run`` its contacts, stalls and still poses go to the run's record
+(``robot_agent.ros2_physics``).
 Fault options (``--no-odom``, ``--silent``, ``--sightings-twice``, ``--late-sightings``) rehearse the
 driver's rough cases.
 
@@ -38,7 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r = what.add_parser("robots", help="simulated robots of a trajectory speaking the ROS 2 driver's topics, until Ctrl-C")
     r.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots and their initial poses")
     r.add_argument("--seed", type=int, default=0, help="seed of the motion and sensing noise (default 0)")
-    r.add_argument("--world", default="kinematic", help="the world the robots move in (default kinematic: the project's model)")
+    r.add_argument("--world", default="kinematic",
+                   help="the world the robots move in: kinematic (the project's noise model, the default) or physics (a rigid-body "
+                        "world: wheels within their limits that slip, bodies that push; pip install 'inchworm-swarm[physics]')")
+    r.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --world physics: a parameter of the physical world (docs/physics.md), repeatable")
+    r.add_argument("--run", dest="run_id", default=None,
+                   help="with --world physics: the run whose record gets the world's contacts, stalls and poses (PhysicsEvent)")
+    r.add_argument("--hub", default=None, help="with --run: the run's Zenoh endpoint (default: the run file of a run on this host)")
     r.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, topic names "
                         "(docs/ros2.md); repeatable")
@@ -78,10 +88,10 @@ def run_robots(args: argparse.Namespace) -> int:
     from robot_agent.assembly import parse_ids  # noqa: PLC0415
 
     return run_ros2_robots(Ros2RobotsSpec(
-        trajectory=str(args.trajectory), seed=args.seed, model=model_config(args), world=args.world, driver_options=tuple(args.driver_option),
-        rate=args.rate, sensing_rate=args.sensing_rate, no_ground_truth=args.no_ground_truth,
-        no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else (), silent=_silent(args.silent),
-        sightings_twice=args.sightings_twice, late_sightings=args.late_sightings))
+        trajectory=str(args.trajectory), seed=args.seed, model=model_config(args), world=args.world, physics_params=tuple(args.physics_param),
+        run_id=args.run_id, hub=args.hub, driver_options=tuple(args.driver_option), rate=args.rate, sensing_rate=args.sensing_rate,
+        no_ground_truth=args.no_ground_truth, no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else (),
+        silent=_silent(args.silent), sightings_twice=args.sightings_twice, late_sightings=args.late_sightings))
 
 
 def run_bridge(args: argparse.Namespace) -> int:

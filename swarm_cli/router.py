@@ -13,7 +13,10 @@ tools connect to it as clients (``--hub`` / ``--zenoh-config``; see ``deploy/REA
   ``tls/192.168.1.10:7447``; overrides the file's endpoints. Default: the file's
   endpoints, else ``tcp/0.0.0.0:7447``. Port 0 is refused (clients could not know it).
 
-``swarm router: listening on ...`` on stderr means the session is open and listening;
+``swarm router: listening on ...`` on stderr means the session is open and listening; a warning
+follows when the process may open fewer than 65536 files (Zenoh raises the soft limit to the hard
+one): a connection flood that exhausts them blocks every listener, the operator listener of the
+stop path too (deploy/README.md, "The stop path").
 ``--json`` then prints ``{"zid": ..., "listen": [...], "config": ...}`` as the only (so also
 the last) line on stdout. Exit status 0, 2 on bad input (bad endpoint, unreadable or
 invalid config file, unreadable certificate, port already in use).

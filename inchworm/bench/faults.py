@@ -22,15 +22,18 @@ Three parts, each through the options a user has, with real processes on loopbac
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``inchworm.bench.faults_gateway``.
-* ``estop_under_flood``: an emergency stop through the deploy/ TLS router (mutual TLS, access
-  control) while ``flood`` idle TCP connections hold its TLS port, see ``inchworm.bench.estop_flood``.
+* ``estop_under_flood``: emergency stops through the deploy/ TLS router's operator listener (mutual
+  TLS, access control, the estop identity), one a second while ``flood`` idle TCP connections are held
+  on its public listener for ``flood_s`` seconds and for ``min(flood_s, 60)`` s after, see
+  ``inchworm.bench.estop_flood``.
 * ``forged_link_requests``: a gateway run (link processes apart) while a client allowed on ``linkreq``
   forges requests for every command, and after the coordinator exited; ``executed`` counts the motions
   no coordinator asked for (must be 0), see ``inchworm.bench.forged_links``.
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
-"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}, "coordinator_joint": {as "coordinator"},
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
+"public_blocked"}, "coordinator_joint": {as "coordinator"},
 "forged_link_requests": {"sent", "executed", "completed"}, "rejoin": {"runs", "rejoined", "sensing_range_m"},
 "coordinator_stall": {"stall_s", "runs", "completed"}}`` (``inchworm.bench.faults_stalls``).
 """
@@ -69,7 +72,8 @@ class FaultsBenchOptions:
     seeds: int = 10  # runs per lost-robot and gateway row
     fuzz: int = 10_000  # hostile messages sent during the fuzz run
     gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
-    flood: int = 3000  # idle TCP connections held on the TLS router during the emergency stop
+    flood: int = 3000  # idle TCP connections held on the TLS router's public listener
+    flood_s: float = 60.0  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
 
 
 # -- lost robot ------------------------------------------------------------------------------
@@ -254,6 +258,8 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say = say or (lambda _text: None)
     if o.seeds < 1 or o.fuzz < 0:
         raise SwarmInputError(f"--seeds must be >= 1 and --fuzz >= 0, got {o.seeds} and {o.fuzz}")
+    if o.flood < 1 or not 1.0 <= o.flood_s <= 3600.0:
+        raise SwarmInputError(f"--flood must be >= 1 and --flood-s between 1 and 3600, got {o.flood} and {o.flood_s:g}")
     _say(f"gateway: {len(o.gateway_rows)} radio-fault rows over {o.seeds} seeds (each against its fault-free run)")
     rows = gateway_fault_rows(o.gateway_rows, range(o.seeds)) if o.gateway_rows else []
     for row in rows:
@@ -270,8 +276,9 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"coordinator, joint localizer: swarm launch -n 10 --localizer joint --standby --kill-coordinator STEP over {o.seeds} seeds")
     coord_joint = {k: v for k, v in coordinator_takeover(o.seeds, localizer="joint").items() if k != "summaries"}
     _say(json.dumps(coord_joint))
-    _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
-    flood = estop_under_flood(connections=o.flood)
+    _say(f"estop under flood: {o.flood} idle TCP connections held on the TLS router's public listener for {o.flood_s:g} s, "
+         f"a stop a second through its operator listener during the flood and {min(o.flood_s, 60.0):g} s after it")
+    flood = estop_under_flood(connections=o.flood, duration_s=o.flood_s, say=_say)
     _say(json.dumps(flood))
     _say("forged link requests: a gateway run (links apart) while the gateway identity forges LinkRequests, and after it")
     forged = forged_link_requests()
