@@ -53,11 +53,12 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+from msgspec.structs import replace
 
 from coordinator.process import EXIT_OUTPUT, default_recording
 from coordinator.stop import StopSignals, collect_acks, publish_estop
@@ -72,14 +73,16 @@ from inchworm.processes import (
     RobotKiller,
     agents_per_process,
     default_gateway,
-    radio_faults,
     start_agents,
     start_gateway,
     start_port_hosts,
     stop_all,
     wait_for_standby,
 )
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, EmulatorSpec, Ros2BridgeSpec, Ros2RobotsSpec, selection_spec
 from robot_agent.assembly import driver_options
+from robot_agent.emulator_process import check_radio_faults
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
@@ -105,9 +108,9 @@ Say = Callable[[str], None]
 
 @dataclass(frozen=True)
 class LaunchOptions:
-    """What ``launch`` runs. ``model`` / ``selection`` / ``localizer`` are checked before anything starts;
-    ``model_flags`` and ``coordinator_flags`` (option name -> value, only those given) are passed on to the
-    agent and coordinator processes as ``--name=value``. Times in seconds."""
+    """What ``launch`` runs. ``model`` / ``selection`` / ``localizer`` are checked before anything starts and go
+    to the processes in their specs (``inchworm.specs``; ``model_file``: the file ``model`` was read from, for the
+    recording's metadata). Times in seconds."""
 
     model: ModelConfig
     localizer: str
@@ -152,8 +155,10 @@ class LaunchOptions:
     foxglove: int | None = None
     linger: float | None = None
     json: bool = False
-    model_flags: dict[str, Any] = field(default_factory=dict)
-    coordinator_flags: dict[str, Any] = field(default_factory=dict)
+    model_file: Path | None = None
+    on_lost: str = "continue"  # the coordinator's --on-lost
+    rejoin: bool = True
+    on_record_error: str = "continue"
     world: str = "model"  # or "physics": the simulated agents (all in one process) or ROS 2 robots drive in the rigid-body world (docs/physics.md)
     physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
     physics_speed: float = 0.0
@@ -169,15 +174,6 @@ def _stderr(text: str) -> None:
 
 def _stdout_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
-
-
-def flags(values: dict[str, Any]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={_arg_text(value)}" for name, value in values.items() if value is not None]
-
-
-def _arg_text(value) -> str:
-    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
 def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
@@ -368,7 +364,7 @@ def stop_text(run_id: str, heard: int, exited: int, robots: int) -> str:
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
     """Run it (module doc); the exit status: the coordinator's, 128 + N if it was killed by signal N.
     ``say``: the launcher's notes (stderr); ``emit_json``: the amended JSON object of a run with a kill."""
-    faults = radio_faults(o.drop, o.corrupt, o.delay)
+    check_radio_faults(o.drop, o.corrupt, o.delay)
     if o.driver != "gateway" and (o.drop or o.corrupt or o.delay):
         raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
     traj = launch_trajectory(o)
@@ -385,7 +381,6 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    py = sys.executable
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
@@ -423,16 +418,11 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
 
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            model = flags(o.model_flags)
-            agent_extra = list(model)
+            agent = AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=o.seed, model=o.model, motion_time=o.motion_time)
             if o.driver not in BUILT_IN:
-                agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
-                if o.command_timeout is not None:
-                    agent_extra.append(f"--command-timeout={o.command_timeout!r}")
-            world_flags = [f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
+                agent = replace(agent, driver=plugin_spec(o.driver), driver_options=o.driver_options, command_timeout=o.command_timeout)
             if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
-                agent_extra += ["--world=physics", *world_flags]
-            emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
+                agent = replace(agent, world="physics", physics_params=o.physics_params, physics_speed=o.physics_speed)
             truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
             step_timeout = DEFAULT_STEP_TIMEOUT_S if o.step_timeout is None else o.step_timeout
             if o.driver == "ros2":
@@ -442,53 +432,48 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if not truth:
                     say(f"swarm {o.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
                         f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
-                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
+                agent = replace(agent, driver="ros2", driver_options=tuple(ros2_options))
                 if o.ros2_robots:  # the same settings: namespaces, frame, topics
-                    ros2_world = ["--world=physics", *(f"--physics-param={x}" for x in o.physics_params), f"--run={run_id}",
-                                  f"--hub={hub}"] if o.world == "physics" else []
-                    ros2_procs.append(subprocess.Popen(
-                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
-                         *(f"--driver-option={x}" for x in ros2_options), *ros2_world], **tied))
+                    sim_robots = Ros2RobotsSpec(trajectory=str(traj_file), seed=o.seed, model=o.model, driver_options=tuple(ros2_options))
+                    if o.world == "physics":  # its contacts, stalls and still poses go to the run's record
+                        sim_robots = replace(sim_robots, world="physics", physics_params=o.physics_params, run_id=run_id, hub=hub)
+                    ros2_procs.append(Spawned(sim_robots, **tied))
             if o.ros2:
-                ros2_procs.append(subprocess.Popen(
-                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
-                     f"--robot-radius={o.model.robot_radius_m!r}"], **tied))
+                ros2_procs.append(Spawned(Ros2BridgeSpec(run_id=run_id, hub=hub, trajectory=str(traj_file),
+                                                         robot_radius=o.model.robot_radius_m), **tied))
             if o.driver == "gateway":
                 gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
-                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, [*faults, *emulator_extra], links=not port_hosts, **tied)
+                emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=o.seed, motion_time=o.motion_time, model=o.model,
+                                        physics=o.world == "physics", physics_params=o.physics_params if o.world == "physics" else (),
+                                        physics_speed=o.physics_speed if o.world == "physics" else 0.0, drop=o.drop, corrupt=o.corrupt,
+                                        delay=o.delay, events=None if o.emulator_events is None else str(o.emulator_events), hub=hub,
+                                        run_id=run_id)
+                live = start_gateway(gateway, Path(tmp), emulator, procs, links=not port_hosts, **tied)
                 gateway_procs = len(procs)
-                agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+                agent = replace(agent, driver="gateway", gateway_config=str(live))
             first = len(procs)
             piped = {**tied, **agent_errors.popen_kwargs()}
             try:
                 if port_hosts:  # one process per port: its link and its robots' agents
-                    agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **piped)
+                    agent_procs = start_port_hosts(traj, live, agent, procs, traj_file, **piped)
                 else:
-                    start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **piped)
+                    start_agents(traj, agent, procs, per_process, traj_file, **piped)
                     agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             finally:
                 agent_errors.watch(procs[first:])
             agent_list = procs[first:]
-            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
-            if not truth:
-                common.append("--no-truth")  # the lab's robots publish no true poses
-            cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
-                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
-                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
-            if o.result:
-                cmd.append(f"--result={o.result}")
             recording = None if o.no_record else (o.record or default_recording(run_id))
-            cmd.append("--no-record" if recording is None else f"--record={recording}")
-            if o.json:
-                cmd.append("--json")
-            if o.foxglove is not None:
-                cmd.append(f"--foxglove={o.foxglove}")
-                if o.linger is not None:
-                    cmd.append(f"--linger={o.linger!r}")
+            coordinator_spec = CoordinatorSpec(
+                trajectory=str(traj_file), run_id=run_id, hub=hub, method=o.method, seed=o.seed, localizer=o.localizer, model=o.model,
+                model_file=None if o.model_file is None else str(o.model_file), selection=selection_spec(o.selection),
+                start_timeout=max(30.0, START_S_PER_ROBOT * traj.n), step_timeout=step_timeout, on_lost=o.on_lost, min_robots=o.min_robots,
+                truth=truth, result=None if o.result is None else str(o.result), out=str(out), rejoin=o.rejoin,
+                record=None if recording is None else str(recording), no_record=recording is None, on_record_error=o.on_record_error,
+                foxglove=o.foxglove, linger=o.linger if o.foxglove is not None else None, json=o.json,
+                command=f"swarm {o.command} (run {run_id}, {traj.n} robots, method {o.method}, seed {o.seed})")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
                     "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.ros2_robots else "")}.get(o.driver, f"agents ({o.driver})")
             what += " in the physical world" if o.world == "physics" else ""
@@ -506,13 +491,13 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                                     o.stall_coordinator is not None)
             standby = None
             if o.standby:
-                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
-                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
-                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+                standby_spec = replace(coordinator_spec, standby=True,
+                                       record=None if recording is None else str(Path(recording).with_suffix(".standby.mcap")))
+                standby = Spawned(standby_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
                 coordinators.append(standby)
                 procs.append(standby)
                 wait_for_standby(hub_session, run_id, standby)
-            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+            coordinator = Spawned(coordinator_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
             coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
             procs.append(coordinator)
             coord_killer = None if o.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, o.kill_coordinator, coordinator)

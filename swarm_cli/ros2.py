@@ -22,19 +22,12 @@ discovery range and middleware (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RAN
 from __future__ import annotations
 
 import argparse
-import contextlib
-import logging
-import os
-import sys
-import threading
-import time
 from pathlib import Path
 
+from inchworm.specs import Ros2BridgeSpec, Ros2RobotsSpec
 from runtime.errors import SwarmInputError
-from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads, on_stop_signals
+from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads
 from swarm_cli.options import add_connection_options, add_model_options, model_config, positive
-
-EXIT_NO_RUN = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -91,135 +84,21 @@ def _silent(specs: list[str]) -> dict[int, int]:
 
 
 def run_robots(args: argparse.Namespace) -> int:
-    from robot_agent.assembly import driver_options, parse_ids  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
-    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415
-    from robot_agent.ros2_robots import SimRobots  # noqa: PLC0415
-    from runtime.models.trajectory import Trajectory  # noqa: PLC0415
-    from runtime.models.world import make_world  # noqa: PLC0415
-    from runtime.wire.ros2 import require_ros2  # noqa: PLC0415
+    from inchworm.process_mains import run_ros2_robots  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
+    from robot_agent.assembly import parse_ids  # noqa: PLC0415
 
-    require_ros2("swarm ros2 robots")
-    traj = Trajectory.load(args.trajectory)
-    no_odom = frozenset(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else frozenset()
-    silent = _silent(args.silent)
-    unknown = sorted((set(no_odom) | set(silent)) - {int(i) for i in traj.ids})
-    if unknown:
-        raise SwarmInputError(f"robots {unknown} of --no-odom/--silent are not robots of {args.trajectory}")
-    if args.late_sightings < 0:
-        raise SwarmInputError(f"--late-sightings must be >= 0, got {args.late_sightings:g}")
-    cfg = Ros2Config.load(driver_options(args.driver_option))
-    if args.world != "physics" and (args.physics_param or args.run_id or args.hub):
-        raise SwarmInputError("--physics-param, --run and --hub are for the physical world: they need --world physics")
-    if args.hub and not args.run_id:
-        raise SwarmInputError("--hub names the Zenoh endpoint of a run: it needs --run RUN")
-    if args.world == "physics":
-        world, note = _physics_world(args, traj, cfg)
-    else:
-        world, note = make_world(args.world, traj.ids, traj.initial_poses, model_config(args), args.seed), ""
-    with contextlib.ExitStack() as stack:
-        recorder = _recorder(args, world, stack) if args.run_id else None
-        truth = "" if args.no_ground_truth else cfg.ground_truth or "ground_truth"
-        robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=truth, no_odom=no_odom,
-                           silent=silent, twice=args.sightings_twice, late_s=args.late_sightings,
-                           after_step=recorder.poll if recorder else None)
-        on_stop_signals(robots.stop)
-        domain = os.environ.get("ROS_DOMAIN_ID", "0")
-        print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
-              f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}{note}"
-              + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
-        try:
-            robots.run()
-        finally:
-            robots.close()
-        if recorder is not None:
-            print(f"swarm ros2 robots: {recorder.published} physics events published to run {args.run_id}", file=sys.stderr, flush=True)
-    return 0
-
-
-def _physics_world(args: argparse.Namespace, traj, cfg):
-    """The physical world of ``--physics-param`` (pymunk 7 needed), and a note when the driver's default speeds
-    exceed its wheels' (the driver would count on speeds the wheels cannot reach)."""
-    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
-    from runtime.world.physics import require_pymunk  # noqa: PLC0415
-    from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415
-
-    require_pymunk()
-    params = parse_physics_params(list(args.physics_param), model_config(args))
-    world = PhysicsWorld(traj.ids, traj.initial_poses, params, args.seed)
-    half = params.track_m / 2.0
-    over = (max(cfg.max_linear_speed, cfg.max_angular_speed * half) > params.max_wheel_speed_m_s
-            or max(cfg.linear_accel, cfg.angular_accel * half) > params.max_wheel_accel_m_s2)
-    note = (f" (wheels at most {params.max_wheel_speed_m_s:g} m/s, {params.max_wheel_accel_m_s2:g} m/s^2: give the driver "
-            f"limits within them, docs/ros2.md)") if over else ""
-    return world, note
-
-
-def _recorder(args: argparse.Namespace, world, stack: contextlib.ExitStack):
-    """The ``PhysicsRecorder`` of ``--run`` on a session of its own (``--hub``, else the run file of a live run)."""
-    from robot_agent.ros2_physics import PhysicsRecorder  # noqa: PLC0415
-    from runtime.wire.keys import validate_run  # noqa: PLC0415
-    from runtime.wire.run_file import read_run  # noqa: PLC0415
-    from runtime.wire.transport import ZenohSettings, open_session  # noqa: PLC0415
-
-    validate_run(args.run_id)
-    hub = args.hub
-    if not hub:
-        entry = read_run(args.run_id)
-        if entry is None:
-            raise SwarmInputError(f"--run {args.run_id}: no live run of that id on this host (give --hub ENDPOINT)")
-        hub = entry["hub"]
-    session = stack.enter_context(open_session(ZenohSettings("client", connect=(hub,))))
-    recorder = PhysicsRecorder(session, args.run_id, world)
-    stack.callback(recorder.close)
-    return recorder
-
-
-def _hub_settings(args: argparse.Namespace):
-    """The run's Zenoh settings: ``--hub`` / ``--zenoh-config``, else its run file, waited for up to ``--wait`` s; None: no run."""
-    from runtime.wire.run_file import read_run  # noqa: PLC0415
-    from runtime.wire.transport import ZenohSettings  # noqa: PLC0415
-
-    if args.hub or args.zenoh_config:
-        return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
-    deadline = time.monotonic() + max(args.wait, 0.0)
-    while (entry := read_run(args.run_id)) is None:
-        if time.monotonic() >= deadline:
-            return None
-        time.sleep(0.1)
-    args.hub = entry["hub"]
-    return ZenohSettings("client", connect=(args.hub,))
+    return run_ros2_robots(Ros2RobotsSpec(
+        trajectory=str(args.trajectory), seed=args.seed, model=model_config(args), world=args.world, physics_params=tuple(args.physics_param),
+        run_id=args.run_id, hub=args.hub, driver_options=tuple(args.driver_option), rate=args.rate, sensing_rate=args.sensing_rate,
+        no_ground_truth=args.no_ground_truth, no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else (),
+        silent=_silent(args.silent), sightings_twice=args.sightings_twice, late_sightings=args.late_sightings))
 
 
 def run_bridge(args: argparse.Namespace) -> int:
-    from inchworm.ros2_bridge import Bridge  # noqa: PLC0415 - ROS 2 and zenoh only when bridging
-    from runtime.models.config import ModelConfig  # noqa: PLC0415
-    from runtime.models.trajectory import Trajectory  # noqa: PLC0415
-    from runtime.wire.keys import validate_run  # noqa: PLC0415
-    from runtime.wire.ros2 import require_ros2  # noqa: PLC0415
-    from runtime.wire.transport import open_session  # noqa: PLC0415
+    from inchworm.process_mains import run_ros2_bridge  # noqa: PLC0415 - ROS 2 and zenoh only when bridging
 
-    require_ros2("swarm ros2 bridge")
-    validate_run(args.run_id)
-    traj = Trajectory.load(args.trajectory) if args.trajectory else None
-    settings = _hub_settings(args)
-    if settings is None:
-        waited = f" within {args.wait:g} s" if args.wait > 0 else ""
-        print(f"swarm ros2 bridge: no live run {args.run_id!r} on this host{waited} (give --hub ENDPOINT, or --wait S to wait for it)",
-              file=sys.stderr, flush=True)
-        return EXIT_NO_RUN
-    stop = threading.Event()
-    on_stop_signals(stop.set)
-    radius = ModelConfig().robot_radius_m if args.robot_radius is None else args.robot_radius
-    with open_session(settings) as session:
-        bridge = Bridge(session, settings, args.run_id, traj, radius)
-        print(f"swarm ros2 bridge: run {args.run_id} on {args.hub or args.zenoh_config} -> /swarm/estimates, /swarm/robot<id>/pose, "
-              f"/swarm/markers, service /swarm/estop (ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')})", file=sys.stderr, flush=True)
-        try:
-            bridge.wait(stop)
-        finally:
-            bridge.close()
-    print(f"swarm ros2 bridge: run {args.run_id} over, {bridge.published} estimates published", file=sys.stderr, flush=True)
-    return 0
+    return run_ros2_bridge(Ros2BridgeSpec(run_id=args.run_id, trajectory=None if args.trajectory is None else str(args.trajectory),
+                                          robot_radius=args.robot_radius, wait=args.wait, hub=args.hub, zenoh_config=args.zenoh_config))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -228,7 +107,6 @@ def main(argv: list[str] | None = None) -> int:
 
     hold_lifeline()
     limit_blas_threads()
-    logging.basicConfig(level=logging.WARNING, format="swarm ros2: %(levelname)s %(message)s", stream=sys.stderr)
     parser = OneLineParser(prog="swarm ros2")
     add_arguments(parser)
     args = parser.parse_args(argv)

@@ -26,17 +26,12 @@ invalid config file, unreadable certificate, port already in use).
 from __future__ import annotations
 
 import argparse
-import resource
-import signal
 import sys
-import threading
 
-from runtime.errors import SwarmInputError
+from inchworm.specs import RouterSpec
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import print_json
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
-SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -54,35 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.wire.router import router_settings  # noqa: PLC0415 - zenoh when it runs
-    from runtime.wire.transport import open_session  # noqa: PLC0415
+    from inchworm.process_mains import run_router  # noqa: PLC0415 - zenoh when it runs
 
-    settings = router_settings(args.listen, args.config)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    try:
-        try:
-            session = open_session(settings)
-        except ConnectionError as exc:
-            raise SwarmInputError(f"cannot start the router on {', '.join(settings.listen)}: {exc.__cause__ or exc}") from None
-        with session:
-            source = f" (config {args.config})" if args.config else ""
-            print(f"swarm router: listening on {', '.join(settings.listen)}{source}; zid {session.info.zid()}",
-                  file=sys.stderr, flush=True)
-            files = resource.getrlimit(resource.RLIMIT_NOFILE)[0]  # Zenoh raised the soft limit to the hard one
-            if files < SAFE_OPEN_FILES:
-                print(f"swarm router: warning: {files} open files allowed: a flood of that many connections blocks every listener, "
-                      f"the stop path's too (raise the hard limit to {SAFE_OPEN_FILES}, e.g. LimitNOFILE= of its systemd unit; "
-                      "deploy/README.md, \"The stop path\")", file=sys.stderr, flush=True)
-            if args.json:
-                print_json({"zid": str(session.info.zid()), "listen": list(settings.listen), "config": args.config})
-            while not stop.wait(0.5):
-                pass
-    finally:
-        for sig, handler in previous.items():  # matters when run in-process (tests)
-            signal.signal(sig, handler)
-    print("swarm router: stopped", file=sys.stderr, flush=True)
-    return 0
+    return run_router(RouterSpec(listen=tuple(args.listen), config=args.config, json=args.json))
 
 
 def main(argv: list[str] | None = None) -> int:

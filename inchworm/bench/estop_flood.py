@@ -41,7 +41,10 @@ from typing import cast
 import numpy as np
 
 from coordinator.stop import collect_acks, publish_estop
+from inchworm.certs import make_certs, parse_host
 from inchworm.processes import stop_all
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, RouterSpec
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, estop_ack_key
 from runtime.wire.messages import EmergencyStop
@@ -177,11 +180,7 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
     with tempfile.TemporaryDirectory(prefix="swarm-bench-flood-") as tmp_name:
         tmp = Path(tmp_name)
         certs = tmp / "certs"
-        made = subprocess.run([sys.executable, "-m", "swarm_cli.main", "certs", "--out", str(certs), "--host", "router=127.0.0.1,localhost",
-                               "--host", "gateway", "--host", "coordinator", "--host", "estop", "--json"],
-                              capture_output=True, text=True, timeout=120)
-        if made.returncode != 0:
-            raise RuntimeError(f"swarm certs failed: {made.stderr.strip()}")
+        make_certs(certs, [parse_host(h) for h in ("router=127.0.0.1,localhost", "gateway", "coordinator", "estop")])
         port, operator_port = free_tcp_port(), free_tcp_port()
         public, operator = f"tls/127.0.0.1:{port}", f"tls/127.0.0.1:{operator_port}"
         router_config = _rewrite(DEPLOY / "zenoh-router-tls-acl.json5", tmp / "router.json5", {CERT_DIR: f"{certs}/"})
@@ -191,14 +190,13 @@ def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: flo
         traj = random_trajectory(robots, 1, np.random.default_rng(0))
         traj.save(tmp / "traj.json")
         try:
-            router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--config={router_config}", f"--listen={public}",
-                                       f"--listen={operator}"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                                      preexec_fn=None if router_files is None else lambda: _limit_files(router_files))
+            router = Spawned(RouterSpec(config=str(router_config), listen=(public, operator)), stdout=subprocess.DEVNULL,
+                             stderr=subprocess.PIPE, text=True, preexec_fn=None if router_files is None else lambda: _limit_files(router_files))
             procs.append(router)
             if router.stderr is None or "listening" not in router.stderr.readline():
                 raise RuntimeError("the TLS router did not start")
-            procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", f"--id=0-{robots - 1}", f"--trajectory={tmp / 'traj.json'}",
-                                           f"--run={run_id}", f"--zenoh-config={gateway.config_file}"], stderr=subprocess.DEVNULL))
+            procs.append(Spawned(AgentHostSpec(run_id=run_id, robots=tuple(range(robots)), trajectory=str(tmp / "traj.json"),
+                                               zenoh_config=str(gateway.config_file)), stderr=subprocess.DEVNULL))
             with open_session(coordinator) as observer:
                 deadline = time.monotonic() + START_S
                 while len(alive_now(observer, alive_wildcard(run_id))) < robots:

@@ -44,7 +44,6 @@ import json
 import math
 import statistics
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -59,6 +58,8 @@ import numpy as np
 from inchworm.bench import BenchResult
 from inchworm.output import last_json
 from inchworm.progress import Progress
+from inchworm.spawn import Spawned, run_process
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, LaunchSpec
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
@@ -85,10 +86,8 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
     progress = Progress(seeds, "lost robot")
     for seed in range(seeds):
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            proc = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 f"--kill-robot={victim}@{step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
-                capture_output=True, text=True, cwd=tmp, timeout=600)
+            proc = run_process(LaunchSpec(robots=robots, configs=configs, trajectory_seed=seed, seed=seed, kill_robot=((victim, step),),
+                                          motion_time=0.1, no_record=True, out=tmp, json=True), timeout=600, cwd=tmp)
         summaries.append({**(last_json(proc.stdout) or {}), "returncode": proc.returncode})
         progress(seed + 1)
     done = [s for s in summaries
@@ -115,11 +114,8 @@ def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localiz
         ref = simulate(traj, "inchworm", ModelConfig(), localizer=localizer, seed=seed)
         step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            proc = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 f"--localizer={localizer}", "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record",
-                 f"--out={tmp}", "--json"],
-                capture_output=True, text=True, cwd=tmp, timeout=600)
+            proc = run_process(LaunchSpec(robots=robots, configs=configs, trajectory_seed=seed, seed=seed, localizer=localizer, standby=True,
+                                          kill_coordinator=step, motion_time=0.1, no_record=True, out=tmp, json=True), timeout=600, cwd=tmp)
         summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
         summaries.append(summary)
         identical += summary["returncode"] == 0 and _same_table(summary, ref)
@@ -206,11 +202,10 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
         listener = subscribe(hub_session, run_wildcard(run_id), fuzzer.on_heard)
         watcher = subscribe(hub_session, robot_wildcard(run_id, "cmd"), lambda *_: started.set())
         try:
-            agents = list(start_agents(traj, run_id, hub, seed, 0.3, (), procs, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-            coordinator = subprocess.Popen(
-                [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={method}",
-                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", "--json"],
-                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            agents = list(start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=seed, motion_time=0.3), procs,
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            coordinator = Spawned(CoordinatorSpec(trajectory=str(traj_file), method=method, run_id=run_id, hub=hub, seed=seed, no_record=True,
+                                                  json=True), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             procs.append(coordinator)
             started.wait(timeout=60)
             progress = Progress(count, "fuzz")

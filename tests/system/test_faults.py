@@ -98,9 +98,9 @@ def test_a_coordinator_killed_under_launch_gets_every_robot_stopped(tmp_path):
         coordinator = None
         while coordinator is None:
             assert time.monotonic() < deadline and proc.poll() is None, "no coordinator process"
-            coordinator = next((p for p in _children_of(proc.pid) if "coordinator_cmd" in _cmdline(p)), None)
+            coordinator = next((p for p in _children_of(proc.pid) if "inchworm.spawn - coordinator" in _cmdline(p)), None)
             time.sleep(0.05)
-        agents = [p for p in _children_of(proc.pid) if "swarm_cli.agent" in _cmdline(p)]
+        agents = [p for p in _children_of(proc.pid) if "inchworm.spawn - agent" in _cmdline(p)]
         assert len(agents) == 4
         while "config 1/6 done" not in log.read_text():  # the run is moving
             assert time.monotonic() < deadline and proc.poll() is None, log.read_text()

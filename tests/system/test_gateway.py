@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from inchworm.processes import default_gateway, start_agents, start_emulator, start_gateway, stop_all
+from inchworm.specs import AgentHostSpec, EmulatorSpec
 from robot_agent.driver import DriverRefused, RobotLost, SimDriver
 from robot_agent.emulator import EmulatedWorld, FaultPlan, PortEmulator
 from robot_agent.gateway_driver import GatewayDriver
@@ -513,8 +514,9 @@ class Site:
 
 
 @contextmanager
-def emulated_site(tmp_path: Path, robots: int, seed: int, config, *emulator_args: str) -> Iterator[Site]:
-    """``robots`` emulated robots of a random trajectory, behind the ports ``config(ids)`` gives; a hub and a session."""
+def emulated_site(tmp_path: Path, robots: int, seed: int, config, **emulator) -> Iterator[Site]:
+    """``robots`` emulated robots of a random trajectory, behind the ports ``config(ids)`` gives (``emulator``: more fields
+    of its ``EmulatorSpec``); a hub and a session."""
     traj = random_trajectory(robots, 1, np.random.default_rng(seed))
     traj_file, config_file, live = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json"
     traj.save(traj_file)
@@ -525,7 +527,7 @@ def emulated_site(tmp_path: Path, robots: int, seed: int, config, *emulator_args
     procs: list[subprocess.Popen] = []
     try:
         with open_session(hub_settings), open_session(member) as session:
-            start_emulator(config_file, traj_file, live, list(emulator_args), procs)
+            start_emulator(EmulatorSpec(config=str(config_file), trajectory=str(traj_file), write_config=str(live), **emulator), procs)
             yield Site(session, f"tcp/127.0.0.1:{port}", ids, live, procs)
     finally:
         stop_all(procs, grace_s=5.0)
@@ -540,7 +542,7 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         return GatewayConfig((Port("radio0", "emulated", tuple(ids[:2])), Port("radio1", "emulated", tuple(ids[2:]))),
                              limits=Limits(max_drive_m=0.3, workspace=(-5.0, -5.0, 5.0, 5.0)))
 
-    with emulated_site(tmp_path, 4, 1, config, f"--events={events}") as site:
+    with emulated_site(tmp_path, 4, 1, config, events=str(events)) as site:
         session, ids = site.session, site.ids
         site.link(run_id, "radio0")
         site.link(run_id, "radio1")
@@ -685,7 +687,7 @@ def test_a_killed_link_process_makes_its_agents_report_the_robot_lost_at_once(tm
         return GatewayConfig((Port("radio0", "emulated", tuple(ids)),), timing=Timing(motion_timeout_s=30.0))
 
     # motions of 20 s: the command is still running when the link dies
-    with emulated_site(tmp_path, 2, 3, config, "--motion-time=20") as site:
+    with emulated_site(tmp_path, 2, 3, config, motion_time=20.0) as site:
         robot = site.ids[0]
         link = site.link("deadlink")
         agent = site.agent(robot, "deadlink", stderr=subprocess.PIPE, text=True)
@@ -740,10 +742,11 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
     procs: list[subprocess.Popen] = []
     try:
         with open_session(hub_settings), open_session(member) as session:
-            live = start_gateway(traj_file, gateway, tmp_path, run_id, hub, 2, 0.0, [], procs, events)
+            emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=2, events=str(events), hub=hub, run_id=run_id)
+            live = start_gateway(gateway, tmp_path, emulator, procs)
             ids = {f"swarm/{run_id}/alive/link/{p.name}" for p in gateway.ports}
             wait_for(lambda: alive_now(session, f"swarm/{run_id}/alive/link/*") == ids, 30, "the link processes")
-            agents = start_agents(traj, run_id, hub, 2, 0.0, ["--driver=gateway", f"--gateway-config={live}"])
+            agents = start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=2, driver="gateway", gateway_config=str(live)))
             procs += agents
             stable = list(procs)
             results = []

@@ -8,7 +8,9 @@ from __future__ import annotations
 import signal
 import subprocess
 
-from inchworm.processes import agent_command, stop_all
+from inchworm.processes import stop_all
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec
 from runtime.wire.keys import alive_key, link_alive_key
 from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session
 from tests.system.test_gateway import PY, _one_port, emulated_site
@@ -26,17 +28,19 @@ def test_a_second_simulated_agent_of_a_live_robot_is_refused_and_a_restarted_one
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
     hub, run = f"tcp/127.0.0.1:{port}", "dup"
-    cmd = agent_command(3, "3,4", (0.0, 0.0, 0.0), run, hub, 0)
+    spec = AgentHostSpec(run_id=run, robots=(3,), run_robots=(3, 4), hub=hub, pose=(0.0, 0.0, 0.0))
     procs: list[subprocess.Popen] = []
     try:
         with open_session(hub_settings), open_session(member) as session:
-            procs.append(subprocess.Popen(cmd, stderr=subprocess.DEVNULL))
+            procs.append(Spawned(spec, stderr=subprocess.DEVNULL))
             wait_for(lambda: alive_key(run, 3) in alive_now(session, alive_key(run, 3)), 30, "the first agent of robot 3")
-            err = _refused(cmd)
+            second = Spawned(spec, stderr=subprocess.PIPE, text=True)
+            _, err = second.communicate(timeout=60)
+            assert second.returncode == 2 and "Traceback" not in err, (second.returncode, err)
             assert f"robot 3 of run dup already has a live agent (its liveliness token {alive_key(run, 3)} is alive)" in err, err
             procs[0].send_signal(signal.SIGKILL)  # the first dies: its token goes, a restarted agent is admitted
             procs[0].wait()
-            procs.append(subprocess.Popen(cmd, stderr=subprocess.DEVNULL))
+            procs.append(Spawned(spec, stderr=subprocess.DEVNULL))
             wait_for(lambda: alive_key(run, 3) in alive_now(session, alive_key(run, 3)), 30, "the restarted agent of robot 3")
             assert procs[1].poll() is None
     finally:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from inchworm.processes import start_emulator, stop_all
+from inchworm.specs import EmulatorSpec
 from runtime.gateway.config import GatewayConfig, Port
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
@@ -32,14 +33,15 @@ def _events(path: Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
 
 
-def _site(tmp_path: Path, robots: int, procs: list[subprocess.Popen], *emulator_args: str) -> tuple[list[int], Path, Path]:
+def _site(tmp_path: Path, robots: int, procs: list[subprocess.Popen], motion_time: float = 0.0) -> tuple[list[int], Path, Path]:
     """An emulator of ``robots`` robots behind one port (``--events``); the robot ids, the live config and the event log."""
     traj = random_trajectory(robots, 1, np.random.default_rng(4))
     traj_file, config, live, events = tmp_path / "traj.json", tmp_path / "gw.json", tmp_path / "live.json", tmp_path / "events.jsonl"
     traj.save(traj_file)
     ids = [int(i) for i in traj.ids]
     GatewayConfig((Port("radio0", "emulated", tuple(ids)),)).save(config)
-    start_emulator(config, traj_file, live, [f"--events={events}", *emulator_args], procs, env=ENV)
+    start_emulator(EmulatorSpec(config=str(config), trajectory=str(traj_file), write_config=str(live), events=str(events), motion_time=motion_time),
+                   procs, env=ENV)
     return ids, live, events
 
 
@@ -94,7 +96,7 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
     (heartbeat_timeout_s) aborts the motion within about a second."""
     procs: list[subprocess.Popen] = []
     try:
-        ids, live, events = _site(tmp_path, 2, procs, "--motion-time=4")
+        ids, live, events = _site(tmp_path, 2, procs, motion_time=4.0)
         hub = _router(free_tcp_port(), procs)
         router = procs[-1]
         link = _link(live, "dead", hub, procs)
@@ -129,7 +131,7 @@ def test_a_coordinator_takeover_keeps_the_robots_fed_and_the_accepted_motion_com
     RUN: the motion is not aborted and completes. A coordinator of a new run (parent 0) while epoch 2 lives is ignored."""
     procs: list[subprocess.Popen] = []
     try:
-        ids, live, events = _site(tmp_path, 2, procs, "--motion-time=3")
+        ids, live, events = _site(tmp_path, 2, procs, motion_time=3.0)
         hub = _router(free_tcp_port(), procs)
         link = _link(live, "takeover", hub, procs)
         with open_session(ZenohSettings("client", connect=(hub,))) as session:

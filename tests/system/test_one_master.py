@@ -16,6 +16,7 @@ import pytest
 
 from coordinator.replay_check import check, load_recording
 from inchworm.processes import start_agents, stop_all
+from inchworm.specs import AgentHostSpec
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
@@ -66,7 +67,8 @@ def test_a_second_coordinator_on_a_live_run_is_refused_and_the_first_finishes_al
             second = _coordinator(traj_file, "twomasters", hub, 5)
             procs.append(second)
             _, err2 = second.communicate(timeout=60)
-            start_agents(traj, "twomasters", hub, 2, 0.1, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+            start_agents(traj, AgentHostSpec(run_id="twomasters", robots=(), hub=hub, seed=2, motion_time=0.1), procs,
+                         env=ENV, stderr=subprocess.DEVNULL)
             out1, err1 = first.communicate(timeout=120)
         finally:
             stop_all(procs)
@@ -96,7 +98,8 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
     with open_session(hub_settings) as session:
         subscribe(session, "swarm/**", lambda key, payload: heard.append(key))
         try:
-            start_agents(traj, "live", hub, 2, 0.0, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+            start_agents(traj, AgentHostSpec(run_id="live", robots=(), hub=hub, seed=2, motion_time=0.0), procs,
+                         env=ENV, stderr=subprocess.DEVNULL)
             wait_for(lambda: len(alive_now(session, alive_wildcard("live"))) == traj.n, 60, "the live run's agents")
             refused = subprocess.run([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--same-run",
                                       "--speed=0", f"--hub={hub}", "--wait=0"],
@@ -200,7 +203,8 @@ def test_a_lost_robot_whose_agent_comes_back_rejoins_and_the_run_completes(tmp_p
         subscribe(session, "swarm/rejoin/sim/truth/2", lambda key, payload: truths.update({2: list(decode(payload, TruthMessage).pose)}))
         subscribe(session, robot_wildcard("rejoin", "cmd"), lambda key, payload: started.append(decode(payload, MotionCommand).step))
         try:
-            start_agents(traj, "rejoin", hub, 3, 0.4, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+            start_agents(traj, AgentHostSpec(run_id="rejoin", robots=(), hub=hub, seed=3, motion_time=0.4), procs,
+                         env=ENV, stderr=subprocess.DEVNULL)
             coordinator = _coordinator(traj_file, "rejoin", hub, 3, "--result=result.json", f"--rejoin={rejoin}", "--localizer=joint",
                                        "--record=run.mcap")
             procs.append(coordinator)
@@ -249,7 +253,8 @@ def test_a_coordinator_resumed_from_the_recording_of_a_killed_one_finishes_the_r
         with open_session(hub_settings) as session:
             subscribe(session, robot_wildcard(name, "cmd"), lambda key, payload, started=started: started.append(decode(payload, MotionCommand).step))
             try:
-                start_agents(traj, name, hub, 6, 0.05, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+                start_agents(traj, AgentHostSpec(run_id=name, robots=(), hub=hub, seed=6, motion_time=0.05), procs,
+                         env=ENV, stderr=subprocess.DEVNULL)
                 first = _coordinator(traj_file, name, hub, 6, "--result=result.json", "--record=run.mcap")
                 procs.append(first)
                 if name == "resumed":

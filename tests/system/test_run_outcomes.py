@@ -20,6 +20,7 @@ import numpy as np
 import pytest
 
 from inchworm.processes import start_agents, stop_all
+from inchworm.specs import AgentHostSpec
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.recording.mcap_log import read_messages, recording_info
@@ -103,7 +104,7 @@ def test_answers_received_during_a_coordinator_stall_count(tmp_path: Path) -> No
     threading.Thread(target=read, daemon=True).start()
     try:
         assert running.wait(120), "".join(lines)
-        coordinator = int(subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "swarm_cli.coordinator_cmd"],
+        coordinator = int(subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "inchworm.spawn - coordinator"],
                                          capture_output=True, text=True).stdout.split()[0])
         time.sleep(0.6)  # in the middle of a step's wait
         os.kill(coordinator, signal.SIGSTOP)
@@ -130,7 +131,8 @@ def test_a_coordinator_that_loses_its_hub_says_so_and_blames_no_robot(tmp_path: 
     procs = [router]
     try:
         assert "listening" in router.stderr.readline()
-        start_agents(traj, "hubgone", hub, 0, 0.5, (), procs, env=ENV, stderr=subprocess.DEVNULL)
+        start_agents(traj, AgentHostSpec(run_id="hubgone", robots=(), hub=hub, seed=0, motion_time=0.5), procs,
+                         env=ENV, stderr=subprocess.DEVNULL)
         coordinator = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={tmp_path / 'traj.json'}",
                                         "--run=hubgone", f"--hub={hub}", "--no-record", "--json", f"--out={tmp_path}"],
                                        env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)

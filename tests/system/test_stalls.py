@@ -20,6 +20,7 @@ import numpy as np
 from coordinator.simulate import simulate
 from inchworm.bench.faults import _same_table
 from inchworm.processes import start_agents, stop_all, wait_for_standby
+from inchworm.specs import AgentHostSpec
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, estop_key, robot_wildcard
@@ -59,7 +60,8 @@ class Run:
                       lambda key, payload: self.stops.append((time.monotonic(), decode(payload, EmergencyStop)))),
             watch_liveliness(self.session, coord_alive_key(r), lambda key, alive: None if alive else self.gone.append(time.monotonic())),
         ]
-        start_agents(self.traj, r, self.hub, SEED, 0.3, (), self.procs, env=ENV, stderr=subprocess.DEVNULL)
+        start_agents(self.traj, AgentHostSpec(run_id=r, robots=(), hub=self.hub, seed=SEED, motion_time=0.3), self.procs,
+                     env=ENV, stderr=subprocess.DEVNULL)
         return self
 
     def __exit__(self, *exc) -> None:

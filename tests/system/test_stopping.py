@@ -135,7 +135,7 @@ def test_stopping_leaves_a_finished_recording_and_no_process(tmp_path: Path, how
         if how == "ctrl-c to the process group":
             os.killpg(proc.pid, signal.SIGINT)
         elif how == "SIGTERM to the coordinator":
-            coordinator = [p for p in descendants if "swarm_cli.coordinator_cmd" in _cmdline(p)]
+            coordinator = [p for p in descendants if "inchworm.spawn - coordinator" in _cmdline(p)]
             assert len(coordinator) == 1
             os.kill(coordinator[0], signal.SIGTERM)
         elif how == "SIGINT to the launcher":
@@ -165,7 +165,7 @@ def test_a_killed_gateway_launcher_leaves_no_process_no_folder_and_a_finished_re
     removes the temporary folder."""
     proc, record, lines = _launch_until_running(tmp_path, "--driver=gateway")
     descendants = _children(proc.pid)
-    assert any("--link" in _cmdline(p) for p in descendants) and any("swarm_cli.emulate" in _cmdline(p) for p in descendants)
+    assert any("inchworm.spawn - port" in _cmdline(p) for p in descendants) and any("inchworm.spawn - emulator" in _cmdline(p) for p in descendants)
     try:
         os.kill(proc.pid, signum)
         _check_stopped(proc, record, lines, descendants, 128 + signum if signum != signal.SIGKILL else -signal.SIGKILL, within_s=10.0)
