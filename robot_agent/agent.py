@@ -506,8 +506,8 @@ class Agent:
         else:
             self._status(cmd, last.state, last.reason, remember=False)
         if last.state == "done" and self._truth_published(cmd.step):
-            # the truth that followed the done may be lost too (or went to the coordinator taken over)
-            self._send(cast(TruthMessage, self._last_truth))  # set: _truth_published
+            assert self._last_truth is not None, "_truth_published"
+            self._send(self._last_truth)  # the truth that followed the done may be lost too (or went to the coordinator taken over)
 
     @property
     def _outside(self) -> bool:
@@ -539,7 +539,8 @@ class Agent:
     def _on_observe(self, req: ObserveRequest) -> None:
         if req.step == self._last_obs_step and self._last_report is not None:
             if self._truth_published(req.step):
-                self._send(cast(TruthMessage, self._last_truth))  # set: _truth_published
+                assert self._last_truth is not None, "_truth_published"
+                self._send(self._last_truth)
             self._send(self._last_report)
             return
         expected = self._pending if self._pending is not None else self._next_step
