@@ -52,7 +52,7 @@ import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from coordinator.stop import StopRequested, StopSignals, send_estop
 from runtime.errors import SwarmInputError
@@ -61,10 +61,14 @@ from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import run_wildcard, validate_run
 
 if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
+    import numpy as np
+    import zenoh
+
     from coordinator.checkpoint import RunState
     from coordinator.executor import ContactEvent, ExecutorListener, RunResult
     from coordinator.plan import Plan
     from coordinator.selection.selector import Selection, SelectionConfig
+    from coordinator.zenoh_backend import ZenohSwarmBackend
     from runtime.models.state import SwarmEstimate
     from runtime.recording.foxglove_live import LiveView
     from runtime.recording.mcap_log import McapRecorder
@@ -81,9 +85,9 @@ def default_recording(run_id: str, role: str = "") -> Path:
     return Path("recordings") / (f"{run_id}.{role}.mcap" if role else f"{run_id}.mcap")
 
 
-def result_json(result: RunResult) -> dict:
+def result_json(result: RunResult) -> dict[str, Any]:
     """Every step's estimate (and truth, when known) as plain JSON."""
-    def truth(t):
+    def truth(t: np.ndarray | None) -> list[Any] | None:
         return None if t is None else t.tolist()
 
     return {
@@ -130,7 +134,7 @@ class CoordinatorOptions:
     rejoin: bool = True  # a lost robot whose agent comes back rejoins at the next configuration
 
 
-def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
+def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict[str, Any]:
     """What a recording needs to re-run the coordinator's decisions (``swarm replay --check``, ``swarm plot``)."""
     return {
         "source": "swarm coordinator",
@@ -161,14 +165,14 @@ class Recording:
     SETTLE_S = 0.3  # the file is closed once no message arrived for this long ...
     SETTLE_MAX_S = 3.0  # ... or after this long
 
-    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict, timeout_s: float = 15.0,
+    def __init__(self, settings: ZenohSettings, run_id: str, path: Path, metadata: dict[str, Any], timeout_s: float = 15.0,
                  policy: str = "continue") -> None:
         self.run_id, self.path, self.policy = run_id, path, policy
         self.stop = threading.Event()
         self.failed = threading.Event()
         self._ready = threading.Event()
         self.recorder: McapRecorder | None = None
-        self.result: dict = {}
+        self.result: dict[str, Any] = {}
         self.error: BaseException | None = None
         from runtime.recording.mcap_log import RecordingFailed, record_run  # noqa: PLC0415
 
@@ -211,19 +215,19 @@ class Recording:
         if self.policy == "stop" and failed:
             raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
 
-    def wait_subscribed(self, session, timeout_s: float = 10.0) -> None:
+    def wait_subscribed(self, session: zenoh.Session, timeout_s: float = 10.0) -> None:
         """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""
         probe = session.declare_publisher(f"swarm/{self.run_id}/recorder-probe/{uuid.uuid4().hex}")  # never published on
         try:
             deadline = time.monotonic() + timeout_s
-            while not probe.matching_status.matching:
+            while not cast("zenoh.MatchingStatus", probe.matching_status).matching:  # zenoh's stub says bool
                 if time.monotonic() > deadline or self.error is not None:
                     raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
                 time.sleep(0.005)
         finally:
             probe.undeclare()
 
-    def finish(self, interrupted: bool = False) -> dict | None:
+    def finish(self, interrupted: bool = False) -> dict[str, Any] | None:
         """Let the last messages arrive, stop, finish the file; ``{"path", "messages", "channels", "undecodable"}``,
         or None when writing failed (``error`` says why; the file holds what reached the disk).
 
@@ -266,7 +270,7 @@ class _Checked:
         self.check()
 
 
-def recording_line(rec: dict) -> str:
+def recording_line(rec: dict[str, Any]) -> str:
     from runtime.recording.mcap_log import counts_text  # noqa: PLC0415
 
     return (f"recorded {rec['path']}: {counts_text(rec)}"
@@ -323,7 +327,7 @@ class CoordinatorOutcome:
     """What a coordinator run ended with: the run (None if it failed), the recording's counts, the live view, the error."""
 
     result: RunResult | None  # with ``error`` set: the configurations completed before the end (None if nothing ran)
-    recording: dict | None
+    recording: dict[str, Any] | None
     live: Live
     error: Exception | None = None  # the agents did not come up, the run was aborted (lost robots) or stopped (recording)
     recording_error: BaseException | None = None  # why the recording could not be written (it keeps what reached the disk)
@@ -447,7 +451,8 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     return CoordinatorOutcome(result, recorded, live, error, None if recording is None else recording.error)
 
 
-def durable_checkpoints(backend, recording: Recording | None, timeout_s: float = 2.0):
+def durable_checkpoints(backend: ZenohSwarmBackend, recording: Recording | None,
+                        timeout_s: float = 2.0) -> Callable[[RunState], None]:
     """The executor's ``on_checkpoint``: publish the state and, when recording, go on only once the recorder has
     it on the disk (so ``--resume`` from this recording finds every checkpoint the agents may have acted on); with
     ``--on-record-error stop`` a recording that failed meanwhile stops the run here, before the next step (the
@@ -464,7 +469,7 @@ def durable_checkpoints(backend, recording: Recording | None, timeout_s: float =
     return checkpoint
 
 
-def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple[int, RunState]:
+def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial: SwarmEstimate) -> tuple[int, RunState]:
     """``(epoch, state)`` of the last ``Checkpoint`` of run ``run_id`` recorded in ``path`` (``--resume``)."""
     from coordinator.checkpoint import RunState  # noqa: PLC0415
     from runtime.recording.mcap_log import read_messages  # noqa: PLC0415
@@ -491,7 +496,7 @@ def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple
 class Standby:
     """``--standby``: follows the checkpoints of the run's live coordinator until its token disappears."""
 
-    def __init__(self, session, run_id: str, traj: Trajectory, initial) -> None:
+    def __init__(self, session: zenoh.Session, run_id: str, traj: Trajectory, initial: SwarmEstimate) -> None:
         from runtime.wire.keys import coord_alive_key, coord_key, estop_key, parse_coord_token  # noqa: PLC0415
         from runtime.wire.messages import Checkpoint, DropCounter, EmergencyStop, decode_or_drop  # noqa: PLC0415
         from runtime.wire.transport import subscribe, watch_liveliness  # noqa: PLC0415

@@ -9,10 +9,16 @@ import signal
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop, EstopAck, MessageError, decode, encode, message_key
 from runtime.wire.transport import publish
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from runtime.wire.transport import ZenohSettings
 
 REPEATS = 3
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)  # every one takes the same path: a clean, run-wide stop
@@ -64,12 +70,12 @@ class StopSignals:
             signal.signal(sig, handler)
 
 
-def send_estop(session, run_id: str, source: str, reason: str, repeat_s: float = 0.0) -> int:
+def send_estop(session: zenoh.Session, run_id: str, source: str, reason: str, repeat_s: float = 0.0) -> int:
     """Publish the run's ``EmergencyStop`` (once, then again spread over ``repeat_s``); the number published."""
     return len(publish_estop(session, EmergencyStop(run=run_id, step=0, source=source, reason=reason), repeat_s))
 
 
-def publish_estop(session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[float]:
+def publish_estop(session: zenoh.Session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[float]:
     """Publish ``msg`` (once, then again spread over ``repeat_s``); the monotonic times it went out."""
     key, payload = message_key(msg), encode(msg)
     count = 1 if repeat_s <= 0 else REPEATS
@@ -82,7 +88,7 @@ def publish_estop(session, msg: EmergencyStop, repeat_s: float = 0.0) -> list[fl
     return times
 
 
-def collect_acks(inbox: queue.Queue, stamp_ns: int, until: float, agents: int | None = None) -> dict[tuple[str, str], EstopAck]:
+def collect_acks(inbox: queue.Queue[tuple[str, bytes]], stamp_ns: int, until: float, agents: int | None = None) -> dict[tuple[str, str], EstopAck]:
     """The acknowledgements of the stop stamped ``stamp_ns`` arriving (as ``(key, payload)`` in ``inbox``) before
     monotonic time ``until``, by (by, name); sooner once ``agents`` agents acknowledged, if given."""
     acks: dict[tuple[str, str], EstopAck] = {}
@@ -110,11 +116,11 @@ class EstopOutcome:
     links: list[str]
     robots: list[int]  # every robot an agent or link said it stopped
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {"run": self.run, "published": self.published, "agents": self.agents, "links": self.links, "robots": self.robots}
 
 
-def emergency_stop(settings, run_id: str, source: str, reason: str, repeat_s: float, ack_timeout: float) -> EstopOutcome:
+def emergency_stop(settings: ZenohSettings, run_id: str, source: str, reason: str, repeat_s: float, ack_timeout: float) -> EstopOutcome:
     """Publish an ``EmergencyStop`` to ``run_id`` and collect the acknowledgements for ``ack_timeout`` s (after the first publication)."""
     from runtime.wire.transport import open_session, subscribe_queue  # noqa: PLC0415 - zenoh, only when a stop is sent
 

@@ -65,8 +65,9 @@ import re
 import secrets
 import threading
 import time
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -107,6 +108,13 @@ from runtime.wire.messages import (
     observations_from_reports,
 )
 from runtime.wire.transport import alive_now, declare_token, publish, subscribe, watch_liveliness
+
+if TYPE_CHECKING:
+    import zenoh
+
+    from coordinator.executor import ContactEvent
+    from coordinator.plan import Plan
+    from coordinator.selection.selector import Selection
 
 _log = logging.getLogger(__name__)
 CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint, with room for its other fields
@@ -151,7 +159,7 @@ class RunStopped(AgentError, BackendEnded):
     """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
-def live_coordinators(session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
+def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
     """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``."""
     tokens = (parse_coord_token(key) for key in alive_now(session, coord_alive_key(run), timeout_s))
     return dict(t for t in tokens if t is not None)
@@ -179,7 +187,7 @@ def _robots(ids: list[int]) -> str:
 class ZenohSwarmBackend:
     """``SwarmBackend`` of the agents of run ``run`` with robots ``ids``, over ``session``."""
 
-    def __init__(self, session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
+    def __init__(self, session: zenoh.Session, run: str, ids: Collection[int], timeouts: Timeouts = Timeouts(), simulated: bool = True,
                  parent: int = 0, rejoin: bool = True, robot_radius_m: float = 0.0) -> None:
         live = live_coordinators(session, run)
         if live:
@@ -544,7 +552,7 @@ class ZenohSwarmBackend:
         publish(self.session, message_key(msg), encode(msg))
         self._truths_sent = s
 
-    def _wait(self, what: str, missing, resend) -> None:
+    def _wait(self, what: str, missing: Callable[[], list[int]], resend: Callable[[list[int]], None]) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
         the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
         (this process was stopped or starved: answers may still be in its socket) does not count, and the requests
@@ -637,7 +645,7 @@ class ZenohSwarmBackend:
                                               epoch=self.epoch)
         cmds = self._cmds
 
-        def send(robots) -> None:
+        def send(robots: Iterable[int]) -> None:
             for robot in robots:
                 publish(self.session, message_key(cmds[robot]), encode(cmds[robot]))
 
@@ -662,7 +670,7 @@ class ZenohSwarmBackend:
         self._reports = {}
         requests = {r: ObserveRequest(run=self.run, step=s, robot=r, epoch=self.epoch) for r in robots}
 
-        def send(targets) -> None:
+        def send(targets: Iterable[int]) -> None:
             for robot in targets:
                 publish(self.session, message_key(requests[robot]), encode(requests[robot]))
             self._publish_truth_set(again=True)
@@ -678,7 +686,7 @@ class ZenohSwarmBackend:
 
     # -- ExecutorListener ---------------------------------------------------------------
 
-    def on_plan(self, config_index: int, first_step: int, plan, selection) -> None:
+    def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
         """Publish the plan of configuration ``config_index`` (0-based) as ``PlanMessage`` (``config`` 1-based)."""
         self.config = config_index + 1
         groups = tuple(tuple(self._id_list[int(k)] for k in group) for group in plan.groups)
@@ -691,7 +699,7 @@ class ZenohSwarmBackend:
         publish(self.session, message_key(msg), encode(msg))
         self._estimate = {robot: list(pose) for robot, pose in zip(msg.ids, msg.poses, strict=True)}
 
-    def on_contacts(self, contacts) -> None:
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
         """Publish each contact of the robots' true bodies (``ContactEvent``) as ``ContactMessage``."""
         for c in contacts:
             msg = ContactMessage(run=self.run, step=c.step, config=c.config + 1, a=c.a, b=c.b, distance_m=c.distance,

@@ -29,6 +29,7 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from runtime.errors import SwarmInputError
 
@@ -133,7 +134,7 @@ _DEFAULT_SPECS = tuple(HostSpec(h, ()) for h in DEFAULT_HOSTS)
 
 
 def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int = 825, ca_days: int = 3650,
-               say: Callable[[str], None] | None = None) -> dict:
+               say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The CA (reused if ``out`` has one) and a certificate per host in ``out``; ``say`` gets a line per file written.
 
     Returns ``{"out": DIR, "ca": {"cert", "key", "reused"}, "hosts": {name: {"cert", "key", "sans"}}}``.
@@ -150,7 +151,7 @@ def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int 
     reused = ensure_ca(openssl, out, ca_days)
     if say:
         say(f"{'reused' if reused else 'wrote'} CA {out / 'ca.pem'} (key {out / 'ca.key'})")
-    result: dict = {"out": str(out), "ca": {"cert": str(out / "ca.pem"), "key": str(out / "ca.key"), "reused": reused}, "hosts": {}}
+    result: dict[str, Any] = {"out": str(out), "ca": {"cert": str(out / "ca.pem"), "key": str(out / "ca.key"), "reused": reused}, "hosts": {}}
     for host in hosts:
         cert, key = issue(openssl, out, host, days)
         if say:

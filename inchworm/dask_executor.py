@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from runtime.errors import SwarmInputError
 
@@ -24,7 +24,7 @@ T = TypeVar("T")
 CONNECT_TIMEOUT_S = 10.0  # how long to try reaching a scheduler before giving up (s)
 
 
-def _one_blas_thread(fn: Callable[[T], dict], item: T) -> dict:
+def _one_blas_thread(fn: Callable[[T], dict[str, Any]], item: T) -> dict[str, Any]:
     """``fn(item)`` with one BLAS thread (a worker runs one task per thread; more would oversubscribe its cores)."""
     from threadpoolctl import threadpool_limits  # noqa: PLC0415
 
@@ -38,7 +38,7 @@ class DaskExecutor:
     def __init__(self, client: Client) -> None:
         self.client = client
 
-    def imap(self, fn: Callable[[T], dict], items: Sequence[T]) -> Iterator[tuple[int, dict]]:
+    def imap(self, fn: Callable[[T], dict[str, Any]], items: Sequence[T]) -> Iterator[tuple[int, dict[str, Any]]]:
         from distributed import as_completed  # noqa: PLC0415
 
         futures = {self.client.submit(_one_blas_thread, fn, item, pure=False): i for i, item in enumerate(items)}

@@ -52,7 +52,7 @@ def run_distributed(
     run_id = f"api-{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[bytes]] = []
     signals = StopSignals()
     try:
         with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import json
+from typing import Any
 
 
-def last_json(stdout: str) -> dict | None:
+def last_json(stdout: str) -> dict[str, Any] | None:
     """What ``print_json`` printed last in a command's output (its last line starting with ``{``), or None."""
     lines = [line for line in stdout.splitlines() if line.startswith("{")]
     try:

@@ -23,7 +23,7 @@ import math
 import os
 import threading
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -45,7 +45,7 @@ def ellipse(cov_xy: np.ndarray, sigmas: float = SIGMAS, points: int = 32) -> np.
     vals, vecs = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
     axes = sigmas * np.sqrt(np.clip(vals, 0.0, None))
     t = np.linspace(0.0, 2 * math.pi, points + 1)
-    return (vecs @ (axes[:, None] * np.stack([np.cos(t), np.sin(t)]))).T
+    return cast(np.ndarray, (vecs @ (axes[:, None] * np.stack([np.cos(t), np.sin(t)]))).T)
 
 
 def anchors_of(plan: PlanMessage | None, step: int, ids: np.ndarray) -> set[int]:

@@ -152,7 +152,7 @@ class StudyLog:
             if entry.get("csv", True):
                 self._csv_rows[entry["task"]] = entry["row"]
 
-    def _write(self, obj: dict) -> None:
+    def _write(self, obj: dict[str, Any]) -> None:
         try:
             with open(self.jsonl, "a") as f:
                 f.write(json.dumps(obj, separators=(",", ":")) + "\n")

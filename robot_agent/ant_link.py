@@ -19,6 +19,7 @@ from __future__ import annotations
 import queue
 import re
 import threading
+from collections.abc import Iterable
 
 from runtime.errors import SwarmInputError
 
@@ -68,7 +69,7 @@ class AntLink:
         self._thread = threading.Thread(target=self._node.start, name=f"ant-{number}", daemon=True)
         self._thread.start()
 
-    def _receive(self, data) -> None:
+    def _receive(self, data: Iterable[int]) -> None:  # openant hands the payload as a sequence of bytes
         self._rx.put(bytes(data))
 
     def read(self, timeout_s: float) -> bytes:

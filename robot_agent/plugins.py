@@ -19,6 +19,7 @@ import importlib
 import importlib.util
 import inspect
 import sys
+import types
 from importlib.metadata import entry_points
 from pathlib import Path
 
@@ -29,7 +30,7 @@ ENTRY_POINT_GROUP = "inchworm_swarm.drivers"
 BUILT_IN = ("sim", "gateway", "ros2")
 
 
-def _module(spec: str, name: str):
+def _module(spec: str, name: str) -> types.ModuleType:
     if name.endswith(".py"):
         path = Path(name).expanduser()
         if not path.is_file():

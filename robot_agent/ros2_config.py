@@ -24,6 +24,7 @@ import tomllib
 from collections import deque
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -111,7 +112,7 @@ class Ros2Config:
         return (steps + len(velocity_profile(drive_m, self.max_linear_speed, self.linear_accel, dt))) * dt + self.settle_s
 
 
-def _flatten(data: dict, path: str) -> dict[str, object]:
+def _flatten(data: dict[str, Any], path: str) -> dict[str, object]:
     out: dict[str, object] = {}
     for key, value in data.items():
         if key == "namespaces":
@@ -165,7 +166,7 @@ def velocity_profile(distance: float, vmax: float, amax: float, dt: float) -> np
     t = (np.arange(max(1, math.ceil(total / dt))) + 0.5) * dt
     v = np.minimum.reduce([np.full_like(t, peak), amax * t, amax * np.maximum(total - t, 0.0) + 1e-12])
     v *= d / (v.sum() * dt)  # exact coverage at the sampling rate
-    return math.copysign(1.0, distance) * v
+    return cast(np.ndarray, math.copysign(1.0, distance) * v)
 
 
 def closed_loop_speed(remaining: float, elapsed: float, vmax: float, amax: float, dt: float) -> float:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from typing import TYPE_CHECKING
 
 from robot_agent.physics_driver import physics_events
 from runtime.wire.keys import robot_wildcard
@@ -18,13 +19,16 @@ from runtime.wire.messages import MessageError, MotionCommand, decode, encode, m
 from runtime.wire.transport import publish, subscribe
 from runtime.world.velocity import PhysicsWorld
 
+if TYPE_CHECKING:
+    import zenoh
+
 _log = logging.getLogger(__name__)
 
 
 class PhysicsRecorder:
     """``world``'s events of run ``run`` on ``session`` (module doc); ``poll()`` after every world step."""
 
-    def __init__(self, session, run: str, world: PhysicsWorld) -> None:
+    def __init__(self, session: zenoh.Session, run: str, world: PhysicsWorld) -> None:
         self.session, self.run, self.world = session, run, world
         self.step = 0  # the highest step commanded so far
         self.published = 0  # PhysicsEvent messages sent

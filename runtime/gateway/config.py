@@ -210,7 +210,7 @@ class _Parser:
     def fail(self, where: str, problem: str) -> SwarmInputError:
         return SwarmInputError(f"gateway config {self.source}: {where}: {problem}")
 
-    def obj(self, value: Any, where: str, allowed: set[str], required: AbstractSet[str] = frozenset()) -> dict:
+    def obj(self, value: Any, where: str, allowed: set[str], required: AbstractSet[str] = frozenset()) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(where, f"must be an object, got {type(value).__name__}")
         unknown = sorted(set(value) - allowed)

@@ -24,7 +24,7 @@ import enum
 import math
 import struct
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 START = 0xA5
 HEADER = struct.Struct("<BBHHB")  # START, LEN, ROBOT, SEQ, TYPE
@@ -270,7 +270,7 @@ def _exact(payload: bytes, size: int, cls: type) -> None:
         raise FrameError(f"{cls.__name__}: payload of {len(payload)} bytes, expected {size}")
 
 
-def _unpack(cls, payload: bytes) -> tuple:
+def _unpack(cls: type[Body], payload: bytes) -> tuple[Any, ...]:
     _exact(payload, cls.FORMAT.size, cls)
     return cls.FORMAT.unpack(payload)
 

@@ -40,6 +40,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -154,10 +155,10 @@ class _Builder:
         return t[TF_TYPE](transforms=[t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=FRAME,
                                                                               transform=transform)])
 
-    def pose_array(self, stamp_ns: int, poses) -> Any:
+    def pose_array(self, stamp_ns: int, poses: Iterable[Sequence[float]]) -> Any:
         return self.PoseArray(header=self.header(stamp_ns), poses=[self.pose(*p) for p in poses])
 
-    def pose_with_covariance(self, stamp_ns: int, pose, cov) -> Any:
+    def pose_with_covariance(self, stamp_ns: int, pose: Sequence[float], cov: Sequence[Sequence[float]]) -> Any:
         full = np.zeros((6, 6))
         idx = (0, 1, 5)  # x, y, yaw in ROS's (x, y, z, roll, pitch, yaw)
         full[np.ix_(idx, idx)] = np.asarray(cov, float)
@@ -182,7 +183,7 @@ def _empty_bytes() -> np.ndarray:
     return np.zeros(0, np.uint8)
 
 
-def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DEFAULT_DISTRO) -> dict[str, Any]:
+def export_ros2(src: str | os.PathLike[str], out: str | os.PathLike[str], distro: str = DEFAULT_DISTRO) -> dict[str, Any]:
     """Write the recording ``src`` as a rosbag2 folder ``out`` (must not exist) for ROS 2 ``distro``;
     ``{"source", "path", "distro", "metadata_version", "messages", "topics", "complete", "bytes", "readable_bytes",
     "recorded_messages"}`` (an unfinished recording is exported up to its last complete record: ``complete`` False,

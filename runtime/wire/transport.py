@@ -201,7 +201,7 @@ def publish(session: zenoh.Session, key: str, payload: bytes) -> None:
     session.put(key, payload)
 
 
-def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, bytes], object]) -> zenoh.Subscriber:
+def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, bytes], object]) -> zenoh.Subscriber[None]:
     """Call ``callback(key, payload)`` for every sample on ``key_expr`` (on a Zenoh thread: see module doc)."""
     return session.declare_subscriber(
         key_expr, lambda sample: callback(str(sample.key_expr), sample.payload.to_bytes())
@@ -210,7 +210,7 @@ def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, by
 
 def subscribe_queue(
     session: zenoh.Session, key_expr: str
-) -> tuple[zenoh.Subscriber, queue.Queue[tuple[str, bytes]]]:
+) -> tuple[zenoh.Subscriber[None], queue.Queue[tuple[str, bytes]]]:
     """Like ``subscribe`` but samples land as ``(key, payload)`` in an unbounded queue you read from any thread."""
     inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
     return subscribe(session, key_expr, lambda key, payload: inbox.put((key, payload))), inbox
@@ -226,7 +226,7 @@ def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
 
 def watch_liveliness(
     session: zenoh.Session, key_expr: str, on_change: Callable[[str, bool], object]
-) -> zenoh.Subscriber:
+) -> zenoh.Subscriber[None]:
     """Call ``on_change(key, alive)`` when a token on ``key_expr`` appears or disappears.
 
     Tokens alive before the call are reported first (``alive=True``). Runs on a Zenoh thread.

@@ -24,8 +24,10 @@ among threads).
 from __future__ import annotations
 
 import math
+import types
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -36,6 +38,9 @@ from runtime.world.params import PhysicsParams
 from runtime.world.profiles import TurnDriveProfile
 from runtime.world.sensing import sense as sense_world
 
+if TYPE_CHECKING:
+    import pymunk
+
 INSTALL_HINT = "pip install 'inchworm-swarm[physics]'"
 REST_SPEED_M_S = 1e-4  # a body slower than this (and turning slower than REST_TURN_RAD_S) is at rest
 REST_TURN_RAD_S = 1e-3
@@ -43,7 +48,7 @@ STUCK_FRACTION = 0.5  # a drive that covered less than this share of its command
 STUCK_MIN_M = 0.002  # drives shorter than this are never reported stuck
 
 
-def require_pymunk():
+def require_pymunk() -> types.ModuleType:
     """The pymunk module, or ``SwarmInputError`` naming the extra to install."""
     try:
         import pymunk  # noqa: PLC0415 - the optional physics extra
@@ -113,6 +118,8 @@ class _Touch:
 class World:
     """Robots ``ids`` at ``poses`` (n, 3: x, y, heading) in a world of ``params``, seeded with ``seed``."""
 
+    _space: pymunk.Space | None
+
     def __init__(self, ids: Iterable[int], poses: np.ndarray, params: PhysicsParams = PhysicsParams(), seed: int = 0, *,
                  encoders: bool = False) -> None:
         pymunk = require_pymunk()
@@ -173,7 +180,7 @@ class World:
     def closed(self) -> bool:
         return self._space is None
 
-    def _live(self):
+    def _live(self) -> pymunk.Space:
         if self._space is None:
             raise SwarmInputError("the world was closed")
         return self._space
@@ -350,11 +357,11 @@ class World:
 
     # -- contacts ------------------------------------------------------------------------
 
-    def _pair(self, arbiter) -> tuple[int, int]:
+    def _pair(self, arbiter: pymunk.Arbiter) -> tuple[int, int]:
         a, b = (self.ids[s.robot_index] for s in arbiter.shapes)
         return (a, b) if a < b else (b, a)
 
-    def _begin(self, arbiter, space, data) -> None:
+    def _begin(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         pts = arbiter.contact_point_set.points
         point = (0.5 * (pts[0].point_a.x + pts[0].point_b.x), 0.5 * (pts[0].point_a.y + pts[0].point_b.y)) if pts else (math.nan, math.nan)
         pair = self._pair(arbiter)
@@ -363,12 +370,12 @@ class World:
             self._closed_touches.append((pair, old))
         self._touch[pair] = _Touch(self.time_s, (float(point[0]), float(point[1])))
 
-    def _post_solve(self, arbiter, space, data) -> None:
+    def _post_solve(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         touch = self._touch.get(self._pair(arbiter))
         if touch is not None:
             touch.impulse += float(abs(arbiter.total_impulse))
 
-    def _separate(self, arbiter, space, data) -> None:
+    def _separate(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         pair = self._pair(arbiter)
         touch = self._touch.pop(pair, None)
         if touch is not None:
