@@ -191,8 +191,8 @@ def _from_plan(d: dict | None) -> Plan | None:
 
 
 def _regrouping(r: Regrouping | None) -> dict | None:
-    return None if r is None else {"planned": _plan(r.planned), "unclear": list(r.unclear), "sigmas": r.sigmas}
+    return None if r is None else {"planned": _plan(r.planned), "unclear": list(r.unclear), "bound": r.bound}
 
 
 def _from_regrouping(d: dict | None) -> Regrouping | None:
-    return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["sigmas"]))
+    return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["bound"]))

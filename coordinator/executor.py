@@ -218,7 +218,8 @@ class RunResult:
 
     def contacts(self, radius: float) -> list[ContactEvent]:
         """Contacts of bodies of ``radius`` (m) in the true motion of every step (``runtime.models.bodies.step_contacts``):
-        each pair of robots whose bodies overlapped at some time of a step, once per step. [] without ground truth."""
+        each pair of robots whose bodies overlapped at some time of a step (a mover's, or two still robots standing
+        too close), once per step. [] without ground truth."""
         if not self.has_truth or self.initial_truth is None or radius <= 0:
             return []
         before, before_ids, out = self.initial_truth, self.trajectory.ids, list[ContactEvent]()

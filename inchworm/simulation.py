@@ -174,11 +174,14 @@ def contacts_text(result: RunResult, radius: float) -> str:
 
 
 def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
-    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added`` and ``contacts``
-    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``)."""
+    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added``, ``contacts``
+    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``) and ``regrouped`` (each configuration
+    whose plan the chance constraint split: ``config`` 1-based, ``planned_steps``, ``steps``, ``contact_bound`` the
+    highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time)."""
     return {"robot_radius_m": radius, "steps_added": result.steps_added(),
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
-                         for c in result.contacts(radius)]}
+                         for c in result.contacts(radius)],
+            "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}
 
 
 def summary_text(result: RunResult, method: str, localizer: str, radius: float = 0.0) -> str:

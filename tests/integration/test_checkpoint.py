@@ -40,7 +40,7 @@ def _executor(backend, traj, method: str, seed: int, on_checkpoint, localizer_na
 def _split(record) -> tuple | None:
     """How the body constraint split a configuration's plan: the strategy's plan, robots left unclear, margin."""
     r = record.regrouped
-    return None if r is None else (r.planned.order.tolist(), r.planned.sizes, r.unclear, r.sigmas)
+    return None if r is None else (r.planned.order.tolist(), r.planned.sizes, r.unclear, r.bound)
 
 
 @pytest.fixture(scope="module")

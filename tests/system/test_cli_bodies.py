@@ -49,6 +49,8 @@ def test_a_mover_crossing_an_anchor_is_regrouped_and_reported(tmp_path):
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert doc["robot_radius_m"] == 0.011 and doc["contacts"] == [] and doc["steps_added"] >= 1
     assert doc["configs"][0]["steps"] == 2 + doc["steps_added"] and "config 1: steps split for bodies: 2 -> " in out.stdout
+    [split] = doc["regrouped"]  # how the chance constraint split the plan (an addition to the --json)
+    assert split == {"config": 1, "planned_steps": 2, "steps": 2 + doc["steps_added"], "contact_bound": 0.001, "unclear": []}
     points = swarm("sim", "--trajectory", str(traj), "--method", "ref57", "--seed", "3", "--robot-radius", "0", "--out", str(tmp_path), "--json")
     doc = json.loads(points.stdout.strip().splitlines()[-1])
     assert doc["robot_radius_m"] == 0 and doc["steps_added"] == 0 and doc["configs"][0]["steps"] == 2
@@ -73,7 +75,8 @@ def test_bench_collisions_json_contract():
         (k, m, "paper", b) for k in (1.0, 3.0) for m in ("ref57", "one-at-a-time") for b in (True, False)]
     for row in doc["rows"]:
         assert list(row) == ["method", "localizer", "bodies", "contacts_per_100", "configs_with_contact_pct", "steps_per_config", "pf_mean",
-                             "noise_scale"]
+                             "noise_scale", "steps_added", "unclear_changes", "raised_bound_changes"]  # the last three: additions
+        assert row["unclear_changes"] <= row["raised_bound_changes"] <= 2 * 2 and (row["bodies"] or row["steps_added"] == 0)
         assert row["contacts_per_100"] >= row["configs_with_contact_pct"] >= 0 and row["pf_mean"] > 0
     by = {(r["method"], r["bodies"], r["noise_scale"]): r for r in doc["rows"]}
     for k in (1.0, 3.0):

@@ -60,17 +60,17 @@ def test_contacts_are_found_during_the_step_not_only_at_its_ends():
     assert len(cross) == 1 and cross[0].distance == pytest.approx(0.0, abs=1e-12) and late == []
 
 
-def test_clearance_margin_grows_with_the_path_and_the_uncertainty():
+def test_the_contact_risk_grows_with_the_path_and_the_uncertainty():
+    """The chance constraint replaced the 2-sigma margin: a mover passing a still robot 4 cm off its path
+    (0.1 m into a 0.3 m drive) is at risk above 1e-3 per step, within 0.1, and more so with an uncertain start."""
     current = np.array([[0.0, 0.0], [0.1, 0.04]])
     check = BodyCheck(BODIES, current, np.array([[0.3, 0.0], [0.1, 0.04]]))
     [conflict] = check.step_conflicts(current, np.array([True, False]))
-    # sigma of the mover at L = 0.3 m: 0.3 x max(turn 3 deg, drive 5 %) = 0.3 x 0.0524; the still robot's is 0
-    sigma = 0.3 * math.radians(3.0)
-    assert conflict.closest == pytest.approx(0.04) and conflict.required == pytest.approx(2 * R + 2 * sigma)
-    assert check.with_sigmas(1.0).step_conflicts(current, np.array([True, False])) == []  # 0.04 > 0.022 + 0.0157
+    assert conflict.closest == pytest.approx(0.04) and conflict.allowed == 1e-3 and 1e-3 < conflict.probability < 0.1
+    assert check.with_bound(0.1).step_conflicts(current, np.array([True, False])) == []
     uncertain = BodyCheck(BODIES, current, np.array([[0.3, 0.0], [0.1, 0.04]]), position_var=0.01**2)
     [c] = uncertain.step_conflicts(current, np.array([True, False]))
-    assert c.required == pytest.approx(2 * R + 2 * math.sqrt(sigma**2 + 2 * 0.01**2))
+    assert c.probability > 10 * conflict.probability
     assert BodyCheck(POINTS, current, current + [0.3, 0]).step_conflicts(current, np.array([True, True])) == []
 
 

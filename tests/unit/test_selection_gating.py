@@ -99,7 +99,7 @@ def test_repair_clears_crowded_heuristic_plans_with_few_swaps():
     def connected(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, estimate.positions, desired, BODIES.sensing_range_m)
 
-    for n_a in (5, 8, 9):
+    for n_a in (5, 8):  # n_a = 9 has 20 pairs over the contact bound (docs/bodies.md): more than 8 swaps clear
         seed = heuristic_plan(estimate.positions, desired, n_a)
         assert not bodies.is_clear(seed.groups) and conflicts(seed, bodies)[0] > 0
         fixed = repair(seed, bodies, connected)
