@@ -45,7 +45,7 @@ def _phi_upper(g: np.ndarray) -> np.ndarray:
     """Phi(-g), the standard normal's upper tail at g."""
     from scipy.special import ndtr  # noqa: PLC0415 - scipy only when bodies are checked (cheap parsers)
 
-    return ndtr(-g)
+    return np.asarray(ndtr(-g), dtype=float)
 
 
 def _directions(mu: np.ndarray, sigma: np.ndarray) -> np.ndarray:
@@ -83,7 +83,7 @@ def instant_bound(mu: np.ndarray, sigma: np.ndarray, rho: float) -> np.ndarray:
     """Upper bound of P(|r| < ``rho``) for r ~ N(``mu`` (m, 2), ``sigma`` (m, 2, 2)): min over the directions of
     Phi(-g(w))."""
     w = _directions(mu, sigma)
-    return np.minimum(_phi_upper(_margin(w, mu, sigma, rho)).min(axis=-1), 1.0)
+    return np.asarray(np.minimum(_phi_upper(_margin(w, mu, sigma, rho)).min(axis=-1), 1.0))
 
 
 def _at(s: np.ndarray, mu0: np.ndarray, v: np.ndarray, quad: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +142,7 @@ def _intervals(mu0: np.ndarray, v: np.ndarray, quad: tuple[np.ndarray, np.ndarra
     mu_e, sig_e = _at(ends, mu0, v, quad)
     per = np.minimum(_phi_upper(_margin(w, mu_s, sig_s, rho)) + _phi_upper(_margin(w, mu_e, sig_e, rho)), 1.0).min(axis=-1)
     per[:, 1:] = np.where(ends[:, 1:] > starts[:, 1:], per[:, 1:], 0.0)  # an empty part (s* on the grid) adds nothing
-    return np.minimum(per[:, 0], per[:, 1:].sum(axis=1))
+    return np.asarray(np.minimum(per[:, 0], per[:, 1:].sum(axis=1)))
 
 
 class MotionMoments:
@@ -169,8 +169,10 @@ class MotionMoments:
     def spread(self) -> np.ndarray:
         """(n,) a bound of each robot's position standard deviation along any direction at any time of its move
         (m): sqrt of the largest trace of C_i(t), t in [0, 1] (a convex quadratic in t: at an end)."""
-        tr = lambda c: c[:, 0, 0] + c[:, 1, 1]  # noqa: E731
-        return np.sqrt(np.maximum(tr(self.c0), tr(self.c0) + tr(self.c1) + tr(self.c2)))
+        def tr(c: np.ndarray) -> np.ndarray:
+            return np.asarray(c[:, 0, 0] + c[:, 1, 1])
+
+        return np.asarray(np.sqrt(np.maximum(tr(self.c0), tr(self.c0) + tr(self.c1) + tr(self.c2))))
 
     def pairs(self, i: np.ndarray, j: np.ndarray, fixed_i: np.ndarray, moves_i: np.ndarray, fixed_j: np.ndarray,
               moves_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
