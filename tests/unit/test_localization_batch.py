@@ -522,3 +522,20 @@ def test_a_wrong_local_minimum_is_solved_again_from_the_observations(monkeypatch
     monkeypatch.setattr(joint_module, "RESCUE_Z", 1e9)  # never implausible: the first minimum is kept
     wrong = make_localizer("joint", cfg).localize(prior, step, obs)
     assert np.abs(wrong.poses[4, :2] - truth[4, :2]).max() > 0.1
+
+
+def test_ill_conditioned_matrices_are_those_np_linalg_cond_finds():
+    """The Woodbury system's guard screens by the Frobenius bound and takes the SVD only where it does not decide: the same
+    indices as ``np.linalg.cond`` on a rough stack (correlated, scaled across 1e-8..1e8, near-singular, singular)."""
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=(40, 6, 6))
+    a = a @ a.swapaxes(1, 2) + 1e-3 * np.eye(6)  # correlated
+    a *= 10.0 ** rng.uniform(-8, 8, size=(40, 1, 1))
+    u, _, vt = np.linalg.svd(rng.normal(size=(6, 6, 6)))
+    for k, cond in enumerate((1e3, 3e10, 6e10, 9e10, 1.5e11, 1e14)):  # around the limit (1e11) and its half
+        a[k] = (u[k] * np.geomspace(1.0, 1.0 / cond, 6)) @ vt[k]
+    a[6] = 0.0  # singular
+    a[7, 2] = a[7, 1]  # singular
+    expected = np.flatnonzero(~(np.linalg.cond(a) <= batch_module.WOODBURY_COND_LIMIT))
+    np.testing.assert_array_equal(batch_module._ill_conditioned(a), expected)
+    assert {4, 5, 6, 7} <= set(expected.tolist()) and not {0, 1, 2, 3} & set(expected.tolist())
