@@ -62,8 +62,9 @@ from runtime.wire.keys import run_wildcard, validate_run
 
 if TYPE_CHECKING:  # imported where used: a parser importing this module must not load scipy, zenoh or matplotlib
     from coordinator.checkpoint import RunState
-    from coordinator.executor import ContactEvent, ExecutorListener, RunResult
+    from coordinator.executor import ExecutorListener
     from coordinator.plan import Plan
+    from coordinator.run_result import ContactEvent, RunResult
     from coordinator.selection.selector import Selection, SelectionConfig
     from runtime.models.state import SwarmEstimate
     from runtime.recording.foxglove_live import LiveView
@@ -352,8 +353,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         conflict_message,
         live_coordinators,
     )
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
     traj, cfg = o.trajectory, o.model

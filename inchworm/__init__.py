@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any
 from runtime.errors import LocalizationError, SwarmError, SwarmInputError
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult
+    from coordinator.run_result import RunResult
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
@@ -45,7 +45,7 @@ if TYPE_CHECKING:
 _WHERE = {
     "simulate": "inchworm.simulation",
     "run_distributed": "inchworm.distributed",
-    "RunResult": "coordinator.executor",
+    "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",
     "SelectionConfig": "coordinator.selection.selector",
     "Trajectory": "runtime.models.trajectory",

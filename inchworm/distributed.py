@@ -18,7 +18,7 @@ from inchworm.simulation import resolve_trajectory
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult
+    from coordinator.run_result import RunResult
     from coordinator.selection.selector import SelectionConfig
     from runtime.models.trajectory import Trajectory
 

@@ -81,9 +81,8 @@ from robot_agent.assembly import driver_options
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig
-from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected, validate_passable
 from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop

@@ -14,8 +14,8 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult, StepRecord
     from coordinator.localization import Localizer
+    from coordinator.run_result import RunResult, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
     from runtime.world.params import PhysicsParams
@@ -55,9 +55,8 @@ def simulate(
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)

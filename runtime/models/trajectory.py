@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from runtime.errors import SwarmInputError
-from runtime.models.bodies import impassable_pairs
+from runtime.models.bodies import check_apart, impassable_pairs
 from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
 from runtime.models.state import robot_ids
@@ -160,6 +160,27 @@ def validate_connected(traj: Trajectory, sensing_range: float) -> None:
             where = "the initial configuration" if k == 0 else f"configuration {k}"
             raise SwarmInputError(
                 f"{where} is not connected within the sensing range {sensing_range} m: robots {traj.ids[outside].tolist()} are cut off"
+            )
+
+
+def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
+    """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj``,
+    or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
+    e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
+    radius = cfg.robot_radius_m
+    if radius <= 0:
+        return
+    configs = [traj.initial_poses[:, :2], *traj.configurations]
+    for k, xy in enumerate(configs):
+        check_apart(xy, traj.ids, radius, "the initial configuration" if k == 0 else f"configuration {k}")
+    for k in range(1, len(configs)):
+        pairs = impassable_pairs(configs[k - 1], configs[k], radius)
+        if len(pairs):
+            a, b = traj.ids[pairs[0]]
+            raise SwarmInputError(
+                f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
+                f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
+                f"give them room to pass (or --robot-radius 0 for point robots)"
             )
 
 
@@ -306,7 +327,7 @@ def random_trajectory(
     (bodies, plus three standard deviations of two robots' relative end-of-path error after a
     drive of ``step`` with relative motion noise ``motion_sigma``, see ``body_spacing``), but no
     more than half the ``spacing`` unless the bodies need it, and every
-    change can be made without bodies touching (``runtime.models.bodies.validate_passable``);
+    change can be made without bodies touching (``validate_passable``);
     ``robot_radius`` 0 draws exactly as before bodies.
     """
     reach = margin * sensing_range
