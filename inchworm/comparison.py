@@ -29,6 +29,7 @@ from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -210,7 +211,7 @@ class CompareResult:
                     f"{o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
                     "97 % CI of the mean (t, clipped at 0)")
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``pf.png`` in ``out`` (``runs.csv`` is written while the runs finish)."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -222,7 +223,7 @@ def compare(
     options: CompareOptions = CompareOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CompareResult:

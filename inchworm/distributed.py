@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from inchworm.simulation import resolve_trajectory
 from runtime.models.config import ModelConfig
+from runtime.paths import StrPath, as_path
 
 if TYPE_CHECKING:
     from coordinator.run_result import RunResult
@@ -24,7 +25,7 @@ if TYPE_CHECKING:
 
 
 def run_distributed(
-    trajectory: Trajectory | str | Path | None = None,
+    trajectory: Trajectory | StrPath | None = None,
     *,
     method: str = "inchworm",
     robots: int = 10,
@@ -33,7 +34,7 @@ def run_distributed(
     model: ModelConfig | None = None,
     localizer: str = "paper",
     selection: SelectionConfig | None = None,
-    record: Path | None = None,
+    record: StrPath | None = None,
     agents_per_process: int | None = None,
     start_timeout_s: float | None = None,
     step_timeout_s: float = 5.0,
@@ -60,7 +61,7 @@ def run_distributed(
             start_agents(traj, run_id, f"tcp/127.0.0.1:{port}", seed, 0.0, model_flags(cfg), procs,
                          per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
             options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
-                                         start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=record,
+                                         start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=as_path(record),
                                          command="inchworm.run_distributed")
             outcome = run_coordinator(options, signals, log=lambda _line: None)
     finally:

@@ -25,6 +25,7 @@ from inchworm.localize_checks import duplicate_rows, observation_checks
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
+from runtime.paths import StrPath
 
 HUBER_SIGMAS = 3.0
 
@@ -167,7 +168,7 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def localize(source: str | Path | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
+def localize(source: StrPath | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
              strict: bool = False, robust: bool = True) -> dict:
     """Localize the robots of a JSON file (or its decoded document): the ``swarm localize`` answer
     (frame, poses in m and rad with their uncertainties, the robots left out with why, and the checks of

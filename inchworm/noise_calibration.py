@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.errors import SwarmInputError
+from runtime.paths import StrPath, as_path
 
 
 @dataclass
@@ -52,7 +53,7 @@ def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
 
-def calibrate_noise(recording: Path, truth: Path, out: Path | None = None, confidence: float = 0.95) -> NoiseCalibration:
+def calibrate_noise(recording: StrPath, truth: StrPath, out: StrPath | None = None, confidence: float = 0.95) -> NoiseCalibration:
     """Fit the noise of ``recording`` against the tracker CSV ``truth``; write the model file ``out``
     (default: the recording's name with ``.model.toml``)."""
     from runtime.models.noise_fit import fit_noise  # noqa: PLC0415 - scipy only when fitting
@@ -61,7 +62,8 @@ def calibrate_noise(recording: Path, truth: Path, out: Path | None = None, confi
 
     if not 0.5 <= confidence < 1:
         raise SwarmInputError(f"--confidence must be in [0.5, 1), got {confidence}")
-    out = out or recording.with_suffix(".model.toml")
+    recording, truth = Path(recording), Path(truth)
+    out = as_path(out) or recording.with_suffix(".model.toml")
     log = load_run_log(recording)
     truths = read_truth_csv(truth, log.ids, log.step_end_times())
     fit = fit_noise(log.commands, log.observations, truths, confidence)

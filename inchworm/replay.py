@@ -32,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from runtime.errors import SwarmInputError
+from runtime.paths import coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
 MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
@@ -61,6 +62,9 @@ class PublishOptions:
     wait: float = 10.0
     run_id: str | None = None
     same_run: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file")
 
 
 @dataclass(frozen=True)
@@ -232,6 +236,9 @@ class CheckOptions:
     model_flags: dict[str, float] = field(default_factory=dict)
     selection: dict[str, Any] = field(default_factory=dict)
     what_if: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file", "trajectory", "model_file")
 
 
 @dataclass(frozen=True)

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
 from runtime.errors import OutputError, SwarmInputError
+from runtime.paths import StrPath
 
 T = TypeVar("T")
 Row = dict[str, Any]
@@ -118,7 +119,7 @@ class StudyLog:
     interruption is ignored (its task runs again).
     """
 
-    def __init__(self, folder: str | Path, name: str, options: dict[str, Any], resume: bool = False) -> None:
+    def __init__(self, folder: StrPath, name: str, options: dict[str, Any], resume: bool = False) -> None:
         folder = Path(folder)
         self.jsonl = folder / f"{name}.jsonl"
         self.csv = folder / f"{name}.csv"

@@ -12,6 +12,7 @@ import numpy as np
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from coordinator.localization import Localizer
@@ -22,7 +23,7 @@ if TYPE_CHECKING:
 
 
 def simulate(
-    trajectory: Trajectory | str | Path | None = None,
+    trajectory: Trajectory | StrPath | None = None,
     *,
     method: str | Strategy = "inchworm",
     robots: int = 10,
@@ -81,7 +82,7 @@ def simulate(
     return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress).run(traj, start)
 
 
-def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
+def resolve_trajectory(trajectory: Trajectory | StrPath | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
     """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
     if trajectory is None:
         return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))

@@ -73,6 +73,7 @@ SLOW_TESTS = frozenset({
     "test_inchworm_api.py::test_the_cli_names_an_unknown_study_file_key_in_one_line",  # subprocess
     "test_inchworm_api.py::test_importing_the_library_and_the_cli_changes_nothing",  # subprocess
     "test_dask_executor.py::test_an_unreachable_scheduler_is_one_line_and_exit_2",  # subprocess
+    "test_str_paths.py::test_studies_take_a_str_out_folder",  # studies
 })
 
 

@@ -28,6 +28,7 @@ from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.paths import StrPath
 
 PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
 CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED + t
@@ -192,7 +193,7 @@ class CalibrationResult:
         title(ax, "P_f at the calibrated noise (bars: 97 % CI of the mean, t, clipped at 0)")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``calibration.png``: the pooled P_f of every method at each calibrated setting."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
@@ -204,7 +205,7 @@ def study_calibration(
     options: CalibrationOptions = CalibrationOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CalibrationResult:

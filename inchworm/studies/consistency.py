@@ -27,6 +27,7 @@ from inchworm.seeding import paired_trajectory, run_seed
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -187,7 +188,7 @@ class ConsistencyResult:
         title(ax, f"{loc} localizer")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``consistency.png``: one panel per localizer."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -205,7 +206,7 @@ def study_consistency(
     options: ConsistencyOptions = ConsistencyOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ConsistencyResult:

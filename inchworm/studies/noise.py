@@ -22,6 +22,7 @@ from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from runtime.errors import SwarmInputError
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -109,7 +110,7 @@ class NoiseResult:
         title(ax, f"{loc}: " + ("P_f inchworm / ref57 (< 1: inchworm better)" if ratio else "n_a chosen by inchworm"))
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``noise.png``: per localizer the chosen n_a and the P_f ratio."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -146,7 +147,7 @@ def study_noise(
     options: NoiseOptions = NoiseOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:

@@ -37,6 +37,7 @@ from inchworm.options import RunOptions, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
 from runtime.errors import SwarmInputError
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a study runs
     from matplotlib.axes import Axes
@@ -291,7 +292,7 @@ class SelectionStudyResult:
         title(ax, f"Anchor plans against the exhaustive optimum, n_r = {self.options.robots}")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``selection.png``: the plans against the optimum (when an anchor count was enumerated)."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
@@ -303,7 +304,7 @@ def study_selection(
     options: SelectionStudyOptions = SelectionStudyOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:

@@ -25,6 +25,7 @@ from runtime.models.bodies import check_apart, impassable_pairs
 from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
 from runtime.models.state import robot_ids
+from runtime.paths import StrPath
 
 
 @dataclass(frozen=True)
@@ -88,11 +89,11 @@ class Trajectory:
         return {"robots": self.n, "configs": len(self.configurations), "sensing_range_m": sensing_range,
                 "move_mean_m": float(moves.mean()), "move_max_m": float(moves.max())}
 
-    def save(self, path: Path) -> None:
+    def save(self, path: StrPath) -> None:
         Path(path).write_text(json.dumps(self.to_json()))
 
     @classmethod
-    def load(cls, path: Path) -> Trajectory:
+    def load(cls, path: StrPath) -> Trajectory:
         """The trajectory in the JSON file ``path``; ``SwarmInputError`` naming the file and what is wrong."""
         try:
             data = json.loads(Path(path).read_text())
