@@ -54,7 +54,7 @@ from coordinator.plan import Plan
 from coordinator.run_result import ConfigRecord, ContactEvent, LostRobot, RejoinedRobot, RunResult, StepRecord, contact_events
 from coordinator.selection.selector import Selection
 from coordinator.strategies import Strategy
-from runtime.errors import LocalizationError, SwarmInputError
+from runtime.errors import LocalizationError, SwarmInputError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.motion import command_towards
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, index_of
@@ -67,13 +67,12 @@ REJOIN_DRIVE_M = 0.5  # longest drive (m) of a step for a robot known only to RE
 # agents' default limit, CommandLimits.max_drive_m: one far from its place gets there over several steps)
 
 
-class RunAborted(SwarmInputError):
+class RunAborted(SwarmRunError):
     """The run ended because robots were lost (``on_lost="abort"``, fewer than ``min_robots`` left, or the robots
     left cannot finish the trajectory); ``robots`` names every robot lost, ``result`` holds what was completed."""
 
     def __init__(self, message: str, robots: list[int], result: RunResult | None = None) -> None:
-        super().__init__(message)
-        self.robots = robots
+        super().__init__(message, robots)
         self.result = result
 
 
@@ -159,7 +158,7 @@ class InchwormExecutor:
             raise
         except BackendEnded:
             raise
-        except (SwarmInputError, LocalizationError) as exc:
+        except (SwarmInputError, SwarmRunError, LocalizationError) as exc:
             if not result.lost:
                 raise
             lost = sorted(r.robot for r in result.lost)

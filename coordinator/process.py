@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from coordinator.stop import StopRequested, StopSignals, send_estop
-from runtime.errors import SwarmInputError
+from runtime.errors import RecordingError, SwarmConnectionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import run_wildcard, validate_run
@@ -71,8 +71,7 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
 
-EXIT_AGENT = 3
-EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
+EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written: the status the launcher reads (swarm_cli.entry.EXIT_CODES)
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -150,7 +149,7 @@ def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict:
     }
 
 
-class RecordingStopped(Exception):
+class RecordingStopped(RecordingError):
     """``on_record_error="stop"``: the recording failed, so the run is stopped."""
 
 
@@ -191,7 +190,7 @@ class Recording:
         self.thread.start()
         if not self._ready.wait(timeout_s):
             self.stop.set()
-            raise ConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
+            raise SwarmConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
         if self.error is not None:
             raise self.error
 
@@ -219,7 +218,7 @@ class Recording:
             deadline = time.monotonic() + timeout_s
             while not probe.matching_status.matching:
                 if time.monotonic() > deadline or self.error is not None:
-                    raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
+                    raise SwarmConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
                 time.sleep(0.005)
         finally:
             probe.undeclare()
@@ -244,7 +243,7 @@ class Recording:
         if self.failed.is_set():
             return None
         if self.error is not None:
-            raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
+            raise RecordingError(f"recording to {self.path} failed: {self.error}") from self.error
         return self.result
 
 

@@ -12,7 +12,8 @@ Every study takes typed options (frozen dataclasses) and returns a result with `
 ``to_json()`` (what ``swarm ... --json`` prints), ``report()`` (its table) and
 ``plot(ax)`` on a matplotlib ``Axes``; with ``out=`` each finished run is kept on disk at
 once and ``resume=True`` continues an interrupted study. Importing ``inchworm`` is cheap:
-the names below load their modules on first use. Errors are ``SwarmError`` subclasses.
+the names below load their modules on first use. Errors are ``SwarmError`` subclasses
+(``runtime.errors``: input, run, connection and output errors).
 """
 
 from __future__ import annotations
@@ -20,7 +21,17 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from runtime.errors import LocalizationError, SwarmError, SwarmInputError
+from runtime.errors import (
+    LocalizationError,
+    OptionError,
+    OutputError,
+    RecordingError,
+    RunConflictError,
+    SwarmConnectionError,
+    SwarmError,
+    SwarmInputError,
+    SwarmRunError,
+)
 
 if TYPE_CHECKING:
     from coordinator.run_result import RunResult
@@ -67,7 +78,8 @@ _WHERE = {
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }
 
-__all__ = ["LocalizationError", "SwarmError", "SwarmInputError", *_WHERE]
+__all__ = ["LocalizationError", "OptionError", "OutputError", "RecordingError", "RunConflictError", "SwarmConnectionError",
+           "SwarmError", "SwarmInputError", "SwarmRunError", *_WHERE]
 
 
 def __getattr__(name: str) -> Any:

@@ -22,11 +22,10 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.strategies import METHODS
-from inchworm.options import RunOptions, options_dict
+from inchworm.options import RunOptions, check_among, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
 from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
-from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
 from runtime.paths import StrPath
@@ -90,10 +89,6 @@ def run_one(task: RunTask) -> Row:
     }
 
 
-def check_methods(methods: tuple[str, ...]) -> None:
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
-        raise SwarmInputError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
 
 
 @dataclass(frozen=True)
@@ -108,12 +103,13 @@ class CompareOptions:
     selections: tuple[str, ...] | None = None  # rankings compared for the searching methods (None: run.selection.method)
     run: RunOptions = field(default_factory=RunOptions)
 
-    def validate(self) -> None:
-        check_methods(self.methods)
-        if self.trajectories < 1 or self.configs < 1 or self.robots < 2:
-            raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
-        if self.selections is not None and (not self.selections or any(r not in RANKINGS for r in self.selections)):
-            raise SwarmInputError(f"--selections must list {' and/or '.join(RANKINGS)}, got {','.join(self.selections)!r}")
+    def __post_init__(self) -> None:
+        check_among(self, "methods", METHODS)
+        check_at_least(self, "robots", 2)
+        check_at_least(self, "trajectories", 1)
+        check_at_least(self, "configs", 1)
+        if self.selections is not None:
+            check_among(self, "selections", RANKINGS)
 
     def variants(self) -> list[tuple[str, str, SelectionConfig]]:
         """(method, label, selection) of every compared variant, in output order."""
@@ -229,7 +225,6 @@ def compare(
 ) -> CompareResult:
     """Run the paired comparison; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes
     (``resume``: continue a comparison interrupted there)."""
-    options.validate()
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     methods = [label for _, label, _ in options.variants()]

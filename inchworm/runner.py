@@ -205,7 +205,7 @@ def run_tasks(
     """``fn(task)`` for every task, in task order; rows already in ``log`` are not run again."""
     keys = [t.key for t in tasks]  # type: ignore[attr-defined]
     if len(set(keys)) != len(keys):
-        raise ValueError("task keys must be unique within a study")
+        raise SwarmInputError("task keys must be unique within a study")
     rows: dict[int, Row] = {}
     if log is not None:
         rows = {i: log.rows[k] for i, k in enumerate(keys) if k in log.rows}

@@ -25,7 +25,7 @@ from pathlib import Path
 
 from coordinator.strategies import METHODS
 from runtime.models.trajectory import Trajectory
-from swarm_cli.entry import leave, portable_command, run_standalone
+from swarm_cli.entry import EXIT_OUTPUT, EXIT_RUN, exit_code, leave, portable_command, run_standalone
 from swarm_cli.options import (
     add_connection_options,
     add_simulation_options,
@@ -35,10 +35,6 @@ from swarm_cli.options import (
     print_json,
     selection_config,
 )
-
-EXIT_AGENT = 3
-EXIT_CONFLICT = 4  # another coordinator of the run is alive
-EXIT_OUTPUT = 5  # coordinator.process.EXIT_OUTPUT (this module stays light for --help)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -94,7 +90,6 @@ def run(args: argparse.Namespace) -> int:
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
     from coordinator.process import CoordinatorOptions, default_recording, recording_line, run_coordinator, say  # noqa: PLC0415
-    from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
     from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
 
     options = CoordinatorOptions(
@@ -107,13 +102,11 @@ def run(args: argparse.Namespace) -> int:
         standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
     outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
     status = 0
-    if outcome.error is not None:
+    if outcome.error is not None:  # another coordinator holds the run (4), lost or stopped (3), the recording stopped it (5)
         print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
-        if isinstance(outcome.error, CoordinatorConflict):
-            return EXIT_CONFLICT
-        if outcome.result is None:  # the agents did not come up: nothing ran
-            return EXIT_AGENT
-        status = EXIT_OUTPUT if type(outcome.error).__name__ == "RecordingStopped" else EXIT_AGENT
+        status = exit_code(outcome.error) or EXIT_RUN
+        if outcome.result is None:  # nothing ran (the agents did not come up, another coordinator holds the run)
+            return status
     if outcome.result is None:  # a standby whose run finished without it
         return EXIT_OUTPUT if outcome.recording_error is not None else 0
     result = outcome.result

@@ -116,12 +116,35 @@ def test_statistics_and_noise_scaling():
 
 
 def test_bad_options_are_one_error_hierarchy():
-    with pytest.raises(SwarmError, match="unknown methods"):
+    """Options are checked when they are made; the library names the Python parameter, never a flag."""
+    with pytest.raises(SwarmError, match=r"^methods must list names among .*got \['teleport'\]"):
         inchworm.compare(inchworm.CompareOptions(methods=("teleport",)))
-    with pytest.raises(SwarmInputError, match="--localizers"):
+    with pytest.raises(SwarmInputError, match="^localizers must list localizers"):
         inchworm.study_noise(inchworm.NoiseOptions(localizers=("gps",)))
-    with pytest.raises(SwarmInputError, match="--experiments"):
-        inchworm.study_anchors(inchworm.AnchorsOptions(experiments=0))
+    with pytest.raises(inchworm.OptionError, match="^experiments must be >= 1, got 0$") as caught:
+        inchworm.AnchorsOptions(experiments=0)
+    assert caught.value.parameter == "experiments" and caught.value.flag_message() == "--experiments must be >= 1, got 0"
+    with pytest.raises(inchworm.OptionError, match="^trajectories must be >= 1, got 0$"):
+        inchworm.compare(inchworm.CompareOptions(trajectories=0))
+    with pytest.raises(inchworm.OptionError, match="^max_motion_scale must be > 1"):
+        inchworm.CalibrationOptions(max_motion_scale=1.0)
+    with pytest.raises(inchworm.OptionError, match="^localizer must be one of the localizers"):
+        inchworm.RunOptions(localizer="gps")
+
+
+@pytest.mark.parametrize("argv, flag_message", [
+    (["study", "noise", "--localizers", "gps"], "--localizers must list localizers among"),
+    (["study", "calibration", "--max-motion-scale", "1"], "--max-motion-scale must be > 1, got 1.0"),
+    (["study", "anchors", "--experiments", "0"], "--experiments must be >= 1, got 0"),
+    (["study", "selection", "--eval-samples", "0"], "--eval-samples must be >= 1, got 0"),
+    (["study", "noise", "--robots", "1"], "--robots must be >= 2, got 1"),
+])
+def test_the_cli_names_the_flag_of_a_bad_option(argv, flag_message, capsys):
+    from swarm_cli.main import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert flag_message in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_results_plot_on_the_callers_axes_with_full_titles():

@@ -343,11 +343,11 @@ class AnchorsOptions:
     model: ModelConfig = field(default_factory=ModelConfig)
     localizer: str = "paper"
 
-    def validate(self) -> None:
-        check_at_least("robots", self.robots, 3)
-        check_at_least("experiments", self.experiments, 1)
-        check_at_least("samples", self.samples, 1)
-        check_localizers((self.localizer,), "localizer")
+    def __post_init__(self) -> None:
+        check_at_least(self, "robots", 3)
+        check_at_least(self, "experiments", 1)
+        check_at_least(self, "samples", 1)
+        check_localizers(self, "localizer")
 
     def note(self) -> str | None:
         """Why Fig. 5 is skipped, if it is."""
@@ -429,7 +429,6 @@ def study_anchors(
     progress: Callable[[int, int], None] | None = None,
 ) -> AnchorsResult:
     """Fig. 4, Fig. 5 and Appendix A; with ``out`` each experiment is kept in ``out/experiments.jsonl`` and ``.csv`` as it finishes."""
-    options.validate()
     log = StudyLog(out, "experiments", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_experiment, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.options import RunOptions, check_localizers, options_dict
+from inchworm.options import RunOptions, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
 from runtime.errors import SwarmInputError
@@ -218,12 +218,11 @@ class SelectionStudyOptions:
     run: RunOptions = field(default_factory=RunOptions)
     optimum: bool = True  # False: skip the exhaustive enumeration (the search against the heuristic only)
 
-    def validate(self) -> None:
-        if self.robots < 3 or self.configs < 1:
-            raise SwarmInputError("--robots must be >= 3 and --configs >= 1")
-        if min(self.screen_samples, self.pick_samples, self.eval_samples) < 1:
-            raise SwarmInputError("--screen-samples, --pick-samples and --eval-samples must be >= 1")
-        check_localizers((self.run.localizer,), "localizer")
+    def __post_init__(self) -> None:
+        check_at_least(self, "robots", 3)
+        check_at_least(self, "configs", 1)
+        for name in ("screen_samples", "pick_samples", "eval_samples"):
+            check_at_least(self, name, 1)
 
     def budget(self) -> Budget:
         return Budget(self.screen_samples, self.pick_samples, self.eval_samples)
@@ -309,7 +308,6 @@ def study_selection(
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:
     """Run the study; with ``out`` every configuration is kept in ``out/configs.jsonl`` and ``out/configs.csv`` as it finishes."""
-    options.validate()
     log = StudyLog(out, "configs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_config, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
