@@ -55,7 +55,7 @@ def check_among(options: Any, name: str, known: tuple[str, ...]) -> None:
     given = tuple(getattr(options, name))
     unknown = [x for x in given if x not in known]
     if unknown or not given:
-        raise OptionError(name, f"must list names among {', '.join(known)}, got {list(given)}", options)
+        raise OptionError(name, f"must list names among {', '.join(known)}; " + (f"unknown: {unknown}" if unknown else "got none"), options)
 
 
 def check_numbers(options: Any, name: str, low: float = 0.0, *, above: bool = False) -> None:

@@ -117,7 +117,7 @@ def test_statistics_and_noise_scaling():
 
 def test_bad_options_are_one_error_hierarchy():
     """Options are checked when they are made; the library names the Python parameter, never a flag."""
-    with pytest.raises(SwarmError, match=r"^methods must list names among .*got \['teleport'\]"):
+    with pytest.raises(SwarmError, match=r"^methods must list names among .*; unknown: \['teleport'\]$"):
         inchworm.compare(inchworm.CompareOptions(methods=("teleport",)))
     with pytest.raises(SwarmInputError, match="^localizers must list localizers"):
         inchworm.study_noise(inchworm.NoiseOptions(localizers=("gps",)))
