@@ -39,7 +39,7 @@ if TYPE_CHECKING:
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
     from inchworm.launcher import LaunchOptions, launch
-    from inchworm.localize_data import localize, localize_document
+    from inchworm.localize_data import LocalizeResult, localize, localize_document
     from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
     from inchworm.replay import CheckOptions, PublishOptions, check_recording, publish
@@ -70,7 +70,7 @@ _WHERE = {
     "CalibrationResult": "inchworm.studies.calibration",
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
-    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
+    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
     "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher",
