@@ -6,7 +6,8 @@
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
     check = inchworm.check_recording(inchworm.CheckOptions(Path("recordings/sample.mcap")))  # swarm replay --check
-    status = inchworm.launch(inchworm.LaunchOptions(ModelConfig(), "paper", SelectionConfig()))  # swarm launch
+    with inchworm.Swarm(inchworm.LaunchOptions(swarm=inchworm.SwarmOptions(robots=6))) as live:  # swarm launch
+        live.status(); launched = live.wait()                             # a LaunchResult: launched.to_json()
 
 Every study takes typed options (frozen dataclasses) and returns a result with ``rows``,
 ``to_json()`` (what ``swarm ... --json`` prints), ``report()`` (its table) and
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
-    from inchworm.launcher import LaunchOptions, launch
+    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, LaunchResult, OutputOptions, SwarmOptions, launch
     from inchworm.localize_data import LocalizeResult, localize, localize_document
     from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
@@ -50,6 +51,7 @@ if TYPE_CHECKING:
     from inchworm.studies.consistency import ConsistencyOptions, ConsistencyResult, study_consistency
     from inchworm.studies.noise import NoiseOptions, NoiseResult, study_noise
     from inchworm.studies.selection import SelectionStudyOptions, SelectionStudyResult, study_selection
+    from inchworm.swarm import Swarm, SwarmStatus
     from runtime.models.config import ModelConfig
     from runtime.models.trajectory import Trajectory
 
@@ -73,7 +75,9 @@ _WHERE = {
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
-    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher",
+    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher", "LaunchResult": "inchworm.launcher",
+    "SwarmOptions": "inchworm.launcher", "DriverOptions": "inchworm.launcher", "FaultOptions": "inchworm.launcher",
+    "OutputOptions": "inchworm.launcher", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }

@@ -154,15 +154,23 @@ def run_demo(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from inchworm.launcher import LaunchOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
+    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
 
     given = lambda names: {name: getattr(args, name) for name in names if getattr(args, name) is not None}  # noqa: E731
     options = LaunchOptions(
-        model_config(args), args.localizer, selection_config(args), args.command, args.trajectory, args.robots, args.configs,
-        0 if args.command == "demo" else args.seed, args.method, args.seed, args.run_id, args.out, args.result, args.motion_time,
-        args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
-        args.min_robots, tuple(args.kill_robot or ()) or None, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
-        args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
-        world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
-        ros2=args.ros2, ros2_robots=args.ros2_robots, stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
-    return launch(options, emit_json=print_json)
+        swarm=SwarmOptions(
+            trajectory=args.trajectory, robots=args.robots, configs=args.configs, trajectory_seed=0 if args.command == "demo" else args.seed,
+            method=args.method, seed=args.seed, model=model_config(args), localizer=args.localizer, selection=selection_config(args),
+            run_id=args.run_id, min_robots=args.min_robots, on_lost=args.on_lost, rejoin=args.rejoin == "yes", motion_time=args.motion_time,
+            step_timeout=args.step_timeout, agents_per_process=args.agents_per_process, world=args.world,
+            physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
+            model_flags=given(MODEL_OPTIONS), coordinator_flags=given(COORD_OPTIONS)),
+        driver=DriverOptions(name=args.driver, options=tuple(args.driver_option), command_timeout=args.command_timeout,
+                             gateway_config=args.gateway_config, emulator_events=args.emulator_events, ros2_robots=args.ros2_robots),
+        faults=FaultOptions(kill_robot=tuple(args.kill_robot or ()) or None, standby=args.standby, kill_coordinator=args.kill_coordinator,
+                            stall_coordinator=args.stall_coordinator, stall_link=args.stall_link, drop=args.drop, corrupt=args.corrupt,
+                            delay=args.delay),
+        outputs=OutputOptions(command=args.command, out=args.out, result=args.result, record=args.record, no_record=args.no_record,
+                              on_record_error=args.on_record_error, foxglove=args.foxglove, linger=args.linger, ros2=args.ros2,
+                              json=args.json))
+    return launch(options, emit_json=print_json, capture=args.json).status

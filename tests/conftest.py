@@ -53,6 +53,7 @@ SLOW_MODULES = frozenset({
     "test_link_liveness",  # router, emulators on ptys and links as processes
     "test_ros2",  # ROS 2 robots, agents, bridge and launches as processes; DDS participants
     "test_stalls",  # coordinators, agents, links SIGSTOPped under real runs
+    "test_swarm",  # inchworm.Swarm: launched runs
 })
 SLOW_TESTS = frozenset({
     "test_recording.py::test_sigkill_loses_at_most_the_last_flush_interval",  # child process
