@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from runtime.errors import OutputError, SwarmInputError
+from runtime.errors import OptionError, OutputError, SwarmInputError
 from runtime.paths import StrPath
 
 T = TypeVar("T")
@@ -104,7 +104,7 @@ def open_executor(kind: str = "local", workers: int | None = None, scheduler: st
         yield default_executor(workers)
         return
     if scheduler is None and kind != "dask":
-        raise SwarmInputError(f"--executor must be one of {', '.join(EXECUTORS)}, got {kind!r}")
+        raise OptionError("executor", f"must be one of {', '.join(EXECUTORS)}, got {kind!r}")
     from inchworm.dask_executor import DaskExecutor, dask_client  # noqa: PLC0415
 
     with dask_client(scheduler, max(1, workers or os.cpu_count() or 1)) as client:
@@ -140,10 +140,10 @@ class StudyLog:
         except (json.JSONDecodeError, KeyError, TypeError):
             head = None
         if head is None:
-            raise SwarmInputError(f"--resume: {self.jsonl} is not a study log")
+            raise OptionError("resume", f": {self.jsonl} is not a study log")
         if head != self.options:
             diff = next(k for k in sorted({*head, *self.options}) if head.get(k) != self.options.get(k))
-            raise SwarmInputError(f"--resume: {self.jsonl} was made with {diff} = {head.get(diff)!r}, not {self.options.get(diff)!r}")
+            raise OptionError("resume", f": {self.jsonl} was made with {diff} = {head.get(diff)!r}, not {self.options.get(diff)!r}")
         for line in lines[1:]:
             try:
                 entry = json.loads(line)

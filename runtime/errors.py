@@ -42,7 +42,7 @@ class OptionError(SwarmInputError):
     says the same with the option's flag (``--trajectories must be >= 1, got 0``)."""
 
     def __init__(self, parameter: str, problem: str, options: object | None = None) -> None:
-        super().__init__(f"{parameter} {problem}")
+        super().__init__(f"{parameter}{_joined(problem)}")
         self.parameter, self.problem, self.options = parameter, problem, options
 
     def flag(self) -> str:
@@ -54,7 +54,12 @@ class OptionError(SwarmInputError):
 
     def flag_message(self) -> str:
         """The message as the command line says it: the flag instead of the parameter."""
-        return f"{self.flag()} {self.problem}"
+        return f"{self.flag()}{_joined(self.problem)}"
+
+
+def _joined(problem: str) -> str:
+    """``problem`` after a parameter's name: a space, none before ``:`` (``resume: out/runs.jsonl was made with ...``)."""
+    return problem if problem.startswith(":") else f" {problem}"
 
 
 class LocalizationError(SwarmError, RuntimeError):

@@ -72,8 +72,9 @@ def test_an_interrupted_study_resumes_to_the_same_rows(tmp_path):
 
 def test_resume_refuses_a_log_of_other_options(tmp_path):
     StudyLog(tmp_path, "runs", {"robots": 6, "seed": 0})
-    with pytest.raises(SwarmInputError, match="made with robots = 6, not 8"):
+    with pytest.raises(inchworm.OptionError, match=r"^resume: .*runs\.jsonl was made with robots = 6, not 8$") as caught:
         StudyLog(tmp_path, "runs", {"robots": 8, "seed": 0}, resume=True)
+    assert caught.value.flag_message().startswith("--resume: ")
     (tmp_path / "other.jsonl").write_text("not a log\n")
     with pytest.raises(SwarmInputError, match="is not a study log"):
         StudyLog(tmp_path, "other", {}, resume=True)

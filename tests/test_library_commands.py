@@ -29,8 +29,11 @@ def test_check_recording_keeps_a_recorded_model_value_given_in_degrees() -> None
 
 
 def test_publish_refuses_a_negative_speed_before_reading_the_file(tmp_path) -> None:
-    with pytest.raises(SwarmInputError, match="--speed must be >= 0"):
+    with pytest.raises(inchworm.OptionError, match="^speed must be >= 0"):
         inchworm.publish(inchworm.PublishOptions(tmp_path / "missing.mcap", speed=-1.0))
+    with pytest.raises(inchworm.OptionError, match="^wait must be >= 0") as caught:
+        inchworm.PublishOptions(tmp_path / "missing.mcap", wait=-1.0)
+    assert caught.value.flag_message() == "--wait must be >= 0, got -1.0"
 
 
 @pytest.mark.parametrize(("options", "message"), [

@@ -36,7 +36,7 @@ import numpy as np
 from inchworm.options import RunOptions, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.paths import StrPath
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a study runs
@@ -197,11 +197,11 @@ def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, in
 def read_rows(path: Path) -> list[dict]:
     """The rows of a study's ``configs.csv`` (numbers back as numbers, empty cells dropped)."""
     if not path.exists():
-        raise SwarmInputError(f"--from-csv: no such file {path}")
+        raise OptionError("from_csv", f": no such file {path}")
     with open(path, newline="") as f:
         rows = [{k: (int(v) if k in INT_COLUMNS else float(v)) for k, v in r.items() if v != ""} for r in csv.DictReader(f)]
     if not rows:
-        raise SwarmInputError(f"--from-csv: {path} has no rows")
+        raise OptionError("from_csv", f": {path} has no rows")
     return rows
 
 
