@@ -40,8 +40,8 @@ def run_distributed(
     step_timeout_s: float = 5.0,
 ) -> RunResult:
     """Run ``method`` along ``trajectory`` (as ``simulate`` takes it) with one agent process per robot (or
-    ``agents_per_process``); ``record``: an MCAP file of every message. Raises ``AgentError`` (a
-    ``SwarmInputError``) when the agents do not come up or the run is aborted."""
+    ``agents_per_process``); ``record``: an MCAP file of every message. Raises a ``SwarmRunError``
+    (``AgentLost``, ``RunAborted``, ...) when the agents do not come up or the run is aborted."""
     from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
     from coordinator.stop import StopSignals  # noqa: PLC0415
     from inchworm.processes import agents_per_process as per_process_for, model_flags, start_agents, stop_all  # noqa: PLC0415
