@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from coordinator.stop import StopRequested, StopSignals, send_estop
-from runtime.errors import RecordingError, SwarmConnectionError, SwarmInputError
+from runtime.errors import OptionError, RecordingError, SwarmConnectionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import run_wildcard, validate_run
@@ -360,7 +360,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     validate_connected(traj, cfg.sensing_range_m)
     validate_passable(traj, cfg)
     if not 2 <= o.min_robots <= traj.n:
-        raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
+        raise OptionError("min_robots", f"{o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
     strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
     validate_run(o.run_id)
@@ -470,7 +470,7 @@ def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple
     from runtime.wire.messages import Checkpoint, MessageError, decode  # noqa: PLC0415
 
     if not path.is_file():
-        raise SwarmInputError(f"--resume {path}: no such file")
+        raise OptionError("resume", f"{path}: no such file")
     key, last = coord_key(run_id, "checkpoint"), None
     for topic, payload, _, _ in read_messages(path):
         if topic == key:
@@ -479,10 +479,10 @@ def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial) -> tuple
             except MessageError:
                 continue
     if last is None:
-        raise SwarmInputError(f"--resume {path}: no checkpoint of run {run_id} in this recording")
+        raise OptionError("resume", f"{path}: no checkpoint of run {run_id} in this recording")
     state = RunState.from_json(last.state, traj, initial)
     if state.finished:
-        raise SwarmInputError(f"--resume {path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
+        raise OptionError("resume", f"{path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
     return last.epoch, state
 
 

@@ -390,7 +390,7 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
                 probe.bind(("127.0.0.1", o.outputs.foxglove))
             except OSError as exc:
                 port = o.outputs.foxglove
-                raise SwarmInputError(f"--foxglove {port}: cannot serve on 127.0.0.1:{port}: {exc.strerror or exc}") from None
+                raise OptionError("foxglove", f"{port}: cannot serve on 127.0.0.1:{port}: {exc.strerror or exc}") from None
     if o.driver.name == "gateway" and o.driver.gateway_config:
         radius = GatewayConfig.load(o.driver.gateway_config).limits.robot_radius_m
         if radius != o.swarm.model.robot_radius_m:

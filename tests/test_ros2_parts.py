@@ -58,7 +58,7 @@ def test_sightings_are_the_sensing_model_with_the_robots_stream():
         ids, rho, phi = world.sightings(0)
         nb, want_rho, want_phi = sense_robot(poses, 0, cfg, rng)
         assert ids.tolist() == [[2, 5, 9, 11][i] for i in nb] and np.array_equal(rho, want_rho) and np.array_equal(phi, want_phi)
-    with pytest.raises(SwarmInputError, match="--world physics: not one of kinematic"):
+    with pytest.raises(SwarmInputError, match="^world physics: not one of kinematic"):
         make_world("physics", np.array([0]), np.zeros((1, 3)), cfg, 0)
 
 
@@ -142,7 +142,7 @@ def test_settings_from_a_file_and_options(tmp_path):
     ("[limits\n", {}, "not TOML"),
     ("", {"max_linear_speed": "fast"}, "max_linear_speed=fast: not a number"),
     ("", {"max_linear_speed": "-1"}, "max_linear_speed must be a number > 0"),
-    ("", {"warp": "9"}, "--driver-option warp: not a setting of the ROS 2 driver"),
+    ("", {"warp": "9"}, "^driver_option warp: not a setting of the ROS 2 driver"),
     ("", {"qos.cmd_vel": "sometimes"}, "qos cmd_vel must be reliable or best_effort"),
     ('frame = "base_link"\n', {}, "frame must contain {id}"),
 ])

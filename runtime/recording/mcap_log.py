@@ -52,7 +52,7 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from runtime.errors import RecordingError, SwarmInputError
+from runtime.errors import OptionError, RecordingError, SwarmInputError
 
 try:
     from zstandard import ZstdError as _ZstdError
@@ -455,7 +455,7 @@ def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Pa
     for item in params:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
+            raise OptionError("param", f"{item!r}: use KEY=VALUE")
         try:
             values[key] = json.loads(value)
         except ValueError:

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.recording.foxglove_scene import trajectory_configurations
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
@@ -187,9 +187,9 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DE
     ``{"source", "path", "distro", "metadata_version", "messages", "topics"}``."""
     src, out = Path(src), Path(out)
     if distro not in DISTROS:
-        raise SwarmInputError(f"--distro {distro}: choose one of {', '.join(DISTROS)}")
+        raise OptionError("distro", f"{distro}: choose one of {', '.join(DISTROS)}")
     if out.exists():
-        raise SwarmInputError(f"--ros2 {out}: already exists; rosbag2 writes a new folder")
+        raise OptionError("ros2", f"{out}: already exists; rosbag2 writes a new folder")
     info = recording_info(src)  # SwarmInputError for what is not a readable recording
     StoragePlugin, Writer, ts = _rosbags(distro)
     build = _Builder(ts)
