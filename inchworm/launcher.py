@@ -394,8 +394,8 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     if o.driver.name == "gateway" and o.driver.gateway_config:
         radius = GatewayConfig.load(o.driver.gateway_config).limits.robot_radius_m
         if radius != o.swarm.model.robot_radius_m:
-            raise SwarmInputError(f"--robot-radius {o.swarm.model.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
-                                  f"in {o.driver.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
+            raise OptionError("robot_radius", f"{o.swarm.model.robot_radius_m:g} (of the model) differs from the robots' body radius "
+                              f"{radius:g} m in {o.driver.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
     if o.driver.name not in BUILT_IN:
         driver_class(o.driver.name)
         driver_options(list(o.driver.options))
@@ -406,17 +406,17 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
         require_pymunk()
         parse_physics_params(list(o.swarm.physics_params), o.swarm.model)
         if o.driver.name not in ("sim", "gateway"):
-            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, "
-                                  f"got --driver {o.driver.name}")
+            raise OptionError("world", f"physics drives simulated or emulated robots: it needs the driver sim or gateway, "
+                              f"got {o.driver.name}", o.swarm)
         if o.swarm.motion_time:
-            raise SwarmInputError("--motion-time is the noise model's motion time: in --world physics the wheels take the time")
+            raise OptionError("motion_time", "is the noise model's motion time: in the physics world the wheels take the time", o.swarm)
         if o.driver.name == "sim" and o.swarm.agents_per_process not in (None, traj.n):
-            raise SwarmInputError(f"--world physics steps one world in one agent process: --agents-per-process must be the "
-                                  f"{traj.n} robots of the run (or left out), got {o.swarm.agents_per_process}")
+            raise OptionError("agents_per_process", f"must be the {traj.n} robots of the run (or left out) in the physics world "
+                              f"(one world, stepped in one agent process), got {o.swarm.agents_per_process}", o.swarm)
     elif o.swarm.physics_params:
-        raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
+        raise OptionError("physics_params", "only applies to the physics world (world physics)", o.swarm)
     if o.driver.ros2_robots and o.driver.name != "ros2":
-        raise SwarmInputError("--ros2-robots starts simulated ROS 2 robots for the ROS 2 driver: it needs --driver ros2")
+        raise OptionError("ros2_robots", "starts simulated ROS 2 robots for the ROS 2 driver: it needs the driver ros2", o.driver)
     if o.driver.name == "ros2" or o.outputs.ros2:
         from runtime.wire.ros2 import require_ros2  # noqa: PLC0415 - ROS 2 only for ROS 2 runs
 
