@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.bodies import check_apart, impassable_pairs
 from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
@@ -233,17 +233,17 @@ def min_separation(xy: np.ndarray) -> float:
 
 
 def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, sep: float, **moves: float) -> None:
-    """Up front, with the command-line flag each value comes from: sizes, and a range that can connect robots kept apart."""
+    """Up front, naming the option each value comes from (``OptionError``): sizes, and a range that can connect robots kept apart."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise SwarmInputError(f"a random trajectory needs at least 2 robots (--robots), got {n}")
+        raise OptionError("robots", f"must be >= 2 for a random trajectory, got {n}")
     if isinstance(n_configs, bool) or not isinstance(n_configs, (int, np.integer)) or n_configs < 1:
-        raise SwarmInputError(f"a random trajectory needs at least 1 configuration (--configs), got {n_configs}")
+        raise OptionError("configs", f"must be >= 1 for a random trajectory, got {n_configs}")
     for name, value in {"spacing": spacing, **moves}.items():
         if not math.isfinite(value) or value < 0 or (name == "spacing" and value == 0):
             raise SwarmInputError(f"random trajectory {name} must be a finite number > 0, got {value}")
     if not reach > sep:
-        raise SwarmInputError(f"the sensing range (--sensing-range) is too small for a random trajectory: robots are kept {sep:g} m apart "
-                              f"and each must be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
+        raise OptionError("sensing_range", f"is too small for a random trajectory: robots are kept {sep:g} m apart and each must "
+                          f"be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
 
 
 END_SIGMAS = 3.0  # random configurations with bodies keep this many sigma of end-of-path error between them
