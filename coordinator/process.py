@@ -71,7 +71,7 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
 
-EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written: the status the launcher reads (swarm_cli.entry.EXIT_CODES)
+EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written: the status the launcher reads (inchworm.entry.EXIT_CODES)
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -400,6 +400,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
             except CoordinatorConflict as exc:
                 completed = True  # not ours to stop
                 return CoordinatorOutcome(None, None, live, exc)
+            backend.stop_requested = lambda: signals.received is not None  # agents leaving with our stop signal are not lost
             ended: BaseException | None = None
             partial = None
             try:

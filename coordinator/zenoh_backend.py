@@ -65,7 +65,7 @@ import re
 import secrets
 import threading
 import time
-from collections.abc import Collection
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -187,6 +187,9 @@ class ZenohSwarmBackend:
         self._back: set[int] = set()  # lost robots whose token came back (guarded by _lock)
         self.superseded: str | None = None  # why this coordinator steps down (another one holds the run)
         self.stopped_by: str | None = None  # a run-wide emergency stop heard, by whom
+        # whether this process is being stopped (its stop signal, e.g. a Ctrl-C that reached the agents too): their tokens
+        # then go with the stop itself and no robot is declared lost (the caller sets it; any thread may call it)
+        self.stop_requested: Callable[[], bool] = lambda: False
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
         self._session_lost = False  # the coordinator's Zenoh link lost the hub at least once (this process stalled beyond its lease)
         self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
@@ -332,6 +335,8 @@ class ZenohSwarmBackend:
         says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub);
         if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
         time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
+        if self.stop_requested():  # gone with this process's own stop (a Ctrl-C to the whole run): not lost
+            return
         if not self._connected():
             self._session_lost = True
             self._suspect.add(robot)
@@ -367,6 +372,8 @@ class ZenohSwarmBackend:
     def _declare_lost(self, robot: int, reason: str, stop: bool = True) -> None:
         """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread); ``stop``
         False: it stands still already (its watchdog stopped it) and may come back at the next configuration."""
+        if self.stop_requested():  # the run is being stopped as a whole: the run-wide stop covers every robot
+            return
         with self._lock:
             if robot not in self.known or robot in self._lost or self.superseded is not None:
                 return

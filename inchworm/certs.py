@@ -6,7 +6,7 @@
   3650). An existing pair in ``out`` is reused, so hosts added later are signed by the
   same CA; a lone ``ca.pem`` or ``ca.key``, or a pair that does not match, is an error.
 * ``<name>.pem`` / ``<name>.key`` per host (default hosts: router, coordinator,
-  gateway), re-issued on every call: EC P-256, signed by the CA, ``days`` valid
+  gateway, estop), re-issued on every call: EC P-256, signed by the CA, ``days`` valid
   (default 825), common name = ``<name>`` (the subject the router's access control
   matches, see ``deploy/zenoh-router-tls-acl.json5``), subject alternative names =
   ``DNS:<name>``, the extra SANs of the host (IP addresses become ``IP:``,
@@ -32,7 +32,7 @@ from pathlib import Path
 
 from runtime.errors import SwarmInputError
 
-DEFAULT_HOSTS = ("router", "coordinator", "gateway")
+DEFAULT_HOSTS = ("router", "coordinator", "gateway", "estop")
 LOOPBACK_SAN = "IP:127.0.0.1"
 CA_SUBJECT = "/O=inchworm-swarm/CN=inchworm-swarm lab CA"
 _NAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,61}[A-Za-z0-9])?")

@@ -44,7 +44,8 @@ def run_distributed(
     (``AgentLost``, ``RunAborted``, ...) when the agents do not come up or the run is aborted."""
     from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
     from coordinator.stop import StopSignals  # noqa: PLC0415
-    from inchworm.processes import agents_per_process as per_process_for, model_flags, start_agents, stop_all  # noqa: PLC0415
+    from inchworm.processes import agents_per_process as per_process_for, start_agents, stop_all  # noqa: PLC0415
+    from inchworm.specs import AgentHostSpec  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     cfg = model or ModelConfig()
@@ -58,7 +59,7 @@ def run_distributed(
         with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            start_agents(traj, run_id, f"tcp/127.0.0.1:{port}", seed, 0.0, model_flags(cfg), procs,
+            start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=f"tcp/127.0.0.1:{port}", seed=seed, model=cfg), procs,
                          per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
             options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
                                          start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=as_path(record),

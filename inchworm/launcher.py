@@ -44,19 +44,21 @@ from __future__ import annotations
 
 import contextlib
 import json
-import math
 import os
+import queue
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from msgspec.structs import replace
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.process import EXIT_OUTPUT, default_recording
@@ -73,14 +75,16 @@ from inchworm.processes import (
     RobotKiller,
     agents_per_process,
     default_gateway,
-    radio_faults,
     start_agents,
     start_gateway,
     start_port_hosts,
     stop_all,
     wait_for_standby,
 )
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, EmulatorSpec, Ros2BridgeSpec, Ros2RobotsSpec, selection_spec
 from robot_agent.assembly import driver_options
+from robot_agent.emulator_process import check_radio_faults
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
@@ -139,10 +143,9 @@ class LaunchResult:
 class SwarmOptions:
     """What runs: the trajectory (a file, else a random one of ``robots`` x ``configs`` drawn with ``trajectory_seed``),
     the method and its ``seed``, the noise model, localizer and anchor selection (checked before anything starts),
-    the run id (default ``launch-<pid>``), the lost-robot policy and the world. Times in seconds.
-    ``model_flags`` / ``coordinator_flags`` (option name -> value) are the command line's values (those given), passed
-    on to the agent and coordinator processes as ``--name=value``; None (a library call), they are derived from
-    ``model`` (the values that differ from ``ModelConfig()``'s), ``localizer``, ``selection`` and the policy."""
+    the run id (default ``launch-<pid>``), the lost-robot policy and the world. Times in seconds. They go to the
+    processes in their specs (``inchworm.specs``; ``model_file``: the file ``model`` was read from, for the
+    recording's metadata)."""
 
     trajectory: Path | None = None
     robots: int = field(default=10, metadata={"flag": "-n"})
@@ -151,6 +154,7 @@ class SwarmOptions:
     method: str = "inchworm"
     seed: int = 0
     model: ModelConfig = field(default_factory=ModelConfig)
+    model_file: Path | None = None
     localizer: str = DEFAULT_LOCALIZER
     selection: SelectionConfig = field(default_factory=default_selection)
     run_id: str | None = field(default=None, metadata={"flag": "--run"})
@@ -160,14 +164,12 @@ class SwarmOptions:
     motion_time: float = 0.0
     step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
     agents_per_process: int | None = None
-    world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
+    world: str = "model"  # or "physics": the simulated agents (all in one process) or ROS 2 robots drive in the rigid-body world (docs/physics.md)
     physics_params: tuple[str, ...] = field(default=(), metadata={"flag": "--physics-param"})  # NAME=VALUE
     physics_speed: float = 0.0
-    model_flags: dict[str, Any] | None = None
-    coordinator_flags: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
-        coerce_paths(self, "trajectory")
+        coerce_paths(self, "trajectory", "model_file")
         if self.on_lost not in ("continue", "abort"):
             raise OptionError("on_lost", f"must be 'continue' or 'abort', got {self.on_lost!r}", self)
         if self.world not in ("model", "physics"):
@@ -273,24 +275,6 @@ class LaunchOptions:
                     raise OptionError(name, "is a fault of the emulated robots' radio and links: it needs the gateway driver", self.faults)
 
 
-def model_values(cfg: ModelConfig) -> dict[str, Any]:
-    """The model options of the agent and coordinator processes for the values of ``cfg`` that differ from the
-    defaults (angles in degrees, as the flags take them; a default is left to the processes, exactly)."""
-    base = ModelConfig()
-    pairs = (("turn_sigma_deg", "turn_sigma_rad", math.degrees), ("drive_sigma_frac", "drive_sigma_frac", float),
-             ("range_sigma", "range_sigma_m", float), ("bearing_sigma_deg", "bearing_sigma_rad", math.degrees),
-             ("sensing_range", "sensing_range_m", float), ("dropout", "dropout_prob", float), ("robot_radius", "robot_radius_m", float))
-    return {flag: convert(getattr(cfg, name)) for flag, name, convert in pairs if getattr(cfg, name) != getattr(base, name)}
-
-
-def coordinator_values(o: LaunchOptions) -> dict[str, Any]:
-    """The coordinator's options for the localizer, the anchor selection and the lost-robot policy of ``o``."""
-    s, sel = o.swarm, o.swarm.selection
-    return {"localizer": s.localizer, "w_v": sel.w_v, "samples": sel.samples, "population": sel.genetic.population,
-            "generations": sel.genetic.generations, "selection": sel.method, "mc_start": sel.mc_start, "mc_emax": sel.mc_emax,
-            "genetic": sel.genetic_gate, "on_lost": s.on_lost, "min_robots": s.min_robots, "rejoin": "yes" if s.rejoin else "no",
-            "on_record_error": o.outputs.on_record_error}
-
 
 def _stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
@@ -298,15 +282,6 @@ def _stderr(text: str) -> None:
 
 def _stdout_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
-
-
-def flags(values: dict[str, Any]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={_arg_text(value)}" for name, value in values.items() if value is not None]
-
-
-def _arg_text(value) -> str:
-    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
 def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
@@ -405,9 +380,9 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
 
         require_pymunk()
         parse_physics_params(list(o.swarm.physics_params), o.swarm.model)
-        if o.driver.name not in ("sim", "gateway"):
+        if o.driver.name not in ("sim", "gateway") and not o.driver.ros2_robots:
             raise OptionError("world", f"physics drives simulated or emulated robots: it needs the driver sim or gateway, "
-                              f"got {o.driver.name}", o.swarm)
+                              f"or ros2 with ros2_robots, got {o.driver.name}", o.swarm)
         if o.swarm.motion_time:
             raise OptionError("motion_time", "is the noise model's motion time: in the physics world the wheels take the time", o.swarm)
         if o.driver.name == "sim" and o.swarm.agents_per_process not in (None, traj.n):
@@ -436,7 +411,23 @@ def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
     options = list(o.driver.options)
     if o.driver.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
         options.append("ground_truth=ground_truth")
+    if o.driver.ros2_robots and o.swarm.world == "physics":
+        options = wheel_limits(o, options) + options
     return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
+
+
+def wheel_limits(o: LaunchOptions, options: list[str]) -> list[str]:
+    """The driver's speed and acceleration limits the physical world's wheels reach (``--physics-param``), for those of
+    ``options`` (and their config file) left at the defaults: the driver must not count on speeds the wheels cannot give."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+
+    params, given, default = parse_physics_params(list(o.swarm.physics_params), o.swarm.model), Ros2Config.load(driver_options(options)), Ros2Config()
+    half = params.track_m / 2.0
+    wanted = {"max_linear_speed": params.max_wheel_speed_m_s, "linear_accel": params.max_wheel_accel_m_s2,
+              "max_angular_speed": params.max_wheel_speed_m_s / half, "angular_accel": params.max_wheel_accel_m_s2 / half}
+    return [f"{name}={limit!r}" for name, limit in wanted.items()
+            if getattr(given, name) == getattr(default, name) and getattr(default, name) > limit]
 
 
 def ros2_step_timeout(options: list[str]) -> float:
@@ -449,12 +440,34 @@ def ros2_step_timeout(options: list[str]) -> float:
     return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
+def stop_answers(acks: queue.Queue, stamp_ns: int, until: float, hosts: dict[int, subprocess.Popen]) -> tuple[set[int], set[int]]:
+    """The robots whose agents acknowledged the stop stamped ``stamp_ns`` and those whose agent process (``hosts``: robot ->
+    its process) had exited without acknowledging (a Ctrl-C reaches the agents too: they stop with it); waits until
+    every robot is one or the other, or monotonic time ``until``."""
+    heard: set[int] = set()
+    while True:
+        exited = {robot for robot, proc in hosts.items() if proc.poll() is not None} - heard
+        if len(heard | exited) >= len(hosts) or time.monotonic() >= until:
+            return heard, exited
+        got = collect_acks(acks, stamp_ns, min(until, time.monotonic() + 0.05))
+        heard |= {int(name) for by, name in got if by == "agent"}
+
+
+def stop_text(run_id: str, heard: int, exited: int, robots: int) -> str:
+    """What the launcher says of its run-wide stop: acknowledged by ``heard`` agents, ``exited`` had exited already."""
+    if exited == robots:
+        return f"emergency stop sent to run {run_id}; its {robots} agents had already exited (a stop signal reached them too)"
+    gone = f"; the other {exited} had already exited" if exited and heard + exited == robots else (
+        f"; {exited} had already exited" if exited else "")
+    return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {robots} agents{gone})"
+
+
 def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json, capture: bool = True) -> LaunchResult:
     """Run it (module doc) and return its ``LaunchResult``: the exit status (the coordinator's, 128 + N if it was
     killed by signal N) and, with ``capture`` (or ``json``), the run's JSON object, read from the coordinator's
     last line of output (the other lines are passed on to stdout as they come). ``say``: the launcher's notes
     (stderr); ``emit_json``: prints the JSON object when ``json`` (amended with the kills and stalls)."""
-    faults = radio_faults(o.faults.drop, o.faults.corrupt, o.faults.delay)
+    check_radio_faults(o.faults.drop, o.faults.corrupt, o.faults.delay)
     traj = launch_trajectory(o)
     if not 2 <= o.swarm.min_robots <= traj.n:
         raise OptionError("min_robots", f"must be between 2 and the {traj.n} robots of the run, got {o.swarm.min_robots}", o.swarm)
@@ -469,7 +482,6 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    py = sys.executable
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
@@ -499,24 +511,19 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
 
             def stop_run(reason: str) -> str:
-                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it."""
+                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it or has exited."""
                 stop = EmergencyStop(run=run_id, step=0, source=f"swarm {o.outputs.command} (pid {os.getpid()})", reason=reason)
                 sent = publish_estop(hub_session, stop)
-                heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
-                return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
+                heard, exited = stop_answers(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, agent_procs)
+                return stop_text(run_id, len(heard), len(exited), traj.n)
 
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            model = flags(model_values(o.swarm.model) if o.swarm.model_flags is None else o.swarm.model_flags)
-            agent_extra = list(model)
+            agent = AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=o.swarm.seed, model=o.swarm.model, motion_time=o.swarm.motion_time)
             if o.driver.name not in BUILT_IN:
-                agent_extra += [f"--driver={plugin_spec(o.driver.name)}", *(f"--driver-option={x}" for x in o.driver.options)]
-                if o.driver.command_timeout is not None:
-                    agent_extra.append(f"--command-timeout={o.driver.command_timeout!r}")
-            world_flags = [f"--physics-speed={o.swarm.physics_speed!r}", *(f"--physics-param={x}" for x in o.swarm.physics_params)]
+                agent = replace(agent, driver=plugin_spec(o.driver.name), driver_options=o.driver.options, command_timeout=o.driver.command_timeout)
             if o.swarm.world == "physics" and o.driver.name == "sim":  # the agent process steps the world
-                agent_extra += ["--world=physics", *world_flags]
-            emulator_extra = ["--physics", *world_flags] if o.swarm.world == "physics" else []  # the robot emulator steps it
+                agent = replace(agent, world="physics", physics_params=o.swarm.physics_params, physics_speed=o.swarm.physics_speed)
             truth = o.driver.name in BUILT_IN or driver_class(o.driver.name).simulated
             step_timeout = DEFAULT_STEP_TIMEOUT_S if o.swarm.step_timeout is None else o.swarm.step_timeout
             if o.driver.name == "ros2":
@@ -526,54 +533,52 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if not truth:
                     say(f"swarm {o.outputs.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
                         f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
-                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
+                agent = replace(agent, driver="ros2", driver_options=tuple(ros2_options))
                 if o.driver.ros2_robots:  # the same settings: namespaces, frame, topics
-                    ros2_procs.append(subprocess.Popen(
-                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.swarm.seed}", *model,
-                         *(f"--driver-option={x}" for x in ros2_options)], **tied))
+                    sim_robots = Ros2RobotsSpec(trajectory=str(traj_file), seed=o.swarm.seed, model=o.swarm.model, driver_options=tuple(ros2_options))
+                    if o.swarm.world == "physics":  # its contacts, stalls and still poses go to the run's record
+                        sim_robots = replace(sim_robots, world="physics", physics_params=o.swarm.physics_params, run_id=run_id, hub=hub)
+                    ros2_procs.append(Spawned(sim_robots, **tied))
             if o.outputs.ros2:
-                ros2_procs.append(subprocess.Popen(
-                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
-                     f"--robot-radius={o.swarm.model.robot_radius_m!r}"], **tied))
+                ros2_procs.append(Spawned(Ros2BridgeSpec(run_id=run_id, hub=hub, trajectory=str(traj_file),
+                                                         robot_radius=o.swarm.model.robot_radius_m), **tied))
             if o.driver.name == "gateway":
                 gateway = GatewayConfig.load(o.driver.gateway_config) if o.driver.gateway_config else \
                     default_gateway(traj, robot_radius=o.swarm.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
-                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.swarm.seed, o.swarm.motion_time, model, procs,
-                                     o.driver.emulator_events, [*faults, *emulator_extra], links=not port_hosts, **tied)
+                physics, f = o.swarm.world == "physics", o.faults
+                emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=o.swarm.seed, motion_time=o.swarm.motion_time,
+                                        model=o.swarm.model, physics=physics, physics_params=o.swarm.physics_params if physics else (),
+                                        physics_speed=o.swarm.physics_speed if physics else 0.0, drop=f.drop, corrupt=f.corrupt,
+                                        delay=f.delay, events=None if o.driver.emulator_events is None else str(o.driver.emulator_events),
+                                        hub=hub, run_id=run_id)
+                live = start_gateway(gateway, Path(tmp), emulator, procs, links=not port_hosts, **tied)
                 gateway_procs = len(procs)
-                agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+                agent = replace(agent, driver="gateway", gateway_config=str(live))
             first = len(procs)
             piped = {**tied, **agent_errors.popen_kwargs()}
             try:
                 if port_hosts:  # one process per port: its link and its robots' agents
-                    agent_procs = start_port_hosts(traj, live, run_id, hub, o.swarm.seed, o.swarm.motion_time, agent_extra, procs, traj_file, **piped)
+                    agent_procs = start_port_hosts(traj, live, agent, procs, traj_file, **piped)
                 else:
-                    start_agents(traj, run_id, hub, o.swarm.seed, o.swarm.motion_time, agent_extra, procs, per_process, traj_file, **piped)
+                    start_agents(traj, agent, procs, per_process, traj_file, **piped)
                     agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             finally:
                 agent_errors.watch(procs[first:])
             agent_list = procs[first:]
-            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.swarm.seed}", *model]
-            if not truth:
-                common.append("--no-truth")  # the lab's robots publish no true poses
-            coordinator_flags = coordinator_values(o) if o.swarm.coordinator_flags is None else o.swarm.coordinator_flags
-            cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.swarm.method}",
-                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(coordinator_flags),
-                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
-            if o.outputs.result:
-                cmd.append(f"--result={o.outputs.result}")
             recording = None if o.outputs.no_record else (o.outputs.record or default_recording(run_id))
-            cmd.append("--no-record" if recording is None else f"--record={recording}")
             json_hold = o.outputs.json or capture  # the coordinator's JSON object: held back, amended, returned
-            if json_hold:
-                cmd.append("--json")
-            if o.outputs.foxglove is not None:
-                cmd.append(f"--foxglove={o.outputs.foxglove}")
-                if o.outputs.linger is not None:
-                    cmd.append(f"--linger={o.outputs.linger!r}")
+            s, out_o = o.swarm, o.outputs
+            coordinator_spec = CoordinatorSpec(
+                trajectory=str(traj_file), run_id=run_id, hub=hub, method=s.method, seed=s.seed, localizer=s.localizer, model=s.model,
+                model_file=None if s.model_file is None else str(s.model_file), selection=selection_spec(s.selection),
+                start_timeout=max(30.0, START_S_PER_ROBOT * traj.n), step_timeout=step_timeout, on_lost=s.on_lost, min_robots=s.min_robots,
+                truth=truth, result=None if out_o.result is None else str(out_o.result), out=str(out), rejoin=s.rejoin,
+                record=None if recording is None else str(recording), no_record=recording is None, on_record_error=out_o.on_record_error,
+                foxglove=out_o.foxglove, linger=out_o.linger if out_o.foxglove is not None else None, json=json_hold,
+                command=f"swarm {out_o.command} (run {run_id}, {traj.n} robots, method {s.method}, seed {s.seed})")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
                     "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.driver.ros2_robots else "")
                     }.get(o.driver.name, f"agents ({o.driver.name})")
@@ -590,13 +595,13 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 stallers["link_stall"] = ProcessStaller(hub_session, run_id, *o.faults.stall_link, link_proc)
             standby = None
             if o.faults.standby:
-                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
-                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
-                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+                standby_spec = replace(coordinator_spec, standby=True,
+                                       record=None if recording is None else str(Path(recording).with_suffix(".standby.mcap")))
+                standby = Spawned(standby_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
                 coordinators.append(standby)
                 procs.append(standby)
                 wait_for_standby(hub_session, run_id, standby)
-            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+            coordinator = Spawned(coordinator_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
             coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
             procs.append(coordinator)
             coord_killer = None if o.faults.kill_coordinator is None else \

@@ -46,7 +46,7 @@ class Lifeline:
 
     def guard(self, folder: Path) -> None:
         """Start the guardian that removes ``folder`` once this process is gone."""
-        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", f"--remove={folder}"], **self.child_options())
+        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", "--remove", str(folder)], **self.child_options())
 
     def close(self) -> None:
         """Let go of the children (they read end-of-file) and reap the guardian."""

@@ -12,3 +12,8 @@ def last_json(stdout: str) -> dict | None:
         return json.loads(lines[-1]) if lines else None
     except json.JSONDecodeError:
         return None
+
+
+def print_json(obj: object) -> None:
+    """The machine-readable result of a command: one JSON object on one line."""
+    print(json.dumps(obj, separators=(",", ":")), flush=True)

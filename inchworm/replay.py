@@ -31,19 +31,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from inchworm.limits import MODEL_FLAGS
 from runtime.errors import OptionError, SwarmInputError
 from runtime.paths import coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
-MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
-    "turn_sigma_deg": ("turn_sigma_rad", math.radians),
-    "drive_sigma_frac": ("drive_sigma_frac", float),
-    "range_sigma": ("range_sigma_m", float),
-    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians),
-    "sensing_range": ("sensing_range_m", float),
-    "dropout": ("dropout_prob", float),
-    "robot_radius": ("robot_radius_m", float),
-}
+MODEL_OPTIONS = {dest: (name, convert) for dest, (name, convert, _) in MODEL_FLAGS.items()}  # option dest -> (ModelConfig field, to SI)
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 Say = Callable[[str], None]
 

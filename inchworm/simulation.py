@@ -135,7 +135,8 @@ def _robots(ids: list[int], most: int = 20) -> str:
 def anchor_choices(result: RunResult) -> list[str]:
     """Per configuration: which robots stood still at each step and, where the plan was searched, the outer
     loop's score of every candidate count (Eq. 3: P_s = w_v P_v - w_l P_l, P_v = 1 / n_s, P_l = e_l / e_l(0),
-    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``."""
+    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``. The counts
+    without a plan (none keeps the bodies apart, or the swarm connected) are one line per reason below the table."""
     lines = []
     for c in result.configs:
         plan = c.plan if c.regrouped is None else c.regrouped.planned  # the strategy's (the steps taken: ``c.plan``)
@@ -145,14 +146,16 @@ def anchor_choices(result: RunResult) -> list[str]:
         if c.selection is None or len(c.selection.scores) < 2:
             continue
         lines.append(f"  {'n_a':>5} {'steps':>5} {'e_l (mm)':>9} {'P_v':>6} {'P_l':>6} {'P_s':>7}")
+        unplanned: dict[str, list[int]] = {}
         for s in c.selection.scores:
+            if s.plan is None:  # summarised below the scored rows, one line per reason
+                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
+                unplanned.setdefault(why, []).append(s.n_anchors)
+                continue
             mark = "*" if s.n_anchors == plan.n_anchors else " "
             steps = round(1 / s.p_v) if s.p_v > 0 else 0
-            if s.plan is None:
-                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {why:>30}")
-            else:
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+            lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+        lines += [f"   n_a = {', '.join(map(str, counts))}: {why}" for why, counts in unplanned.items()]
     if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
         lines.append("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
                      " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")

@@ -15,7 +15,7 @@
         `-- RecordingError          a recording failed or stopped the run
 
 The exit codes are those of every ``swarm`` command, mapped from these classes in one place
-(``swarm_cli.entry.exit_code``; docs/development.md). ``SwarmInputError`` is a ``ValueError``,
+(``inchworm.entry.exit_code``; docs/development.md). ``SwarmInputError`` is a ``ValueError``,
 ``SwarmConnectionError`` a ``ConnectionError`` and ``RecordingError`` an ``OSError``, so code that
 catches the built-in kinds keeps working. Library errors name Python parameters (``trajectories must
 be >= 1``); the command line names the flag instead (``OptionError.parameter``, translated by

@@ -735,6 +735,14 @@ def read_messages(path: str | os.PathLike, derived: bool = False) -> Iterator[tu
                 yield topic, record.data, record.log_time, record.publish_time
 
 
+def recording_status(path: str | os.PathLike) -> RecordingStatus:
+    """What reading ``path`` through finds (finished or not, readable bytes, the problem), without decoding a message."""
+    status = RecordingStatus()
+    for _record in _records(path, status):
+        pass
+    return status
+
+
 def recording_info(path: str | os.PathLike) -> dict[str, Any]:
     """Channels (type, count, first/last log time, undecodable count and reasons), duration, metadata, completeness."""
     status = RecordingStatus()

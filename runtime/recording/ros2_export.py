@@ -184,13 +184,18 @@ def _empty_bytes() -> np.ndarray:
 
 def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DEFAULT_DISTRO) -> dict[str, Any]:
     """Write the recording ``src`` as a rosbag2 folder ``out`` (must not exist) for ROS 2 ``distro``;
-    ``{"source", "path", "distro", "metadata_version", "messages", "topics"}``."""
+    ``{"source", "path", "distro", "metadata_version", "messages", "topics", "complete", "bytes", "readable_bytes",
+    "recorded_messages"}`` (an unfinished recording is exported up to its last complete record: ``complete`` False,
+    ``readable_bytes`` of its ``bytes`` read). ``SwarmInputError`` (nothing written) when it holds no message of the run."""
     src, out = Path(src), Path(out)
     if distro not in DISTROS:
         raise OptionError("distro", f"{distro}: choose one of {', '.join(DISTROS)}")
     if out.exists():
         raise OptionError("ros2", f"{out}: already exists; rosbag2 writes a new folder")
     info = recording_info(src)  # SwarmInputError for what is not a readable recording
+    if not info["raw_messages"]:
+        raise SwarmInputError(f"{src}: nothing to export: no complete message of the run in it"
+                              + ("" if info["complete"] else f" (unfinished: {info['problem']})"))
     StoragePlugin, Writer, ts = _rosbags(distro)
     build = _Builder(ts)
     configurations = trajectory_configurations(info["metadata"].get("run", {}).get("trajectory"))
@@ -245,4 +250,6 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DE
     if distro == "humble":
         _rewrite_for_humble(out)
     return {"source": str(src), "path": str(out), "distro": distro, "metadata_version": DISTROS[distro],
-            "messages": sum(counts.values()), "topics": dict(sorted(counts.items()))}
+            "messages": sum(counts.values()), "topics": dict(sorted(counts.items())),
+            "complete": info["complete"], "bytes": info["bytes"], "readable_bytes": info["readable_bytes"],
+            "recorded_messages": info["raw_messages"]}
