@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from coordinator.stop import StopRequested, StopSignals, send_estop
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, RecordingError, SwarmConnectionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import run_wildcard, validate_run
@@ -65,8 +65,9 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
     import zenoh
 
     from coordinator.checkpoint import RunState
-    from coordinator.executor import ContactEvent, ExecutorListener, RunResult
+    from coordinator.executor import ExecutorListener
     from coordinator.plan import Plan
+    from coordinator.run_result import ContactEvent, RunResult
     from coordinator.selection.selector import Selection, SelectionConfig
     from coordinator.zenoh_backend import ZenohSwarmBackend
     from runtime.models.state import SwarmEstimate
@@ -74,8 +75,7 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
     from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
 
-EXIT_AGENT = 3
-EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written; the run itself ended normally or was stopped for it
+EXIT_OUTPUT = 5  # an output (recording, result, plots) could not be written: the status the launcher reads (inchworm.entry.EXIT_CODES)
 INITIAL_DELTA = 0.01  # m, as coordinator.simulate.simulate
 INITIAL_HEADING_SIGMA = math.radians(2.0)
 
@@ -153,7 +153,7 @@ def run_metadata(o: CoordinatorOptions, selection: SelectionConfig) -> dict[str,
     }
 
 
-class RecordingStopped(Exception):
+class RecordingStopped(RecordingError):
     """``on_record_error="stop"``: the recording failed, so the run is stopped."""
 
 
@@ -194,7 +194,7 @@ class Recording:
         self.thread.start()
         if not self._ready.wait(timeout_s):
             self.stop.set()
-            raise ConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
+            raise SwarmConnectionError(f"the recorder did not start within {timeout_s:.0f} s")
         if self.error is not None:
             raise self.error
 
@@ -222,7 +222,7 @@ class Recording:
             deadline = time.monotonic() + timeout_s
             while not cast("zenoh.MatchingStatus", probe.matching_status).matching:  # zenoh's stub says bool
                 if time.monotonic() > deadline or self.error is not None:
-                    raise ConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
+                    raise SwarmConnectionError(f"the recorder's subscription did not reach the hub within {timeout_s:.0f} s")
                 time.sleep(0.005)
         finally:
             probe.undeclare()
@@ -247,7 +247,7 @@ class Recording:
         if self.failed.is_set():
             return None
         if self.error is not None:
-            raise RuntimeError(f"recording to {self.path} failed: {self.error}") from self.error
+            raise RecordingError(f"recording to {self.path} failed: {self.error}") from self.error
         return self.result
 
 
@@ -356,8 +356,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         conflict_message,
         live_coordinators,
     )
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
     traj, cfg = o.trajectory, o.model
@@ -365,7 +364,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     validate_connected(traj, cfg.sensing_range_m)
     validate_passable(traj, cfg)
     if not 2 <= o.min_robots <= traj.n:
-        raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
+        raise OptionError("min_robots", f"{o.min_robots}: must be between 2 and the {traj.n} robots of the trajectory")
     localizer = make_localizer(o.localizer, cfg)  # the executor's and the selection's
     strategy = make_strategy(o.method, traj.n, cfg, localizer, selection, o.seed)  # bad input fails before waiting
     validate_run(o.run_id)
@@ -477,7 +476,7 @@ def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial: SwarmEst
     from runtime.wire.messages import Checkpoint, MessageError, decode  # noqa: PLC0415
 
     if not path.is_file():
-        raise SwarmInputError(f"--resume {path}: no such file")
+        raise OptionError("resume", f"{path}: no such file")
     key, last = coord_key(run_id, "checkpoint"), None
     for topic, payload, _, _ in read_messages(path):
         if topic == key:
@@ -486,10 +485,10 @@ def read_checkpoint(path: Path, run_id: str, traj: Trajectory, initial: SwarmEst
             except MessageError:
                 continue
     if last is None:
-        raise SwarmInputError(f"--resume {path}: no checkpoint of run {run_id} in this recording")
+        raise OptionError("resume", f"{path}: no checkpoint of run {run_id} in this recording")
     state = RunState.from_json(last.state, traj, initial)
     if state.finished:
-        raise SwarmInputError(f"--resume {path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
+        raise OptionError("resume", f"{path}: run {run_id} finished (epoch {last.epoch}); nothing to resume")
     return last.epoch, state
 
 

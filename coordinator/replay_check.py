@@ -38,10 +38,11 @@ import numpy as np
 
 from coordinator.checkpoint import carried_fields
 from coordinator.clearance import clear_plan
-from coordinator.executor import ConfigRecord, RunResult, StepRecord, among, localize_rejoined, rejoin_priors
+from coordinator.executor import among, localize_rejoined, rejoin_priors
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
+from coordinator.run_result import ConfigRecord, RunResult, StepRecord
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate

@@ -73,7 +73,7 @@ import numpy as np
 
 from coordinator.backend import BackendEnded
 from coordinator.checkpoint import RunState
-from runtime.errors import SwarmInputError
+from runtime.errors import RunConflictError, SwarmConnectionError, SwarmInputError, SwarmRunError
 from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import (
@@ -128,26 +128,22 @@ SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a c
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
 
-class AgentError(SwarmInputError):
+class AgentError(SwarmRunError):
     """A robot agent failed the run; ``robots`` names the robot ids."""
-
-    def __init__(self, message: str, robots: list[int]) -> None:
-        super().__init__(message)
-        self.robots = robots
 
 
 class AgentLost(AgentError):
     """Agents that did not come up at the start of the run."""
 
 
-class HubLost(AgentError):
+class HubLost(AgentError, SwarmConnectionError):
     """This coordinator's own connection to the hub (router) is gone: no message reaches any robot any more."""
 
     def __init__(self, message: str) -> None:
         super().__init__(message, [])
 
 
-class CoordinatorConflict(SwarmInputError):
+class CoordinatorConflict(RunConflictError):
     """Another coordinator's token of the run is alive: a run has one master at a time."""
 
 

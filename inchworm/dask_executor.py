@@ -15,7 +15,7 @@ import contextlib
 from collections.abc import Callable, Iterator, Sequence
 from typing import TYPE_CHECKING, Any, TypeVar
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -66,6 +66,6 @@ def dask_client(scheduler: str | None = None, workers: int = 1) -> Iterator[Clie
         client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
     except (OSError, ValueError, TypeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise SwarmInputError(f"--scheduler {scheduler}: cannot reach a Dask scheduler ({reason})") from None
+        raise OptionError("scheduler", f"{scheduler}: cannot reach a Dask scheduler ({reason})") from None
     with client:
         yield client

@@ -1,5 +1,7 @@
 """What every process of ours does at its entry: user errors as one line and an exit code, stop signals, BLAS threads, exit.
 
+Every exit status of a user's error comes from one table, ``EXIT_CODES`` (the class of the error, ``runtime.errors``).
+
 ``swarm_cli.entry`` (the commands) and ``inchworm.spawn`` (processes started from specs) share these.
 """
 
@@ -11,9 +13,30 @@ import sys
 import threading
 from collections.abc import Callable
 
-from runtime.errors import LocalizationError, OutputError, SwarmInputError
+from runtime.errors import OptionError, OutputError, RunConflictError, SwarmError, SwarmRunError
 
+EXIT_INPUT = 2  # bad input, a connection that could not be made, a file that could not be read: nothing ran
+EXIT_RUN = 3  # a run that started failed: robots lost, the run aborted or stopped
+EXIT_CONFLICT = 4  # another coordinator holds the run
 EXIT_OUTPUT = 5  # an output could not be written (coordinator.process.EXIT_OUTPUT)
+EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (  # the first class that matches gives the exit code
+    (OutputError, EXIT_OUTPUT),  # a recording that failed or stopped the run included
+    (RunConflictError, EXIT_CONFLICT),
+    (SwarmRunError, EXIT_RUN),  # before SwarmConnectionError: a hub lost during a run is a run that failed
+    (SwarmError, EXIT_INPUT),  # SwarmInputError, LocalizationError, SwarmConnectionError
+    (OSError, EXIT_INPUT),
+)
+
+
+def exit_code(exc: BaseException) -> int | None:
+    """The exit status of a command that ended with ``exc`` (``EXIT_CODES``; runtime.errors has the hierarchy), None for
+    an exception that is not a user's error (a bug: its traceback is shown)."""
+    return next((code for kind, code in EXIT_CODES if isinstance(exc, kind)), None)
+
+
+def cli_message(exc: BaseException) -> str:
+    """The error's one line as a command says it: an option out of range is named by its flag (``OptionError``)."""
+    return exc.flag_message() if isinstance(exc, OptionError) else str(exc)
 
 
 def on_stop_signals(callback: Callable[[], object]) -> None:
@@ -32,20 +55,17 @@ def on_stop_signals(callback: Callable[[], object]) -> None:
 
 
 def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2 (an output that could not
-    be written, ``OutputError``: 5), a stop signal N
+    """``run()``'s exit code; a ``SwarmError`` or an I/O error prints ``prog: error: ...`` (an option named by its flag)
+    and gives its ``exit_code``, a stop signal N
     gives 128 + N (Ctrl-C 130), a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
     try:
         return int(run() or 0)
     except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout at exit
         return 141
-    except OutputError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_OUTPUT
-    except (SwarmInputError, LocalizationError, OSError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
+    except (SwarmError, OSError) as exc:
+        print(f"{prog}: error: {cli_message(exc)}", file=sys.stderr)
+        return exit_code(exc) or EXIT_INPUT
     except KeyboardInterrupt as exc:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.stop.StopRequested carries the signal

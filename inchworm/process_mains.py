@@ -1,7 +1,8 @@
 """The main function of every process kind, from its spec (``inchworm.specs``): what ``swarm agent``, ``swarm link``,
 ``swarm coordinator``, ``swarm emulate-robots``, ``swarm ros2 robots|bridge``, ``swarm router`` and ``swarm launch`` run once their flags
 are a spec, and what ``python -m inchworm.spawn`` runs for a spec it reads. Each returns the command's exit status;
-bad input raises ``SwarmInputError`` naming the option (``inchworm.entry.guarded`` prints it and gives 2).
+bad input raises ``SwarmInputError`` naming the option, a connection that cannot be made ``SwarmConnectionError``
+(``inchworm.entry.guarded`` prints it and gives the exit code of its class, ``EXIT_CODES``).
 Heavy modules (zenoh, scipy, ROS 2) are imported by the function that needs them.
 """
 
@@ -16,7 +17,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from inchworm.entry import on_stop_signals
+from inchworm.entry import EXIT_OUTPUT, EXIT_RUN, exit_code, on_stop_signals
 from inchworm.output import print_json
 from inchworm.specs import (
     AgentHostSpec,
@@ -29,16 +30,14 @@ from inchworm.specs import (
     Ros2RobotsSpec,
     RouterSpec,
 )
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmConnectionError, SwarmInputError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
+    from inchworm.launcher import LaunchOptions
     from runtime.wire.transport import ZenohSettings
     from runtime.world.params import PhysicsParams
 
-EXIT_AGENT = 3
-EXIT_CONFLICT = 4  # another coordinator of the run is alive
-EXIT_OUTPUT = 5
 EXIT_NO_RUN = 1  # swarm ros2 bridge: no live run
 SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
 
@@ -140,7 +139,6 @@ def run_coordinator(spec: CoordinatorSpec) -> int:
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
     from coordinator.process import CoordinatorOptions, default_recording, recording_line, run_coordinator as run_it, say  # noqa: PLC0415
-    from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
     from inchworm.limits import selection_from  # noqa: PLC0415
     from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
     from runtime.models.trajectory import Trajectory  # noqa: PLC0415
@@ -159,13 +157,11 @@ def run_coordinator(spec: CoordinatorSpec) -> int:
         rejoin=spec.rejoin)
     outcome = run_it(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
     status = 0
-    if outcome.error is not None:
+    if outcome.error is not None:  # another coordinator holds the run (4), lost or stopped (3), the recording stopped it (5)
         print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
-        if isinstance(outcome.error, CoordinatorConflict):
-            return EXIT_CONFLICT
-        if outcome.result is None:  # the agents did not come up: nothing ran
-            return EXIT_AGENT
-        status = EXIT_OUTPUT if type(outcome.error).__name__ == "RecordingStopped" else EXIT_AGENT
+        status = exit_code(outcome.error) or EXIT_RUN
+        if outcome.result is None:  # nothing ran (the agents did not come up, another coordinator holds the run)
+            return status
     if outcome.result is None:  # a standby whose run finished without it
         return EXIT_OUTPUT if outcome.recording_error is not None else 0
     result = outcome.result
@@ -364,7 +360,7 @@ def run_router(spec: RouterSpec) -> int:
         try:
             session = open_session(settings)
         except ConnectionError as exc:
-            raise SwarmInputError(f"cannot start the router on {', '.join(settings.listen)}: {exc.__cause__ or exc}") from None
+            raise SwarmConnectionError(f"cannot start the router on {', '.join(settings.listen)}: {exc.__cause__ or exc}") from None
         with session:
             source = f" (config {spec.config})" if spec.config else ""
             print(f"swarm router: listening on {', '.join(settings.listen)}{source}; zid {session.info.zid()}",
@@ -387,17 +383,32 @@ def run_router(spec: RouterSpec) -> int:
 
 def run_launch(spec: LaunchSpec) -> int:
     """``swarm launch`` / ``swarm demo``: the whole run (``inchworm.launcher.launch``); its JSON object printed as the last line."""
-    from inchworm.launcher import LaunchOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
+    from inchworm.launcher import launch  # noqa: PLC0415 - zenoh and scipy only when launching
+
+    return launch(launch_options(spec), emit_json=print_json, capture=spec.json).status
+
+
+def launch_options(spec: LaunchSpec) -> LaunchOptions:
+    """The ``LaunchOptions`` of a launch spec, by concern (the spec's fields are theirs, flat)."""
+    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions  # noqa: PLC0415
     from inchworm.limits import selection_from  # noqa: PLC0415
 
     path = lambda text: None if text is None else Path(text)  # noqa: E731
     s = spec.selection
-    options = LaunchOptions(
-        spec.model, spec.localizer, selection_from(s.w_v, s.samples, s.population, s.generations, s.method, s.mc_start, s.mc_emax, s.genetic),
-        spec.command, path(spec.trajectory), spec.robots, spec.configs, spec.trajectory_seed, spec.method, spec.seed, spec.run_id,
-        path(spec.out), path(spec.result), spec.motion_time, spec.step_timeout, spec.driver, spec.driver_options, spec.command_timeout,
-        path(spec.gateway_config), path(spec.emulator_events), spec.min_robots, spec.kill_robot or None, spec.standby,
-        spec.kill_coordinator, spec.agents_per_process, spec.drop, spec.corrupt, spec.delay, path(spec.record), spec.no_record,
-        spec.foxglove, spec.linger, spec.json, path(spec.model_file), spec.on_lost, spec.rejoin, spec.on_record_error, spec.world,
-        spec.physics_params, spec.physics_speed, spec.ros2, spec.ros2_robots, spec.stall_coordinator, spec.stall_link)
-    return launch(options, emit_json=print_json)
+    return LaunchOptions(
+        swarm=SwarmOptions(
+            trajectory=path(spec.trajectory), robots=spec.robots, configs=spec.configs, trajectory_seed=spec.trajectory_seed,
+            method=spec.method, seed=spec.seed, model=spec.model, model_file=path(spec.model_file), localizer=spec.localizer,
+            selection=selection_from(s.w_v, s.samples, s.population, s.generations, s.method, s.mc_start, s.mc_emax, s.genetic),
+            run_id=spec.run_id, min_robots=spec.min_robots, on_lost=spec.on_lost, rejoin=spec.rejoin, motion_time=spec.motion_time,
+            step_timeout=spec.step_timeout, agents_per_process=spec.agents_per_process, world=spec.world,
+            physics_params=spec.physics_params, physics_speed=spec.physics_speed),
+        driver=DriverOptions(name=spec.driver, options=spec.driver_options, command_timeout=spec.command_timeout,
+                             gateway_config=path(spec.gateway_config), emulator_events=path(spec.emulator_events),
+                             ros2_robots=spec.ros2_robots),
+        faults=FaultOptions(kill_robot=spec.kill_robot or None, standby=spec.standby, kill_coordinator=spec.kill_coordinator,
+                            stall_coordinator=spec.stall_coordinator, stall_link=spec.stall_link, drop=spec.drop,
+                            corrupt=spec.corrupt, delay=spec.delay),
+        outputs=OutputOptions(command=spec.command, out=path(spec.out), result=path(spec.result), record=path(spec.record),
+                              no_record=spec.no_record, on_record_error=spec.on_record_error, foxglove=spec.foxglove,
+                              linger=spec.linger, ros2=spec.ros2, json=spec.json))

@@ -32,7 +32,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from inchworm.limits import MODEL_FLAGS
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
+from runtime.paths import coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
 if TYPE_CHECKING:
@@ -57,8 +58,15 @@ class PublishOptions:
     speed: float = 1.0
     hub: str | None = None
     wait: float = 10.0
-    run_id: str | None = None
+    run_id: str | None = field(default=None, metadata={"flag": "--run"})
     same_run: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file")
+        if math.isnan(self.speed) or self.speed < 0:
+            raise OptionError("speed", f"must be >= 0 (0 or inf: as fast as possible), got {self.speed}", self)
+        if not self.wait >= 0:
+            raise OptionError("wait", f"must be >= 0, got {self.wait}", self)
 
 
 @dataclass(frozen=True)
@@ -93,10 +101,6 @@ def publish(options: PublishOptions, *, say: Say = _quiet, warn: Say = _quiet) -
     from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     speed = options.speed
-    if math.isnan(speed) or speed < 0:
-        raise SwarmInputError(f"--speed must be >= 0 (0 or inf: as fast as possible), got {speed}")
-    if options.wait < 0:
-        raise SwarmInputError(f"--wait must be >= 0, got {options.wait}")
     info = recording_info(options.file)  # the whole file is validated before anything is published
     everything = list(read_messages(options.file))
     messages = [m for m in everything if m[0].startswith(ROOT + "/")]  # the run's Zenoh messages, not derived views
@@ -173,7 +177,7 @@ def _retarget(messages: list[tuple[str, bytes, int, int]], run_id: str | None, s
     try:
         validate_run(target)
     except SwarmInputError as exc:
-        raise SwarmInputError(f"--run {target!r}: {exc}") from None
+        raise OptionError("run_id", f"{target!r}: {exc}", PublishOptions) from None
     if target == source:
         return messages, target
     old, new = f"{ROOT}/{source}/", f"{ROOT}/{target}/"
@@ -231,6 +235,9 @@ class CheckOptions:
     selection: dict[str, Any] = field(default_factory=dict)
     what_if: bool = False
 
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file", "trajectory", "model_file")
+
 
 @dataclass(frozen=True)
 class CheckOutcome:
@@ -256,7 +263,7 @@ def _overrides(options: CheckOptions) -> tuple[dict[str, Any], dict[str, Any]]:
               if options.model_flags.get(name) is not None}
     selection = {name: options.selection[name] for name in SELECTION_OPTIONS if options.selection.get(name) is not None}
     if "w_v" in selection and not 0.0 <= selection["w_v"] <= 1.0:
-        raise SwarmInputError(f"--w-v must be in [0, 1], got {selection['w_v']}")
+        raise OptionError("w_v", f"must be in [0, 1], got {selection['w_v']}")
     return model, selection
 
 

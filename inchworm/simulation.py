@@ -12,17 +12,18 @@ import numpy as np
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult, StepRecord
     from coordinator.localization import Localizer
+    from coordinator.run_result import RunResult, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
     from runtime.world.params import PhysicsParams
 
 
 def simulate(
-    trajectory: Trajectory | str | Path | None = None,
+    trajectory: Trajectory | StrPath | None = None,
     *,
     method: str | Strategy = "inchworm",
     robots: int = 10,
@@ -55,9 +56,8 @@ def simulate(
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
@@ -82,7 +82,7 @@ def simulate(
     return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress).run(traj, start)
 
 
-def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
+def resolve_trajectory(trajectory: Trajectory | StrPath | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
     """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
     if trajectory is None:
         return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))

@@ -23,7 +23,7 @@ from robot_agent.driver import Driver, DriverContext, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.host import LinkFactory
 from robot_agent.plugins import BUILT_IN, build_driver, driver_class
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.models.config import ModelConfig
 from runtime.wire.messages import CommandLimits
@@ -67,7 +67,7 @@ def driver_options(pairs: list[str]) -> dict[str, str]:
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
-            raise SwarmInputError(f"--driver-option must be KEY=VALUE, got {pair!r}")
+            raise OptionError("driver_option", f"must be KEY=VALUE, got {pair!r}")
         out[key.strip()] = value
     return out
 
@@ -164,7 +164,7 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
     if spec.driver != "gateway" and spec.pose is None and traj is not None:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
         if missing and spec.driver == "sim":
-            raise SwarmInputError(f"--id names robots {missing} that {spec.trajectory_path} does not have")
+            raise OptionError("id", f"names robots {missing} that {spec.trajectory_path} does not have")
         poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses, strict=True)}
     elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
         raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")

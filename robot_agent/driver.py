@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmInputError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
@@ -50,11 +50,11 @@ class PeerPoses:
         return cls(ids, np.array([peers[int(i)] for i in ids], dtype=float).reshape(len(ids), 3))
 
 
-class DriverRefused(Exception):
+class DriverRefused(SwarmRunError):
     """The robot did not execute the command; the text is the reason."""
 
 
-class RobotLost(Exception):
+class RobotLost(SwarmRunError):
     """The robot stopped answering; the text says how."""
 
 

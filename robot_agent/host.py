@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING
 
 from robot_agent.agent import Agent
 from robot_agent.gateway_driver import GatewayDriver
+from runtime.errors import SwarmInputError
 from runtime.wire.transport import ZenohSettings, claim_identities, open_session
 
 if TYPE_CHECKING:
@@ -53,7 +54,7 @@ class AgentHost:
     def __init__(self, settings: ZenohSettings, agents: Sequence[Agent], links: Mapping[str, LinkFactory] | None = None) -> None:
         robots = [a.robot for a in agents]
         if not robots or len(set(robots)) != len(robots):
-            raise ValueError(f"an agent host needs distinct robots, got {robots}")
+            raise SwarmInputError(f"an agent host needs distinct robots, got {robots}")
         self.settings = settings
         self.agents = list(agents)
         self.links = dict(links or {})

@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 from robot_agent.write_batch import WriteBatch
+from runtime.errors import SwarmConnectionError
 from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
@@ -139,7 +140,7 @@ class SerialLink:
         try:
             self._serial = serial.Serial(device, baudrate=baud, timeout=0)
         except (serial.SerialException, OSError) as exc:
-            raise ConnectionError(f"cannot open serial device {device}: {exc}") from None
+            raise SwarmConnectionError(f"cannot open serial device {device}: {exc}") from None
         self._fd = self._serial.fileno()
         self._lock = threading.Lock()
 
@@ -149,7 +150,7 @@ class SerialLink:
             return b""
         data = os.read(self._fd, 4096)
         if not data:
-            raise OSError(f"serial device {self._serial.port} closed")
+            raise SwarmConnectionError(f"serial device {self._serial.port} closed")
         return data
 
     def write(self, data: bytes) -> None:

@@ -10,7 +10,19 @@ import typing
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
-from inchworm.entry import EXIT_OUTPUT, guarded, leave, limit_blas_threads, on_stop_signals  # noqa: F401 - the commands import them from here
+from inchworm.entry import (  # noqa: F401 - the commands import them from here
+    EXIT_CODES,
+    EXIT_CONFLICT,
+    EXIT_INPUT,
+    EXIT_OUTPUT,
+    EXIT_RUN,
+    cli_message,
+    exit_code,
+    guarded,
+    leave,
+    limit_blas_threads,
+    on_stop_signals,
+)
 
 
 def plain(doc: str | None) -> str:

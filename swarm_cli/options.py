@@ -135,12 +135,11 @@ def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> 
 
 
 def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any, total: int, label: str, log: str = "runs") -> int:
-    """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
+    """Save ``options`` (checked when they were made) as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
     table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
     from inchworm.progress import Progress  # noqa: PLC0415
     from inchworm.runner import open_executor  # noqa: PLC0415
 
-    options.validate()
     save_config(args)
     with open_executor(args.executor, args.workers, args.scheduler) as executor:
         result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))

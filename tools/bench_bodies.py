@@ -19,9 +19,8 @@ import numpy as np
 
 import coordinator.executor as executor
 from inchworm.simulation import simulate
-from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import body_spacing, random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory, validate_passable
 
 
 def run(n: int, configs: int, method: str, localizer: str, seed: int) -> dict:

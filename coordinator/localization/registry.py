@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any, cast
 from runtime.errors import SwarmInputError
 
 if TYPE_CHECKING:
-    from coordinator.localization import Localizer
+    from coordinator.localization.interface import Localizer
     from runtime.models.config import ModelConfig
 
 ENTRY_POINT_GROUP = "inchworm_swarm.localizers"

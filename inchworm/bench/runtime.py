@@ -57,7 +57,7 @@ import msgspec
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmInputError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
@@ -260,7 +260,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
         stop_all(procs[:emulators])
     left = [p.pid for p in procs if p.poll() is None]
     if left:
-        raise RuntimeError(f"agent processes {left} are still running")
+        raise SwarmRunError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
     steps = len(timed.execute_s)  # every step run (CPU includes the planning between configurations)
     cpu = {"agents": round((cpu_after[0] - cpu_before[0]) * 1e3 / steps, 3), "coordinator": round((cpu_after[1] - cpu_before[1]) * 1e3 / steps, 3)}

@@ -26,6 +26,8 @@ import struct
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
+from runtime.errors import SwarmInputError
+
 START = 0xA5
 HEADER = struct.Struct("<BBHHB")  # START, LEN, ROBOT, SEQ, TYPE
 CRC = struct.Struct("<H")
@@ -39,7 +41,7 @@ F32_MAX = 3.4028234663852886e38  # the largest finite float32
 QUIET_S = 0.020  # a partial frame is given up after the line was quiet this long (s)
 
 
-class FrameError(ValueError):
+class FrameError(SwarmInputError):
     """A frame or body that cannot be built or parsed; the text says which field and why."""
 
 

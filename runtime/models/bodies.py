@@ -36,10 +36,9 @@ from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, instant_bound, step_bound
 from runtime.models.state import SwarmEstimate
 
-if TYPE_CHECKING:  # trajectory.py imports this module
+if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
-    from runtime.models.trajectory import Trajectory
 
 CONTACT_BOUND = 1e-3  # the chance constraint: P(contact) of a pair during a step at most this
 BOUND_LEVELS = (1e-3, 1e-2, 1e-1)  # bounds tried in turn for the robots no order keeps within the lower one
@@ -545,24 +544,3 @@ def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.nd
     together = near(start[i] - start[j], path[i] - path[j])
     bad = i_first & j_first & together
     return np.column_stack([i[bad], j[bad]])
-
-
-def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
-    """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj`` (a ``Trajectory``),
-    or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
-    e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
-    radius = cfg.robot_radius_m
-    if radius <= 0:
-        return
-    configs = [traj.initial_poses[:, :2], *traj.configurations]
-    for k, xy in enumerate(configs):
-        check_apart(xy, traj.ids, radius, "the initial configuration" if k == 0 else f"configuration {k}")
-    for k in range(1, len(configs)):
-        pairs = impassable_pairs(configs[k - 1], configs[k], radius)
-        if len(pairs):
-            a, b = traj.ids[pairs[0]]
-            raise SwarmInputError(
-                f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
-                f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
-                f"give them room to pass (or --robot-radius 0 for point robots)"
-            )

@@ -26,7 +26,7 @@ from typing import Protocol
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.motion import draw_motion_noise
@@ -129,5 +129,5 @@ WORLDS: dict[str, WorldFactory] = {"kinematic": KinematicWorld, "physics": physi
 def make_world(kind: str, ids: np.ndarray, poses: np.ndarray, cfg: ModelConfig, seed: int) -> World:
     """The world ``kind`` (a name of ``WORLDS``) of robots ``ids`` at ``poses``."""
     if kind not in WORLDS:
-        raise SwarmInputError(f"--world {kind}: not one of {', '.join(sorted(WORLDS))}")
+        raise OptionError("world", f"{kind}: not one of {', '.join(sorted(WORLDS))}")
     return WORLDS[kind](ids, poses, cfg, seed)

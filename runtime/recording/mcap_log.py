@@ -52,7 +52,7 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, RecordingError, SwarmInputError
 
 try:
     from zstandard import ZstdError as _ZstdError
@@ -227,7 +227,7 @@ class McapRecorder:
     def write(self, key: str, payload: bytes, publish_time_ns: int | None = None, log_time_ns: int | None = None) -> None:
         """Queue one message; ``log_time_ns`` defaults to now, ``publish_time_ns`` to the message's ``stamp_ns``."""
         if self._closed:
-            raise RuntimeError(f"recorder of {self.path} is closed")
+            raise RecordingError(f"recorder of {self.path} is closed")
         if self._error is not None:
             with self._lock:
                 self.dropped += 1
@@ -406,7 +406,7 @@ class McapRecorder:
         self.close()
 
 
-class RecordingFailed(OSError):
+class RecordingFailed(RecordingError):
     """Writing a recording failed: ``path``, the ``error``, messages ``written`` before it and ``dropped`` after it."""
 
     def __init__(self, path: Path, error: BaseException, written: int, dropped: int) -> None:
@@ -460,7 +460,7 @@ def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Pa
     for item in params:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
+            raise OptionError("param", f"{item!r}: use KEY=VALUE")
         try:
             values[key] = json.loads(value)
         except ValueError:

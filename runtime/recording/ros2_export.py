@@ -46,7 +46,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.recording.foxglove_scene import trajectory_configurations
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
@@ -190,9 +190,9 @@ def export_ros2(src: str | os.PathLike[str], out: str | os.PathLike[str], distro
     ``readable_bytes`` of its ``bytes`` read). ``SwarmInputError`` (nothing written) when it holds no message of the run."""
     src, out = Path(src), Path(out)
     if distro not in DISTROS:
-        raise SwarmInputError(f"--distro {distro}: choose one of {', '.join(DISTROS)}")
+        raise OptionError("distro", f"{distro}: choose one of {', '.join(DISTROS)}")
     if out.exists():
-        raise SwarmInputError(f"--ros2 {out}: already exists; rosbag2 writes a new folder")
+        raise OptionError("ros2", f"{out}: already exists; rosbag2 writes a new folder")
     info = recording_info(src)  # SwarmInputError for what is not a readable recording
     if not info["raw_messages"]:
         raise SwarmInputError(f"{src}: nothing to export: no complete message of the run in it"

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from coordinator.checkpoint import RunState
-from coordinator.executor import InchwormExecutor, RunResult
+from coordinator.executor import InchwormExecutor
 from coordinator.localization import make_localizer
+from coordinator.run_result import RunResult
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate

@@ -69,8 +69,9 @@ def test_an_interrupted_study_resumes_to_the_same_rows(tmp_path):
 
 def test_resume_refuses_a_log_of_other_options(tmp_path):
     StudyLog(tmp_path, "runs", {"robots": 6, "seed": 0})
-    with pytest.raises(SwarmInputError, match="made with robots = 6, not 8"):
+    with pytest.raises(inchworm.OptionError, match=r"^resume: .*runs\.jsonl was made with robots = 6, not 8$") as caught:
         StudyLog(tmp_path, "runs", {"robots": 8, "seed": 0}, resume=True)
+    assert caught.value.flag_message().startswith("--resume: ")
     (tmp_path / "other.jsonl").write_text("not a log\n")
     with pytest.raises(SwarmInputError, match="is not a study log"):
         StudyLog(tmp_path, "other", {}, resume=True)
@@ -113,12 +114,35 @@ def test_statistics_and_noise_scaling():
 
 
 def test_bad_options_are_one_error_hierarchy():
-    with pytest.raises(SwarmError, match="unknown methods"):
+    """Options are checked when they are made; the library names the Python parameter, never a flag."""
+    with pytest.raises(SwarmError, match=r"^methods must list names among .*; unknown: \['teleport'\]$"):
         inchworm.compare(inchworm.CompareOptions(methods=("teleport",)))
-    with pytest.raises(SwarmInputError, match="--localizers"):
+    with pytest.raises(SwarmInputError, match="^localizers must list localizers"):
         inchworm.study_noise(inchworm.NoiseOptions(localizers=("gps",)))
-    with pytest.raises(SwarmInputError, match="--experiments"):
-        inchworm.study_anchors(inchworm.AnchorsOptions(experiments=0))
+    with pytest.raises(inchworm.OptionError, match="^experiments must be >= 1, got 0$") as caught:
+        inchworm.AnchorsOptions(experiments=0)
+    assert caught.value.parameter == "experiments" and caught.value.flag_message() == "--experiments must be >= 1, got 0"
+    with pytest.raises(inchworm.OptionError, match="^trajectories must be >= 1, got 0$"):
+        inchworm.compare(inchworm.CompareOptions(trajectories=0))
+    with pytest.raises(inchworm.OptionError, match="^max_motion_scale must be > 1"):
+        inchworm.CalibrationOptions(max_motion_scale=1.0)
+    with pytest.raises(inchworm.OptionError, match="^localizer must be one of the localizers"):
+        inchworm.RunOptions(localizer="gps")
+
+
+@pytest.mark.parametrize("argv, flag_message", [
+    (["study", "noise", "--localizers", "gps"], "--localizers must list localizers among"),
+    (["study", "calibration", "--max-motion-scale", "1"], "--max-motion-scale must be > 1, got 1.0"),
+    (["study", "anchors", "--experiments", "0"], "--experiments must be >= 1, got 0"),
+    (["study", "selection", "--eval-samples", "0"], "--eval-samples must be >= 1, got 0"),
+    (["study", "noise", "--robots", "1"], "--robots must be >= 2, got 1"),
+])
+def test_the_cli_names_the_flag_of_a_bad_option(argv, flag_message, capsys):
+    from swarm_cli.main import main
+
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert flag_message in err and len(err.strip().splitlines()) == 1, err
 
 
 def test_results_plot_on_the_callers_axes_with_full_titles():

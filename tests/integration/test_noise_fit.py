@@ -64,7 +64,7 @@ def test_bad_model_files_name_the_key(tmp_path, capsys, text, named):
     path.write_text(text)
     with pytest.raises(SwarmInputError) as raised:
         load_model(path)
-    assert str(raised.value).startswith(f"--model {path}: ") and named in str(raised.value)
+    assert str(raised.value).startswith(f"model {path}: ") and named in str(raised.value)  # the CLI: --model (below)
     assert main(["sim", "--robots", "3", "--configs", "1", "--model", str(path), "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith("swarm sim: error: --model") and named in err[-1]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmConnectionError, SwarmInputError
 from runtime.wire.transport import (
     ZenohSettings,
     alive_now,
@@ -161,10 +161,10 @@ def test_round_trip_ms_statistics_are_consistent() -> None:
 
 
 def test_round_trip_ms_between_sessions_that_do_not_meet_fails_clearly() -> None:
-    """Two separate hubs never exchange a ping: TimeoutError naming the cause, no result."""
+    """Two separate hubs never exchange a ping: SwarmConnectionError naming the cause, no result."""
     first, _ = loopback_hub(free_tcp_port())
     second, _ = loopback_hub(free_tcp_port())
-    with pytest.raises(TimeoutError, match="do the two settings reach each other"):
+    with pytest.raises(SwarmConnectionError, match="do the two settings reach each other"):
         round_trip_ms(first, second, count=2)
 
 

@@ -95,7 +95,7 @@ def test_a_gateway_whose_robots_have_other_bodies_is_refused_before_anything_sta
                                   "limits": {"robot_radius_m": 0.02}}))
     out = swarm("demo", "--driver", "gateway", "--gateway-config", str(config), "--no-record", "--out", str(tmp_path))
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert "--robot-radius 0.011 differs from the robots' body radius 0.02 m" in out.stderr
+    assert "--robot-radius 0.011 (of the model) differs from the robots' body radius 0.02 m" in out.stderr
     config.write_text(json.dumps({"ports": [{"name": "radio0", "device": "/dev/null", "robots": [0]}], "limits": {"robot_radius_m": -1}}))
     out = swarm("demo", "--driver", "gateway", "--gateway-config", str(config), "--no-record", "--out", str(tmp_path))
     assert out.returncode == 2 and "limits.robot_radius_m: must be >= 0, got -1" in out.stderr

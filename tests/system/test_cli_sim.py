@@ -75,7 +75,7 @@ def test_worst_emax_needs_the_monte_carlo(tmp_path):
 
 def test_compare_rejects_unknown_methods():
     out = swarm("compare", "--methods", "inchworm,teleport")
-    assert out.returncode == 2 and "unknown methods ['teleport']" in out.stderr
+    assert out.returncode == 2 and "--methods must list names among" in out.stderr and "unknown: ['teleport']" in out.stderr
 
 
 def test_sim_of_an_odd_swarm_compares_with_no_anchors(tmp_path):

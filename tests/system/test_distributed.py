@@ -443,12 +443,14 @@ def test_bad_messages_do_not_disturb_a_run(tmp_path):
     assert _alive_with(run.run_id) == []
 
 
-def test_the_api_distributed_run_equals_the_in_process_one():
-    """``inchworm.run_distributed``: agent processes over a loopback hub, the coordinator in this process."""
+def test_the_api_distributed_run_equals_the_in_process_one(tmp_path):
+    """``inchworm.run_distributed``: agent processes over a loopback hub, the coordinator in this process (its
+    recording named by a plain ``str``)."""
     import inchworm
 
     run = inchworm.simulate(robots=4, configs=2, seed=5, method="ref57")
-    distributed = inchworm.run_distributed(run.trajectory, method="ref57", seed=5)
+    distributed = inchworm.run_distributed(run.trajectory, method="ref57", seed=5, record=str(tmp_path / "api.mcap"))
+    assert (tmp_path / "api.mcap").stat().st_size > 0
     assert distributed.pf() == run.pf()
     assert all(np.array_equal(a.estimate.poses, b.estimate.poses) for a, b in zip(run.steps, distributed.steps, strict=True))
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -70,6 +71,19 @@ def test_custom_strategy():
     lines = example("custom_strategy.py", "--robots", "6", "--configs", "2").splitlines()
     assert [line.split(" P_f")[0].strip() for line in lines] == [
         "leaders-first, paper localizer", "ref57, paper localizer", "leaders-first, dead reckoning"]
+
+
+def test_launched_run(tmp_path):
+    """inchworm.Swarm: the live state names every agent, the result is the launch --json object, nothing is left running."""
+    text = example("launched_run.py", "--robots", "4", "--configs", "2", "--out", str(tmp_path))
+    lines = text.splitlines()
+    assert any(line.startswith("run swarm-") and "agents [0, 1, 2, 3] alive" in line for line in lines), text
+    status = next(line for line in lines if line.startswith("status "))
+    assert status.startswith("status 0, P_f 0.") and "lost robots []" in status
+    summary = json.loads(lines[-1])
+    assert {"method", "pf", "configs", "lost", "finished_robots", "recording", "ended_early"} <= set(summary)
+    assert summary["finished_robots"] == 4 and summary["ended_early"] is None
+    assert (tmp_path / "run.mcap").stat().st_size > 0 and (tmp_path / "trajectory.png").exists()
 
 
 def test_paper_experiment_in_the_physical_world(tmp_path):

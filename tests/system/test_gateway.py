@@ -789,7 +789,7 @@ def test_launch_rejects_bad_fault_options_naming_the_flag(tmp_path):
     for args, message in ((["--driver=gateway", "--drop=1.5"], "--drop must be a probability in [0, 1], got 1.5"),
                           (["--driver=gateway", "--corrupt=-0.1"], "--corrupt must be a probability"),
                           (["--driver=gateway", "--delay=inf"], "--delay must be a finite number of seconds"),
-                          (["--drop=0.1"], "need --driver gateway")):
+                          (["--drop=0.1"], "--drop is a fault of the emulated robots' radio and links: it needs the gateway driver")):
         proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "demo", "--no-record", *args],
                               capture_output=True, text=True, timeout=60, cwd=tmp_path)
         assert proc.returncode == 2 and message in proc.stderr and "Traceback" not in proc.stderr, proc.stderr

@@ -16,7 +16,7 @@ def test_sim_names_a_bad_robot_count_instead_of_hanging(robots, tmp_path):
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.main", "sim", f"--robots={robots}", "--out", str(tmp_path)],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     assert proc.returncode == 2
-    assert f"at least 2 robots (--robots), got {robots}" in proc.stderr
+    assert f"--robots must be >= 2 for a random trajectory, got {robots}" in proc.stderr
     assert "Traceback" not in proc.stderr
 
 

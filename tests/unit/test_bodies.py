@@ -16,10 +16,10 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import AnchorSelector, SelectionConfig
 from coordinator.simulate import simulate
 from runtime.errors import SwarmInputError
-from runtime.models.bodies import BodyCheck, closest_approach, impassable_pairs, step_contacts, validate_passable
+from runtime.models.bodies import BodyCheck, closest_approach, impassable_pairs, step_contacts
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import Trajectory, body_spacing, min_separation, random_trajectory
+from runtime.models.trajectory import Trajectory, body_spacing, min_separation, random_trajectory, validate_passable
 from runtime.recording.foxglove_scene import SceneDeriver, schema_errors
 from runtime.wire.messages import ContactMessage, TruthSetMessage
 

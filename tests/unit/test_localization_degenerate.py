@@ -63,7 +63,7 @@ def test_close_pair_gives_valid_answers(localizer, gap, exact, with_prior):
     for seed, n in enumerate(range(6, 11)):
         truth, obs, prior = close_pair_case(n, gap, exact, seed)
         for robust in (True, False):
-            out = localize_document(document(obs, prior if with_prior else None, n), CFG, localizer, strict=False, robust=robust)
+            out = localize_document(document(obs, prior if with_prior else None, n), CFG, localizer, strict=False, robust=robust).to_json()
             json.dumps(out, allow_nan=False)  # no NaN/Infinity anywhere
             left_out = {e["id"] for e in out["excluded"]}
             assert {e["reason"] for e in out["excluded"]} <= REASONS

@@ -50,7 +50,7 @@ def by_id(doc: dict) -> dict[int, dict]:
 def test_one_way_sightings_localize_everyone_and_leave_unseen_headings_unknown(localizer):
     """Robot 2 sees 0 and 1, nobody sees 2: all three are placed (2 is the reference); 0 and 1 have no
     heading (null, and sigma_heading null)."""
-    doc = inchworm.localize({"robots": [0, 1, 2], "observations": rows([(2, 0), (2, 1)])}, CFG, localizer)
+    doc = inchworm.localize({"robots": [0, 1, 2], "observations": rows([(2, 0), (2, 1)])}, CFG, localizer).to_json()
     assert doc["excluded"] == [] and doc["reference"] == 2
     robots, truth = by_id(doc), local_truth(2)
     for r in (0, 1):
@@ -64,7 +64,7 @@ def test_a_silent_sensor_drops_nobody(localizer):
     """Robot 3's sensor is silent (it reports nothing) and robot 5 was seen only by 3: 5 saw 0 and 1, so it
     is placed all the same; 3 has a position and no heading."""
     pairs = [p for p in everyone() if p[0] != 3 and p[1] != 5]
-    doc = inchworm.localize({"robots": list(range(6)), "observations": rows(pairs, seed=1)}, CFG, localizer)
+    doc = inchworm.localize({"robots": list(range(6)), "observations": rows(pairs, seed=1)}, CFG, localizer).to_json()
     assert doc["excluded"] == []
     robots, truth = by_id(doc), local_truth(doc["reference"])
     assert robots[3]["heading"] is None and robots[5]["heading"] is not None
@@ -76,7 +76,7 @@ def test_a_silent_sensor_drops_nobody(localizer):
 def test_a_robot_seen_by_exactly_one_other(localizer):
     """0 <-> 1 <-> 2, and robot 4 (silent) seen by robot 1 only: placed through 1's pose, heading unknown."""
     pairs = [(0, 1), (1, 0), (1, 2), (2, 1), (1, 4)]
-    doc = inchworm.localize({"robots": [0, 1, 2, 4], "observations": rows(pairs, seed=2)}, CFG, localizer)
+    doc = inchworm.localize({"robots": [0, 1, 2, 4], "observations": rows(pairs, seed=2)}, CFG, localizer).to_json()
     assert doc["excluded"] == []
     four, truth = by_id(doc)[4], local_truth(0)
     assert four["heading"] is None
@@ -86,7 +86,7 @@ def test_a_robot_seen_by_exactly_one_other(localizer):
 def test_what_cannot_be_fixed_is_named_and_only_that():
     """0 <-> 1, 1 -> 2 -> 3: 2 is placed by 1, but 2's heading is free, so 3 is undetermined; 5 is in no row."""
     pairs = [(0, 1), (1, 0), (1, 2), (2, 3)]
-    doc = inchworm.localize({"robots": [0, 1, 2, 3, 5], "observations": rows(pairs, seed=3)}, CFG)
+    doc = inchworm.localize({"robots": [0, 1, 2, 3, 5], "observations": rows(pairs, seed=3)}, CFG).to_json()
     assert doc["excluded"] == [{"id": 3, "reason": "undetermined"}, {"id": 5, "reason": "unobserved"}]
     assert [r["id"] for r in doc["robots"]] == [0, 1, 2]
     assert [o["used"] for o in doc["observations"]] == [True, True, True, False]
@@ -104,7 +104,7 @@ def test_an_observation_of_the_wrong_robot_is_a_suspect(localizer):
     data = rows(pairs, seed=4)
     wrong = pairs.index((0, 1))
     data[wrong][1] = 4
-    doc = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG, localizer)
+    doc = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG, localizer).to_json()
     chi2 = [o["range_residual"] ** 2 + o["bearing_residual"] ** 2 for o in doc["observations"]]
     assert doc["suspects"] == ([wrong] if localizer == "joint" else [wrong, 8])
     assert doc["observations"][wrong]["suspect"] and chi2[wrong] == max(chi2) > 10 * doc["suspect_chi2"]
@@ -117,7 +117,7 @@ def test_an_observation_of_the_wrong_robot_is_a_suspect(localizer):
 def test_clean_rows_have_unit_scale_residuals():
     """Residuals are whitened: with the noise the model assumes, their mean square is about 1 per axis
     (a little less: the fit absorbs some), and nothing is flagged."""
-    doc = inchworm.localize({"robots": list(range(6)), "observations": rows(everyone(), seed=5)}, CFG, "joint")
+    doc = inchworm.localize({"robots": list(range(6)), "observations": rows(everyone(), seed=5)}, CFG, "joint").to_json()
     res = np.array([[o["range_residual"], o["bearing_residual"]] for o in doc["observations"]])
     assert 0.4 < np.mean(res**2) < 1.5 and doc["suspects"] == [] and doc["warnings"] == []
 
@@ -127,12 +127,12 @@ def test_ranges_beyond_the_sensing_range_are_warned():
     the sensing range is set to the sensor's the warning is gone."""
     layout = LAYOUT * [10.0, 10.0, 1.0]
     data = rows(everyone(), seed=6, layout=layout)
-    doc = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG)
+    doc = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG).to_json()
     assert doc["beyond_sensing_range"] == list(range(len(data))) and doc["sensing_range_m"] == 1.0
     warning = next(w for w in doc["warnings"] if "beyond the sensing range 1 m" in w)
     assert warning.startswith("observation rows 0, 1, 2, ") and f"({len(data)} in all)" in warning
     far = ModelConfig(range_sigma_m=0.01, bearing_sigma_rad=math.radians(2.0), sensing_range_m=9.0)
-    assert inchworm.localize({"robots": list(range(6)), "observations": data}, far)["beyond_sensing_range"] == []
+    assert inchworm.localize({"robots": list(range(6)), "observations": data}, far).checks["beyond_sensing_range"] == []
 
 
 @pytest.mark.parametrize("localizer", BUILTIN_LOCALIZERS)
@@ -140,8 +140,8 @@ def test_duplicated_rows_are_used_once(localizer):
     """Rows 3 and 7 repeated at the end: named, unused, and the answer is the one without them (a row
     counted twice would shrink every delta_p)."""
     data = rows(everyone(), seed=7)
-    once = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG, localizer)
-    twice = inchworm.localize({"robots": list(range(6)), "observations": [*data, data[3], data[7]]}, CFG, localizer)
+    once = inchworm.localize({"robots": list(range(6)), "observations": data}, CFG, localizer).to_json()
+    twice = inchworm.localize({"robots": list(range(6)), "observations": [*data, data[3], data[7]]}, CFG, localizer).to_json()
     n = len(data)
     assert twice["duplicates"] == [n, n + 1] and once["duplicates"] == []
     assert [o["used"] for o in twice["observations"][n:]] == [False, False]
@@ -155,5 +155,5 @@ def test_with_a_prior_the_joint_localizer_places_what_the_topology_cannot():
     pairs = [(0, 1), (1, 0), (1, 2), (2, 3)]
     prior = [{"id": r, "x": LAYOUT[r, 0], "y": LAYOUT[r, 1], "heading": LAYOUT[r, 2], "delta": 0.05, "sigma_heading": 0.1} for r in range(4)]
     data = {"robots": [0, 1, 2, 3], "observations": rows(pairs, seed=8), "prior": prior}
-    assert inchworm.localize(data, CFG, "joint")["excluded"] == []
-    assert inchworm.localize(data, CFG, "paper")["excluded"] == [{"id": 3, "reason": "undetermined"}]
+    assert inchworm.localize(data, CFG, "joint").excluded == {}
+    assert inchworm.localize(data, CFG, "paper").excluded == {3: "undetermined"}

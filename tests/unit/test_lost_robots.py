@@ -13,13 +13,12 @@ import pytest
 from coordinator.executor import (
     REJOIN_DRIVE_M,
     InchwormExecutor,
-    RejoinedRobot,
     RunAborted,
-    RunResult,
     last_estimate,
     localize_rejoined,
 )
 from coordinator.localization import make_localizer
+from coordinator.run_result import RejoinedRobot, RunResult
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate

@@ -9,8 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from coordinator.selection.selector import SelectionConfig
-from inchworm.launcher import LaunchOptions, ros2_settings, ros2_step_timeout
+from inchworm.launcher import DriverOptions, LaunchOptions, SwarmOptions, ros2_settings, ros2_step_timeout
 from robot_agent.ros2_config import Ros2Config, SightingWindow, closed_loop_speed, velocity_profile
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -61,7 +60,7 @@ def test_sightings_are_the_sensing_model_with_the_robots_stream():
         ids, rho, phi = world.sightings(0)
         nb, want_rho, want_phi = sense_robot(poses, 0, cfg, rng)
         assert ids.tolist() == [[2, 5, 9, 11][i] for i in nb] and np.array_equal(rho, want_rho) and np.array_equal(phi, want_phi)
-    with pytest.raises(SwarmInputError, match="--world rigid: not one of kinematic, physics"):
+    with pytest.raises(SwarmInputError, match="^world rigid: not one of kinematic, physics"):
         make_world("rigid", np.array([0]), np.zeros((1, 3)), cfg, 0)
 
 
@@ -145,7 +144,7 @@ def test_settings_from_a_file_and_options(tmp_path):
     ("[limits\n", {}, "not TOML"),
     ("", {"max_linear_speed": "fast"}, "max_linear_speed=fast: not a number"),
     ("", {"max_linear_speed": "-1"}, "max_linear_speed must be a number > 0"),
-    ("", {"warp": "9"}, "--driver-option warp: not a setting of the ROS 2 driver"),
+    ("", {"warp": "9"}, "^driver_option warp: not a setting of the ROS 2 driver"),
     ("", {"qos.cmd_vel": "sometimes"}, "qos cmd_vel must be reliable or best_effort"),
     ('frame = "base_link"\n', {}, "frame must contain {id}"),
 ])
@@ -202,8 +201,8 @@ def test_ros2_robots_world_options_are_checked_in_one_line(capsys, tmp_path, ext
 def test_launch_gives_the_ros2_driver_the_wheels_limits_of_the_physical_world():
     """Defaults above the wheels' limits become them; what the lab set stays (the robots then say it exceeds the wheels)."""
     pytest.importorskip("pymunk")
-    o = LaunchOptions(ModelConfig(), "paper", SelectionConfig(), driver="ros2", ros2_robots=True, world="physics",
-                      physics_params=("max_wheel_speed_m_s=0.1",), driver_options=("linear_accel=0.4",))
+    o = LaunchOptions(swarm=SwarmOptions(world="physics", physics_params=("max_wheel_speed_m_s=0.1",)),
+                      driver=DriverOptions(name="ros2", ros2_robots=True, options=("linear_accel=0.4",)))
     options, truth = ros2_settings(o)
     assert truth and options[0] == "max_linear_speed=0.1" and "linear_accel=0.4" in options and "ground_truth=ground_truth" in options
     assert not any(o.startswith(("max_angular_speed", "angular_accel")) for o in options)  # 1 rad/s, 2 rad/s^2: within the wheels
@@ -216,4 +215,5 @@ def test_launch_in_the_physical_world_drives_simulated_ros2_robots_only(capsys, 
     monkeypatch.chdir(tmp_path)
     assert main(["launch", "--driver", "ros2", "--world", "physics", "-n", "3", "--configs", "1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "it needs --driver sim or gateway, or --driver ros2 --ros2-robots, got --driver ros2" in err[0], err
+    assert len(err) == 1 and err[0].endswith(
+        "--world physics drives simulated or emulated robots: it needs the driver sim or gateway, or ros2 with ros2_robots, got ros2"), err

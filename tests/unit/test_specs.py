@@ -168,6 +168,30 @@ def test_the_selection_spec_names_what_the_search_options_set():
     assert selection_spec(config) == s and selection_spec(SelectionConfig()) == SelectionSpec()
 
 
+def test_a_launch_spec_is_the_launch_options_by_concern():
+    """Every field of ``LaunchSpec`` reaches the one group of ``LaunchOptions`` that holds it, unchanged (the anchor
+    selection's method and genetic gate too), and every option of the groups is one of the spec's."""
+    from inchworm.process_mains import launch_options
+    from inchworm.specs import selection_spec
+
+    selection = SelectionSpec(w_v=0.3, samples=4, method="crlb", mc_start="estimate", genetic="off")
+    spec = msgspec.structs.replace(FULL[LaunchSpec], driver="gateway", selection=selection)  # the radio's faults need the gateway
+    options = launch_options(spec)
+    groups = [getattr(options, g.name) for g in dataclasses.fields(options)]
+    renamed = {"driver": "name", "driver_options": "options"}  # DriverOptions' own names
+    for f in msgspec.structs.fields(LaunchSpec):
+        if f.name == "version":
+            continue
+        name = renamed.get(f.name, f.name)
+        owners = [options.driver] if f.name in renamed else [g for g in groups if name in {x.name for x in dataclasses.fields(g)}]
+        assert len(owners) == 1, f"LaunchSpec.{f.name} is in {len(owners)} groups of LaunchOptions"
+        value = getattr(owners[0], name)
+        value = selection_spec(value) if f.name == "selection" else str(value) if isinstance(value, Path) else value
+        assert value == getattr(spec, f.name), f.name
+    spec_names = {renamed.get(f.name, f.name) for f in msgspec.structs.fields(LaunchSpec)}
+    assert all({x.name for x in dataclasses.fields(g)} <= spec_names for g in groups)
+
+
 LIBRARY = ("inchworm", "runtime", "coordinator", "robot_agent")
 COMMAND_LINE = re.compile(r'"-m",\s*"swarm_cli|\bf"--[a-z][a-z0-9-]*=\{')  # a swarm_cli module started, a --flag={value} assembled
 
