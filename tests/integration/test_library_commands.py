@@ -47,7 +47,7 @@ def test_publish_refuses_a_negative_speed_before_reading_the_file(tmp_path) -> N
     (lambda: inchworm.LaunchOptions(faults=FaultOptions(stall_coordinator=(0, 3.0))), "stall_coordinator 0:3: the step must be >= 1"),
 ])
 def test_launch_refuses_bad_options_before_starting_anything(monkeypatch, options, message) -> None:
-    """Library errors name the Python parameter (the command line names its flag: tests/test_errors.py)."""
+    """Library errors name the Python parameter (the command line names its flag: tests/unit/test_errors.py)."""
     import inchworm.launcher as module
 
     def refuse(*_a, **_k):
