@@ -42,8 +42,8 @@ def run_distributed(
     """Run ``method`` along ``trajectory`` (as ``simulate`` takes it) with one agent process per robot (or
     ``agents_per_process``); ``record``: an MCAP file of every message. Raises a ``SwarmRunError``
     (``AgentLost``, ``RunAborted``, ...) when the agents do not come up or the run is aborted."""
-    from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
-    from coordinator.stop import StopSignals  # noqa: PLC0415
+    from coordinator.node.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
+    from coordinator.node.stop import StopSignals  # noqa: PLC0415
     from inchworm.processes import agents_per_process as per_process_for, start_agents, stop_all  # noqa: PLC0415
     from inchworm.specs import AgentHostSpec  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415

@@ -18,7 +18,7 @@ from runtime.errors import OptionError, OutputError, RunConflictError, SwarmErro
 EXIT_INPUT = 2  # bad input, a connection that could not be made, a file that could not be read: nothing ran
 EXIT_RUN = 3  # a run that started failed: robots lost, the run aborted or stopped
 EXIT_CONFLICT = 4  # another coordinator holds the run
-EXIT_OUTPUT = 5  # an output could not be written (coordinator.process.EXIT_OUTPUT)
+EXIT_OUTPUT = 5  # an output could not be written (coordinator.node.process.EXIT_OUTPUT)
 EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (  # the first class that matches gives the exit code
     (OutputError, EXIT_OUTPUT),  # a recording that failed or stopped the run included
     (RunConflictError, EXIT_CONFLICT),
@@ -68,7 +68,7 @@ def guarded(prog: str, run: Callable[[], int | None]) -> int:
         return exit_code(exc) or EXIT_INPUT
     except KeyboardInterrupt as exc:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.stop.StopRequested carries the signal
+        return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.node.stop.StopRequested carries the signal
 
 
 def limit_blas_threads() -> None:

@@ -61,8 +61,8 @@ import numpy as np
 from msgspec.structs import replace
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
-from coordinator.process import EXIT_OUTPUT, default_recording
-from coordinator.stop import StopSignals, collect_acks, publish_estop
+from coordinator.node.process import EXIT_OUTPUT, default_recording
+from coordinator.node.stop import StopSignals, collect_acks, publish_estop
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
 from inchworm.options import check_at_least, default_selection

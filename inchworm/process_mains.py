@@ -135,10 +135,10 @@ def run_link(spec: LinkSpec) -> int:
 def run_coordinator(spec: CoordinatorSpec) -> int:
     """``swarm coordinator``: the run (or ``standby`` / ``resume``), its summary, plots, result and ``json`` line."""
     logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
-    from coordinator.stop import StopSignals  # noqa: PLC0415 - scipy and zenoh when it runs
+    from coordinator.node.stop import StopSignals  # noqa: PLC0415 - scipy and zenoh when it runs
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
-    from coordinator.process import CoordinatorOptions, default_recording, recording_line, run_coordinator as run_it, say  # noqa: PLC0415
+    from coordinator.node.process import CoordinatorOptions, default_recording, recording_line, run_coordinator as run_it, say  # noqa: PLC0415
     from inchworm.limits import selection_from  # noqa: PLC0415
     from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
     from runtime.models.trajectory import Trajectory  # noqa: PLC0415

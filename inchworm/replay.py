@@ -203,7 +203,7 @@ def _parses(topic: str) -> bool:
 
 def _refuse_live_run(session: zenoh.Session, run_id: str) -> None:
     """``SwarmInputError`` naming them if an agent or a coordinator of ``run_id`` is alive on this hub."""
-    from coordinator.zenoh_backend import live_coordinators  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import live_coordinators  # noqa: PLC0415
     from runtime.wire.keys import alive_wildcard, parse_key  # noqa: PLC0415
     from runtime.wire.transport import alive_now  # noqa: PLC0415
 

@@ -12,7 +12,7 @@
   plan in progress (red spheres) when the trajectory is known;
 
 and serves ``/swarm/estop`` (``std_srvs/Trigger``): the run-wide emergency stop of ``swarm estop``
-(``coordinator.stop.emergency_stop``), answered with who acknowledged it (success: someone did).
+(``coordinator.node.stop.emergency_stop``), answered with who acknowledged it (success: someone did).
 The bridge ends when the run does: once a coordinator's token was seen and every one is gone.
 """
 
@@ -186,7 +186,7 @@ class Bridge:
         return p
 
     def _on_estop(self, request: Any, response: Any) -> Any:
-        from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh's stop path, only when called
+        from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh's stop path, only when called
 
         out = emergency_stop(self.settings, self.run_id, f"swarm ros2 bridge (pid {os.getpid()})", "/swarm/estop service", 0.3, 1.0)
         robots = ", ".join(map(str, out.agents))

@@ -202,7 +202,7 @@ def write_run_outputs(result: RunResult, result_path: Path | None, plots_dir: Pa
     """Write a distributed run's ``--result`` JSON and plots: (the plot files, one line per output that failed)."""
     import json  # noqa: PLC0415 - only when a run ends
 
-    from coordinator.process import result_json  # noqa: PLC0415
+    from coordinator.node.process import result_json  # noqa: PLC0415
     from inchworm.plots import write_run_plots  # noqa: PLC0415
 
     plots: list[str] = []

@@ -8,7 +8,7 @@ ends), so the launcher keeps its signal handling and this process stays free:
 * ``status()``: the run's live state, read from the run itself: its run file (the hub) and the liveliness tokens of
   its agents and coordinators on that hub (``SwarmStatus``).
 * ``estop(reason)``: the run-wide emergency stop through the same path as ``swarm estop --run RUN``
-  (``coordinator.stop.emergency_stop``); the agents' and links' acknowledgements come back (``EstopOutcome``).
+  (``coordinator.node.stop.emergency_stop``); the agents' and links' acknowledgements come back (``EstopOutcome``).
 * ``wait(timeout)`` returns the ``LaunchResult`` (status, recording, ``to_json()``: the keys of
   ``swarm launch --json``); ``result()`` the same once the run ended. A run that could not start raises the error
   the launcher gave (``SwarmInputError``, ``OptionError`` naming the parameter, ...).
@@ -41,7 +41,7 @@ from runtime import errors
 from runtime.errors import SwarmError, SwarmInputError
 
 if TYPE_CHECKING:
-    from coordinator.stop import EstopOutcome
+    from coordinator.node.stop import EstopOutcome
 
 STOP_GRACE_S = 60.0  # s the launcher gets to stop its run after SIGTERM (its coordinator alone may take 20 s to finish a recording)
 
@@ -93,7 +93,7 @@ class Swarm:
 
     def status(self) -> SwarmStatus:
         """The run's live state (``SwarmStatus``): its run file and, on its hub, its agents' and coordinators' tokens."""
-        from coordinator.zenoh_backend import live_coordinators  # noqa: PLC0415 - zenoh, only when asked
+        from coordinator.node.zenoh_backend import live_coordinators  # noqa: PLC0415 - zenoh, only when asked
         from runtime.wire.keys import ROOT, validate_run  # noqa: PLC0415
         from runtime.wire.run_file import read_run  # noqa: PLC0415
         from runtime.wire.transport import ZenohSettings, alive_now, open_session  # noqa: PLC0415
@@ -113,7 +113,7 @@ class Swarm:
 
     def estop(self, reason: str = "inchworm.Swarm.estop", ack_timeout_s: float = 1.0) -> EstopOutcome:
         """The run-wide emergency stop, as ``swarm estop --run RUN`` sends it; who acknowledged it."""
-        from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a stop is sent
+        from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a stop is sent
         from runtime.wire.run_file import hub_of  # noqa: PLC0415
         from runtime.wire.transport import ZenohSettings  # noqa: PLC0415
 

@@ -7,7 +7,7 @@
     |   `-- OptionError             an option of a library call out of range; names its ``parameter``   exit 2
     |-- LocalizationError           localization cannot give a trustworthy answer                      exit 2
     |-- SwarmRunError               a run that started failed; ``robots`` names the robots             exit 3
-    |                               (coordinator.zenoh_backend.AgentError: lost, stopped;
+    |                               (coordinator.node.zenoh_backend.AgentError: lost, stopped;
     |                               coordinator.executor.RunAborted; robot_agent.driver.RobotLost)
     |-- SwarmConnectionError        a connection could not be opened, was refused or was lost          exit 2
     |   `-- RunConflictError        another coordinator holds the run (a run has one master)           exit 4

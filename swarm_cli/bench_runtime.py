@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError  # noqa: PLC0415
     from inchworm.bench.runtime import RuntimeBenchOptions, bench_runtime  # noqa: PLC0415
 
     options = RuntimeBenchOptions(tuple(parse_list(args.agents, "--agents", int, 2)), args.agents_per_process, args.steps, args.method,

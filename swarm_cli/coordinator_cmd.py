@@ -1,4 +1,4 @@
-"""``swarm coordinator``: the coordinator process of a distributed run (``coordinator.process``).
+"""``swarm coordinator``: the coordinator process of a distributed run (``coordinator.node.process``).
 
     swarm coordinator --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0 --method inchworm
 
@@ -9,7 +9,7 @@ default (``recordings/<run>.mcap``); a recording that cannot be written is one l
 ``--on-record-error continue`` (the run goes on unrecorded) or ``stop``. Whatever ends the run,
 the summary, ``--json``, ``--result`` and the plots of the configurations completed are written.
 ``--standby`` / ``--resume RECORDING``: take the run over when its coordinator is gone
-(``coordinator.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
+(``coordinator.node.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
 Exit status: 0 done (also with lost robots), 3 the run was ended by lost robots (named) or the
 agents did not come up, 4 another coordinator of the run is alive, 5 the recording, ``--result``
 or a plot could not be written (or the run was stopped for its recording), 2 bad input,

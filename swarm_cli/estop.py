@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
+    from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
 
     out = emergency_stop(connection_settings(args), args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
     robots, ports = ", ".join(map(str, out.agents)), ", ".join(out.links)

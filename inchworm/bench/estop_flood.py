@@ -40,7 +40,7 @@ from typing import cast
 
 import numpy as np
 
-from coordinator.stop import collect_acks, publish_estop
+from coordinator.node.stop import collect_acks, publish_estop
 from inchworm.certs import make_certs, parse_host
 from inchworm.processes import stop_all
 from inchworm.spawn import Spawned

@@ -192,10 +192,10 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     """
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import FixedPlanStrategy, make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
     from inchworm.processes import agents_per_process, default_gateway, start_agents, start_gateway, start_port_hosts, stop_all  # noqa: PLC0415
     from inchworm.specs import AgentHostSpec, EmulatorSpec  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
@@ -276,7 +276,7 @@ def _p90(values: list[float]) -> float:
 
 def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> BenchResult:
     """Time the steps of a distributed run per swarm size; ``AgentError`` if agents did not come up or died."""
-    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError  # noqa: PLC0415
 
     args = options
     sizes = list(args.agents)

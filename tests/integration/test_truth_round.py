@@ -14,7 +14,7 @@ import time
 import numpy as np
 import pytest
 
-from coordinator.zenoh_backend import Timeouts, ZenohSwarmBackend
+from coordinator.node.zenoh_backend import Timeouts, ZenohSwarmBackend
 from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.models.config import ModelConfig

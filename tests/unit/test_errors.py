@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from coordinator.executor import RunAborted
-from coordinator.process import RecordingStopped
-from coordinator.zenoh_backend import AgentError, AgentLost, CoordinatorConflict, HubLost, RunStopped, SteppedDown
+from coordinator.node.process import RecordingStopped
+from coordinator.node.zenoh_backend import AgentError, AgentLost, CoordinatorConflict, HubLost, RunStopped, SteppedDown
 from robot_agent.driver import DriverFault, DriverRefused, RobotLost
 from runtime.errors import (
     LocalizationError,

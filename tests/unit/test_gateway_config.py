@@ -115,7 +115,7 @@ def test_ant_device_strings_and_missing_openant():
 
 
 def test_retry_budgets_derive_from_one_budget_below_the_coordinators_step_timeout():
-    from coordinator.zenoh_backend import Timeouts
+    from coordinator.node.zenoh_backend import Timeouts
     from runtime.gateway.config import STEP_TIMEOUT_S, Timing
 
     assert STEP_TIMEOUT_S == Timeouts().step_s  # the coordinator's default the gateway config is checked against

@@ -109,3 +109,25 @@ def test_no_import_marked_as_working_around_a_cycle(package: str) -> None:
     marked = [f"{path.relative_to(ROOT)}:{n}" for path in (ROOT / package).rglob("*.py")
               for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1) if "import" in line and "(cycle)" in line]
     assert marked == []
+
+
+def test_the_coordinators_algorithm_core_knows_no_network() -> None:
+    """coordinator/ outside coordinator/node/ (selection, localization, executor, plans) imports neither Zenoh nor the
+    networked node, so the same core runs in-process, in replay and behind any backend."""
+    known = modules()
+    core = {name: path for name, path in known.items() if name.startswith("coordinator") and not name.startswith("coordinator.node")}
+    assert "coordinator.executor" in core and "coordinator.node.process" in known
+    networked = {name: sorted(m for m in imported(name, path, known) if m.startswith(("coordinator.node", "runtime.wire.transport")))
+                 for name, path in core.items()}
+    zenoh = sorted(name for name, path in core.items() if "zenoh" in {a.split(".")[0] for a in _absolute_imports(path)})
+    assert {k: v for k, v in networked.items() if v} == {} and zenoh == []
+
+
+def _absolute_imports(path: Path) -> set[str]:
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level and node.module:
+            out.add(node.module)
+    return out

@@ -1,7 +1,7 @@
 """The coordinator process of a distributed run (``swarm coordinator``).
 
 Connects as a Zenoh client to the hub, waits for every robot's agent, then runs the
-same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.zenoh_backend`` (which also
+same ``InchwormExecutor`` as ``swarm sim`` over ``coordinator.node.zenoh_backend`` (which also
 publishes every plan and estimate on ``swarm/<run>/coord/...``) and prints the
 per-configuration summary (``swarm_cli.coordinator_cmd``).
 
@@ -25,7 +25,7 @@ over from the last checkpoint recorded in an MCAP file. Either continues as the 
 step numbers, estimate, plan, lost robots, selection random state), so in simulation the result
 is the fault-free run's. A coordinator that stalled beyond its session lease steps down when another one took
 its run over meanwhile (``SteppedDown``, exit 4: it declares no robot lost and stops nothing); with nobody else
-holding the run it goes on with every robot whose token is alive again (``coordinator.zenoh_backend``, Stalls).
+holding the run it goes on with every robot whose token is alive again (``coordinator.node.zenoh_backend``, Stalls).
 
 Recording is on by default: before the run starts, a recorder (``runtime.recording.mcap_log.record_run``,
 its own Zenoh client session on a background thread) subscribes to ``swarm/<run>/**`` and
@@ -54,7 +54,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
-from coordinator.stop import StopRequested, StopSignals, send_estop
+from coordinator.node.stop import StopRequested, StopSignals, send_estop
 from runtime.errors import OptionError, RecordingError, SwarmConnectionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
@@ -66,10 +66,10 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
 
     from coordinator.checkpoint import RunState
     from coordinator.executor import ExecutorListener
+    from coordinator.node.zenoh_backend import ZenohSwarmBackend
     from coordinator.plan import Plan
     from coordinator.run_result import ContactEvent, RunResult
     from coordinator.selection.selector import Selection, SelectionConfig
-    from coordinator.zenoh_backend import ZenohSwarmBackend
     from runtime.models.state import SwarmEstimate
     from runtime.recording.foxglove_live import LiveView
     from runtime.recording.mcap_log import McapRecorder
@@ -344,10 +344,7 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
     """
     from coordinator.executor import InchwormExecutor, RunAborted  # noqa: PLC0415 - the run's imports, not a parser's
     from coordinator.localization import make_localizer  # noqa: PLC0415
-    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
-    from coordinator.simulate import initial_estimate  # noqa: PLC0415
-    from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import (  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import (  # noqa: PLC0415
         AgentError,
         CoordinatorConflict,
         HubLost,
@@ -356,6 +353,9 @@ def run_coordinator(o: CoordinatorOptions, signals: StopSignals, on_config: Call
         conflict_message,
         live_coordinators,
     )
+    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
+    from coordinator.simulate import initial_estimate  # noqa: PLC0415
+    from coordinator.strategies import make_strategy  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
     from runtime.wire.transport import open_session  # noqa: PLC0415
 
