@@ -72,10 +72,11 @@ def test_the_searched_anchors_do_not_beat_random_halves(capsys, tmp_path) -> Non
 
 def test_the_anchor_search_finds_near_optimal_plans(capsys, tmp_path) -> None:
     """README: "`swarm study selection --robots 8 --configs 10 --localizer joint --seed 4242`: e_l of the chosen plan /
-    the optimum median 1.000, worst 1.054, the chosen n_a agrees in 10 of 10 configurations"."""
-    out = run_json(capsys, tmp_path, "study", "selection", "--robots", "8", "--configs", "1", "--localizer", "joint", "--seed", "4242")
+    the optimum median 1.000, worst 1.038, the chosen n_a agrees in 8 of 10 configurations" (its first two here: the
+    first is one of the two that disagree)."""
+    out = run_json(capsys, tmp_path, "study", "selection", "--robots", "8", "--configs", "2", "--localizer", "joint", "--seed", "4242")
     assert 0.97 <= out["ga_over_optimum_median"] <= 1.02 and out["ga_over_optimum_max"] <= 1.06, out
-    assert out["na_agrees"] == out["configs"] == 1, out
+    assert out["configs"] == 2 and out["na_agrees"] >= 1 and out["search_missing"] == 0, out
 
 
 def test_the_joint_covariance_is_honest_and_eq23s_is_not(capsys, tmp_path) -> None:
