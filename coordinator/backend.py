@@ -1,7 +1,7 @@
 """The swarm-backend interface: all the executor knows about the robots.
 
 Two backends implement it: the in-process simulator (``runtime.models.simulation.SimulatedSwarm``)
-and the distributed one over Zenoh (``coordinator.zenoh_backend``); the executor is the same for both.
+and the distributed one over Zenoh (``coordinator.node.zenoh_backend``); the executor is the same for both.
 """
 
 from __future__ import annotations

@@ -25,18 +25,16 @@ import binascii
 import dataclasses
 import json
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, overload
+from typing import overload
 
 import numpy as np
 
 from coordinator.clearance import Regrouping
 from coordinator.plan import Plan
+from coordinator.run_result import ConfigRecord, LostRobot, RejoinedRobot, RunResult, StepRecord
 from runtime.errors import SwarmInputError
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import Trajectory
-
-if TYPE_CHECKING:  # the executor makes states: it imports this module
-    from coordinator.executor import RunResult
 
 
 @dataclass(frozen=True)
@@ -92,8 +90,6 @@ class RunState:
     @classmethod
     def from_json(cls, text: str, trajectory: Trajectory, initial_estimate: SwarmEstimate) -> RunState:
         """The state ``to_json`` wrote, for the run of ``trajectory`` that started from ``initial_estimate``."""
-        from coordinator.executor import ConfigRecord, LostRobot, RejoinedRobot, RunResult, StepRecord  # noqa: PLC0415 (cycle)
-
         try:
             d = json.loads(text)
             result = RunResult(d["method"], trajectory, initial_estimate, _from_array(d["initial_truth"]))
@@ -191,8 +187,8 @@ def _from_plan(d: dict | None) -> Plan | None:
 
 
 def _regrouping(r: Regrouping | None) -> dict | None:
-    return None if r is None else {"planned": _plan(r.planned), "unclear": list(r.unclear), "sigmas": r.sigmas}
+    return None if r is None else {"planned": _plan(r.planned), "unclear": list(r.unclear), "bound": r.bound}
 
 
 def _from_regrouping(d: dict | None) -> Regrouping | None:
-    return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["sigmas"]))
+    return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["bound"]))

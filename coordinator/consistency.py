@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.stats import chi2
 
-from coordinator.executor import RunResult
+from coordinator.run_result import RunResult
 
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with --methods
 

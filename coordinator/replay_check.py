@@ -32,20 +32,21 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from coordinator.checkpoint import carried_fields
 from coordinator.clearance import clear_plan
-from coordinator.executor import ConfigRecord, RunResult, StepRecord, among, localize_rejoined, rejoin_priors
-from coordinator.localization import make_localizer
+from coordinator.executor import among, localize_rejoined, rejoin_priors
+from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
+from coordinator.run_result import ConfigRecord, RunResult, StepRecord
 from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
-from coordinator.strategies import make_strategy
+from coordinator.strategies import SelectedStrategy, Strategy, make_strategy
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands, SwarmEstimate, index_of
@@ -348,7 +349,7 @@ class _Chain:
     does, the steps up to the next rejoin are not checked and ``gaps`` says why.
     """
 
-    def __init__(self, rec: RecordedRun, loc, cfg: ModelConfig, exact: bool, result: CheckResult) -> None:
+    def __init__(self, rec: RecordedRun, loc: Localizer, cfg: ModelConfig, exact: bool, result: CheckResult) -> None:
         self.rec, self.loc, self.cfg, self.exact, self.result = rec, loc, cfg, exact, result
         self.estimate: SwarmEstimate = rec.estimates[0].to_estimate()  # step 0 carries nothing more (a drawn estimate)
         self.at = 0  # the step ``estimate`` is of
@@ -461,7 +462,7 @@ class _Chain:
         return f"{steps} ({self.why(first)})"
 
 
-def _restricted(full, strategy, all_ids: np.ndarray, strategy_ids: np.ndarray, ids: np.ndarray):
+def _restricted(full: Strategy, strategy: Strategy, all_ids: np.ndarray, strategy_ids: np.ndarray, ids: np.ndarray) -> Strategy:
     """The strategy for the robots ``ids``, as the executor has it: ``restrict`` when robots were lost, the whole
     swarm's strategy restricted to ``ids`` (its search's random stream where it was) when robots rejoined."""
     selector = getattr(strategy, "selector", None)
@@ -470,8 +471,8 @@ def _restricted(full, strategy, all_ids: np.ndarray, strategy_ids: np.ndarray, i
         return strategy.restrict(np.isin(strategy_ids, ids))
     keep = np.isin(all_ids, ids)
     out = full if keep.all() else full.restrict(keep)
-    if calls is not None:
-        out.selector.calls = calls
+    if calls is not None:  # ``strategy`` has a selector, and so has the whole swarm's (the same method)
+        cast(SelectedStrategy, out).selector.calls = calls
     return out
 
 

@@ -13,16 +13,16 @@ from collections.abc import Callable
 
 import numpy as np
 
-from coordinator.executor import InchwormExecutor, RunResult
+from coordinator.executor import InchwormExecutor
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.registry import DEFAULT_LOCALIZER
+from coordinator.run_result import RunResult
 from coordinator.selection.selector import SelectionConfig
 from coordinator.strategies import make_strategy
-from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import SwarmEstimate
-from runtime.models.trajectory import Trajectory, validate_connected
+from runtime.models.trajectory import Trajectory, validate_connected, validate_passable
 
 
 def initial_estimate(traj: Trajectory, seed: int, delta: float, heading_sigma: float) -> SwarmEstimate:

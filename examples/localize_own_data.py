@@ -94,14 +94,14 @@ def main(argv: list[str]) -> int:
         fail(str(exc))
     print(f"noise model: range {cfg.range_sigma_m:g} m, bearing {math.degrees(cfg.bearing_sigma_rad):g} deg, "
           f"sensing range {cfg.sensing_range_m:g} m")
-    for robot in answer["robots"]:
-        heading = "unknown (it observed nobody)" if robot["heading"] is None else f"{math.degrees(robot['heading']):+6.1f} deg"
-        print(f"robot {robot['id']}: x {robot['x']:+.3f} m, y {robot['y']:+.3f} m, +- {robot['delta_p']:.3f} m, heading {heading}")
-    for left_out in answer["excluded"]:
-        print(f"left out robot {left_out['id']}: {left_out['reason']}")
-    for line in answer["warnings"]:
+    for robot in answer.robots:
+        heading = "unknown (it observed nobody)" if robot.heading is None else f"{math.degrees(robot.heading):+6.1f} deg"
+        print(f"robot {robot.id}: x {robot.x:+.3f} m, y {robot.y:+.3f} m, +- {robot.delta_p:.3f} m, heading {heading}")
+    for robot_id, reason in sorted(answer.excluded.items()):
+        print(f"left out robot {robot_id}: {reason}")
+    for line in answer.warnings:
         print(f"warning: {line}")
-    print(json.dumps({k: v for k, v in answer.items() if k not in ("robots", "observations")}))
+    print(json.dumps({k: v for k, v in answer.to_json().items() if k not in ("robots", "observations")}))
     return 0
 
 

@@ -6,13 +6,15 @@
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
     check = inchworm.check_recording(inchworm.CheckOptions(Path("recordings/sample.mcap")))  # swarm replay --check
-    status = inchworm.launch(inchworm.LaunchOptions(ModelConfig(), "paper", SelectionConfig()))  # swarm launch
+    with inchworm.Swarm(inchworm.LaunchOptions(swarm=inchworm.SwarmOptions(robots=6))) as live:  # swarm launch
+        live.status(); launched = live.wait()                             # a LaunchResult: launched.to_json()
 
 Every study takes typed options (frozen dataclasses) and returns a result with ``rows``,
 ``to_json()`` (what ``swarm ... --json`` prints), ``report()`` (its table) and
 ``plot(ax)`` on a matplotlib ``Axes``; with ``out=`` each finished run is kept on disk at
 once and ``resume=True`` continues an interrupted study. Importing ``inchworm`` is cheap:
-the names below load their modules on first use. Errors are ``SwarmError`` subclasses.
+the names below load their modules on first use. Errors are ``SwarmError`` subclasses
+(``runtime.errors``: input, run, connection and output errors).
 """
 
 from __future__ import annotations
@@ -20,15 +22,25 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from runtime.errors import LocalizationError, SwarmError, SwarmInputError
+from runtime.errors import (
+    LocalizationError,
+    OptionError,
+    OutputError,
+    RecordingError,
+    RunConflictError,
+    SwarmConnectionError,
+    SwarmError,
+    SwarmInputError,
+    SwarmRunError,
+)
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult
+    from coordinator.run_result import RunResult
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
-    from inchworm.launcher import LaunchOptions, launch
-    from inchworm.localize_data import localize, localize_document
+    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, LaunchResult, OutputOptions, SwarmOptions, launch
+    from inchworm.localize_data import LocalizeResult, localize, localize_document
     from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
     from inchworm.replay import CheckOptions, PublishOptions, check_recording, publish
@@ -39,13 +51,14 @@ if TYPE_CHECKING:
     from inchworm.studies.consistency import ConsistencyOptions, ConsistencyResult, study_consistency
     from inchworm.studies.noise import NoiseOptions, NoiseResult, study_noise
     from inchworm.studies.selection import SelectionStudyOptions, SelectionStudyResult, study_selection
+    from inchworm.swarm import Swarm, SwarmStatus
     from runtime.models.config import ModelConfig
     from runtime.models.trajectory import Trajectory
 
 _WHERE = {
     "simulate": "inchworm.simulation",
     "run_distributed": "inchworm.distributed",
-    "RunResult": "coordinator.executor",
+    "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",
     "SelectionConfig": "coordinator.selection.selector",
     "Trajectory": "runtime.models.trajectory",
@@ -59,15 +72,18 @@ _WHERE = {
     "CalibrationResult": "inchworm.studies.calibration",
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
-    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data",
+    "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
-    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher",
+    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher", "LaunchResult": "inchworm.launcher",
+    "SwarmOptions": "inchworm.launcher", "DriverOptions": "inchworm.launcher", "FaultOptions": "inchworm.launcher",
+    "OutputOptions": "inchworm.launcher", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }
 
-__all__ = ["LocalizationError", "SwarmError", "SwarmInputError", *_WHERE]
+__all__ = ["LocalizationError", "OptionError", "OutputError", "RecordingError", "RunConflictError", "SwarmConnectionError",
+           "SwarmError", "SwarmInputError", "SwarmRunError", *_WHERE]
 
 
 def __getattr__(name: str) -> Any:

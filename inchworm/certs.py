@@ -6,7 +6,7 @@
   3650). An existing pair in ``out`` is reused, so hosts added later are signed by the
   same CA; a lone ``ca.pem`` or ``ca.key``, or a pair that does not match, is an error.
 * ``<name>.pem`` / ``<name>.key`` per host (default hosts: router, coordinator,
-  gateway), re-issued on every call: EC P-256, signed by the CA, ``days`` valid
+  gateway, estop), re-issued on every call: EC P-256, signed by the CA, ``days`` valid
   (default 825), common name = ``<name>`` (the subject the router's access control
   matches, see ``deploy/zenoh-router-tls-acl.json5``), subject alternative names =
   ``DNS:<name>``, the extra SANs of the host (IP addresses become ``IP:``,
@@ -29,10 +29,11 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from runtime.errors import SwarmInputError
 
-DEFAULT_HOSTS = ("router", "coordinator", "gateway")
+DEFAULT_HOSTS = ("router", "coordinator", "gateway", "estop")
 LOOPBACK_SAN = "IP:127.0.0.1"
 CA_SUBJECT = "/O=inchworm-swarm/CN=inchworm-swarm lab CA"
 _NAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,61}[A-Za-z0-9])?")
@@ -133,7 +134,7 @@ _DEFAULT_SPECS = tuple(HostSpec(h, ()) for h in DEFAULT_HOSTS)
 
 
 def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int = 825, ca_days: int = 3650,
-               say: Callable[[str], None] | None = None) -> dict:
+               say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """The CA (reused if ``out`` has one) and a certificate per host in ``out``; ``say`` gets a line per file written.
 
     Returns ``{"out": DIR, "ca": {"cert", "key", "reused"}, "hosts": {name: {"cert", "key", "sans"}}}``.
@@ -150,7 +151,7 @@ def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int 
     reused = ensure_ca(openssl, out, ca_days)
     if say:
         say(f"{'reused' if reused else 'wrote'} CA {out / 'ca.pem'} (key {out / 'ca.key'})")
-    result: dict = {"out": str(out), "ca": {"cert": str(out / "ca.pem"), "key": str(out / "ca.key"), "reused": reused}, "hosts": {}}
+    result: dict[str, Any] = {"out": str(out), "ca": {"cert": str(out / "ca.pem"), "key": str(out / "ca.key"), "reused": reused}, "hosts": {}}
     for host in hosts:
         cert, key = issue(openssl, out, host, days)
         if say:

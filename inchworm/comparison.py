@@ -22,13 +22,13 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.strategies import METHODS
-from inchworm.options import RunOptions, options_dict
+from inchworm.options import RunOptions, check_among, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
 from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci, paired_p_value
-from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -89,10 +89,6 @@ def run_one(task: RunTask) -> Row:
     }
 
 
-def check_methods(methods: tuple[str, ...]) -> None:
-    unknown = [m for m in methods if m not in METHODS]
-    if unknown or not methods:
-        raise SwarmInputError(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
 
 
 @dataclass(frozen=True)
@@ -107,12 +103,13 @@ class CompareOptions:
     selections: tuple[str, ...] | None = None  # rankings compared for the searching methods (None: run.selection.method)
     run: RunOptions = field(default_factory=RunOptions)
 
-    def validate(self) -> None:
-        check_methods(self.methods)
-        if self.trajectories < 1 or self.configs < 1 or self.robots < 2:
-            raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
-        if self.selections is not None and (not self.selections or any(r not in RANKINGS for r in self.selections)):
-            raise SwarmInputError(f"--selections must list {' and/or '.join(RANKINGS)}, got {','.join(self.selections)!r}")
+    def __post_init__(self) -> None:
+        check_among(self, "methods", METHODS)
+        check_at_least(self, "robots", 2)
+        check_at_least(self, "trajectories", 1)
+        check_at_least(self, "configs", 1)
+        if self.selections is not None:
+            check_among(self, "selections", RANKINGS)
 
     def variants(self) -> list[tuple[str, str, SelectionConfig]]:
         """(method, label, selection) of every compared variant, in output order."""
@@ -210,7 +207,7 @@ class CompareResult:
                     f"{o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}",
                     "97 % CI of the mean (t, clipped at 0)")
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``pf.png`` in ``out`` (``runs.csv`` is written while the runs finish)."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -222,13 +219,12 @@ def compare(
     options: CompareOptions = CompareOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CompareResult:
     """Run the paired comparison; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes
     (``resume``: continue a comparison interrupted there)."""
-    options.validate()
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     methods = [label for _, label, _ in options.variants()]

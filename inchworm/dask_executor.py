@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import Callable, Iterator, Sequence
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 if TYPE_CHECKING:
     from distributed import Client
@@ -24,7 +24,7 @@ T = TypeVar("T")
 CONNECT_TIMEOUT_S = 10.0  # how long to try reaching a scheduler before giving up (s)
 
 
-def _one_blas_thread(fn: Callable[[T], dict], item: T) -> dict:
+def _one_blas_thread(fn: Callable[[T], dict[str, Any]], item: T) -> dict[str, Any]:
     """``fn(item)`` with one BLAS thread (a worker runs one task per thread; more would oversubscribe its cores)."""
     from threadpoolctl import threadpool_limits  # noqa: PLC0415
 
@@ -38,7 +38,7 @@ class DaskExecutor:
     def __init__(self, client: Client) -> None:
         self.client = client
 
-    def imap(self, fn: Callable[[T], dict], items: Sequence[T]) -> Iterator[tuple[int, dict]]:
+    def imap(self, fn: Callable[[T], dict[str, Any]], items: Sequence[T]) -> Iterator[tuple[int, dict[str, Any]]]:
         from distributed import as_completed  # noqa: PLC0415
 
         futures = {self.client.submit(_one_blas_thread, fn, item, pure=False): i for i, item in enumerate(items)}
@@ -66,6 +66,6 @@ def dask_client(scheduler: str | None = None, workers: int = 1) -> Iterator[Clie
         client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
     except (OSError, ValueError, TypeError) as exc:
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise SwarmInputError(f"--scheduler {scheduler}: cannot reach a Dask scheduler ({reason})") from None
+        raise OptionError("scheduler", f"{scheduler}: cannot reach a Dask scheduler ({reason})") from None
     with client:
         yield client

@@ -16,15 +16,16 @@ from typing import TYPE_CHECKING
 
 from inchworm.simulation import resolve_trajectory
 from runtime.models.config import ModelConfig
+from runtime.paths import StrPath, as_path
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult
+    from coordinator.run_result import RunResult
     from coordinator.selection.selector import SelectionConfig
     from runtime.models.trajectory import Trajectory
 
 
 def run_distributed(
-    trajectory: Trajectory | str | Path | None = None,
+    trajectory: Trajectory | StrPath | None = None,
     *,
     method: str = "inchworm",
     robots: int = 10,
@@ -33,17 +34,18 @@ def run_distributed(
     model: ModelConfig | None = None,
     localizer: str = "paper",
     selection: SelectionConfig | None = None,
-    record: Path | None = None,
+    record: StrPath | None = None,
     agents_per_process: int | None = None,
     start_timeout_s: float | None = None,
     step_timeout_s: float = 5.0,
 ) -> RunResult:
     """Run ``method`` along ``trajectory`` (as ``simulate`` takes it) with one agent process per robot (or
-    ``agents_per_process``); ``record``: an MCAP file of every message. Raises ``AgentError`` (a
-    ``SwarmInputError``) when the agents do not come up or the run is aborted."""
-    from coordinator.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
-    from coordinator.stop import StopSignals  # noqa: PLC0415
-    from inchworm.processes import agents_per_process as per_process_for, model_flags, start_agents, stop_all  # noqa: PLC0415
+    ``agents_per_process``); ``record``: an MCAP file of every message. Raises a ``SwarmRunError``
+    (``AgentLost``, ``RunAborted``, ...) when the agents do not come up or the run is aborted."""
+    from coordinator.node.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
+    from coordinator.node.stop import StopSignals  # noqa: PLC0415
+    from inchworm.processes import agents_per_process as per_process_for, start_agents, stop_all  # noqa: PLC0415
+    from inchworm.specs import AgentHostSpec  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     cfg = model or ModelConfig()
@@ -51,16 +53,16 @@ def run_distributed(
     run_id = f"api-{uuid.uuid4().hex[:8]}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[bytes]] = []
     signals = StopSignals()
     try:
         with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            start_agents(traj, run_id, f"tcp/127.0.0.1:{port}", seed, 0.0, model_flags(cfg), procs,
+            start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=f"tcp/127.0.0.1:{port}", seed=seed, model=cfg), procs,
                          per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
             options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
-                                         start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=record,
+                                         start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=as_path(record),
                                          command="inchworm.run_distributed")
             outcome = run_coordinator(options, signals, log=lambda _line: None)
     finally:

@@ -45,22 +45,27 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import queue
 import socket
 import subprocess
 import sys
 import tempfile
 import threading
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from msgspec.structs import replace
 
-from coordinator.process import EXIT_OUTPUT, default_recording
-from coordinator.stop import StopSignals, collect_acks, publish_estop
+from coordinator.localization.registry import DEFAULT_LOCALIZER
+from coordinator.node.process import EXIT_OUTPUT, default_recording
+from coordinator.node.stop import StopSignals, collect_acks, publish_estop
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
+from inchworm.options import check_at_least, default_selection
 from inchworm.processes import (
     AGENTS_PER_PROCESS,
     GRACE_S,
@@ -70,20 +75,22 @@ from inchworm.processes import (
     RobotKiller,
     agents_per_process,
     default_gateway,
-    radio_faults,
     start_agents,
     start_gateway,
     start_port_hosts,
     stop_all,
     wait_for_standby,
 )
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, EmulatorSpec, Ros2BridgeSpec, Ros2RobotsSpec, selection_spec
 from robot_agent.assembly import driver_options
+from robot_agent.emulator_process import check_radio_faults
 from robot_agent.plugins import BUILT_IN, driver_class
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
-from runtime.models.bodies import validate_passable
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected
+from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected, validate_passable
+from runtime.paths import coerce_paths
 from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
@@ -102,33 +109,121 @@ Say = Callable[[str], None]
 
 
 @dataclass(frozen=True)
-class LaunchOptions:
-    """What ``launch`` runs. ``model`` / ``selection`` / ``localizer`` are checked before anything starts;
-    ``model_flags`` and ``coordinator_flags`` (option name -> value, only those given) are passed on to the
-    agent and coordinator processes as ``--name=value``. Times in seconds."""
+class LaunchResult:
+    """How a launched run ended: ``status`` (the exit status of ``swarm launch``: 0, 3 robots lost or the run stopped,
+    4, 5 an output failed, 128 + N killed by signal N; docs/development.md), its ``run_id``, its ``recording`` and the
+    run's JSON object (``to_json()``: the keys ``swarm launch --json`` prints; None when the coordinator ended before
+    it, or when it was not captured)."""
 
-    model: ModelConfig
-    localizer: str
-    selection: SelectionConfig
-    command: str = "launch"  # how the launcher names itself (swarm launch / swarm demo)
-    trajectory: Path | None = None  # else a random one of ``robots`` x ``configs`` (seed ``trajectory_seed``)
-    robots: int = 10
+    status: int
+    run_id: str
+    recording: Path | None
+    summary: dict[str, Any] | None
+
+    @property
+    def ok(self) -> bool:
+        return self.status == 0
+
+    @property
+    def pf(self) -> float | None:
+        """P_f (Eq. 24) of the run (None without ground truth or without a summary)."""
+        return None if self.summary is None else self.summary.get("pf")
+
+    @property
+    def lost(self) -> list[int]:
+        """The robots lost during the run."""
+        return [] if self.summary is None else [int(x["robot"]) for x in self.summary.get("lost", [])]
+
+    def to_json(self) -> dict[str, Any]:
+        """The ``swarm launch --json`` object ({} when there is none)."""
+        return dict(self.summary or {})
+
+
+@dataclass(frozen=True, kw_only=True)
+class SwarmOptions:
+    """What runs: the trajectory (a file, else a random one of ``robots`` x ``configs`` drawn with ``trajectory_seed``),
+    the method and its ``seed``, the noise model, localizer and anchor selection (checked before anything starts),
+    the run id (default ``launch-<pid>``), the lost-robot policy and the world. Times in seconds. They go to the
+    processes in their specs (``inchworm.specs``; ``model_file``: the file ``model`` was read from, for the
+    recording's metadata)."""
+
+    trajectory: Path | None = None
+    robots: int = field(default=10, metadata={"flag": "-n"})
     configs: int = 3
     trajectory_seed: int = 0
     method: str = "inchworm"
     seed: int = 0
-    run_id: str | None = None  # default launch-<pid>
-    out: Path | None = None  # default out/<command>
-    result: Path | None = None
+    model: ModelConfig = field(default_factory=ModelConfig)
+    model_file: Path | None = None
+    localizer: str = DEFAULT_LOCALIZER
+    selection: SelectionConfig = field(default_factory=default_selection)
+    run_id: str | None = field(default=None, metadata={"flag": "--run"})
+    min_robots: int = 2
+    on_lost: str = "continue"  # or "abort": end the run when a robot is lost
+    rejoin: bool = True  # a lost robot whose agent comes back rejoins at the next configuration
     motion_time: float = 0.0
     step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
-    driver: str = "sim"
-    driver_options: tuple[str, ...] = ()
+    agents_per_process: int | None = None
+    world: str = "model"  # or "physics": the simulated agents (all in one process) or ROS 2 robots drive in the rigid-body world (docs/physics.md)
+    physics_params: tuple[str, ...] = field(default=(), metadata={"flag": "--physics-param"})  # NAME=VALUE
+    physics_speed: float = 0.0
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "trajectory", "model_file")
+        if self.on_lost not in ("continue", "abort"):
+            raise OptionError("on_lost", f"must be 'continue' or 'abort', got {self.on_lost!r}", self)
+        if self.world not in ("model", "physics"):
+            raise OptionError("world", f"must be 'model' or 'physics', got {self.world!r}", self)
+        if not self.trajectory:
+            check_at_least(self, "robots", 2)
+            check_at_least(self, "configs", 1)
+        check_at_least(self, "min_robots", 2)
+        check_at_least(self, "motion_time", 0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DriverOptions:
+    """What drives the robots: ``name`` ``sim`` (simulated agents), ``gateway`` (emulated robots behind link processes;
+    ``gateway_config``, ``emulator_events``), ``ros2`` (``ros2_robots``: simulated ROS 2 robots started first) or a lab's
+    own driver (``package.module:Class``, ``file.py:Class``, an entry point name) with its ``options`` (KEY=VALUE) and
+    ``command_timeout`` (s)."""
+
+    name: str = field(default="sim", metadata={"flag": "--driver"})
+    options: tuple[str, ...] = field(default=(), metadata={"flag": "--driver-option"})
     command_timeout: float | None = None
     gateway_config: Path | None = None
     emulator_events: Path | None = None
-    min_robots: int = 2
-    kill_robot: tuple[int, int] | tuple[tuple[int, int], ...] | None = None  # one (ID, STEP) or several
+    ros2_robots: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "gateway_config", "emulator_events")
+
+
+@dataclass(frozen=True, kw_only=True)
+class FaultOptions:
+    """Fault injection (module doc): ``kill_robot`` one ``(ID, STEP)`` or several, ``standby`` and ``kill_coordinator``
+    (STEP), ``stall_coordinator`` / ``stall_link`` (STEP, SECONDS), and the emulated radio's ``drop`` / ``corrupt``
+    probabilities and ``delay`` (s; driver ``gateway``)."""
+
+    kill_robot: tuple[int, int] | tuple[tuple[int, int], ...] | None = None
+    standby: bool = False
+    kill_coordinator: int | None = None
+    stall_coordinator: tuple[int, float] | None = None
+    stall_link: tuple[int, float] | None = None
+    drop: float = 0.0
+    corrupt: float = 0.0
+    delay: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kill_coordinator is not None:
+            check_at_least(self, "kill_coordinator", 1)
+        for name in ("stall_coordinator", "stall_link"):
+            stall = getattr(self, name)
+            if stall is not None and (stall[0] < 1 or not stall[1] > 0):
+                raise OptionError(name, f"{stall[0]}:{stall[1]:g}: the step must be >= 1 and the seconds > 0", self)
+        for robot, step in self.kills:
+            if robot < 0 or step < 1:
+                raise OptionError("kill_robot", f"{robot}@{step}: the robot id must be >= 0 and the step >= 1", self)
 
     @property
     def kills(self) -> list[tuple[int, int]]:
@@ -139,26 +234,46 @@ class LaunchOptions:
         if isinstance(spec[0], int):
             return [(int(spec[0]), int(spec[1]))]
         return [(int(robot), int(step)) for robot, step in spec]
-    standby: bool = False
-    kill_coordinator: int | None = None
-    agents_per_process: int | None = None
-    drop: float = 0.0
-    corrupt: float = 0.0
-    delay: float = 0.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class OutputOptions:
+    """What the run leaves: plots in ``out`` (default ``out/<command>``), every step's estimate in ``result``, the
+    recording (``record``, default ``recordings/<run>.mcap``; ``no_record``; ``on_record_error``), the live views
+    (``foxglove`` port and ``linger`` s, ``ros2``: the ROS 2 bridge) and, with ``json``, the JSON object on stdout.
+    ``command`` is how the launcher names itself (``launch`` / ``demo``)."""
+
+    command: str = "launch"
+    out: Path | None = None
+    result: Path | None = None
     record: Path | None = None
     no_record: bool = False
+    on_record_error: str = "continue"  # or "stop"
     foxglove: int | None = None
     linger: float | None = None
+    ros2: bool = False
     json: bool = False
-    model_flags: dict[str, Any] = field(default_factory=dict)
-    coordinator_flags: dict[str, Any] = field(default_factory=dict)
-    world: str = "model"  # or "physics": the simulated agents drive in the rigid-body world, all in one process (docs/physics.md)
-    physics_params: tuple[str, ...] = ()  # --physics-param NAME=VALUE
-    physics_speed: float = 0.0
-    ros2: bool = False  # also run the live ROS 2 bridge (``swarm ros2 bridge``)
-    ros2_robots: bool = False  # with driver "ros2": also start simulated ROS 2 robots (``swarm ros2 robots``)
-    stall_coordinator: tuple[int, float] | None = None  # (STEP, SECONDS): SIGSTOP the coordinator at STEP, SIGCONT SECONDS later
-    stall_link: tuple[int, float] | None = None  # the same for the process of the first port's link (--driver gateway)
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "out", "result", "record")
+
+
+@dataclass(frozen=True, kw_only=True)
+class LaunchOptions:
+    """What ``launch`` (and ``inchworm.Swarm``) runs, by concern: the ``swarm``, its ``driver``, the ``faults`` to
+    inject and the ``outputs``."""
+
+    swarm: SwarmOptions = field(default_factory=SwarmOptions)
+    driver: DriverOptions = field(default_factory=DriverOptions)
+    faults: FaultOptions = field(default_factory=FaultOptions)
+    outputs: OutputOptions = field(default_factory=OutputOptions)
+
+    def __post_init__(self) -> None:
+        if self.driver.name != "gateway":  # faults of the emulated radio and of its link processes
+            for name in ("drop", "corrupt", "delay", "stall_link"):
+                if getattr(self.faults, name):
+                    raise OptionError(name, "is a fault of the emulated robots' radio and links: it needs the gateway driver", self.faults)
+
 
 
 def _stderr(text: str) -> None:
@@ -167,15 +282,6 @@ def _stderr(text: str) -> None:
 
 def _stdout_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
-
-
-def flags(values: dict[str, Any]) -> list[str]:
-    """``--name=value`` for each option (``=`` so negative numbers pass; repr so floats are exact)."""
-    return [f"--{name.replace('_', '-')}={_arg_text(value)}" for name, value in values.items() if value is not None]
-
-
-def _arg_text(value) -> str:
-    return str(value) if isinstance(value, (str, Path)) else repr(value)
 
 
 def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
@@ -223,14 +329,13 @@ def _check_writable(folder: Path, flag: str, value: Path) -> None:
 
 def launch_trajectory(o: LaunchOptions) -> Trajectory:
     """The run's trajectory: the file, else a random one (``SwarmInputError`` for a swarm too small or too large)."""
-    if o.trajectory:
-        traj = Trajectory.load(o.trajectory)
-        check_swarm_size(traj.n, f"--trajectory {o.trajectory}", launched=True)
+    if o.swarm.trajectory:
+        traj = Trajectory.load(o.swarm.trajectory)
+        check_swarm_size(traj.n, f"--trajectory {o.swarm.trajectory}", launched=True)
         return traj
-    if o.robots < 2 or o.configs < 1:
-        raise SwarmInputError("a launched swarm needs -n >= 2 robots and --configs >= 1")
-    return random_trajectory(o.robots, o.configs, np.random.default_rng(o.trajectory_seed), sensing_range=o.model.sensing_range_m,
-                             **body_spacing(o.model))
+    return random_trajectory(o.swarm.robots, o.swarm.configs, np.random.default_rng(o.swarm.trajectory_seed),
+                             sensing_range=o.swarm.model.sensing_range_m,
+                             **body_spacing(o.swarm.model))
 
 
 def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Path) -> None:
@@ -243,64 +348,59 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     try:
         validate_run(run_id)
     except SwarmInputError as exc:
-        raise SwarmInputError(f"--run {run_id!r}: {exc}") from None
-    validate_connected(traj, o.model.sensing_range_m)
-    validate_passable(traj, o.model)
-    make_strategy(o.method, traj.n, o.model, make_localizer(o.localizer, o.model), o.selection, o.seed)
-    if not o.no_record:
-        record = Path(o.record or default_recording(run_id))
+        raise OptionError("run_id", f"{run_id!r}: {exc}", o.swarm) from None
+    validate_connected(traj, o.swarm.model.sensing_range_m)
+    validate_passable(traj, o.swarm.model)
+    make_strategy(o.swarm.method, traj.n, o.swarm.model, make_localizer(o.swarm.localizer, o.swarm.model), o.swarm.selection, o.swarm.seed)
+    if not o.outputs.no_record:
+        record = Path(o.outputs.record or default_recording(run_id))
         _check_writable(record.parent, "--record", record)
     _check_writable(out, "--out", out)
-    if o.result:
-        _check_writable(Path(o.result).parent, "--result", o.result)
-    if o.foxglove is not None:
+    if o.outputs.result:
+        _check_writable(Path(o.outputs.result).parent, "--result", o.outputs.result)
+    if o.outputs.foxglove is not None:
         require_foxglove()
         with socket.socket() as probe:
             try:
-                probe.bind(("127.0.0.1", o.foxglove))
+                probe.bind(("127.0.0.1", o.outputs.foxglove))
             except OSError as exc:
-                raise SwarmInputError(f"--foxglove {o.foxglove}: cannot serve on 127.0.0.1:{o.foxglove}: {exc.strerror or exc}") from None
-    if o.driver == "gateway" and o.gateway_config:
-        radius = GatewayConfig.load(o.gateway_config).limits.robot_radius_m
-        if radius != o.model.robot_radius_m:
-            raise SwarmInputError(f"--robot-radius {o.model.robot_radius_m:g} differs from the robots' body radius {radius:g} m "
-                                  f"in {o.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
-    if o.driver not in BUILT_IN:
-        driver_class(o.driver)
-        driver_options(list(o.driver_options))
-    if o.world == "physics":
+                port = o.outputs.foxglove
+                raise OptionError("foxglove", f"{port}: cannot serve on 127.0.0.1:{port}: {exc.strerror or exc}") from None
+    if o.driver.name == "gateway" and o.driver.gateway_config:
+        radius = GatewayConfig.load(o.driver.gateway_config).limits.robot_radius_m
+        if radius != o.swarm.model.robot_radius_m:
+            raise OptionError("robot_radius", f"{o.swarm.model.robot_radius_m:g} (of the model) differs from the robots' body radius "
+                              f"{radius:g} m in {o.driver.gateway_config} (limits.robot_radius_m): plan with the robots' own bodies")
+    if o.driver.name not in BUILT_IN:
+        driver_class(o.driver.name)
+        driver_options(list(o.driver.options))
+    if o.swarm.world == "physics":
         from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
         from runtime.world.physics import require_pymunk  # noqa: PLC0415
 
         require_pymunk()
-        parse_physics_params(list(o.physics_params), o.model)
-        if o.driver not in ("sim", "gateway"):
-            raise SwarmInputError(f"--world physics drives simulated or emulated robots: it needs --driver sim or gateway, got --driver {o.driver}")
-        if o.motion_time:
-            raise SwarmInputError("--motion-time is the noise model's motion time: in --world physics the wheels take the time")
-        if o.driver == "sim" and o.agents_per_process not in (None, traj.n):
-            raise SwarmInputError(f"--world physics steps one world in one agent process: --agents-per-process must be the "
-                                  f"{traj.n} robots of the run (or left out), got {o.agents_per_process}")
-    elif o.physics_params:
-        raise SwarmInputError("--physics-param sets the physical world: it needs --world physics")
-    if o.ros2_robots and o.driver != "ros2":
-        raise SwarmInputError("--ros2-robots starts simulated ROS 2 robots for the ROS 2 driver: it needs --driver ros2")
-    if o.driver == "ros2" or o.ros2:
+        parse_physics_params(list(o.swarm.physics_params), o.swarm.model)
+        if o.driver.name not in ("sim", "gateway") and not o.driver.ros2_robots:
+            raise OptionError("world", f"physics drives simulated or emulated robots: it needs the driver sim or gateway, "
+                              f"or ros2 with ros2_robots, got {o.driver.name}", o.swarm)
+        if o.swarm.motion_time:
+            raise OptionError("motion_time", "is the noise model's motion time: in the physics world the wheels take the time", o.swarm)
+        if o.driver.name == "sim" and o.swarm.agents_per_process not in (None, traj.n):
+            raise OptionError("agents_per_process", f"must be the {traj.n} robots of the run (or left out) in the physics world "
+                              f"(one world, stepped in one agent process), got {o.swarm.agents_per_process}", o.swarm)
+    elif o.swarm.physics_params:
+        raise OptionError("physics_params", "only applies to the physics world (world physics)", o.swarm)
+    if o.driver.ros2_robots and o.driver.name != "ros2":
+        raise OptionError("ros2_robots", "starts simulated ROS 2 robots for the ROS 2 driver: it needs the driver ros2", o.driver)
+    if o.driver.name == "ros2" or o.outputs.ros2:
         from runtime.wire.ros2 import require_ros2  # noqa: PLC0415 - ROS 2 only for ROS 2 runs
 
-        require_ros2(f"swarm {o.command} --driver ros2" if o.driver == "ros2" else f"swarm {o.command} --ros2")
-    if o.driver == "ros2":
+        require_ros2(f"swarm {o.outputs.command} --driver ros2" if o.driver.name == "ros2" else f"swarm {o.outputs.command} --ros2")
+    if o.driver.name == "ros2":
         ros2_settings(o)
-    if o.kill_coordinator is not None and o.kill_coordinator < 1:
-        raise SwarmInputError(f"--kill-coordinator {o.kill_coordinator}: the step must be >= 1")
-    for flag, stall in (("--stall-coordinator", o.stall_coordinator), ("--stall-link", o.stall_link)):
-        if stall is not None and (stall[0] < 1 or not stall[1] > 0):
-            raise SwarmInputError(f"{flag} {stall[0]}:{stall[1]:g}: the step must be >= 1 and the seconds > 0")
-    if o.stall_link is not None and o.driver != "gateway":
-        raise SwarmInputError("--stall-link stalls a link process: it needs --driver gateway")
-    for robot, step in o.kills:
+    for robot, step in o.faults.kills:
         if robot not in traj.ids:
-            raise SwarmInputError(f"--kill-robot {robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}")
+            raise OptionError("kill_robot", f"{robot}@{step}: robot {robot} is not one of the run's robots {traj.ids.tolist()}", o.faults)
 
 
 def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
@@ -308,10 +408,26 @@ def ros2_settings(o: LaunchOptions) -> tuple[list[str], bool]:
     robots publish a ground truth (then the run has truths: P_f and contacts)."""
     from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
 
-    options = list(o.driver_options)
-    if o.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
+    options = list(o.driver.options)
+    if o.driver.ros2_robots and not Ros2Config.load(driver_options(options)).ground_truth:
         options.append("ground_truth=ground_truth")
+    if o.driver.ros2_robots and o.swarm.world == "physics":
+        options = wheel_limits(o, options) + options
     return options, bool(Ros2Config.load(driver_options(options)).ground_truth)
+
+
+def wheel_limits(o: LaunchOptions, options: list[str]) -> list[str]:
+    """The driver's speed and acceleration limits the physical world's wheels reach (``--physics-param``), for those of
+    ``options`` (and their config file) left at the defaults: the driver must not count on speeds the wheels cannot give."""
+    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415 - only for ROS 2 runs
+    from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
+
+    params, given, default = parse_physics_params(list(o.swarm.physics_params), o.swarm.model), Ros2Config.load(driver_options(options)), Ros2Config()
+    half = params.track_m / 2.0
+    wanted = {"max_linear_speed": params.max_wheel_speed_m_s, "linear_accel": params.max_wheel_accel_m_s2,
+              "max_angular_speed": params.max_wheel_speed_m_s / half, "angular_accel": params.max_wheel_accel_m_s2 / half}
+    return [f"{name}={limit!r}" for name, limit in wanted.items()
+            if getattr(given, name) == getattr(default, name) and getattr(default, name) > limit]
 
 
 def ros2_step_timeout(options: list[str]) -> float:
@@ -324,27 +440,48 @@ def ros2_step_timeout(options: list[str]) -> float:
     return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
-def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json) -> int:
-    """Run it (module doc); the exit status: the coordinator's, 128 + N if it was killed by signal N.
-    ``say``: the launcher's notes (stderr); ``emit_json``: the amended JSON object of a run with a kill."""
-    faults = radio_faults(o.drop, o.corrupt, o.delay)
-    if o.driver != "gateway" and (o.drop or o.corrupt or o.delay):
-        raise SwarmInputError("--drop, --corrupt and --delay are faults of the emulated radio: they need --driver gateway")
+def stop_answers(acks: queue.Queue, stamp_ns: int, until: float, hosts: dict[int, subprocess.Popen]) -> tuple[set[int], set[int]]:
+    """The robots whose agents acknowledged the stop stamped ``stamp_ns`` and those whose agent process (``hosts``: robot ->
+    its process) had exited without acknowledging (a Ctrl-C reaches the agents too: they stop with it); waits until
+    every robot is one or the other, or monotonic time ``until``."""
+    heard: set[int] = set()
+    while True:
+        exited = {robot for robot, proc in hosts.items() if proc.poll() is not None} - heard
+        if len(heard | exited) >= len(hosts) or time.monotonic() >= until:
+            return heard, exited
+        got = collect_acks(acks, stamp_ns, min(until, time.monotonic() + 0.05))
+        heard |= {int(name) for by, name in got if by == "agent"}
+
+
+def stop_text(run_id: str, heard: int, exited: int, robots: int) -> str:
+    """What the launcher says of its run-wide stop: acknowledged by ``heard`` agents, ``exited`` had exited already."""
+    if exited == robots:
+        return f"emergency stop sent to run {run_id}; its {robots} agents had already exited (a stop signal reached them too)"
+    gone = f"; the other {exited} had already exited" if exited and heard + exited == robots else (
+        f"; {exited} had already exited" if exited else "")
+    return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {robots} agents{gone})"
+
+
+def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object], None] = _stdout_json, capture: bool = True) -> LaunchResult:
+    """Run it (module doc) and return its ``LaunchResult``: the exit status (the coordinator's, 128 + N if it was
+    killed by signal N) and, with ``capture`` (or ``json``), the run's JSON object, read from the coordinator's
+    last line of output (the other lines are passed on to stdout as they come). ``say``: the launcher's notes
+    (stderr); ``emit_json``: prints the JSON object when ``json`` (amended with the kills and stalls)."""
+    check_radio_faults(o.faults.drop, o.faults.corrupt, o.faults.delay)
     traj = launch_trajectory(o)
-    if not 2 <= o.min_robots <= traj.n:
-        raise SwarmInputError(f"--min-robots {o.min_robots}: must be between 2 and the {traj.n} robots of the run")
-    per_process = traj.n if o.world == "physics" and o.driver == "sim" else agents_per_process(traj.n, o.agents_per_process)
-    if o.driver == "ros2" and o.agents_per_process is None and o.kill_robot is None:  # one DDS participant for up to 50 robots
+    if not 2 <= o.swarm.min_robots <= traj.n:
+        raise OptionError("min_robots", f"must be between 2 and the {traj.n} robots of the run, got {o.swarm.min_robots}", o.swarm)
+    per_process = traj.n if o.swarm.world == "physics" and o.driver.name == "sim" else agents_per_process(traj.n, o.swarm.agents_per_process)
+    if o.driver.name == "ros2" and o.swarm.agents_per_process is None and o.faults.kill_robot is None:  # one DDS participant for up to 50 robots
         processes = -(-traj.n // AGENTS_PER_PROCESS)
         per_process = -(-traj.n // processes)
-    port_hosts = o.driver == "gateway" and o.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
-    run_id = o.run_id or f"launch-{os.getpid()}"
-    out = o.out or Path("out") / o.command
+    port_hosts = o.driver.name == "gateway" and o.swarm.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
+    run_id = o.swarm.run_id or f"launch-{os.getpid()}"
+    out = o.outputs.out or Path("out") / o.outputs.command
     check_before_start(o, traj, run_id, out)
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    py = sys.executable
     procs: list[subprocess.Popen] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
@@ -368,113 +505,109 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
         with contextlib.ExitStack() as stack:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
             hub_session = stack.enter_context(open_session(hub_settings))
-            stack.enter_context(published_run(run_id, hub, f"swarm {o.command}"))
+            stack.enter_context(published_run(run_id, hub, f"swarm {o.outputs.command}"))
             stack.callback(stop_children)  # before the hub closes
             lifeline.guard(Path(tmp))
             _acks_sub, acks = subscribe_queue(hub_session, estop_ack_key(run_id))
 
             def stop_run(reason: str) -> str:
-                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it."""
-                stop = EmergencyStop(run=run_id, step=0, source=f"swarm {o.command} (pid {os.getpid()})", reason=reason)
+                """The run-wide stop, waiting (at most ``ESTOP_ACK_S``) until every agent acknowledged it or has exited."""
+                stop = EmergencyStop(run=run_id, step=0, source=f"swarm {o.outputs.command} (pid {os.getpid()})", reason=reason)
                 sent = publish_estop(hub_session, stop)
-                heard = sum(by == "agent" for by, _ in collect_acks(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, traj.n))
-                return f"emergency stop sent to run {run_id} (acknowledged by {heard} of {traj.n} agents)"
+                heard, exited = stop_answers(acks, stop.stamp_ns, sent[0] + ESTOP_ACK_S, agent_procs)
+                return stop_text(run_id, len(heard), len(exited), traj.n)
 
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            model = flags(o.model_flags)
-            agent_extra = list(model)
-            if o.driver not in BUILT_IN:
-                agent_extra += [f"--driver={plugin_spec(o.driver)}", *(f"--driver-option={x}" for x in o.driver_options)]
-                if o.command_timeout is not None:
-                    agent_extra.append(f"--command-timeout={o.command_timeout!r}")
-            world_flags = [f"--physics-speed={o.physics_speed!r}", *(f"--physics-param={x}" for x in o.physics_params)]
-            if o.world == "physics" and o.driver == "sim":  # the agent process steps the world
-                agent_extra += ["--world=physics", *world_flags]
-            emulator_extra = ["--physics", *world_flags] if o.world == "physics" else []  # the robot emulator steps it
-            truth = o.driver in BUILT_IN or driver_class(o.driver).simulated
-            step_timeout = DEFAULT_STEP_TIMEOUT_S if o.step_timeout is None else o.step_timeout
-            if o.driver == "ros2":
+            agent = AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=o.swarm.seed, model=o.swarm.model, motion_time=o.swarm.motion_time)
+            if o.driver.name not in BUILT_IN:
+                agent = replace(agent, driver=plugin_spec(o.driver.name), driver_options=o.driver.options, command_timeout=o.driver.command_timeout)
+            if o.swarm.world == "physics" and o.driver.name == "sim":  # the agent process steps the world
+                agent = replace(agent, world="physics", physics_params=o.swarm.physics_params, physics_speed=o.swarm.physics_speed)
+            truth = o.driver.name in BUILT_IN or driver_class(o.driver.name).simulated
+            step_timeout = DEFAULT_STEP_TIMEOUT_S if o.swarm.step_timeout is None else o.swarm.step_timeout
+            if o.driver.name == "ros2":
                 ros2_options, truth = ros2_settings(o)
-                if o.step_timeout is None:
+                if o.swarm.step_timeout is None:
                     step_timeout = ros2_step_timeout(ros2_options)
                 if not truth:
-                    say(f"swarm {o.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
+                    say(f"swarm {o.outputs.command}: the ROS 2 robots' settings name no ground truth (--driver-option ground_truth=TOPIC, "
                         f"e.g. ground_truth of swarm ros2 robots): the run has no true poses, so no P_f and no contacts")
-                agent_extra += ["--driver=ros2", *(f"--driver-option={x}" for x in ros2_options)]
-                if o.ros2_robots:  # the same settings: namespaces, frame, topics
-                    ros2_procs.append(subprocess.Popen(
-                        [py, "-m", "swarm_cli.ros2", "robots", f"--trajectory={traj_file}", f"--seed={o.seed}", *model,
-                         *(f"--driver-option={x}" for x in ros2_options)], **tied))
-            if o.ros2:
-                ros2_procs.append(subprocess.Popen(
-                    [py, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", f"--hub={hub}", f"--trajectory={traj_file}",
-                     f"--robot-radius={o.model.robot_radius_m!r}"], **tied))
-            if o.driver == "gateway":
-                gateway = GatewayConfig.load(o.gateway_config) if o.gateway_config else default_gateway(traj, robot_radius=o.model.robot_radius_m)
+                agent = replace(agent, driver="ros2", driver_options=tuple(ros2_options))
+                if o.driver.ros2_robots:  # the same settings: namespaces, frame, topics
+                    sim_robots = Ros2RobotsSpec(trajectory=str(traj_file), seed=o.swarm.seed, model=o.swarm.model, driver_options=tuple(ros2_options))
+                    if o.swarm.world == "physics":  # its contacts, stalls and still poses go to the run's record
+                        sim_robots = replace(sim_robots, world="physics", physics_params=o.swarm.physics_params, run_id=run_id, hub=hub)
+                    ros2_procs.append(Spawned(sim_robots, **tied))
+            if o.outputs.ros2:
+                ros2_procs.append(Spawned(Ros2BridgeSpec(run_id=run_id, hub=hub, trajectory=str(traj_file),
+                                                         robot_radius=o.swarm.model.robot_radius_m), **tied))
+            if o.driver.name == "gateway":
+                gateway = GatewayConfig.load(o.driver.gateway_config) if o.driver.gateway_config else \
+                    default_gateway(traj, robot_radius=o.swarm.model.robot_radius_m)
                 missing = sorted(set(int(i) for i in traj.ids) - set(gateway.robots))
                 if missing:
                     raise SwarmInputError(f"robots {missing} of the trajectory are behind no port of the gateway config")
-                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, o.seed, o.motion_time, model, procs,
-                                     o.emulator_events, [*faults, *emulator_extra], links=not port_hosts, **tied)
+                physics, f = o.swarm.world == "physics", o.faults
+                emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=o.swarm.seed, motion_time=o.swarm.motion_time,
+                                        model=o.swarm.model, physics=physics, physics_params=o.swarm.physics_params if physics else (),
+                                        physics_speed=o.swarm.physics_speed if physics else 0.0, drop=f.drop, corrupt=f.corrupt,
+                                        delay=f.delay, events=None if o.driver.emulator_events is None else str(o.driver.emulator_events),
+                                        hub=hub, run_id=run_id)
+                live = start_gateway(gateway, Path(tmp), emulator, procs, links=not port_hosts, **tied)
                 gateway_procs = len(procs)
-                agent_extra += ["--driver=gateway", f"--gateway-config={live}"]
+                agent = replace(agent, driver="gateway", gateway_config=str(live))
             first = len(procs)
             piped = {**tied, **agent_errors.popen_kwargs()}
             try:
                 if port_hosts:  # one process per port: its link and its robots' agents
-                    agent_procs = start_port_hosts(traj, live, run_id, hub, o.seed, o.motion_time, agent_extra, procs, traj_file, **piped)
+                    agent_procs = start_port_hosts(traj, live, agent, procs, traj_file, **piped)
                 else:
-                    start_agents(traj, run_id, hub, o.seed, o.motion_time, agent_extra, procs, per_process, traj_file, **piped)
+                    start_agents(traj, agent, procs, per_process, traj_file, **piped)
                     agent_procs = {int(robot): procs[first + k // per_process] for k, robot in enumerate(traj.ids)}  # its hosting process
             finally:
                 agent_errors.watch(procs[first:])
             agent_list = procs[first:]
-            common = [f"--run={run_id}", f"--hub={hub}", f"--seed={o.seed}", *model]
-            if not truth:
-                common.append("--no-truth")  # the lab's robots publish no true poses
-            cmd = [py, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={o.method}",
-                   f"--step-timeout={step_timeout!r}", f"--out={out}", *common, *flags(o.coordinator_flags),
-                   f"--start-timeout={max(30.0, START_S_PER_ROBOT * traj.n)!r}"]
-            if o.result:
-                cmd.append(f"--result={o.result}")
-            recording = None if o.no_record else (o.record or default_recording(run_id))
-            cmd.append("--no-record" if recording is None else f"--record={recording}")
-            if o.json:
-                cmd.append("--json")
-            if o.foxglove is not None:
-                cmd.append(f"--foxglove={o.foxglove}")
-                if o.linger is not None:
-                    cmd.append(f"--linger={o.linger!r}")
+            recording = None if o.outputs.no_record else (o.outputs.record or default_recording(run_id))
+            json_hold = o.outputs.json or capture  # the coordinator's JSON object: held back, amended, returned
+            s, out_o = o.swarm, o.outputs
+            coordinator_spec = CoordinatorSpec(
+                trajectory=str(traj_file), run_id=run_id, hub=hub, method=s.method, seed=s.seed, localizer=s.localizer, model=s.model,
+                model_file=None if s.model_file is None else str(s.model_file), selection=selection_spec(s.selection),
+                start_timeout=max(30.0, START_S_PER_ROBOT * traj.n), step_timeout=step_timeout, on_lost=s.on_lost, min_robots=s.min_robots,
+                truth=truth, result=None if out_o.result is None else str(out_o.result), out=str(out), rejoin=s.rejoin,
+                record=None if recording is None else str(recording), no_record=recording is None, on_record_error=out_o.on_record_error,
+                foxglove=out_o.foxglove, linger=out_o.linger if out_o.foxglove is not None else None, json=json_hold,
+                command=f"swarm {out_o.command} (run {run_id}, {traj.n} robots, method {s.method}, seed {s.seed})")
             what = {"sim": "agents", "gateway": "gateway agents + emulated robots",
-                    "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.ros2_robots else "")}.get(o.driver, f"agents ({o.driver})")
-            what += " in the physical world" if o.world == "physics" else ""
+                    "ros2": "ROS 2 agents" + (" + simulated ROS 2 robots" if o.driver.ros2_robots else "")
+                    }.get(o.driver.name, f"agents ({o.driver.name})")
+            what += " in the physical world" if o.swarm.world == "physics" else ""
             hosts = "" if per_process == 1 and not port_hosts else f" in {len(set(map(id, agent_procs.values())))} processes"
-            say(f"swarm {o.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
+            say(f"swarm {o.outputs.command}: {traj.n} {what}{hosts} + coordinator, run {run_id}, hub {hub} "
                 f"(emergency stop: swarm estop --run {run_id})")
             killed: dict[int, int] = {}  # pid -> when it was killed: robots hosted by one process die together
-            killers = [RobotKiller(hub_session, run_id, robot, step, agent_procs[robot], killed) for robot, step in o.kills]
+            killers = [RobotKiller(hub_session, run_id, robot, step, agent_procs[robot], killed) for robot, step in o.faults.kills]
             stallers: dict[str, ProcessStaller] = {}
-            if o.stall_link is not None:
+            if o.faults.stall_link is not None:
                 first_port = GatewayConfig.load(live).ports[0]
                 link_proc = agent_procs[first_port.robots[0]] if port_hosts else procs[1]
-                stallers["link_stall"] = ProcessStaller(hub_session, run_id, *o.stall_link, link_proc)
-            json_hold = o.json and (bool(killers) or o.kill_coordinator is not None or bool(stallers) or
-                                    o.stall_coordinator is not None)
+                stallers["link_stall"] = ProcessStaller(hub_session, run_id, *o.faults.stall_link, link_proc)
             standby = None
-            if o.standby:
-                standby_record = [a for a in cmd if not a.startswith("--record=")] + (
-                    [] if recording is None else [f"--record={Path(recording).with_suffix('.standby.mcap')}"])
-                standby = subprocess.Popen([*standby_record, "--standby"], stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+            if o.faults.standby:
+                standby_spec = replace(coordinator_spec, standby=True,
+                                       record=None if recording is None else str(Path(recording).with_suffix(".standby.mcap")))
+                standby = Spawned(standby_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
                 coordinators.append(standby)
                 procs.append(standby)
                 wait_for_standby(hub_session, run_id, standby)
-            coordinator = subprocess.Popen(cmd, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
+            coordinator = Spawned(coordinator_spec, stdout=subprocess.PIPE if json_hold else None, text=True, **tied)
             coordinators.insert(0, coordinator)  # before its standby (which then sees the run stopped)
             procs.append(coordinator)
-            coord_killer = None if o.kill_coordinator is None else CoordinatorKiller(hub_session, run_id, o.kill_coordinator, coordinator)
-            if o.stall_coordinator is not None:
-                stallers["coordinator_stall"] = ProcessStaller(hub_session, run_id, *o.stall_coordinator, coordinator)
+            coord_killer = None if o.faults.kill_coordinator is None else \
+                CoordinatorKiller(hub_session, run_id, o.faults.kill_coordinator, coordinator)
+            if o.faults.stall_coordinator is not None:
+                stallers["coordinator_stall"] = ProcessStaller(hub_session, run_id, *o.faults.stall_coordinator, coordinator)
             last: list[str] = []
             forwarders = [threading.Thread(target=_forward_output, args=(p.stdout, last), daemon=True)
                           for p in (coordinator, standby) if json_hold and p is not None]
@@ -485,17 +618,17 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if isinstance(status, str):  # an agent could not start (no command was sent): its one line, every child stopped
                     raise SwarmInputError(status)
                 if standby is not None and status < 0:  # died without a word: the standby takes the run over
-                    say(f"swarm {o.command}: the coordinator was killed (signal {-status}); the standby takes over")
+                    say(f"swarm {o.outputs.command}: the coordinator was killed (signal {-status}); the standby takes over")
                     status = standby.wait()
                 elif standby is not None and status == EXIT_STEPPED_DOWN:  # it stalled past its lease: the standby holds the run
-                    say(f"swarm {o.command}: the coordinator stepped down (another coordinator holds the run); waiting for the standby")
+                    say(f"swarm {o.outputs.command}: the coordinator stepped down (another coordinator holds the run); waiting for the standby")
                     status = standby.wait()
             except KeyboardInterrupt:
-                say(f"swarm {o.command}: interrupted: {stop_run('the launcher was interrupted')}")
+                say(f"swarm {o.outputs.command}: interrupted: {stop_run('the launcher was interrupted')}")
                 raise
             if status not in (0, EXIT_OUTPUT):  # an abort, an error or a killed coordinator: stop every robot
                 done = stop_run(f"the coordinator exited with status {status}")
-                say(f"swarm {o.command}: the coordinator exited with status {status}: {done}")
+                say(f"swarm {o.outputs.command}: the coordinator exited with status {status}: {done}")
             if standby is not None:
                 try:
                     standby.wait(timeout=GRACE_S)  # it saw the run finish (or stop) and exits by itself
@@ -507,18 +640,18 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
             for kill in kills:
                 if kill is None:
                     continue
-                say(f"swarm {o.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
+                say(f"swarm {o.outputs.command}: killed the agent of robot {kill['robot']} at step {kill['step']}; its emergency "
                     f"stop was sent {kill['detect_ms']} ms and heard {kill['estop_ms']} ms after the kill")
             coord_kill = None if coord_killer is None else coord_killer.report()
             if coord_kill is not None:
-                say(f"swarm {o.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
+                say(f"swarm {o.outputs.command}: killed the coordinator at step {coord_kill['step']}; the next coordinator's first "
                     f"command came {coord_kill['takeover_ms']} ms after the kill")
             stalls = {name: staller.report() for name, staller in stallers.items()}
             for name, stall in stalls.items():
                 if stall is not None:
-                    say(f"swarm {o.command}: stalled the {name.split('_')[0]} (SIGSTOP) at step {stall['step']} for {stall['stall_s']} s")
+                    say(f"swarm {o.outputs.command}: stalled the {name.split('_')[0]} (SIGSTOP) at step {stall['step']} for {stall['stall_s']} s")
+            summary: dict[str, Any] = {}
             if json_hold:
-                summary = {}
                 for line in last:  # the last line of each coordinator: the one that finished the run is a JSON object
                     try:
                         summary = json.loads(line)
@@ -528,12 +661,15 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
                 extra.update(stalls)
-                emit_json({**summary, **extra})
+                if o.outputs.json and (summary or extra):
+                    emit_json({**summary, **extra})
+                summary = {**summary, **extra} if summary else {}
             if recording is not None and Path(recording).exists():
-                say(f"swarm {o.command}: recording {recording}" if is_finished(recording) else
-                    f"swarm {o.command}: recording {recording} is incomplete: the recording failed (what reached the disk: "
+                say(f"swarm {o.outputs.command}: recording {recording}" if is_finished(recording) else
+                    f"swarm {o.outputs.command}: recording {recording} is incomplete: the recording failed (what reached the disk: "
                     f"swarm info {recording}; swarm recover {recording})")
-            return status if status >= 0 else 128 - status  # killed by signal N: 128 + N, as a shell reports it
+            return LaunchResult(status if status >= 0 else 128 - status, run_id,  # killed by signal N: 128 + N, as a shell reports it
+                                None if recording is None else Path(recording), summary or None)
     finally:
         stop_children()
         for line in agent_errors.held():  # an agent's error that did not end the start: as it printed it

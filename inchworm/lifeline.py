@@ -26,6 +26,7 @@ import subprocess
 import sys
 import threading
 from pathlib import Path
+from typing import Any
 
 FD_ENV = "SWARM_LIFELINE_FD"
 PARENT_ENV = "SWARM_LIFELINE_PID"
@@ -37,16 +38,16 @@ class Lifeline:
 
     def __init__(self) -> None:
         self.read_fd, self._write_fd = os.pipe()  # both not inheritable (PEP 446): children get only read_fd
-        self.guardian: subprocess.Popen | None = None
+        self.guardian: subprocess.Popen[bytes] | None = None
 
-    def child_options(self) -> dict:
+    def child_options(self) -> dict[str, Any]:
         """``Popen`` keyword arguments that tie a child to this process."""
         env = {**os.environ, FD_ENV: str(self.read_fd), PARENT_ENV: str(os.getpid())}
         return {"pass_fds": (self.read_fd,), "env": env}
 
     def guard(self, folder: Path) -> None:
         """Start the guardian that removes ``folder`` once this process is gone."""
-        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", f"--remove={folder}"], **self.child_options())
+        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", "--remove", str(folder)], **self.child_options())
 
     def close(self) -> None:
         """Let go of the children (they read end-of-file) and reap the guardian."""

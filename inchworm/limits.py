@@ -9,7 +9,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:  # imported where used: scipy only when a run starts
@@ -79,9 +79,11 @@ def selection_from(w_v: float, samples: int, population: int, generations: int, 
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
 
     if not 0.0 <= w_v <= 1.0:
-        raise SwarmInputError(f"--w-v must be in [0, 1], got {w_v}")
-    if population < 2 or generations < 0:
-        raise SwarmInputError("--population must be >= 2 and --generations >= 0")
+        raise OptionError("w_v", f"must be in [0, 1], got {w_v}")
+    if population < 2:
+        raise OptionError("population", f"must be >= 2, got {population}")
+    if generations < 0:
+        raise OptionError("generations", f"must be >= 0, got {generations}")
     return SelectionConfig(w_v=w_v, w_l=1.0 - w_v, samples=samples,
                            genetic=GeneticConfig(population=population, generations=generations), method=method,
                            mc_start=mc_start, mc_emax=mc_emax, genetic_gate=genetic)

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +26,58 @@ from inchworm.localize_checks import duplicate_rows, observation_checks
 from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
+from runtime.paths import StrPath
 
 HUBER_SIGMAS = 3.0
+
+
+@dataclass(frozen=True)
+class LocalizedRobot:
+    """A robot's pose: ``x``, ``y`` (m) and ``heading`` (rad; None when nothing fixes it: it observed nobody), the
+    position uncertainty ``delta_p`` (m) and the heading's ``sigma_heading`` (rad; None when unknown)."""
+
+    id: int
+    x: float
+    y: float
+    heading: float | None
+    delta_p: float
+    sigma_heading: float | None
+
+    def to_json(self) -> dict[str, Any]:
+        return {"id": self.id, "x": self.x, "y": self.y, "heading": self.heading, "delta_p": self.delta_p,
+                "sigma_heading": self.sigma_heading}
+
+
+@dataclass(frozen=True)
+class LocalizeResult:
+    """What ``localize`` found: the robots localized in ``frame`` (``"local"``: the ``reference`` robot's frame, no
+    prior; ``"global"``: the prior's), the robots left out with why (``excluded``: id -> reason) and the checks of
+    the observation rows (``checks``: ``observations``, ``suspects``, ``warnings``, ...; docs/localize-input.md).
+    ``to_json()`` is the document ``swarm localize`` prints."""
+
+    localizer: str
+    frame: str
+    reference: int | None
+    robots: tuple[LocalizedRobot, ...]
+    excluded: dict[int, str]
+    checks: dict[str, Any]
+
+    @property
+    def warnings(self) -> list[str]:
+        """The checks' warnings (duplicated rows, ranges beyond the sensing range, suspects), one line each."""
+        return list(self.checks["warnings"])
+
+    def robot(self, robot_id: int) -> LocalizedRobot:
+        """The pose of robot ``robot_id`` (``SwarmInputError`` if it was not localized)."""
+        for robot in self.robots:
+            if robot.id == robot_id:
+                return robot
+        raise SwarmInputError(f"robot {robot_id} was not localized: {self.excluded.get(robot_id, 'not in the input')}")
+
+    def to_json(self) -> dict[str, Any]:
+        frame: dict[str, Any] = {"frame": self.frame} if self.reference is None else {"frame": self.frame, "reference": self.reference}
+        return {"localizer": self.localizer, **frame, "robots": [r.to_json() for r in self.robots],
+                "excluded": [{"id": k, "reason": v} for k, v in sorted(self.excluded.items())], **self.checks}
 
 
 def _number(value: Any, where: str) -> float:
@@ -99,8 +150,8 @@ def _left_out_error(excluded: dict[int, str]) -> LocalizationError:
                              "cannot be localized" + (f"; also {', '.join(others)}" if others else ""))
 
 
-def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> dict:
-    """The output document for one input document."""
+def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bool, robust: bool) -> LocalizeResult:
+    """The answer for one input document (already decoded)."""
     from coordinator.localization import make_localizer  # noqa: PLC0415 - scipy when localizing, not for --help
     from coordinator.localization.graph import localizable_subset  # noqa: PLC0415
     from coordinator.localization.partial import solvable_subset  # noqa: PLC0415
@@ -138,28 +189,17 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
     if prior is None:
         topo = result
         poses = np.column_stack([topo.positions, topo.headings])
-        robots = [
-            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": _finite(p[2]), "delta_p": float(dp), "sigma_heading": _finite(sh)}
-            for r, p, dp, sh in zip(ids, poses, topo.delta_p, topo.heading_sigma, strict=True)
-        ]
-        frame = {"frame": "local", "reference": int(ids[topo.reference])}
+        robots = tuple(LocalizedRobot(int(r), float(p[0]), float(p[1]), _finite(p[2]), float(dp), _finite(sh))
+                       for r, p, dp, sh in zip(ids, poses, topo.delta_p, topo.heading_sigma, strict=True))
+        frame, reference = "local", int(ids[topo.reference])
     else:
         est = result
         poses = est.poses
-        robots = [
-            {"id": int(r), "x": float(p[0]), "y": float(p[1]), "heading": float(p[2]), "delta_p": float(dp),
-             "sigma_heading": float(np.sqrt(max(c[2, 2], 0.0)))}
-            for r, p, dp, c in zip(est.ids, est.poses, est.delta, est.cov, strict=True)
-        ]
-        frame = {"frame": "global"}
+        robots = tuple(LocalizedRobot(int(r), float(p[0]), float(p[1]), float(p[2]), float(dp), float(np.sqrt(max(c[2, 2], 0.0))))
+                       for r, p, dp, c in zip(est.ids, est.poses, est.delta, est.cov, strict=True))
+        frame, reference = "global", None
     used = keep[i] & keep[j] & unique
-    return {
-        "localizer": localizer,
-        **frame,
-        "robots": robots,
-        "excluded": [{"id": k, "reason": v} for k, v in sorted(excluded.items())],
-        **observation_checks(obs, used, poses, ids, cfg),
-    }
+    return LocalizeResult(localizer, frame, reference, robots, dict(excluded), observation_checks(obs, used, poses, ids, cfg))
 
 
 def _finite(x: float) -> float | None:
@@ -167,8 +207,8 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def localize(source: str | Path | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
-             strict: bool = False, robust: bool = True) -> dict:
+def localize(source: StrPath | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
+             strict: bool = False, robust: bool = True) -> LocalizeResult:
     """Localize the robots of a JSON file (or its decoded document): the ``swarm localize`` answer
     (frame, poses in m and rad with their uncertainties, the robots left out with why, and the checks of
     the rows: residuals, suspects, duplicates, ranges beyond the sensing range, ``localize_checks``)."""

@@ -13,7 +13,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
+from runtime.paths import StrPath, as_path
 
 
 @dataclass
@@ -52,7 +53,7 @@ def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
 
-def calibrate_noise(recording: Path, truth: Path, out: Path | None = None, confidence: float = 0.95) -> NoiseCalibration:
+def calibrate_noise(recording: StrPath, truth: StrPath, out: StrPath | None = None, confidence: float = 0.95) -> NoiseCalibration:
     """Fit the noise of ``recording`` against the tracker CSV ``truth``; write the model file ``out``
     (default: the recording's name with ``.model.toml``)."""
     from runtime.models.noise_fit import fit_noise  # noqa: PLC0415 - scipy only when fitting
@@ -60,12 +61,13 @@ def calibrate_noise(recording: Path, truth: Path, out: Path | None = None, confi
     from runtime.recording.truth_csv import read_truth_csv  # noqa: PLC0415
 
     if not 0.5 <= confidence < 1:
-        raise SwarmInputError(f"--confidence must be in [0.5, 1), got {confidence}")
-    out = out or recording.with_suffix(".model.toml")
+        raise OptionError("confidence", f"must be in [0.5, 1), got {confidence}")
+    recording, truth = Path(recording), Path(truth)
+    out = as_path(out) or recording.with_suffix(".model.toml")
     log = load_run_log(recording)
     truths = read_truth_csv(truth, log.ids, log.step_end_times())
     fit = fit_noise(log.commands, log.observations, truths, confidence)
     if fit.turn is None and fit.range is None:
-        raise SwarmInputError(f"--truth {truth}: no step of the recording has true poses for its robots (steps 0, 1, ... of robots {log.ids})")
+        raise OptionError("truth", f"{truth}: no step of the recording has true poses for its robots (steps 0, 1, ... of robots {log.ids})")
     out.write_text(fit.to_toml(f"noise model of {recording.name} fitted by swarm calibrate (truth {truth.name})"), encoding="utf-8")
     return NoiseCalibration(recording, truth, out, fit.to_json())

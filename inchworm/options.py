@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, field, fields
 from typing import TYPE_CHECKING, Any
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER, localizer_names
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
@@ -28,16 +29,40 @@ class RunOptions:
     localizer: str = DEFAULT_LOCALIZER  # a registered name (``coordinator.localization.registry``)
     selection: SelectionConfig = field(default_factory=default_selection)
 
+    def __post_init__(self) -> None:
+        check_localizers(self, "localizer")
 
-def check_localizers(localizers: tuple[str, ...], flag: str = "localizers") -> None:
+
+def check_localizers(options: Any, name: str = "localizers") -> None:
+    """``OptionError`` unless the option ``name`` of ``options`` (a name or a tuple of names) lists registered localizers."""
+    value = getattr(options, name)
+    given = (value,) if isinstance(value, str) else tuple(value)
     known = localizer_names()
-    if not localizers or any(x not in known for x in localizers):
-        raise SwarmInputError(f"--{flag} must list localizers among {', '.join(known)}, got {','.join(localizers)!r}")
+    if not given or any(x not in known for x in given):
+        what = "be one of the localizers" if isinstance(value, str) else "list localizers among"
+        raise OptionError(name, f"must {what} {', '.join(known)}, got {','.join(given)!r}", options)
 
 
-def check_at_least(flag: str, value: int, low: int) -> None:
+def check_at_least(options: Any, name: str, low: float) -> None:
+    """``OptionError`` unless the option ``name`` of ``options`` is >= ``low``."""
+    value = getattr(options, name)
     if value < low:
-        raise SwarmInputError(f"--{flag} must be >= {low}, got {value}")
+        raise OptionError(name, f"must be >= {low}, got {value}", options)
+
+
+def check_among(options: Any, name: str, known: tuple[str, ...]) -> None:
+    """``OptionError`` unless the option ``name`` of ``options`` lists names of ``known`` only (at least one)."""
+    given = tuple(getattr(options, name))
+    unknown = [x for x in given if x not in known]
+    if unknown or not given:
+        raise OptionError(name, f"must list names among {', '.join(known)}; " + (f"unknown: {unknown}" if unknown else "got none"), options)
+
+
+def check_numbers(options: Any, name: str, low: float = 0.0, *, above: bool = False) -> None:
+    """``OptionError`` unless the option ``name`` of ``options`` lists finite numbers >= ``low`` (``above``: > ``low``)."""
+    values = tuple(getattr(options, name))
+    if not values or not all(math.isfinite(v) and (v > low if above else v >= low) for v in values):
+        raise OptionError(name, f"must list numbers {'>' if above else '>='} {low:g}, got {list(values)}", options)
 
 
 def options_dict(options: Any) -> dict[str, Any]:

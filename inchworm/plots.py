@@ -16,7 +16,7 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
-    from coordinator.executor import RunResult
+    from coordinator.run_result import RunResult
 
 DESIRED, ESTIMATED, TRUE = "tab:red", "tab:green", "tab:blue"
 

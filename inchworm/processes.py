@@ -1,13 +1,12 @@
 """Processes of a distributed run on this host: robot agents, robot emulators and gateway links.
 
-Each is started as its own Python process (``python -m swarm_cli.agent`` and so on, the
-commands a user would run) and stopped by its own pid (``stop_all``). ``swarm launch``,
-the runtime and fault benchmarks and the tests start them through these functions.
+Each is started as its own Python process from its spec (``inchworm.specs``, ``inchworm.spawn.Spawned``: the
+process runs what the ``swarm`` command of that kind runs) and stopped by its own pid (``stop_all``). ``swarm
+launch``, the runtime and fault benchmarks and the tests start them through these functions.
 """
 
 from __future__ import annotations
 
-import math
 import signal
 import subprocess
 import sys
@@ -15,13 +14,13 @@ import threading
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
-from robot_agent.assembly import format_ids
-from robot_agent.emulator_process import check_radio_faults
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, EmulatorSpec, LinkSpec, PortProcessSpec
 from runtime.errors import SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
-from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_wildcard
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, ObserveRequest, decode
@@ -30,22 +29,6 @@ from runtime.wire.transport import subscribe
 GRACE_S = 3.0  # s a child gets after SIGTERM before SIGKILL
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
 AGENTS_PER_PROCESS = 50  # at most, when they share
-
-
-def model_flags(cfg: ModelConfig) -> list[str]:
-    """The model options of an agent or emulator command line for ``cfg`` (angles in degrees, as the flags take them)."""
-    return [f"--turn-sigma-deg={math.degrees(cfg.turn_sigma_rad)!r}", f"--drive-sigma-frac={cfg.drive_sigma_frac!r}",
-            f"--range-sigma={cfg.range_sigma_m!r}", f"--bearing-sigma-deg={math.degrees(cfg.bearing_sigma_rad)!r}",
-            f"--sensing-range={cfg.sensing_range_m!r}", f"--dropout={cfg.dropout_prob!r}"]
-
-
-def agent_command(
-    robot: int, ids: str, pose, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = ()
-) -> list[str]:
-    """The command line of robot ``robot``'s agent process (``ids`` as ``--ids`` takes them, ``pose`` x, y, heading)."""
-    return [sys.executable, "-m", "swarm_cli.agent", f"--id={int(robot)}", f"--ids={ids}",
-            f"--pose={','.join(repr(float(v)) for v in pose)}", f"--motion-time={float(motion_time)!r}",
-            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", *extra]
 
 
 def agents_per_process(n: int, requested: int | None) -> int:
@@ -61,26 +44,26 @@ def agents_per_process(n: int, requested: int | None) -> int:
 
 
 def start_agents(
-    traj: Trajectory, run_id: str, hub: str, seed: int, motion_time: float = 0.0, extra: list[str] | tuple[str, ...] = (),
-    procs: list[subprocess.Popen] | None = None, per_process: int = 1, traj_file: Path | None = None, **popen_kwargs,
+    traj: Trajectory, base: AgentHostSpec, procs: list[subprocess.Popen] | None = None, per_process: int = 1,
+    traj_file: Path | None = None, **popen_kwargs,
 ) -> list[subprocess.Popen]:
-    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (initial
-    true pose on its command line), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``,
-    ``traj`` saved). Pass your own ``procs`` list so that the ones already started can be stopped if a later start fails.
+    """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (its initial true
+    pose in its spec), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``, ``traj`` saved).
+    ``base`` holds what every one shares (run, hub, seed, model, driver, ...); its robots are filled in. Pass your own
+    ``procs`` list so that the ones already started can be stopped if a later start fails.
     """
     procs = [] if procs is None else procs
-    ids = format_ids(traj.ids)
+    ids = tuple(int(i) for i in traj.ids)
     if per_process == 1:
-        for robot, pose in zip(traj.ids, traj.initial_poses, strict=True):
-            procs.append(subprocess.Popen(agent_command(int(robot), ids, pose, run_id, hub, seed, motion_time, extra), **popen_kwargs))
+        for robot, pose in zip(ids, traj.initial_poses, strict=True):
+            spec = msgspec.structs.replace(base, robots=(robot,), run_robots=ids, pose=(float(pose[0]), float(pose[1]), float(pose[2])))
+            procs.append(Spawned(spec, **popen_kwargs))
         return procs
     if traj_file is None:
         raise ValueError("start_agents needs traj_file to host several agents per process")
     for k in range(0, traj.n, per_process):
-        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(traj.ids[k:k + per_process])}", f"--ids={ids}",
-               f"--trajectory={traj_file}", f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}",
-               f"--seed={seed}", *extra]
-        procs.append(subprocess.Popen(cmd, **popen_kwargs))
+        procs.append(Spawned(msgspec.structs.replace(base, robots=ids[k:k + per_process], run_robots=ids, trajectory=str(traj_file)),
+                             **popen_kwargs))
     return procs
 
 
@@ -175,12 +158,13 @@ def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float
                                               robot_radius_m=robot_radius))
 
 
-def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str], procs: list[subprocess.Popen],
-                   **popen_kwargs) -> Path:
-    """Start ``swarm emulate-robots`` for the gateway config ``config`` (appended to ``procs``) and wait
-    until it wrote ``live``, the same config with its pty devices; returns ``live``."""
-    emulator = subprocess.Popen([sys.executable, "-m", "swarm_cli.emulate", f"--config={config}", f"--trajectory={traj_file}",
-                                 f"--write-config={live}", *options], stdout=subprocess.DEVNULL, **popen_kwargs)
+def start_emulator(spec: EmulatorSpec, procs: list[subprocess.Popen], **popen_kwargs) -> Path:
+    """Start the robot emulator ``spec`` (appended to ``procs``) and wait until it wrote its ``write_config``, the
+    gateway config with its pty devices; returns that path."""
+    if spec.write_config is None:
+        raise ValueError("start_emulator needs the spec's write_config: the launcher waits for it")
+    live = Path(spec.write_config)
+    emulator = Spawned(spec, stdout=subprocess.DEVNULL, **popen_kwargs)
     procs.append(emulator)
     deadline = time.monotonic() + GATEWAY_READY_S
     while not live.exists():
@@ -192,43 +176,37 @@ def start_emulator(config: Path, traj_file: Path, live: Path, options: list[str]
     return live
 
 
-def radio_faults(drop: float, corrupt: float, delay: float) -> list[str]:
-    """The emulator options of the radio faults ``--drop P --corrupt P --delay S``, checked (errors name the flag)."""
-    check_radio_faults(drop, corrupt, delay)
-    return [f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}"]
-
-
-def start_gateway(traj_file: Path, gateway: GatewayConfig, tmp: Path, run_id: str, hub: str, seed: int, motion_time: float,
-                  model: list[str], procs: list[subprocess.Popen], events: Path | None = None,
-                  faults: list[str] | tuple[str, ...] = (), links: bool = True, **popen_kwargs) -> Path:
-    """Start the robot emulators (with the ``radio_faults`` options ``faults``) and, with ``links``, one link process
-    per port (without: the agent processes run them, ``start_port_hosts``); the live gateway config (pty devices)."""
+def start_gateway(gateway: GatewayConfig, tmp: Path, emulator: EmulatorSpec, procs: list[subprocess.Popen], links: bool = True,
+                  **popen_kwargs) -> Path:
+    """Start the robot emulator ``emulator`` (its trajectory, seed, model, faults, run and hub; the config ``gateway`` is
+    saved in ``tmp``) and, with ``links``, one link process per port (without: the agent processes run them,
+    ``start_port_hosts``); the live gateway config (pty devices)."""
+    if emulator.run_id is None:
+        raise ValueError("start_gateway needs the emulator spec's run_id: the links serve that run")
     config = tmp / "gateway.json"
     gateway.save(config)
-    options = [f"--seed={seed}", f"--motion-time={motion_time!r}", f"--hub={hub}", f"--run={run_id}", *model, *faults]
-    if events is not None:
-        options.append(f"--events={events}")
-    live = start_emulator(config, traj_file, tmp / "gateway-live.json", options, procs, **popen_kwargs)
+    live = start_emulator(msgspec.structs.replace(emulator, config=str(config), write_config=str(tmp / "gateway-live.json")), procs,
+                          **popen_kwargs)
     for port in gateway.ports if links else ():
-        procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", f"--port={port.name}",
-                                       f"--run={run_id}", f"--hub={hub}"], **popen_kwargs))
+        procs.append(Spawned(LinkSpec(config=str(live), port=port.name, run_id=emulator.run_id, hub=emulator.hub,
+                                      zenoh_config=emulator.zenoh_config), **popen_kwargs))
     return live
 
 
-def start_port_hosts(traj: Trajectory, live: Path, run_id: str, hub: str, seed: int, motion_time: float, extra: list[str],
-                     procs: list[subprocess.Popen], traj_file: Path, **popen_kwargs) -> dict[int, subprocess.Popen]:
-    """The gateway PC's layout: one agent process per port of the live gateway config ``live``, hosting the agents of
-    the port's robots of ``traj`` and the port's link (``swarm agent --link``); robot -> its process. ``extra`` holds
-    ``--driver=gateway --gateway-config=...`` and the model flags."""
-    ids, run_robots = format_ids(traj.ids), {int(i) for i in traj.ids}
+def start_port_hosts(traj: Trajectory, live: Path, base: AgentHostSpec, procs: list[subprocess.Popen], traj_file: Path,
+                     **popen_kwargs) -> dict[int, subprocess.Popen]:
+    """The gateway PC's layout: one port process per port of the live gateway config ``live``, hosting the agents of
+    the port's robots of ``traj`` (driver ``gateway``) and the port's link; robot -> its process. ``base`` holds what
+    the agents share (run, hub, seed, model, ...)."""
+    ids, run_robots = tuple(int(i) for i in traj.ids), {int(i) for i in traj.ids}
+    shared = {**msgspec.structs.asdict(base), "run_robots": ids, "trajectory": str(traj_file), "driver": "gateway",
+              "gateway_config": str(live)}
     hosts: dict[int, subprocess.Popen] = {}
     for port in GatewayConfig.load(live).ports:
-        robots = [r for r in port.robots if r in run_robots]
+        robots = tuple(r for r in port.robots if r in run_robots)
         if not robots:
             continue
-        cmd = [sys.executable, "-m", "swarm_cli.agent", f"--id={format_ids(robots)}", f"--ids={ids}", f"--trajectory={traj_file}",
-               f"--motion-time={float(motion_time)!r}", f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--link", *extra]
-        procs.append(subprocess.Popen(cmd, **popen_kwargs))
+        procs.append(Spawned(PortProcessSpec(**{**shared, "robots": robots}), **popen_kwargs))
         hosts.update((r, procs[-1]) for r in robots)
     return hosts
 

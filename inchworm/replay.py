@@ -29,20 +29,19 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
-from runtime.errors import SwarmInputError
+from inchworm.limits import MODEL_FLAGS
+from runtime.errors import OptionError, SwarmInputError
+from runtime.paths import coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
-MODEL_OPTIONS = {  # option dest -> (ModelConfig field, conversion)
-    "turn_sigma_deg": ("turn_sigma_rad", math.radians),
-    "drive_sigma_frac": ("drive_sigma_frac", float),
-    "range_sigma": ("range_sigma_m", float),
-    "bearing_sigma_deg": ("bearing_sigma_rad", math.radians),
-    "sensing_range": ("sensing_range_m", float),
-    "dropout": ("dropout_prob", float),
-    "robot_radius": ("robot_radius_m", float),
-}
+if TYPE_CHECKING:
+    import zenoh
+
+    from coordinator.replay_check import RecordedRun
+
+MODEL_OPTIONS = {dest: (name, convert) for dest, (name, convert, _) in MODEL_FLAGS.items()}  # option dest -> (ModelConfig field, to SI)
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 Say = Callable[[str], None]
 
@@ -59,8 +58,15 @@ class PublishOptions:
     speed: float = 1.0
     hub: str | None = None
     wait: float = 10.0
-    run_id: str | None = None
+    run_id: str | None = field(default=None, metadata={"flag": "--run"})
     same_run: bool = False
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file")
+        if math.isnan(self.speed) or self.speed < 0:
+            raise OptionError("speed", f"must be >= 0 (0 or inf: as fast as possible), got {self.speed}", self)
+        if not self.wait >= 0:
+            raise OptionError("wait", f"must be >= 0, got {self.wait}", self)
 
 
 @dataclass(frozen=True)
@@ -95,10 +101,6 @@ def publish(options: PublishOptions, *, say: Say = _quiet, warn: Say = _quiet) -
     from runtime.wire.transport import ZenohSettings, free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
 
     speed = options.speed
-    if math.isnan(speed) or speed < 0:
-        raise SwarmInputError(f"--speed must be >= 0 (0 or inf: as fast as possible), got {speed}")
-    if options.wait < 0:
-        raise SwarmInputError(f"--wait must be >= 0, got {options.wait}")
     info = recording_info(options.file)  # the whole file is validated before anything is published
     everything = list(read_messages(options.file))
     messages = [m for m in everything if m[0].startswith(ROOT + "/")]  # the run's Zenoh messages, not derived views
@@ -156,7 +158,7 @@ def publish(options: PublishOptions, *, say: Say = _quiet, warn: Say = _quiet) -
     return PublishResult(len(messages), len(publishers), elapsed, span, hub, skipped, fast)
 
 
-def _retarget(messages: list[tuple[str, bytes, int, int]], run_id: str | None, same_run: bool) -> tuple[list, str]:
+def _retarget(messages: list[tuple[str, bytes, int, int]], run_id: str | None, same_run: bool) -> tuple[list[tuple[str, bytes, int, int]], str]:
     """The messages to publish and their run id: the recorded one (``same_run``), else ``run_id`` or a new one,
     each message's ``run`` and key rewritten (an undecodable recorded message keeps its bytes)."""
     import dataclasses  # noqa: PLC0415
@@ -175,7 +177,7 @@ def _retarget(messages: list[tuple[str, bytes, int, int]], run_id: str | None, s
     try:
         validate_run(target)
     except SwarmInputError as exc:
-        raise SwarmInputError(f"--run {target!r}: {exc}") from None
+        raise OptionError("run_id", f"{target!r}: {exc}", PublishOptions) from None
     if target == source:
         return messages, target
     old, new = f"{ROOT}/{source}/", f"{ROOT}/{target}/"
@@ -199,9 +201,9 @@ def _parses(topic: str) -> bool:
     return True
 
 
-def _refuse_live_run(session, run_id: str) -> None:
+def _refuse_live_run(session: zenoh.Session, run_id: str) -> None:
     """``SwarmInputError`` naming them if an agent or a coordinator of ``run_id`` is alive on this hub."""
-    from coordinator.zenoh_backend import live_coordinators  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import live_coordinators  # noqa: PLC0415
     from runtime.wire.keys import alive_wildcard, parse_key  # noqa: PLC0415
     from runtime.wire.transport import alive_now  # noqa: PLC0415
 
@@ -233,6 +235,9 @@ class CheckOptions:
     selection: dict[str, Any] = field(default_factory=dict)
     what_if: bool = False
 
+    def __post_init__(self) -> None:
+        coerce_paths(self, "file", "trajectory", "model_file")
+
 
 @dataclass(frozen=True)
 class CheckOutcome:
@@ -250,7 +255,7 @@ class CheckOutcome:
                                                       "recorded": d.recorded, "recomputed": d.recomputed}}
 
 
-def _overrides(options: CheckOptions) -> tuple[dict, dict]:
+def _overrides(options: CheckOptions) -> tuple[dict[str, Any], dict[str, Any]]:
     from runtime.models.model_file import load_model  # noqa: PLC0415
 
     model = load_model(options.model_file).to_dict() if options.model_file is not None else {}  # a model file replaces the recorded model
@@ -258,11 +263,11 @@ def _overrides(options: CheckOptions) -> tuple[dict, dict]:
               if options.model_flags.get(name) is not None}
     selection = {name: options.selection[name] for name in SELECTION_OPTIONS if options.selection.get(name) is not None}
     if "w_v" in selection and not 0.0 <= selection["w_v"] <= 1.0:
-        raise SwarmInputError(f"--w-v must be in [0, 1], got {selection['w_v']}")
+        raise OptionError("w_v", f"must be in [0, 1], got {selection['w_v']}")
     return model, selection
 
 
-def _recorded_selection_values(meta: dict) -> dict:
+def _recorded_selection_values(meta: dict[str, Any]) -> dict[str, Any]:
     """The selection options as the recording's metadata states them (only those it states)."""
     stored = meta.get("selection")
     if not isinstance(stored, dict):
@@ -275,32 +280,32 @@ def _recorded_selection_values(meta: dict) -> dict:
     return {k: v for k, v in values.items() if v is not None}
 
 
-def contradictions(rec, options: CheckOptions, model: dict, selection: dict) -> list[str]:
+def contradictions(rec: RecordedRun, options: CheckOptions, model: dict[str, Any], selection: dict[str, Any]) -> list[str]:
     """The options given that differ from what the recording's metadata states, as ``--flag VALUE (recorded: X)``;
     model options equal to the recorded value up to rounding are removed from ``model`` (the recorded value is used)."""
     meta, found = rec.meta, []
     typed = {"localizer": options.localizer, "seed": options.seed, **options.model_flags, **options.selection}
 
-    def differs(a, b) -> bool:
+    def differs(a: object, b: object) -> bool:
         if isinstance(a, (int, float)) and isinstance(b, (int, float)) and not isinstance(a, bool):
             return not math.isclose(float(a), float(b), rel_tol=1e-12, abs_tol=0.0)
         return a != b
 
-    def note(dest: str, given, recorded, shown=None) -> None:
+    def note(dest: str, given: Any, recorded: Any, shown: Any = None) -> None:  # values as given and as recorded (JSON)
         if differs(given, recorded):
             shown_recorded = recorded if shown is None else shown
             value = typed.get(dest)
             flag = f"--{dest.replace('_', '-')} {value}" if value is not None else f"--model {options.model_file}: {dest} {shown_given(dest, given)}"
             found.append(f"{flag} (recorded: {shown_recorded})")
 
-    def shown_given(dest: str, value) -> str:
+    def shown_given(dest: str, value: float) -> str:
         return f"{math.degrees(value):g}" if MODEL_OPTIONS.get(dest, (None, None))[1] is math.radians else f"{value:g}"
 
     if options.localizer is not None and "localizer" in meta:
         note("localizer", options.localizer, meta["localizer"])
     if options.seed is not None and "seed" in meta:
         note("seed", options.seed, meta["seed"])
-    stored_model = meta.get("model") if isinstance(meta.get("model"), dict) else {}
+    stored_model = cast("dict[str, Any]", meta.get("model") if isinstance(meta.get("model"), dict) else {})  # a dict: checked
     for dest, (field_name, convert) in MODEL_OPTIONS.items():
         if field_name in model and field_name in stored_model:
             recorded = float(stored_model[field_name])

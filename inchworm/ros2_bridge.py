@@ -12,7 +12,7 @@
   plan in progress (red spheres) when the trajectory is known;
 
 and serves ``/swarm/estop`` (``std_srvs/Trigger``): the run-wide emergency stop of ``swarm estop``
-(``coordinator.stop.emergency_stop``), answered with who acknowledged it (success: someone did).
+(``coordinator.node.stop.emergency_stop``), answered with who acknowledged it (success: someone did).
 The bridge ends when the run does: once a coordinator's token was seen and every one is gone.
 """
 
@@ -23,7 +23,7 @@ import math
 import os
 import threading
 import time
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -45,7 +45,7 @@ def ellipse(cov_xy: np.ndarray, sigmas: float = SIGMAS, points: int = 32) -> np.
     vals, vecs = np.linalg.eigh(0.5 * (cov_xy + cov_xy.T))
     axes = sigmas * np.sqrt(np.clip(vals, 0.0, None))
     t = np.linspace(0.0, 2 * math.pi, points + 1)
-    return (vecs @ (axes[:, None] * np.stack([np.cos(t), np.sin(t)]))).T
+    return cast(np.ndarray, (vecs @ (axes[:, None] * np.stack([np.cos(t), np.sin(t)]))).T)
 
 
 def anchors_of(plan: PlanMessage | None, step: int, ids: np.ndarray) -> set[int]:
@@ -186,7 +186,7 @@ class Bridge:
         return p
 
     def _on_estop(self, request: Any, response: Any) -> Any:
-        from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh's stop path, only when called
+        from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh's stop path, only when called
 
         out = emergency_stop(self.settings, self.run_id, f"swarm ros2 bridge (pid {os.getpid()})", "/swarm/estop service", 0.3, 1.0)
         robots = ", ".join(map(str, out.agents))

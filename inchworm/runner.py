@@ -25,7 +25,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol, TypeVar
 
-from runtime.errors import OutputError, SwarmInputError
+from runtime.errors import OptionError, OutputError, SwarmInputError
+from runtime.paths import StrPath
 
 T = TypeVar("T")
 Row = dict[str, Any]
@@ -103,7 +104,7 @@ def open_executor(kind: str = "local", workers: int | None = None, scheduler: st
         yield default_executor(workers)
         return
     if scheduler is None and kind != "dask":
-        raise SwarmInputError(f"--executor must be one of {', '.join(EXECUTORS)}, got {kind!r}")
+        raise OptionError("executor", f"must be one of {', '.join(EXECUTORS)}, got {kind!r}")
     from inchworm.dask_executor import DaskExecutor, dask_client  # noqa: PLC0415
 
     with dask_client(scheduler, max(1, workers or os.cpu_count() or 1)) as client:
@@ -118,7 +119,7 @@ class StudyLog:
     interruption is ignored (its task runs again).
     """
 
-    def __init__(self, folder: str | Path, name: str, options: dict[str, Any], resume: bool = False) -> None:
+    def __init__(self, folder: StrPath, name: str, options: dict[str, Any], resume: bool = False) -> None:
         folder = Path(folder)
         self.jsonl = folder / f"{name}.jsonl"
         self.csv = folder / f"{name}.csv"
@@ -139,10 +140,10 @@ class StudyLog:
         except (json.JSONDecodeError, KeyError, TypeError):
             head = None
         if head is None:
-            raise SwarmInputError(f"--resume: {self.jsonl} is not a study log")
+            raise OptionError("resume", f": {self.jsonl} is not a study log")
         if head != self.options:
             diff = next(k for k in sorted({*head, *self.options}) if head.get(k) != self.options.get(k))
-            raise SwarmInputError(f"--resume: {self.jsonl} was made with {diff} = {head.get(diff)!r}, not {self.options.get(diff)!r}")
+            raise OptionError("resume", f": {self.jsonl} was made with {diff} = {head.get(diff)!r}, not {self.options.get(diff)!r}")
         for line in lines[1:]:
             try:
                 entry = json.loads(line)
@@ -152,7 +153,7 @@ class StudyLog:
             if entry.get("csv", True):
                 self._csv_rows[entry["task"]] = entry["row"]
 
-    def _write(self, obj: dict) -> None:
+    def _write(self, obj: dict[str, Any]) -> None:
         try:
             with open(self.jsonl, "a") as f:
                 f.write(json.dumps(obj, separators=(",", ":")) + "\n")
@@ -204,7 +205,7 @@ def run_tasks(
     """``fn(task)`` for every task, in task order; rows already in ``log`` are not run again."""
     keys = [t.key for t in tasks]  # type: ignore[attr-defined]
     if len(set(keys)) != len(keys):
-        raise ValueError("task keys must be unique within a study")
+        raise SwarmInputError("task keys must be unique within a study")
     rows: dict[int, Row] = {}
     if log is not None:
         rows = {i: log.rows[k] for i, k in enumerate(keys) if k in log.rows}

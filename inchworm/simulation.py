@@ -12,17 +12,18 @@ import numpy as np
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
-    from coordinator.executor import RunResult, StepRecord
     from coordinator.localization import Localizer
+    from coordinator.run_result import RunResult, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
     from runtime.world.params import PhysicsParams
 
 
 def simulate(
-    trajectory: Trajectory | str | Path | None = None,
+    trajectory: Trajectory | StrPath | None = None,
     *,
     method: str | Strategy = "inchworm",
     robots: int = 10,
@@ -55,9 +56,8 @@ def simulate(
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
-    from runtime.models.trajectory import validate_connected  # noqa: PLC0415
+    from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
@@ -82,7 +82,7 @@ def simulate(
     return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress).run(traj, start)
 
 
-def resolve_trajectory(trajectory: Trajectory | str | Path | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
+def resolve_trajectory(trajectory: Trajectory | StrPath | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
     """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
     if trajectory is None:
         return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))
@@ -135,7 +135,8 @@ def _robots(ids: list[int], most: int = 20) -> str:
 def anchor_choices(result: RunResult) -> list[str]:
     """Per configuration: which robots stood still at each step and, where the plan was searched, the outer
     loop's score of every candidate count (Eq. 3: P_s = w_v P_v - w_l P_l, P_v = 1 / n_s, P_l = e_l / e_l(0),
-    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``."""
+    e_l the Monte Carlo estimate of the count's best plan, in mm); the chosen count is marked ``*``. The counts
+    without a plan (none keeps the bodies apart, or the swarm connected) are one line per reason below the table."""
     lines = []
     for c in result.configs:
         plan = c.plan if c.regrouped is None else c.regrouped.planned  # the strategy's (the steps taken: ``c.plan``)
@@ -145,14 +146,16 @@ def anchor_choices(result: RunResult) -> list[str]:
         if c.selection is None or len(c.selection.scores) < 2:
             continue
         lines.append(f"  {'n_a':>5} {'steps':>5} {'e_l (mm)':>9} {'P_v':>6} {'P_l':>6} {'P_s':>7}")
+        unplanned: dict[str, list[int]] = {}
         for s in c.selection.scores:
+            if s.plan is None:  # summarised below the scored rows, one line per reason
+                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
+                unplanned.setdefault(why, []).append(s.n_anchors)
+                continue
             mark = "*" if s.n_anchors == plan.n_anchors else " "
             steps = round(1 / s.p_v) if s.p_v > 0 else 0
-            if s.plan is None:
-                why = "no plan found keeps bodies apart" if s.crowded else "no plan keeps the swarm connected"
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {why:>30}")
-            else:
-                lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+            lines.append(f"  {mark}{s.n_anchors:>4} {steps:>5} {s.e_l * 1e3:>9.2f} {s.p_v:>6.3f} {s.p_l:>6.3f} {s.p_s:>7.3f}")
+        lines += [f"   n_a = {', '.join(map(str, counts))}: {why}" for why, counts in unplanned.items()]
     if any(c.selection is not None and len(c.selection.scores) > 1 for c in result.configs):
         lines.append("  (* chosen: the count of highest P_s = w_v P_v - w_l P_l, Eq. 3; P_v = 1/steps; P_l = e_l / e_l(n_a = 0)"
                      " on the same samples; e_l: Monte Carlo estimate of the count's best plan)")
@@ -171,11 +174,14 @@ def contacts_text(result: RunResult, radius: float) -> str:
 
 
 def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
-    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added`` and ``contacts``
-    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``)."""
+    """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added``, ``contacts``
+    (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``) and ``regrouped`` (each configuration
+    whose plan the chance constraint split: ``config`` 1-based, ``planned_steps``, ``steps``, ``contact_bound`` the
+    highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time)."""
     return {"robot_radius_m": radius, "steps_added": result.steps_added(),
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
-                         for c in result.contacts(radius)]}
+                         for c in result.contacts(radius)],
+            "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}
 
 
 def summary_text(result: RunResult, method: str, localizer: str, radius: float = 0.0) -> str:
@@ -196,7 +202,7 @@ def write_run_outputs(result: RunResult, result_path: Path | None, plots_dir: Pa
     """Write a distributed run's ``--result`` JSON and plots: (the plot files, one line per output that failed)."""
     import json  # noqa: PLC0415 - only when a run ends
 
-    from coordinator.process import result_json  # noqa: PLC0415
+    from coordinator.node.process import result_json  # noqa: PLC0415
     from inchworm.plots import write_run_plots  # noqa: PLC0415
 
     plots: list[str] = []

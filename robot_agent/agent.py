@@ -97,7 +97,7 @@ import queue
 import threading
 import time
 from collections.abc import Callable, Collection
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 
@@ -108,6 +108,7 @@ from runtime.wire.messages import (
     DropCounter,
     EmergencyStop,
     EstopAck,
+    Message,
     MessageError,
     MotionCommand,
     ObservationReport,
@@ -206,7 +207,7 @@ class Agent:
         """Whether ``stop()`` was called (or the agent ended)."""
         return self._stop.is_set()
 
-    def run(self, session=None) -> int:
+    def run(self, session: zenoh.Session | None = None) -> int:
         """Serve until ``stop()`` (returns 0) or until the robot is lost (returns 3).
 
         Without ``session`` the agent opens its own from ``settings`` and closes it on
@@ -214,7 +215,7 @@ class Agent:
         with other agents) it leaves it open.
         """
         own = session is None
-        with open_session(self.settings) if own else contextlib.nullcontext(session) as session:
+        with open_session(self.settings) if own else contextlib.nullcontext(cast("zenoh.Session", session)) as session:
             if own:  # a host checks its robots itself, once
                 claim_identities(session, self.run_id, [self.robot])
             self.open(session)
@@ -224,7 +225,7 @@ class Agent:
             self.close()
         return self.outcome()
 
-    def open(self, session, inbox: Inbox | None = None) -> None:
+    def open(self, session: zenoh.Session, inbox: Inbox | None = None) -> None:
         """Attach the driver and start serving on ``session``: subscriptions (enqueueing into ``inbox``, by default
         the agent's own), the stop forwarder, the liveliness token; a simulated robot publishes its step-0 truth.
         A host that serves several agents from one thread (``robot_agent.host``) passes one inbox per agent that
@@ -298,7 +299,7 @@ class Agent:
                 raise
             except Exception as e:  # a driver's bug is a fault of that robot, not of the agent
                 raise DriverFault(f"driver error in {what}: {type(e).__name__}: {e}") from e
-        box: list = []
+        box: list[tuple[bool, Any]] = []
         done = threading.Event()
 
         def target() -> None:
@@ -318,7 +319,7 @@ class Agent:
             raise value
         raise DriverFault(f"driver error in {what}: {type(value).__name__}: {value}") from value
 
-    def _bounded(self, fn, *args) -> None:
+    def _bounded(self, fn: Callable[..., Any], *args: Any) -> None:
         """Call ``fn(*args)`` (estop, stop, detach at the end) and log a failure; with a command timeout, give up
         waiting after that long (a hung driver must not keep the agent from ending)."""
         try:
@@ -365,7 +366,7 @@ class Agent:
 
     # -- message handling (loop thread only) --------------------------------------------
 
-    def _send(self, msg) -> None:
+    def _send(self, msg: Message) -> None:
         assert self._session is not None, "while running only"
         publish(self._session, message_key(msg), encode(msg))
 
@@ -505,6 +506,7 @@ class Agent:
         else:
             self._status(cmd, last.state, last.reason, remember=False)
         if last.state == "done" and self._truth_published(cmd.step):
+            assert self._last_truth is not None, "_truth_published"
             self._send(self._last_truth)  # the truth that followed the done may be lost too (or went to the coordinator taken over)
 
     @property
@@ -537,6 +539,7 @@ class Agent:
     def _on_observe(self, req: ObserveRequest) -> None:
         if req.step == self._last_obs_step and self._last_report is not None:
             if self._truth_published(req.step):
+                assert self._last_truth is not None, "_truth_published"
                 self._send(self._last_truth)
             self._send(self._last_report)
             return

@@ -19,8 +19,9 @@ from __future__ import annotations
 import queue
 import re
 import threading
+from collections.abc import Iterable
 
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmConnectionError, SwarmInputError
 
 PUBLIC_NETWORK_KEY = [0xE8, 0xE4, 0x21, 0x3B, 0x55, 0x7A, 0x67, 0xC1]
 DEVICE_TYPE = 0x42
@@ -63,12 +64,12 @@ class AntLink:
             channel.set_period(PERIOD)
             channel.open()
         except Exception as exc:  # noqa: BLE001 - openant raises its own and USB errors
-            raise ConnectionError(f"cannot open the ANT channel {device}: {exc}") from None
+            raise SwarmConnectionError(f"cannot open the ANT channel {device}: {exc}") from None
         self._channel = channel
         self._thread = threading.Thread(target=self._node.start, name=f"ant-{number}", daemon=True)
         self._thread.start()
 
-    def _receive(self, data) -> None:
+    def _receive(self, data: Iterable[int]) -> None:  # openant hands the payload as a sequence of bytes
         self._rx.put(bytes(data))
 
     def read(self, timeout_s: float) -> bytes:

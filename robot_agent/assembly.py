@@ -23,7 +23,7 @@ from robot_agent.driver import Driver, DriverContext, SimDriver
 from robot_agent.gateway_driver import GatewayDriver
 from robot_agent.host import LinkFactory
 from robot_agent.plugins import BUILT_IN, build_driver, driver_class
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.models.config import ModelConfig
 from runtime.wire.messages import CommandLimits
@@ -67,7 +67,7 @@ def driver_options(pairs: list[str]) -> dict[str, str]:
     for pair in pairs:
         key, sep, value = pair.partition("=")
         if not sep or not key.strip():
-            raise SwarmInputError(f"--driver-option must be KEY=VALUE, got {pair!r}")
+            raise OptionError("driver_option", f"must be KEY=VALUE, got {pair!r}")
         out[key.strip()] = value
     return out
 
@@ -98,7 +98,7 @@ class AgentSpec:
     physics_speed: float = 0.0  # world seconds per wall second (0: as fast as it computes)
 
 
-def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose=None, gateway: GatewayConfig | None = None,
+def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose: np.ndarray | list[float] | None = None, gateway: GatewayConfig | None = None,
                 plugin: type[Driver] | None = None) -> tuple[Driver, CommandLimits]:
     """The driver and limits of ``robot`` (``pose``: its initial true pose, if known; ``plugin``: a lab's driver class)."""
     if spec.driver == "gateway":
@@ -160,11 +160,11 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
     outside = sorted(set(hosted) - set(ids))
     if outside:
         raise SwarmInputError(f"--id names robots {outside} that are not robots of the run (--ids {spec.ids_text or format_ids(ids)})")
-    poses: dict[int, object] = {}
+    poses: dict[int, np.ndarray] = {}
     if spec.driver != "gateway" and spec.pose is None and traj is not None:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
         if missing and spec.driver == "sim":
-            raise SwarmInputError(f"--id names robots {missing} that {spec.trajectory_path} does not have")
+            raise OptionError("id", f"names robots {missing} that {spec.trajectory_path} does not have")
         poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses, strict=True)}
     elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
         raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")
@@ -180,7 +180,7 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
                   spec.ready_timeout_s, timeout) for robot in hosted]
 
 
-def _physics_agents(spec: AgentSpec, ids: list[int], poses: dict[int, object], timeout: float | None) -> list[Agent]:
+def _physics_agents(spec: AgentSpec, ids: list[int], poses: dict[int, np.ndarray], timeout: float | None) -> list[Agent]:
     """``--world physics``: every robot of the run in one world, hosted by this process (docs/physics.md)."""
     from robot_agent.physics_driver import PhysicsDriver, SharedWorld  # noqa: PLC0415 - the physics extra, only when asked for
     from runtime.world.physics import World  # noqa: PLC0415

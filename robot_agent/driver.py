@@ -14,18 +14,21 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmInputError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.motion import execute_command
 from runtime.models.rng import Stream, robot_rng
 from runtime.models.sensing import sense_robot
 from runtime.wire.messages import MotionCommand
 
+if TYPE_CHECKING:
+    import zenoh
 
 @dataclass(frozen=True)
 class PeerPoses:
@@ -47,11 +50,11 @@ class PeerPoses:
         return cls(ids, np.array([peers[int(i)] for i in ids], dtype=float).reshape(len(ids), 3))
 
 
-class DriverRefused(Exception):
+class DriverRefused(SwarmRunError):
     """The robot did not execute the command; the text is the reason."""
 
 
-class RobotLost(Exception):
+class RobotLost(SwarmRunError):
     """The robot stopped answering; the text says how."""
 
 
@@ -94,7 +97,7 @@ class Driver(ABC):
     instantaneous: bool = False  # True: ``execute`` takes no wall time, so the agent answers with ``done`` alone (no ``accepted``)
     on_lost: Callable[[str], None] | None = None  # set by the agent; see report_lost
 
-    def attach(self, session) -> None:  # noqa: B027 - optional hook, nothing to do by default
+    def attach(self, session: zenoh.Session) -> None:  # noqa: B027 - optional hook, nothing to do by default
         """The agent's Zenoh session is open (a driver that talks to a link process subscribes here)."""
 
     def detach(self) -> None:  # noqa: B027
@@ -140,7 +143,8 @@ class SimDriver(Driver):
 
     simulated = True
 
-    def __init__(self, robot: int, ids: list[int], pose: np.ndarray, cfg: ModelConfig, seed: int, motion_time_s: float = 0.0) -> None:
+    def __init__(self, robot: int, ids: list[int], pose: np.ndarray | Sequence[float], cfg: ModelConfig, seed: int,
+                 motion_time_s: float = 0.0) -> None:
         if robot not in ids:
             raise SwarmInputError(f"robot {robot} is not one of the run's robots {ids}")
         self.robot = int(robot)
@@ -157,7 +161,7 @@ class SimDriver(Driver):
         self._order_cache: tuple[bytes, np.ndarray, int] | None = None  # ``_run_order``'s last answer
         self.estopped = False
 
-    def attach(self, session) -> None:
+    def attach(self, session: zenoh.Session) -> None:
         """Nothing to connect: the simulated robot lives in this process."""
 
     def detach(self) -> None:

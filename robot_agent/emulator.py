@@ -40,7 +40,7 @@ import time
 import tty
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -80,7 +80,7 @@ if TYPE_CHECKING:
 
 _log = logging.getLogger(__name__)
 
-EventSink = Callable[[dict], None]
+EventSink = Callable[[dict[str, Any]], None]
 TruthListener = Callable[[int, int, np.ndarray], None]  # (robot, step, true pose)
 
 POLL_S = 0.01  # reader poll period: resolution of the quiet timer and of the heartbeat watchdog
@@ -155,7 +155,7 @@ class EmulatedWorld:
         """True pose (3,) of ``robot`` now."""
         i = self.index(robot)
         with self._lock:
-            return self._poses[i].copy()
+            return cast(np.ndarray, self._poses[i].copy())
 
     def poses(self) -> np.ndarray:
         """True poses (n, 3) of every robot, rows in ``ids`` order."""
@@ -220,7 +220,7 @@ class EmulatedWorld:
         command = np.array([turn_rad, self.calibration.get(robot, Calibration()).driven(drive_m)], dtype=float)
         with self._lock:
             self._poses[i] = execute_command(self._poses[i], command, self.cfg, self._motion[robot])
-            return self._poses[i].copy()
+            return cast(np.ndarray, self._poses[i].copy())
 
     def sense(self, robot: int, step: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(observed ids, measured ranges m, bearings rad) of ``robot`` now, drawing from its sensing stream.
@@ -779,7 +779,7 @@ class TruthPublisher:
         self.published = 0
         self._jobs: queue.SimpleQueue[bool] = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._loop, name="emulator-truth", daemon=True)
-        self._watch: zenoh.Subscriber | None = None
+        self._watch: zenoh.Subscriber[None] | None = None
         self._lock = threading.Lock()
 
     def __enter__(self) -> TruthPublisher:

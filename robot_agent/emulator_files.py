@@ -7,7 +7,7 @@ import json
 import os
 import threading
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 from runtime.gateway.config import GatewayConfig
 
@@ -19,7 +19,7 @@ class JsonLinesSink:
         self._file: TextIO = open(path, "w", encoding="utf-8")
         self._lock = threading.Lock()
 
-    def __call__(self, event: dict) -> None:
+    def __call__(self, event: dict[str, Any]) -> None:
         line = json.dumps(event, separators=(",", ":")) + "\n"
         with self._lock:
             if not self._file.closed:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launcher's parser checks faults without them
     from robot_agent.emulator import FaultPlan, PortEmulator
@@ -34,7 +34,7 @@ def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
         if not 0.0 <= p <= 1.0:
             raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
     if not (math.isfinite(delay) and delay >= 0):
-        raise SwarmInputError(f"--delay must be a finite number of seconds >= 0, got {delay!r}")
+        raise OptionError("delay", f"must be a finite number of seconds >= 0, got {delay!r}")
 
 
 def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, traj_path: Path, model: ModelConfig, seed: int,
@@ -63,7 +63,7 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
     if run_id is not None:
         validate_run(run_id)
     if not motion_time_s >= 0:
-        raise SwarmInputError(f"--motion-time must be >= 0 s, got {motion_time_s}")
+        raise OptionError("motion_time", f"must be >= 0 s, got {motion_time_s}")
     calibration = dict(config.calibration) if miscalibrate else None
     physical = None
     if physics is not None:

@@ -21,12 +21,12 @@ from __future__ import annotations
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from robot_agent.driver import Driver, DriverRefused, RobotLost
+from robot_agent.driver import Driver, DriverRefused, PeerPoses, RobotLost
 from runtime.gateway.config import Calibration, Timing
 from runtime.wire.keys import link_alive_key, robot_key
 from runtime.wire.messages import LinkReply, LinkRequest, MessageError, MotionCommand, decode, encode
@@ -50,13 +50,13 @@ class GatewayDriver(Driver):
         self.calibration = calibration
         self.timing = timing
         self._session: zenoh.Session | None = None
-        self._sub: zenoh.Subscriber | None = None
+        self._sub: zenoh.Subscriber[None] | None = None
         self._replies: queue.SimpleQueue[LinkReply] = queue.SimpleQueue()  # C-level: cheaper per reply than queue.Queue
         self._estopped = threading.Event()
         self.port = port
         self._link_seen = threading.Event()  # the link's liveliness token appeared
         self._link_gone = threading.Event()  # ... and disappeared since
-        self._watch: zenoh.Subscriber | None = None
+        self._watch: zenoh.Subscriber[None] | None = None
         self._req_key = robot_key(run, self.robot, "linkreq")
         self._rep_key = robot_key(run, self.robot, "linkrep")
         self.bad_replies = 0  # undecodable LinkReplies
@@ -70,7 +70,7 @@ class GatewayDriver(Driver):
         published on the robot's keys, so a recording holds the same messages as with a link process."""
         self._submit = link.serve_locally(self.robot, self._replies.put)
 
-    def attach(self, session) -> None:
+    def attach(self, session: zenoh.Session) -> None:
         """Start talking to the link over ``session`` (the agent's)."""
         self._session = session
         if self._submit is None:
@@ -118,7 +118,7 @@ class GatewayDriver(Driver):
         except MessageError:
             self.bad_replies += 1
 
-    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple = (),
+    def _request(self, step: int, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0, start_pose: tuple[float, ...] = (),
                  epoch: int = 0) -> None:
         msg = LinkRequest(run=self.run_id, step=step, robot=self.robot, kind=kind, turn_rad=turn_rad, drive_m=drive_m,
                           start_pose=start_pose, epoch=epoch)
@@ -128,7 +128,7 @@ class GatewayDriver(Driver):
             self._submit(msg)
 
     def _exchange(self, step: int, final: str, motion: bool, kind: str, turn_rad: float = 0.0, drive_m: float = 0.0,
-                  start_pose: tuple = (), epoch: int = 0) -> LinkReply:
+                  start_pose: tuple[float, ...] = (), epoch: int = 0) -> LinkReply:
         """Send the request, then wait for its reply of kind ``final``; raises on refusal, loss, stop or timeout.
 
         The request is sent again whenever the link has been silent about it for ``_resend_s``
@@ -176,7 +176,7 @@ class GatewayDriver(Driver):
     def true_pose(self) -> None:
         return None
 
-    def sense(self, peers, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def sense(self, peers: PeerPoses | Mapping[int, np.ndarray] | None, step: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         reply = self._exchange(step, "observation", False, "observe")
         c = self.calibration
         ranges = np.array([c.corrected_range(r) for r in reply.ranges], dtype=float)

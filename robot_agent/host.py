@@ -32,9 +32,12 @@ from typing import TYPE_CHECKING
 
 from robot_agent.agent import Agent
 from robot_agent.gateway_driver import GatewayDriver
+from runtime.errors import SwarmInputError
 from runtime.wire.transport import ZenohSettings, claim_identities, open_session
 
 if TYPE_CHECKING:
+    import zenoh
+
     from robot_agent.link import Link
 
 LinkFactory = Callable[[object], "Link"]  # session -> the link of one port, its device opened (``Link.open``)
@@ -51,7 +54,7 @@ class AgentHost:
     def __init__(self, settings: ZenohSettings, agents: Sequence[Agent], links: Mapping[str, LinkFactory] | None = None) -> None:
         robots = [a.robot for a in agents]
         if not robots or len(set(robots)) != len(robots):
-            raise ValueError(f"an agent host needs distinct robots, got {robots}")
+            raise SwarmInputError(f"an agent host needs distinct robots, got {robots}")
         self.settings = settings
         self.agents = list(agents)
         self.links = dict(links or {})
@@ -85,7 +88,7 @@ class AgentHost:
             _log.error("robots %s were lost", lost)
         return 3 if lost else 0
 
-    def serve_together(self, session) -> None:
+    def serve_together(self, session: zenoh.Session) -> None:
         """Every agent on this thread, from one queue, until each has ended (``stop()`` or its robot lost)."""
         shared: queue.SimpleQueue[tuple[Agent, tuple[str, bytes]]] = queue.SimpleQueue()
         active: set[Agent] = set()
@@ -110,7 +113,7 @@ class AgentHost:
             if agent in active and not agent.serve(key, payload):
                 end(agent)
 
-    def _start_links(self, session) -> list[tuple[Link, threading.Thread]]:
+    def _start_links(self, session: zenoh.Session) -> list[tuple[Link, threading.Thread]]:
         """Open each link's device and run it on a thread; a device that cannot be opened stops the ones started and raises."""
         started: list[tuple[Link, threading.Thread]] = []
         try:
@@ -135,7 +138,7 @@ class AgentHost:
             link.close()
             self.link_summaries.append(link.summary())
 
-    def _serve(self, agent: Agent, session) -> None:
+    def _serve(self, agent: Agent, session: zenoh.Session) -> None:
         try:
             self.results[agent.robot] = agent.run(session)
         except Exception:  # noqa: BLE001 - one agent's failure to start must not take its neighbours down
@@ -146,7 +149,7 @@ class AgentHost:
 class _Feed:
     """One agent's inbox in a host serving its agents together: puts ``(agent, item)`` on the shared queue."""
 
-    def __init__(self, shared: queue.SimpleQueue, agent: Agent) -> None:
+    def __init__(self, shared: queue.SimpleQueue[tuple[Agent, tuple[str, bytes]]], agent: Agent) -> None:
         self._shared, self._agent = shared, agent
 
     def put(self, item: tuple[str, bytes]) -> None:

@@ -52,14 +52,16 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from robot_agent.write_batch import WriteBatch
+from runtime.errors import SwarmConnectionError
 from runtime.gateway.config import Calibration, GatewayConfig, Limits, Port, Timing
 from runtime.gateway.frames import (
     BROADCAST,
     MAX_U32,
     QUIET_S,
+    Body,
     EmptyBody,
     ErrorBody,
     Frame,
@@ -104,6 +106,9 @@ from runtime.wire.messages import (
 )
 from runtime.wire.transport import declare_token, publish, subscribe, watch_liveliness
 
+if TYPE_CHECKING:
+    import zenoh
+
 _log = logging.getLogger(__name__)
 RTT_WINDOW = 1000
 STALL_S = 0.5  # s between two turns of the engine beyond which the link itself was stalled (it turns every ack_timeout_s / 2)
@@ -135,7 +140,7 @@ class SerialLink:
         try:
             self._serial = serial.Serial(device, baudrate=baud, timeout=0)
         except (serial.SerialException, OSError) as exc:
-            raise ConnectionError(f"cannot open serial device {device}: {exc}") from None
+            raise SwarmConnectionError(f"cannot open serial device {device}: {exc}") from None
         self._fd = self._serial.fileno()
         self._lock = threading.Lock()
 
@@ -145,7 +150,7 @@ class SerialLink:
             return b""
         data = os.read(self._fd, 4096)
         if not data:
-            raise OSError(f"serial device {self._serial.port} closed")
+            raise SwarmConnectionError(f"serial device {self._serial.port} closed")
         return data
 
     def write(self, data: bytes) -> None:
@@ -201,7 +206,7 @@ class _Robot:
     busy: _Request | None = None  # command or observe
     control: _Request | None = None  # estop or reset
     begin: _Request | None = None  # RUN of a new run: requests wait for its RUN_ACK
-    waiting: deque = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
+    waiting: deque[LinkRequest] = field(default_factory=deque)  # LinkRequests behind ``busy`` or ``begin``
     latest: int = 0  # the latest step of a request sent this run
     ordered: MotionCommand | None = None  # the coordinator's latest MotionCommand for this robot (its own key, its identity)
     asked: ObserveRequest | None = None  # ... and its latest ObserveRequest
@@ -229,7 +234,7 @@ class LinkCounters:
     rejected: int = 0
     unauthorised: int = 0  # of ``rejected``: requests no live coordinator commanded (forged, stale, future, none alive)
     epoch: int = 0  # the run epoch last begun (0: none yet)
-    rtts_ms: deque = field(default_factory=lambda: deque(maxlen=RTT_WINDOW))
+    rtts_ms: deque[float] = field(default_factory=lambda: deque(maxlen=RTT_WINDOW))
 
 
 class Link:
@@ -239,7 +244,7 @@ class Link:
     robot do: the distance it really drives (wire drive x ``motion_scale``) and its turn.
     """
 
-    def __init__(self, session, run: str, port: Port, timing: Timing, device: ByteLink, limits: Limits = Limits(),
+    def __init__(self, session: zenoh.Session, run: str, port: Port, timing: Timing, device: ByteLink, limits: Limits = Limits(),
                  calibration: dict[int, Calibration] | None = None) -> None:
         self.session = session
         self.run_id = run
@@ -253,12 +258,12 @@ class Link:
         self.counters = LinkCounters()
         self.drops = DropCounter(_log)
         self.robots = {r: _Robot(r) for r in port.robots}
-        self._events: queue.SimpleQueue[tuple] = queue.SimpleQueue()  # C-level: the cheapest hand-over from Zenoh threads
+        self._events: queue.SimpleQueue[tuple[Any, ...]] = queue.SimpleQueue()  # C-level: the cheapest hand-over from Zenoh threads
         self._lock = threading.RLock()  # robots, counters, device writes: reader and engine
         self._stop = threading.Event()
         self._heartbeats: dict[tuple[int, int], float] = {}  # (robot, seq) -> sent
         self._broadcast_seq = 0
-        self._subs: list = []
+        self._subs: list[zenoh.Subscriber[None]] = []
         self._coord_seen = False  # the coordinator's token appeared ...
         self._coord_gone = False  # ... and disappeared since (or the session to it was lost): the link stops feeding
         self._coord_epochs: set[int] = set()  # the coordinator epochs of the current run (taken over from one another)
@@ -269,7 +274,7 @@ class Link:
         self._local: dict[int, Callable[[LinkReply], object]] = {}  # robots whose agents run in this process -> their reply sink
 
     @classmethod
-    def open(cls, session, run: str, port: Port, config: GatewayConfig) -> Link:
+    def open(cls, session: zenoh.Session, run: str, port: Port, config: GatewayConfig) -> Link:
         """The link of ``port`` with the gateway ``config``'s timing, limits and calibration, its device opened
         (``ConnectionError`` if it cannot be); ``close()`` it after ``run``."""
         device = open_link(port)
@@ -432,7 +437,7 @@ class Link:
 
     # -- events (engine thread) ----------------------------------------------------------------
 
-    def _handle_safely(self, event: tuple) -> None:
+    def _handle_safely(self, event: tuple[Any, ...]) -> None:
         """``_handle``; whatever a message holds, the link serves on (a failure is logged and counted)."""
         try:
             self._handle(event)
@@ -440,7 +445,7 @@ class Link:
             self.counters.rejected += 1
             _log.exception("port %s: a request could not be handled; dropped", self.port.name)
 
-    def _handle(self, event: tuple) -> None:
+    def _handle(self, event: tuple[Any, ...]) -> None:
         if event[0] == "coord":
             self._on_coordinator(event[1], event[2])
         elif event[0] == "agent":
@@ -702,7 +707,7 @@ class Link:
             robot.ordered = robot.asked = None
             robot.begin = self._request(robot, "run", 0, FrameType.RUN, RunBody(self.counters.epoch))
 
-    def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body) -> _Request:
+    def _request(self, robot: _Robot, kind: str, step: int, frame_type: FrameType, body: Body) -> _Request:
         """Send a new request frame (next SEQ) to ``robot``; the ``_Request`` to track its answer."""
         seq = robot.next_seq()
         now = time.monotonic()
@@ -853,7 +858,8 @@ class Link:
     def _lose(self, robot: _Robot, reason: str) -> None:
         _log.error("%s", reason)
         robot.lost = True
-        step = max([r.step for r in (*robot.requests(), *robot.waiting)], default=0)  # the step its agent waits on
+        pending: list[_Request | LinkRequest] = [*robot.requests(), *robot.waiting]
+        step = max([r.step for r in pending], default=0)  # the step its agent waits on
         robot.busy = robot.control = robot.begin = None
         robot.waiting.clear()
         self._reply(robot.id, step, "lost", reason)

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -21,6 +22,9 @@ from robot_agent.driver import Driver, DriverRefused, PeerPoses
 from runtime.wire.messages import MotionCommand, PhysicsEvent, encode, message_key
 from runtime.world.physics import Contact, Stuck, World, WorldEvent
 from runtime.world.realtime import RealtimeWorld
+
+if TYPE_CHECKING:
+    import zenoh
 
 _log = logging.getLogger(__name__)
 
@@ -51,12 +55,12 @@ class SharedWorld:
     def __init__(self, world: World, run: str, speed: float = 0.0) -> None:
         self.run = run
         self.realtime = RealtimeWorld(world, speed, on_quiet=self._publish)
-        self._session = None
+        self._session: zenoh.Session | None = None
         self._users = 0
         self._lock = threading.Lock()
         self.realtime.start()
 
-    def attach(self, session) -> None:
+    def attach(self, session: zenoh.Session) -> None:
         with self._lock:
             self._users += 1
             if self._session is None:
@@ -97,7 +101,7 @@ class PhysicsDriver(Driver):
         shared.realtime.world.index(robot)  # an unknown robot is refused now
         self.estopped = False
 
-    def attach(self, session) -> None:
+    def attach(self, session: zenoh.Session) -> None:
         self.shared.attach(session)
 
     def detach(self) -> None:

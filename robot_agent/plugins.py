@@ -19,34 +19,35 @@ import importlib
 import importlib.util
 import inspect
 import sys
+import types
 from importlib.metadata import entry_points
 from pathlib import Path
 
 from robot_agent.driver import Driver, DriverContext
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 ENTRY_POINT_GROUP = "inchworm_swarm.drivers"
 BUILT_IN = ("sim", "gateway", "ros2")
 
 
-def _module(spec: str, name: str):
+def _module(spec: str, name: str) -> types.ModuleType:
     if name.endswith(".py"):
         path = Path(name).expanduser()
         if not path.is_file():
-            raise SwarmInputError(f"--driver {spec}: no such file {path}")
+            raise OptionError("driver", f"{spec}: no such file {path}")
         module_name = "inchworm_driver_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:12]
         if module_name in sys.modules:
             return sys.modules[module_name]
         loader_spec = importlib.util.spec_from_file_location(module_name, path)
         if loader_spec is None or loader_spec.loader is None:
-            raise SwarmInputError(f"--driver {spec}: cannot load {path} as Python")
+            raise OptionError("driver", f"{spec}: cannot load {path} as Python")
         module = importlib.util.module_from_spec(loader_spec)
         sys.modules[module_name] = module
         try:
             loader_spec.loader.exec_module(module)
         except Exception as exc:  # noqa: BLE001 - the lab's module failed: say so in one line
             del sys.modules[module_name]
-            raise SwarmInputError(f"--driver {spec}: importing {path} failed: {type(exc).__name__}: {exc}") from None
+            raise OptionError("driver", f"{spec}: importing {path} failed: {type(exc).__name__}: {exc}") from None
         return module
     try:
         try:
@@ -57,10 +58,10 @@ def _module(spec: str, name: str):
             return importlib.import_module(name)  # again, with the working directory searched
     except ModuleNotFoundError as exc:
         if _missing(exc, name):
-            raise SwarmInputError(f"--driver {spec}: no module named {name!r}") from None
-        raise SwarmInputError(f"--driver {spec}: importing {name} failed: {exc}") from None
+            raise OptionError("driver", f"{spec}: no module named {name!r}") from None
+        raise OptionError("driver", f"{spec}: importing {name} failed: {exc}") from None
     except Exception as exc:  # noqa: BLE001
-        raise SwarmInputError(f"--driver {spec}: importing {name} failed: {type(exc).__name__}: {exc}") from None
+        raise OptionError("driver", f"{spec}: importing {name} failed: {type(exc).__name__}: {exc}") from None
 
 
 def _missing(exc: ModuleNotFoundError, name: str) -> bool:
@@ -88,10 +89,10 @@ def driver_class(spec: str) -> type[Driver]:
     if ":" in spec:
         module_name, _, attr = spec.rpartition(":")
         if not module_name or not attr:
-            raise SwarmInputError(f"--driver {spec}: expected package.module:Class or file.py:Class")
+            raise OptionError("driver", f"{spec}: expected package.module:Class or file.py:Class")
         cls = getattr(_module(spec, module_name), attr, None)
         if cls is None:
-            raise SwarmInputError(f"--driver {spec}: {module_name} has no {attr}")
+            raise OptionError("driver", f"{spec}: {module_name} has no {attr}")
     else:
         found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == spec]
         if not found:
@@ -100,11 +101,11 @@ def driver_class(spec: str) -> type[Driver]:
         try:
             cls = found[0].load()
         except Exception as exc:  # noqa: BLE001
-            raise SwarmInputError(f"--driver {spec}: loading the entry point {found[0].value} failed: {type(exc).__name__}: {exc}") from None
+            raise OptionError("driver", f"{spec}: loading the entry point {found[0].value} failed: {type(exc).__name__}: {exc}") from None
     if not (isinstance(cls, type) and issubclass(cls, Driver)):
-        raise SwarmInputError(f"--driver {spec}: {cls!r} is not a driver (a subclass of robot_agent.driver.Driver)")
+        raise OptionError("driver", f"{spec}: {cls!r} is not a driver (a subclass of robot_agent.driver.Driver)")
     if inspect.isabstract(cls):
-        raise SwarmInputError(f"--driver {spec}: {cls.__name__} does not implement {', '.join(sorted(cls.__abstractmethods__))}")
+        raise OptionError("driver", f"{spec}: {cls.__name__} does not implement {', '.join(sorted(cls.__abstractmethods__))}")
     return cls
 
 
@@ -112,7 +113,9 @@ def build_driver(spec: str, cls: type[Driver], context: DriverContext) -> Driver
     """``cls(context)``; a failure to build is a ``SwarmInputError`` naming ``spec`` and the robot."""
     try:
         return cls(context)  # type: ignore[call-arg]  # drivers take their context (docs/drivers.md); the ABC declares no constructor
+    except OptionError:
+        raise  # one of its options (it names the option and the value)
     except SwarmInputError as exc:
-        raise SwarmInputError(f"--driver {spec}: robot {context.robot}: {exc}") from None
+        raise OptionError("driver", f"{spec}: robot {context.robot}: {exc}") from None
     except Exception as exc:  # noqa: BLE001 - the lab's constructor failed (bad option, robot not found, ...)
-        raise SwarmInputError(f"--driver {spec}: robot {context.robot}: the driver failed to start: {type(exc).__name__}: {exc}") from None
+        raise OptionError("driver", f"{spec}: robot {context.robot}: the driver failed to start: {type(exc).__name__}: {exc}") from None

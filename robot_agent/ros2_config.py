@@ -24,10 +24,11 @@ import tomllib
 from collections import deque
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.geometry import wrap_angle
 
 SECTIONS = {"topics": ("cmd_vel", "odom", "neighbors", "ground_truth"),
@@ -83,15 +84,15 @@ class Ros2Config:
             try:
                 data = tomllib.loads(Path(path).expanduser().read_text(encoding="utf-8"))
             except OSError as exc:
-                raise SwarmInputError(f"--driver-option config={path}: cannot read it: {exc.strerror or exc}") from None
+                raise OptionError("driver_option", f"config={path}: cannot read it: {exc.strerror or exc}") from None
             except tomllib.TOMLDecodeError as exc:
-                raise SwarmInputError(f"--driver-option config={path}: not TOML: {exc}") from None
+                raise OptionError("driver_option", f"config={path}: not TOML: {exc}") from None
             values = _flatten(data, path)
         known = {f.name: f for f in fields(cls)}
         for key, text in options.items():
             name = "cmd_vel_qos" if key == "qos.cmd_vel" else key.rpartition(".")[2]
             if name not in known or name == "namespaces":
-                raise SwarmInputError(f"--driver-option {key}: not a setting of the ROS 2 driver ({', '.join(sorted(known))})")
+                raise OptionError("driver_option", f"{key}: not a setting of the ROS 2 driver ({', '.join(sorted(known))})")
             values[name] = _parse(text, known[name].type, key)
         try:
             return cls(**values)  # type: ignore[arg-type]
@@ -111,27 +112,27 @@ class Ros2Config:
         return (steps + len(velocity_profile(drive_m, self.max_linear_speed, self.linear_accel, dt))) * dt + self.settle_s
 
 
-def _flatten(data: dict, path: str) -> dict[str, object]:
+def _flatten(data: dict[str, Any], path: str) -> dict[str, object]:
     out: dict[str, object] = {}
     for key, value in data.items():
         if key == "namespaces":
             if not isinstance(value, dict):
-                raise SwarmInputError(f"--driver-option config={path}: [namespaces] must map robot ids to namespaces")
+                raise OptionError("driver_option", f"config={path}: [namespaces] must map robot ids to namespaces")
             try:
                 out["namespaces"] = {int(k): str(v) for k, v in value.items()}
             except ValueError:
-                raise SwarmInputError(f"--driver-option config={path}: [namespaces] keys must be robot ids, got {list(value)}") from None
+                raise OptionError("driver_option", f"config={path}: [namespaces] keys must be robot ids, got {list(value)}") from None
         elif key in SECTIONS:
             if not isinstance(value, dict):
-                raise SwarmInputError(f"--driver-option config={path}: {key} must be a table [{key}]")
+                raise OptionError("driver_option", f"config={path}: {key} must be a table [{key}]")
             for name, item in value.items():
                 if name not in SECTIONS[key] and not (key == "qos" and name == "cmd_vel"):
-                    raise SwarmInputError(f"--driver-option config={path}: [{key}] has no setting {name!r} ({', '.join(SECTIONS[key])})")
+                    raise OptionError("driver_option", f"config={path}: [{key}] has no setting {name!r} ({', '.join(SECTIONS[key])})")
                 out["cmd_vel_qos" if key == "qos" and name == "cmd_vel" else name] = item
         elif key in ("namespace", "frame"):
             out[key] = str(value)
         else:
-            raise SwarmInputError(f"--driver-option config={path}: unknown key {key!r} (namespace, frame, [{'], ['.join(SECTIONS)}], [namespaces])")
+            raise OptionError("driver_option", f"config={path}: unknown key {key!r} (namespace, frame, [{'], ['.join(SECTIONS)}], [namespaces])")
     return out
 
 
@@ -140,12 +141,12 @@ def _parse(text: str, kind: object, key: str) -> object:
         try:
             return float(text)
         except ValueError:
-            raise SwarmInputError(f"--driver-option {key}={text}: not a number") from None
+            raise OptionError("driver_option", f"{key}={text}: not a number") from None
     if kind in ("int", int):
         try:
             return int(text)
         except ValueError:
-            raise SwarmInputError(f"--driver-option {key}={text}: not an integer") from None
+            raise OptionError("driver_option", f"{key}={text}: not an integer") from None
     return text
 
 
@@ -165,7 +166,7 @@ def velocity_profile(distance: float, vmax: float, amax: float, dt: float) -> np
     t = (np.arange(max(1, math.ceil(total / dt))) + 0.5) * dt
     v = np.minimum.reduce([np.full_like(t, peak), amax * t, amax * np.maximum(total - t, 0.0) + 1e-12])
     v *= d / (v.sum() * dt)  # exact coverage at the sampling rate
-    return math.copysign(1.0, distance) * v
+    return cast(np.ndarray, math.copysign(1.0, distance) * v)
 
 
 def closed_loop_speed(remaining: float, elapsed: float, vmax: float, amax: float, dt: float) -> float:

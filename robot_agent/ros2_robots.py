@@ -2,9 +2,10 @@
 
 ``SimRobots`` runs one node per robot of a trajectory in its namespace (``Ros2Config``: namespace, frame,
 topic names) on one world (``runtime.models.world``: ``step(dt, twists)``, ``poses``, ``odometry``,
-``sightings``). Each tick (``rate_hz``) it holds every robot's latest ``cmd_vel`` (zero once older than
-``CMD_TIMEOUT_S``, as a real base stops when its commands stop), steps the world by the elapsed time and
-publishes ``odom`` (the world's odometry, frame ``robot<i>/odom``) and, when named, the ground truth
+``speeds``, ``sightings``). Each tick (``rate_hz``) it holds every robot's latest ``cmd_vel`` (zero once older than
+``CMD_TIMEOUT_S``, as a real base stops when its commands stop), steps the world by the elapsed time,
+calls ``after_step`` (the physical world's events: ``robot_agent.ros2_physics``) and publishes ``odom``
+(the world's odometry and encoder speeds, frame ``robot<i>/odom``) and, when named, the ground truth
 (frame ``world``); every ``1 / sensing_hz`` seconds each robot's sensor frame goes out on ``neighbors``,
 one ``TransformStamped`` per robot seen (the observed robot's position in the observer's body frame).
 
@@ -20,6 +21,7 @@ import itertools
 import logging
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -38,7 +40,7 @@ class SimRobots:
 
     def __init__(self, world: World, cfg: Ros2Config | None = None, *, rate_hz: float = 50.0, sensing_hz: float = 10.0,
                  ground_truth: str = "ground_truth", no_odom: frozenset[int] = frozenset(), silent: dict[int, int] | None = None,
-                 twice: bool = False, late_s: float = 0.0) -> None:
+                 twice: bool = False, late_s: float = 0.0, after_step: Callable[[], None] | None = None) -> None:
         require_ros2("swarm ros2 robots")
         from geometry_msgs.msg import TransformStamped, Twist  # noqa: PLC0415 - ROS 2 only here
         from nav_msgs.msg import Odometry  # noqa: PLC0415
@@ -48,6 +50,7 @@ class SimRobots:
         self.dt, self.sensing_dt = 1.0 / rate_hz, 1.0 / sensing_hz
         self.no_odom, self.silent = no_odom, dict(silent or {})
         self.twice, self.late_s = twice, late_s
+        self.after_step = after_step
         self._stop = threading.Event()
         n = len(self.ids)
         self._cmd = np.zeros((n, 2))
@@ -96,6 +99,8 @@ class SimRobots:
             now = time.monotonic()
             self._step(now - last, now)  # the elapsed time, late ticks included: world time is wall time
             last = now
+            if self.after_step is not None:
+                self.after_step()
             self._publish_state()
             if now >= next_sense:
                 self._publish_sightings()
@@ -113,7 +118,7 @@ class SimRobots:
                 _log.warning("robot %d goes silent at its motion %d", robot, self.motions[k])
         twists[self._muted] = 0.0
         self.world.step(dt, twists)
-        self._twists = twists
+        self._twists = self.world.speeds()
 
     def _publish_state(self) -> None:
         t = stamp()

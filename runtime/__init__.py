@@ -1,6 +1,6 @@
 """Shared layer of the swarm runtime, by concern (each folder imports only from the ones before it).
 
-- ``runtime.errors``: the error hierarchy every process raises.
+- ``runtime.errors``: the error hierarchy every process raises; ``runtime.paths``: path arguments (``str`` or ``os.PathLike``).
 - ``runtime.models``: state, trajectories, motion and sensing models, the simulated world, metrics.
 - ``runtime.wire``: the Zenoh key space, typed msgpack messages, sessions and pub/sub.
 - ``runtime.gateway``: the gateway <-> robot frame protocol and the gateway configuration file.

@@ -1,7 +1,30 @@
-"""Exceptions with messages that name what is wrong (robot ids, fields, files)."""
+"""The runtime's errors: one hierarchy, messages that name what is wrong (robot ids, parameters, files).
+
+::
+
+    SwarmError                      everything raised on purpose (catch this one to catch them all)
+    |-- SwarmInputError             bad input: malformed values, unknown ids, impossible requests       exit 2
+    |   `-- OptionError             an option of a library call out of range; names its ``parameter``   exit 2
+    |-- LocalizationError           localization cannot give a trustworthy answer                      exit 2
+    |-- SwarmRunError               a run that started failed; ``robots`` names the robots             exit 3
+    |                               (coordinator.node.zenoh_backend.AgentError: lost, stopped;
+    |                               coordinator.executor.RunAborted; robot_agent.driver.RobotLost)
+    |-- SwarmConnectionError        a connection could not be opened, was refused or was lost          exit 2
+    |   `-- RunConflictError        another coordinator holds the run (a run has one master)           exit 4
+    `-- OutputError                 an output could not be written (disk full, permissions)            exit 5
+        `-- RecordingError          a recording failed or stopped the run
+
+The exit codes are those of every ``swarm`` command, mapped from these classes in one place
+(``inchworm.entry.exit_code``; docs/development.md). ``SwarmInputError`` is a ``ValueError``,
+``SwarmConnectionError`` a ``ConnectionError`` and ``RecordingError`` an ``OSError``, so code that
+catches the built-in kinds keeps working. Library errors name Python parameters (``trajectories must
+be >= 1``); the command line names the flag instead (``OptionError.parameter``, translated by
+``swarm_cli.options``).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 
 
@@ -13,9 +36,30 @@ class SwarmInputError(SwarmError, ValueError):
     """Bad user input: malformed values, NaN/inf, unknown ids, impossible requests."""
 
 
-class OutputError(SwarmError):
-    """An output could not be written (disk full, file size limit, permissions): the message names the file. Commands
-    exit 5 for it, as a run whose recording or result failed."""
+class OptionError(SwarmInputError):
+    """An option of a library call is out of range: ``parameter`` is its Python name (the message starts with it,
+    ``trajectories must be >= 1, got 0``) and ``options`` the options object that holds it, if any; the command line
+    says the same with the option's flag (``--trajectories must be >= 1, got 0``)."""
+
+    def __init__(self, parameter: str, problem: str, options: object | None = None) -> None:
+        super().__init__(f"{parameter}{_joined(problem)}")
+        self.parameter, self.problem, self.options = parameter, problem, options
+
+    def flag(self) -> str:
+        """The command-line flag of ``parameter``: the ``flag`` metadata of the options' dataclass field, else
+        ``--`` and the name with dashes."""
+        fields = {f.name: f for f in dataclasses.fields(self.options)} if dataclasses.is_dataclass(self.options) else {}
+        found = fields.get(self.parameter)
+        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + self.parameter.replace("_", "-")
+
+    def flag_message(self) -> str:
+        """The message as the command line says it: the flag instead of the parameter."""
+        return f"{self.flag()}{_joined(self.problem)}"
+
+
+def _joined(problem: str) -> str:
+    """``problem`` after a parameter's name: a space, none before ``:`` (``resume: out/runs.jsonl was made with ...``)."""
+    return problem if problem.startswith(":") else f" {problem}"
 
 
 class LocalizationError(SwarmError, RuntimeError):
@@ -30,3 +74,30 @@ class LocalizationError(SwarmError, RuntimeError):
         self.robots = sorted(int(r) for r in robots)
         message = f"{reason}: robots {self.robots}"
         super().__init__(f"{message} ({detail})" if detail else message)
+
+
+class SwarmRunError(SwarmError, RuntimeError):
+    """A run that started could not finish: robots lost, the run aborted or stopped (an emergency stop); ``robots``
+    names the robots concerned (empty when none in particular)."""
+
+    def __init__(self, message: str, robots: Iterable[int] = ()) -> None:
+        super().__init__(message)
+        self.robots = [int(r) for r in robots]
+
+
+class SwarmConnectionError(SwarmError, ConnectionError):
+    """A connection could not be opened, was refused or was lost: the hub (router) down or refusing this process's
+    certificate, a serial device or radio that cannot be opened, a recorder that never reached the hub."""
+
+
+class RunConflictError(SwarmConnectionError):
+    """Another coordinator holds (or held) the run: a run has one master at a time."""
+
+
+class OutputError(SwarmError):
+    """An output could not be written (disk full, file size limit, permissions): the message names the file. Commands
+    exit 5 for it, as a run whose recording or result failed."""
+
+
+class RecordingError(OutputError, OSError):
+    """A recording could not be written, or its failure stopped the run (``--on-record-error stop``)."""

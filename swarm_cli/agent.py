@@ -22,35 +22,23 @@ and times its calls with ``--command-timeout`` (docs/drivers.md). Exit status 3 
 
 Connects as a Zenoh client to the hub, serves commands and observation requests until
 SIGTERM/SIGINT (see ``robot_agent.agent``), then closes its session and exits 0.
-``python -m swarm_cli.agent ...`` is the same command with a lighter start (the launcher uses it).
+``python -m swarm_cli.agent ...`` is the same command with a lighter start; the library starts the same process from
+its spec (``inchworm.specs.AgentHostSpec``, ``inchworm.spawn``).
 """
 
 from __future__ import annotations
 
 import argparse
-import logging
 import math
-import sys
 from pathlib import Path
 
+from inchworm.specs import AgentHostSpec, PortProcessSpec
 from robot_agent.agent import READY_TIMEOUT_S
-from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, AgentSpec, build_agents, build_links, driver_options, parse_ids
-from robot_agent.host import AgentHost
+from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, parse_ids
 from runtime.errors import SwarmInputError
-from runtime.models.trajectory import Trajectory
-from runtime.wire.keys import validate_run
 from runtime.wire.messages import CommandLimits
-from swarm_cli.entry import leave, on_stop_signals, run_standalone
-from swarm_cli.options import (
-    add_connection_options,
-    add_model_options,
-    add_world_options,
-    connection_settings,
-    model_config,
-    parse_list,
-    physics_params,
-    positive,
-)
+from swarm_cli.entry import leave, run_standalone
+from swarm_cli.options import add_connection_options, add_model_options, add_world_options, model_config, parse_list, positive
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -101,23 +89,23 @@ def initial_pose(args: argparse.Namespace) -> list[float] | None:
     return pose
 
 
+def spec_of(args: argparse.Namespace) -> AgentHostSpec:
+    """The agent host (``--link``: port process) spec of the options."""
+    pose = initial_pose(args)
+    return (PortProcessSpec if args.link else AgentHostSpec)(
+        run_id=args.run_id, robots=tuple(parse_ids(args.id, "--id")), run_robots=None if args.ids is None else tuple(parse_ids(args.ids, "--ids")),
+        hub=args.hub, zenoh_config=args.zenoh_config, trajectory=None if args.trajectory is None else str(args.trajectory),
+        pose=None if pose is None else (pose[0], pose[1], pose[2]), seed=args.seed, model=model_config(args), motion_time=args.motion_time,
+        driver=args.driver, driver_options=tuple(args.driver_option), command_timeout=args.command_timeout,
+        gateway_config=None if args.gateway_config is None else str(args.gateway_config), max_drive_m=args.max_drive,
+        max_turn_rad=math.radians(args.max_turn_deg), ready_timeout=args.ready_timeout, world=args.world,
+        physics_params=tuple(args.physics_param), physics_speed=args.physics_speed)
+
+
 def run(args: argparse.Namespace) -> int:
-    settings = connection_settings(args)
-    validate_run(args.run_id)
-    spec = AgentSpec(settings, args.run_id, parse_ids(args.id, "--id"), None if args.ids is None else parse_ids(args.ids, "--ids"), args.ids,
-                     Trajectory.load(args.trajectory) if args.trajectory else None, args.trajectory, initial_pose(args), args.driver,
-                     driver_options(args.driver_option), args.gateway_config, args.seed, model_config(args), args.motion_time,
-                     CommandLimits(max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg)), args.ready_timeout,
-                     args.command_timeout, args.link, physics_params(args), args.physics_speed)
-    agents = build_agents(spec)
-    links = build_links(spec, agents[0].ids)
-    logging.basicConfig(level=logging.WARNING, format=f"agent {args.id}: %(levelname)s %(message)s", stream=sys.stderr)
-    server = agents[0] if len(agents) == 1 and not links else AgentHost(agents[0].settings, agents, links)
-    on_stop_signals(server.stop)
-    status = server.run()
-    for line in getattr(server, "link_summaries", ()):
-        print(f"swarm link: {line}", file=sys.stderr, flush=True)
-    return status
+    from inchworm.process_mains import run_agent_host  # noqa: PLC0415 - zenoh when it runs
+
+    return run_agent_host(spec_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,7 +16,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("faults", help="lost robots, hostile messages and radio faults: does every run complete, unchanged?")
     p.add_argument("--seeds", type=int, default=10, help="seeds (runs) per lost-robot and gateway row (default 10)")
     p.add_argument("--fuzz", type=int, default=10_000, help="hostile messages sent during the fuzz run (default 10000)")
-    p.add_argument("--flood", type=int, default=3000, help="idle TCP connections held on the TLS router during the stop (default 3000)")
+    p.add_argument("--flood", type=int, default=3000,
+                   help="idle TCP connections held on the TLS router's public listener during the stops (default 3000)")
+    p.add_argument("--flood-s", type=float, default=60.0,
+                   help="seconds the flood lasts; a stop a second during it and min(FLOOD_S, 60) s after it (default 60)")
     p.add_argument("--gateway-rows", default="0.05,0.05,0.05;0.2,0,0",
                    help="radio faults as 'drop,corrupt,delay_s;...' (default '0.05,0.05,0.05;0.2,0,0'; '' for none)")
     add_json_option(p)
@@ -37,8 +40,8 @@ def gateway_rows(spec: str) -> tuple[tuple[float, float, float], ...]:
 def run(args: argparse.Namespace) -> int:
     from inchworm.bench.faults import FaultsBenchOptions, bench_faults  # noqa: PLC0415
 
-    result = bench_faults(FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows), args.flood),
-                          lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
+    options = FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows), args.flood, args.flood_s)
+    result = bench_faults(options, lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
     if args.json:
         print_json(result.to_json())
     return 0

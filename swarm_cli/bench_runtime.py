@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from swarm_cli.entry import EXIT_RUN
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, parse_list, print_result
 
 METHODS = ("no-anchors", "ref57")
-EXIT_AGENT = 3
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError  # noqa: PLC0415
     from inchworm.bench.runtime import RuntimeBenchOptions, bench_runtime  # noqa: PLC0415
 
     options = RuntimeBenchOptions(tuple(parse_list(args.agents, "--agents", int, 2)), args.agents_per_process, args.steps, args.method,
@@ -43,5 +43,5 @@ def run(args: argparse.Namespace) -> int:
         result = bench_runtime(options)
     except AgentError as exc:
         print(f"swarm bench runtime: error: {exc}", file=sys.stderr, flush=True)
-        return EXIT_AGENT
+        return EXIT_RUN
     return print_result(result, args.json)

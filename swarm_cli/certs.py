@@ -3,7 +3,7 @@
     swarm certs --out certs/ [--host router=192.168.1.10,coordinator-pc.local] [--host gateway=10.0.0.7] ...
 
 Writes ``ca.pem`` / ``ca.key`` (reused when ``--out`` has them) and ``<name>.pem`` /
-``<name>.key`` per ``--host`` (default hosts: router, coordinator, gateway) into ``--out``;
+``<name>.key`` per ``--host`` (default hosts: router, coordinator, gateway, estop) into ``--out``;
 see ``inchworm.certs`` for the certificates' contents. Prints one line per file written;
 ``--json`` adds one JSON object as the last line: ``{"out": DIR, "ca": {"cert", "key",
 "reused"}, "hosts": {name: {"cert", "key", "sans"}}}``. Exit status 0, 2 on bad input
@@ -19,7 +19,7 @@ from pathlib import Path
 from swarm_cli.entry import run_standalone
 from swarm_cli.options import print_json
 
-DEFAULT_HOSTS = ("router", "coordinator", "gateway")  # as inchworm.certs
+DEFAULT_HOSTS = ("router", "coordinator", "gateway", "estop")  # as inchworm.certs
 
 
 def register(sub: argparse._SubParsersAction) -> None:

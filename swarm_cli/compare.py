@@ -32,5 +32,4 @@ def run(args: argparse.Namespace) -> int:
 
     options = CompareOptions(robots=args.robots, trajectories=args.trajectories, configs=args.configs, methods=names(args.methods),
                              seed=args.seed, selections=None if args.selections is None else names(args.selections), run=run_options(args))
-    options.validate()
     return run_study(args, compare, options, len(options.tasks()), "compare")

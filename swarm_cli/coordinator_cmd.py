@@ -1,4 +1,4 @@
-"""``swarm coordinator``: the coordinator process of a distributed run (``coordinator.process``).
+"""``swarm coordinator``: the coordinator process of a distributed run (``coordinator.node.process``).
 
     swarm coordinator --trajectory traj.json --run demo --hub tcp/127.0.0.1:7447 --seed 0 --method inchworm
 
@@ -9,7 +9,7 @@ default (``recordings/<run>.mcap``); a recording that cannot be written is one l
 ``--on-record-error continue`` (the run goes on unrecorded) or ``stop``. Whatever ends the run,
 the summary, ``--json``, ``--result`` and the plots of the configurations completed are written.
 ``--standby`` / ``--resume RECORDING``: take the run over when its coordinator is gone
-(``coordinator.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
+(``coordinator.node.process``, docs/failure-model.md); ``--rejoin no``: lost robots stay out.
 Exit status: 0 done (also with lost robots), 3 the run was ended by lost robots (named) or the
 agents did not come up, 4 another coordinator of the run is alive, 5 the recording, ``--result``
 or a plot could not be written (or the run was stopped for its recording), 2 bad input,
@@ -19,26 +19,13 @@ or a plot could not be written (or the run was stopped for its recording), 2 bad
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 from pathlib import Path
 
 from coordinator.strategies import METHODS
-from runtime.models.trajectory import Trajectory
+from inchworm.specs import CoordinatorSpec
 from swarm_cli.entry import leave, portable_command, run_standalone
-from swarm_cli.options import (
-    add_connection_options,
-    add_simulation_options,
-    connection_label,
-    connection_settings,
-    model_config,
-    print_json,
-    selection_config,
-)
-
-EXIT_AGENT = 3
-EXIT_CONFLICT = 4  # another coordinator of the run is alive
-EXIT_OUTPUT = 5  # coordinator.process.EXIT_OUTPUT (this module stays light for --help)
+from swarm_cli.options import add_connection_options, add_simulation_options, model_config, selection_spec_of
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -88,52 +75,23 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
                    help="with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; 0: exit at once)")
 
 
+def spec_of(args: argparse.Namespace) -> CoordinatorSpec:
+    """The coordinator spec of the options."""
+    text = lambda path: None if path is None else str(path)  # noqa: E731
+    return CoordinatorSpec(
+        trajectory=str(args.trajectory), run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config, method=args.method,
+        seed=args.seed, localizer=args.localizer, model=model_config(args), model_file=text(args.model),
+        selection=selection_spec_of(args),
+        start_timeout=args.start_timeout, step_timeout=args.step_timeout, on_lost=args.on_lost, min_robots=args.min_robots,
+        truth=not args.no_truth, result=text(args.result), out=text(args.out), rejoin=args.rejoin == "yes", standby=args.standby,
+        resume=text(args.resume), record=text(args.record), no_record=args.no_record, on_record_error=args.on_record_error,
+        foxglove=args.foxglove, linger=args.linger, json=args.json, command=portable_command("swarm coordinator", sys.argv[1:]))
+
+
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.WARNING, format="coordinator: %(levelname)s %(message)s", stream=sys.stderr)
-    from coordinator.stop import StopSignals  # noqa: PLC0415
+    from inchworm.process_mains import run_coordinator  # noqa: PLC0415 - scipy and zenoh when it runs
 
-    signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
-    from coordinator.process import CoordinatorOptions, default_recording, recording_line, run_coordinator, say  # noqa: PLC0415
-    from coordinator.zenoh_backend import CoordinatorConflict  # noqa: PLC0415
-    from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
-
-    options = CoordinatorOptions(
-        Trajectory.load(args.trajectory), args.run_id, connection_settings(args), connection_label(args), args.method, args.seed,
-        args.localizer, model_config(args), args.model, selection_config(args), args.start_timeout, args.step_timeout, args.on_lost, args.min_robots,
-        truth=not args.no_truth,
-        record=None if args.no_record else args.record or default_recording(args.run_id,
-                                                                             "standby" if args.standby else "resume" if args.resume else ""),
-        foxglove_port=args.foxglove, command=portable_command("swarm coordinator", sys.argv[1:]), on_record_error=args.on_record_error,
-        standby=args.standby, resume=args.resume, rejoin=args.rejoin == "yes")
-    outcome = run_coordinator(options, signals, lambda done, total, step: say(f"config {done}/{total} done (step {step})"))
-    status = 0
-    if outcome.error is not None:
-        print(f"swarm coordinator: error: {outcome.error}", file=sys.stderr, flush=True)
-        if isinstance(outcome.error, CoordinatorConflict):
-            return EXIT_CONFLICT
-        if outcome.result is None:  # the agents did not come up: nothing ran
-            return EXIT_AGENT
-        status = EXIT_OUTPUT if type(outcome.error).__name__ == "RecordingStopped" else EXIT_AGENT
-    if outcome.result is None:  # a standby whose run finished without it
-        return EXIT_OUTPUT if outcome.recording_error is not None else 0
-    result = outcome.result
-    plots, errors = write_run_outputs(result, args.result, args.out)
-    for line in errors:
-        print(f"swarm coordinator: error: {line}", file=sys.stderr, flush=True)
-    failed = outcome.recording_error is not None or bool(errors)
-    radius = options.model.robot_radius_m
-    print(summary_text(result, args.method, args.localizer, radius))
-    if plots:
-        print(f"wrote {', '.join(plots)}")
-    if outcome.recording:
-        print(recording_line(outcome.recording))
-    elif outcome.recording_error is not None:
-        print(f"recording failed: {outcome.recording_error}")
-    if args.json:
-        print_json(run_json(result, args.method, args.localizer, args.seed, plots, outcome.recording["path"] if outcome.recording else None,
-                            radius, None if outcome.error is None else str(outcome.error)))
-    outcome.live.linger(args.linger)
-    return EXIT_OUTPUT if failed and status == 0 else status
+    return run_coordinator(spec_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -19,13 +19,10 @@ import math
 import sys
 from pathlib import Path
 
-from robot_agent.emulator import FaultPlan
-from robot_agent.emulator_process import check_radio_faults
+from inchworm.specs import EmulatorSpec
 from runtime.errors import SwarmInputError
-from runtime.gateway.config import GatewayConfig
-from runtime.models.trajectory import Trajectory
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, connection_settings, model_config, nonnegative, parse_list, print_json
+from swarm_cli.options import add_connection_options, add_model_options, model_config, nonnegative, parse_list
 
 PROG = "swarm emulate-robots"
 
@@ -81,39 +78,20 @@ def _blackout(text: str | None) -> tuple[int, float] | None:
     return value
 
 
-def _indices(text: str, option: str) -> frozenset[int]:
-    return frozenset(parse_list(text, option)) if text.strip() else frozenset()
+def _indices(text: str, option: str) -> tuple[int, ...]:
+    return tuple(sorted(set(parse_list(text, option)))) if text.strip() else ()
 
 
 def run(args: argparse.Namespace) -> int:
-    from robot_agent.emulator_process import serve_emulators  # noqa: PLC0415
+    from inchworm.process_mains import run_emulator  # noqa: PLC0415 - the emulator when it runs
 
-    check_radio_faults(args.drop, args.corrupt, args.delay)
-    faults = FaultPlan(drop_prob=args.drop, corrupt_prob=args.corrupt, delay_s=args.delay,
-                       drop_rx=_indices(args.drop_rx, "--drop-rx"), drop_tx=_indices(args.drop_tx, "--drop-tx"),
-                       blackout=_blackout(args.blackout), seed=args.seed)
-
-    def ready(ports: list, devices: dict[str, str]) -> None:
-        for pe in ports:
-            print(f"port {pe.port_name}: {pe.device} (robots {','.join(map(str, pe.robots))})", flush=True)
-        if args.json:
-            print_json({"ports": devices, "config": None if args.write_config is None else str(args.write_config)})
-
-    physics = None
-    if args.physics:
-        from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
-        from runtime.world.physics import require_pymunk  # noqa: PLC0415
-
-        require_pymunk()
-        physics = parse_physics_params(list(args.physics_param), model_config(args))
-    elif args.physics_param:
-        raise SwarmInputError("--physics-param sets the physical world: it needs --physics")
-    serve_emulators(GatewayConfig.load(args.config), args.config, Trajectory.load(args.trajectory), args.trajectory, model_config(args),
-                    args.seed, faults, settings=connection_settings(args), run_id=args.run_id, miscalibrate=args.miscalibrate,
-                    motion_time_s=args.motion_time, events=args.events, write_config=args.write_config, on_ready=ready,
-                    say=lambda text: print(f"{PROG}: {text}", file=sys.stderr, flush=True), physics=physics,
-                    physics_speed=args.physics_speed)
-    return 0
+    text = lambda path: None if path is None else str(path)  # noqa: E731
+    return run_emulator(EmulatorSpec(
+        config=str(args.config), trajectory=str(args.trajectory), seed=args.seed, motion_time=args.motion_time, miscalibrate=args.miscalibrate,
+        model=model_config(args), physics=args.physics, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
+        drop=args.drop, corrupt=args.corrupt, delay=args.delay, drop_rx=_indices(args.drop_rx, "--drop-rx"),
+        drop_tx=_indices(args.drop_tx, "--drop-tx"), blackout=_blackout(args.blackout), events=text(args.events),
+        write_config=text(args.write_config), hub=args.hub, zenoh_config=args.zenoh_config, run_id=args.run_id, json=args.json))
 
 
 def main(argv: list[str] | None = None) -> int:

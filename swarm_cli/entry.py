@@ -6,15 +6,23 @@ import argparse
 import importlib
 import os
 import re
-import signal
-import sys
-import threading
+import typing
 from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
-from runtime.errors import LocalizationError, OutputError, SwarmInputError
-
-EXIT_OUTPUT = 5  # an output could not be written (coordinator.process.EXIT_OUTPUT)
+from inchworm.entry import (  # noqa: F401 - the commands import them from here
+    EXIT_CODES,
+    EXIT_CONFLICT,
+    EXIT_INPUT,
+    EXIT_OUTPUT,
+    EXIT_RUN,
+    cli_message,
+    exit_code,
+    guarded,
+    leave,
+    limit_blas_threads,
+    on_stop_signals,
+)
 
 
 def plain(doc: str | None) -> str:
@@ -31,6 +39,14 @@ def library_doc(module: str) -> str:
     spec = importlib.util.find_spec(module)
     source = open(spec.origin, encoding="utf-8").read() if spec and spec.origin else ""
     return plain(ast.get_docstring(ast.parse(source)) if source else "")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ``ArgumentParser`` whose errors are one line (``prog: error: ...``) without the usage block before them;
+    its subparsers are of the same class (argparse's ``add_subparsers`` default)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
 class Command(NamedTuple):
@@ -67,57 +83,6 @@ def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], a
             sub.add_parser(c.name, help=c.help)
 
 
-def on_stop_signals(callback: Callable[[], object]) -> None:
-    """Call ``callback()`` on SIGINT, SIGTERM and SIGHUP, on a thread of its own: never inside the interrupted main
-    thread, which may hold the very lock the callback takes (an ``Event.set()`` while the main thread is in that
-    Event's ``wait()`` deadlocks). The handler only writes a byte to a pipe."""
-    read_end, write_end = os.pipe()
-
-    def watch() -> None:
-        while os.read(read_end, 1):
-            callback()
-
-    threading.Thread(target=watch, name="stop-signals", daemon=True).start()
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(sig, lambda *_: os.write(write_end, b"s"))
-
-
-def guarded(prog: str, run: Callable[[], int | None]) -> int:
-    """``run()``'s exit code; bad input or I/O errors print ``prog: error: ...`` and give 2 (an output that could not
-    be written, ``OutputError``: 5), a stop signal N
-    gives 128 + N (Ctrl-C 130), a closed stdout (a pipe into ``head``) gives 141 (128 + SIGPIPE) silently."""
-    try:
-        return int(run() or 0)
-    except BrokenPipeError:  # stdout closed early (swarm info ... | head): quietly, as other Unix tools
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout at exit
-        return 141
-    except OutputError as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return EXIT_OUTPUT
-    except (SwarmInputError, LocalizationError, OSError) as exc:
-        print(f"{prog}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 128 + getattr(exc, "signum", signal.SIGINT)  # coordinator.stop.StopRequested carries the signal
-
-
-def limit_blas_threads() -> None:
-    """One BLAS thread in this process and the processes it starts (an entry point, before numpy loads).
-
-    The commands parallelise over processes (one per core), so each keeps its BLAS to one
-    thread: several BLAS threads per process only oversubscribe the cores and make the small
-    batched solves of the Monte Carlo planner erratic. A BLAS already loaded (``main`` called
-    from Python) is limited through threadpoolctl.
-    """
-    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-        os.environ.setdefault(var, "1")
-    if "numpy" in sys.modules:
-        from threadpoolctl import threadpool_limits  # noqa: PLC0415
-
-        threadpool_limits(1)
-
-
 def run_standalone(
     prog: str,
     add_arguments: Callable[[argparse.ArgumentParser], None],
@@ -130,7 +95,7 @@ def run_standalone(
 
     hold_lifeline()  # started by a launcher: end with it, whatever killed it
     limit_blas_threads()
-    parser = argparse.ArgumentParser(prog=prog)
+    parser = OneLineParser(prog=prog)
     add_arguments(parser)
     args = parser.parse_args(argv)
     return guarded(prog, lambda: run(args))
@@ -148,16 +113,3 @@ def portable_command(prog: str, args: Sequence[str]) -> str:
         name, sep, value = arg.partition("=")
         words.append(f"{name}={cut(value)}" if sep and name.startswith("--") else cut(arg))
     return " ".join([prog, *words])
-
-
-def leave(code: int) -> None:
-    """Exit a process that held Zenoh sessions without interpreter finalization.
-
-    A Zenoh thread still delivering a late sample (a closed session does not wait for it) would
-    re-enter Python while the interpreter finalizes; CPython 3.11 then pthread_exit()s that Rust
-    thread, whose unwinder aborts the process ("FATAL: exception not rethrown", signal 6). Call it
-    once sessions and recordings are closed: only the standard streams need flushing.
-    """
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(code)

@@ -14,6 +14,11 @@ collects them for ``--ack-timeout`` seconds (default 1) after the first publicat
 says who acknowledged: ``emergency stop of run lab acknowledged by 10 agents (robots
 0-9) and 2 links (ports radio0, radio1)``.
 
+On a lab's TLS router (deploy/), stop from the router's PC with ``--zenoh-config
+/etc/swarm/zenoh-estop-tls.json5``: the estop identity through the router's operator listener,
+which a connection flood of its public listener does not hold up (deploy/README.md, "The stop
+path"; ``swarm bench faults``, ``estop_under_flood``).
+
 Exit status: 0 when at least one agent or link acknowledged, 1 when none did (a wrong
 ``--run`` or hub, or nobody listening: the stop reached no robot that can be named), 2 on
 bad input. ``--json`` prints ``{"run", "published", "agents", "links", "robots"}`` last
@@ -45,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from coordinator.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
+    from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
 
     out = emergency_stop(connection_settings(args), args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
     robots, ports = ", ".join(map(str, out.agents)), ", ".join(out.links)

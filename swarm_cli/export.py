@@ -14,13 +14,15 @@ String, a /tf_static map -> world) that ``ros2 bag play`` and RViz use, with the
 chosen distribution's rosbag2 parses (``--distro``, default humble); needs the optional extra:
 ``pip install -e '.[ros2]'`` (no ROS install). ``--foxglove-layout`` writes the Foxglove layout
 for the run's robots and trajectory (``runtime.recording.foxglove_layout``): of the recording, or
-with ``--ros2`` of the bag (its ROS 2 topics). Exit status 0, 2
-on bad input (unreadable recording, existing OUT, missing extra).
+with ``--ros2`` of the bag (its ROS 2 topics). An unfinished (killed) recording is exported up to its last
+complete record with a warning naming it and what was exported. Exit status 0, 2
+on bad input (unreadable recording, one without a message of the run, existing OUT, missing extra).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from runtime.errors import SwarmInputError
@@ -43,6 +45,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
+def warn_if_unfinished(path: Path, complete: bool, readable_bytes: int, size: int, recovered: str) -> None:
+    """One warning line on stderr when ``path`` is an unfinished recording: what was exported of it."""
+    if not complete:
+        print(f"swarm export: warning: {path} is unfinished (killed while recording?): exported {recovered}, read from its "
+              f"first {readable_bytes} of {size} bytes; 'swarm recover {path}' writes a finished copy", file=sys.stderr)
+
+
+def _check_finished(path: Path, recovered: str) -> None:
+    from runtime.recording.mcap_log import recording_status  # noqa: PLC0415
+
+    status = recording_status(path)
+    warn_if_unfinished(path, status.complete, status.readable_bytes, status.size, recovered)
+
+
 def run(args: argparse.Namespace) -> int:
     if args.truth is not None:
         if args.ros2 is not None or args.foxglove_layout is not None:
@@ -59,11 +75,15 @@ def run(args: argparse.Namespace) -> int:
               f"{ros2['messages']} ROS 2 messages on {len(ros2['topics'])} topics; RViz: fixed frame map (/tf_static)")
         for topic, count in ros2["topics"].items():
             print(f"  {topic:<28} {count:>6}")
+        warn_if_unfinished(args.file, ros2["complete"], ros2["readable_bytes"], ros2["bytes"],
+                           f"{ros2['messages']} ROS 2 messages (from the {ros2['recorded_messages']} messages of the run it holds)")
         result.update(ros2)
     if args.foxglove_layout is not None:
         from runtime.recording.foxglove_layout import write_layout  # noqa: PLC0415
 
         result["foxglove_layout"] = write_layout(args.file, args.foxglove_layout, ros2=args.ros2 is not None)
+        if args.ros2 is None:
+            _check_finished(args.file, "the layout of the robots it names")
         what = f"the bag {args.ros2}" if args.ros2 is not None else args.file
         print(f"wrote {args.foxglove_layout}: Foxglove layout of {what} for its {result['foxglove_layout']['robots']} robots")
     if args.json:
@@ -76,6 +96,7 @@ def run_truth(args: argparse.Namespace) -> int:
 
     out = export_truth(args.file, args.truth)
     print(f"wrote {args.truth}: {out['rows']} true poses of {out['robots']} robots, steps {out['first_step']}-{out['last_step']}")
+    _check_finished(args.file, f"{out['rows']} true poses (steps {out['first_step']}-{out['last_step']})")
     if args.json:
         print_json({k: out[k] for k in ("path", "rows", "robots", "steps")})
     return 0

@@ -10,7 +10,8 @@ object with ``"kill"`` / ``"coordinator_kill"`` / ``"coordinator_stall"`` / ``"l
 (``random_trajectory(10, 3, seed 0)``) in a scenario where the online selection chooses
 anchors (``DEMO_SCENARIO``: the joint localizer and 4x the default motion noise; measured in
 docs/quickstart.md); ``--paper`` keeps the paper's localizer and the default noise, where it
-chooses none. Options given explicitly override either.
+chooses none unless moving every robot at once would bring bodies together (``PAPER_TEXT``). Options given
+explicitly override either.
 """
 
 from __future__ import annotations
@@ -20,18 +21,19 @@ from pathlib import Path
 
 from coordinator.strategies import METHODS
 from inchworm.processes import AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO
+from inchworm.specs import LaunchSpec
 from swarm_cli.coordinator_cmd import add_record_options
-from swarm_cli.options import add_simulation_options, add_world_options, model_config, nonnegative, positive, print_json, selection_config
+from swarm_cli.options import add_simulation_options, add_world_options, model_config, nonnegative, positive, selection_spec_of
 
-MODEL_OPTIONS = ("model", "turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout",
-                 "robot_radius")
-COORD_OPTIONS = ("localizer", "w_v", "samples", "population", "generations", "mc_start", "mc_emax", "on_lost", "min_robots", "rejoin",
-                 "on_record_error")
 DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
 PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)
 DEMO_TEXT = ("demo scenario: joint localizer, motion noise 4x the default (turn 12 deg, drive 20 %): a robot that stands "
              "still keeps its estimate, so the others localize against it far better than when everybody moves; the "
              "selection weighs that against the extra step and chooses anchors (--paper: the paper's localizer and noise)")
+
+PAPER_TEXT = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
+              "selection chooses speed, n_a = 0, wherever moving every robot at once keeps the bodies apart; where it "
+              "does not, the best-scoring anchor count with a plan that does (the tables below say which)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -146,23 +148,30 @@ def run_demo(args: argparse.Namespace) -> int:
     for name, value in scenario.items():
         if getattr(args, name) is None:
             setattr(args, name, value)
-    what = ("the paper's localizer (Section 5) and the default noise: anchors barely improve its estimate, so the "
-            "selection chooses speed (n_a = 0)") if args.paper else DEMO_TEXT
+    what = PAPER_TEXT if args.paper else DEMO_TEXT
     over = [f"--{n.replace('_', '-')}" for n in given] + ([f"--model {args.model}"] if args.model is not None else [])
     print(f"swarm demo: {what}" + (f" (overridden: {', '.join(over)})" if over else ""), flush=True)
     return run(args)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.launcher import LaunchOptions, launch  # noqa: PLC0415 - zenoh and scipy only when launching
+def spec_of(args: argparse.Namespace) -> LaunchSpec:
+    """The launch spec of the options."""
+    text = lambda path: None if path is None else str(path)  # noqa: E731
+    return LaunchSpec(
+        model=model_config(args), model_file=text(args.model), localizer=args.localizer, selection=selection_spec_of(args),
+        command=args.command, trajectory=text(args.trajectory), robots=args.robots, configs=args.configs,
+        trajectory_seed=0 if args.command == "demo" else args.seed, method=args.method, seed=args.seed, run_id=args.run_id,
+        out=text(args.out), result=text(args.result), motion_time=args.motion_time, step_timeout=args.step_timeout, driver=args.driver,
+        driver_options=tuple(args.driver_option), command_timeout=args.command_timeout, gateway_config=text(args.gateway_config),
+        emulator_events=text(args.emulator_events), min_robots=args.min_robots, kill_robot=tuple(args.kill_robot or ()),
+        standby=args.standby, kill_coordinator=args.kill_coordinator, agents_per_process=args.agents_per_process, drop=args.drop,
+        corrupt=args.corrupt, delay=args.delay, record=text(args.record), no_record=args.no_record, foxglove=args.foxglove,
+        linger=args.linger, json=args.json, on_lost=args.on_lost, rejoin=args.rejoin == "yes", on_record_error=args.on_record_error,
+        world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed, ros2=args.ros2,
+        ros2_robots=args.ros2_robots, stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
 
-    given = lambda names: {name: getattr(args, name) for name in names if getattr(args, name) is not None}  # noqa: E731
-    options = LaunchOptions(
-        model_config(args), args.localizer, selection_config(args), args.command, args.trajectory, args.robots, args.configs,
-        0 if args.command == "demo" else args.seed, args.method, args.seed, args.run_id, args.out, args.result, args.motion_time,
-        args.step_timeout, args.driver, tuple(args.driver_option), args.command_timeout, args.gateway_config, args.emulator_events,
-        args.min_robots, tuple(args.kill_robot or ()) or None, args.standby, args.kill_coordinator, args.agents_per_process, args.drop, args.corrupt,
-        args.delay, args.record, args.no_record, args.foxglove, args.linger, args.json, given(MODEL_OPTIONS), given(COORD_OPTIONS),
-        world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,
-        ros2=args.ros2, ros2_robots=args.ros2_robots, stall_coordinator=args.stall_coordinator, stall_link=args.stall_link)
-    return launch(options, emit_json=print_json)
+
+def run(args: argparse.Namespace) -> int:
+    from inchworm.process_mains import run_launch  # noqa: PLC0415 - zenoh and scipy only when launching
+
+    return run_launch(spec_of(args))

@@ -11,17 +11,12 @@ Runs until SIGTERM/SIGINT; exit 0. ``python -m swarm_cli.link`` is the same comm
 from __future__ import annotations
 
 import argparse
-import contextlib
-import logging
 import sys
 from pathlib import Path
 
-from robot_agent.link import Link
-from runtime.gateway.config import GatewayConfig
-from runtime.wire.keys import validate_run
-from runtime.wire.transport import claim_identities, open_session
-from swarm_cli.entry import on_stop_signals, run_standalone
-from swarm_cli.options import add_connection_options, connection_settings
+from inchworm.specs import LinkSpec
+from swarm_cli.entry import run_standalone
+from swarm_cli.options import add_connection_options
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -38,19 +33,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.WARNING, format=f"link {args.port}: %(levelname)s %(message)s", stream=sys.stderr)
-    config = GatewayConfig.load(args.config)
-    port = config.port(args.port)
-    validate_run(args.run_id)
-    with open_session(connection_settings(args)) as session:
-        claim_identities(session, args.run_id, ports=[port.name])  # before the device is opened: one link per port
-        with contextlib.closing(Link.open(session, args.run_id, port, config)) as link:
-            on_stop_signals(link.stop)
-            print(f"swarm link: port {port.name} on {port.device} ({port.transport}), robots "
-                  f"{','.join(map(str, port.robots))}, run {args.run_id}", file=sys.stderr, flush=True)
-            status = link.run()
-            print(f"swarm link: {link.summary()}", file=sys.stderr, flush=True)
-            return status
+    from inchworm.process_mains import run_link  # noqa: PLC0415 - zenoh when it runs
+
+    return run_link(LinkSpec(config=str(args.config), port=args.port, run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -41,9 +41,9 @@ def run(args: argparse.Namespace) -> int:
             raise  # unobserved / disconnected under --strict: an input problem (exit 2)
         print(f"swarm localize: error: {exc}", file=sys.stderr)
         return EXIT_NOT_LOCALIZED
-    for item in result["excluded"]:
-        print(f"swarm localize: left out robot {item['id']}: {item['reason']}", file=sys.stderr)
-    for line in result["warnings"]:
+    for robot, reason in sorted(result.excluded.items()):
+        print(f"swarm localize: left out robot {robot}: {reason}", file=sys.stderr)
+    for line in result.warnings:
         print(f"swarm localize: warning: {line}", file=sys.stderr)
-    print_json(result)
-    return EXIT_NOT_LOCALIZED if any(item["reason"] in SOLVER_FAILURES for item in result["excluded"]) else 0
+    print_json(result.to_json())
+    return EXIT_NOT_LOCALIZED if any(reason in SOLVER_FAILURES for reason in result.excluded.values()) else 0

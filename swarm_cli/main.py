@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from swarm_cli.entry import Command, add_commands, guarded, leave, limit_blas_threads
+from swarm_cli.entry import Command, OneLineParser, add_commands, guarded, leave, limit_blas_threads
 from swarm_cli.options import apply_config, check_limits
 from swarm_cli.version import VersionAction
 
@@ -45,7 +45,7 @@ COMMANDS = (
 def build_parser(argv: list[str] | None = None) -> argparse.ArgumentParser:
     """The ``swarm`` parser; with ``argv``, only the command it names is fully registered (and imported),
     without it every command is (for tests and tools that walk the parser)."""
-    parser = argparse.ArgumentParser(prog="swarm", description="Inchworm swarm runtime: simulation, localization, benchmarks.")
+    parser = OneLineParser(prog="swarm", description="Inchworm swarm runtime: simulation, localization, benchmarks.")
     parser.add_argument("--version", action=VersionAction)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     add_commands(sub, COMMANDS, argv or [], full=argv is None)

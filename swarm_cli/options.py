@@ -10,7 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from inchworm.output import last_json  # noqa: F401 - print_json's counterpart: what a command printed last (tests, tools)
+from inchworm.output import last_json, print_json  # noqa: F401 - last_json: what a command printed last (tests, tools)
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
@@ -19,6 +19,7 @@ SELECTION_METHODS = ("mc", "crlb")  # coordinator.selection.selector.METHODS, wi
 if TYPE_CHECKING:  # imported where used: building a parser must not import scipy or zenoh
     from coordinator.selection.selector import SelectionConfig
     from inchworm.options import RunOptions
+    from inchworm.specs import SelectionSpec
     from runtime.wire.transport import ZenohSettings
 
 
@@ -134,12 +135,11 @@ def add_study_options(parser: argparse.ArgumentParser, out: str, files: str) -> 
 
 
 def run_study(args: argparse.Namespace, study: Callable[..., Any], options: Any, total: int, label: str, log: str = "runs") -> int:
-    """Check ``options``, save them as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
+    """Save ``options`` (checked when they were made) as ``--out/study.toml``, run ``study`` (progress on stderr) and print its
     table, the files written (``log``: the name of its CSV) and, with ``--json``, its JSON object as the last line."""
     from inchworm.progress import Progress  # noqa: PLC0415
     from inchworm.runner import open_executor  # noqa: PLC0415
 
-    options.validate()
     save_config(args)
     with open_executor(args.executor, args.workers, args.scheduler) as executor:
         result = study(options, executor=executor, out=args.out, resume=args.resume, progress=Progress(total, label))
@@ -160,11 +160,6 @@ def names(text: str) -> tuple[str, ...]:
 
 def add_json_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object as the last line")
-
-
-def print_json(obj: object) -> None:
-    """The machine-readable result: one JSON object on one line."""
-    print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
 def print_result(result: Any, as_json: bool, *lines: str) -> int:
@@ -198,6 +193,14 @@ def selection_config(args: argparse.Namespace) -> SelectionConfig:
     from inchworm.limits import selection_from  # noqa: PLC0415
 
     return selection_from(args.w_v, args.samples, args.population, args.generations, args.selection, args.mc_start, args.mc_emax, args.genetic)
+
+
+def selection_spec_of(args: argparse.Namespace) -> SelectionSpec:
+    """The ``SelectionSpec`` of ``add_selection_options``'s options (checked where it becomes a ``SelectionConfig``)."""
+    from inchworm.specs import SelectionSpec  # noqa: PLC0415
+
+    return SelectionSpec(w_v=args.w_v, samples=args.samples, population=args.population, generations=args.generations, method=args.selection,
+                         mc_start=args.mc_start, mc_emax=args.mc_emax, genetic=args.genetic)
 
 
 def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:

@@ -16,10 +16,11 @@ import argparse
 import sys
 from pathlib import Path
 
+from inchworm.limits import MODEL_FLAGS
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
 
 EXIT_DIVERGED = 1
-MODEL_OPTIONS = ("turn_sigma_deg", "drive_sigma_frac", "range_sigma", "bearing_sigma_deg", "sensing_range", "dropout", "robot_radius")
+MODEL_OPTIONS = tuple(MODEL_FLAGS)  # the model flags' dests
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 

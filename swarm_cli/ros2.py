@@ -1,11 +1,14 @@
 """``swarm ros2``: simulated ROS 2 robots, and a run live in ROS 2 (extra ``ros2``; docs/ros2.md).
 
-    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic] [--driver-option config=FILE]
+    swarm ros2 robots --trajectory traj.json [--seed 0] [model flags] [--world kinematic|physics] [--physics-param NAME=VALUE]
+                      [--run RUN [--hub ENDPOINT]] [--driver-option config=FILE]
     swarm ros2 bridge --run RUN [--hub ENDPOINT] [--trajectory traj.json] [--wait S]
 
 ``robots`` starts one simulated robot per robot of the trajectory at its initial pose, each speaking the
 ``--driver ros2`` interface in its namespace (``cmd_vel``, ``odom``, ``neighbors``, ``ground_truth``;
 ``robot_agent.ros2_robots``) on a world (``--world``: ``runtime.models.world``), until Ctrl-C / SIGTERM.
+In the physical world with ``--run`` its contacts, stalls and still poses go to the run's record
+(``robot_agent.ros2_physics``).
 Fault options (``--no-odom``, ``--silent``, ``--sightings-twice``, ``--late-sightings``) rehearse the
 driver's rough cases.
 
@@ -19,18 +22,12 @@ discovery range and middleware (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RAN
 from __future__ import annotations
 
 import argparse
-import logging
-import os
-import sys
-import threading
-import time
 from pathlib import Path
 
+from inchworm.specs import Ros2BridgeSpec, Ros2RobotsSpec
 from runtime.errors import SwarmInputError
-from swarm_cli.entry import guarded, leave, limit_blas_threads, on_stop_signals
+from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads
 from swarm_cli.options import add_connection_options, add_model_options, model_config, positive
-
-EXIT_NO_RUN = 1
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -44,7 +41,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     r = what.add_parser("robots", help="simulated robots of a trajectory speaking the ROS 2 driver's topics, until Ctrl-C")
     r.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots and their initial poses")
     r.add_argument("--seed", type=int, default=0, help="seed of the motion and sensing noise (default 0)")
-    r.add_argument("--world", default="kinematic", help="the world the robots move in (default kinematic: the project's model)")
+    r.add_argument("--world", default="kinematic",
+                   help="the world the robots move in: kinematic (the project's noise model, the default) or physics (a rigid-body "
+                        "world: wheels within their limits that slip, bodies that push; pip install 'inchworm-swarm[physics]')")
+    r.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
+                   help="with --world physics: a parameter of the physical world (docs/physics.md), repeatable")
+    r.add_argument("--run", dest="run_id", default=None,
+                   help="with --world physics: the run whose record gets the world's contacts, stalls and poses (PhysicsEvent)")
+    r.add_argument("--hub", default=None, help="with --run: the run's Zenoh endpoint (default: the run file of a run on this host)")
     r.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, topic names "
                         "(docs/ros2.md); repeatable")
@@ -80,85 +84,21 @@ def _silent(specs: list[str]) -> dict[int, int]:
 
 
 def run_robots(args: argparse.Namespace) -> int:
-    from robot_agent.assembly import driver_options, parse_ids  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
-    from robot_agent.ros2_config import Ros2Config  # noqa: PLC0415
-    from robot_agent.ros2_robots import SimRobots  # noqa: PLC0415
-    from runtime.models.trajectory import Trajectory  # noqa: PLC0415
-    from runtime.models.world import make_world  # noqa: PLC0415
-    from runtime.wire.ros2 import require_ros2  # noqa: PLC0415
+    from inchworm.process_mains import run_ros2_robots  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
+    from robot_agent.assembly import parse_ids  # noqa: PLC0415
 
-    require_ros2("swarm ros2 robots")
-    traj = Trajectory.load(args.trajectory)
-    no_odom = frozenset(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else frozenset()
-    silent = _silent(args.silent)
-    unknown = sorted((set(no_odom) | set(silent)) - {int(i) for i in traj.ids})
-    if unknown:
-        raise SwarmInputError(f"robots {unknown} of --no-odom/--silent are not robots of {args.trajectory}")
-    if args.late_sightings < 0:
-        raise SwarmInputError(f"--late-sightings must be >= 0, got {args.late_sightings:g}")
-    cfg = Ros2Config.load(driver_options(args.driver_option))
-    world = make_world(args.world, traj.ids, traj.initial_poses, model_config(args), args.seed)
-    truth = "" if args.no_ground_truth else cfg.ground_truth or "ground_truth"
-    robots = SimRobots(world, cfg, rate_hz=args.rate, sensing_hz=args.sensing_rate, ground_truth=truth, no_odom=no_odom,
-                       silent=silent, twice=args.sightings_twice, late_s=args.late_sightings)
-    on_stop_signals(robots.stop)
-    domain = os.environ.get("ROS_DOMAIN_ID", "0")
-    print(f"swarm ros2 robots: {len(traj.ids)} robots in {cfg.namespace_of(int(traj.ids[0]))} ... "
-          f"{cfg.namespace_of(int(traj.ids[-1]))} (ROS_DOMAIN_ID {domain}), world {args.world}"
-          + (f"; drive them with --driver ros2 --driver-option ground_truth={truth} for P_f" if truth else ""), file=sys.stderr, flush=True)
-    try:
-        robots.run()
-    finally:
-        robots.close()
-    return 0
-
-
-def _hub_settings(args: argparse.Namespace):
-    """The run's Zenoh settings: ``--hub`` / ``--zenoh-config``, else its run file, waited for up to ``--wait`` s; None: no run."""
-    from runtime.wire.run_file import read_run  # noqa: PLC0415
-    from runtime.wire.transport import ZenohSettings  # noqa: PLC0415
-
-    if args.hub or args.zenoh_config:
-        return ZenohSettings("client", connect=(args.hub,) if args.hub else (), config_file=args.zenoh_config)
-    deadline = time.monotonic() + max(args.wait, 0.0)
-    while (entry := read_run(args.run_id)) is None:
-        if time.monotonic() >= deadline:
-            return None
-        time.sleep(0.1)
-    args.hub = entry["hub"]
-    return ZenohSettings("client", connect=(args.hub,))
+    return run_ros2_robots(Ros2RobotsSpec(
+        trajectory=str(args.trajectory), seed=args.seed, model=model_config(args), world=args.world, physics_params=tuple(args.physics_param),
+        run_id=args.run_id, hub=args.hub, driver_options=tuple(args.driver_option), rate=args.rate, sensing_rate=args.sensing_rate,
+        no_ground_truth=args.no_ground_truth, no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else (),
+        silent=_silent(args.silent), sightings_twice=args.sightings_twice, late_sightings=args.late_sightings))
 
 
 def run_bridge(args: argparse.Namespace) -> int:
-    from inchworm.ros2_bridge import Bridge  # noqa: PLC0415 - ROS 2 and zenoh only when bridging
-    from runtime.models.config import ModelConfig  # noqa: PLC0415
-    from runtime.models.trajectory import Trajectory  # noqa: PLC0415
-    from runtime.wire.keys import validate_run  # noqa: PLC0415
-    from runtime.wire.ros2 import require_ros2  # noqa: PLC0415
-    from runtime.wire.transport import open_session  # noqa: PLC0415
+    from inchworm.process_mains import run_ros2_bridge  # noqa: PLC0415 - ROS 2 and zenoh only when bridging
 
-    require_ros2("swarm ros2 bridge")
-    validate_run(args.run_id)
-    traj = Trajectory.load(args.trajectory) if args.trajectory else None
-    settings = _hub_settings(args)
-    if settings is None:
-        waited = f" within {args.wait:g} s" if args.wait > 0 else ""
-        print(f"swarm ros2 bridge: no live run {args.run_id!r} on this host{waited} (give --hub ENDPOINT, or --wait S to wait for it)",
-              file=sys.stderr, flush=True)
-        return EXIT_NO_RUN
-    stop = threading.Event()
-    on_stop_signals(stop.set)
-    radius = ModelConfig().robot_radius_m if args.robot_radius is None else args.robot_radius
-    with open_session(settings) as session:
-        bridge = Bridge(session, settings, args.run_id, traj, radius)
-        print(f"swarm ros2 bridge: run {args.run_id} on {args.hub or args.zenoh_config} -> /swarm/estimates, /swarm/robot<id>/pose, "
-              f"/swarm/markers, service /swarm/estop (ROS_DOMAIN_ID {os.environ.get('ROS_DOMAIN_ID', '0')})", file=sys.stderr, flush=True)
-        try:
-            bridge.wait(stop)
-        finally:
-            bridge.close()
-    print(f"swarm ros2 bridge: run {args.run_id} over, {bridge.published} estimates published", file=sys.stderr, flush=True)
-    return 0
+    return run_ros2_bridge(Ros2BridgeSpec(run_id=args.run_id, trajectory=None if args.trajectory is None else str(args.trajectory),
+                                          robot_radius=args.robot_radius, wait=args.wait, hub=args.hub, zenoh_config=args.zenoh_config))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -167,8 +107,7 @@ def main(argv: list[str] | None = None) -> int:
 
     hold_lifeline()
     limit_blas_threads()
-    logging.basicConfig(level=logging.WARNING, format="swarm ros2: %(levelname)s %(message)s", stream=sys.stderr)
-    parser = argparse.ArgumentParser(prog="swarm ros2")
+    parser = OneLineParser(prog="swarm ros2")
     add_arguments(parser)
     args = parser.parse_args(argv)
     return guarded(f"swarm ros2 {args.ros2_command}", lambda: args.run(args))

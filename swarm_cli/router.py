@@ -13,7 +13,10 @@ tools connect to it as clients (``--hub`` / ``--zenoh-config``; see ``deploy/REA
   ``tls/192.168.1.10:7447``; overrides the file's endpoints. Default: the file's
   endpoints, else ``tcp/0.0.0.0:7447``. Port 0 is refused (clients could not know it).
 
-``swarm router: listening on ...`` on stderr means the session is open and listening;
+``swarm router: listening on ...`` on stderr means the session is open and listening; a warning
+follows when the process may open fewer than 65536 files (Zenoh raises the soft limit to the hard
+one): a connection flood that exhausts them blocks every listener, the operator listener of the
+stop path too (deploy/README.md, "The stop path").
 ``--json`` then prints ``{"zid": ..., "listen": [...], "config": ...}`` as the only (so also
 the last) line on stdout. Exit status 0, 2 on bad input (bad endpoint, unreadable or
 invalid config file, unreadable certificate, port already in use).
@@ -23,13 +26,10 @@ invalid config file, unreadable certificate, port already in use).
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
-import threading
 
-from runtime.errors import SwarmInputError
+from inchworm.specs import RouterSpec
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import print_json
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
 
@@ -49,30 +49,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from runtime.wire.router import router_settings  # noqa: PLC0415 - zenoh when it runs
-    from runtime.wire.transport import open_session  # noqa: PLC0415
+    from inchworm.process_mains import run_router  # noqa: PLC0415 - zenoh when it runs
 
-    settings = router_settings(args.listen, args.config)
-    stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    try:
-        try:
-            session = open_session(settings)
-        except ConnectionError as exc:
-            raise SwarmInputError(f"cannot start the router on {', '.join(settings.listen)}: {exc.__cause__ or exc}") from None
-        with session:
-            source = f" (config {args.config})" if args.config else ""
-            print(f"swarm router: listening on {', '.join(settings.listen)}{source}; zid {session.info.zid()}",
-                  file=sys.stderr, flush=True)
-            if args.json:
-                print_json({"zid": str(session.info.zid()), "listen": list(settings.listen), "config": args.config})
-            while not stop.wait(0.5):
-                pass
-    finally:
-        for sig, handler in previous.items():  # matters when run in-process (tests)
-            signal.signal(sig, handler)
-    print("swarm router: stopped", file=sys.stderr, flush=True)
-    return 0
+    return run_router(RouterSpec(listen=tuple(args.listen), config=args.config, json=args.json))
 
 
 def main(argv: list[str] | None = None) -> int:

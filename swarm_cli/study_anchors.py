@@ -24,7 +24,6 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.studies.anchors import AnchorsOptions, study_anchors  # noqa: PLC0415
 
     options = AnchorsOptions(args.robots, args.experiments, args.samples, args.seed, model_config(args), args.localizer)
-    options.validate()
     if options.note():
         print(options.note())
     return run_study(args, study_anchors, options, options.experiments, "study anchors", "experiments")

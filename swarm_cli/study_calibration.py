@@ -51,6 +51,5 @@ def run(args: argparse.Namespace) -> int:
         target=args.target, max_motion_scale=args.max_motion_scale, calibration_trajectories=args.calibration_trajectories,
         iterations=args.iterations, robots=args.robots, trajectories=args.trajectories, configs=args.configs,
         seeds=tuple(parse_list(args.seeds, "--seeds", int)), methods=names(args.methods), run=run_options(args))
-    options.validate()
     total = len(options.localizers) * len(options.sensing_scales) * len(options.seeds) * options.trajectories * len(options.methods)
     return run_study(args, study_calibration, options, total, "study calibration")

@@ -46,5 +46,4 @@ def run(args: argparse.Namespace) -> int:
                                  model_config(args), selection_config(args),
                                  tuple(parse_list(args.motion_scales, "--motion-scales", float)),
                                  tuple(parse_list(args.sensing_scales, "--sensing-scales", float)))
-    options.validate()
     return run_study(args, study_consistency, options, len(options.tasks()), "study consistency")

@@ -31,5 +31,4 @@ def run(args: argparse.Namespace) -> int:
     options = NoiseOptions(tuple(parse_list(args.motion_scales, "--motion-scales", float)),
                            tuple(parse_list(args.sensing_scales, "--sensing-scales", float)),
                            names(args.localizers), args.robots, args.trajectories, args.configs, args.seed, run_options(args))
-    options.validate()
     return run_study(args, study_noise, options, len(options.tasks()), "study noise")

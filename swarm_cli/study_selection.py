@@ -33,7 +33,6 @@ def run(args: argparse.Namespace) -> int:
         return print_result(study_genetic_gain(Gain(args.robots, args.configs, args.eval_samples, args.seed, run_options(args))), args.json)
     options = SelectionStudyOptions(args.robots, args.configs, args.screen_samples, args.pick_samples, args.eval_samples, args.seed,
                                     run_options(args), not args.no_optimum)
-    options.validate()
     if args.from_csv is None:
         return run_study(args, study_selection, options, options.configs, "study selection", "configs")
     result = selection_from_csv(args.from_csv, options)

@@ -1,4 +1,4 @@
-"""Drivers that fail, for tests/test_drivers.py: the example driver (examples/drivers/unicycle.py) plus one fault.
+"""Drivers that fail, for tests/system/test_drivers.py: the example driver (examples/drivers/unicycle.py) plus one fault.
 
 Selected with ``--driver tests/fault_drivers.py:Class`` and configured with ``--driver-option``:
 ``fail_robot`` (id), ``fail_step`` (the first step whose command fails) and ``log`` (a folder: each

@@ -62,9 +62,8 @@ def timed_phases(spent: dict[str, float]) -> Iterator[None]:
 def run(n: int, configs: int, method: str, localizer: str, seed: int) -> dict:
     """One size's row (this process)."""
     from inchworm.simulation import simulate  # noqa: PLC0415
-    from runtime.models.bodies import validate_passable  # noqa: PLC0415
     from runtime.models.config import ModelConfig  # noqa: PLC0415
-    from runtime.models.trajectory import body_spacing, random_trajectory  # noqa: PLC0415
+    from runtime.models.trajectory import body_spacing, random_trajectory, validate_passable  # noqa: PLC0415
 
     cfg = ModelConfig()
     spent: dict[str, float] = {}

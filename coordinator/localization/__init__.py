@@ -13,35 +13,15 @@ or its ``registry`` to list names for a parser, stays cheap.
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
+from coordinator.localization.interface import Localizer
 from coordinator.localization.registry import localizer_names, make_localizer, register_localizer
-from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 if TYPE_CHECKING:
     from coordinator.localization.joint import JointLocalizer
     from coordinator.localization.paper import PaperLocalizer
     from coordinator.localization.topology import Topology
-
-
-class Localizer(Protocol):
-    """Post-step swarm localization."""
-
-    name: str
-
-    def localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
-        """Post-step poses and covariances of every robot in ``prior.ids`` (global frame)."""
-        ...
-
-    def localize_subset(self, prior: SwarmEstimate, step: StepCommands, obs: Observations, keep: np.ndarray) -> SwarmEstimate:
-        """``localize`` of the robots where ``keep`` (n,) alone; the others keep their dead reckoning."""
-        ...
-
-    def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
-        """Relative poses from observations alone, in the reference robot's frame."""
-        ...
 
 
 _LAZY = {

@@ -15,6 +15,8 @@ P' = F P F^T + blockdiag(Fu_i Q Fu_i^T), F = blockdiag(Fx_i) (each robot moves o
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from runtime.errors import SwarmInputError
@@ -67,7 +69,7 @@ def propagate_joint(prior: SwarmEstimate, step: StepCommands, cfg: ModelConfig, 
     out = np.einsum("iab,ibjc,jdc->iajd", fx, p, fx, optimize=True)
     out[np.arange(n), :, np.arange(n), :] += noise
     out = out.reshape(3 * n, 3 * n)
-    return 0.5 * (out + out.T)
+    return cast(np.ndarray, 0.5 * (out + out.T))
 
 
 def dead_reckon_arrays(

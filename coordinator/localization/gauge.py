@@ -30,6 +30,7 @@ Units: metres and radians; matrices are ordered robot by robot (x_0, y_0, headin
 from __future__ import annotations
 
 import functools
+from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -115,7 +116,7 @@ def constrained_covariance(
 def gauge_gradient(prior_gradient: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """N^T g (..., 3): the prior's gradient g (..., 3n) along the predicted gauge, whose Pi^T N^T g
     ``constrained_solution`` takes out of the update (through the constrained covariance)."""
-    return (np.swapaxes(frame[0], -1, -2) @ prior_gradient[..., None])[..., 0]
+    return cast(np.ndarray, (np.swapaxes(frame[0], -1, -2) @ prior_gradient[..., None])[..., 0])
 
 
 def constrained_solution(
@@ -137,7 +138,7 @@ def constrained_solution(
     """
     frame = gauge_frame(predicted) if frame is None else frame
     step = (cov @ (np.swapaxes(frame[1], -1, -2) @ gauge_gradient(prior_gradient, frame)[..., None]))[..., 0]
-    return solution - step.reshape(solution.shape)
+    return cast(np.ndarray, solution - step.reshape(solution.shape))
 
 
 def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
@@ -155,7 +156,7 @@ def inverse(info: sp.spmatrix | np.ndarray) -> np.ndarray:
             if bad == 0:
                 upper, bad = dpotri(factor, lower=False)
         if bad == 0:  # potri fills the upper triangle: mirror it in one pass
-            return np.where(_upper_mask(len(a)), upper, upper.T)
+            return cast(np.ndarray, np.where(_upper_mask(len(a)), upper, upper.T))
     try:
         return np.linalg.inv(a)
     except np.linalg.LinAlgError:
@@ -198,7 +199,7 @@ def merge_subset(prior: np.ndarray | None, updated: np.ndarray, keep: np.ndarray
 def transport_offset(predicted: np.ndarray, solution: np.ndarray, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     """D = N(solution) - N(predicted) (..., 3n, 3), both rotations about the predicted centroid: ``transport``'s
     T = I + D Pi."""
-    return gauge_basis(solution, predicted[..., :2].mean(axis=-2)) - frame[0]
+    return cast(np.ndarray, gauge_basis(solution, predicted[..., :2].mean(axis=-2)) - frame[0])
 
 
 def transport(
@@ -218,7 +219,7 @@ def transport(
     # T cov T^T = cov + D Pi cov + (D Pi cov)^T + D (Pi cov Pi^T) D^T = cov + [D, (Pi cov)^T] [Pi cov + (Pi cov Pi^T) D^T; D^T]
     left = np.concatenate([d, np.swapaxes(pc, -1, -2)], axis=-1)
     out = cov + left @ np.concatenate([pc + (pc @ np.swapaxes(frame[1], -1, -2)) @ d_t, d_t], axis=-2)
-    return 0.5 * (out + np.swapaxes(out, -1, -2))
+    return cast(np.ndarray, 0.5 * (out + np.swapaxes(out, -1, -2)))
 
 
 def transported_blocks(blocks: np.ndarray, offset: np.ndarray, pc: np.ndarray, pcp: np.ndarray) -> np.ndarray:

@@ -20,6 +20,8 @@ groups linked by ranges alone) is left out.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
@@ -44,7 +46,7 @@ def components(n: int, observer: np.ndarray, observed: np.ndarray) -> np.ndarray
     if n <= SMALL_GRAPH:
         return component_labels(n, observer, observed)
     adj = sp.coo_matrix((np.ones(len(observer)), (observer, observed)), shape=(n, n))
-    return connected_components(adj, directed=False)[1]
+    return cast(np.ndarray, connected_components(adj, directed=False)[1])
 
 
 def _pairs(n: int, observer: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

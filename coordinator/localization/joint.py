@@ -73,7 +73,7 @@ def psd(cov: np.ndarray) -> np.ndarray:
     if suspect.any():
         lam, vec = np.linalg.eigh(sym[suspect])
         out[suspect] = (vec * np.maximum(lam, 0.0)[..., None, :]) @ np.swapaxes(vec, -1, -2)
-    return out
+    return cast(np.ndarray, out)
 
 
 def _positive_definite(sym: np.ndarray) -> np.ndarray:
@@ -82,7 +82,7 @@ def _positive_definite(sym: np.ndarray) -> np.ndarray:
         a, b, c, d, e, f = sym[..., 0, 0], sym[..., 1, 1], sym[..., 2, 2], sym[..., 0, 1], sym[..., 0, 2], sym[..., 1, 2]
         det = a * (b * c - f * f) - d * (d * c - f * e) + e * (d * f - b * e)
         with np.errstate(invalid="ignore"):
-            return (a > 0) & (a * b - d * d > 0) & (det > 0)
+            return cast(np.ndarray, (a > 0) & (a * b - d * d > 0) & (det > 0))
     out = np.zeros(sym.shape[:-2], bool)
     for k in np.ndindex(out.shape):
         try:
@@ -117,10 +117,10 @@ def psd_joint(cov: np.ndarray) -> np.ndarray:
     """``cov`` (k, k) symmetrized, projected onto the PSD cone only when its Cholesky factorization fails."""
     full = 0.5 * (cov + cov.T)
     if not np.isfinite(full).all():
-        return full
+        return cast(np.ndarray, full)
     try:
         np.linalg.cholesky(full)
-        return full
+        return cast(np.ndarray, full)
     except np.linalg.LinAlgError:
         return psd(full)
 

@@ -16,6 +16,8 @@ weights and Huber IRLS (on every whitened residual) as ``range_bearing`` with
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.linalg.lapack import dposv
@@ -168,7 +170,7 @@ class JointProblem:
             a.flat[:: self.size + 1] += shift
             _, x, bad = dposv(a, rhs, overwrite_a=True)
             if bad == 0:
-                return x
+                return cast(np.ndarray, x)
             a = normal.copy()  # not positive definite: the general solver (raises if singular)
             a.flat[:: self.size + 1] += shift
             return np.linalg.solve(a, rhs)

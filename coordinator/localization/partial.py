@@ -12,7 +12,7 @@ caller can report them.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -21,6 +21,9 @@ from coordinator.localization.graph import observable_subset
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
+
+if TYPE_CHECKING:
+    from coordinator.localization import Localizer
 
 T = TypeVar("T")  # what a solve returns
 Subset = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, dict[int, str]]]  # (ids, observer, observed) -> (keep, why)
@@ -71,7 +74,7 @@ def _reindex(keep: np.ndarray, i: np.ndarray, j: np.ndarray) -> tuple[np.ndarray
 
 
 def localize_observable(
-    localizer, prior: SwarmEstimate, step: StepCommands, obs: Observations, cfg: ModelConfig
+    localizer: Localizer, prior: SwarmEstimate, step: StepCommands, obs: Observations, cfg: ModelConfig
 ) -> tuple[SwarmEstimate, dict[int, str]]:
     """Post-step estimate and {robot id: reason} of the robots that kept dead reckoning.
 

@@ -20,6 +20,7 @@ information is exactly J^T J of these residuals at the true poses.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -43,7 +44,7 @@ def sqrt_information(cov: np.ndarray) -> np.ndarray:
     sym = 0.5 * (cov + np.swapaxes(cov, -1, -2))
     lam, vec = np.linalg.eigh(sym)
     lam = np.maximum(lam, COV_FLOOR)
-    return np.swapaxes(vec, -1, -2) / np.sqrt(lam)[..., :, None]
+    return cast(np.ndarray, np.swapaxes(vec, -1, -2) / np.sqrt(lam)[..., :, None])
 
 
 def sensor_sigmas(cfg: ModelConfig) -> tuple[float, float]:
@@ -60,7 +61,7 @@ def bearing_weights(range_m: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     s_r, s_b = sensor_sigmas(cfg)
     rho2 = np.square(np.asarray(range_m, dtype=float))
     gate2 = (GATE_SIGMAS * s_r) ** 2
-    return rho2 / (s_b * np.sqrt(rho2 * rho2 + gate2 * gate2))
+    return cast(np.ndarray, rho2 / (s_b * np.sqrt(rho2 * rho2 + gate2 * gate2)))
 
 
 def observation_residuals(
@@ -205,7 +206,7 @@ def pose_difference(poses: np.ndarray, mean: np.ndarray) -> np.ndarray:
     """p - mu (..., n, 3) of the prior terms, heading differences wrapped (one swarm or a batch)."""
     diff = poses - mean
     diff[..., 2] = wrap_angle(diff[..., 2])
-    return diff
+    return cast(np.ndarray, diff)
 
 
 def prior_information(cov: np.ndarray) -> np.ndarray:
@@ -230,7 +231,7 @@ def prior_information(cov: np.ndarray) -> np.ndarray:
     if not clear.all():
         w = sqrt_information(cov[~clear])
         info[~clear] = np.swapaxes(w, -1, -2) @ w
-    return 0.5 * (info + np.swapaxes(info, -1, -2))
+    return cast(np.ndarray, 0.5 * (info + np.swapaxes(info, -1, -2)))
 
 
 def prior_terms(
@@ -252,7 +253,7 @@ def joint_sqrt_information(joint: np.ndarray) -> np.ndarray:
         return np.linalg.inv(chol)  # W = L^-1: W^T W = (L L^T)^-1
     except np.linalg.LinAlgError:
         lam, vec = np.linalg.eigh(sym)
-        return vec.T / np.sqrt(np.maximum(lam, COV_FLOOR))[:, None]
+        return cast(np.ndarray, vec.T / np.sqrt(np.maximum(lam, COV_FLOOR))[:, None])
 
 
 def joint_prior_terms(

@@ -23,12 +23,12 @@ import importlib
 import inspect
 from collections.abc import Callable
 from importlib.metadata import entry_points
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 from runtime.errors import SwarmInputError
 
 if TYPE_CHECKING:
-    from coordinator.localization import Localizer
+    from coordinator.localization.interface import Localizer
     from runtime.models.config import ModelConfig
 
 ENTRY_POINT_GROUP = "inchworm_swarm.localizers"
@@ -74,14 +74,14 @@ def localizer_names() -> tuple[str, ...]:
 def _factory(name: str) -> LocalizerFactory:
     if name in _BUILTIN_PATHS:
         module, _, attr = _BUILTIN_PATHS[name].partition(":")
-        return getattr(importlib.import_module(module), attr)
+        return cast(LocalizerFactory, getattr(importlib.import_module(module), attr))
     if name in _registered:
         return _registered[name]
     plugin = _plugins().get(name)
     if plugin is None:
         raise SwarmInputError(f"unknown localizer {name!r}; choose one of {', '.join(localizer_names())}")
     try:
-        return plugin.load()
+        return cast(LocalizerFactory, plugin.load())  # what the entry point names: checked when called
     except Exception as exc:  # noqa: BLE001 - a broken plugin is the user's input: one clear line
         raise SwarmInputError(f"localizer plugin {name!r} ({plugin.value}) cannot be loaded: {exc}") from None
 

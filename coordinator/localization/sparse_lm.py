@@ -23,7 +23,7 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, overload
+from typing import Any, TypeVar, cast, overload
 
 import numpy as np
 import qdldl
@@ -35,13 +35,17 @@ DENSE_JACOBIAN_LIMIT = 64  # unknowns up to which a dense Jacobian (and dense J^
 PRED_MU_MAX = 1e-6  # damping up to which a step's predicted decrease stands for the undamped one (``minimize``'s ptol)
 BLAS_SMALL = 96  # matrix order below which OpenBLAS stays single-threaded anyway (no limit needed)
 _THREADPOOLS = ThreadpoolController()
+# what ``drive`` and its rule hold per problem: a float or bool (``ScalarOps``) or a numpy array with one value per
+# problem (numpy, ``BatchOps``); ``xp`` is one of those three namespaces
+PerProblem = Any
+_T = TypeVar("_T")
 
 
-def blas_threads(size: int):
+def blas_threads(size: int) -> contextlib.AbstractContextManager[object]:
     """Context limiting BLAS to one thread when dense algebra of order ``size`` follows (a no-op when small)."""
     if size < BLAS_SMALL:
         return contextlib.nullcontext()
-    return _THREADPOOLS.limit(limits=1, user_api="blas")
+    return cast(contextlib.AbstractContextManager[object], _THREADPOOLS.limit(limits=1, user_api="blas"))  # no types
 
 
 class PoseLayout:
@@ -119,7 +123,7 @@ class _Qdldl:
         self._solver.update(upper, upper=True)
 
     def solve(self, b: np.ndarray) -> np.ndarray:
-        return self._solver.solve(b)
+        return cast(np.ndarray, self._solver.solve(b))
 
 
 class _Cholmod:
@@ -279,12 +283,12 @@ _TINY = 1e-300  # keeps the relative tests meaningful at a zero cost
 
 def damping_scale(diagonal: np.ndarray) -> np.ndarray:
     """D: diag(J^T J) floored at ``DIAG_FLOOR`` (the damping adds mu D)."""
-    return np.maximum(diagonal, DIAG_FLOOR)
+    return cast(np.ndarray, np.maximum(diagonal, DIAG_FLOOR))
 
 
 def clamp_curvature(curvature: np.ndarray, scale: np.ndarray) -> np.ndarray:
     """The second-order term C kept >= -``CURVATURE_FLOOR`` D, so A + C + mu D stays positive definite."""
-    return np.maximum(curvature, -CURVATURE_FLOOR * scale)
+    return cast(np.ndarray, np.maximum(curvature, -CURVATURE_FLOOR * scale))
 
 
 class ScalarOps:
@@ -315,7 +319,7 @@ class ScalarOps:
         return float(np.abs(a).max()) if a.size else 0.0
 
     @staticmethod
-    def keep(mask: bool, a, b):
+    def keep(mask: bool, a: _T, b: _T) -> _T:
         """``a`` where ``mask``, else ``b`` (points, steps and states)."""
         return a if mask else b
 
@@ -340,10 +344,10 @@ class BatchOps:
     @staticmethod
     def largest(a: np.ndarray) -> np.ndarray:
         """max |a| of each problem."""
-        return np.max(np.abs(a), axis=tuple(range(1, a.ndim)))
+        return cast(np.ndarray, np.max(np.abs(a), axis=tuple(range(1, a.ndim))))
 
     @staticmethod
-    def keep(mask: np.ndarray, a, b):
+    def keep(mask: np.ndarray, a: Any, b: Any) -> Any:  # arrays, or dicts of them (states); ``b`` may be a float
         back = np.flatnonzero(~mask)
         if back.size:
             if isinstance(a, dict):
@@ -354,7 +358,8 @@ class BatchOps:
         return a
 
 
-def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, xp=np) -> tuple:
+def step_outcome(cost: PerProblem, cost_new: PerProblem, step_max: PerProblem, x_max: PerProblem, mu: PerProblem, xtol: float,
+                 ftol: float, xp: Any = np) -> tuple[PerProblem, PerProblem, PerProblem, PerProblem]:
     """What a trial step does: (accepted, converged, next damping, given up), per problem.
 
     Arguments are arrays (one value per problem; ``xp`` numpy or ``BatchOps``) or floats (``xp`` = ``ScalarOps``).
@@ -373,7 +378,7 @@ def step_outcome(cost, cost_new, step_max, x_max, mu, xtol: float, ftol: float, 
     return accept, converged, mu_next, gave_up
 
 
-def settled(predicted, cost, mu, ptol: float, xp=np):
+def settled(predicted: PerProblem, cost: PerProblem, mu: PerProblem, ptol: float, xp: Any = np) -> PerProblem:
     """Converged before the step (``minimize``'s ``ptol``): its predicted decrease -g.dx / 2 below ``ptol`` of the
     cost while the damping is negligible (mu <= ``PRED_MU_MAX``; a damped step under-predicts)."""
     return (mu <= PRED_MU_MAX) & (predicted <= ptol * cost)
@@ -382,7 +387,8 @@ def settled(predicted, cost, mu, ptol: float, xp=np):
 COMPACT_BELOW = 0.5  # ``drive`` drops finished problems from its work set once fewer than this fraction is active
 
 
-def drive(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None = None, max_iter: int = MAX_ITER, xp=BatchOps) -> tuple:
+def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None = None, max_iter: int = MAX_ITER,
+          xp: Any = BatchOps) -> tuple[np.ndarray, PerProblem, PerProblem, dict[str, Any]]:
     """The Levenberg-Marquardt driver of every localizer: one problem (``xp=ScalarOps``, ``minimize``) or many in
     lock-step (``xp=BatchOps``, the planner's batch: ``x0`` (B, ...) with the problems on the first axis).
 
@@ -443,15 +449,16 @@ def drive(problem, x0: np.ndarray, xtol: float, ftol: float, ptol: float | None 
 class _NormalProblem:
     """One problem given by its normal equations, for ``drive``: ``minimize``'s callbacks."""
 
-    def __init__(self, evaluate: Callable[[np.ndarray], NormalEquations], solve: Callable) -> None:
+    def __init__(self, evaluate: Callable[[np.ndarray], NormalEquations],
+                 solve: Callable[[sp.spmatrix | np.ndarray, np.ndarray, np.ndarray], np.ndarray]) -> None:
         self._evaluate, self._solve = evaluate, solve
-        self._system: tuple = (None, None, None, None)  # (state, curved, A (+ C), D) of the last step: rejected trials reuse it
+        self._system: tuple[Any, ...] = (None, None, None, None)  # (state, curved, A (+ C), D) of the last step: rejected trials reuse it
 
-    def evaluate(self, x: np.ndarray, slot: int) -> dict:
+    def evaluate(self, x: np.ndarray, slot: int) -> dict[str, Any]:
         ne = self._evaluate(x)
         return {"cost": float(ne.cost), "ne": ne}
 
-    def step(self, st: dict, mu: float, curved: bool) -> tuple[np.ndarray, float]:
+    def step(self, st: dict[str, Any], mu: float, curved: bool) -> tuple[np.ndarray, float]:
         ne = st["ne"]
         if self._system[0] is not ne or self._system[1] != curved:
             a = ne.normal
@@ -496,7 +503,7 @@ def minimize(
     if solve is None:
         factor = SparseFactor()
 
-        def solve(a, shift, rhs):
+        def solve(a: sp.spmatrix | np.ndarray, shift: np.ndarray, rhs: np.ndarray) -> np.ndarray:
             return solve_normal(add_diagonal(a, shift), rhs, factor)
 
     x, converged, iterations, st = drive(_NormalProblem(evaluate, solve), x0, xtol, ftol, ptol, max_iter, ScalarOps)

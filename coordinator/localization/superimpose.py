@@ -9,6 +9,8 @@ Vectorised over leading batch dimensions.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from runtime.errors import LocalizationError
@@ -19,7 +21,7 @@ MIN_SPREAD = 1e-12  # m^2: below this weighted spread the rotation is undetermin
 
 def fusion_weights(delta_p: np.ndarray, delta_u: np.ndarray) -> np.ndarray:
     """Eq. 22: w_i = 1 / (delta_pi + delta_ui), with the sum floored at 1e-9 m (noise-free inputs)."""
-    return 1.0 / np.maximum(delta_p + delta_u, 1e-9)
+    return cast(np.ndarray, 1.0 / np.maximum(delta_p + delta_u, 1e-9))
 
 
 def superimpose(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

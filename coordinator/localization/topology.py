@@ -26,6 +26,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import scipy.sparse as sp
@@ -101,7 +102,7 @@ def observation_jacobian(rzx: np.ndarray, rzy: np.ndarray, out: np.ndarray | Non
 def heading_curvature(rzx: np.ndarray, rzy: np.ndarray, rx: np.ndarray, ry: np.ndarray) -> np.ndarray:
     """r . d^2 r / d theta_i^2 = -r . R(theta_i) z_ij of each observation, elementwise: the second-order term of the
     observer's heading that Gauss-Newton drops (``sparse_lm``'s curvature)."""
-    return -(rx * rzx + ry * rzy)
+    return cast(np.ndarray, -(rx * rzx + ry * rzy))
 
 
 def _relaxed_start(n: int, i: np.ndarray, j: np.ndarray, z: np.ndarray, has_heading: np.ndarray, ref: int) -> np.ndarray:
@@ -171,7 +172,7 @@ def aligned_start(start: np.ndarray, observer: np.ndarray, observed: np.ndarray,
 
 def reference_robot(made: np.ndarray) -> np.ndarray:
     """The gauge: index of the lowest-indexed robot that observed someone (``made`` (..., n) observations made)."""
-    return np.argmax(made > 0, axis=-1)
+    return cast(np.ndarray, np.argmax(made > 0, axis=-1))
 
 
 def cluster_delta_p(

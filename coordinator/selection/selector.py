@@ -40,7 +40,9 @@ crowded runs the genetic search wherever the gate is not ``off`` (the repair mak
 from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
 predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
 small count (all evaluated, then raced as the search's), or, with one mover a step, an order of single moves
-that keeps each clear (``BodyCheck.ordered_moves``). When no plan found is clear but
+that keeps each clear (``BodyCheck.ordered_moves``). A search from enumerated clear plans races ``contenders`` of them
+(screened or not) from a quarter of the final check's samples: its best plans are often 3-5 % apart, which the search's
+few samples cannot order. When no plan found is clear but
 some keep the swarm connected, the connected heuristic plan with the fewest steps is returned
 and the executor splits its conflicting steps.
 
@@ -88,6 +90,7 @@ MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row 
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)
+ENUMERATED_RACE = 4  # a race among enumerated clear plans starts at final samples / this (8 contenders: the last 2 get all of them)
 
 
 class NoFeasiblePlanError(SwarmInputError):
@@ -345,6 +348,7 @@ class AnchorSelector:
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
             plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
             evaluations += k
+            found: list[Plan] | None = None  # every clear plan of the count, evaluated when the search met none
             if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
                 found = self._clear_plans(n, n_a, feasible) if clear is None else clear
                 if not found and n - n_a == 1:
@@ -362,7 +366,12 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True, genetic=True), seed=seed)
                 bar = max(bar, scores[n_a].p_s)
                 continue
-            champion, spent = race(best_distinct(known, sel.screened_contenders if screen else sel.contenders), sampled, count_samples, rng)
+            # a search from enumerated clear plans (few, far apart, all of a population sampled): as many contenders as an
+            # unscreened search, and a race whose last round has the final check's samples (``ENUMERATED_RACE``)
+            enumerated = bool(clear) or bool(found)
+            contenders = sel.contenders if enumerated or not screen else sel.screened_contenders
+            race_samples = max(count_samples, -(-final_samples // ENUMERATED_RACE)) if enumerated else count_samples
+            champion, spent = race(best_distinct(known, contenders), sampled, race_samples, rng)
             evaluations += spent
             if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:

@@ -30,8 +30,6 @@ model's default radius). Per operating point (a row):
 from __future__ import annotations
 
 import math
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
@@ -45,6 +43,8 @@ import numpy as np
 
 from inchworm.bench import BenchResult
 from inchworm.output import last_json
+from inchworm.spawn import run_process
+from inchworm.specs import LaunchSpec
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
@@ -161,12 +161,9 @@ def distributed_row(point: Point, configs: int, seed: int) -> dict[str, bool]:
         traj.save(folder / "trajectory.json")
         (folder / "model.toml").write_text(model_toml(cfg))
         recording = folder / "run.mcap"
-        proc = subprocess.run(
-            [sys.executable, "-m", "swarm_cli.main", "launch", f"--trajectory={folder / 'trajectory.json'}",
-             f"--model={folder / 'model.toml'}", f"--localizer={point.localizer}", f"--method={METHOD}", f"--seed={seed}",
-             "--standby", f"--kill-coordinator={kill_step}", "--motion-time=0.1", f"--record={recording}",
-             f"--out={folder}", "--json"],
-            capture_output=True, text=True, cwd=tmp, timeout=900)
+        proc = run_process(LaunchSpec(trajectory=str(folder / "trajectory.json"), model=cfg, model_file=str(folder / "model.toml"),
+                                      localizer=point.localizer, method=METHOD, seed=seed, standby=True, kill_coordinator=kill_step,
+                                      motion_time=0.1, record=str(recording), out=str(folder), json=True), timeout=900, cwd=tmp)
         summary = last_json(proc.stdout) or {}
         takeover = proc.returncode == 0 and _same_table(summary, ref)
         replay = False

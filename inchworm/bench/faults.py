@@ -22,15 +22,18 @@ Three parts, each through the options a user has, with real processes on loopbac
 * ``gateway``: radio faults injected by the robot emulators
   (``swarm launch --driver gateway --drop --corrupt --delay``), see
   ``inchworm.bench.faults_gateway``.
-* ``estop_under_flood``: an emergency stop through the deploy/ TLS router (mutual TLS, access
-  control) while ``flood`` idle TCP connections hold its TLS port, see ``inchworm.bench.estop_flood``.
+* ``estop_under_flood``: emergency stops through the deploy/ TLS router's operator listener (mutual
+  TLS, access control, the estop identity), one a second while ``flood`` idle TCP connections are held
+  on its public listener for ``flood_s`` seconds and for ``min(flood_s, 60)`` s after, see
+  ``inchworm.bench.estop_flood``.
 * ``forged_link_requests``: a gateway run (link processes apart) while a client allowed on ``linkreq``
   forges requests for every command, and after the coordinator exited; ``executed`` counts the motions
   no coordinator asked for (must be 0), see ``inchworm.bench.forged_links``.
 
 ``to_json()`` (``swarm bench faults --json``): ``{"gateway": [...], "lost_robot": {...}, "fuzz": {...},
 "coordinator": {"runs", "completed", "identical", "takeover_ms_max"},
-"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max"}, "coordinator_joint": {as "coordinator"},
+"estop_under_flood": {"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
+"public_blocked"}, "coordinator_joint": {as "coordinator"},
 "forged_link_requests": {"sent", "executed", "completed"}, "rejoin": {"runs", "rejoined", "sensing_range_m"},
 "coordinator_stall": {"stall_s", "runs", "completed"}}`` (``inchworm.bench.faults_stalls``).
 """
@@ -41,7 +44,6 @@ import json
 import math
 import statistics
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -56,6 +58,8 @@ import numpy as np
 from inchworm.bench import BenchResult
 from inchworm.output import last_json
 from inchworm.progress import Progress
+from inchworm.spawn import Spawned, run_process
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, LaunchSpec
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
@@ -68,7 +72,8 @@ class FaultsBenchOptions:
     seeds: int = 10  # runs per lost-robot and gateway row
     fuzz: int = 10_000  # hostile messages sent during the fuzz run
     gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
-    flood: int = 3000  # idle TCP connections held on the TLS router during the emergency stop
+    flood: int = 3000  # idle TCP connections held on the TLS router's public listener
+    flood_s: float = 60.0  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
 
 
 # -- lost robot ------------------------------------------------------------------------------
@@ -81,10 +86,8 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
     progress = Progress(seeds, "lost robot")
     for seed in range(seeds):
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            proc = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 f"--kill-robot={victim}@{step}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
-                capture_output=True, text=True, cwd=tmp, timeout=600)
+            proc = run_process(LaunchSpec(robots=robots, configs=configs, trajectory_seed=seed, seed=seed, kill_robot=((victim, step),),
+                                          motion_time=0.1, no_record=True, out=tmp, json=True), timeout=600, cwd=tmp)
         summaries.append({**(last_json(proc.stdout) or {}), "returncode": proc.returncode})
         progress(seed + 1)
     done = [s for s in summaries
@@ -111,11 +114,8 @@ def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localiz
         ref = simulate(traj, "inchworm", ModelConfig(), localizer=localizer, seed=seed)
         step = int(np.random.default_rng([seed, 41]).integers(1, len(ref.steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            proc = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 f"--localizer={localizer}", "--standby", f"--kill-coordinator={step}", "--motion-time=0.1", "--no-record",
-                 f"--out={tmp}", "--json"],
-                capture_output=True, text=True, cwd=tmp, timeout=600)
+            proc = run_process(LaunchSpec(robots=robots, configs=configs, trajectory_seed=seed, seed=seed, localizer=localizer, standby=True,
+                                          kill_coordinator=step, motion_time=0.1, no_record=True, out=tmp, json=True), timeout=600, cwd=tmp)
         summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
         summaries.append(summary)
         identical += summary["returncode"] == 0 and _same_table(summary, ref)
@@ -202,11 +202,10 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
         listener = subscribe(hub_session, run_wildcard(run_id), fuzzer.on_heard)
         watcher = subscribe(hub_session, robot_wildcard(run_id, "cmd"), lambda *_: started.set())
         try:
-            agents = list(start_agents(traj, run_id, hub, seed, 0.3, (), procs, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
-            coordinator = subprocess.Popen(
-                [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--method={method}",
-                 f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", "--json"],
-                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+            agents = list(start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=seed, motion_time=0.3), procs,
+                                       stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+            coordinator = Spawned(CoordinatorSpec(trajectory=str(traj_file), method=method, run_id=run_id, hub=hub, seed=seed, no_record=True,
+                                                  json=True), stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
             procs.append(coordinator)
             started.wait(timeout=60)
             progress = Progress(count, "fuzz")
@@ -259,6 +258,8 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say = say or (lambda _text: None)
     if o.seeds < 1 or o.fuzz < 0:
         raise SwarmInputError(f"--seeds must be >= 1 and --fuzz >= 0, got {o.seeds} and {o.fuzz}")
+    if o.flood < 1 or not 1.0 <= o.flood_s <= 3600.0:
+        raise SwarmInputError(f"--flood must be >= 1 and --flood-s between 1 and 3600, got {o.flood} and {o.flood_s:g}")
     _say(f"gateway: {len(o.gateway_rows)} radio-fault rows over {o.seeds} seeds (each against its fault-free run)")
     rows = gateway_fault_rows(o.gateway_rows, range(o.seeds)) if o.gateway_rows else []
     for row in rows:
@@ -275,8 +276,9 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
     _say(f"coordinator, joint localizer: swarm launch -n 10 --localizer joint --standby --kill-coordinator STEP over {o.seeds} seeds")
     coord_joint = {k: v for k, v in coordinator_takeover(o.seeds, localizer="joint").items() if k != "summaries"}
     _say(json.dumps(coord_joint))
-    _say(f"estop under flood: {o.flood} idle TCP connections on the TLS router, then swarm estop's new session")
-    flood = estop_under_flood(connections=o.flood)
+    _say(f"estop under flood: {o.flood} idle TCP connections held on the TLS router's public listener for {o.flood_s:g} s, "
+         f"a stop a second through its operator listener during the flood and {min(o.flood_s, 60.0):g} s after it")
+    flood = estop_under_flood(connections=o.flood, duration_s=o.flood_s, say=_say)
     _say(json.dumps(flood))
     _say("forged link requests: a gateway run (links apart) while the gateway identity forges LinkRequests, and after it")
     forged = forged_link_requests()

@@ -28,6 +28,8 @@ from pathlib import Path
 
 from inchworm.output import last_json
 from inchworm.progress import Progress
+from inchworm.spawn import run_process
+from inchworm.specs import LaunchSpec
 
 RUN_TIMEOUT_S = 300.0  # one whole launch (busy machine); a run that takes longer counts as not completed
 
@@ -39,11 +41,10 @@ def launch_gateway(seed: int, out: Path, drop: float = 0.0, corrupt: float = 0.0
     failed, the most motions any robot executed in one step)."""
     out.mkdir(parents=True, exist_ok=True)
     events = out / "events.jsonl"
-    cmd = [sys.executable, "-m", "swarm_cli.main", "launch", "--driver=gateway", f"--robots={robots}", f"--configs={configs}",
-           f"--seed={seed}", f"--run=faults-{seed}", f"--drop={drop!r}", f"--corrupt={corrupt!r}", f"--delay={delay!r}",
-           f"--emulator-events={events}", f"--out={out}", "--no-record", "--json"]
+    spec = LaunchSpec(driver="gateway", robots=robots, configs=configs, trajectory_seed=seed, seed=seed, run_id=f"faults-{seed}", drop=drop,
+                      corrupt=corrupt, delay=delay, emulator_events=str(events), out=str(out), no_record=True, json=True)
     try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S, cwd=out)
+        proc = run_process(spec, timeout=RUN_TIMEOUT_S, cwd=out)
     except subprocess.TimeoutExpired:
         return None, executions_per_step(events)
     (out / "stderr.txt").write_text(proc.stderr)

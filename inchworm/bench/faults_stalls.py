@@ -20,11 +20,14 @@ import tempfile
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from inchworm.output import last_json
 from inchworm.processes import start_agents, stop_all
 from inchworm.progress import Progress
+from inchworm.spawn import Spawned, run_process
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, LaunchSpec
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.keys import robot_wildcard, truth_key
@@ -68,11 +71,10 @@ def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
         subs = [subscribe(session, robot_wildcard(run_id, "cmd"), on_command),
                 subscribe(session, truth_key(run_id, VICTIM), lambda key, payload: truth.update({0: decode(payload, TruthMessage).pose}))]
         try:
-            agents = start_agents(traj, run_id, hub, seed, 0.3, (), procs, stderr=subprocess.DEVNULL)
-            coordinator = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", "--method=ref57",
-                                            f"--run={run_id}", f"--hub={hub}", f"--seed={seed}", "--no-record", f"--out={tmp}",
-                                            f"--result={tmp / 'result.json'}"],
-                                           stdout=subprocess.DEVNULL, stderr=log, cwd=tmp)
+            agent = AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=seed, motion_time=0.3)
+            agents = start_agents(traj, agent, procs, stderr=subprocess.DEVNULL)
+            coordinator = Spawned(CoordinatorSpec(trajectory=str(traj_file), method="ref57", run_id=run_id, hub=hub, seed=seed, no_record=True,
+                                                  out=str(tmp), result=str(tmp / "result.json")), stdout=subprocess.DEVNULL, stderr=log, cwd=tmp)
             procs.append(coordinator)
             if not _wait_step(steps, KILL_STEP, coordinator):
                 return False
@@ -81,9 +83,8 @@ def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
             if not _wait_step(steps, RESTART_STEP, coordinator):
                 return False
             x, y, heading = truth[0]
-            procs.append(subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", f"--id={VICTIM}", f"--ids={','.join(map(str, traj.ids))}",
-                                           f"--pose={x!r},{y!r},{heading!r}", "--motion-time=0.3", f"--run={run_id}", f"--hub={hub}",
-                                           f"--seed={seed}"], stderr=subprocess.DEVNULL))
+            procs.append(Spawned(msgspec.structs.replace(agent, robots=(VICTIM,), run_robots=tuple(int(i) for i in traj.ids), pose=(x, y, heading)),
+                                 stderr=subprocess.DEVNULL))
             coordinator.wait(timeout=300)
         finally:
             for sub in subs:
@@ -116,10 +117,9 @@ def coordinator_stall(runs: int, robots: int = 10, configs: int = 3, stall_s: fl
         traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))  # as launch draws it
         step = int(np.random.default_rng([seed, 43]).integers(1, len(simulate(traj, "inchworm", ModelConfig(), seed=seed).steps) + 1))
         with tempfile.TemporaryDirectory(prefix="bench-faults-") as tmp:
-            proc = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.main", "launch", f"-n={robots}", f"--configs={configs}", f"--seed={seed}",
-                 "--standby", f"--stall-coordinator={step}:{stall_s!r}", "--motion-time=0.1", "--no-record", f"--out={tmp}", "--json"],
-                capture_output=True, text=True, cwd=tmp, timeout=600)
+            proc = run_process(LaunchSpec(robots=robots, configs=configs, trajectory_seed=seed, seed=seed, standby=True,
+                                          stall_coordinator=(step, stall_s), motion_time=0.1, no_record=True, out=tmp, json=True),
+                               timeout=600, cwd=tmp)
         summary = last_json(proc.stdout) or {}
         completed += proc.returncode == 0 and len(summary.get("configs", [])) == configs and summary.get("lost") == []
         progress(seed + 1)

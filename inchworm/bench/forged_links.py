@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 import tempfile
 import threading
 import time
@@ -26,7 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
-from inchworm.processes import default_gateway, model_flags, start_agents, start_gateway, stop_all
+from inchworm.processes import default_gateway, start_agents, start_gateway, stop_all
+from inchworm.spawn import Spawned
+from inchworm.specs import AgentHostSpec, CoordinatorSpec, EmulatorSpec
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.keys import robot_key, robot_wildcard
@@ -113,16 +114,16 @@ def forged_link_requests(robots: int = 5, configs: int = 2, seed: int = 0) -> di
         folder = Path(tmp)
         traj_file, events = folder / "trajectory.json", folder / "events.jsonl"
         traj.save(traj_file)
-        model = model_flags(ModelConfig())
         forger = Forger(session, run_id)
         try:
-            live = start_gateway(traj_file, default_gateway(traj), folder, run_id, hub, seed, 0.0, model, procs, events,
-                                 stderr=subprocess.DEVNULL)  # the emulator's stdout is taken already
-            start_agents(traj, run_id, hub, seed, 0.0, [*model, "--driver=gateway", f"--gateway-config={live}"], procs,
+            emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=seed, events=str(events), hub=hub, run_id=run_id)
+            live = start_gateway(default_gateway(traj), folder, emulator, procs, stderr=subprocess.DEVNULL)  # its stdout is taken already
+            start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=seed, driver="gateway", gateway_config=str(live)), procs,
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            coordinator = subprocess.run(
-                [sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={traj_file}", f"--run={run_id}", f"--hub={hub}",
-                 f"--seed={seed}", f"--out={folder}", "--no-record", *model], capture_output=True, text=True, timeout=300)
+            coordinator = Spawned(CoordinatorSpec(trajectory=str(traj_file), run_id=run_id, hub=hub, seed=seed, out=str(folder), no_record=True),
+                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            procs.append(coordinator)
+            coordinator.wait(timeout=300)
             end_ns = time.time_ns()
             forger.after_run()
             time.sleep(SETTLE_S)

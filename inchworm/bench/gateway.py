@@ -81,6 +81,7 @@ def codec_frames_per_s(count: int) -> float:
 def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
     """COMMAND -> DONE times (ms) through a ``swarm emulate-robots`` process on a pty."""
     from inchworm.processes import start_emulator, stop_all  # noqa: PLC0415
+    from inchworm.specs import EmulatorSpec  # noqa: PLC0415
     from runtime.gateway.frames import Frame, FrameDecoder, FrameType, MotionBody, encode_frame  # noqa: PLC0415
     with tempfile.TemporaryDirectory(prefix="swarm-bench-gw-") as tmp:
         folder = Path(tmp)
@@ -89,7 +90,8 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
         GatewayConfig((Port("radio0", "emulated", tuple(int(i) for i in traj.ids)),)).save(folder / "gateway.json")
         procs: list[subprocess.Popen] = []
         try:
-            live = start_emulator(folder / "gateway.json", folder / "trajectory.json", folder / "live.json", [f"--seed={seed}"], procs)
+            live = start_emulator(EmulatorSpec(config=str(folder / "gateway.json"), trajectory=str(folder / "trajectory.json"), seed=seed,
+                                               write_config=str(folder / "live.json")), procs)
             port = GatewayConfig.load(live).ports[0]
             link = SerialLink(port.device, port.baud)
             robot = port.robots[0]

@@ -53,10 +53,11 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import msgspec
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmInputError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
@@ -191,11 +192,12 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     """
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
     from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import FixedPlanStrategy, make_strategy  # noqa: PLC0415
-    from coordinator.zenoh_backend import AgentError, Timeouts, ZenohSwarmBackend  # noqa: PLC0415
-    from inchworm.processes import agents_per_process, default_gateway, model_flags, start_agents, start_gateway, start_port_hosts, stop_all  # noqa: PLC0415
+    from inchworm.processes import agents_per_process, default_gateway, start_agents, start_gateway, start_port_hosts, stop_all  # noqa: PLC0415
+    from inchworm.specs import AgentHostSpec, EmulatorSpec  # noqa: PLC0415
     from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, round_trip_ms  # noqa: PLC0415
     cfg = args.model
     strategy = make_strategy(args.method, n, cfg, make_localizer(args.localizer, cfg), SelectionConfig(), args.seed)
@@ -204,7 +206,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     configs = math.ceil(args.steps / per_config)
     traj = random_trajectory(n, configs, np.random.default_rng([args.seed, n]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     per_process = agents_per_process(n, args.agents_per_process)
-    gateway = default_gateway(traj) if driver == "gateway" else None
+    gateway = default_gateway(traj, robot_radius=cfg.robot_radius_m) if driver == "gateway" else None
     port_hosts = gateway is not None and args.agents_per_process is None
     if gateway is not None and port_hosts:
         per_process = max(len(p.robots) for p in gateway.ports)
@@ -217,19 +219,18 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
         with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="swarm-bench-") as tmp:
             t0 = time.monotonic()
             _say(f"{n} agents ({driver} driver, {per_process} per process): starting (run {run_id}, hub {hub})")
-            model = model_flags(cfg)
-            extra = list(model)
+            agent = AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=args.seed, model=cfg)
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
             if gateway is not None:
-                live = start_gateway(traj_file, gateway, Path(tmp), run_id, hub, args.seed, 0.0, model, procs,
-                                     links=not port_hosts)
-                extra += ["--driver=gateway", f"--gateway-config={live}"]
+                emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=args.seed, model=cfg, hub=hub, run_id=run_id)
+                live = start_gateway(gateway, Path(tmp), emulator, procs, links=not port_hosts)
+                agent = msgspec.structs.replace(agent, driver="gateway", gateway_config=str(live))
             first_agent = len(procs)
             if port_hosts:
-                hosts = start_port_hosts(traj, live, run_id, hub, args.seed, 0.0, extra, procs, traj_file, stdout=subprocess.DEVNULL)
+                hosts = start_port_hosts(traj, live, agent, procs, traj_file, stdout=subprocess.DEVNULL)
             else:
-                start_agents(traj, run_id, hub, args.seed, 0.0, extra, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
+                start_agents(traj, agent, procs, per_process, traj_file, stdout=subprocess.DEVNULL)
                 hosts = {int(r): procs[first_agent + k // per_process] for k, r in enumerate(traj.ids)}
             with open_session(member) as session:
                 backend = ZenohSwarmBackend(session, run_id, traj.ids.tolist(), Timeouts(args.start_timeout_s, args.step_timeout_s),
@@ -259,7 +260,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
         stop_all(procs[:emulators])
     left = [p.pid for p in procs if p.poll() is None]
     if left:
-        raise RuntimeError(f"agent processes {left} are still running")
+        raise SwarmRunError(f"agent processes {left} are still running")
     step_ms = [s * 1e3 for s in timer.seconds]
     steps = len(timed.execute_s)  # every step run (CPU includes the planning between configurations)
     cpu = {"agents": round((cpu_after[0] - cpu_before[0]) * 1e3 / steps, 3), "coordinator": round((cpu_after[1] - cpu_before[1]) * 1e3 / steps, 3)}
@@ -275,7 +276,7 @@ def _p90(values: list[float]) -> float:
 
 def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> BenchResult:
     """Time the steps of a distributed run per swarm size; ``AgentError`` if agents did not come up or died."""
-    from coordinator.zenoh_backend import AgentError  # noqa: PLC0415
+    from coordinator.node.zenoh_backend import AgentError  # noqa: PLC0415
 
     args = options
     sizes = list(args.agents)

@@ -49,7 +49,6 @@ def _timed_compare(kind: str, workers: int, options: CompareOptions) -> tuple[fl
 def bench_studies(options: StudiesBenchOptions = StudiesBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
     """Run the compare of ``options`` on every executor with each number of workers; ``say`` is told each as it starts."""
     o = options
-    o.compare.validate()
     importlib.import_module("coordinator.simulate")  # the local pool forks this process: its imports before the clock
     runs = len(o.compare.tasks())
     measured: list[tuple[str, int, float, list[Row]]] = []

@@ -34,6 +34,7 @@ from inchworm.seeding import trajectory_rng
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import body_spacing, random_trajectory
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a study runs
     from matplotlib.axes import Axes
@@ -342,11 +343,11 @@ class AnchorsOptions:
     model: ModelConfig = field(default_factory=ModelConfig)
     localizer: str = "paper"
 
-    def validate(self) -> None:
-        check_at_least("robots", self.robots, 3)
-        check_at_least("experiments", self.experiments, 1)
-        check_at_least("samples", self.samples, 1)
-        check_localizers((self.localizer,), "localizer")
+    def __post_init__(self) -> None:
+        check_at_least(self, "robots", 3)
+        check_at_least(self, "experiments", 1)
+        check_at_least(self, "samples", 1)
+        check_localizers(self, "localizer")
 
     def note(self) -> str | None:
         """Why Fig. 5 is skipped, if it is."""
@@ -408,7 +409,7 @@ class AnchorsResult:
         title(ax, f"Heuristic vs random anchors, n_a = {self.summary['choice_n_anchors']} of n_r = {self.options.robots}")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """fig4.png, fig5.png (when part 2 ran) and appendix_a.png in ``out`` (experiments.csv is written as experiments finish)."""
         out = Path(out)
         n, n_a, k = self.options.robots, self.summary["choice_n_anchors"], len(self.rows)
@@ -423,12 +424,11 @@ def study_anchors(
     options: AnchorsOptions = AnchorsOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> AnchorsResult:
     """Fig. 4, Fig. 5 and Appendix A; with ``out`` each experiment is kept in ``out/experiments.jsonl`` and ``.csv`` as it finishes."""
-    options.validate()
     log = StudyLog(out, "experiments", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_experiment, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -22,12 +22,13 @@ from typing import Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from inchworm.comparison import REFERENCE, RunTask, check_methods, run_one, summarise
+from inchworm.comparison import METHODS, REFERENCE, RunTask, run_one, summarise
 from inchworm.noise import scaled
-from inchworm.options import RunOptions, check_localizers, options_dict
+from inchworm.options import RunOptions, check_among, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
+from runtime.paths import StrPath
 
 PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
 CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED + t
@@ -50,18 +51,20 @@ class CalibrationOptions:
     methods: tuple[str, ...] = ("inchworm", "inchworm-equal-speed", "ref57")
     run: RunOptions = field(default_factory=RunOptions)
 
-    def validate(self) -> None:
-        check_methods(self.methods)
-        check_localizers(self.localizers)
+    def __post_init__(self) -> None:
+        check_among(self, "methods", METHODS)
+        check_localizers(self)
         if REFERENCE not in self.methods:
-            raise SwarmInputError(f"--methods must include {REFERENCE} (the ratios are against it)")
-        if min(self.trajectories, self.configs, self.calibration_trajectories, self.iterations) < 1 or self.target <= 0 or self.max_motion_scale <= 1:
-            raise SwarmInputError("--trajectories, --configs, --calibration-trajectories, --iterations must be >= 1, "
-                                  "--target > 0, --max-motion-scale > 1")
-        if not self.seeds or not self.sensing_scales or min(self.sensing_scales) < 0 or min(self.seeds) < 0:
-            raise SwarmInputError("--seeds and --sensing-scales must list numbers >= 0")
-        if self.robots < 2:
-            raise SwarmInputError(f"--robots must be >= 2, got {self.robots}")
+            raise OptionError("methods", f"must include {REFERENCE} (the ratios are against it)", self)
+        for name in ("trajectories", "configs", "calibration_trajectories", "iterations"):
+            check_at_least(self, name, 1)
+        if not self.target > 0:
+            raise OptionError("target", f"must be > 0, got {self.target}", self)
+        if not self.max_motion_scale > 1:
+            raise OptionError("max_motion_scale", f"must be > 1, got {self.max_motion_scale}", self)
+        check_numbers(self, "seeds")
+        check_numbers(self, "sensing_scales")
+        check_at_least(self, "robots", 2)
 
 
 @dataclass
@@ -192,7 +195,7 @@ class CalibrationResult:
         title(ax, "P_f at the calibrated noise (bars: 97 % CI of the mean, t, clipped at 0)")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``calibration.png``: the pooled P_f of every method at each calibrated setting."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
@@ -204,13 +207,12 @@ def study_calibration(
     options: CalibrationOptions = CalibrationOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> CalibrationResult:
     """Calibrate, then compare at the calibrated noise; with ``out`` every run is kept in ``out/runs.jsonl`` (calibration runs too)
     and the comparison runs in ``out/runs.csv`` as they finish."""
-    options.validate()
     o = options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = _Runs(executor, log, progress, total=len(o.localizers) * len(o.sensing_scales) * len(o.seeds) * o.trajectories * len(o.methods))

@@ -21,12 +21,12 @@ import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.noise import scaled
-from inchworm.options import check_at_least, check_localizers, default_selection, options_dict
+from inchworm.options import check_among, check_at_least, check_localizers, check_numbers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
-from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -53,19 +53,16 @@ class ConsistencyOptions:
     motion_scales: tuple[float, ...] = (1.0,)
     sensing_scales: tuple[float, ...] = (1.0,)
 
-    def validate(self) -> None:
-        from coordinator.strategies import METHODS as ALL_METHODS  # noqa: PLC0415
+    def __post_init__(self) -> None:
+        from coordinator.strategies import METHODS  # noqa: PLC0415
 
-        check_localizers(self.localizers)
-        bad = [m for m in self.methods if m not in ALL_METHODS]
-        if not self.methods or bad:
-            raise SwarmInputError(f"--methods: unknown {bad or list(self.methods)}; choose from {', '.join(ALL_METHODS)}")
-        check_at_least("robots", self.robots, 2)
-        check_at_least("configs", self.configs, 1)
-        check_at_least("trajectories", self.trajectories, 1)
-        for flag, values in (("motion-scales", self.motion_scales), ("sensing-scales", self.sensing_scales)):
-            if not values or min(values) < 0 or not all(math.isfinite(v) for v in values):
-                raise SwarmInputError(f"--{flag} must list numbers >= 0, got {list(values)}")
+        check_localizers(self)
+        check_among(self, "methods", METHODS)
+        check_at_least(self, "robots", 2)
+        check_at_least(self, "configs", 1)
+        check_at_least(self, "trajectories", 1)
+        check_numbers(self, "motion_scales")
+        check_numbers(self, "sensing_scales")
 
     def settings(self) -> list[tuple[float, float]]:
         """(motion scale, sensing scale) of every noise setting."""
@@ -187,7 +184,7 @@ class ConsistencyResult:
         title(ax, f"{loc} localizer")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``consistency.png``: one panel per localizer."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -205,14 +202,13 @@ def study_consistency(
     options: ConsistencyOptions = ConsistencyOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> ConsistencyResult:
     """NEES / 2 of every (localizer, method); with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
     from coordinator.consistency import chi2_band  # noqa: PLC0415
 
-    options.validate()
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = run_tasks(run_task, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

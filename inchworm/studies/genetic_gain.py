@@ -24,8 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from inchworm.options import RunOptions, check_at_least
 
 BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation samples
 
@@ -38,9 +37,10 @@ class GeneticGainOptions:
     seed: int = 0
     run: RunOptions = field(default_factory=RunOptions)
 
-    def validate(self) -> None:
-        if self.robots < 3 or self.configs < 1 or self.eval_samples < 2:
-            raise SwarmInputError("--robots must be >= 3, --configs >= 1 and --eval-samples >= 2")
+    def __post_init__(self) -> None:
+        check_at_least(self, "robots", 3)
+        check_at_least(self, "configs", 1)
+        check_at_least(self, "eval_samples", 2)
 
 
 @dataclass
@@ -126,7 +126,6 @@ def gain_rows(options: GeneticGainOptions, config: int) -> list[dict[str, Any]]:
 
 def study_genetic_gain(options: GeneticGainOptions, say: Callable[[str], None] | None = None) -> GeneticGainResult:
     """Every configuration's rows (serial; ``say`` is told each configuration as it starts)."""
-    options.validate()
     rows = []
     for c in range(options.configs):
         if say:

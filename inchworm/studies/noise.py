@@ -19,9 +19,9 @@ import numpy as np
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.comparison import RunTask, anchors_along, contact_stats, run_one
 from inchworm.noise import scaled
-from inchworm.options import RunOptions, check_at_least, check_localizers, options_dict
+from inchworm.options import RunOptions, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
-from runtime.errors import SwarmInputError
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -42,14 +42,13 @@ class NoiseOptions:
     seed: int = 0
     run: RunOptions = field(default_factory=RunOptions)
 
-    def validate(self) -> None:
-        check_localizers(self.localizers)
-        for flag, values in (("motion-scales", self.motion_scales), ("sensing-scales", self.sensing_scales)):
-            if not values or min(values) < 0:
-                raise SwarmInputError(f"--{flag} must list numbers >= 0, got {values}")
-        check_at_least("robots", self.robots, 2)
-        check_at_least("trajectories", self.trajectories, 1)
-        check_at_least("configs", self.configs, 1)
+    def __post_init__(self) -> None:
+        check_localizers(self)
+        check_numbers(self, "motion_scales")
+        check_numbers(self, "sensing_scales")
+        check_at_least(self, "robots", 2)
+        check_at_least(self, "trajectories", 1)
+        check_at_least(self, "configs", 1)
 
     def settings(self) -> list[tuple[str, float, float]]:
         return [(loc, ms, ss) for loc in self.localizers for ms in self.motion_scales for ss in self.sensing_scales]
@@ -109,7 +108,7 @@ class NoiseResult:
         title(ax, f"{loc}: " + ("P_f inchworm / ref57 (< 1: inchworm better)" if ratio else "n_a chosen by inchworm"))
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``noise.png``: per localizer the chosen n_a and the P_f ratio."""
         out = Path(out)
         from inchworm.plots import save_figure  # noqa: PLC0415
@@ -146,12 +145,11 @@ def study_noise(
     options: NoiseOptions = NoiseOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:
     """Run the sweep; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
-    options.validate()
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -33,10 +33,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from inchworm.options import RunOptions, check_localizers, options_dict
+from inchworm.options import RunOptions, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a study runs
     from matplotlib.axes import Axes
@@ -196,11 +197,11 @@ def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, in
 def read_rows(path: Path) -> list[dict]:
     """The rows of a study's ``configs.csv`` (numbers back as numbers, empty cells dropped)."""
     if not path.exists():
-        raise SwarmInputError(f"--from-csv: no such file {path}")
+        raise OptionError("from_csv", f": no such file {path}")
     with open(path, newline="") as f:
         rows = [{k: (int(v) if k in INT_COLUMNS else float(v)) for k, v in r.items() if v != ""} for r in csv.DictReader(f)]
     if not rows:
-        raise SwarmInputError(f"--from-csv: {path} has no rows")
+        raise OptionError("from_csv", f": {path} has no rows")
     return rows
 
 
@@ -217,12 +218,11 @@ class SelectionStudyOptions:
     run: RunOptions = field(default_factory=RunOptions)
     optimum: bool = True  # False: skip the exhaustive enumeration (the search against the heuristic only)
 
-    def validate(self) -> None:
-        if self.robots < 3 or self.configs < 1:
-            raise SwarmInputError("--robots must be >= 3 and --configs >= 1")
-        if min(self.screen_samples, self.pick_samples, self.eval_samples) < 1:
-            raise SwarmInputError("--screen-samples, --pick-samples and --eval-samples must be >= 1")
-        check_localizers((self.run.localizer,), "localizer")
+    def __post_init__(self) -> None:
+        check_at_least(self, "robots", 3)
+        check_at_least(self, "configs", 1)
+        for name in ("screen_samples", "pick_samples", "eval_samples"):
+            check_at_least(self, name, 1)
 
     def budget(self) -> Budget:
         return Budget(self.screen_samples, self.pick_samples, self.eval_samples)
@@ -291,7 +291,7 @@ class SelectionStudyResult:
         title(ax, f"Anchor plans against the exhaustive optimum, n_r = {self.options.robots}")
         return ax
 
-    def save(self, out: str | Path) -> list[Path]:
+    def save(self, out: StrPath) -> list[Path]:
         """``selection.png``: the plans against the optimum (when an anchor count was enumerated)."""
         from inchworm.plots import save_figure  # noqa: PLC0415
 
@@ -303,12 +303,11 @@ def study_selection(
     options: SelectionStudyOptions = SelectionStudyOptions(),
     *,
     executor: Executor | None = None,
-    out: str | Path | None = None,
+    out: StrPath | None = None,
     resume: bool = False,
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:
     """Run the study; with ``out`` every configuration is kept in ``out/configs.jsonl`` and ``out/configs.csv`` as it finishes."""
-    options.validate()
     log = StudyLog(out, "configs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_config, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

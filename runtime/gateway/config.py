@@ -69,7 +69,7 @@ class Calibration:
         return math.remainder(bearing_rad - self.bearing_offset_rad, 2 * math.pi)
 
 
-STEP_TIMEOUT_S = 5.0  # the coordinator's default --step-timeout (coordinator.zenoh_backend.Timeouts.step_s)
+STEP_TIMEOUT_S = 5.0  # the coordinator's default --step-timeout (coordinator.node.zenoh_backend.Timeouts.step_s)
 DRIVER_MARGIN_S = 0.2  # the agent re-sends a request the link said nothing about for retry_budget_s + this
 
 
@@ -210,7 +210,7 @@ class _Parser:
     def fail(self, where: str, problem: str) -> SwarmInputError:
         return SwarmInputError(f"gateway config {self.source}: {where}: {problem}")
 
-    def obj(self, value: Any, where: str, allowed: set[str], required: AbstractSet[str] = frozenset()) -> dict:
+    def obj(self, value: Any, where: str, allowed: set[str], required: AbstractSet[str] = frozenset()) -> dict[str, Any]:
         if not isinstance(value, dict):
             raise self.fail(where, f"must be an object, got {type(value).__name__}")
         unknown = sorted(set(value) - allowed)

@@ -24,7 +24,9 @@ import enum
 import math
 import struct
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
+
+from runtime.errors import SwarmInputError
 
 START = 0xA5
 HEADER = struct.Struct("<BBHHB")  # START, LEN, ROBOT, SEQ, TYPE
@@ -39,7 +41,7 @@ F32_MAX = 3.4028234663852886e38  # the largest finite float32
 QUIET_S = 0.020  # a partial frame is given up after the line was quiet this long (s)
 
 
-class FrameError(ValueError):
+class FrameError(SwarmInputError):
     """A frame or body that cannot be built or parsed; the text says which field and why."""
 
 
@@ -270,7 +272,7 @@ def _exact(payload: bytes, size: int, cls: type) -> None:
         raise FrameError(f"{cls.__name__}: payload of {len(payload)} bytes, expected {size}")
 
 
-def _unpack(cls, payload: bytes) -> tuple:
+def _unpack(cls: type[Body], payload: bytes) -> tuple[Any, ...]:
     _exact(payload, cls.FORMAT.size, cls)
     return cls.FORMAT.unpack(payload)
 

@@ -8,22 +8,22 @@ stay still. Two robots' relative position is then linear in s and their closest 
 over the step is the distance from the origin to a segment (closed form, vectorised over
 all pairs). R = 0 is the paper's point robots: no clearance is checked.
 
-Planned steps (``BodyCheck``, constraint g of Eq. 4) must keep every pair with a mover at
-least 2R + margin apart. The margin covers the error between the plan and the true motion,
-from the model: robot i's position error along its worst direction at the end of a path of
-length L has standard deviation
-sigma_i = sqrt(lambda_i + L^2 max(turn_sigma^2 + heading_var_i, drive_sigma_frac^2)),
-lambda_i the largest eigenvalue of its estimated position covariance and heading_var_i its
-estimated heading variance (a still robot: L = 0); the margin of a pair is
-``CLEARANCE_SIGMAS`` x sqrt(sigma_i^2 + sigma_j^2). Where the configurations themselves put
-a pair closer than 2R + margin (at the start or at the end of the change), no plan can do
-better: the pair may then come no more than one sigma closer than that distance during a
-step (never below 2R), so slight bends of nearly parallel paths pass and crossings do not.
+Planned steps (``BodyCheck``, constraint g of Eq. 4) keep a chance constraint: the probability that a pair
+with a mover touches during a step (at any time of it, continuously along the turn-then-drive motion) is at
+most ``CONTACT_BOUND`` (1e-3) per pair and step. The probability is bounded from above
+(``runtime.models.contact_risk``) from the predicted distribution of both robots over the motion: the estimate's
+covariance at the start (and the joint covariance's cross terms when known) plus the exact growth of
+turn-then-drive (``runtime.models.motion.motion_moments``); robots moved by earlier steps of the plan stand at
+their predicted arrival with its covariance. Where the configurations themselves put a pair at risk p (both
+standing at the start, or both arrived at the end: no order changes that), the pair may reach
+``FLOOR_FACTOR`` x p. Where no order keeps the bound, the bound of the robots it leaves unclear is raised
+through ``BOUND_LEVELS``, and robots no order keeps within the highest move one at a time.
 """
 
 from __future__ import annotations
 
 import copy
+import functools
 import heapq
 from collections import deque
 from dataclasses import dataclass
@@ -33,16 +33,17 @@ import numpy as np
 
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.models.contact_risk import MotionMoments, instant_bound, step_bound
 from runtime.models.state import SwarmEstimate
 
-if TYPE_CHECKING:  # trajectory.py imports this module
+if TYPE_CHECKING:
     from scipy.spatial import cKDTree
 
-    from runtime.models.trajectory import Trajectory
 
-CLEARANCE_SIGMAS = 2.0  # k of the margin k x sqrt(sigma_i^2 + sigma_j^2)
-SIGMA_LEVELS = (2.0, 1.0, 0.0)  # margins tried in turn when no order clears a change with the larger one
-TOLERANCE_M = 1e-9  # closest approaches within this of the requirement are not conflicts (rounding)
+CONTACT_BOUND = 1e-3  # the chance constraint: P(contact) of a pair during a step at most this
+BOUND_LEVELS = (1e-3, 1e-2, 1e-1)  # bounds tried in turn for the robots no order keeps within the lower one
+FLOOR_FACTOR = 2.0  # a pair the configurations themselves put at risk p (standing at the start or the end) may reach 2 p
+TOLERANCE = 1e-9  # relative: bounds within this of the allowed one are not conflicts (rounding)
 
 
 def closest_time(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
@@ -105,16 +106,22 @@ class Contact:
 
 
 def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, radius: float) -> list[Contact]:
-    """Pairs (a < b) with a mover whose centres came closer than 2 ``radius`` during the step from
-    ``before`` to ``after`` (n, >= 2) under the timing model; still robots' rows are not read from ``after``."""
+    """Pairs (a < b) whose centres came closer than 2 ``radius`` during the step from ``before`` to ``after``
+    (n, >= 2) under the timing model: pairs with a mover over the whole motion, and pairs of still robots that
+    stand closer than that (left touching by an earlier step, or pushed there); still robots' rows are not read
+    from ``after``."""
     if radius <= 0:
         return []
     start = np.asarray(before, float)[:, :2]
     end = np.where(np.asarray(moving)[:, None], np.asarray(after, float)[:, :2], start)
     moving = np.asarray(moving, bool)
-    movers = np.flatnonzero(moving)
+    movers, still = np.flatnonzero(moving), np.flatnonzero(~moving)
+    touching = overlapping_pairs(start[still], radius)
+    out = [Contact(int(still[p]), int(still[q]), float(np.hypot(*(start[still[p]] - start[still[q]]))),
+                   (float((start[still[p], 0] + start[still[q], 0]) / 2.0), float((start[still[p], 1] + start[still[q], 1]) / 2.0)))
+           for p, q in touching.tolist()]
     if not len(movers):
-        return []
+        return sorted(out, key=lambda c: (c.a, c.b))
     disp = end - start
     if len(start) < INDEX_MIN:
         i, j = all_pairs(movers, len(start))
@@ -128,144 +135,170 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
     i, j, d = i[hit], j[hit], d[hit]
     s = closest_time(start[i] - start[j], disp[i] - disp[j])[:, None]
     mid = (start[i] + start[j] + s * (disp[i] + disp[j])) / 2.0
-    out = [Contact(int(min(a, b)), int(max(a, b)), float(x), (float(m[0]), float(m[1])))
-           for a, b, x, m in zip(i, j, d, mid, strict=True)]
+    out += [Contact(int(min(a, b)), int(max(a, b)), float(x), (float(m[0]), float(m[1])))
+            for a, b, x, m in zip(i, j, d, mid, strict=True)]
     return sorted(out, key=lambda c: (c.a, c.b))
+
+
+@functools.lru_cache(maxsize=16)
+def _reach(bound: float) -> float:
+    """z with 2 Phi(-z) = ``bound``."""
+    from scipy.special import ndtri  # noqa: PLC0415 - scipy only when checked (cheap parsers)
+
+    return float(-ndtri(bound / 2.0))
 
 
 @dataclass(frozen=True)
 class Conflict:
-    """A planned pair (robot indices) closer than required: ``closest`` m against ``required`` m."""
+    """A planned pair (robot indices) at too much risk: contact ``probability`` (the bound of ``contact_risk``) above
+    the ``allowed`` one; ``closest``: the closest approach of their mean positions in the step (m)."""
 
     a: int
     b: int
     closest: float
-    required: float
+    probability: float
+    allowed: float
 
 
 class BodyCheck:
-    """Clearance of the steps of plans for one configuration change (``current`` -> ``desired``, (n, 2) m).
+    """The chance constraint on the steps of plans for one configuration change (``current`` -> ``desired``, (n, 2) m).
 
-    ``position_var`` (n,): the largest eigenvalue of each robot's position covariance (m^2);
-    ``heading_var`` (n,): its heading variance (rad^2). ``cfg.robot_radius_m`` = 0 checks nothing.
+    ``cov`` (n, 3, 3): each robot's pose covariance at the start (default: ``position_var`` m^2 on both axes and
+    ``heading_var`` rad^2, uncorrelated); ``joint`` (3n, 3n): the swarm's joint covariance for the cross terms (None:
+    robots uncorrelated). ``cfg.robot_radius_m`` = 0 checks nothing.
     """
 
     def __init__(self, cfg: ModelConfig, current: np.ndarray, desired: np.ndarray,
-                 position_var: np.ndarray | float = 0.0, heading_var: np.ndarray | float = 0.0) -> None:
+                 position_var: np.ndarray | float = 0.0, heading_var: np.ndarray | float = 0.0,
+                 cov: np.ndarray | None = None, joint: np.ndarray | None = None) -> None:
         self.radius = float(cfg.robot_radius_m)
         self.current = np.asarray(current, float)[:, :2]
         self.desired = np.asarray(desired, float)[:, :2]
         n = len(self.current)
-        self.sigmas = CLEARANCE_SIGMAS  # the margin in standard deviations (the largest, when ``levels`` are set)
-        self.levels: np.ndarray | None = None  # per robot, when margins differ (``with_levels``)
-        self.position_var = np.broadcast_to(np.asarray(position_var, float), (n,))
-        self.spread_rate = np.maximum(cfg.turn_sigma_rad**2 + np.broadcast_to(np.asarray(heading_var, float), (n,)),
-                                      cfg.drive_sigma_frac**2)
+        self.bound = CONTACT_BOUND  # the bound per pair and step (the highest, when ``levels`` are set)
+        self.levels: np.ndarray | None = None  # per robot, when bounds differ (``with_levels``)
+        if cov is None:
+            cov = np.zeros((n, 3, 3))
+            cov[:, 0, 0] = cov[:, 1, 1] = np.broadcast_to(np.asarray(position_var, float), (n,))
+            cov[:, 2, 2] = np.broadcast_to(np.asarray(heading_var, float), (n,))
+        self.moments = MotionMoments(cfg, self.current, self.desired, np.asarray(cov, float), joint)
+        self.arrival = self.current + self.moments.step  # each robot's mean position after its move
+        self.sd = self.moments.spread()
+        self.has_path = np.any(self.desired != self.current, axis=1)
         self._conflicts: dict[bytes, tuple[Conflict, ...]] = {}  # step_conflicts by (before, moving): plans share steps
-        self._trees: dict[bytes, tuple[cKDTree, np.ndarray]] = {}  # ``_index`` by positions
+        self._trees: dict[bytes, tuple[cKDTree, np.ndarray]] = {}  # ``_index`` by the robots moved
 
     @classmethod
     def of_estimate(cls, cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray) -> BodyCheck:
-        """The check for moving ``estimate`` to ``desired``, with its uncertainty."""
-        return cls(cfg, estimate.positions, desired, np.linalg.eigvalsh(estimate.cov[:, :2, :2])[:, -1], estimate.cov[:, 2, 2])
+        """The check for moving ``estimate`` to ``desired``, with its covariances (the joint one when known). The
+        anchor search, the study of its optimum and ``clear_plan`` all build their constraint here."""
+        return cls(cfg, estimate.positions, desired, cov=estimate.cov, joint=estimate.joint)
 
     @property
     def active(self) -> bool:
         return self.radius > 0
 
-    def _candidates(self, rows: np.ndarray, before: np.ndarray, disp: np.ndarray, var: np.ndarray,
-                    base: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """Pairs (i, j), i of ``rows`` driving ``disp``_i (its variance ``var``_i), j != i at ``base`` (default
-        ``before``) or on its way from there to its desired position, that may come too close, in (position of i
-        in ``rows``, j) order. Below ``INDEX_MIN`` robots every pair; from there the candidates of a k-d tree of
-        ``base``: a conflict needs |mid_i - base_j| < half_i + L_j + (R + k sd_i) + (R + k sd_j), since the
-        requirement is at most 2R + k (sd_i + sd_j) (``near_pairs``)."""
+    def _moved(self, before: np.ndarray) -> np.ndarray:
+        """(n,) the robots that stand at their desired positions in ``before`` (n, 2) having moved there."""
+        return self.has_path & np.all(np.asarray(before)[:, :2] == self.desired, axis=1)
+
+    def _reach_sigmas(self) -> float:
+        """z with 2 Phi(-z) = the strictest bound in use: a pair whose mean positions stay more than
+        2R + z (sd_i + sd_j) apart has a step bound below it (the whole step's interval, w along the closest approach)."""
+        low = self.bound if self.levels is None else float(self.levels.min())
+        return _reach(low)
+
+    def _candidates(self, rows: np.ndarray, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pairs (i, j), i of ``rows`` driving from its current position, j != i standing where ``moved`` puts it or
+        on its way from there to its arrival, that may be at risk, in (position of i in ``rows``, j) order. Below
+        ``INDEX_MIN`` robots every pair; from there the candidates of a k-d tree (``near_pairs``): a pair at risk
+        needs |mid_i - x_j| < half_i + L_j + (R + z sd_i) + (R + z sd_j) (``_reach_sigmas``)."""
         rows = np.asarray(rows, np.int64)
-        if len(before) < INDEX_MIN:
-            return all_pairs(rows, len(before))
-        tree, spread = self._index(before if base is None else base)
-        reach = np.hypot(*disp[rows].T) / 2.0 + self.radius + self.sigmas * np.sqrt(var[rows])
-        mid = np.zeros_like(before)
-        mid[rows] = before[rows] + disp[rows] / 2.0
-        full = np.zeros(len(before))
-        full[rows] = reach
-        return near_pairs(rows, mid, full, tree.data, spread, tree)
+        n = len(self.current)
+        if n < INDEX_MIN:
+            return all_pairs(rows, n)
+        tree, spread = self._index(moved)
+        z = self._reach_sigmas()
+        step = self.moments.step
+        mid = np.zeros_like(self.current)
+        mid[rows] = self.current[rows] + step[rows] / 2.0
+        reach = np.zeros(n)
+        reach[rows] = np.hypot(*step[rows].T) / 2.0 + self.radius + z * self.sd[rows]
+        return near_pairs(rows, mid, reach, tree.data, spread, tree)
 
-    def _verdict(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
-                 var_i: np.ndarray, var_j: np.ndarray) -> np.ndarray:
-        """Whether each pair (i, j) comes too close: relative position ``offset`` + s ``velocity`` (m), end-of-path
-        variances ``var_i``, ``var_j`` (m^2) against the requirement of the module docstring."""
-        return self._closeness(i, j, offset, velocity, var_i, var_j)[0]
-
-    def _closeness(self, i: np.ndarray, j: np.ndarray, offset: np.ndarray, velocity: np.ndarray,
-                   var_i: np.ndarray, var_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(too close, closest approach, requirement) of the pairs of ``_verdict``."""
-        closest = closest_approach(offset, velocity)
-        sigma = np.sqrt(var_i + var_j)
-        start = np.hypot(*(self.current[i] - self.current[j]).T)
-        end = np.hypot(*(self.desired[i] - self.desired[j]).T)
-        two_r = 2.0 * self.radius
-        k = self.sigmas if self.levels is None else np.minimum(self.levels[i], self.levels[j])  # a pair keeps its lower margin
-        floor = np.minimum(start, end) - np.minimum(k, 1.0) * sigma  # the configurations' own closeness, less one sigma
-        required = np.maximum(two_r, np.minimum(two_r + k * sigma, floor))
-        return closest < required - TOLERANCE_M, closest, required
-
-    def _motion(self, before: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(displacement (n, 2), end-of-path variance (n,)) of every robot when ``moving`` drive from ``before``."""
-        disp = np.where(moving[:, None], self.desired - before, 0.0)
-        return disp, self.position_var + np.einsum("nk,nk->n", disp, disp) * self.spread_rate
-
-    def _pairs(self, movers: np.ndarray, before: np.ndarray,
-               moving: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(i, j, too close, closest approach, requirement) of each of ``movers`` (i) with every robot j != i that
-        may come too close (``_candidates``), ``moving`` moving."""
-        disp, var = self._motion(before, moving)
-        i, j = self._candidates(movers, before, disp, var)
-        bad, closest, required = self._closeness(i, j, before[i] - before[j], disp[i] - disp[j], var[i], var[j])
-        return i, j, bad, closest, required
-
-    def _index(self, base: np.ndarray) -> tuple[cKDTree, np.ndarray]:
-        """A k-d tree of the positions ``base`` and each robot's spread there: its whole remaining path
-        (``base`` -> desired) plus its largest pad R + k sd (the sd of a drive of that path), in m."""
-        key = base.tobytes()
+    def _index(self, moved: np.ndarray) -> tuple[cKDTree, np.ndarray]:
+        """A k-d tree of the robots' mean positions (``moved``: at their arrival, else at their current position)
+        and each robot's spread there: its remaining path to its arrival plus its largest pad R + z sd, in m."""
+        key = moved.tobytes() + np.float64(self._reach_sigmas()).tobytes()
         found = self._trees.get(key)
         if found is None:
             from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only for large swarms
 
-            path2 = np.einsum("nk,nk->n", self.desired - base, self.desired - base)
-            spread = np.sqrt(path2) + self.radius + self.sigmas * np.sqrt(self.position_var + path2 * self.spread_rate)
+            base = np.where(moved[:, None], self.arrival, self.current)
+            spread = np.hypot(*(self.arrival - base).T) + self.radius + self._reach_sigmas() * self.sd
             if len(self._trees) >= 64:  # plans of a large swarm share few step configurations
                 self._trees.clear()
             found = self._trees[key] = (cKDTree(base), spread)
         return found
 
+    def _risk(self, i: np.ndarray, j: np.ndarray, fixed_j: np.ndarray,
+              moves_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(at risk, contact probability bound, allowed bound, closest mean approach m) of pairs (i, j): i drives its
+        move, j is at t = ``fixed_j`` + s ``moves_j`` (0/1 arrays; ``contact_risk``).
+
+        A pair's allowed bound is the bound of the check (or the higher of its robots' ``levels``), or more where the
+        configurations themselves put it at risk: ``FLOOR_FACTOR`` x the larger of its risk standing at the start
+        (both before their moves) and at the end (both after): no plan can do better than the configurations."""
+        ones, zeros = np.ones(len(i)), np.zeros(len(i))
+        mu0, v, s0, s1, s2 = self.moments.pairs(i, j, zeros, ones, fixed_j, moves_j)
+        allowed = np.full(len(i), self.bound) if self.levels is None else np.maximum(self.levels[i], self.levels[j])
+        p = step_bound(mu0, v, s0, s1, s2, 2.0 * self.radius, self.has_path[i] | ((moves_j > 0) & self.has_path[j]), allowed)
+        over = np.flatnonzero(p > allowed)
+        if len(over):  # the configurations' own risk, only where it could matter
+            oi, oj = i[over], j[over]
+            floor = np.zeros(len(over))
+            for t in (0.0, 1.0):
+                at = np.full(len(over), t)
+                m0, _, c0, _, _ = self.moments.pairs(oi, oj, at, zeros[over], at, zeros[over])
+                floor = np.maximum(floor, instant_bound(m0, c0, 2.0 * self.radius))
+            allowed[over] = np.maximum(allowed[over], np.minimum(FLOOR_FACTOR * floor, 1.0))
+        return p > allowed * (1.0 + TOLERANCE), p, allowed, closest_approach(mu0, v)
+
+    def _verdict(self, i: np.ndarray, j: np.ndarray, fixed_j: np.ndarray, moves_j: np.ndarray) -> np.ndarray:
+        """Whether each pair (i, j) of ``_risk`` is at too much risk."""
+        return self._risk(i, j, fixed_j, moves_j)[0]
+
     def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
-        """The conflicts of one step: robots at ``before`` (n, 2), ``moving`` (n,) drive to their desired positions."""
+        """The conflicts of one step: robots at ``before`` (n, 2; each at its current or its desired position),
+        ``moving`` (n,) drive to their desired positions."""
         movers = np.flatnonzero(moving)
         if not self.active or not len(movers):
             return []
         key = np.asarray(before, float).tobytes() + np.asarray(moving, bool).tobytes()
         found = self._conflicts.get(key)
         if found is None:
-            i, j, bad, closest, required = self._pairs(movers, before, moving)
-            bad &= ~moving[j] | (j > i)  # each mover pair once
-            found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(r))
-                                                 for a, b, c, r in zip(i[bad], j[bad], closest[bad], required[bad], strict=True))
+            moving = np.asarray(moving, bool)
+            moved = self._moved(before) & ~moving
+            i, j = self._candidates(movers, moved)
+            once = ~moving[j] | (j > i)  # each mover pair once
+            i, j = i[once], j[once]
+            bad, p, allowed, closest = self._risk(i, j, moved[j].astype(float), moving[j].astype(float))
+            found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(q), float(r))
+                                                 for a, b, c, q, r in zip(i[bad], j[bad], closest[bad], p[bad], allowed[bad], strict=True))
         return list(found)
 
     def greedy(self, units: list[list[int]], before: np.ndarray) -> list[bool]:
-        """Which of ``units`` (lists of robots, in order) move together in one clear step from ``before``, taken
-        greedily: a unit joins when none of its robots comes too close to any robot, those of the units taken
-        so far and its own moving, the others standing at ``before``."""
+        """Which of ``units`` (lists of robots still to move, in order) move together in one clear step from
+        ``before``, taken greedily: a unit joins when none of its robots is at too much risk with any robot, those
+        of the units taken so far and its own moving, the others standing where ``before`` puts them."""
         robots = np.array([r for u in units for r in u], np.int64)
         unit_of = np.full(len(before), -1, np.int64)
         unit_of[robots] = np.repeat(np.arange(len(units)), [len(u) for u in units])
-        potential = unit_of >= 0
-        disp, var = self._motion(before, potential)
-        i, j = self._candidates(robots, before, disp, var)
-        offset = before[i] - before[j]
-        with_j_moving = self._verdict(i, j, offset, disp[i] - disp[j], var[i], var[j])
-        with_j_still = self._verdict(i, j, offset, disp[i], var[i], self.position_var[j])
+        moved = self._moved(before) & (unit_of < 0)
+        i, j = self._candidates(robots, moved)
+        ones = np.ones(len(i))
+        with_j_moving = self._verdict(i, j, 0.0 * ones, ones)
+        with_j_still = self._verdict(i, j, moved[j].astype(float), 0.0 * ones)
         ui, uj = unit_of[i], unit_of[j]
         blocked = np.zeros(len(units), bool)  # by a robot of no unit (standing) or by its own unit (moving)
         blocked[ui[((uj < 0) & with_j_still) | ((uj == ui) & with_j_moving)]] = True
@@ -291,18 +324,18 @@ class BodyCheck:
             before[group] = self.desired[group]
         return True
 
-    def with_sigmas(self, sigmas: float) -> BodyCheck:
-        """The same check with a margin of ``sigmas`` standard deviations."""
+    def with_bound(self, bound: float) -> BodyCheck:
+        """The same check with a contact probability bound of ``bound`` per pair and step."""
         out = copy.copy(self)
-        out.sigmas, out.levels = float(sigmas), None
+        out.bound, out.levels = float(bound), None
         out._conflicts, out._trees = {}, {}
         return out
 
     def with_levels(self, levels: np.ndarray) -> BodyCheck:
-        """The same check with a margin of ``levels`` (n,) standard deviations per robot; a pair keeps the lower."""
+        """The same check with a bound of ``levels`` (n,) per robot; a pair keeps the higher of its two."""
         if np.all(levels == levels[0]):
-            return self.with_sigmas(float(levels[0]))
-        out = self.with_sigmas(float(np.max(levels)))
+            return self.with_bound(float(levels[0]))
+        out = self.with_bound(float(np.max(levels)))
         out.levels = np.asarray(levels, float).copy()
         return out
 
@@ -310,29 +343,29 @@ class BodyCheck:
         """``groups`` split into conflict-free sub-steps, in their order (``docs/bodies.md``).
 
         First the groups themselves (``split``); if that leaves robots that no order clears, all
-        robots in order (``ordered_moves``); if neither clears, the same with the margin of the robots that
-        order left unclear lowered to the next of ``SIGMA_LEVELS`` (down to the bare 2R), the others keeping
-        theirs, in turn. If even that fails, ``unclear`` names the robots whose sub-steps could not be cleared;
-        ``sigmas`` is the lowest margin kept.
+        robots in order (``ordered_moves``); if neither clears, the same with the bound of the robots that
+        order left unclear raised to the next of ``BOUND_LEVELS``, the others keeping theirs, in turn. If even
+        the highest fails, ``unclear`` names the robots whose sub-steps could not be cleared (they move one at a
+        time where the order places them); ``bound`` is the highest bound used.
         """
         groups = [np.asarray(g, dtype=np.int64) for g in groups]
         if not self.active or self.is_clear(groups):
-            return Regrouped(groups, [], self.sigmas)
+            return Regrouped(groups, [], self.bound)
         every = np.concatenate(groups)
         part = np.zeros(len(self.current), np.int64)  # each robot's group in the plan
         part[every] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        levels = np.full(len(self.current), self.sigmas)
+        levels = np.full(len(self.current), self.bound)
         while True:
             check = self.with_levels(levels)
             split = check.split(groups)
             if not split.unclear:
-                return Regrouped(split.groups, [], float(levels.min()))
+                return Regrouped(split.groups, [], float(levels.max()))
             moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool), part)
-            lower = [r for r in unclear if levels[r] > min(SIGMA_LEVELS)]
-            if not unclear or not lower:
-                return Regrouped(moves, unclear, float(levels.min()))
-            for r in lower:  # only the robots no order clears get the next lower margin
-                levels[r] = max(k for k in SIGMA_LEVELS if k < levels[r])
+            higher = [r for r in unclear if levels[r] < max(BOUND_LEVELS)]
+            if not unclear or not higher:
+                return Regrouped(moves, unclear, float(levels.max()))
+            for r in higher:  # only the robots no order clears get the next higher bound
+                levels[r] = min(k for k in BOUND_LEVELS if k > levels[r])
 
     def split(self, groups: list[np.ndarray]) -> Regrouped:
         """``groups`` split into clear sub-steps in their order. Each group moves as the prefix-greedy subset
@@ -356,14 +389,14 @@ class BodyCheck:
                 waited += 1
         rest = [r for g in queue for r in g]
         if not rest:
-            return Regrouped(out, [], self.sigmas)
+            return Regrouped(out, [], self.bound)
         done = np.ones(len(before), bool)
         done[rest] = False
         part = np.zeros(len(before), np.int64)
         for k, g in enumerate(queue):
             part[g] = k
         moves, unclear = self.ordered_moves(np.array(rest), done, part)
-        return Regrouped(out + moves, unclear, self.sigmas)
+        return Regrouped(out + moves, unclear, self.bound)
 
     def ordered_moves(self, robots: np.ndarray, done: np.ndarray, part: np.ndarray | None = None) -> tuple[list[np.ndarray], list[int]]:
         """Sub-steps that move ``robots`` one at a time where they can and together where they must, every
@@ -440,17 +473,12 @@ class BodyCheck:
 
     def _single_hits(self, robots: np.ndarray) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
         """For each of ``robots``: the robots whose current / desired positions its single move (current -> desired),
-        the others standing there, comes too close to."""
+        the others standing there, puts at too much risk."""
         out = []
-        path = self.desired - self.current
-        var = self.position_var + np.einsum("nk,nk->n", path, path) * self.spread_rate
-        for base in (self.current, self.desired):
-            disp = np.zeros_like(path)
-            disp[robots] = path[robots]
-            before = base.copy()
-            before[robots] = self.current[robots]
-            i, j = self._candidates(robots, before, disp, var, base)
-            bad = self._verdict(i, j, self.current[i] - base[j], path[i], var[i], self.position_var[j])
+        for fixed in (0.0, 1.0):
+            moved = np.full(len(self.current), bool(fixed)) & self.has_path
+            i, j = self._candidates(robots, moved)
+            bad = self._verdict(i, j, np.full(len(i), fixed), np.zeros(len(i)))
             hits: dict[int, list[int]] = {int(r): [] for r in robots}
             for x, y in zip(i[bad].tolist(), j[bad].tolist(), strict=True):
                 hits[x].append(y)
@@ -460,12 +488,12 @@ class BodyCheck:
 
 @dataclass(frozen=True)
 class Regrouped:
-    """The collision-free groups of a plan, with a margin of ``sigmas`` standard deviations; ``unclear``:
-    robots that came too close whatever the order, even with the bare 2R (moved one at a time)."""
+    """The groups of a plan that keep the chance constraint, with a contact bound of ``bound`` per pair and step at
+    most; ``unclear``: robots no order kept within the highest of ``BOUND_LEVELS`` (moved one at a time)."""
 
     groups: list[np.ndarray]
     unclear: list[int]
-    sigmas: float
+    bound: float
 
 
 def overlapping_pairs(xy: np.ndarray, radius: float) -> np.ndarray:
@@ -516,24 +544,3 @@ def impassable_pairs(start: np.ndarray, end: np.ndarray, radius: float) -> np.nd
     together = near(start[i] - start[j], path[i] - path[j])
     bad = i_first & j_first & together
     return np.column_stack([i[bad], j[bad]])
-
-
-def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
-    """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj`` (a ``Trajectory``),
-    or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
-    e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
-    radius = cfg.robot_radius_m
-    if radius <= 0:
-        return
-    configs = [traj.initial_poses[:, :2], *traj.configurations]
-    for k, xy in enumerate(configs):
-        check_apart(xy, traj.ids, radius, "the initial configuration" if k == 0 else f"configuration {k}")
-    for k in range(1, len(configs)):
-        pairs = impassable_pairs(configs[k - 1], configs[k], radius)
-        if len(pairs):
-            a, b = traj.ids[pairs[0]]
-            raise SwarmInputError(
-                f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
-                f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
-                f"give them room to pass (or --robot-radius 0 for point robots)"
-            )

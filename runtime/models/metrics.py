@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 
 def localization_error(true_positions: np.ndarray, estimated_positions: np.ndarray) -> np.ndarray:
     """e_l (Eq. 8): mean distance between true and estimated robot positions (m)."""
-    return np.mean(np.linalg.norm(true_positions - estimated_positions, axis=-1), axis=-1)
+    return cast(np.ndarray, np.mean(np.linalg.norm(true_positions - estimated_positions, axis=-1), axis=-1))
 
 
 def average_total_motion(true_configurations: np.ndarray) -> np.ndarray:
@@ -17,11 +19,11 @@ def average_total_motion(true_configurations: np.ndarray) -> np.ndarray:
     trajectory, then after all steps towards each desired configuration.
     """
     steps = np.linalg.norm(np.diff(true_configurations, axis=0), axis=-1)
-    return np.sum(np.mean(steps, axis=-1), axis=0)
+    return cast(np.ndarray, np.sum(np.mean(steps, axis=-1), axis=0))
 
 
 def trajectory_following_performance(
     final_true: np.ndarray, final_desired: np.ndarray, true_configurations: np.ndarray
 ) -> np.ndarray:
     """P_f (Eq. 24): mean final true-vs-desired distance normalised by m_bar (dimensionless)."""
-    return localization_error(final_true, final_desired) / average_total_motion(true_configurations)
+    return cast(np.ndarray, localization_error(final_true, final_desired) / average_total_motion(true_configurations))

@@ -28,7 +28,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 
 # key -> (ModelConfig field, to SI, from SI, lowest value allowed, whether the lowest value is allowed, upper bound exclusive)
@@ -49,24 +49,28 @@ def model_values(cfg: ModelConfig) -> dict[str, float]:
     return {key: to_user(getattr(cfg, field)) for key, (field, _, to_user, *_rest) in KEYS.items()}
 
 
-def parse_model(doc: Mapping[str, Any], source: str, base: ModelConfig = ModelConfig()) -> ModelConfig:
-    """``base`` with the ``[model]`` values of the parsed TOML ``doc``; errors name ``source`` and the key."""
+def parse_model(doc: Mapping[str, Any], source: str, base: ModelConfig = ModelConfig(), parameter: str | None = None) -> ModelConfig:
+    """``base`` with the ``[model]`` values of the parsed TOML ``doc``; errors name ``source`` and the key (with
+    ``parameter``: an ``OptionError`` of that parameter, whose value ``source`` is)."""
+    def error(problem: str) -> SwarmInputError:
+        return OptionError(parameter, f"{source}: {problem}") if parameter else SwarmInputError(f"{source}: {problem}")
+
     unknown = sorted(set(doc) - set(SECTIONS))
     if unknown:
-        raise SwarmInputError(f"{source}: unknown table or key {unknown[0]!r} (a model file has [model] and optionally [fit])")
+        raise error(f"unknown table or key {unknown[0]!r} (a model file has [model] and optionally [fit])")
     table = doc.get("model")
     if not isinstance(table, Mapping):
-        raise SwarmInputError(f"{source}: no [model] table (keys {', '.join(KEYS)})")
+        raise error(f"no [model] table (keys {', '.join(KEYS)})")
     changes: dict[str, float] = {}
     for key, value in table.items():
         if key not in KEYS:
-            raise SwarmInputError(f"{source}: unknown key model.{key} (known: {', '.join(KEYS)})")
+            raise error(f"unknown key model.{key} (known: {', '.join(KEYS)})")
         field, to_si, _, low, low_ok, high = KEYS[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise SwarmInputError(f"{source}: model.{key} must be a finite number, got {value!r}")
+            raise error(f"model.{key} must be a finite number, got {value!r}")
         if value < low or (value == low and not low_ok) or value >= high:
             bound = f"{'>=' if low_ok else '>'} {low:g}" + ("" if math.isinf(high) else f" and < {high:g}")
-            raise SwarmInputError(f"{source}: model.{key} must be {bound}, got {value!r}")
+            raise error(f"model.{key} must be {bound}, got {value!r}")
         changes[field] = to_si(float(value))
     return replace(base, **changes)
 
@@ -77,12 +81,12 @@ def load_model(path: str | Path, base: ModelConfig = ModelConfig()) -> ModelConf
     try:
         text = path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise SwarmInputError(f"--model {path}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
+        raise OptionError("model", f"{path}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
     try:
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SwarmInputError(f"--model {path}: not TOML: {exc}") from None
-    return parse_model(doc, f"--model {path}", base)
+        raise OptionError("model", f"{path}: not TOML: {exc}") from None
+    return parse_model(doc, str(path), base, "model")
 
 
 def _toml_value(value: Any) -> str:

@@ -12,6 +12,8 @@ the Monte Carlo planner.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from runtime.models.config import ModelConfig
@@ -80,7 +82,7 @@ def motion_covariance(poses: np.ndarray, prior_cov: np.ndarray, commands: np.nda
     moved = (commands[..., 0] != 0.0) | (d != 0.0)
     q[..., 0, 0] = np.where(moved, cfg.turn_sigma_rad**2, 0.0)
     q[..., 1, 1] = cfg.drive_sigma_frac**2
-    return fx @ prior_cov @ np.swapaxes(fx, -1, -2) + fu @ q @ np.swapaxes(fu, -1, -2)
+    return cast(np.ndarray, fx @ prior_cov @ np.swapaxes(fx, -1, -2) + fu @ q @ np.swapaxes(fu, -1, -2))
 
 
 def motion_moments(

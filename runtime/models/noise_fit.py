@@ -33,6 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -184,7 +185,10 @@ def noise_samples(commands: Mapping[tuple[int, int], tuple[float, float]],
         mask[index] = True
         dist.append(true_range)
         seen.append(mask)
-    cat = lambda parts, dtype=float: np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)  # noqa: E731
+
+    def cat(parts: list[np.ndarray], dtype: type = float) -> np.ndarray:
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=dtype)
+
     return NoiseSamples(turn=turn, drive_ratio=ratio, range_residual=cat(rng_res), bearing_residual=cat(brg_res),
                         pair_distance=cat(dist), pair_observed=cat(seen, bool))
 
@@ -227,7 +231,7 @@ class NoiseFit:
                                       ("range_sigma_m", self.range), ("bearing_sigma_deg", self.bearing)) if fit is None]
         return out + (["dropout", "sensing_range_m"] if self.pairs is None else [])
 
-    def _systematic(self) -> dict[str, dict]:
+    def _systematic(self) -> dict[str, dict[str, Any]]:
         out = {}
         for name, fit, scale in (("turn_bias_deg", self.turn, math.degrees(1.0)), ("drive_scale", self.drive, 1.0),
                                  ("range_bias_m", self.range, 1.0), ("bearing_bias_deg", self.bearing, math.degrees(1.0))):
@@ -236,12 +240,15 @@ class NoiseFit:
                              "p_value": fit.p_value, "significant": fit.significant}
         return out
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         """Plain JSON: the model values in the flags' units (degrees for angles), CIs, tests and sample counts."""
         deg = math.degrees(1.0)
-        sig = lambda fit, scale: (None, None) if fit is None else (fit.sigma * scale, _ci(fit.sigma_ci, scale))  # noqa: E731
-        out: dict = {}
-        ci: dict = {}
+
+        def sig(fit: GaussFit | None, scale: float) -> tuple[float | None, list[float | None] | None]:
+            return (None, None) if fit is None else (fit.sigma * scale, _ci(fit.sigma_ci, scale))
+
+        out: dict[str, Any] = {}
+        ci: dict[str, Any] = {}
         for key, fit, scale in (("turn_sigma_deg", self.turn, deg), ("drive_sigma_frac", self.drive, 1.0),
                                 ("range_sigma_m", self.range, 1.0), ("bearing_sigma_deg", self.bearing, deg)):
             out[key], ci[key] = sig(fit, scale)

@@ -14,6 +14,7 @@ naming the offending robots.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, cast
 
 import numpy as np
 
@@ -145,12 +146,12 @@ class SwarmEstimate:
     @property
     def delta(self) -> np.ndarray:
         """Scalar position uncertainty per robot, sqrt(var_x + var_y) (m)."""
-        return np.sqrt(np.maximum(self.cov[:, 0, 0] + self.cov[:, 1, 1], 0.0))
+        return cast(np.ndarray, np.sqrt(np.maximum(self.cov[:, 0, 0] + self.cov[:, 1, 1], 0.0)))
 
     @property
     def sigma_heading(self) -> np.ndarray:
         """Heading standard deviation per robot (rad)."""
-        return np.sqrt(np.maximum(self.cov[:, 2, 2], 0.0))
+        return cast(np.ndarray, np.sqrt(np.maximum(self.cov[:, 2, 2], 0.0)))
 
     def select(self, mask: np.ndarray) -> SwarmEstimate:
         """The estimate of the robots where ``mask`` (n,) is True (the joint covariance marginalised to them)."""
@@ -244,7 +245,7 @@ class Observations:
         object.__setattr__(self, "bearing_rad", brg)
 
     @classmethod
-    def from_rows(cls, rows: np.ndarray | list) -> Observations:
+    def from_rows(cls, rows: np.ndarray | list[Any]) -> Observations:
         """From rows ``[observer, observed, range_m, bearing_rad]``."""
         arr = np.asarray(rows, dtype=float).reshape(-1, 4)
         ids = arr[:, :2]

@@ -20,11 +20,12 @@ from pathlib import Path
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
-from runtime.models.bodies import impassable_pairs
+from runtime.errors import OptionError, SwarmInputError
+from runtime.models.bodies import check_apart, impassable_pairs
 from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
 from runtime.models.state import robot_ids
+from runtime.paths import StrPath
 
 
 @dataclass(frozen=True)
@@ -88,11 +89,11 @@ class Trajectory:
         return {"robots": self.n, "configs": len(self.configurations), "sensing_range_m": sensing_range,
                 "move_mean_m": float(moves.mean()), "move_max_m": float(moves.max())}
 
-    def save(self, path: Path) -> None:
+    def save(self, path: StrPath) -> None:
         Path(path).write_text(json.dumps(self.to_json()))
 
     @classmethod
-    def load(cls, path: Path) -> Trajectory:
+    def load(cls, path: StrPath) -> Trajectory:
         """The trajectory in the JSON file ``path``; ``SwarmInputError`` naming the file and what is wrong."""
         try:
             data = json.loads(Path(path).read_text())
@@ -163,6 +164,27 @@ def validate_connected(traj: Trajectory, sensing_range: float) -> None:
             )
 
 
+def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
+    """Raise ``SwarmInputError`` when robots' bodies overlap in a configuration of ``traj``,
+    or when two robots cannot make a configuration change without touching in any order (``impassable_pairs``,
+    e.g. a swap of places in a tight spot), naming the configuration and the robots. Exact geometry, no margin."""
+    radius = cfg.robot_radius_m
+    if radius <= 0:
+        return
+    configs = [traj.initial_poses[:, :2], *traj.configurations]
+    for k, xy in enumerate(configs):
+        check_apart(xy, traj.ids, radius, "the initial configuration" if k == 0 else f"configuration {k}")
+    for k in range(1, len(configs)):
+        pairs = impassable_pairs(configs[k - 1], configs[k], radius)
+        if len(pairs):
+            a, b = traj.ids[pairs[0]]
+            raise SwarmInputError(
+                f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
+                f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
+                f"give them room to pass (or --robot-radius 0 for point robots)"
+            )
+
+
 def random_configuration(n: int, rng: np.random.Generator, spacing: float, sensing_range: float,
                          separation: float | None = None) -> np.ndarray:
     """A connected random configuration (n, 2) in a square of side sqrt(n) ``spacing`` (m) about the origin.
@@ -211,17 +233,17 @@ def min_separation(xy: np.ndarray) -> float:
 
 
 def _check_random_options(n: int, n_configs: int, spacing: float, reach: float, sep: float, **moves: float) -> None:
-    """Up front, with the command-line flag each value comes from: sizes, and a range that can connect robots kept apart."""
+    """Up front, naming the option each value comes from (``OptionError``): sizes, and a range that can connect robots kept apart."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise SwarmInputError(f"a random trajectory needs at least 2 robots (--robots), got {n}")
+        raise OptionError("robots", f"must be >= 2 for a random trajectory, got {n}")
     if isinstance(n_configs, bool) or not isinstance(n_configs, (int, np.integer)) or n_configs < 1:
-        raise SwarmInputError(f"a random trajectory needs at least 1 configuration (--configs), got {n_configs}")
+        raise OptionError("configs", f"must be >= 1 for a random trajectory, got {n_configs}")
     for name, value in {"spacing": spacing, **moves}.items():
         if not math.isfinite(value) or value < 0 or (name == "spacing" and value == 0):
             raise SwarmInputError(f"random trajectory {name} must be a finite number > 0, got {value}")
     if not reach > sep:
-        raise SwarmInputError(f"the sensing range (--sensing-range) is too small for a random trajectory: robots are kept {sep:g} m apart "
-                              f"and each must be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
+        raise OptionError("sensing_range", f"is too small for a random trajectory: robots are kept {sep:g} m apart and each must "
+                          f"be within {reach:g} m of another; use a sensing range above {sep / RANGE_MARGIN:g} m")
 
 
 END_SIGMAS = 3.0  # random configurations with bodies keep this many sigma of end-of-path error between them
@@ -306,7 +328,7 @@ def random_trajectory(
     (bodies, plus three standard deviations of two robots' relative end-of-path error after a
     drive of ``step`` with relative motion noise ``motion_sigma``, see ``body_spacing``), but no
     more than half the ``spacing`` unless the bodies need it, and every
-    change can be made without bodies touching (``runtime.models.bodies.validate_passable``);
+    change can be made without bodies touching (``validate_passable``);
     ``robot_radius`` 0 draws exactly as before bodies.
     """
     reach = margin * sensing_range

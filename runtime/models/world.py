@@ -4,10 +4,11 @@ A ``World`` holds the true poses of robots ``ids`` and advances them by ``step(d
 commanded body twists (n, 2) = (linear m/s, angular rad/s) held over ``dt`` seconds (a differential
 drive's wheel speeds map to one twist: v = (r_w + l_w) r / 2, w = (r_w - l_w) r / b). It answers
 ``poses()`` (true, (n, 3)), ``odometry()`` (what the wheel encoders integrate, (n, 3), drifting from
-the truth) and ``sightings(index)`` (one sensor frame of robot ``index``: observed ids, ranges m,
-bearings rad in its body frame). ``robot_agent.ros2_robots`` drives any world through these four calls
-only, so a physics world (bodies, contacts, wheel slip) plugs in by registering a constructor in
-``WORLDS`` under a name of ``swarm ros2 robots --world``.
+the truth), ``speeds()`` (the twists the encoders measure now, (n, 2)) and ``sightings(index)`` (one
+sensor frame of robot ``index``: observed ids, ranges m, bearings rad in its body frame).
+``robot_agent.ros2_robots`` drives any world through these calls only; a world registers its
+constructor in ``WORLDS`` under a name of ``swarm ros2 robots --world``: ``kinematic`` (below) and
+``physics`` (``runtime.world.velocity.PhysicsWorld``: bodies that push, wheels that slip; docs/physics.md).
 
 ``KinematicWorld`` is the project's model (runtime/models/motion.py, sensing.py) integrated in time.
 A *segment* is a motion from rest to rest; at its start the robot draws (turn noise, relative drive
@@ -25,7 +26,7 @@ from typing import Protocol
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import wrap_angle
 from runtime.models.motion import draw_motion_noise
@@ -43,6 +44,8 @@ class World(Protocol):
     def poses(self) -> np.ndarray: ...
 
     def odometry(self) -> np.ndarray: ...
+
+    def speeds(self) -> np.ndarray: ...
 
     def sightings(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
 
@@ -76,6 +79,7 @@ class KinematicWorld:
         self._pending = np.zeros(n, bool)  # turn noise not yet applied
         self._drive_scale = np.ones(n)
         self.segments = np.zeros(n, np.int64)  # motions started, per robot
+        self._twists = np.zeros((n, 2))  # of the latest step
 
     def step(self, dt: float, twists: np.ndarray) -> None:
         twists = np.asarray(twists, dtype=float).reshape(len(self.ids), 2)
@@ -91,6 +95,7 @@ class KinematicWorld:
         self._moving = moving
         self._true = integrate_twist(self._true, v * self._drive_scale, w, dt)
         self._odom = integrate_twist(self._odom, v, w, dt)
+        self._twists = twists.copy()
 
     def poses(self) -> np.ndarray:
         return self._true.copy()
@@ -98,17 +103,31 @@ class KinematicWorld:
     def odometry(self) -> np.ndarray:
         return self._odom.copy()
 
+    def speeds(self) -> np.ndarray:
+        """The commanded twists of the latest step: the encoders count them exactly."""
+        return self._twists.copy()
+
     def sightings(self, index: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         nb, rho, phi = sense_robot(self._true, index, self.cfg, self._sensing[index])
         return self.ids[nb], rho, phi
 
 
+def physics_world(ids: np.ndarray, poses: np.ndarray, cfg: ModelConfig, seed: int) -> World:
+    """The physical world (the ``physics`` extra) of the default parameters for ``cfg`` (its body radius, sensing range)."""
+    from runtime.world.params import PhysicsParams  # noqa: PLC0415 - the physics extra, only when asked for
+    from runtime.world.physics import require_pymunk  # noqa: PLC0415
+    from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415
+
+    require_pymunk()
+    return PhysicsWorld(ids, poses, PhysicsParams.for_model(cfg), seed)
+
+
 WorldFactory = Callable[[np.ndarray, np.ndarray, ModelConfig, int], World]
-WORLDS: dict[str, WorldFactory] = {"kinematic": KinematicWorld}  # name -> constructor(ids, poses, model, seed)
+WORLDS: dict[str, WorldFactory] = {"kinematic": KinematicWorld, "physics": physics_world}  # name -> constructor(ids, poses, model, seed)
 
 
 def make_world(kind: str, ids: np.ndarray, poses: np.ndarray, cfg: ModelConfig, seed: int) -> World:
     """The world ``kind`` (a name of ``WORLDS``) of robots ``ids`` at ``poses``."""
     if kind not in WORLDS:
-        raise SwarmInputError(f"--world {kind}: not one of {', '.join(sorted(WORLDS))}")
+        raise OptionError("world", f"{kind}: not one of {', '.join(sorted(WORLDS))}")
     return WORLDS[kind](ids, poses, cfg, seed)

@@ -103,7 +103,7 @@ def layout(robots: Iterable[int], configurations: Sequence[Mapping[int, tuple[fl
     }
 
 
-def run_robots(info: dict) -> tuple[list[int], list | None]:
+def run_robots(info: dict[str, Any]) -> tuple[list[int], list[dict[int, tuple[float, float]]] | None]:
     """The run's robot ids and desired configurations: from the trajectory metadata, else from its robot channels."""
     from runtime.recording.foxglove_scene import trajectory_configurations  # noqa: PLC0415
 
@@ -116,7 +116,7 @@ def run_robots(info: dict) -> tuple[list[int], list | None]:
     return robots, None
 
 
-def write_layout(src: Path, out: Path, ros2: bool = False) -> dict:
+def write_layout(src: Path, out: Path, ros2: bool = False) -> dict[str, Any]:
     """The Foxglove layout of the recording ``src`` (with ``ros2``: of its rosbag2 export) written to ``out``."""
     from runtime.recording.mcap_log import recording_info  # noqa: PLC0415
 

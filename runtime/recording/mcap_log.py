@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from importlib import metadata as _pkg_metadata
 from pathlib import Path
-from typing import IO, Any, cast
+from typing import IO, TYPE_CHECKING, Any, cast
 
 import msgpack
 from mcap.exceptions import EndOfFile, McapError
@@ -52,7 +52,7 @@ from mcap.records import Attachment, Channel, Header, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, RecordingError, SwarmInputError
 
 try:
     from zstandard import ZstdError as _ZstdError
@@ -71,6 +71,10 @@ from runtime.recording.foxglove_scene import (
 from runtime.recording.plot_channels import DERIVED_TYPES as PLOT_TYPES, SCHEMA_BYTES as PLOT_SCHEMAS, PlotDeriver, is_plot_topic
 from runtime.wire.keys import KeyspaceError, run_wildcard, validate_run
 from runtime.wire.messages import MessageError, decode, json_schema, type_for_key
+
+if TYPE_CHECKING:
+    from runtime.wire.messages import Message as WireMessage
+    from runtime.wire.transport import ZenohSettings
 
 CHUNK_BYTES = 64 * 1024  # uncompressed bytes after which a chunk is closed
 FLUSH_S = 0.25  # a chunk is closed (and the file flushed) at least this often while messages arrive
@@ -180,7 +184,7 @@ class McapRecorder:
     as it can (what reached the disk stays readable: ``recover``), then raises ``RecordingFailed``.
     """
 
-    def __init__(self, path: str | os.PathLike, run: str, metadata: dict[str, Any] | None = None, *,
+    def __init__(self, path: str | os.PathLike[str], run: str, metadata: dict[str, Any] | None = None, *,
                  chunk_bytes: int = CHUNK_BYTES, flush_s: float = FLUSH_S, foxglove: bool = True,
                  on_error: Callable[[BaseException], object] | None = None) -> None:
         self.path = Path(path)
@@ -209,7 +213,7 @@ class McapRecorder:
         self._counts: dict[str, int] = {}
         self._bad: dict[str, int] = {}
         self._lock = threading.Lock()
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._queue: queue.SimpleQueue[tuple[str, bytes, int | None, int] | None] = queue.SimpleQueue()
         self._closed = False
         self._error: BaseException | None = None
         self.dropped = 0  # messages not written after a write error
@@ -223,7 +227,7 @@ class McapRecorder:
     def write(self, key: str, payload: bytes, publish_time_ns: int | None = None, log_time_ns: int | None = None) -> None:
         """Queue one message; ``log_time_ns`` defaults to now, ``publish_time_ns`` to the message's ``stamp_ns``."""
         if self._closed:
-            raise RuntimeError(f"recorder of {self.path} is closed")
+            raise RecordingError(f"recorder of {self.path} is closed")
         if self._error is not None:
             with self._lock:
                 self.dropped += 1
@@ -302,7 +306,7 @@ class McapRecorder:
         if derive and msg is not None:
             self._write_derived(msg, log_time)
 
-    def _write_derived(self, msg, log_time: int) -> None:
+    def _write_derived(self, msg: WireMessage, log_time: int) -> None:
         assert self._deriver is not None and self._plotter is not None  # foxglove recordings only
         try:
             derived = [(topic, DERIVED_SCHEMA, data) for topic, data in self._deriver.derive(msg)]
@@ -331,6 +335,7 @@ class McapRecorder:
         try:
             while True:
                 timeout = max(0.0, last_flush + self.flush_s - time.monotonic()) if dirty else None
+                item: tuple[str, bytes, int | None, int] | tuple[()] | None
                 try:
                     item = self._queue.get(timeout=timeout)
                 except queue.Empty:
@@ -401,7 +406,7 @@ class McapRecorder:
         self.close()
 
 
-class RecordingFailed(OSError):
+class RecordingFailed(RecordingError):
     """Writing a recording failed: ``path``, the ``error``, messages ``written`` before it and ``dropped`` after it."""
 
     def __init__(self, path: Path, error: BaseException, written: int, dropped: int) -> None:
@@ -410,7 +415,7 @@ class RecordingFailed(OSError):
         self.path, self.error, self.written, self.dropped = path, error, written, dropped
 
 
-def record_run(settings, run: str, path: str | os.PathLike, metadata: dict[str, Any] | None,
+def record_run(settings: ZenohSettings, run: str, path: str | os.PathLike[str], metadata: dict[str, Any] | None,
                stop_event: threading.Event, on_ready: Callable[[McapRecorder], object] | None = None,
                on_error: Callable[[BaseException], object] | None = None) -> dict[str, Any]:
     """Record ``swarm/<run>/**`` through a session opened with ``settings`` until ``stop_event`` is set.
@@ -443,7 +448,7 @@ def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Pa
                  params: Iterable[str] = ()) -> dict[str, Any]:
     """The run metadata ``swarm record`` stores: the hub, its command line, the seed, the trajectory file's JSON
     and ``KEY=VALUE`` parameters (VALUE parsed as JSON when it is JSON)."""
-    meta: dict = {"hub": hub, "command": command}
+    meta: dict[str, Any] = {"hub": hub, "command": command}
     if seed is not None:
         meta["seed"] = seed
     if trajectory is not None:
@@ -455,7 +460,7 @@ def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Pa
     for item in params:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            raise SwarmInputError(f"--param {item!r}: use KEY=VALUE")
+            raise OptionError("param", f"{item!r}: use KEY=VALUE")
         try:
             values[key] = json.loads(value)
         except ValueError:
@@ -559,7 +564,7 @@ def _bad(path: Path, problem: str) -> SwarmInputError:
     return SwarmInputError(f"{path}: {problem}")
 
 
-def is_finished(path: str | os.PathLike) -> bool:
+def is_finished(path: str | os.PathLike[str]) -> bool:
     """Whether the MCAP file at ``path`` was finished (footer and closing magic): False for a recording cut short."""
     try:
         with open(path, "rb") as f:
@@ -647,7 +652,8 @@ def _wrap(path: Path, exc: BaseException, where: str) -> SwarmInputError:
     return _bad(path, f"corrupt {where}: {type(exc).__name__}: {text}")
 
 
-def _records(path: str | os.PathLike, status: RecordingStatus, seeking: bool = True) -> Iterator[Schema | Channel | Message | Metadata | Attachment]:
+def _records(path: str | os.PathLike[str], status: RecordingStatus,
+             seeking: bool = True) -> Iterator[Schema | Channel | Message | Metadata | Attachment]:
     """Schemas, channels, metadata, attachments and messages of a recording, in file order.
 
     A finished, indexed file is read with the seeking reader (unless ``seeking`` is False);
@@ -720,7 +726,7 @@ def is_derived(topic: str) -> bool:
     return topic.startswith(DERIVED_PREFIX) or is_plot_topic(topic)
 
 
-def read_messages(path: str | os.PathLike, derived: bool = False) -> Iterator[tuple[str, bytes, int, int]]:
+def read_messages(path: str | os.PathLike[str], derived: bool = False) -> Iterator[tuple[str, bytes, int, int]]:
     """``(topic, payload, log_time_ns, publish_time_ns)`` of every message of the run, in file order.
 
     The derived Foxglove channels (``is_derived``) are skipped unless ``derived`` is True,
@@ -735,7 +741,15 @@ def read_messages(path: str | os.PathLike, derived: bool = False) -> Iterator[tu
                 yield topic, record.data, record.log_time, record.publish_time
 
 
-def recording_info(path: str | os.PathLike) -> dict[str, Any]:
+def recording_status(path: str | os.PathLike[str]) -> RecordingStatus:
+    """What reading ``path`` through finds (finished or not, readable bytes, the problem), without decoding a message."""
+    status = RecordingStatus()
+    for _record in _records(path, status):
+        pass
+    return status
+
+
+def recording_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Channels (type, count, first/last log time, undecodable count and reasons), duration, metadata, completeness."""
     status = RecordingStatus()
     channels: dict[int, dict[str, Any]] = {}
@@ -792,7 +806,7 @@ def recording_info(path: str | os.PathLike) -> dict[str, Any]:
     }
 
 
-def recover(src: str | os.PathLike, dst: str | os.PathLike) -> dict[str, Any]:
+def recover(src: str | os.PathLike[str], dst: str | os.PathLike[str]) -> dict[str, Any]:
     """Rewrite ``src`` (finished or not) as a finished, indexed MCAP at ``dst``.
 
     Same schemas, channels, metadata, attachments and messages (bytes, times and sequence

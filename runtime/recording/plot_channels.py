@@ -44,11 +44,12 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import Any, TypeVar
 
 from runtime.recording.foxglove_scene import moving_robots, trajectory_configurations
 from runtime.wire.messages import EstimateMessage, Message, PlanMessage, RobotEvent, TruthSetMessage
 
+M = TypeVar("M", bound=Message)
 MESSAGE_ENCODING = "json"
 SCHEMA_ENCODING = "jsonschema"
 TOPIC_PREFIXES = ("/robot/", "/swarm/")
@@ -162,7 +163,7 @@ class PlotDeriver:
         return []
 
     @staticmethod
-    def _keep(store: dict, step: int, msg: Message, depth: int = 4) -> None:
+    def _keep(store: dict[int, M], step: int, msg: M, depth: int = 4) -> None:
         store[step] = msg
         for old in sorted(store)[:-depth]:  # a step whose partner never comes is forgotten
             del store[old]

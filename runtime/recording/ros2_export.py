@@ -40,12 +40,13 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.recording.foxglove_scene import trajectory_configurations
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.messages import EstimateMessage, MessageError, PlanMessage, RobotEvent, TruthSetMessage, decode
@@ -154,10 +155,10 @@ class _Builder:
         return t[TF_TYPE](transforms=[t["geometry_msgs/msg/TransformStamped"](header=header, child_frame_id=FRAME,
                                                                               transform=transform)])
 
-    def pose_array(self, stamp_ns: int, poses) -> Any:
+    def pose_array(self, stamp_ns: int, poses: Iterable[Sequence[float]]) -> Any:
         return self.PoseArray(header=self.header(stamp_ns), poses=[self.pose(*p) for p in poses])
 
-    def pose_with_covariance(self, stamp_ns: int, pose, cov) -> Any:
+    def pose_with_covariance(self, stamp_ns: int, pose: Sequence[float], cov: Sequence[Sequence[float]]) -> Any:
         full = np.zeros((6, 6))
         idx = (0, 1, 5)  # x, y, yaw in ROS's (x, y, z, roll, pitch, yaw)
         full[np.ix_(idx, idx)] = np.asarray(cov, float)
@@ -182,15 +183,20 @@ def _empty_bytes() -> np.ndarray:
     return np.zeros(0, np.uint8)
 
 
-def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DEFAULT_DISTRO) -> dict[str, Any]:
+def export_ros2(src: str | os.PathLike[str], out: str | os.PathLike[str], distro: str = DEFAULT_DISTRO) -> dict[str, Any]:
     """Write the recording ``src`` as a rosbag2 folder ``out`` (must not exist) for ROS 2 ``distro``;
-    ``{"source", "path", "distro", "metadata_version", "messages", "topics"}``."""
+    ``{"source", "path", "distro", "metadata_version", "messages", "topics", "complete", "bytes", "readable_bytes",
+    "recorded_messages"}`` (an unfinished recording is exported up to its last complete record: ``complete`` False,
+    ``readable_bytes`` of its ``bytes`` read). ``SwarmInputError`` (nothing written) when it holds no message of the run."""
     src, out = Path(src), Path(out)
     if distro not in DISTROS:
-        raise SwarmInputError(f"--distro {distro}: choose one of {', '.join(DISTROS)}")
+        raise OptionError("distro", f"{distro}: choose one of {', '.join(DISTROS)}")
     if out.exists():
-        raise SwarmInputError(f"--ros2 {out}: already exists; rosbag2 writes a new folder")
+        raise OptionError("ros2", f"{out}: already exists; rosbag2 writes a new folder")
     info = recording_info(src)  # SwarmInputError for what is not a readable recording
+    if not info["raw_messages"]:
+        raise SwarmInputError(f"{src}: nothing to export: no complete message of the run in it"
+                              + ("" if info["complete"] else f" (unfinished: {info['problem']})"))
     StoragePlugin, Writer, ts = _rosbags(distro)
     build = _Builder(ts)
     configurations = trajectory_configurations(info["metadata"].get("run", {}).get("trajectory"))
@@ -245,4 +251,6 @@ def export_ros2(src: str | os.PathLike, out: str | os.PathLike, distro: str = DE
     if distro == "humble":
         _rewrite_for_humble(out)
     return {"source": str(src), "path": str(out), "distro": distro, "metadata_version": DISTROS[distro],
-            "messages": sum(counts.values()), "topics": dict(sorted(counts.items()))}
+            "messages": sum(counts.values()), "topics": dict(sorted(counts.items())),
+            "complete": info["complete"], "bytes": info["bytes"], "readable_bytes": info["readable_bytes"],
+            "recorded_messages": info["raw_messages"]}

@@ -40,7 +40,7 @@ class RunLog:
         return times
 
 
-def load_run_log(path: str | os.PathLike) -> RunLog:
+def load_run_log(path: str | os.PathLike[str]) -> RunLog:
     """The ``RunLog`` of the recording ``path`` (``SwarmInputError`` if it is unreadable or holds no observations)."""
     info = recording_info(path)
     traj = (info.get("metadata", {}).get("run") or {}).get("trajectory")

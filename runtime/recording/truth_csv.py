@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 COLUMNS = ("robot", "step", "x", "y", "heading")
 
@@ -52,14 +52,14 @@ def read_truth_csv(path: str | Path, robots: Collection[int] | None = None,
     try:
         f = open(path, newline="", encoding="utf-8")
     except OSError as exc:
-        raise SwarmInputError(f"--truth {path}: cannot read it: {exc.strerror or exc}") from None
+        raise OptionError("truth", f"{path}: cannot read it: {exc.strerror or exc}") from None
     rows: dict[tuple[int, float], np.ndarray] = {}
     with f:
         reader = csv.DictReader(f)
         try:
             header = [h.strip() for h in reader.fieldnames or []]
         except (csv.Error, UnicodeDecodeError) as exc:
-            raise SwarmInputError(f"--truth {path}: line 1: not CSV: {exc}") from None
+            raise OptionError("truth", f"{path}: line 1: not CSV: {exc}") from None
         by_time = "step" not in header and "time" in header
         need = ("robot", "time", "x", "y", "heading") if by_time else COLUMNS
         missing = [c for c in need if c not in header]
@@ -76,13 +76,13 @@ def read_truth_csv(path: str | Path, robots: Collection[int] | None = None,
                                           f"{row['time' if by_time else 'step']} given twice")
                 rows[key] = pose
         except (csv.Error, UnicodeDecodeError) as exc:
-            raise SwarmInputError(f"--truth {path}: line {reader.line_num}: not CSV: {exc}") from None
+            raise OptionError("truth", f"{path}: line {reader.line_num}: not CSV: {exc}") from None
     if not rows:
-        raise SwarmInputError(f"--truth {path}: no rows after the header")
+        raise OptionError("truth", f"{path}: no rows after the header")
     if not by_time:
         return {(robot, int(step)): pose for (robot, step), pose in rows.items()}
     if step_times is None:
-        raise SwarmInputError(f"--truth {path}: has times, not steps, and no step times to match them to")
+        raise OptionError("truth", f"{path}: has times, not steps, and no step times to match them to")
     return _at_steps(rows, step_times)
 
 

@@ -25,7 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Collection, Iterable, Iterator
 from dataclasses import Field, dataclass, field, fields
-from typing import Any, ClassVar, TypeVar, overload
+from typing import Any, ClassVar, TypeVar, cast, overload
 
 import msgpack
 import numpy as np
@@ -165,7 +165,7 @@ def _scalar(x: Any, wire: Wire, path: str) -> Any:
     return v
 
 
-def _plain_leaves(values: list | tuple, wire: Wire) -> tuple | None:
+def _plain_leaves(values: list[Any] | tuple[Any, ...], wire: Wire) -> tuple[Any, ...] | None:
     """``values`` as a tuple if all are plain valid floats (or ints), the common case; else None."""
     if wire.kind == "float":
         if not set(map(type, values)) <= {float}:
@@ -197,7 +197,7 @@ def _fast_scalar(wire: Wire) -> Callable[[Any], bool]:
                       and (match is None or match(x) is not None))
 
 
-def _plain_nested(value: Any, wire: Wire, dims: dict[str, tuple[int, str]], path: Callable[[], str]) -> tuple | None:
+def _plain_nested(value: Any, wire: Wire, dims: dict[str, tuple[int, str]], path: Callable[[], str]) -> tuple[Any, ...] | None:
     """``value`` (a list field) as nested tuples if it is well formed with plain valid leaves, the common case,
     checked level by level in C (``map``, ``set``, ``itertools.chain``); else None (``_convert`` then names the
     problem). Records the length of a lettered first dimension in ``dims`` (at ``path()``) as ``_convert`` does."""
@@ -228,7 +228,7 @@ def _plain_nested(value: Any, wire: Wire, dims: dict[str, tuple[int, str]], path
     return plain
 
 
-def _nested_tuples(value: Any, depth: int) -> tuple:
+def _nested_tuples(value: Any, depth: int) -> tuple[Any, ...]:
     """A list nested ``depth`` levels as nested tuples (two levels in C: the common case of a row per robot)."""
     if depth <= 2:
         return tuple(value) if depth == 1 else tuple(map(tuple, value))
@@ -270,7 +270,7 @@ def _convert(value: Any, wire: Wire, path: str, dims: dict[str, tuple[int, str]]
 
 # ``dataclasses.fields(cls)``, computed once per message type (it is on every hot path). Typed as a plain
 # callable: mypy does not see a dataclass type as hashable, which the cache requires.
-_fields: Callable[[type], tuple[Field, ...]] = functools.cache(fields)
+_fields: Callable[[type], tuple[Field[Any], ...]] = functools.cache(fields)
 
 
 def _leaves(value: Any, path: str, depth: int) -> Iterator[tuple[str, Any]]:
@@ -752,7 +752,7 @@ def encode(msg: Message) -> bytes:
     """The msgpack map ``{"type", "v", fields...}`` of a (validated) message."""
     body: dict[str, Any] = {"type": msg.TYPE, "v": msg.VERSION}
     body.update((f.name, getattr(msg, f.name)) for f in _fields(type(msg)))
-    return msgpack.packb(body)
+    return cast(bytes, msgpack.packb(body))  # msgpack ships no types
 
 
 def _unpack(data: Any, max_bytes: int = MAX_MESSAGE_BYTES) -> Any:
@@ -793,7 +793,7 @@ def _message_class(raw: Any, expected: type[Message] | None) -> type[Message]:
     return cls
 
 
-def _readable_header(cls: type[Message], raw: dict) -> dict[str, Any]:
+def _readable_header(cls: type[Message], raw: dict[str, Any]) -> dict[str, Any]:
     header: dict[str, Any] = {"type": cls.TYPE}
     for f in fields(cls):
         if f.name in ("run", "step", "robot", "cmd_id") and f.name in raw:

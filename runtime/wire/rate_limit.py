@@ -5,13 +5,15 @@ from __future__ import annotations
 import threading
 import time
 
+from runtime.errors import SwarmInputError
+
 
 class RateLimit:
     """At most ``burst`` events at once and ``per_s`` per second on average; ``suppressed`` counts the others."""
 
     def __init__(self, per_s: float, burst: int) -> None:
         if not (per_s > 0 and burst >= 1):
-            raise ValueError(f"a rate limit needs per_s > 0 and burst >= 1, got {per_s!r}, {burst!r}")
+            raise SwarmInputError(f"a rate limit needs per_s > 0 and burst >= 1, got {per_s!r}, {burst!r}")
         self.per_s, self.burst = float(per_s), int(burst)
         self.suppressed = 0
         self._tokens = float(burst)

@@ -79,12 +79,13 @@ class RosProcess:
     @classmethod
     def add(cls, name: str, namespace: str = "") -> Any:
         import rclpy  # noqa: PLC0415
+        from rclpy.context import Context  # noqa: PLC0415
         from rclpy.executors import MultiThreadedExecutor  # noqa: PLC0415
         from rclpy.signals import SignalHandlerOptions  # noqa: PLC0415
 
         with cls._lock:
             if cls._context is None:
-                cls._context = rclpy.Context()
+                cls._context = Context()
                 rclpy.init(context=cls._context, signal_handler_options=SignalHandlerOptions.NO)
                 cls._executor = MultiThreadedExecutor(num_threads=2, context=cls._context)
                 cls._thread = threading.Thread(target=cls._spin, args=(cls._executor,), name="ros2-executor", daemon=True)

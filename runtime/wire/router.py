@@ -7,7 +7,7 @@ import os
 
 import zenoh
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.wire.tls_files import check_tls_files
 from runtime.wire.transport import ZenohSettings
 
@@ -25,7 +25,7 @@ def router_settings(listen: list[str], config_file: str | None) -> ZenohSettings
     endpoints = tuple(listen)
     if config_file is not None:
         if not os.path.isfile(config_file) or not os.access(config_file, os.R_OK):
-            raise SwarmInputError(f"--config {config_file!r} is not a readable file")
+            raise OptionError("config", f"{config_file!r} is not a readable file")
         config = ZenohSettings("router", config_file=config_file).to_config()  # SwarmInputError if invalid
         check_tls_files(config, f"--config {config_file}")
         if not endpoints:

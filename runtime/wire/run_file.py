@@ -22,6 +22,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 from runtime.errors import SwarmInputError
 from runtime.wire.keys import validate_run
@@ -52,7 +53,7 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def read_run(run_id: str) -> dict | None:
+def read_run(run_id: str) -> dict[str, Any] | None:
     """The run file of ``run_id`` if its process is alive; None if there is none (a stale one is removed)."""
     path = run_file(run_id)
     try:
@@ -75,7 +76,7 @@ def hub_of(run_id: str) -> str:
     if entry is None:
         raise SwarmInputError(f"no live run {run_id!r} on this host (no run file {run_file(run_id)}): "
                               f"give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
-    return entry["hub"]
+    return str(entry["hub"])  # a str: read_run made it one
 
 
 @contextlib.contextmanager

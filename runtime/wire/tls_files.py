@@ -12,10 +12,15 @@ from __future__ import annotations
 import datetime
 import json
 import os
+from typing import TYPE_CHECKING
 
 import zenoh
 
 from runtime.errors import SwarmInputError
+
+if TYPE_CHECKING:
+    from cryptography import x509
+    from cryptography.hazmat.primitives.asymmetric.types import PrivateKeyTypes
 
 CERTIFICATES = ("root_ca_certificate", "listen_certificate", "connect_certificate")
 KEY_OF = {"listen_private_key": "listen_certificate", "connect_private_key": "connect_certificate"}  # key -> its certificate
@@ -31,7 +36,7 @@ def _read(path: object, where: str) -> bytes:
     return data
 
 
-def _certificates(data: bytes, where: str, path: str) -> list:
+def _certificates(data: bytes, where: str, path: str) -> list[x509.Certificate]:
     from cryptography import x509  # noqa: PLC0415 - only for processes with TLS files
 
     if b"-----BEGIN CERTIFICATE-----" not in data:
@@ -52,7 +57,7 @@ def _certificates(data: bytes, where: str, path: str) -> list:
     return certs
 
 
-def _key(data: bytes, where: str, path: str):
+def _key(data: bytes, where: str, path: str) -> PrivateKeyTypes:
     from cryptography.hazmat.primitives import serialization  # noqa: PLC0415
 
     if b"PRIVATE KEY-----" not in data:

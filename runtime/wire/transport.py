@@ -44,7 +44,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from runtime.errors import SwarmInputError
+from runtime.errors import SwarmConnectionError, SwarmInputError
 from runtime.wire.keys import alive_key, link_alive_key
 from runtime.wire.tls_files import check_tls_files
 
@@ -192,7 +192,7 @@ def open_session(settings: ZenohSettings) -> zenoh.Session:
             endpoints = [e for per_mode in endpoints.values() for e in per_mode]
         tls = " (its certificate and key files were checked: the router is down, unreachable, or refused them)" \
             if settings.config_file is not None and any(str(e).startswith("tls/") for e in endpoints) else ""
-        raise ConnectionError(f"cannot open a zenoh {settings.mode} session (listen={list(settings.listen)}, "
+        raise SwarmConnectionError(f"cannot open a zenoh {settings.mode} session (listen={list(settings.listen)}, "
                               f"connect={endpoints}){tls}: {zenoh_error_text(exc)}") from None
 
 
@@ -201,7 +201,7 @@ def publish(session: zenoh.Session, key: str, payload: bytes) -> None:
     session.put(key, payload)
 
 
-def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, bytes], object]) -> zenoh.Subscriber:
+def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, bytes], object]) -> zenoh.Subscriber[None]:
     """Call ``callback(key, payload)`` for every sample on ``key_expr`` (on a Zenoh thread: see module doc)."""
     return session.declare_subscriber(
         key_expr, lambda sample: callback(str(sample.key_expr), sample.payload.to_bytes())
@@ -210,7 +210,7 @@ def subscribe(session: zenoh.Session, key_expr: str, callback: Callable[[str, by
 
 def subscribe_queue(
     session: zenoh.Session, key_expr: str
-) -> tuple[zenoh.Subscriber, queue.Queue[tuple[str, bytes]]]:
+) -> tuple[zenoh.Subscriber[None], queue.Queue[tuple[str, bytes]]]:
     """Like ``subscribe`` but samples land as ``(key, payload)`` in an unbounded queue you read from any thread."""
     inbox: queue.Queue[tuple[str, bytes]] = queue.Queue()
     return subscribe(session, key_expr, lambda key, payload: inbox.put((key, payload))), inbox
@@ -226,7 +226,7 @@ def declare_token(session: zenoh.Session, key: str) -> zenoh.LivelinessToken:
 
 def watch_liveliness(
     session: zenoh.Session, key_expr: str, on_change: Callable[[str, bool], object]
-) -> zenoh.Subscriber:
+) -> zenoh.Subscriber[None]:
     """Call ``on_change(key, alive)`` when a token on ``key_expr`` appears or disappears.
 
     Tokens alive before the call are reported first (``alive=True``). Runs on a Zenoh thread.
@@ -267,14 +267,14 @@ def round_trip_ms(settings_a: ZenohSettings, settings_b: ZenohSettings, count: i
         deadline = time.monotonic() + 5.0
         while not ping(timeout_s=0.05):  # until B's subscription has reached A
             if time.monotonic() > deadline:
-                raise TimeoutError("no pong within 5 s: do the two settings reach each other?")
+                raise SwarmConnectionError("no pong within 5 s: do the two settings reach each other?")
         for _ in range(20):
             ping(timeout_s=1.0)
         times = []
         for _ in range(count):
             start = time.perf_counter()
             if not ping(timeout_s=1.0):
-                raise TimeoutError("a ping got no pong within 1 s")
+                raise SwarmConnectionError("a ping got no pong within 1 s")
             times.append((time.perf_counter() - start) * 1e3)
         pings.undeclare()
         ponger.join(timeout=1.0)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields, replace
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 
 GRAVITY_M_S2 = 9.81
@@ -119,14 +119,14 @@ def parse_physics_params(pairs: list[str], model: ModelConfig) -> PhysicsParams:
         name, sep, text = pair.partition("=")
         name = name.strip()
         if not sep or not name:
-            raise SwarmInputError(f"--physics-param must be NAME=VALUE, got {pair!r}")
+            raise OptionError("physics_param", f"must be NAME=VALUE, got {pair!r}")
         if name == "occlusion":
             if text.strip().lower() not in ("true", "false", "1", "0", "yes", "no"):
-                raise SwarmInputError(f"--physics-param {pair}: occlusion is true or false")
+                raise OptionError("physics_param", f"{pair}: occlusion is true or false")
             overrides[name] = text.strip().lower() in ("true", "1", "yes")
             continue
         try:
             overrides[name] = float(text)
         except ValueError:
-            raise SwarmInputError(f"--physics-param {pair}: {text!r} is not a number") from None
+            raise OptionError("physics_param", f"{pair}: {text!r} is not a number") from None
     return PhysicsParams.for_model(model, **overrides)

@@ -2,9 +2,10 @@
 
 ``World`` is one world with an explicit lifecycle: made with the robots' ids and initial poses,
 driven by ``command`` (an open-loop turn-then-drive, played back as wheel-speed profiles within the
-wheels' limits, ``runtime.world.profiles``) or ``set_wheel_speeds`` (direct wheel control, as a
-velocity command would), advanced by ``step`` / ``settle`` in fixed steps of ``params.dt_s``, read
-by ``pose`` / ``poses`` / ``sense`` / ``take_events``, and ended by ``close``. It never looks at the
+wheels' limits, ``runtime.world.profiles``), ``set_twist`` (a velocity command, ``cmd_vel``) or
+``set_wheel_speeds`` (exact wheel control), advanced by ``step`` / ``settle`` in fixed steps of
+``params.dt_s``, read by ``pose`` / ``poses`` / ``sense`` / ``take_events`` / ``odometry``, and ended
+by ``close``. It never looks at the
 clock and draws from seeded per-robot streams (``robot_rng(seed, id, MOTION)`` for the wheels,
 ``SENSING`` for the sensor), so the same seed and the same calls give the same world, bit for bit.
 
@@ -12,7 +13,9 @@ Each robot is a dynamic disc driven through a kinematic control body (the pymunk
 idiom): a pivot joint makes its velocity follow the wheels' forward speed along its heading and
 a gear joint its turn rate, each with a force limit, the ground's traction; past it the wheels
 slip. A robot standing still holds its place with the smaller hold force, so a mover can push
-it, and two movers head-on stall. Contacts and stalls are events.
+it, and two movers head-on stall. Contacts and stalls are events. With ``encoders`` each robot's
+wheel encoders integrate its odometry: the wheels' speeds divided by the motion's wheel-speed factors (what the
+encoders count), so odometry sees neither those factors, nor slip, nor pushes.
 
 Not thread-safe: one thread drives a ``World`` (``runtime.world.realtime.RealtimeWorld`` shares one
 among threads).
@@ -21,8 +24,10 @@ among threads).
 from __future__ import annotations
 
 import math
+import types
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -33,6 +38,9 @@ from runtime.world.params import PhysicsParams
 from runtime.world.profiles import TurnDriveProfile
 from runtime.world.sensing import sense as sense_world
 
+if TYPE_CHECKING:
+    import pymunk
+
 INSTALL_HINT = "pip install 'inchworm-swarm[physics]'"
 REST_SPEED_M_S = 1e-4  # a body slower than this (and turning slower than REST_TURN_RAD_S) is at rest
 REST_TURN_RAD_S = 1e-3
@@ -40,7 +48,7 @@ STUCK_FRACTION = 0.5  # a drive that covered less than this share of its command
 STUCK_MIN_M = 0.002  # drives shorter than this are never reported stuck
 
 
-def require_pymunk():
+def require_pymunk() -> types.ModuleType:
     """The pymunk module, or ``SwarmInputError`` naming the extra to install."""
     try:
         import pymunk  # noqa: PLC0415 - the optional physics extra
@@ -94,6 +102,8 @@ class _Robot:
     scale: list[float] = field(default_factory=lambda: [1.0, 1.0])  # this command's wheel-speed factors
     drive_start: np.ndarray | None = None  # position when the drive phase began
     moving: bool = False  # whether its joints hold the drive force (else the hold force)
+    odom: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])  # the encoders' dead reckoning (x, y, heading)
+    encoder: tuple[float, float] = (0.0, 0.0)  # the encoders' (v m/s, w rad/s) of the last step
 
 
 @dataclass
@@ -108,7 +118,10 @@ class _Touch:
 class World:
     """Robots ``ids`` at ``poses`` (n, 3: x, y, heading) in a world of ``params``, seeded with ``seed``."""
 
-    def __init__(self, ids: Iterable[int], poses: np.ndarray, params: PhysicsParams = PhysicsParams(), seed: int = 0) -> None:
+    _space: pymunk.Space | None
+
+    def __init__(self, ids: Iterable[int], poses: np.ndarray, params: PhysicsParams = PhysicsParams(), seed: int = 0, *,
+                 encoders: bool = False) -> None:
         pymunk = require_pymunk()
         self.ids = tuple(int(i) for i in ids)
         if not self.ids or len(set(self.ids)) != len(self.ids):
@@ -118,6 +131,7 @@ class World:
             raise SwarmInputError(f"initial poses must be {len(self.ids)} finite rows of [x, y, heading], got shape {poses.shape}")
         self.params = params
         self.seed = int(seed)
+        self.encoders = bool(encoders)  # whether the wheel encoders count (``odometry``): a cost per robot and step
         self.time_s = 0.0
         self._steps = 0
         self._index = {r: k for k, r in enumerate(self.ids)}
@@ -146,7 +160,7 @@ class World:
             gear.max_bias = 0.0
             space.add(body, shape, control, pivot, gear)
             self._robots.append(_Robot(robot, body, control, pivot, gear, robot_rng(seed, robot, Stream.MOTION),
-                                       robot_rng(seed, robot, Stream.SENSING)))
+                                       robot_rng(seed, robot, Stream.SENSING), odom=[float(x) for x in pose]))
             self._hold(self._robots[-1], False)
         space.on_collision(1, 1, begin=self._begin, post_solve=self._post_solve, separate=self._separate)
 
@@ -166,7 +180,7 @@ class World:
     def closed(self) -> bool:
         return self._space is None
 
-    def _live(self):
+    def _live(self) -> pymunk.Space:
         if self._space is None:
             raise SwarmInputError("the world was closed")
         return self._space
@@ -190,24 +204,50 @@ class World:
         if not (math.isfinite(turn_rad) and math.isfinite(drive_m)):
             raise SwarmInputError(f"robot {robot}: turn {turn_rad} rad / drive {drive_m} m must be finite")
         p = self.params
-        common = 1.0 + r.motion.normal() * p.wheel_scale_sigma
-        r.scale = [float(x) for x in common * (1.0 + r.motion.normal(0.0, 1.0, 2) * p.wheel_diff_sigma)]
+        self._draw_scale(r)
         r.profile = TurnDriveProfile(float(turn_rad), float(drive_m), p.track_m, p.max_wheel_speed_m_s, p.max_wheel_accel_m_s2)
         r.started_s = self.time_s
         r.target[:] = 0.0
         r.drive_start = None
         return r.profile.duration
 
+    def _draw_scale(self, r: _Robot) -> None:
+        """A motion's wheel-speed factors from the robot's motion stream: a common 1 + N(0, wheel_scale_sigma) and per
+        wheel 1 + N(0, wheel_diff_sigma) (two normals, then two)."""
+        p = self.params
+        common = 1.0 + r.motion.normal() * p.wheel_scale_sigma
+        r.scale = [float(x) for x in common * (1.0 + r.motion.normal(0.0, 1.0, 2) * p.wheel_diff_sigma)]
+
     def set_wheel_speeds(self, robot: int, left_m_s: float, right_m_s: float) -> None:
-        """Drive ``robot``'s wheels at these speeds (clipped to the speed limit, reached at the acceleration limit)
+        """Drive ``robot``'s wheels at exactly these speeds (clipped to the speed limit, reached at the acceleration limit)
         until told otherwise; cancels a command in progress."""
+        self._set_wheels(robot, left_m_s, right_m_s, draw=False)
+
+    def set_twist(self, robot: int, v_m_s: float, w_rad_s: float) -> None:
+        """Drive ``robot`` at the body twist (v m/s ahead, w rad/s counter-clockwise), as a ``cmd_vel`` would: wheel speeds
+        v -+ w track / 2, clipped and ramped as ``set_wheel_speeds``, until told otherwise; cancels a command in progress.
+        A motion that starts from rest draws its wheel-speed factors as ``command`` does, and they hold until the next
+        start from rest: the ground speed of each wheel is its commanded (and counted) speed times its factor."""
+        if not (math.isfinite(v_m_s) and math.isfinite(w_rad_s)):
+            raise SwarmInputError(f"robot {robot}: twist {v_m_s} m/s, {w_rad_s} rad/s must be finite")
+        half = 0.5 * w_rad_s * self.params.track_m
+        self._set_wheels(robot, v_m_s - half, v_m_s + half, draw=True)
+
+    def _set_wheels(self, robot: int, left_m_s: float, right_m_s: float, *, draw: bool) -> None:
         self._live()
         r = self._robots[self.index(robot)]
         if not (math.isfinite(left_m_s) and math.isfinite(right_m_s)):
             raise SwarmInputError(f"robot {robot}: wheel speeds {left_m_s}, {right_m_s} m/s must be finite")
         vmax = self.params.max_wheel_speed_m_s
+        from_rest = r.profile is None and not r.target.any() and r.wheels[0] == 0.0 and r.wheels[1] == 0.0
         r.profile = None
         r.target[:] = np.clip([left_m_s, right_m_s], -vmax, vmax)
+        if not r.target.any():
+            return  # a stop ramps down with the factors of the motion it ends
+        if not draw:
+            r.scale = [1.0, 1.0]
+        elif from_rest:
+            self._draw_scale(r)
 
     def halt(self, robot: int) -> None:
         """Stop ``robot``'s command or wheel speeds (it decelerates at the acceleration limit)."""
@@ -254,28 +294,47 @@ class World:
         return self.time_s - start
 
     def _drive(self, r: _Robot, dt: float) -> None:
+        """Apply this step's wheel speeds. A command's profile is limited on the ground (its factors applied first);
+        direct control limits the motors' speeds (what the encoders count), the ground getting them times the factors."""
         p = self.params
+        step, vmax = p.max_wheel_accel_m_s2 * dt, p.max_wheel_speed_m_s
+        wheels = r.wheels
         if r.profile is not None:
             t = self.time_s - r.started_s
             left, right = r.profile.wheels(t)
             target = (left * r.scale[0], right * r.scale[1])
             if r.drive_start is None and r.profile.in_drive(t):
                 r.drive_start = np.array(r.body.position)  # type: ignore[attr-defined]
+            for k in (0, 1):  # plain floats: numpy costs more than it saves on two numbers
+                change = min(max(target[k] - wheels[k], -step), step)
+                wheels[k] = min(max(wheels[k] + change, -vmax), vmax)
         else:
-            target = (float(r.target[0]), float(r.target[1]))
-        step, vmax = p.max_wheel_accel_m_s2 * dt, p.max_wheel_speed_m_s
-        wheels = r.wheels
-        for k in (0, 1):  # plain floats: numpy costs more than it saves on two numbers
-            change = min(max(target[k] - wheels[k], -step), step)
-            wheels[k] = min(max(wheels[k] + change, -vmax), vmax)
+            for k in (0, 1):
+                factor = r.scale[k] if r.scale[k] > 0 else 1.0
+                counted = wheels[k] / factor
+                change = min(max(float(r.target[k]) - counted, -step), step)
+                wheels[k] = min(max(counted + change, -vmax), vmax) * factor
         v = 0.5 * (wheels[0] + wheels[1])
         w = (wheels[1] - wheels[0]) / p.track_m
         angle = r.body.angle  # type: ignore[attr-defined]
         r.control.velocity = (v * math.cos(angle), v * math.sin(angle))  # type: ignore[attr-defined]
         r.control.angular_velocity = w  # type: ignore[attr-defined]
+        if self.encoders:
+            self._count(r, dt)
         moving = r.profile is not None or wheels[0] != 0.0 or wheels[1] != 0.0 or bool(r.target.any())
         if moving != r.moving:
             self._hold(r, moving)
+
+    def _count(self, r: _Robot, dt: float) -> None:
+        """The encoders over this step: each wheel's speed over its factor, integrated along the arc's mid heading."""
+        left = r.wheels[0] / r.scale[0] if r.scale[0] > 0 else r.wheels[0]
+        right = r.wheels[1] / r.scale[1] if r.scale[1] > 0 else r.wheels[1]
+        v, w = 0.5 * (left + right), (right - left) / self.params.track_m
+        r.encoder = (v, w)
+        if v or w:
+            x, y, h = r.odom
+            mid = h + 0.5 * w * dt
+            r.odom = [x + v * dt * math.cos(mid), y + v * dt * math.sin(mid), math.remainder(h + w * dt, 2.0 * math.pi)]
 
     def _hold(self, r: _Robot, moving: bool) -> None:
         r.moving = moving
@@ -298,11 +357,11 @@ class World:
 
     # -- contacts ------------------------------------------------------------------------
 
-    def _pair(self, arbiter) -> tuple[int, int]:
+    def _pair(self, arbiter: pymunk.Arbiter) -> tuple[int, int]:
         a, b = (self.ids[s.robot_index] for s in arbiter.shapes)
         return (a, b) if a < b else (b, a)
 
-    def _begin(self, arbiter, space, data) -> None:
+    def _begin(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         pts = arbiter.contact_point_set.points
         point = (0.5 * (pts[0].point_a.x + pts[0].point_b.x), 0.5 * (pts[0].point_a.y + pts[0].point_b.y)) if pts else (math.nan, math.nan)
         pair = self._pair(arbiter)
@@ -311,12 +370,12 @@ class World:
             self._closed_touches.append((pair, old))
         self._touch[pair] = _Touch(self.time_s, (float(point[0]), float(point[1])))
 
-    def _post_solve(self, arbiter, space, data) -> None:
+    def _post_solve(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         touch = self._touch.get(self._pair(arbiter))
         if touch is not None:
             touch.impulse += float(abs(arbiter.total_impulse))
 
-    def _separate(self, arbiter, space, data) -> None:
+    def _separate(self, arbiter: pymunk.Arbiter, space: pymunk.Space, data: Any) -> None:
         pair = self._pair(arbiter)
         touch = self._touch.pop(pair, None)
         if touch is not None:
@@ -354,6 +413,19 @@ class World:
         """True poses (n, 3) of every robot, rows in ``ids`` order."""
         self._live()
         return np.array([self._pose(r) for r in self._robots]).reshape(len(self.ids), 3)
+
+    def odometry(self) -> np.ndarray:
+        """Every robot's wheel odometry (n, 3: x, y, heading), from its initial pose, rows in ``ids`` order (``encoders``)."""
+        self._live()
+        if not self.encoders:
+            raise SwarmInputError("this world counts no wheel encoders: make it with World(..., encoders=True)")
+        return np.array([r.odom for r in self._robots]).reshape(len(self.ids), 3)
+
+    def encoder_twists(self) -> np.ndarray:
+        """Every robot's (v m/s, w rad/s) as its encoders counted it in the last step (n, 2; ``encoders``)."""
+        if not self.encoders:
+            raise SwarmInputError("this world counts no wheel encoders: make it with World(..., encoders=True)")
+        return np.array([r.encoder for r in self._robots]).reshape(len(self.ids), 2)
 
     def sense(self, robot: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(robot ids seen, ranges m, bearings rad in the body frame) of ``robot`` now, drawing from its sensing stream."""

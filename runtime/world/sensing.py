@@ -10,6 +10,8 @@ every target and blocker of one observer.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 
 from runtime.models.geometry import wrap_angle
@@ -45,7 +47,7 @@ def _occluded(centres: np.ndarray, index: int, targets: np.ndarray, radius: floa
     blocker = between & near
     blocker[index, :] = False
     blocker[targets, np.arange(len(targets))] = False
-    return blocker.any(axis=0)
+    return cast(np.ndarray, blocker.any(axis=0))
 
 
 def sense(poses: np.ndarray, index: int, params: PhysicsParams, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,315 @@
+"""Typed, versioned descriptions of the processes of a run: what each process kind needs to start.
+
+Every process the library starts (an agent host, a port process, a link, a coordinator or its standby, the robot
+emulator, simulated ROS 2 robots, the ROS 2 bridge, a Zenoh router, a whole ``swarm launch``) is one of these ``msgspec`` Structs, serialized
+once as JSON (``encode_spec``) and read back by the child (``decode_spec``; ``python -m inchworm.spawn``). The
+``swarm`` commands build the same Structs from their flags and run the same function (``inchworm.process_mains``),
+so a spec and the command line it stands for behave alike. Units SI (angles in radians, times in seconds); paths
+are strings; the model is ``ModelConfig`` itself, encoded as ``ModelConfig.to_dict()`` (read back: ``model_from_dict``).
+
+A spec is a JSON object with ``"kind"`` (its tag) and ``"version"``; a version this build does not read, an
+unknown kind or field, or a value of the wrong type is one ``SpecError`` naming it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, ClassVar
+
+import msgspec
+
+from runtime.errors import SwarmInputError
+from runtime.models.config import ModelConfig
+
+SPEC_VERSION = 1  # every kind is at version 1
+MODEL_FIELDS = frozenset(f.name for f in dataclasses.fields(ModelConfig))
+
+
+class SpecError(SwarmInputError):
+    """A spec that cannot be read: not JSON, an unknown kind or version, a missing, unknown or mistyped field."""
+
+
+class ProcessSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True, tag_field="kind"):
+    """Base of every process kind: its ``version`` (``VERSION`` is the one this build reads)."""
+
+    VERSION: ClassVar[int] = SPEC_VERSION
+    version: int = SPEC_VERSION
+
+    @property
+    def label(self) -> str:
+        """The kind as ``ps`` shows it (the spawned process's last argument)."""
+        return kind_of(self)
+
+
+class AgentHostSpec(ProcessSpec, frozen=True, tag="agent"):
+    """``swarm agent``: the agents of ``robots`` (several share one process and Zenoh session) of the run whose robots
+    are ``run_robots`` (None: the trajectory's). Simulated robots start at ``pose`` (one robot) or the initial poses
+    of ``trajectory``. ``max_drive_m`` / ``max_turn_rad`` / ``ready_timeout`` None: the agent's defaults."""
+
+    run_id: str
+    robots: tuple[int, ...]
+    run_robots: tuple[int, ...] | None = None
+    hub: str | None = None
+    zenoh_config: str | None = None
+    trajectory: str | None = None
+    pose: tuple[float, float, float] | None = None
+    seed: int = 0
+    model: ModelConfig = msgspec.field(default_factory=ModelConfig)
+    motion_time: float = 0.0
+    driver: str = "sim"
+    driver_options: tuple[str, ...] = ()  # KEY=VALUE, as --driver-option takes them
+    command_timeout: float | None = None
+    gateway_config: str | None = None
+    max_drive_m: float | None = None
+    max_turn_rad: float | None = None
+    ready_timeout: float | None = None
+    world: str = "model"  # or "physics"
+    physics_params: tuple[str, ...] = ()  # NAME=VALUE, as --physics-param takes them
+    physics_speed: float = 0.0
+
+
+class PortProcessSpec(AgentHostSpec, frozen=True, tag="port"):
+    """``swarm agent --link``: an agent host that also runs the link of its robots' port (the gateway PC's layout)."""
+
+
+class LinkSpec(ProcessSpec, frozen=True, tag="link"):
+    """``swarm link``: the link process of port ``port`` of the gateway config ``config``."""
+
+    config: str
+    port: str
+    run_id: str
+    hub: str | None = None
+    zenoh_config: str | None = None
+
+
+class SelectionSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
+    """The anchor search as the options set it (``inchworm.limits.selection_from``)."""
+
+    w_v: float = 0.5
+    samples: int = 16
+    population: int = 12
+    generations: int = 8
+    method: str = "mc"
+    mc_start: str = "known"
+    mc_emax: str = "mean"
+    genetic: str = "auto"
+
+
+class CoordinatorSpec(ProcessSpec, frozen=True, tag="coordinator"):
+    """``swarm coordinator`` (``standby``: ``--standby``, ``resume``: ``--resume RECORDING``). ``record`` None: the
+    default recording (``recordings/<run>.mcap``), unless ``no_record``. ``command``: the command line for the
+    recording's metadata."""
+
+    trajectory: str
+    run_id: str
+    hub: str | None = None
+    zenoh_config: str | None = None
+    method: str = "inchworm"
+    seed: int = 0
+    localizer: str = "paper"
+    model: ModelConfig = msgspec.field(default_factory=ModelConfig)
+    model_file: str | None = None  # the file ``model`` was read from (its name goes into the metadata)
+    selection: SelectionSpec = msgspec.field(default_factory=SelectionSpec)
+    start_timeout: float = 30.0
+    step_timeout: float = 5.0
+    on_lost: str = "continue"
+    min_robots: int = 2
+    truth: bool = True
+    result: str | None = None
+    out: str | None = None
+    rejoin: bool = True
+    standby: bool = False
+    resume: str | None = None
+    record: str | None = None
+    no_record: bool = False
+    on_record_error: str = "continue"
+    foxglove: int | None = None
+    linger: float | None = None
+    json: bool = False
+    command: str = ""
+
+    @property
+    def label(self) -> str:
+        return "standby" if self.standby else "coordinator"
+
+
+class EmulatorSpec(ProcessSpec, frozen=True, tag="emulator"):
+    """``swarm emulate-robots``: the robots of the gateway config ``config`` on ptys; radio faults per port."""
+
+    config: str
+    trajectory: str
+    seed: int = 0
+    motion_time: float = 0.0
+    miscalibrate: bool = False
+    model: ModelConfig = msgspec.field(default_factory=ModelConfig)
+    physics: bool = False
+    physics_params: tuple[str, ...] = ()
+    physics_speed: float = 0.0
+    drop: float = 0.0
+    corrupt: float = 0.0
+    delay: float = 0.0
+    drop_rx: tuple[int, ...] = ()
+    drop_tx: tuple[int, ...] = ()
+    blackout: tuple[int, float] | None = None  # (step, seconds)
+    events: str | None = None
+    write_config: str | None = None
+    hub: str | None = None
+    zenoh_config: str | None = None
+    run_id: str | None = None
+    json: bool = False
+
+
+class Ros2RobotsSpec(ProcessSpec, frozen=True, tag="ros2-robots"):
+    """``swarm ros2 robots``: simulated ROS 2 robots of ``trajectory``; ``silent``: robot -> the motion it falls silent at.
+    In the physical world (``world`` "physics", ``physics_params``) with ``run_id`` its physics events go to that run
+    (``hub``, else the run file of a run on this host)."""
+
+    trajectory: str
+    seed: int = 0
+    model: ModelConfig = msgspec.field(default_factory=ModelConfig)
+    world: str = "kinematic"
+    physics_params: tuple[str, ...] = ()
+    run_id: str | None = None
+    hub: str | None = None
+    driver_options: tuple[str, ...] = ()
+    rate: float = 50.0
+    sensing_rate: float = 10.0
+    no_ground_truth: bool = False
+    no_odom: tuple[int, ...] = ()
+    silent: dict[int, int] = msgspec.field(default_factory=dict)
+    sightings_twice: bool = False
+    late_sightings: float = 0.0
+
+
+class Ros2BridgeSpec(ProcessSpec, frozen=True, tag="ros2-bridge"):
+    """``swarm ros2 bridge``: the run live in ROS 2 (``robot_radius`` None: the model's default)."""
+
+    run_id: str
+    trajectory: str | None = None
+    robot_radius: float | None = None
+    wait: float = 0.0
+    hub: str | None = None
+    zenoh_config: str | None = None
+
+
+class RouterSpec(ProcessSpec, frozen=True, tag="router"):
+    """``swarm router``: a Zenoh router listening on ``listen`` (empty: the config file's, else the default)."""
+
+    listen: tuple[str, ...] = ()
+    config: str | None = None
+    json: bool = False
+
+
+class LaunchSpec(ProcessSpec, frozen=True, tag="launch"):
+    """``swarm launch`` / ``swarm demo`` (``command``): a whole run on this host, as ``inchworm.launcher.LaunchOptions``
+    holds it (its fields and defaults; ``kill_robot``: every (ID, STEP) pair)."""
+
+    model: ModelConfig = msgspec.field(default_factory=ModelConfig)
+    model_file: str | None = None
+    localizer: str = "paper"
+    selection: SelectionSpec = msgspec.field(default_factory=SelectionSpec)
+    command: str = "launch"
+    trajectory: str | None = None
+    robots: int = 10
+    configs: int = 3
+    trajectory_seed: int = 0
+    method: str = "inchworm"
+    seed: int = 0
+    run_id: str | None = None
+    out: str | None = None
+    result: str | None = None
+    motion_time: float = 0.0
+    step_timeout: float | None = None
+    driver: str = "sim"
+    driver_options: tuple[str, ...] = ()
+    command_timeout: float | None = None
+    gateway_config: str | None = None
+    emulator_events: str | None = None
+    min_robots: int = 2
+    kill_robot: tuple[tuple[int, int], ...] = ()
+    standby: bool = False
+    kill_coordinator: int | None = None
+    agents_per_process: int | None = None
+    drop: float = 0.0
+    corrupt: float = 0.0
+    delay: float = 0.0
+    record: str | None = None
+    no_record: bool = False
+    foxglove: int | None = None
+    linger: float | None = None
+    json: bool = False
+    on_lost: str = "continue"
+    rejoin: bool = True
+    on_record_error: str = "continue"
+    world: str = "model"
+    physics_params: tuple[str, ...] = ()
+    physics_speed: float = 0.0
+    ros2: bool = False
+    ros2_robots: bool = False
+    stall_coordinator: tuple[int, float] | None = None
+    stall_link: tuple[int, float] | None = None
+
+
+SPECS: tuple[type[ProcessSpec], ...] = (AgentHostSpec, PortProcessSpec, LinkSpec, CoordinatorSpec, EmulatorSpec, Ros2RobotsSpec,
+                                        Ros2BridgeSpec, RouterSpec, LaunchSpec)
+KINDS: dict[str, type[ProcessSpec]] = {c.__struct_config__.tag: c for c in SPECS}  # type: ignore[misc] # tags are str
+
+
+def kind_of(spec: ProcessSpec | type[ProcessSpec]) -> str:
+    """The ``kind`` tag of a spec or spec class."""
+    return str((spec if isinstance(spec, type) else type(spec)).__struct_config__.tag)
+
+
+class _Head(msgspec.Struct):
+    kind: str
+    version: int
+
+
+def encode_spec(spec: ProcessSpec) -> bytes:
+    """The spec as one JSON object (its ``kind`` tag first)."""
+    return msgspec.json.encode(spec)
+
+
+def decode_spec(data: bytes | str, expected: type[ProcessSpec] | None = None) -> ProcessSpec:
+    """The spec of the JSON ``data`` (of kind ``expected``, if given); ``SpecError`` naming what is wrong."""
+    try:
+        head = msgspec.json.decode(data, type=_Head)
+    except msgspec.DecodeError as exc:  # ValidationError included: no kind, or a version that is no integer
+        raise SpecError(f"not a process spec: {exc}") from None
+    cls = KINDS.get(head.kind)
+    if cls is None:
+        raise SpecError(f"unknown process kind {head.kind!r} (known: {', '.join(KINDS)})")
+    if expected is not None and cls is not expected:
+        raise SpecError(f"a {head.kind} spec where a {kind_of(expected)} spec was expected")
+    if head.version != cls.VERSION:
+        raise SpecError(f"{head.kind} spec version {head.version}: this build reads version {cls.VERSION}")
+    try:
+        spec = msgspec.json.decode(data, type=cls)
+    except msgspec.ValidationError as exc:
+        raise SpecError(f"{head.kind} spec: {exc}") from None
+    _check_model_keys(msgspec.json.decode(data).get("model"), f"{head.kind} spec: ", " - at `$.model`")
+    return spec
+
+
+def _check_model_keys(values: object, prefix: str = "", suffix: str = "") -> None:
+    """``SpecError`` for a key of a model dict that is no ``ModelConfig`` field (msgspec drops those of a dataclass)."""
+    unknown = sorted(set(values) - MODEL_FIELDS) if isinstance(values, dict) else []
+    if unknown:
+        raise SpecError(f"{prefix}unknown model field {unknown[0]!r} (fields: {', '.join(sorted(MODEL_FIELDS))}){suffix}")
+
+
+def model_from_dict(values: dict[str, Any]) -> ModelConfig:
+    """``ModelConfig`` of its dict (``ModelConfig.to_dict()``, what every spec carries; missing keys: the defaults);
+    ``SpecError`` naming a bad field."""
+    _check_model_keys(values, "model: ")
+    try:
+        return msgspec.convert(values, ModelConfig)
+    except msgspec.ValidationError as exc:
+        raise SpecError(f"model: {exc}") from None
+
+
+def selection_spec(selection: Any) -> SelectionSpec:
+    """The ``SelectionSpec`` of a ``coordinator.selection.selector.SelectionConfig`` (the fields the options set)."""
+    return SelectionSpec(w_v=selection.w_v, samples=selection.samples, population=selection.genetic.population,
+                         generations=selection.genetic.generations, method=selection.method, mc_start=selection.mc_start,
+                         mc_emax=selection.mc_emax, genetic=selection.genetic_gate)

@@ -1,0 +1,55 @@
+"""With bodies the search returns a clear plan at a count whose heuristic plan is crowded, wherever one exists
+(docs/bodies.md, docs/selection.md): config 8 of ``swarm study selection --robots 8 --seed 4242``, n_a = 6, where 72
+of the 2520 plans keep bodies clear and connected; with the joint localizer the genetic gate is off there, so
+the repaired heuristic plan alone found none."""
+
+from dataclasses import replace
+
+import numpy as np
+
+from coordinator.localization import make_localizer
+from coordinator.plan import enumerate_plans
+from coordinator.selection import selector as selector_module
+from coordinator.selection.heuristic import heuristic_plan
+from coordinator.selection.monte_carlo import plan_keeps_connectivity
+from coordinator.selection.selector import AnchorSelector, SelectionConfig
+from inchworm.studies.anchors import Job, experiment_setup
+from runtime.models.bodies import BodyCheck
+from runtime.models.config import ModelConfig
+
+CFG = ModelConfig()
+
+
+def test_a_crowded_count_returns_a_clear_plan_where_one_exists():
+    _, start, desired, estimate, _ = experiment_setup(Job(8, 8, 8, 4242, CFG, "joint"))
+    bodies = BodyCheck.of_estimate(CFG, estimate, desired)
+
+    def feasible(plan):
+        return bodies.is_clear(plan.groups) and plan_keeps_connectivity(plan, estimate.positions, desired, CFG.sensing_range_m)
+
+    assert not bodies.is_clear(heuristic_plan(estimate.positions, desired, 6).groups)
+    clear = {p.key() for p in enumerate_plans(8, 6) if feasible(p)}
+    assert 0 < len(clear) < 100
+    selection = replace(SelectionConfig(samples=4, final_samples=16, final_looks=1), anchor_counts=(6,))
+    chosen = AnchorSelector(CFG, make_localizer("joint", CFG), selection, seed=0).select(estimate, desired)
+    assert chosen.plan.key() in clear and chosen.scores[0].plan is not None
+    assert np.isfinite(chosen.scores[0].e_l)
+
+
+def test_a_search_from_enumerated_clear_plans_races_as_many_as_an_unscreened_search(monkeypatch):
+    """The screened search (joint localizer) races 2 plans; started from a population of enumerated clear plans, all
+    evaluated by Monte Carlo, it races ``contenders`` of them (the best on the search's few samples is often not the best)."""
+    _, start, desired, estimate, _ = experiment_setup(Job(8, 8, 8, 4242, CFG, "joint"))
+    bodies = BodyCheck.of_estimate(CFG, estimate, desired)
+    raced: list[list] = []
+    original = selector_module.race
+
+    def spy(plans, *args):
+        raced.append(plans)
+        return original(plans, *args)
+
+    monkeypatch.setattr(selector_module, "race", spy)
+    selection = replace(SelectionConfig(samples=4, final_samples=16, final_looks=1, contenders=5), anchor_counts=(6,))
+    AnchorSelector(CFG, make_localizer("joint", CFG), selection, seed=0).select(estimate, desired)
+    assert len(raced) == 1 and len(raced[0]) == 5
+    assert all(bodies.is_clear(p.groups) for p in raced[0])
