@@ -22,6 +22,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,7 @@ def timed_phases(spent: dict[str, float]) -> Iterator[None]:
         for owner in [getattr(importlib.import_module(module), c) for c in classes] or [importlib.import_module(module)]:
             original = getattr(owner, name)
 
-            def wrapper(*args, _original=original, _key=key, **kwargs):
+            def wrapper(*args: Any, _original: Any = original, _key: str = key, **kwargs: Any) -> Any:
                 t = time.process_time()
                 try:
                     return _original(*args, **kwargs)
@@ -59,7 +60,7 @@ def timed_phases(spent: dict[str, float]) -> Iterator[None]:
             setattr(owner, name, original)
 
 
-def run(n: int, configs: int, method: str, localizer: str, seed: int) -> dict:
+def run(n: int, configs: int, method: str, localizer: str, seed: int) -> dict[str, Any]:
     """One size's row (this process)."""
     from inchworm.simulation import simulate  # noqa: PLC0415
     from runtime.models.config import ModelConfig  # noqa: PLC0415

@@ -1,6 +1,8 @@
 """A large swarm's topology solve starts turned to its observations' headings (``topology.aligned_start``): the same
 solution as from the plain start, in fewer iterations."""
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -14,7 +16,8 @@ from runtime.models.trajectory import body_spacing, random_trajectory
 CFG = ModelConfig()
 
 
-def solve(monkeypatch: pytest.MonkeyPatch, align_min: int, truth: np.ndarray, start: np.ndarray, seed: int):
+def solve(monkeypatch: pytest.MonkeyPatch, align_min: int, truth: np.ndarray, start: np.ndarray,
+          seed: int) -> tuple[topology.Topology, int]:
     """(topology, iterations) of the observations of ``truth`` from ``start`` with ``ALIGN_MIN`` = ``align_min``."""
     monkeypatch.setattr(topology, "ALIGN_MIN", align_min)
     ids = np.arange(len(truth))
@@ -23,7 +26,7 @@ def solve(monkeypatch: pytest.MonkeyPatch, align_min: int, truth: np.ndarray, st
     runs = []
     lm = sparse_lm.levenberg_marquardt
 
-    def counted(*args, **kwargs):
+    def counted(*args: Any, **kwargs: Any) -> sparse_lm.LsqResult:
         runs.append(lm(*args, **kwargs))
         return runs[-1]
 
