@@ -42,7 +42,7 @@ def test_sim_rejects_a_disconnected_trajectory(tmp_path):
 
 def test_compare_json_contract(tmp_path):
     out = swarm("compare", "--robots", "6", "--trajectories", "2", "--configs", "2", "--methods", "ref57,no-anchors,heuristic-fixed",
-                "--workers", "1", "--out", str(tmp_path), "--json")
+                "--workers", "1", "--robot-radius", "0", "--out", str(tmp_path), "--json")  # point robots: no step split for bodies
     assert out.returncode == 0, out.stderr
     doc = json.loads(out.stdout.strip().splitlines()[-1])
     assert set(doc["methods"]) == {"ref57", "no-anchors", "heuristic-fixed"}
