@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -15,12 +14,8 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from runtime.recording.mcap_log import McapRecorder, read_messages, recording_info, recover
-from runtime.wire.messages import (
-    ObservationReport,
-    encode,
-    message_key,
-)
+from runtime.recording.mcap_log import read_messages, recording_info, recover
+from tests.integration.test_recording import _complete_file
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -88,16 +83,6 @@ def test_sigkill_loses_at_most_the_last_flush_interval(tmp_path):
         assert [m.name for m in reader.iter_metadata()] == ["run"]
     assert again == got
     assert recording_info(out)["complete"]
-
-
-def _complete_file(tmp_path: Path) -> Path:
-    path = tmp_path / "good.mcap"
-    rng = random.Random(0)
-    with McapRecorder(path, RUN, {"seed": 0}, chunk_bytes=4096) as rec:
-        for step in range(1500):
-            m = ObservationReport(run=RUN, step=step, robot=step % 5, observed=[9], ranges=[rng.random()], bearings=[0.1])
-            rec.write(message_key(m), encode(m))
-    return path
 
 
 def test_cli_info_recover_and_errors(tmp_path, capsys):

@@ -27,6 +27,7 @@ from runtime.wire.transport import (
     subscribe_queue,
     watch_liveliness,
 )
+from tests.integration.test_transport import _wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 CHILD = """
@@ -47,18 +48,6 @@ def hub() -> Iterator[tuple[zenoh.Session, ZenohSettings]]:
     hub_settings, member = loopback_hub(free_tcp_port())
     with open_session(hub_settings) as session:
         yield session, member
-
-
-def _wait_for(events: queue.Queue[tuple[str, bool]], expected: tuple[str, bool], timeout_s: float = 10.0) -> None:
-    """Until ``expected`` comes out of ``events``; fails after ``timeout_s`` (a bound on a hang, not a speed test)."""
-    deadline = time.monotonic() + timeout_s
-    while (left := deadline - time.monotonic()) > 0:
-        try:
-            if events.get(timeout=left) == expected:
-                return
-        except queue.Empty:
-            break
-    raise AssertionError(f"no liveliness event {expected} within {timeout_s} s")
 
 
 def test_killed_child_process_loses_its_token(hub) -> None:
