@@ -26,8 +26,10 @@ def test_enumeration_is_every_ordered_partition_once():
 
 
 def test_study_selection_json_contract(tmp_path):
+    # point robots: at this size the chance constraint of bodies leaves the searched counts without a clear plan, so the
+    # ratios would be null (docs/selection.md)
     out = swarm("study", "selection", "--robots", "6", "--configs", "2", "--screen-samples", "4", "--pick-samples", "8",
-                "--eval-samples", "16", "--workers", "1", "--out", str(tmp_path), "--json")
+                "--eval-samples", "16", "--workers", "1", "--robot-radius", "0", "--out", str(tmp_path), "--json")
     assert out.returncode == 0, out.stderr
     last = json.loads(out.stdout.strip().splitlines()[-1])
     assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs",
