@@ -390,7 +390,10 @@ class Agent:
     def _admit(self, epoch: int) -> str | None:
         """None if a message of coordinator ``epoch`` is to be obeyed (binding the agent to it), ``_UNSEEN`` if that
         epoch's token has not reached this agent yet (the message is dropped: its coordinator sends it again), else
-        why not."""
+        why not. An epoch whose token has not arrived is unseen even while another is obeyed: its messages can overtake
+        the token events (another subscription) of a takeover, when the old token's end has not arrived either."""
+        if epoch != 0 and epoch not in self._coords and epoch not in self._gone:
+            return _UNSEEN
         if self.bound is not None and self.bound in self._coords:
             if epoch == self.bound:
                 return None
@@ -403,8 +406,6 @@ class Agent:
             return (f"coordinator epoch {epoch} refused: robot {self.robot} obeys coordinator epoch {self.bound}, which took "
                     f"run {self.run_id} over from it")
         if epoch not in self._coords:
-            if epoch != 0 and epoch not in self._gone:
-                return _UNSEEN
             what = "carries no coordinator epoch" if epoch == 0 else f"comes from coordinator epoch {epoch}, which is gone"
             return f"refused: the message {what} (run {self.run_id})"
         if self._coords[epoch] not in self._lineage:  # a new run: forget the last run's steps (a stop stays latched)
