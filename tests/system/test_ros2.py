@@ -79,6 +79,8 @@ rclpy.init()
 node = rclpy.create_node("test_estop_client")
 client = node.create_client(Trigger, "/swarm/estop")
 assert client.wait_for_service(timeout_sec=timeout), "no /swarm/estop service"
+print("ready", flush=True)
+sys.stdin.readline()  # the test says when: mid-run
 future = client.call_async(Trigger.Request())
 rclpy.spin_until_future_complete(node, future, timeout_sec=timeout)
 assert future.done(), f"/swarm/estop did not answer within {timeout} s"
@@ -108,16 +110,22 @@ class Listener:
         self.estimates.append(msg)
         self.first.set()
 
-    def call_estop(self, timeout: float = 20.0) -> dict:
-        """The service's answer (``{"success", "message"}``), asked by a client in a process of its own, as ``ros2 service
-        call`` would: a second rclpy context in this process (the one of an earlier test) never got the reply."""
-        for _attempt in range(2):  # a client whose DDS discovery missed the service (a loaded machine) is started again
-            proc = subprocess.run([sys.executable, "-c", ESTOP_CLIENT, str(timeout)], env={**os.environ}, capture_output=True,
-                                  text=True, timeout=timeout + 30)
-            if "no /swarm/estop service" not in proc.stderr:
-                break
-        assert proc.returncode == 0, proc.stderr[-2000:]
-        return json.loads(proc.stdout.strip().splitlines()[-1])
+    def estop_client(self, timeout: float = 60.0) -> subprocess.Popen:
+        """A client of ``/swarm/estop`` in a process of its own, as ``ros2 service call`` would be (a second rclpy context
+        in this process, the one of an earlier test, never got the reply), started early: it joins the domain just after
+        the bridge, before the run's ROS 2 processes, and waits there for the service."""
+        return subprocess.Popen([sys.executable, "-c", ESTOP_CLIENT, str(timeout)], env={**os.environ}, stdin=subprocess.PIPE,
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+    @staticmethod
+    def call_estop(client: subprocess.Popen, timeout: float = 60.0) -> dict:
+        """The service's answer (``{"success", "message"}``), asked now by ``client``."""
+        assert client.stdout is not None and client.stdin is not None
+        ready = client.stdout.readline()
+        assert ready.strip() == "ready", client.communicate(timeout=timeout)[1][-2000:]
+        out, err = client.communicate("call\n", timeout=timeout + 30)
+        assert client.returncode == 0, err[-2000:]
+        return json.loads(out.strip().splitlines()[-1])
 
     def close(self) -> None:
         RosProcess.remove(self.node)
@@ -167,15 +175,17 @@ def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_
     bridge = subprocess.Popen([sys.executable, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", "--wait=60"], env=env, cwd=REPO,
                               stderr=subprocess.PIPE, text=True)
     listener = Listener(monkeypatch, env)
+    client = listener.estop_client()
     try:
         proc = launch(trajectory, tmp_path, run_id, env, "--ros2-robots", "--driver-option=max_linear_speed=0.05")
         assert listener.first.wait(60), "no estimate on /swarm/estimates"
-        answer = listener.call_estop()
+        answer = listener.call_estop(client)
         out, err = proc.communicate(timeout=60)
         bridge_err = bridge.communicate(timeout=20)[1]
     finally:
         stop(proc)
         stop(bridge)
+        stop(client)
         listener.close()
     assert processes_of(run_id) == [], "a process of the run outlived swarm launch"
     assert answer["success"], answer["message"]
