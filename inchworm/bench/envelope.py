@@ -148,7 +148,7 @@ def in_process_figures(runs: list[dict[str, Any]]) -> dict[str, float]:
 def distributed_row(point: Point, configs: int, seed: int) -> dict[str, bool]:
     """A recorded ``swarm launch`` of the point whose coordinator is killed and taken over; replayed and compared."""
     from coordinator.simulate import simulate  # noqa: PLC0415
-    from inchworm.bench.faults import _same_table  # noqa: PLC0415
+    from inchworm.bench.faults import same_table  # noqa: PLC0415
     from inchworm.replay import CheckOptions, check_recording  # noqa: PLC0415
     from runtime.models.model_file import model_toml  # noqa: PLC0415
 
@@ -165,7 +165,7 @@ def distributed_row(point: Point, configs: int, seed: int) -> dict[str, bool]:
                                       localizer=point.localizer, method=METHOD, seed=seed, standby=True, kill_coordinator=kill_step,
                                       motion_time=0.1, record=str(recording), out=str(folder), json=True), timeout=900, cwd=tmp)
         summary = last_json(proc.stdout) or {}
-        takeover = proc.returncode == 0 and _same_table(summary, ref)
+        takeover = proc.returncode == 0 and same_table(summary, ref)
         replay = False
         if recording.exists():
             try:

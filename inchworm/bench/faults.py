@@ -118,7 +118,7 @@ def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localiz
                                           kill_coordinator=step, motion_time=0.1, no_record=True, out=tmp, json=True), timeout=600, cwd=tmp)
         summary = {**(last_json(proc.stdout) or {}), "returncode": proc.returncode}
         summaries.append(summary)
-        identical += summary["returncode"] == 0 and _same_table(summary, ref)
+        identical += summary["returncode"] == 0 and same_table(summary, ref)
         progress(seed + 1)
     done = [s for s in summaries if s["returncode"] == 0 and len(s.get("configs", [])) == configs]
     takeovers = [s["coordinator_kill"]["takeover_ms"] for s in summaries if s.get("coordinator_kill")]
@@ -225,11 +225,11 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
             stop_all(procs)
         summary = last_json(out) or {}
     ref = simulate(traj, method, ModelConfig(), seed=seed)
-    identical = bool(summary) and _same_table(summary, ref)
+    identical = bool(summary) and same_table(summary, ref)
     return {"sent": sent, "process_deaths": deaths, "completed": coordinator.returncode == 0, "identical": identical}
 
 
-def _same_table(summary: dict, ref) -> bool:
+def same_table(summary: dict, ref) -> bool:
     """The coordinator's per-configuration rows and P_f equal the in-process run's (to 1e-12: the distributed
     run reproduces every estimate bit for bit; the table's sums may differ in the last bit)."""
     e_l, follow, travelled = ref.localization_errors(), ref.following_errors(), ref.travelled()

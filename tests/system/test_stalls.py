@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from coordinator.simulate import simulate
-from inchworm.bench.faults import _same_table
+from inchworm.bench.faults import same_table
 from inchworm.processes import start_agents, stop_all, wait_for_standby
 from inchworm.specs import AgentHostSpec
 from runtime.models.config import ModelConfig
@@ -100,7 +100,7 @@ def test_a_coordinator_stalled_beyond_its_lease_without_a_standby_goes_on_with_e
     assert coordinator.returncode == 0, err[-3000:]
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["lost"] == [] and " lost (" not in err, err[-3000:]
-    assert _same_table(summary, run.reference())  # the fault-free run's table and P_f
+    assert same_table(summary, run.reference())  # the fault-free run's table and P_f
     assert run.stops == []
 
 
@@ -119,7 +119,7 @@ def test_a_coordinator_stalled_beyond_its_lease_steps_down_and_the_standby_finis
     assert standby.returncode == 0 and "takes over run" in err_standby, err_standby[-3000:]
     summary = json.loads(out_standby.strip().splitlines()[-1])
     assert summary["lost"] == [] and len(summary["configs"]) == 2
-    assert _same_table(summary, run.reference())
+    assert same_table(summary, run.reference())
     assert run.stops == []  # nobody stopped the run, nor a robot
 
 
