@@ -19,38 +19,11 @@ import pytest
 from mcap.reader import SeekingReader
 
 from runtime.recording.mcap_log import counts_text, recording_info
+from tools.sigkill_launcher import alive, children, cmdline
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 START_S = 120.0  # generous: a busy 2-core machine starts 5 interpreters slowly
-
-
-def _children(pid: int) -> list[int]:
-    """Every descendant of ``pid`` (from /proc), deepest last."""
-    out: list[int] = []
-    try:
-        kids = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
-    except OSError:
-        return out
-    for kid in map(int, kids):
-        out.append(kid)
-        out += _children(kid)
-    return out
-
-
-def _alive(pid: int) -> bool:
-    try:
-        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except OSError:
-        return False
-    return state != "Z"
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
 
 
 def _launch_until_running(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen, Path, list[str]]:
@@ -81,7 +54,7 @@ def _launch_until_running(tmp_path: Path, *extra: str) -> tuple[subprocess.Popen
 
 def _cleanup(proc: subprocess.Popen) -> list[int]:
     """Kill (by pid) whatever of the run is still alive; the pids that were."""
-    left = [p for p in _children(proc.pid) if _alive(p)]
+    left = [p for p in children(proc.pid) if alive(p)]
     for p in [*left, proc.pid]:
         try:
             os.kill(p, signal.SIGKILL)
@@ -99,13 +72,13 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
         _cleanup(proc)
         pytest.fail("the launcher did not exit within 60 s of the signal")
     deadline = time.monotonic() + within_s
-    while any(_alive(p) for p in descendants) and time.monotonic() < deadline:
+    while any(alive(p) for p in descendants) and time.monotonic() < deadline:
         time.sleep(0.1)
     stdout = proc.stdout.read()
-    left = [p for p in descendants if _alive(p)]
+    left = [p for p in descendants if alive(p)]
     for p in left:
         os.kill(p, signal.SIGKILL)
-    assert not left, f"processes left behind: {[_cmdline(p) for p in left]}"
+    assert not left, f"processes left behind: {[cmdline(p) for p in left]}"
     assert status != 0, "an interrupted run must not report success"
     if status_is is not None:
         assert status == status_is, "".join(lines)
@@ -130,12 +103,12 @@ def _check_stopped(proc: subprocess.Popen, record: Path, lines: list[str], desce
                                  "SIGTERM to the launcher", "SIGHUP to the launcher"])
 def test_stopping_leaves_a_finished_recording_and_no_process(tmp_path: Path, how: str) -> None:
     proc, record, lines = _launch_until_running(tmp_path)
-    descendants = _children(proc.pid)
+    descendants = children(proc.pid)
     try:
         if how == "ctrl-c to the process group":
             os.killpg(proc.pid, signal.SIGINT)
         elif how == "SIGTERM to the coordinator":
-            coordinator = [p for p in descendants if "inchworm.spawn - coordinator" in _cmdline(p)]
+            coordinator = [p for p in descendants if "inchworm.spawn - coordinator" in cmdline(p)]
             assert len(coordinator) == 1
             os.kill(coordinator[0], signal.SIGTERM)
         elif how == "SIGINT to the launcher":
@@ -164,8 +137,8 @@ def test_a_killed_gateway_launcher_leaves_no_process_no_folder_and_a_finished_re
     processes of links and agents, coordinator) notice it gone by themselves and exit within seconds; the guardian
     removes the temporary folder."""
     proc, record, lines = _launch_until_running(tmp_path, "--driver=gateway")
-    descendants = _children(proc.pid)
-    assert any("inchworm.spawn - port" in _cmdline(p) for p in descendants) and any("inchworm.spawn - emulator" in _cmdline(p) for p in descendants)
+    descendants = children(proc.pid)
+    assert any("inchworm.spawn - port" in cmdline(p) for p in descendants) and any("inchworm.spawn - emulator" in cmdline(p) for p in descendants)
     try:
         os.kill(proc.pid, signum)
         _check_stopped(proc, record, lines, descendants, 128 + signum if signum != signal.SIGKILL else -signal.SIGKILL, within_s=10.0)
