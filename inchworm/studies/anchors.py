@@ -421,7 +421,7 @@ class AnchorsResult:
 
 
 def study_anchors(
-    options: AnchorsOptions = AnchorsOptions(),
+    options: AnchorsOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -429,6 +429,7 @@ def study_anchors(
     progress: Callable[[int, int], None] | None = None,
 ) -> AnchorsResult:
     """Fig. 4, Fig. 5 and Appendix A; with ``out`` each experiment is kept in ``out/experiments.jsonl`` and ``.csv`` as it finishes."""
+    options = AnchorsOptions() if options is None else options
     log = StudyLog(out, "experiments", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_experiment, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -204,7 +204,7 @@ class CalibrationResult:
 
 
 def study_calibration(
-    options: CalibrationOptions = CalibrationOptions(),
+    options: CalibrationOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -213,6 +213,7 @@ def study_calibration(
 ) -> CalibrationResult:
     """Calibrate, then compare at the calibrated noise; with ``out`` every run is kept in ``out/runs.jsonl`` (calibration runs too)
     and the comparison runs in ``out/runs.csv`` as they finish."""
+    options = CalibrationOptions() if options is None else options
     o = options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = _Runs(executor, log, progress, total=len(o.localizers) * len(o.sensing_scales) * len(o.seeds) * o.trajectories * len(o.methods))

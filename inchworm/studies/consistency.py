@@ -199,7 +199,7 @@ class ConsistencyResult:
 
 
 def study_consistency(
-    options: ConsistencyOptions = ConsistencyOptions(),
+    options: ConsistencyOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -207,6 +207,7 @@ def study_consistency(
     progress: Callable[[int, int], None] | None = None,
 ) -> ConsistencyResult:
     """NEES / 2 of every (localizer, method); with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
+    options = ConsistencyOptions() if options is None else options
     from coordinator.consistency import chi2_band  # noqa: PLC0415
 
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None

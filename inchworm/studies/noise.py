@@ -142,7 +142,7 @@ def summarise(rows: list[Row], options: NoiseOptions) -> list[dict[str, Any]]:
 
 
 def study_noise(
-    options: NoiseOptions = NoiseOptions(),
+    options: NoiseOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -150,6 +150,7 @@ def study_noise(
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:
     """Run the sweep; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
+    options = NoiseOptions() if options is None else options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -300,7 +300,7 @@ class SelectionStudyResult:
 
 
 def study_selection(
-    options: SelectionStudyOptions = SelectionStudyOptions(),
+    options: SelectionStudyOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -308,6 +308,7 @@ def study_selection(
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:
     """Run the study; with ``out`` every configuration is kept in ``out/configs.jsonl`` and ``out/configs.csv`` as it finishes."""
+    options = SelectionStudyOptions() if options is None else options
     log = StudyLog(out, "configs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_config, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:
