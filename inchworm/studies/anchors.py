@@ -336,10 +336,10 @@ def _save_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, hea
 class AnchorsOptions:
     """``experiments`` random experiments of ``robots`` robots, ``samples`` Monte Carlo samples per plan; experiment e uses the seed [seed, e]."""
 
-    robots: int = 10
-    experiments: int = 60
-    samples: int = 8
-    seed: int = 0
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    experiments: int = field(default=60, metadata={"help": "random experiments (default %(default)s; the paper: 1000)"})
+    samples: int = field(default=8, metadata={"help": "Monte Carlo samples per plan per experiment"})
+    seed: int = field(default=0, metadata={"help": "experiment e uses the seed [seed, e]"})
     model: ModelConfig = field(default_factory=ModelConfig)
     localizer: str = "paper"
 

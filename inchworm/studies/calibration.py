@@ -38,17 +38,18 @@ CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED 
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 
-    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
-    sensing_scales: tuple[float, ...] = (1.0,)
-    target: float = PAPER_REF57_PF
-    max_motion_scale: float = 32.0
-    calibration_trajectories: int = 12
-    iterations: int = 7
-    robots: int = 10
-    trajectories: int = 30
-    configs: int = 15
-    seeds: tuple[int, ...] = (0, 1000)
-    methods: tuple[str, ...] = ("inchworm", "inchworm-equal-speed", "ref57")
+    localizers: tuple[str, ...] = field(default=BUILTIN_LOCALIZERS, metadata={"help": "localizers, any registered one"})
+    sensing_scales: tuple[float, ...] = field(default=(1.0,), metadata={"help": "factors on range and bearing sigmas"})
+    target: float = field(default=PAPER_REF57_PF, metadata={"help": "ref57 P_f to match (default the paper's %(default)s)"})
+    max_motion_scale: float = field(default=32.0, metadata={"help": "largest factor on turn and drive sigmas tried"})
+    calibration_trajectories: int = field(default=12, metadata={"help": "ref57 trajectories per bisection step"})
+    iterations: int = field(default=7, metadata={"help": "bisection steps on log(motion scale)"})
+    robots: int = field(default=10, metadata={"help": "robots per trajectory"})
+    trajectories: int = field(default=30, metadata={"help": "trajectories per seed set"})
+    configs: int = field(default=15, metadata={"help": "configurations per trajectory"})
+    seeds: tuple[int, ...] = field(default=(0, 1000), metadata={"help": "seed sets; trajectory t of set s uses seed s + t"})
+    methods: tuple[str, ...] = field(default=("inchworm", "inchworm-equal-speed", "ref57"), metadata={
+        "help": "comma-separated methods compared with ref57 at the calibrated noise"})
     run: RunOptions = field(default_factory=RunOptions)
 
     def __post_init__(self) -> None:

@@ -209,14 +209,15 @@ def read_rows(path: Path) -> list[dict]:
 class SelectionStudyOptions:
     """``configs`` random configuration changes of ``robots`` robots; configuration c uses the seed [seed, c]."""
 
-    robots: int = 8
-    configs: int = 20
-    screen_samples: int = 32
-    pick_samples: int = 256
-    eval_samples: int = 512
-    seed: int = 0
+    robots: int = field(default=8, metadata={"help": "n_r"})
+    configs: int = field(default=20, metadata={"help": "random configuration changes"})
+    screen_samples: int = field(default=32, metadata={"help": "samples per plan to shortlist the exhaustive enumeration"})
+    pick_samples: int = field(default=256, metadata={"help": "fresh samples to pick the optimum from the shortlist"})
+    eval_samples: int = field(default=512, metadata={"help": "fresh samples every reported plan is evaluated on"})
+    seed: int = field(default=0, metadata={"help": "configuration c uses the seed [seed, c]"})
     run: RunOptions = field(default_factory=RunOptions)
-    optimum: bool = True  # False: skip the exhaustive enumeration (the search against the heuristic only)
+    optimum: bool = field(default=True, metadata={  # False: skip the exhaustive enumeration
+        "help": "skip the exhaustive optimum (search against the heuristic only)", "flag": "--no-optimum"})
 
     def __post_init__(self) -> None:
         check_at_least(self, "robots", 3)

@@ -19,6 +19,11 @@ from swarm_cli.schema import add_fields, default_of, flag_of, option_fields, opt
 # command, the module whose options(args) makes the options, the options class, the fields that shared groups make
 COMMANDS = [
     ("compare", "swarm_cli.compare", "inchworm.comparison:CompareOptions", ("run",)),
+    ("study anchors", "swarm_cli.study_anchors", "inchworm.studies.anchors:AnchorsOptions", ("model", "localizer")),
+    ("study noise", "swarm_cli.study_noise", "inchworm.studies.noise:NoiseOptions", ("run",)),
+    ("study consistency", "swarm_cli.study_consistency", "inchworm.studies.consistency:ConsistencyOptions", ("model", "selection")),
+    ("study selection", "swarm_cli.study_selection", "inchworm.studies.selection:SelectionStudyOptions", ("run",)),
+    ("study calibration", "swarm_cli.study_calibration", "inchworm.studies.calibration:CalibrationOptions", ("run",)),
 ]
 
 
