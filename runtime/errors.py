@@ -25,6 +25,7 @@ be >= 1``); the command line names the flag instead (``OptionError.parameter``, 
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Iterable
 
 
@@ -39,22 +40,27 @@ class SwarmInputError(SwarmError, ValueError):
 class OptionError(SwarmInputError):
     """An option of a library call is out of range: ``parameter`` is its Python name (the message starts with it,
     ``trajectories must be >= 1, got 0``) and ``options`` the options object that holds it, if any; the command line
-    says the same with the option's flag (``--trajectories must be >= 1, got 0``)."""
+    says the same with the option's flag (``--trajectories must be >= 1, got 0``). ``also`` lists the other options
+    the problem names (``driver sim needs pose or trajectory``): the command line names them by their flags too."""
 
-    def __init__(self, parameter: str, problem: str, options: object | None = None) -> None:
+    def __init__(self, parameter: str, problem: str, options: object | None = None, *, also: Iterable[str] = ()) -> None:
         super().__init__(f"{parameter}{_joined(problem)}")
-        self.parameter, self.problem, self.options = parameter, problem, options
+        self.parameter, self.problem, self.options, self.also = parameter, problem, options, tuple(also)
 
-    def flag(self) -> str:
-        """The command-line flag of ``parameter``: the ``flag`` metadata of the options' dataclass field, else
-        ``--`` and the name with dashes."""
+    def flag(self, parameter: str | None = None) -> str:
+        """The command-line flag of ``parameter`` (default: this error's): the ``flag`` metadata of the options'
+        dataclass field, else ``--`` and the name with dashes."""
+        name = self.parameter if parameter is None else parameter
         fields = {f.name: f for f in dataclasses.fields(self.options)} if dataclasses.is_dataclass(self.options) else {}
-        found = fields.get(self.parameter)
-        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + self.parameter.replace("_", "-")
+        found = fields.get(name)
+        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + name.replace("_", "-")
 
     def flag_message(self) -> str:
-        """The message as the command line says it: the flag instead of the parameter."""
-        return f"{self.flag()}{_joined(self.problem)}"
+        """The message as the command line says it: the flags instead of the parameters (``parameter`` and ``also``)."""
+        problem = self.problem
+        for name in self.also:
+            problem = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w-])", lambda _m, n=name: self.flag(n), problem)
+        return f"{self.flag()}{_joined(problem)}"
 
 
 def _joined(problem: str) -> str:

@@ -33,7 +33,7 @@ import numpy as np
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.bodies import BOUND_LEVELS, CONTACT_BOUND
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
@@ -101,15 +101,16 @@ def summarise(runs: list[dict], keys: list[tuple[str, str, bool, float]]) -> lis
 
 def check(o: CollisionsBenchOptions) -> None:
     if o.run.model.robot_radius_m <= 0:
-        raise SwarmInputError("--robot-radius must be > 0 for counting contacts between bodies")
-    if o.trajectories < 1 or o.configs < 1 or o.robots < 2:
-        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+        raise OptionError("robot_radius_m", "must be > 0 for counting contacts between bodies", o.run.model)
+    for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
     if not o.methods or any(m not in METHODS for m in o.methods):
-        raise SwarmInputError(f"--methods must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}")
+        raise OptionError("methods", f"must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}", o)
     if not o.localizers or any(v not in LOCALIZERS for v in o.localizers):
-        raise SwarmInputError(f"--localizers must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}")
+        raise OptionError("localizers", f"must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}", o)
     if not o.noise_scales or not all(np.isfinite(k) and k > 0 for k in o.noise_scales):
-        raise SwarmInputError(f"--noise-scales must list factors > 0, got {','.join(map(str, o.noise_scales))!r}")
+        raise OptionError("noise_scales", f"must list factors > 0, got {','.join(map(str, o.noise_scales))!r}", o)
 
 
 def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),

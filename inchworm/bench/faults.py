@@ -60,7 +60,7 @@ from inchworm.output import last_json
 from inchworm.progress import Progress
 from inchworm.spawn import Spawned, run_process
 from inchworm.specs import AgentHostSpec, CoordinatorSpec, LaunchSpec
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
@@ -256,10 +256,11 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
 
     o = options
     _say = say or (lambda _text: None)
-    if o.seeds < 1 or o.fuzz < 0:
-        raise SwarmInputError(f"--seeds must be >= 1 and --fuzz >= 0, got {o.seeds} and {o.fuzz}")
-    if o.flood < 1 or not 1.0 <= o.flood_s <= 3600.0:
-        raise SwarmInputError(f"--flood must be >= 1 and --flood-s between 1 and 3600, got {o.flood} and {o.flood_s:g}")
+    for name, low in (("seeds", 1), ("fuzz", 0), ("flood", 1)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
+    if not 1.0 <= o.flood_s <= 3600.0:
+        raise OptionError("flood_s", f"must be between 1 and 3600, got {o.flood_s:g}", o)
     _say(f"gateway: {len(o.gateway_rows)} radio-fault rows over {o.seeds} seeds (each against its fault-free run)")
     rows = gateway_fault_rows(o.gateway_rows, range(o.seeds)) if o.gateway_rows else []
     for row in rows:

@@ -26,7 +26,7 @@ import numpy as np
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 WORLDS = ("model", "physics")
@@ -69,10 +69,11 @@ def run_one(job: tuple) -> dict:
 
 
 def check(o: PhysicsBenchOptions) -> None:
-    if o.trajectories < 1 or o.configs < 1 or o.robots < 2:
-        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+    for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
     if o.method not in METHODS:
-        raise SwarmInputError(f"--method must be one of {', '.join(METHODS)}, got {o.method!r}")
+        raise OptionError("method", f"must be one of {', '.join(METHODS)}, got {o.method!r}", o)
     from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra
     from runtime.world.physics import require_pymunk  # noqa: PLC0415
 

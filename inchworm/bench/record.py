@@ -33,13 +33,13 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
     EstimateMessage,
@@ -63,7 +63,7 @@ MB = 2**20
 
 @dataclass(frozen=True)
 class RecordBenchOptions:
-    sizes: tuple[int, ...] = (10, 50)
+    sizes: tuple[int, ...] = field(default=(10, 50), metadata={"flag": "--robots"})
     steps: int = 40  # steps of messages recorded per run
     steps_per_config: int = 4  # one PlanMessage per configuration
     repeats: int = 3  # recordings per size and mode, median reported
@@ -123,14 +123,14 @@ def bench_record(options: RecordBenchOptions = RecordBenchOptions(), say: Callab
     sizes = list(args.sizes)
     step_ms = list(args.step_ms)
     if not sizes or min(sizes) < 1:
-        raise SwarmInputError(f"--robots must list integers >= 1, got {args.sizes}")
+        raise OptionError("sizes", f"must list integers >= 1, got {args.sizes}", args)
     if len(step_ms) == 1:
         step_ms = step_ms * len(sizes)
     if len(step_ms) != len(sizes) or min(step_ms) <= 0:
-        raise SwarmInputError(f"--step-ms: give one positive value or one per size ({len(sizes)}), got {','.join(map(str, args.step_ms))!r}")
+        raise OptionError("step_ms", f": give one positive value or one per size ({len(sizes)}), got {','.join(map(str, args.step_ms))!r}", args)
     for name in ("steps", "steps_per_config", "repeats"):
         if getattr(args, name) < 1:
-            raise SwarmInputError(f"--{name.replace('_', '-')} must be at least 1")
+            raise OptionError(name, "must be at least 1", args)
     rng = np.random.default_rng(args.seed)
     results = []
     lines = [f"{'N':>4} {'derived':>7} {'msgs/step':>9} {'msgs/s':>8} {'MB/s':>6} {'us/msg':>7} {'ms/step':>8} "

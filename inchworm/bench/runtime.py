@@ -57,7 +57,7 @@ import msgspec
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError, SwarmRunError
+from runtime.errors import OptionError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
@@ -281,13 +281,13 @@ def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> Bench
     args = options
     sizes = list(args.agents)
     if not sizes or min(sizes) < 2:
-        raise SwarmInputError(f"--agents must list integers >= 2, got {args.agents}")
+        raise OptionError("agents", f"must list integers >= 2, got {args.agents}", args)
     if args.steps < 1:
-        raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")
+        raise OptionError("steps", f"must be >= 1, got {args.steps}", args)
     if args.rtt_count < 2:
-        raise SwarmInputError(f"--rtt-count must be >= 2, got {args.rtt_count}")
+        raise OptionError("rtt_count", f"must be >= 2, got {args.rtt_count}", args)
     if args.method == "ref57" and any(n % 2 for n in sizes):
-        raise SwarmInputError("--method ref57 needs even numbers of agents")
+        raise OptionError("method", "ref57 needs even numbers of agents", args)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     rows = []
     try:
