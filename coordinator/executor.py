@@ -265,7 +265,7 @@ class InchwormExecutor:
         keep = ~np.isin(estimate.ids, list(lost))
         names = ", ".join(f"robot {r} ({reason})" for r, reason in sorted(lost.items()))
         if self.on_lost == "abort":
-            raise RunAborted(f"lost {names}; --on-lost abort ends the run", sorted(lost))
+            raise RunAborted(f"lost {names}; the policy for a lost robot is abort: the run ends", sorted(lost))
         if keep.sum() < self.min_robots:
             raise RunAborted(f"lost {names}; {int(keep.sum())} robots left, fewer than the minimum {self.min_robots}", sorted(lost))
         self.strategy = self.strategy.restrict(keep)

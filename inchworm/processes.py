@@ -19,7 +19,7 @@ import numpy as np
 
 from inchworm.spawn import Spawned
 from inchworm.specs import AgentHostSpec, EmulatorSpec, LinkSpec, PortProcessSpec
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_wildcard
@@ -39,7 +39,7 @@ def agents_per_process(n: int, requested: int | None) -> int:
         processes = -(-n // AGENTS_PER_PROCESS)
         return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
     if requested < 1:
-        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
+        raise OptionError("agents_per_process", f"must be >= 1, got {requested}")
     return requested
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from runtime.errors import OptionError, SwarmInputError
+from runtime.wire.run_file import RUN_FLAG
 
 if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launcher's parser checks faults without them
     from robot_agent.emulator import FaultPlan, PortEmulator
@@ -59,7 +60,8 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         raise SwarmInputError(f"robots {missing} of the gateway config {config_path} are not in the trajectory "
                               f"{traj_path} (its robots: {ids}); every emulated robot needs an initial pose")
     if (settings is None) != (run_id is None):
-        raise SwarmInputError("give --run together with --hub/--zenoh-config (they publish the true poses), or neither")
+        raise OptionError("run_id", "and a connection (`hub`/`zenoh_config`: they publish the true poses) go together: give both or neither",
+                          RUN_FLAG)
     if run_id is not None:
         validate_run(run_id)
     if not motion_time_s >= 0:
@@ -70,7 +72,7 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         from robot_agent.emulator_physics import PhysicalEmulatedWorld  # noqa: PLC0415 - the physics extra, only when asked for
 
         if motion_time_s:
-            raise SwarmInputError("--motion-time is the noise model's motion time: with --physics the world's wheels take the time")
+            raise OptionError("motion_time", "is the noise model's motion time: with `physics` the world's wheels take the time")
         physical = PhysicalEmulatedWorld(ids, traj.initial_poses, model, seed, physics, physics_speed, run_id or "emulated", calibration,
                                          config.timing.heartbeat_timeout_s)
         world: EmulatedWorld = physical

@@ -517,7 +517,7 @@ def check_apart(xy: np.ndarray, ids: np.ndarray, radius: float, where: str) -> N
         more = f" (and {len(pairs) - 1} more pairs)" if len(pairs) > 1 else ""
         raise SwarmInputError(
             f"{where}: robots {int(ids[i])} and {int(ids[j])} overlap: centres {np.linalg.norm(xy[i] - xy[j]):.4f} m apart, "
-            f"bodies of radius {radius:g} m need {2 * radius:g} m{more} (--robot-radius 0 for point robots)"
+            f"bodies of radius {radius:g} m need {2 * radius:g} m{more} (robot radius 0: point robots)"
         )
 
 

@@ -181,7 +181,7 @@ def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
             raise SwarmInputError(
                 f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
                 f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
-                f"give them room to pass (or --robot-radius 0 for point robots)"
+                f"give them room to pass (or robot radius 0: point robots)"
             )
 
 

@@ -64,16 +64,16 @@ def read_truth_csv(path: str | Path, robots: Collection[int] | None = None,
         need = ("robot", "time", "x", "y", "heading") if by_time else COLUMNS
         missing = [c for c in need if c not in header]
         if missing:
-            raise SwarmInputError(f"--truth {path}: line 1: missing column{'s' if len(missing) > 1 else ''} "
-                                  f"{', '.join(missing)} (need {','.join(COLUMNS)}, or time instead of step)")
+            raise OptionError("truth", f"{path}: line 1: missing column{'s' if len(missing) > 1 else ''} "
+                                       f"{', '.join(missing)} (need {','.join(COLUMNS)}, or time instead of step)")
         try:
             for row in reader:
                 line = reader.line_num
                 row = {(k or "").strip(): (v or "").strip() for k, v in row.items() if k is not None}
                 key, pose = _row(row, line, path, known, by_time)
                 if key in rows:
-                    raise SwarmInputError(f"--truth {path}: line {line}: robot {key[0]} {'time' if by_time else 'step'} "
-                                          f"{row['time' if by_time else 'step']} given twice")
+                    raise OptionError("truth", f"{path}: line {line}: robot {key[0]} {'time' if by_time else 'step'} "
+                                               f"{row['time' if by_time else 'step']} given twice")
                 rows[key] = pose
         except (csv.Error, UnicodeDecodeError) as exc:
             raise OptionError("truth", f"{path}: line {reader.line_num}: not CSV: {exc}") from None
