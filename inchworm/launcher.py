@@ -331,7 +331,7 @@ def launch_trajectory(o: LaunchOptions) -> Trajectory:
     """The run's trajectory: the file, else a random one (``SwarmInputError`` for a swarm too small or too large)."""
     if o.swarm.trajectory:
         traj = Trajectory.load(o.swarm.trajectory)
-        check_swarm_size(traj.n, f"--trajectory {o.swarm.trajectory}", launched=True)
+        check_swarm_size(traj.n, str(o.swarm.trajectory), launched=True, parameter="trajectory")
         return traj
     return random_trajectory(o.swarm.robots, o.swarm.configs, np.random.default_rng(o.swarm.trajectory_seed),
                              sensing_range=o.swarm.model.sensing_range_m,

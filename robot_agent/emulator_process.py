@@ -30,10 +30,10 @@ if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launc
 
 
 def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
-    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
-    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
+    """``OptionError`` naming the option unless 0 <= ``drop``, ``corrupt`` <= 1 and ``delay`` >= 0 s (finite)."""
+    for name, p in (("drop", drop), ("corrupt", corrupt)):
         if not 0.0 <= p <= 1.0:
-            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
+            raise OptionError(name, f"must be a probability in [0, 1], got {p!r}")
     if not (math.isfinite(delay) and delay >= 0):
         raise OptionError("delay", f"must be a finite number of seconds >= 0, got {delay!r}")
 

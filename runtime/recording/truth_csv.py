@@ -101,22 +101,22 @@ def _at_steps(rows: dict[tuple[int, float], np.ndarray], step_times: Mapping[tup
 
 
 def _count(row: dict[str, str], col: str, where: str) -> int:
-    """Column ``col`` of ``row`` as an integer >= 0, or ``SwarmInputError`` naming the line."""
+    """Column ``col`` of ``row`` as an integer >= 0, or ``OptionError`` naming the line of the ``truth`` file."""
     text = row.get(col, "")
     try:
         value = int(text)
     except ValueError:
         value = -1
     if value < 0:
-        raise SwarmInputError(f"{where}: {col} must be an integer >= 0, got {text!r}")
+        raise OptionError("truth", f"{where}: {col} must be an integer >= 0, got {text!r}")
     return value
 
 
 def _row(row: dict[str, str], line: int, path: Path, known: set[int] | None, by_time: bool) -> tuple[tuple[int, float], np.ndarray]:
-    where = f"--truth {path}: line {line}"
+    where = f"{path}: line {line}"
     robot = _count(row, "robot", where)
     if known is not None and robot not in known:
-        raise SwarmInputError(f"{where}: robot {robot} is not a robot of the recording (robots {sorted(known)})")
+        raise OptionError("truth", f"{where}: robot {robot} is not a robot of the recording (robots {sorted(known)})")
     when = _finite(row, "time", where) if by_time else _count(row, "step", where)
     return (robot, when), np.array([_finite(row, col, where) for col in ("x", "y", "heading")])
 
@@ -126,9 +126,9 @@ def _finite(row: dict[str, str], col: str, where: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise SwarmInputError(f"{where}: {col} must be a number, got {text!r}") from None
+        raise OptionError("truth", f"{where}: {col} must be a number, got {text!r}") from None
     if not math.isfinite(value):
-        raise SwarmInputError(f"{where}: {col} must be finite, got {text!r}")
+        raise OptionError("truth", f"{where}: {col} must be finite, got {text!r}")
     return value
 
 
