@@ -1,11 +1,12 @@
 """Command-line flags generated from an options dataclass, so each option's name, default and help are declared once.
 
-A field of an options dataclass (``inchworm.comparison.CompareOptions``, the ``inchworm.studies`` options) becomes a
-flag: ``--`` and its name with dashes, or its ``metadata["flag"]`` (a short flag such as ``-n`` goes before the long
-one), the field's default, and ``metadata["help"]``, to which `` (default X)`` is added unless the help places the
-default itself with ``%(default)s`` or has no default to show. The annotation gives the argparse type: ``int``,
-``float``, ``str``, ``bool`` (``--name`` sets True; a field that defaults to True and whose flag is ``--no-name``
-sets False) and ``tuple[int | float | str, ...]``, a comma-separated value (``--methods a,b``) that stays text in the
+A field of an options dataclass (``inchworm.comparison.CompareOptions``, the ``inchworm.studies`` options, those of
+``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes, or its ``metadata["flag"]`` (a short
+flag such as ``-n`` goes before the long one), the field's default, ``metadata["help"]``, to which `` (default X)``
+is added unless the help places the default itself with ``%(default)s`` or has no default to show, and
+``metadata["choices"]`` and ``["metavar"]`` if declared. The annotation gives the argparse type: ``int``, ``float``,
+``str``, ``Path``, ``bool`` (``--name`` sets True; a field that defaults to True and whose flag is ``--no-name`` sets
+False) and ``tuple[int | float | str, ...]``, a comma-separated value (``--methods a,b``) that stays text in the
 namespace (``--config`` files and ``study.toml`` keep it as typed) and that ``options_of`` splits. A field of another
 type (a nested options object: the model, the localizer, the anchor search, added by ``swarm_cli.options``'s groups)
 is passed to ``add_fields`` in ``exclude`` and to ``options_of`` by name. The library checks the values
@@ -18,12 +19,13 @@ import argparse
 import dataclasses
 import re
 from collections.abc import Callable, Collection, Mapping
+from pathlib import Path
 from typing import Any, TypeVar
 
 from swarm_cli.options import names, parse_list
 
 T = TypeVar("T")
-_SCALARS: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool}
+_SCALARS: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool, "Path": Path}
 _MANY = re.compile(r"^tuple\[(int|float|str), \.\.\.\]$")
 
 
@@ -98,7 +100,7 @@ def add_fields(parser: argparse._ActionsContainer, cls: type, *, exclude: Collec
             text = text.replace("%(default)s", _shown(default))
         elif default is not None and not isinstance(default, bool):
             text = f"{text} (default {_shown(default)})"
-        extra: dict[str, Any] = {"metavar": f.metadata["metavar"]} if "metavar" in f.metadata else {}
+        extra: dict[str, Any] = {key: f.metadata[key] for key in ("metavar", "choices") if key in f.metadata}
         if kind.scalar is bool and not kind.many:
             parser.add_argument(*strings, dest=dest_of(f), action="store_true", help=text)
         else:

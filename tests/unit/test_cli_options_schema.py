@@ -14,16 +14,34 @@ import pytest
 
 from runtime.errors import OptionError, SwarmInputError
 from swarm_cli.main import build_parser
-from swarm_cli.schema import add_fields, default_of, flag_of, option_fields, options_of
+from swarm_cli.schema import add_fields, default_of, flag_of, options_of
 
-# command, the module whose options(args) makes the options, the options class, the fields that shared groups make
-COMMANDS = [
-    ("compare", "swarm_cli.compare", "inchworm.comparison:CompareOptions", ("run",)),
-    ("study anchors", "swarm_cli.study_anchors", "inchworm.studies.anchors:AnchorsOptions", ("model", "localizer")),
-    ("study noise", "swarm_cli.study_noise", "inchworm.studies.noise:NoiseOptions", ("run",)),
-    ("study consistency", "swarm_cli.study_consistency", "inchworm.studies.consistency:ConsistencyOptions", ("model", "selection")),
-    ("study selection", "swarm_cli.study_selection", "inchworm.studies.selection:SelectionStudyOptions", ("run",)),
-    ("study calibration", "swarm_cli.study_calibration", "inchworm.studies.calibration:CalibrationOptions", ("run",)),
+
+def _launch_options(args: argparse.Namespace) -> Any:
+    """``swarm launch``'s options as the launcher reads them: the flags' spec, then its options (``run_launch``)."""
+    from inchworm.process_mains import launch_options
+    from swarm_cli.launch import spec_of
+
+    return launch_options(spec_of(args))
+
+
+# command, what makes its options from the parsed flags, the options classes (the first: what the defaults make), and
+# the fields whose flags shared groups make or whose command-line form differs (checked through the options made)
+COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
+    ("compare", "swarm_cli.compare:options", ("inchworm.comparison:CompareOptions",), ("run",)),
+    ("study anchors", "swarm_cli.study_anchors:options", ("inchworm.studies.anchors:AnchorsOptions",), ("model", "localizer")),
+    ("study noise", "swarm_cli.study_noise:options", ("inchworm.studies.noise:NoiseOptions",), ("run",)),
+    ("study consistency", "swarm_cli.study_consistency:options", ("inchworm.studies.consistency:ConsistencyOptions",),
+     ("model", "selection")),
+    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run",)),
+    ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
+    # launch: --model FILE gives model_file and model; --driver-option and --physics-param repeat (a list); --rejoin
+    # is yes/no; trajectory_seed is the seed (demo: 0) and command the command's name; record options are the coordinator's
+    ("launch", "_launch_options", ("inchworm.launch_options:LaunchOptions", "inchworm.launch_options:SwarmOptions",
+                                   "inchworm.launch_options:DriverOptions", "inchworm.launch_options:FaultOptions",
+                                   "inchworm.launch_options:OutputOptions"),
+     ("swarm", "driver", "faults", "outputs", "model", "model_file", "selection", "trajectory_seed", "rejoin", "physics_params",
+      "options", "command")),
 ]
 
 
@@ -35,24 +53,24 @@ def _subparser(argv: list[str]) -> argparse.ArgumentParser:
     return parser
 
 
-def _class(path: str) -> type:
+def _named(path: str) -> Any:
     module, name = path.split(":")
-    cls: type = getattr(importlib.import_module(module), name)
-    return cls
+    return getattr(importlib.import_module(module), name)
 
 
-@pytest.mark.parametrize(("command", "module", "path", "shared"), COMMANDS, ids=[c[0] for c in COMMANDS])
-def test_every_field_is_a_flag_with_the_fields_default(command: str, module: str, path: str, shared: tuple[str, ...]) -> None:
-    cls, parser = _class(path), _subparser(command.split())
-    actions = {s: a for a in parser._actions for s in a.option_strings}
-    for f in option_fields(cls, exclude=shared):
-        action = actions.get(flag_of(f))
-        assert action is not None, f"swarm {command}: field {f.name} has no flag {flag_of(f)}"
-        if action.nargs != 0:  # a switch's default is its field's (checked below)
-            assert action.default == default_of(f), f"swarm {command} {flag_of(f)}: default {action.default!r}, field {default_of(f)!r}"
-        assert action.help and "help" in f.metadata, f"swarm {command} {flag_of(f)}: no help declared on the field"
-    made: Callable[[argparse.Namespace], Any] = importlib.import_module(module).options
-    assert made(parser.parse_args([])) == cls()  # the shared groups' defaults too
+@pytest.mark.parametrize(("command", "maker", "classes", "shared"), COMMANDS, ids=[c[0] for c in COMMANDS])
+def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str, classes: tuple[str, ...], shared: tuple[str, ...]) -> None:
+    argv = command.split()
+    actions = {s: a for a in _subparser(argv)._actions for s in a.option_strings}
+    for cls in map(_named, classes):
+        for f in (f for f in dataclasses.fields(cls) if f.name not in shared):  # generated or written apart: the same contract
+            action = actions.get(flag_of(f))
+            assert action is not None, f"swarm {command}: field {cls.__name__}.{f.name} has no flag {flag_of(f)}"
+            if action.nargs != 0:  # a switch's default is its field's (checked below)
+                assert action.default == default_of(f), f"swarm {command} {flag_of(f)}: default {action.default!r}, field {default_of(f)!r}"
+            assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
+    made: Callable[[argparse.Namespace], Any] = globals()[maker] if ":" not in maker else _named(maker)
+    assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
 
 
 @dataclasses.dataclass(frozen=True)
