@@ -39,7 +39,8 @@ if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
     from inchworm.comparison import CompareOptions, CompareResult, compare
     from inchworm.distributed import run_distributed
-    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, LaunchResult, OutputOptions, SwarmOptions, launch
+    from inchworm.launch_options import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions
+    from inchworm.launcher import LaunchResult, launch
     from inchworm.localize_data import LocalizeResult, localize, localize_document
     from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
     from inchworm.options import RunOptions
@@ -75,9 +76,9 @@ _WHERE = {
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
-    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher", "LaunchResult": "inchworm.launcher",
-    "SwarmOptions": "inchworm.launcher", "DriverOptions": "inchworm.launcher", "FaultOptions": "inchworm.launcher",
-    "OutputOptions": "inchworm.launcher", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
+    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launch_options", "LaunchResult": "inchworm.launcher",
+    "SwarmOptions": "inchworm.launch_options", "DriverOptions": "inchworm.launch_options", "FaultOptions": "inchworm.launch_options",
+    "OutputOptions": "inchworm.launch_options", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }
