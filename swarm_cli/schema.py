@@ -31,22 +31,20 @@ _MANY = re.compile(r"^tuple\[(int|float|str), \.\.\.\]$")
 
 @dataclasses.dataclass(frozen=True)
 class Kind:
-    """What a field's annotation says: its scalar type, ``many`` for a ``tuple[X, ...]``, ``optional`` for ``| None``."""
+    """What a field's annotation says (``| None`` aside): its scalar type, ``many`` for a ``tuple[X, ...]``."""
 
     scalar: type
     many: bool = False
-    optional: bool = False
 
 
 def kind_of(f: dataclasses.Field[Any]) -> Kind | None:
     """The ``Kind`` of a field's annotation (a string under ``from __future__ import annotations``), None if it has no flag type."""
     text = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
-    optional = text.endswith(" | None")
     text = text.removesuffix(" | None")
     if text in _SCALARS:
-        return Kind(_SCALARS[text], optional=optional)
+        return Kind(_SCALARS[text])
     many = _MANY.match(text)
-    return Kind(_SCALARS[many.group(1)], many=True, optional=optional) if many else None
+    return Kind(_SCALARS[many.group(1)], many=True) if many else None
 
 
 def flag_of(f: dataclasses.Field[Any]) -> str:
@@ -78,11 +76,13 @@ def dest_of(f: dataclasses.Field[Any]) -> str:
 
 def option_fields(cls: type, exclude: Collection[str] = (), only: Collection[str] | None = None) -> list[dataclasses.Field[Any]]:
     """The fields of the dataclass ``cls`` that have flags (``only`` those, none of ``exclude``); ``TypeError`` for a
-    field whose type has no flag and that is not excluded (a new field must get a flag or be added elsewhere)."""
+    field whose type has no flag and that is not excluded (a new field must get a flag or be added elsewhere), or a
+    switch that defaults to True without a ``--no-name`` flag (a ``--name`` switch could only set what it is already)."""
     chosen = [f for f in dataclasses.fields(cls) if f.name not in exclude and (only is None or f.name in only)]
-    missing = [f.name for f in chosen if kind_of(f) is None]
+    missing = [f.name for f in chosen if kind_of(f) is None or (f.default is True and not _negated(f))]
     if missing:
-        raise TypeError(f"{cls.__name__}: fields {missing} have no command-line type: exclude them and add their options apart")
+        raise TypeError(f"{cls.__name__}: fields {missing} have no command-line form (a type without one, or a switch on by default "
+                        "without a --no-name flag): exclude them and add their options apart")
     return chosen
 
 

@@ -120,6 +120,13 @@ def test_a_field_without_a_command_line_type_must_be_excluded() -> None:
 
     with pytest.raises(TypeError, match="toy"):
         add_fields(argparse.ArgumentParser(), Nested)
+
+    @dataclasses.dataclass(frozen=True)
+    class On:
+        loud: bool = True  # a --loud switch could not turn it off
+
+    with pytest.raises(TypeError, match="loud"):
+        add_fields(argparse.ArgumentParser(), On)
     parser = argparse.ArgumentParser()
     add_fields(parser, Nested, exclude=("toy",))
     assert options_of(parser.parse_args(["--count", "2"]), Nested, toy=Toy(5)) == Nested(Toy(5), 2)
