@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from runtime.errors import OptionError, SwarmInputError
-from runtime.wire.run_file import RUN_FLAG
 
 if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launcher's parser checks faults without them
     from robot_agent.emulator import FaultPlan, PortEmulator
@@ -60,6 +59,8 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         raise SwarmInputError(f"robots {missing} of the gateway config {config_path} are not in the trajectory "
                               f"{traj_path} (its robots: {ids}); every emulated robot needs an initial pose")
     if (settings is None) != (run_id is None):
+        from runtime.wire.run_file import RUN_FLAG  # noqa: PLC0415 - its keys load numpy, which a parser checking faults need not
+
         raise OptionError("run_id", "and a connection (`hub`/`zenoh_config`: they publish the true poses) go together: give both or neither",
                           RUN_FLAG)
     if run_id is not None:
