@@ -37,7 +37,7 @@ from swarm_cli.options import add_connection_options, add_json_option, connectio
 EXIT_NO_ACK = 1
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("estop", help="emergency stop: every robot of the run stops now (latched)")
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     p.add_argument("--reason", default="operator", help="why, for the logs (default operator)")
