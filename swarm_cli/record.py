@@ -41,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
     settings = connection_settings(args)
+    assert settings is not None, "add_connection_options(p): required"
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
     meta = run_metadata(connection_label(args), portable_command("swarm record", sys.argv[1:]), args.seed, args.trajectory, args.param)
     stop = threading.Event()
