@@ -13,7 +13,7 @@ from coordinator.strategies import METHODS
 from swarm_cli.options import add_simulation_options, add_study_options, names, run_options, run_study
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("compare", help="Table I/II: P_f of every method on the same random trajectories")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--trajectories", type=int, default=6, help="random trajectories (default 6; the paper: 100)")

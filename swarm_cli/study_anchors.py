@@ -7,7 +7,7 @@ import argparse
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_study_options, model_config, run_study
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("anchors", help="Fig. 4 (number of anchors), Fig. 5 (choice of anchors), Appendix A (heuristic vs random)")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--experiments", type=int, default=60, help="random experiments (default 60; the paper: 1000)")

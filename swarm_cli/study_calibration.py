@@ -21,7 +21,7 @@ from swarm_cli.options import (
 PAPER_REF57_PF = 0.0673  # inchworm.studies.calibration.PAPER_REF57_PF, without importing the study for the parser
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("calibration", help="noise at which ref57's P_f matches the paper's; inchworm / ref57 there")
     p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
                    help=f"localizers, any registered one (default {','.join(BUILTIN_LOCALIZERS)})")

@@ -20,7 +20,7 @@ from swarm_cli.options import (
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("consistency", help="NEES of the reported position covariance along trajectories, per localizer and method")
     p.add_argument("--localizers", default=",".join(BUILTIN_LOCALIZERS),
                    help=f"comma-separated, any registered localizer (default {','.join(BUILTIN_LOCALIZERS)})")

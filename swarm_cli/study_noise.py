@@ -8,7 +8,7 @@ from coordinator.localization.registry import BUILTIN_LOCALIZERS, DEFAULT_LOCALI
 from swarm_cli.options import add_json_option, add_model_options, add_selection_options, add_study_options, names, parse_list, run_options, run_study
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("noise", help="sweep motion/sensing noise and localizer: chosen n_a and P_f vs ref57")
     p.add_argument("--motion-scales", default="0.5,1,2,4", help="factors on turn and drive sigmas (default 0.5,1,2,4)")
     p.add_argument("--sensing-scales", default="0.25,1,4", help="factors on range and bearing sigmas (default 0.25,1,4)")

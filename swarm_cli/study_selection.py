@@ -8,7 +8,7 @@ from pathlib import Path
 from swarm_cli.options import add_simulation_options, add_study_options, print_result, run_options, run_study
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("selection", help="online anchor search vs exhaustive optimum, heuristic and random plans")
     p.add_argument("--robots", type=int, default=8, help="n_r (default 8)")
     p.add_argument("--configs", type=int, default=20, help="random configuration changes (default 20)")
