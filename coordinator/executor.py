@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -252,7 +252,7 @@ class InchwormExecutor:
 
     @staticmethod
     def _desired(trajectory: Trajectory, config: int, ids: np.ndarray) -> np.ndarray:
-        return trajectory.configurations[config][index_of(trajectory.ids, ids, "trajectory")]
+        return cast(np.ndarray, trajectory.configurations[config][index_of(trajectory.ids, ids, "trajectory")])
 
     def _drop_lost(self, result: RunResult, config: int, estimate: SwarmEstimate) -> tuple[SwarmEstimate, np.ndarray | None]:
         """Drop the robots the backend lost since last asked; the estimate of the others and the

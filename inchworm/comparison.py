@@ -143,7 +143,7 @@ def anchors_along(rows: list[Row]) -> list[float]:
 
 def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
     """Per-method P_f statistics and p-values of the paired t-test against ref57 (rows paired by ``trajectory``)."""
-    out: dict = {"methods": {}, "p_values": {}}
+    out: dict[str, Any] = {"methods": {}, "p_values": {}}
     by = {m: sorted((r for r in rows if r["method"] == m), key=lambda r: r["trajectory"]) for m in methods}
     for m in methods:
         pf = np.array([r["pf"] for r in by[m]])

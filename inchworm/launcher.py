@@ -52,7 +52,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -150,7 +150,7 @@ def _stdout_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
-def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
+def _wait_for(coordinator: subprocess.Popen[Any], agents: list[subprocess.Popen[Any]], errors: AgentErrors) -> int | str:
     """The coordinator's exit status, or the error line of an agent process that exited 2 first (its driver failed to
     start, ...: the coordinator would wait for it until its start timeout)."""
     while True:
@@ -168,7 +168,7 @@ def plugin_spec(spec: str) -> str:
     return f"{Path(module).resolve()}:{attr}" if sep and module.endswith(".py") else spec
 
 
-def _forward_output(stream, last_json: list[str]) -> None:
+def _forward_output(stream: Iterable[str], last_json: list[str]) -> None:
     """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
     held = None
     for line in stream:
@@ -306,7 +306,8 @@ def ros2_step_timeout(options: list[str]) -> float:
     return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
-def stop_answers(acks: queue.Queue, stamp_ns: int, until: float, hosts: dict[int, subprocess.Popen]) -> tuple[set[int], set[int]]:
+def stop_answers(acks: queue.Queue[tuple[str, bytes]], stamp_ns: int, until: float,
+                 hosts: dict[int, subprocess.Popen[Any]]) -> tuple[set[int], set[int]]:
     """The robots whose agents acknowledged the stop stamped ``stamp_ns`` and those whose agent process (``hosts``: robot ->
     its process) had exited without acknowledging (a Ctrl-C reaches the agents too: they stop with it); waits until
     every robot is one or the other, or monotonic time ``until``."""
@@ -348,10 +349,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
-    coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
-    ros2_procs: list[subprocess.Popen] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
+    coordinators: list[subprocess.Popen[Any]] = []  # the coordinator and its standby, stopped first
+    ros2_procs: list[subprocess.Popen[Any]] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
@@ -523,7 +524,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                         summary = json.loads(line)
                     except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
                         sys.stdout.write(line)
-                extra = {} if not killers else {"kill": kills[0], "kills": kills}
+                extra: dict[str, object] = {} if not killers else {"kill": kills[0], "kills": kills}
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
                 extra.update(stalls)

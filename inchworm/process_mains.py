@@ -15,7 +15,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from inchworm.entry import EXIT_OUTPUT, EXIT_RUN, exit_code, on_stop_signals
 from inchworm.output import print_json
@@ -35,9 +35,17 @@ from runtime.errors import OptionError, SwarmConnectionError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
+    import contextlib
+
     from inchworm.launcher import LaunchOptions
+    from robot_agent.emulator import PortEmulator
+    from robot_agent.ros2_config import Ros2Config
+    from robot_agent.ros2_physics import PhysicsRecorder
+    from runtime.models.trajectory import Trajectory
+    from runtime.models.world import World
     from runtime.wire.transport import ZenohSettings
     from runtime.world.params import PhysicsParams
+    from runtime.world.velocity import PhysicsWorld
 
 EXIT_NO_RUN = 1  # swarm ros2 bridge: no live run
 SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
@@ -200,7 +208,7 @@ def run_emulator(spec: EmulatorSpec) -> int:
     faults = FaultPlan(drop_prob=spec.drop, corrupt_prob=spec.corrupt, delay_s=spec.delay, drop_rx=frozenset(spec.drop_rx),
                        drop_tx=frozenset(spec.drop_tx), blackout=spec.blackout, seed=spec.seed)
 
-    def ready(ports: list, devices: dict[str, str]) -> None:
+    def ready(ports: list[PortEmulator], devices: dict[str, str]) -> None:
         for pe in ports:
             print(f"port {pe.port_name}: {pe.device} (robots {','.join(map(str, pe.robots))})", flush=True)
         if spec.json:
@@ -245,12 +253,14 @@ def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
         raise OptionError("physics_params", ", `run_id` and `hub` are for the physical world: they need `world` physics", FLAGS)
     if spec.hub and not spec.run_id:
         raise OptionError("hub", "names the Zenoh endpoint of a run: it needs `run_id` RUN", FLAGS)
+    world: World
     if spec.world == "physics":
         world, note = _ros2_physics_world(spec, traj, cfg)
     else:
         world, note = make_world(spec.world, traj.ids, traj.initial_poses, spec.model, spec.seed), ""
     with contextlib.ExitStack() as stack:
-        recorder = _ros2_physics_recorder(spec, world, stack) if spec.run_id else None
+        # a run (``run_id``) is the physical world's only (checked above)
+        recorder = _ros2_physics_recorder(spec, cast("PhysicsWorld", world), stack) if spec.run_id else None
         truth = "" if spec.no_ground_truth else cfg.ground_truth or "ground_truth"
         robots = SimRobots(world, cfg, rate_hz=spec.rate, sensing_hz=spec.sensing_rate, ground_truth=truth, no_odom=frozenset(spec.no_odom),
                            silent=dict(spec.silent), twice=spec.sightings_twice, late_s=spec.late_sightings,
@@ -269,7 +279,7 @@ def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
     return 0
 
 
-def _ros2_physics_world(spec: Ros2RobotsSpec, traj, cfg):
+def _ros2_physics_world(spec: Ros2RobotsSpec, traj: Trajectory, cfg: Ros2Config) -> tuple[PhysicsWorld, str]:
     """The physical world of ``physics_params`` (pymunk 7 needed), and a note when the driver's default speeds
     exceed its wheels' (the driver would count on speeds the wheels cannot reach)."""
     from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415 - the physics extra, only when asked for
@@ -285,7 +295,7 @@ def _ros2_physics_world(spec: Ros2RobotsSpec, traj, cfg):
     return world, note
 
 
-def _ros2_physics_recorder(spec: Ros2RobotsSpec, world, stack):
+def _ros2_physics_recorder(spec: Ros2RobotsSpec, world: PhysicsWorld, stack: contextlib.ExitStack) -> PhysicsRecorder:
     """The ``PhysicsRecorder`` of ``run_id`` on a session of its own (``hub``, else the run file of a live run)."""
     from robot_agent.ros2_physics import PhysicsRecorder  # noqa: PLC0415
     from runtime.wire.keys import validate_run  # noqa: PLC0415
@@ -395,7 +405,10 @@ def launch_options(spec: LaunchSpec) -> LaunchOptions:
     from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions  # noqa: PLC0415
     from inchworm.limits import selection_from  # noqa: PLC0415
 
-    path = lambda text: None if text is None else Path(text)  # noqa: E731
+
+    def path(text: str | None) -> Path | None:
+        return None if text is None else Path(text)
+
     s = spec.selection
     return LaunchOptions(
         swarm=SwarmOptions(

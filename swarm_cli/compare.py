@@ -14,7 +14,7 @@ from swarm_cli.options import add_simulation_options, add_study_options, run_opt
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("compare", help="Table I/II: P_f of every method on the same random trajectories")
     add_fields(p, CompareOptions, exclude=("run",))
     add_study_options(p, "out/compare", "runs.jsonl, runs.csv, pf.png and study.toml")

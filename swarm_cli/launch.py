@@ -17,6 +17,8 @@ explicitly override either.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
+from pathlib import Path
 
 from inchworm.launch_options import DriverOptions, FaultOptions, OutputOptions, SwarmOptions
 from inchworm.processes import AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO
@@ -36,7 +38,7 @@ PAPER_TEXT = ("the paper's localizer (Section 5) and the default noise: anchors 
               "does not, the best-scoring anchor count with a plan that does (the tables below say which)")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="run agents + coordinator as processes on this host (Zenoh on loopback)")
     for name in ("robots", "trajectory", "configs"):
         add_fields(p, SwarmOptions, only=(name,))
@@ -141,7 +143,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def spec_of(args: argparse.Namespace) -> LaunchSpec:
     """The launch spec of the options."""
-    text = lambda path: None if path is None else str(path)  # noqa: E731
+    text: Callable[[Path | None], str | None] = lambda path: None if path is None else str(path)  # noqa: E731
     return LaunchSpec(
         model=model_config(args), model_file=text(args.model), localizer=args.localizer, selection=selection_spec_of(args),
         command=args.command, trajectory=text(args.trajectory), robots=args.robots, configs=args.configs,

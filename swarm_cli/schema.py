@@ -20,7 +20,7 @@ import dataclasses
 import re
 from collections.abc import Callable, Collection, Mapping
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from swarm_cli.options import names, parse_list
 
@@ -124,6 +124,5 @@ def value_of(args: argparse.Namespace, f: dataclasses.Field[Any]) -> Any:
 def options_of(args: argparse.Namespace, cls: Callable[..., T], **given: Any) -> T:
     """The options dataclass ``cls`` made from the namespace: every field with a flag from its value, the others from
     ``given`` (``run=run_options(args)``)."""
-    assert isinstance(cls, type)
-    values = {f.name: value_of(args, f) for f in option_fields(cls, exclude=given)}
+    values = {f.name: value_of(args, f) for f in option_fields(cast(type, cls), exclude=given)}
     return cls(**values, **given)

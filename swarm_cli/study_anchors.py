@@ -9,7 +9,7 @@ from swarm_cli.options import add_json_option, add_localizer_option, add_model_o
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("anchors", help="Fig. 4 (number of anchors), Fig. 5 (choice of anchors), Appendix A (heuristic vs random)")
     add_fields(p, AnchorsOptions, exclude=("model", "localizer"))
     add_study_options(p, "out/study-anchors", "experiments.jsonl, experiments.csv, the PNG plots and study.toml")

@@ -11,7 +11,7 @@ from swarm_cli.options import add_json_option, add_model_options, add_selection_
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("calibration", help="noise at which ref57's P_f matches the paper's; inchworm / ref57 there")
     add_fields(p, CalibrationOptions, exclude=("run",), types={"robots": positive_int})
     add_study_options(p, "out/study-calibration", "runs.jsonl, runs.csv, calibration.png and study.toml")

@@ -9,7 +9,7 @@ from swarm_cli.options import add_json_option, add_model_options, add_selection_
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("consistency", help="NEES of the reported position covariance along trajectories, per localizer and method")
     add_fields(p, ConsistencyOptions, exclude=("model", "selection"))
     add_study_options(p, "out/study-consistency", "runs.jsonl, runs.csv, consistency.png and study.toml")

@@ -10,7 +10,7 @@ from swarm_cli.options import add_json_option, add_model_options, add_selection_
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("noise", help="sweep motion/sensing noise and localizer: chosen n_a and P_f vs ref57")
     add_fields(p, NoiseOptions, exclude=("run",))
     add_study_options(p, "out/study-noise", "runs.jsonl, runs.csv, noise.png and study.toml")

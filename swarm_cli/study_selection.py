@@ -10,7 +10,7 @@ from swarm_cli.options import add_simulation_options, add_study_options, print_r
 from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("selection", help="online anchor search vs exhaustive optimum, heuristic and random plans")
     add_fields(p, SelectionStudyOptions, exclude=("run", "optimum"))
     add_study_options(p, "out/study-selection", "configs.jsonl, configs.csv, selection.png and study.toml")

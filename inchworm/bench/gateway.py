@@ -26,6 +26,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +89,7 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
         traj = random_trajectory(2, 1, np.random.default_rng(seed))
         traj.save(folder / "trajectory.json")
         GatewayConfig((Port("radio0", "emulated", tuple(int(i) for i in traj.ids)),)).save(folder / "gateway.json")
-        procs: list[subprocess.Popen] = []
+        procs: list[subprocess.Popen[Any]] = []
         try:
             live = start_emulator(EmulatorSpec(config=str(folder / "gateway.json"), trajectory=str(folder / "trajectory.json"), seed=seed,
                                                write_config=str(folder / "live.json")), procs)

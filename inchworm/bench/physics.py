@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -44,7 +45,7 @@ class PhysicsBenchOptions:
     physics: tuple[str, ...] = ()  # --physics-param NAME=VALUE
 
 
-def run_one(job: tuple) -> dict:
+def run_one(job: tuple[int, str, PhysicsBenchOptions]) -> dict[str, Any]:
     """One (trajectory, world) run; top-level for worker processes."""
     from inchworm.simulation import simulate  # noqa: PLC0415
     from runtime.world.params import parse_physics_params  # noqa: PLC0415
@@ -86,7 +87,7 @@ def bench_physics(options: PhysicsBenchOptions = PhysicsBenchOptions(), progress
     o = options
     check(o)
     jobs = [(t, w, o) for t in range(o.trajectories) for w in WORLDS]
-    runs: list[dict] = []
+    runs: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, o.workers)) as pool:
         for row in pool.map(run_one, jobs):
             runs.append(row)

@@ -35,6 +35,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -43,6 +44,7 @@ from runtime.errors import OptionError
 from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
     EstimateMessage,
+    Message,
     MotionCommand,
     ObservationReport,
     ObserveRequest,
@@ -79,7 +81,7 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
     heading = rng.uniform(-math.pi, math.pi, n)
     ids = list(range(n))
     moving = ids[: max(1, n // 2)] if step % 2 else ids[n // 2:]
-    msgs: list = []
+    msgs: list[Message] = []
     if plan:
         msgs.append(PlanMessage(run=RUN, step=step, config=1 + step // 4, n_anchors=n - len(moving),
                                 groups=[ids[: max(1, n // 2)], ids[max(1, n // 2):] or [n - 1]] if n > 1 else [[0]]))
@@ -103,7 +105,7 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
     return [(message_key(m), encode(m)) for m in msgs]
 
 
-def record_once(messages: list[tuple[str, bytes]], trajectory: dict, folder: Path, foxglove: bool) -> dict:
+def record_once(messages: list[tuple[str, bytes]], trajectory: dict[str, Any], folder: Path, foxglove: bool) -> dict[str, float]:
     """Write ``messages`` through a fresh recorder; wall and CPU seconds from the first write to ``close()``."""
     path = folder / f"bench-{foxglove}.mcap"
     rec = McapRecorder(path, RUN, {"trajectory": trajectory}, foxglove=foxglove)

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from inchworm.comparison import METHODS, REFERENCE, RunTask, run_one, summarise
+from coordinator.strategies import METHODS
+from inchworm.comparison import REFERENCE, RunTask, run_one, summarise
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_among, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -110,14 +111,15 @@ def calibrate(options: CalibrationOptions, localizer: str, sensing: float, runs:
     return motion, pf(motion)
 
 
-def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, sensing: float, motion: float, runs: _Runs) -> tuple[dict, list[Row]]:
+def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, sensing: float, motion: float,
+               runs: _Runs) -> tuple[dict[str, Any], list[Row]]:
     """Per seed set and pooled: P_f per method, ratio to ref57 and paired p-values."""
     o = options
     tags = (("localizer", localizer), ("sensing_scale", sensing), ("motion_scale", motion))
     tasks = [RunTask(t, m, o.robots, o.configs, s, cfg, localizer, o.run.selection, tags=(*tags, ("seed_set", s)))
              for s in o.seeds for t in range(o.trajectories) for m in o.methods]
     rows = runs.comparison(tasks)
-    out: dict = {}
+    out: dict[str, Any] = {}
     methods = list(o.methods)
     for label, subset in [(str(s), [r for r in rows if r["seed_set"] == s]) for s in o.seeds] + [("pooled", rows)]:
         keyed = [{**r, "trajectory": (r["seed_set"], r["trajectory"])} for r in subset]
@@ -170,9 +172,8 @@ class CalibrationResult:
 
     def plot(self, ax: Any) -> Any:
         """Pooled P_f of every method at each calibrated setting (bars: 97 % t-interval of the mean, clipped at 0)."""
-        from inchworm.comparison import CONFIDENCE, mean_ci  # noqa: PLC0415
         from inchworm.plots import title  # noqa: PLC0415
-        from inchworm.stats import clipped_at_zero  # noqa: PLC0415
+        from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci  # noqa: PLC0415
 
         o = self.options
         width = 0.8 / len(o.methods)

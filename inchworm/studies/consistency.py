@@ -153,7 +153,10 @@ class ConsistencyResult:
         lines = [f"position NEES / 2 per configuration, mean over {o.trajectories} trajectories of {o.robots} robots"
                  f" (chi-square 95 % band {lo:.2f}-{hi:.2f} if errors were independent; target 0.7-1.5)",
                  f"{'motion':>6} {'sensing':>7} {'localizer':<9} {'method':<16} {'configs':>7} {'median':>8} {'p95':>8} {'max':>8} {'min':>8}"]
-        fmt = lambda x: "inf" if x is None else f"{x:.3g}"  # noqa: E731
+
+        def fmt(x: float | None) -> str:
+            return "inf" if x is None else f"{x:.3g}"
+
         for s in self.to_json()["rows"]:
             lines.append(f"{s['motion_scale']:>6g} {s['sensing_scale']:>7g} {s['localizer']:<9} {s['method']:<16} {s['configs']:>7} "
                          f"{fmt(s['nees_over_expected_median']):>8} {fmt(s['nees_over_expected_p95']):>8} "

@@ -45,6 +45,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
     from coordinator.plan import Plan
     from coordinator.selection.monte_carlo import MonteCarlo
     from coordinator.selection.selector import SelectionConfig
+    from runtime.models.state import SwarmEstimate
 
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
@@ -59,7 +60,7 @@ class Budget:
     eval: int
 
 
-def _errors(mc: MonteCarlo, estimate, desired, plans: list[Plan]) -> np.ndarray:
+def _errors(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan]) -> np.ndarray:
     return np.concatenate([mc.localization_errors(estimate, desired, plans[i : i + CHUNK]) for i in range(0, len(plans), CHUNK)])
 
 
@@ -76,7 +77,7 @@ class ConfigTask:
         return str(self.job.experiment)
 
 
-def run_config(task: ConfigTask) -> dict:
+def run_config(task: ConfigTask) -> Row:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
     from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance  # noqa: PLC0415
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
@@ -99,7 +100,7 @@ def run_config(task: ConfigTask) -> dict:
         return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m) and bodies.is_clear(plan.groups)
 
     online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
-    row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
+    row: Row = {"config": job.experiment, "chosen_na": online.n_anchors}
     all_move = Plan.equal(np.arange(n), 0)
     e0 = float(final.localization_errors(estimate, desired, [all_move])[0])
     best_p_s = {0: selection.w_v - selection.w_l}
@@ -145,10 +146,10 @@ def run_config(task: ConfigTask) -> dict:
     return row
 
 
-def summarise(rows: list[dict], robots: int) -> dict:
+def summarise(rows: list[Row], robots: int) -> dict[str, Any]:
     """Per count and pooled: ratios of e_l to the optimum on the evaluation set (m / m)."""
     from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
-    out: dict = {"counts": {}}
+    out: dict[str, Any] = {"counts": {}}
     pooled: dict[str, list[float]] = {}
     for n_a in (k for k in feasible_anchor_counts(robots) if k > 0):
         with_opt = [r for r in rows if f"na{n_a}_optimum" in r]
@@ -179,7 +180,7 @@ def summarise(rows: list[dict], robots: int) -> dict:
 BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation set
 
 
-def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, int]]:
+def search_vs_heuristic(rows: list[Row], robots: int) -> dict[str, dict[str, int]]:
     """Per count: selections, how many returned the heuristic seed, and how many beat it (or lost to it) on the
     evaluation set by more than ``BEYOND_NOISE`` standard errors of the paired Monte Carlo difference."""
     from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
@@ -194,7 +195,7 @@ def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, in
     return out
 
 
-def read_rows(path: Path) -> list[dict]:
+def read_rows(path: Path) -> list[Row]:
     """The rows of a study's ``configs.csv`` (numbers back as numbers, empty cells dropped)."""
     if not path.exists():
         raise OptionError("from_csv", f": no such file {path}")
