@@ -18,7 +18,8 @@ estimate, docs/bodies.md) is found in three independent Monte Carlo sets (common
 
 The full online selection (every feasible n_a, as ``swarm sim`` runs it) is also run;
 its chosen n_a is compared with the n_a whose best known plan has the highest P_s
-(Eq. 3) on the evaluation set (``na_agrees``), and the e_l it reports for its plan is
+(Eq. 3) on the evaluation set (``na_agrees``; n_a = 0 competes only where its one step, every
+robot moving, is connected and clear: ``na0_clear``, as in the search's outer loop), and the e_l it reports for its plan is
 compared with that plan's e_l on the evaluation set (the bias of the reported e_l).
 """
 
@@ -48,7 +49,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
 
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
-INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees")
+INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees", "na0_clear")
 SHORTLIST = 16  # best plans of the screening set re-evaluated to pick the optimum
 
 
@@ -102,7 +103,9 @@ def run_config(task: ConfigTask) -> dict:
     row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
     all_move = Plan.equal(np.arange(n), 0)
     e0 = float(final.localization_errors(estimate, desired, [all_move])[0])
-    best_p_s = {0: selection.w_v - selection.w_l}
+    # n_a = 0 (P_l = 1) competes only where its one step is a plan the search may return: with bodies it can be crowded
+    row["na0_clear"] = int(feasible(all_move))
+    best_p_s = {0: selection.w_v - selection.w_l} if row["na0_clear"] else {}
     for n_a in (k for k in feasible_anchor_counts(n) if k > 0):
         heuristic = heuristic_plan(current, desired, n_a)
         forced = AnchorSelector(job.cfg, localizer, replace(selection, anchor_counts=(n_a,)), seed=job.experiment)
@@ -140,7 +143,7 @@ def run_config(task: ConfigTask) -> dict:
         if online.n_anchors == n_a:
             reported = next(s.e_l for s in online.scores if s.n_anchors == n_a)
             row["reported_over_fresh"] = reported / float(_errors(final, estimate, desired, [online.plan])[0])
-    row["best_na"] = max(best_p_s, key=lambda k: (best_p_s[k], -k))
+    row["best_na"] = max(best_p_s, key=lambda k: (best_p_s[k], -k), default=-1)  # -1: no count has a clear plan
     row["na_agrees"] = int(row["best_na"] == online.n_anchors)
     return row
 
