@@ -6,7 +6,9 @@ biased low (the minimum of noisy estimates). Two steps remove that:
 
 * ``race``: successive halving over the search's best distinct plans on fresh sample
   blocks (common random numbers within a block, the budget doubling each round),
-  keeping the better half by the mean over every block seen so far;
+  keeping the better half by the mean over every block seen so far, less the contenders that
+  are already clearly worse than the leader (``clearly_worse``: a paired test on every sample
+  seen): the race ends as soon as one is left;
 * ``final_check``: the race's winner and the search's seed (the heuristic plan,
   Eq. 11-13) re-evaluated on one more fresh set; the winner replaces the seed only if
   it is better there by more than ``margin`` standard errors of the paired per-sample
@@ -27,31 +29,42 @@ import numpy as np
 
 from coordinator.plan import Plan
 
-Evaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan
 SampleEvaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan and sample
 MARGIN = 1.0  # standard errors by which a challenger must beat the seed in the final check
 EARLY_MARGIN = 2.0  # standard errors that decide the paired difference at an interim look of the final check
 
 
-def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Generator) -> tuple[Plan, int]:
+def race(plans: list[Plan], evaluate: SampleEvaluator, samples: int, rng: np.random.Generator,
+         margin: float = EARLY_MARGIN) -> tuple[Plan, int]:
     """Winner of successive halving over ``plans`` and the number of plan evaluations spent.
 
-    Round r evaluates the survivors on ``samples`` x 2^r fresh samples (one new seed per
-    round, shared by the survivors) and keeps the better half by the sample-weighted mean.
+    Round r evaluates the survivors on ``samples`` x 2^r fresh samples (one new seed per round,
+    shared by the survivors), so every survivor has been seen on the same samples. After each round
+    a contender whose mean e_l exceeds the leader's (the lowest mean) by more than ``margin``
+    standard errors of their paired per-sample difference is clearly worse and drops out (at most
+    the worse half stays out too: plain halving); the race ends when one is left.
     """
     alive = list(range(len(plans)))
-    total = np.zeros(len(plans))
-    weight = np.zeros(len(plans))
+    seen = np.zeros((len(plans), 0))  # e_l per sample of every round so far (the survivors' rows are filled)
     spent, budget = 0, samples
     while len(alive) > 1:
-        e_l = evaluate([plans[k] for k in alive], budget, int(rng.integers(2**63)))
-        total[alive] += e_l * budget
-        weight[alive] += budget
+        each = evaluate([plans[k] for k in alive], budget, int(rng.integers(2**63)))
+        seen = np.concatenate([seen, np.zeros((len(plans), budget))], axis=1)
+        seen[alive, -budget:] = each
         spent += len(alive)
-        keep = max(1, len(alive) // 2)
-        alive = sorted(alive, key=lambda k: (total[k] / weight[k], k))[:keep]
+        alive = sorted(alive, key=lambda k: (seen[k].mean(), k))[: max(1, len(alive) // 2)]
+        alive = [k for k in alive if not clearly_worse(seen[k], seen[alive[0]], margin)]
         budget *= 2
     return plans[alive[0]], spent
+
+
+def clearly_worse(e_l: np.ndarray, leader: np.ndarray, margin: float) -> bool:
+    """Whether per-sample ``e_l`` is above ``leader``'s (the same samples) by more than ``margin`` standard errors
+    of the paired difference (a one-sided paired test; never with fewer than 2 samples)."""
+    diff = e_l - leader
+    if len(diff) < 2:
+        return False
+    return bool(diff.mean() > margin * diff.std(ddof=1) / np.sqrt(len(diff)))
 
 
 def fresh_blocks(samples: int, fresh: int, looks: int = 1) -> list[tuple[int, int]]:

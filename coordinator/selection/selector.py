@@ -35,7 +35,7 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
-heuristic seeds, the genetic search and the outer loop alike. A searched count whose heuristic plan is
+heuristic seeds, the genetic search and the outer loop alike (judged from its pair verdicts, ``clear_pairs``). A searched count whose heuristic plan is
 crowded runs the genetic search wherever the gate is not ``off`` (the repair makes a plan clear, not good):
 from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
 predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
@@ -66,6 +66,7 @@ import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance
+from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
@@ -245,14 +246,18 @@ class AnchorSelector:
         samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
         bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
+        pairs = PairTable(bodies)  # the same verdicts for every plan judged, from a few steps (``clear_pairs``)
 
         checked: dict[bytes, bool] = {}  # connectivity of the step configurations seen (plans share them)
 
         def connected(plan: Plan) -> bool:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m, checked)
 
+        def is_clear(plan: Plan) -> bool:
+            return bool(pairs.clear([plan])[0])
+
         def feasible(plan: Plan) -> bool:
-            return bodies.is_clear(plan.groups) and connected(plan)
+            return is_clear(plan) and connected(plan)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
@@ -294,10 +299,10 @@ class AnchorSelector:
             if not connected(seeds[n_a]):
                 scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
-                scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not bodies.is_clear(all_move.groups))
+                scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not is_clear(all_move))
             else:  # a crowded seed (bodies too close) is screened too: its e_l bounds the count's (step 2)
                 e_seed = float(evaluate([seeds[n_a]])[0])
-                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not bodies.is_clear(seeds[n_a].groups))
+                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not is_clear(seeds[n_a]))
                 evaluations += 1
         screened = {k: s.p_s for k, s in scores.items()}  # P_s on the screening samples (the crowded too)
         bar = max((s.p_s for s in scores.values() if s.plan is not None and not s.crowded), default=-np.inf)
@@ -318,7 +323,7 @@ class AnchorSelector:
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
                 continue
-            seed = repair(seeds[n_a], bodies, connected) if connected(seeds[n_a]) else None
+            seed = repair(seeds[n_a], pairs, connected) if connected(seeds[n_a]) else None
             # a crowded heuristic plan: its repair only makes a plan clear, so the count is searched wherever the search may run
             genetic = self.genetic_runs(n, n_a) or (scores[n_a].crowded and sel.genetic_gate != "off")
             if not genetic:  # gated off (``genetic_runs``): the count's plan is its (repaired) heuristic plan
@@ -331,7 +336,7 @@ class AnchorSelector:
                 bar = max(bar, scores[n_a].p_s)
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
-            clear = self._clear_plans(n, n_a, feasible) if scores[n_a].crowded else None
+            clear = self._clear_plans(n, n_a, pairs, connected) if scores[n_a].crowded else None
             if clear:  # clear plans are few and far from the heuristic's: the search starts from the best-predicted
                 ranked = [clear[k] for k in np.argsort(predicted_errors(self.cfg, estimate, desired, clear), kind="stable")]
                 starts = ([seed] if seed is not None else []) + [p for p in ranked if seed is None or p.key() != seed.key()]
@@ -350,7 +355,7 @@ class AnchorSelector:
             evaluations += k
             found: list[Plan] | None = None  # every clear plan of the count, evaluated when the search met none
             if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
-                found = self._clear_plans(n, n_a, feasible) if clear is None else clear
+                found = self._clear_plans(n, n_a, pairs, connected) if clear is None else clear
                 if not found and n - n_a == 1:
                     moves, unclear = bodies.ordered_moves(np.arange(n), np.zeros(n, bool), np.arange(n))
                     single = Plan(np.concatenate(moves), (1,) * n) if not unclear and len(moves) == n else None
@@ -371,7 +376,7 @@ class AnchorSelector:
             enumerated = bool(clear) or bool(found)
             contenders = sel.contenders if enumerated or not screen else sel.screened_contenders
             race_samples = max(count_samples, -(-final_samples // ENUMERATED_RACE)) if enumerated else count_samples
-            champion, spent = race(best_distinct(known, contenders), sampled, race_samples, rng)
+            champion, spent = race(best_distinct(known, contenders), each_sample, race_samples, rng)
             evaluations += spent
             if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:
@@ -472,11 +477,13 @@ class AnchorSelector:
         return Selection(best.plan, scores, len(scores))
 
     @staticmethod
-    def _clear_plans(n: int, n_a: int, feasible: Callable[[Plan], bool]) -> list[Plan] | None:
-        """Every feasible plan of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans, else None."""
+    def _clear_plans(n: int, n_a: int, pairs: PairTable, connected: Callable[[Plan], bool]) -> list[Plan] | None:
+        """Every feasible plan (clear and connected) of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans,
+        else None."""
         if n_solutions(n, n_a) > ENUMERATED:
             return None
-        return [p for p in enumerate_plans(n, n_a) if feasible(p)]
+        plans = enumerate_plans(n, n_a)
+        return [p for p, ok in zip(plans, pairs.clear(plans), strict=True) if ok and connected(p)]
 
     def _optimistic(self, p_s: float, p_v: float) -> float:
         """The count's P_s if its inner loop lowered the screened e_l by ``prune_gain`` (Section 4.2.1's bound;
