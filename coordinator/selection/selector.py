@@ -35,8 +35,9 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
-heuristic seeds, the genetic search and the outer loop alike (judged from its pair verdicts, ``clear_pairs``). A searched count whose heuristic plan is
-crowded runs the genetic search wherever the gate is not ``off`` (the repair makes a plan clear, not good):
+heuristic seeds, the genetic search and the outer loop alike (judged from its pair verdicts,
+``clear_pairs``). A searched count whose heuristic plan is crowded runs the genetic search wherever the gate
+is not ``off`` (the repair makes a plan clear, not good):
 from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
 predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
 small count (all evaluated, then raced as the search's), or, with one mover a step, an order of single moves

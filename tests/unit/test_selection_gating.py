@@ -8,9 +8,9 @@ import pytest
 
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan, enumerate_plans, speed_performance
+from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.repair import conflicts, repair
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, genetic_pays, samples_for
 from inchworm.bench.select import SelectBenchOptions, bench_select
