@@ -80,6 +80,7 @@ class ConfigTask:
 def run_config(task: ConfigTask) -> dict:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
     from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance  # noqa: PLC0415
+    from coordinator.selection.clear_pairs import PairTable  # noqa: PLC0415
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
@@ -94,10 +95,10 @@ def run_config(task: ConfigTask) -> dict:
     screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed, task.selection.mc_start)  # the selection's reading of the start
                            for s, seed in zip((budget.screen, budget.pick, budget.eval), sets, strict=True))
 
-    bodies = BodyCheck.of_estimate(job.cfg, estimate, desired)  # the search's collision constraint (docs/bodies.md)
+    pairs = PairTable(BodyCheck.of_estimate(job.cfg, estimate, desired))  # the search's collision constraint (docs/bodies.md)
 
     def feasible(plan: Plan) -> bool:
-        return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m) and bodies.is_clear(plan.groups)
+        return bool(pairs.clear([plan])[0]) and plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
 
     online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
     row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
@@ -127,7 +128,9 @@ def run_config(task: ConfigTask) -> dict:
         row[f"na{n_a}_gain_se"] = float(np.std(paired[0] - paired[1], ddof=1) / np.sqrt(paired.shape[1]))  # m
         exhaustive = job.exhaustive and n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
         if exhaustive:
-            every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
+            enumerated = enumerate_plans(n, n_a)
+            every = [p for p, clear in zip(enumerated, pairs.clear(enumerated), strict=True)
+                     if clear and plan_keeps_connectivity(p, current, desired, job.cfg.sensing_range_m)]
             row[f"na{n_a}_clear_plans"] = len(every)
         if exhaustive and every:
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]

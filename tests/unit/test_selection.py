@@ -172,9 +172,9 @@ def race_case(gap: float, common: float = 0.3, own: float = 0.1, count: int = 4)
 
 def test_race_spends_more_samples_on_contenders_and_finds_the_best():
     plans, evaluate, seen = race_case(gap=0.003)  # within the noise: plain halving, every round
-    winner, spent = race(plans, evaluate, 64, np.random.default_rng(0))
+    winner, spent, stopped, _, _ = race(plans, evaluate, 64, np.random.default_rng(0))
     assert winner.key() == plans[0].key()
-    assert seen == [(4, 64), (2, 128)] and spent == 6
+    assert seen == [(4, 64), (2, 128)] and spent == 6 and not stopped
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -182,8 +182,21 @@ def test_race_drops_clearly_worse_contenders_early_and_never_the_clear_best(seed
     """Eight plans 5 % apart, each sample's spread (0.3 shared, 0.02 own) far above the gap: common random numbers
     decide them in the first round, which eliminates all but the best (plain halving would spend 8 + 4 + 2)."""
     plans, evaluate, seen = race_case(gap=0.05, own=0.02, count=8)
-    winner, spent = race(plans, evaluate, 16, np.random.default_rng(seed))
-    assert winner.key() == plans[0].key() and seen == [(8, 16)] and spent == 8
+    winner, spent, stopped, _, _ = race(plans, evaluate, 16, np.random.default_rng(seed))
+    assert winner.key() == plans[0].key() and seen == [(8, 16)] and spent == 8 and not stopped
+
+
+def test_a_race_whose_leader_cannot_win_stops_and_says_so():
+    plans, evaluate, seen = race_case(gap=0.003, count=8)
+    told: list[tuple[int, int]] = []
+
+    def hopeless(e_l, blocks):  # judged on the leader's e_l over every block seen
+        told.append((len(e_l), sum(b[0] for b in blocks)))
+        return len(blocks) == 2
+
+    result = race(plans, evaluate, 16, np.random.default_rng(0), hopeless=hopeless)
+    assert result.stopped and seen == [(8, 16), (4, 32)] and told == [(16, 16), (48, 48)] and result.spent == 12
+    assert len(result.e_l) == 48 and [b[0] for b in result.blocks] == [16, 32]
 
 
 def test_a_contender_is_clearly_worse_only_beyond_the_margin():

@@ -44,9 +44,9 @@ def test_a_search_from_enumerated_clear_plans_races_as_many_as_an_unscreened_sea
     raced: list[list] = []
     original = selector_module.race
 
-    def spy(plans, *args):
+    def spy(plans, *args, **kwargs):
         raced.append(plans)
-        return original(plans, *args)
+        return original(plans, *args, **kwargs)
 
     monkeypatch.setattr(selector_module, "race", spy)
     selection = replace(SelectionConfig(samples=4, final_samples=16, final_looks=1, contenders=5), anchor_counts=(6,))

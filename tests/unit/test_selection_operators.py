@@ -387,7 +387,7 @@ def test_race_keeps_the_best_whatever_its_position():
 
     plans = [Plan.equal(np.roll(np.arange(6), k), 3) for k in range(4)]
     truth = {p.key(): 1.0 - 0.1 * k for k, p in enumerate(plans)}
-    winner, spent = race(plans, lambda ps, samples, seed: np.array([[truth[p.key()]] * samples for p in ps]), 8,
+    winner, spent, _, _, _ = race(plans, lambda ps, samples, seed: np.array([[truth[p.key()]] * samples for p in ps]), 8,
                          np.random.default_rng(0))
     assert winner.key() == plans[3].key() and spent == 4
 
