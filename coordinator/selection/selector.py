@@ -23,8 +23,10 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
    screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
    generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
-   (successive halving on fresh samples) among its ``contenders`` (screened: ``screened_contenders``) best
-   distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
+   (successive halving on fresh samples, clearly worse contenders dropped early) among its ``contenders``
+   (screened: ``screened_contenders``) best distinct plans (a race won by the seed ends there: the seed keeps
+   its screened score; so does a count whose race leader's P_s is clearly below the best of the other
+   counts, ``cannot_win``: it cannot win, so no final check is spent on it), then
    the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
    difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
@@ -404,13 +406,15 @@ class AnchorSelector:
             contenders = sel.contenders if enumerated or not screen else sel.screened_contenders
             race_samples = max(count_samples, -(-final_samples // ENUMERATED_RACE)) if enumerated else count_samples
             no_anchor_seen = len(race_no_anchor)
-            raced = race(best_distinct(known, contenders), each_sample, race_samples, rng,
-                         hopeless=lambda e_l, seen, n_a=n_a: cannot_win(n_a, e_l, partial(race_emax, seen)))
+
+            def hopeless(e_l: np.ndarray, seen: list[tuple[int, int]], n_a: int = n_a) -> bool:
+                return cannot_win(n_a, e_l, partial(race_emax, seen))
+            raced = race(best_distinct(known, contenders), each_sample, race_samples, rng, hopeless=hopeless)
             champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
             if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
                 scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
                 continue
-            if raced.stopped or (seed is not None and champion.key() == seed.key()):  # the seed, scored as screened, no final check
+            if seed is not None and (raced.stopped or champion.key() == seed.key()):  # the seed, scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:
                     e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
                 else:
