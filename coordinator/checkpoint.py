@@ -25,7 +25,7 @@ import binascii
 import dataclasses
 import json
 from dataclasses import dataclass
-from typing import overload
+from typing import Any, overload
 
 import numpy as np
 
@@ -112,7 +112,7 @@ class RunState:
             raise SwarmInputError(f"checkpoint state is not readable: {type(exc).__name__}: {exc}") from None
 
 
-def _array(a: np.ndarray | None) -> dict | None:
+def _array(a: np.ndarray | None) -> dict[str, Any] | None:
     """A float array as base64 of its little-endian float64 bytes, with its shape (exact, compact, fast)."""
     if a is None:
         return None
@@ -121,14 +121,14 @@ def _array(a: np.ndarray | None) -> dict | None:
 
 
 @overload
-def _from_array(d: dict) -> np.ndarray: ...
+def _from_array(d: dict[str, Any]) -> np.ndarray: ...
 
 
 @overload
 def _from_array(d: None) -> None: ...
 
 
-def _from_array(d: dict | None) -> np.ndarray | None:
+def _from_array(d: dict[str, Any] | None) -> np.ndarray | None:
     if d is None:
         return None
     values = np.frombuffer(base64.b64decode(d["f64"], validate=True), dtype="<f8").astype(float)
@@ -142,7 +142,7 @@ def _from_array(d: dict | None) -> np.ndarray | None:
     return out
 
 
-def _symmetric_array(a: np.ndarray) -> dict | None:
+def _symmetric_array(a: np.ndarray) -> dict[str, Any] | None:
     """``_array``, as the upper triangle when ``a`` is a square matrix equal to its transpose bit for bit."""
     a = np.asarray(a, dtype=float)
     if a.ndim != 2 or a.shape[0] != a.shape[1] or not np.array_equal(a, a.T):
@@ -159,36 +159,36 @@ def carried_fields(e: SwarmEstimate) -> list[str]:
     return [f.name for f in dataclasses.fields(e) if f.name not in BASE_FIELDS and getattr(e, f.name) is not None]
 
 
-def _estimate(e: SwarmEstimate, carry: bool = False) -> dict:
+def _estimate(e: SwarmEstimate, carry: bool = False) -> dict[str, Any]:
     """ids, poses and covariances; with ``carry`` every other field that is set (``carried_fields``)."""
     out = {"ids": e.ids.tolist(), "poses": _array(e.poses), "cov": _array(e.cov)}
     return out | ({name: _symmetric_array(getattr(e, name)) for name in carried_fields(e)} if carry else {})
 
 
-def _from_estimate(d: dict) -> SwarmEstimate:
+def _from_estimate(d: dict[str, Any]) -> SwarmEstimate:
     carried = {f.name: _from_array(d[f.name]) for f in dataclasses.fields(SwarmEstimate) if f.name not in BASE_FIELDS and d.get(f.name) is not None}
     return SwarmEstimate(np.array(d["ids"], dtype=np.int64), _from_array(d["poses"]), _from_array(d["cov"]), **carried)
 
 
-def _plan(p: Plan | None) -> dict | None:
+def _plan(p: Plan | None) -> dict[str, Any] | None:
     return None if p is None else {"order": p.order.tolist(), "sizes": list(p.sizes)}
 
 
 @overload
-def _from_plan(d: dict) -> Plan: ...
+def _from_plan(d: dict[str, Any]) -> Plan: ...
 
 
 @overload
 def _from_plan(d: None) -> None: ...
 
 
-def _from_plan(d: dict | None) -> Plan | None:
+def _from_plan(d: dict[str, Any] | None) -> Plan | None:
     return None if d is None else Plan(np.array(d["order"], dtype=np.int64), tuple(d["sizes"]))
 
 
-def _regrouping(r: Regrouping | None) -> dict | None:
+def _regrouping(r: Regrouping | None) -> dict[str, Any] | None:
     return None if r is None else {"planned": _plan(r.planned), "unclear": list(r.unclear), "bound": r.bound}
 
 
-def _from_regrouping(d: dict | None) -> Regrouping | None:
+def _from_regrouping(d: dict[str, Any] | None) -> Regrouping | None:
     return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["bound"]))

@@ -10,6 +10,7 @@ recorded plan is reproduced exactly (the computation is deterministic). Point ro
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -42,7 +43,7 @@ class Regrouping:
             text += f"; no order keeps robots {list(self.unclear)} within it (moved one at a time)"
         return text
 
-    def to_json(self, steps: int) -> dict:
+    def to_json(self, steps: int) -> dict[str, Any]:
         """The additive ``--json`` record of the split: planned and taken steps, the bound kept, the unclear robots."""
         return {"planned_steps": self.planned_steps, "steps": steps, "contact_bound": self.bound, "unclear": list(self.unclear)}
 

@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 
@@ -252,7 +252,7 @@ class InchwormExecutor:
 
     @staticmethod
     def _desired(trajectory: Trajectory, config: int, ids: np.ndarray) -> np.ndarray:
-        return trajectory.configurations[config][index_of(trajectory.ids, ids, "trajectory")]
+        return cast(np.ndarray, trajectory.configurations[config][index_of(trajectory.ids, ids, "trajectory")])
 
     def _drop_lost(self, result: RunResult, config: int, estimate: SwarmEstimate) -> tuple[SwarmEstimate, np.ndarray | None]:
         """Drop the robots the backend lost since last asked; the estimate of the others and the
@@ -265,7 +265,7 @@ class InchwormExecutor:
         keep = ~np.isin(estimate.ids, list(lost))
         names = ", ".join(f"robot {r} ({reason})" for r, reason in sorted(lost.items()))
         if self.on_lost == "abort":
-            raise RunAborted(f"lost {names}; --on-lost abort ends the run", sorted(lost))
+            raise RunAborted(f"lost {names}; the policy for a lost robot is abort: the run ends", sorted(lost))
         if keep.sum() < self.min_robots:
             raise RunAborted(f"lost {names}; {int(keep.sum())} robots left, fewer than the minimum {self.min_robots}", sorted(lost))
         self.strategy = self.strategy.restrict(keep)

@@ -12,10 +12,13 @@ from __future__ import annotations
 import itertools
 import math
 from dataclasses import dataclass
+from typing import TypeAlias
 
 import numpy as np
 
 from runtime.errors import SwarmInputError
+
+PlanKey: TypeAlias = tuple[tuple[int, ...], ...]  # ``Plan.key()``: each group's robots, sorted
 
 
 def feasible_anchor_counts(n_robots: int) -> list[int]:
@@ -97,7 +100,7 @@ class Plan:
         mask[self.groups[step]] = True
         return mask
 
-    def key(self) -> tuple[tuple[int, ...], ...]:
+    def key(self) -> PlanKey:
         """Canonical form: the order of robots inside a group does not matter."""
         return tuple(tuple(sorted(g.tolist())) for g in self.groups)
 

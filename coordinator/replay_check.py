@@ -47,7 +47,7 @@ from coordinator.selection.genetic import GeneticConfig
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import SelectedStrategy, Strategy, make_strategy
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands, SwarmEstimate, index_of
 from runtime.models.trajectory import Trajectory
@@ -90,8 +90,8 @@ class RecordedRun:
             return Trajectory.load(override)
         data = self.meta.get("trajectory")
         if data is None:
-            raise SwarmInputError(f"{self.path}: the recording has no trajectory in its run metadata "
-                                  "(record with swarm coordinator, or pass --trajectory FILE)")
+            raise OptionError("trajectory", f"FILE must be given: {self.path} has no trajectory in its run metadata "
+                                            "(swarm coordinator records it)")
         return Trajectory.from_json(data)
 
     def ids(self) -> np.ndarray:

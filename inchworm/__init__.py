@@ -34,26 +34,46 @@ from runtime.errors import (
     SwarmRunError,
 )
 
+# ``X as X``: the names below are the package's to type checkers too (explicit re-exports)
 if TYPE_CHECKING:
-    from coordinator.run_result import RunResult
-    from coordinator.selection.selector import SelectionConfig
-    from inchworm.comparison import CompareOptions, CompareResult, compare
-    from inchworm.distributed import run_distributed
-    from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, LaunchResult, OutputOptions, SwarmOptions, launch
-    from inchworm.localize_data import LocalizeResult, localize, localize_document
-    from inchworm.noise_calibration import NoiseCalibration, calibrate_noise
-    from inchworm.options import RunOptions
-    from inchworm.replay import CheckOptions, PublishOptions, check_recording, publish
-    from inchworm.runner import Executor, ProcessExecutor, SerialExecutor
-    from inchworm.simulation import simulate
-    from inchworm.studies.anchors import AnchorsOptions, AnchorsResult, study_anchors
-    from inchworm.studies.calibration import CalibrationOptions, CalibrationResult, study_calibration
-    from inchworm.studies.consistency import ConsistencyOptions, ConsistencyResult, study_consistency
-    from inchworm.studies.noise import NoiseOptions, NoiseResult, study_noise
-    from inchworm.studies.selection import SelectionStudyOptions, SelectionStudyResult, study_selection
-    from inchworm.swarm import Swarm, SwarmStatus
-    from runtime.models.config import ModelConfig
-    from runtime.models.trajectory import Trajectory
+    from coordinator.run_result import RunResult as RunResult
+    from coordinator.selection.selector import SelectionConfig as SelectionConfig
+    from inchworm.comparison import CompareOptions as CompareOptions, CompareResult as CompareResult, compare as compare
+    from inchworm.distributed import run_distributed as run_distributed
+    from inchworm.launch_options import (
+        DriverOptions as DriverOptions,
+        FaultOptions as FaultOptions,
+        LaunchOptions as LaunchOptions,
+        OutputOptions as OutputOptions,
+        SwarmOptions as SwarmOptions,
+    )
+    from inchworm.launcher import LaunchResult as LaunchResult, launch as launch
+    from inchworm.localize_data import LocalizeResult as LocalizeResult, localize as localize, localize_document as localize_document
+    from inchworm.noise_calibration import NoiseCalibration as NoiseCalibration, calibrate_noise as calibrate_noise
+    from inchworm.options import RunOptions as RunOptions
+    from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
+    from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
+    from inchworm.simulation import simulate as simulate
+    from inchworm.studies.anchors import AnchorsOptions as AnchorsOptions, AnchorsResult as AnchorsResult, study_anchors as study_anchors
+    from inchworm.studies.calibration import (
+        CalibrationOptions as CalibrationOptions,
+        CalibrationResult as CalibrationResult,
+        study_calibration as study_calibration,
+    )
+    from inchworm.studies.consistency import (
+        ConsistencyOptions as ConsistencyOptions,
+        ConsistencyResult as ConsistencyResult,
+        study_consistency as study_consistency,
+    )
+    from inchworm.studies.noise import NoiseOptions as NoiseOptions, NoiseResult as NoiseResult, study_noise as study_noise
+    from inchworm.studies.selection import (
+        SelectionStudyOptions as SelectionStudyOptions,
+        SelectionStudyResult as SelectionStudyResult,
+        study_selection as study_selection,
+    )
+    from inchworm.swarm import Swarm as Swarm, SwarmStatus as SwarmStatus
+    from runtime.models.config import ModelConfig as ModelConfig
+    from runtime.models.trajectory import Trajectory as Trajectory
 
 _WHERE = {
     "simulate": "inchworm.simulation",
@@ -75,9 +95,9 @@ _WHERE = {
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
-    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launcher", "LaunchResult": "inchworm.launcher",
-    "SwarmOptions": "inchworm.launcher", "DriverOptions": "inchworm.launcher", "FaultOptions": "inchworm.launcher",
-    "OutputOptions": "inchworm.launcher", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
+    "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launch_options", "LaunchResult": "inchworm.launcher",
+    "SwarmOptions": "inchworm.launch_options", "DriverOptions": "inchworm.launch_options", "FaultOptions": "inchworm.launch_options",
+    "OutputOptions": "inchworm.launch_options", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
 }

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 
 DEFAULT_HOSTS = ("router", "coordinator", "gateway", "estop")
 LOOPBACK_SAN = "IP:127.0.0.1"
@@ -39,6 +39,7 @@ CA_SUBJECT = "/O=inchworm-swarm/CN=inchworm-swarm lab CA"
 _NAME = re.compile(r"[A-Za-z0-9]([A-Za-z0-9.-]{0,61}[A-Za-z0-9])?")
 _DNS = re.compile(r"[A-Za-z0-9*]([A-Za-z0-9.-]{0,251}[A-Za-z0-9])?")
 _EC_KEY = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes")
+FLAGS = {"hosts": "--host"}  # the flags of the options whose flag is not their name (``OptionError``)
 
 
 @dataclass(frozen=True)
@@ -54,10 +55,8 @@ def parse_host(text: str) -> HostSpec:
     name, _, extra = text.partition("=")
     name = name.strip()
     if not _NAME.fullmatch(name) or name.lower() == "ca":
-        raise SwarmInputError(
-            f"--host {text!r}: the name must be 1-63 characters of A-Z a-z 0-9 . - "
-            "starting and ending with a letter or digit, and not 'ca'"
-        )
+        raise OptionError("hosts", f"{text!r}: the name must be 1-63 characters of A-Z a-z 0-9 . - "
+                                   "starting and ending with a letter or digit, and not 'ca'", FLAGS)
     sans = [f"DNS:{name}"]
     for item in (s.strip() for s in extra.split(",")):
         if not item:
@@ -66,7 +65,7 @@ def parse_host(text: str) -> HostSpec:
             sans.append(f"IP:{ipaddress.ip_address(item.strip('[]'))}")
         except ValueError:
             if not _DNS.fullmatch(item):
-                raise SwarmInputError(f"--host {text!r}: {item!r} is neither an IP address nor a DNS name") from None
+                raise OptionError("hosts", f"{text!r}: {item!r} is neither an IP address nor a DNS name", FLAGS) from None
             sans.append(f"DNS:{item}")
     sans.append(LOOPBACK_SAN)
     return HostSpec(name, tuple(dict.fromkeys(sans)))  # de-duplicated, order kept
@@ -141,12 +140,13 @@ def make_certs(out: Path, hosts: Sequence[HostSpec] = _DEFAULT_SPECS, days: int 
     """
     names = [h.name for h in hosts]
     if len(set(names)) != len(names):
-        raise SwarmInputError(f"--host names must be distinct, got {names}")
-    if days < 1 or ca_days < 1:
-        raise SwarmInputError("--days and --ca-days must be at least 1")
+        raise OptionError("hosts", f"must have distinct names, got {names}", FLAGS)
+    for name, value in (("days", days), ("ca_days", ca_days)):
+        if value < 1:
+            raise OptionError(name, f"must be at least 1, got {value}")
     openssl = _openssl()
     if out.exists() and not out.is_dir():
-        raise SwarmInputError(f"--out {out} exists and is not a directory")
+        raise OptionError("out", f"{out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
     reused = ensure_ca(openssl, out, ca_days)
     if say:

@@ -95,12 +95,13 @@ def run_one(task: RunTask) -> Row:
 class CompareOptions:
     """A paired comparison: ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
 
-    robots: int = 10
-    trajectories: int = 6
-    configs: int = 8
-    methods: tuple[str, ...] = METHODS
-    seed: int = 0
-    selections: tuple[str, ...] | None = None  # rankings compared for the searching methods (None: run.selection.method)
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    trajectories: int = field(default=6, metadata={"help": "random trajectories (default %(default)s; the paper: 100)"})
+    configs: int = field(default=8, metadata={"help": "configurations per trajectory n_d (default %(default)s; the paper: 100)"})
+    methods: tuple[str, ...] = field(default=METHODS, metadata={"help": "comma-separated methods (default: all: %(default)s)"})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    selections: tuple[str, ...] | None = field(default=None, metadata={  # None: run.selection.method
+        "help": "comma-separated anchor rankings to compare for the searching methods, e.g. mc,crlb (default: --selection)"})
     run: RunOptions = field(default_factory=RunOptions)
 
     def __post_init__(self) -> None:
@@ -142,7 +143,7 @@ def anchors_along(rows: list[Row]) -> list[float]:
 
 def summarise(rows: list[Row], methods: list[str]) -> dict[str, Any]:
     """Per-method P_f statistics and p-values of the paired t-test against ref57 (rows paired by ``trajectory``)."""
-    out: dict = {"methods": {}, "p_values": {}}
+    out: dict[str, Any] = {"methods": {}, "p_values": {}}
     by = {m: sorted((r for r in rows if r["method"] == m), key=lambda r: r["trajectory"]) for m in methods}
     for m in methods:
         pf = np.array([r["pf"] for r in by[m]])
@@ -216,7 +217,7 @@ class CompareResult:
 
 
 def compare(
-    options: CompareOptions = CompareOptions(),
+    options: CompareOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -225,6 +226,7 @@ def compare(
 ) -> CompareResult:
     """Run the paired comparison; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes
     (``resume``: continue a comparison interrupted there)."""
+    options = CompareOptions() if options is None else options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     methods = [label for _, label, _ in options.variants()]

@@ -52,20 +52,25 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from msgspec.structs import replace
 
-from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.node.process import EXIT_OUTPUT, default_recording
 from coordinator.node.stop import StopSignals, collect_acks, publish_estop
+from inchworm.launch_options import (
+    DriverOptions as DriverOptions,
+    FaultOptions as FaultOptions,
+    LaunchOptions as LaunchOptions,
+    OutputOptions as OutputOptions,
+    SwarmOptions as SwarmOptions,
+)
 from inchworm.lifeline import Lifeline
 from inchworm.limits import check_swarm_size
-from inchworm.options import check_at_least, default_selection
 from inchworm.processes import (
     AGENTS_PER_PROCESS,
     GRACE_S,
@@ -88,9 +93,7 @@ from robot_agent.emulator_process import check_radio_faults
 from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
-from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected, validate_passable
-from runtime.paths import coerce_paths
 from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
@@ -98,7 +101,7 @@ from runtime.wire.run_file import published_run
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
 
 if TYPE_CHECKING:
-    from coordinator.selection.selector import SelectionConfig
+    pass
 
 EXIT_STEPPED_DOWN = 4  # swarm coordinator's status when another coordinator holds the run (it stepped down or never began)
 COORDINATOR_GRACE_S = 20.0  # s the coordinator gets to finish its recording after SIGTERM
@@ -139,143 +142,6 @@ class LaunchResult:
         return dict(self.summary or {})
 
 
-@dataclass(frozen=True, kw_only=True)
-class SwarmOptions:
-    """What runs: the trajectory (a file, else a random one of ``robots`` x ``configs`` drawn with ``trajectory_seed``),
-    the method and its ``seed``, the noise model, localizer and anchor selection (checked before anything starts),
-    the run id (default ``launch-<pid>``), the lost-robot policy and the world. Times in seconds. They go to the
-    processes in their specs (``inchworm.specs``; ``model_file``: the file ``model`` was read from, for the
-    recording's metadata)."""
-
-    trajectory: Path | None = None
-    robots: int = field(default=10, metadata={"flag": "-n"})
-    configs: int = 3
-    trajectory_seed: int = 0
-    method: str = "inchworm"
-    seed: int = 0
-    model: ModelConfig = field(default_factory=ModelConfig)
-    model_file: Path | None = None
-    localizer: str = DEFAULT_LOCALIZER
-    selection: SelectionConfig = field(default_factory=default_selection)
-    run_id: str | None = field(default=None, metadata={"flag": "--run"})
-    min_robots: int = 2
-    on_lost: str = "continue"  # or "abort": end the run when a robot is lost
-    rejoin: bool = True  # a lost robot whose agent comes back rejoins at the next configuration
-    motion_time: float = 0.0
-    step_timeout: float | None = None  # None: DEFAULT_STEP_TIMEOUT_S, with driver "ros2" at least its slowest motion (``ros2_step_timeout``)
-    agents_per_process: int | None = None
-    world: str = "model"  # or "physics": the simulated agents (all in one process) or ROS 2 robots drive in the rigid-body world (docs/physics.md)
-    physics_params: tuple[str, ...] = field(default=(), metadata={"flag": "--physics-param"})  # NAME=VALUE
-    physics_speed: float = 0.0
-
-    def __post_init__(self) -> None:
-        coerce_paths(self, "trajectory", "model_file")
-        if self.on_lost not in ("continue", "abort"):
-            raise OptionError("on_lost", f"must be 'continue' or 'abort', got {self.on_lost!r}", self)
-        if self.world not in ("model", "physics"):
-            raise OptionError("world", f"must be 'model' or 'physics', got {self.world!r}", self)
-        if not self.trajectory:
-            check_at_least(self, "robots", 2)
-            check_at_least(self, "configs", 1)
-        check_at_least(self, "min_robots", 2)
-        check_at_least(self, "motion_time", 0.0)
-
-
-@dataclass(frozen=True, kw_only=True)
-class DriverOptions:
-    """What drives the robots: ``name`` ``sim`` (simulated agents), ``gateway`` (emulated robots behind link processes;
-    ``gateway_config``, ``emulator_events``), ``ros2`` (``ros2_robots``: simulated ROS 2 robots started first) or a lab's
-    own driver (``package.module:Class``, ``file.py:Class``, an entry point name) with its ``options`` (KEY=VALUE) and
-    ``command_timeout`` (s)."""
-
-    name: str = field(default="sim", metadata={"flag": "--driver"})
-    options: tuple[str, ...] = field(default=(), metadata={"flag": "--driver-option"})
-    command_timeout: float | None = None
-    gateway_config: Path | None = None
-    emulator_events: Path | None = None
-    ros2_robots: bool = False
-
-    def __post_init__(self) -> None:
-        coerce_paths(self, "gateway_config", "emulator_events")
-
-
-@dataclass(frozen=True, kw_only=True)
-class FaultOptions:
-    """Fault injection (module doc): ``kill_robot`` one ``(ID, STEP)`` or several, ``standby`` and ``kill_coordinator``
-    (STEP), ``stall_coordinator`` / ``stall_link`` (STEP, SECONDS), and the emulated radio's ``drop`` / ``corrupt``
-    probabilities and ``delay`` (s; driver ``gateway``)."""
-
-    kill_robot: tuple[int, int] | tuple[tuple[int, int], ...] | None = None
-    standby: bool = False
-    kill_coordinator: int | None = None
-    stall_coordinator: tuple[int, float] | None = None
-    stall_link: tuple[int, float] | None = None
-    drop: float = 0.0
-    corrupt: float = 0.0
-    delay: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.kill_coordinator is not None:
-            check_at_least(self, "kill_coordinator", 1)
-        for name in ("stall_coordinator", "stall_link"):
-            stall = getattr(self, name)
-            if stall is not None and (stall[0] < 1 or not stall[1] > 0):
-                raise OptionError(name, f"{stall[0]}:{stall[1]:g}: the step must be >= 1 and the seconds > 0", self)
-        for robot, step in self.kills:
-            if robot < 0 or step < 1:
-                raise OptionError("kill_robot", f"{robot}@{step}: the robot id must be >= 0 and the step >= 1", self)
-
-    @property
-    def kills(self) -> list[tuple[int, int]]:
-        """Every ``(robot, step)`` of ``kill_robot``."""
-        spec = self.kill_robot
-        if not spec:
-            return []
-        if isinstance(spec[0], int):
-            return [(int(spec[0]), int(spec[1]))]
-        return [(int(robot), int(step)) for robot, step in spec]
-
-
-@dataclass(frozen=True, kw_only=True)
-class OutputOptions:
-    """What the run leaves: plots in ``out`` (default ``out/<command>``), every step's estimate in ``result``, the
-    recording (``record``, default ``recordings/<run>.mcap``; ``no_record``; ``on_record_error``), the live views
-    (``foxglove`` port and ``linger`` s, ``ros2``: the ROS 2 bridge) and, with ``json``, the JSON object on stdout.
-    ``command`` is how the launcher names itself (``launch`` / ``demo``)."""
-
-    command: str = "launch"
-    out: Path | None = None
-    result: Path | None = None
-    record: Path | None = None
-    no_record: bool = False
-    on_record_error: str = "continue"  # or "stop"
-    foxglove: int | None = None
-    linger: float | None = None
-    ros2: bool = False
-    json: bool = False
-
-    def __post_init__(self) -> None:
-        coerce_paths(self, "out", "result", "record")
-
-
-@dataclass(frozen=True, kw_only=True)
-class LaunchOptions:
-    """What ``launch`` (and ``inchworm.Swarm``) runs, by concern: the ``swarm``, its ``driver``, the ``faults`` to
-    inject and the ``outputs``."""
-
-    swarm: SwarmOptions = field(default_factory=SwarmOptions)
-    driver: DriverOptions = field(default_factory=DriverOptions)
-    faults: FaultOptions = field(default_factory=FaultOptions)
-    outputs: OutputOptions = field(default_factory=OutputOptions)
-
-    def __post_init__(self) -> None:
-        if self.driver.name != "gateway":  # faults of the emulated radio and of its link processes
-            for name in ("drop", "corrupt", "delay", "stall_link"):
-                if getattr(self.faults, name):
-                    raise OptionError(name, "is a fault of the emulated robots' radio and links: it needs the gateway driver", self.faults)
-
-
-
 def _stderr(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
@@ -284,7 +150,7 @@ def _stdout_json(obj: object) -> None:
     print(json.dumps(obj, separators=(",", ":")), flush=True)
 
 
-def _wait_for(coordinator: subprocess.Popen, agents: list[subprocess.Popen], errors: AgentErrors) -> int | str:
+def _wait_for(coordinator: subprocess.Popen[Any], agents: list[subprocess.Popen[Any]], errors: AgentErrors) -> int | str:
     """The coordinator's exit status, or the error line of an agent process that exited 2 first (its driver failed to
     start, ...: the coordinator would wait for it until its start timeout)."""
     while True:
@@ -302,7 +168,7 @@ def plugin_spec(spec: str) -> str:
     return f"{Path(module).resolve()}:{attr}" if sep and module.endswith(".py") else spec
 
 
-def _forward_output(stream, last_json: list[str]) -> None:
+def _forward_output(stream: Iterable[str], last_json: list[str]) -> None:
     """Copy the coordinator's stdout to ours, holding back its last line (the JSON object, amended at the end)."""
     held = None
     for line in stream:
@@ -331,7 +197,7 @@ def launch_trajectory(o: LaunchOptions) -> Trajectory:
     """The run's trajectory: the file, else a random one (``SwarmInputError`` for a swarm too small or too large)."""
     if o.swarm.trajectory:
         traj = Trajectory.load(o.swarm.trajectory)
-        check_swarm_size(traj.n, f"--trajectory {o.swarm.trajectory}", launched=True)
+        check_swarm_size(traj.n, str(o.swarm.trajectory), launched=True, parameter="trajectory")
         return traj
     return random_trajectory(o.swarm.robots, o.swarm.configs, np.random.default_rng(o.swarm.trajectory_seed),
                              sensing_range=o.swarm.model.sensing_range_m,
@@ -440,7 +306,8 @@ def ros2_step_timeout(options: list[str]) -> float:
     return max(DEFAULT_STEP_TIMEOUT_S, 1.5 * cfg.motion_time_s(limits.max_turn_rad, limits.max_drive_m) + cfg.sensing_window_s + 2.0)
 
 
-def stop_answers(acks: queue.Queue, stamp_ns: int, until: float, hosts: dict[int, subprocess.Popen]) -> tuple[set[int], set[int]]:
+def stop_answers(acks: queue.Queue[tuple[str, bytes]], stamp_ns: int, until: float,
+                 hosts: dict[int, subprocess.Popen[Any]]) -> tuple[set[int], set[int]]:
     """The robots whose agents acknowledged the stop stamped ``stamp_ns`` and those whose agent process (``hosts``: robot ->
     its process) had exited without acknowledging (a Ctrl-C reaches the agents too: they stop with it); waits until
     every robot is one or the other, or monotonic time ``until``."""
@@ -482,10 +349,10 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     port = free_tcp_port()
     hub_settings, _ = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
-    coordinators: list[subprocess.Popen] = []  # the coordinator and its standby, stopped first
-    ros2_procs: list[subprocess.Popen] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
+    coordinators: list[subprocess.Popen[Any]] = []  # the coordinator and its standby, stopped first
+    ros2_procs: list[subprocess.Popen[Any]] = []  # simulated ROS 2 robots and the bridge, stopped after the agents
     signals = StopSignals()  # Ctrl-C / SIGTERM / SIGHUP: estop, then every child stopped; never interrupts the stopping
     lifeline = Lifeline()  # every child ends with this process, even after SIGKILL
     agent_errors = AgentErrors()  # the agents' stderr, their error lines kept back (one line if one cannot start)
@@ -657,7 +524,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
                         summary = json.loads(line)
                     except json.JSONDecodeError:  # a coordinator that failed before its JSON line: pass it on as it was
                         sys.stdout.write(line)
-                extra = {} if not killers else {"kill": kills[0], "kills": kills}
+                extra: dict[str, object] = {} if not killers else {"kill": kills[0], "kills": kills}
                 if coord_killer is not None:
                     extra["coordinator_kill"] = coord_kill
                 extra.update(stalls)

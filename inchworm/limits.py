@@ -53,11 +53,14 @@ def check_limits(values: Mapping[str, Any], *, launched: bool = False) -> None:
         raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
 
 
-def check_swarm_size(n: int, source: str, *, launched: bool = False) -> None:
-    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows."""
+def check_swarm_size(n: int, source: str, *, launched: bool = False, parameter: str | None = None) -> None:
+    """``SwarmInputError`` when a swarm read from ``source`` (a trajectory file) is larger than ``check_limits`` allows
+    (an ``OptionError`` naming ``parameter``, the option that gave the file, if given)."""
     most = MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS
     if n > most:
         what = "robots launched as agent processes on one host" if launched else "simulated robots"
+        if parameter is not None:
+            raise OptionError(parameter, f"{source}: {n} robots, at most {most} ({what})")
         raise SwarmInputError(f"{source}: {n} robots, at most {most} ({what})")
 
 

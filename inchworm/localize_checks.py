@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +53,7 @@ def row_list(rows: np.ndarray) -> str:
     return shown if len(rows) <= LISTED_ROWS else f"{shown}, ... ({len(rows)} in all)"
 
 
-def observation_checks(obs: Observations, used: np.ndarray, poses: np.ndarray, solved: np.ndarray, cfg: ModelConfig) -> dict:
+def observation_checks(obs: Observations, used: np.ndarray, poses: np.ndarray, solved: np.ndarray, cfg: ModelConfig) ->dict[str, Any]:
     """The JSON keys of the checks: ``observations`` (per row: residuals, suspect, used), ``suspects``,
     ``suspect_chi2``, ``duplicates``, ``beyond_sensing_range``, ``sensing_range_m`` and ``warnings`` (one line each).
 

@@ -18,7 +18,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -27,6 +27,9 @@ from runtime.errors import LocalizationError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 from runtime.paths import StrPath
+
+if TYPE_CHECKING:
+    from coordinator.localization.topology import Topology
 
 HUBER_SIGMAS = 3.0
 
@@ -119,7 +122,7 @@ def _parse_prior(prior: Any, ids: np.ndarray) -> SwarmEstimate | None:
         return None
     if not isinstance(prior, list):
         raise SwarmInputError("'prior' must be a list of {id, x, y, heading, delta, sigma_heading} objects")
-    by_id: dict[int, dict] = {}
+    by_id: dict[int, dict[str, Any]] = {}
     for k, entry in enumerate(prior):
         if not isinstance(entry, dict):
             raise SwarmInputError(f"prior[{k}]: expected an object, got {entry!r}")
@@ -171,7 +174,7 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
     def subset(sub_ids: np.ndarray, observer: np.ndarray, observed: np.ndarray) -> tuple[np.ndarray, dict[int, str]]:
         return localizable_subset(sub_ids, observer, observed, headings_known=headings_known)
 
-    def solve(keep: np.ndarray):
+    def solve(keep: np.ndarray) -> Topology | SwarmEstimate:
         sub_obs = obs.select(keep[i] & keep[j] & unique)
         if prior is None:
             return loc.topology(all_ids[keep], sub_obs)
@@ -187,13 +190,13 @@ def localize_document(data: Any, cfg: ModelConfig, localizer: str, *, strict: bo
         keep, result, excluded = solvable_subset(solve, ids, unique_obs, subset=subset)
     ids = ids[keep]
     if prior is None:
-        topo = result
+        topo = cast("Topology", result)  # no prior: ``solve`` gave the topology
         poses = np.column_stack([topo.positions, topo.headings])
         robots = tuple(LocalizedRobot(int(r), float(p[0]), float(p[1]), _finite(p[2]), float(dp), _finite(sh))
                        for r, p, dp, sh in zip(ids, poses, topo.delta_p, topo.heading_sigma, strict=True))
         frame, reference = "local", int(ids[topo.reference])
     else:
-        est = result
+        est = cast(SwarmEstimate, result)
         poses = est.poses
         robots = tuple(LocalizedRobot(int(r), float(p[0]), float(p[1]), float(p[2]), float(dp), float(np.sqrt(max(c[2, 2], 0.0))))
                        for r, p, dp, c in zip(est.ids, est.poses, est.delta, est.cov, strict=True))
@@ -207,7 +210,7 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def localize(source: StrPath | dict, model: ModelConfig | None = None, localizer: str = "paper", *,
+def localize(source: StrPath | dict[str, Any], model: ModelConfig | None = None, localizer: str = "paper", *,
              strict: bool = False, robust: bool = True) -> LocalizeResult:
     """Localize the robots of a JSON file (or its decoded document): the ``swarm localize`` answer
     (frame, poses in m and rad with their uncertainties, the robots left out with why, and the checks of

@@ -15,11 +15,12 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 from inchworm.entry import EXIT_OUTPUT, EXIT_RUN, exit_code, on_stop_signals
 from inchworm.output import print_json
 from inchworm.specs import (
+    FLAGS,
     AgentHostSpec,
     CoordinatorSpec,
     EmulatorSpec,
@@ -30,13 +31,21 @@ from inchworm.specs import (
     Ros2RobotsSpec,
     RouterSpec,
 )
-from runtime.errors import SwarmConnectionError, SwarmInputError
+from runtime.errors import OptionError, SwarmConnectionError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:
+    import contextlib
+
     from inchworm.launcher import LaunchOptions
+    from robot_agent.emulator import PortEmulator
+    from robot_agent.ros2_config import Ros2Config
+    from robot_agent.ros2_physics import PhysicsRecorder
+    from runtime.models.trajectory import Trajectory
+    from runtime.models.world import World
     from runtime.wire.transport import ZenohSettings
     from runtime.world.params import PhysicsParams
+    from runtime.world.velocity import PhysicsWorld
 
 EXIT_NO_RUN = 1  # swarm ros2 bridge: no live run
 SAFE_OPEN_FILES = 65536  # a flood must not exhaust the router's files: one source address alone holds ~28,000 connections
@@ -51,18 +60,19 @@ def connection(hub: str | None, zenoh_config: str | None, run_id: str | None, *,
         if not required:
             return None, ""
         if run_id is None:
-            raise SwarmInputError("give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
+            raise OptionError("hub", "ENDPOINT (e.g. tcp/127.0.0.1:7447) or `zenoh_config` FILE must be given", FLAGS)
         from runtime.wire.run_file import hub_of  # noqa: PLC0415
 
         hub = hub_of(run_id)
     return ZenohSettings("client", connect=(hub,) if hub else (), config_file=zenoh_config), hub or f"config {zenoh_config}"
 
 
-def physical_world(on: bool, params: tuple[str, ...], model: ModelConfig, flag: str) -> PhysicsParams | None:
-    """The ``PhysicsParams`` of ``params`` when the physical world is ``on`` (``flag`` turns it on), else None."""
+def physical_world(on: bool, params: tuple[str, ...], model: ModelConfig, switch: str) -> PhysicsParams | None:
+    """The ``PhysicsParams`` of ``params`` when the physical world is ``on`` (the option ``switch`` turns it on, as
+    "`physics`" or "`world` physics", a backquoted option name), else None."""
     if not on:
         if params:
-            raise SwarmInputError(f"--physics-param sets the physical world: it needs {flag}")
+            raise OptionError("physics_params", f"sets the physical world: it needs {switch}", FLAGS)
         return None
     from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra, only when asked for
     from runtime.world.physics import require_pymunk  # noqa: PLC0415
@@ -94,7 +104,7 @@ def run_agent_host(spec: AgentHostSpec) -> int:
                            None if spec.gateway_config is None else Path(spec.gateway_config), spec.seed, spec.model, spec.motion_time,
                            limits, READY_TIMEOUT_S if spec.ready_timeout is None else spec.ready_timeout, spec.command_timeout,
                            isinstance(spec, PortProcessSpec),
-                           physical_world(spec.world == "physics", spec.physics_params, spec.model, "--world physics"), spec.physics_speed)
+                           physical_world(spec.world == "physics", spec.physics_params, spec.model, "`world` physics"), spec.physics_speed)
     agents = build_agents(agent_spec)
     links = build_links(agent_spec, agents[0].ids)
     logging.basicConfig(level=logging.WARNING, format=f"agent {format_ids(spec.robots)}: %(levelname)s %(message)s", stream=sys.stderr)
@@ -193,18 +203,18 @@ def run_emulator(spec: EmulatorSpec) -> int:
 
     check_radio_faults(spec.drop, spec.corrupt, spec.delay)
     if spec.blackout is not None and (spec.blackout[0] < 1 or not (math.isfinite(spec.blackout[1]) and spec.blackout[1] > 0)):
-        raise SwarmInputError(f"--blackout must be STEP:SECONDS with a step >= 1 and seconds > 0 (e.g. 2:1.0), "
-                              f"got {spec.blackout[0]}:{spec.blackout[1]:g}")
+        raise OptionError("blackout", f"must be STEP:SECONDS with a step >= 1 and seconds > 0 (e.g. 2:1.0), "
+                                      f"got {spec.blackout[0]}:{spec.blackout[1]:g}", FLAGS)
     faults = FaultPlan(drop_prob=spec.drop, corrupt_prob=spec.corrupt, delay_s=spec.delay, drop_rx=frozenset(spec.drop_rx),
                        drop_tx=frozenset(spec.drop_tx), blackout=spec.blackout, seed=spec.seed)
 
-    def ready(ports: list, devices: dict[str, str]) -> None:
+    def ready(ports: list[PortEmulator], devices: dict[str, str]) -> None:
         for pe in ports:
             print(f"port {pe.port_name}: {pe.device} (robots {','.join(map(str, pe.robots))})", flush=True)
         if spec.json:
             print_json({"ports": devices, "config": spec.write_config})
 
-    physics = physical_world(spec.physics, spec.physics_params, spec.model, "--physics")
+    physics = physical_world(spec.physics, spec.physics_params, spec.model, "`physics`")
     settings, _ = connection(spec.hub, spec.zenoh_config, spec.run_id, required=False)
     config = Path(spec.config)
     serve_emulators(GatewayConfig.load(config), config, Trajectory.load(Path(spec.trajectory)), Path(spec.trajectory), spec.model,
@@ -233,22 +243,24 @@ def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
     traj = Trajectory.load(Path(spec.trajectory))
     unknown = sorted((set(spec.no_odom) | set(spec.silent)) - {int(i) for i in traj.ids})
     if unknown:
-        raise SwarmInputError(f"robots {unknown} of --no-odom/--silent are not robots of {spec.trajectory}")
+        raise OptionError("no_odom", f"/`silent`: robots {unknown} are not robots of {spec.trajectory}", FLAGS)
     if any(n < 1 for n in spec.silent.values()):
-        raise SwarmInputError(f"--silent: the motion a robot falls silent at must be >= 1, got {spec.silent}")
+        raise OptionError("silent", f": the motion a robot falls silent at must be >= 1, got {spec.silent}", FLAGS)
     if spec.late_sightings < 0:
-        raise SwarmInputError(f"--late-sightings must be >= 0, got {spec.late_sightings:g}")
+        raise OptionError("late_sightings", f"must be >= 0, got {spec.late_sightings:g}", FLAGS)
     cfg = Ros2Config.load(driver_options(list(spec.driver_options)))
     if spec.world != "physics" and (spec.physics_params or spec.run_id or spec.hub):
-        raise SwarmInputError("--physics-param, --run and --hub are for the physical world: they need --world physics")
+        raise OptionError("physics_params", ", `run_id` and `hub` are for the physical world: they need `world` physics", FLAGS)
     if spec.hub and not spec.run_id:
-        raise SwarmInputError("--hub names the Zenoh endpoint of a run: it needs --run RUN")
+        raise OptionError("hub", "names the Zenoh endpoint of a run: it needs `run_id` RUN", FLAGS)
+    world: World
     if spec.world == "physics":
         world, note = _ros2_physics_world(spec, traj, cfg)
     else:
         world, note = make_world(spec.world, traj.ids, traj.initial_poses, spec.model, spec.seed), ""
     with contextlib.ExitStack() as stack:
-        recorder = _ros2_physics_recorder(spec, world, stack) if spec.run_id else None
+        # a run (``run_id``) is the physical world's only (checked above)
+        recorder = _ros2_physics_recorder(spec, cast("PhysicsWorld", world), stack) if spec.run_id else None
         truth = "" if spec.no_ground_truth else cfg.ground_truth or "ground_truth"
         robots = SimRobots(world, cfg, rate_hz=spec.rate, sensing_hz=spec.sensing_rate, ground_truth=truth, no_odom=frozenset(spec.no_odom),
                            silent=dict(spec.silent), twice=spec.sightings_twice, late_s=spec.late_sightings,
@@ -267,12 +279,12 @@ def run_ros2_robots(spec: Ros2RobotsSpec) -> int:
     return 0
 
 
-def _ros2_physics_world(spec: Ros2RobotsSpec, traj, cfg):
+def _ros2_physics_world(spec: Ros2RobotsSpec, traj: Trajectory, cfg: Ros2Config) -> tuple[PhysicsWorld, str]:
     """The physical world of ``physics_params`` (pymunk 7 needed), and a note when the driver's default speeds
     exceed its wheels' (the driver would count on speeds the wheels cannot reach)."""
     from runtime.world.velocity import PhysicsWorld  # noqa: PLC0415 - the physics extra, only when asked for
 
-    params = physical_world(True, spec.physics_params, spec.model, "--world physics")
+    params = physical_world(True, spec.physics_params, spec.model, "`world` physics")
     assert params is not None, "on"
     world = PhysicsWorld(traj.ids, traj.initial_poses, params, spec.seed)
     half = params.track_m / 2.0
@@ -283,7 +295,7 @@ def _ros2_physics_world(spec: Ros2RobotsSpec, traj, cfg):
     return world, note
 
 
-def _ros2_physics_recorder(spec: Ros2RobotsSpec, world, stack):
+def _ros2_physics_recorder(spec: Ros2RobotsSpec, world: PhysicsWorld, stack: contextlib.ExitStack) -> PhysicsRecorder:
     """The ``PhysicsRecorder`` of ``run_id`` on a session of its own (``hub``, else the run file of a live run)."""
     from robot_agent.ros2_physics import PhysicsRecorder  # noqa: PLC0415
     from runtime.wire.keys import validate_run  # noqa: PLC0415
@@ -296,7 +308,7 @@ def _ros2_physics_recorder(spec: Ros2RobotsSpec, world, stack):
     if not hub:
         entry = read_run(spec.run_id)
         if entry is None:
-            raise SwarmInputError(f"--run {spec.run_id}: no live run of that id on this host (give --hub ENDPOINT)")
+            raise OptionError("run_id", f"{spec.run_id}: no live run of that id on this host (give `hub` ENDPOINT)", FLAGS)
         hub = entry["hub"]
     session = stack.enter_context(open_session(ZenohSettings("client", connect=(hub,))))
     recorder = PhysicsRecorder(session, spec.run_id, world)
@@ -393,7 +405,10 @@ def launch_options(spec: LaunchSpec) -> LaunchOptions:
     from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions  # noqa: PLC0415
     from inchworm.limits import selection_from  # noqa: PLC0415
 
-    path = lambda text: None if text is None else Path(text)  # noqa: E731
+
+    def path(text: str | None) -> Path | None:
+        return None if text is None else Path(text)
+
     s = spec.selection
     return LaunchOptions(
         swarm=SwarmOptions(

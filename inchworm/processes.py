@@ -12,19 +12,24 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
 
 import msgspec
 import numpy as np
 
 from inchworm.spawn import Spawned
 from inchworm.specs import AgentHostSpec, EmulatorSpec, LinkSpec, PortProcessSpec
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig, Limits, Port
 from runtime.models.trajectory import Trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_wildcard
 from runtime.wire.messages import CommandLimits, EmergencyStop, MessageError, MotionCommand, ObserveRequest, decode
 from runtime.wire.transport import subscribe
+
+if TYPE_CHECKING:
+    import zenoh
 
 GRACE_S = 3.0  # s a child gets after SIGTERM before SIGKILL
 ONE_PER_PROCESS_UP_TO = 50  # robots: larger swarms share processes by default
@@ -39,14 +44,14 @@ def agents_per_process(n: int, requested: int | None) -> int:
         processes = -(-n // AGENTS_PER_PROCESS)
         return -(-n // processes)  # balanced: 60 robots -> 2 processes of 30
     if requested < 1:
-        raise SwarmInputError(f"--agents-per-process must be >= 1, got {requested}")
+        raise OptionError("agents_per_process", f"must be >= 1, got {requested}")
     return requested
 
 
 def start_agents(
-    traj: Trajectory, base: AgentHostSpec, procs: list[subprocess.Popen] | None = None, per_process: int = 1,
-    traj_file: Path | None = None, **popen_kwargs,
-) -> list[subprocess.Popen]:
+    traj: Trajectory, base: AgentHostSpec, procs: list[subprocess.Popen[Any]] | None = None, per_process: int = 1,
+    traj_file: Path | None = None, **popen_kwargs: Any,
+) -> list[subprocess.Popen[Any]]:
     """Agent processes for the robots of ``traj``, appended to ``procs`` as each starts: one per robot (its initial true
     pose in its spec), or with ``per_process`` > 1 one per that many robots (poses from ``traj_file``, ``traj`` saved).
     ``base`` holds what every one shares (run, hub, seed, model, driver, ...); its robots are filled in. Pass your own
@@ -67,7 +72,7 @@ def start_agents(
     return procs
 
 
-def stop_all(procs: list[subprocess.Popen], grace_s: float = GRACE_S) -> None:
+def stop_all(procs: Sequence[subprocess.Popen[Any]], grace_s: float = GRACE_S) -> None:
     """SIGTERM every child still running, SIGKILL those still running after ``grace_s``; reap all."""
     for p in procs:
         if p.poll() is None:
@@ -97,11 +102,11 @@ class AgentErrors:
         self._threads: dict[int, threading.Thread] = {}
         self._lock = threading.Lock()
 
-    def popen_kwargs(self) -> dict:
+    def popen_kwargs(self) -> dict[str, Any]:
         """What ``subprocess.Popen`` needs for ``watch`` (stderr piped, text)."""
         return {"stderr": subprocess.PIPE, "text": True, "errors": "replace"}
 
-    def watch(self, procs: list[subprocess.Popen]) -> None:
+    def watch(self, procs: Sequence[subprocess.Popen[str]]) -> None:
         """Start forwarding the stderr of ``procs`` (started with ``popen_kwargs``; others are left alone)."""
         for p in procs:
             if p.stderr is not None and p.pid not in self._threads:
@@ -109,7 +114,7 @@ class AgentErrors:
                 self._threads[p.pid] = thread
                 thread.start()
 
-    def _forward(self, proc: subprocess.Popen) -> None:
+    def _forward(self, proc: subprocess.Popen[str]) -> None:
         assert proc.stderr is not None
         for line in proc.stderr:
             if line.startswith(AGENT_ERROR):
@@ -119,7 +124,7 @@ class AgentErrors:
             sys.stderr.write(line)
             sys.stderr.flush()
 
-    def failure(self, procs: list[subprocess.Popen]) -> str | None:
+    def failure(self, procs: Sequence[subprocess.Popen[Any]]) -> str | None:
         """The error line of the first of ``procs`` that exited with status 2 (bad input), else None; that line is
         then the caller's to report (``held`` no longer returns it)."""
         for p in procs:
@@ -158,7 +163,7 @@ def default_gateway(traj: Trajectory, margin_m: float = 1.0, robot_radius: float
                                               robot_radius_m=robot_radius))
 
 
-def start_emulator(spec: EmulatorSpec, procs: list[subprocess.Popen], **popen_kwargs) -> Path:
+def start_emulator(spec: EmulatorSpec, procs: list[subprocess.Popen[Any]], **popen_kwargs: Any) -> Path:
     """Start the robot emulator ``spec`` (appended to ``procs``) and wait until it wrote its ``write_config``, the
     gateway config with its pty devices; returns that path."""
     if spec.write_config is None:
@@ -176,8 +181,8 @@ def start_emulator(spec: EmulatorSpec, procs: list[subprocess.Popen], **popen_kw
     return live
 
 
-def start_gateway(gateway: GatewayConfig, tmp: Path, emulator: EmulatorSpec, procs: list[subprocess.Popen], links: bool = True,
-                  **popen_kwargs) -> Path:
+def start_gateway(gateway: GatewayConfig, tmp: Path, emulator: EmulatorSpec, procs: list[subprocess.Popen[Any]], links: bool = True,
+                  **popen_kwargs: Any) -> Path:
     """Start the robot emulator ``emulator`` (its trajectory, seed, model, faults, run and hub; the config ``gateway`` is
     saved in ``tmp``) and, with ``links``, one link process per port (without: the agent processes run them,
     ``start_port_hosts``); the live gateway config (pty devices)."""
@@ -193,15 +198,15 @@ def start_gateway(gateway: GatewayConfig, tmp: Path, emulator: EmulatorSpec, pro
     return live
 
 
-def start_port_hosts(traj: Trajectory, live: Path, base: AgentHostSpec, procs: list[subprocess.Popen], traj_file: Path,
-                     **popen_kwargs) -> dict[int, subprocess.Popen]:
+def start_port_hosts(traj: Trajectory, live: Path, base: AgentHostSpec, procs: list[subprocess.Popen[Any]], traj_file: Path,
+                     **popen_kwargs: Any) -> dict[int, subprocess.Popen[Any]]:
     """The gateway PC's layout: one port process per port of the live gateway config ``live``, hosting the agents of
     the port's robots of ``traj`` (driver ``gateway``) and the port's link; robot -> its process. ``base`` holds what
     the agents share (run, hub, seed, model, ...)."""
     ids, run_robots = tuple(int(i) for i in traj.ids), {int(i) for i in traj.ids}
     shared = {**msgspec.structs.asdict(base), "run_robots": ids, "trajectory": str(traj_file), "driver": "gateway",
               "gateway_config": str(live)}
-    hosts: dict[int, subprocess.Popen] = {}
+    hosts: dict[int, subprocess.Popen[Any]] = {}
     for port in GatewayConfig.load(live).ports:
         robots = tuple(r for r in port.robots if r in run_robots)
         if not robots:
@@ -216,7 +221,7 @@ class RobotKiller:
     the coordinator's targeted ``EmergencyStop`` (wall clock, ns; all processes are on this host). Killers of robots
     hosted by one process share ``killed`` (pid -> when it was killed): the times count from the process's death."""
 
-    def __init__(self, session, run_id: str, robot: int, step: int, process: subprocess.Popen,
+    def __init__(self, session: zenoh.Session, run_id: str, robot: int, step: int, process: subprocess.Popen[Any],
                  killed: dict[int, int] | None = None) -> None:
         self.robot, self.step, self.process = robot, step, process
         self._killed = {} if killed is None else killed
@@ -248,13 +253,17 @@ class RobotKiller:
         if self.robot in stop.robots and self.stop_heard_ns is None:
             self.stop_stamp_ns, self.stop_heard_ns = stop.stamp_ns, heard
 
-    def report(self) -> dict | None:
+    def report(self) -> dict[str, float | None] | None:
         """``{"robot", "step", "detect_ms", "estop_ms"}`` once the agent was killed (the times None if no stop came)."""
         for sub in self._subs:
             sub.undeclare()
-        if self.killed_ns is None:
+        killed_ns = self.killed_ns
+        if killed_ns is None:
             return None
-        ms = lambda t: None if t is None else round((t - self.killed_ns) / 1e6, 3)  # noqa: E731
+
+        def ms(t: int | None) -> float | None:
+            return None if t is None else round((t - killed_ns) / 1e6, 3)
+
         return {"robot": self.robot, "step": self.step, "detect_ms": ms(self.stop_stamp_ns), "estop_ms": ms(self.stop_heard_ns)}
 
 
@@ -262,7 +271,7 @@ class CoordinatorKiller:
     """``--kill-coordinator``: SIGKILL the coordinator at its first command of ``step``, then time the takeover: the
     first command or observation request of another epoch (wall clock, ns; all processes are on this host)."""
 
-    def __init__(self, session, run_id: str, step: int, process: subprocess.Popen) -> None:
+    def __init__(self, session: zenoh.Session, run_id: str, step: int, process: subprocess.Popen[Any]) -> None:
         self.step, self.process = step, process
         self.epoch: int | None = None
         self.killed_ns: int | None = None
@@ -282,7 +291,7 @@ class CoordinatorKiller:
         elif self.taken_ns is None and msg.epoch != self.epoch:
             self.taken_ns = heard
 
-    def report(self) -> dict | None:
+    def report(self) -> dict[str, float | None] | None:
         """``{"step", "takeover_ms"}`` once the coordinator was killed (``takeover_ms`` None if nobody took over)."""
         for sub in self._subs:
             sub.undeclare()
@@ -296,7 +305,7 @@ class ProcessStaller:
     """``--stall-coordinator`` / ``--stall-link``: SIGSTOP ``process`` at the first command of ``step`` and SIGCONT it
     ``seconds`` later (a process swapped out or hung that comes back), as a user would with ``kill -STOP`` / ``-CONT``."""
 
-    def __init__(self, session, run_id: str, step: int, seconds: float, process: subprocess.Popen) -> None:
+    def __init__(self, session: zenoh.Session, run_id: str, step: int, seconds: float, process: subprocess.Popen[Any]) -> None:
         self.step, self.seconds, self.process = step, seconds, process
         self.stopped_ns: int | None = None
         self.resumed_ns: int | None = None
@@ -324,7 +333,7 @@ class ProcessStaller:
             if self.process.poll() is None:
                 self.process.send_signal(signal.SIGCONT)
 
-    def report(self) -> dict | None:
+    def report(self) -> dict[str, float] | None:
         """``{"step", "stall_s"}`` once the process was stalled (``stall_s`` as measured), else None; resumes it if still stopped."""
         self._sub.undeclare()
         if self._timer is not None:
@@ -335,13 +344,13 @@ class ProcessStaller:
         return {"step": self.step, "stall_s": round((self.resumed_ns - self.stopped_ns) / 1e9, 3)}
 
 
-def wait_for_standby(session, run_id: str, standby: subprocess.Popen, timeout_s: float = 60.0) -> None:
+def wait_for_standby(session: zenoh.Session, run_id: str, standby: subprocess.Popen[Any], timeout_s: float = 60.0) -> None:
     """Until the standby coordinator follows the run's checkpoints (its subscription reached the hub), so it sees
     the coordinator that starts next from its first checkpoint on."""
     probe = session.declare_publisher(coord_key(run_id, "checkpoint"))  # never published on
     try:
         deadline = time.monotonic() + timeout_s
-        while not probe.matching_status.matching:
+        while not cast("zenoh.MatchingStatus", probe.matching_status).matching:  # zenoh's stub says bool
             if standby.poll() is not None:
                 raise SwarmInputError(f"the standby coordinator exited with status {standby.returncode} before it was ready")
             if time.monotonic() > deadline:

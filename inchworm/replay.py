@@ -214,8 +214,8 @@ def _refuse_live_run(session: zenoh.Session, run_id: str) -> None:
     if robots or coords:
         who = ", ".join(([f"coordinator epoch {', '.join(map(str, coords))}"] if coords else [])
                         + ([f"agents of robots {', '.join(map(str, robots))}"] if robots else []))
-        raise SwarmInputError(f"run {run_id} is live on this hub ({who}): a replay never publishes onto a live run; "
-                              f"publish under a new run id (the default, or --run NEW)")
+        raise OptionError("run_id", f"{run_id} is live on this hub ({who}): a replay never publishes onto a live run; "
+                                    f"publish under a new run id (the default, or `run_id` NEW)", PublishOptions)
 
 
 # ------------------------------------------------------------------ check
@@ -334,10 +334,10 @@ def check_recording(options: CheckOptions, *, warn: Say = _quiet) -> CheckOutcom
         warn(f"swarm replay: {options.file} is unfinished ({rec.info['problem'] or 'no summary'}): checking what it holds")
     against = contradictions(rec, options, model, selection)
     if against and not options.what_if:
-        raise SwarmInputError(
-            f"{', '.join(against)} contradicts {options.file}: --check reproduces the recorded run with its own settings, so "
-            f"leave these options out (they are for recordings whose metadata lacks them), or add --what-if to re-run "
-            f"the recorded inputs with them (the check then reports where the results part)")
+        raise OptionError(
+            "what_if", f"is not set and {', '.join(against)} contradicts {options.file}: the check reproduces the recorded run "
+            f"with its own settings, so leave these options out (they are for recordings whose metadata lacks them), or set "
+            f"`what_if` to re-run the recorded inputs with them (the check then reports where the results part)", options)
     if against:
         warn(f"swarm replay: what-if: {', '.join(against)}: the recorded results are not expected to be reproduced")
     result = check(rec, localizer=options.localizer, model=model, selection=selection, seed=options.seed,

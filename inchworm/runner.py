@@ -161,7 +161,7 @@ class StudyLog:
                 os.fsync(f.fileno())
         except OSError as exc:
             raise OutputError(f"cannot write the study log {self.jsonl}: {exc.strerror or exc} (the runs before are kept: "
-                              f"--resume goes on from them)") from None
+                              f"a resumed study goes on from them)") from None
 
     def add(self, key: str, row: Row, csv: bool = True) -> None:
         """Keep one finished row (``csv``: also in the CSV, rewritten now); a Ctrl-C meanwhile waits until both files agree."""

@@ -19,6 +19,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 from inchworm.specs import ProcessSpec, SpecError, decode_spec, encode_spec, kind_of
 
@@ -37,11 +38,11 @@ RUNNERS = {  # kind -> (the command it is, "module:function" that runs its spec)
 }
 
 
-class Spawned(subprocess.Popen):
+class Spawned(subprocess.Popen[Any]):  # its pipes carry text or bytes, as ``popen_kwargs`` ask
     """A child process running ``spec`` (a ``subprocess.Popen``: ``poll``, ``wait``, ``pid``, ``send_signal`` as usual);
     ``popen_kwargs`` as for ``Popen`` (``stdin`` is the spec's)."""
 
-    def __init__(self, spec: ProcessSpec, **popen_kwargs) -> None:
+    def __init__(self, spec: ProcessSpec, **popen_kwargs: Any) -> None:
         self.spec = spec
         super().__init__([sys.executable, "-m", PROG, "-", spec.label], stdin=subprocess.PIPE, **popen_kwargs)
         data = encode_spec(spec)
@@ -67,7 +68,7 @@ class Spawned(subprocess.Popen):
         return self.wait()
 
 
-def run_process(spec: ProcessSpec, timeout: float | None = None, **popen_kwargs) -> subprocess.CompletedProcess:
+def run_process(spec: ProcessSpec, timeout: float | None = None, **popen_kwargs: Any) -> subprocess.CompletedProcess[str]:
     """Run ``spec`` to its end in a child, as ``subprocess.run`` with ``capture_output=True, text=True``; after ``timeout``
     seconds the child is stopped (``Spawned.stop``) and ``subprocess.TimeoutExpired`` raised."""
     with Spawned(spec, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **popen_kwargs) as proc:

@@ -23,6 +23,8 @@ from runtime.models.config import ModelConfig
 
 SPEC_VERSION = 1  # every kind is at version 1
 MODEL_FIELDS = frozenset(f.name for f in dataclasses.fields(ModelConfig))
+# the flags of the spec fields whose flag is not ``--`` and the name with dashes (``OptionError``'s options for a spec)
+FLAGS = {"run_id": "--run", "physics_params": "--physics-param"}
 
 
 class SpecError(SwarmInputError):

@@ -78,7 +78,7 @@ class AgentSpec:
 
     settings: ZenohSettings
     run_id: str
-    hosted: list[int]
+    hosted: list[int] = field(metadata={"flag": "--id"})
     ids: list[int] | None  # None: the robots of ``trajectory``
     ids_text: str | None = None  # ``--ids`` as given, for messages
     trajectory: Trajectory | None = None
@@ -104,7 +104,7 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose: np.ndarray | 
     if spec.driver == "gateway":
         if gateway is None:
             if spec.gateway_config is None:
-                raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
+                raise OptionError("driver", "gateway needs `gateway_config` FILE (docs/gateway.md)", spec)
             gateway = GatewayConfig.load(spec.gateway_config)
         port = gateway.port_of(robot)  # the robot must be behind a port of this gateway
         lim = gateway.limits
@@ -123,7 +123,7 @@ def make_driver(spec: AgentSpec, robot: int, ids: list[int], pose: np.ndarray | 
                                 pose=None if pose is None else np.array(pose, dtype=float), model=spec.model, options=spec.options)
         return build_driver(spec.driver, cls, context), spec.limits
     if pose is None:
-        raise SwarmInputError("--driver sim needs --pose x,y,heading (the simulated robot's initial true pose) or --trajectory FILE")
+        raise OptionError("driver", "sim needs `pose` x,y,heading (the simulated robot's initial true pose) or `trajectory` FILE", spec)
     return SimDriver(robot, ids, pose, spec.model, spec.seed, spec.motion_time_s), spec.limits
 
 
@@ -134,7 +134,7 @@ def build_links(spec: AgentSpec, ids: list[int]) -> dict[str, LinkFactory]:
     if not spec.link:
         return {}
     if spec.driver != "gateway" or spec.gateway_config is None:
-        raise SwarmInputError("--link runs the link of a port of the gateway: it needs --driver gateway and --gateway-config FILE")
+        raise OptionError("link", "runs the link of a port of the gateway: it needs `driver` gateway and `gateway_config` FILE", spec)
     from robot_agent.link import Link  # noqa: PLC0415 - keeps the link off the import path of agents that run none
 
     gateway = GatewayConfig.load(spec.gateway_config)
@@ -142,8 +142,8 @@ def build_links(spec: AgentSpec, ids: list[int]) -> dict[str, LinkFactory]:
     for port in ports.values():
         elsewhere = sorted(set(port.robots) & set(ids) - set(spec.hosted))
         if elsewhere:
-            raise SwarmInputError(f"--link: robots {elsewhere} of port {port.name} are robots of the run but not hosted by this "
-                                  f"process (--id {format_ids(spec.hosted)}): host every robot of the port, or run `swarm link` for it")
+            raise OptionError("link", f": robots {elsewhere} of port {port.name} are robots of the run but not hosted by this process "
+                                      f"(`hosted` {format_ids(spec.hosted)}): host every robot of the port, or run `swarm link` for it", spec)
     return {name: partial(Link.open, run=spec.run_id, port=port, config=gateway) for name, port in ports.items()}
 
 
@@ -156,22 +156,22 @@ def build_agents(spec: AgentSpec) -> list[Agent]:
     elif traj is not None:
         ids = [int(i) for i in traj.ids]
     else:
-        raise SwarmInputError("give --ids (every robot of the run, e.g. 0-9) or --trajectory FILE")
+        raise OptionError("ids", "(every robot of the run, e.g. 0-9) or `trajectory` FILE must be given", spec)
     outside = sorted(set(hosted) - set(ids))
     if outside:
-        raise SwarmInputError(f"--id names robots {outside} that are not robots of the run (--ids {spec.ids_text or format_ids(ids)})")
+        raise OptionError("hosted", f"names robots {outside} that are not robots of the run (`ids` {spec.ids_text or format_ids(ids)})", spec)
     poses: dict[int, np.ndarray] = {}
     if spec.driver != "gateway" and spec.pose is None and traj is not None:
         missing = sorted(set(hosted) - {int(i) for i in traj.ids})
         if missing and spec.driver == "sim":
-            raise OptionError("id", f"names robots {missing} that {spec.trajectory_path} does not have")
+            raise OptionError("hosted", f"names robots {missing} that {spec.trajectory_path} does not have", spec)
         poses = {int(i): p for i, p in zip(traj.ids, traj.initial_poses, strict=True)}
     elif len(hosted) > 1 and (spec.driver == "sim" or (spec.driver != "gateway" and spec.pose is not None)):
-        raise SwarmInputError(f"--pose is one robot's pose: give --trajectory FILE for the initial poses of --id {format_ids(hosted)}")
+        raise OptionError("pose", f"is one robot's pose: give `trajectory` FILE for the initial poses of `hosted` {format_ids(hosted)}", spec)
     gateway = None
     if spec.driver == "gateway":
         if spec.gateway_config is None:
-            raise SwarmInputError("--driver gateway needs --gateway-config FILE (docs/gateway.md)")
+            raise OptionError("driver", "gateway needs `gateway_config` FILE (docs/gateway.md)", spec)
         gateway = GatewayConfig.load(spec.gateway_config)
     timeout = spec.command_timeout_s if spec.command_timeout_s is not None or plugin is None else PLUGIN_COMMAND_TIMEOUT_S
     if spec.physics is not None:
@@ -186,13 +186,13 @@ def _physics_agents(spec: AgentSpec, ids: list[int], poses: dict[int, np.ndarray
     from runtime.world.physics import World  # noqa: PLC0415
 
     if spec.driver != "sim":
-        raise SwarmInputError(f"--world physics drives simulated robots: it needs --driver sim, got --driver {spec.driver}")
+        raise OptionError("world", f"physics drives simulated robots: it needs `driver` sim, got `driver` {spec.driver}", spec)
     if sorted(spec.hosted) != sorted(ids):
-        raise SwarmInputError(f"--world physics steps one world for every robot of the run: host them all in this process "
-                              f"(--id {format_ids(sorted(ids))}), got --id {format_ids(spec.hosted)}")
+        raise OptionError("world", f"physics steps one world for every robot of the run: host them all in this process "
+                                   f"(`hosted` {format_ids(sorted(ids))}), got `hosted` {format_ids(spec.hosted)}", spec)
     missing = sorted(set(ids) - set(poses))
     if missing:
-        raise SwarmInputError(f"--world physics needs every robot's initial pose from --trajectory FILE; robots {missing} have none")
+        raise OptionError("world", f"physics needs every robot's initial pose from `trajectory` FILE; robots {missing} have none", spec)
     assert spec.physics is not None
     world = World(ids, np.array([poses[r] for r in ids], dtype=float), spec.physics, spec.seed)
     shared = SharedWorld(world, spec.run_id, spec.physics_speed)

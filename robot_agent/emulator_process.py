@@ -29,10 +29,10 @@ if TYPE_CHECKING:  # the emulator and Zenoh are imported when it serves: a launc
 
 
 def check_radio_faults(drop: float, corrupt: float, delay: float) -> None:
-    """``SwarmInputError`` naming the flag unless 0 <= ``--drop``, ``--corrupt`` <= 1 and ``--delay`` >= 0 s (finite)."""
-    for flag, p in (("--drop", drop), ("--corrupt", corrupt)):
+    """``OptionError`` naming the option unless 0 <= ``drop``, ``corrupt`` <= 1 and ``delay`` >= 0 s (finite)."""
+    for name, p in (("drop", drop), ("corrupt", corrupt)):
         if not 0.0 <= p <= 1.0:
-            raise SwarmInputError(f"{flag} must be a probability in [0, 1], got {p!r}")
+            raise OptionError(name, f"must be a probability in [0, 1], got {p!r}")
     if not (math.isfinite(delay) and delay >= 0):
         raise OptionError("delay", f"must be a finite number of seconds >= 0, got {delay!r}")
 
@@ -59,7 +59,10 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         raise SwarmInputError(f"robots {missing} of the gateway config {config_path} are not in the trajectory "
                               f"{traj_path} (its robots: {ids}); every emulated robot needs an initial pose")
     if (settings is None) != (run_id is None):
-        raise SwarmInputError("give --run together with --hub/--zenoh-config (they publish the true poses), or neither")
+        from runtime.wire.run_file import RUN_FLAG  # noqa: PLC0415 - its keys load numpy, which a parser checking faults need not
+
+        raise OptionError("run_id", "and a connection (`hub`/`zenoh_config`: they publish the true poses) go together: give both or neither",
+                          RUN_FLAG)
     if run_id is not None:
         validate_run(run_id)
     if not motion_time_s >= 0:
@@ -70,7 +73,7 @@ def serve_emulators(config: GatewayConfig, config_path: Path, traj: Trajectory, 
         from robot_agent.emulator_physics import PhysicalEmulatedWorld  # noqa: PLC0415 - the physics extra, only when asked for
 
         if motion_time_s:
-            raise SwarmInputError("--motion-time is the noise model's motion time: with --physics the world's wheels take the time")
+            raise OptionError("motion_time", "is the noise model's motion time: with `physics` the world's wheels take the time")
         physical = PhysicalEmulatedWorld(ids, traj.initial_poses, model, seed, physics, physics_speed, run_id or "emulated", calibration,
                                          config.timing.heartbeat_timeout_s)
         world: EmulatedWorld = physical

@@ -96,8 +96,8 @@ def driver_class(spec: str) -> type[Driver]:
     else:
         found = [ep for ep in entry_points(group=ENTRY_POINT_GROUP) if ep.name == spec]
         if not found:
-            raise SwarmInputError(f"--driver {spec}: not sim, gateway, ros2, package.module:Class, file.py:Class "
-                                  f"or an installed {ENTRY_POINT_GROUP} entry point")
+            raise OptionError("driver", f"{spec}: not sim, gateway, ros2, package.module:Class, file.py:Class "
+                                        f"or an installed {ENTRY_POINT_GROUP} entry point")
         try:
             cls = found[0].load()
         except Exception as exc:  # noqa: BLE001

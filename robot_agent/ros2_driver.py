@@ -47,7 +47,7 @@ class Ros2Driver(Driver):
     """One robot behind ROS 2 topics (module doc); ``ctx.options``: ``config=FILE`` and settings (``Ros2Config.load``)."""
 
     def __init__(self, ctx: DriverContext) -> None:
-        require_ros2("--driver ros2")
+        require_ros2("the ros2 driver")
         from geometry_msgs.msg import TransformStamped, Twist  # noqa: PLC0415 - ROS 2 only in this driver
         from nav_msgs.msg import Odometry  # noqa: PLC0415
 

@@ -25,7 +25,8 @@ be >= 1``); the command line names the flag instead (``OptionError.parameter``, 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Iterable
+import re
+from collections.abc import Iterable, Mapping
 
 
 class SwarmError(Exception):
@@ -38,28 +39,37 @@ class SwarmInputError(SwarmError, ValueError):
 
 class OptionError(SwarmInputError):
     """An option of a library call is out of range: ``parameter`` is its Python name (the message starts with it,
-    ``trajectories must be >= 1, got 0``) and ``options`` the options object that holds it, if any; the command line
-    says the same with the option's flag (``--trajectories must be >= 1, got 0``)."""
+    ``trajectories must be >= 1, got 0``) and ``options`` the options object that holds it, if any (or, for options
+    that are not fields of a dataclass, a mapping of names to flags); the command line says the same with the
+    option's flag (``--trajectories must be >= 1, got 0``). The problem names other options in backquotes
+    (``"sim needs `pose` or `trajectory`"``): the message shows their names, the command line their flags."""
 
     def __init__(self, parameter: str, problem: str, options: object | None = None) -> None:
-        super().__init__(f"{parameter}{_joined(problem)}")
+        named = _MENTION.sub(r"\1", problem)
+        super().__init__(f"{parameter}{_joined(named)}")
         self.parameter, self.problem, self.options = parameter, problem, options
 
-    def flag(self) -> str:
-        """The command-line flag of ``parameter``: the ``flag`` metadata of the options' dataclass field, else
-        ``--`` and the name with dashes."""
+    def flag(self, parameter: str | None = None) -> str:
+        """The command-line flag of ``parameter`` (default: this error's): the ``flag`` metadata of the options'
+        dataclass field (or the options mapping's entry), else ``--`` and the name with dashes."""
+        name = self.parameter if parameter is None else parameter
+        if isinstance(self.options, Mapping) and name in self.options:
+            return str(self.options[name])
         fields = {f.name: f for f in dataclasses.fields(self.options)} if dataclasses.is_dataclass(self.options) else {}
-        found = fields.get(self.parameter)
-        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + self.parameter.replace("_", "-")
+        found = fields.get(name)
+        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + name.replace("_", "-")
 
     def flag_message(self) -> str:
-        """The message as the command line says it: the flag instead of the parameter."""
-        return f"{self.flag()}{_joined(self.problem)}"
+        """The message as the command line says it: the flags instead of the parameters (its own and those in backquotes)."""
+        return f"{self.flag()}{_joined(_MENTION.sub(lambda m: self.flag(m.group(1)), self.problem))}"
+
+
+_MENTION = re.compile(r"`([a-z][a-z0-9_]*)`")  # another option named in a problem
 
 
 def _joined(problem: str) -> str:
-    """``problem`` after a parameter's name: a space, none before ``:`` (``resume: out/runs.jsonl was made with ...``)."""
-    return problem if problem.startswith(":") else f" {problem}"
+    """``problem`` after a parameter's name: a space, none before ``:`` or ``,`` (``resume: out/runs.jsonl was made with ...``)."""
+    return problem if problem.startswith((":", ",")) else f" {problem}"
 
 
 class LocalizationError(SwarmError, RuntimeError):

@@ -41,7 +41,7 @@ from swarm_cli.entry import leave, run_standalone
 from swarm_cli.options import add_connection_options, add_model_options, add_world_options, model_config, parse_list, positive
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("agent", help="run the agent process of one robot, or of many (--id 0-49), in a distributed run")
     add_arguments(p)
     p.set_defaults(run=run)

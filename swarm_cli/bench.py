@@ -22,7 +22,7 @@ BENCHMARKS = (
 )
 
 
-def register(sub: argparse._SubParsersAction, argv: Sequence[str] = (), full: bool = False) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser], argv: Sequence[str] = (), full: bool = False) -> None:
     parser = sub.add_parser("bench", help="benchmarks (print numbers; --json for machines)")
     inner = parser.add_subparsers(dest="benchmark", required=True, metavar="BENCHMARK")
     add_commands(inner, BENCHMARKS, argv, full=full)

@@ -21,7 +21,7 @@ from swarm_cli.options import (
 )
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("collisions", help="contacts between robot bodies per method, planned with bodies and as points")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--trajectories", type=int, default=20, help="random trajectories (default 20)")

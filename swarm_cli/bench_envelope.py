@@ -26,7 +26,7 @@ def _ints(text: str) -> tuple[int, ...]:
         raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("envelope", help="replay, takeover, NEES, contacts and speed across noise, size, localizer and sensing range")
     p.add_argument("--noise-scales", type=_floats, default=(1.0, 3.0, 5.58), help="motion noise multiples (default 1,3,5.58)")
     p.add_argument("--robots", type=_ints, default=(10, 30), help="swarm sizes (default 10,30)")

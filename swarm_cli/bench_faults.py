@@ -12,7 +12,7 @@ from runtime.errors import SwarmInputError
 from swarm_cli.options import add_json_option, print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("faults", help="lost robots, hostile messages and radio faults: does every run complete, unchanged?")
     p.add_argument("--seeds", type=int, default=10, help="seeds (runs) per lost-robot and gateway row (default 10)")
     p.add_argument("--fuzz", type=int, default=10_000, help="hostile messages sent during the fuzz run (default 10000)")

@@ -9,7 +9,7 @@ from swarm_cli.entry import library_doc
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, model_config, print_result
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("gateway", help="frame codec throughput, pty round trip, gateway vs simulated step time",
                        description=library_doc("inchworm.bench.gateway"), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", type=int, default=10, help="agents of the step-time comparison (default 10)")

@@ -10,7 +10,7 @@ from swarm_cli.entry import library_doc
 from swarm_cli.options import add_json_option, add_model_options, model_config, parse_list, print_result
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     parser = sub.add_parser(
         "localize",
         help="time and accuracy (vs. the Cramer-Rao bound) of one localization step",

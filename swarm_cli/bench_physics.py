@@ -19,7 +19,7 @@ from swarm_cli.options import (
 )
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("physics", help="the noise model's prediction against the physical world: P_f, e_l, contacts")
     p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
     p.add_argument("--trajectories", type=int, default=10, help="random trajectories (default 10)")

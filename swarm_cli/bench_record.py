@@ -8,7 +8,7 @@ from swarm_cli.entry import library_doc
 from swarm_cli.options import add_json_option, parse_list, print_result
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("record", help="MCAP recording throughput (msgs/s, MB/s) and its CPU cost per step",
                        description=library_doc("inchworm.bench.record"), formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--robots", default="10,50", help="comma-separated swarm sizes (default 10,50)")

@@ -16,7 +16,7 @@ from swarm_cli.options import add_json_option, add_localizer_option, add_model_o
 METHODS = ("no-anchors", "ref57")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("runtime", help="per-step coordination overhead with 10 and 50 agent processes, agent memory, Zenoh RTT")
     p.add_argument("--agents", default="10,50", help="comma-separated numbers of robot agents (default 10,50)")
     p.add_argument("--agents-per-process", type=int, default=None,

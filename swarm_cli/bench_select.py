@@ -8,7 +8,7 @@ import sys
 from swarm_cli.options import add_simulation_options, parse_list, print_result, run_options
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("select", help="time of one full anchor selection for n_r = 10, 30, 100")
     p.add_argument("--sizes", default="10,30,100", help="comma-separated swarm sizes (default 10,30,100)")
     p.add_argument("--repeats", type=int, default=3, help="selections per size, each on a new random step (default 3)")

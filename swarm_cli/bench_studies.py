@@ -8,7 +8,7 @@ import sys
 from swarm_cli.options import add_json_option, print_result
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     add_json_option(p := sub.add_parser("studies", help="study runs/s and parallel efficiency on the local pool and on Dask (1 and 2 workers)"))
     p.set_defaults(run=run)
 

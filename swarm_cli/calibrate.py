@@ -19,7 +19,7 @@ from pathlib import Path
 from swarm_cli.options import add_json_option, print_result
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("calibrate", help="fit the noise model (motion, sensing) to a recorded run and a tracker's true poses")
     p.add_argument("file", type=Path, help="MCAP recording of the run (swarm coordinator / swarm record)")
     p.add_argument("--truth", type=Path, required=True, metavar="CSV",

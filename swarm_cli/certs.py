@@ -22,7 +22,7 @@ from swarm_cli.options import print_json
 DEFAULT_HOSTS = ("router", "coordinator", "gateway", "estop")  # as inchworm.certs
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("certs", help="create a lab CA and per-host TLS certificates (mutual TLS, see deploy/README.md)")
     add_arguments(p)
     p.set_defaults(run=run)

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from coordinator.strategies import METHODS
@@ -28,7 +29,7 @@ from swarm_cli.entry import leave, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, add_simulation_options, model_config, selection_spec_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("coordinator", help="run the coordinator of a distributed run (agents started separately)")
     add_arguments(p)
     p.set_defaults(run=run)
@@ -77,7 +78,7 @@ def add_record_options(p: argparse.ArgumentParser) -> None:
 
 def spec_of(args: argparse.Namespace) -> CoordinatorSpec:
     """The coordinator spec of the options."""
-    text = lambda path: None if path is None else str(path)  # noqa: E731
+    text: Callable[[Path | None], str | None] = lambda path: None if path is None else str(path)  # noqa: E731
     return CoordinatorSpec(
         trajectory=str(args.trajectory), run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config, method=args.method,
         seed=args.seed, localizer=args.localizer, model=model_config(args), model_file=text(args.model),

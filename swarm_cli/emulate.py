@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from inchworm.specs import EmulatorSpec
@@ -27,7 +28,7 @@ from swarm_cli.options import add_connection_options, add_model_options, model_c
 PROG = "swarm emulate-robots"
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("emulate-robots", help="emulate the robots of a gateway config on pseudo-terminals (frame protocol)")
     add_arguments(p)
     p.set_defaults(run=run)
@@ -85,7 +86,7 @@ def _indices(text: str, option: str) -> tuple[int, ...]:
 def run(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_emulator  # noqa: PLC0415 - the emulator when it runs
 
-    text = lambda path: None if path is None else str(path)  # noqa: E731
+    text: Callable[[Path | None], str | None] = lambda path: None if path is None else str(path)  # noqa: E731
     return run_emulator(EmulatorSpec(
         config=str(args.config), trajectory=str(args.trajectory), seed=args.seed, motion_time=args.motion_time, miscalibrate=args.miscalibrate,
         model=model_config(args), physics=args.physics, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed,

@@ -8,20 +8,20 @@ import os
 import re
 import typing
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import NamedTuple, TypeVar
 
-from inchworm.entry import (  # noqa: F401 - the commands import them from here
-    EXIT_CODES,
-    EXIT_CONFLICT,
-    EXIT_INPUT,
-    EXIT_OUTPUT,
-    EXIT_RUN,
-    cli_message,
-    exit_code,
-    guarded,
-    leave,
-    limit_blas_threads,
-    on_stop_signals,
+from inchworm.entry import (  # re-exported: the commands import them from here
+    EXIT_CODES as EXIT_CODES,
+    EXIT_CONFLICT as EXIT_CONFLICT,
+    EXIT_INPUT as EXIT_INPUT,
+    EXIT_OUTPUT as EXIT_OUTPUT,
+    EXIT_RUN as EXIT_RUN,
+    cli_message as cli_message,
+    exit_code as exit_code,
+    guarded as guarded,
+    leave as leave,
+    limit_blas_threads as limit_blas_threads,
+    on_stop_signals as on_stop_signals,
 )
 
 
@@ -49,6 +49,9 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
+Parser = TypeVar("Parser", bound=argparse.ArgumentParser)  # the class of the parsers ``sub`` makes (``OneLineParser``)
+
+
 class Command(NamedTuple):
     """A subcommand: its name, the module whose ``register(sub)`` adds it, and its one-line help."""
 
@@ -57,7 +60,7 @@ class Command(NamedTuple):
     help: str
 
 
-def add_commands(sub: argparse._SubParsersAction, commands: Sequence[Command], argv: Sequence[str], *, full: bool = False) -> None:
+def add_commands(sub: argparse._SubParsersAction[Parser], commands: Sequence[Command], argv: Sequence[str], *, full: bool = False) -> None:
     """Register ``commands`` on ``sub``, importing only the module of the one ``argv`` names.
 
     The command named by the first positional word of ``argv`` (every command with ``full``)

@@ -37,7 +37,7 @@ from swarm_cli.options import add_connection_options, add_json_option, connectio
 EXIT_NO_ACK = 1
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("estop", help="emergency stop: every robot of the run stops now (latched)")
     p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
     p.add_argument("--reason", default="operator", help="why, for the logs (default operator)")
@@ -52,7 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from coordinator.node.stop import emergency_stop  # noqa: PLC0415 - zenoh, only when a command runs
 
-    out = emergency_stop(connection_settings(args), args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
+    settings = connection_settings(args)
+    assert settings is not None, "add_connection_options(p): required"
+    out = emergency_stop(settings, args.run_id, f"swarm estop (pid {os.getpid()})", args.reason, args.repeat_s, args.ack_timeout)
     robots, ports = ", ".join(map(str, out.agents)), ", ".join(out.links)
     if out.agents or out.links:
         print(f"swarm estop: emergency stop of run {args.run_id} on {connection_label(args)} acknowledged by {len(out.agents)} agents"

@@ -24,12 +24,13 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_json_option, print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("export", help="convert a recording for other tools (--ros2: a rosbag2 with standard ROS 2 messages)")
     p.add_argument("file", type=Path, help="MCAP recording (finished or not)")
     p.add_argument("--ros2", type=Path, default=None, metavar="OUT",
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         return run_truth(args)
     if args.ros2 is None and args.foxglove_layout is None:
         raise SwarmInputError("give --ros2 OUT/ (a rosbag2 folder), --foxglove-layout OUT.json or --truth OUT.csv")
-    result: dict = {}
+    result: dict[str, Any] = {}
     if args.ros2 is not None:
         from runtime.recording.ros2_export import export_ros2  # noqa: PLC0415 - numpy and rosbags only when exporting
 

@@ -14,7 +14,7 @@ from runtime.recording.mcap_log import info_text, recording_info
 from swarm_cli.options import print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("info", help="channels, counts, duration, metadata and bad messages of an MCAP recording")
     p.add_argument("file", type=Path, help="MCAP file (finished or not)")
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line")

@@ -17,13 +17,15 @@ explicitly override either.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 
-from coordinator.strategies import METHODS
+from inchworm.launch_options import DriverOptions, FaultOptions, OutputOptions, SwarmOptions
 from inchworm.processes import AGENTS_PER_PROCESS, ONE_PER_PROCESS_UP_TO
 from inchworm.specs import LaunchSpec
 from swarm_cli.coordinator_cmd import add_record_options
 from swarm_cli.options import add_simulation_options, add_world_options, model_config, nonnegative, positive, selection_spec_of
+from swarm_cli.schema import add_fields
 
 DEMO_SCENARIO = {"localizer": "joint", "turn_sigma_deg": 12.0, "drive_sigma_frac": 0.2}  # 4x the default motion noise
 PAPER_SCENARIO = {"localizer": "paper"}  # and the noise every other command defaults to (ModelConfig, or --model FILE)
@@ -36,11 +38,10 @@ PAPER_TEXT = ("the paper's localizer (Section 5) and the default noise: anchors 
               "does not, the best-scoring anchor count with a plan that does (the tables below say which)")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("launch", help="run agents + coordinator as processes on this host (Zenoh on loopback)")
-    p.add_argument("-n", "--robots", type=int, default=10, help="robots of the random trajectory (default 10)")
-    p.add_argument("--trajectory", type=Path, help="trajectory JSON (docs/trajectory.md); default: a random one")
-    p.add_argument("--configs", type=int, default=3, help="configurations of the random trajectory (default 3)")
+    for name in ("robots", "trajectory", "configs"):
+        add_fields(p, SwarmOptions, only=(name,))
     add_run_options(p)
     p.set_defaults(run=run)
     d = sub.add_parser("demo", help="a distributed run of 10 agent processes on a small built-in trajectory",
@@ -52,15 +53,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def add_run_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the noise, initial estimate and search (default 0)")
-    p.add_argument("--run", dest="run_id", default=None, help="run id (default launch-<pid>)")
-    p.add_argument("--result", type=Path, help="the coordinator writes every step's estimate to this JSON file")
-    p.add_argument("--out", type=Path, default=None, help="folder for the plots (default out/demo, or out/launch for swarm launch)")
-    p.add_argument("--motion-time", type=nonnegative, default=0.0, help="seconds a simulated motion takes (default 0)")
-    p.add_argument("--step-timeout", type=positive, default=None,
-                   help="seconds the coordinator waits for a step's answers (default 5; --driver ros2: the slowest motion "
-                        "its speeds allow, x 1.5, + 2 s)")
+    """The flags of ``swarm launch`` and ``swarm demo`` after the trajectory's: most declared by the fields of
+    ``inchworm.launch_options`` (``swarm_cli.schema``), those whose command-line form differs (a repeated flag, yes/no,
+    ``ID@STEP``, ``STEP:SECONDS``) here."""
+    for name in ("method", "seed", "run_id"):
+        add_fields(p, SwarmOptions, only=(name,))
+    for name in ("result", "out"):
+        add_fields(p, OutputOptions, only=(name,))
+    add_fields(p, SwarmOptions, only=("motion_time",), types={"motion_time": nonnegative})
+    add_fields(p, SwarmOptions, only=("step_timeout",), types={"step_timeout": positive})
     p.add_argument("--driver", default="sim", metavar="DRIVER",
                    help="sim: simulated agents (default); gateway: agents driving emulated robots through link processes and ptys; "
                         "ros2: robots speaking ROS 2 (cmd_vel, odom, neighbors; docs/ros2.md); "
@@ -68,23 +69,17 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
                    help="with a lab's own driver or ros2 (config=FILE, settings; docs/ros2.md): an option passed to every agent's "
                         "driver, repeatable")
-    p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
-                   help="with a lab's own driver: seconds each command or observation may take before the agent stops the "
-                        "robot and reports it lost (default: swarm agent's)")
-    p.add_argument("--gateway-config", type=Path, default=None,
-                   help="with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)")
-    p.add_argument("--emulator-events", type=Path, default=None, help="with --driver gateway: the emulator's JSON-lines event log")
-    p.add_argument("--on-lost", choices=("continue", "abort"), default="continue",
-                   help="when a robot is lost: stop it and go on without it, or end the run (default continue)")
-    p.add_argument("--min-robots", type=int, default=2, help="end the run when fewer robots are left (default 2)")
+    add_fields(p, DriverOptions, only=("command_timeout",), types={"command_timeout": positive})
+    for name in ("gateway_config", "emulator_events"):
+        add_fields(p, DriverOptions, only=(name,))
+    for name in ("on_lost", "min_robots"):
+        add_fields(p, SwarmOptions, only=(name,))
     p.add_argument("--rejoin", choices=("yes", "no"), default="yes",
                    help="a lost robot whose agent comes back rejoins at the next configuration (default yes)")
     p.add_argument("--kill-robot", type=_kill_spec, action="append", default=None, metavar="ID@STEP",
                    help="fault injection: SIGKILL the agent of robot ID when global step STEP starts (e.g. 3@2); repeatable")
-    p.add_argument("--standby", action="store_true",
-                   help="also start a standby coordinator that takes the run over if the coordinator dies")
-    p.add_argument("--kill-coordinator", type=int, default=None, metavar="STEP",
-                   help="fault injection: SIGKILL the coordinator when global step STEP starts (with --standby: time the takeover)")
+    for name in ("standby", "kill_coordinator"):
+        add_fields(p, FaultOptions, only=(name,))
     p.add_argument("--stall-coordinator", type=_stall_spec, default=None, metavar="STEP:SECONDS",
                    help="fault injection: SIGSTOP the coordinator when global step STEP starts and SIGCONT it SECONDS later "
                         "(e.g. 2:12; beyond the 10 s Zenoh lease a --standby takes the run over and the stalled one steps down)")
@@ -95,17 +90,9 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
                    help=f"robot agents hosted by one process (default 1 up to {ONE_PER_PROCESS_UP_TO} robots, else up to "
                         f"{AGENTS_PER_PROCESS}; gateway: one process per port with its link, given: link processes apart; ros2: up to "
                         f"{AGENTS_PER_PROCESS} in one, unless --kill-robot)")
-    p.add_argument("--drop", type=float, default=0.0, metavar="P",
-                   help="with --driver gateway: probability the emulated radio loses a frame, each way (default 0)")
-    p.add_argument("--corrupt", type=float, default=0.0, metavar="P",
-                   help="with --driver gateway: probability a robot's answer has a byte flipped (default 0)")
-    p.add_argument("--delay", type=float, default=0.0, metavar="S",
-                   help="with --driver gateway: seconds every answer of the robots is delayed (default 0)")
-    p.add_argument("--ros2", action="store_true",
-                   help="show the run live in ROS 2: /swarm/estimates, /swarm/robot<id>/pose, /swarm/markers, service /swarm/estop "
-                        "(swarm ros2 bridge; extra ros2, docs/ros2.md)")
-    p.add_argument("--ros2-robots", action="store_true",
-                   help="with --driver ros2: also start simulated ROS 2 robots of the trajectory (swarm ros2 robots) to drive")
+    add_fields(p, FaultOptions, only=("drop", "corrupt", "delay"))
+    add_fields(p, OutputOptions, only=("ros2",))
+    add_fields(p, DriverOptions, only=("ros2_robots",))
     add_record_options(p)
     add_simulation_options(p)
     add_world_options(p, speed=True)
@@ -156,7 +143,7 @@ def run_demo(args: argparse.Namespace) -> int:
 
 def spec_of(args: argparse.Namespace) -> LaunchSpec:
     """The launch spec of the options."""
-    text = lambda path: None if path is None else str(path)  # noqa: E731
+    text: Callable[[Path | None], str | None] = lambda path: None if path is None else str(path)  # noqa: E731
     return LaunchSpec(
         model=model_config(args), model_file=text(args.model), localizer=args.localizer, selection=selection_spec_of(args),
         command=args.command, trajectory=text(args.trajectory), robots=args.robots, configs=args.configs,

@@ -19,7 +19,7 @@ from swarm_cli.entry import run_standalone
 from swarm_cli.options import add_connection_options
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("link", help="own one serial/radio port of the gateway and bridge its robots to their agents")
     add_arguments(p)
     p.set_defaults(run=run)

@@ -19,7 +19,7 @@ from swarm_cli.options import add_localizer_option, add_model_options, model_con
 EXIT_NOT_LOCALIZED = 3  # the solver failed for some or all robots (bad input is 2)
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("localize", help="localize robots from range/bearing observations in a JSON file")
     p.add_argument("file", type=Path, help="input JSON (see docs/localize-input.md)")
     add_localizer_option(p)

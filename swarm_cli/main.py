@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 
 from swarm_cli.entry import Command, OneLineParser, add_commands, guarded, leave, limit_blas_threads
 from swarm_cli.options import apply_config, check_limits
@@ -72,7 +73,13 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     limit_blas_threads()
     args = parse(argv)
-    code = guarded(f"swarm {args.command}", lambda: check_limits(args) or args.run(args))
+
+    def checked_run() -> int | None:
+        check_limits(args)
+        run: Callable[[argparse.Namespace], int | None] = args.run  # the command's ``run(args)``
+        return run(args)
+
+    code = guarded(f"swarm {args.command}", checked_run)
     if standalone and args.command in ZENOH_PROCESSES:
         leave(code)
     return code

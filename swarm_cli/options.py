@@ -8,9 +8,10 @@ import math
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
-from inchworm.output import last_json, print_json  # noqa: F401 - last_json: what a command printed last (tests, tools)
+# re-exported: the commands import print_json from here; last_json: what a command printed last (tests, tools)
+from inchworm.output import last_json as last_json, print_json as print_json
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
@@ -21,6 +22,7 @@ if TYPE_CHECKING:  # imported where used: building a parser must not import scip
     from inchworm.options import RunOptions
     from inchworm.specs import SelectionSpec
     from runtime.wire.transport import ZenohSettings
+    from runtime.world.params import PhysicsParams
 
 
 def _number(text: str) -> float:
@@ -203,7 +205,15 @@ def selection_spec_of(args: argparse.Namespace) -> SelectionSpec:
                          mc_start=args.mc_start, mc_emax=args.mc_emax, genetic=args.genetic)
 
 
-def parse_list(text: str, option: str, cast: type = int, minimum: float = 0) -> list:
+@overload
+def parse_list(text: str, option: str, cast: type[int] = int, minimum: float = 0) -> list[int]: ...
+
+
+@overload
+def parse_list(text: str, option: str, cast: type[float], minimum: float = 0) -> list[float]: ...
+
+
+def parse_list(text: str, option: str, cast: type[int] | type[float] = int, minimum: float = 0) -> list[int] | list[float]:
     """Values of a comma-separated option such as ``--sizes 10,100``; each must be >= ``minimum``."""
     kind = "integers" if cast is int else "numbers"
     try:
@@ -312,7 +322,7 @@ def save_config(args: argparse.Namespace) -> Path:
                 else repr(value) if isinstance(value, (int, float)) else json.dumps(str(value)))
         lines.append(f"{dest.replace('_', '-')} = {text}")
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / "study.toml"
+    path: Path = args.out / "study.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
 
@@ -330,7 +340,7 @@ def add_world_options(parser: argparse.ArgumentParser, *, speed: bool = False) -
                        help="with --world physics: world seconds per wall-clock second (0: as fast as it computes, the default)")
 
 
-def physics_params(args: argparse.Namespace):
+def physics_params(args: argparse.Namespace) -> PhysicsParams | None:
     """The ``PhysicsParams`` of ``--world physics`` (None for the model's world); ``SwarmInputError`` naming the extra
     to install when pymunk is missing, or the bad ``--physics-param``."""
     if args.world != "physics":

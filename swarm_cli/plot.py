@@ -20,7 +20,7 @@ from pathlib import Path
 from swarm_cli.options import add_json_option, print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("plot", help="the trajectory and error plots of swarm sim, from a recording")
     p.add_argument("file", type=Path, help="MCAP recording (swarm coordinator / swarm record)")
     p.add_argument("--out", type=Path, default=Path("out/plot"), help="folder for the PNG plots (default out/plot)")

@@ -21,7 +21,7 @@ from swarm_cli.entry import on_stop_signals, portable_command, run_standalone
 from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("record", help="record every message of a run to an MCAP file until Ctrl-C / SIGTERM")
     add_arguments(p)
     p.set_defaults(run=run)
@@ -41,6 +41,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     validate_run(args.run_id)
     settings = connection_settings(args)
+    assert settings is not None, "add_connection_options(p): required"
     out = args.out or Path("recordings") / f"{args.run_id}.mcap"
     meta = run_metadata(connection_label(args), portable_command("swarm record", sys.argv[1:]), args.seed, args.trajectory, args.param)
     stop = threading.Event()

@@ -13,7 +13,7 @@ from runtime.recording.mcap_log import recover
 from swarm_cli.options import print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("recover", help="rewrite an unfinished MCAP recording as a finished, indexed file")
     p.add_argument("file", type=Path, help="MCAP file (typically of a killed recorder)")
     p.add_argument("out", type=Path, nargs="?", default=None, help="output file (default FILE.recovered.mcap)")

@@ -24,7 +24,7 @@ MODEL_OPTIONS = tuple(MODEL_FLAGS)  # the model flags' dests
 SELECTION_OPTIONS = ("w_v", "samples", "population", "generations", "selection", "mc_start", "mc_emax")
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("replay", help="re-publish a recording on Zenoh (--publish) or check that it is reproduced (--check)")
     p.add_argument("file", type=Path, help="MCAP recording (swarm coordinator / swarm record)")
     mode = p.add_mutually_exclusive_group(required=True)

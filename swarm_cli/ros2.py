@@ -30,7 +30,7 @@ from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads
 from swarm_cli.options import add_connection_options, add_model_options, model_config, positive
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("ros2", help="simulated ROS 2 robots (robots), a run live in ROS 2 (bridge); extra ros2",
                        description="Simulated ROS 2 robots, and a run live in ROS 2 (docs/ros2.md).")
     add_arguments(p)

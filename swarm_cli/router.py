@@ -34,7 +34,7 @@ from swarm_cli.entry import run_standalone
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("router", help="run the Zenoh router of a multi-host swarm until Ctrl-C / SIGTERM")
     add_arguments(p)
     p.set_defaults(run=run)

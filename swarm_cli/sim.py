@@ -16,7 +16,7 @@ from swarm_cli.options import add_simulation_options, add_world_options, model_c
 LARGE = 1000  # robots: say what is being made before the first progress line
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("sim", help="simulate one run along a trajectory and plot it")
     p.add_argument("--trajectory", type=Path, help="trajectory JSON (docs/trajectory.md); default: a random one")
     p.add_argument("--robots", type=int, default=10, help="robots of the random trajectory (default 10)")

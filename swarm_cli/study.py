@@ -17,7 +17,7 @@ STUDIES = (
 )
 
 
-def register(sub: argparse._SubParsersAction, argv: Sequence[str] = (), full: bool = False) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser], argv: Sequence[str] = (), full: bool = False) -> None:
     parser = sub.add_parser("study", help=("parameter studies (anchors: Fig. 4/5 and Appendix A; noise: where anchors pay off; "
                                            "selection: search vs optimum; calibration: the paper's noise; consistency: NEES)"))
     inner = parser.add_subparsers(dest="study", required=True, metavar="STUDY")

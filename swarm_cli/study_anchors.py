@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+from inchworm.studies.anchors import AnchorsOptions
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_study_options, model_config, run_study
+from swarm_cli.schema import add_fields, options_of
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("anchors", help="Fig. 4 (number of anchors), Fig. 5 (choice of anchors), Appendix A (heuristic vs random)")
-    p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
-    p.add_argument("--experiments", type=int, default=60, help="random experiments (default 60; the paper: 1000)")
-    p.add_argument("--samples", type=int, default=8, help="Monte Carlo samples per plan per experiment (default 8)")
-    p.add_argument("--seed", type=int, default=0, help="experiment e uses the seed [seed, e] (default 0)")
+    add_fields(p, AnchorsOptions, exclude=("model", "localizer"))
     add_study_options(p, "out/study-anchors", "experiments.jsonl, experiments.csv, the PNG plots and study.toml")
     add_localizer_option(p)
     add_model_options(p)
@@ -20,10 +19,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.studies.anchors import AnchorsOptions, study_anchors  # noqa: PLC0415
+def options(args: argparse.Namespace) -> AnchorsOptions:
+    """The study the flags ask for."""
+    return options_of(args, AnchorsOptions, model=model_config(args), localizer=args.localizer)
 
-    options = AnchorsOptions(args.robots, args.experiments, args.samples, args.seed, model_config(args), args.localizer)
-    if options.note():
-        print(options.note())
-    return run_study(args, study_anchors, options, options.experiments, "study anchors", "experiments")
+
+def run(args: argparse.Namespace) -> int:
+    from inchworm.studies.anchors import study_anchors  # noqa: PLC0415
+
+    chosen = options(args)
+    if chosen.note():
+        print(chosen.note())
+    return run_study(args, study_anchors, chosen, chosen.experiments, "study anchors", "experiments")

@@ -25,7 +25,7 @@ from runtime.models.trajectory import Trajectory, random_trajectory, validate_co
 from swarm_cli.options import add_json_option, positive, print_json
 
 
-def register(sub: argparse._SubParsersAction) -> None:
+def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("trajectory", help="write a random trajectory file (new) or check one (check)")
     inner = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     new = inner.add_parser("new", help="write a random trajectory (the one swarm sim would make for these options)")
@@ -44,7 +44,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     check.set_defaults(run=run_check)
 
 
-def _report(verb: str, path: Path, summary: dict, as_json: bool) -> int:
+def _report(verb: str, path: Path, summary: dict[str, float], as_json: bool) -> int:
     print(f"{verb} {path}: {summary['robots']} robots, {summary['configs']} configurations, connected within "
           f"{summary['sensing_range_m']:g} m; robots move {summary['move_mean_m']:.3f} m per configuration on average "
           f"(at most {summary['move_max_m']:.3f} m)", flush=True)

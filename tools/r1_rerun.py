@@ -11,7 +11,10 @@ Per (bodies, seed sets) the report gives the mean P_f of both methods, the ratio
 per-trajectory ratio inchworm / ref57 as a geometric mean with its 95 % confidence interval (t on the log ratios),
 the two-sided paired t-test on P_f, and inchworm's mean n_a.
 
-Usage: python -m tools.r1_rerun [OUT (default out/r1-rerun)] [WORKERS (default 2)] [--report-only]
+``--recalibrated`` runs the same cells at the noise the calibration gives with the exact dead reckoning instead
+(docs/experiments.md, "The calibration of the noise"): x 6.93 for point robots, x 7.12 with bodies.
+
+Usage: python -m tools.r1_rerun [OUT (default out/r1-rerun)] [WORKERS (default 2)] [--recalibrated] [--report-only]
 Prints a Markdown table; ``--json`` as the last argument also prints its rows as one JSON object (last line).
 """
 
@@ -27,19 +30,29 @@ import numpy as np
 from scipy import stats
 
 SEED_SETS = (0, 1000, 2000, 3000)
-R1 = ["--mc-start", "known", "--mc-emax", "mean", "--localizer", "joint", "--turn-sigma-deg", "16.74", "--drive-sigma-frac", "0.279"]
+R1 = ["--mc-start", "known", "--mc-emax", "mean", "--localizer", "joint"]
+TURN_X1_DEG, DRIVE_X1 = 3.0, 0.05  # motion noise x 1
+FIRST_SCALE = 5.58  # the calibration as first measured (registered)
+RECALIBRATED = {False: 6.93, True: 7.12}  # the calibration with the exact dead reckoning: points, bodies
 
 
-def cell_name(seed: int, bodies: bool) -> str:
-    return f"R1-joint-calibrated-{'bodies' if bodies else 'points'}-{seed}"
+def noise_flags(scale: float) -> list[str]:
+    """The motion-noise flags of ``scale`` x the default (x 5.58: turn 16.74 deg, drive 27.9 %)."""
+    return ["--turn-sigma-deg", f"{TURN_X1_DEG * scale:.6g}", "--drive-sigma-frac", f"{DRIVE_X1 * scale:.6g}"]
 
 
-def run_cell(out: Path, seed: int, bodies: bool, workers: int) -> None:
-    folder = out / cell_name(seed, bodies)
+def cell_name(seed: int, bodies: bool, recalibrated: bool = False) -> str:
+    scale = f"-x{RECALIBRATED[bodies]}" if recalibrated else ""
+    return f"R1-joint-calibrated{scale}-{'bodies' if bodies else 'points'}-{seed}"
+
+
+def run_cell(out: Path, seed: int, bodies: bool, workers: int, recalibrated: bool = False) -> None:
+    folder = out / cell_name(seed, bodies, recalibrated)
     if (folder / "done").exists():
         return
     cmd = [sys.executable, "-m", "swarm_cli.main", "compare", "--trajectories", "30", "--configs", "8", "--robots", "10",
-           "--methods", "inchworm,ref57", "--seed", str(seed), *R1, *([] if bodies else ["--robot-radius", "0"]),
+           "--methods", "inchworm,ref57", "--seed", str(seed), *R1,
+           *noise_flags(RECALIBRATED[bodies] if recalibrated else FIRST_SCALE), *([] if bodies else ["--robot-radius", "0"]),
            "--workers", str(workers), "--out", str(folder), "--json"]
     if folder.exists():
         cmd.append("--resume")
@@ -57,11 +70,11 @@ def load(folder: Path) -> dict[str, dict[int, dict]]:
     return out
 
 
-def summary(out: Path, seeds: tuple[int, ...], bodies: bool) -> dict:
+def summary(out: Path, seeds: tuple[int, ...], bodies: bool, recalibrated: bool = False) -> dict:
     """The paired comparison pooled over the seed sets ``seeds``."""
     ours, theirs, na = [], [], []
     for seed in seeds:
-        runs = load(out / cell_name(seed, bodies))
+        runs = load(out / cell_name(seed, bodies, recalibrated))
         common = sorted(set(runs["inchworm"]) & set(runs["ref57"]))
         ours += [runs["inchworm"][t]["pf"] for t in common]
         theirs += [runs["ref57"][t]["pf"] for t in common]
@@ -78,14 +91,15 @@ def summary(out: Path, seeds: tuple[int, ...], bodies: bool) -> dict:
 def main(argv: list[str]) -> int:
     as_json = "--json" in argv
     report_only = "--report-only" in argv
+    recalibrated = "--recalibrated" in argv
     args = [a for a in argv if not a.startswith("--")]
     out = Path(args[0]) if args else Path("out/r1-rerun")
     workers = int(args[1]) if len(args) > 1 else 2
     if not report_only:
         for bodies in (False, True):
             for seed in SEED_SETS:
-                run_cell(out, seed, bodies, workers)
-    rows = [summary(out, seeds, bodies) for bodies in (False, True)
+                run_cell(out, seed, bodies, workers, recalibrated)
+    rows = [summary(out, seeds, bodies, recalibrated) for bodies in (False, True)
             for seeds in ((0,), (1000,), (0, 1000), (2000,), (3000,), (2000, 3000), SEED_SETS)]
     print("| robots | seed sets | pairs | P_f inchworm | P_f ref57 | ratio of means | paired ratio [95 % CI] | p (paired t) | n_a |")
     print("| --- | --- | ---: | ---: | ---: | ---: | --- | ---: | ---: |")

@@ -48,7 +48,9 @@ one, or a built-in with ``huber`` set) localizes every sample through the locali
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Self, TypeAlias, cast
 
 import numpy as np
 
@@ -108,6 +110,8 @@ MIN_CHUNK = 4  # samples
 # is done densely, as the single-swarm localizer does it (measured: up to 1.5e7 at the default noise, 4e9 at a quarter
 # of its sensing noise; 7e28 with noise-free sensing and a prior that disagrees with it, where the identity gave 3e7 m)
 WOODBURY_COND_LIMIT = 1e11
+
+_Solved: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray]  # poses (B, n, 3), covariances (B, n, 3, 3), ok (B,)
 
 
 @dataclass(frozen=True)
@@ -172,7 +176,7 @@ def localize_batch(
                             bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
-    solve = _localize_paper if method == "paper" else functools.partial(_localize_joint, constrain=_constrained(localizer, n))
+    solve: _Solver = _localize_paper if method == "paper" else functools.partial(_localize_joint, constrain=_constrained(localizer, n))
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
@@ -184,7 +188,9 @@ def localize_batch(
     return BatchEstimate(poses, cov, ok)
 
 
-def _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws) -> None:
+def _solve_chunks(solve: _Solver, cfg: ModelConfig, todo: np.ndarray, chunk: int, dr_poses: np.ndarray, dr_cov: np.ndarray,
+                  seen: np.ndarray, ranges: np.ndarray, bearings: np.ndarray, poses: np.ndarray, cov: np.ndarray, ok: np.ndarray,
+                  ws: _Workspace) -> None:
     """Localize samples ``todo`` chunk by chunk into poses/cov; samples that fail get ok = False."""
     for start in range(0, todo.size, chunk):  # chunks keep the working arrays small (cache, allocator)
         sel = todo[start : start + chunk]
@@ -199,7 +205,9 @@ def _constrained(localizer: Localizer, n: int) -> bool:
     return isinstance(localizer, JointLocalizer) and localizer.constrain_gauge and n <= EXACT_COV_LIMIT
 
 
-def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws) -> None:
+def _localize_partial(localizer: Localizer, method: str, cfg: ModelConfig, index: np.ndarray, prior_poses: np.ndarray,
+                      prior_cov: np.ndarray, commands: np.ndarray, moving: np.ndarray, seen: np.ndarray, ranges: np.ndarray,
+                      bearings: np.ndarray, poses: np.ndarray, cov: np.ndarray, ws: _Workspace) -> None:
     """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
     n = seen.shape[1]
     rest = index
@@ -217,7 +225,9 @@ def _localize_partial(localizer, method, cfg, index, prior_poses, prior_cov, com
     _localize_each(localizer, cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
 
 
-def _localize_each(localizer, cfg, index, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov) -> np.ndarray:
+def _localize_each(localizer: Localizer, cfg: ModelConfig, index: np.ndarray, prior_poses: np.ndarray, prior_cov: np.ndarray,
+                   commands: np.ndarray, moving: np.ndarray, seen: np.ndarray, ranges: np.ndarray, bearings: np.ndarray,
+                   poses: np.ndarray, cov: np.ndarray) -> np.ndarray:
     """The runtime's localization (``partial.localize_observable``) of samples ``index`` one by one, into poses/cov.
 
     Returns (B,) True where no robot of the sample was left at dead reckoning.
@@ -257,17 +267,19 @@ def _shaped(values: np.ndarray, shape: tuple[int, ...], name: str, dtype: type) 
     return arr
 
 
-def _valid(prior_poses, prior_cov, commands, moving, seen, ranges, bearings) -> np.ndarray:
+def _valid(prior_poses: np.ndarray, prior_cov: np.ndarray, commands: np.ndarray, moving: np.ndarray, seen: np.ndarray,
+           ranges: np.ndarray, bearings: np.ndarray) -> np.ndarray:
     """(B,) samples whose values the single-swarm constructors accept (finite, no negative drive or range)."""
     cmd = np.where(moving[..., None], commands, 0.0)
     with np.errstate(invalid="ignore"):
         bad_obs = seen & ~((ranges >= 0.0) & (ranges < np.inf) & np.isfinite(bearings))
-        return (
+        return cast(
+            np.ndarray,
             np.isfinite(prior_poses).all(axis=(1, 2))
             & np.isfinite(prior_cov).all(axis=(1, 2, 3))
             & np.isfinite(cmd).all(axis=(1, 2))
             & (cmd[..., 1] >= 0).all(axis=1)
-            & ~bad_obs.any(axis=(1, 2))
+            & ~bad_obs.any(axis=(1, 2)),
         )
 
 
@@ -288,12 +300,16 @@ class _Workspace:
         return arr
 
 
+# ``_localize_paper`` or ``_localize_joint``: (cfg, dead-reckoning poses and covariances, seen, ranges, bearings, workspace)
+_Solver: TypeAlias = Callable[[ModelConfig, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, _Workspace], _Solved]
+
+
 class _Batched:
     """A problem whose array attributes all have the batch as their first axis, with a workspace."""
 
     ws: _Workspace
 
-    def subset(self, index: np.ndarray):
+    def subset(self, index: np.ndarray) -> Self:
         out = object.__new__(type(self))
         for key, value in vars(self).items():
             setattr(out, key, value[index] if isinstance(value, np.ndarray) else value)
@@ -305,7 +321,8 @@ class _Batched:
         return [self.ws(f"{name}/{slot}", shape) for name in names]
 
 
-def _newton_step(lap: np.ndarray, diag_x, ct: np.ndarray, d, g_xy, g_theta, mu, ws: _Workspace) -> tuple[np.ndarray, np.ndarray]:
+def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndarray, g_xy: np.ndarray, g_theta: np.ndarray,
+                 mu: np.ndarray, ws: _Workspace) -> tuple[np.ndarray, np.ndarray]:
     """Solve [[A + mu diag(diag_x), C], [C^T, diag(d)]] [dxy; dtheta] = -[g_xy; g_theta] per sample.
 
     Positions are ordered x of every robot, then y (index k n + a). A (B, 2n, 2n) is the
@@ -363,7 +380,7 @@ class _TopologyProblem(_Batched):
     Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
     """
 
-    def __init__(self, w, zx, zy, ref: np.ndarray, has_heading: np.ndarray, ws: _Workspace):
+    def __init__(self, w: np.ndarray, zx: np.ndarray, zy: np.ndarray, ref: np.ndarray, has_heading: np.ndarray, ws: _Workspace) -> None:
         b, n, _ = w.shape
         rows = np.arange(b)
         self.w, self.zx, self.zy, self.ref, self.ws = w, zx, zy, ref, ws
@@ -427,7 +444,8 @@ class _TopologyProblem(_Batched):
         return _newton_step(self.lap, self.diag_x, ct, d, g_xy, g_theta, mu, self.ws)
 
 
-def _localize_paper(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws):
+def _localize_paper(cfg: ModelConfig, dr_poses: np.ndarray, dr_cov: np.ndarray, seen: np.ndarray, ranges: np.ndarray,
+                    bearings: np.ndarray, ws: _Workspace) -> _Solved:
     b, n, _ = dr_poses.shape
     w = seen.astype(float)
     made = np.einsum("bij->bi", w)
@@ -494,7 +512,8 @@ class _JointProblem(_Batched):
     dense (B, n, n) pair arrays, zero where unseen; the prior's difference is ``range_bearing.pose_difference``.
     """
 
-    def __init__(self, seen, ranges, bearings, mean, info, s_r: float, cfg: ModelConfig, ws: _Workspace):
+    def __init__(self, seen: np.ndarray, ranges: np.ndarray, bearings: np.ndarray, mean: np.ndarray, info: np.ndarray, s_r: float,
+                 cfg: ModelConfig, ws: _Workspace) -> None:
         self.ws = ws
         w = seen.astype(float)
         self.rho = _on_pairs(seen, ranges)
@@ -571,7 +590,8 @@ class _JointProblem(_Batched):
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
-def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain: bool, keep: np.ndarray | None = None):
+def _localize_joint(cfg: ModelConfig, dr_poses: np.ndarray, dr_cov: np.ndarray, seen: np.ndarray, ranges: np.ndarray,
+                    bearings: np.ndarray, ws: _Workspace, constrain: bool, keep: np.ndarray | None = None) -> _Solved:
     """``JointLocalizer._solve`` of every sample: the least-squares solution and its covariances, or with ``constrain``
     the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all)."""
     s_r, _ = sensor_sigmas(cfg)
@@ -591,7 +611,8 @@ def _localize_joint(cfg, dr_poses, dr_cov, seen, ranges, bearings, ws, constrain
     return x, cov, good
 
 
-def _rescue(cfg, problem, x, cost, wrong, seen, ranges, bearings, dr_poses, dr_cov) -> bool:
+def _rescue(cfg: ModelConfig, problem: _JointProblem, x: np.ndarray, cost: np.ndarray, wrong: np.ndarray, seen: np.ndarray,
+            ranges: np.ndarray, bearings: np.ndarray, dr_poses: np.ndarray, dr_cov: np.ndarray) -> bool:
     """``JointLocalizer._solve``'s second solve of samples ``wrong`` (an implausible cost: a wrong local minimum) from
     ``joint.rescue_start``, into x where its cost is lower; the robots without observations stay at the prior mean,
     as they are not in the single-swarm problem. Returns whether any sample took it."""
@@ -614,7 +635,8 @@ def _rescue(cfg, problem, x, cost, wrong, seen, ranges, bearings, dr_poses, dr_c
     return bool(better.any())
 
 
-def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
+def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap: np.ndarray, ct: np.ndarray, d: np.ndarray,
+                        x: np.ndarray, mean: np.ndarray, keep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """Poses (B, n, 3) and covariances (B, n, 3, 3) of the observability-constrained update (``gauge``, as
     ``JointLocalizer``), without any (3n, 3n) matrix: the correction U K U^T of ``gauge_correction`` (of the robots
     ``keep``, None: all) enters the inverse of J^T J = A by the Woodbury identity,
@@ -634,11 +656,11 @@ def _constrained_update(prior_info, prior_gradient, lap, ct, d, x, mean, keep):
     to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot-order index 3 a + c
     to_batch = np.argsort(to_robots)
 
-    def inverse_times(m):  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
+    def inverse_times(m: np.ndarray) -> np.ndarray:  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
         y = s_inv @ (m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:])
         return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
 
-    def batch_order(frame):  # (N, Pi) in the batch's order
+    def batch_order(frame: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # (N, Pi) in the batch's order
         return frame[0][:, to_batch], frame[1][:, :, to_batch]
 
     robot_frame = gauge_frame(mean, keep)
@@ -692,7 +714,7 @@ def _ill_conditioned(small: np.ndarray) -> np.ndarray:
         inverse = _inv_stack(small)
         bound = np.sqrt(np.einsum("bij,bij->b", small, small) * np.einsum("bij,bij->b", inverse, inverse))
         unsure = np.flatnonzero(~(bound <= 0.5 * WOODBURY_COND_LIMIT))
-        return unsure[~(np.linalg.cond(small[unsure]) <= WOODBURY_COND_LIMIT)]
+        return cast(np.ndarray, unsure[~(np.linalg.cond(small[unsure]) <= WOODBURY_COND_LIMIT)])
 
 
 def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -705,7 +727,7 @@ def _schur_parts(lap: np.ndarray, ct: np.ndarray, d: np.ndarray) -> tuple[np.nda
     return ctd, s_inv, e
 
 
-def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tuple | None = None) -> np.ndarray:
+def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """3x3 diagonal blocks (B, n, 3, 3) of the inverse of J^T J = [[lap, C], [C^T, diag(d)]] (``ct`` = C^T).
 
     Exact up to ``EXACT_COV_LIMIT`` robots (``_schur_parts``, or ``parts`` when the caller has them); above, each

@@ -213,7 +213,7 @@ class Recording:
         """``RecordingStopped`` if the recording failed and the policy is to stop the run."""
         failed = self.failed.is_set() or (self.recorder is not None and self.recorder.error is not None)
         if self.policy == "stop" and failed:
-            raise RecordingStopped(f"the recording to {self.path} failed (--on-record-error stop)")
+            raise RecordingStopped(f"the recording to {self.path} failed (the policy for a recording error is stop)")
 
     def wait_subscribed(self, session: zenoh.Session, timeout_s: float = 10.0) -> None:
         """Until the hub knows the recorder's subscription (so nothing published from now on is missed)."""

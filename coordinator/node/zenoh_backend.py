@@ -112,8 +112,8 @@ from runtime.wire.transport import alive_now, declare_token, publish, subscribe,
 if TYPE_CHECKING:
     import zenoh
 
-    from coordinator.executor import ContactEvent
     from coordinator.plan import Plan
+    from coordinator.run_result import ContactEvent
     from coordinator.selection.selector import Selection
 
 _log = logging.getLogger(__name__)

@@ -63,7 +63,8 @@ class PairTable:
         step = np.stack([plan_steps(p) for p in plans])[:, :, None]  # (P, n, 1) step of each robot
         later = step.transpose(0, 2, 1)  # (P, 1, n)
         bad = ((step == later) & self.together) | ((step < later) & (self.at_start | self.at_arrival.T))
-        return ~bad.any(axis=(1, 2))
+        clear: np.ndarray = ~bad.any(axis=(1, 2))
+        return clear
 
     def step_pairs(self, plan: Plan) -> list[np.ndarray]:
         """Per step of ``plan``, its conflicting pairs (k, 2) as (driver, other), each pair once."""

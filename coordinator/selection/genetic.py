@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coordinator.plan import Plan, n_partitions
+from coordinator.plan import Plan, PlanKey, n_partitions
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ def genetic_search(
     feasible: Callable[[Plan], bool],
     rng: np.random.Generator,
     cfg: GeneticConfig = GeneticConfig(),
-    known: dict[tuple, float] | None = None,
+    known: dict[PlanKey, float] | None = None,
     predict: Callable[[list[Plan]], np.ndarray] | None = None,
 ) -> tuple[Plan | None, float, int]:
     """Best plan found, its e_l, and the number of distinct plans newly evaluated.
@@ -104,10 +104,10 @@ def genetic_search(
     """
     sizes = seeds[0].sizes
     n = seeds[0].n_robots
-    cache: dict[tuple, float] = known if known is not None else {}
+    cache: dict[PlanKey, float] = known if known is not None else {}
     preset = len(cache)
-    guessed: dict[tuple, float] = {}  # surrogate fitness of screened-out plans (``predict``)
-    predicted: dict[tuple, float] = {}
+    guessed: dict[PlanKey, float] = {}  # surrogate fitness of screened-out plans (``predict``)
+    predicted: dict[PlanKey, float] = {}
 
     def score(plans: list[Plan], limit: int | None = None) -> np.ndarray:
         fresh, seen = [], set()

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from typing import cast
 
 import numpy as np
 
@@ -37,7 +38,7 @@ def step_score(groups: np.ndarray, base: np.ndarray, desired: np.ndarray) -> np.
     d = np.sum(anchors * np.linalg.norm(base[None] - centroid_a[:, None], axis=-1), axis=1) / n_a[:, 0]  # Eq. 11
     centroid_m = groups @ desired / np.maximum(groups.sum(axis=1, keepdims=True), 1)
     s = np.linalg.norm(centroid_a - centroid_m, axis=1)  # Eq. 12
-    return d + 1.0 / np.maximum(s, MIN_SEPARATION)
+    return cast(np.ndarray, d + 1.0 / np.maximum(s, MIN_SEPARATION))
 
 
 def _best_group(pool: np.ndarray, size: int, base: np.ndarray, desired: np.ndarray) -> np.ndarray:
@@ -46,7 +47,7 @@ def _best_group(pool: np.ndarray, size: int, base: np.ndarray, desired: np.ndarr
         combos = np.array(list(itertools.combinations(pool, size)), dtype=np.int64)
         masks = np.zeros((len(combos), n), bool)
         masks[np.arange(len(combos))[:, None], combos] = True
-        return combos[int(np.argmax(step_score(masks, base, desired)))]
+        return cast(np.ndarray, combos[int(np.argmax(step_score(masks, base, desired)))])
     centre = base.mean(axis=0)
     group = pool[np.argsort(np.linalg.norm(desired[pool] - centre, axis=1), kind="stable")[:size]]
     best = step_score(_mask(group, n), base, desired)[0]
@@ -107,7 +108,7 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
             - np.hypot(in_[None, :, 0] - dx, in_[None, :, 1] - dy)
         inverse_s = 1.0 / np.maximum(np.hypot(lead[r, 0, None] - join[None, :, 0], lead[r, 1, None] - join[None, :, 1]),
                                      MIN_SEPARATION)
-        return tangent / n_a + inverse_s
+        return cast(np.ndarray, tangent / n_a + inverse_s)
 
     reach, top = _row_bounds(out_, in_, lead, join, total, pull, n_a)
     far = int(np.argmax(reach))
@@ -127,7 +128,7 @@ def _promising_swaps(group: np.ndarray, outside: np.ndarray, base: np.ndarray, d
         kept.append(r[k] * len(outside) + b)
         lows.append(low[k, b])
     flat, low = np.concatenate(kept), np.concatenate(lows)
-    return flat[low + margin >= best]
+    return cast(np.ndarray, flat[low + margin >= best])
 
 
 def _row_bounds(out_: np.ndarray, in_: np.ndarray, lead: np.ndarray, join: np.ndarray, total: float, pull: np.ndarray,

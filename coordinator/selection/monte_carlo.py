@@ -18,6 +18,7 @@ the initial-error draws are made either way, so the motion and sensing draws are
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -90,7 +91,7 @@ class MonteCarlo:
             est = out.poses.reshape(c, s, n, 3)
             cov = out.cov.reshape(c, s, n, 3, 3)
         e_l = np.mean(np.linalg.norm(truth[..., :2] - est[..., :2], axis=-1), axis=-1)  # Eq. 8, (c, s)
-        return e_l if per_sample else e_l.mean(axis=1)
+        return cast(np.ndarray, e_l if per_sample else e_l.mean(axis=1))
 
 
 def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float,

@@ -29,7 +29,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from coordinator.plan import Plan
+from coordinator.plan import Plan, PlanKey
 
 SampleEvaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan and sample
 MARGIN = 1.0  # standard errors by which a challenger must beat the seed in the final check
@@ -125,7 +125,7 @@ def final_check(champion: Plan, seed: Plan, evaluate: SampleEvaluator, samples: 
     return seed, e_seed, e_seed, b + 1  # blocks is never empty
 
 
-def best_distinct(cache: dict[tuple, float], count: int) -> list[Plan]:
+def best_distinct(cache: dict[PlanKey, float], count: int) -> list[Plan]:
     """The ``count`` plans with the lowest finite e_l in a ``Plan.key()`` -> e_l cache."""
     ranked = sorted((e, key) for key, e in cache.items() if np.isfinite(e))[:count]
     return [Plan(np.concatenate([np.asarray(g, dtype=np.int64) for g in key]), tuple(len(g) for g in key)) for _, key in ranked]

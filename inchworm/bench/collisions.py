@@ -27,16 +27,20 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.bodies import BOUND_LEVELS, CONTACT_BOUND
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
+
+if TYPE_CHECKING:
+    from coordinator.selection.selector import SelectionConfig
 
 LOCALIZERS = ("paper", "joint")
 NOISE_SCALES = (1.0, 3.0, 5.58)  # motion noise x1, x3 (9 deg, 0.15) and x5.58 (16.74 deg, 0.279)
@@ -55,12 +59,16 @@ class CollisionsBenchOptions:
     run: RunOptions = field(default_factory=RunOptions)  # its localizer is not used: ``localizers`` are
 
 
+# (trajectory, method, localizer, planned with bodies, robots, configs, seed, model, selection, noise scale)
+Job: TypeAlias = tuple[int, str, str, bool, int, int, int, ModelConfig, "SelectionConfig", float]
+
+
 def scaled(cfg: ModelConfig, factor: float) -> ModelConfig:
     """``cfg`` with its motion noise (turn sigma, drive sigma fraction) times ``factor``."""
     return replace(cfg, turn_sigma_rad=cfg.turn_sigma_rad * factor, drive_sigma_frac=cfg.drive_sigma_frac * factor)
 
 
-def run_one(job: tuple) -> dict:
+def run_one(job: Job) -> dict[str, Any]:
     """One (trajectory, method, localizer, planned with bodies or not) run; top-level for worker processes."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 
@@ -81,7 +89,7 @@ def run_one(job: tuple) -> dict:
     }
 
 
-def summarise(runs: list[dict], keys: list[tuple[str, str, bool, float]]) -> list[dict]:
+def summarise(runs: list[dict[str, Any]], keys: list[tuple[str, str, bool, float]]) -> list[dict[str, Any]]:
     """One row per (method, localizer, bodies, noise scale) with the contract's keys, plus the extras the table prints."""
     rows = []
     for method, localizer, bodies, scale in keys:
@@ -101,15 +109,16 @@ def summarise(runs: list[dict], keys: list[tuple[str, str, bool, float]]) -> lis
 
 def check(o: CollisionsBenchOptions) -> None:
     if o.run.model.robot_radius_m <= 0:
-        raise SwarmInputError("--robot-radius must be > 0 for counting contacts between bodies")
-    if o.trajectories < 1 or o.configs < 1 or o.robots < 2:
-        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+        raise OptionError("robot_radius_m", "must be > 0 for counting contacts between bodies", o.run.model)
+    for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
     if not o.methods or any(m not in METHODS for m in o.methods):
-        raise SwarmInputError(f"--methods must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}")
+        raise OptionError("methods", f"must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}", o)
     if not o.localizers or any(v not in LOCALIZERS for v in o.localizers):
-        raise SwarmInputError(f"--localizers must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}")
+        raise OptionError("localizers", f"must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}", o)
     if not o.noise_scales or not all(np.isfinite(k) and k > 0 for k in o.noise_scales):
-        raise SwarmInputError(f"--noise-scales must list factors > 0, got {','.join(map(str, o.noise_scales))!r}")
+        raise OptionError("noise_scales", f"must list factors > 0, got {','.join(map(str, o.noise_scales))!r}", o)
 
 
 def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
@@ -120,7 +129,7 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
     cfg = o.run.model
     keys = [(m, v, b, k) for k in o.noise_scales for v in o.localizers for m in o.methods for b in (True, False)]
     jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection, k) for m, v, b, k in keys for t in range(o.trajectories)]
-    runs: list[dict] = []
+    runs: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, o.workers)) as pool:
         for run_row in pool.map(run_one, jobs):
             runs.append(run_row)

@@ -36,7 +36,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -166,14 +166,14 @@ def stop_once(settings: ZenohSettings, run_id: str, robots: int, ack_timeout_s: 
 
 def estop_under_flood(robots: int = 10, connections: int = 3000, duration_s: float = 60.0, after_s: float | None = None,
                       ack_timeout_s: float = 2.0, say: Callable[[str], None] | None = None, path: str = "operator",
-                      router_files: int | None = None) -> dict:
+                      router_files: int | None = None) -> dict[str, Any]:
     """``{"connections", "tls", "robots", "reached", "ms_max", "duration_s", "after_s", "stops", "late", "probes",
     "public_blocked"}`` (``after_s`` defaults to ``min(duration_s, 60)``; ``ms_max`` None if no robot was reached).
     ``path="public"``: the stops go as before the operator listener, with the coordinator identity through the
     flooded public listener (the comparison in docs/benchmarks.md). ``router_files``: the router may open that many
     files (soft and hard limit; default: this process's limits)."""
     after_s = min(duration_s, 60.0) if after_s is None else after_s
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     run_id = f"flood{int(time.time())}"
     stops: list[list[float]] = []
     probes: list[bool] = []

@@ -51,6 +51,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import msgpack
 import numpy as np
@@ -60,11 +61,14 @@ from inchworm.output import last_json
 from inchworm.progress import Progress
 from inchworm.spawn import Spawned, run_process
 from inchworm.specs import AgentHostSpec, CoordinatorSpec, LaunchSpec
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.keys import coord_key, estop_key, robot_key, robot_wildcard, run_wildcard, truth_key, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, encode
+
+if TYPE_CHECKING:
+    from coordinator.run_result import RunResult
 
 
 @dataclass(frozen=True)
@@ -79,7 +83,7 @@ class FaultsBenchOptions:
 # -- lost robot ------------------------------------------------------------------------------
 
 
-def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, step: int = 2) -> dict:
+def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, step: int = 2) -> dict[str, Any]:
     """``swarm launch --kill-robot victim@step`` for seeds 0..seeds-1: detection and stop times, completion;
     ``summaries`` holds each run's JSON (the coordinator's, with the launcher's ``"kill"``) and ``"returncode"``."""
     summaries = []
@@ -101,7 +105,7 @@ def lost_robot(seeds: int, robots: int = 10, configs: int = 3, victim: int = 3, 
 # -- coordinator killed, standby taking over -----------------------------------------------------
 
 
-def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localizer: str = "paper") -> dict:
+def coordinator_takeover(seeds: int, robots: int = 10, configs: int = 3, localizer: str = "paper") -> dict[str, Any]:
     """``swarm launch --localizer LOCALIZER --standby --kill-coordinator STEP`` for seeds 0..seeds-1, STEP drawn among
     the run's steps; each run compared with the in-process run of its seed. ``summaries``: each run's JSON and
     ``"returncode"``."""
@@ -161,9 +165,9 @@ class Fuzzer:
             msg = [MotionCommand(run=r, step=far, robot=robot, config=1, turn_rad=0.1, drive_m=0.1, cmd_id=far),
                    ObserveRequest(run=r, step=far, robot=robot),
                    Status(run=r, step=far, robot=robot, state="refused", reason="fuzz", cmd_id=far),
-                   ObservationReport(run=r, step=far, robot=robot, observed=[], ranges=[], bearings=[]),
-                   TruthMessage(run=r, step=far, robot=robot, pose=[9.0, 9.0, 0.0]),
-                   TruthSetMessage(run=r, step=far, ids=[robot], poses=[[9.0, 9.0, 0.0]])][int(self.rng.integers(6))]
+                   ObservationReport(run=r, step=far, robot=robot, observed=(), ranges=(), bearings=()),
+                   TruthMessage(run=r, step=far, robot=robot, pose=(9.0, 9.0, 0.0)),
+                   TruthSetMessage(run=r, step=far, ids=(robot,), poses=((9.0, 9.0, 0.0),))][int(self.rng.integers(6))]
             return key, encode(msg)
         bad = [math.nan, math.inf, -math.inf, 1e308, -1e39, 2**64 + 5, -1, "x", None, [1.0]][int(self.rng.integers(10))]
         if kind == 2:  # non-finite, huge, negative or wrong-typed values in an otherwise valid command
@@ -181,7 +185,7 @@ class Fuzzer:
             return key, self.rng.bytes(16)
 
 
-def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: str = "ref57", rate: float = 4000.0) -> dict:
+def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: str = "ref57", rate: float = 4000.0) -> dict[str, Any]:
     """A distributed run under ``count`` hostile messages (``rate`` per second, from its first command on);
     compared with the in-process run of the same seed."""
     from coordinator.simulate import simulate  # noqa: PLC0415
@@ -192,7 +196,7 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     sent = 0
     with tempfile.TemporaryDirectory(prefix="bench-fuzz-") as tmp, open_session(hub_settings) as hub_session:
         traj_file = Path(tmp) / "traj.json"
@@ -229,12 +233,15 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
     return {"sent": sent, "process_deaths": deaths, "completed": coordinator.returncode == 0, "identical": identical}
 
 
-def same_table(summary: dict, ref) -> bool:
+def same_table(summary: dict[str, Any], ref: RunResult) -> bool:
     """The coordinator's per-configuration rows and P_f equal the in-process run's (to 1e-12: the distributed
     run reproduces every estimate bit for bit; the table's sums may differ in the last bit)."""
     e_l, follow, travelled = ref.localization_errors(), ref.following_errors(), ref.travelled()
     rows = summary.get("configs", [])
-    same = lambda a, b: a is not None and math.isclose(a, float(b), rel_tol=1e-12, abs_tol=1e-15)  # noqa: E731 (summation order)
+
+    def same(a: float | None, b: float) -> bool:  # to 1e-12: summation order
+        return a is not None and math.isclose(a, float(b), rel_tol=1e-12, abs_tol=1e-15)
+
     if len(rows) != len(ref.configs) or not same(summary.get("pf"), ref.pf()):
         return False
     anchors = ref.anchor_counts()
@@ -256,10 +263,11 @@ def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callab
 
     o = options
     _say = say or (lambda _text: None)
-    if o.seeds < 1 or o.fuzz < 0:
-        raise SwarmInputError(f"--seeds must be >= 1 and --fuzz >= 0, got {o.seeds} and {o.fuzz}")
-    if o.flood < 1 or not 1.0 <= o.flood_s <= 3600.0:
-        raise SwarmInputError(f"--flood must be >= 1 and --flood-s between 1 and 3600, got {o.flood} and {o.flood_s:g}")
+    for name, low in (("seeds", 1), ("fuzz", 0), ("flood", 1)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
+    if not 1.0 <= o.flood_s <= 3600.0:
+        raise OptionError("flood_s", f"must be between 1 and 3600, got {o.flood_s:g}", o)
     _say(f"gateway: {len(o.gateway_rows)} radio-fault rows over {o.seeds} seeds (each against its fault-free run)")
     rows = gateway_fault_rows(o.gateway_rows, range(o.seeds)) if o.gateway_rows else []
     for row in rows:

@@ -25,6 +25,7 @@ import tempfile
 from collections import Counter
 from collections.abc import Callable, Iterable
 from pathlib import Path
+from typing import Any
 
 from inchworm.output import last_json
 from inchworm.progress import Progress
@@ -35,7 +36,7 @@ RUN_TIMEOUT_S = 300.0  # one whole launch (busy machine); a run that takes longe
 
 
 def launch_gateway(seed: int, out: Path, drop: float = 0.0, corrupt: float = 0.0, delay: float = 0.0,
-                   robots: int = 10, configs: int = 3) -> tuple[dict | None, int]:
+                   robots: int = 10, configs: int = 3) -> tuple[dict[str, Any] | None, int]:
     """One ``swarm launch --driver gateway`` run of ``robots`` robots and ``configs`` configurations
     (random trajectory of ``seed``) with these radio faults; (its ``--json`` summary or None if it
     failed, the most motions any robot executed in one step)."""
@@ -67,14 +68,14 @@ def executions_per_step(events: Path) -> int:
     return max(counts.values(), default=0)
 
 
-def same_result(a: dict | None, b: dict | None) -> bool:
+def same_result(a: dict[str, Any] | None, b: dict[str, Any] | None) -> bool:
     """Whether two ``--json`` summaries have the same per-configuration table and P_f (exactly)."""
     return a is not None and b is not None and a["configs"] == b["configs"] and a["pf"] == b["pf"]
 
 
-def gateway_fault_row(drop: float, corrupt: float, delay: float, seeds: Iterable[int], baselines: dict[int, dict | None] | None = None,
+def gateway_fault_row(drop: float, corrupt: float, delay: float, seeds: Iterable[int], baselines: dict[int, dict[str, Any] | None] | None = None,
                       robots: int = 10, configs: int = 3, workdir: Path | None = None,
-                      progress: Callable[[int], None] | None = None) -> dict:
+                      progress: Callable[[int], None] | None = None) -> dict[str, float]:
     """``{"drop", "corrupt", "delay", "runs", "completed", "identical", "max_executions_per_step"}`` over ``seeds``.
 
     ``baselines`` (seed -> fault-free summary) is filled with the fault-free runs it makes, so
@@ -103,10 +104,10 @@ DEFAULT_ROWS = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))
 
 
 def gateway_fault_rows(rows: Iterable[tuple[float, float, float]] = DEFAULT_ROWS, seeds: Iterable[int] = range(10),
-                       robots: int = 10, configs: int = 3, show_progress: bool = True) -> list[dict]:
+                       robots: int = 10, configs: int = 3, show_progress: bool = True) -> list[dict[str, float]]:
     """``gateway_fault_row`` of each (drop, corrupt, delay) in ``rows``, sharing the fault-free runs."""
     rows, seeds = list(rows), list(seeds)
-    baselines: dict[int, dict | None] = {}
+    baselines: dict[int, dict[str, Any] | None] = {}
     bar = Progress(len(rows) * len(seeds), "bench faults (gateway)", show_progress)
     out = []
     for i, (drop, corrupt, delay) in enumerate(rows):

@@ -19,6 +19,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import IO, Any
 
 import msgspec
 import numpy as np
@@ -38,7 +39,7 @@ STALL_S = 12.0  # s: beyond the 10 s Zenoh session lease
 VICTIM, KILL_STEP, RESTART_STEP = 2, 2, 5
 
 
-def _wait_step(steps: list[int], step: int, proc: subprocess.Popen, timeout_s: float = 120.0) -> bool:
+def _wait_step(steps: list[int], step: int, proc: subprocess.Popen[Any], timeout_s: float = 120.0) -> bool:
     """Until a command of ``step`` (or later) went out; False if ``proc`` ended first or the time ran out."""
     deadline = time.monotonic() + timeout_s
     while not any(s >= step for s in steps):
@@ -48,7 +49,7 @@ def _wait_step(steps: list[int], step: int, proc: subprocess.Popen, timeout_s: f
     return True
 
 
-def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
+def rejoin_run(seed: int, tmp: Path, log: int | IO[Any] = subprocess.DEVNULL) -> bool:
     """One run (module doc): whether robot ``VICTIM`` rejoined and finished the run with the others (``log``: where the
     coordinator's stderr goes)."""
     traj = random_trajectory(6, 6, np.random.default_rng(seed))
@@ -59,7 +60,7 @@ def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
     hub, run_id = f"tcp/127.0.0.1:{port}", f"rejoin-{seed}"
     steps: list[int] = []
     truth: dict[int, tuple[float, ...]] = {}
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
 
     def on_command(key: str, payload: bytes) -> None:
         try:
@@ -96,7 +97,7 @@ def rejoin_run(seed: int, tmp: Path, log=subprocess.DEVNULL) -> bool:
     return VICTIM in [r["robot"] for r in result["rejoined"]] and VICTIM in result["steps"][-1]["ids"]
 
 
-def rejoin(runs: int) -> dict:
+def rejoin(runs: int) -> dict[str, float]:
     """``{"runs", "rejoined", "sensing_range_m"}`` over seeds 0..runs-1 (module doc)."""
     rejoined = 0
     progress = Progress(runs, "rejoin")
@@ -107,7 +108,7 @@ def rejoin(runs: int) -> dict:
     return {"runs": runs, "rejoined": rejoined, "sensing_range_m": ModelConfig().sensing_range_m}
 
 
-def coordinator_stall(runs: int, robots: int = 10, configs: int = 3, stall_s: float = STALL_S) -> dict:
+def coordinator_stall(runs: int, robots: int = 10, configs: int = 3, stall_s: float = STALL_S) -> dict[str, Any]:
     """``{"stall_s", "runs", "completed"}``: ``swarm launch --standby --stall-coordinator STEP:stall_s`` per seed."""
     from coordinator.simulate import simulate  # noqa: PLC0415
 

@@ -22,6 +22,7 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from runtime.wire.keys import robot_key, robot_wildcard
 from runtime.wire.messages import LinkRequest, MessageError, MotionCommand, decode, encode
 from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
 
+if TYPE_CHECKING:
+    import zenoh
+
 AFTER_RUN = 4  # forgeries per robot once the coordinator is gone
 SETTLE_S = 2.5  # after the last forgery: longer than the link's hold (the retry budget, 1.6 s) and a 0.5 m motion's emulation
 
@@ -45,7 +49,7 @@ def _f32(x: float) -> float:
 class Forger:
     """Publishes forgeries for every coordinator command it hears on run ``run_id`` (Zenoh thread)."""
 
-    def __init__(self, session, run_id: str) -> None:
+    def __init__(self, session: zenoh.Session, run_id: str) -> None:
         self.session, self.run_id = session, run_id
         self.commanded: dict[tuple[int, int], tuple[float, float]] = {}  # (robot, step) -> (turn, drive) as on the wire
         self.last: dict[int, MotionCommand] = {}
@@ -53,7 +57,7 @@ class Forger:
         self._lock = threading.Lock()
         self._sub = subscribe(session, robot_wildcard(run_id, "cmd"), self._on_command)
 
-    def _send(self, **fields) -> None:
+    def _send(self, **fields: Any) -> None:
         req = LinkRequest(run=self.run_id, kind="command", **fields)
         publish(self.session, robot_key(self.run_id, req.robot, "linkreq"), encode(req))
         with self._lock:
@@ -101,14 +105,14 @@ def unasked_motions(events: Path, commanded: dict[tuple[int, int], tuple[float, 
     return count
 
 
-def forged_link_requests(robots: int = 5, configs: int = 2, seed: int = 0) -> dict:
+def forged_link_requests(robots: int = 5, configs: int = 2, seed: int = 0) -> dict[str, int | bool]:
     """``{"sent", "executed", "completed"}``: forgeries sent, motions no coordinator asked for, the run exit 0."""
     traj = random_trajectory(robots, configs, np.random.default_rng(seed), **body_spacing(ModelConfig()))
     run_id = f"forged{seed}"
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     with tempfile.TemporaryDirectory(prefix="swarm-bench-forged-") as tmp, open_session(hub_settings), \
             open_session(member) as session:
         folder = Path(tmp)

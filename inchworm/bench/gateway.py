@@ -26,13 +26,14 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from inchworm.bench import BenchResult
 from inchworm.bench.runtime import RuntimeBenchOptions, measure
 from robot_agent.link import SerialLink
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.gateway.config import GatewayConfig, Port
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
@@ -88,7 +89,7 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
         traj = random_trajectory(2, 1, np.random.default_rng(seed))
         traj.save(folder / "trajectory.json")
         GatewayConfig((Port("radio0", "emulated", tuple(int(i) for i in traj.ids)),)).save(folder / "gateway.json")
-        procs: list[subprocess.Popen] = []
+        procs: list[subprocess.Popen[Any]] = []
         try:
             live = start_emulator(EmulatorSpec(config=str(folder / "gateway.json"), trajectory=str(folder / "trajectory.json"), seed=seed,
                                                write_config=str(folder / "live.json")), procs)
@@ -118,8 +119,9 @@ def bench_gateway(options: GatewayBenchOptions = GatewayBenchOptions(), say: Cal
     """Codec throughput, pty round trip, and the step time of the gateway against the simulated driver."""
     args = options
     _say = say or (lambda _text: None)
-    if args.robots < 2 or args.steps < 1 or args.frames < 1000 or args.commands < 1 or args.rounds < 1:
-        raise SwarmInputError("need --robots >= 2, --steps >= 1, --frames >= 1000, --commands >= 1, --rounds >= 1")
+    for name, low in (("robots", 2), ("steps", 1), ("frames", 1000), ("commands", 1), ("rounds", 1)):
+        if getattr(args, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(args, name)}", args)
     _say(f"codec: {args.frames} frames ...")
     codec = codec_frames_per_s(args.frames)
     _say(f"codec: {codec:,.0f} frames/s; pty round trip: {args.commands} commands ...")

@@ -23,7 +23,7 @@ import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 
 if TYPE_CHECKING:  # annotations only: the search and plotting are imported when a command runs
@@ -230,10 +230,11 @@ def table(results: list[dict[str, Any]], gtsam_used: bool) -> str:
 def bench_localize(options: LocalizeBenchOptions = LocalizeBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
     """Time and accuracy per swarm size; ``say`` is told each trial as it starts."""
     o = options
-    if o.trials < 1 or o.repeats < 1:
-        raise SwarmInputError(f"--trials and --repeats must be >= 1, got {o.trials} and {o.repeats}")
+    for name in ("trials", "repeats"):
+        if getattr(o, name) < 1:
+            raise OptionError(name, f"must be >= 1, got {getattr(o, name)}", o)
     if not o.sizes or min(o.sizes) < 2:
-        raise SwarmInputError(f"--sizes must list integers >= 2, got {o.sizes}")
+        raise OptionError("sizes", f"must list integers >= 2, got {o.sizes}", o)
     gtsam = load_gtsam() if o.gtsam else None
     results = [bench_size(n, o.model, o, gtsam, say) for n in o.sizes]
     from coordinator.localization.sparse_lm import sparse_backend  # noqa: PLC0415

@@ -20,13 +20,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 WORLDS = ("model", "physics")
@@ -44,7 +45,7 @@ class PhysicsBenchOptions:
     physics: tuple[str, ...] = ()  # --physics-param NAME=VALUE
 
 
-def run_one(job: tuple) -> dict:
+def run_one(job: tuple[int, str, PhysicsBenchOptions]) -> dict[str, Any]:
     """One (trajectory, world) run; top-level for worker processes."""
     from inchworm.simulation import simulate  # noqa: PLC0415
     from runtime.world.params import parse_physics_params  # noqa: PLC0415
@@ -69,10 +70,11 @@ def run_one(job: tuple) -> dict:
 
 
 def check(o: PhysicsBenchOptions) -> None:
-    if o.trajectories < 1 or o.configs < 1 or o.robots < 2:
-        raise SwarmInputError("--trajectories and --configs must be >= 1 and --robots >= 2")
+    for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2)):
+        if getattr(o, name) < low:
+            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
     if o.method not in METHODS:
-        raise SwarmInputError(f"--method must be one of {', '.join(METHODS)}, got {o.method!r}")
+        raise OptionError("method", f"must be one of {', '.join(METHODS)}, got {o.method!r}", o)
     from runtime.world.params import parse_physics_params  # noqa: PLC0415 - the physics extra
     from runtime.world.physics import require_pymunk  # noqa: PLC0415
 
@@ -85,7 +87,7 @@ def bench_physics(options: PhysicsBenchOptions = PhysicsBenchOptions(), progress
     o = options
     check(o)
     jobs = [(t, w, o) for t in range(o.trajectories) for w in WORLDS]
-    runs: list[dict] = []
+    runs: list[dict[str, Any]] = []
     with ProcessPoolExecutor(max_workers=max(1, o.workers)) as pool:
         for row in pool.map(run_one, jobs):
             runs.append(row)

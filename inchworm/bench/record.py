@@ -33,16 +33,18 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
     EstimateMessage,
+    Message,
     MotionCommand,
     ObservationReport,
     ObserveRequest,
@@ -63,7 +65,7 @@ MB = 2**20
 
 @dataclass(frozen=True)
 class RecordBenchOptions:
-    sizes: tuple[int, ...] = (10, 50)
+    sizes: tuple[int, ...] = field(default=(10, 50), metadata={"flag": "--robots"})
     steps: int = 40  # steps of messages recorded per run
     steps_per_config: int = 4  # one PlanMessage per configuration
     repeats: int = 3  # recordings per size and mode, median reported
@@ -79,7 +81,7 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
     heading = rng.uniform(-math.pi, math.pi, n)
     ids = list(range(n))
     moving = ids[: max(1, n // 2)] if step % 2 else ids[n // 2:]
-    msgs: list = []
+    msgs: list[Message] = []
     if plan:
         msgs.append(PlanMessage(run=RUN, step=step, config=1 + step // 4, n_anchors=n - len(moving),
                                 groups=[ids[: max(1, n // 2)], ids[max(1, n // 2):] or [n - 1]] if n > 1 else [[0]]))
@@ -103,7 +105,7 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
     return [(message_key(m), encode(m)) for m in msgs]
 
 
-def record_once(messages: list[tuple[str, bytes]], trajectory: dict, folder: Path, foxglove: bool) -> dict:
+def record_once(messages: list[tuple[str, bytes]], trajectory: dict[str, Any], folder: Path, foxglove: bool) -> dict[str, float]:
     """Write ``messages`` through a fresh recorder; wall and CPU seconds from the first write to ``close()``."""
     path = folder / f"bench-{foxglove}.mcap"
     rec = McapRecorder(path, RUN, {"trajectory": trajectory}, foxglove=foxglove)
@@ -123,14 +125,14 @@ def bench_record(options: RecordBenchOptions = RecordBenchOptions(), say: Callab
     sizes = list(args.sizes)
     step_ms = list(args.step_ms)
     if not sizes or min(sizes) < 1:
-        raise SwarmInputError(f"--robots must list integers >= 1, got {args.sizes}")
+        raise OptionError("sizes", f"must list integers >= 1, got {args.sizes}", args)
     if len(step_ms) == 1:
         step_ms = step_ms * len(sizes)
     if len(step_ms) != len(sizes) or min(step_ms) <= 0:
-        raise SwarmInputError(f"--step-ms: give one positive value or one per size ({len(sizes)}), got {','.join(map(str, args.step_ms))!r}")
+        raise OptionError("step_ms", f": give one positive value or one per size ({len(sizes)}), got {','.join(map(str, args.step_ms))!r}", args)
     for name in ("steps", "steps_per_config", "repeats"):
         if getattr(args, name) < 1:
-            raise SwarmInputError(f"--{name.replace('_', '-')} must be at least 1")
+            raise OptionError(name, "must be at least 1", args)
     rng = np.random.default_rng(args.seed)
     results = []
     lines = [f"{'N':>4} {'derived':>7} {'msgs/step':>9} {'msgs/s':>8} {'MB/s':>6} {'us/msg':>7} {'ms/step':>8} "

@@ -52,14 +52,23 @@ import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 import numpy as np
 
 from inchworm.bench import BenchResult
-from runtime.errors import SwarmInputError, SwarmRunError
+from runtime.errors import OptionError, SwarmRunError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
+
+if TYPE_CHECKING:
+    from coordinator.backend import SwarmBackend
+    from coordinator.executor import ExecutorListener
+    from coordinator.plan import Plan
+    from coordinator.run_result import ContactEvent
+    from coordinator.selection.selector import Selection
+    from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 METHODS = ("no-anchors", "ref57")
 
@@ -88,21 +97,21 @@ class StepTimer:
     many steps as it needs to keep them apart: hundreds at 500 robots, so the configurations alone do not bound
     the run)."""
 
-    def __init__(self, inner, limit: int | None = None) -> None:
+    def __init__(self, inner: ExecutorListener, limit: int | None = None) -> None:
         self.inner = inner
         self.limit = limit
         self.mark: float | None = None
         self.seconds: list[float] = []
         self.publish_s: list[float] = []  # the inner on_estimate of each timed step (publishing the estimate)
 
-    def on_plan(self, config_index, first_step, plan, selection) -> None:
+    def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
         self.inner.on_plan(config_index, first_step, plan, selection)
         self.mark = time.perf_counter()
 
-    def on_contacts(self, contacts) -> None:
+    def on_contacts(self, contacts: list[ContactEvent]) -> None:
         self.inner.on_contacts(contacts)
 
-    def on_estimate(self, step, estimate) -> None:
+    def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
         start = time.perf_counter()
         self.inner.on_estimate(step, estimate)
         now = time.perf_counter()
@@ -117,23 +126,23 @@ class StepTimer:
 class TimedBackend:
     """The backend with its ``execute`` and ``observe`` calls timed (seconds)."""
 
-    def __init__(self, inner) -> None:
+    def __init__(self, inner: SwarmBackend) -> None:
         self.inner, self.ids = inner, inner.ids
         self.execute_s: list[float] = []
         self.observe_s: list[float] = []
 
-    def execute(self, step) -> None:
+    def execute(self, step: StepCommands) -> None:
         t = time.perf_counter()
         self.inner.execute(step)
         self.execute_s.append(time.perf_counter() - t)
 
-    def observe(self):
+    def observe(self) -> Observations:
         t = time.perf_counter()
         obs = self.inner.observe()
         self.observe_s.append(time.perf_counter() - t)
         return obs
 
-    def true_poses(self):
+    def true_poses(self) -> np.ndarray | None:
         return self.inner.true_poses()
 
     def take_lost(self) -> dict[int, str]:
@@ -169,7 +178,10 @@ def breakdown(timer: StepTimer, timed: TimedBackend) -> dict[str, float]:
     (localization, bookkeeping) and publishing the estimate (``timer`` and ``timed`` time the same steps)."""
     parts = list(zip(timer.seconds, timed.execute_s[-len(timer.seconds):], timed.observe_s[-len(timer.seconds):],
                      timer.publish_s, strict=True))
-    med = lambda values: round(statistics.median(values) * 1e3, 3)  # noqa: E731
+
+    def med(values: list[float]) -> float:
+        return round(statistics.median(values) * 1e3, 3)
+
     return {"commands": med([c for _, c, _, _ in parts]), "observe": med([o for _, _, o, _ in parts]),
             "localize": med([s - c - o - p for s, c, o, p in parts]), "publish_estimate": med([p for _, _, _, p in parts])}
 
@@ -178,11 +190,11 @@ def _say(text: str) -> None:
     print(f"bench runtime: {text}", file=sys.stderr, flush=True)
 
 
-def _raise_interrupt(*_) -> None:
+def _raise_interrupt(*_: object) -> None:
     raise KeyboardInterrupt
 
 
-def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
+def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict[str, Any]:
     """Start the hub and ``n`` agents, time ``args.steps`` steps, stop everything; one result row.
 
     ``driver="gateway"``: the agents drive emulated robots through their links and ptys
@@ -214,7 +226,7 @@ def measure(n: int, args: RuntimeBenchOptions, driver: str = "sim") -> dict:
     port = free_tcp_port()
     hub_settings, member = loopback_hub(port)
     hub = f"tcp/127.0.0.1:{port}"
-    procs: list[subprocess.Popen] = []
+    procs: list[subprocess.Popen[Any]] = []
     try:
         with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="swarm-bench-") as tmp:
             t0 = time.monotonic()
@@ -281,13 +293,13 @@ def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> Bench
     args = options
     sizes = list(args.agents)
     if not sizes or min(sizes) < 2:
-        raise SwarmInputError(f"--agents must list integers >= 2, got {args.agents}")
+        raise OptionError("agents", f"must list integers >= 2, got {args.agents}", args)
     if args.steps < 1:
-        raise SwarmInputError(f"--steps must be >= 1, got {args.steps}")
+        raise OptionError("steps", f"must be >= 1, got {args.steps}", args)
     if args.rtt_count < 2:
-        raise SwarmInputError(f"--rtt-count must be >= 2, got {args.rtt_count}")
+        raise OptionError("rtt_count", f"must be >= 2, got {args.rtt_count}", args)
     if args.method == "ref57" and any(n % 2 for n in sizes):
-        raise SwarmInputError("--method ref57 needs even numbers of agents")
+        raise OptionError("method", "ref57 needs even numbers of agents", args)
     previous = signal.signal(signal.SIGTERM, _raise_interrupt)
     rows = []
     try:

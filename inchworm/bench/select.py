@@ -23,7 +23,7 @@ import numpy as np
 
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import body_spacing, random_trajectory
 
@@ -45,9 +45,9 @@ def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callab
 
     o = options
     if o.repeats < 1:
-        raise SwarmInputError(f"--repeats must be >= 1, got {o.repeats}")
+        raise OptionError("repeats", f"must be >= 1, got {o.repeats}", o)
     if not o.sizes or min(o.sizes) < 2:
-        raise SwarmInputError(f"--sizes must list integers >= 2, got {o.sizes}")
+        raise OptionError("sizes", f"must list integers >= 2, got {o.sizes}", o)
     if o.one_core and hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
     cfg = o.run.model

@@ -109,7 +109,7 @@ def experiment_setup(job: Job) -> tuple[np.random.Generator, np.ndarray, np.ndar
     return rng, start, desired, estimate, mc
 
 
-def run_experiment(job: Job) -> dict:
+def run_experiment(job: Job) -> Row:
     """All three parts for one experiment: a flat row (e_l in m; NaN where a part does not apply).
 
     When part 2 runs, the random and heuristic plans' e_l are read from the exhaustive
@@ -151,7 +151,7 @@ def run_experiment(job: Job) -> dict:
     fresh_none = float(evaluate(fresh, estimate, desired, [random_plans[0]])[0])
     fresh_random, fresh_heuristic, *fresh_worst_best = (float(v) for v in evaluate(fresh, estimate, desired, again))
 
-    row: dict = {"experiment": job.experiment, "distance_m": float(np.mean(np.linalg.norm(desired - start[:, :2], axis=1)))}
+    row: Row = {"experiment": job.experiment, "distance_m": float(np.mean(np.linalg.norm(desired - start[:, :2], axis=1)))}
     for n_a in counts:
         row[f"e_l_na{n_a}"] = e_l[n_a]
     for n_a in counts:
@@ -196,12 +196,12 @@ def _mean(values: list[float]) -> float | None:
     return float(v.mean()) if len(v) else None
 
 
-def summarise(rows: list[dict], robots: int) -> dict:
+def summarise(rows: list[Row], robots: int) -> dict[str, Any]:
     """The JSON contract (e_l in m): per-n_a means and ratios, Fig. 5 means, heuristic vs random."""
     from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
     counts = feasible_anchor_counts(robots)
     e_mean = {str(k): _mean([r[f"e_l_na{k}"] for r in rows]) for k in counts}
-    out: dict = {
+    out: dict[str, Any] = {
         "robots": robots,
         "experiments": len(rows),
         "distance_mean": _mean([r["distance_m"] for r in rows]),
@@ -235,12 +235,15 @@ def _std_mm(values: list[float]) -> float:
     return float(v.std(ddof=1)) * 1000 if len(v) > 1 else 0.0
 
 
-def report(rows: list[dict], summary: dict, samples: int, localizer: str) -> str:
+def report(rows: list[Row], summary: dict[str, Any], samples: int, localizer: str) -> str:
     """The human-readable tables (e_l in mm)."""
     from coordinator.plan import feasible_anchor_counts, n_steps  # noqa: PLC0415
     n, counts = summary["robots"], feasible_anchor_counts(summary["robots"])
     dist = np.array([r["distance_m"] for r in rows])
-    mm = lambda v: "-" if v is None else f"{1000 * v:.2f}"  # noqa: E731
+
+    def mm(v: float | None) -> str:
+        return "-" if v is None else f"{1000 * v:.2f}"
+
     lines = [
         f"swarm study anchors: n_r = {n}, {len(rows)} experiments, {samples} Monte Carlo samples per plan, localizer {localizer}",
         f"average distance travelled: mean {dist.mean():.3f} m (min {dist.min():.3f}, max {dist.max():.3f})",
@@ -336,10 +339,10 @@ def _save_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, hea
 class AnchorsOptions:
     """``experiments`` random experiments of ``robots`` robots, ``samples`` Monte Carlo samples per plan; experiment e uses the seed [seed, e]."""
 
-    robots: int = 10
-    experiments: int = 60
-    samples: int = 8
-    seed: int = 0
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    experiments: int = field(default=60, metadata={"help": "random experiments (default %(default)s; the paper: 1000)"})
+    samples: int = field(default=8, metadata={"help": "Monte Carlo samples per plan per experiment"})
+    seed: int = field(default=0, metadata={"help": "experiment e uses the seed [seed, e]"})
     model: ModelConfig = field(default_factory=ModelConfig)
     localizer: str = "paper"
 
@@ -421,7 +424,7 @@ class AnchorsResult:
 
 
 def study_anchors(
-    options: AnchorsOptions = AnchorsOptions(),
+    options: AnchorsOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -429,6 +432,7 @@ def study_anchors(
     progress: Callable[[int, int], None] | None = None,
 ) -> AnchorsResult:
     """Fig. 4, Fig. 5 and Appendix A; with ``out`` each experiment is kept in ``out/experiments.jsonl`` and ``.csv`` as it finishes."""
+    options = AnchorsOptions() if options is None else options
     log = StudyLog(out, "experiments", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_experiment, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

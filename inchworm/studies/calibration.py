@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from inchworm.comparison import METHODS, REFERENCE, RunTask, run_one, summarise
+from coordinator.strategies import METHODS
+from inchworm.comparison import REFERENCE, RunTask, run_one, summarise
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_among, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -38,17 +39,18 @@ CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED 
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 
-    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
-    sensing_scales: tuple[float, ...] = (1.0,)
-    target: float = PAPER_REF57_PF
-    max_motion_scale: float = 32.0
-    calibration_trajectories: int = 12
-    iterations: int = 7
-    robots: int = 10
-    trajectories: int = 30
-    configs: int = 15
-    seeds: tuple[int, ...] = (0, 1000)
-    methods: tuple[str, ...] = ("inchworm", "inchworm-equal-speed", "ref57")
+    localizers: tuple[str, ...] = field(default=BUILTIN_LOCALIZERS, metadata={"help": "localizers, any registered one"})
+    sensing_scales: tuple[float, ...] = field(default=(1.0,), metadata={"help": "factors on range and bearing sigmas"})
+    target: float = field(default=PAPER_REF57_PF, metadata={"help": "ref57 P_f to match (default the paper's %(default)s)"})
+    max_motion_scale: float = field(default=32.0, metadata={"help": "largest factor on turn and drive sigmas tried"})
+    calibration_trajectories: int = field(default=12, metadata={"help": "ref57 trajectories per bisection step"})
+    iterations: int = field(default=7, metadata={"help": "bisection steps on log(motion scale)"})
+    robots: int = field(default=10, metadata={"help": "robots per trajectory"})
+    trajectories: int = field(default=30, metadata={"help": "trajectories per seed set"})
+    configs: int = field(default=15, metadata={"help": "configurations per trajectory"})
+    seeds: tuple[int, ...] = field(default=(0, 1000), metadata={"help": "seed sets; trajectory t of set s uses seed s + t"})
+    methods: tuple[str, ...] = field(default=("inchworm", "inchworm-equal-speed", "ref57"), metadata={
+        "help": "comma-separated methods compared with ref57 at the calibrated noise"})
     run: RunOptions = field(default_factory=RunOptions)
 
     def __post_init__(self) -> None:
@@ -109,14 +111,15 @@ def calibrate(options: CalibrationOptions, localizer: str, sensing: float, runs:
     return motion, pf(motion)
 
 
-def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, sensing: float, motion: float, runs: _Runs) -> tuple[dict, list[Row]]:
+def compare_at(options: CalibrationOptions, cfg: ModelConfig, localizer: str, sensing: float, motion: float,
+               runs: _Runs) -> tuple[dict[str, Any], list[Row]]:
     """Per seed set and pooled: P_f per method, ratio to ref57 and paired p-values."""
     o = options
     tags = (("localizer", localizer), ("sensing_scale", sensing), ("motion_scale", motion))
     tasks = [RunTask(t, m, o.robots, o.configs, s, cfg, localizer, o.run.selection, tags=(*tags, ("seed_set", s)))
              for s in o.seeds for t in range(o.trajectories) for m in o.methods]
     rows = runs.comparison(tasks)
-    out: dict = {}
+    out: dict[str, Any] = {}
     methods = list(o.methods)
     for label, subset in [(str(s), [r for r in rows if r["seed_set"] == s]) for s in o.seeds] + [("pooled", rows)]:
         keyed = [{**r, "trajectory": (r["seed_set"], r["trajectory"])} for r in subset]
@@ -169,9 +172,8 @@ class CalibrationResult:
 
     def plot(self, ax: Any) -> Any:
         """Pooled P_f of every method at each calibrated setting (bars: 97 % t-interval of the mean, clipped at 0)."""
-        from inchworm.comparison import CONFIDENCE, mean_ci  # noqa: PLC0415
         from inchworm.plots import title  # noqa: PLC0415
-        from inchworm.stats import clipped_at_zero  # noqa: PLC0415
+        from inchworm.stats import CONFIDENCE, clipped_at_zero, mean_ci  # noqa: PLC0415
 
         o = self.options
         width = 0.8 / len(o.methods)
@@ -204,7 +206,7 @@ class CalibrationResult:
 
 
 def study_calibration(
-    options: CalibrationOptions = CalibrationOptions(),
+    options: CalibrationOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -213,6 +215,7 @@ def study_calibration(
 ) -> CalibrationResult:
     """Calibrate, then compare at the calibrated noise; with ``out`` every run is kept in ``out/runs.jsonl`` (calibration runs too)
     and the comparison runs in ``out/runs.csv`` as they finish."""
+    options = CalibrationOptions() if options is None else options
     o = options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     runs = _Runs(executor, log, progress, total=len(o.localizers) * len(o.sensing_scales) * len(o.seeds) * o.trajectories * len(o.methods))

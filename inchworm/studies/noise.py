@@ -33,13 +33,13 @@ METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
 class NoiseOptions:
     """The sweep: factors on the motion and sensing sigmas of ``run.model``, localizers, and the trajectories of every setting."""
 
-    motion_scales: tuple[float, ...] = (0.5, 1.0, 2.0, 4.0)
-    sensing_scales: tuple[float, ...] = (0.25, 1.0, 4.0)
-    localizers: tuple[str, ...] = BUILTIN_LOCALIZERS  # or any registered localizer
-    robots: int = 10
-    trajectories: int = 3
-    configs: int = 4
-    seed: int = 0
+    motion_scales: tuple[float, ...] = field(default=(0.5, 1.0, 2.0, 4.0), metadata={"help": "factors on turn and drive sigmas"})
+    sensing_scales: tuple[float, ...] = field(default=(0.25, 1.0, 4.0), metadata={"help": "factors on range and bearing sigmas"})
+    localizers: tuple[str, ...] = field(default=BUILTIN_LOCALIZERS, metadata={"help": "localizers to sweep, any registered one"})
+    robots: int = field(default=10, metadata={"help": "robots per trajectory"})
+    trajectories: int = field(default=3, metadata={"help": "random trajectories per setting"})
+    configs: int = field(default=4, metadata={"help": "configurations per trajectory"})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectories and noise"})
     run: RunOptions = field(default_factory=RunOptions)
 
     def __post_init__(self) -> None:
@@ -142,7 +142,7 @@ def summarise(rows: list[Row], options: NoiseOptions) -> list[dict[str, Any]]:
 
 
 def study_noise(
-    options: NoiseOptions = NoiseOptions(),
+    options: NoiseOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -150,6 +150,7 @@ def study_noise(
     progress: Callable[[int, int], None] | None = None,
 ) -> NoiseResult:
     """Run the sweep; with ``out`` every run is kept in ``out/runs.jsonl`` and ``out/runs.csv`` as it finishes."""
+    options = NoiseOptions() if options is None else options
     log = StudyLog(out, "runs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_one, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

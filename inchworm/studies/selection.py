@@ -46,6 +46,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
     from coordinator.plan import Plan
     from coordinator.selection.monte_carlo import MonteCarlo
     from coordinator.selection.selector import SelectionConfig
+    from runtime.models.state import SwarmEstimate
 
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
@@ -60,7 +61,7 @@ class Budget:
     eval: int
 
 
-def _errors(mc: MonteCarlo, estimate, desired, plans: list[Plan]) -> np.ndarray:
+def _errors(mc: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan]) -> np.ndarray:
     return np.concatenate([mc.localization_errors(estimate, desired, plans[i : i + CHUNK]) for i in range(0, len(plans), CHUNK)])
 
 
@@ -77,7 +78,7 @@ class ConfigTask:
         return str(self.job.experiment)
 
 
-def run_config(task: ConfigTask) -> dict:
+def run_config(task: ConfigTask) -> Row:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
     from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance  # noqa: PLC0415
     from coordinator.selection.clear_pairs import PairTable  # noqa: PLC0415
@@ -101,7 +102,7 @@ def run_config(task: ConfigTask) -> dict:
         return bool(pairs.clear([plan])[0]) and plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
 
     online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
-    row: dict = {"config": job.experiment, "chosen_na": online.n_anchors}
+    row: Row = {"config": job.experiment, "chosen_na": online.n_anchors}
     all_move = Plan.equal(np.arange(n), 0)
     e0 = float(final.localization_errors(estimate, desired, [all_move])[0])
     # n_a = 0 (P_l = 1) competes only where its one step is a plan the search may return: with bodies it can be crowded
@@ -163,7 +164,7 @@ def run_config(task: ConfigTask) -> dict:
     return row
 
 
-def count_gap(final: MonteCarlo, estimate, desired: np.ndarray, selection: SelectionConfig, best_plan: dict[int, Plan],
+def count_gap(final: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, selection: SelectionConfig, best_plan: dict[int, Plan],
               best_na: int, chosen_na: int) -> float:
     """How many standard errors the best count's P_s (Eq. 3) exceeds the chosen count's on the evaluation set: each
     count's best clear plan known, e_l per sample on the same samples (common random numbers), P_l = e_l / the mean
@@ -178,15 +179,16 @@ def count_gap(final: MonteCarlo, estimate, desired: np.ndarray, selection: Selec
 
     def p_s(n_a: int) -> np.ndarray:
         e_l = final.localization_errors(estimate, desired, [best_plan[n_a]], per_sample=True)[0]
-        return selection.w_v * speed_performance(n, n_a) - selection.w_l * e_l / e0
+        out: np.ndarray = selection.w_v * speed_performance(n, n_a) - selection.w_l * e_l / e0
+        return out
     gap = p_s(best_na) - p_s(chosen_na)
     return float(gap.mean() / (gap.std(ddof=1) / np.sqrt(len(gap))))
 
 
-def summarise(rows: list[dict], robots: int) -> dict:
+def summarise(rows: list[Row], robots: int) -> dict[str, Any]:
     """Per count and pooled: ratios of e_l to the optimum on the evaluation set (m / m)."""
     from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
-    out: dict = {"counts": {}}
+    out: dict[str, Any] = {"counts": {}}
     pooled: dict[str, list[float]] = {}
     for n_a in (k for k in feasible_anchor_counts(robots) if k > 0):
         with_opt = [r for r in rows if f"na{n_a}_optimum" in r]
@@ -217,7 +219,7 @@ def summarise(rows: list[dict], robots: int) -> dict:
 BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation set
 
 
-def search_vs_heuristic(rows: list[dict], robots: int) -> dict[str, dict[str, int]]:
+def search_vs_heuristic(rows: list[Row], robots: int) -> dict[str, dict[str, int]]:
     """Per count: selections, how many returned the heuristic seed, and how many beat it (or lost to it) on the
     evaluation set by more than ``BEYOND_NOISE`` standard errors of the paired Monte Carlo difference."""
     from coordinator.plan import feasible_anchor_counts  # noqa: PLC0415
@@ -238,7 +240,7 @@ def within_noise(row: Row) -> int:
     return int(row["na_within_noise"] if "na_within_noise" in row else row["na_agrees"])
 
 
-def read_rows(path: Path) -> list[dict]:
+def read_rows(path: Path) -> list[Row]:
     """The rows of a study's ``configs.csv`` (numbers back as numbers, empty cells dropped)."""
     if not path.exists():
         raise OptionError("from_csv", f": no such file {path}")
@@ -253,14 +255,15 @@ def read_rows(path: Path) -> list[dict]:
 class SelectionStudyOptions:
     """``configs`` random configuration changes of ``robots`` robots; configuration c uses the seed [seed, c]."""
 
-    robots: int = 8
-    configs: int = 20
-    screen_samples: int = 32
-    pick_samples: int = 256
-    eval_samples: int = 512
-    seed: int = 0
+    robots: int = field(default=8, metadata={"help": "n_r"})
+    configs: int = field(default=20, metadata={"help": "random configuration changes"})
+    screen_samples: int = field(default=32, metadata={"help": "samples per plan to shortlist the exhaustive enumeration"})
+    pick_samples: int = field(default=256, metadata={"help": "fresh samples to pick the optimum from the shortlist"})
+    eval_samples: int = field(default=512, metadata={"help": "fresh samples every reported plan is evaluated on"})
+    seed: int = field(default=0, metadata={"help": "configuration c uses the seed [seed, c]"})
     run: RunOptions = field(default_factory=RunOptions)
-    optimum: bool = True  # False: skip the exhaustive enumeration (the search against the heuristic only)
+    optimum: bool = field(default=True, metadata={  # False: skip the exhaustive enumeration
+        "help": "skip the exhaustive optimum (search against the heuristic only)", "flag": "--no-optimum"})
 
     def __post_init__(self) -> None:
         check_at_least(self, "robots", 3)
@@ -349,7 +352,7 @@ class SelectionStudyResult:
 
 
 def study_selection(
-    options: SelectionStudyOptions = SelectionStudyOptions(),
+    options: SelectionStudyOptions | None = None,
     *,
     executor: Executor | None = None,
     out: StrPath | None = None,
@@ -357,6 +360,7 @@ def study_selection(
     progress: Callable[[int, int], None] | None = None,
 ) -> SelectionStudyResult:
     """Run the study; with ``out`` every configuration is kept in ``out/configs.jsonl`` and ``out/configs.csv`` as it finishes."""
+    options = SelectionStudyOptions() if options is None else options
     log = StudyLog(out, "configs", options_dict(options), resume) if out is not None else None
     rows = run_tasks(run_config, options.tasks(), executor=executor, log=log, progress=progress)
     if log is not None:

@@ -27,7 +27,7 @@ import functools
 import heapq
 from collections import deque
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -49,14 +49,14 @@ TOLERANCE = 1e-9  # relative: bounds within this of the allowed one are not conf
 def closest_time(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     """The s in [0, 1] minimising |offset + s velocity| for (..., 2) arrays (0 when ``velocity`` is 0)."""
     vv = np.einsum("...k,...k->...", velocity, velocity)
-    return np.clip(-np.einsum("...k,...k->...", offset, velocity) / np.where(vv > 0, vv, 1.0), 0.0, 1.0)
+    return cast(np.ndarray, np.clip(-np.einsum("...k,...k->...", offset, velocity) / np.where(vv > 0, vv, 1.0), 0.0, 1.0))
 
 
 def closest_approach(offset: np.ndarray, velocity: np.ndarray) -> np.ndarray:
     """min over s in [0, 1] of |offset + s velocity| for (..., 2) arrays (m): the closest approach
     of two robots whose relative position moves linearly from ``offset`` to ``offset + velocity``."""
     rel = offset + closest_time(offset, velocity)[..., None] * velocity
-    return np.hypot(rel[..., 0], rel[..., 1])
+    return cast(np.ndarray, np.hypot(rel[..., 0], rel[..., 1]))
 
 
 INDEX_MIN = 128  # robots from which candidate pairs come from a k-d tree (fewer: every pair, as cheap)
@@ -200,7 +200,7 @@ class BodyCheck:
 
     def _moved(self, before: np.ndarray) -> np.ndarray:
         """(n,) the robots that stand at their desired positions in ``before`` (n, 2) having moved there."""
-        return self.has_path & np.all(np.asarray(before)[:, :2] == self.desired, axis=1)
+        return cast(np.ndarray, self.has_path & np.all(np.asarray(before)[:, :2] == self.desired, axis=1))
 
     def _reach_sigmas(self) -> float:
         """z with 2 Phi(-z) = the strictest bound in use: a pair whose mean positions stay more than
@@ -506,7 +506,7 @@ def overlapping_pairs(xy: np.ndarray, radius: float) -> np.ndarray:
     if not len(pairs):
         return np.zeros((0, 2), np.int64)
     d = np.linalg.norm(xy[pairs[:, 0]] - xy[pairs[:, 1]], axis=1)
-    return pairs[d < 2.0 * radius]
+    return cast(np.ndarray, pairs[d < 2.0 * radius])
 
 
 def check_apart(xy: np.ndarray, ids: np.ndarray, radius: float, where: str) -> None:
@@ -517,7 +517,7 @@ def check_apart(xy: np.ndarray, ids: np.ndarray, radius: float, where: str) -> N
         more = f" (and {len(pairs) - 1} more pairs)" if len(pairs) > 1 else ""
         raise SwarmInputError(
             f"{where}: robots {int(ids[i])} and {int(ids[j])} overlap: centres {np.linalg.norm(xy[i] - xy[j]):.4f} m apart, "
-            f"bodies of radius {radius:g} m need {2 * radius:g} m{more} (--robot-radius 0 for point robots)"
+            f"bodies of radius {radius:g} m need {2 * radius:g} m{more} (robot radius 0: point robots)"
         )
 
 

@@ -7,7 +7,7 @@ every command that simulates exposes them as options (see ``swarm_cli.options``)
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 
 from runtime.errors import SwarmInputError
 
@@ -35,7 +35,7 @@ class ModelConfig:
     bearing_sigma_rad: float = math.radians(2.0)
     sensing_range_m: float = 0.5
     dropout_prob: float = 0.0
-    robot_radius_m: float = 0.011
+    robot_radius_m: float = field(default=0.011, metadata={"flag": "--robot-radius"})
 
     def __post_init__(self) -> None:
         for f in fields(self):

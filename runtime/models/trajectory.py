@@ -17,6 +17,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -61,7 +62,7 @@ class Trajectory:
     def n(self) -> int:
         return len(self.ids)
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {
             "robots": self.ids.tolist(),
             "initial_poses": self.initial_poses.tolist(),
@@ -82,7 +83,7 @@ class Trajectory:
         rows = [_table(c, 2, f"configuration {k + 1}", "[x, y]", robots) for k, c in enumerate(configs)]
         return cls(np.asarray(robots), table, np.stack(rows))
 
-    def describe(self, sensing_range: float) -> dict:
+    def describe(self, sensing_range: float) -> dict[str, float]:
         """Robots, configurations and the robots' motion per configuration (mean and max, m); ``sensing_range`` (m) as given."""
         path = np.concatenate([self.initial_poses[None, :, :2], self.configurations])
         moves = np.linalg.norm(np.diff(path, axis=0), axis=-1)
@@ -181,7 +182,7 @@ def validate_passable(traj: Trajectory, cfg: ModelConfig) -> None:
             raise SwarmInputError(
                 f"configuration {k}: robots {a} and {b} cannot reach it without touching (bodies of radius {radius:g} m): "
                 f"one first, the other first or both together, their centres come closer than {2 * radius:g} m; "
-                f"give them room to pass (or --robot-radius 0 for point robots)"
+                f"give them room to pass (or robot radius 0: point robots)"
             )
 
 
@@ -282,7 +283,7 @@ def _reshape(rigid: np.ndarray, noise: np.ndarray, edges: np.ndarray, reach: flo
     from scipy.spatial import cKDTree  # noqa: PLC0415 - scipy only when generating (cheap parsers)
     scale = np.ones(len(rigid))
     for _ in range(60):
-        xy = rigid + scale[:, None] * noise
+        xy: np.ndarray = rigid + scale[:, None] * noise
         tree = cKDTree(xy)
         bad = tree.query_pairs(sep, output_type="ndarray").ravel()
         if not len(bad) and radius > 0 and prev is not None:

@@ -64,16 +64,16 @@ def read_truth_csv(path: str | Path, robots: Collection[int] | None = None,
         need = ("robot", "time", "x", "y", "heading") if by_time else COLUMNS
         missing = [c for c in need if c not in header]
         if missing:
-            raise SwarmInputError(f"--truth {path}: line 1: missing column{'s' if len(missing) > 1 else ''} "
-                                  f"{', '.join(missing)} (need {','.join(COLUMNS)}, or time instead of step)")
+            raise OptionError("truth", f"{path}: line 1: missing column{'s' if len(missing) > 1 else ''} "
+                                       f"{', '.join(missing)} (need {','.join(COLUMNS)}, or time instead of step)")
         try:
             for row in reader:
                 line = reader.line_num
                 row = {(k or "").strip(): (v or "").strip() for k, v in row.items() if k is not None}
                 key, pose = _row(row, line, path, known, by_time)
                 if key in rows:
-                    raise SwarmInputError(f"--truth {path}: line {line}: robot {key[0]} {'time' if by_time else 'step'} "
-                                          f"{row['time' if by_time else 'step']} given twice")
+                    raise OptionError("truth", f"{path}: line {line}: robot {key[0]} {'time' if by_time else 'step'} "
+                                               f"{row['time' if by_time else 'step']} given twice")
                 rows[key] = pose
         except (csv.Error, UnicodeDecodeError) as exc:
             raise OptionError("truth", f"{path}: line {reader.line_num}: not CSV: {exc}") from None
@@ -101,22 +101,22 @@ def _at_steps(rows: dict[tuple[int, float], np.ndarray], step_times: Mapping[tup
 
 
 def _count(row: dict[str, str], col: str, where: str) -> int:
-    """Column ``col`` of ``row`` as an integer >= 0, or ``SwarmInputError`` naming the line."""
+    """Column ``col`` of ``row`` as an integer >= 0, or ``OptionError`` naming the line of the ``truth`` file."""
     text = row.get(col, "")
     try:
         value = int(text)
     except ValueError:
         value = -1
     if value < 0:
-        raise SwarmInputError(f"{where}: {col} must be an integer >= 0, got {text!r}")
+        raise OptionError("truth", f"{where}: {col} must be an integer >= 0, got {text!r}")
     return value
 
 
 def _row(row: dict[str, str], line: int, path: Path, known: set[int] | None, by_time: bool) -> tuple[tuple[int, float], np.ndarray]:
-    where = f"--truth {path}: line {line}"
+    where = f"{path}: line {line}"
     robot = _count(row, "robot", where)
     if known is not None and robot not in known:
-        raise SwarmInputError(f"{where}: robot {robot} is not a robot of the recording (robots {sorted(known)})")
+        raise OptionError("truth", f"{where}: robot {robot} is not a robot of the recording (robots {sorted(known)})")
     when = _finite(row, "time", where) if by_time else _count(row, "step", where)
     return (robot, when), np.array([_finite(row, col, where) for col in ("x", "y", "heading")])
 
@@ -126,9 +126,9 @@ def _finite(row: dict[str, str], col: str, where: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise SwarmInputError(f"{where}: {col} must be a number, got {text!r}") from None
+        raise OptionError("truth", f"{where}: {col} must be a number, got {text!r}") from None
     if not math.isfinite(value):
-        raise SwarmInputError(f"{where}: {col} must be finite, got {text!r}")
+        raise OptionError("truth", f"{where}: {col} must be finite, got {text!r}")
     return value
 
 

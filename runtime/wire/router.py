@@ -27,7 +27,7 @@ def router_settings(listen: list[str], config_file: str | None) -> ZenohSettings
         if not os.path.isfile(config_file) or not os.access(config_file, os.R_OK):
             raise OptionError("config", f"{config_file!r} is not a readable file")
         config = ZenohSettings("router", config_file=config_file).to_config()  # SwarmInputError if invalid
-        check_tls_files(config, f"--config {config_file}")
+        check_tls_files(config, str(config_file))
         if not endpoints:
             endpoints = tuple(_file_endpoints(config))
     settings = ZenohSettings("router", listen=endpoints or (DEFAULT_LISTEN,), config_file=config_file)

@@ -24,10 +24,11 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError
 from runtime.wire.keys import validate_run
 
 ENV_DIR = "SWARM_RUN_DIR"
+RUN_FLAG = {"run_id": "--run"}  # the flag of a run id (``OptionError``'s options)
 
 
 def run_dir() -> Path:
@@ -62,7 +63,7 @@ def read_run(run_id: str) -> dict[str, Any] | None:
     except FileNotFoundError:
         return None
     except (OSError, ValueError, KeyError, TypeError):
-        raise SwarmInputError(f"run file {path} of run {run_id} is unreadable: remove it, or give --hub") from None
+        raise OptionError("run_id", f"{run_id}: its run file {path} is unreadable: remove it, or give `hub`", RUN_FLAG) from None
     if not _alive(pid):
         with contextlib.suppress(OSError):
             path.unlink()
@@ -74,8 +75,8 @@ def hub_of(run_id: str) -> str:
     """The hub of live run ``run_id`` from its run file; ``SwarmInputError`` saying what to do if there is none."""
     entry = read_run(run_id)
     if entry is None:
-        raise SwarmInputError(f"no live run {run_id!r} on this host (no run file {run_file(run_id)}): "
-                              f"give --hub ENDPOINT (e.g. tcp/127.0.0.1:7447) or --zenoh-config FILE")
+        raise OptionError("run_id", f"{run_id}: no live run of that id on this host (no run file {run_file(run_id)}): "
+                                    f"give `hub` ENDPOINT (e.g. tcp/127.0.0.1:7447) or `zenoh_config` FILE", RUN_FLAG)
     return str(entry["hub"])  # a str: read_run made it one
 
 
@@ -84,8 +85,8 @@ def published_run(run_id: str, hub: str, command: str) -> Iterator[Path]:
     """Keep the run file of ``run_id`` (this process, ``hub``) while the block runs; refuse a run id already live."""
     other = read_run(run_id)
     if other is not None:
-        raise SwarmInputError(f"--run {run_id}: that run is already live on this host (pid {other['pid']}, hub {other['hub']}, "
-                              f"{other['path']}): choose another run id")
+        raise OptionError("run_id", f"{run_id}: that run is already live on this host (pid {other['pid']}, hub {other['hub']}, "
+                                    f"{other['path']}): choose another run id", RUN_FLAG)
     path = run_file(run_id)
     path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}")

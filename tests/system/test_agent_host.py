@@ -49,7 +49,7 @@ def test_default_agents_per_process():
     assert agents_per_process(60, None) == 30  # 2 processes, balanced
     assert agents_per_process(500, None) == 50
     assert agents_per_process(500, 7) == 7
-    with pytest.raises(SwarmInputError, match="--agents-per-process must be >= 1, got 0"):
+    with pytest.raises(SwarmInputError, match="^agents_per_process must be >= 1, got 0$"):
         agents_per_process(10, 0)
 
 
@@ -178,7 +178,7 @@ def test_hosted_gateway_agents_give_the_same_run(tmp_path):
     (["--id=0-3", "--ids=0-2"], "--id names robots [3] that are not robots of the run"),
     (["--id=0-1", "--ids=0-3", "--pose=0,0,0"], "--pose is one robot's pose: give --trajectory FILE"),
     (["--id=2-1", "--ids=0-3"], "--id must be robot ids"),
-    (["--id=0"], "give --ids"),
+    (["--id=0"], "--ids (every robot of the run, e.g. 0-9) or --trajectory FILE must be given"),
 ])
 def test_agent_options_are_checked(args, message):
     proc = subprocess.run([sys.executable, "-m", "swarm_cli.agent", "--run=r", "--hub=tcp/127.0.0.1:9", *args],

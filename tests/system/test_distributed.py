@@ -346,7 +346,7 @@ def _assert_lost_cleanly(run: Run) -> None:
     """``--on-lost abort``: exit 3 naming the robot, the lost robot's stop and the run-wide stop, a finished recording."""
     err = "".join(run.stderr)
     assert run.coordinator.returncode == 3, f"exit status {run.coordinator.returncode}: {err}"
-    assert "lost robot 1 (liveliness token gone); --on-lost abort ends the run" in err
+    assert "lost robot 1 (liveliness token gone); the policy for a lost robot is abort: the run ends" in err
     result = json.loads(run.result_file.read_text())  # what the run completed before it ended is kept
     assert [lost["robot"] for lost in result["lost"]] == [1] and len(result["steps"]) < 8  # ref57 would have made 8 steps
     assert "lost robot 1 after step" in "".join(run.stdout)  # the summary names it

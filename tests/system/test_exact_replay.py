@@ -1,10 +1,8 @@
 """Exact replay and takeover for every localizer, driver and body setting, with real processes.
 
-One ``swarm launch`` per combination (each pair of settings meets in one of the four runs: every localizer with
-every driver, every localizer and every driver with and without bodies; pairwise rather than all 8 combinations
-because each run is a real launch with a standby and a killed coordinator, about 6 s of CPU, and the suite is
-already over its time budget; 4 robots, 2 configurations, ``ref57``: two steps a configuration, so every
-localization after the first starts from a prior the previous step built): its coordinator is SIGKILLed when step 2
+One ``swarm launch`` per combination, all 8 (each a real launch with a standby and a killed coordinator, about 6 s
+of CPU; 4 robots, 2 configurations, ``ref57``: two steps a configuration, so every localization after the first
+starts from a prior the previous step built): its coordinator is SIGKILLed when step 2
 starts and the standby takes the run over from the checkpoint after step 1 (``--standby --kill-coordinator 2``).
 Then
 
@@ -40,8 +38,9 @@ REPO = Path(__file__).resolve().parents[2]
 SEED, ROBOTS, CONFIGS, KILL = 3, 4, 2, 2
 
 
-@pytest.mark.parametrize(("localizer", "driver", "bodies"), [("paper", "sim", "bodies"), ("paper", "gateway", "points"),
-                                                          ("joint", "sim", "points"), ("joint", "gateway", "bodies")])
+@pytest.mark.parametrize("bodies", ["bodies", "points"])
+@pytest.mark.parametrize("driver", ["sim", "gateway"])
+@pytest.mark.parametrize("localizer", ["paper", "joint"])
 def test_a_taken_over_run_replays_exactly_and_equals_the_in_process_run(tmp_path, localizer, driver, bodies):
     cfg = ModelConfig() if bodies == "bodies" else ModelConfig(robot_radius_m=0.0)
     traj = random_trajectory(ROBOTS, CONFIGS, np.random.default_rng(SEED), **body_spacing(cfg))

@@ -128,7 +128,7 @@ def test_launcher_run_file_lets_estop_find_the_hub_and_is_removed(tmp_path):
     assert launcher.returncode != 0 and "emergency stop" in err  # the robots refused to move on: the run ended
     assert not run_file.exists()
     gone = swarm("estop", "--run", "lab", cwd=tmp_path, env=env)
-    assert gone.returncode == 2 and "no live run 'lab' on this host" in gone.stderr and "--hub" in gone.stderr
+    assert gone.returncode == 2 and "--run lab: no live run of that id on this host" in gone.stderr and "--hub" in gone.stderr
 
 
 def test_a_stale_run_file_is_ignored_and_removed(tmp_path):
@@ -138,7 +138,7 @@ def test_a_stale_run_file_is_ignored_and_removed(tmp_path):
     stale = tmp_path / "runs" / "old.json"
     stale.write_text(json.dumps({"run": "old", "hub": "tcp/127.0.0.1:9", "pid": int(dead), "command": "swarm launch"}))
     proc = swarm("estop", "--run", "old", cwd=tmp_path, env=env)
-    assert proc.returncode == 2 and "no live run 'old'" in proc.stderr and not stale.exists()
+    assert proc.returncode == 2 and "--run old: no live run of that id" in proc.stderr and not stale.exists()
 
 
 def test_replay_publish_says_where_and_a_recorder_finds_it_by_run_id(tmp_path):

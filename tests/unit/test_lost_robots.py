@@ -183,7 +183,7 @@ def test_remaining_groups_of_the_plan_keep_their_other_robots(traj):
 
 
 def test_abort_policy_and_minimum_robots(traj):
-    with pytest.raises(RunAborted, match=r"lost robot 4 \(lost after step 1\); --on-lost abort ends the run"):
+    with pytest.raises(RunAborted, match=r"lost robot 4 \(lost after step 1\); the policy for a lost robot is abort: the run ends"):
         run(traj, "no-anchors", {4: 1}, on_lost="abort")
     with pytest.raises(RunAborted, match="4 robots left, fewer than the minimum 5"):
         run(traj, "no-anchors", {4: 1, 5: 1}, min_robots=5)

@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("pymunk")
 
-from runtime.errors import SwarmInputError
+from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.world.params import PhysicsParams, parse_physics_params
 from runtime.world.physics import Contact, Stuck, World
@@ -194,10 +194,11 @@ def test_a_physics_agent_process_hosts_every_robot_of_the_run():
 
     traj = random_trajectory(3, 1, np.random.default_rng(0))
     spec = AgentSpec(ZenohSettings("client", connect=("tcp/127.0.0.1:7447",)), "r", [0, 1], None, trajectory=traj, physics=P)
-    with pytest.raises(SwarmInputError, match=r"host them all in this process \(--id 0-2\), got --id 0-1"):
+    with pytest.raises(OptionError, match=r"host them all in this process \(hosted 0-2\), got hosted 0-1") as caught:
         build_agents(spec)
+    assert caught.value.flag_message().endswith("host them all in this process (--id 0-2), got --id 0-1")
     example = f"{Path(__file__).resolve().parents[2] / 'examples' / 'drivers' / 'unicycle.py'}:UnicycleDriver"
-    with pytest.raises(SwarmInputError, match="needs --driver sim, got --driver .*unicycle.py:UnicycleDriver"):
+    with pytest.raises(SwarmInputError, match="needs driver sim, got driver .*unicycle.py:UnicycleDriver"):
         build_agents(AgentSpec(ZenohSettings("client", connect=("tcp/127.0.0.1:7447",)), "r", [0, 1, 2], None, trajectory=traj,
                                physics=P, driver=example))
 

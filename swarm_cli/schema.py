@@ -1,0 +1,128 @@
+"""Command-line flags generated from an options dataclass, so each option's name, default and help are declared once.
+
+A field of an options dataclass (``inchworm.comparison.CompareOptions``, the ``inchworm.studies`` options, those of
+``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes, or its ``metadata["flag"]`` (a short
+flag such as ``-n`` goes before the long one), the field's default, ``metadata["help"]``, to which `` (default X)``
+is added unless the help places the default itself with ``%(default)s`` or has no default to show, and
+``metadata["choices"]`` and ``["metavar"]`` if declared. The annotation gives the argparse type: ``int``, ``float``,
+``str``, ``Path``, ``bool`` (``--name`` sets True; a field that defaults to True and whose flag is ``--no-name`` sets
+False) and ``tuple[int | float | str, ...]``, a comma-separated value (``--methods a,b``) that stays text in the
+namespace (``--config`` files and ``study.toml`` keep it as typed) and that ``options_of`` splits. A field of another
+type (a nested options object: the model, the localizer, the anchor search, added by ``swarm_cli.options``'s groups)
+is passed to ``add_fields`` in ``exclude`` and to ``options_of`` by name. The library checks the values
+(``OptionError`` naming the field); the command prints the error with the flag (``OptionError.flag_message``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+from collections.abc import Callable, Collection, Mapping
+from pathlib import Path
+from typing import Any, TypeVar, cast
+
+from swarm_cli.options import names, parse_list
+
+T = TypeVar("T")
+_SCALARS: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool, "Path": Path}
+_MANY = re.compile(r"^tuple\[(int|float|str), \.\.\.\]$")
+
+
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """What a field's annotation says (``| None`` aside): its scalar type, ``many`` for a ``tuple[X, ...]``."""
+
+    scalar: type
+    many: bool = False
+
+
+def kind_of(f: dataclasses.Field[Any]) -> Kind | None:
+    """The ``Kind`` of a field's annotation (a string under ``from __future__ import annotations``), None if it has no flag type."""
+    text = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+    text = text.removesuffix(" | None")
+    if text in _SCALARS:
+        return Kind(_SCALARS[text])
+    many = _MANY.match(text)
+    return Kind(_SCALARS[many.group(1)], many=True) if many else None
+
+
+def flag_of(f: dataclasses.Field[Any]) -> str:
+    """A field's flag: ``metadata["flag"]``, else ``--`` and its name with dashes (as ``OptionError.flag``)."""
+    return str(f.metadata.get("flag", "--" + f.name.replace("_", "-")))
+
+
+def default_of(f: dataclasses.Field[Any]) -> Any:
+    """A field's default as the command line takes it: a tuple as comma-separated text (``0.5,1,2,4``)."""
+    value = f.default_factory() if f.default is dataclasses.MISSING and f.default_factory is not dataclasses.MISSING else f.default
+    if isinstance(value, tuple):
+        return ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in value)
+    return value
+
+
+def _shown(value: Any) -> str:
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _negated(f: dataclasses.Field[Any]) -> bool:
+    """A True-by-default switch whose flag (``--no-name``) turns it off."""
+    return f.default is True and flag_of(f).startswith("--no-")
+
+
+def dest_of(f: dataclasses.Field[Any]) -> str:
+    """Where the field's value lands in the namespace: its name, or for ``--no-name`` switches ``no_name``."""
+    return flag_of(f).removeprefix("--").replace("-", "_") if _negated(f) else f.name
+
+
+def option_fields(cls: type, exclude: Collection[str] = (), only: Collection[str] | None = None) -> list[dataclasses.Field[Any]]:
+    """The fields of the dataclass ``cls`` that have flags (``only`` those, none of ``exclude``); ``TypeError`` for a
+    field whose type has no flag and that is not excluded (a new field must get a flag or be added elsewhere), or a
+    switch that defaults to True without a ``--no-name`` flag (a ``--name`` switch could only set what it is already)."""
+    chosen = [f for f in dataclasses.fields(cls) if f.name not in exclude and (only is None or f.name in only)]
+    missing = [f.name for f in chosen if kind_of(f) is None or (f.default is True and not _negated(f))]
+    if missing:
+        raise TypeError(f"{cls.__name__}: fields {missing} have no command-line form (a type without one, or a switch on by default "
+                        "without a --no-name flag): exclude them and add their options apart")
+    return chosen
+
+
+def add_fields(parser: argparse._ActionsContainer, cls: type, *, exclude: Collection[str] = (), only: Collection[str] | None = None,
+               types: Mapping[str, Callable[[str], Any]] | None = None) -> None:
+    """Add a flag to ``parser`` for every field of the options dataclass ``cls`` (module doc); ``types`` overrides the
+    argparse type of some (e.g. ``positive_int``, so argparse refuses the value as it is typed)."""
+    for f in option_fields(cls, exclude, only):
+        kind = kind_of(f)
+        assert kind is not None  # option_fields refused the others
+        flag, default = flag_of(f), default_of(f)
+        strings = [flag, "--" + f.name.replace("_", "-")] if not flag.startswith("--") else [flag]
+        text = str(f.metadata.get("help", ""))
+        if "%(default)s" in text:
+            text = text.replace("%(default)s", _shown(default))
+        elif default is not None and not isinstance(default, bool):
+            text = f"{text} (default {_shown(default)})"
+        extra: dict[str, Any] = {key: f.metadata[key] for key in ("metavar", "choices") if key in f.metadata}
+        if kind.scalar is bool and not kind.many:
+            parser.add_argument(*strings, dest=dest_of(f), action="store_true", help=text)
+        else:
+            convert = (types or {}).get(f.name, str if kind.many else kind.scalar)
+            parser.add_argument(*strings, dest=f.name, type=convert, default=default, help=text, **extra)
+
+
+def value_of(args: argparse.Namespace, f: dataclasses.Field[Any]) -> Any:
+    """The field's value from the namespace: a comma-separated text split (numbers checked, naming the flag)."""
+    value = getattr(args, dest_of(f))
+    kind = kind_of(f)
+    if _negated(f):
+        return not value
+    if kind is None or not kind.many or value is None:
+        return value
+    if kind.scalar is str:
+        return names(value)
+    return tuple(parse_list(value, flag_of(f), kind.scalar))
+
+
+def options_of(args: argparse.Namespace, cls: Callable[..., T], **given: Any) -> T:
+    """The options dataclass ``cls`` made from the namespace: every field with a flag from its value, the others from
+    ``given`` (``run=run_options(args)``)."""
+    values = {f.name: value_of(args, f) for f in option_fields(cast(type, cls), exclude=given)}
+    return cls(**values, **given)

@@ -1,0 +1,132 @@
+"""The flags of the commands whose options are dataclasses come from those dataclasses (``swarm_cli.schema``): every
+field has its flag (or is made by a shared group of options), and the command line's defaults make the dataclass's
+defaults, so a new field without a flag or a flag whose default drifts from the field's fails here."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+from runtime.errors import OptionError, SwarmInputError
+from swarm_cli.main import build_parser
+from swarm_cli.schema import add_fields, default_of, flag_of, options_of
+
+
+def _launch_options(args: argparse.Namespace) -> Any:
+    """``swarm launch``'s options as the launcher reads them: the flags' spec, then its options (``run_launch``)."""
+    from inchworm.process_mains import launch_options
+    from swarm_cli.launch import spec_of
+
+    return launch_options(spec_of(args))
+
+
+# command, what makes its options from the parsed flags, the options classes (the first: what the defaults make), and
+# the fields whose flags shared groups make or whose command-line form differs (checked through the options made)
+COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
+    ("compare", "swarm_cli.compare:options", ("inchworm.comparison:CompareOptions",), ("run",)),
+    ("study anchors", "swarm_cli.study_anchors:options", ("inchworm.studies.anchors:AnchorsOptions",), ("model", "localizer")),
+    ("study noise", "swarm_cli.study_noise:options", ("inchworm.studies.noise:NoiseOptions",), ("run",)),
+    ("study consistency", "swarm_cli.study_consistency:options", ("inchworm.studies.consistency:ConsistencyOptions",),
+     ("model", "selection")),
+    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run",)),
+    ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
+    # launch: --model FILE gives model_file and model; --driver-option and --physics-param repeat (a list); --rejoin
+    # is yes/no; trajectory_seed is the seed (demo: 0) and command the command's name; record options are the coordinator's
+    ("launch", "_launch_options", ("inchworm.launch_options:LaunchOptions", "inchworm.launch_options:SwarmOptions",
+                                   "inchworm.launch_options:DriverOptions", "inchworm.launch_options:FaultOptions",
+                                   "inchworm.launch_options:OutputOptions"),
+     ("swarm", "driver", "faults", "outputs", "model", "model_file", "selection", "trajectory_seed", "rejoin", "physics_params",
+      "options", "command")),
+]
+
+
+def _subparser(argv: list[str]) -> argparse.ArgumentParser:
+    parser = build_parser(argv)
+    for word in argv:
+        sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        parser = sub.choices[word]
+    return parser
+
+
+def _named(path: str) -> Any:
+    module, name = path.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+@pytest.mark.parametrize(("command", "maker", "classes", "shared"), COMMANDS, ids=[c[0] for c in COMMANDS])
+def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str, classes: tuple[str, ...], shared: tuple[str, ...]) -> None:
+    argv = command.split()
+    actions = {s: a for a in _subparser(argv)._actions for s in a.option_strings}
+    for cls in map(_named, classes):
+        for f in (f for f in dataclasses.fields(cls) if f.name not in shared):  # generated or written apart: the same contract
+            action = actions.get(flag_of(f))
+            assert action is not None, f"swarm {command}: field {cls.__name__}.{f.name} has no flag {flag_of(f)}"
+            if action.nargs != 0:  # a switch's default is its field's (checked below)
+                assert action.default == default_of(f), f"swarm {command} {flag_of(f)}: default {action.default!r}, field {default_of(f)!r}"
+            assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
+    made: Callable[[argparse.Namespace], Any] = globals()[maker] if ":" not in maker else _named(maker)
+    assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
+
+
+@dataclasses.dataclass(frozen=True)
+class Toy:
+    size: int = dataclasses.field(default=3, metadata={"help": "how many", "flag": "-s"})
+    scales: tuple[float, ...] = dataclasses.field(default=(0.5, 2.0), metadata={"help": "factors (default %(default)s; any > 0)"})
+    names: tuple[str, ...] | None = dataclasses.field(default=None, metadata={"help": "names"})
+    optimum: bool = dataclasses.field(default=True, metadata={"help": "skip it", "flag": "--no-optimum"})
+    quick: bool = dataclasses.field(default=False, metadata={"help": "be quick"})
+
+    def __post_init__(self) -> None:
+        if self.size < 1:
+            raise OptionError("size", f"must be >= 1, got {self.size}", self)
+
+
+def _toy() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="toy")
+    add_fields(parser, Toy)
+    return parser
+
+
+def test_a_declaration_makes_flags_defaults_and_help() -> None:
+    parser = _toy()
+    helps = {a.option_strings[-1]: a.help for a in parser._actions if a.option_strings}
+    assert helps["--size"] == "how many (default 3)"
+    assert helps["--scales"] == "factors (default 0.5,2; any > 0)"
+    assert helps["--names"] == "names"  # no default to show
+    assert options_of(parser.parse_args([]), Toy) == Toy()
+    given = options_of(parser.parse_args(["-s", "7", "--scales", "1,0.25", "--names", "a, b", "--no-optimum", "--quick"]), Toy)
+    assert given == Toy(7, (1.0, 0.25), ("a", "b"), False, True)
+
+
+def test_the_library_names_the_field_and_the_command_line_its_flag() -> None:
+    with pytest.raises(OptionError) as caught:
+        options_of(_toy().parse_args(["--size", "0"]), Toy)
+    assert str(caught.value) == "size must be >= 1, got 0"
+    assert caught.value.flag_message() == "-s must be >= 1, got 0"
+    with pytest.raises(SwarmInputError, match="^--scales must list numbers >= 0, got '1,-2'$"):  # split by the command line
+        options_of(_toy().parse_args(["--scales", "1,-2"]), Toy)
+
+
+def test_a_field_without_a_command_line_type_must_be_excluded() -> None:
+    @dataclasses.dataclass(frozen=True)
+    class Nested:
+        toy: Toy = dataclasses.field(default_factory=Toy)
+        count: int = 1
+
+    with pytest.raises(TypeError, match="toy"):
+        add_fields(argparse.ArgumentParser(), Nested)
+
+    @dataclasses.dataclass(frozen=True)
+    class On:
+        loud: bool = True  # a --loud switch could not turn it off
+
+    with pytest.raises(TypeError, match="loud"):
+        add_fields(argparse.ArgumentParser(), On)
+    parser = argparse.ArgumentParser()
+    add_fields(parser, Nested, exclude=("toy",))
+    assert options_of(parser.parse_args(["--count", "2"]), Nested, toy=Toy(5)) == Nested(Toy(5), 2)
