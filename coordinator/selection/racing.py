@@ -6,7 +6,10 @@ biased low (the minimum of noisy estimates). Two steps remove that:
 
 * ``race``: successive halving over the search's best distinct plans on fresh sample
   blocks (common random numbers within a block, the budget doubling each round),
-  keeping the better half by the mean over every block seen so far;
+  keeping the better half by the mean over every block seen so far, less the contenders that
+  are already clearly worse than the leader (``clearly_worse``: a paired test on every sample
+  seen): the race ends as soon as one is left, or once even its leader is clearly below the best
+  P_s (Eq. 3) of the other counts (the selector's ``hopeless``: no final check is spent on a count that cannot win);
 * ``final_check``: the race's winner and the search's seed (the heuristic plan,
   Eq. 11-13) re-evaluated on one more fresh set; the winner replaces the seed only if
   it is better there by more than ``margin`` standard errors of the paired per-sample
@@ -22,36 +25,61 @@ biased low (the minimum of noisy estimates). Two steps remove that:
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import NamedTuple
 
 import numpy as np
 
 from coordinator.plan import Plan, PlanKey
 
-Evaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan
 SampleEvaluator = Callable[[list[Plan], int, int], np.ndarray]  # (plans, samples, seed) -> e_l (m) per plan and sample
 MARGIN = 1.0  # standard errors by which a challenger must beat the seed in the final check
 EARLY_MARGIN = 2.0  # standard errors that decide the paired difference at an interim look of the final check
 
 
-def race(plans: list[Plan], evaluate: Evaluator, samples: int, rng: np.random.Generator) -> tuple[Plan, int]:
-    """Winner of successive halving over ``plans`` and the number of plan evaluations spent.
+class RaceResult(NamedTuple):
+    winner: Plan
+    spent: int  # plan evaluations
+    stopped: bool  # ``hopeless`` ended the race: the winner cannot win the outer loop
+    e_l: np.ndarray  # the winner's e_l per sample over every block seen
+    blocks: list[tuple[int, int]]  # (samples, seed) of each round
 
-    Round r evaluates the survivors on ``samples`` x 2^r fresh samples (one new seed per
-    round, shared by the survivors) and keeps the better half by the sample-weighted mean.
+
+def race(plans: list[Plan], evaluate: SampleEvaluator, samples: int, rng: np.random.Generator,
+         margin: float = EARLY_MARGIN, hopeless: Callable[[np.ndarray, list[tuple[int, int]]], bool] | None = None) -> RaceResult:
+    """Successive halving over ``plans``.
+
+    Round r evaluates the survivors on ``samples`` x 2^r fresh samples (one new seed per round,
+    shared by the survivors), so every survivor has been seen on the same samples. After each round
+    a contender whose mean e_l exceeds the leader's (the lowest mean) by more than ``margin``
+    standard errors of their paired per-sample difference is clearly worse and drops out (at most
+    the worse half stays out too: plain halving); the race ends when one is left, or as soon as
+    ``hopeless`` (the leader's e_l per sample, the blocks seen) says even the leader cannot win.
     """
     alive = list(range(len(plans)))
-    total = np.zeros(len(plans))
-    weight = np.zeros(len(plans))
+    seen = np.zeros((len(plans), 0))  # e_l per sample of every round so far (the survivors' rows are filled)
+    blocks: list[tuple[int, int]] = []
     spent, budget = 0, samples
     while len(alive) > 1:
-        e_l = evaluate([plans[k] for k in alive], budget, int(rng.integers(2**63)))
-        total[alive] += e_l * budget
-        weight[alive] += budget
+        blocks.append((budget, int(rng.integers(2**63))))
+        each = evaluate([plans[k] for k in alive], *blocks[-1])
+        seen = np.concatenate([seen, np.zeros((len(plans), budget))], axis=1)
+        seen[alive, -budget:] = each
         spent += len(alive)
-        keep = max(1, len(alive) // 2)
-        alive = sorted(alive, key=lambda k: (total[k] / weight[k], k))[:keep]
+        alive = sorted(alive, key=lambda k: (seen[k].mean(), k))[: max(1, len(alive) // 2)]
+        alive = [k for k in alive if not clearly_worse(seen[k], seen[alive[0]], margin)]
         budget *= 2
-    return plans[alive[0]], spent
+        if hopeless is not None and hopeless(seen[alive[0]], blocks):
+            return RaceResult(plans[alive[0]], spent, True, seen[alive[0]], blocks)
+    return RaceResult(plans[alive[0]], spent, False, seen[alive[0]], blocks)
+
+
+def clearly_worse(e_l: np.ndarray, leader: np.ndarray, margin: float) -> bool:
+    """Whether per-sample ``e_l`` is above ``leader``'s (the same samples) by more than ``margin`` standard errors
+    of the paired difference (a one-sided paired test; never with fewer than 2 samples)."""
+    diff = e_l - leader
+    if len(diff) < 2:
+        return False
+    return bool(diff.mean() > margin * diff.std(ddof=1) / np.sqrt(len(diff)))
 
 
 def fresh_blocks(samples: int, fresh: int, looks: int = 1) -> list[tuple[int, int]]:

@@ -23,8 +23,10 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
    screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
    generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
-   (successive halving on fresh samples) among its ``contenders`` (screened: ``screened_contenders``) best
-   distinct plans (a race won by the seed ends there: the seed keeps its screened score), then
+   (successive halving on fresh samples, clearly worse contenders dropped early) among its ``contenders``
+   (screened: ``screened_contenders``) best distinct plans (a race won by the seed ends there: the seed keeps
+   its screened score; so does a count whose race leader's P_s is clearly below the best of the other
+   counts, ``cannot_win``: it cannot win, so no final check is spent on it), then
    the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
    difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
@@ -35,8 +37,9 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
 every step's nominal motion clear of collisions (``runtime.models.bodies.BodyCheck``), for the
-heuristic seeds, the genetic search and the outer loop alike. A searched count whose heuristic plan is
-crowded runs the genetic search wherever the gate is not ``off`` (the repair makes a plan clear, not good):
+heuristic seeds, the genetic search and the outer loop alike (judged from its pair verdicts,
+``clear_pairs``). A searched count whose heuristic plan is crowded runs the genetic search wherever the gate
+is not ``off`` (the repair makes a plan clear, not good):
 from its repaired plan and, when the count has at most ``ENUMERATED`` plans, its clear plans of the least
 predicted e_l (Cramer-Rao, ``crlb_rank``). A count whose search met no clear plan takes every clear plan of a
 small count (all evaluated, then raced as the search's), or, with one mover a step, an order of single moves
@@ -66,11 +69,12 @@ import numpy as np
 
 from coordinator.localization import Localizer
 from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance
+from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
-from coordinator.selection.racing import best_distinct, final_check, fresh_blocks, race
+from coordinator.selection.racing import EARLY_MARGIN, best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
 from runtime.models.bodies import BodyCheck
@@ -245,14 +249,18 @@ class AnchorSelector:
         samples, final_samples = samples_for(sel.samples, n), samples_for(sel.final_samples, n)
         current = estimate.positions
         bodies = BodyCheck.of_estimate(self.cfg, estimate, desired)
+        pairs = PairTable(bodies)  # the same verdicts for every plan judged, from a few steps (``clear_pairs``)
 
         checked: dict[bytes, bool] = {}  # connectivity of the step configurations seen (plans share them)
 
         def connected(plan: Plan) -> bool:
             return plan_keeps_connectivity(plan, current, desired, self.cfg.sensing_range_m, checked)
 
+        def is_clear(plan: Plan) -> bool:
+            return bool(pairs.clear([plan])[0])
+
         def feasible(plan: Plan) -> bool:
-            return bodies.is_clear(plan.groups) and connected(plan)
+            return is_clear(plan) and connected(plan)
 
         def sampled(plans: list[Plan], count: int, seed: int) -> np.ndarray:
             return MonteCarlo(self.cfg, self.localizer, count, seed, sel.mc_start).localization_errors(estimate, desired, plans)
@@ -294,13 +302,20 @@ class AnchorSelector:
             if not connected(seeds[n_a]):
                 scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
-                scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not bodies.is_clear(all_move.groups))
+                scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not is_clear(all_move))
             else:  # a crowded seed (bodies too close) is screened too: its e_l bounds the count's (step 2)
                 e_seed = float(evaluate([seeds[n_a]])[0])
-                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not bodies.is_clear(seeds[n_a].groups))
+                scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not is_clear(seeds[n_a]))
                 evaluations += 1
         screened = {k: s.p_s for k, s in scores.items()}  # P_s on the screening samples (the crowded too)
-        bar = max((s.p_s for s in scores.values() if s.plan is not None and not s.crowded), default=-np.inf)
+        # the best P_s each count has shown (its clear screened plan, then its kept plan on the screening samples)
+        reached = {k: s.p_s for k, s in scores.items() if s.plan is not None and not s.crowded}
+
+        def bar(other_than: int | None = None) -> float:
+            return max((p for k, p in reached.items() if k != other_than), default=-np.inf)
+
+        def raise_bar(n_a: int, p_s: float) -> None:
+            reached[n_a] = max(reached.get(n_a, -np.inf), p_s)
         for k, s in list(scores.items()):  # a crowded count keeps no plan unless its inner loop finds a clear one
             if s.crowded:
                 scores[k] = replace(s, plan=None, e_l=np.inf, p_l=np.inf, p_s=-np.inf)
@@ -314,11 +329,30 @@ class AnchorSelector:
                 no_anchor_blocks.append(each_sample([all_move], *blocks[len(no_anchor_blocks)])[0])
             per = np.concatenate(no_anchor_blocks[:looked])
             return float(per.max() if sel.mc_emax == "worst" else per.mean())
+
+        race_no_anchor: dict[tuple[int, int], np.ndarray] = {}  # e_l(0) per sample of each race block (samples, seed)
+
+        def race_emax(blocks: list[tuple[int, int]]) -> float:
+            """e_l,max on a race's blocks (its plans' e_l are on the same samples)."""
+            for b in blocks:
+                if b not in race_no_anchor:
+                    race_no_anchor[b] = each_sample([all_move], *b)[0]
+            per = np.concatenate([race_no_anchor[b] for b in blocks])
+            return float(per.max() if sel.mc_emax == "worst" else per.mean())
+
+        def cannot_win(n_a: int, e_l: np.ndarray, e_l_max: Callable[[], float]) -> bool:
+            """Whether a plan of ``n_a`` anchors with e_l per sample ``e_l`` (e_l,max on the same samples: ``e_l_max()``)
+            cannot win: its P_s (Eq. 3) is below the best of the other counts by more than ``EARLY_MARGIN`` standard errors."""
+            other = bar(other_than=n_a)
+            if not np.isfinite(other) or len(e_l) < 2:  # no other count has a plan, or no spread to judge by
+                return False
+            p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max()
+            return bool(p_s.mean() + EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)) < other)
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
-            if self._optimistic(screened[n_a], scores[n_a].p_v) < bar:
+            if self._optimistic(screened[n_a], scores[n_a].p_v) < bar():
                 continue
-            seed = repair(seeds[n_a], bodies, connected) if connected(seeds[n_a]) else None
+            seed = repair(seeds[n_a], pairs, connected) if connected(seeds[n_a]) else None
             # a crowded heuristic plan: its repair only makes a plan clear, so the count is searched wherever the search may run
             genetic = self.genetic_runs(n, n_a) or (scores[n_a].crowded and sel.genetic_gate != "off")
             if not genetic:  # gated off (``genetic_runs``): the count's plan is its (repaired) heuristic plan
@@ -328,10 +362,10 @@ class AnchorSelector:
                 e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else float(evaluate([seed])[0])
                 evaluations += seed is not seeds[n_a]
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True), seed=seed)
-                bar = max(bar, scores[n_a].p_s)
+                raise_bar(n_a, scores[n_a].p_s)
                 continue
             starts = [seed] if seed is not None else [seeds[n_a]]
-            clear = self._clear_plans(n, n_a, feasible) if scores[n_a].crowded else None
+            clear = self._clear_plans(n, n_a, pairs, connected) if scores[n_a].crowded else None
             if clear:  # clear plans are few and far from the heuristic's: the search starts from the best-predicted
                 ranked = [clear[k] for k in np.argsort(predicted_errors(self.cfg, estimate, desired, clear), kind="stable")]
                 starts = ([seed] if seed is not None else []) + [p for p in ranked if seed is None or p.key() != seed.key()]
@@ -350,7 +384,7 @@ class AnchorSelector:
             evaluations += k
             found: list[Plan] | None = None  # every clear plan of the count, evaluated when the search met none
             if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
-                found = self._clear_plans(n, n_a, feasible) if clear is None else clear
+                found = self._clear_plans(n, n_a, pairs, connected) if clear is None else clear
                 if not found and n - n_a == 1:
                     moves, unclear = bodies.ordered_moves(np.arange(n), np.zeros(n, bool), np.arange(n))
                     single = Plan(np.concatenate(moves), (1,) * n) if not unclear and len(moves) == n else None
@@ -364,27 +398,39 @@ class AnchorSelector:
                 continue
             if sel.method == "crlb":  # elitism: never above the seed's prediction
                 scores[n_a] = replace(score(n_a, plan, e_l, e_max, scores[n_a].seed_e_l, searched=True, genetic=True), seed=seed)
-                bar = max(bar, scores[n_a].p_s)
+                raise_bar(n_a, scores[n_a].p_s)
                 continue
             # a search from enumerated clear plans (few, far apart, all of a population sampled): as many contenders as an
             # unscreened search, and a race whose last round has the final check's samples (``ENUMERATED_RACE``)
             enumerated = bool(clear) or bool(found)
             contenders = sel.contenders if enumerated or not screen else sel.screened_contenders
             race_samples = max(count_samples, -(-final_samples // ENUMERATED_RACE)) if enumerated else count_samples
-            champion, spent = race(best_distinct(known, contenders), sampled, race_samples, rng)
-            evaluations += spent
-            if seed is not None and champion.key() == seed.key():  # the race kept the seed: scored as screened, no final check
+            no_anchor_seen = len(race_no_anchor)
+
+            def hopeless(e_l: np.ndarray, seen: list[tuple[int, int]], n_a: int = n_a) -> bool:
+                return cannot_win(n_a, e_l, partial(race_emax, seen))
+            raced = race(best_distinct(known, contenders), each_sample, race_samples, rng, hopeless=hopeless)
+            champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
+            if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
+                scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
+                continue
+            if seed is not None and (raced.stopped or champion.key() == seed.key()):  # the seed, scored as screened, no final check
                 if seed is seeds[n_a] or count_samples == samples:
                     e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
                 else:
                     e_seed = float(evaluate([seed])[0])
                     evaluations += 1
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
-                bar = max(bar, scores[n_a].p_s)
+                raise_bar(n_a, scores[n_a].p_s)
                 continue
-            if seed is None:  # no feasible seed: the race winner, checked on the whole fresh set
-                looked = len(blocks)
-                kept, e_fresh, e_seed = champion, float(np.mean(np.concatenate([each_sample([champion], *b)[0] for b in blocks]))), np.nan
+            if seed is None:  # no feasible seed: the race winner on the fresh set, block by block until it cannot win
+                each: list[np.ndarray] = []
+                for b in blocks:
+                    each.append(each_sample([champion], *b)[0])
+                    if cannot_win(n_a, np.concatenate(each), partial(fresh_emax, len(each))):
+                        break
+                looked = len(each)
+                kept, e_fresh, e_seed = champion, float(np.concatenate(each).mean()), np.nan
             else:
                 kept, e_fresh, e_seed, looked = final_check(champion, seed, each_sample, final_samples, final_seed, looks=sel.final_looks)
             evaluations += 2 * looked
@@ -393,7 +439,7 @@ class AnchorSelector:
             if on_screen is None:
                 on_screen = float(evaluate([kept])[0])
                 evaluations += 1
-            bar = max(bar, score(n_a, kept, on_screen, e_max).p_s)
+            raise_bar(n_a, score(n_a, kept, on_screen, e_max).p_s)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
@@ -472,11 +518,13 @@ class AnchorSelector:
         return Selection(best.plan, scores, len(scores))
 
     @staticmethod
-    def _clear_plans(n: int, n_a: int, feasible: Callable[[Plan], bool]) -> list[Plan] | None:
-        """Every feasible plan of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans, else None."""
+    def _clear_plans(n: int, n_a: int, pairs: PairTable, connected: Callable[[Plan], bool]) -> list[Plan] | None:
+        """Every feasible plan (clear and connected) of ``n_a`` anchors when the count has at most ``ENUMERATED`` plans,
+        else None."""
         if n_solutions(n, n_a) > ENUMERATED:
             return None
-        return [p for p in enumerate_plans(n, n_a) if feasible(p)]
+        plans = enumerate_plans(n, n_a)
+        return [p for p, ok in zip(plans, pairs.clear(plans), strict=True) if ok and connected(p)]
 
     def _optimistic(self, p_s: float, p_v: float) -> float:
         """The count's P_s if its inner loop lowered the screened e_l by ``prune_gain`` (Section 4.2.1's bound;

@@ -18,7 +18,8 @@ estimate, docs/bodies.md) is found in three independent Monte Carlo sets (common
 
 The full online selection (every feasible n_a, as ``swarm sim`` runs it) is also run;
 its chosen n_a is compared with the n_a whose best known plan has the highest P_s
-(Eq. 3) on the evaluation set (``na_agrees``), and the e_l it reports for its plan is
+(Eq. 3) on the evaluation set (``na_agrees``; n_a = 0 competes only where its one step, every
+robot moving, is connected and clear: ``na0_clear``, as in the search's outer loop), and the e_l it reports for its plan is
 compared with that plan's e_l on the evaluation set (the bias of the reported e_l).
 """
 
@@ -49,7 +50,7 @@ if TYPE_CHECKING:  # annotations only: the search and plotting are imported when
 
 
 EXHAUSTIVE_LIMIT = 5000  # ordered partitions per anchor count enumerated
-INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees")
+INT_COLUMNS = ("config", "chosen_na", "best_na", "na_agrees", "na0_clear", "no_clear_plan", "na_within_noise")
 SHORTLIST = 16  # best plans of the screening set re-evaluated to pick the optimum
 
 
@@ -79,7 +80,8 @@ class ConfigTask:
 
 def run_config(task: ConfigTask) -> Row:
     """One configuration change: the flat row of e_l (m) on the evaluation set and the ratios."""
-    from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, speed_performance  # noqa: PLC0415
+    from coordinator.plan import Plan, enumerate_plans, feasible_anchor_counts, n_solutions, n_steps, speed_performance  # noqa: PLC0415
+    from coordinator.selection.clear_pairs import PairTable  # noqa: PLC0415
     from coordinator.selection.genetic import genetic_search  # noqa: PLC0415
     from coordinator.selection.heuristic import heuristic_plan  # noqa: PLC0415
     from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity  # noqa: PLC0415
@@ -94,16 +96,19 @@ def run_config(task: ConfigTask) -> Row:
     screen, pick, final = (MonteCarlo(job.cfg, localizer, s, seed, task.selection.mc_start)  # the selection's reading of the start
                            for s, seed in zip((budget.screen, budget.pick, budget.eval), sets, strict=True))
 
-    bodies = BodyCheck.of_estimate(job.cfg, estimate, desired)  # the search's collision constraint (docs/bodies.md)
+    pairs = PairTable(BodyCheck.of_estimate(job.cfg, estimate, desired))  # the search's collision constraint (docs/bodies.md)
 
     def feasible(plan: Plan) -> bool:
-        return plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m) and bodies.is_clear(plan.groups)
+        return bool(pairs.clear([plan])[0]) and plan_keeps_connectivity(plan, current, desired, job.cfg.sensing_range_m)
 
     online = AnchorSelector(job.cfg, localizer, selection, seed=job.experiment).select(estimate, desired)
     row: Row = {"config": job.experiment, "chosen_na": online.n_anchors}
     all_move = Plan.equal(np.arange(n), 0)
     e0 = float(final.localization_errors(estimate, desired, [all_move])[0])
-    best_p_s = {0: selection.w_v - selection.w_l}
+    # n_a = 0 (P_l = 1) competes only where its one step is a plan the search may return: with bodies it can be crowded
+    row["na0_clear"] = int(feasible(all_move))
+    best_p_s = {0: selection.w_v - selection.w_l} if row["na0_clear"] else {}
+    best_plan = {0: all_move}  # the best clear plan known of each count (on the evaluation set)
     for n_a in (k for k in feasible_anchor_counts(n) if k > 0):
         heuristic = heuristic_plan(current, desired, n_a)
         forced = AnchorSelector(job.cfg, localizer, replace(selection, anchor_counts=(n_a,)), seed=job.experiment)
@@ -125,7 +130,9 @@ def run_config(task: ConfigTask) -> Row:
         row[f"na{n_a}_gain_se"] = float(np.std(paired[0] - paired[1], ddof=1) / np.sqrt(paired.shape[1]))  # m
         exhaustive = job.exhaustive and n_solutions(n, n_a) <= EXHAUSTIVE_LIMIT
         if exhaustive:
-            every = [p for p in enumerate_plans(n, n_a) if feasible(p)]
+            enumerated = enumerate_plans(n, n_a)
+            every = [p for p, clear in zip(enumerated, pairs.clear(enumerated), strict=True)
+                     if clear and plan_keeps_connectivity(p, current, desired, job.cfg.sensing_range_m)]
             row[f"na{n_a}_clear_plans"] = len(every)
         if exhaustive and every:
             shortlist = [every[k] for k in np.argsort(_errors(screen, estimate, desired, every), kind="stable")[:SHORTLIST]]
@@ -137,13 +144,45 @@ def run_config(task: ConfigTask) -> Row:
         if not valid:
             continue
         best = min(valid)
+        best_plan[n_a] = next(plans[name] for name, v in e.items() if v == best and feasible(plans[name]))
         best_p_s[n_a] = selection.w_v * speed_performance(n, n_a) - selection.w_l * best / e0
         if online.n_anchors == n_a:
             reported = next(s.e_l for s in online.scores if s.n_anchors == n_a)
             row["reported_over_fresh"] = reported / float(_errors(final, estimate, desired, [online.plan])[0])
-    row["best_na"] = max(best_p_s, key=lambda k: (best_p_s[k], -k))
+    row["no_clear_plan"] = int(not best_p_s)
+    if best_p_s:
+        row["best_na"] = max(best_p_s, key=lambda k: (best_p_s[k], -k))
+    else:  # no count has a clear plan: the search's rule, the connected heuristic plan with the fewest steps
+        connected = [k for k in feasible_anchor_counts(n)
+                     if plan_keeps_connectivity(all_move if k == 0 else heuristic_plan(current, desired, k), current, desired,
+                                                job.cfg.sensing_range_m)]
+        row["best_na"] = min(connected, key=lambda k: (n_steps(n, k), k), default=-1)
     row["na_agrees"] = int(row["best_na"] == online.n_anchors)
+    row["na_gap_se"] = 0.0 if row["na_agrees"] else count_gap(final, estimate, desired, selection, best_plan, row["best_na"],
+                                                               online.n_anchors)
+    row["na_within_noise"] = int(row["na_gap_se"] <= BEYOND_NOISE)
     return row
+
+
+def count_gap(final: MonteCarlo, estimate: SwarmEstimate, desired: np.ndarray, selection: SelectionConfig, best_plan: dict[int, Plan],
+              best_na: int, chosen_na: int) -> float:
+    """How many standard errors the best count's P_s (Eq. 3) exceeds the chosen count's on the evaluation set: each
+    count's best clear plan known, e_l per sample on the same samples (common random numbers), P_l = e_l / the mean
+    e_l(0) there; inf when the chosen count has no clear plan, 0 when no count has one."""
+    from coordinator.plan import Plan, speed_performance  # noqa: PLC0415
+    if best_na not in best_plan:
+        return 0.0
+    if chosen_na not in best_plan:
+        return float("inf")
+    n = len(desired)
+    e0 = final.localization_errors(estimate, desired, [Plan.equal(np.arange(n), 0)], per_sample=True)[0].mean()
+
+    def p_s(n_a: int) -> np.ndarray:
+        e_l = final.localization_errors(estimate, desired, [best_plan[n_a]], per_sample=True)[0]
+        out: np.ndarray = selection.w_v * speed_performance(n, n_a) - selection.w_l * e_l / e0
+        return out
+    gap = p_s(best_na) - p_s(chosen_na)
+    return float(gap.mean() / (gap.std(ddof=1) / np.sqrt(len(gap))))
 
 
 def summarise(rows: list[Row], robots: int) -> dict[str, Any]:
@@ -193,6 +232,12 @@ def search_vs_heuristic(rows: list[Row], robots: int) -> dict[str, dict[str, int
         out[str(n_a)] = {"cases": len(have), "seed_returned": int(sum(r[f"na{n_a}_search_is_seed"] for r in have)),
                          "beats": sum(g > noise for g, noise in gain), "loses": sum(-g > noise for g, noise in gain)}
     return out
+
+
+def within_noise(row: Row) -> int:
+    """1 where the chosen count's P_s is within ``BEYOND_NOISE`` standard errors of the best count's (rows of studies
+    before this column: whether they agree)."""
+    return int(row["na_within_noise"] if "na_within_noise" in row else row["na_agrees"])
 
 
 def read_rows(path: Path) -> list[Row]:
@@ -253,6 +298,7 @@ class SelectionStudyResult:
             "configs": len(self.rows),
             "search_vs_heuristic": self.summary["search_vs_heuristic"],
             "search_missing": self.summary["search_missing"],
+            "na_within_noise": sum(within_noise(r) for r in self.rows),
         }
 
     def report(self) -> str:
@@ -272,6 +318,10 @@ class SelectionStudyResult:
         lines.append(f"counts with a clear plan (bodies kept apart) where the search returned none: {self.summary['search_missing']}")
         agrees = sum(r["na_agrees"] for r in self.rows)
         lines.append(f"chosen n_a = best n_a on the evaluation set in {agrees} of {len(self.rows)} (chosen: {[r['chosen_na'] for r in self.rows]})")
+        tied = sum(within_noise(r) for r in self.rows)
+        lines.append(f"chosen n_a's P_s within {BEYOND_NOISE:g} standard errors of the best n_a's (paired, evaluation set) in {tied} of "
+                     f"{len(self.rows)}; no count with a clear plan (the search's fallback compared) in "
+                     f"{sum(int(r['no_clear_plan']) for r in self.rows if 'no_clear_plan' in r)}")
         if self.summary["reported_over_fresh_median"] is not None:
             lines.append(f"e_l reported by the selection / its fresh e_l: median {self.summary['reported_over_fresh_median']:.3f}")
         return "\n".join(lines)

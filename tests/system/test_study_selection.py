@@ -33,7 +33,8 @@ def test_study_selection_json_contract(tmp_path):
     assert out.returncode == 0, out.stderr
     last = json.loads(out.stdout.strip().splitlines()[-1])
     assert list(last) == ["ga_over_optimum_median", "ga_over_optimum_max", "heuristic_over_optimum_median", "na_agrees", "configs",
-                          "search_vs_heuristic", "search_missing"]
+                          "search_vs_heuristic", "search_missing", "na_within_noise"]
+    assert last["na_agrees"] <= last["na_within_noise"] <= last["configs"]
     assert last["search_missing"] == 0  # the search returned a clear plan wherever the enumeration found one
     for v in last["search_vs_heuristic"].values():  # per count: how often the search returned or beat its seed
         assert v["cases"] == 2 and 0 <= v["seed_returned"] <= 2 and v["beats"] + v["loses"] <= 2

@@ -104,7 +104,7 @@ def test_no_feasible_plan_is_said_clearly():
 # ------------------------------------------------------------------ the search's guarantees
 
 from coordinator.selection.crlb_rank import predicted_errors  # noqa: E402
-from coordinator.selection.racing import best_distinct, final_check, fresh_blocks, race  # noqa: E402
+from coordinator.selection.racing import best_distinct, clearly_worse, final_check, fresh_blocks, race  # noqa: E402
 
 POINTS = ModelConfig(robot_radius_m=0.0)  # the paper's point robots: these tests pin its selection and execution maths (bodies: test_bodies.py)
 
@@ -152,20 +152,64 @@ def test_final_check_keeps_the_seed_unless_the_champion_is_better_on_fresh_sampl
     assert final_check(a, a, evaluate, 8, 3) == (a, 1.0, 1.0, 1)
 
 
-def test_race_spends_more_samples_on_contenders_and_finds_the_best():
-    plans = [Plan.equal(np.roll(np.arange(6), k), 3) for k in range(1, 5)]
-    truth = {p.key(): 1.0 + 0.05 * k for k, p in enumerate(plans)}
+def race_case(gap: float, common: float = 0.3, own: float = 0.1, count: int = 4):
+    """``count`` plans 1 + ``gap`` k apart; per sample a draw shared by the plans (common random numbers, sd ``common``)
+    plus each plan's own (sd ``own``); the evaluator records (plans, samples) of each call."""
+    plans = enumerate_plans(6, 3)[:count]
+    truth = np.array([1.0 + gap * k for k in range(count)])
+    keys = [p.key() for p in plans]
     seen: list[tuple[int, int]] = []
 
     def evaluate(ps, samples, seed):
         seen.append((len(ps), samples))
-        noise = np.random.default_rng(seed).normal(0, 0.1 / math.sqrt(samples), len(ps))
-        return np.array([truth[p.key()] for p in ps]) + noise
+        draws = np.random.default_rng(seed)
+        shared = draws.normal(0, common, samples)
+        rows = [keys.index(p.key()) for p in ps]
+        return truth[rows, None] + shared + draws.normal(0, own, (len(ps), samples))
 
-    winner, spent = race(plans, evaluate, 64, np.random.default_rng(0))
+    return plans, evaluate, seen
+
+
+def test_race_spends_more_samples_on_contenders_and_finds_the_best():
+    plans, evaluate, seen = race_case(gap=0.003)  # within the noise: plain halving, every round
+    winner, spent, stopped, _, _ = race(plans, evaluate, 64, np.random.default_rng(0))
     assert winner.key() == plans[0].key()
-    assert seen == [(4, 64), (2, 128)] and spent == 6
-    assert [p.key() for p in best_distinct({p.key(): truth[p.key()] for p in plans}, 2)] == [plans[0].key(), plans[1].key()]
+    assert seen == [(4, 64), (2, 128)] and spent == 6 and not stopped
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_race_drops_clearly_worse_contenders_early_and_never_the_clear_best(seed):
+    """Eight plans 5 % apart, each sample's spread (0.3 shared, 0.02 own) far above the gap: common random numbers
+    decide them in the first round, which eliminates all but the best (plain halving would spend 8 + 4 + 2)."""
+    plans, evaluate, seen = race_case(gap=0.05, own=0.02, count=8)
+    winner, spent, stopped, _, _ = race(plans, evaluate, 16, np.random.default_rng(seed))
+    assert winner.key() == plans[0].key() and seen == [(8, 16)] and spent == 8 and not stopped
+
+
+def test_a_race_whose_leader_cannot_win_stops_and_says_so():
+    plans, evaluate, seen = race_case(gap=0.003, count=8)
+    told: list[tuple[int, int]] = []
+
+    def hopeless(e_l, blocks):  # judged on the leader's e_l over every block seen
+        told.append((len(e_l), sum(b[0] for b in blocks)))
+        return len(blocks) == 2
+
+    result = race(plans, evaluate, 16, np.random.default_rng(0), hopeless=hopeless)
+    assert result.stopped and seen == [(8, 16), (4, 32)] and told == [(16, 16), (48, 48)] and result.spent == 12
+    assert len(result.e_l) == 48 and [b[0] for b in result.blocks] == [16, 32]
+
+
+def test_a_contender_is_clearly_worse_only_beyond_the_margin():
+    leader = np.array([1.0, 2.0, 3.0, 4.0])
+    assert clearly_worse(leader + np.array([0.3, 0.1, 0.2, 0.2]), leader, 2.0)  # mean 0.2, standard error 0.041
+    assert not clearly_worse(leader + np.array([0.5, -0.3, 0.4, 0.2]), leader, 2.0)  # mean 0.2, standard error 0.18
+    assert not clearly_worse(leader[:1] + 1.0, leader[:1], 2.0)  # one sample: no spread, never decided
+
+
+def test_best_distinct_ranks_a_cache_by_e_l():
+    plans = enumerate_plans(6, 3)[:4]
+    truth = {p.key(): 1.0 + 0.05 * k for k, p in enumerate(plans)} | {plans[0].key(): np.inf}
+    assert [p.key() for p in best_distinct(truth, 2)] == [plans[1].key(), plans[2].key()]
 
 
 @pytest.mark.parametrize("method", ["mc", "crlb"])

@@ -3,6 +3,7 @@
 of the 2520 plans keep bodies clear and connected; with the joint localizer the genetic gate is off there, so
 the repaired heuristic plan alone found none."""
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -16,6 +17,8 @@ from coordinator.selection.selector import AnchorSelector, SelectionConfig
 from inchworm.studies.anchors import Job, experiment_setup
 from runtime.models.bodies import BodyCheck
 from runtime.models.config import ModelConfig
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import body_spacing, random_trajectory
 
 CFG = ModelConfig()
 
@@ -44,12 +47,28 @@ def test_a_search_from_enumerated_clear_plans_races_as_many_as_an_unscreened_sea
     raced: list[list] = []
     original = selector_module.race
 
-    def spy(plans, *args):
+    def spy(plans, *args, **kwargs):
         raced.append(plans)
-        return original(plans, *args)
+        return original(plans, *args, **kwargs)
 
     monkeypatch.setattr(selector_module, "race", spy)
     selection = replace(SelectionConfig(samples=4, final_samples=16, final_looks=1, contenders=5), anchor_counts=(6,))
     AnchorSelector(CFG, make_localizer("joint", CFG), selection, seed=0).select(estimate, desired)
     assert len(raced) == 1 and len(raced[0]) == 5
     assert all(bodies.is_clear(p.groups) for p in raced[0])
+
+
+def test_a_count_that_cannot_win_stops_its_race_and_the_choice_stays(monkeypatch):
+    """Step 0 of ``swarm bench select --sizes 10 --localizer joint``: n_a = 0 (P_s = 0) wins; the crowded n_a = 5 is
+    searched from its enumerated clear plans, and its race's leader is clearly below P_s = 0 after the first round.
+    Without the stop (the race told nothing) the race and final check run in full: the same plan is chosen, dearer."""
+    traj = random_trajectory(10, 1, np.random.default_rng([0, 10, 0]), sensing_range=CFG.sensing_range_m, **body_spacing(CFG))
+    estimate = SwarmEstimate.isotropic(traj.ids, traj.initial_poses, 0.01, math.radians(2.0))
+    localizer = make_localizer("joint", CFG)
+    stopping = AnchorSelector(CFG, localizer, SelectionConfig(), seed=0).select(estimate, traj.configurations[0])
+    original = selector_module.race
+    monkeypatch.setattr(selector_module, "race", lambda *args, hopeless=None: original(*args))
+    full = AnchorSelector(CFG, localizer, SelectionConfig(), seed=0).select(estimate, traj.configurations[0])
+    assert stopping.n_anchors == full.n_anchors == 0 and stopping.plan.key() == full.plan.key()
+    assert [s.searched for s in stopping.scores] == [s.searched for s in full.scores]
+    assert stopping.evaluations < full.evaluations

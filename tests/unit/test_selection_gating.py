@@ -8,6 +8,7 @@ import pytest
 
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan, enumerate_plans, speed_performance
+from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.repair import conflicts, repair
@@ -95,18 +96,19 @@ def test_the_bound_discards_counts_and_a_zero_margin_discards_more():
 def test_repair_clears_crowded_heuristic_plans_with_few_swaps():
     estimate, desired = step_problem(10, 0, BODIES)
     bodies = BodyCheck.of_estimate(BODIES, estimate, desired)
+    pairs = PairTable(bodies)
 
     def connected(plan: Plan) -> bool:
         return plan_keeps_connectivity(plan, estimate.positions, desired, BODIES.sensing_range_m)
 
     for n_a in (5, 8):  # n_a = 9 has 20 pairs over the contact bound (docs/bodies.md): more than 8 swaps clear
         seed = heuristic_plan(estimate.positions, desired, n_a)
-        assert not bodies.is_clear(seed.groups) and conflicts(seed, bodies)[0] > 0
-        fixed = repair(seed, bodies, connected)
-        assert fixed is not None and bodies.is_clear(fixed.groups) and connected(fixed) and conflicts(fixed, bodies) == (0, set())
+        assert not bodies.is_clear(seed.groups) and conflicts(seed, pairs)[0] > 0
+        fixed = repair(seed, pairs, connected)
+        assert fixed is not None and bodies.is_clear(fixed.groups) and connected(fixed) and conflicts(fixed, pairs) == (0, set())
         moved = sum(a != b for a, b in zip(seed.key(), fixed.key(), strict=True))
         assert 1 <= moved <= 2 * 8  # groups changed by at most 8 swaps
-    assert repair(seed, BodyCheck(POINTS, estimate.positions, desired), connected) is seed  # point robots: nothing to repair
+    assert repair(seed, PairTable(BodyCheck(POINTS, estimate.positions, desired)), connected) is seed  # point robots: nothing to repair
 
 
 @pytest.mark.parametrize("gate", ["auto", "on"])
