@@ -99,6 +99,12 @@ class StepTimer:
         self.inner.on_plan(config_index, first_step, plan, selection)
         self.mark = time.perf_counter()
 
+    def on_leg(self, config_index, leg, first_step, record) -> None:
+        on_leg = getattr(self.inner, "on_leg", None)
+        if on_leg is not None:
+            on_leg(config_index, leg, first_step, record)
+        self.mark = time.perf_counter()
+
     def on_contacts(self, contacts) -> None:
         self.inner.on_contacts(contacts)
 
