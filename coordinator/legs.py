@@ -84,7 +84,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     rows = np.flatnonzero(going & (np.hypot(*path.T) >= MIN_LEG_M))
     if cfg.robot_radius_m <= 0 or last or not len(rows):
         return Leg(targets, staged)
-    i, j, p = _end_pairs(_still_cfg(cfg), estimate, targets, rows)
+    there = estimate.poses.copy()  # every robot standing at its target with its position's uncertainty now, no motion
+    there[:, :2] = targets
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
     hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
     level = np.zeros(len(current), np.int64)  # 0: straight to the target, k: LEG_FRACTIONS[k - 1] of the path
     fractions = np.array((1.0, *LEG_FRACTIONS))
@@ -171,7 +173,3 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
     return LegRecord(plan, ids, leg.targets[rows], leg.staged[rows], regrouped)
 
 
-
-def _still_cfg(cfg: ModelConfig) -> ModelConfig:
-    """``cfg`` without motion noise."""
-    return ModelConfig(**{**cfg.to_dict(), "turn_sigma_rad": 0.0, "drive_sigma_frac": 0.0})
