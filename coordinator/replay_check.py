@@ -354,7 +354,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     return result
 
 
-def _check_leg(msg: PlanMessage, step: int, legs: list[LegRecord], before: SwarmEstimate | None, cfg: ModelConfig, traj: Trajectory, config: int) -> LegRecord | Divergence | None:
+def _check_leg(msg: PlanMessage, step: int, legs: list[LegRecord], before: SwarmEstimate | None, cfg: ModelConfig,
+               traj: Trajectory, config: int) -> LegRecord | Divergence | None:
     """Approach leg ``msg.leg`` of configuration ``msg.config`` (1-based) recomputed from ``before`` (the estimate after
     step - 1) as the executor does (``coordinator.legs.next_leg``) and compared with ``msg``: the leg, the divergence, or
     None when it cannot be checked (its configuration's plan or earlier legs were not, or no estimate before it)."""
