@@ -197,12 +197,12 @@ class InchwormExecutor:
             done = sum(leg.plan.n_steps for leg in legs[:-1])  # steps of this configuration's earlier legs
             while True:
                 assert plan is not None and planned_ids is not None  # set with the plan (and checkpointed with it)
-                targets = None if not legs else legs[-1]
+                current = legs[-1] if legs else None
                 for k in range(group, len(plan.groups)):
                     estimate = self._drop_lost(result, c, estimate)[0]
                     moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                     if moving.any():  # a group whose robots were all lost is skipped
-                        estimate = self._step(result, c, done + k, moving, estimate, trajectory, targets)  # (ii)-(v)
+                        estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
                     self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped, legs=legs)
                 if not legs or not legs[-1].staged.any() or len(legs) >= MAX_LEGS:
                     break

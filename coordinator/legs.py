@@ -3,16 +3,16 @@
 Drive noise grows with the distance driven (``runtime.models.motion.motion_moments``), so a long open-loop drive ends
 with a large position error, and where its target stands close to a neighbour's place the pair's contact risk at the
 end of the change exceeds ``CONTACT_BOUND`` whatever the order of the moves (``BodyCheck``'s floor lets it through).
-Such a mover drives in legs: first to a **staging point** on its straight way (the farthest of ``LEG_FRACTIONS`` of
-its remaining path whose end keeps the bound), the swarm re-localizes as after any step, and the next leg starts from
-the new estimate, shorter and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs
-were driven: the last goes straight to the target, as without legs).
+Such a mover drives in legs: first to a **staging point** on its straight way (a fraction of its remaining path,
+``LEG_FRACTIONS``), the swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter
+and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs were driven: the last goes
+straight to the target, as without legs).
 
 ``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
-configuration, nothing else: the executor and ``swarm replay --check`` compute the same legs. A pair's risk at the end
-of a leg is the instant bound (``runtime.models.contact_risk.instant_bound``) of robot i arrived at its leg's end
-against robot j standing where the change leaves it (its target, or its place if it has no path) and against j where
-it stands now; P(contact) of the legs' motion itself is kept by the regrouping as for any step.
+configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
+configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
+pair within ``CONTACT_BOUND`` (``runtime.models.contact_risk.instant_bound``); the motion of the legs' steps is kept
+within it by the regrouping, as for any step (``first_leg``, ``next_leg``).
 """
 
 from __future__ import annotations
