@@ -98,7 +98,7 @@ def summarise(runs: list[dict], keys: list[tuple[str, str, bool, float]]) -> lis
             "pf_mean": float(np.mean([r["pf"] for r in mine])), "noise_scale": scale,
             "steps_added": sum(r["steps_added"] for r in mine), "unclear_changes": sum(r["unclear"] for r in mine),
             "raised_bound_changes": sum(r["raised"] for r in mine),
-            "staging_stops": sum(r["staging_stops"] for r in mine), "leg_changes": sum(r["leg_changes"] for r in mine),
+            "leg_changes": sum(r["leg_changes"] for r in mine), "staging_stops": sum(r["staging_stops"] for r in mine),
         })
     return rows
 
