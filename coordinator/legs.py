@@ -92,7 +92,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     fractions = np.array((1.0, *LEG_FRACTIONS))
     movable = np.zeros(len(current), bool)
     movable[rows] = True
-    for _ in range(len(LEG_FRACTIONS)):
+    while True:  # levels only grow, to len(LEG_FRACTIONS) at most: this ends
         ends = current + fractions[level][:, None] * path
         i, j, p = _end_pairs(cfg, estimate, ends, rows)
         over = [(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)]
