@@ -139,3 +139,14 @@ def test_the_executor_drives_the_legs_and_counts_their_steps():
     # default noise: every drive clears, no legs, and the state is written as before (no ``legs`` key)
     calm = run(ModelConfig())
     assert calm.staging_stops() == 0 and not calm.configs[0].legs and calm.steps_added() == 0
+
+
+def test_a_staging_point_is_checked_against_the_others_again():
+    # at x3 robot 0 drives 0.4 m along y = 0 past the still robots 2, 3 and 4 (6 cm beside its target and its 0.75 and
+    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: robot 1
+    # then stops at its own shortest staging point too, although the end of its 3 cm drive was clear of robot 0's others
+    est = estimate([[0.0, 0.0], [0.1, 0.06], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]], [0.0, -math.pi + 1e-3, 1.0, 2.0, 3.0])
+    desired = np.array([[0.4, 0.0], [0.1, 0.03], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]])
+    leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
+    assert leg.staged.tolist() == [True, True, False, False, False]
+    assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
