@@ -401,7 +401,8 @@ class BodyCheck:
         returned as the second value (``runtime.models.substeps``)."""
         robots = np.asarray(robots, np.int64)
         keys = np.zeros(len(robots), np.int64) if part is None else np.asarray(part)[robots]
-        groups = [robots[keys == k] for k in np.unique(keys)]
+        by_part = np.argsort(keys, kind="stable")
+        groups = np.split(robots[by_part], np.flatnonzero(np.diff(keys[by_part])) + 1)
         levels = np.full(len(self.current), self.bound) if self.levels is None else self.levels
         return self._schedule(groups, self.pair_risks(robots), levels, np.asarray(done, bool))
 
