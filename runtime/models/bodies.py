@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import heapq
-from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, cast
 
@@ -35,6 +33,7 @@ from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, instant_bound, step_bound
 from runtime.models.state import SwarmEstimate
+from runtime.models.substeps import schedule
 
 if TYPE_CHECKING:
     from scipy.spatial import cKDTree
@@ -149,6 +148,31 @@ def _reach(bound: float) -> float:
 
 
 @dataclass(frozen=True)
+class PairRisks:
+    """Contact probability bounds of candidate pairs (i, j) (``BodyCheck.pair_risks``), i driving its move and j
+    standing where it starts (``start``), standing where it arrives (``end``) or moving with i (``moving``, 0 where j
+    is not among the robots regrouped); ``floor``: the bound the configurations allow the pair (``BodyCheck._floor``,
+    0 where no bound exceeded the strictest one in use). Each (m,)."""
+
+    i: np.ndarray
+    j: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    moving: np.ndarray
+    floor: np.ndarray
+
+    def over(self, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(start, end, moving) (m,): the pairs at too much risk when robot r's bound is ``levels`` [r] (a pair keeps
+        the higher of its two, or its ``floor`` where that is higher still: ``BodyCheck._risk``)."""
+        allowed = np.maximum(levels[self.i], levels[self.j])
+
+        def bad(p: np.ndarray) -> np.ndarray:
+            return np.asarray(p > np.where(p > allowed, np.maximum(allowed, self.floor), allowed) * (1.0 + TOLERANCE))
+
+        return bad(self.start), bad(self.end), bad(self.moving)
+
+
+@dataclass(frozen=True)
 class Conflict:
     """A planned pair (robot indices) at too much risk: contact ``probability`` (the bound of ``contact_risk``) above
     the ``allowed`` one; ``closest``: the closest approach of their mean positions in the step (m)."""
@@ -202,11 +226,14 @@ class BodyCheck:
         """(n,) the robots that stand at their desired positions in ``before`` (n, 2) having moved there."""
         return cast(np.ndarray, self.has_path & np.all(np.asarray(before)[:, :2] == self.desired, axis=1))
 
+    def _lowest(self) -> float:
+        """The strictest bound in use."""
+        return self.bound if self.levels is None else float(self.levels.min())
+
     def _reach_sigmas(self) -> float:
         """z with 2 Phi(-z) = the strictest bound in use: a pair whose mean positions stay more than
         2R + z (sd_i + sd_j) apart has a step bound below it (the whole step's interval, w along the closest approach)."""
-        low = self.bound if self.levels is None else float(self.levels.min())
-        return _reach(low)
+        return _reach(self._lowest())
 
     def _candidates(self, rows: np.ndarray, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs (i, j), i of ``rows`` driving from its current position, j != i standing where ``moved`` puts it or
@@ -241,32 +268,61 @@ class BodyCheck:
             found = self._trees[key] = (cKDTree(base), spread)
         return found
 
+    def _bounds(self, i: np.ndarray, j: np.ndarray, fixed_j: np.ndarray, moves_j: np.ndarray,
+                enough: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(contact probability bound, mu_0, v) of pairs (i, j): i drives its move, j is at t = ``fixed_j`` + s
+        ``moves_j`` (0/1 arrays; ``contact_risk``); a bound at most ``enough`` may be the coarse one."""
+        ones, zeros = np.ones(len(i)), np.zeros(len(i))
+        mu0, v, s0, s1, s2 = self.moments.pairs(i, j, zeros, ones, fixed_j, moves_j)
+        p = step_bound(mu0, v, s0, s1, s2, 2.0 * self.radius, self.has_path[i] | ((moves_j > 0) & self.has_path[j]), enough)
+        return p, mu0, v
+
+    def _floor(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """The bound the configurations allow pairs (i, j): ``FLOOR_FACTOR`` x the larger of their risk standing at the
+        start (both before their moves) and at the end (both after), at most 1."""
+        zeros = np.zeros(len(i))
+        floor = np.zeros(len(i))
+        for t in (0.0, 1.0):
+            at = np.full(len(i), t)
+            m0, _, c0, _, _ = self.moments.pairs(i, j, at, zeros, at, zeros)
+            floor = np.maximum(floor, instant_bound(m0, c0, 2.0 * self.radius))
+        return np.asarray(np.minimum(FLOOR_FACTOR * floor, 1.0))
+
     def _risk(self, i: np.ndarray, j: np.ndarray, fixed_j: np.ndarray,
               moves_j: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(at risk, contact probability bound, allowed bound, closest mean approach m) of pairs (i, j): i drives its
         move, j is at t = ``fixed_j`` + s ``moves_j`` (0/1 arrays; ``contact_risk``).
 
         A pair's allowed bound is the bound of the check (or the higher of its robots' ``levels``), or more where the
-        configurations themselves put it at risk: ``FLOOR_FACTOR`` x the larger of its risk standing at the start
-        (both before their moves) and at the end (both after): no plan can do better than the configurations."""
-        ones, zeros = np.ones(len(i)), np.zeros(len(i))
-        mu0, v, s0, s1, s2 = self.moments.pairs(i, j, zeros, ones, fixed_j, moves_j)
+        configurations themselves put it at risk (``_floor``): no plan can do better than the configurations."""
         allowed = np.full(len(i), self.bound) if self.levels is None else np.maximum(self.levels[i], self.levels[j])
-        p = step_bound(mu0, v, s0, s1, s2, 2.0 * self.radius, self.has_path[i] | ((moves_j > 0) & self.has_path[j]), allowed)
+        p, mu0, v = self._bounds(i, j, fixed_j, moves_j, allowed)
         over = np.flatnonzero(p > allowed)
         if len(over):  # the configurations' own risk, only where it could matter
-            oi, oj = i[over], j[over]
-            floor = np.zeros(len(over))
-            for t in (0.0, 1.0):
-                at = np.full(len(over), t)
-                m0, _, c0, _, _ = self.moments.pairs(oi, oj, at, zeros[over], at, zeros[over])
-                floor = np.maximum(floor, instant_bound(m0, c0, 2.0 * self.radius))
-            allowed[over] = np.maximum(allowed[over], np.minimum(FLOOR_FACTOR * floor, 1.0))
+            allowed[over] = np.maximum(allowed[over], self._floor(i[over], j[over]))
         return p > allowed * (1.0 + TOLERANCE), p, allowed, closest_approach(mu0, v)
 
-    def _verdict(self, i: np.ndarray, j: np.ndarray, fixed_j: np.ndarray, moves_j: np.ndarray) -> np.ndarray:
-        """Whether each pair (i, j) of ``_risk`` is at too much risk."""
-        return self._risk(i, j, fixed_j, moves_j)[0]
+    def pair_risks(self, robots: np.ndarray) -> PairRisks:
+        """The bounds of every candidate pair (i, j), i of ``robots`` driving its move, with j standing where it
+        starts, standing where it arrives and (j of ``robots``) moving with i: all a regrouping of ``robots``
+        needs, at any robots' bounds (``PairRisks.over``)."""
+        robots = np.asarray(robots, np.int64)
+        n = len(self.current)
+        i, j = self._candidates(robots, np.zeros(n, bool))
+        enough = self._lowest()
+        zeros = np.zeros(len(i))
+        start = self._bounds(i, j, zeros, zeros, enough)[0]
+        end, moving = start.copy(), np.zeros(len(i))
+        ahead = np.flatnonzero(self.has_path[j])  # only a robot with a path stands elsewhere when it has arrived
+        end[ahead] = self._bounds(i[ahead], j[ahead], np.ones(len(ahead)), zeros[ahead], enough)[0]
+        mover = np.zeros(n, bool)
+        mover[robots] = True
+        both = np.flatnonzero(mover[j])
+        moving[both] = self._bounds(i[both], j[both], zeros[both], np.ones(len(both)), enough)[0]
+        floor = np.zeros(len(i))
+        over = np.flatnonzero((start > enough) | (end > enough) | (moving > enough))
+        floor[over] = self._floor(i[over], j[over])
+        return PairRisks(i, j, start, end, moving, floor)
 
     def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
         """The conflicts of one step: robots at ``before`` (n, 2; each at its current or its desired position),
@@ -286,30 +342,6 @@ class BodyCheck:
             found = self._conflicts[key] = tuple(Conflict(int(min(a, b)), int(max(a, b)), float(c), float(q), float(r))
                                                  for a, b, c, q, r in zip(i[bad], j[bad], closest[bad], p[bad], allowed[bad], strict=True))
         return list(found)
-
-    def greedy(self, units: list[list[int]], before: np.ndarray) -> list[bool]:
-        """Which of ``units`` (lists of robots still to move, in order) move together in one clear step from
-        ``before``, taken greedily: a unit joins when none of its robots is at too much risk with any robot, those
-        of the units taken so far and its own moving, the others standing where ``before`` puts them."""
-        robots = np.array([r for u in units for r in u], np.int64)
-        unit_of = np.full(len(before), -1, np.int64)
-        unit_of[robots] = np.repeat(np.arange(len(units)), [len(u) for u in units])
-        moved = self._moved(before) & (unit_of < 0)
-        i, j = self._candidates(robots, moved)
-        ones = np.ones(len(i))
-        with_j_moving = self._verdict(i, j, 0.0 * ones, ones)
-        with_j_still = self._verdict(i, j, moved[j].astype(float), 0.0 * ones)
-        ui, uj = unit_of[i], unit_of[j]
-        blocked = np.zeros(len(units), bool)  # by a robot of no unit (standing) or by its own unit (moving)
-        blocked[ui[((uj < 0) & with_j_still) | ((uj == ui) & with_j_moving)]] = True
-        other = np.flatnonzero((uj >= 0) & (uj != ui) & (with_j_moving | with_j_still))
-        depends: dict[int, list[tuple[int, bool, bool]]] = {}
-        for k in other.tolist():
-            depends.setdefault(int(ui[k]), []).append((int(uj[k]), bool(with_j_moving[k]), bool(with_j_still[k])))
-        taken = [False] * len(units)
-        for u in range(len(units)):
-            taken[u] = not blocked[u] and not any(m if taken[v] else st for v, m, st in depends.get(u, ()))
-        return taken
 
     def is_clear(self, groups: list[np.ndarray]) -> bool:
         """Whether no step of ``groups`` has a conflict (constraint g of Eq. 4)."""
@@ -340,160 +372,66 @@ class BodyCheck:
         return out
 
     def regroup(self, groups: list[np.ndarray]) -> Regrouped:
-        """``groups`` split into conflict-free sub-steps, in their order (``docs/bodies.md``).
+        """``groups`` split into sub-steps that keep the chance constraint (``docs/bodies.md``).
 
-        First the groups themselves (``split``); if that leaves robots that no order clears, all
-        robots in order (``ordered_moves``); if neither clears, the same with the bound of the robots that
-        order left unclear raised to the next of ``BOUND_LEVELS``, the others keeping theirs, in turn. If even
-        the highest fails, ``unclear`` names the robots whose sub-steps could not be cleared (they move one at a
-        time where the order places them); ``bound`` is the highest bound used.
+        The sub-steps are a schedule of the robots' single moves under the pairs' constraints
+        (``runtime.models.substeps``); if it leaves robots that no order clears, the bound of those robots is
+        raised to the next of ``BOUND_LEVELS``, the others keeping theirs, in turn. If even the highest fails,
+        ``unclear`` names the robots whose sub-steps could not be cleared (they move one at a time where the order
+        places them); ``bound`` is the highest bound used.
         """
         groups = [np.asarray(g, dtype=np.int64) for g in groups]
         if not self.active or self.is_clear(groups):
             return Regrouped(groups, [], self.bound)
-        every = np.concatenate(groups)
-        part = np.zeros(len(self.current), np.int64)  # each robot's group in the plan
-        part[every] = np.repeat(np.arange(len(groups)), [len(g) for g in groups])
-        levels = np.full(len(self.current), self.bound)
+        n = len(self.current)
+        risks = self.pair_risks(np.concatenate(groups))
+        levels = np.full(n, self.bound)
         while True:
-            check = self.with_levels(levels)
-            split = check.split(groups)
-            if not split.unclear:
-                return Regrouped(split.groups, [], float(levels.max()))
-            moves, unclear = check.ordered_moves(every, np.zeros(len(self.current), bool), part)
+            moves, unclear = self._schedule(groups, risks, levels, np.zeros(n, bool))
             higher = [r for r in unclear if levels[r] < max(BOUND_LEVELS)]
             if not unclear or not higher:
-                return Regrouped(moves, unclear, float(levels.max()))
+                return Regrouped(moves, unclear, float(levels.max()), levels if np.any(levels != levels[0]) else None)
             for r in higher:  # only the robots no order clears get the next higher bound
                 levels[r] = min(k for k in BOUND_LEVELS if k > levels[r])
 
-    def split(self, groups: list[np.ndarray]) -> Regrouped:
-        """``groups`` split into clear sub-steps in their order. Each group moves as the prefix-greedy subset
-        of its robots that is clear, the rest follow in further sub-steps; a group none of whose robots can
-        move yet (each would come too close to a robot still to move) waits behind the next group. If no
-        group can move, the remaining robots go one at a time where they can (``ordered_moves``)."""
-        before = self.current.copy()
-        queue, out, waited = deque(np.asarray(g).tolist() for g in groups), [], 0
-        while queue and waited <= len(queue):
-            group = queue.popleft()
-            sub = [r for r, ok in zip(group, self.greedy([[r] for r in group], before), strict=True) if ok]
-            if sub:
-                out.append(np.array(sub))
-                before[sub] = self.desired[sub]
-                rest = [r for r in group if r not in sub]
-                if rest:
-                    queue.appendleft(rest)
-                waited = 0
-            else:
-                queue.append(group)
-                waited += 1
-        rest = [r for g in queue for r in g]
-        if not rest:
-            return Regrouped(out, [], self.bound)
-        done = np.ones(len(before), bool)
-        done[rest] = False
-        part = np.zeros(len(before), np.int64)
-        for k, g in enumerate(queue):
-            part[g] = k
-        moves, unclear = self.ordered_moves(np.array(rest), done, part)
-        return Regrouped(out + moves, unclear, self.bound)
-
     def ordered_moves(self, robots: np.ndarray, done: np.ndarray, part: np.ndarray | None = None) -> tuple[list[np.ndarray], list[int]]:
-        """Sub-steps that move ``robots`` one at a time where they can and together where they must, every
-        sub-step clear, and []; the robots of ``done`` stand at their desired positions, the others at their
-        current ones. When a sub-step cannot be cleared, its robots move one at a time there and are returned
-        as the second value.
+        """Sub-steps that move ``robots`` each once, every sub-step clear, and []; the robots of ``done`` stand at
+        their desired positions, the others at their current ones; ``part`` (n,): each robot's group (a sub-step keeps
+        to one, None: all one group). When a sub-step cannot be cleared, its robots move one at a time there and are
+        returned as the second value (``runtime.models.substeps``)."""
+        robots = np.asarray(robots, np.int64)
+        keys = np.zeros(len(robots), np.int64) if part is None else np.asarray(part)[robots]
+        by_part = np.argsort(keys, kind="stable")
+        groups = np.split(robots[by_part], np.flatnonzero(np.diff(keys[by_part])) + 1)
+        levels = np.full(len(self.current), self.bound) if self.levels is None else self.levels
+        return self._schedule(groups, self.pair_risks(robots), levels, np.asarray(done, bool))
 
-        In single moves robot i meets robot j either at j's current or at j's desired position: a move that
-        comes too close to j's current position must wait for j, one that comes too close to j's desired
-        position must go before j. Robots caught in a cycle of these precedences (a strongly connected
-        component, e.g. two robots overtaking each other) move together, which clears them when their joint
-        motion keeps them apart; the components go in topological order, earliest in the given order first.
-        """
-        from scipy.sparse import coo_matrix  # noqa: PLC0415 - scipy only when a plan needs reordering
-        from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
-
-        ids = [int(r) for r in robots]
-        local = {r: k for k, r in enumerate(ids)}
-        if part is None:
-            part = np.zeros(len(self.current), np.int64)
-        edges, stuck = [], set()  # (a, b): a must move before b
-        near_current, near_desired = self._single_hits(np.array(ids, np.int64))
-        for r in ids:
-            edges += [(local[j], local[r]) for j in near_current[r] if j in local]
-            edges += [(local[r], local[j]) for j in near_desired[r] if j in local]
-            stuck |= {r for j in near_desired[r] if j not in local and done[j]}
-        m = len(ids)
-        a, b = (np.array([e[k] for e in edges], np.int64) for k in (0, 1))
-        graph = coo_matrix((np.ones(len(edges)), (a, b)), shape=(m, m)).tocsr()
-        _, label = connected_components(graph, directed=True, connection="strong")
-        members: dict[int, list[int]] = {}
-        for k, c in enumerate(label):
-            members.setdefault(int(c), []).append(ids[k])
-        after: dict[int, set[int]] = {c: set() for c in members}
-        for x, y in zip(a.tolist(), b.tolist(), strict=True):
-            if label[x] != label[y]:
-                after[int(label[x])].add(int(label[y]))
-        waiting = {c: 0 for c in members}
-        for nxt in after.values():
-            for d in nxt:
-                waiting[d] += 1
-        first = {c: min(local[r] for r in g) for c, g in members.items()}
-        ready = [(first[c], c) for c in members if not waiting[c]]
-        heapq.heapify(ready)
-        before = np.where(done[:, None], self.desired, self.current)
-        out, unclear = [], []
-
-        def release(c: int) -> None:
-            for d in after[c]:
-                waiting[d] -= 1
-                if not waiting[d]:
-                    heapq.heappush(ready, (first[d], d))
-
-        while ready:  # Kahn's topological sort of the components, in waves of ready ones that move together clear
-            popped = [heapq.heappop(ready)[1] for _ in range(len(ready))]
-            lead = popped[0]
-            parts = {int(part[r]) for r in members[lead]}  # a wave keeps to the plan's groups
-            units = [lead] + [c for c in popped[1:] if not stuck & set(members[c]) and {int(part[r]) for r in members[c]} <= parts]
-            taken = self.greedy([members[c] for c in units], before)
-            if stuck & set(members[lead]) or not taken[0]:  # its robots cannot move clear: one at a time here
-                units, taken = [lead], [True]
-                unclear += members[lead]
-                out += [np.array([r]) for r in members[lead]]
-            else:
-                out.append(np.array([r for c, t in zip(units, taken, strict=True) if t for r in members[c]]))
-            moved = [c for c, t in zip(units, taken, strict=True) if t]
-            for c in popped:
-                if c not in moved:
-                    heapq.heappush(ready, (first[c], c))
-            for c in moved:
-                before[members[c]] = self.desired[members[c]]
-                release(c)
-        return out, sorted(unclear)
-
-    def _single_hits(self, robots: np.ndarray) -> tuple[dict[int, list[int]], dict[int, list[int]]]:
-        """For each of ``robots``: the robots whose current / desired positions its single move (current -> desired),
-        the others standing there, puts at too much risk."""
-        out = []
-        for fixed in (0.0, 1.0):
-            moved = np.full(len(self.current), bool(fixed)) & self.has_path
-            i, j = self._candidates(robots, moved)
-            bad = self._verdict(i, j, np.full(len(i), fixed), np.zeros(len(i)))
-            hits: dict[int, list[int]] = {int(r): [] for r in robots}
-            for x, y in zip(i[bad].tolist(), j[bad].tolist(), strict=True):
-                hits[x].append(y)
-            out.append(hits)
-        return out[0], out[1]
+    def _schedule(self, groups: list[np.ndarray], risks: PairRisks, levels: np.ndarray,
+                  done: np.ndarray) -> tuple[list[np.ndarray], list[int]]:
+        """``substeps.schedule`` of ``groups`` from the pairs of ``risks`` over the robots' bounds ``levels``; the
+        robots of no group stand at their desired positions where ``done``, else at their current ones."""
+        n = len(self.current)
+        start, end, moving = risks.over(levels)
+        i, j = risks.i, risks.j
+        mine = np.zeros(n, bool)
+        mine[np.concatenate(groups)] = True
+        ours = mine[j]
+        needs = (np.concatenate([i[start & ours], j[end & ours]]), np.concatenate([j[start & ours], i[end & ours]]))
+        blocked = np.zeros(n, bool)
+        blocked[i[~ours & np.where(done[j], end, start)]] = True
+        return schedule(groups, n, needs, (i[moving & ours], j[moving & ours]), blocked)
 
 
 @dataclass(frozen=True)
 class Regrouped:
     """The groups of a plan that keep the chance constraint, with a contact bound of ``bound`` per pair and step at
-    most; ``unclear``: robots no order kept within the highest of ``BOUND_LEVELS`` (moved one at a time)."""
+    most; ``unclear``: robots no order kept within the highest of ``BOUND_LEVELS`` (moved one at a time);
+    ``levels`` (n,): each robot's bound where they differ (``BodyCheck.with_levels``), else None."""
 
     groups: list[np.ndarray]
     unclear: list[int]
     bound: float
+    levels: np.ndarray | None = None
 
 
 def overlapping_pairs(xy: np.ndarray, radius: float) -> np.ndarray:

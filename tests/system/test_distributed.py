@@ -297,9 +297,10 @@ def _kill_an_agent_mid_run(tmp_path: Path, extra: tuple[str, ...] = ("--on-lost=
 
 
 def test_bodies_regroup_and_contacts_are_the_in_process_ones_and_recorded(tmp_path):
-    """Robot 0 drives to 27 mm behind robot 1, which stands in its way: one-at-a-time is regrouped (robot 1 first),
-    and with seed 4 the true bodies still touch at the end (motion noise): the summary, the JSON and the
-    recording's ContactMessage say so, exactly as the in-process run."""
+    """Robot 0 drives to 27 mm behind robot 1, which stands in its way: one-at-a-time is regrouped (robot 1 first,
+    then robot 0), and with seed 4 the true bodies still touch at the end of robot 0's step (motion noise) and stand
+    touching through the last: the summary, the JSON and the recording's ContactMessages say so, exactly as the
+    in-process run."""
     traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [0.327, 0.0], [0.05, 0.25]]]))
     run = Run(tmp_path, traj, "one-at-a-time", 4, extra=("--json",))
     try:
@@ -310,13 +311,14 @@ def test_bodies_regroup_and_contacts_are_the_in_process_ones_and_recorded(tmp_pa
     assert run.coordinator.returncode == 0, "".join(run.stderr)
     _assert_same_as_in_process(run)
     ref = _in_process(traj, "one-at-a-time", 4).contacts(0.011)
-    assert [(c.step, c.a, c.b) for c in ref] == [(3, 0, 1)]
-    assert "config 1: steps regrouped for bodies (still 3)" in out and "contacts (bodies of radius 0.011 m): 1" in out
+    assert [(c.step, c.a, c.b) for c in ref] == [(2, 0, 1), (3, 0, 1)]
+    assert "config 1: steps regrouped for bodies (still 3)" in out and "contacts (bodies of radius 0.011 m): 2" in out
     doc = json.loads(out.strip().splitlines()[-1])
-    assert doc["robot_radius_m"] == 0.011 and doc["contacts"] == [{"step": 3, "config": 1, "robots": [0, 1], "distance_m": ref[0].distance}]
+    assert doc["robot_radius_m"] == 0.011
+    assert doc["contacts"] == [{"step": c.step, "config": 1, "robots": [0, 1], "distance_m": c.distance} for c in ref]
     msgs = [decode(payload) for topic, payload, _, _ in read_messages(run.recording) if topic.endswith("/sim/contact")]
-    assert [(m.step, m.config, m.a, m.b, m.radius_m) for m in msgs] == [(3, 1, 0, 1, 0.011)]
-    assert msgs[0].distance_m == ref[0].distance and tuple(msgs[0].point) == ref[0].point
+    assert [(m.step, m.config, m.a, m.b, m.radius_m) for m in msgs] == [(2, 1, 0, 1, 0.011), (3, 1, 0, 1, 0.011)]
+    assert [(m.distance_m, tuple(m.point)) for m in msgs] == [(c.distance, c.point) for c in ref]
     topics = [t for t, _, _, _ in read_messages(run.recording, derived=True)]
     assert "/foxglove/contacts" in topics
 

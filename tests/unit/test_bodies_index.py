@@ -40,15 +40,17 @@ def checks(current: np.ndarray, desired: np.ndarray, position_var: np.ndarray, h
     moving = rng.random(n) < 0.5
     before = np.where((rng.random(n) < 0.3)[:, None], desired, current)
     groups = np.array_split(rng.permutation(n), 3)
-    near_current, near_desired = check._single_hits(np.arange(n))
+    risks = check.pair_risks(np.arange(n))
+    levels = rng.choice([1e-3, 1e-2, 1e-1], n)
+    relations = [sorted(zip(risks.i[bad].tolist(), risks.j[bad].tolist(), strict=True)) for bad in risks.over(levels)]
     regrouped = check.regroup(groups)
-    split = check.with_bound(1e-2).split(groups)
+    ordered = check.with_bound(1e-2).ordered_moves(groups[0], rng.random(n) < 0.3, np.arange(n) % 2)
     truth = desired + rng.normal(0.0, 0.01, desired.shape)
     return ([astuple(c) for c in check.step_conflicts(before, moving)],
             [astuple(c) for c in step_contacts(before, truth, moving, R)],
-            impassable_pairs(current, desired, R).tolist(), near_current, near_desired,
+            impassable_pairs(current, desired, R).tolist(), relations,
             [g.tolist() for g in regrouped.groups], regrouped.unclear, regrouped.bound,
-            [g.tolist() for g in split.groups], split.unclear, check.greedy([[int(r)] for r in groups[0]], before))
+            [g.tolist() for g in ordered[0]], ordered[1])
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -59,7 +61,7 @@ def test_the_indexed_checks_equal_the_checks_of_every_pair(monkeypatch, seed):
     monkeypatch.setattr(bodies, "INDEX_MIN", 0)  # the k-d tree's candidates
     indexed = checks(*change, seed)
     assert indexed == every
-    assert every[0] and every[1] and every[2] and every[6] is not None  # conflicts, contacts and a swap were found
+    assert every[0] and every[1] and every[2] and all(every[3])  # conflicts, contacts, a swap and each relation were found
 
 
 def test_a_touching_pair_is_a_contact_and_a_conflict_either_way(monkeypatch):
