@@ -11,7 +11,7 @@ Tests sit in one folder per level, and the folder is the only declaration of a t
 Each test gets the marker of its level; ``slow`` marks integration and system tests, so
 ``python -m pytest -m "not slow"`` (or ``python -m pytest tests/unit``) is the quick subset and
 ``python -m pytest`` runs everything. Helper modules shared by several levels (``agent_hub``,
-``fault_drivers``, ``waiting``) sit in ``tests/`` itself, which is on ``sys.path`` (pyproject's ``pythonpath``).
+``fault_drivers``, ``localize_cases``, ``waiting``) sit in ``tests/`` itself, which is on ``sys.path`` (pyproject's ``pythonpath``).
 """
 
 from __future__ import annotations

@@ -109,7 +109,7 @@ def test_bench_localize_json_contract():
 def test_solver_failure_has_its_own_exit_code_and_localizes_the_rest(tmp_path):
     """Two robots at the same spot (0 mm, no prior): the joint topology does not converge with all of
     them (this draw); the robots it names are left out, the rest is localized, exit code 3."""
-    from test_localization_degenerate import close_pair_case, document  # shared test scenario
+    from localize_cases import close_pair_case, document  # shared test scenario
 
     _, obs, _ = close_pair_case(6, 0.0, True, 11)
     path = tmp_path / "pair.json"
