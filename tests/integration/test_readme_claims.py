@@ -89,7 +89,7 @@ def test_the_joint_covariance_is_honest_and_eq23s_is_not(capsys, tmp_path) -> No
     paper = [v for (loc, _m, _s), v in rows.items() if loc == "paper"]
     assert len(joint) == len(paper) == 2
     assert all(0.7 <= v <= 1.5 for v in joint), rows  # the target band, at 8 trajectories
-    assert all(v >= 9.0 for v in paper), rows  # 9.5x and more in the median
+    assert all(v >= 5.0 for v in paper), rows  # far outside the band (README: 9.5x and more at 8 x 15; here 2 x 4)
 
 
 def test_contacts_grow_with_motion_noise() -> None:

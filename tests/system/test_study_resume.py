@@ -35,8 +35,10 @@ def test_ctrl_c_then_resume_gives_the_uninterrupted_result(tmp_path):
     whole = swarm(*COMPARE, "--out", str(tmp_path / "whole"))
     assert whole.returncode == 0, whole.stderr
     out = tmp_path / "cut"
+    # Ctrl-C as from a terminal: SIGINT at its default even where this test runs as a background job (which ignores it)
     proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", *COMPARE, "--out", str(out)], cwd=ROOT,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         log = out / "runs.jsonl"
         deadline = time.monotonic() + 300
