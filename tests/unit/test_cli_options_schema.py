@@ -8,11 +8,13 @@ import argparse
 import dataclasses
 import importlib
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from runtime.errors import OptionError, SwarmInputError
+from runtime.paths import StrPath
 from swarm_cli.main import build_parser
 from swarm_cli.schema import add_fields, default_of, flag_of, options_of
 
@@ -35,6 +37,10 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
      ("model", "selection")),
     ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run",)),
     ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
+    # sim: --model FILE and the noise flags give model, the selection group selection; --physics-param repeats (a list)
+    # and gives physics; the start estimate's uncertainty has no flag (swarm_cli.sim.NO_FLAG: from Python only)
+    ("sim", "swarm_cli.sim:options", ("inchworm.simulation:SimOptions",),
+     ("model", "selection", "physics", "initial_delta_m", "initial_heading_sigma_rad")),
     # launch: --model FILE gives model_file and model; --driver-option and --physics-param repeat (a list); --rejoin
     # is yes/no; trajectory_seed is the seed (demo: 0) and command the command's name; record options are the coordinator's
     ("launch", "_launch_options", ("inchworm.launch_options:LaunchOptions", "inchworm.launch_options:SwarmOptions",
@@ -130,3 +136,22 @@ def test_a_field_without_a_command_line_type_must_be_excluded() -> None:
     parser = argparse.ArgumentParser()
     add_fields(parser, Nested, exclude=("toy",))
     assert options_of(parser.parse_args(["--count", "2"]), Nested, toy=Toy(5)) == Nested(Toy(5), 2)
+
+
+def test_a_union_takes_the_flag_of_its_one_command_line_member_and_kept_fields_their_defaults() -> None:
+    @dataclasses.dataclass(frozen=True, kw_only=True)
+    class Run:
+        file: StrPath | None = dataclasses.field(default=None, metadata={"help": "a file"})
+        how: str | Callable[[int], tuple[int, ...]] = dataclasses.field(default="fast", metadata={"help": "a name (Python: a function)"})
+        either: int | float = 1  # two members with a flag type: which one the command line means is not said
+        start: float = 0.5  # no command-line form: kept
+
+    with pytest.raises(TypeError, match="either"):
+        add_fields(argparse.ArgumentParser(), Run, exclude=("start",))
+    parser = argparse.ArgumentParser()
+    add_fields(parser, Run, exclude=("either", "start"))
+    helps = {a.option_strings[-1]: a.help for a in parser._actions if a.option_strings}
+    assert (helps["--file"], helps["--how"]) == ("a file", "a name (Python: a function) (default fast)")
+    args = parser.parse_args(["--file", "x.json", "--how", "slow"])
+    assert options_of(args, Run, keep=("start",), either=2.5) == Run(file=Path("x.json"), how="slow", either=2.5)
+    assert options_of(parser.parse_args([]), Run, keep=("start",), either=1) == Run()
