@@ -35,7 +35,8 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("study noise", "swarm_cli.study_noise:options", ("inchworm.studies.noise:NoiseOptions",), ("run",)),
     ("study consistency", "swarm_cli.study_consistency:options", ("inchworm.studies.consistency:ConsistencyOptions",),
      ("model", "selection")),
-    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run",)),
+    # study selection: --eval-samples not given is each mode's own default (the study's field, the genetic gain's, below)
+    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run", "eval_samples")),
     ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
     # sim: --model FILE and the noise flags give model, the selection group selection; --physics-param repeats (a list)
     # and gives physics; the start estimate's uncertainty has no flag (swarm_cli.sim.NO_FLAG: from Python only)
@@ -77,6 +78,27 @@ def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str,
             assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
     made: Callable[[argparse.Namespace], Any] = globals()[maker] if ":" not in maker else _named(maker)
     assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
+
+
+def test_the_genetic_gain_evaluates_on_its_own_samples_unless_given(tmp_path) -> None:
+    """``--genetic-gain`` without ``--eval-samples`` evaluates on the gain's 256 samples (docs/selection.md's grid), the
+    selection study on its own 512; ``--eval-samples`` (or a ``--config`` file's) sets both."""
+    from inchworm.studies.genetic_gain import EVAL_SAMPLES, GeneticGainOptions
+    from inchworm.studies.selection import SelectionStudyOptions
+    from swarm_cli.main import parse
+    from swarm_cli.study_selection import gain_options, options
+
+    def parsed(*flags: str) -> argparse.Namespace:
+        return parse(["study", "selection", *flags])
+
+    assert gain_options(parsed("--genetic-gain")).eval_samples == GeneticGainOptions().eval_samples == EVAL_SAMPLES == 256
+    assert options(parsed()).eval_samples == SelectionStudyOptions().eval_samples == 512
+    assert gain_options(parsed("--genetic-gain", "--eval-samples", "64")).eval_samples == options(parsed("--eval-samples", "64")).eval_samples == 64
+    (tmp_path / "s.toml").write_text("eval-samples = 300\n")
+    given = parsed("--genetic-gain", "--config", str(tmp_path / "s.toml"))
+    assert gain_options(given).eval_samples == options(given).eval_samples == 300
+    with pytest.raises(OptionError, match="^eval_samples must be >= 2, got 1$"):
+        gain_options(parsed("--genetic-gain", "--eval-samples", "1"))
 
 
 @dataclasses.dataclass(frozen=True)
