@@ -50,5 +50,6 @@ def run(args: argparse.Namespace) -> int:
         return print_result(study_genetic_gain(gain_options(args)), args.json)
     chosen = options(args)
     if args.from_csv is None:
+        args.eval_samples = chosen.eval_samples  # study.toml records the evaluation set the study used
         return run_study(args, study_selection, chosen, chosen.configs, "study selection", "configs")
     return print_result(selection_from_csv(args.from_csv, chosen), args.json)

@@ -47,6 +47,7 @@ def test_a_given_trajectory_file_is_a_path_and_the_random_one_is_not_checked():
 
 
 def test_the_flags_make_the_options():
+    pytest.importorskip("pymunk")  # --world physics checks that its extra is installed
     argv = ["sim", "--trajectory", "t.json", "--method", "ref57", "--seed", "3", "--localizer", "joint", "--robot-radius", "0",
             "--samples", "4", "--world", "physics", "--physics-param", "mass_kg=0.05"]
     chosen = options(build_parser(argv).parse_args(argv))
