@@ -39,21 +39,18 @@ class PairTable:
         clear: np.ndarray = ~bad.any(axis=(1, 2))
         return clear
 
-    def step_pairs(self, plan: Plan) -> list[np.ndarray]:
-        """Per step of ``plan``, its conflicting pairs (k, 2) as (driver, other), each pair once."""
+    def conflicting(self, plan: Plan) -> np.ndarray:
+        """The conflicting pairs (m, 2) of every step of ``plan`` as (driver, other), each pair once: the driver moves
+        in the step of the conflict (a pair of movers: the lower index drives)."""
         step = plan_steps(plan)
-        out = []
-        for k in range(plan.n_steps):
-            moving = step == k
-            bad = (moving[:, None] & moving[None, :] & np.triu(self.together, 1))
-            bad |= moving[:, None] & (step > k)[None, :] & self.at_start
-            bad |= moving[:, None] & (step < k)[None, :] & self.at_arrival
-            out.append(np.argwhere(bad))
-        return out
+        mine, other = step[:, None], step[None, :]
+        bad = ((mine == other) & np.triu(self.together, 1)) | ((mine < other) & self.at_start) | ((mine > other) & self.at_arrival)
+        return np.argwhere(bad)
 
     def step_counts(self, plan: Plan) -> list[int]:
         """Conflicting pairs of each step of ``plan``."""
-        return [len(p) for p in self.step_pairs(plan)]
+        counts: list[int] = np.bincount(plan_steps(plan)[self.conflicting(plan)[:, 0]], minlength=plan.n_steps).tolist()
+        return counts
 
 
 def plan_steps(plan: Plan) -> np.ndarray:
