@@ -88,8 +88,9 @@ def block_errors(cfg: ModelConfig, localizer: Localizer, start: str, blocks: lis
         commands = np.where(moving[..., None], command_towards(e, desired), 0.0)
         t = np.where(moving[..., None], apply_motion(t, commands, turn, drive), t)
         true_rho, true_phi = measure(t[..., :, None, :], t[..., None, :, :2])  # (m, s, n, n)
-        draws = [np.concatenate(parts) for parts in zip(*(_step_draws(seed, count, n, k) for count, seed in blocks), strict=True)]
-        rho, phi, keep = add_sensing_noise(true_rho, true_phi, *draws, cfg)
+        step_draws = [_step_draws(seed, count, n, k) for count, seed in blocks]
+        uniform, z_range, z_bearing = (np.concatenate(parts) for parts in zip(*step_draws, strict=True))
+        rho, phi, keep = add_sensing_noise(true_rho, true_phi, uniform, z_range, z_bearing, cfg)
         seen = keep & (true_rho <= cfg.sensing_range_m) & ~eye
         out = localize_batch(
             localizer, cfg,
