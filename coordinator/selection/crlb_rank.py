@@ -69,7 +69,7 @@ def crlb_blocks(poses: np.ndarray, prior_cov: np.ndarray, cfg: ModelConfig) -> n
     (the same matrix as the sparse assembly, to rounding)."""
     c, n, _ = poses.shape
     d = poses[:, None, :, :2] - poses[:, :, None, :2]  # [c, i, j] = x_j - x_i: observer i, observed j
-    seen = (np.linalg.norm(-d, axis=-1) <= cfg.sensing_range_m) & ~np.eye(n, dtype=bool)
+    seen = (np.linalg.norm(d, axis=-1) <= cfg.sensing_range_m) & ~np.eye(n, dtype=bool)
     rho = np.hypot(d[..., 0], d[..., 1])
     s_r, _ = sensor_sigmas(cfg)
     w_b = np.where(seen, bearing_weights(rho, cfg), 0.0)

@@ -288,7 +288,7 @@ class AnchorSelector:
         screened_plans = [n_a for n_a in seeds if n_a != 0 and connected(seeds[n_a])]
         if sel.method == "crlb":  # e_l(0) = e_l,max: one deterministic prediction
             e_zero = e_max = float(evaluate([all_move])[0])
-            e_seeds = evaluate([seeds[k] for k in screened_plans]) if screened_plans else np.zeros(0)
+            e_seeds = evaluate([seeds[k] for k in screened_plans])
         else:  # e_l(0) (e_l,max: the mean over the samples, Section 4.1.1, or ``worst``, their largest) and every count's
             # heuristic plan on the screening samples, in one pass (``block_errors``)
             per = each_sample([all_move] + [seeds[k] for k in screened_plans], samples, screen_seed)
