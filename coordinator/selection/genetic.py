@@ -113,7 +113,9 @@ def genetic_search(
         """Fitness of ``plans``: the new feasible ones evaluated (with a predictor and a ``limit``, the ``limit`` best
         predicted, the others guessed); ``always``: plans evaluated whatever their prediction (the seeds), in the
         same Monte Carlo pass."""
-        fresh, seen, first = [], set(), []
+        fresh: list[Plan] = []
+        first: list[Plan] = []  # of ``always``
+        seen: set[PlanKey] = set()
         for k, p in enumerate((*always, *plans)):
             key = p.key()
             if key in cache or key in seen:
