@@ -9,16 +9,12 @@ probability of each pair and step): robot i driving from its start to its arriva
 
 A plan's conflicts are therefore those three verdicts looked up for each pair of robots by the steps the plan
 gives them: both in step k, a conflict of step k if ``together``; i in step k before j, a conflict of step k if
-``at_start[i, j]`` and one of j's step if ``at_arrival[j, i]``. The tables are filled by ``step_conflicts`` itself
-on 1 + 4 ceil(log2 n_r) steps: every robot moving, and for each bit b of the robot index the robots with (and
-without) that bit moving while the others stand at their starts (at their arrivals): every ordered pair (i, j)
-differs in some bit, so it is seen with i moving and j standing. n_r = 10: 17 steps instead of one per step of
-every plan judged (hundreds in a selection).
+``at_start[i, j]`` and one of j's step if ``at_arrival[j, i]``. The tables are ``BodyCheck.pair_tables``: the
+bounds of every pair in the three situations, computed once (``BodyCheck.pair_risks``, the same pair bounds the
+regrouping schedules from), judged as ``step_conflicts`` judges them; hundreds of plans are then judged by lookups.
 """
 
 from __future__ import annotations
-
-import math
 
 import numpy as np
 
@@ -26,35 +22,12 @@ from coordinator.plan import Plan
 from runtime.models.bodies import BodyCheck
 
 
-def sides(n: int) -> list[np.ndarray]:
-    """(n,) bool masks, each the robots moving in one filling step: for every bit of the index, with it and without."""
-    index = np.arange(n)
-    out = []
-    for bit in range(max(1, math.ceil(math.log2(n)))):
-        has = (index >> bit) & 1 == 1
-        out += [has, ~has]
-    return [s for s in out if s.any() and not s.all()]
-
-
 class PairTable:
     """The three (n, n) verdict tables of one ``BodyCheck`` (row: the driving robot) and the plans' conflicts from them."""
 
     def __init__(self, bodies: BodyCheck) -> None:
         self.current, self.desired = bodies.current, bodies.desired
-        n = len(self.current)
-        self.together = np.zeros((n, n), bool)
-        self.at_start = np.zeros((n, n), bool)
-        self.at_arrival = np.zeros((n, n), bool)
-        if not bodies.active:
-            return
-        for c in bodies.step_conflicts(self.current, np.ones(n, bool)):
-            self.together[c.a, c.b] = self.together[c.b, c.a] = True
-        for moving in sides(n):
-            for table, before in ((self.at_start, self.current), (self.at_arrival, np.where(moving[:, None], self.current, self.desired))):
-                for c in bodies.step_conflicts(before, moving):
-                    if moving[c.a] != moving[c.b]:  # a pair of movers is ``together``'s
-                        driver, other = (c.a, c.b) if moving[c.a] else (c.b, c.a)
-                        table[driver, other] = True
+        self.together, self.at_start, self.at_arrival = bodies.pair_tables()
 
     def clear(self, plans: list[Plan]) -> np.ndarray:
         """(plans,) whether no step of each plan has a conflict."""
@@ -66,21 +39,18 @@ class PairTable:
         clear: np.ndarray = ~bad.any(axis=(1, 2))
         return clear
 
-    def step_pairs(self, plan: Plan) -> list[np.ndarray]:
-        """Per step of ``plan``, its conflicting pairs (k, 2) as (driver, other), each pair once."""
+    def conflicting(self, plan: Plan) -> np.ndarray:
+        """The conflicting pairs (m, 2) of every step of ``plan`` as (driver, other), each pair once: the driver moves
+        in the step of the conflict (a pair of movers: the lower index drives)."""
         step = plan_steps(plan)
-        out = []
-        for k in range(plan.n_steps):
-            moving = step == k
-            bad = (moving[:, None] & moving[None, :] & np.triu(self.together, 1))
-            bad |= moving[:, None] & (step > k)[None, :] & self.at_start
-            bad |= moving[:, None] & (step < k)[None, :] & self.at_arrival
-            out.append(np.argwhere(bad))
-        return out
+        mine, other = step[:, None], step[None, :]
+        bad = ((mine == other) & np.triu(self.together, 1)) | ((mine < other) & self.at_start) | ((mine > other) & self.at_arrival)
+        return np.argwhere(bad)
 
     def step_counts(self, plan: Plan) -> list[int]:
         """Conflicting pairs of each step of ``plan``."""
-        return [len(p) for p in self.step_pairs(plan)]
+        counts: list[int] = np.bincount(plan_steps(plan)[self.conflicting(plan)[:, 0]], minlength=plan.n_steps).tolist()
+        return counts
 
 
 def plan_steps(plan: Plan) -> np.ndarray:

@@ -109,16 +109,22 @@ def genetic_search(
     guessed: dict[PlanKey, float] = {}  # surrogate fitness of screened-out plans (``predict``)
     predicted: dict[PlanKey, float] = {}
 
-    def score(plans: list[Plan], limit: int | None = None) -> np.ndarray:
-        fresh, seen = [], set()
-        for p in plans:
+    def score(plans: list[Plan], limit: int | None = None, always: tuple[Plan, ...] = ()) -> np.ndarray:
+        """Fitness of ``plans``: the new feasible ones evaluated (with a predictor and a ``limit``, the ``limit`` best
+        predicted, the others guessed); ``always``: plans evaluated whatever their prediction (the seeds), in the
+        same Monte Carlo pass."""
+        fresh: list[Plan] = []
+        first: list[Plan] = []  # of ``always``
+        seen: set[PlanKey] = set()
+        for k, p in enumerate((*always, *plans)):
             key = p.key()
-            if key not in cache and key not in seen:
-                seen.add(key)
-                if feasible(p):
-                    fresh.append(p)
-                else:
-                    cache[key] = np.inf
+            if key in cache or key in seen:
+                continue
+            seen.add(key)
+            if not feasible(p):
+                cache[key] = np.inf
+            else:
+                (first if k < len(always) else fresh).append(p)
         if predict is not None and limit is not None and len(fresh) > limit:
             unknown = [p for p in fresh if p.key() not in predicted]
             if unknown:
@@ -127,6 +133,7 @@ def genetic_search(
             fresh, rest = fresh[:limit], fresh[limit:]
         else:
             rest = []
+        fresh = first + fresh
         if fresh:
             for p, e in zip(fresh, evaluate(fresh), strict=True):
                 cache[p.key()] = float(e)
@@ -141,13 +148,11 @@ def genetic_search(
         return min((e for e in cache.values() if np.isfinite(e)), default=np.inf)
 
     population = list(seeds)
-    if predict is not None:
-        score(seeds)  # the seeds are always evaluated
     while len(population) < cfg.population:
         population.append(Plan(rng.permutation(n), sizes))
     if not cfg.covers(n_partitions(sizes)):
         population += single_swaps(seeds[0], cfg.swaps, rng)
-    fitness = score(population, 2 * cfg.screened)
+    fitness = score(population, 2 * cfg.screened, tuple(seeds) if predict is not None else ())  # the seeds are always evaluated
     best, stale = measured_best(), 0
     for _ in range(cfg.generations):
         order = np.argsort(fitness, kind="stable")

@@ -34,6 +34,9 @@ from runtime.models.trajectory import is_connected
 MC_STARTS = ("estimate", "known")  # initial truths: drawn from the estimate's covariance, or at its mean
 
 
+Block = tuple[int, int]  # (samples, seed): one set of common random numbers
+
+
 @dataclass(frozen=True)
 class MonteCarlo:
     """e_l estimator for one configuration change, with its own common random numbers."""
@@ -44,54 +47,84 @@ class MonteCarlo:
     seed: int
     start: str = "estimate"  # one of ``MC_STARTS``
 
-    def _step_rng(self, step: int) -> np.random.Generator:
-        return np.random.default_rng([self.seed, 1, step])
-
     def localization_errors(self, estimate: SwarmEstimate, desired: np.ndarray, plans: list[Plan], per_sample: bool = False,
                             window: np.ndarray | None = None) -> np.ndarray:
-        """Mean e_l (m) over the samples for each plan (all plans must have the same step count); (plans, samples) with ``per_sample``.
+        """Mean e_l (m) over the samples for each plan; (plans, samples) with ``per_sample``.
 
         ``window`` (n,) bool simulates only those robots (part of a large swarm): the others are
         absent, each step moves the plan's movers among them (possibly none), and e_l is the
         mean over them.
         """
-        k_steps = plans[0].n_steps
-        masks = np.stack([np.stack([p.moving(k) for k in range(k_steps)]) for p in plans])  # (c, k, n)
-        if window is not None:
-            estimate, desired, masks = estimate.select(window), desired[window], masks[..., window]
-        n, s, c = estimate.n, self.samples, len(plans)
-        rng = np.random.default_rng([self.seed, 0])
-        if estimate.joint is None:
-            chol = np.linalg.cholesky(estimate.cov + 1e-15 * np.eye(3))
-            truth = estimate.poses + np.einsum("nab,snb->sna", chol, rng.normal(size=(s, n, 3)))
-        else:  # correlated errors: drawn from the joint covariance the localizer carries
-            chol = np.linalg.cholesky(estimate.joint + 1e-15 * np.eye(3 * n))
-            truth = estimate.poses + (rng.normal(size=(s, 3 * n)) @ chol.T).reshape(s, n, 3)
-        if self.start == "known":  # the draws above are still made: the noise streams below stay common
-            truth = np.broadcast_to(estimate.poses, (s, n, 3))
-        turn, drive = draw_motion_noise(rng, (s, n), self.cfg)
-        truth = np.broadcast_to(truth, (c, s, n, 3)).copy()
-        est = np.broadcast_to(estimate.poses, (c, s, n, 3)).copy()
-        cov = np.broadcast_to(estimate.cov, (c, s, n, 3, 3)).copy()
-        eye = np.eye(n, dtype=bool)
-        for k in range(k_steps):
-            moving = np.broadcast_to(masks[:, k, None, :], (c, s, n))
-            commands = np.where(moving[..., None], command_towards(est, desired), 0.0)
-            truth = np.where(moving[..., None], apply_motion(truth, commands, turn, drive), truth)
-            true_rho, true_phi = measure(truth[..., :, None, :], truth[..., None, :, :2])  # (c, s, n, n)
-            step_rng = self._step_rng(k)
-            draws = (step_rng.random((s, n, n)), step_rng.normal(size=(s, n, n)), step_rng.normal(size=(s, n, n)))
-            rho, phi, keep = add_sensing_noise(true_rho, true_phi, *draws, self.cfg)
-            seen = keep & (true_rho <= self.cfg.sensing_range_m) & ~eye
-            out = localize_batch(
-                self.localizer, self.cfg,
-                est.reshape(c * s, n, 3), cov.reshape(c * s, n, 3, 3), commands.reshape(c * s, n, 2),
-                moving.reshape(c * s, n), seen.reshape(c * s, n, n), rho.reshape(c * s, n, n), phi.reshape(c * s, n, n),
-            )
-            est = out.poses.reshape(c, s, n, 3)
-            cov = out.cov.reshape(c, s, n, 3, 3)
-        e_l = np.mean(np.linalg.norm(truth[..., :2] - est[..., :2], axis=-1), axis=-1)  # Eq. 8, (c, s)
-        return cast(np.ndarray, e_l if per_sample else e_l.mean(axis=1))
+        e_l = block_errors(self.cfg, self.localizer, self.start, [(self.samples, self.seed)], estimate, desired, plans, window)
+        return e_l if per_sample else cast(np.ndarray, e_l.mean(axis=1))
+
+
+def block_errors(cfg: ModelConfig, localizer: Localizer, start: str, blocks: list[Block], estimate: SwarmEstimate,
+                 desired: np.ndarray, plans: list[Plan], window: np.ndarray | None = None) -> np.ndarray:
+    """e_l (m) per plan and sample (plans, samples of every block) of ``plans`` simulated on the sample sets ``blocks``
+    at once, each block's samples drawn as ``MonteCarlo(samples, seed)`` draws them, so every sample's e_l is the one
+    that block alone gives. Plans may have different step counts: a plan's samples stop at its last step (the
+    batched localization of a step takes the plans that have it)."""
+    k_steps = np.array([p.n_steps for p in plans])
+    masks = np.zeros((len(plans), int(k_steps.max()), estimate.n), bool)  # (c, k, n)
+    for p, plan in enumerate(plans):
+        masks[p, : plan.n_steps] = np.stack([plan.moving(k) for k in range(plan.n_steps)])
+    if window is not None:
+        estimate, desired, masks = estimate.select(window), desired[window], masks[..., window]
+    n, c = estimate.n, len(plans)
+    starts = [_start_draws(cfg, estimate, count, seed, start) for count, seed in blocks]
+    truth, turn, drive = (np.concatenate(parts) for parts in zip(*starts, strict=True))
+    s = len(turn)
+    truth = np.broadcast_to(truth, (c, s, n, 3)).copy()
+    est = np.broadcast_to(estimate.poses, (c, s, n, 3)).copy()
+    cov = np.broadcast_to(estimate.cov, (c, s, n, 3, 3)).copy()
+    eye = np.eye(n, dtype=bool)
+    for k in range(masks.shape[1]):
+        live = np.flatnonzero(k_steps > k)
+        every = len(live) == c
+        m = len(live)
+        t, e, v = (truth, est, cov) if every else (truth[live], est[live], cov[live])
+        moving = np.broadcast_to(masks[live, k, None, :], (m, s, n))
+        commands = np.where(moving[..., None], command_towards(e, desired), 0.0)
+        t = np.where(moving[..., None], apply_motion(t, commands, turn, drive), t)
+        true_rho, true_phi = measure(t[..., :, None, :], t[..., None, :, :2])  # (m, s, n, n)
+        step_draws = [_step_draws(seed, count, n, k) for count, seed in blocks]
+        uniform, z_range, z_bearing = (np.concatenate(parts) for parts in zip(*step_draws, strict=True))
+        rho, phi, keep = add_sensing_noise(true_rho, true_phi, uniform, z_range, z_bearing, cfg)
+        seen = keep & (true_rho <= cfg.sensing_range_m) & ~eye
+        out = localize_batch(
+            localizer, cfg,
+            e.reshape(m * s, n, 3), v.reshape(m * s, n, 3, 3), commands.reshape(m * s, n, 2),
+            moving.reshape(m * s, n), seen.reshape(m * s, n, n), rho.reshape(m * s, n, n), phi.reshape(m * s, n, n),
+        )
+        if every:
+            truth, est, cov = t, out.poses.reshape(c, s, n, 3), out.cov.reshape(c, s, n, 3, 3)
+        else:
+            truth[live], est[live], cov[live] = t, out.poses.reshape(m, s, n, 3), out.cov.reshape(m, s, n, 3, 3)
+    return cast(np.ndarray, np.mean(np.linalg.norm(truth[..., :2] - est[..., :2], axis=-1), axis=-1))  # Eq. 8, (c, s)
+
+
+def _start_draws(cfg: ModelConfig, estimate: SwarmEstimate, samples: int, seed: int,
+                 start: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(initial truths (samples, n, 3), turn and drive noise (samples, n)) of one sample set."""
+    n, s = estimate.n, samples
+    rng = np.random.default_rng([seed, 0])
+    if estimate.joint is None:
+        chol = np.linalg.cholesky(estimate.cov + 1e-15 * np.eye(3))
+        truth = estimate.poses + np.einsum("nab,snb->sna", chol, rng.normal(size=(s, n, 3)))
+    else:  # correlated errors: drawn from the joint covariance the localizer carries
+        chol = np.linalg.cholesky(estimate.joint + 1e-15 * np.eye(3 * n))
+        truth = estimate.poses + (rng.normal(size=(s, 3 * n)) @ chol.T).reshape(s, n, 3)
+    if start == "known":  # the draws above are still made: the noise streams below stay common
+        truth = np.broadcast_to(estimate.poses, (s, n, 3))
+    turn, drive = draw_motion_noise(rng, (s, n), cfg)
+    return truth, turn, drive
+
+
+def _step_draws(seed: int, samples: int, n: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The standard draws (uniform, normal, normal) (samples, n, n) of one sample set's sensing in ``step``."""
+    rng = np.random.default_rng([seed, 1, step])
+    return rng.random((samples, n, n)), rng.normal(size=(samples, n, n)), rng.normal(size=(samples, n, n))
 
 
 def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float,

@@ -31,7 +31,7 @@ MAX_CONFLICTS = 3 * MAX_ROUNDS  # more conflicting pairs than this: not tried (n
 
 def conflicts(plan: Plan, pairs: PairTable) -> tuple[int, set[int]]:
     """(conflicting pairs over all steps, the robots in them) of ``plan``'s nominal motion."""
-    found = np.concatenate(pairs.step_pairs(plan))
+    found = pairs.conflicting(plan)
     return len(found), set(found.ravel().tolist())
 
 
@@ -77,7 +77,7 @@ def repair(plan: Plan, pairs: PairTable, connected: Callable[[Plan], bool]) -> P
                     continue
                 tried.add(pair)
                 candidate = swapped(plan, *pair)
-                left = sum(pairs.step_counts(candidate))
+                left = len(pairs.conflicting(candidate))
                 if left >= count or (best is not None and left > best[0]) or not connected(candidate):
                     continue
                 value = heuristic_value(candidate, pairs.current, pairs.desired)

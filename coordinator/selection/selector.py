@@ -73,7 +73,7 @@ from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
+from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, block_errors, plan_keeps_connectivity
 from coordinator.selection.racing import EARLY_MARGIN, best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
@@ -284,29 +284,27 @@ class AnchorSelector:
                               crowded, genetic)
 
         all_move = Plan.equal(np.arange(n), 0)
-
-        def no_anchors(count: int, seed: int) -> tuple[float, float]:
-            """(e_l(0), e_l,max) on one sample set: e_l,max is their mean (Section 4.1.1) or, ``worst``, their largest."""
-            if sel.method == "crlb":
-                e0 = float(evaluate([all_move])[0])
-                return e0, e0
-            per = each_sample([all_move], count, seed)[0]
-            return float(per.mean()), float(per.max() if sel.mc_emax == "worst" else per.mean())
-
-        e_zero, e_max = no_anchors(samples, screen_seed)
-        evaluations = 1
+        seeds = {n_a: all_move if n_a == 0 else heuristic_plan(current, desired, n_a) for n_a in self.candidate_counts(n)}
+        screened_plans = [n_a for n_a in seeds if n_a != 0 and connected(seeds[n_a])]
+        if sel.method == "crlb":  # e_l(0) = e_l,max: one deterministic prediction
+            e_zero = e_max = float(evaluate([all_move])[0])
+            e_seeds = evaluate([seeds[k] for k in screened_plans])
+        else:  # e_l(0) (e_l,max: the mean over the samples, Section 4.1.1, or ``worst``, their largest) and every count's
+            # heuristic plan on the screening samples, in one pass (``block_errors``)
+            per = each_sample([all_move] + [seeds[k] for k in screened_plans], samples, screen_seed)
+            e_zero, e_max = float(per[0].mean()), float(per[0].max() if sel.mc_emax == "worst" else per[0].mean())
+            e_seeds = per[1:].mean(axis=1)
+        e_seed_of = dict(zip(screened_plans, e_seeds.tolist(), strict=True))
+        evaluations = 1 + len(screened_plans)
         scores: dict[int, CountScore] = {}
-        seeds: dict[int, Plan] = {}
-        for n_a in self.candidate_counts(n):  # 1. screening: the heuristic plan of every count
-            seeds[n_a] = all_move if n_a == 0 else heuristic_plan(current, desired, n_a)
+        for n_a in seeds:  # 1. screening: the heuristic plan of every count
             if not connected(seeds[n_a]):
                 scores[n_a] = score(n_a, None, np.inf, e_max)
             elif n_a == 0:
                 scores[n_a] = score(n_a, all_move, e_zero, e_max, crowded=not is_clear(all_move))
             else:  # a crowded seed (bodies too close) is screened too: its e_l bounds the count's (step 2)
-                e_seed = float(evaluate([seeds[n_a]])[0])
+                e_seed = e_seed_of[n_a]
                 scores[n_a] = score(n_a, seeds[n_a], e_seed, e_max, e_seed, crowded=not is_clear(seeds[n_a]))
-                evaluations += 1
         screened = {k: s.p_s for k, s in scores.items()}  # P_s on the screening samples (the crowded too)
         # the best P_s each count has shown (its clear screened plan, then its kept plan on the screening samples)
         reached = {k: s.p_s for k, s in scores.items() if s.plan is not None and not s.crowded}
@@ -409,7 +407,16 @@ class AnchorSelector:
 
             def hopeless(e_l: np.ndarray, seen: list[tuple[int, int]], n_a: int = n_a) -> bool:
                 return cannot_win(n_a, e_l, partial(race_emax, seen))
-            raced = race(best_distinct(known, contenders), each_sample, race_samples, rng, hopeless=hopeless)
+
+            def race_round(plans: list[Plan], count: int, seed: int, rivals: bool = bool(np.isfinite(bar(other_than=n_a)))) -> np.ndarray:
+                """A round's e_l per sample, with e_l(0) on its samples in the same pass where ``hopeless`` will read it
+                (``cannot_win``: where another count has a plan)."""
+                if (count, seed) in race_no_anchor or not rivals:
+                    return each_sample(plans, count, seed)
+                per = each_sample([*plans, all_move], count, seed)
+                race_no_anchor[(count, seed)] = per[-1]
+                return per[:-1]
+            raced = race(best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless)
             champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
             if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
                 scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
@@ -425,7 +432,12 @@ class AnchorSelector:
                 continue
             if seed is None:  # no feasible seed: the race winner on the fresh set, block by block until it cannot win
                 each: list[np.ndarray] = []
-                for b in blocks:
+                if not np.isfinite(bar(other_than=n_a)):  # no other count to lose to: every block, with e_l(0), in one pass
+                    per = block_errors(self.cfg, self.localizer, sel.mc_start, blocks, estimate, desired, [champion, all_move])
+                    cuts = np.cumsum([count for count, _ in blocks])[:-1]
+                    each = np.split(per[0], cuts)
+                    no_anchor_blocks[len(no_anchor_blocks):] = np.split(per[1], cuts)[len(no_anchor_blocks):]
+                for b in blocks[len(each):]:
                     each.append(each_sample([champion], *b)[0])
                     if cannot_win(n_a, np.concatenate(each), partial(fresh_emax, len(each))):
                         break

@@ -151,8 +151,11 @@ def _reach(bound: float) -> float:
 class PairRisks:
     """Contact probability bounds of candidate pairs (i, j) (``BodyCheck.pair_risks``), i driving its move and j
     standing where it starts (``start``), standing where it arrives (``end``) or moving with i (``moving``, 0 where j
-    is not among the robots regrouped); ``floor``: the bound the configurations allow the pair (``BodyCheck._floor``,
-    0 where no bound exceeded the strictest one in use). Each (m,)."""
+    is not among the robots regrouped; judged as ``step_conflicts`` judges a pair of movers, the lower index driving,
+    so (i, j) and (j, i) hold the same bound); ``floor``: the bound the configurations allow the pair
+    (``BodyCheck._floor``, 0 where no bound of ``start`` or ``end`` exceeded the strictest one in use), ``floor_moving``
+    the same for ``moving`` (the lower index first). Each (m,). The one source of pair verdicts: the regrouping's
+    schedule (``over``) and the anchor search's tables (``tables``) read them."""
 
     i: np.ndarray
     j: np.ndarray
@@ -160,16 +163,27 @@ class PairRisks:
     end: np.ndarray
     moving: np.ndarray
     floor: np.ndarray
+    floor_moving: np.ndarray
 
     def over(self, levels: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(start, end, moving) (m,): the pairs at too much risk when robot r's bound is ``levels`` [r] (a pair keeps
-        the higher of its two, or its ``floor`` where that is higher still: ``BodyCheck._risk``)."""
+        the higher of its two, or its floor where that is higher still: ``BodyCheck._risk``)."""
         allowed = np.maximum(levels[self.i], levels[self.j])
 
-        def bad(p: np.ndarray) -> np.ndarray:
-            return np.asarray(p > np.where(p > allowed, np.maximum(allowed, self.floor), allowed) * (1.0 + TOLERANCE))
+        def bad(p: np.ndarray, floor: np.ndarray) -> np.ndarray:
+            return np.asarray(p > np.where(p > allowed, np.maximum(allowed, floor), allowed) * (1.0 + TOLERANCE))
 
-        return bad(self.start), bad(self.end), bad(self.moving)
+        return bad(self.start, self.floor), bad(self.end, self.floor), bad(self.moving, self.floor_moving)
+
+    def tables(self, levels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``over`` as three (n, n) bool tables of ``n`` robots (row: the driving robot): (together, at_start,
+        at_arrival); pairs that are not candidates are clear."""
+        out = []
+        for bad in (self.over(levels)[k] for k in (2, 0, 1)):
+            table = np.zeros((n, n), bool)
+            table[self.i[bad], self.j[bad]] = True
+            out.append(table)
+        return out[0], out[1], out[2]
 
 
 @dataclass(frozen=True)
@@ -305,7 +319,8 @@ class BodyCheck:
     def pair_risks(self, robots: np.ndarray) -> PairRisks:
         """The bounds of every candidate pair (i, j), i of ``robots`` driving its move, with j standing where it
         starts, standing where it arrives and (j of ``robots``) moving with i: all a regrouping of ``robots``
-        needs, at any robots' bounds (``PairRisks.over``)."""
+        needs, at any robots' bounds (``PairRisks.over``), and, of every robot, the anchor search's tables
+        (``pair_tables``)."""
         robots = np.asarray(robots, np.int64)
         n = len(self.current)
         i, j = self._candidates(robots, np.zeros(n, bool))
@@ -318,11 +333,28 @@ class BodyCheck:
         mover = np.zeros(n, bool)
         mover[robots] = True
         both = np.flatnonzero(mover[j])
-        moving[both] = self._bounds(i[both], j[both], zeros[both], np.ones(len(both)), enough)[0]
-        floor = np.zeros(len(i))
-        over = np.flatnonzero((start > enough) | (end > enough) | (moving > enough))
+        low, high = np.minimum(i, j), np.maximum(i, j)  # a pair of movers as ``step_conflicts`` judges it
+        moving[both] = self._bounds(low[both], high[both], zeros[both], np.ones(len(both)), enough)[0]
+        floor, floor_moving = np.zeros(len(i)), np.zeros(len(i))
+        over = np.flatnonzero((start > enough) | (end > enough))
         floor[over] = self._floor(i[over], j[over])
-        return PairRisks(i, j, start, end, moving, floor)
+        over = np.flatnonzero(moving > enough)
+        floor_moving[over] = self._floor(low[over], high[over])
+        return PairRisks(i, j, start, end, moving, floor, floor_moving)
+
+    def robot_levels(self) -> np.ndarray:
+        """(n,) each robot's bound (``levels``, else the check's bound for all)."""
+        return np.full(len(self.current), self.bound) if self.levels is None else self.levels
+
+    def pair_tables(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(together, at_start, at_arrival) (n, n) bool, row i the driving robot: whether robot i's move conflicts
+        with robot j moving in the same step, standing where j starts, standing where j arrives (``PairRisks.tables``
+        of every robot at the robots' bounds): the verdicts of ``step_conflicts`` pair by pair, every step of every
+        plan read from them. All False when nothing is checked (radius 0)."""
+        n = len(self.current)
+        if not self.active:
+            return np.zeros((n, n), bool), np.zeros((n, n), bool), np.zeros((n, n), bool)
+        return self.pair_risks(np.arange(n)).tables(self.robot_levels(), n)
 
     def step_conflicts(self, before: np.ndarray, moving: np.ndarray) -> list[Conflict]:
         """The conflicts of one step: robots at ``before`` (n, 2; each at its current or its desired position),
@@ -403,8 +435,7 @@ class BodyCheck:
         keys = np.zeros(len(robots), np.int64) if part is None else np.asarray(part)[robots]
         by_part = np.argsort(keys, kind="stable")
         groups = np.split(robots[by_part], np.flatnonzero(np.diff(keys[by_part])) + 1)
-        levels = np.full(len(self.current), self.bound) if self.levels is None else self.levels
-        return self._schedule(groups, self.pair_risks(robots), levels, np.asarray(done, bool))
+        return self._schedule(groups, self.pair_risks(robots), self.robot_levels(), np.asarray(done, bool))
 
     def _schedule(self, groups: list[np.ndarray], risks: PairRisks, levels: np.ndarray,
                   done: np.ndarray) -> tuple[list[np.ndarray], list[int]]:

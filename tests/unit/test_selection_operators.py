@@ -16,7 +16,7 @@ import pytest
 
 from coordinator.localization import make_localizer
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
-from coordinator.plan import Plan, n_partitions
+from coordinator.plan import Plan, PlanKey, n_partitions
 from coordinator.selection.crlb_rank import MEAN_NORM, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search, order_crossover, single_swaps, swap_mutation
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
@@ -455,13 +455,15 @@ def test_selection_config_bounds(field, value, ok):
 
 def test_screened_search_keeps_the_seed_when_nothing_beats_it():
     """The prediction says every other plan is better (0.1 against 0.5), Monte Carlo says the seed is best:
-    the search returns the seed with its Monte Carlo e_l, having evaluated at most seeds + 2 x screened +
-    screened per generation plans by Monte Carlo."""
+    the search returns the seed with its Monte Carlo e_l, having evaluated at most seeds + 2 x screened (the seed
+    with the first generation's best predicted, in one pass) + screened per generation plans by Monte Carlo."""
     seed = Plan.equal(np.arange(8), 4)
     evaluated: list[int] = []
+    first: list[PlanKey] = []
 
     def evaluate(plans):
         evaluated.append(len(plans))
+        first.extend(p.key() for p in plans if len(evaluated) == 1)
         return np.array([0.5 if p.key() == seed.key() else 1.0 for p in plans])
 
     def predict(plans):
@@ -470,7 +472,7 @@ def test_screened_search_keeps_the_seed_when_nothing_beats_it():
     cfg = GeneticConfig(screened=2)
     plan, e_l, fresh = genetic_search(evaluate, [seed], lambda p: True, np.random.default_rng(1), cfg, {}, predict)
     assert plan.key() == seed.key() and e_l == 0.5
-    assert evaluated[0] == 1 and max(evaluated[1:2]) <= 2 * cfg.screened and max(evaluated[2:], default=0) <= cfg.screened
+    assert first[0] == seed.key() and evaluated[0] == 1 + 2 * cfg.screened and max(evaluated[1:], default=0) <= cfg.screened
     assert fresh == sum(evaluated) <= 1 + cfg.screened * (cfg.generations + 2)
 
 
