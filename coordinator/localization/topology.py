@@ -31,7 +31,7 @@ from typing import cast
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
+from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, minimize, solve_normal
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import rotate, wrap_angle
@@ -41,6 +41,7 @@ from runtime.models.geometry import rotate, wrap_angle
 # random swarms of 10-500 robots) and saves about one iteration in seven, as the joint localizer's.
 XTOL, FTOL = 1e-8, 1e-8
 ALIGN_MIN = 2048  # robots from which a given start is first turned to the observations' headings (``aligned_start``)
+LARGE_MIN = 2048  # robots from which Eq. B3's normal equations are assembled directly and one factorization serves a step
 
 
 @dataclass(frozen=True)
@@ -256,7 +257,13 @@ def estimate_topology(
         np.add.at(out, hc[hc >= 0], term[hc >= 0])
         return out
 
-    result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber, xtol=XTOL, ftol=FTOL)
+    if n >= LARGE_MIN:
+        from coordinator.localization.topology_normal import TopologyNormal  # noqa: PLC0415 - it builds on this module
+
+        problem = TopologyNormal(layout.cols, layout.size, start, observer, observed, z, huber)
+        result = minimize(problem.evaluate, layout.pack(start), solve=problem.solve, xtol=XTOL, ftol=FTOL)
+    else:
+        result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber, xtol=XTOL, ftol=FTOL)
     if not result.converged:
         raise LocalizationError("no-convergence", [], "topology least squares did not converge")
     poses = layout.unpack(result.x, start)
