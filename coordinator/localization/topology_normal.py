@@ -3,16 +3,17 @@ factorization (``estimate_topology`` from ``topology.LARGE_MIN`` robots).
 
 An observation i -> j has two residuals, r = R(theta_i) z_ij + x_i - x_j, over five unknowns
 (x_i, y_i, theta_i, x_j, y_j); with d r / d theta_i = g = (-(R z)_y, (R z)_x) its rows of the Jacobian are
-(1, 0, g_x, -1, 0) and (0, 1, g_y, 0, -1), so its share of J^T J is ten entries of the lower triangle
-(``_ENTRIES``), summed into a pattern fixed for the step with ``np.bincount`` (as ``joint_normal``): no sparse
-Jacobian, no sparse product, no triangle extraction at every iteration (they were about half of a 10,000-robot
-step's localization).
+(1, 0, g_x, -1, 0) and (0, 1, g_y, 0, -1), so its share of J^T J is eleven entries of the lower triangle
+(``_ENTRIES``, five of them depending on theta_i), summed into a pattern ranked once a step with ``np.bincount``
+(as ``joint_normal``): no sparse Jacobian, no sparse product, no triangle extraction at every iteration (about a
+third of a 10,000-robot step's localization). The lower triangle in CSR order is the upper in CSC order, CHOLMOD's
+input, so ``evaluate`` returns it and ``solve`` takes it.
 
-The step's first system is factorized (CHOLMOD or QDLDL, ``sparse_lm.SparseFactor``); the later ones, whose
-matrices differ from it by the turned headings' share and the second-order term (1e-2 of it), are solved by
-conjugate gradients preconditioned with that factor (``PCG_RTOL``, a few iterations, each a pair of triangular
-solves), and refactorized only when that does not converge within ``PCG_MAX_ITER``. A factorization of 30,000
-unknowns (10,000 robots) takes ~1 s of CPU, its triangular solves ~0.05 s.
+The step's first system (Gauss-Newton) is factorized (CHOLMOD or QDLDL, ``sparse_lm.SparseFactor``); the later
+ones, which differ from it by the headings the first step turned and the second-order term, are solved by
+conjugate gradients preconditioned with that factor (``PCG_RTOL``; 7-9 iterations at 10,000 robots, each a pair
+of triangular solves of ~0.05 s against ~1 s for a factorization of their 30,000 unknowns), and factorized afresh
+when they have not converged within ``PCG_MAX_ITER``.
 
 The steps are those of the sparse Jacobian's path to rounding (the sums are taken in another order) and to the
 conjugate gradients' tolerance, so the minimum is the same to the solver's tolerance, not to the bit: smaller
@@ -153,8 +154,9 @@ class TopologyNormal:
         return self._factor.solve_upper(upper, rhs, same_pattern=self._solves > 1)
 
     def _pcg(self, upper: sp.csc_matrix, rhs: np.ndarray) -> np.ndarray | None:
-        """Conjugate gradients on A x = rhs (A symmetric, given by its ``upper`` triangle) preconditioned by the last factorization; None when
-        its updates have not fallen below ``PCG_RTOL`` of the solution (max norm) within ``PCG_MAX_ITER`` iterations."""
+        """Conjugate gradients on A x = rhs (A symmetric, given by its ``upper`` triangle) preconditioned by the last
+        factorization; None when an update has not fallen below ``PCG_RTOL`` of the solution (max norm) within
+        ``PCG_MAX_ITER`` iterations, or A is found not positive definite along a search direction."""
         diagonal = upper.data[self._diag]
         x = np.zeros_like(rhs)
         res = rhs.copy()
@@ -163,7 +165,10 @@ class TopologyNormal:
         rz = float(res @ z)
         for _ in range(PCG_MAX_ITER):
             ap = upper @ p + upper.T @ p - diagonal * p
-            alpha = rz / float(p @ ap)
+            curvature = float(p @ ap)
+            if not curvature > 0.0:  # not positive definite (or not finite): the factorization decides
+                return None
+            alpha = rz / curvature
             x += alpha * p
             if abs(alpha) * np.abs(p).max() <= PCG_RTOL * np.abs(x).max():
                 return x

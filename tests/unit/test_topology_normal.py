@@ -1,6 +1,8 @@
 """A large swarm's topology (``topology_normal``): Eq. B3's normal equations summed straight into their pattern equal
 J^T J of the sparse Jacobian, the preconditioned solves equal direct ones, and the solution is the Jacobian path's."""
 
+from typing import Any, cast
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -30,14 +32,15 @@ def swarm(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.nda
     return truth, i[keep], j[keep], obs.range_m[keep], obs.bearing_rad[keep]
 
 
-def problem(n: int, seed: int, huber: float | None) -> tuple[topology_normal.TopologyNormal, PoseLayout, np.ndarray, tuple[np.ndarray, ...]]:
-    """The normal equations of a random swarm at a start 5 cm / 0.05 rad off the truth, its layout, start and data."""
+def problem(n: int, seed: int, huber: float | None, off: float) -> tuple[topology_normal.TopologyNormal, PoseLayout, np.ndarray,
+                                                                        tuple[np.ndarray, ...]]:
+    """The normal equations of a random swarm at a start ``off`` (m, rad) off the truth, its layout, start and data."""
     truth, i, j, range_m, bearing = swarm(n, seed)
     has = np.bincount(i, minlength=n) > 0
     ref = int(topology.reference_robot(has))
     free = np.arange(n) != ref
     layout = PoseLayout(free, free & has)
-    start = truth + np.random.default_rng(seed + 1).normal(0.0, 0.05, truth.shape)
+    start = truth + np.random.default_rng(seed + 1).normal(0.0, off, truth.shape)
     start[~has, 2] = 0.0
     z = topology.observation_offsets(range_m, bearing)
     return topology_normal.TopologyNormal(layout.cols, layout.size, start, i, j, z, huber), layout, start, (i, j, z)
@@ -66,46 +69,46 @@ def jacobian_system(layout: PoseLayout, start: np.ndarray, i: np.ndarray, j: np.
 
 @pytest.mark.parametrize("huber", [None, 0.02])
 def test_normal_equations_are_the_jacobians(huber: float | None) -> None:
-    normal, layout, start, (i, j, z) = problem(40, 2, huber)
+    normal, layout, start, (i, j, z) = problem(40, 2, huber, 0.05)
     ne = normal.evaluate(layout.pack(start))
+    lower = cast(sp.csr_matrix, ne.normal)
     cost, a, g, curvature = jacobian_system(layout, start, i, j, z, huber)
     assert ne.cost == pytest.approx(cost, rel=1e-12)
-    np.testing.assert_allclose(ne.normal.toarray(), np.tril(a), rtol=0, atol=1e-12 * np.abs(a).max())  # the lower triangle
+    np.testing.assert_allclose(lower.toarray(), np.tril(a), rtol=0, atol=1e-12 * np.abs(a).max())  # the lower triangle
     np.testing.assert_allclose(ne.gradient, g, rtol=0, atol=1e-12 * np.abs(g).max())
-    np.testing.assert_allclose(ne.curvature, curvature, rtol=0, atol=1e-12 * np.abs(curvature).max())
+    np.testing.assert_allclose(cast(np.ndarray, ne.curvature), curvature, rtol=0, atol=1e-12 * np.abs(curvature).max())
 
 
 def test_solves_factorized_preconditioned_and_refactorized(monkeypatch: pytest.MonkeyPatch) -> None:
-    normal, layout, start, _ = problem(60, 4, None)
+    normal, layout, start, _ = problem(60, 4, None, 0.002)  # near the minimum, as the later systems of a step are
     ne = normal.evaluate(layout.pack(start))
-    a = ne.normal.toarray()
-    a = a + np.tril(a, -1).T
+    lower, rhs = cast(sp.csr_matrix, ne.normal), -ne.gradient
+    a = lower.toarray() + np.tril(lower.toarray(), -1).T
     shift = 1e-8 * np.diag(a)
-
-    def direct(extra: np.ndarray) -> np.ndarray:
-        return np.linalg.solve(a + np.diag(extra + shift), -ne.gradient)
-
-    factorized = []
+    curved = np.maximum(cast(np.ndarray, ne.curvature), -0.9 * np.diag(a))
+    factorized: list[bool] = []
     factorize = normal._factor.solve_upper
-    monkeypatch.setattr(normal._factor, "solve_upper", lambda *args, **kw: factorized.append(1) or factorize(*args, **kw))
-    first = normal.solve(ne.normal, shift, -ne.gradient)  # factorized
-    np.testing.assert_allclose(first, direct(np.zeros(len(a))), rtol=1e-9, atol=1e-12)
-    curved = np.maximum(ne.curvature, -0.9 * np.diag(a))
-    second = normal.solve(ne.normal + sp.diags(curved), shift, -ne.gradient)  # conjugate gradients on the first factor
-    exact = direct(curved)
+
+    def counted(*args: Any, **kwargs: Any) -> np.ndarray:
+        factorized.append(True)
+        return factorize(*args, **kwargs)
+
+    monkeypatch.setattr(normal._factor, "solve_upper", counted)
+    first = normal.solve(lower, shift, rhs)  # factorized
+    np.testing.assert_allclose(first, np.linalg.solve(a + np.diag(shift), rhs), rtol=1e-9, atol=1e-12)
+    exact = np.linalg.solve(a + np.diag(curved + shift), rhs)
+    second = normal.solve(lower + sp.diags(curved), shift, rhs)  # conjugate gradients on the first factor
     assert len(factorized) == 1
     assert np.abs(second - exact).max() <= 1e-5 * np.abs(exact).max()
     monkeypatch.setattr(topology_normal, "PCG_MAX_ITER", 0)  # they give up: factorized afresh
-    third = normal.solve(ne.normal + sp.diags(curved), shift, -ne.gradient)
+    third = normal.solve(lower + sp.diags(curved), shift, rhs)
     assert len(factorized) == 2
     np.testing.assert_allclose(third, exact, rtol=1e-9, atol=1e-12 * np.abs(exact).max())
-    dropped = ne.normal.copy()  # an entry summed to exactly zero leaves the pattern: the general solve
-    off = np.flatnonzero(dropped.indices != np.repeat(np.arange(len(a)), np.diff(dropped.indptr)))[0]
-    dropped.data[off] = 0.0
+    dropped = lower.copy()  # an entry summed to exactly zero leaves the pattern: the general solve
+    dropped.data[np.flatnonzero(dropped.indices != np.repeat(np.arange(len(a)), np.diff(dropped.indptr)))[0]] = 0.0
     dropped.eliminate_zeros()
     full = dropped.toarray() + np.tril(dropped.toarray(), -1).T
-    np.testing.assert_allclose(normal.solve(dropped, shift, -ne.gradient), np.linalg.solve(full + np.diag(shift), -ne.gradient),
-                               rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(normal.solve(dropped, shift, rhs), np.linalg.solve(full + np.diag(shift), rhs), rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize("huber", [None, 0.05])
