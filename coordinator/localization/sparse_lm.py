@@ -202,6 +202,12 @@ class SparseFactor:
             self._factor = self._new(upper)
         return self._factor.solve(b)
 
+    def apply(self, b: np.ndarray) -> np.ndarray:
+        """a^-1 b for the matrix ``a`` factorized last (a preconditioner for systems near it)."""
+        if self._factor is None:
+            raise ValueError("nothing factorized yet")
+        return self._factor.solve(b)
+
     def _new(self, upper: sp.csc_matrix) -> _Qdldl | _Cholmod:
         if self.backend == "cholmod":
             with contextlib.suppress(ArithmeticError):

@@ -31,7 +31,7 @@ from typing import cast
 import numpy as np
 import scipy.sparse as sp
 
-from coordinator.localization.sparse_lm import PoseLayout, jacobian, levenberg_marquardt, solve_normal
+from coordinator.localization.sparse_lm import LsqResult, PoseLayout, jacobian, levenberg_marquardt, minimize, solve_normal
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
 from runtime.models.geometry import rotate, wrap_angle
@@ -41,6 +41,7 @@ from runtime.models.geometry import rotate, wrap_angle
 # random swarms of 10-500 robots) and saves about one iteration in seven, as the joint localizer's.
 XTOL, FTOL = 1e-8, 1e-8
 ALIGN_MIN = 2048  # robots from which a given start is first turned to the observations' headings (``aligned_start``)
+LARGE_MIN = 2048  # robots from which Eq. B3's normal equations are assembled directly and one factorization serves a step
 
 
 @dataclass(frozen=True)
@@ -194,35 +195,9 @@ def heading_sigmas(made: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     return np.where(made > 0, cfg.bearing_sigma_rad / np.sqrt(np.maximum(made, 1)), np.inf)
 
 
-def estimate_topology(
-    n: int,
-    observer: np.ndarray,
-    observed: np.ndarray,
-    range_m: np.ndarray,
-    bearing_rad: np.ndarray,
-    cfg: ModelConfig,
-    *,
-    initial_poses: np.ndarray | None = None,
-    huber: float | None = None,
-) -> Topology:
-    """Estimate the topology of ``n`` robots from observations given as robot indices.
-
-    ``initial_poses`` (n, 3), e.g. dead reckoning, only seeds the solver; the result is
-    expressed in the reference robot's frame either way. ``huber`` (metres) switches the
-    loss of Eq. B3 to Huber beyond that residual (per axis) to resist outliers in real data,
-    and leaves observations more than 2 x ``huber`` from the solution out of the clusters.
-    Callers check observability first (``graph.require_observable``).
-    """
-    has_heading = np.bincount(observer, minlength=n) > 0
-    ref = int(reference_robot(has_heading))
-    z = observation_offsets(range_m, bearing_rad)
-    start = _relaxed_start(n, observer, observed, z, has_heading, ref) if initial_poses is None else initial_poses
-    start = _to_reference_frame(np.asarray(start, float), ref)
-    if initial_poses is not None and n >= ALIGN_MIN:
-        start = aligned_start(start, observer, observed, bearing_rad, ref)
-    start[~has_heading, 2] = 0.0
-    free = np.arange(n) != ref
-    layout = PoseLayout(free, free & has_heading)
+def _solve_by_jacobian(layout: PoseLayout, start: np.ndarray, observer: np.ndarray, observed: np.ndarray, z: np.ndarray,
+                       huber: float | None) -> LsqResult:
+    """Eq. B3 by ``levenberg_marquardt`` on its residuals and sparse Jacobian, with the heading curvature."""
     m = len(observer)
     rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
     ci, cj = layout.cols[observer], layout.cols[observed]
@@ -256,7 +231,46 @@ def estimate_topology(
         np.add.at(out, hc[hc >= 0], term[hc >= 0])
         return out
 
-    result = levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber, xtol=XTOL, ftol=FTOL)
+    return levenberg_marquardt(residuals, layout.pack(start), second_order=second_order, huber=huber, xtol=XTOL, ftol=FTOL)
+
+
+def estimate_topology(
+    n: int,
+    observer: np.ndarray,
+    observed: np.ndarray,
+    range_m: np.ndarray,
+    bearing_rad: np.ndarray,
+    cfg: ModelConfig,
+    *,
+    initial_poses: np.ndarray | None = None,
+    huber: float | None = None,
+) -> Topology:
+    """Estimate the topology of ``n`` robots from observations given as robot indices.
+
+    ``initial_poses`` (n, 3), e.g. dead reckoning, only seeds the solver; the result is
+    expressed in the reference robot's frame either way. ``huber`` (metres) switches the
+    loss of Eq. B3 to Huber beyond that residual (per axis) to resist outliers in real data,
+    and leaves observations more than 2 x ``huber`` from the solution out of the clusters.
+    Callers check observability first (``graph.require_observable``).
+    """
+    has_heading = np.bincount(observer, minlength=n) > 0
+    ref = int(reference_robot(has_heading))
+    z = observation_offsets(range_m, bearing_rad)
+    start = _relaxed_start(n, observer, observed, z, has_heading, ref) if initial_poses is None else initial_poses
+    start = _to_reference_frame(np.asarray(start, float), ref)
+    if initial_poses is not None and n >= ALIGN_MIN:
+        start = aligned_start(start, observer, observed, bearing_rad, ref)
+    start[~has_heading, 2] = 0.0
+    free = np.arange(n) != ref
+    layout = PoseLayout(free, free & has_heading)
+    if n >= LARGE_MIN:  # the normal equations summed directly, one factorization a step (``topology_normal``)
+        from coordinator.localization.topology_normal import TopologyNormal  # noqa: PLC0415 - it builds on this module
+
+        problem = TopologyNormal(layout.cols, layout.size, start, observer, observed, z, huber)
+        result = minimize(problem.evaluate, layout.pack(start), solve=problem.solve, xtol=XTOL, ftol=FTOL)
+    else:
+        result = _solve_by_jacobian(layout, start, observer, observed, z, huber)
+    m = len(observer)
     if not result.converged:
         raise LocalizationError("no-convergence", [], "topology least squares did not converge")
     poses = layout.unpack(result.x, start)

@@ -43,12 +43,16 @@ def _bad_rows(values: np.ndarray) -> np.ndarray:
 
 def index_of(ids: np.ndarray, query: np.ndarray, what: str) -> np.ndarray:
     """Positions of ``query`` ids inside ``ids``; unknown ids raise naming them."""
+    n, query = len(ids), np.asarray(query)
+    if n and ids[0] == 0 and ids[-1] == n - 1 and np.issubdtype(query.dtype, np.integer) and np.all(ids[1:] > ids[:-1]):
+        if np.all((query >= 0) & (query < n)):  # ids 0..n-1 in order (a simulated swarm's): a query is its position
+            return query.astype(np.int64, copy=False)
     order = np.argsort(ids)
     pos = np.searchsorted(ids[order], query)
     pos = np.clip(pos, 0, len(ids) - 1)
     found = ids[order][pos] == query if len(ids) else np.zeros(len(query), bool)
     if not np.all(found):
-        unknown = sorted(set(np.asarray(query)[~found].tolist()))
+        unknown = sorted(set(query[~found].tolist()))
         raise SwarmInputError(f"unknown robot ids in {what}: {unknown} (known: {ids.tolist()})")
     return order[pos]
 
