@@ -191,7 +191,7 @@ def test_replay_check_refuses_options_that_contradict_the_recording(tmp_path):
 @pytest.mark.parametrize("args, message", [
     (("sim", "--seed", "-1"), "--seed -1: must be between 0 and 2^63 - 1"),
     (("demo", "--seed", "-5"), "--seed -5: must be between 0 and 2^63 - 1"),
-    (("sim", "--robots", "100000"), "--robots 100000: at most 2000 (simulated robots)"),
+    (("sim", "--robots", "100000"), "--robots 100000: at most 10000 (simulated robots)"),
     (("launch", "-n", "100000"), "-n/--robots 100000: at most 1000 (robots launched as agent processes on one host)"),
     (("compare", "--trajectories", "100000"), "--trajectories 100000: must be between 1 and 10000"),
     (("sim", "--configs", "1000000"), "--configs 1000000: at most 10000"),
