@@ -4,6 +4,7 @@ carried by checkpoints."""
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -150,3 +151,60 @@ def test_a_staging_point_is_checked_against_the_others_again():
     leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
     assert leg.staged.tolist() == [True, True, False, False, False]
     assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
+
+
+class Died(Exception):
+    """The coordinator died right after publishing a checkpoint."""
+
+
+def test_a_run_resumed_from_a_checkpoint_inside_any_leg_ends_bit_for_bit_as_the_uninterrupted_one():
+    states: list[RunState] = []
+    clean = run(X3, states)
+    def first(test) -> int:
+        return next(k for k, s in enumerate(states) if s.legs and s.plan is not None and test(len(s.legs), s.group, s.plan.n_steps))
+
+    # inside the first leg; a later leg just planned, half driven, and driven to its end before the next is planned
+    inside = [first(lambda n, g, steps: n == 1 and g == 1), first(lambda n, g, steps: n > 1 and g == 0),
+              first(lambda n, g, steps: n > 1 and 0 < g < steps), first(lambda n, g, steps: n > 1 and g == steps)]
+    start = clean.initial_estimate
+    for k in inside:
+        backend = SimulatedSwarm(SIDE.ids, SIDE.initial_poses, X3, 3)  # the robots outlive the coordinator
+        seen: list[RunState] = []
+
+        def die_at_k(s: RunState, seen: list[RunState] = seen, k: int = k) -> None:
+            seen.append(s)
+            if len(seen) == k + 1:
+                raise Died
+
+        loc = make_localizer("paper", X3)
+        with pytest.raises(Died):
+            InchwormExecutor(backend, loc, make_strategy("one-at-a-time", SIDE.n, X3, loc, SelectionConfig(), 3), X3,
+                             on_checkpoint=die_at_k).run(SIDE, start)
+        taken = RunState.from_json(seen[-1].to_json(), SIDE, start)
+        loc = make_localizer("paper", X3)
+        resumed = InchwormExecutor(backend, loc, make_strategy("one-at-a-time", SIDE.n, X3, loc, SelectionConfig(), 3),
+                                   X3).run(SIDE, start, resume=taken)
+        assert len(resumed.steps) == len(clean.steps), k
+        for a, b in zip(resumed.steps, clean.steps, strict=True):
+            np.testing.assert_array_equal(a.estimate.poses, b.estimate.poses)
+            np.testing.assert_array_equal(a.truth, b.truth)
+        [got], [want] = resumed.configs, clean.configs
+        assert got.n_steps == want.n_steps and got.staging_stops == want.staging_stops and len(got.legs) == len(want.legs)
+        assert all(np.array_equal(a.targets, b.targets) and a.plan.key() == b.plan.key() for a, b in zip(got.legs, want.legs, strict=True))
+        assert resumed.pf() == clean.pf() and resumed.steps_added() == clean.steps_added()
+
+
+def test_the_fault_bench_finds_a_run_with_legs_identical_to_its_own_json():
+    """``swarm bench faults`` compares a distributed run's ``--json`` rows with the in-process run: a configuration's
+    ``steps`` there count its legs' steps, and so must the comparison (it compared the first leg's plan alone, so
+    every run with legs was reported not identical)."""
+    from inchworm.bench.faults import same_table
+    from inchworm.simulation import run_json
+
+    result = run(X3)
+    [config] = result.configs
+    assert config.n_steps > config.plan.n_steps  # legs added steps
+    summary = json.loads(json.dumps(run_json(result, "one-at-a-time", "paper", 3, [], None, X3.robot_radius_m)))
+    assert same_table(summary, result)
+    summary["configs"][0]["steps"] = config.plan.n_steps
+    assert not same_table(summary, result)
