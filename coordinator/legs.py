@@ -11,8 +11,11 @@ straight to the target, as without legs).
 ``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
 configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
 configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
-pair within ``CONTACT_BOUND`` (``runtime.models.contact_risk.instant_bound``); the motion of the legs' steps is kept
-within it by the regrouping, as for any step (``first_leg``, ``next_leg``).
+pair's contact probability within ``CONTACT_BOUND``; the motion of the legs' steps is kept within it by the
+regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instant, so the criterion is the probability
+of the pair's Gaussian relative position in the disc (``runtime.models.contact_risk.disc_probability``), not the
+half-plane bound the steps need (``instant_bound``, 1.3-2.6x the probability for the pairs legs are about): a leg is
+driven only where the straight drive's end really is over the bound.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
 from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, _reach, all_pairs, near_pairs
 from runtime.models.config import ModelConfig
-from runtime.models.contact_risk import MotionMoments, instant_bound
+from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
 
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
@@ -47,8 +50,10 @@ class Leg:
 
 
 def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs (i, j), i of ``rows``, j != i (each pair once), with the bound of their contact probability when every robot
-    stands at the end of a straight move from its estimate to ``ends`` (n, 2) (arrived, with the move's noise)."""
+    """Pairs (i, j), i of ``rows``, j != i (each pair once), with their contact probability when every robot stands at
+    the end of a straight move from its estimate to ``ends`` (n, 2) (arrived, with the move's noise): the Gaussian
+    relative position's probability of the disc (``disc_probability``) where the half-plane bound is over
+    ``CONTACT_BOUND``, the bound elsewhere (it is under, and so is the probability)."""
     n = len(estimate.ids)
     moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
     if n < INDEX_MIN:
@@ -64,7 +69,10 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     i, j = i[once], j[once]
     ones = np.ones(len(i))
     mu, _, sigma, _, _ = moments.pairs(i, j, ones, 0.0 * ones, ones, 0.0 * ones)
-    return i, j, instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
+    p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
+    over = np.flatnonzero(p > CONTACT_BOUND)  # one instant: its probability itself where the bound says it may be over
+    p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
+    return i, j, p
 
 
 def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
