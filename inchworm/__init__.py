@@ -1,7 +1,7 @@
 """``inchworm``: the Python API of the inchworm swarm runtime (runs, the paper's comparison, studies, benchmarks).
 
     import inchworm
-    run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult
+    run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult (or simulate(SimOptions(...)))
     same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
@@ -53,7 +53,7 @@ if TYPE_CHECKING:
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
     from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
-    from inchworm.simulation import simulate as simulate
+    from inchworm.simulation import SimOptions as SimOptions, simulate as simulate
     from inchworm.studies.anchors import AnchorsOptions as AnchorsOptions, AnchorsResult as AnchorsResult, study_anchors as study_anchors
     from inchworm.studies.calibration import (
         CalibrationOptions as CalibrationOptions,
@@ -76,7 +76,7 @@ if TYPE_CHECKING:
     from runtime.models.trajectory import Trajectory as Trajectory
 
 _WHERE = {
-    "simulate": "inchworm.simulation",
+    "simulate": "inchworm.simulation", "SimOptions": "inchworm.simulation",
     "run_distributed": "inchworm.distributed",
     "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",

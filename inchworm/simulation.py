@@ -1,18 +1,24 @@
-"""One simulated run from Python: ``simulate`` and the per-configuration table of a run."""
+"""One simulated run from Python: ``simulate`` and its options (``SimOptions``, what ``swarm sim`` parses its flags
+from: ``swarm_cli.schema``), and the per-configuration table of a run."""
 
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
-from runtime.errors import SwarmInputError
+from coordinator.localization.registry import DEFAULT_LOCALIZER
+from coordinator.strategies import METHODS
+from inchworm.options import check_at_least, check_localizers, default_selection
+from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
-from runtime.paths import StrPath
+from runtime.paths import StrPath, coerce_paths
 
 if TYPE_CHECKING:
     from coordinator.localization import Localizer
@@ -21,65 +27,130 @@ if TYPE_CHECKING:
     from coordinator.strategies import Strategy
     from runtime.world.params import PhysicsParams
 
+WORLDS = ("model", "physics")  # the noise model's world, the rigid-body world (runtime.world)
+OnProgress = Callable[[int, int], None]  # told (configurations done, of total)
 
+
+@dataclass(frozen=True, kw_only=True)
+class SimOptions:
+    """One simulated run: ``method`` (a name of ``coordinator.strategies.METHODS`` or your own ``Strategy``) along
+    ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of ``robots`` robots and ``configs``
+    configurations drawn with ``seed``); the noise ``model``, the ``localizer`` (a registered name or your own
+    ``Localizer``, which a searching method's Monte Carlo simulates too), the anchor search (``selection``); the
+    ``world`` (``"model"``: the robots move and sense by the noise model, as the planner assumes; ``"physics"``: a
+    rigid-body world of ``physics`` parameters, default ``PhysicsParams.for_model(model)``, the ``physics`` extra) and
+    the start estimate's uncertainty (``initial_delta_m``, ``initial_heading_sigma_rad``). Checked when made
+    (``OptionError`` naming the field)."""
+
+    trajectory: Trajectory | StrPath | None = field(default=None, metadata={"help": "trajectory JSON (docs/trajectory.md); default: a random one"})
+    robots: int = field(default=10, metadata={"help": "robots of the random trajectory"})
+    configs: int = field(default=5, metadata={"help": "configurations of the random trajectory"})
+    method: str | Strategy = field(default="inchworm", metadata={"help": "motion strategy", "choices": METHODS})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectory, noise and search"})
+    model: ModelConfig = field(default_factory=ModelConfig)
+    localizer: str | Localizer = DEFAULT_LOCALIZER
+    selection: SelectionConfig = field(default_factory=default_selection)
+    world: str = "model"
+    physics: PhysicsParams | None = field(default=None, metadata={"flag": "--physics-param"})
+    initial_delta_m: float = 0.01
+    initial_heading_sigma_rad: float = math.radians(2.0)
+
+    def __post_init__(self) -> None:
+        if self.trajectory is None:
+            for name, least in (("robots", 2), ("configs", 1)):
+                if getattr(self, name) < least:
+                    raise OptionError(name, f"must be >= {least} for a random trajectory, got {getattr(self, name)}", self)
+        elif not isinstance(self.trajectory, Trajectory):
+            if not isinstance(self.trajectory, (str, os.PathLike)):
+                raise OptionError("trajectory", f"must be a Trajectory or a trajectory JSON file, got {type(self.trajectory).__name__}", self)
+            coerce_paths(self, "trajectory")
+        if isinstance(self.method, str) and self.method not in METHODS:
+            raise OptionError("method", f"must be one of {', '.join(METHODS)} (or a Strategy), got {self.method!r}", self)
+        if isinstance(self.localizer, str):
+            check_localizers(self, "localizer")
+        if self.world not in WORLDS:
+            raise OptionError("world", f"must be 'model' or 'physics', got {self.world!r}", self)
+        if self.physics is not None and self.world != "physics":
+            raise OptionError("physics", "sets the physical world: it needs `world` physics", self)
+        check_at_least(self, "seed", 0)
+        for name in ("initial_delta_m", "initial_heading_sigma_rad"):
+            if not getattr(self, name) >= 0:
+                raise OptionError(name, f"must be >= 0, got {getattr(self, name)}", self)
+
+    def run_trajectory(self) -> Trajectory:
+        """The trajectory the run follows: ``trajectory``, loaded if it is a file, or the random one it draws."""
+        return resolve_trajectory(self.trajectory, self.robots, self.configs, self.seed, self.model)
+
+
+@overload
+def simulate(options: SimOptions, *, progress: OnProgress | None = None) -> RunResult: ...
+@overload
 def simulate(
     trajectory: Trajectory | StrPath | None = None,
     *,
-    method: str | Strategy = "inchworm",
-    robots: int = 10,
-    configs: int = 5,
-    seed: int = 0,
-    model: ModelConfig | None = None,
-    localizer: str | Localizer = "paper",
-    selection: SelectionConfig | None = None,
-    initial_delta_m: float = 0.01,
-    initial_heading_sigma_rad: float = math.radians(2.0),
-    progress: Callable[[int, int], None] | None = None,
-    world: str = "model",
-    physics: PhysicsParams | None = None,
-) -> RunResult:
-    """Run ``method`` along ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of
-    ``robots`` robots and ``configs`` configurations drawn with ``seed``) in the in-process simulator.
-
-    ``world``: ``"model"`` (the robots move and sense by the noise model, as the planner assumes) or
-    ``"physics"`` (a rigid-body world, ``runtime.world``, of ``physics`` parameters, default
-    ``PhysicsParams.for_model(model)``; needs the ``physics`` extra; its contacts and stalls in
-    ``result.world_events``).
-
-    ``method`` is a method name (``coordinator.strategies.METHODS``) or your own ``Strategy``;
-    ``localizer`` a registered name (``coordinator.localization.registry``) or your own ``Localizer`` object:
-    the executor and a searching method's Monte Carlo use the same one. Everything random derives from
-    ``seed``; the result holds every step's estimate and the truth.
-    """
+    method: str | Strategy = ...,
+    robots: int = ...,
+    configs: int = ...,
+    seed: int = ...,
+    model: ModelConfig | None = ...,
+    localizer: str | Localizer = ...,
+    selection: SelectionConfig | None = ...,
+    initial_delta_m: float = ...,
+    initial_heading_sigma_rad: float = ...,
+    progress: OnProgress | None = None,
+    world: str = ...,
+    physics: PhysicsParams | None = ...,
+) -> RunResult: ...
+def simulate(options: SimOptions | Trajectory | StrPath | None = None, /, *, progress: OnProgress | None = None, **keywords: Any) -> RunResult:
+    """Run the ``SimOptions`` ``options`` in the in-process simulator, or, as keywords, the ``SimOptions`` they make
+    (the first argument then is the ``trajectory``; ``model=None`` and ``selection=None`` are the defaults):
+    ``simulate(SimOptions(robots=6, method="ref57"))`` is ``simulate(robots=6, method="ref57")``. ``progress`` is told
+    ``(configurations done, of total)``. Everything random derives from ``seed``; the result holds every step's
+    estimate and the truth, and in the physical world its contacts and stalls (``result.world_events``)."""
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
-    from coordinator.selection.selector import SelectionConfig  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
-    cfg = model or ModelConfig()
-    traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
+    o = _options_of(options, keywords)
+    cfg = o.model
+    traj = o.run_trajectory()
     validate_connected(traj, cfg.sensing_range_m)
     validate_passable(traj, cfg)
-    loc = make_localizer(localizer, cfg) if isinstance(localizer, str) else localizer
-    strategy = make_strategy(method, traj.n, cfg, loc, selection or SelectionConfig(), seed) if isinstance(method, str) else method
-    start = initial_estimate(traj, seed, initial_delta_m, initial_heading_sigma_rad)
-    if world not in ("model", "physics"):
-        raise SwarmInputError(f"world must be 'model' or 'physics', got {world!r}")
-    if world == "physics":
+    loc = make_localizer(o.localizer, cfg) if isinstance(o.localizer, str) else o.localizer
+    strategy = make_strategy(o.method, traj.n, cfg, loc, o.selection, o.seed) if isinstance(o.method, str) else o.method
+    start = initial_estimate(traj, o.seed, o.initial_delta_m, o.initial_heading_sigma_rad)
+    if o.world == "physics":
         from runtime.world.params import PhysicsParams  # noqa: PLC0415 - the physics extra, only when asked for
         from runtime.world.swarm import PhysicsSwarm  # noqa: PLC0415
 
-        physical = PhysicsSwarm(traj.ids, traj.initial_poses, physics or PhysicsParams.for_model(cfg), seed)
+        physical = PhysicsSwarm(traj.ids, traj.initial_poses, o.physics or PhysicsParams.for_model(cfg), o.seed)
         try:
             result = InchwormExecutor(physical, loc, strategy, cfg, progress).run(traj, start)
         finally:
             physical.close()
         result.world_events = physical.events
         return result
-    return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, seed), loc, strategy, cfg, progress).run(traj, start)
+    return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, o.seed), loc, strategy, cfg, progress).run(traj, start)
+
+
+def _options_of(options: SimOptions | Trajectory | StrPath | None, keywords: dict[str, Any]) -> SimOptions:
+    """``simulate``'s options: the ``SimOptions`` given (first or as ``options=``), or those of its keywords (the
+    first argument: the trajectory)."""
+    if options is None and isinstance(keywords.get("options"), SimOptions):
+        options = keywords.pop("options")
+    if isinstance(options, SimOptions):
+        if keywords:
+            raise TypeError(f"simulate() takes SimOptions or keywords, not both (got {', '.join(sorted(keywords))} too): "
+                            "dataclasses.replace(options, ...) changes some")
+        return options
+    if options is not None:
+        if "trajectory" in keywords:
+            raise TypeError("simulate() got the trajectory twice: as its first argument and as trajectory=")
+        keywords = {**keywords, "trajectory": options}
+    return SimOptions(**{k: v for k, v in keywords.items() if v is not None or k not in ("model", "selection")})
 
 
 def resolve_trajectory(trajectory: Trajectory | StrPath | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:

@@ -1,16 +1,19 @@
 """Command-line flags generated from an options dataclass, so each option's name, default and help are declared once.
 
-A field of an options dataclass (``inchworm.comparison.CompareOptions``, the ``inchworm.studies`` options, those of
-``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes, or its ``metadata["flag"]`` (a short
-flag such as ``-n`` goes before the long one), the field's default, ``metadata["help"]``, to which `` (default X)``
-is added unless the help places the default itself with ``%(default)s`` or has no default to show, and
-``metadata["choices"]`` and ``["metavar"]`` if declared. The annotation gives the argparse type: ``int``, ``float``,
-``str``, ``Path``, ``bool`` (``--name`` sets True; a field that defaults to True and whose flag is ``--no-name`` sets
-False) and ``tuple[int | float | str, ...]``, a comma-separated value (``--methods a,b``) that stays text in the
-namespace (``--config`` files and ``study.toml`` keep it as typed) and that ``options_of`` splits. A field of another
-type (a nested options object: the model, the localizer, the anchor search, added by ``swarm_cli.options``'s groups)
-is passed to ``add_fields`` in ``exclude`` and to ``options_of`` by name. The library checks the values
-(``OptionError`` naming the field); the command prints the error with the flag (``OptionError.flag_message``).
+A field of an options dataclass (``inchworm.simulation.SimOptions``, ``inchworm.comparison.CompareOptions``, the
+``inchworm.studies`` options, those of ``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes,
+or its ``metadata["flag"]`` (a short flag such as ``-n`` goes before the long one), the field's default,
+``metadata["help"]``, to which `` (default X)`` is added unless the help places the default itself with
+``%(default)s`` or has no default to show, and ``metadata["choices"]`` and ``["metavar"]`` if declared. The annotation
+gives the argparse type: ``int``, ``float``, ``str``, ``Path`` (or ``StrPath``), ``bool`` (``--name`` sets True; a
+field that defaults to True and whose flag is ``--no-name`` sets False) and ``tuple[int | float | str, ...]``, a
+comma-separated value (``--methods a,b``) that stays text in the namespace (``--config`` files and ``study.toml`` keep
+it as typed) and that ``options_of`` splits. A union takes the flag of its one member of these types (``str |
+Strategy``: a name on the command line, an object from Python). A field of another type (a nested options object: the
+model, the localizer, the anchor search, added by ``swarm_cli.options``'s groups) is passed to ``add_fields`` in
+``exclude`` and to ``options_of`` by name; a field with no command-line form at all is left out of both (``only``,
+``keep``) and keeps the class's default. The library checks the values (``OptionError`` naming the field); the command
+prints the error with the flag (``OptionError.flag_message``).
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from typing import Any, TypeVar, cast
 from swarm_cli.options import names, parse_list
 
 T = TypeVar("T")
-_SCALARS: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool, "Path": Path}
+_SCALARS: dict[str, type] = {"int": int, "float": float, "str": str, "bool": bool, "Path": Path, "StrPath": Path}
 _MANY = re.compile(r"^tuple\[(int|float|str), \.\.\.\]$")
 
 
@@ -37,14 +40,30 @@ class Kind:
     many: bool = False
 
 
-def kind_of(f: dataclasses.Field[Any]) -> Kind | None:
-    """The ``Kind`` of a field's annotation (a string under ``from __future__ import annotations``), None if it has no flag type."""
-    text = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
-    text = text.removesuffix(" | None")
+def _members(text: str) -> list[str]:
+    """The members of a union's annotation text, split at its top level (not inside ``tuple[...]``)."""
+    parts, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        depth += (char == "[") - (char == "]")
+        if char == "|" and depth == 0:
+            parts.append(text[start:i].strip())
+            start = i + 1
+    return [*parts, text[start:].strip()]
+
+
+def _kind(text: str) -> Kind | None:
     if text in _SCALARS:
         return Kind(_SCALARS[text])
     many = _MANY.match(text)
     return Kind(_SCALARS[many.group(1)], many=True) if many else None
+
+
+def kind_of(f: dataclasses.Field[Any]) -> Kind | None:
+    """The ``Kind`` of a field's annotation (a string under ``from __future__ import annotations``): of its one member
+    with a flag type (``None`` aside), None if it has no such member or several."""
+    text = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+    kinds = [k for k in map(_kind, _members(text)) if k is not None]
+    return kinds[0] if len(kinds) == 1 else None
 
 
 def flag_of(f: dataclasses.Field[Any]) -> str:
@@ -121,8 +140,8 @@ def value_of(args: argparse.Namespace, f: dataclasses.Field[Any]) -> Any:
     return tuple(parse_list(value, flag_of(f), kind.scalar))
 
 
-def options_of(args: argparse.Namespace, cls: Callable[..., T], **given: Any) -> T:
+def options_of(args: argparse.Namespace, cls: Callable[..., T], *, keep: Collection[str] = (), **given: Any) -> T:
     """The options dataclass ``cls`` made from the namespace: every field with a flag from its value, the others from
-    ``given`` (``run=run_options(args)``)."""
-    values = {f.name: value_of(args, f) for f in option_fields(cast(type, cls), exclude=given)}
+    ``given`` (``run=run_options(args)``); the fields ``keep`` (no command-line form) keep the class's defaults."""
+    values = {f.name: value_of(args, f) for f in option_fields(cast(type, cls), exclude={*given, *keep})}
     return cls(**values, **given)

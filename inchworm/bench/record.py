@@ -74,17 +74,20 @@ class RecordBenchOptions:
 
 
 def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) -> list[tuple[str, bytes]]:
-    """Encoded ``(key, payload)`` of one inchworm step of ``n`` robots, in publishing order."""
+    """Encoded ``(key, payload)`` of one inchworm step of ``n`` robots, in publishing order (every field built as
+    the tuple its message declares)."""
     side = math.ceil(math.sqrt(n))
     grid = np.array([(i % side, i // side) for i in range(n)], float) * SPACING_M
     xy = grid + rng.normal(0.0, 0.02, (n, 2))
     heading = rng.uniform(-math.pi, math.pi, n)
-    ids = list(range(n))
-    moving = ids[: max(1, n // 2)] if step % 2 else ids[n // 2:]
+    ids = tuple(range(n))
+    half = max(1, n // 2)
+    moving = ids[:half] if step % 2 else ids[n // 2:]
+    poses = tuple((float(x), float(y), float(h)) for (x, y), h in zip(xy, heading, strict=True))
     msgs: list[Message] = []
     if plan:
         msgs.append(PlanMessage(run=RUN, step=step, config=1 + step // 4, n_anchors=n - len(moving),
-                                groups=[ids[: max(1, n // 2)], ids[max(1, n // 2):] or [n - 1]] if n > 1 else [[0]]))
+                                groups=(ids[:half], ids[half:] or (n - 1,)) if n > 1 else ((0,),)))
     for r in moving:
         msgs.append(MotionCommand(run=RUN, step=step, robot=r, config=1, turn_rad=0.1, drive_m=0.12))
         msgs.append(Status(run=RUN, step=step, robot=r, state="accepted", reason=""))
@@ -92,16 +95,15 @@ def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) ->
     msgs += [ObserveRequest(run=RUN, step=step, robot=r) for r in ids]
     d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
     for r in ids:
-        msgs.append(TruthMessage(run=RUN, step=step, robot=r, pose=[float(xy[r, 0]), float(xy[r, 1]), float(heading[r])]))
-        seen = [j for j in ids if j != r and d[r, j] <= SENSING_M]
-        bearings = [float((math.atan2(xy[j, 1] - xy[r, 1], xy[j, 0] - xy[r, 0]) - heading[r] + math.pi) % (2 * math.pi) - math.pi)
-                    for j in seen]
-        msgs.append(ObservationReport(run=RUN, step=step, robot=r, observed=seen, ranges=[float(d[r, j]) for j in seen],
+        msgs.append(TruthMessage(run=RUN, step=step, robot=r, pose=poses[r]))
+        seen = tuple(j for j in ids if j != r and d[r, j] <= SENSING_M)
+        bearings = tuple(float((math.atan2(xy[j, 1] - xy[r, 1], xy[j, 0] - xy[r, 0]) - heading[r] + math.pi) % (2 * math.pi) - math.pi)
+                         for j in seen)
+        msgs.append(ObservationReport(run=RUN, step=step, robot=r, observed=seen, ranges=tuple(float(d[r, j]) for j in seen),
                                       bearings=bearings))
-    msgs.append(TruthSetMessage(run=RUN, step=step, ids=ids, poses=np.column_stack([xy, heading]).tolist()))
-    cov = np.diag([1e-4, 1e-4, 1e-3]) + 1e-6
-    msgs.append(EstimateMessage(run=RUN, step=step, ids=ids, poses=np.column_stack([xy, heading]).tolist(),
-                                cov=[cov.tolist()] * n))
+    msgs.append(TruthSetMessage(run=RUN, step=step, ids=ids, poses=poses))
+    cov = tuple(tuple(float(v) for v in row) for row in np.diag([1e-4, 1e-4, 1e-3]) + 1e-6)
+    msgs.append(EstimateMessage(run=RUN, step=step, ids=ids, poses=poses, cov=(cov,) * n))
     return [(message_key(m), encode(m)) for m in msgs]
 
 

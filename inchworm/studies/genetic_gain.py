@@ -27,13 +27,17 @@ import numpy as np
 from inchworm.options import RunOptions, check_at_least
 
 BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation samples
+# fresh samples each kept plan and its seed are evaluated on, for 10 robots (scaled by 10 / n_r like the selection's,
+# ``samples_for``): what docs/selection.md's grid (tools/genetic_gain.sh, docs/data/genetic-gain/) was measured with;
+# not the selection study's evaluation set (``SelectionStudyOptions.eval_samples``)
+EVAL_SAMPLES = 256
 
 
 @dataclass(frozen=True)
 class GeneticGainOptions:
     robots: int = 10
     configs: int = 8
-    eval_samples: int = 256  # for 10 robots; scaled by 10 / n_r like the selection's (``samples_for``)
+    eval_samples: int = EVAL_SAMPLES
     seed: int = 0
     run: RunOptions = field(default_factory=RunOptions)
 

@@ -190,6 +190,24 @@ def test_custom_strategy_and_localizer_plug_in():
     assert blind.localization_errors()[-1] > run.localization_errors()[-1]  # localization is worth something
 
 
+def test_simulate_takes_options_or_the_keywords_that_make_them(tmp_path):
+    """``simulate(SimOptions(...))`` is the run its keywords give; the trajectory as the first argument or a file."""
+    chosen = inchworm.SimOptions(robots=6, configs=2, method="ref57", seed=5, model=ModelConfig(turn_sigma_rad=math.radians(6)))
+    run = inchworm.simulate(chosen)
+    same = [inchworm.simulate(robots=6, configs=2, method="ref57", seed=5, model=ModelConfig(turn_sigma_rad=math.radians(6))),
+            inchworm.simulate(options=chosen)]
+    file = tmp_path / "t.json"
+    run.trajectory.save(file)
+    same += [inchworm.simulate(run.trajectory, method="ref57", seed=5, model=chosen.model, selection=None),
+             inchworm.simulate(inchworm.SimOptions(trajectory=str(file), method="ref57", seed=5, model=chosen.model))]
+    for other in same:
+        assert np.array_equal(other.estimated_configurations(), run.estimated_configurations()) and other.pf() == run.pf()
+    with pytest.raises(TypeError, match="not both"):
+        inchworm.simulate(chosen, seed=6)
+    with pytest.raises(TypeError, match="trajectory twice"):
+        inchworm.simulate(run.trajectory, trajectory=file)
+
+
 def test_a_study_file_gives_defaults_that_flags_override(tmp_path):
     parser = build_parser(["compare"])
     sub = parser.parse_args(["compare"])._study_parser

@@ -8,11 +8,13 @@ import argparse
 import dataclasses
 import importlib
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
 
 from runtime.errors import OptionError, SwarmInputError
+from runtime.paths import StrPath
 from swarm_cli.main import build_parser
 from swarm_cli.schema import add_fields, default_of, flag_of, options_of
 
@@ -33,8 +35,13 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("study noise", "swarm_cli.study_noise:options", ("inchworm.studies.noise:NoiseOptions",), ("run",)),
     ("study consistency", "swarm_cli.study_consistency:options", ("inchworm.studies.consistency:ConsistencyOptions",),
      ("model", "selection")),
-    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run",)),
+    # study selection: --eval-samples not given is each mode's own default (the study's field, the genetic gain's, below)
+    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run", "eval_samples")),
     ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
+    # sim: --model FILE and the noise flags give model, the selection group selection; --physics-param repeats (a list)
+    # and gives physics; the start estimate's uncertainty has no flag (swarm_cli.sim.NO_FLAG: from Python only)
+    ("sim", "swarm_cli.sim:options", ("inchworm.simulation:SimOptions",),
+     ("model", "selection", "physics", "initial_delta_m", "initial_heading_sigma_rad")),
     # launch: --model FILE gives model_file and model; --driver-option and --physics-param repeat (a list); --rejoin
     # is yes/no; trajectory_seed is the seed (demo: 0) and command the command's name; record options are the coordinator's
     ("launch", "_launch_options", ("inchworm.launch_options:LaunchOptions", "inchworm.launch_options:SwarmOptions",
@@ -71,6 +78,27 @@ def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str,
             assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
     made: Callable[[argparse.Namespace], Any] = globals()[maker] if ":" not in maker else _named(maker)
     assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
+
+
+def test_the_genetic_gain_evaluates_on_its_own_samples_unless_given(tmp_path) -> None:
+    """``--genetic-gain`` without ``--eval-samples`` evaluates on the gain's 256 samples (docs/selection.md's grid), the
+    selection study on its own 512; ``--eval-samples`` (or a ``--config`` file's) sets both."""
+    from inchworm.studies.genetic_gain import EVAL_SAMPLES, GeneticGainOptions
+    from inchworm.studies.selection import SelectionStudyOptions
+    from swarm_cli.main import parse
+    from swarm_cli.study_selection import gain_options, options
+
+    def parsed(*flags: str) -> argparse.Namespace:
+        return parse(["study", "selection", *flags])
+
+    assert gain_options(parsed("--genetic-gain")).eval_samples == GeneticGainOptions().eval_samples == EVAL_SAMPLES == 256
+    assert options(parsed()).eval_samples == SelectionStudyOptions().eval_samples == 512
+    assert gain_options(parsed("--genetic-gain", "--eval-samples", "64")).eval_samples == options(parsed("--eval-samples", "64")).eval_samples == 64
+    (tmp_path / "s.toml").write_text("eval-samples = 300\n")
+    given = parsed("--genetic-gain", "--config", str(tmp_path / "s.toml"))
+    assert gain_options(given).eval_samples == options(given).eval_samples == 300
+    with pytest.raises(OptionError, match="^eval_samples must be >= 2, got 1$"):
+        gain_options(parsed("--genetic-gain", "--eval-samples", "1"))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,3 +158,22 @@ def test_a_field_without_a_command_line_type_must_be_excluded() -> None:
     parser = argparse.ArgumentParser()
     add_fields(parser, Nested, exclude=("toy",))
     assert options_of(parser.parse_args(["--count", "2"]), Nested, toy=Toy(5)) == Nested(Toy(5), 2)
+
+
+def test_a_union_takes_the_flag_of_its_one_command_line_member_and_kept_fields_their_defaults() -> None:
+    @dataclasses.dataclass(frozen=True, kw_only=True)
+    class Run:
+        file: StrPath | None = dataclasses.field(default=None, metadata={"help": "a file"})
+        how: str | Callable[[int], tuple[int, ...]] = dataclasses.field(default="fast", metadata={"help": "a name (Python: a function)"})
+        either: int | float = 1  # two members with a flag type: which one the command line means is not said
+        start: float = 0.5  # no command-line form: kept
+
+    with pytest.raises(TypeError, match="either"):
+        add_fields(argparse.ArgumentParser(), Run, exclude=("start",))
+    parser = argparse.ArgumentParser()
+    add_fields(parser, Run, exclude=("either", "start"))
+    helps = {a.option_strings[-1]: a.help for a in parser._actions if a.option_strings}
+    assert (helps["--file"], helps["--how"]) == ("a file", "a name (Python: a function) (default fast)")
+    args = parser.parse_args(["--file", "x.json", "--how", "slow"])
+    assert options_of(args, Run, keep=("start",), either=2.5) == Run(file=Path("x.json"), how="slow", either=2.5)
+    assert options_of(parser.parse_args([]), Run, keep=("start",), either=1) == Run()

@@ -24,3 +24,4 @@ def test_recording_options_take_str_paths():
     check = inchworm.CheckOptions(SAMPLE, trajectory="t.json", model_file="m.toml")
     assert (check.file, check.trajectory, check.model_file) == (Path(SAMPLE), Path("t.json"), Path("m.toml"))
     assert inchworm.PublishOptions(SAMPLE).file == Path(SAMPLE)
+    assert inchworm.SimOptions(trajectory="t.json").trajectory == Path("t.json")
