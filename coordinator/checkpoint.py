@@ -30,6 +30,7 @@ from typing import Any, overload
 import numpy as np
 
 from coordinator.clearance import Regrouping
+from coordinator.legs import LegRecord
 from coordinator.plan import Plan
 from coordinator.run_result import ConfigRecord, LostRobot, RejoinedRobot, RunResult, StepRecord
 from runtime.errors import SwarmInputError
@@ -52,6 +53,7 @@ class RunState:
     finished: bool = False  # the run completed (nothing is left to take over)
     regrouped: Regrouping | None = None  # how the body constraint split the strategy's plan of ``config`` (None: clear)
     dropped: tuple[str, ...] = ()  # fields of ``estimate`` its checkpoint could not carry (read back: they are None)
+    legs: tuple[LegRecord, ...] = ()  # the approach legs of ``config`` so far (the last is ``plan``'s; coordinator.legs)
 
     def to_json(self) -> str:
         """The state as JSON, with everything the estimate carries."""
@@ -75,7 +77,7 @@ class RunState:
             "step": self.step, "config": self.config, "group": self.group, "finished": self.finished,
             "estimate": _estimate(self.estimate, carry=carry), "dropped": dropped, "plan": _plan(self.plan),
             "planned_ids": None if self.planned_ids is None else self.planned_ids.tolist(),
-            "regrouped": _regrouping(self.regrouped),
+            "regrouped": _regrouping(self.regrouped), **_legs_json(self.legs),
             "selector_calls": self.selector_calls, "method": r.method, "initial_truth": _array(r.initial_truth),
             "lost": [{"robot": x.robot, "step": x.step, "config": x.config, "reason": x.reason} for x in r.lost],
             "rejoined": [{"robot": x.robot, "step": x.step, "config": x.config} for x in r.rejoined],
@@ -84,7 +86,7 @@ class RunState:
                        "truth_ids": None if s.truth_ids is None else s.truth_ids.tolist()} for s in r.steps],
             "configs": [{"config": c.config, "plan": _plan(c.plan), "estimate": _estimate(c.estimate), "truth": _array(c.truth),
                          "planned_ids": None if c.planned_ids is None else c.planned_ids.tolist(),
-                         "regrouped": _regrouping(c.regrouped)} for c in r.configs],
+                         "regrouped": _regrouping(c.regrouped), **_legs_json(c.legs)} for c in r.configs],
         }, separators=(",", ":"))
 
     @classmethod
@@ -102,12 +104,13 @@ class RunState:
             result.configs = [ConfigRecord(c["config"], _from_plan(c["plan"]), None, _from_estimate(c["estimate"]),
                                            _from_array(c["truth"]),
                                            None if c["planned_ids"] is None else np.array(c["planned_ids"], dtype=np.int64),
-                                           _from_regrouping(c["regrouped"]))
+                                           _from_regrouping(c["regrouped"]), _from_legs(c))
                               for c in d["configs"]]
             return cls(d["step"], d["config"], d["group"], _from_estimate(d["estimate"]), _from_plan(d["plan"]),
                        None if d["planned_ids"] is None else np.array(d["planned_ids"], dtype=np.int64),
                        d["selector_calls"], result, d["finished"], _from_regrouping(d["regrouped"]),
-                       tuple(str(x) for x in d.get("dropped", ())))  # written before carried fields: nothing dropped
+                       tuple(str(x) for x in d.get("dropped", ())),  # written before carried fields: nothing dropped
+                       _from_legs(d))
         except (KeyError, TypeError, ValueError, SwarmInputError, binascii.Error) as exc:
             raise SwarmInputError(f"checkpoint state is not readable: {type(exc).__name__}: {exc}") from None
 
@@ -192,3 +195,14 @@ def _regrouping(r: Regrouping | None) -> dict[str, Any] | None:
 
 def _from_regrouping(d: dict[str, Any] | None) -> Regrouping | None:
     return None if d is None else Regrouping(_from_plan(d["planned"]), tuple(int(x) for x in d["unclear"]), float(d["bound"]))
+
+
+def _legs_json(legs: tuple[LegRecord, ...]) -> dict[str, Any]:
+    """The approach legs as an additive ``legs`` key (none without legs: a state without them is written as before)."""
+    return {"legs": [{"plan": _plan(x.plan), "ids": x.ids.tolist(), "targets": _array(x.targets), "staged": x.staged.tolist(),
+                      "regrouped": _regrouping(x.regrouped)} for x in legs]} if legs else {}
+
+
+def _from_legs(d: dict[str, Any]) -> tuple[LegRecord, ...]:
+    return tuple(LegRecord(_from_plan(x["plan"]), np.array(x["ids"], dtype=np.int64), _from_array(x["targets"]),
+                           np.array(x["staged"], dtype=bool), _from_regrouping(x["regrouped"])) for x in d.get("legs", ()))

@@ -23,13 +23,17 @@ that finished.
 Bodies (docs/bodies.md): with ``cfg.robot_radius_m`` > 0 every plan is checked before its
 first command under the nominal motion of its steps; a step whose movers would come too
 close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
-so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``).
+so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``). A mover whose straight drive
+would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
+first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing
 what it does: ``on_estimate(0, initial)`` at the start, ``on_plan(c, first_step, plan,
 selection)`` when configuration ``c`` (0-based) is planned, before its first command,
-``on_estimate(step, estimate)`` after every step and, with ground truth and bodies,
+``on_leg(c, leg, first_step, record)`` (optional: called when the listener has it) before the first command of approach
+leg ``leg`` >= 1 of configuration ``c`` (``coordinator.legs``), ``on_estimate(step, estimate)`` after every step and,
+with ground truth and bodies,
 ``on_contacts(contacts)`` after a step in which true bodies touched. Steps are numbered globally over
 the run, motion steps from 1 (docs/protocol.md), so the first step of configuration c
 is 1 + the steps of all earlier configurations. A distributed backend uses it to
@@ -47,7 +51,8 @@ import numpy as np
 
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
-from coordinator.clearance import Regrouping, clear_plan
+from coordinator.clearance import Regrouping
+from coordinator.legs import MAX_LEGS, LegRecord, first_leg, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -152,7 +157,8 @@ class InchwormExecutor:
             self.result, self._executed = result, resume.step
             self._restore_strategy(trajectory.ids, estimate.ids, resume.selector_calls)
         try:
-            self._follow(result, trajectory, estimate, first, group, plan, planned_ids, regrouped)
+            self._follow(result, trajectory, estimate, first, group, plan, planned_ids, regrouped,
+                         () if resume is None else resume.legs)
         except RunAborted as exc:
             exc.result = result  # the configurations completed before the end
             raise
@@ -167,8 +173,10 @@ class InchwormExecutor:
         return result
 
     def _follow(self, result: RunResult, trajectory: Trajectory, estimate: SwarmEstimate, first: int, group: int,
-                plan: Plan | None, planned_ids: np.ndarray | None, regrouped: Regrouping | None) -> None:
-        """Configurations ``first``.. of ``trajectory`` (the first from group ``group`` of ``plan`` if given)."""
+                plan: Plan | None, planned_ids: np.ndarray | None, regrouped: Regrouping | None,
+                legs: tuple[LegRecord, ...] = ()) -> None:
+        """Configurations ``first``.. of ``trajectory`` (the first from group ``group`` of ``plan`` if given, in the last
+        of its approach ``legs`` if any: ``plan`` is that leg's)."""
         total, selection = len(trajectory.configurations), None
         for c in range(first, total):
             if plan is None:
@@ -180,31 +188,50 @@ class InchwormExecutor:
                     estimate, keep = self._drop_lost(result, c, estimate)
                     if keep is None:
                         break
-                plan, regrouped = clear_plan(self.cfg, plan, estimate, desired)
+                plan, regrouped, leg = first_leg(self.cfg, plan, estimate, desired)
+                legs = () if leg is None else (leg,)
                 if self.listener is not None:
                     self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
                 planned_ids, group = estimate.ids, 0
-                self._checkpoint(result, c, 0, estimate, plan, planned_ids, regrouped)
-            for k in range(group, len(plan.groups)):
+                self._checkpoint(result, c, 0, estimate, plan, planned_ids, regrouped, legs=legs)
+            done = sum(leg.plan.n_steps for leg in legs[:-1])  # steps of this configuration's earlier legs
+            while True:
+                assert plan is not None and planned_ids is not None  # set with the plan (and checkpointed with it)
+                current = legs[-1] if legs else None
+                for k in range(group, len(plan.groups)):
+                    estimate = self._drop_lost(result, c, estimate)[0]
+                    moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
+                    if moving.any():  # a group whose robots were all lost is skipped
+                        estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
+                    self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped, legs=legs)
+                if not legs or not legs[-1].staged.any() or len(legs) >= MAX_LEGS:
+                    break
+                done += plan.n_steps
                 estimate = self._drop_lost(result, c, estimate)[0]
-                assert planned_ids is not None  # set with the plan (and checkpointed with it)
-                moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
-                if moving.any():  # a group whose robots were all lost is skipped
-                    estimate = self._step(result, c, k, moving, estimate, trajectory)  # (ii)-(v)
-                self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped)
-            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids, regrouped))
-            plan, selection, regrouped = None, None, None
+                leg = next_leg(self.cfg, legs[0], estimate, self._desired(trajectory, c, estimate.ids), legs[-1].staged_ids, len(legs))
+                if leg is None:
+                    break
+                legs, plan, planned_ids, regrouped, group = (*legs, leg), leg.plan, leg.ids, leg.regrouped, 0
+                on_leg = getattr(self.listener, "on_leg", None)
+                if on_leg is not None:
+                    on_leg(c, len(legs) - 1, len(result.steps) + 1, leg)
+                self._checkpoint(result, c, 0, estimate, plan, planned_ids, regrouped, legs=legs)
+            if legs:
+                plan, planned_ids, regrouped = legs[0].plan, legs[0].ids, legs[0].regrouped
+            result.configs.append(ConfigRecord(c, plan, selection, estimate, self.backend.true_poses(), planned_ids, regrouped, legs))
+            plan, selection, regrouped, legs, group = None, None, None, (), 0
             if self.progress:
                 self.progress(c + 1, total)
         self._checkpoint(result, total, 0, estimate, None, None, finished=True)
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
-                    planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False) -> None:
-        """Hand the run's state to ``on_checkpoint`` (after the start, each plan, each step and at the end)."""
+                    planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False,
+                    legs: tuple[LegRecord, ...] = ()) -> None:
+        """Hand the run's state to ``on_checkpoint`` (after the start, each plan, each leg, each step and at the end)."""
         if self.on_checkpoint is not None:
             selector = getattr(self.strategy, "selector", None)
             self.on_checkpoint(RunState(self._executed, config, group, estimate, plan, planned_ids,
-                                        0 if selector is None else selector.calls, result, finished, regrouped))
+                                        0 if selector is None else selector.calls, result, finished, regrouped, legs=legs))
 
     def _restore_strategy(self, all_ids: np.ndarray, ids: np.ndarray, selector_calls: int) -> None:
         """The strategy for the robots ``ids`` of the swarm ``all_ids``, its search's random stream at
@@ -272,9 +299,13 @@ class InchwormExecutor:
         return estimate.select(keep), keep
 
     def _step(
-        self, result: RunResult, config: int, step: int, moving: np.ndarray, estimate: SwarmEstimate, trajectory: Trajectory
+        self, result: RunResult, config: int, step: int, moving: np.ndarray, estimate: SwarmEstimate, trajectory: Trajectory,
+        leg: LegRecord | None = None,
     ) -> SwarmEstimate:
         desired = self._desired(trajectory, config, estimate.ids)
+        if leg is not None:  # an approach leg: its robots drive to its targets (a staging point or their desired position)
+            there = np.isin(leg.ids, estimate.ids)
+            desired[index_of(estimate.ids, leg.ids[there], "leg")] = leg.targets[there]
         commands = np.where(moving[:, None], command_towards(estimate.poses, desired), 0.0)
         unsure = estimate.cov[:, 0, 0] + estimate.cov[:, 1, 1] > REJOIN_DELTA_M**2 / 2  # a robot rejoining by dead reckoning
         commands[unsure, 1] = np.minimum(commands[unsure, 1], REJOIN_DRIVE_M)  # approaches in steps an agent accepts

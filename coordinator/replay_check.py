@@ -37,8 +37,8 @@ from typing import Any, cast
 import numpy as np
 
 from coordinator.checkpoint import carried_fields
-from coordinator.clearance import clear_plan
 from coordinator.executor import among, localize_rejoined, rejoin_priors
+from coordinator.legs import LegRecord, first_leg, next_leg
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -74,6 +74,7 @@ class RecordedRun:
     meta: dict[str, Any]
     estimates: dict[int, EstimateMessage] = field(default_factory=dict)
     plans: dict[int, PlanMessage] = field(default_factory=dict)
+    legs: dict[tuple[int, int], PlanMessage] = field(default_factory=dict)  # approach legs >= 1 by (configuration, leg)
     commands: dict[int, dict[int, MotionCommand]] = field(default_factory=dict)
     reports: dict[int, dict[int, ObservationReport]] = field(default_factory=dict)
     truths: dict[int, dict[int, TruthMessage]] = field(default_factory=dict)
@@ -124,6 +125,8 @@ def load_recording(path: str | Path) -> RecordedRun:
             first = rec.estimates.setdefault(msg.step, msg)
             if first.ids != msg.ids and set(first.ids) < set(msg.ids):
                 rec.rejoins.setdefault(msg.step, msg)
+        elif isinstance(msg, PlanMessage) and msg.leg:
+            rec.legs.setdefault((msg.config, msg.leg), msg)
         elif isinstance(msg, PlanMessage):
             rec.plans.setdefault(msg.config, msg)
         elif isinstance(msg, MotionCommand):
@@ -292,6 +295,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     full, strategy_ids = strategy, ids
     plans_ok = strategy is not None
     plan_at_step = {p.step: p for p in rec.plans.values()}
+    leg_at_step = {p.step: p for p in rec.legs.values()}
+    legs: list[LegRecord] = []  # the approach legs of the configuration being checked, as recomputed
     expected_config = 1
 
     last = max(rec.estimates)
@@ -312,7 +317,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                     strategy = _restricted(full, strategy, ids, strategy_ids, estimate.ids)
                     strategy_ids = estimate.ids
                 desired = traj.configurations[plan_msg.config - 1][index_of(traj.ids, estimate.ids, "trajectory")]
-                plan, _ = clear_plan(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
+                plan, _, leg = first_leg(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
+                legs = [] if leg is None else [leg]
                 groups = _plan_groups(plan, estimate.ids)
                 if groups != plan_msg.groups:
                     result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "groups",
@@ -324,6 +330,19 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                     return result
                 result.plans += 1
                 expected_config += 1
+        leg_msg = leg_at_step.get(step)
+        if leg_msg is not None and plans_ok and traj is not None:
+            divergence = _check_leg(leg_msg, step, legs, chain.prior(step), cfg, traj, expected_config - 1)
+            if isinstance(divergence, Divergence):
+                result.divergence = divergence
+                return result
+            if divergence is None:
+                result.skipped.append(f"approach legs of configuration {leg_msg.config} from leg {leg_msg.leg} on "
+                                      "(the plan or the estimate before it was not checked)")
+                plans_ok = False
+            else:
+                legs.append(divergence)
+                result.plans += 1
         if step == 0 or step not in rec.estimates:
             continue
         if chain.localize(step, ids):
@@ -333,6 +352,26 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     if chain.gaps:
         result.skipped.append(chain.gaps_text())
     return result
+
+
+def _check_leg(msg: PlanMessage, step: int, legs: list[LegRecord], before: SwarmEstimate | None, cfg: ModelConfig,
+               traj: Trajectory, config: int) -> LegRecord | Divergence | None:
+    """Approach leg ``msg.leg`` of configuration ``msg.config`` (1-based) recomputed from ``before`` (the estimate after
+    step - 1) as the executor does (``coordinator.legs.next_leg``) and compared with ``msg``: the leg, the divergence, or
+    None when it cannot be checked (its configuration's plan or earlier legs were not, or no estimate before it)."""
+    if before is None or msg.config != config or len(legs) != msg.leg:
+        return None
+    desired = traj.configurations[msg.config - 1][index_of(traj.ids, before.ids, "trajectory")]
+    leg = next_leg(cfg, legs[0], before, desired, legs[-1].staged_ids, msg.leg) if legs[-1].staged.any() else None
+    where = f"approach leg {msg.leg} of configuration {msg.config}"
+    if leg is None:
+        return Divergence(step, where, None, "groups", [list(g) for g in msg.groups], [])
+    groups = _plan_groups(leg.plan, leg.ids)
+    if groups != msg.groups:
+        return Divergence(step, where, None, "groups", [list(g) for g in msg.groups], [list(g) for g in groups])
+    if leg.n_anchors(len(before.ids)) != msg.n_anchors:
+        return Divergence(step, where, None, "n_anchors", msg.n_anchors, leg.n_anchors(len(before.ids)))
+    return leg
 
 
 class _Chain:
@@ -507,12 +546,14 @@ def rebuild_run(rec: RecordedRun, trajectory: Path | None = None) -> RunResult:
         if sorted(order) != list(range(len(ids))):
             raise SwarmInputError(f"{rec.path}: the plan of configuration {config} does not move every robot once")
         plan = Plan(np.array(order), tuple(len(g) for g in msg.groups))
-        steps = [msg.step + k for k in range(plan.n_steps)]
+        legs = _recorded_legs(rec, config, msg, ids)
+        groups = [g for m in [msg, *(rec.legs[(config, k)] for k in range(1, len(legs)))] for g in m.groups]
+        steps = [s for m in [msg, *(rec.legs[(config, k)] for k in range(1, len(legs)))] for s in range(m.step, m.step + len(m.groups))]
         if not all(s in rec.estimates for s in steps):
             break  # the recording ends inside this configuration
         records = []
         for k, s in enumerate(steps):
-            moving = plan.moving(k)
+            moving = np.isin(ids, groups[k])
             cmds = np.zeros((len(ids), 2))
             for robot, cmd in rec.commands.get(s, {}).items():
                 if robot in index:
@@ -521,9 +562,27 @@ def rebuild_run(rec: RecordedRun, trajectory: Path | None = None) -> RunResult:
             have_truth = have_truth and (t is not None or k < len(steps) - 1)
             records.append(StepRecord(config - 1, k, moving, cmds, rec.estimates[s].to_estimate(), t, None))
         result.steps.extend(records)
-        result.configs.append(ConfigRecord(config - 1, plan, None, records[-1].estimate, records[-1].truth))
+        result.configs.append(ConfigRecord(config - 1, plan, None, records[-1].estimate, records[-1].truth, legs=legs))
     if not result.configs:
         raise SwarmInputError(f"{rec.path}: the recording holds no completed configuration (plan and estimates of all its steps)")
     if not have_truth:
         result.initial_truth = None
     return result
+
+
+def _recorded_legs(rec: RecordedRun, config: int, msg: PlanMessage, ids: np.ndarray) -> tuple[LegRecord, ...]:
+    """The approach legs of configuration ``config`` (1-based) as recorded: its plan ``msg`` and its ``PlanMessage``s
+    of legs 1, 2, ... (each leg's staged robots are those of the next; its targets are not recorded: NaN); () without legs."""
+    msgs = [msg]
+    while (config, len(msgs)) in rec.legs:
+        msgs.append(rec.legs[(config, len(msgs))])
+    if len(msgs) == 1:
+        return ()
+    out = []
+    for k, m in enumerate(msgs):
+        robots = np.array(sorted(r for g in m.groups for r in g), dtype=np.int64) if k else ids
+        order = np.searchsorted(robots, [r for g in m.groups for r in g])
+        nxt = {r for g in msgs[k + 1].groups for r in g} if k + 1 < len(msgs) else set()
+        out.append(LegRecord(Plan(order, tuple(len(g) for g in m.groups)), robots, np.full((len(robots), 2), np.nan),
+                             np.isin(robots, list(nxt))))
+    return tuple(out)

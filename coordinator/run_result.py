@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from coordinator.clearance import Regrouping
+from coordinator.legs import LegRecord
 from coordinator.plan import Plan
 from coordinator.selection.selector import Selection
 from runtime.models.bodies import step_contacts
@@ -74,6 +75,22 @@ class ConfigRecord:
     truth: np.ndarray | None
     planned_ids: np.ndarray | None = None  # the robots the plan's indices refer to (None: ``estimate.ids``; differs after a loss)
     regrouped: Regrouping | None = None  # how the body constraint split the strategy's plan (None: it was clear)
+    legs: tuple[LegRecord, ...] = ()  # approach legs (coordinator.legs; the first's plan is ``plan``), () when every robot drove straight
+
+    @property
+    def n_steps(self) -> int:
+        """Steps taken: the plan's and its approach legs'."""
+        return self.plan.n_steps + sum(leg.plan.n_steps for leg in self.legs[1:])
+
+    @property
+    def planned_steps(self) -> int:
+        """Steps of the strategy's plan, before the body constraint split it or added legs."""
+        return self.plan.n_steps if self.regrouped is None else self.regrouped.planned_steps
+
+    @property
+    def staging_stops(self) -> int:
+        """Approach legs driven to a staging point (one per robot and stop)."""
+        return int(sum(int(leg.staged.sum()) for leg in self.legs))
 
     def anchor_ids(self, step: int = 0) -> np.ndarray:
         """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
@@ -150,11 +167,16 @@ class RunResult:
         return np.array([(c.plan if c.regrouped is None else c.regrouped.planned).n_anchors for c in self.configs])
 
     def steps_per_config(self) -> np.ndarray:
-        return np.array([c.plan.n_steps for c in self.configs])
+        return np.array([c.n_steps for c in self.configs])
 
     def steps_added(self) -> int:
-        """Steps the body constraint added to the strategies' plans (Eq. 6-7 count the steps taken)."""
-        return int(sum(c.plan.n_steps - c.regrouped.planned_steps for c in self.configs if c.regrouped is not None))
+        """Steps the body constraint added to the strategies' plans, sub-steps and approach legs (Eq. 6-7 count the
+        steps taken)."""
+        return int(sum(c.n_steps - c.planned_steps for c in self.configs))
+
+    def staging_stops(self) -> int:
+        """Approach legs driven to a staging point over the run (``coordinator.legs``)."""
+        return sum(c.staging_stops for c in self.configs)
 
     def contacts(self, radius: float) -> list[ContactEvent]:
         """Contacts of bodies of ``radius`` (m) in the true motion of every step (``runtime.models.bodies.step_contacts``):

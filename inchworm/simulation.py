@@ -22,7 +22,7 @@ from runtime.paths import StrPath, coerce_paths
 
 if TYPE_CHECKING:
     from coordinator.localization import Localizer
-    from coordinator.run_result import RunResult, StepRecord
+    from coordinator.run_result import ConfigRecord, RunResult, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
     from runtime.world.params import PhysicsParams
@@ -167,7 +167,7 @@ def config_rows(result: RunResult) -> list[dict[str, Any]]:
         return []
     e_l, follow, travelled = result.localization_errors(), result.following_errors(), result.travelled()
     anchors = result.anchor_counts()
-    return [{"config": c + 1, "n_a": int(anchors[c]), "steps": rec.plan.n_steps, "e_l": float(e_l[c]),
+    return [{"config": c + 1, "n_a": int(anchors[c]), "steps": rec.n_steps, "e_l": float(e_l[c]),
              "following_error": float(follow[c]), "travelled": float(travelled[c])} for c, rec in enumerate(result.configs)]
 
 
@@ -188,10 +188,17 @@ def config_table(result: RunResult) -> str:
             lines.append(f"{c + 1:>6} {r['n_a']:>4} {r['steps']:>5} {r['e_l'] * 1e3:>9.2f} {r['following_error'] * 1e3:>11.2f} "
                          f"{r['travelled']:>13.3f}")
         else:
-            lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.plan.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
+            lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]
+    lines += [f"config {c + 1}: {legs_text(rec)}" for c, rec in enumerate(result.configs) if rec.legs]
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
     return "\n".join([*lines, *anchor_choices(result)])
+
+
+def legs_text(rec: ConfigRecord) -> str:
+    """How a configuration's movers drove in approach legs (``coordinator.legs``)."""
+    return (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point, "
+            f"steps {rec.plan.n_steps} -> {rec.n_steps}")
 
 
 def _robots(ids: list[int], most: int = 20) -> str:
@@ -239,7 +246,8 @@ def contacts_text(result: RunResult, radius: float) -> str:
         return ""
     contacts = result.contacts(radius)
     closest = f", closest {min(c.distance for c in contacts) * 1e3:.1f} mm" if contacts else ""
-    lines = [f"contacts (bodies of radius {radius:g} m): {len(contacts)}{closest}; steps added for bodies: {result.steps_added()}"]
+    stops = f"; stops at a staging point: {result.staging_stops()}" if result.staging_stops() else ""
+    lines = [f"contacts (bodies of radius {radius:g} m): {len(contacts)}{closest}; steps added for bodies: {result.steps_added()}{stops}"]
     lines += [f"  step {c.step} (config {c.config + 1}): robots {c.a} and {c.b}, centres {c.distance * 1e3:.1f} mm apart" for c in contacts]
     return "\n".join(lines)
 
@@ -248,8 +256,12 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     """The additive ``--json`` keys of a run's bodies: ``robot_radius_m``, ``steps_added``, ``contacts``
     (each ``step``, ``config`` 1-based, ``robots`` [a, b], ``distance_m``) and ``regrouped`` (each configuration
     whose plan the chance constraint split: ``config`` 1-based, ``planned_steps``, ``steps``, ``contact_bound`` the
-    highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time)."""
-    return {"robot_radius_m": radius, "steps_added": result.steps_added(),
+    highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time),
+    ``staging_stops`` (approach legs driven to a staging point, ``coordinator.legs``) and ``legs`` (each configuration
+    whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``)."""
+    return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
+            "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps}
+                     for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],
             "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}

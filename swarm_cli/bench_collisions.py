@@ -2,7 +2,7 @@
 (``inchworm.bench.collisions``; docs/bodies.md). ``--json``: the last line is
 ``{"radius_m", "trajectories", "configs", "rows": [{"method", "localizer", "bodies", "contacts_per_100",
 "configs_with_contact_pct", "steps_per_config", "pf_mean", "noise_scale", "steps_added", "unclear_changes",
-"raised_bound_changes"}, ...]}``."""
+"raised_bound_changes", "leg_changes", "staging_stops"}, ...]}``."""
 
 from __future__ import annotations
 

@@ -66,6 +66,7 @@ if TYPE_CHECKING:  # imported where used: a parser importing this module must no
 
     from coordinator.checkpoint import RunState
     from coordinator.executor import ExecutorListener
+    from coordinator.legs import LegRecord
     from coordinator.node.zenoh_backend import ZenohSwarmBackend
     from coordinator.plan import Plan
     from coordinator.run_result import ContactEvent, RunResult
@@ -259,6 +260,12 @@ class _Checked:
 
     def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
         self.listener.on_plan(config_index, first_step, plan, selection)
+        self.check()
+
+    def on_leg(self, config_index: int, leg: int, first_step: int, record: LegRecord) -> None:
+        on_leg = getattr(self.listener, "on_leg", None)
+        if on_leg is not None:
+            on_leg(config_index, leg, first_step, record)
         self.check()
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:

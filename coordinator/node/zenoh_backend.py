@@ -73,6 +73,7 @@ import numpy as np
 
 from coordinator.backend import BackendEnded
 from coordinator.checkpoint import RunState
+from coordinator.legs import LegRecord
 from runtime.errors import RunConflictError, SwarmConnectionError, SwarmInputError, SwarmRunError
 from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
@@ -687,6 +688,13 @@ class ZenohSwarmBackend:
         self.config = config_index + 1
         groups = tuple(tuple(self._id_list[int(k)] for k in group) for group in plan.groups)
         msg = PlanMessage(run=self.run, step=first_step, config=self.config, n_anchors=plan.n_anchors, groups=groups)
+        publish(self.session, message_key(msg), encode(msg))
+
+    def on_leg(self, config_index: int, leg: int, first_step: int, record: LegRecord) -> None:
+        """Publish approach leg ``leg`` (>= 1) of configuration ``config_index`` (0-based) as ``PlanMessage`` (``leg`` set)."""
+        groups = tuple(tuple(int(record.ids[k]) for k in group) for group in record.plan.groups)
+        msg = PlanMessage(run=self.run, step=first_step, config=config_index + 1, n_anchors=record.n_anchors(len(self.ids)),
+                          groups=groups, leg=leg)
         publish(self.session, message_key(msg), encode(msg))
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:

@@ -235,7 +235,8 @@ def fuzz(count: int, seed: int = 7, robots: int = 6, configs: int = 6, method: s
 
 def same_table(summary: dict[str, Any], ref: RunResult) -> bool:
     """The coordinator's per-configuration rows and P_f equal the in-process run's (to 1e-12: the distributed
-    run reproduces every estimate bit for bit; the table's sums may differ in the last bit)."""
+    run reproduces every estimate bit for bit; the table's sums may differ in the last bit); a row's ``steps`` are
+    the configuration's steps taken, its approach legs' included (``ConfigRecord.n_steps``)."""
     e_l, follow, travelled = ref.localization_errors(), ref.following_errors(), ref.travelled()
     rows = summary.get("configs", [])
 
@@ -245,7 +246,7 @@ def same_table(summary: dict[str, Any], ref: RunResult) -> bool:
     if len(rows) != len(ref.configs) or not same(summary.get("pf"), ref.pf()):
         return False
     anchors = ref.anchor_counts()
-    return all(row["n_a"] == anchors[k] and row["steps"] == c.plan.n_steps and same(row["e_l"], e_l[k])
+    return all(row["n_a"] == anchors[k] and row["steps"] == c.n_steps and same(row["e_l"], e_l[k])
                and same(row["following_error"], follow[k]) and same(row["travelled"], travelled[k])
                for k, (row, c) in enumerate(zip(rows, ref.configs, strict=True)))
 

@@ -65,6 +65,7 @@ from runtime.models.trajectory import body_spacing, random_trajectory
 if TYPE_CHECKING:
     from coordinator.backend import SwarmBackend
     from coordinator.executor import ExecutorListener
+    from coordinator.legs import LegRecord
     from coordinator.plan import Plan
     from coordinator.run_result import ContactEvent
     from coordinator.selection.selector import Selection
@@ -106,6 +107,12 @@ class StepTimer:
 
     def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
         self.inner.on_plan(config_index, first_step, plan, selection)
+        self.mark = time.perf_counter()
+
+    def on_leg(self, config_index: int, leg: int, first_step: int, record: LegRecord) -> None:
+        on_leg = getattr(self.inner, "on_leg", None)
+        if on_leg is not None:
+            on_leg(config_index, leg, first_step, record)
         self.mark = time.perf_counter()
 
     def on_contacts(self, contacts: list[ContactEvent]) -> None:

@@ -399,7 +399,8 @@ class ObservationReport(Message):
 
 @dataclass(frozen=True, kw_only=True)
 class PlanMessage(Message):
-    """Coordinator -> all: the plan of a configuration; ``groups[k]`` moves at step ``step + k``."""
+    """Coordinator -> all: the plan of a configuration (``leg`` 0) or of one of its approach legs; ``groups[k]`` moves
+    at step ``step + k``."""
 
     TYPE: ClassVar[str] = "PlanMessage"
     LEAF: ClassVar[str] = "plan"
@@ -410,6 +411,8 @@ class PlanMessage(Message):
     groups: tuple[tuple[int, ...], ...] = _wire(
         "id", "ordered mobile groups, at least one, each non-empty, no robot twice", shape=(None, None)
     )
+    leg: int = _wire("int", "optional: 0 = the configuration's plan; k >= 1 = its k-th approach leg, whose groups move only "
+                     "the robots that stopped at a staging point in leg k - 1 (docs/bodies.md)", default=0)
 
     def _check(self) -> None:
         seen: set[int] = set()

@@ -1,10 +1,12 @@
 """``replay_check.check`` on runs recorded in memory from the in-process executor (no processes): the check carries
 its own recomputed estimates from step to step, so a localizer's state beyond the recorded 3x3 covariances (the
 joint localizer's joint covariance) is reproduced exactly, through a lost robot; a recording that misses a step's
-inputs says which steps it cannot check and why."""
+inputs says which steps it cannot check and why; the approach legs of bodies at high motion noise are recomputed
+and compared leg by leg."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +21,7 @@ from coordinator.strategies import make_strategy
 from runtime.models.config import ModelConfig
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import StepCommands
-from runtime.models.trajectory import random_trajectory
+from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.messages import EstimateMessage, MotionCommand, ObservationReport, PlanMessage, observations_from_reports
 
 CFG = ModelConfig(robot_radius_m=0.0)
@@ -30,8 +32,8 @@ class RecordingSwarm(SimulatedSwarm):
     """The in-process swarm, recording what a coordinator publishes and hears into a ``RecordedRun``; loses robot
     ``lose[0]`` after motion step ``lose[1]`` (reported at the next ``take_lost``, as the Zenoh backend does)."""
 
-    def __init__(self, traj, rec: RecordedRun, lose: tuple[int, int] | None) -> None:
-        super().__init__(traj.ids, traj.initial_poses, CFG, SEED)
+    def __init__(self, traj, rec: RecordedRun, lose: tuple[int, int] | None, cfg: ModelConfig = CFG, seed: int = SEED) -> None:
+        super().__init__(traj.ids, traj.initial_poses, cfg, seed)
         self.rec, self.lose, self.step, self.untaken = rec, lose, 0, {}
 
     def execute(self, step: StepCommands) -> None:
@@ -64,6 +66,11 @@ class RecordingSwarm(SimulatedSwarm):
         ids = self.ids
         self.rec.plans[config_index + 1] = PlanMessage(run="m", step=first_step, config=config_index + 1, n_anchors=plan.n_anchors,
                                                        groups=tuple(tuple(int(ids[k]) for k in g) for g in plan.groups))
+
+    def on_leg(self, config_index, leg, first_step, record) -> None:
+        self.rec.legs[(config_index + 1, leg)] = PlanMessage(
+            run="m", step=first_step, config=config_index + 1, n_anchors=record.n_anchors(len(self.ids)), leg=leg,
+            groups=tuple(tuple(int(record.ids[k]) for k in g) for g in record.plan.groups))
 
     def on_estimate(self, step, estimate) -> None:
         self.rec.estimates.setdefault(step, EstimateMessage.from_estimate(estimate, run="m", step=step))
@@ -119,3 +126,32 @@ def test_a_step_missing_from_the_recording(localizer):
            "chain broke at step 2 (no observation report from robots [3])")
     assert (result.estimates, result.plans) == (2, 1)
     assert result.skipped[1:] == [f"plans from configuration 2 on ({why})", f"2 steps from 3 to 4 ({why})"]
+
+
+X3 = ModelConfig(turn_sigma_rad=math.radians(9.0), drive_sigma_frac=0.15)  # motion noise x3
+
+
+@pytest.mark.parametrize("localizer", ["paper", "joint"])
+def test_approach_legs_reproduce_and_keep_bodies_apart(localizer):
+    # 6 robots, 2 changes at x3 (``swarm bench collisions``' scheme): with the paper localizer, planned before approach
+    # legs (bf876ab), bodies touched once in these changes; with legs they keep apart, and the check recomputes every leg
+    seed = 9
+    traj = random_trajectory(6, 2, np.random.default_rng(seed), sensing_range=X3.sensing_range_m, **body_spacing(X3))
+    rec = RecordedRun(Path("memory"), {}, {"localizer": localizer, "method": "ref57", "seed": seed, "trajectory": traj.to_json(),
+                                           "initial_delta_m": DELTA, "initial_heading_sigma_rad": math.radians(2.0),
+                                           "model": X3.to_dict()})
+    swarm = RecordingSwarm(traj, rec, None, X3, seed)
+    loc = make_localizer(localizer, X3)
+    result = InchwormExecutor(swarm, loc, make_strategy("ref57", traj.n, X3, loc, recorded_selection(rec), seed), X3,
+                              listener=swarm).run(traj, initial_estimate(traj, seed, DELTA, math.radians(2.0)))
+    assert result.contacts(X3.robot_radius_m) == [] and result.staging_stops() > 0 and rec.legs
+    assert result.steps_per_config().sum() == len(result.steps) == max(rec.estimates)
+    checked = check(rec)
+    assert checked.passed and checked.skipped == [], (checked.divergence, checked.skipped)
+    assert checked.plans == 2 + len(rec.legs) and checked.estimates == len(rec.estimates)
+    config, leg = max(rec.legs)
+    msg = rec.legs[(config, leg)]
+    rec.legs[(config, leg)] = PlanMessage(run="m", step=msg.step, config=config, n_anchors=msg.n_anchors, leg=leg,
+                                          groups=tuple(reversed(msg.groups)) if len(msg.groups) > 1 else ((*msg.groups[0], 99),))
+    bad = check(rec)
+    assert bad.divergence is not None and bad.divergence.what == f"approach leg {leg} of configuration {config}"

@@ -75,13 +75,16 @@ def test_bench_collisions_json_contract():
         (k, m, "paper", b) for k in (1.0, 3.0) for m in ("ref57", "one-at-a-time") for b in (True, False)]
     for row in doc["rows"]:
         assert list(row) == ["method", "localizer", "bodies", "contacts_per_100", "configs_with_contact_pct", "steps_per_config", "pf_mean",
-                             "noise_scale", "steps_added", "unclear_changes", "raised_bound_changes"]  # the last three: additions
+                             "noise_scale", "steps_added", "unclear_changes", "raised_bound_changes", "leg_changes",
+                             "staging_stops"]  # the last five: additions
         assert row["unclear_changes"] <= row["raised_bound_changes"] <= 2 * 2 and (row["bodies"] or row["steps_added"] == 0)
+        assert row["leg_changes"] <= 2 * 2 and (row["leg_changes"] > 0) == (row["staging_stops"] > 0) and (row["bodies"] or row["leg_changes"] == 0)
         assert row["contacts_per_100"] >= row["configs_with_contact_pct"] >= 0 and row["pf_mean"] > 0
     by = {(r["method"], r["bodies"], r["noise_scale"]): r for r in doc["rows"]}
     for k in (1.0, 3.0):
         assert by[("ref57", True, k)]["steps_per_config"] >= by[("ref57", False, k)]["steps_per_config"] == 2
-        assert by[("one-at-a-time", True, k)]["steps_per_config"] == by[("one-at-a-time", False, k)]["steps_per_config"] == 10
+        single = by[("one-at-a-time", True, k)]  # one robot a step; approach legs add steps of their own
+        assert single["steps_per_config"] == 10 + single["steps_added"] / 4 and by[("one-at-a-time", False, k)]["steps_per_config"] == 10
     assert by[("ref57", False, 3.0)]["pf_mean"] > by[("ref57", False, 1.0)]["pf_mean"]  # three times the motion noise
     bad = swarm("bench", "collisions", "--robot-radius", "0")
     assert bad.returncode == 2 and "--robot-radius must be > 0" in bad.stderr

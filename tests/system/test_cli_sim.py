@@ -26,8 +26,12 @@ def test_sim_writes_plots_csv_and_json(tmp_path):
     # P_f (Eq. 24) = final following error / average total motion (Eq. 25), both in its own table
     assert doc["pf"] == pytest.approx(rows[-1]["following_error"] / rows[-1]["travelled"], rel=1e-12)
     assert 0 < rows[0]["travelled"] < rows[1]["travelled"]  # partial sums of Eq. 25
+    legs = {leg["config"]: leg for leg in doc["legs"]}  # configurations whose drives ended too close: approach legs
     for r in rows:
-        assert r["n_a"] in (0, 3, 4, 5) and r["steps"] == 6 // (6 - r["n_a"])  # Eq. 7 for 6 robots
+        planned = 6 // (6 - r["n_a"])  # Eq. 7 for 6 robots
+        assert r["n_a"] in (0, 3, 4, 5) and (r["steps"] > planned == 1 and legs[r["config"]]["steps"] == r["steps"]
+                                             if r["config"] in legs else r["steps"] == planned)
+    assert doc["steps_added"] == sum(r["steps"] - 6 // (6 - r["n_a"]) for r in rows)
     for name in ("trajectory.png", "errors.png", "configs.csv"):
         assert (tmp_path / name).stat().st_size > 0
 

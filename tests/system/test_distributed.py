@@ -220,17 +220,22 @@ def test_coordinator_publishes_plans_estimates_and_configs(completed):
     estimates = [m for _, m in heard if isinstance(m, EstimateMessage)]
     commands = [m for _, m in heard if isinstance(m, MotionCommand)]
     ids = [int(i) for i in run.traj.ids]
-    # no-anchors: one step per configuration, everyone moves
-    assert [(p.config, p.step, p.n_anchors, p.groups) for p in plans] == [(1, 1, 0, (tuple(ids),)), (2, 2, 0, (tuple(ids),))]
-    assert sorted(m.step for m in estimates) == [0, 1, 2]  # the initial estimate, then one per step
+    # no-anchors: everyone moves in the configuration's one step; robots 1 and 2 drive 0.2-0.34 m into places 5.3-6.3 cm
+    # apart, where their straight drives' ends touch with probability 1.7 % (configuration 1) and 5.5 % (2), so both
+    # stop at staging points and go on in approach legs (robot 0 standing): one more leg in configuration 1, three in 2
+    legs = (tuple(ids[1:]),)
+    assert [(p.config, p.step, p.n_anchors, p.groups, p.leg) for p in plans] == [
+        (1, 1, 0, (tuple(ids),), 0), (1, 2, 1, legs, 1), (2, 3, 0, (tuple(ids),), 0), (2, 4, 1, legs, 1), (2, 5, 1, legs, 2),
+        (2, 6, 1, legs, 3)]
+    assert sorted(m.step for m in estimates) == list(range(7))  # the initial estimate, then one per step
     by_step = {m.step: m for m in estimates}
     np.testing.assert_array_equal(by_step[0].to_estimate().poses, np.array(got["initial_estimate"]))
-    for s in got["steps"]:
-        est = by_step[s["config"] + s["step"] + 1].to_estimate()  # one step per configuration
+    for number, s in enumerate(got["steps"], start=1):
+        est = by_step[number].to_estimate()
         assert est.ids.tolist() == ids
         np.testing.assert_array_equal(est.poses, np.array(s["poses"]))
         np.testing.assert_array_equal(est.cov, np.array(s["cov"]))
-    assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 2)}
+    assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 1), (3, 2), (4, 2), (5, 2), (6, 2)}
 
 
 def test_coordinator_records_the_run(completed):
@@ -242,16 +247,18 @@ def test_coordinator_records_the_run(completed):
     run_channels = [c for c in info["channels"] if c["topic"].startswith("swarm/")]  # not derived views (/foxglove/...)
     counts = {c["topic"]: c["messages"] for c in run_channels}
     types = {c["topic"]: c["type"] for c in run_channels}
-    # no-anchors, 3 robots, 2 configurations: 2 steps, everyone moves at each
-    assert counts[coord_key(r, "plan")] == 2 and counts[coord_key(r, "estimate")] == 3
+    # no-anchors, 3 robots, 2 configurations: 6 steps, everyone moves at the configurations' first, robots 1 and 2 at
+    # their approach legs' (test_coordinator_publishes_plans_estimates_and_configs)
+    assert counts[coord_key(r, "plan")] == 6 and counts[coord_key(r, "estimate")] == 7
     for robot in ids:
-        for leaf in ("cmd", "observe", "obs"):
-            assert counts[robot_key(r, robot, leaf)] == 2, leaf
+        for leaf in ("observe", "obs"):
+            assert counts[robot_key(r, robot, leaf)] == 6, leaf
+        assert counts[robot_key(r, robot, "cmd")] == (2 if robot == ids[0] else 6)
         assert types[robot_key(r, robot, "cmd")] == "MotionCommand" and types[robot_key(r, robot, "observe")] == "ObserveRequest"
         assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
-        assert counts[truth_key(r, robot)] >= 3  # steps 0, 1, 2
-    assert counts[truths_key(r)] == 2  # one truth set per motion step
-    assert counts[coord_key(r, "checkpoint")] == 6  # the start, each plan, each step, the end
+        assert counts[truth_key(r, robot)] >= 7  # steps 0 to 6
+    assert counts[truths_key(r)] == 6  # one truth set per motion step
+    assert counts[coord_key(r, "checkpoint")] == 14  # the start, each plan and leg (6), each step (6), the end
     assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), coord_key(r, "checkpoint"), truths_key(r),
                            *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
                            *[truth_key(r, i) for i in ids]}

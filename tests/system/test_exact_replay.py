@@ -61,7 +61,8 @@ def test_a_taken_over_run_replays_exactly_and_equals_the_in_process_run(tmp_path
     ref = simulate(traj, "ref57", cfg, localizer=localizer, seed=SEED)
     assert checked.passed, str(checked.divergence)
     assert checked.exact and checked.skipped == []
-    assert checked.estimates == len(ref.steps) + 1 and checked.plans == CONFIGS  # the initial estimate and every step
+    legs = sum(max(len(c.legs) - 1, 0) for c in ref.configs)  # approach legs after the first (docs/bodies.md): plans too
+    assert checked.estimates == len(ref.steps) + 1 and checked.plans == CONFIGS + legs  # the initial estimate and every step
 
     # a recording without step 2's reports: the paper localizer goes on from the recorded estimate of step 2; the
     # joint one cannot (that estimate lacks the joint covariance), and the check says so instead of diverging
@@ -69,7 +70,7 @@ def test_a_taken_over_run_replays_exactly_and_equals_the_in_process_run(tmp_path
     gapped = check(rec)
     assert gapped.passed and gapped.skipped[0] == f"step {KILL} (no observation report from robots [0])"
     if localizer == "paper":
-        assert (gapped.estimates, gapped.plans, len(gapped.skipped)) == (len(ref.steps), CONFIGS, 1)
+        assert (gapped.estimates, gapped.plans, len(gapped.skipped)) == (len(ref.steps), CONFIGS + legs, 1)
     else:
         assert gapped.estimates == KILL and gapped.plans == 1  # the initial estimate and step 1; configuration 1's plan
         why = (f"the joint localizer carries joint from step to step, which the recording does not hold, and the recomputed "

@@ -81,7 +81,9 @@ def test_demo_chooses_anchors_in_every_configuration_and_says_why_and_its_record
     check = swarm("replay", recorded, "--check", "--json", cwd=tmp_path, env=_env(tmp_path))
     assert check.returncode == 0, check.stdout + check.stderr
     result = last_json(check.stdout)
-    assert result["passed"] and result["exact"] and result["skipped"] == [] and result["plans"] == 3
+    # the configurations' plans and their approach legs' (4x the motion noise: some drives end too close)
+    assert result["passed"] and result["exact"] and result["skipped"] == []
+    assert result["plans"] == 3 + sum(c["legs"] - 1 for c in summary["legs"]) > 3
     assert result["estimates"] == 1 + sum(c["steps"] for c in summary["configs"])  # the initial estimate and every step
 
 

@@ -49,9 +49,11 @@ def test_check_reproduces_the_recorded_run(recording, capsys):
     assert main(["replay", str(recording), "--check", "--json"]) == 0
     out = capsys.readouterr().out
     result = json.loads(out.strip().splitlines()[-1])
-    # initial estimate + 2 configurations x 2 steps; 2 plans from the seeded anchor search
-    assert "check passed: 5 estimates, 2 plans reproduced" in out
-    assert result["passed"] and result["estimates"] == 5 and result["plans"] == 2 and result["skipped"] == []
+    # initial estimate + 2 configurations x 2 steps + 1 step of an approach leg (configuration 2: robots 1 and 2 drive
+    # 0.41 and 0.28 m into places 9.6 cm apart, where their straight drives' ends touch with probability 4e-3, so both
+    # stop at a staging point and drive on together); 2 plans from the seeded anchor search and the leg's
+    assert "check passed: 6 estimates, 3 plans reproduced" in out
+    assert result["passed"] and result["estimates"] == 6 and result["plans"] == 3 and result["skipped"] == []
     assert result["exact"] is True  # recorded on this machine: compared bit for bit
     assert "not bit for bit" not in out
 
@@ -73,14 +75,14 @@ def test_check_on_an_unfinished_recording(recording, tmp_path, capsys):
     cut.write_bytes(data[:summary_start])  # as if the recorder was killed just before finishing the file
     assert not recording_info(cut)["complete"]
     assert main(["replay", str(cut), "--check"]) == 0
-    assert "check passed: 5 estimates, 2 plans reproduced" in capsys.readouterr().out
+    assert "check passed: 6 estimates, 3 plans reproduced" in capsys.readouterr().out
 
 
 def test_plot_from_recording(recording, tmp_path, capsys):
     out = tmp_path / "plots"
     assert main(["plot", str(recording), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "2 of 2 configurations, 4 steps, P_f = " in text
+    assert "2 of 2 configurations, 5 steps, P_f = " in text  # one of them an approach leg's (above)
     for name in ("trajectory.png", "errors.png"):
         assert (out / name).stat().st_size > 1000 and str(out / name) in text
 

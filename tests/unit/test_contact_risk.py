@@ -11,7 +11,7 @@ from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
 from runtime.models.bodies import BOUND_LEVELS, CONTACT_BOUND, BodyCheck, closest_approach
 from runtime.models.config import ModelConfig
-from runtime.models.contact_risk import MotionMoments, instant_bound, step_bound
+from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound, step_bound
 from runtime.models.motion import apply_motion, command_towards, draw_motion_noise
 from runtime.models.state import SwarmEstimate
 
@@ -85,6 +85,34 @@ def test_the_instant_bound_is_the_half_plane_of_the_mahalanobis_direction():
     draws = np.random.default_rng(2).multivariate_normal(mu[0], cov[0], 200_000)
     exact = np.mean(np.hypot(*draws.T) < 2 * R)
     assert exact <= instant_bound(mu, cov, 2 * R)[0] <= 4 * exact
+
+
+def test_the_disc_probability_of_one_instant_is_the_gaussians_and_at_most_the_bound():
+    """``disc_probability`` (the approach legs' criterion) against draws of the Gaussian: correlated, anisotropic,
+    near-degenerate covariances, means outside, at and inside the disc, all in one call; a covariance too narrow to
+    integrate keeps the bound."""
+    rho = 2 * R
+    rng = np.random.default_rng(11)
+    mus, covs = [], []
+    for k, scale in enumerate((0.003, 0.008, 0.015, 0.03, 0.06, 0.012, 0.02)):
+        a = rng.normal(size=(2, 2)) * scale
+        cov = a @ a.T + np.eye(2) * 1e-9
+        if k % 3 == 0:  # nearly one-dimensional
+            cov = cov * np.array([[1.0, 0.999], [0.999, 1.0]])
+        mus.append(rng.normal(size=2) * 0.04)
+        covs.append(cov)
+    mus += [[0.05, 0.03], [rho, 0.0], [0.005, -0.004], [0.1, 0.1]]  # around 1e-3, at the edge, inside, far away
+    covs += [np.array([[1.5e-4, 4e-5], [4e-5, 1e-4]]), np.diag([4e-6, 1e-4]), np.diag([1e-4, 3e-5]), np.diag([1e-4, 1e-4])]
+    mu, cov = np.array(mus), np.array(covs)
+    got, bound = disc_probability(mu, cov, rho), instant_bound(mu, cov, rho)
+    n = 400_000
+    for k in range(len(mu)):
+        freq = np.mean(np.hypot(*rng.multivariate_normal(mu[k], cov[k], n).T) < rho)
+        assert abs(got[k] - freq) <= 4.0 * np.sqrt(freq * (1 - freq) / n) + 2e-5, (k, got[k], freq)
+    assert np.all(got <= bound + 1e-12) and got[-4] == pytest.approx(2e-3, rel=0.2) and bound[-4] > 1.3 * got[-4]
+    narrow = disc_probability(np.array([[rho, 0.0]]), np.diag([1e-8, 2e-8])[None], rho)  # sd 0.1-0.14 mm: the bound
+    assert narrow[0] == instant_bound(np.array([[rho, 0.0]]), np.diag([1e-8, 2e-8])[None], rho)[0]
+    assert disc_probability(np.zeros((0, 2)), np.zeros((0, 2, 2)), rho).shape == (0,)
 
 
 def test_a_pass_is_allowed_at_a_distance_that_keeps_the_bound_and_the_uncertainty_needs_more():

@@ -1,0 +1,183 @@
+"""Approach legs: a mover whose open-loop drive would end too close to a neighbour stops short first (docs/bodies.md).
+
+Drive noise grows with the distance driven (``runtime.models.motion.motion_moments``), so a long open-loop drive ends
+with a large position error, and where its target stands close to a neighbour's place the pair's contact risk at the
+end of the change exceeds ``CONTACT_BOUND`` whatever the order of the moves (``BodyCheck``'s floor lets it through).
+Such a mover drives in legs: first to a **staging point** on its straight way (a fraction of its remaining path,
+``LEG_FRACTIONS``), the swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter
+and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs were driven: the last goes
+straight to the target, as without legs).
+
+``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
+configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
+configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
+pair's contact probability within ``CONTACT_BOUND``; the motion of the legs' steps is kept within it by the
+regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instant, so the criterion is the probability
+of the pair's Gaussian relative position in the disc (``runtime.models.contact_risk.disc_probability``), not the
+half-plane bound the steps need (``instant_bound``: 2.3-2.6x the probability in the median at the default noise,
+10-27x at x5.58 for pairs at 1-3 %): a leg is driven only where the straight drive's end really is over the bound.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from coordinator.clearance import Regrouping, clear_plan
+from coordinator.plan import Plan
+from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, _reach, all_pairs, near_pairs
+from runtime.models.config import ModelConfig
+from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
+from runtime.models.state import SwarmEstimate
+
+LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
+MAX_LEGS = 6  # legs of one robot in a change at most (the last drives straight to its target)
+MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
+
+
+@dataclass(frozen=True)
+class Leg:
+    """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
+    not move in it); ``staged`` (n,) the robots whose target is a staging point short of their desired position."""
+
+    targets: np.ndarray
+    staged: np.ndarray
+
+    @property
+    def any(self) -> bool:
+        return bool(self.staged.any())
+
+
+def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs (i, j), i of ``rows``, j != i (each pair once), with their contact probability when every robot stands at
+    the end of a straight move from its estimate to ``ends`` (n, 2) (arrived, with the move's noise): the Gaussian
+    relative position's probability of the disc (``disc_probability``) where the half-plane bound is over
+    ``CONTACT_BOUND``, the bound elsewhere (it is under, and so is the probability)."""
+    n = len(estimate.ids)
+    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
+    if n < INDEX_MIN:
+        i, j = all_pairs(rows, n)
+    else:  # a pair whose mean positions are more than 2R + z (sd_i + sd_j) apart keeps the bound (``BodyCheck``)
+        sd = moments.spread()
+        pad = cfg.robot_radius_m + _reach(CONTACT_BOUND) * sd
+        arrive = estimate.positions + moments.step
+        i, j = near_pairs(rows, arrive, pad, arrive, pad)
+    inside = np.zeros(n, bool)
+    inside[rows] = True
+    once = ~inside[j] | (j > i)
+    i, j = i[once], j[once]
+    ones = np.ones(len(i))
+    mu, _, sigma, _, _ = moments.pairs(i, j, ones, 0.0 * ones, ones, 0.0 * ones)
+    p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
+    over = np.flatnonzero(p > CONTACT_BOUND)  # one instant: its probability itself where the bound says it may be over
+    p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
+    return i, j, p
+
+
+def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
+    """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
+    every robot drives straight to its target. Robots not ``going`` stand where they are estimated.
+
+    The leg's end configuration (every robot of ``going`` arrived at its leg's end, with that drive's noise, the others
+    where they stand) must keep every pair within ``CONTACT_BOUND``: both robots of a pair over it that drive stop
+    shorter (the next of ``LEG_FRACTIONS`` of their path), until none is over or they are at the shortest. Pairs whose
+    targets are at risk even reached with no motion noise are left out: no leg helps them."""
+    current = estimate.positions
+    desired = np.asarray(desired, float)[:, :2]
+    going = np.asarray(going, bool)
+    targets = np.where(going[:, None], desired, current)
+    staged = np.zeros(len(current), bool)
+    path = targets - current
+    rows = np.flatnonzero(going & (np.hypot(*path.T) >= MIN_LEG_M))
+    if cfg.robot_radius_m <= 0 or last or not len(rows):
+        return Leg(targets, staged)
+    there = estimate.poses.copy()  # every robot standing at its target with its position's uncertainty now, no motion
+    there[:, :2] = targets
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
+    hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
+    level = np.zeros(len(current), np.int64)  # 0: straight to the target, k: LEG_FRACTIONS[k - 1] of the path
+    fractions = np.array((1.0, *LEG_FRACTIONS))
+    movable = np.zeros(len(current), bool)
+    movable[rows] = True
+    while True:  # levels only grow, to len(LEG_FRACTIONS) at most: this ends
+        ends = current + fractions[level][:, None] * path
+        i, j, p = _end_pairs(cfg, estimate, ends, rows)
+        over = [(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)]
+        shorter = sorted({r for a, b in over if (a, b) not in hopeless for r in (a, b) if movable[r] and level[r] < len(LEG_FRACTIONS)})
+        if not shorter:
+            break
+        level[shorter] += 1
+    staged = level > 0
+    targets[staged] = (current + fractions[level][:, None] * path)[staged]
+    return Leg(targets, staged)
+
+
+@dataclass(frozen=True)
+class LegRecord:
+    """A leg as run: ``plan`` (its sub-steps; indices into ``ids``, the robots that drive in it), each robot's
+    ``targets`` (len(ids), 2) m, which of them ``staged`` short of their desired position, and how the body constraint
+    split it (``regrouped``, None: clear as planned)."""
+
+    plan: Plan
+    ids: np.ndarray
+    targets: np.ndarray
+    staged: np.ndarray
+    regrouped: Regrouping | None = None
+
+    @property
+    def staged_ids(self) -> np.ndarray:
+        return np.asarray(self.ids[self.staged])
+
+    @property
+    def base(self) -> Plan:
+        """The plan the leg was cleared from (the strategy's, for a configuration's first leg)."""
+        return self.plan if self.regrouped is None else self.regrouped.planned
+
+    def n_anchors(self, n_robots: int) -> int:
+        """Robots standing still in the leg's largest step, of a swarm of ``n_robots``."""
+        return n_robots - min(self.plan.sizes)
+
+
+def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Regrouping | None, LegRecord | None]:
+    """The strategy's ``plan`` (indices into ``estimate.ids``) cleared for bodies (``clear_plan``) towards the first
+    leg's targets, how it was split, and the leg (None: every robot drives straight to ``desired``, and the plan is
+    ``clear_plan``'s, bit for bit)."""
+    leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool))
+    if not leg.any:
+        return (*clear_plan(cfg, plan, estimate, desired), None)
+    cleared, regrouped = clear_plan(cfg, plan, estimate, leg.targets)
+    return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped)
+
+
+def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray,
+             index: int) -> LegRecord | None:
+    """Leg ``index`` (>= 1) of the robots ``going`` (ids; those lost since are left out) from ``estimate`` towards
+    ``desired`` (rows of ``estimate.ids``): the strategy's plan (``first.base``, the first leg's) kept to them, in its
+    order, consecutive groups merged while they move at most as many robots as its largest group (so every step keeps
+    at least the plan's anchors), its targets from ``leg_targets`` (the last, ``MAX_LEGS`` - 1, straight to the targets), the groups
+    cleared for bodies (``BodyCheck.regroup``). None when none of them is left."""
+    mask = np.isin(estimate.ids, going)
+    ids = estimate.ids[mask]
+    if not len(ids):
+        return None
+    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1)
+    rows = np.flatnonzero(mask)
+    base, base_ids = first.base, first.ids
+    row_of = {int(r): k for k, r in zip(rows, ids, strict=True)}
+    kept = [np.array([row_of[int(r)] for r in base_ids[g] if int(r) in row_of], np.int64) for g in base.groups]
+    groups: list[np.ndarray] = []  # consecutive groups merged while they move no more robots than the plan's largest group
+    for g in (g for g in kept if len(g)):
+        if groups and len(groups[-1]) + len(g) <= max(base.sizes):
+            groups[-1] = np.concatenate([groups[-1], g])
+        else:
+            groups.append(g)
+    out = BodyCheck.of_estimate(cfg, estimate, leg.targets).regroup(groups)
+    local = np.searchsorted(ids, estimate.ids[np.concatenate(out.groups)])
+    plan = Plan(local, tuple(len(g) for g in out.groups))
+    planned = Plan(np.searchsorted(ids, estimate.ids[np.concatenate(groups)]), tuple(len(g) for g in groups))
+    same = len(out.groups) == len(groups) and all(np.array_equal(a, b) for a, b in zip(out.groups, groups, strict=True))
+    regrouped = None if same else Regrouping(planned, tuple(int(r) for r in estimate.ids[out.unclear]), out.bound)
+    return LegRecord(plan, ids, leg.targets[rows], leg.staged[rows], regrouped)
+
+

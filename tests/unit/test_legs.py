@@ -1,0 +1,210 @@
+"""Approach legs (coordinator/legs.py, docs/bodies.md): a mover whose straight drive would end too close to a neighbour
+for the contact bound stops at a staging point first; a clear drive gets no leg; legs are deterministic, recorded and
+carried by checkpoints."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from coordinator.checkpoint import RunState
+from coordinator.clearance import clear_plan
+from coordinator.executor import InchwormExecutor
+from coordinator.legs import LEG_FRACTIONS, MAX_LEGS, first_leg, leg_targets, next_leg
+from coordinator.localization import make_localizer
+from coordinator.plan import Plan
+from coordinator.selection.selector import SelectionConfig
+from coordinator.simulate import initial_estimate
+from coordinator.strategies import make_strategy
+from runtime.models.bodies import CONTACT_BOUND
+from runtime.models.config import ModelConfig
+from runtime.models.contact_risk import MotionMoments, instant_bound
+from runtime.models.simulation import SimulatedSwarm
+from runtime.models.state import SwarmEstimate
+from runtime.models.trajectory import Trajectory
+
+X3 = ModelConfig(turn_sigma_rad=math.radians(9.0), drive_sigma_frac=0.15)
+
+
+def estimate(positions: list[list[float]], headings: list[float]) -> SwarmEstimate:
+    """Robots at ``positions`` with correlated, anisotropic position covariances (a few mm) and a heading error."""
+    n = len(positions)
+    cov = np.zeros((n, 3, 3))
+    cov[:, :2, :2] = np.array([[4e-5, 2.5e-5], [2.5e-5, 3e-5]])
+    cov[:, 2, 2] = math.radians(2.0) ** 2
+    cov[:, 0, 2] = cov[:, 2, 0] = 1e-5
+    poses = np.column_stack([np.array(positions, float), headings])
+    return SwarmEstimate(np.arange(n), poses, cov)
+
+
+# robot 0 drives 0.3 m towards the still robot 1, whose place is 0.06 m beside its target: at x3 the drive ends with
+# about 4.5 cm of error per axis, so the target is within 2 sigma of the neighbour (the bodies need 2.2 cm)
+NEAR = estimate([[0.0, 0.0], [0.3, 0.06], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
+NEAR_DESIRED = np.array([[0.3, 0.0], [0.3, 0.06], [-0.3, 0.3]])
+
+
+def end_risk(cfg: ModelConfig, est: SwarmEstimate, ends: np.ndarray, i: int, j: int) -> float:
+    """The contact bound of robot i arrived at ``ends[i]`` (from its estimate) against robot j standing still."""
+    m = MotionMoments(cfg, est.positions, np.where(np.arange(len(ends))[:, None] == i, ends, est.positions), est.cov)
+    mu, _, sigma, _, _ = m.pairs(np.array([i]), np.array([j]), np.ones(1), np.zeros(1), np.zeros(1), np.zeros(1))
+    return float(instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)[0])
+
+
+def test_a_drive_ending_near_a_still_neighbour_stops_short_on_its_way():
+    going = np.array([True, False, False])
+    assert end_risk(X3, NEAR, NEAR_DESIRED, 0, 1) > 0.01  # straight in: far over the bound
+    leg = leg_targets(X3, NEAR, NEAR_DESIRED, going)
+    assert leg.staged.tolist() == [True, False, False]
+    f = np.hypot(*leg.targets[0]) / 0.3  # on the straight way, short of the target, at one of the fractions
+    assert leg.targets[0, 1] == pytest.approx(0.0, abs=1e-12) and min(abs(f - x) for x in LEG_FRACTIONS) < 1e-12
+    assert end_risk(X3, NEAR, leg.targets, 0, 1) <= CONTACT_BOUND
+    np.testing.assert_array_equal(leg.targets[1:], NEAR.positions[1:])  # the others stand
+
+
+def test_a_clear_drive_gets_no_leg_and_the_plan_is_clear_plans():
+    far = NEAR_DESIRED.copy()
+    far[0] = [0.3, -0.4]  # 0.46 m from the neighbour's place
+    assert not leg_targets(X3, NEAR, far, np.ones(3, bool)).any
+    plan = Plan(np.array([0, 1, 2]), (1, 1, 1))
+    cleared, regrouped, leg = first_leg(X3, plan, NEAR, far)
+    assert leg is None and (cleared, regrouped) == clear_plan(X3, plan, NEAR, far)
+    # point robots and the last leg drive straight too
+    assert not leg_targets(ModelConfig(robot_radius_m=0.0, turn_sigma_rad=X3.turn_sigma_rad), NEAR, NEAR_DESIRED, np.ones(3, bool)).any
+    assert not leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True).any
+
+
+def test_no_leg_where_the_target_itself_is_at_risk():
+    tight = NEAR_DESIRED.copy()
+    tight[0] = [0.3, 0.04]  # 2 cm from the neighbour with 5-6 mm of position error: even standing there is over the bound
+    assert not leg_targets(X3, NEAR, tight, np.ones(3, bool)).any
+
+
+def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
+    plan = Plan(np.array([2, 0, 1]), (2, 1))
+    a = first_leg(X3, plan, NEAR, NEAR_DESIRED)
+    b = first_leg(X3, plan, NEAR, NEAR_DESIRED)
+    assert a[2] is not None and b[2] is not None
+    np.testing.assert_array_equal(a[2].targets, b[2].targets)
+    assert a[0] == b[0] or np.array_equal(a[0].order, b[0].order)
+    first = a[2]
+    # re-localized at the staging point: the rest of the way is short, so it ends within the bound
+    moved = NEAR.poses.copy()
+    moved[0, :2] = first.targets[0]
+    after = SwarmEstimate(NEAR.ids, moved, NEAR.cov)
+    leg = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
+    again = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
+    assert leg is not None and again is not None
+    assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
+    np.testing.assert_array_equal(leg.targets, again.targets)
+    last = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, MAX_LEGS - 1)
+    assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
+    assert next_leg(X3, first, after.select(np.array([False, True, True])), NEAR_DESIRED[1:], first.staged_ids, 1) is None  # lost
+
+
+# robots 0 and 1 drive 0.3 m side by side into places 0.07 m apart next to the still robot 2
+SIDE = Trajectory(np.arange(3), np.array([[0.0, 0.0, 0.0], [0.0, 0.1, 0.0], [0.35, 0.2, 0.0]]),
+                  np.array([[[0.3, 0.0], [0.3, 0.1], [0.35, 0.2]]]))
+
+
+def run(cfg: ModelConfig, checkpoints: list[RunState] | None = None):
+    loc = make_localizer("paper", cfg)
+    ex = InchwormExecutor(SimulatedSwarm(SIDE.ids, SIDE.initial_poses, cfg, 3), loc,
+                          make_strategy("one-at-a-time", SIDE.n, cfg, loc, SelectionConfig(), 3), cfg,
+                          on_checkpoint=None if checkpoints is None else checkpoints.append)
+    return ex.run(SIDE, initial_estimate(SIDE, 3, 0.005, math.radians(1.0)))
+
+
+def test_the_executor_drives_the_legs_and_counts_their_steps():
+    states: list[RunState] = []
+    result = run(X3, states)
+    [config] = result.configs
+    assert config.legs and config.legs[0].plan is config.plan and config.staging_stops >= 1
+    assert config.n_steps == len(result.steps) == config.plan.n_steps + sum(leg.plan.n_steps for leg in config.legs[1:])
+    assert result.steps_added() == config.n_steps - 3 and result.staging_stops() == config.staging_stops
+    # the first leg's movers were commanded towards their staging points, not their targets
+    first = config.legs[0]
+    staged = first.staged_ids.tolist()
+    step = next(s for s in result.steps if s.moving[staged[0]])
+    assert step.commands[staged[0], 1] == pytest.approx(np.hypot(*(first.targets[staged[0]] - result.initial_estimate.positions[staged[0]])))
+    assert not result.contacts(X3.robot_radius_m)
+    # a checkpoint inside a later leg carries the legs bit for bit
+    inside = next(s for s in states if len(s.legs) > 1 and s.group == 0)
+    back = RunState.from_json(inside.to_json(), SIDE, result.initial_estimate)
+    assert len(back.legs) == len(inside.legs) and all(
+        np.array_equal(a.targets, b.targets) and np.array_equal(a.staged, b.staged) and np.array_equal(a.ids, b.ids)
+        and a.plan.key() == b.plan.key() for a, b in zip(back.legs, inside.legs, strict=True))
+    assert back.to_json() == inside.to_json()
+    # default noise: every drive clears, no legs, and the state is written as before (no ``legs`` key)
+    calm = run(ModelConfig())
+    assert calm.staging_stops() == 0 and not calm.configs[0].legs and calm.steps_added() == 0
+
+
+def test_a_staging_point_is_checked_against_the_others_again():
+    # at x3 robot 0 drives 0.4 m along y = 0 past the still robots 2, 3 and 4 (6 cm beside its target and its 0.75 and
+    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: robot 1
+    # then stops at its own shortest staging point too, although the end of its 3 cm drive was clear of robot 0's others
+    est = estimate([[0.0, 0.0], [0.1, 0.06], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]], [0.0, -math.pi + 1e-3, 1.0, 2.0, 3.0])
+    desired = np.array([[0.4, 0.0], [0.1, 0.03], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]])
+    leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
+    assert leg.staged.tolist() == [True, True, False, False, False]
+    assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
+
+
+class Died(Exception):
+    """The coordinator died right after publishing a checkpoint."""
+
+
+def test_a_run_resumed_from_a_checkpoint_inside_any_leg_ends_bit_for_bit_as_the_uninterrupted_one():
+    states: list[RunState] = []
+    clean = run(X3, states)
+    def first(test) -> int:
+        return next(k for k, s in enumerate(states) if s.legs and s.plan is not None and test(len(s.legs), s.group, s.plan.n_steps))
+
+    # inside the first leg; a later leg just planned, half driven, and driven to its end before the next is planned
+    inside = [first(lambda n, g, steps: n == 1 and g == 1), first(lambda n, g, steps: n > 1 and g == 0),
+              first(lambda n, g, steps: n > 1 and 0 < g < steps), first(lambda n, g, steps: n > 1 and g == steps)]
+    start = clean.initial_estimate
+    for k in inside:
+        backend = SimulatedSwarm(SIDE.ids, SIDE.initial_poses, X3, 3)  # the robots outlive the coordinator
+        seen: list[RunState] = []
+
+        def die_at_k(s: RunState, seen: list[RunState] = seen, k: int = k) -> None:
+            seen.append(s)
+            if len(seen) == k + 1:
+                raise Died
+
+        loc = make_localizer("paper", X3)
+        with pytest.raises(Died):
+            InchwormExecutor(backend, loc, make_strategy("one-at-a-time", SIDE.n, X3, loc, SelectionConfig(), 3), X3,
+                             on_checkpoint=die_at_k).run(SIDE, start)
+        taken = RunState.from_json(seen[-1].to_json(), SIDE, start)
+        loc = make_localizer("paper", X3)
+        resumed = InchwormExecutor(backend, loc, make_strategy("one-at-a-time", SIDE.n, X3, loc, SelectionConfig(), 3),
+                                   X3).run(SIDE, start, resume=taken)
+        assert len(resumed.steps) == len(clean.steps), k
+        for a, b in zip(resumed.steps, clean.steps, strict=True):
+            np.testing.assert_array_equal(a.estimate.poses, b.estimate.poses)
+            np.testing.assert_array_equal(a.truth, b.truth)
+        [got], [want] = resumed.configs, clean.configs
+        assert got.n_steps == want.n_steps and got.staging_stops == want.staging_stops and len(got.legs) == len(want.legs)
+        assert all(np.array_equal(a.targets, b.targets) and a.plan.key() == b.plan.key() for a, b in zip(got.legs, want.legs, strict=True))
+        assert resumed.pf() == clean.pf() and resumed.steps_added() == clean.steps_added()
+
+
+def test_the_fault_bench_finds_a_run_with_legs_identical_to_its_own_json():
+    """``swarm bench faults`` compares a distributed run's ``--json`` rows with the in-process run: a configuration's
+    ``steps`` there count its legs' steps, and so must the comparison (it compared the first leg's plan alone, so
+    every run with legs was reported not identical)."""
+    from inchworm.bench.faults import same_table
+    from inchworm.simulation import run_json
+
+    result = run(X3)
+    [config] = result.configs
+    assert config.n_steps > config.plan.n_steps  # legs added steps
+    summary = json.loads(json.dumps(run_json(result, "one-at-a-time", "paper", 3, [], None, X3.robot_radius_m)))
+    assert same_table(summary, result)
+    summary["configs"][0]["steps"] = config.plan.n_steps
+    assert not same_table(summary, result)
