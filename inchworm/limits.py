@@ -16,7 +16,7 @@ if TYPE_CHECKING:  # imported where used: scipy only when a run starts
     from coordinator.selection.selector import SelectionConfig
 
 MAX_SEED = 2**63 - 1  # numpy seeds must be >= 0; int64 keeps seed + t and [seed, c] seeds exact
-MAX_ROBOTS = 10_000  # simulated robots (swarm sim, compare, studies): 1000 take ~4 s of CPU a configuration, 10,000 ~150 s (inchworm; docs/benchmarks.md)
+MAX_ROBOTS = 10_000  # simulated robots (swarm sim, compare, studies): 10,000 take ~150 s of CPU a configuration (docs/benchmarks.md)
 MAX_LAUNCHED_ROBOTS = 1000  # agent processes' robots on one host (swarm launch -n): 500 measured (swarm bench runtime)
 MAX_CONFIGS = 10_000  # configurations of a random trajectory
 MAX_TRAJECTORIES = 10_000  # random trajectories of a comparison or study
