@@ -25,7 +25,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, estop_key, robot_wildcard
 from runtime.wire.messages import EmergencyStop, MotionCommand, decode, encode, message_key
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe, watch_liveliness
+from runtime.wire.transport import open_loopback_hub, publish, subscribe, watch_liveliness
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
@@ -42,16 +42,14 @@ class Run:
         self.traj_file = tmp / "traj.json"
         self.traj.save(self.traj_file)
         (tmp / "lease.json5").write_text("{ transport: { link: { tx: { lease: 2000, keep_alive: 4 } } } }")
-        port = free_tcp_port()
-        self.hub_settings, _ = loopback_hub(port)
-        self.hub = f"tcp/127.0.0.1:{port}"
         self.procs: list[subprocess.Popen] = []
         self.commands: list[tuple[float, MotionCommand]] = []
         self.stops: list[tuple[float, EmergencyStop]] = []
         self.gone: list[float] = []  # when a coordinator's token went
 
     def __enter__(self) -> Run:
-        self.session = open_session(self.hub_settings).__enter__()
+        self.session, _, self.hub = open_loopback_hub()
+        self.session.__enter__()
         r = self.run_id
         self._subs = [
             subscribe(self.session, robot_wildcard(r, "cmd"),
@@ -101,6 +99,22 @@ def test_a_coordinator_stalled_beyond_its_lease_without_a_standby_goes_on_with_e
     summary = json.loads(out.strip().splitlines()[-1])
     assert summary["lost"] == [] and " lost (" not in err, err[-3000:]
     assert same_table(summary, run.reference())  # the fault-free run's table and P_f
+    assert run.stops == []
+
+
+def test_a_coordinator_stalled_beyond_its_lease_at_every_step_declares_no_robot_lost(tmp_path):
+    """Three stalls of 2.5 s at steps 2, 3 and 4, each beyond the 2 s lease: every one loses its session and, resumed,
+    every robot's token goes from its view and its session is back before the hub has re-sent the robots' tokens
+    (a liveliness query then answers from an empty view). Each such moment could declare every robot lost; none is."""
+    with Run(tmp_path, "stall3") as run:
+        coordinator = run.coordinator()
+        outlasted = [run.stall_at(coordinator, step, 2.5) for step in (2, 3, 4)]
+        out, err = coordinator.communicate(timeout=120)
+    assert coordinator.returncode == 0, err[-3000:]
+    assert sum(outlasted) >= 2, ("the stalls did not outlast the coordinator's lease", outlasted)
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["lost"] == [] and " lost (" not in err, err[-3000:]
+    assert same_table(summary, run.reference())
     assert run.stops == []
 
 
