@@ -49,8 +49,9 @@ the hub (its own token goes from its own view too). Its session is back within m
 holds the hub's tokens again only once the hub has re-sent them: until then a liveliness query answers
 from an empty view. So a token gone while the view is *unsettled* (the session lost the hub, or this
 process stalled: a turn of the stopper thread or of a wait longer than ``STALL_S``, within the last
-``RESYNC_S``) is no robot lost: the robot is *suspect* and judged once the view has settled (its token
-alive then, it never was lost). Every judgement of a gone token asks the hub first for the run's tokens,
+``RESYNC_S``; or this coordinator's own token, which comes back with the hub's tokens, is not in its view)
+is no robot lost: the robot is *suspect* and judged once the view has settled (its token alive then, it
+never was lost). Every judgement of a gone token asks the hub first for the run's tokens,
 coordinators' included, in one query whose answer must hold this coordinator's own token (a liveliness
 query on a session that also watches tokens sometimes answers empty: asked again, ``VIEW_TRIES`` times).
 When a coordinator whose ``parent`` is this epoch is alive (a standby took the run over meanwhile: seen
@@ -216,6 +217,7 @@ class ZenohSwarmBackend:
         self._session_lost = False  # the coordinator's Zenoh link lost the hub at least once (this process stalled beyond its lease)
         self._stalled_at = -1e9  # monotonic time a wait or the stopper thread last noticed this process had stalled
         self._link_lost_at = -1e9  # monotonic time the session was last seen without the hub (its own token gone from its view)
+        self._own_alive = True  # this coordinator's own token is in its own view (it comes back with the hub's tokens)
         self._hub_gone_since: float | None = None  # monotonic time the Zenoh link was first seen without the hub (since back)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
@@ -323,6 +325,7 @@ class ZenohSwarmBackend:
         if token is None:
             return
         if token[0] == self.epoch:
+            self._own_alive = alive
             if not alive:
                 self._link_lost_at = time.monotonic()
             return
@@ -358,9 +361,10 @@ class ZenohSwarmBackend:
         return False
 
     def _settled(self) -> bool:
-        """Whether this process's view of the hub's tokens can be trusted: the session has the hub, has not lost it
-        and this process has not stalled within ``RESYNC_S`` (the hub re-sends its tokens to a session that is back)."""
-        return self._connected() and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
+        """Whether this process's view of the hub's tokens can be trusted: the session has the hub, has not lost it and
+        this process has not stalled within ``RESYNC_S``, and this coordinator's own token is in its view again (a
+        session that is back gets it with the hub's tokens, which the hub re-sends: until then its view is empty)."""
+        return self._own_alive and self._connected() and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
 
     def _hub_view(self) -> tuple[set[int], dict[int, int]] | None:
         """The run's tokens at the hub, from one complete answer (holding this coordinator's own token; asked
