@@ -129,7 +129,6 @@ CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint,
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
-RESEND_AFTER_STALL_S = 0.3  # s after a stall of this process a wait re-sends its requests (its session is back by then)
 HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 RESYNC_S = 1.0  # s a view is unsettled after its session lost the hub or this process stalled (the hub re-sends its tokens in ms)
@@ -631,19 +630,15 @@ class ZenohSwarmBackend:
 
     def _wait(self, what: str, missing: Callable[[], list[int]], resend: Callable[[list[int]], None]) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
-        the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
-        (this process was stopped or starved: answers may still be in its socket) does not count, and the requests
-        are re-sent ``RESEND_AFTER_STALL_S`` later (a stall beyond the session lease loses the answers sent meanwhile),
-        as are those of a round that begins within twice that of a stall."""
+        the timeout; at the timeout the robots still missing are lost. While this coordinator's view is unsettled
+        (``_settled``: this process stalled, a turn of this loop longer than ``STALL_S`` included, or its session lost
+        the hub) no time counts: answers may still be in its socket, and those sent while its session was gone are
+        lost; once it has settled the requests are re-sent and the robots have half the timeout to answer them."""
         start = last = time.monotonic()
-        if start - self._stalled_at < 2 * RESEND_AFTER_STALL_S:  # just back from a stall: its session may have been lost
-            start -= self.timeouts.step_s / 2 - RESEND_AFTER_STALL_S  # with the requests sent meanwhile: re-sent soon
         resent = False
         while True:
             now = time.monotonic()
-            if now - last > STALL_S:  # re-sent soon: answers sent while its session was gone (beyond the lease) are lost
-                start = min(start + now - last, now - self.timeouts.step_s / 2 + RESEND_AFTER_STALL_S)
-                resent = False
+            if now - last > STALL_S:
                 self._stalled_at = now
             last = now
             self._check()
@@ -651,10 +646,11 @@ class ZenohSwarmBackend:
             left = missing()
             if not left:
                 return
-            elapsed = now - start
-            if elapsed > self.timeouts.step_s and not self._connected():
-                self._pump(0.05)  # no robot is to blame while the hub is gone: back soon, or HubLost after HUB_GRACE_S
+            if not self._settled():  # no robot is to blame yet (without the hub: back soon, or HubLost after HUB_GRACE_S)
+                start, resent = now - self.timeouts.step_s / 2, False
+                self._pump(0.05)
                 continue
+            elapsed = now - start
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()
@@ -669,7 +665,7 @@ class ZenohSwarmBackend:
                 for robot in left:
                     self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
                 return
-            if not resent and elapsed > self.timeouts.step_s / 2:
+            if not resent and elapsed >= self.timeouts.step_s / 2:
                 resend(left)
                 resent = True
             self._pump(0.05)
