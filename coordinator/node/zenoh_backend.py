@@ -363,7 +363,8 @@ class ZenohSwarmBackend:
         """Whether this process's view of the hub's tokens can be trusted: the session has the hub, has not lost it and
         this process has not stalled within ``RESYNC_S``, and this coordinator's own token is in its view again (a
         session that is back gets it with the hub's tokens, which the hub re-sends: until then its view is empty)."""
-        return self._own_alive and self._connected() and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
+        connected = self._connected()  # (always asked: it notes how long the hub has been gone, HubLost after HUB_GRACE_S)
+        return connected and self._own_alive and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
 
     def _hub_view(self) -> tuple[set[int], dict[int, int]] | None:
         """The run's tokens at the hub, from one complete answer (holding this coordinator's own token; asked
@@ -444,7 +445,7 @@ class ZenohSwarmBackend:
         gone = sorted(r for r in self._suspect if r not in alive and r not in self._alive)
         self._suspect.clear()
         for robot in gone:
-            self._declare_lost(robot, "liveliness token gone (still gone once this coordinator's session was back)")
+            self._declare_lost(robot, "liveliness token gone")
 
     def _declare_lost(self, robot: int, reason: str, stop: bool = True) -> None:
         """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread); ``stop``
