@@ -46,22 +46,21 @@ def run_distributed(
     from coordinator.node.stop import StopSignals  # noqa: PLC0415
     from inchworm.processes import agents_per_process as per_process_for, start_agents, stop_all  # noqa: PLC0415
     from inchworm.specs import AgentHostSpec  # noqa: PLC0415
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session  # noqa: PLC0415
+    from runtime.wire.transport import open_loopback_hub  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
     run_id = f"api-{uuid.uuid4().hex[:8]}"
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
     procs: list[subprocess.Popen[bytes]] = []
     signals = StopSignals()
     try:
-        with open_session(hub_settings), tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:
+        hub_session, member, hub = open_loopback_hub()
+        with hub_session, tempfile.TemporaryDirectory(prefix="inchworm-run-") as tmp:
             traj_file = Path(tmp) / "trajectory.json"
             traj.save(traj_file)
-            start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=f"tcp/127.0.0.1:{port}", seed=seed, model=cfg), procs,
+            start_agents(traj, AgentHostSpec(run_id=run_id, robots=(), hub=hub, seed=seed, model=cfg), procs,
                          per_process_for(traj.n, agents_per_process), traj_file, stdout=subprocess.DEVNULL)
-            options = CoordinatorOptions(traj, run_id, member, f"tcp/127.0.0.1:{port}", method, seed, localizer, cfg, None, selection,
+            options = CoordinatorOptions(traj, run_id, member, hub, method, seed, localizer, cfg, None, selection,
                                          start_timeout_s or max(30.0, 0.1 * traj.n), step_timeout_s, record=as_path(record),
                                          command="inchworm.run_distributed")
             outcome = run_coordinator(options, signals, log=lambda _line: None)

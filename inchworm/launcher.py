@@ -98,7 +98,7 @@ from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
 from runtime.wire.run_file import published_run
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe_queue
+from runtime.wire.transport import open_loopback_hub, subscribe_queue
 
 if TYPE_CHECKING:
     pass
@@ -346,9 +346,6 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     run_id = o.swarm.run_id or f"launch-{os.getpid()}"
     out = o.outputs.out or Path("out") / o.outputs.command
     check_before_start(o, traj, run_id, out)
-    port = free_tcp_port()
-    hub_settings, _ = loopback_hub(port)
-    hub = f"tcp/127.0.0.1:{port}"
     procs: list[subprocess.Popen[Any]] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)
     coordinators: list[subprocess.Popen[Any]] = []  # the coordinator and its standby, stopped first
@@ -371,7 +368,8 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
     try:
         with contextlib.ExitStack() as stack:
             tmp = stack.enter_context(tempfile.TemporaryDirectory(prefix="swarm-launch-"))
-            hub_session = stack.enter_context(open_session(hub_settings))
+            hub_session, _, hub = open_loopback_hub()  # (a port another process takes meanwhile is replaced)
+            stack.enter_context(hub_session)
             stack.enter_context(published_run(run_id, hub, f"swarm {o.outputs.command}"))
             stack.callback(stop_children)  # before the hub closes
             lifeline.guard(Path(tmp))

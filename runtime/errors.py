@@ -32,6 +32,20 @@ from collections.abc import Iterable, Mapping
 class SwarmError(Exception):
     """Base of every error the runtime raises on purpose (catch this one to catch them all)."""
 
+    def __reduce__(self) -> tuple[object, ...]:
+        """Pickled as its class, ``args`` and attributes, rebuilt without calling ``__init__`` (whose parameters
+        differ from ``args`` in many subclasses): an error raised in a process-pool worker reaches its caller."""
+        return (_unpickled, (type(self), self.args, self.__dict__))
+
+
+def _unpickled(cls: type[SwarmError], args: tuple[object, ...], state: dict[str, object]) -> SwarmError:
+    """The error ``SwarmError.__reduce__`` pickled (made by the ``__new__`` of its instances' layout: OSError's for a
+    ``ConnectionError`` or ``OSError`` among its bases)."""
+    error = OSError.__new__(cls) if issubclass(cls, OSError) else Exception.__new__(cls)
+    error.args = args
+    error.__dict__.update(state)
+    return error
+
 
 class SwarmInputError(SwarmError, ValueError):
     """Bad user input: malformed values, NaN/inf, unknown ids, impossible requests."""

@@ -14,7 +14,7 @@ from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.models.config import ModelConfig
 from runtime.wire.keys import alive_wildcard, coord_alive_key
-from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, subscribe_queue
+from runtime.wire.transport import alive_now, declare_token, open_loopback_hub, subscribe_queue
 
 
 @contextlib.contextmanager
@@ -25,8 +25,8 @@ def agent_on_hub(run: str, epoch: int, pose: np.ndarray, watch_key: str, motion_
     The agent is up (its liveliness token seen) and has learnt of the coordinator token of ``epoch``
     before the block runs; on leaving, the token is withdrawn and the agent stopped.
     """
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as hub:
+    hub, member, _ = open_loopback_hub()
+    with hub:
         agent = Agent(member, run, 0, [0, 1], SimDriver(0, [0, 1], np.asarray(pose, dtype=float), ModelConfig(), seed=1,
                                                                 motion_time_s=motion_time_s))
         thread = threading.Thread(target=agent.run, daemon=True)

@@ -45,12 +45,19 @@ over (0: a new run); ``resume(state)`` then starts at the checkpoint's step.
 
 Stalls (docs/failure-model.md): a coordinator stalled beyond its session lease (10 s: swapped out,
 SIGSTOP) loses its session to the hub, and every robot's token disappears from its view at once, with
-the hub. A token gone while the session has no router is no robot lost: the robot is *suspect* and
-checked again once the session is back (its token alive then, it never was lost). When a coordinator
-whose ``parent`` is this epoch appears (a standby took the run over meanwhile) or an agent refuses a
-command because it obeys another live coordinator, this one *steps down*: ``SteppedDown`` (a
-``CoordinatorConflict``) at its next wait, and from then on it declares no robot lost and sends
-nothing. A run-wide ``EmergencyStop`` heard while the run is in progress ends it (``RunStopped``):
+the hub (its own token goes from its own view too). Its session is back within milliseconds, but it
+holds the hub's tokens again only once the hub has re-sent them: until then a liveliness query answers
+from an empty view. So a token gone while the view is *unsettled* (the session lost the hub, or this
+process stalled: a turn of the stopper thread or of a wait longer than ``STALL_S``, within the last
+``RESYNC_S``; or this coordinator's own token, which comes back with the hub's tokens, is not in its view)
+is no robot lost: the robot is *suspect* and judged once the view has settled (its token alive then, it
+never was lost). Every judgement of a gone token asks the hub first for the run's tokens,
+coordinators' included, in one query whose answer must hold this coordinator's own token (a liveliness
+query on a session that also watches tokens sometimes answers empty: asked again, ``VIEW_TRIES`` times).
+When a coordinator whose ``parent`` is this epoch is alive (a standby took the run over meanwhile: seen
+in that answer or announced by its token) or an agent refuses a command because it obeys another live
+coordinator, this one *steps down*: ``SteppedDown`` (a ``CoordinatorConflict``) at its next wait, and from
+then on it declares no robot lost and sends nothing. A run-wide ``EmergencyStop`` heard while the run is in progress ends it (``RunStopped``):
 a coordinator never commands a stopped run. A robot that refuses a command because its watchdog
 stopped it (``NO_HEARTBEAT``: its link or radio stalled) did not move and is still served by its agent:
 it is dropped like a lost robot but gets no emergency stop, and it is re-admitted at the next
@@ -78,13 +85,13 @@ from runtime.errors import RunConflictError, SwarmConnectionError, SwarmInputErr
 from runtime.gateway.frames import RefusalCode
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
 from runtime.wire.keys import (
-    alive_key,
     alive_wildcard,
     coord_alive_key,
     estop_key,
     parse_coord_token,
     parse_key,
     robot_wildcard,
+    run_wildcard,
     truth_wildcard,
 )
 from runtime.wire.messages import (
@@ -123,9 +130,10 @@ CHECKPOINT_STATE_CHARS = MAX_MESSAGE_BYTES - 2**14  # the state of a Checkpoint,
 
 STALL_S = 1.0  # s: a turn of a wait loop (a 0.05 s pump) this long means this process stalled, not the robots
 WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason: the robot's watchdog had stopped it (link)
-RESEND_AFTER_STALL_S = 0.3  # s after a stall of this process a wait re-sends its requests (its session is back by then)
 HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
+RESYNC_S = 1.0  # s a view is unsettled after its session lost the hub or this process stalled (the hub re-sends its tokens in ms)
+VIEW_TRIES = 5  # liveliness queries for one complete answer (one holding this coordinator's own token)
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
 
@@ -156,10 +164,16 @@ class RunStopped(AgentError, BackendEnded):
     """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
-def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0) -> dict[int, int]:
-    """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``."""
-    tokens = (parse_coord_token(key) for key in alive_now(session, coord_alive_key(run), timeout_s))
-    return dict(t for t in tokens if t is not None)
+def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> dict[int, int]:
+    """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``. ``own``: the epoch whose token this
+    session declared; an answer without it is incomplete (a liveliness query on a session that also watches the
+    tokens sometimes answers empty) and the hub is asked again, ``VIEW_TRIES`` times in all."""
+    for _ in range(VIEW_TRIES):
+        tokens = (parse_coord_token(key) for key in alive_now(session, coord_alive_key(run), timeout_s))
+        live = dict(t for t in tokens if t is not None)
+        if own is None or own in live:
+            break
+    return live
 
 
 def conflict_message(run: str, live: dict[int, int]) -> str:
@@ -201,7 +215,9 @@ class ZenohSwarmBackend:
         self.stop_requested: Callable[[], bool] = lambda: False
         self._suspect: set[int] = set()  # robots whose token went while the session had lost the hub (stopper thread)
         self._session_lost = False  # the coordinator's Zenoh link lost the hub at least once (this process stalled beyond its lease)
-        self._stalled_at = -1e9  # monotonic time a wait last noticed this process had stalled
+        self._stalled_at = -1e9  # monotonic time a wait or the stopper thread last noticed this process had stalled
+        self._link_lost_at = -1e9  # monotonic time the session was last seen without the hub (its own token gone from its view)
+        self._own_alive = True  # this coordinator's own token is in its own view (it comes back with the hub's tokens)
         self._hub_gone_since: float | None = None  # monotonic time the Zenoh link was first seen without the hub (since back)
         self.session = session
         self.radius = robot_radius_m  # the run's body radius, stated in each ContactMessage
@@ -246,7 +262,7 @@ class ZenohSwarmBackend:
             subscribe(session, estop_key(run), self._on_estop),
         ]
         self._token = declare_token(session, coord_alive_key(run, self.epoch, parent))  # after the subscribers: agents answer it
-        others = {e: p for e, p in live_coordinators(session, run).items() if e != self.epoch}
+        others = {e: p for e, p in live_coordinators(session, run, own=self.epoch).items() if e != self.epoch}
         if others:  # two started at once: both may give up, never both go on (each checks after declaring)
             self.close()
             raise CoordinatorConflict(conflict_message(run, others))
@@ -303,11 +319,27 @@ class ZenohSwarmBackend:
             self._stops.put((robot, None, time.monotonic()))  # the stopper thread asks the hub first
 
     def _on_coordinator(self, key: str, alive: bool) -> None:  # Zenoh thread
-        """A coordinator whose parent is this epoch took the run over (this one stalled beyond its lease): step down."""
+        """A coordinator whose parent is this epoch took the run over (this one stalled beyond its lease): step down.
+        This coordinator's own token gone from its own view: its session lost the hub (its view is unsettled)."""
         token = parse_coord_token(key)
-        if alive and token is not None and token[0] != self.epoch and token[1] == self.epoch and self.superseded is None:
-            self.superseded = (f"coordinator epoch {token[0]} took run {self.run} over from this one (epoch {self.epoch}), "
+        if token is None:
+            return
+        if token[0] == self.epoch:
+            self._own_alive = alive
+            if not alive:
+                self._link_lost_at = time.monotonic()
+            return
+        if alive:
+            self._supersede({token[0]: token[1]})
+
+    def _supersede(self, coordinators: dict[int, int]) -> bool:
+        """Whether a coordinator among ``coordinators`` (``{epoch: parent}``, alive) took the run over from this one;
+        if so this one steps down (any thread)."""
+        taker = next((e for e, p in sorted(coordinators.items()) if p == self.epoch and e != self.epoch), None)
+        if taker is not None and self.superseded is None:
+            self.superseded = (f"coordinator epoch {taker} took run {self.run} over from this one (epoch {self.epoch}), "
                                f"which had lost its session to the hub; stepping down: no robot is declared lost, nothing is stopped")
+        return self.superseded is not None
 
     def _on_estop(self, key: str, payload: bytes) -> None:  # Zenoh thread
         msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
@@ -323,9 +355,38 @@ class ZenohSwarmBackend:
             self._hub_gone_since = None
             return True
         with self._lock:
+            self._link_lost_at = time.monotonic()
             if self._hub_gone_since is None:
-                self._hub_gone_since = time.monotonic()
+                self._hub_gone_since = self._link_lost_at
         return False
+
+    def _settled(self) -> bool:
+        """Whether this process's view of the hub's tokens can be trusted: the session has the hub, has not lost it and
+        this process has not stalled within ``RESYNC_S``, and this coordinator's own token is in its view again (a
+        session that is back gets it with the hub's tokens, which the hub re-sends: until then its view is empty)."""
+        connected = self._connected()  # (always asked: it notes how long the hub has been gone, HubLost after HUB_GRACE_S)
+        return connected and self._own_alive and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
+
+    def _hub_view(self) -> tuple[set[int], dict[int, int]] | None:
+        """The run's tokens at the hub, from one complete answer (holding this coordinator's own token; asked
+        ``VIEW_TRIES`` times): ``(robots alive, {epoch: parent} of the live coordinators})``, None without one."""
+        for _ in range(VIEW_TRIES):
+            robots: set[int] = set()
+            coordinators: dict[int, int] = {}
+            for key in alive_now(self.session, run_wildcard(self.run)):
+                token = parse_coord_token(key)
+                if token is not None:
+                    coordinators[token[0]] = token[1]
+                    continue
+                try:
+                    robot = parse_key(key).robot
+                except Exception:  # noqa: BLE001 - a key outside the key space is not a robot's token
+                    continue
+                if robot is not None:
+                    robots.add(robot)
+            if self.epoch in coordinators:
+                return robots, coordinators
+        return None
 
     def _check_hub(self) -> None:
         """Raise ``HubLost`` once the hub has been gone for ``HUB_GRACE_S`` (caller's thread)."""
@@ -341,21 +402,25 @@ class ZenohSwarmBackend:
 
     def _token_gone(self, robot: int, since: float) -> None:
         """Stopper thread: ``robot``'s token went from the Zenoh link's view at ``since`` (monotonic). Lost if the hub
-        says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub);
-        if the session has lost the hub (this process stalled beyond its lease), checked again once it is back."""
+        says so too, ``SETTLE_S`` later (a session closing on its hub drops every token before it drops the hub), and
+        no coordinator took the run over from this one; while the view is unsettled (the session lost the hub, or
+        this process stalled), a suspect judged once it has settled."""
         time.sleep(max(0.0, since + SETTLE_S - time.monotonic()))
         if self.stop_requested():  # gone with this process's own stop (a Ctrl-C to the whole run): not lost
             return
-        if not self._connected():
-            self._session_lost = True
-            self._suspect.add(robot)
-            return
-        if robot in self._alive or alive_now(self.session, alive_key(self.run, robot)):
+        if robot in self._alive:
             self._session_lost = True  # back already: it went with the Zenoh link to the hub, not with the robot
             return
-        if not self._connected():
+        view = self._hub_view() if self._settled() else None
+        if view is None or not self._settled():  # the hub's tokens may not be back in this session's view yet
             self._session_lost = True
             self._suspect.add(robot)
+            return
+        alive, coordinators = view
+        if self._supersede(coordinators):
+            return
+        if robot in alive or robot in self._alive:
+            self._session_lost = True
             return
         self._declare_lost(robot, "liveliness token gone")
 
@@ -367,16 +432,21 @@ class ZenohSwarmBackend:
             raise RunStopped(self.stopped_by, [])
 
     def _recheck_suspects(self) -> None:
-        """Stopper thread: once the session has the hub again, the suspects whose tokens are still gone are lost."""
-        if not self._suspect or not self._connected():
+        """Stopper thread: once the view has settled, the hub is asked for the run's tokens: a coordinator that took the
+        run over from this one makes it step down (no robot lost), else the suspects whose tokens are still gone are lost."""
+        if not self._suspect or not self._settled():
             return
-        alive = {parse_key(key).robot for key in alive_now(self.session, alive_wildcard(self.run))}
-        if not self._connected():
+        view = self._hub_view()
+        if view is None or not self._settled():
+            return  # asked again at the next idle turn
+        alive, coordinators = view
+        if self._supersede(coordinators):
+            self._suspect.clear()
             return
         gone = sorted(r for r in self._suspect if r not in alive and r not in self._alive)
         self._suspect.clear()
         for robot in gone:
-            self._declare_lost(robot, "liveliness token gone (still gone once this coordinator's session was back)")
+            self._declare_lost(robot, "liveliness token gone")
 
     def _declare_lost(self, robot: int, reason: str, stop: bool = True) -> None:
         """Mark ``robot`` lost (once) and have the stopper thread send its emergency stop now (any thread); ``stop``
@@ -392,15 +462,26 @@ class ZenohSwarmBackend:
                 self._back.add(robot)  # its agent serves on: re-admitted at the next configuration
         self._stops.put((robot, reason, float(stop)))
 
+    def _note_stall(self, asked: float) -> None:
+        """Stopper thread: its wait for the queue, begun at ``asked``, lasted ``STALL_S`` beyond its 0.2 s turn: this
+        process stalled."""
+        now = time.monotonic()
+        if now - asked > 0.2 + STALL_S:
+            self._stalled_at = now
+
     def _stop_lost(self) -> None:
         """Stopper thread: a targeted ``EmergencyStop`` and a ``RobotEvent`` for every lost robot, in order; the
-        suspects of a lost session checked again meanwhile."""
+        suspects of a lost session checked again meanwhile. A wait for the queue longer than ``STALL_S`` beyond its
+        turn means this process stalled (its view of the hub's tokens is unsettled)."""
         while True:
+            asked = time.monotonic()
             try:
                 item = self._stops.get(timeout=0.2)
             except queue.Empty:
+                self._note_stall(asked)
                 self._recheck_suspects()
                 continue
+            self._note_stall(asked)
             if item is None:
                 return
             robot, reason, stop_it = item
@@ -551,19 +632,15 @@ class ZenohSwarmBackend:
 
     def _wait(self, what: str, missing: Callable[[], list[int]], resend: Callable[[list[int]], None]) -> None:
         """Pump until ``missing()`` (robots still owing an answer, lost ones excluded) is empty; re-send once at half
-        the timeout; at the timeout the robots still missing are lost. A turn of this loop longer than ``STALL_S``
-        (this process was stopped or starved: answers may still be in its socket) does not count, and the requests
-        are re-sent ``RESEND_AFTER_STALL_S`` later (a stall beyond the session lease loses the answers sent meanwhile),
-        as are those of a round that begins within twice that of a stall."""
+        the timeout; at the timeout the robots still missing are lost. While this coordinator's view is unsettled
+        (``_settled``: this process stalled, a turn of this loop longer than ``STALL_S`` included, or its session lost
+        the hub) no time counts: answers may still be in its socket, and those sent while its session was gone are
+        lost; once it has settled the requests are re-sent and the robots have half the timeout to answer them."""
         start = last = time.monotonic()
-        if start - self._stalled_at < 2 * RESEND_AFTER_STALL_S:  # just back from a stall: its session may have been lost
-            start -= self.timeouts.step_s / 2 - RESEND_AFTER_STALL_S  # with the requests sent meanwhile: re-sent soon
         resent = False
         while True:
             now = time.monotonic()
-            if now - last > STALL_S:  # re-sent soon: answers sent while its session was gone (beyond the lease) are lost
-                start = min(start + now - last, now - self.timeouts.step_s / 2 + RESEND_AFTER_STALL_S)
-                resent = False
+            if now - last > STALL_S:
                 self._stalled_at = now
             last = now
             self._check()
@@ -571,10 +648,11 @@ class ZenohSwarmBackend:
             left = missing()
             if not left:
                 return
-            elapsed = now - start
-            if elapsed > self.timeouts.step_s and not self._connected():
-                self._pump(0.05)  # no robot is to blame while the hub is gone: back soon, or HubLost after HUB_GRACE_S
+            if not self._settled():  # no robot is to blame yet (without the hub: back soon, or HubLost after HUB_GRACE_S)
+                start, resent = now - self.timeouts.step_s / 2, False
+                self._pump(0.05)
                 continue
+            elapsed = now - start
             if elapsed > self.timeouts.step_s:
                 self._pump(0.0)  # answers already received count, however late this thread looks at them (a stall)
                 self._publish_truth_set()
@@ -589,7 +667,7 @@ class ZenohSwarmBackend:
                 for robot in left:
                     self._declare_lost(robot, f"did not answer {what} within {self.timeouts.step_s:.1f} s")
                 return
-            if not resent and elapsed > self.timeouts.step_s / 2:
+            if not resent and elapsed >= self.timeouts.step_s / 2:
                 resend(left)
                 resent = True
             self._pump(0.05)

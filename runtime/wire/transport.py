@@ -30,9 +30,11 @@ Sessions also receive their own publications on matching subscribers.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import json
 import os
 import queue
+import random
 import re
 import socket
 import statistics
@@ -41,6 +43,8 @@ import time
 import uuid
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TypeVar
 
 import zenoh
 
@@ -51,6 +55,7 @@ from runtime.wire.tls_files import check_tls_files
 MODES = ("peer", "client", "router")
 LOOPBACK = "127.0.0.1"
 MAX_WIRE_BYTES = 4 * 2**20 + 2**16  # the largest message (runtime.wire.messages.MAX_MESSAGE_BYTES) and room for Zenoh's framing
+T = TypeVar("T")
 DROP_WAIT_US = 20_000  # us a sample may wait for a full transmit queue before Zenoh drops it (Zenoh default: 1000)
 
 _ENDPOINT = re.compile(
@@ -153,11 +158,64 @@ class ZenohSettings:
         return cls(**data)
 
 
+PORT_TRIES = 5  # ports a listener started on a free port tries before its bind's failure is final
+_FIRST_PORT = 10000  # the lowest port free_tcp_port draws
+_pick = random.SystemRandom()  # never the same sequence in two processes
+
+
+def _ephemeral_ports() -> range:
+    """The kernel's ephemeral range, from which ``bind(0)`` and every outgoing connection's source port draw
+    (Linux; elsewhere the IANA range)."""
+    try:
+        low, high = map(int, Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split())
+    except (OSError, ValueError):
+        low, high = 49152, 65535
+    return range(low, high + 1)
+
+
 def free_tcp_port() -> int:
-    """A TCP port on 127.0.0.1 that was free a moment ago (another process may still take it)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind((LOOPBACK, 0))
-        return int(sock.getsockname()[1])
+    """A TCP port on 127.0.0.1 that was free a moment ago (another process may still take it: a listener started on it
+    tries again on a fresh one when its bind fails, ``start_on_free_port``). Drawn at random below the kernel's
+    ephemeral range: a port ``bind(0)`` hands out is, once closed, soon some outgoing connection's source port on a
+    busy host."""
+    ephemeral = _ephemeral_ports()
+    for _ in range(100):
+        port = _pick.randrange(_FIRST_PORT, ephemeral.start) if ephemeral.start > _FIRST_PORT + 1000 else 0
+        with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+            try:
+                sock.bind((LOOPBACK, port))
+            except OSError:
+                continue
+            return int(sock.getsockname()[1])
+    raise SwarmConnectionError(f"no free TCP port on {LOOPBACK} in [{_FIRST_PORT}, {ephemeral.start})")
+
+
+def port_taken(exc: BaseException) -> bool:
+    """Whether ``exc`` (an ``OSError``, or the error of a router or process that could not listen) says the port was
+    already in use."""
+    return (isinstance(exc, OSError) and exc.errno == errno.EADDRINUSE) or "Address already in use" in str(exc)
+
+
+def start_on_free_port(start: Callable[[int], T], tries: int = PORT_TRIES) -> tuple[T, int]:
+    """``(start(port), port)`` for a fresh ``free_tcp_port()``; a start that fails because another process took the port
+    meanwhile (``port_taken``) is tried again on another, ``tries`` times in all."""
+    for _ in range(tries - 1):
+        port = free_tcp_port()
+        try:
+            return start(port), port
+        except Exception as exc:
+            if not port_taken(exc):
+                raise
+    port = free_tcp_port()
+    return start(port), port
+
+
+def open_loopback_hub(tries: int = PORT_TRIES) -> tuple[zenoh.Session, ZenohSettings, str]:
+    """An open router session on a free loopback port (``start_on_free_port``): ``(hub session, members' settings,
+    endpoint)``; use the session as ``with``."""
+    session, port = start_on_free_port(lambda port: open_session(loopback_hub(port)[0]), tries)
+    _, member = loopback_hub(port)
+    return session, member, member.connect[0]
 
 
 def loopback_hub(port: int) -> tuple[ZenohSettings, ZenohSettings]:

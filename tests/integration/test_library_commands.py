@@ -54,7 +54,7 @@ def test_launch_refuses_bad_options_before_starting_anything(monkeypatch, option
         raise AssertionError("a process or the hub was started before the input was checked")
 
     monkeypatch.setattr(module.subprocess, "Popen", refuse)
-    monkeypatch.setattr(module, "open_session", refuse)
+    monkeypatch.setattr(module, "open_loopback_hub", refuse)
     with pytest.raises(SwarmInputError) as caught:
         inchworm.launch(options())
     assert str(caught.value).startswith(message) and "--" not in str(caught.value)

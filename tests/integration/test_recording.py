@@ -178,14 +178,14 @@ def test_corrupt_files_raise_input_errors(tmp_path):
 
 
 def test_record_run_over_zenoh(tmp_path):
-    from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish
+    from runtime.wire.transport import open_loopback_hub, publish
 
     run = f"z{uuid.uuid4().hex[:8]}"
-    hub, member = loopback_hub(free_tcp_port())
+    hub_session, member, _ = open_loopback_hub()
     path = tmp_path / "live.mcap"
     stop, ready = threading.Event(), threading.Event()
     recorder = {}
-    with open_session(hub) as session:
+    with hub_session as session:
         result = {}
         thread = threading.Thread(target=lambda: result.update(record_run(
             member, run, path, {"seed": 5}, stop, on_ready=lambda rec: (recorder.setdefault("rec", rec), ready.set()))))

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import queue
+import socket
 import threading
 import time
 from collections.abc import Iterator
@@ -18,9 +20,12 @@ from runtime.wire.transport import (
     declare_token,
     free_tcp_port,
     loopback_hub,
+    open_loopback_hub,
     open_session,
+    port_taken,
     publish,
     round_trip_ms,
+    start_on_free_port,
     subscribe,
     subscribe_queue,
     watch_liveliness,
@@ -32,8 +37,8 @@ DEPLOY = REPO / "deploy"
 @pytest.fixture
 def hub() -> Iterator[tuple[zenoh.Session, ZenohSettings]]:
     """A router session on a free loopback port and the client settings that reach it."""
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as session:
+    session, member, _ = open_loopback_hub()
+    with session:
         yield session, member
 
 
@@ -176,21 +181,23 @@ def test_round_trip_ms_refuses_bad_counts(count) -> None:
 
 
 def test_deploy_files_configure_working_sessions() -> None:
-    router_port, gateway_port = free_tcp_port(), free_tcp_port()
-    router_endpoint, gateway_endpoint = f"tcp/127.0.0.1:{router_port}", f"tcp/127.0.0.1:{gateway_port}"
-    router = ZenohSettings("router", listen=(router_endpoint,), config_file=str(DEPLOY / "zenoh-single-host.json5"))
-    gateway = ZenohSettings(
-        "peer",
-        listen=(gateway_endpoint,),
-        connect=(router_endpoint,),
-        config_file=str(DEPLOY / "zenoh-gateway-peer.json5"),
-    )
+    def router(port: int) -> ZenohSettings:
+        return ZenohSettings("router", listen=(f"tcp/127.0.0.1:{port}",), config_file=str(DEPLOY / "zenoh-single-host.json5"))
+
+    def gateway(port: int) -> ZenohSettings:
+        return ZenohSettings("peer", listen=(f"tcp/127.0.0.1:{port}",), connect=(router_endpoint,),
+                             config_file=str(DEPLOY / "zenoh-gateway-peer.json5"))
+
+    router_session, router_port = start_on_free_port(lambda port: open_session(router(port)))
+    router_endpoint = f"tcp/127.0.0.1:{router_port}"
+    gateway_session, gateway_port = start_on_free_port(lambda port: open_session(gateway(port)))
+    gateway_endpoint = f"tcp/127.0.0.1:{gateway_port}"
     multi_host = ZenohSettings("router", config_file=str(DEPLOY / "zenoh-router.json5")).to_config()
     assert multi_host.get_json("listen/endpoints") == '["tcp/0.0.0.0:7447"]'  # kept from the file
-    assert gateway.to_config().get_json("connect/endpoints") == f'["{router_endpoint}"]'  # overridden
+    assert gateway(gateway_port).to_config().get_json("connect/endpoints") == f'["{router_endpoint}"]'  # overridden
     with (
-        open_session(router) as router_session,
-        open_session(gateway),
+        router_session,
+        gateway_session,
         open_session(ZenohSettings("client", connect=(gateway_endpoint,))) as gateway_agent,
         open_session(ZenohSettings("client", connect=(router_endpoint,))) as coordinator,
     ):
@@ -204,3 +211,30 @@ def test_deploy_files_configure_working_sessions() -> None:
         router_watch.undeclare()
 
 
+
+
+def test_a_listener_whose_port_was_taken_meanwhile_starts_on_another():
+    """Another process takes the port between its pick and the router's bind (here: this test, on the first try):
+    the router starts on a fresh port; a failure that is not a taken port is not tried again."""
+    tried: list[int] = []
+    taken = socket.socket()
+
+    def start(port: int) -> zenoh.Session:
+        if not tried:
+            taken.bind(("127.0.0.1", port))
+            taken.listen()
+        tried.append(port)
+        return open_session(loopback_hub(port)[0])
+
+    with taken:
+        session, port = start_on_free_port(start)
+    with session, open_session(loopback_hub(port)[1]) as client:
+        assert len(tried) == 2 and port == tried[1] != tried[0] and list(client.info.routers_zid())
+
+    def refused(port: int) -> zenoh.Session:
+        tried.append(port)
+        raise SwarmInputError(f"bad port {port}")
+    with pytest.raises(SwarmInputError, match="bad port"):
+        start_on_free_port(refused)
+    assert len(tried) == 3
+    assert port_taken(OSError(errno.EADDRINUSE, "in use")) and not port_taken(OSError(errno.ECONNREFUSED, "refused"))

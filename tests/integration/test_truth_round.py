@@ -21,7 +21,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands
 from runtime.wire.keys import alive_wildcard, robot_key, run_wildcard, truths_key
 from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, decode, encode
-from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import alive_now, open_loopback_hub, open_session, publish, subscribe_queue
 from tests.agent_hub import agent_on_hub
 
 RUN = "truth-round"
@@ -118,8 +118,8 @@ def test_a_truth_set_for_a_step_the_agent_has_no_truth_of_is_still_dropped(agent
 
 
 def test_the_coordinator_sends_a_steps_truth_set_only_after_its_requests():
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as hub, open_session(member) as coordinator_session:
+    hub, member, _ = open_loopback_hub()
+    with hub, open_session(member) as coordinator_session:
         agents = [Agent(member, RUN, r, [0, 1], SimDriver(r, [0, 1], np.array(ROBOT_POSES[r]), ModelConfig(), seed=3)) for r in (0, 1)]
         threads = [threading.Thread(target=a.run, daemon=True) for a in agents]
         for t in threads:

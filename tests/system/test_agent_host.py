@@ -27,7 +27,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
-from runtime.wire.transport import alive_now, declare_token, free_tcp_port, loopback_hub, open_session, publish, subscribe_queue
+from runtime.wire.transport import alive_now, declare_token, open_loopback_hub, publish, subscribe_queue
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -70,8 +70,8 @@ def hosted_run(motion_time_s: float):
     """(hub, agents of robots 1-3 of [0..3] in one running host, the host, status queue, host.run()'s result list);
     the test is the coordinator of epoch 5. On leaving, the host is stopped, its thread joined and every token gone."""
     ids = [0, 1, 2, 3]
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as hub:
+    hub, member, _ = open_loopback_hub()
+    with hub:
         agents = [Agent(member, RUN, r, ids, ThreadRecordingDriver(r, ids, np.array([0.2 * r, 0.0, 0.0]), ModelConfig(), seed=1,
                                                                  motion_time_s=motion_time_s)) for r in (1, 2, 3)]
         host = AgentHost(member, agents)

@@ -105,7 +105,7 @@ def no_process(monkeypatch):
     import inchworm.launcher
 
     monkeypatch.setattr(inchworm.launcher.subprocess, "Popen", refuse)
-    monkeypatch.setattr(inchworm.launcher, "open_session", refuse)
+    monkeypatch.setattr(inchworm.launcher, "open_loopback_hub", refuse)
 
 
 def test_launch_checks_everything_before_starting_a_process(tmp_path, no_process, capsys, monkeypatch) -> None:

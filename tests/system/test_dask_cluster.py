@@ -14,15 +14,11 @@ import sys
 import time
 from pathlib import Path
 
+from runtime.wire.transport import free_tcp_port
+
 ROOT = Path(__file__).resolve().parents[2]
 DASK = Path(sys.executable).with_name("dask")
 COMPARE = ["compare", "--robots", "6", "--trajectories", "4", "--configs", "2", "--methods", "inchworm,ref57", "--samples", "4", "--json"]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def swarm(*args: str) -> subprocess.CompletedProcess:
@@ -64,7 +60,7 @@ def stop(proc: subprocess.Popen) -> None:
 
 def test_a_real_cluster_losing_a_worker_gives_the_local_pools_result(tmp_path):
     local = result(swarm(*COMPARE, "--workers", "2", "--out", str(tmp_path / "local")), tmp_path / "local")
-    port = free_port()
+    port = free_tcp_port()  # (below the ephemeral range: no outgoing connection takes it meanwhile)
     address = f"tcp://127.0.0.1:{port}"
     procs = [start("scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard")]
     try:

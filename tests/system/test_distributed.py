@@ -36,7 +36,7 @@ from runtime.wire.messages import (
     encode,
     message_key,
 )
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe
+from runtime.wire.transport import open_loopback_hub, open_session, publish, subscribe
 from swarm_cli.main import build_parser
 from swarm_cli.options import model_config
 
@@ -51,9 +51,6 @@ class Run:
                  extra: tuple[str, ...] = ()) -> None:
         self.traj, self.method, self.seed = traj, method, seed
         self.run_id = f"t{uuid.uuid4().hex[:10]}"
-        port = free_tcp_port()
-        self.hub_settings, self.member = loopback_hub(port)
-        self.hub = f"tcp/127.0.0.1:{port}"
         self.traj_file = tmp / "traj.json"
         traj.save(self.traj_file)
         self.result_file = tmp / "result.json"
@@ -71,7 +68,7 @@ class Run:
         self.extra = list(extra)  # more coordinator options
 
     def start(self) -> None:
-        self.session = open_session(self.hub_settings)
+        self.session, self.member, self.hub = open_loopback_hub()
         for key_expr in (coord_key(self.run_id, "plan"), coord_key(self.run_id, "estimate"), robot_wildcard(self.run_id, "cmd")):
             subscribe(self.session, key_expr, self._hear)
         ids = ",".join(str(int(i)) for i in self.traj.ids)

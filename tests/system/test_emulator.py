@@ -375,13 +375,13 @@ def test_dropped_rx_corrupted_and_delayed_frames(cfg):
 
 
 def test_truth_published_at_start_on_observe_and_when_the_coordinator_appears(cfg):
-    from runtime.wire.transport import declare_token, free_tcp_port, loopback_hub, open_session, subscribe_queue
+    from runtime.wire.transport import declare_token, open_loopback_hub, open_session, subscribe_queue
 
     run = "emu-truth"
-    hub_settings, member = loopback_hub(free_tcp_port())
+    hub, member, _ = open_loopback_hub()
     world, port, _ = make_port(cfg, robots=(0, 1))
     link = Link(port.device)
-    with open_session(hub_settings) as hub, open_session(member) as session:
+    with hub, open_session(member) as session:
         _, inbox = subscribe_queue(hub, truth_wildcard(run))
 
         def truths(n: int) -> list[TruthMessage]:

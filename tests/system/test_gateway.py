@@ -50,8 +50,7 @@ from runtime.wire.transport import (
     ZenohSettings,
     alive_now,
     declare_token,
-    free_tcp_port,
-    loopback_hub,
+    open_loopback_hub,
     open_session,
     publish,
     subscribe,
@@ -104,8 +103,8 @@ def rig(faults: FaultPlan = FaultPlan(), timing: Timing = FAST, calibration: Cal
     directly (``GatewayDriver.use_link``, as in a port process), else over Zenoh from another session."""
     world = EmulatedWorld([0, 1], POSES, CFG, seed=3, heartbeat_timeout_s=timing.heartbeat_timeout_s,
                           calibration={0: calibration}, motion_time_s=motion_time_s)
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with PortEmulator(world, "radio0", port_robots, faults) as emulator, open_session(hub_settings), \
+    hub, member, _ = open_loopback_hub()
+    with PortEmulator(world, "radio0", port_robots, faults) as emulator, hub, \
             open_session(member) as link_session, open_session(member) as agent_session, open_session(member) as coord_session:
         device = SerialLink(emulator.device, 115200)
         link = Link(link_session, run, Port("radio0", emulator.device, port_robots), timing, device, limits, {0: calibration})
@@ -522,13 +521,12 @@ def emulated_site(tmp_path: Path, robots: int, seed: int, config, **emulator) ->
     traj.save(traj_file)
     ids = [int(i) for i in traj.ids]
     config(ids).save(config_file)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
+    hub_session, member, hub = open_loopback_hub()
     procs: list[subprocess.Popen] = []
     try:
-        with open_session(hub_settings), open_session(member) as session:
+        with hub_session, open_session(member) as session:
             start_emulator(EmulatorSpec(config=str(config_file), trajectory=str(traj_file), write_config=str(live), **emulator), procs)
-            yield Site(session, f"tcp/127.0.0.1:{port}", ids, live, procs)
+            yield Site(session, hub, ids, live, procs)
     finally:
         stop_all(procs, grace_s=5.0)
     assert all(p.returncode is not None for p in procs)
@@ -648,16 +646,15 @@ def test_ctrl_c_of_the_launcher_stops_every_robot(tmp_path):
 def test_an_agent_whose_link_never_answers_drops_its_token_and_exits_3(tmp_path):
     config = tmp_path / "gw.json"
     GatewayConfig((Port("radio0", "/dev/null", (0,)),), timing=Timing(ack_timeout_s=0.05, max_retries=1, motion_timeout_s=0.5)).save(config)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    with open_session(hub_settings), open_session(member) as session:
+    hub_session, member, hub = open_loopback_hub()
+    with hub_session, open_session(member) as session:
         agent = subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=0", "--ids=0", "--run=nolink",
-                                  f"--hub=tcp/127.0.0.1:{port}", "--driver=gateway", f"--gateway-config={config}",
+                                  f"--hub={hub}", "--driver=gateway", f"--gateway-config={config}",
                                   "--ready-timeout=0.5"], stderr=subprocess.PIPE, text=True)
         try:
             wait_for(lambda: alive_now(session, alive_wildcard("nolink")), 20, "the agent's token")
             _sub, statuses = subscribe_queue(session, "swarm/nolink/robot/0/status")
-            _wait_routed(f"tcp/127.0.0.1:{port}", ["swarm/nolink/robot/0/status"])
+            _wait_routed(hub, ["swarm/nolink/robot/0/status"])
             _token = act_as_coordinator(session, "nolink")
             cmd = MotionCommand(run="nolink", step=1, robot=0, config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
             publish(session, message_key(cmd), encode(cmd))
@@ -735,13 +732,12 @@ def test_two_runs_back_to_back_on_the_same_emulator_and_links(tmp_path):
     traj = random_trajectory(4, 2, np.random.default_rng(7))
     traj_file, events = tmp_path / "traj.json", tmp_path / "events.jsonl"
     traj.save(traj_file)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    hub, run_id = f"tcp/127.0.0.1:{port}", "twice"
+    hub_session, member, hub = open_loopback_hub()
+    run_id = "twice"
     gateway = default_gateway(traj)
     procs: list[subprocess.Popen] = []
     try:
-        with open_session(hub_settings), open_session(member) as session:
+        with hub_session, open_session(member) as session:
             emulator = EmulatorSpec(config="", trajectory=str(traj_file), seed=2, events=str(events), hub=hub, run_id=run_id)
             live = start_gateway(gateway, tmp_path, emulator, procs)
             ids = {f"swarm/{run_id}/alive/link/{p.name}" for p in gateway.ports}
@@ -871,10 +867,9 @@ def test_a_port_process_whose_device_cannot_be_opened_exits_2_naming_it(tmp_path
     """The device is opened before any agent declares itself: a wrong device is one line and status 2, no agent appears."""
     config = tmp_path / "gw.json"
     GatewayConfig((Port("radio0", str(tmp_path / "ttyNOPE"), (0, 1)),)).save(config)
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    with open_session(hub_settings), open_session(member) as session:
-        proc = subprocess.run(PY + ["swarm_cli.agent", "--id=0,1", "--ids=0,1", "--run=nodevice", f"--hub=tcp/127.0.0.1:{port}",
+    hub_session, member, hub = open_loopback_hub()
+    with hub_session, open_session(member) as session:
+        proc = subprocess.run(PY + ["swarm_cli.agent", "--id=0,1", "--ids=0,1", "--run=nodevice", f"--hub={hub}",
                                     "--driver=gateway", f"--gateway-config={config}", "--link"], capture_output=True, text=True, timeout=60)
         assert alive_now(session, alive_wildcard("nodevice")) == set()
     assert proc.returncode == 2 and f"cannot open serial device {tmp_path / 'ttyNOPE'}" in proc.stderr, proc.stderr

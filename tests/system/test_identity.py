@@ -12,7 +12,7 @@ from inchworm.processes import stop_all
 from inchworm.spawn import Spawned
 from inchworm.specs import AgentHostSpec
 from runtime.wire.keys import alive_key, link_alive_key
-from runtime.wire.transport import alive_now, free_tcp_port, loopback_hub, open_session
+from runtime.wire.transport import alive_now, open_loopback_hub, open_session
 from tests.system.test_gateway import PY, _one_port, emulated_site
 from tests.waiting import wait_for
 
@@ -25,13 +25,12 @@ def _refused(cmd: list[str]) -> str:
 
 
 def test_a_second_simulated_agent_of_a_live_robot_is_refused_and_a_restarted_one_admitted():
-    port = free_tcp_port()
-    hub_settings, member = loopback_hub(port)
-    hub, run = f"tcp/127.0.0.1:{port}", "dup"
+    hub_session, member, hub = open_loopback_hub()
+    run = "dup"
     spec = AgentHostSpec(run_id=run, robots=(3,), run_robots=(3, 4), hub=hub, pose=(0.0, 0.0, 0.0))
     procs: list[subprocess.Popen] = []
     try:
-        with open_session(hub_settings), open_session(member) as session:
+        with hub_session, open_session(member) as session:
             procs.append(Spawned(spec, stderr=subprocess.DEVNULL))
             wait_for(lambda: alive_key(run, 3) in alive_now(session, alive_key(run, 3)), 30, "the first agent of robot 3")
             second = Spawned(spec, stderr=subprocess.PIPE, text=True)

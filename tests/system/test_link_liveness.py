@@ -21,7 +21,8 @@ from runtime.gateway.config import GatewayConfig, Port
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, link_alive_key
 from runtime.wire.messages import LinkRequest, MotionCommand, encode, message_key
-from runtime.wire.transport import ZenohSettings, alive_now, declare_token, free_tcp_port, open_session, publish
+from runtime.wire.transport import ZenohSettings, alive_now, declare_token, open_session, publish
+from tests.routers import start_router
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
@@ -45,15 +46,6 @@ def _site(tmp_path: Path, robots: int, procs: list[subprocess.Popen], motion_tim
     return ids, live, events
 
 
-def _router(port: int, procs: list[subprocess.Popen]) -> str:
-    endpoint = f"tcp/127.0.0.1:{port}"
-    router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--listen={endpoint}"], env=ENV,
-                              stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    procs.append(router)
-    assert "listening" in router.stderr.readline()
-    return endpoint
-
-
 def _link(live: Path, run: str, hub: str, procs: list[subprocess.Popen]) -> subprocess.Popen:
     link = subprocess.Popen([sys.executable, "-m", "swarm_cli.link", f"--config={live}", "--port=radio0", f"--run={run}",
                              f"--hub={hub}"], env=ENV, stderr=subprocess.PIPE, text=True)
@@ -73,7 +65,7 @@ def test_a_link_resuming_from_its_own_stall_heartbeats_before_it_judges_its_robo
     procs: list[subprocess.Popen] = []
     try:
         ids, live, events = _site(tmp_path, 5, procs)
-        hub = _router(free_tcp_port(), procs)
+        hub = start_router(procs, ENV)
         link = _link(live, "stall", hub, procs)
         with open_session(ZenohSettings("client", connect=(hub,))) as session:
             wait_for(lambda: alive_now(session, link_alive_key("stall", "radio0")), 30, "the link")
@@ -97,7 +89,7 @@ def test_when_the_router_dies_the_link_stops_feeding_and_the_robot_watchdog_stop
     procs: list[subprocess.Popen] = []
     try:
         ids, live, events = _site(tmp_path, 2, procs, motion_time=4.0)
-        hub = _router(free_tcp_port(), procs)
+        hub = start_router(procs, ENV)
         router = procs[-1]
         link = _link(live, "dead", hub, procs)
         session = open_session(ZenohSettings("client", connect=(hub,)))
@@ -132,7 +124,7 @@ def test_a_coordinator_takeover_keeps_the_robots_fed_and_the_accepted_motion_com
     procs: list[subprocess.Popen] = []
     try:
         ids, live, events = _site(tmp_path, 2, procs, motion_time=3.0)
-        hub = _router(free_tcp_port(), procs)
+        hub = start_router(procs, ENV)
         link = _link(live, "takeover", hub, procs)
         with open_session(ZenohSettings("client", connect=(hub,))) as session:
             wait_for(lambda: alive_now(session, link_alive_key("takeover", "radio0")), 30, "the link")

@@ -26,6 +26,7 @@ from runtime.wire.transport import (
     declare_token,
     free_tcp_port,
     loopback_hub,
+    open_loopback_hub,
     open_session,
     publish,
     subscribe,
@@ -127,12 +128,11 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
 def test_a_command_of_a_gone_coordinator_epoch_is_refused(tmp_path):
     """A real agent process obeys epoch 11; once that token is gone and epoch 12 runs a new run, a command of 11
     (stale) is refused naming it, and epoch 12's step 1 runs."""
-    port = free_tcp_port()
-    hub_settings, _ = loopback_hub(port)
+    hub_session, _, endpoint = open_loopback_hub()
     agent = subprocess.Popen([sys.executable, "-m", "swarm_cli.agent", "--id=0", "--ids=0,1", "--pose=0,0,0", "--run=stale",
-                              f"--hub=tcp/127.0.0.1:{port}"], env=ENV, stderr=subprocess.DEVNULL)
+                              f"--hub={endpoint}"], env=ENV, stderr=subprocess.DEVNULL)
     try:
-        with open_session(hub_settings) as hub:
+        with hub_session as hub:
             wait_for(lambda: alive_now(hub, alive_wildcard("stale")), 30, "the agent's token")
             _, statuses = subscribe_queue(hub, robot_key("stale", 0, "status"))
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from runtime.recording.mcap_log import read_messages, recording_info
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, subscribe
+from runtime.wire.transport import open_loopback_hub, open_session, subscribe
 from swarm_cli.main import main
 
 REPO = Path(__file__).resolve().parents[2]
@@ -123,13 +123,12 @@ def test_publish_on_a_hub_with_timing(recording):
     expected = _run_messages(recording)
     times = [t for k, _p, t, _pub in read_messages(recording) if k.startswith("swarm/")]
     span = (times[-1] - times[0]) / 1e9
-    port = free_tcp_port()
-    hub_settings, _ = loopback_hub(port)
+    hub_session, _, hub = open_loopback_hub()
     got: list[tuple[str, bytes]] = []
     done = threading.Event()
-    with open_session(hub_settings) as session:
+    with hub_session as session:
         _collect(session, got, done, len(expected))
-        proc = swarm("replay", recording, "--publish", "--speed", "4", "--hub", f"tcp/127.0.0.1:{port}", "--json", "--same-run")
+        proc = swarm("replay", recording, "--publish", "--speed", "4", "--hub", hub, "--json", "--same-run")
         done.wait(5)
     assert proc.returncode == 0, proc.stderr
     result = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -25,7 +25,7 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.messages import Checkpoint, decode
-from runtime.wire.transport import free_tcp_port
+from tests.routers import start_router
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -127,13 +127,12 @@ def test_a_coordinator_that_loses_its_hub_says_so_and_blames_no_robot(tmp_path: 
     """The router is SIGKILLed after the first configuration: every agent's token vanishes from the coordinator's view
     with it, but the robots are not lost and no stop can be sent. One line names the hub; ``--json`` has no lost robot
     and says why the run ended early; exit 3."""
-    hub = f"tcp/127.0.0.1:{free_tcp_port()}"
     traj = random_trajectory(3, 4, np.random.default_rng(0), **body_spacing(ModelConfig()))
     traj.save(tmp_path / "traj.json")
-    router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--listen={hub}"], env=ENV, stderr=subprocess.PIPE, text=True)
-    procs = [router]
+    procs: list[subprocess.Popen] = []
+    hub = start_router(procs, ENV)
+    router = procs[0]
     try:
-        assert "listening" in router.stderr.readline()
         start_agents(traj, AgentHostSpec(run_id="hubgone", robots=(), hub=hub, seed=0, motion_time=0.5), procs,
                          env=ENV, stderr=subprocess.DEVNULL)
         coordinator = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={tmp_path / 'traj.json'}",

@@ -1,18 +1,23 @@
 """Stalls judged right (docs/failure-model.md): a coordinator SIGSTOPped beyond its session lease, with and without a
-standby; a run-wide stop heard by the coordinator that took a run over; a link process SIGSTOPped past its robots'
-watchdog. Real processes on loopback and real signals, each process stopped by its pid. The coordinators here run
-with a 2 s Zenoh lease (``--zenoh-config``), so a 3.5 s stall loses their session as a 12 s one does by default
-(``swarm bench faults``, ``"coordinator_stall"``, stalls them 12 s under ``swarm launch``)."""
+standby (with one, through a relay that hands it the hub's tokens late once it is back); a run-wide stop heard by the
+coordinator that took a run over; a link process SIGSTOPped past its robots' watchdog. Real processes on loopback and
+real signals, each process stopped by its pid. The coordinators here run with a 2 s Zenoh lease (``--zenoh-config``),
+so a 3.5 s stall loses their session as a 12 s one does by default (``swarm bench faults``, ``"coordinator_stall"``,
+stalls them 12 s under ``swarm launch``)."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
 import signal
+import socket
 import subprocess
 import sys
+import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -25,12 +30,54 @@ from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 from runtime.wire.keys import coord_alive_key, estop_key, robot_wildcard
 from runtime.wire.messages import EmergencyStop, MotionCommand, decode, encode, message_key
-from runtime.wire.transport import free_tcp_port, loopback_hub, open_session, publish, subscribe, watch_liveliness
+from runtime.wire.transport import open_loopback_hub, publish, subscribe, watch_liveliness
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 SEED = 5
+
+
+class SlowRelay:
+    """A TCP relay on loopback from a coordinator to the hub that, once ``slow()`` was called, hands the hub's data on
+    new connections ``hold_s`` late from their first liveliness token on (a congested link, a busy hub): the
+    coordinator's session is back at once, the hub's tokens are not. ``close()`` ends it and its connections."""
+
+    def __init__(self, hub: str, hold_s: float) -> None:
+        self.hub_port, self.hold_s, self.slow_from = int(hub.rsplit(":", 1)[1]), hold_s, float("inf")
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.endpoint = f"tcp/127.0.0.1:{self.server.getsockname()[1]}"
+        self.sockets: list[socket.socket] = []
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def slow(self) -> None:
+        self.slow_from = time.monotonic()
+
+    def _accept(self) -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                member, _ = self.server.accept()
+                hub = socket.create_connection(("127.0.0.1", self.hub_port))
+                self.sockets += [member, hub]
+                held = time.monotonic() > self.slow_from
+                threading.Thread(target=self._pump, args=(member, hub, False), daemon=True).start()
+                threading.Thread(target=self._pump, args=(hub, member, held), daemon=True).start()
+
+    def _pump(self, source: socket.socket, target: socket.socket, held: bool) -> None:
+        until = None
+        with contextlib.suppress(OSError):
+            while data := source.recv(65536):
+                if held and until is None and b"/alive/" in data:
+                    until = time.monotonic() + self.hold_s
+                if until is not None:
+                    time.sleep(max(0.0, until - time.monotonic()))
+                target.sendall(data)
+        with contextlib.suppress(OSError):
+            target.shutdown(socket.SHUT_WR)
+
+    def close(self) -> None:
+        for sock in (self.server, *self.sockets):
+            sock.close()
 
 
 class Run:
@@ -42,16 +89,14 @@ class Run:
         self.traj_file = tmp / "traj.json"
         self.traj.save(self.traj_file)
         (tmp / "lease.json5").write_text("{ transport: { link: { tx: { lease: 2000, keep_alive: 4 } } } }")
-        port = free_tcp_port()
-        self.hub_settings, _ = loopback_hub(port)
-        self.hub = f"tcp/127.0.0.1:{port}"
         self.procs: list[subprocess.Popen] = []
         self.commands: list[tuple[float, MotionCommand]] = []
         self.stops: list[tuple[float, EmergencyStop]] = []
         self.gone: list[float] = []  # when a coordinator's token went
 
     def __enter__(self) -> Run:
-        self.session = open_session(self.hub_settings).__enter__()
+        self.session, _, self.hub = open_loopback_hub()
+        self.session.__enter__()
         r = self.run_id
         self._subs = [
             subscribe(self.session, robot_wildcard(r, "cmd"),
@@ -68,21 +113,22 @@ class Run:
         stop_all(self.procs)
         self.session.__exit__(*exc)
 
-    def coordinator(self, *extra: str) -> subprocess.Popen:
+    def coordinator(self, *extra: str, hub: str | None = None) -> subprocess.Popen:
         proc = subprocess.Popen([sys.executable, "-m", "swarm_cli.coordinator_cmd", f"--trajectory={self.traj_file}", "--method=ref57",
-                                 f"--run={self.run_id}", f"--hub={self.hub}", f"--zenoh-config={self.tmp / 'lease.json5'}",
+                                 f"--run={self.run_id}", f"--hub={hub or self.hub}", f"--zenoh-config={self.tmp / 'lease.json5'}",
                                  f"--seed={SEED}", "--no-record", "--json", f"--out={self.tmp}", *extra],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=self.tmp, env=ENV)
         self.procs.append(proc)
         return proc
 
-    def stall_at(self, proc: subprocess.Popen, step: int, seconds: float) -> bool:
-        """SIGSTOP ``proc`` once a command of ``step`` went out, SIGCONT it ``seconds`` later; whether the hub dropped a
-        coordinator's token meanwhile (the stall outlasted its lease)."""
+    def stall_at(self, proc: subprocess.Popen, step: int, seconds: float, before_resuming: Callable[[], object] = lambda: None) -> bool:
+        """SIGSTOP ``proc`` once a command of ``step`` went out, SIGCONT it ``seconds`` later (``before_resuming()``
+        first); whether the hub dropped a coordinator's token meanwhile (the stall outlasted its lease)."""
         wait_for(lambda: any(c.step >= step for _, c in self.commands), 60, f"step {step}")
         proc.send_signal(signal.SIGSTOP)
         stopped = time.monotonic()
         time.sleep(seconds)
+        before_resuming()
         proc.send_signal(signal.SIGCONT)
         return any(t > stopped for t in self.gone)
 
@@ -106,12 +152,17 @@ def test_a_coordinator_stalled_beyond_its_lease_without_a_standby_goes_on_with_e
 
 def test_a_coordinator_stalled_beyond_its_lease_steps_down_and_the_standby_finishes_the_run(tmp_path):
     """With a standby: it takes the run over when the stalled coordinator's token goes; the stalled one, resumed, steps
-    down (exit 4), declares no robot lost and stops nothing; the standby finishes the run with every robot."""
-    with Run(tmp_path, "stallsb") as run:
+    down (exit 4), declares no robot lost and stops nothing; the standby finishes the run with every robot.
+
+    The stalled one reaches the hub through a relay that, after the stall, hands it the hub's tokens 0.5 s after its
+    session is back (as a busy host does now and then: two test workers at once showed it). For that half second its
+    view has no robot and no standby, and a liveliness query answers empty: it must wait for its view to settle, not
+    declare the robots lost (a coordinator that judged a gone token at once did, in every run)."""
+    with Run(tmp_path, "stallsb") as run, contextlib.closing(SlowRelay(run.hub, hold_s=0.5)) as relay:
         standby = run.coordinator("--standby")
         wait_for_standby(run.session, run.run_id, standby)
-        coordinator = run.coordinator()
-        assert run.stall_at(coordinator, 2, 3.5), "the stall did not outlast the coordinator's lease"
+        coordinator = run.coordinator(hub=relay.endpoint)
+        assert run.stall_at(coordinator, 2, 3.5, relay.slow), "the stall did not outlast the coordinator's lease"
         _, err = coordinator.communicate(timeout=60)
         out_standby, err_standby = standby.communicate(timeout=120)
     assert coordinator.returncode == 4 and "stepping down" in err, err[-3000:]

@@ -20,14 +20,14 @@ from runtime.wire.transport import (
     MAX_WIRE_BYTES,
     ZenohSettings,
     alive_now,
-    free_tcp_port,
-    loopback_hub,
+    open_loopback_hub,
     open_session,
     publish,
     subscribe_queue,
     watch_liveliness,
 )
 from tests.integration.test_transport import _wait_for
+from tests.routers import start_router
 
 REPO = Path(__file__).resolve().parents[2]
 CHILD = """
@@ -45,8 +45,8 @@ with open_session(settings) as session:
 @pytest.fixture
 def hub() -> Iterator[tuple[zenoh.Session, ZenohSettings]]:
     """A router session on a free loopback port and the client settings that reach it."""
-    hub_settings, member = loopback_hub(free_tcp_port())
-    with open_session(hub_settings) as session:
+    session, member, _ = open_loopback_hub()
+    with session:
         yield session, member
 
 
@@ -85,11 +85,10 @@ def test_oversized_payloads_on_a_command_key_are_dropped_by_the_router_and_its_m
     MAX_WIRE_BYTES, which every session and the router configs set), a small message right behind them still
     arrives at once, and the router's resident memory does not keep them."""
     assert MAX_WIRE_BYTES >= MAX_MESSAGE_BYTES
-    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    router = subprocess.Popen([sys.executable, "-m", "swarm_cli.router", f"--listen={endpoint}"], stderr=subprocess.PIPE, text=True,
-                              env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    procs: list[subprocess.Popen] = []
+    endpoint = start_router(procs, {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[2])})
+    router = procs[0]
     try:
-        assert "listening" in router.stderr.readline()
         member = ZenohSettings("client", connect=(endpoint,))
         with open_session(member) as forger, open_session(member) as agent:
             _sub, inbox = subscribe_queue(agent, "swarm/flood/robot/3/cmd")

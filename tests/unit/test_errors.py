@@ -6,6 +6,7 @@ from __future__ import annotations
 import ast
 import builtins
 import dataclasses
+import pickle
 from pathlib import Path
 
 import pytest
@@ -27,6 +28,7 @@ from runtime.errors import (
 )
 from runtime.gateway.frames import FrameError
 from runtime.recording.mcap_log import RecordingFailed
+from runtime.wire.messages import MessageError
 from swarm_cli.entry import guarded
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -101,3 +103,50 @@ def test_option_errors_name_the_parameter_and_the_cli_the_flag(capsys):
     assert guarded("swarm x", fail) == 2
     assert capsys.readouterr().err == "swarm x: error: -n must be >= 2, got 1\n"
     assert isinstance(error, SwarmError)
+
+
+# an instance of every error class with an __init__ of its own (and of the classes that inherit one), with rough values
+BUILT = [
+    OptionError("driver", "sim needs `pose` or `trajectory` FILE", Options()), OptionError("robots", "must be >= 2", {"robots": "-n"}),
+    MessageError("ObservationReport.ranges[3]", "is NaN", "invalid"), LocalizationError("disconnected", [3, 1], "two components"),
+    SwarmRunError("robots lost", [2, 5]), AgentError("x", [1]), AgentLost("not alive", [0, 7]), RunStopped("stopped", []),
+    HubLost("hub gone"), RunAborted("fewer than 2 robots left", [4], None), DriverRefused("refused", [9]), RobotLost("gone"),
+    DriverFault("fault", [1]), RecordingFailed(Path("r.mcap"), OSError(28, "No space left on device"), 3, 1),
+    SteppedDown("taken over"), CoordinatorConflict("two masters"), RecordingStopped("stopped"), FrameError("bad frame"),
+]
+
+
+def _own_inits() -> set[str]:
+    """The names of the SwarmError classes of the packages that define an ``__init__`` or inherit one (from the sources)."""
+    bases: dict[str, list[str]] = {}
+    inits: set[str] = set()
+    for package in ("runtime", "coordinator", "robot_agent", "inchworm", "swarm_cli"):
+        for path in (ROOT / package).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.ClassDef):
+                    bases[node.name] = [b.id for b in node.bases if isinstance(b, ast.Name)]
+                    if any(isinstance(f, ast.FunctionDef) and f.name == "__init__" for f in node.body):
+                        inits.add(node.name)
+
+    def ours(name: str, seen: frozenset[str] = frozenset()) -> bool:
+        return name == "SwarmError" or (name not in seen and any(ours(b, seen | {name}) for b in bases.get(name, ())))
+
+    def has_init(name: str) -> bool:
+        return name in inits or any(has_init(b) for b in bases.get(name, ()) if b != "SwarmError")
+    return {name for name in bases if name != "SwarmError" and ours(name) and has_init(name)}
+
+
+def test_every_error_with_its_own_init_is_round_tripped_below():
+    assert _own_inits() <= {type(e).__name__ for e in BUILT}
+
+
+@pytest.mark.parametrize("error", BUILT, ids=lambda e: type(e).__name__)
+def test_errors_survive_pickling(error):
+    """An error raised in a process-pool worker comes back whole: its class, message, args and attributes."""
+    back = pickle.loads(pickle.dumps(error))
+    assert type(back) is type(error) and str(back) == str(error) and back.args == error.args
+    assert set(vars(back)) == set(vars(error))
+    for name, value in vars(error).items():
+        assert repr(getattr(back, name)) == repr(value), name
+    if isinstance(error, OptionError):
+        assert back.flag_message() == error.flag_message()
