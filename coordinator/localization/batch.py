@@ -8,7 +8,7 @@ model, maths and decisions as the single-swarm localizers (``PaperLocalizer``, `
   in sample b, with ``ranges``/``bearings`` holding the measurement (ignored elsewhere);
 * the residuals and Jacobians are the single-swarm problems' own functions, elementwise on those
   dense pair arrays (``range_bearing.observation_residuals``/``observation_jacobian``,
-  ``topology.observation_residuals``/``observation_jacobian``/``heading_curvature``, the prior's
+  ``topology_terms.observation_residuals``/``observation_jacobian``/``heading_curvature``, the prior's
   ``pose_difference``/``prior_information``); only the assembly differs: the normal matrix J^T J is
   formed from the per-pair blocks directly (no (B, 2 n^2, 3 n) Jacobian);
 * headings couple only with positions in J^T J (their block is diagonal), so each Newton
@@ -85,13 +85,15 @@ from coordinator.localization.topology import (
     FTOL as TOPOLOGY_FTOL,
     XTOL as TOPOLOGY_XTOL,
     cluster_delta_p,
-    heading_curvature,
     heading_sigmas,
+    reference_robot,
+    to_reference_frame,
+)
+from coordinator.localization.topology_terms import (
+    heading_curvature,
     observation_jacobian as topology_jacobian,
     observation_offsets,
     observation_residuals as topology_residuals,
-    reference_robot,
-    to_reference_frame,
 )
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
@@ -375,7 +377,7 @@ def _on_pairs(seen: np.ndarray, values: np.ndarray) -> np.ndarray:
 
 class _TopologyProblem(_Batched):
     """Eq. B3 in the reference robot's frame: r_ij = R(theta_i) z_ij + x_i - x_j for every seen (i, j)
-    (``topology.observation_residuals``, the single-swarm problem's, on the dense (B, n, n) pair arrays).
+    (``topology_terms.observation_residuals``, the single-swarm problem's, on the dense (B, n, n) pair arrays).
 
     Fixed unknowns: the reference robot's pose (gauge) and the heading of robots that observed nobody.
     """
@@ -421,14 +423,14 @@ class _TopologyProblem(_Batched):
         rzx, rzy, rx, ry = st["rzx"], st["rzy"], st["rx"], st["ry"]
         b, n, _ = rx.shape
         rows, fh, ref = np.arange(b), self.free_head, self.ref
-        # Gradient J^T r with d r_ij / d theta_i = ``topology.observation_jacobian``, d / d x_i = I, d / d x_j = -I.
+        # Gradient J^T r with d r_ij / d theta_i = ``topology_terms.observation_jacobian``, d / d x_i = I, d / d x_j = -I.
         jx, jy = topology_jacobian(rzx, rzy, self.ws("jtx", rx.shape))
         g_theta = fh * (np.einsum("bij,bij->bi", jx, rx) + np.einsum("bij,bij->bi", jy, ry))
         g_xy = np.concatenate(
             [np.einsum("bij->bi", rx) - np.einsum("bij->bj", rx), np.einsum("bij->bi", ry) - np.einsum("bij->bj", ry)], axis=1
         )
         g_xy[rows, ref] = g_xy[rows, n + ref] = 0.0
-        # Heading diagonal: J^T J + the exact second-order term (``topology.heading_curvature``), clamped as
+        # Heading diagonal: J^T J + the exact second-order term (``topology_terms.heading_curvature``), clamped as
         # sparse_lm (and, as there, left out of a sample's first iteration).
         second = np.einsum("bij->bi", heading_curvature(rzx, rzy, rx, ry))
         d = self.h_theta + curved[:, None] * clamp_curvature(second, self.diag_theta) + mu[:, None] * self.diag_theta

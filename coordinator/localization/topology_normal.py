@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from coordinator.localization.sparse_lm import NormalEquations, SparseFactor, huber_weights
-from coordinator.localization.topology import heading_curvature, observation_jacobian, observation_residuals
+from coordinator.localization.topology_terms import heading_curvature, observation_jacobian, observation_residuals
 
 # The lower triangle's entries of one observation's 5 x 5 block over (x_i, y_i, theta_i, x_j, y_j), (row, column) of
 # the block, row >= column: first those that depend on theta_i (their values are in ``TopologyNormal.evaluate``), then

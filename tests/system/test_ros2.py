@@ -140,7 +140,10 @@ def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_pat
     sim = robots(trajectory, env, "--no-odom=1", "--sightings-twice", "--late-sightings=0.4", "--silent=3@2")
     run_id = f"ros2-rough-{os.getpid()}"
     try:
-        proc = launch(trajectory, tmp_path, run_id, env, "--driver-option=ground_truth=ground_truth", "--ros2")
+        # a sensing window of 0.6 s (0.25 s elsewhere): 6 sightings at 10 Hz, so a loaded machine's late tick still leaves
+        # some in time; the 0.4 s late copies (their original stamps) land in it too and must not count twice
+        proc = launch(trajectory, tmp_path, run_id, env, "--driver-option=ground_truth=ground_truth", "--driver-option=sensing_window_s=0.6",
+                      "--ros2")
         out, err = proc.communicate(timeout=120)
     finally:
         sim_err = stop(sim)
@@ -156,7 +159,7 @@ def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_pat
     assert len(truths) >= 3  # robot 1 (no odom) moved twice with its truth read from the ground truth
     reports = [decode(p, ObservationReport) for topic, p, _, _ in records if topic.endswith("/robot/0/obs")]
     assert reports and all(len(r.observed) == len(set(r.observed)) for r in reports)  # each robot seen once per window
-    assert sum(len(r.observed) > 0 for r in reports) >= len(reports) - 1, reports  # a window may catch no sighting in time
+    assert sum(len(r.observed) > 0 for r in reports) >= len(reports) - 1, reports  # one window may still catch none in time
     refused = [decode(p, Status) for topic, p, _, _ in records if topic.endswith("/robot/3/status")]
     assert any(s.state == "refused" and "went silent" in s.reason for s in refused), refused
     final = [decode(p, EstimateMessage) for topic, p, _, _ in records if topic.endswith("/coord/estimate")][-1]

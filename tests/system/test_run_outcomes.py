@@ -104,7 +104,8 @@ def test_answers_received_during_a_coordinator_stall_count(tmp_path: Path) -> No
             if "agents alive" in line:
                 running.set()
 
-    threading.Thread(target=read, daemon=True).start()
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     try:
         assert running.wait(120), "".join(lines)
         coordinator = int(subprocess.run(["pgrep", "-P", str(proc.pid), "-f", "inchworm.spawn - coordinator"],
@@ -113,7 +114,9 @@ def test_answers_received_during_a_coordinator_stall_count(tmp_path: Path) -> No
         os.kill(coordinator, signal.SIGSTOP)
         time.sleep(6.0)
         os.kill(coordinator, signal.SIGCONT)
-        out, _ = proc.communicate(timeout=120)
+        proc.wait(timeout=120)  # the reader thread drains stderr; stdout is the short summary
+        reader.join(10)
+        out = proc.stdout.read()
     finally:
         if proc.poll() is None:
             proc.kill()

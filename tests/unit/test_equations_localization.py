@@ -28,10 +28,10 @@ from coordinator.localization.topology import (
     cluster_delta_p,
     estimate_topology,
     heading_sigmas,
-    observation_offsets,
     reference_robot,
     to_reference_frame,
 )
+from coordinator.localization.topology_terms import observation_offsets
 from runtime.errors import LocalizationError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate
