@@ -26,7 +26,7 @@ import numpy as np
 
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
-from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, _reach, all_pairs, near_pairs
+from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
@@ -60,7 +60,7 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
         i, j = all_pairs(rows, n)
     else:  # a pair whose mean positions are more than 2R + z (sd_i + sd_j) apart keeps the bound (``BodyCheck``)
         sd = moments.spread()
-        pad = cfg.robot_radius_m + _reach(CONTACT_BOUND) * sd
+        pad = cfg.robot_radius_m + reach_sigmas(CONTACT_BOUND) * sd
         arrive = estimate.positions + moments.step
         i, j = near_pairs(rows, arrive, pad, arrive, pad)
     inside = np.zeros(n, bool)

@@ -215,7 +215,6 @@ def estimate_topology(
     free = np.arange(n) != ref
     layout = PoseLayout(free, free & has_heading)
     if n >= LARGE_MIN:  # the normal equations summed directly, one factorization a step (``topology_normal``)
-
         problem = TopologyNormal(layout.cols, layout.size, start, observer, observed, z, huber)
         result = minimize(problem.evaluate, layout.pack(start), solve=problem.solve, xtol=XTOL, ftol=FTOL)
     else:

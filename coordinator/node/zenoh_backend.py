@@ -412,7 +412,7 @@ class ZenohSwarmBackend:
             self._session_lost = True  # back already: it went with the Zenoh link to the hub, not with the robot
             return
         view = self._hub_view() if self._settled() else None
-        if view is None or not self._settled():  # the hub's tokens may not be back in this session's view yet
+        if view is None or not self._settled():  # unsettled before or during the query: the hub's tokens may not be back
             self._session_lost = True
             self._suspect.add(robot)
             return

@@ -140,7 +140,7 @@ def step_contacts(before: np.ndarray, after: np.ndarray, moving: np.ndarray, rad
 
 
 @functools.lru_cache(maxsize=16)
-def _reach(bound: float) -> float:
+def reach_sigmas(bound: float) -> float:
     """z with 2 Phi(-z) = ``bound``."""
     from scipy.special import ndtri  # noqa: PLC0415 - scipy only when checked (cheap parsers)
 
@@ -178,8 +178,9 @@ class PairRisks:
     def tables(self, levels: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``over`` as three (n, n) bool tables of ``n`` robots (row: the driving robot): (together, at_start,
         at_arrival); pairs that are not candidates are clear."""
+        start, end, moving = self.over(levels)
         out = []
-        for bad in (self.over(levels)[k] for k in (2, 0, 1)):
+        for bad in (moving, start, end):
             table = np.zeros((n, n), bool)
             table[self.i[bad], self.j[bad]] = True
             out.append(table)
@@ -247,7 +248,7 @@ class BodyCheck:
     def _reach_sigmas(self) -> float:
         """z with 2 Phi(-z) = the strictest bound in use: a pair whose mean positions stay more than
         2R + z (sd_i + sd_j) apart has a step bound below it (the whole step's interval, w along the closest approach)."""
-        return _reach(self._lowest())
+        return reach_sigmas(self._lowest())
 
     def _candidates(self, rows: np.ndarray, moved: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Pairs (i, j), i of ``rows`` driving from its current position, j != i standing where ``moved`` puts it or

@@ -213,8 +213,11 @@ def start_on_free_port(start: Callable[[int], T], tries: int = PORT_TRIES) -> tu
 def open_loopback_hub(tries: int = PORT_TRIES) -> tuple[zenoh.Session, ZenohSettings, str]:
     """An open router session on a free loopback port (``start_on_free_port``): ``(hub session, members' settings,
     endpoint)``; use the session as ``with``."""
-    session, port = start_on_free_port(lambda port: open_session(loopback_hub(port)[0]), tries)
-    _, member = loopback_hub(port)
+    def start(port: int) -> tuple[zenoh.Session, ZenohSettings]:
+        hub, member = loopback_hub(port)
+        return open_session(hub), member
+
+    (session, member), _ = start_on_free_port(start, tries)
     return session, member, member.connect[0]
 
 
