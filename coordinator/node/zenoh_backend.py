@@ -52,8 +52,9 @@ process stalled: a turn of the stopper thread or of a wait longer than ``STALL_S
 ``RESYNC_S``; or this coordinator's own token, which comes back with the hub's tokens, is not in its view)
 is no robot lost: the robot is *suspect* and judged once the view has settled (its token alive then, it
 never was lost). Every judgement of a gone token asks the hub first for the run's tokens,
-coordinators' included, in one query whose answer must hold this coordinator's own token (a liveliness
-query on a session that also watches tokens sometimes answers empty: asked again, ``VIEW_TRIES`` times).
+coordinators' included, in queries whose answers must hold this coordinator's own token (a liveliness
+query on a session that also watches tokens sometimes answers empty, or without some of the hub's tokens: two
+such answers united, ``hub_view``).
 When a coordinator whose ``parent`` is this epoch is alive (a standby took the run over meanwhile: seen
 in that answer or announced by its token) or an agent refuses a command because it obeys another live
 coordinator, this one *steps down*: ``SteppedDown`` (a ``CoordinatorConflict``) at its next wait, and from
@@ -133,7 +134,9 @@ WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason
 HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 RESYNC_S = 1.0  # s a view is unsettled after its session lost the hub or this process stalled (the hub re-sends its tokens in ms)
-VIEW_TRIES = 5  # liveliness queries for one complete answer (one holding this coordinator's own token)
+VIEW_TRIES = 6  # liveliness queries at most for a complete view (answers holding this coordinator's own token)
+VIEW_ANSWERS = 2  # complete answers united into the view (one may still miss a token of the hub's)
+VIEW_PAUSE_S = 0.001  # s before the second query, doubling before each later one (empty answers come in runs of ms)
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
 
 
@@ -164,16 +167,36 @@ class RunStopped(AgentError, BackendEnded):
     """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
+def hub_view(session: zenoh.Session, key_expr: str, own: int, timeout_s: float = 1.0) -> tuple[set[str], bool]:
+    """The keys of the tokens alive on ``key_expr`` (which covers the coordinator tokens of its run) and whether they
+    are complete: the union of ``VIEW_ANSWERS`` answers holding the token of coordinator epoch ``own``, which this
+    session declared. A liveliness query on a session that also watches the tokens sometimes answers empty, in runs
+    of a few ms, or without some of the hub's tokens (Zenoh 1.10): asked at most ``VIEW_TRIES`` times, pausing
+    ``VIEW_PAUSE_S``, doubled each time, between the queries. Without a complete answer: (the last answer, False)."""
+    keys: set[str] = set()
+    last: set[str] = set()
+    complete = 0
+    for k in range(VIEW_TRIES):
+        if k:
+            time.sleep(VIEW_PAUSE_S * 2 ** (k - 1))
+        last = alive_now(session, key_expr, timeout_s)
+        if any((token := parse_coord_token(key)) is not None and token[0] == own for key in last):
+            keys |= last
+            complete += 1
+            if complete == VIEW_ANSWERS:
+                break
+    return (keys, True) if complete else (last, False)
+
+
 def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> dict[int, int]:
     """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``. ``own``: the epoch whose token this
-    session declared; an answer without it is incomplete (a liveliness query on a session that also watches the
-    tokens sometimes answers empty) and the hub is asked again, ``VIEW_TRIES`` times in all."""
-    for _ in range(VIEW_TRIES):
-        tokens = (parse_coord_token(key) for key in alive_now(session, coord_alive_key(run), timeout_s))
-        live = dict(t for t in tokens if t is not None)
-        if own is None or own in live:
-            break
-    return live
+    session declared: the answer is then ``hub_view``'s (complete, or the last one)."""
+    if own is None:
+        keys = alive_now(session, coord_alive_key(run), timeout_s)
+    else:
+        keys = hub_view(session, coord_alive_key(run), own, timeout_s)[0]
+    tokens = (parse_coord_token(key) for key in keys)
+    return dict(t for t in tokens if t is not None)
 
 
 def conflict_message(run: str, live: dict[int, int]) -> str:
@@ -368,25 +391,25 @@ class ZenohSwarmBackend:
         return connected and self._own_alive and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
 
     def _hub_view(self) -> tuple[set[int], dict[int, int]] | None:
-        """The run's tokens at the hub, from one complete answer (holding this coordinator's own token; asked
-        ``VIEW_TRIES`` times): ``(robots alive, {epoch: parent} of the live coordinators})``, None without one."""
-        for _ in range(VIEW_TRIES):
-            robots: set[int] = set()
-            coordinators: dict[int, int] = {}
-            for key in alive_now(self.session, run_wildcard(self.run)):
-                token = parse_coord_token(key)
-                if token is not None:
-                    coordinators[token[0]] = token[1]
-                    continue
-                try:
-                    robot = parse_key(key).robot
-                except Exception:  # noqa: BLE001 - a key outside the key space is not a robot's token
-                    continue
-                if robot is not None:
-                    robots.add(robot)
-            if self.epoch in coordinators:
-                return robots, coordinators
-        return None
+        """The run's tokens at the hub (``hub_view``): ``(robots alive, {epoch: parent} of the live coordinators})``,
+        None without a complete answer."""
+        keys, complete = hub_view(self.session, run_wildcard(self.run), self.epoch)
+        if not complete:
+            return None
+        robots: set[int] = set()
+        coordinators: dict[int, int] = {}
+        for key in keys:
+            token = parse_coord_token(key)
+            if token is not None:
+                coordinators[token[0]] = token[1]
+                continue
+            try:
+                robot = parse_key(key).robot
+            except Exception:  # noqa: BLE001 - a key outside the key space is not a robot's token
+                continue
+            if robot is not None:
+                robots.add(robot)
+        return robots, coordinators
 
     def _check_hub(self) -> None:
         """Raise ``HubLost`` once the hub has been gone for ``HUB_GRACE_S`` (caller's thread)."""
