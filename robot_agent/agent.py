@@ -104,6 +104,7 @@ import numpy as np
 from robot_agent.driver import Driver, DriverFault, DriverRefused, PeerPoses, RobotLost
 from runtime.wire.keys import alive_key, coord_alive_key, estop_key, parse_coord_token, robot_key, truths_key
 from runtime.wire.messages import (
+    RUN_STOPPED_REFUSAL,
     CommandLimits,
     DropCounter,
     EmergencyStop,
@@ -191,6 +192,7 @@ class Agent:
         self._estop_key = estop_key(run)
         self._stops: queue.SimpleQueue[EmergencyStop | None] = queue.SimpleQueue()  # for the forwarder thread
         self.estopped = False
+        self._run_stop: str | None = None  # the refusal's reason once the whole run was e-stopped
         self.lost_reason: str | None = None
         self._coords: dict[int, int] = {}  # live coordinator tokens: epoch -> parent
         self.bound: int | None = None  # the epoch obeyed (its token may have gone since)
@@ -342,6 +344,8 @@ class Agent:
     def _on_estop(self, key: str, payload: bytes) -> None:
         msg = decode_or_drop(payload, self.drops, key, EmergencyStop)
         if msg is not None and msg.applies_to(self.robot):
+            if not msg.robots and self._run_stop is None:
+                self._run_stop = f"{RUN_STOPPED_REFUSAL} by {msg.source} ({msg.reason})"
             self.estopped = True
             self._stops.put(msg)
 
@@ -467,7 +471,7 @@ class Agent:
             self._answer_again(cmd)  # duplicate: never execute twice
             return
         if self.estopped:
-            self._status(cmd, "refused", "emergency stop", remember=False)
+            self._status(cmd, "refused", self._run_stop or "emergency stop", remember=False)
             return
         expected = self._next_step
         if cmd.step != expected:
@@ -482,8 +486,8 @@ class Agent:
             self._status(cmd, "accepted")
         try:
             self._driver_call(self.driver.execute, cmd)
-        except DriverRefused as e:
-            self._status(cmd, "refused", str(e) or "refused")
+        except DriverRefused as e:  # a run-wide stop that reached the driver first is said as the run's stop
+            self._status(cmd, "refused", (self._run_stop if self.estopped else None) or str(e) or "refused")
             return
         except RobotLost as e:  # say why in the command's status, then the loop drops the token
             self._status(cmd, "refused", f"robot lost: {e}", remember=False)

@@ -97,6 +97,7 @@ from runtime.wire.keys import (
 )
 from runtime.wire.messages import (
     MAX_MESSAGE_BYTES,
+    RUN_STOPPED_REFUSAL,
     Checkpoint,
     ContactMessage,
     DropCounter,
@@ -633,6 +634,8 @@ class ZenohSwarmBackend:
             elif msg.state == "refused" and OTHER_MASTER.search(msg.reason):
                 self.superseded = self.superseded or (f"robot {msg.robot} refused the command of step {msg.step}: {msg.reason}; "
                                                       "stepping down: no robot is declared lost, nothing is stopped")
+            elif msg.state == "refused" and msg.reason.startswith(RUN_STOPPED_REFUSAL):  # the run's e-stop reached
+                self.stopped_by = self.stopped_by or msg.reason.replace(RUN_STOPPED_REFUSAL, "the run was stopped", 1)  # it first
             elif msg.state == "refused":
                 self._declare_lost(msg.robot, f"refused the command of step {msg.step}: {msg.reason}",
                                    stop=WATCHDOG_REFUSAL not in msg.reason)

@@ -370,6 +370,11 @@ class Status(Message):
             raise MessageError("Status.reason", f"{problem} (a reason is required iff state is 'refused')", "invalid")
 
 
+RUN_STOPPED_REFUSAL = "the run was emergency-stopped"
+"""How a refusal's reason begins when the robot refused because its whole run was e-stopped (not a fault of the
+robot): ``"the run was emergency-stopped by <source> (<reason>)"``; a coordinator reads it as the run's stop."""
+
+
 @dataclass(frozen=True, kw_only=True)
 class ObservationReport(Message):
     """Agent -> coordinator: what ``robot`` observed after ``step`` (Eq. 20, its body frame)."""

@@ -8,8 +8,8 @@ import time
 import numpy as np
 import pytest
 
-from runtime.wire.keys import robot_key
-from runtime.wire.messages import MotionCommand, Status, decode, encode
+from runtime.wire.keys import estop_key, robot_key
+from runtime.wire.messages import RUN_STOPPED_REFUSAL, EmergencyStop, MotionCommand, Status, decode, encode
 from runtime.wire.transport import publish
 from tests.agent_hub import agent_on_hub as agent_on_hub_of
 
@@ -97,3 +97,16 @@ def test_a_motion_that_takes_time_is_accepted_before_it_is_done():
         t_done = time.monotonic() - t0
     assert [(s.state, s.cmd_id) for s in got] == [("accepted", 31), ("done", 31)]
     assert t_done >= 0.2
+
+
+@pytest.mark.parametrize("robots, said", [((), f"{RUN_STOPPED_REFUSAL} by swarm estop (operator)"), ((0,), "emergency stop")])
+def test_after_an_emergency_stop_a_command_is_refused_saying_whether_the_whole_run_was_stopped(agent_on_hub, robots, said):
+    hub, agent, statuses = agent_on_hub
+    publish(hub, estop_key(RUN), encode(EmergencyStop(run=RUN, step=0, source="swarm estop", reason="operator", robots=robots)))
+    deadline = time.monotonic() + 3
+    while not agent.estopped:
+        assert time.monotonic() < deadline, "the stop was not heard"
+        time.sleep(0.02)
+    send(hub, 1, 0.1, 0.1)
+    refusal = next_status(statuses)
+    assert (refusal.state, refusal.reason) == ("refused", said) and agent.executed == 0

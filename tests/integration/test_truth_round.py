@@ -14,13 +14,24 @@ import time
 import numpy as np
 import pytest
 
-from coordinator.node.zenoh_backend import Timeouts, ZenohSwarmBackend
+from coordinator.node.zenoh_backend import RunStopped, Timeouts, ZenohSwarmBackend
 from robot_agent.agent import Agent
 from robot_agent.driver import SimDriver
 from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands
-from runtime.wire.keys import alive_wildcard, robot_key, run_wildcard, truths_key
-from runtime.wire.messages import MotionCommand, ObservationReport, ObserveRequest, Status, TruthMessage, TruthSetMessage, decode, encode
+from runtime.wire.keys import alive_wildcard, estop_key, robot_key, run_wildcard, truths_key
+from runtime.wire.messages import (
+    RUN_STOPPED_REFUSAL,
+    EmergencyStop,
+    MotionCommand,
+    ObservationReport,
+    ObserveRequest,
+    Status,
+    TruthMessage,
+    TruthSetMessage,
+    decode,
+    encode,
+)
 from runtime.wire.transport import alive_now, open_loopback_hub, open_session, publish, subscribe_queue
 from tests.agent_hub import agent_on_hub
 
@@ -151,3 +162,38 @@ def test_the_coordinator_sends_a_steps_truth_set_only_after_its_requests():
             assert kinds[:2] == ["TruthMessage", "TruthMessage"]  # with done, during the command round
             assert kinds[-1] == "TruthSetMessage"  # after both requests
         assert backend.drops.total == 0 and all(a.drops.total == 0 for a in agents)
+
+
+def test_a_refusal_for_the_runs_emergency_stop_ends_the_run_as_stopped_and_loses_no_robot():
+    """The launcher's run-wide stop reaches the agents before the coordinator (Zenoh keeps no order across keys):
+    the agents refuse the next command for it, and the coordinator ends the run as stopped by whoever stopped it,
+    declaring no robot lost."""
+    hub, member, _ = open_loopback_hub()
+    with hub, open_session(member) as coordinator_session:
+        agents = [Agent(member, RUN, r, [0, 1], SimDriver(r, [0, 1], np.array(ROBOT_POSES[r]), ModelConfig(), seed=3)) for r in (0, 1)]
+        threads = [threading.Thread(target=a.run, daemon=True) for a in agents]
+        for t in threads:
+            t.start()
+        _wait_alive(hub, 2)
+        publish(hub, estop_key(RUN), encode(EmergencyStop(run=RUN, step=0, source="swarm launch (pid 7)", reason="interrupted")))
+        deadline = time.monotonic() + 5
+        while not all(a.estopped for a in agents):
+            assert time.monotonic() < deadline, "the agents did not hear the stop"
+            time.sleep(0.02)
+        _, seen = subscribe_queue(hub, robot_key(RUN, 0, "status"))
+        backend = ZenohSwarmBackend(coordinator_session, RUN, [0, 1], Timeouts(10.0, 4.0))  # subscribes after the stop
+        try:
+            backend.wait_for_agents()
+            with pytest.raises(RunStopped, match=r"^the run was stopped by swarm launch \(pid 7\) \(interrupted\)$"):
+                for _ in range(3):
+                    backend.execute(StepCommands(backend.ids, np.array([[0.1, 0.05], [0.0, 0.05]]), np.array([True, True])))
+                    backend.observe()
+            assert backend.take_lost() == {}
+        finally:
+            backend.close()
+            for a in agents:
+                a.stop()
+            for t in threads:
+                t.join(timeout=5)
+        refusal = decode(seen.get(timeout=3)[1], Status)
+        assert refusal.state == "refused" and refusal.reason == f"{RUN_STOPPED_REFUSAL} by swarm launch (pid 7) (interrupted)"
