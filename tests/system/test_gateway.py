@@ -35,6 +35,7 @@ from runtime.models.trajectory import random_trajectory
 from runtime.recording.mcap_log import read_messages
 from runtime.wire.keys import alive_wildcard, coord_alive_key, link_alive_key
 from runtime.wire.messages import (
+    RUN_STOPPED_REFUSAL,
     EmergencyStop,
     LinkReply,
     LinkRequest,
@@ -593,7 +594,8 @@ def test_estop_reaches_every_robot_within_100_ms_and_limits_refuse_before_any_by
         # after the stop every agent refuses commands
         cmd = MotionCommand(run=run_id, step=2, robot=ids[1], config=1, turn_rad=0.0, drive_m=0.1, epoch=EPOCH)
         publish(session, message_key(cmd), encode(cmd))
-        assert status_of(ids[1], 2).state == "refused" and "emergency stop" in status_of(ids[1], 2).reason
+        refusal = status_of(ids[1], 2)
+        assert (refusal.state, refusal.reason) == ("refused", f"{RUN_STOPPED_REFUSAL} by test (test)")
         token.undeclare()
 
 
