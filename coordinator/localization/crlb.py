@@ -66,10 +66,11 @@ def fisher_informations(
     robots = 3 * np.stack([observer, observed])  # (2, m): the first row (and column) of robot i and of robot j
     flat = (swarm * (size * size) + (robots * size)[row_robot] + robots[col_robot] + (row_part * size + col_part)[:, None])
     weights = values[term] * sign[:, None]  # (entries, m)
-    info = np.bincount(flat.ravel(), weights=weights.ravel(), minlength=c * size * size).astype(float, copy=False).reshape(c, n, 3, n, 3)  # (float: no observations give ints)
+    info = np.bincount(flat.ravel(), weights=weights.ravel(), minlength=c * size * size).astype(float, copy=False)  # none: ints
+    info = info.reshape(c, n, 3, n, 3)
     index = np.arange(n)
     info[:, index, :, index, :] += np.swapaxes(prior_information(prior_cov), 0, 1)
-    return info.reshape(c, size, size)
+    return np.asarray(info.reshape(c, size, size))
 
 
 # The entries an observation i -> j adds (``fisher_informations``): (row robot (0: i, 1: j), row component (x, y,
@@ -95,7 +96,7 @@ def fisher_information(
     observer_idx = np.asarray(observer_idx, dtype=np.int64)
     observed_idx = np.asarray(observed_idx, dtype=np.int64)
     swarm = np.zeros(len(observer_idx), np.int64)
-    return fisher_informations(poses[None], np.asarray(prior_cov, dtype=float)[None], swarm, observer_idx, observed_idx, cfg)[0]
+    return np.asarray(fisher_informations(poses[None], np.asarray(prior_cov, dtype=float)[None], swarm, observer_idx, observed_idx, cfg)[0])
 
 
 def crlb_pose_covariances(
