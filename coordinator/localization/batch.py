@@ -295,12 +295,20 @@ class _Workspace:
 
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
+        self.groups: dict[tuple[int, tuple[str, ...]], list[np.ndarray]] = {}
 
     def __call__(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         arr = self.arrays.get(name)
         if arr is None or arr.shape != shape:
             arr = self.arrays[name] = np.empty(shape)
         return arr
+
+    def group(self, key: tuple[int, tuple[str, ...]], shape: tuple[int, ...]) -> list[np.ndarray]:
+        """Arrays of one shape, one per name of ``key`` (slot, names), in one lookup."""
+        arrs = self.groups.get(key)
+        if arrs is None or arrs[0].shape != shape:
+            arrs = self.groups[key] = [np.empty(shape) for _ in key[1]]
+        return arrs
 
 
 # ``_localize_paper`` or ``_localize_joint``: (cfg, dead-reckoning poses and covariances, seen, ranges, bearings, workspace)
@@ -321,7 +329,7 @@ class _Batched:
 
     def _state(self, slot: int, names: tuple[str, ...], shape: tuple[int, ...]) -> list[np.ndarray]:
         """The workspace arrays of state ``slot``."""
-        return [self.ws(f"{name}/{slot}", shape) for name in names]
+        return self.ws.group((slot, names), shape)
 
 
 def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndarray, g_xy: np.ndarray, g_theta: np.ndarray,
@@ -342,7 +350,9 @@ def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndar
     dxy = _solve_stack(s, rhs)
     dtheta = (-g_theta - np.matmul(ct, dxy[:, :, None])[:, :, 0]) / d
     predicted = -0.5 * (np.einsum("bk,bk->b", g_xy, dxy) + np.einsum("bk,bk->b", g_theta, dtheta))
-    return np.stack([dxy[:, :n], dxy[:, n:], dtheta], axis=2), predicted
+    step = ws("step", (b, n, 3))
+    step[:, :, 0], step[:, :, 1], step[:, :, 2] = dxy[:, :n], dxy[:, n:], dtheta
+    return step, predicted
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -552,9 +562,9 @@ class _JointProblem(_Batched):
         self.d_scale = damping_scale(self.d_theta)  # the headings' damping scale (their block does not change)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
-        shape, ws = self.rho.shape, self.ws
+        shape = self.rho.shape
         dx, dy, inv_dist, r_range, r_bearing = self._state(slot, ("dx", "dy", "inv_dist", "rr", "rb"), shape)
-        t1, t2, t3, t4, t5 = (ws(f"t{k}", shape) for k in range(1, 6))
+        t1, t2, t3, t4, t5 = self._state(-1, ("t1", "t2", "t3", "t4", "t5"), shape)  # scratch
         np.subtract(x[:, None, :, 0], x[:, :, None, 0], out=dx)  # [b, i, j] = x_j - x_i
         np.subtract(x[:, None, :, 1], x[:, :, None, 1], out=dy)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
@@ -594,7 +604,7 @@ class _JointProblem(_Batched):
         np.negative(both.transpose(2, 0, 3, 1, 4), out=lap.reshape(b, 2, n, 2, n))
         lap.reshape(b, 4 * n * n)[:, _lap_diagonal(n)] = (np.einsum("rcbij->bric", both) + info[:, :, :2, :2].transpose(0, 2, 1, 3)).reshape(b, 4 * n)
         # C^T[i, (k, a)] = delta_ai (sum_j q_ij,k + info) - q_ia,k with q = w_b d bearing / d x_j.
-        q = np.multiply(self.w_sb, jac[2:], out=ws("n22", (2,) + shape))
+        q = np.multiply(self.w_sb, jac[2:], out=ws("n2", (2,) + shape))
         ct = ws("ct", (b, n, 2 * n))
         np.negative(q.transpose(1, 2, 0, 3), out=ct.reshape(b, n, 2, n))
         ct.reshape(b, 2 * n * n)[:, _ct_diagonal(n)] = (np.einsum("kbij->bik", q) + info[:, :, :2, 2]).reshape(b, 2 * n)
@@ -608,8 +618,8 @@ class _JointProblem(_Batched):
         jac = ws.arrays["jac"]  # ``normal``'s
         g_prior = st["gp"]
         # q = (d r / d x_j)^T r of each pair, x and y at once (d / d x_i = -d / d x_j)
-        q = np.multiply(jac[:2], st["rr"], out=ws("n22", (2,) + shape))
-        q += np.multiply(jac[2:], st["rb"], out=ws("m22", (2,) + shape))
+        q = np.multiply(jac[:2], st["rr"], out=ws("n2", (2,) + shape))
+        q += np.multiply(jac[2:], st["rb"], out=ws("m2", (2,) + shape))
         g_xy = (np.einsum("kbij->bkj", q) - np.einsum("kbij->bki", q) + g_prior[:, :, :2].swapaxes(1, 2)).reshape(b, n2)
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
