@@ -62,10 +62,12 @@ def fisher_informations(
     range_x, range_y, bearing_x, bearing_y = observation_jacobian(d[:, 0], d[:, 1], 1.0 / np.maximum(rho, DIST_FLOOR), 1.0 / s_r, w_b)
     values = np.stack([range_x * range_x + bearing_x * bearing_x, range_x * range_y + bearing_x * bearing_y,
                        range_y * range_y + bearing_y * bearing_y, w_b * bearing_x, w_b * bearing_y, w_b * w_b])  # (6, m)
-    row_robot, row_part, col_robot, col_part, term, sign = _ENTRIES
-    robots = 3 * np.stack([observer, observed])  # (2, m): the first row (and column) of robot i and of robot j
-    flat = (swarm * (size * size) + (robots * size)[row_robot] + robots[col_robot] + (row_part * size + col_part)[:, None])
-    weights = values[term] * sign[:, None]  # (entries, m)
+    block, within, term = _ENTRIES
+    i, j = 3 * observer, 3 * observed  # the first row (and column) of each robot
+    corner = swarm * (size * size) + np.stack([i * size + i, j * size + j, i * size + j, j * size + i])  # of (i, i), (j, j), (i, j), (j, i)
+    flat = corner[block]  # (entries, m)
+    flat += (within // 3 * size + within % 3)[:, None]  # in place: numpy's broadcast add of integers into a new array is ~20x slower
+    weights = np.concatenate([values, -values])[term]
     info = np.bincount(flat.ravel(), weights=weights.ravel(), minlength=c * size * size).astype(float, copy=False)  # none: ints
     info = info.reshape(c, n, 3, n, 3)
     index = np.arange(n)
@@ -73,16 +75,17 @@ def fisher_informations(
     return np.asarray(info.reshape(c, size, size))
 
 
-# The entries an observation i -> j adds (``fisher_informations``): (row robot (0: i, 1: j), row component (x, y,
-# heading), column robot, column component, term (A_xx, A_xy, A_yy, h_x, h_y, 1 / s_b^2), sign), one column each.
+# The entries an observation i -> j adds (``fisher_informations``), one column each: the block (0: (i, i), 1: (j, j),
+# 2: (i, j), 3: (j, i)), the entry within it (3 row + column; rows and columns x, y, heading) and the term (0-5: A_xx,
+# A_xy, A_yy, h_x, h_y, 1 / s_b^2; 6-11: the same negated).
 _ENTRIES = tuple(np.array(part) for part in zip(
-    *[(0, a, 0, b, (0, 1, 2)[a + b], 1.0) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_i] += A
-    *[(0, a, 0, 2, 3 + a, 1.0) for a in (0, 1)], *[(0, 2, 0, a, 3 + a, 1.0) for a in (0, 1)],  # I[theta_i, p_i] += h^T
-    (0, 2, 0, 2, 5, 1.0),  # I[theta_i, theta_i] += 1 / s_b^2
-    *[(1, a, 1, b, (0, 1, 2)[a + b], 1.0) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_j] += A
-    *[(0, a, 1, b, (0, 1, 2)[a + b], -1.0) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_j] -= A
-    *[(1, a, 0, b, (0, 1, 2)[a + b], -1.0) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_i] -= A
-    *[(0, 2, 1, a, 3 + a, -1.0) for a in (0, 1)], *[(1, a, 0, 2, 3 + a, -1.0) for a in (0, 1)],  # I[theta_i, p_j] -= h^T
+    *[(0, 3 * a + b, (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_i] += A
+    *[(0, 3 * a + 2, 3 + a) for a in (0, 1)], *[(0, 6 + a, 3 + a) for a in (0, 1)],  # I[theta_i, p_i] += h^T (and its mirror)
+    (0, 8, 5),  # I[theta_i, theta_i] += 1 / s_b^2
+    *[(1, 3 * a + b, (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_j] += A
+    *[(2, 3 * a + b, 6 + (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_j] -= A
+    *[(3, 3 * a + b, 6 + (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_i] -= A
+    *[(2, 6 + a, 9 + a) for a in (0, 1)], *[(3, 3 * a + 2, 9 + a) for a in (0, 1)],  # I[theta_i, p_j] -= h^T (and its mirror)
     strict=True,
 ))
 
