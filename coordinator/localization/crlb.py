@@ -49,7 +49,8 @@ def fisher_informations(
 
     and the prior adds P_i^-1 (``prior_information``: eigenvalues floored as the localizers' whitening) to robot i's
     3x3 diagonal block. u and v / s_b are ``range_bearing.observation_jacobian``'s (the joint localizer's Jacobian);
-    a pair observed twice counts twice. Assembled by one scatter-add of the entries.
+    a pair observed twice counts twice. Assembled by one scatter-add of the entries; every entry and its mirror
+    receive the same terms in the same order, so the matrix is symmetric to the last bit.
     """
     c, n, _ = poses.shape
     size = 3 * n
@@ -72,7 +73,7 @@ def fisher_informations(
     info = info.reshape(c, n, 3, n, 3)
     index = np.arange(n)
     info[:, index, :, index, :] += np.swapaxes(prior_information(prior_cov), 0, 1)
-    return np.asarray(info.reshape(c, size, size))
+    return np.swapaxes(info.reshape(c, size, size), 1, 2)  # the same (symmetric) matrix, column-major: LAPACK's order
 
 
 # The entries an observation i -> j adds (``fisher_informations``), one column each: the block (0: (i, i), 1: (j, j),
