@@ -113,6 +113,7 @@ MIN_CHUNK = 4  # samples
 # of its sensing noise; 7e28 with noise-free sensing and a prior that disagrees with it, where the identity gave 3e7 m)
 WOODBURY_COND_LIMIT = 1e11
 
+_EYE6 = np.eye(6)
 _Solved: TypeAlias = tuple[np.ndarray, np.ndarray, np.ndarray]  # poses (B, n, 3), covariances (B, n, 3, 3), ok (B,)
 
 
@@ -163,7 +164,7 @@ def localize_batch(
     prior_cov = _shaped(prior_cov, (b, n, 3, 3), "prior_cov", float)
     commands = _shaped(commands, (b, n, 2), "commands", float)
     moving = _shaped(moving, (b, n), "moving", bool)
-    seen = _shaped(seen, (b, n, n), "seen", bool) & ~np.eye(n, dtype=bool)
+    seen = _shaped(seen, (b, n, n), "seen", bool) & _off_diagonal(n)
     ranges = _shaped(ranges, (b, n, n), "ranges", float)
     bearings = _shaped(bearings, (b, n, n), "bearings", float)
 
@@ -294,12 +295,20 @@ class _Workspace:
 
     def __init__(self) -> None:
         self.arrays: dict[str, np.ndarray] = {}
+        self.groups: dict[tuple[int, tuple[str, ...]], list[np.ndarray]] = {}
 
     def __call__(self, name: str, shape: tuple[int, ...]) -> np.ndarray:
         arr = self.arrays.get(name)
         if arr is None or arr.shape != shape:
             arr = self.arrays[name] = np.empty(shape)
         return arr
+
+    def group(self, key: tuple[int, tuple[str, ...]], shape: tuple[int, ...]) -> list[np.ndarray]:
+        """Arrays of one shape, one per name of ``key`` (slot, names), in one lookup."""
+        arrs = self.groups.get(key)
+        if arrs is None or arrs[0].shape != shape:
+            arrs = self.groups[key] = [np.empty(shape) for _ in key[1]]
+        return arrs
 
 
 # ``_localize_paper`` or ``_localize_joint``: (cfg, dead-reckoning poses and covariances, seen, ranges, bearings, workspace)
@@ -320,7 +329,7 @@ class _Batched:
 
     def _state(self, slot: int, names: tuple[str, ...], shape: tuple[int, ...]) -> list[np.ndarray]:
         """The workspace arrays of state ``slot``."""
-        return [self.ws(f"{name}/{slot}", shape) for name in names]
+        return self.ws.group((slot, names), shape)
 
 
 def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndarray, g_xy: np.ndarray, g_theta: np.ndarray,
@@ -341,7 +350,9 @@ def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndar
     dxy = _solve_stack(s, rhs)
     dtheta = (-g_theta - np.matmul(ct, dxy[:, :, None])[:, :, 0]) / d
     predicted = -0.5 * (np.einsum("bk,bk->b", g_xy, dxy) + np.einsum("bk,bk->b", g_theta, dtheta))
-    return np.stack([dxy[:, :n], dxy[:, n:], dtheta], axis=2), predicted
+    step = ws("step", (b, n, 3))
+    step[:, :, 0], step[:, :, 1], step[:, :, 2] = dxy[:, :n], dxy[:, n:], dtheta
+    return step, predicted
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
@@ -505,6 +516,29 @@ def _ct_diagonal(n: int) -> np.ndarray:
     return (i * 2 * n + k * n + i).ravel()
 
 
+@functools.cache
+def _orders(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(to_robots, to_batch): the batch index (x of every robot, then y, then headings) of robot-order index 3 a + c
+    (x_0, y_0, heading_0, x_1, ...), and its inverse permutation."""
+    to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()
+    return to_robots, np.argsort(to_robots)
+
+
+@functools.cache
+def _robot_blocks(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices into a (2n, 2n) position block of each robot's 2x2 block (n, 2, 2), and into a (2n, n) matrix of
+    each robot's (x, y) entries in its own column (n, 2)."""
+    i, k, m = np.meshgrid(np.arange(n), np.arange(2), np.arange(2), indexing="ij")
+    i2, k2 = np.meshgrid(np.arange(n), np.arange(2), indexing="ij")
+    return (k * n + i) * 2 * n + m * n + i, (k2 * n + i2) * n + i2
+
+
+@functools.cache
+def _off_diagonal(n: int) -> np.ndarray:
+    """(n, n) True off the diagonal."""
+    return ~np.eye(n, dtype=bool)
+
+
 class _JointProblem(_Batched):
     """Whitened prior residuals W_i (p_i - mu_i) and range/bearing residuals of every seen (i, j).
 
@@ -525,11 +559,12 @@ class _JointProblem(_Batched):
         self.cphi[seen], self.sphi[seen] = np.cos(phi), np.sin(phi)
         self.mean, self.info = mean, info  # W^T W of the whitened prior residuals W (p - mu)
         self.d_theta = np.einsum("bij,bij->bi", self.w_sb, self.w_sb) + self.info[:, :, 2, 2]  # heading block of J^T J (diagonal): w_b^2
+        self.d_scale = damping_scale(self.d_theta)  # the headings' damping scale (their block does not change)
 
     def evaluate(self, x: np.ndarray, slot: int = 0) -> dict[str, np.ndarray]:
-        shape, ws = self.rho.shape, self.ws
+        shape = self.rho.shape
         dx, dy, inv_dist, r_range, r_bearing = self._state(slot, ("dx", "dy", "inv_dist", "rr", "rb"), shape)
-        t1, t2, t3, t4, t5 = (ws(f"t{k}", shape) for k in range(1, 6))
+        t1, t2, t3, t4, t5 = self._state(-1, ("t1", "t2", "t3", "t4", "t5"), shape)  # scratch
         np.subtract(x[:, None, :, 0], x[:, :, None, 0], out=dx)  # [b, i, j] = x_j - x_i
         np.subtract(x[:, None, :, 1], x[:, :, None, 1], out=dy)
         c, s = np.cos(x[:, :, 2])[:, :, None], np.sin(x[:, :, 2])[:, :, None]
@@ -569,7 +604,7 @@ class _JointProblem(_Batched):
         np.negative(both.transpose(2, 0, 3, 1, 4), out=lap.reshape(b, 2, n, 2, n))
         lap.reshape(b, 4 * n * n)[:, _lap_diagonal(n)] = (np.einsum("rcbij->bric", both) + info[:, :, :2, :2].transpose(0, 2, 1, 3)).reshape(b, 4 * n)
         # C^T[i, (k, a)] = delta_ai (sum_j q_ij,k + info) - q_ia,k with q = w_b d bearing / d x_j.
-        q = np.multiply(self.w_sb, jac[2:], out=ws("n22", (2,) + shape))
+        q = np.multiply(self.w_sb, jac[2:], out=ws("n2", (2,) + shape))
         ct = ws("ct", (b, n, 2 * n))
         np.negative(q.transpose(1, 2, 0, 3), out=ct.reshape(b, n, 2, n))
         ct.reshape(b, 2 * n * n)[:, _ct_diagonal(n)] = (np.einsum("kbij->bik", q) + info[:, :, :2, 2]).reshape(b, 2 * n)
@@ -583,12 +618,12 @@ class _JointProblem(_Batched):
         jac = ws.arrays["jac"]  # ``normal``'s
         g_prior = st["gp"]
         # q = (d r / d x_j)^T r of each pair, x and y at once (d / d x_i = -d / d x_j)
-        q = np.multiply(jac[:2], st["rr"], out=ws("n22", (2,) + shape))
-        q += np.multiply(jac[2:], st["rb"], out=ws("m22", (2,) + shape))
+        q = np.multiply(jac[:2], st["rr"], out=ws("n2", (2,) + shape))
+        q += np.multiply(jac[2:], st["rb"], out=ws("m2", (2,) + shape))
         g_xy = (np.einsum("kbij->bkj", q) - np.einsum("kbij->bki", q) + g_prior[:, :, :2].swapaxes(1, 2)).reshape(b, n2)
         g_theta = g_prior[:, :, 2] - np.einsum("bij,bij->bi", st["rb"], self.w_sb)  # d bearing / d theta_i = -w_b
         diag_x = damping_scale(lap.reshape(b, n2 * n2)[:, :: n2 + 1])
-        d_damped = d + mu[:, None] * damping_scale(d)
+        d_damped = d + mu[:, None] * self.d_scale
         return _newton_step(lap, diag_x, ct, d_damped, g_xy, g_theta, mu, ws)
 
 
@@ -598,8 +633,7 @@ def _localize_joint(cfg: ModelConfig, dr_poses: np.ndarray, dr_cov: np.ndarray, 
     the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all)."""
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
-    x, good, _, _ = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)
-    st = problem.evaluate(x)
+    x, good, _, st = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)  # st: every sample's state at x
     wrong = np.flatnonzero(good & implausible(st["cost"], seen.sum(axis=(1, 2))))
     if wrong.size and _rescue(cfg, problem, x, st["cost"], wrong, seen, ranges, bearings, dr_poses, dr_cov):
         st = problem.evaluate(x)
@@ -655,8 +689,7 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     k = 3 * n
     parts = _schur_parts(lap, ct, d)
     ctd, s_inv, _ = parts
-    to_robots = (np.arange(3)[None, :] * n + np.arange(n)[:, None]).ravel()  # batch index of robot-order index 3 a + c
-    to_batch = np.argsort(to_robots)
+    to_robots, to_batch = _orders(n)
 
     def inverse_times(m: np.ndarray) -> np.ndarray:  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
         y = s_inv @ (m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:])
@@ -672,7 +705,7 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     sn = np.concatenate([lap @ basis[:, :n2] + ct.swapaxes(1, 2) @ basis[:, n2:], ct @ basis[:, :n2] + d[:, :, None] * basis[:, n2:]], axis=1)
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
-    small = np.eye(6) + kmat @ (u.swapaxes(1, 2) @ low)
+    small = _EYE6 + kmat @ (u.swapaxes(1, 2) @ low)
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
             m = np.linalg.solve(small, kmat @ low.swapaxes(1, 2))
@@ -716,6 +749,8 @@ def _ill_conditioned(small: np.ndarray) -> np.ndarray:
         inverse = _inv_stack(small)
         bound = np.sqrt(np.einsum("bij,bij->b", small, small) * np.einsum("bij,bij->b", inverse, inverse))
         unsure = np.flatnonzero(~(bound <= 0.5 * WOODBURY_COND_LIMIT))
+        if not unsure.size:
+            return unsure
         return cast(np.ndarray, unsure[~(np.linalg.cond(small[unsure]) <= WOODBURY_COND_LIMIT)])
 
 
@@ -736,9 +771,9 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tu
     robot's 3x3 information block is inverted alone, like ``joint.pose_covariances``.
     """
     b, n, n2 = ct.shape
-    i = np.arange(n)
     cov = np.empty((b, n, 3, 3))
     if n > EXACT_COV_LIMIT:  # conditional covariances
+        i = np.arange(n)
         for k in (0, 1):
             for m in (0, 1):
                 cov[:, :, k, m] = lap[:, k * n + i, m * n + i]
@@ -746,11 +781,11 @@ def _joint_covariances(lap: np.ndarray, ct: np.ndarray, d: np.ndarray, parts: tu
         cov[:, :, 2, 2] = d
         return _inv_stack(cov)
     ctd, s_inv, e = _schur_parts(lap, ct, d) if parts is None else parts
+    position, position_heading = _robot_blocks(n)
+    cov[:, :, :2, :2] = s_inv.reshape(b, 4 * n * n)[:, position]
+    np.negative(e.reshape(b, 2 * n * n)[:, position_heading], out=cov[:, :, :2, 2])
+    cov[:, :, 2, :2] = cov[:, :, :2, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        for k in (0, 1):
-            for m in (0, 1):
-                cov[:, :, k, m] = s_inv[:, k * n + i, m * n + i]
-            cov[:, :, k, 2] = cov[:, :, 2, k] = -e[:, k * n + i, i]
         cov[:, :, 2, 2] = 1.0 / d + np.einsum("bir,bri->bi", ctd, e)  # D^-1 + D^-1 C^T S^-1 C D^-1
     return cov
 

@@ -1,10 +1,11 @@
-"""Cramer-Rao lower bound of one localization step (benchmark reference).
+"""Cramer-Rao lower bound of one localization step (benchmark reference, and the anchor search's prediction).
 
 The post-step poses p (n robots x (x, y, heading)) are estimated from
 
-* the dead-reckoning prior p ~ N(mu, P_i) per robot (Phase 1.1: the pre-step
-  estimate moved by the commands, with the propagated 3x3 covariance), and
-* the range/bearing observations (Eq. 20) with noise N(0, s_r), N(0, s_b).
+* the dead-reckoning prior p_i ~ N(mu_i, P_i) per robot (Phase 1.1: the pre-step
+  estimate moved by the commands, Eq. 19, with the propagated 3x3 covariance), and
+* the range/bearing observations z_ij = (rho_ij, phi_ij) (Eq. 20) of robot j by robot i with noise
+  N(0, s_r^2) and N(0, s_b(rho)^2) (``range_bearing.bearing_weights``' gated bearing sigma).
 
 With the prior treated as Gaussian information on p, the (linearised) Bayesian
 CRLB is the inverse of the Fisher information
@@ -26,30 +27,80 @@ from __future__ import annotations
 
 import numpy as np
 
-from coordinator.localization.range_bearing import observation_terms, prior_terms, sqrt_information, stack_terms
-from coordinator.localization.sparse_lm import PoseLayout, dense
+from coordinator.localization.range_bearing import DIST_FLOOR, bearing_weights, observation_jacobian, prior_information, sensor_sigmas
 from runtime.models.config import ModelConfig
+
+
+def fisher_informations(
+    poses: np.ndarray, prior_cov: np.ndarray, swarm: np.ndarray, observer: np.ndarray, observed: np.ndarray, cfg: ModelConfig
+) -> np.ndarray:
+    """Fisher information (c, 3n, 3n) of c swarms at ``poses`` (c, n, 3) with dead-reckoning covariances ``prior_cov``
+    (c, n, 3, 3), observation k being robot ``observed[k]`` seen by ``observer[k]`` in swarm ``swarm[k]``: the one
+    assembly of the bound, for one swarm (``fisher_information``) and for many plans at once (the anchor search's
+    ``crlb_rank``). Rows and columns robot by robot (x_0, y_0, heading_0, x_1, ...).
+
+    With d = p_j - p_i, u = d / |d|, v = (-d_y, d_x) / |d|^2 (Eq. 20: rho_ij = |d|, phi_ij = atan2(d) - theta_i, so
+    d rho / d p_j = u^T = -d rho / d p_i, d phi / d p_j = v^T = -d phi / d p_i, d phi / d theta_i = -1,
+    d rho / d theta_i = 0), an observation i -> j adds H^T R^-1 H with R = diag(s_r^2, s_b(rho)^2), i.e. with
+    A = u u^T / s_r^2 + v v^T / s_b^2 (2x2) and h = v / s_b^2:
+
+        I[p_i, p_i] += A,  I[p_j, p_j] += A,  I[p_i, p_j] = I[p_j, p_i]^T -= A,
+        I[theta_i, theta_i] += 1 / s_b^2,  I[theta_i, p_i] += h^T,  I[theta_i, p_j] -= h^T,
+
+    and the prior adds P_i^-1 (``prior_information``: eigenvalues floored as the localizers' whitening) to robot i's
+    3x3 diagonal block. u and v / s_b are ``range_bearing.observation_jacobian``'s (the joint localizer's Jacobian);
+    a pair observed twice counts twice. Assembled by one scatter-add of the entries; every entry and its mirror
+    receive the same terms in the same order, so the matrix is symmetric to the last bit.
+    """
+    c, n, _ = poses.shape
+    size = 3 * n
+    at = poses[..., :2].reshape(c * n, 2)
+    first = swarm * n
+    d = at[first + observed] - at[first + observer]
+    rho = np.hypot(d[:, 0], d[:, 1])
+    s_r, _ = sensor_sigmas(cfg)
+    w_b = bearing_weights(rho, cfg)
+    range_x, range_y, bearing_x, bearing_y = observation_jacobian(d[:, 0], d[:, 1], 1.0 / np.maximum(rho, DIST_FLOOR), 1.0 / s_r, w_b)
+    values = np.stack([range_x * range_x + bearing_x * bearing_x, range_x * range_y + bearing_x * bearing_y,
+                       range_y * range_y + bearing_y * bearing_y, w_b * bearing_x, w_b * bearing_y, w_b * w_b])  # (6, m)
+    block, within, term = _ENTRIES
+    i, j = 3 * observer, 3 * observed  # the first row (and column) of each robot
+    corner = swarm * (size * size) + np.stack([i * size + i, j * size + j, i * size + j, j * size + i])  # of (i, i), (j, j), (i, j), (j, i)
+    flat = corner[block]  # (entries, m)
+    flat += (within // 3 * size + within % 3)[:, None]  # in place: numpy's broadcast add of integers into a new array is ~20x slower
+    weights = np.concatenate([values, -values])[term]
+    info = np.bincount(flat.ravel(), weights=weights.ravel(), minlength=c * size * size).astype(float, copy=False)  # none: ints
+    info = info.reshape(c, n, 3, n, 3)
+    index = np.arange(n)
+    info[:, index, :, index, :] += np.swapaxes(prior_information(prior_cov), 0, 1)
+    return np.swapaxes(info.reshape(c, size, size), 1, 2)  # the same (symmetric) matrix, column-major: LAPACK's order
+
+
+# The entries an observation i -> j adds (``fisher_informations``), one column each: the block (0: (i, i), 1: (j, j),
+# 2: (i, j), 3: (j, i)), the entry within it (3 row + column; rows and columns x, y, heading) and the term (0-5: A_xx,
+# A_xy, A_yy, h_x, h_y, 1 / s_b^2; 6-11: the same negated).
+_ENTRIES = tuple(np.array(part) for part in zip(
+    *[(0, 3 * a + b, (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_i] += A
+    *[(0, 3 * a + 2, 3 + a) for a in (0, 1)], *[(0, 6 + a, 3 + a) for a in (0, 1)],  # I[theta_i, p_i] += h^T (and its mirror)
+    (0, 8, 5),  # I[theta_i, theta_i] += 1 / s_b^2
+    *[(1, 3 * a + b, (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_j] += A
+    *[(2, 3 * a + b, 6 + (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_i, p_j] -= A
+    *[(3, 3 * a + b, 6 + (0, 1, 2)[a + b]) for a in (0, 1) for b in (0, 1)],  # I[p_j, p_i] -= A
+    *[(2, 6 + a, 9 + a) for a in (0, 1)], *[(3, 3 * a + 2, 9 + a) for a in (0, 1)],  # I[theta_i, p_j] -= h^T (and its mirror)
+    strict=True,
+))
 
 
 def fisher_information(
     true_poses: np.ndarray, prior_cov: np.ndarray, observer_idx: np.ndarray, observed_idx: np.ndarray, cfg: ModelConfig
 ) -> np.ndarray:
-    """Dense Fisher information (3n, 3n) = J^T J of the whitened prior + observation residuals at ``true_poses``."""
+    """Dense Fisher information (3n, 3n) = J^T J of the whitened prior + observation residuals at ``true_poses``
+    (``fisher_informations`` of one swarm)."""
     poses = np.asarray(true_poses, dtype=float)
-    n = len(poses)
-    layout = PoseLayout(np.ones(n, bool), np.ones(n, bool))
     observer_idx = np.asarray(observer_idx, dtype=np.int64)
     observed_idx = np.asarray(observed_idx, dtype=np.int64)
-    # Only the Jacobian matters (measured values and prior mean just shift the residuals), and the
-    # bearing weights, which depend on the range: the true one here.
-    d = poses[observed_idx, :2] - poses[observer_idx, :2]
-    rho = np.hypot(d[:, 0], d[:, 1])
-    _, jac = stack_terms(
-        layout.size,
-        prior_terms(poses, layout, poses, sqrt_information(np.asarray(prior_cov, dtype=float))),
-        observation_terms(poses, layout, observer_idx, observed_idx, rho, np.zeros(len(rho)), cfg),
-    )
-    return dense(jac.T @ jac)
+    swarm = np.zeros(len(observer_idx), np.int64)
+    return np.asarray(fisher_informations(poses[None], np.asarray(prior_cov, dtype=float)[None], swarm, observer_idx, observed_idx, cfg)[0])
 
 
 def crlb_pose_covariances(
@@ -66,4 +117,3 @@ def crlb_pose_covariances(
     idx = np.arange(3 * n).reshape(n, 3)
     cov = full[idx[:, :, None], idx[:, None, :]]
     return 0.5 * (cov + np.swapaxes(cov, -1, -2))
-

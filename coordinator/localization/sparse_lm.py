@@ -409,8 +409,8 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active.
 
     Returns (x, converged, iterations, state): iterations counts the iterations started (accepted steps, plus
-    one when the last trial was not accepted), state is the final point's (of one problem; batched, of the
-    problems in the last work set).
+    one when the last trial was not accepted), state is the final point's (of one problem; batched, of every
+    problem: the rows of those that left the work set are kept as they left it).
     """
     x = np.array(x0, dtype=float, copy=True)
     st, slot = problem.evaluate(x, 0), 1
@@ -421,9 +421,11 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     accepted = xp.logical_not(converged)  # the last trial's acceptance (none yet)
     if xp.batched:
         full_x, full_converged, work = x, converged.copy(), np.arange(len(x))
+        full_st: dict[str, np.ndarray] | None = None
     while xp.any(active):
         if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # drop finished problems
             full_x[work], full_converged[work] = x, converged
+            full_st = _scatter_state(full_st, st, work)
             keep = np.flatnonzero(active)
             work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
             problem = problem.subset(keep)
@@ -448,8 +450,18 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     started = iterations + xp.logical_not(accepted)
     if xp.batched:
         full_x[work], full_converged[work] = x, converged
-        return full_x, full_converged, started, st
+        return full_x, full_converged, started, _scatter_state(full_st, st, work)
     return x, converged, started, st
+
+
+def _scatter_state(full: dict[str, np.ndarray] | None, st: dict[str, np.ndarray], work: np.ndarray) -> dict[str, np.ndarray]:
+    """The batch's state with the rows ``work`` from the work set's ``st`` (``full`` None: ``st`` is the whole batch's,
+    as before the first compaction; its arrays are no longer written once the work set has its own problem)."""
+    if full is None:
+        return st
+    for key, value in st.items():
+        full[key][work] = value
+    return full
 
 
 class _NormalProblem:

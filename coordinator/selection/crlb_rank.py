@@ -22,8 +22,8 @@ import math
 
 import numpy as np
 
+from coordinator.localization.crlb import fisher_informations
 from coordinator.localization.dead_reckoning import dead_reckon_arrays
-from coordinator.localization.range_bearing import DIST_FLOOR, bearing_weights, observation_jacobian, prior_information, sensor_sigmas
 from coordinator.plan import Plan
 from runtime.models.config import ModelConfig
 from runtime.models.motion import command_towards
@@ -64,31 +64,12 @@ def _predicted(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, s
 
 def crlb_blocks(poses: np.ndarray, prior_cov: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     """The Cramer-Rao bound of one step of c swarms at once: the 3x3 diagonal blocks (c, n, 3, 3) of the inverse of the
-    Fisher information (``localization.crlb.fisher_information``: the dead-reckoning prior ``prior_cov`` (c, n, 3, 3)
-    and a range and a bearing between every two robots within sensing range at ``poses`` (c, n, 3)), assembled densely
-    (the same matrix as the sparse assembly, to rounding)."""
+    Fisher information (``localization.crlb.fisher_informations``: the dead-reckoning prior ``prior_cov`` (c, n, 3, 3)
+    and a range and a bearing between every two robots within sensing range at ``poses`` (c, n, 3))."""
     c, n, _ = poses.shape
-    d = poses[:, None, :, :2] - poses[:, :, None, :2]  # [c, i, j] = x_j - x_i: observer i, observed j
-    seen = (np.linalg.norm(d, axis=-1) <= cfg.sensing_range_m) & ~np.eye(n, dtype=bool)
-    rho = np.hypot(d[..., 0], d[..., 1])
-    s_r, _ = sensor_sigmas(cfg)
-    w_b = np.where(seen, bearing_weights(rho, cfg), 0.0)
-    range_x, range_y, bearing_x, bearing_y = observation_jacobian(d[..., 0], d[..., 1], 1.0 / np.maximum(rho, DIST_FLOOR), seen / s_r, w_b)
-    along = np.stack([range_x, range_y], axis=-1)  # d range / d x_j (c, n, n, 2); d / d x_i = -d / d x_j
-    across = np.stack([bearing_x, bearing_y], axis=-1)  # d bearing / d x_j; d bearing / d theta_i = -w_b
-    pair = along[..., :, None] * along[..., None, :] + across[..., :, None] * across[..., None, :]  # (c, n, n, 2, 2)
-    heading = -w_b[..., None] * across  # theta_i against x_j (c, n, n, 2)
-    blocks = np.zeros((c, n, n, 3, 3))
-    blocks[..., :2, :2] = -(pair + np.swapaxes(pair, 1, 2))
-    blocks[..., 2, :2] = heading
-    blocks[..., :2, 2] = np.swapaxes(heading, 1, 2)
-    own = prior_information(prior_cov).copy()  # (c, n, 3, 3)
-    own[..., :2, :2] += pair.sum(axis=2) + pair.sum(axis=1)
-    own[..., 2, :2] -= heading.sum(axis=2)
-    own[..., :2, 2] -= heading.sum(axis=2)
-    own[..., 2, 2] += np.einsum("cij,cij->ci", w_b, w_b)
+    gap = np.linalg.norm(poses[:, None, :, :2] - poses[:, :, None, :2], axis=-1)
+    swarm, observer, observed = np.nonzero((gap <= cfg.sensing_range_m) & ~np.eye(n, dtype=bool))
+    full = np.linalg.inv(fisher_informations(poses, prior_cov, swarm, observer, observed, cfg)).reshape(c, n, 3, n, 3)
     index = np.arange(n)
-    blocks[:, index, index] = own
-    full = np.linalg.inv(blocks.transpose(0, 1, 3, 2, 4).reshape(c, 3 * n, 3 * n)).reshape(c, n, 3, n, 3)
     out = full[:, index, :, index, :].transpose(1, 0, 2, 3)  # (c, n, 3, 3)
     return np.asarray(0.5 * (out + np.swapaxes(out, -1, -2)))

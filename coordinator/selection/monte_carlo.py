@@ -17,6 +17,7 @@ the initial-error draws are made either way, so the motion and sensing draws are
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import cast
 
@@ -121,10 +122,15 @@ def _start_draws(cfg: ModelConfig, estimate: SwarmEstimate, samples: int, seed: 
     return truth, turn, drive
 
 
+@functools.lru_cache(maxsize=16)  # a few MB at most
 def _step_draws(seed: int, samples: int, n: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The standard draws (uniform, normal, normal) (samples, n, n) of one sample set's sensing in ``step``."""
+    """The standard draws (uniform, normal, normal) (samples, n, n) of one sample set's sensing in ``step``, read-only
+    (kept: a selection's genetic search draws its samples' sensing again at every generation)."""
     rng = np.random.default_rng([seed, 1, step])
-    return rng.random((samples, n, n)), rng.normal(size=(samples, n, n)), rng.normal(size=(samples, n, n))
+    draws = rng.random((samples, n, n)), rng.normal(size=(samples, n, n)), rng.normal(size=(samples, n, n))
+    for a in draws:
+        a.flags.writeable = False
+    return draws
 
 
 def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float,

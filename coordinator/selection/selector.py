@@ -328,6 +328,15 @@ class AnchorSelector:
             per = np.concatenate(no_anchor_blocks[:looked])
             return float(per.max() if sel.mc_emax == "worst" else per.mean())
 
+        def fresh_look(plans: list[Plan], count: int, seed: int) -> np.ndarray:
+            """A look of the final check at a fresh block, with e_l(0) on the block in the same pass where ``fresh_emax``
+            has not seen it yet (it reads the blocks the check looked at)."""
+            if len(no_anchor_blocks) < len(blocks) and blocks[len(no_anchor_blocks)] == (count, seed):
+                per = each_sample([*plans, all_move], count, seed)
+                no_anchor_blocks.append(per[-1])
+                return per[:-1]
+            return each_sample(plans, count, seed)
+
         race_no_anchor: dict[tuple[int, int], np.ndarray] = {}  # e_l(0) per sample of each race block (samples, seed)
 
         def race_emax(blocks: list[tuple[int, int]]) -> float:
@@ -444,7 +453,7 @@ class AnchorSelector:
                 looked = len(each)
                 kept, e_fresh, e_seed = champion, float(np.concatenate(each).mean()), np.nan
             else:
-                kept, e_fresh, e_seed, looked = final_check(champion, seed, each_sample, final_samples, final_seed, looks=sel.final_looks)
+                kept, e_fresh, e_seed, looked = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks)
             evaluations += 2 * looked
             scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
