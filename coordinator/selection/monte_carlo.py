@@ -122,15 +122,26 @@ def _start_draws(cfg: ModelConfig, estimate: SwarmEstimate, samples: int, seed: 
     return truth, turn, drive
 
 
-@functools.lru_cache(maxsize=16)  # a few MB at most
+KEPT_DRAWS = 1 << 16  # sensing draws of at most this many elements (samples x n x n, 1.5 MB) are kept, 16 sets at most
+
+
 def _step_draws(seed: int, samples: int, n: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The standard draws (uniform, normal, normal) (samples, n, n) of one sample set's sensing in ``step``, read-only
-    (kept: a selection's genetic search draws its samples' sensing again at every generation)."""
+    """The standard draws (uniform, normal, normal) (samples, n, n) of one sample set's sensing in ``step``, read-only;
+    small sets are kept (a selection's genetic search draws its samples' sensing again at every generation)."""
+    if samples * n * n <= KEPT_DRAWS:
+        return _kept_step_draws(seed, samples, n, step)
+    return _new_step_draws(seed, samples, n, step)
+
+
+def _new_step_draws(seed: int, samples: int, n: int, step: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rng = np.random.default_rng([seed, 1, step])
     draws = rng.random((samples, n, n)), rng.normal(size=(samples, n, n)), rng.normal(size=(samples, n, n))
     for a in draws:
         a.flags.writeable = False
     return draws
+
+
+_kept_step_draws = functools.lru_cache(maxsize=16)(_new_step_draws)  # 25 MB at most
 
 
 def plan_keeps_connectivity(plan: Plan, current: np.ndarray, desired: np.ndarray, sensing_range: float,
