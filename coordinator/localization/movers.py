@@ -6,8 +6,8 @@ reckoning is their prior. Solving Eq. B3 for every robot again (``topology.estim
 movers and the robots within ``RING_HOPS`` observation hops of them (observations taken in both directions), over
 every observation a region robot made or received, with the robots one hop further (the *boundary*) held at their
 priors. The boundary fixes the gauge, so the topology comes out in the global frame and the superimposition
-(Eq. 21-22) is the identity. Every other robot is turned by the circular mean of its bearings' misfit to the robots it
-saw (``topology.heading_turn``: Eq. B3 for its heading alone, its neighbours held), and then every robot's cluster
+(Eq. 21-22) is the identity. Every other robot is turned by the weighted circular mean of its bearings' misfit to the
+robots it saw (``topology.heading_turn``: Eq. B3 for its heading alone, the positions held), and then every robot's cluster
 (Eq. B4-B6) is formed from all the step's observations, each placed by its observer's pose: the region's solved,
 the others' priors so turned. Eq. 23 fuses the clusters with the dead reckoning as for the whole swarm.
 
@@ -96,7 +96,7 @@ def region_topology(
     poses = np.array(prior_poses, dtype=float)
     poses[region] = layout.unpack(result.x, start)[free]
     others = ~region
-    poses[others, 2] += heading_turn(poses, observer, observed, bearing_rad)[others]
+    poses[others, 2] += heading_turn(poses, observer, observed, bearing_rad, range_m)[others]
     poses[:, 2] = wrap_angle(poses[:, 2])
     z = observation_offsets(range_m, bearing_rad)
     centroid, delta_p, heading_sigma = clusters(poses, observer, observed, z, range_m, cfg, huber)

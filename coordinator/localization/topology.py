@@ -119,13 +119,19 @@ def aligned_start(start: np.ndarray, observer: np.ndarray, observed: np.ndarray,
     return out
 
 
-def heading_turn(poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, bearing_rad: np.ndarray) -> np.ndarray:
+def heading_turn(poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, bearing_rad: np.ndarray,
+                 range_m: np.ndarray | None = None) -> np.ndarray:
     """Each observer's turn (n,): the circular mean of its bearings' misfit, the direction to each robot it saw (from
-    ``poses`` (n, 3)) less its heading and the bearing; 0 for a robot that saw nobody."""
+    ``poses`` (n, 3)) less its heading and the bearing; 0 for a robot that saw nobody. With ``range_m`` each misfit
+    is weighted by the observed range times the distance between the two positions: the minimiser of Eq. B3 over the
+    observer's heading alone, every position held."""
     d = poses[observed, :2] - poses[observer, :2]
     misfit = np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad
     n = len(poses)
-    return np.arctan2(np.bincount(observer, np.sin(misfit), n), np.bincount(observer, np.cos(misfit), n))
+    if range_m is None:
+        return np.arctan2(np.bincount(observer, np.sin(misfit), n), np.bincount(observer, np.cos(misfit), n))
+    w = range_m * np.hypot(d[:, 0], d[:, 1])
+    return np.arctan2(np.bincount(observer, w * np.sin(misfit), n), np.bincount(observer, w * np.cos(misfit), n))
 
 
 def reference_robot(made: np.ndarray) -> np.ndarray:
