@@ -46,6 +46,8 @@ def test_the_movers_region_agrees_with_the_whole_swarm_within_a_fraction_of_sigm
     assert 3 < region.sum() <= movers.LOCAL_MAX_FRACTION * N  # a ring around the movers, not the swarm
     whole, local = WHOLE.localize(prior, step, obs), LOCAL.localize(prior, step, obs)
     assert not np.array_equal(whole.poses, local.poses)  # the region was solved, not the whole swarm
+    assert N < movers.LOCAL_MIN  # the default threshold: the whole swarm, bit for bit
+    np.testing.assert_array_equal(PaperLocalizer(CFG).localize(prior, step, obs).poses, whole.poses)
     sigma, sigma_heading = whole.delta, whole.sigma_heading
     off = np.hypot(*(local.positions - whole.positions).T) / sigma
     turned = np.abs(wrap_angle(local.poses[:, 2] - whole.poses[:, 2])) / sigma_heading
@@ -68,13 +70,6 @@ def test_no_movers_or_a_large_region_solve_the_whole_swarm(n_moving: int) -> Non
     whole, local = WHOLE.localize(prior, step, obs), LOCAL.localize(prior, step, obs)
     np.testing.assert_array_equal(local.poses, whole.poses)  # bit for bit: the same path
     np.testing.assert_array_equal(local.cov, whole.cov)
-
-
-def test_below_the_threshold_the_whole_swarm_is_solved() -> None:
-    prior, step, obs, _ = rough_step(5, 6)
-    small = PaperLocalizer(CFG)  # LOCAL_MIN robots and more
-    assert N < movers.LOCAL_MIN
-    np.testing.assert_array_equal(small.localize(prior, step, obs).poses, WHOLE.localize(prior, step, obs).poses)
 
 
 def test_hops_follow_observations_both_ways() -> None:
