@@ -20,6 +20,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
+from coordinator.localization.movers import LOCAL_MIN, region_topology
 from coordinator.localization.superimpose import fusion_weights, superimpose
 from coordinator.localization.topology import Topology, estimate_topology
 from runtime.models.config import ModelConfig
@@ -32,28 +33,46 @@ class PaperLocalizer:
 
     name = "paper"
 
-    def __init__(self, cfg: ModelConfig, huber: float | None = None) -> None:
+    def __init__(self, cfg: ModelConfig, huber: float | None = None, local_min: int = LOCAL_MIN) -> None:
         self.cfg = cfg
         self.huber = huber  # metres; None = plain least squares of Eq. B3
+        self.local_min = local_min  # robots from which a step is localized around its movers (``movers``)
 
     def topology(self, ids: np.ndarray, obs: Observations, initial_poses: np.ndarray | None = None) -> Topology:
         """Phase 1.2 alone: the topology in the reference robot's frame."""
         ids = np.asarray(ids, dtype=np.int64)
-        i, j = obs.indexed(ids)
-        require_observable(ids, i, j)
+        i, j = self._observable(ids, obs)
         return estimate_topology(
             len(ids), i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=initial_poses, huber=self.huber
         )
 
+    @staticmethod
+    def _observable(ids: np.ndarray, obs: Observations) -> tuple[np.ndarray, np.ndarray]:
+        """The observations' (observer, observed) indices into ``ids``; ``LocalizationError`` when not every robot can
+        be localized (``graph.require_observable``)."""
+        i, j = obs.indexed(ids)
+        require_observable(ids, i, j)
+        return i, j
+
     def localize(self, prior: SwarmEstimate, step: StepCommands, obs: Observations) -> SwarmEstimate:
-        """Post-step estimate (Eq. 23) from the pre-step estimate, the commands and the observations."""
+        """Post-step estimate (Eq. 23) from the pre-step estimate, the commands and the observations; from
+        ``local_min`` robots the topology of the movers' region where it is small (``movers``)."""
         dr = dead_reckon(prior, step, self.cfg)  # Phase 1.1
-        topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
+        if prior.n < self.local_min:
+            topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
+        else:
+            i, j = self._observable(prior.ids, obs)
+            local = region_topology(dr.poses, step.moving, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)
+            if local is not None:  # already in the global frame: Eq. 23 without a superimposition
+                poses, cov = fuse(local.positions, local.headings, local.delta_p, local.heading_sigma, np.zeros(()),
+                                  np.zeros(2), dr.poses, dr.cov, dr.delta)
+                return SwarmEstimate(prior.ids, poses, cov)
+            topo = estimate_topology(prior.n, i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=dr.poses,
+                                     huber=self.huber)
         delta_u = dr.delta
         theta, t = superimpose(topo.positions, dr.positions, fusion_weights(topo.delta_p, delta_u))  # Eq. 21-22
         poses, cov = fuse(topo.positions, topo.headings, topo.delta_p, topo.heading_sigma, theta, t, dr.poses, dr.cov, delta_u)
         return SwarmEstimate(prior.ids, poses, cov)
-
 
     def localize_subset(self, prior: SwarmEstimate, step: StepCommands, obs: Observations, keep: np.ndarray) -> SwarmEstimate:
         """Post-step estimate of the whole swarm, localizing the robots where ``keep`` (n,) from the

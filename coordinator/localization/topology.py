@@ -112,14 +112,26 @@ def aligned_start(start: np.ndarray, observer: np.ndarray, observed: np.ndarray,
     error turns the whole swarm about the reference, centimetres to decimetres at metres away, which
     Levenberg-Marquardt took 8 (3000 robots) to 14 (10,000) iterations to undo. Only from ``ALIGN_MIN`` robots:
     the solution is the same to the tolerance (``XTOL``), not to the bit, and smaller runs keep theirs."""
-    d = start[observed, :2] - start[observer, :2]
-    misfit = np.arctan2(d[:, 1], d[:, 0]) - start[observer, 2] - bearing_rad
-    n = len(start)
-    turn = np.arctan2(np.bincount(observer, np.sin(misfit), n), np.bincount(observer, np.cos(misfit), n))  # 0 for none
+    turn = heading_turn(start, observer, observed, bearing_rad)
     out = np.empty_like(start)
     out[:, :2] = rotate(-turn[ref], start[:, :2] - start[ref, :2]) + start[ref, :2]
     out[:, 2] = wrap_angle(start[:, 2] + turn - turn[ref])
     return out
+
+
+def heading_turn(poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, bearing_rad: np.ndarray,
+                 range_m: np.ndarray | None = None) -> np.ndarray:
+    """Each observer's turn (n,): the circular mean of its bearings' misfit, the direction to each robot it saw (from
+    ``poses`` (n, 3)) less its heading and the bearing; 0 for a robot that saw nobody. With ``range_m`` each misfit
+    is weighted by the observed range times the distance between the two positions: the minimiser of Eq. B3 over the
+    observer's heading alone, every position held."""
+    d = poses[observed, :2] - poses[observer, :2]
+    misfit = np.arctan2(d[:, 1], d[:, 0]) - poses[observer, 2] - bearing_rad
+    n = len(poses)
+    if range_m is None:
+        return np.arctan2(np.bincount(observer, np.sin(misfit), n), np.bincount(observer, np.cos(misfit), n))
+    w = range_m * np.hypot(d[:, 0], d[:, 1])
+    return np.arctan2(np.bincount(observer, w * np.sin(misfit), n), np.bincount(observer, w * np.cos(misfit), n))
 
 
 def reference_robot(made: np.ndarray) -> np.ndarray:
@@ -146,8 +158,8 @@ def heading_sigmas(made: np.ndarray, cfg: ModelConfig) -> np.ndarray:
     return np.where(made > 0, cfg.bearing_sigma_rad / np.sqrt(np.maximum(made, 1)), np.inf)
 
 
-def _solve_by_jacobian(layout: PoseLayout, start: np.ndarray, observer: np.ndarray, observed: np.ndarray, z: np.ndarray,
-                       huber: float | None) -> LsqResult:
+def solve_by_jacobian(layout: PoseLayout, start: np.ndarray, observer: np.ndarray, observed: np.ndarray, z: np.ndarray,
+                      huber: float | None) -> LsqResult:
     """Eq. B3 by ``levenberg_marquardt`` on its residuals and sparse Jacobian, with the heading curvature."""
     m = len(observer)
     rows_x, rows_y = 2 * np.arange(m), 2 * np.arange(m) + 1
@@ -218,13 +230,22 @@ def estimate_topology(
         problem = TopologyNormal(layout.cols, layout.size, start, observer, observed, z, huber)
         result = minimize(problem.evaluate, layout.pack(start), solve=problem.solve, xtol=XTOL, ftol=FTOL)
     else:
-        result = _solve_by_jacobian(layout, start, observer, observed, z, huber)
-    m = len(observer)
+        result = solve_by_jacobian(layout, start, observer, observed, z, huber)
     if not result.converged:
         raise LocalizationError("no-convergence", [], "topology least squares did not converge")
     poses = layout.unpack(result.x, start)
     poses[:, 2] = wrap_angle(poses[:, 2])
+    centroid, delta_p, heading_sigma = clusters(poses, observer, observed, z, range_m, cfg, huber)
+    headings = np.where(has_heading, poses[:, 2], np.nan)
+    return Topology(centroid, poses[:, :2].copy(), headings, delta_p, heading_sigma, ref)
 
+
+def clusters(poses: np.ndarray, observer: np.ndarray, observed: np.ndarray, z: np.ndarray, range_m: np.ndarray,
+             cfg: ModelConfig, huber: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Eq. B4-B6 from the solved ``poses`` (n, 3) of Eq. B3: every observation, transformed by its observer's pose, is
+    a point of the observed robot's cluster (the module docstring). Returns the topology positions (n, 2), delta_p
+    (n,) and the heading sigmas (n,), as ``Topology``'s."""
+    n, m = len(poses), len(observer)
     # Eq. B4 for every observation: cluster points of the observed robots (Fig. B2 blue).
     points = rotate(poses[observer, 2], z) + poses[observer, :2]
     use = np.ones(m)
@@ -242,6 +263,4 @@ def estimate_topology(
         mean_range = np.where(unseen, np.bincount(observer, range_m, n) / np.maximum(made, 1), mean_range)
     delta_p = cluster_delta_p(count, centroid, sq, mean_range, cfg) / np.sqrt(np.where(unseen, np.maximum(made, 1), 1))
     centroid = np.where(count[:, None] > 0, centroid, poses[:, :2])
-    heading_sigma = heading_sigmas(made, cfg)
-    headings = np.where(has_heading, poses[:, 2], np.nan)
-    return Topology(centroid, poses[:, :2].copy(), headings, delta_p, heading_sigma, ref)
+    return centroid, delta_p, heading_sigmas(made, cfg)
