@@ -202,15 +202,14 @@ def _parses(topic: str) -> bool:
 
 
 def _refuse_live_run(session: zenoh.Session, run_id: str) -> None:
-    """``SwarmInputError`` naming them if an agent or a coordinator of ``run_id`` is alive on this hub."""
-    from coordinator.node.zenoh_backend import live_coordinators  # noqa: PLC0415
-    from runtime.wire.keys import alive_wildcard, parse_key  # noqa: PLC0415
-    from runtime.wire.transport import alive_now  # noqa: PLC0415
+    """``SwarmInputError`` naming them if an agent or a coordinator of ``run_id`` is alive on this hub (``live_run``:
+    a spurious empty answer is asked past)."""
+    from coordinator.node.zenoh_backend import live_run  # noqa: PLC0415
 
     if run_id == "(none)":
         return
-    robots = sorted(robot for key in alive_now(session, alive_wildcard(run_id)) if (robot := parse_key(key).robot) is not None)
-    coords = sorted(live_coordinators(session, run_id))
+    live = live_run(session, run_id)
+    robots, coords = sorted(live.robots), sorted(live.coordinators)
     if robots or coords:
         who = ", ".join(([f"coordinator epoch {', '.join(map(str, coords))}"] if coords else [])
                         + ([f"agents of robots {', '.join(map(str, robots))}"] if robots else []))

@@ -93,10 +93,9 @@ class Swarm:
 
     def status(self) -> SwarmStatus:
         """The run's live state (``SwarmStatus``): its run file and, on its hub, its agents' and coordinators' tokens."""
-        from coordinator.node.zenoh_backend import live_coordinators  # noqa: PLC0415 - zenoh, only when asked
-        from runtime.wire.keys import alive_wildcard, parse_key  # noqa: PLC0415
+        from coordinator.node.zenoh_backend import live_run  # noqa: PLC0415 - zenoh, only when asked
         from runtime.wire.run_file import read_run  # noqa: PLC0415
-        from runtime.wire.transport import ZenohSettings, alive_now, open_session  # noqa: PLC0415
+        from runtime.wire.transport import ZenohSettings, open_session  # noqa: PLC0415
 
         if self._process is None:
             return SwarmStatus(self.run_id, "starting")
@@ -106,10 +105,8 @@ class Swarm:
         if entry is None:
             return SwarmStatus(self.run_id, "starting")
         with open_session(ZenohSettings("client", connect=(entry["hub"],))) as session:
-            tokens = alive_now(session, alive_wildcard(self.run_id), timeout_s=0.5)
-            coordinators = live_coordinators(session, self.run_id, timeout_s=0.5)
-        agents = tuple(sorted(robot for key in tokens if (robot := parse_key(key).robot) is not None))
-        return SwarmStatus(self.run_id, "running", entry["hub"], agents, coordinators)
+            live = live_run(session, self.run_id, timeout_s=0.5)
+        return SwarmStatus(self.run_id, "running", entry["hub"], tuple(sorted(live.robots)), live.coordinators)
 
     def estop(self, reason: str = "inchworm.Swarm.estop", ack_timeout_s: float = 1.0) -> EstopOutcome:
         """The run-wide emergency stop, as ``swarm estop --run RUN`` sends it; who acknowledged it."""

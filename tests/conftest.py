@@ -16,6 +16,10 @@ Each test gets the marker of its level; ``slow`` marks integration and system te
 
 from __future__ import annotations
 
+import os
+import tempfile
+from pathlib import Path
+
 import pytest
 from hypothesis import HealthCheck, settings
 
@@ -27,6 +31,17 @@ settings.register_profile("behaviour", deadline=None, suppress_health_check=[Hea
 settings.load_profile("behaviour")
 
 LEVELS = ("unit", "integration", "system")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Under ``PYTHONDONTWRITEBYTECODE`` every process a test starts (agents, coordinators, ``swarm`` commands: more
+    than a thousand in a run of the suite) compiled the project's modules again, 0.08 s of CPU per agent and 0.17 s
+    per coordinator: their bytecode is cached outside the source tree instead (``PYTHONPYCACHEPREFIX``, a folder
+    under the temporary directory that the workers share and later runs reuse), so nothing is written next to the
+    sources either way."""
+    if os.environ.get("PYTHONDONTWRITEBYTECODE") and not os.environ.get("PYTHONPYCACHEPREFIX"):
+        os.environ.pop("PYTHONDONTWRITEBYTECODE")
+        os.environ["PYTHONPYCACHEPREFIX"] = str(Path(tempfile.gettempdir()) / f"inchworm-swarm-tests-pycache-{os.getuid()}")
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

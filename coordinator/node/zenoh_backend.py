@@ -168,12 +168,15 @@ class RunStopped(AgentError, BackendEnded):
     """A run-wide ``EmergencyStop`` was heard: the run ends, nothing more is commanded."""
 
 
-def hub_view(session: zenoh.Session, key_expr: str, own: int, timeout_s: float = 1.0) -> tuple[set[str], bool]:
-    """The keys of the tokens alive on ``key_expr`` (which covers the coordinator tokens of its run) and whether they
-    are complete: the union of ``VIEW_ANSWERS`` answers holding the token of coordinator epoch ``own``, which this
-    session declared. A liveliness query on a session that also watches the tokens sometimes answers empty, in runs
-    of a few ms, or without some of the hub's tokens (Zenoh 1.10): asked at most ``VIEW_TRIES`` times, pausing
-    ``VIEW_PAUSE_S``, doubled each time, between the queries. Without a complete answer: (the last answer, False)."""
+def hub_view(session: zenoh.Session, key_expr: str, own: int | None = None, timeout_s: float = 1.0) -> tuple[set[str], bool]:
+    """The keys of the tokens alive on ``key_expr`` and whether they are complete: the union of ``VIEW_ANSWERS``
+    answers that show the hub's view. With ``own`` (``key_expr`` covers the coordinator tokens of its run, and this
+    session declared the token of coordinator epoch ``own``), an answer shows it if it holds that token; without
+    (a session that declared none there: the check before a coordinator starts, a replay's, a status), if it is not
+    empty, and every answer is united. A liveliness query on a session that also watches the tokens sometimes answers
+    empty, in runs of a few ms, or without some of the hub's tokens (Zenoh 1.10): asked at most ``VIEW_TRIES`` times,
+    pausing ``VIEW_PAUSE_S``, doubled each time, between the queries (an empty view takes them all: about 31 ms).
+    Without an answer that shows the hub's view: (the last answer, False), without ``own`` (the union, False)."""
     keys: set[str] = set()
     last: set[str] = set()
     complete = 0
@@ -181,21 +184,50 @@ def hub_view(session: zenoh.Session, key_expr: str, own: int, timeout_s: float =
         if k:
             time.sleep(VIEW_PAUSE_S * 2 ** (k - 1))
         last = alive_now(session, key_expr, timeout_s)
-        if any((token := parse_coord_token(key)) is not None and token[0] == own for key in last):
+        shows = bool(last) if own is None else any((token := parse_coord_token(key)) is not None and token[0] == own for key in last)
+        if shows or own is None:
             keys |= last
+        if shows:
             complete += 1
             if complete == VIEW_ANSWERS:
                 break
-    return (keys, True) if complete else (last, False)
+    return (keys, complete > 0) if complete or own is None else (last, False)
+
+
+@dataclass(frozen=True)
+class LiveRun:
+    """A run's liveliness tokens at the hub (``live_run``): the robots whose agents are alive, the live coordinators
+    (``{epoch: parent}``) and whether the answers showed the hub's view (``hub_view``)."""
+
+    robots: frozenset[int]
+    coordinators: dict[int, int]
+    complete: bool
+
+
+def live_run(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> LiveRun:
+    """The tokens of ``run`` alive at the hub, agents' and coordinators' (``hub_view`` of ``swarm/<run>/**``; ``own``:
+    the coordinator epoch whose token this session declared)."""
+    keys, complete = hub_view(session, run_wildcard(run), own, timeout_s)
+    robots: set[int] = set()
+    coordinators: dict[int, int] = {}
+    for key in keys:
+        token = parse_coord_token(key)
+        if token is not None:
+            coordinators[token[0]] = token[1]
+            continue
+        try:
+            robot = parse_key(key).robot
+        except Exception:  # noqa: BLE001 - a key outside the key space is not a robot's token
+            continue
+        if robot is not None:
+            robots.add(robot)
+    return LiveRun(frozenset(robots), coordinators, complete)
 
 
 def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> dict[int, int]:
-    """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``. ``own``: the epoch whose token this
-    session declared: the answer is then ``hub_view``'s (complete, or the last one)."""
-    if own is None:
-        keys = alive_now(session, coord_alive_key(run), timeout_s)
-    else:
-        keys = hub_view(session, coord_alive_key(run), own, timeout_s)[0]
+    """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``, ``hub_view``'s answer (``own``: the
+    epoch whose token this session declared; without, a spurious empty answer is asked past too)."""
+    keys = hub_view(session, coord_alive_key(run), own, timeout_s)[0]
     tokens = (parse_coord_token(key) for key in keys)
     return dict(t for t in tokens if t is not None)
 
@@ -392,25 +424,10 @@ class ZenohSwarmBackend:
         return connected and self._own_alive and time.monotonic() - max(self._link_lost_at, self._stalled_at) >= RESYNC_S
 
     def _hub_view(self) -> tuple[set[int], dict[int, int]] | None:
-        """The run's tokens at the hub (``hub_view``): ``(robots alive, {epoch: parent} of the live coordinators})``,
+        """The run's tokens at the hub (``live_run``): ``(robots alive, {epoch: parent} of the live coordinators})``,
         None without a complete answer."""
-        keys, complete = hub_view(self.session, run_wildcard(self.run), self.epoch)
-        if not complete:
-            return None
-        robots: set[int] = set()
-        coordinators: dict[int, int] = {}
-        for key in keys:
-            token = parse_coord_token(key)
-            if token is not None:
-                coordinators[token[0]] = token[1]
-                continue
-            try:
-                robot = parse_key(key).robot
-            except Exception:  # noqa: BLE001 - a key outside the key space is not a robot's token
-                continue
-            if robot is not None:
-                robots.add(robot)
-        return robots, coordinators
+        view = live_run(self.session, self.run, own=self.epoch)
+        return (set(view.robots), view.coordinators) if view.complete else None
 
     def _check_hub(self) -> None:
         """Raise ``HubLost`` once the hub has been gone for ``HUB_GRACE_S`` (caller's thread)."""

@@ -32,6 +32,8 @@ relative position (its moments are exact up to the cross term's first order).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from runtime.models.config import ModelConfig
@@ -90,6 +92,15 @@ DISC_NODES = 128  # Gauss-Legendre nodes of ``disc_probability``'s integral over
 EXACT_MIN_SD = 0.1  # ``disc_probability`` integrates where the larger standard deviation is at least this x rho
 
 
+@functools.cache
+def _disc_quadrature() -> tuple[np.ndarray, np.ndarray]:
+    """The ``DISC_NODES`` Gauss-Legendre nodes and weights on [-1, 1], computed once (each computation solves for the
+    roots of a Legendre polynomial: 1-3 ms, which every ``disc_probability`` call paid before), read-only."""
+    nodes, weights = np.polynomial.legendre.leggauss(DISC_NODES)
+    nodes.flags.writeable = weights.flags.writeable = False
+    return nodes, weights
+
+
 def disc_probability(mu: np.ndarray, sigma: np.ndarray, rho: float) -> np.ndarray:
     """P(|r| < ``rho``) for r ~ N(``mu`` (m, 2), ``sigma`` (m, 2, 2)), to about 1e-6 relative: in the principal axes of
     ``sigma`` (x the narrower, y the wider) the disc is the y-interval |y| <= rho cos(theta) at x = rho sin(theta), so
@@ -111,7 +122,7 @@ def disc_probability(mu: np.ndarray, sigma: np.ndarray, rho: float) -> np.ndarra
     if not len(k):
         return out
     a, b = np.arcsin(lo[k] / rho), np.arcsin(hi[k] / rho)
-    nodes, weights = np.polynomial.legendre.leggauss(DISC_NODES)
+    nodes, weights = _disc_quadrature()
     half = 0.5 * (b - a)
     theta = (a + b)[:, None] * 0.5 + half[:, None] * nodes[None]
     x, h = rho * np.sin(theta), rho * np.cos(theta)

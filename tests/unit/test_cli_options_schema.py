@@ -35,8 +35,10 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("study noise", "swarm_cli.study_noise:options", ("inchworm.studies.noise:NoiseOptions",), ("run",)),
     ("study consistency", "swarm_cli.study_consistency:options", ("inchworm.studies.consistency:ConsistencyOptions",),
      ("model", "selection")),
-    # study selection: --eval-samples not given is each mode's own default (the study's field, the genetic gain's, below)
-    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",), ("run", "eval_samples")),
+    # study selection: --robots, --configs, --eval-samples not given are each mode's own defaults (the study's fields, the
+    # genetic gain's, below)
+    ("study selection", "swarm_cli.study_selection:options", ("inchworm.studies.selection:SelectionStudyOptions",),
+     ("run", "robots", "configs", "eval_samples")),
     ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
     # sim: --model FILE and the noise flags give model, the selection group selection; --physics-param repeats (a list)
     # and gives physics; the start estimate's uncertainty has no flag (swarm_cli.sim.NO_FLAG: from Python only)
@@ -99,6 +101,32 @@ def test_the_genetic_gain_evaluates_on_its_own_samples_unless_given(tmp_path) ->
     assert gain_options(given).eval_samples == options(given).eval_samples == 300
     with pytest.raises(OptionError, match="^eval_samples must be >= 2, got 1$"):
         gain_options(parsed("--genetic-gain", "--eval-samples", "1"))
+
+
+def test_the_genetic_gain_runs_its_own_size_unless_given(tmp_path) -> None:
+    """``--genetic-gain`` without ``--robots``/``--configs`` is ``GeneticGainOptions``' 10 robots x 8 configurations
+    (docs/selection.md's grid at n_r = 10), the selection study its own 8 x 20; either flag (or a ``--config`` file's
+    value) sets both, and a bad one is refused naming it."""
+    from inchworm.studies.genetic_gain import GeneticGainOptions
+    from inchworm.studies.selection import SelectionStudyOptions
+    from swarm_cli.main import parse
+    from swarm_cli.study_selection import gain_options, options
+
+    def parsed(*flags: str) -> argparse.Namespace:
+        return parse(["study", "selection", *flags])
+
+    gain, study = gain_options(parsed("--genetic-gain")), options(parsed())
+    assert gain == GeneticGainOptions() and (gain.robots, gain.configs) == (10, 8)
+    assert study == SelectionStudyOptions() and (study.robots, study.configs) == (8, 20)
+    given = parsed("--genetic-gain", "--robots", "30", "--configs", "4", "--seed", "3")
+    assert gain_options(given) == GeneticGainOptions(robots=30, configs=4, seed=3)
+    assert (options(given).robots, options(given).configs) == (30, 4)
+    assert gain_options(parsed("--genetic-gain", "--configs", "2")) == GeneticGainOptions(configs=2)
+    (tmp_path / "s.toml").write_text("robots = 12\n")
+    from_file = parsed("--genetic-gain", "--config", str(tmp_path / "s.toml"))
+    assert gain_options(from_file).robots == options(from_file).robots == 12 and gain_options(from_file).configs == 8
+    with pytest.raises(OptionError, match="^robots must be >= 3, got 2$"):
+        gain_options(parsed("--genetic-gain", "--robots", "2"))
 
 
 @dataclasses.dataclass(frozen=True)
