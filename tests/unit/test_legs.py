@@ -13,7 +13,7 @@ import pytest
 from coordinator.checkpoint import RunState
 from coordinator.clearance import clear_plan
 from coordinator.executor import InchwormExecutor
-from coordinator.legs import LEG_FRACTIONS, MAX_LEGS, first_leg, leg_targets, next_leg
+from coordinator.legs import END_BOUND, LEG_FRACTIONS, MAX_LEGS, first_leg, leg_targets, next_leg
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan
 from coordinator.selection.selector import SelectionConfig
@@ -21,7 +21,7 @@ from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
 from runtime.models.bodies import CONTACT_BOUND
 from runtime.models.config import ModelConfig
-from runtime.models.contact_risk import MotionMoments, instant_bound
+from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import Trajectory
@@ -53,6 +53,13 @@ def end_risk(cfg: ModelConfig, est: SwarmEstimate, ends: np.ndarray, i: int, j: 
     return float(instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)[0])
 
 
+def end_probability(cfg: ModelConfig, est: SwarmEstimate, ends: np.ndarray, i: int, j: int) -> float:
+    """The contact probability of robots i and j arrived at ``ends`` (n, 2) from their estimates (no drive: standing)."""
+    m = MotionMoments(cfg, est.positions, ends, est.cov)
+    mu, _, sigma, _, _ = m.pairs(np.array([i]), np.array([j]), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1))
+    return float(disc_probability(mu, sigma, 2.0 * cfg.robot_radius_m)[0])
+
+
 def test_a_drive_ending_near_a_still_neighbour_stops_short_on_its_way():
     going = np.array([True, False, False])
     assert end_risk(X3, NEAR, NEAR_DESIRED, 0, 1) > 0.01  # straight in: far over the bound
@@ -73,13 +80,26 @@ def test_a_clear_drive_gets_no_leg_and_the_plan_is_clear_plans():
     assert leg is None and (cleared, regrouped) == clear_plan(X3, plan, NEAR, far)
     # point robots and the last leg drive straight too
     assert not leg_targets(ModelConfig(robot_radius_m=0.0, turn_sigma_rad=X3.turn_sigma_rad), NEAR, NEAR_DESIRED, np.ones(3, bool)).any
-    assert not leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True).any
+    # the last leg has no staging point: a drive that would end over the budget stops short, and says so
+    last = leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True)
+    assert not last.staged.any() and last.short.tolist() == [True, False, False]
+    assert last.targets[0, 1] == pytest.approx(0.0, abs=1e-12) and 0.0 <= last.targets[0, 0] < 0.3
+    assert end_probability(X3, NEAR, last.targets, 0, 1) <= END_BOUND
 
 
-def test_no_leg_where_the_target_itself_is_at_risk():
+def test_a_target_at_risk_even_reached_without_noise_stops_short_at_a_safe_distance():
     tight = NEAR_DESIRED.copy()
-    tight[0] = [0.3, 0.04]  # 2 cm from the neighbour with 5-6 mm of position error: even standing there is over the bound
-    assert not leg_targets(X3, NEAR, tight, np.ones(3, bool)).any
+    tight[0] = [0.3, 0.035]  # 2.5 cm from the neighbour with 5-6 mm of position error: even standing there is over the bound
+    there = NEAR.poses.copy()
+    there[:, :2] = tight
+    assert end_probability(X3, SwarmEstimate(NEAR.ids, there, NEAR.cov), tight, 0, 1) > 0.1
+    leg = leg_targets(X3, NEAR, tight, np.ones(3, bool))
+    assert leg.short.tolist() == [True, False, False]  # its goal is pulled back along its way
+    goal = tight[0] * (np.hypot(*leg.targets[0]) / np.hypot(*tight[0]))
+    assert leg.targets[0, 0] * tight[0, 1] - leg.targets[0, 1] * tight[0, 0] == pytest.approx(0.0, abs=1e-12)  # on its way
+    there[0, :2] = goal
+    assert end_probability(X3, SwarmEstimate(NEAR.ids, there, NEAR.cov), there[:, :2], 0, 1) <= END_BOUND
+    assert not leg_targets(ModelConfig(robot_radius_m=0.0), NEAR, tight, np.ones(3, bool)).any  # point robots: never at risk
 
 
 def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
@@ -100,7 +120,10 @@ def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
     assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
     np.testing.assert_array_equal(leg.targets, again.targets)
     last = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, MAX_LEGS - 1)
-    assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
+    assert last is not None and not last.staged.any()  # no staging point in the last leg: straight, or stopped short
+    ends = after.positions.copy()
+    ends[0] = last.targets[0]
+    assert end_probability(X3, after, ends, 0, 1) <= END_BOUND
     assert next_leg(X3, first, after.select(np.array([False, True, True])), NEAR_DESIRED[1:], first.staged_ids, 1) is None  # lost
 
 
@@ -144,13 +167,18 @@ def test_the_executor_drives_the_legs_and_counts_their_steps():
 
 def test_a_staging_point_is_checked_against_the_others_again():
     # at x3 robot 0 drives 0.4 m along y = 0 past the still robots 2, 3 and 4 (6 cm beside its target and its 0.75 and
-    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: robot 1
-    # then stops at its own shortest staging point too, although the end of its 3 cm drive was clear of robot 0's others
+    # 0.5 staging points), so only its shortest staging point keeps clear of them, and that one ends next to where robot
+    # 1 arrives (3 cm drive): robot 0, the longer drive, gives way down to waiting where it stands, robot 1 drives in
     est = estimate([[0.0, 0.0], [0.1, 0.06], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]], [0.0, -math.pi + 1e-3, 1.0, 2.0, 3.0])
     desired = np.array([[0.4, 0.0], [0.1, 0.03], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]])
     leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
-    assert leg.staged.tolist() == [True, True, False, False, False]
-    assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
+    assert leg.staged.tolist() == [True, False, False, False, False] and not leg.short.any()
+    assert leg.targets[0].tolist() == [0.0, 0.0] and leg.targets[1].tolist() == [0.1, 0.03]
+    for fraction, neighbour in ((0.75, 3), (0.5, 4), (0.25, 1)):  # every staging point of robot 0 is over the leg's share
+        ends = leg.targets.copy()
+        ends[0] = [0.4 * fraction, 0.0]
+        assert end_probability(X3, est, ends, 0, neighbour) > END_BOUND
+    assert all(end_probability(X3, est, leg.targets, 0, k) <= END_BOUND for k in range(1, 5))
 
 
 class Died(Exception):
@@ -208,3 +236,56 @@ def test_the_fault_bench_finds_a_run_with_legs_identical_to_its_own_json():
     assert same_table(summary, result)
     summary["configs"][0]["steps"] = config.plan.n_steps
     assert not same_table(summary, result)
+
+
+def leg_starts(result) -> list[tuple[SwarmEstimate, object]]:
+    """(the estimate at the leg's start, the leg) of every leg of the run's configuration changes, in order."""
+    out, done = [], 0
+    for rec in result.configs:
+        for leg in rec.legs:
+            out.append((result.initial_estimate if done == 0 else result.steps[done - 1].estimate, leg))
+            done += leg.plan.n_steps
+    return out
+
+
+def test_the_legs_of_a_change_keep_every_pair_within_the_change_budget():
+    """Each leg's end keeps every pair within END_BOUND = CHANGE_BUDGET / MAX_LEGS, as predicted from that leg's start
+    (correlated covariances, headings near +-pi), so a pair's risk summed over the at most MAX_LEGS leg ends of a change
+    is within CHANGE_BUDGET."""
+    from coordinator.legs import CHANGE_BUDGET, _end_pairs
+
+    assert END_BOUND * MAX_LEGS == pytest.approx(CHANGE_BUDGET)
+    result = run(X3)
+    legs = leg_starts(result)
+    assert len(legs) >= 2
+    total: dict[tuple[int, int], float] = {}
+    for est, leg in legs:
+        ends = est.positions.copy()
+        rows = np.flatnonzero(np.isin(est.ids, leg.ids))
+        ends[rows] = leg.targets
+        i, j, p = _end_pairs(X3, est, ends, rows)
+        assert p.max() <= END_BOUND
+        for a, b, q in zip(i, j, p, strict=True):
+            total[min(a, b), max(a, b)] = total.get((min(a, b), max(a, b)), 0.0) + q
+    assert max(total.values()) <= CHANGE_BUDGET
+
+
+# robot 0 drives to a place 2.5 cm from the still robot 1 (bodies need 2.2 cm): no approach keeps that within budget
+TIGHT = Trajectory(np.arange(3), np.array([[0.0, 0.0, math.pi - 1e-3], [0.3, 0.06, -math.pi + 1e-3], [0.35, 0.2, 0.0]]),
+                   np.array([[[0.3, 0.035], [0.3, 0.06], [0.35, 0.2]]]))
+
+
+def test_a_target_no_approach_keeps_within_budget_is_stopped_short_and_reported():
+    from inchworm.simulation import contacts_json, summary_text
+
+    loc = make_localizer("paper", X3)
+    ex = InchwormExecutor(SimulatedSwarm(TIGHT.ids, TIGHT.initial_poses, X3, 3), loc,
+                          make_strategy("one-at-a-time", TIGHT.n, X3, loc, SelectionConfig(), 3), X3)
+    result = ex.run(TIGHT, initial_estimate(TIGHT, 3, 0.005, math.radians(1.0)))
+    assert result.stopped_short() == [[0]] and not result.contacts(X3.robot_radius_m)
+    final = result.configs[0].legs[-1].targets[0]
+    assert 0.2 < np.hypot(*final) < np.hypot(0.3, 0.035)  # short of its target on its way, at a safe distance
+    assert np.hypot(*(result.configs[0].truth[0, :2] - result.configs[0].truth[1, :2])) > 2 * X3.robot_radius_m
+    keys = contacts_json(result, X3.robot_radius_m)
+    assert keys["stopped_short"] == 1 and keys["legs"][0]["stopped_short"] == [0]
+    assert "robots [0] stopped short of their targets" in summary_text(result, "one-at-a-time", "paper", X3.robot_radius_m)
