@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coordinator.clearance import Regrouping, clear_plan
+from coordinator.clearance import Regrouping, split_plan
 from coordinator.plan import Plan
-from runtime.models.bodies import INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
+from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, Regrouped, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
@@ -114,7 +114,8 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         back = np.unique(_yielding(i[over], j[over], movable, fraction > 0, fraction * length))
         back = back[back >= 0]
         if not len(back):
-            return there[:, :2], fraction < 1.0
+            pulled = fraction < 1.0
+            return np.where(pulled[:, None], there[:, :2], goals), pulled
         fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
 
 
@@ -156,11 +157,31 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             break
         level[np.unique(shorter)] += 1
     stopped = level > 0
-    targets = current + fractions[level][:, None] * path
-    targets[~going] = current[~going]
+    targets = np.where(stopped[:, None], current + fractions[level][:, None] * path, goals)
     if last:  # no leg follows: a robot that would end over the budget stops short
         return Leg(targets, none, short | stopped)
     return Leg(targets, stopped, short)
+
+
+def held(cfg: ModelConfig, estimate: SwarmEstimate, leg: Leg, groups: list[np.ndarray], last: bool) -> tuple[Leg, Regrouped | None]:
+    """``leg`` with every robot that the regrouping of ``groups`` (rows of ``estimate``) keeps within the contact bound
+    only at a raised bound (``BOUND_LEVELS``) or not at all held where it stands (it waits: staged, it goes on in the
+    next leg; in the ``last`` leg it stops short), and the regrouping of the leg it ends with (None for point robots).
+    A raised bound is a per-step risk of 1e-2-1e-1 for a pair: a change's budget has no room for it."""
+    if cfg.robot_radius_m <= 0:
+        return leg, None
+    current = estimate.positions
+    moving = np.concatenate(groups)
+    while True:  # every round holds at least one more robot with a way: this ends
+        out = BodyCheck.of_estimate(cfg, estimate, leg.targets).regroup(groups)
+        levels = np.full(len(current), out.bound) if out.levels is None else out.levels
+        hold = np.zeros(len(current), bool)
+        hold[moving] = levels[moving] > CONTACT_BOUND
+        hold[out.unclear] = True
+        hold &= np.any(leg.targets != current, axis=1)
+        if not hold.any():
+            return leg, out
+        leg = Leg(np.where(hold[:, None], current, leg.targets), leg.staged | (hold & ~last), leg.short | (hold & last))
 
 
 @dataclass(frozen=True)
@@ -194,9 +215,12 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
     leg's targets, how it was split, and the leg (None: every robot drives straight to ``desired``, and the plan is
     ``clear_plan``'s, bit for bit)."""
     leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool), last=MAX_LEGS <= 1)
+    leg, out = held(cfg, estimate, leg, plan.groups, MAX_LEGS <= 1)
+    if out is None:
+        return plan, None, None
+    cleared, regrouped = split_plan(plan, out, estimate.ids)
     if not leg.any:
-        return (*clear_plan(cfg, plan, estimate, desired), None)
-    cleared, regrouped = clear_plan(cfg, plan, estimate, leg.targets)
+        return cleared, regrouped, None
     return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped)
 
 
@@ -222,7 +246,8 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
             groups[-1] = np.concatenate([groups[-1], g])
         else:
             groups.append(g)
-    out = BodyCheck.of_estimate(cfg, estimate, leg.targets).regroup(groups)
+    leg, out = held(cfg, estimate, leg, groups, index >= MAX_LEGS - 1)
+    assert out is not None  # legs are of bodies
     local = np.searchsorted(ids, estimate.ids[np.concatenate(out.groups)])
     plan = Plan(local, tuple(len(g) for g in out.groups))
     planned = Plan(np.searchsorted(ids, estimate.ids[np.concatenate(groups)]), tuple(len(g) for g in groups))
