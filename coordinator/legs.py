@@ -181,7 +181,7 @@ def held(cfg: ModelConfig, estimate: SwarmEstimate, leg: Leg, groups: list[np.nd
         hold &= np.any(leg.targets != current, axis=1)
         if not hold.any():
             return leg, out
-        leg = Leg(np.where(hold[:, None], current, leg.targets), leg.staged | (hold & ~last), leg.short | (hold & last))
+        leg = Leg(np.where(hold[:, None], current, leg.targets), leg.staged | (hold & (not last)), leg.short | (hold & last))
 
 
 @dataclass(frozen=True)
