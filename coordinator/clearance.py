@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from coordinator.plan import Plan
-from runtime.models.bodies import CONTACT_BOUND, BodyCheck, Regrouped
+from runtime.models.bodies import CONTACT_BOUND, BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.models.state import SwarmEstimate
 
@@ -53,12 +53,8 @@ def clear_plan(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: n
     was split (None: unchanged)."""
     if cfg.robot_radius_m <= 0:
         return plan, None
-    return split_plan(plan, BodyCheck.of_estimate(cfg, estimate, desired).regroup(plan.groups), estimate.ids)
-
-
-def split_plan(plan: Plan, out: Regrouped, ids: np.ndarray) -> tuple[Plan, Regrouping | None]:
-    """``plan`` as ``BodyCheck.regroup`` split it (``out``; robot rows of ``ids``), and how (None: unchanged)."""
+    out = BodyCheck.of_estimate(cfg, estimate, desired).regroup(plan.groups)
     if len(out.groups) == plan.n_steps and all(np.array_equal(a, b) for a, b in zip(out.groups, plan.groups, strict=True)):
         return plan, None
     split = Plan(np.concatenate(out.groups), tuple(len(g) for g in out.groups))
-    return split, Regrouping(plan, tuple(int(r) for r in ids[out.unclear]), out.bound)
+    return split, Regrouping(plan, tuple(int(r) for r in estimate.ids[out.unclear]), out.bound)

@@ -30,9 +30,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coordinator.clearance import Regrouping, split_plan
+from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
-from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, Regrouped, all_pairs, near_pairs, reach_sigmas
+from runtime.models.bodies import INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
@@ -42,6 +42,7 @@ MAX_LEGS = 6  # legs of one robot in a change at most (the last ends the change)
 MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
 CHANGE_BUDGET = 3e-3  # per pair and configuration change: contact probability summed over the ends of its legs
 END_BOUND = CHANGE_BUDGET / MAX_LEGS  # each leg's end draws an equal share: a pair's at most MAX_LEGS leg ends keep the budget
+WAIT_LEGS = MAX_LEGS // 2  # a robot may wait for a partner only in a change's first legs (later ones always get on)
 STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path by this fraction of it at a time
 
 
@@ -87,10 +88,9 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     return i, j, p
 
 
-def _yielding(i: np.ndarray, j: np.ndarray, movable: np.ndarray, room: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """The robot of each pair (i, j) over the budget that gives way: of the two that ``movable`` and have ``room``,
-    the one that would drive farther (``length``, m; ties: the higher index); -1 where neither can."""
-    can_i, can_j = movable[i] & room[i], movable[j] & room[j]
+def _yielding(i: np.ndarray, j: np.ndarray, can_i: np.ndarray, can_j: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """The robot of each pair (i, j) over the budget that gives way: of the two that can (``can_i``, ``can_j``, per
+    pair), the one that would drive farther (``length``, m; ties: the higher index); -1 where neither can."""
     j_first = can_j & (~can_i | (length[j] > length[i]) | ((length[j] == length[i]) & (j > i)))
     return np.where(j_first, j, np.where(can_i, i, -1))
 
@@ -110,8 +110,9 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         there = estimate.poses.copy()
         there[:, :2] = current + fraction[:, None] * path
         i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), there[:, :2], rows)
-        over = p > END_BOUND
-        back = np.unique(_yielding(i[over], j[over], movable, fraction > 0, fraction * length))
+        i, j = i[p > END_BOUND], j[p > END_BOUND]
+        can = movable & (fraction > 0)
+        back = np.unique(_yielding(i, j, can[i], can[j], fraction * length))
         back = back[back >= 0]
         if not len(back):
             pulled = fraction < 1.0
@@ -119,10 +120,11 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
 
 
-def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
+def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False,
+                index: int = 0) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
-    the change's last leg (no staging point: a robot that would be over the budget stops short). Robots not ``going``
-    stand where they are estimated.
+    the change's last leg (no staging point: a robot that would be over the budget stops short); ``index``: the leg's
+    index in the change (who waits alternates with it). Robots not ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: such a robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
@@ -150,38 +152,26 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     while True:  # levels only grow, to ``wait`` at most: this ends
         ends = current + fractions[level][:, None] * path
         i, j, p = _end_pairs(cfg, estimate, ends, rows)
-        over = p > END_BOUND
-        shorter = _yielding(i[over], j[over], movable, level < wait, fractions[level] * length)
-        shorter = shorter[shorter >= 0]
+        i, j = i[p > END_BOUND], j[p > END_BOUND]
+        # a robot at its shortest staging point waits only for a partner that drives on in this leg (one of the two
+        # gets on); against a partner standing, waiting would stall it without changing the pair's end: it stays there
+        on = movable & (level < wait) & (index < WAIT_LEGS)
+        can_i = movable[i] & ((level[i] < wait - 1) | ((level[i] == wait - 1) & on[j]))
+        can_j = movable[j] & ((level[j] < wait - 1) | ((level[j] == wait - 1) & on[i]))
+        shorter = _yielding(i, j, can_i, can_j, fractions[level] * length)
+        shorter = np.unique(shorter[shorter >= 0])
         if not len(shorter):
             break
-        level[np.unique(shorter)] += 1
+        waits = level[shorter] == wait - 1
+        if waits.all():  # one wait at a time, after every other shortening: its partner must still drive on; the
+            # robot with the longer way waits in even legs, the shorter in odd ones, so both get on over the legs
+            shorter = shorter[(np.argmax if index % 2 == 0 else np.argmin)(length[shorter])][None]
+        level[shorter[~waits] if not waits.all() else shorter] += 1
     stopped = level > 0
     targets = np.where(stopped[:, None], current + fractions[level][:, None] * path, goals)
-    if last:  # no leg follows: a robot that would end over the budget stops short
-        return Leg(targets, none, short | stopped)
+    if last:  # no leg follows: every robot drives to its goal
+        return Leg(goals, none, short)
     return Leg(targets, stopped, short)
-
-
-def held(cfg: ModelConfig, estimate: SwarmEstimate, leg: Leg, groups: list[np.ndarray], last: bool) -> tuple[Leg, Regrouped | None]:
-    """``leg`` with every robot that the regrouping of ``groups`` (rows of ``estimate``) keeps within the contact bound
-    only at a raised bound (``BOUND_LEVELS``) or not at all held where it stands (it waits: staged, it goes on in the
-    next leg; in the ``last`` leg it stops short), and the regrouping of the leg it ends with (None for point robots).
-    A raised bound is a per-step risk of 1e-2-1e-1 for a pair: a change's budget has no room for it."""
-    if cfg.robot_radius_m <= 0:
-        return leg, None
-    current = estimate.positions
-    moving = np.concatenate(groups)
-    while True:  # every round holds at least one more robot with a way: this ends
-        out = BodyCheck.of_estimate(cfg, estimate, leg.targets).regroup(groups)
-        levels = np.full(len(current), out.bound) if out.levels is None else out.levels
-        hold = np.zeros(len(current), bool)
-        hold[moving] = levels[moving] > CONTACT_BOUND
-        hold[out.unclear] = True
-        hold &= np.any(leg.targets != current, axis=1)
-        if not hold.any():
-            return leg, out
-        leg = Leg(np.where(hold[:, None], current, leg.targets), leg.staged | (hold & (not last)), leg.short | (hold & last))
 
 
 @dataclass(frozen=True)
@@ -215,12 +205,9 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
     leg's targets, how it was split, and the leg (None: every robot drives straight to ``desired``, and the plan is
     ``clear_plan``'s, bit for bit)."""
     leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool), last=MAX_LEGS <= 1)
-    leg, out = held(cfg, estimate, leg, plan.groups, MAX_LEGS <= 1)
-    if out is None:
-        return plan, None, None
-    cleared, regrouped = split_plan(plan, out, estimate.ids)
     if not leg.any:
-        return cleared, regrouped, None
+        return (*clear_plan(cfg, plan, estimate, desired), None)
+    cleared, regrouped = clear_plan(cfg, plan, estimate, leg.targets)
     return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped)
 
 
@@ -235,7 +222,7 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
     ids = estimate.ids[mask]
     if not len(ids):
         return None
-    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1)
+    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1, index=index)
     rows = np.flatnonzero(mask)
     base, base_ids = first.base, first.ids
     row_of = {int(r): k for k, r in zip(rows, ids, strict=True)}
@@ -246,8 +233,7 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
             groups[-1] = np.concatenate([groups[-1], g])
         else:
             groups.append(g)
-    leg, out = held(cfg, estimate, leg, groups, index >= MAX_LEGS - 1)
-    assert out is not None  # legs are of bodies
+    out = BodyCheck.of_estimate(cfg, estimate, leg.targets).regroup(groups)
     local = np.searchsorted(ids, estimate.ids[np.concatenate(out.groups)])
     plan = Plan(local, tuple(len(g) for g in out.groups))
     planned = Plan(np.searchsorted(ids, estimate.ids[np.concatenate(groups)]), tuple(len(g) for g in groups))
