@@ -11,13 +11,14 @@ end: into the next change), so the risk of the legs' ends is what a change must 
 summed over the ends of a change's legs is at most ``CHANGE_BUDGET``. A pair has at most ``MAX_LEGS`` leg ends in a
 change, so each leg's end draws an equal share, ``END_BOUND`` = ``CHANGE_BUDGET`` / ``MAX_LEGS``, decided from that leg's
 start alone (the executor, a checkpoint's resumption and ``swarm replay --check`` compute the same legs). Of a pair over
-it, the robot that would drive farther stops shorter, down to waiting where it stands for a leg; no staging point is
-accepted over the share (before, a pair still over at the shortest staging point drove there, and such ends were where
-almost every contact at motion noise x5.58 came from). A goal at risk even reached with no motion noise (the targets
-too close for the position uncertainty: no approach helps) is pulled back along the way until it fits
-(``safe_goals``), and the change's last leg (``MAX_LEGS``) stops a robot short instead of driving into a place over the
-share: such robots end the change **stopped short** of their desired position, and the run says so
-(``RunResult.stopped_short``). The steps themselves keep ``CONTACT_BOUND`` per pair and step (the regrouping).
+it, the robot that would drive farther stops shorter; at its shortest staging point it waits where it stands for the
+leg if its partner drives on in it and the leg is among the change's first ``WAIT_LEGS`` (before, a pair of movers
+still over at their shortest staging points drove there, and such ends were where almost every contact at motion noise
+x5.58 came from); otherwise it keeps its shortest staging point, and the last leg (``MAX_LEGS``) drives to the goals, so
+no robot stalls: there the budget is not kept. A goal at risk even reached with no motion noise (the targets too close
+for the position uncertainty: no approach helps) is pulled back along the way until it fits (``safe_goals``): such a
+robot ends the change **stopped short** of its desired position, and the run says so (``RunResult.stopped_short``).
+The steps themselves keep ``CONTACT_BOUND`` per pair and step (the regrouping).
 
 The end is one instant, so the criterion is the probability of the pair's Gaussian relative position in the disc
 (``runtime.models.contact_risk.disc_probability``), not the half-plane bound the steps need (``instant_bound``: 2.3-2.6x
@@ -123,15 +124,15 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
 def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False,
                 index: int = 0) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
-    the change's last leg (no staging point: a robot that would be over the budget stops short); ``index``: the leg's
+    the change's last leg (every robot drives to its goal); ``index``: the leg's
     index in the change (who waits alternates with it). Robots not ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: such a robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
     ``END_BOUND``: of a pair over it, the robot that would drive farther stops shorter (the next of ``LEG_FRACTIONS`` of
-    its way, then none: it waits where it stands; ``_yielding``), until no pair is over or no robot of an over pair can
-    give way more (the pair's risk is then the leg's start's own)."""
+    its way; at the shortest it waits where it stands if its partner drives on and ``index`` < ``WAIT_LEGS``;
+    ``_yielding``), until no pair is over or no robot of an over pair can give way more."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)

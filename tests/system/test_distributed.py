@@ -221,13 +221,12 @@ def test_coordinator_publishes_plans_estimates_and_configs(completed):
     # apart, where their straight drives' ends touch with probability 1.7 % (configuration 1) and 5.5 % (2), over a
     # leg's share of the change's budget (5e-4), so the farther driver stops at staging points and goes on in approach
     # legs (the others standing): robot 1, one more leg, in configuration 1; in 2 both stop first (the first leg split in
-    # two sub-steps), robot 2 arrives in the next leg and robot 1, its end over the share against robot 2 until it is
-    # close, in three more
+    # two sub-steps), robot 2 arrives in the next leg and robot 1 in one more
     one = ((ids[1],),)
     assert [(p.config, p.step, p.n_anchors, p.groups, p.leg) for p in plans] == [
         (1, 1, 0, (tuple(ids),), 0), (1, 2, 2, one, 1), (2, 3, 2, ((ids[0], ids[2]), (ids[1],)), 0),
-        (2, 5, 1, (tuple(ids[1:]),), 1), (2, 6, 2, one, 2), (2, 7, 2, one, 3), (2, 8, 2, one, 4)]
-    assert sorted(m.step for m in estimates) == list(range(9))  # the initial estimate, then one per step
+        (2, 5, 1, (tuple(ids[1:]),), 1), (2, 6, 2, one, 2)]
+    assert sorted(m.step for m in estimates) == list(range(7))  # the initial estimate, then one per step
     by_step = {m.step: m for m in estimates}
     np.testing.assert_array_equal(by_step[0].to_estimate().poses, np.array(got["initial_estimate"]))
     for number, s in enumerate(got["steps"], start=1):
@@ -235,7 +234,7 @@ def test_coordinator_publishes_plans_estimates_and_configs(completed):
         assert est.ids.tolist() == ids
         np.testing.assert_array_equal(est.poses, np.array(s["poses"]))
         np.testing.assert_array_equal(est.cov, np.array(s["cov"]))
-    assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 1), *((k, 2) for k in range(3, 9))}
+    assert {(m.step, m.config) for m in commands} == {(1, 1), (2, 1), (3, 2), (4, 2), (5, 2), (6, 2)}
 
 
 def test_coordinator_records_the_run(completed):
@@ -247,18 +246,18 @@ def test_coordinator_records_the_run(completed):
     run_channels = [c for c in info["channels"] if c["topic"].startswith("swarm/")]  # not derived views (/foxglove/...)
     counts = {c["topic"]: c["messages"] for c in run_channels}
     types = {c["topic"]: c["type"] for c in run_channels}
-    # no-anchors, 3 robots, 2 configurations: 8 steps, everyone moves in the configurations' first leg (the second's in
-    # two sub-steps), robot 1 in its 5 approach legs, robot 2 in 1 (test_coordinator_publishes_plans_estimates_and_configs)
-    assert counts[coord_key(r, "plan")] == 7 and counts[coord_key(r, "estimate")] == 9
+    # no-anchors, 3 robots, 2 configurations: 6 steps, everyone moves in the configurations' first leg (the second's in
+    # two sub-steps), robot 1 in its 3 approach legs, robot 2 in 1 (test_coordinator_publishes_plans_estimates_and_configs)
+    assert counts[coord_key(r, "plan")] == 5 and counts[coord_key(r, "estimate")] == 7
     for robot in ids:
         for leaf in ("observe", "obs"):
-            assert counts[robot_key(r, robot, leaf)] == 8, leaf
-        assert counts[robot_key(r, robot, "cmd")] == {ids[0]: 2, ids[1]: 7, ids[2]: 3}[robot]
+            assert counts[robot_key(r, robot, leaf)] == 6, leaf
+        assert counts[robot_key(r, robot, "cmd")] == {ids[0]: 2, ids[1]: 5, ids[2]: 3}[robot]
         assert types[robot_key(r, robot, "cmd")] == "MotionCommand" and types[robot_key(r, robot, "observe")] == "ObserveRequest"
         assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
-        assert counts[truth_key(r, robot)] >= 9  # steps 0 to 8
-    assert counts[truths_key(r)] == 8  # one truth set per motion step
-    assert counts[coord_key(r, "checkpoint")] == 17  # the start, each plan and leg (7), each step (8), the end
+        assert counts[truth_key(r, robot)] >= 7  # steps 0 to 6
+    assert counts[truths_key(r)] == 6  # one truth set per motion step
+    assert counts[coord_key(r, "checkpoint")] == 13  # the start, each plan and leg (5), each step (6), the end
     assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), coord_key(r, "checkpoint"), truths_key(r),
                            *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
                            *[truth_key(r, i) for i in ids]}

@@ -19,7 +19,7 @@ from coordinator.plan import Plan
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.models.bodies import CONTACT_BOUND, BodyCheck
+from runtime.models.bodies import CONTACT_BOUND
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.simulation import SimulatedSwarm
@@ -80,11 +80,7 @@ def test_a_clear_drive_gets_no_leg_and_the_plan_is_clear_plans():
     assert leg is None and (cleared, regrouped) == clear_plan(X3, plan, NEAR, far)
     # point robots and the last leg drive straight too
     assert not leg_targets(ModelConfig(robot_radius_m=0.0, turn_sigma_rad=X3.turn_sigma_rad), NEAR, NEAR_DESIRED, np.ones(3, bool)).any
-    # the last leg has no staging point: a drive that would end over the budget stops short, and says so
-    last = leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True)
-    assert not last.staged.any() and last.short.tolist() == [True, False, False]
-    assert last.targets[0, 1] == pytest.approx(0.0, abs=1e-12) and 0.0 <= last.targets[0, 0] < 0.3
-    assert end_probability(X3, NEAR, last.targets, 0, 1) <= END_BOUND
+    assert not leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True).any  # the last leg drives straight
 
 
 def test_a_target_at_risk_even_reached_without_noise_stops_short_at_a_safe_distance():
@@ -120,10 +116,7 @@ def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
     assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
     np.testing.assert_array_equal(leg.targets, again.targets)
     last = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, MAX_LEGS - 1)
-    assert last is not None and not last.staged.any()  # no staging point in the last leg: straight, or stopped short
-    ends = after.positions.copy()
-    ends[0] = last.targets[0]
-    assert end_probability(X3, after, ends, 0, 1) <= END_BOUND
+    assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
     assert next_leg(X3, first, after.select(np.array([False, True, True])), NEAR_DESIRED[1:], first.staged_ids, 1) is None  # lost
 
 
@@ -289,21 +282,3 @@ def test_a_target_no_approach_keeps_within_budget_is_stopped_short_and_reported(
     keys = contacts_json(result, X3.robot_radius_m)
     assert keys["stopped_short"] == 1 and keys["legs"][0]["stopped_short"] == [0]
     assert "robots [0] stopped short of their targets" in summary_text(result, "one-at-a-time", "paper", X3.robot_radius_m)
-
-
-def test_robots_cleared_only_at_a_raised_bound_wait_and_the_last_leg_stops_them_short():
-    # robots 0 and 1 swap ends of a 0.2 m lane, passing 3.5 cm apart (bodies need 2.2 cm): whichever drives first ends
-    # 3.5 cm from where the other stands, and driving together they pass as close, so at x3 no order keeps the
-    # 1e-3 bound and the regrouping would raise it to 1e-2-1e-1 (no room in a change's budget): both wait instead
-    est = estimate([[0.0, 0.0], [0.2, 0.035], [0.1, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.0])
-    desired = np.array([[0.2, 0.0], [0.0, 0.035], [0.1, 0.3]])
-    plan = Plan(np.array([0, 1, 2]), (2, 1))
-    raised = BodyCheck.of_estimate(X3, est, desired).regroup(plan.groups)
-    assert raised.bound > CONTACT_BOUND  # what the regrouping alone would do
-    cleared, regrouped, leg = first_leg(X3, plan, est, desired)
-    assert leg is not None and leg.staged.dtype == bool and leg.staged.tolist() == [True, True, False]
-    np.testing.assert_array_equal(leg.targets[:2], est.positions[:2])  # they wait where they stand
-    assert leg.staged_ids.tolist() == [0, 1] and (regrouped is None or regrouped.bound == CONTACT_BOUND)
-    last = next_leg(X3, leg, est, desired, leg.staged_ids, MAX_LEGS - 1)
-    assert last is not None and not last.staged.any() and (last.regrouped is None or last.regrouped.bound == CONTACT_BOUND)
-    np.testing.assert_array_equal(last.targets, est.positions[:2])  # the last leg: stopped short where they stand
