@@ -2,27 +2,25 @@
 
 Drive noise grows with the distance driven (``runtime.models.motion.motion_moments``), so a long open-loop drive ends
 with a large position error, and where its target stands close to a neighbour's place the pair's contact risk at the
-end of the change is high whatever the order of the moves (``BodyCheck``'s floor lets it through). Such a mover drives
-in legs: first to a **staging point** on its straight way (a fraction of its remaining path, ``LEG_FRACTIONS``), the
-swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter and so more precise.
+end of the change exceeds ``CONTACT_BOUND`` whatever the order of the moves (``BodyCheck``'s floor lets it through).
+Such a mover drives in legs: first to a **staging point** on its straight way (a fraction of its remaining path,
+``LEG_FRACTIONS``), the swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter
+and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs were driven: the last goes
+straight to the target, as without legs).
 
-**The change's budget.** A pair left touching at a leg's end stands so until one of them moves again (at the change's
-end: into the next change), so the risk of the legs' ends is what a change must bound: each pair's contact probability
-summed over the ends of a change's legs is at most ``CHANGE_BUDGET``. A pair has at most ``MAX_LEGS`` leg ends in a
-change, so each leg's end draws an equal share, ``END_BOUND`` = ``CHANGE_BUDGET`` / ``MAX_LEGS``, decided from that leg's
-start alone (the executor, a checkpoint's resumption and ``swarm replay --check`` compute the same legs). Of a pair over
-it, the robot that would drive farther stops shorter; at its shortest staging point it waits where it stands for the
-leg if its partner drives on in it and the leg is among the change's first ``WAIT_LEGS`` (before, a pair of movers
-still over at their shortest staging points drove there, and such ends were where almost every contact at motion noise
-x5.58 came from); otherwise it keeps its shortest staging point, and the last leg (``MAX_LEGS``) drives to the goals, so
-no robot stalls: there the budget is not kept. A goal at risk even reached with no motion noise (the targets too close
-for the position uncertainty: no approach helps) is pulled back along the way until it fits (``safe_goals``): such a
-robot ends the change **stopped short** of its desired position, and the run says so (``RunResult.stopped_short``).
-The steps themselves keep ``CONTACT_BOUND`` per pair and step (the regrouping).
+``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
+configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
+configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
+pair's contact probability within ``CONTACT_BOUND``; the motion of the legs' steps is kept within it by the
+regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instant, so the criterion is the probability
+of the pair's Gaussian relative position in the disc (``runtime.models.contact_risk.disc_probability``), not the
+half-plane bound the steps need (``instant_bound``: 2.3-2.6x the probability in the median at the default noise,
+10-27x at x5.58 for pairs at 1-3 %): a leg is driven only where the straight drive's end really is over the bound.
 
-The end is one instant, so the criterion is the probability of the pair's Gaussian relative position in the disc
-(``runtime.models.contact_risk.disc_probability``), not the half-plane bound the steps need (``instant_bound``: 2.3-2.6x
-the probability in the median at the default noise, 10-27x at x5.58 for pairs at 1-3 %).
+A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
+now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
+the robot ends the change **stopped short** of its desired position instead of driving into contact, and the run says
+so (``RunResult.stopped_short``).
 """
 
 from __future__ import annotations
@@ -33,26 +31,22 @@ import numpy as np
 
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
-from runtime.models.bodies import INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
+from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
 
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
-MAX_LEGS = 6  # legs of one robot in a change at most (the last ends the change)
+MAX_LEGS = 6  # legs of one robot in a change at most (the last drives straight to its target)
 MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
-CHANGE_BUDGET = 3e-3  # per pair and configuration change: contact probability summed over the ends of its legs
-END_BOUND = CHANGE_BUDGET / MAX_LEGS  # each leg's end draws an equal share: a pair's at most MAX_LEGS leg ends keep the budget
-WAIT_LEGS = MAX_LEGS // 2  # a robot may wait for a partner only in a change's first legs (later ones always get on)
 STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path by this fraction of it at a time
 
 
 @dataclass(frozen=True)
 class Leg:
     """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
-    not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal (they drive on in
-    the next leg; a staging point may be where the robot stands: it waits); ``short`` (n,) the robots whose goal is
-    short of their desired position (``stopped short``: no approach keeps them within the budget there)."""
+    not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal; ``short`` (n,) the
+    robots whose goal is short of their desired position (``safe_goals``: stopped short)."""
 
     targets: np.ndarray
     staged: np.ndarray
@@ -67,14 +61,14 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     """Pairs (i, j), i of ``rows``, j != i (each pair once), with their contact probability when every robot stands at
     the end of a straight move from its estimate to ``ends`` (n, 2) (arrived, with the move's noise): the Gaussian
     relative position's probability of the disc (``disc_probability``) where the half-plane bound is over
-    ``END_BOUND``, the bound elsewhere (it is under, and so is the probability)."""
+    ``CONTACT_BOUND``, the bound elsewhere (it is under, and so is the probability)."""
     n = len(estimate.ids)
     moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
     if n < INDEX_MIN:
         i, j = all_pairs(rows, n)
     else:  # a pair whose mean positions are more than 2R + z (sd_i + sd_j) apart keeps the bound (``BodyCheck``)
         sd = moments.spread()
-        pad = cfg.robot_radius_m + reach_sigmas(END_BOUND) * sd
+        pad = cfg.robot_radius_m + reach_sigmas(CONTACT_BOUND) * sd
         arrive = estimate.positions + moments.step
         i, j = near_pairs(rows, arrive, pad, arrive, pad)
     inside = np.zeros(n, bool)
@@ -84,13 +78,13 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     ones = np.ones(len(i))
     mu, _, sigma, _, _ = moments.pairs(i, j, ones, 0.0 * ones, ones, 0.0 * ones)
     p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
-    over = np.flatnonzero(p > END_BOUND)  # one instant: its probability itself where the bound says it may be over
+    over = np.flatnonzero(p > CONTACT_BOUND)  # one instant: its probability itself where the bound says it may be over
     p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
     return i, j, p
 
 
 def _yielding(i: np.ndarray, j: np.ndarray, can_i: np.ndarray, can_j: np.ndarray, length: np.ndarray) -> np.ndarray:
-    """The robot of each pair (i, j) over the budget that gives way: of the two that can (``can_i``, ``can_j``, per
+    """The robot of each pair (i, j) over the bound that gives way: of the two that can (``can_i``, ``can_j``, per
     pair), the one that would drive farther (``length``, m; ties: the higher index); -1 where neither can."""
     j_first = can_j & (~can_i | (length[j] > length[i]) | ((length[j] == length[i]) & (j > i)))
     return np.where(j_first, j, np.where(can_i, i, -1))
@@ -100,18 +94,18 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
     """``goals`` (n, 2) of the robots ``rows`` pulled back along their straight way where a pair would be at risk even
     standing there with the position uncertainty they have now (no motion: no approach helps it), and which were.
     A pair's robot with the longer way left (``_yielding``) steps back ``STOP_STEP`` of its way at a time until every
-    pair of goals keeps ``END_BOUND`` or it is back where it stands (the pair's risk is then the start's own)."""
+    pair of goals keeps ``CONTACT_BOUND`` or it is back where it stands (the pair's risk is then the start's own)."""
     current = estimate.positions
     path = goals - current
     length = np.hypot(*path.T)
     movable = np.zeros(len(current), bool)
-    movable[rows] = True
+    movable[rows] = length[rows] >= cfg.robot_radius_m  # a way shorter than a radius (a correction) is not pulled back
     fraction = np.ones(len(current))
     while True:  # fractions only fall, to 0 at most: this ends
         there = estimate.poses.copy()
         there[:, :2] = current + fraction[:, None] * path
         i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), there[:, :2], rows)
-        i, j = i[p > END_BOUND], j[p > END_BOUND]
+        i, j = i[p > CONTACT_BOUND], j[p > CONTACT_BOUND]
         can = movable & (fraction > 0)
         back = np.unique(_yielding(i, j, can[i], can[j], fraction * length))
         back = back[back >= 0]
@@ -121,18 +115,16 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
 
 
-def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False,
-                index: int = 0) -> Leg:
+def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
-    the change's last leg (every robot drives to its goal); ``index``: the leg's
-    index in the change (who waits alternates with it). Robots not ``going`` stand where they are estimated.
+    every robot drives straight to its goal. Robots not ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
-    (``safe_goals``: such a robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
+    (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
-    ``END_BOUND``: of a pair over it, the robot that would drive farther stops shorter (the next of ``LEG_FRACTIONS`` of
-    its way; at the shortest it waits where it stands if its partner drives on and ``index`` < ``WAIT_LEGS``;
-    ``_yielding``), until no pair is over or no robot of an over pair can give way more."""
+    ``CONTACT_BOUND``: both robots of a pair over it that drive stop shorter (the next of ``LEG_FRACTIONS`` of their
+    path), until none is over or they are at the shortest. Pairs whose goals are still at risk reached with no motion
+    noise (pulled back to where they stand) are left out: no leg helps them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
@@ -141,38 +133,30 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     rows = np.flatnonzero(going & (np.hypot(*(targets - current).T) >= MIN_LEG_M))
     if cfg.robot_radius_m <= 0 or not len(rows):
         return Leg(targets, none, none)
-    goals, short = safe_goals(cfg, estimate, targets, rows)
-    path = goals - current
-    length = np.hypot(*path.T)
-    rows = rows[length[rows] >= MIN_LEG_M]
-    fractions = np.array((1.0, *LEG_FRACTIONS, 0.0))  # level k: fractions[k] of the way; the last level waits
-    wait = len(fractions) - 1
-    level = np.zeros(len(current), np.int64)
+    targets, short = safe_goals(cfg, estimate, targets, rows)
+    path = targets - current
+    rows = rows[np.hypot(*path[rows].T) >= MIN_LEG_M]
+    if last or not len(rows):
+        return Leg(targets, none, short)
+    there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
+    there[:, :2] = targets
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
+    hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
+    level = np.zeros(len(current), np.int64)  # 0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the path
+    fractions = np.array((1.0, *LEG_FRACTIONS))
     movable = np.zeros(len(current), bool)
     movable[rows] = True
-    while True:  # levels only grow, to ``wait`` at most: this ends
+    while True:  # levels only grow, to len(LEG_FRACTIONS) at most: this ends
         ends = current + fractions[level][:, None] * path
         i, j, p = _end_pairs(cfg, estimate, ends, rows)
-        i, j = i[p > END_BOUND], j[p > END_BOUND]
-        # a robot at its shortest staging point waits only for a partner that drives on in this leg (one of the two
-        # gets on); against a partner standing, waiting would stall it without changing the pair's end: it stays there
-        on = movable & (level < wait) & (index < WAIT_LEGS)
-        can_i = movable[i] & ((level[i] < wait - 1) | ((level[i] == wait - 1) & on[j]))
-        can_j = movable[j] & ((level[j] < wait - 1) | ((level[j] == wait - 1) & on[i]))
-        shorter = _yielding(i, j, can_i, can_j, fractions[level] * length)
-        shorter = np.unique(shorter[shorter >= 0])
-        if not len(shorter):
+        over = [(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)]
+        shorter = sorted({r for a, b in over if (a, b) not in hopeless for r in (a, b) if movable[r] and level[r] < len(LEG_FRACTIONS)})
+        if not shorter:
             break
-        waits = level[shorter] == wait - 1
-        if waits.all():  # one wait at a time, after every other shortening: its partner must still drive on; the
-            # robot with the longer way waits in even legs, the shorter in odd ones, so both get on over the legs
-            shorter = shorter[(np.argmax if index % 2 == 0 else np.argmin)(length[shorter])][None]
-        level[shorter[~waits] if not waits.all() else shorter] += 1
-    stopped = level > 0
-    targets = np.where(stopped[:, None], current + fractions[level][:, None] * path, goals)
-    if last:  # no leg follows: every robot drives to its goal
-        return Leg(goals, none, short)
-    return Leg(targets, stopped, short)
+        level[shorter] += 1
+    staged = level > 0
+    targets[staged] = (current + fractions[level][:, None] * path)[staged]
+    return Leg(targets, staged, short)
 
 
 @dataclass(frozen=True)
@@ -205,7 +189,7 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
     """The strategy's ``plan`` (indices into ``estimate.ids``) cleared for bodies (``clear_plan``) towards the first
     leg's targets, how it was split, and the leg (None: every robot drives straight to ``desired``, and the plan is
     ``clear_plan``'s, bit for bit)."""
-    leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool), last=MAX_LEGS <= 1)
+    leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool))
     if not leg.any:
         return (*clear_plan(cfg, plan, estimate, desired), None)
     cleared, regrouped = clear_plan(cfg, plan, estimate, leg.targets)
@@ -223,7 +207,7 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
     ids = estimate.ids[mask]
     if not len(ids):
         return None
-    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1, index=index)
+    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1)
     rows = np.flatnonzero(mask)
     base, base_ids = first.base, first.ids
     row_of = {int(r): k for k, r in zip(rows, ids, strict=True)}

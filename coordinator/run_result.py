@@ -180,7 +180,7 @@ class RunResult:
 
     def stopped_short(self) -> list[list[int]]:
         """Per completed configuration, the robots its approach legs stopped short of their desired position on purpose
-        (``coordinator.legs``: no approach kept them within the contact budget there), ids in order."""
+        (``coordinator.legs.safe_goals``: at risk there even with no motion noise), ids in order."""
         out: list[list[int]] = []
         for rec in self.configs:
             final: dict[int, np.ndarray] = {}

@@ -23,8 +23,8 @@ changes where no order kept the contact bound (``CONTACT_BOUND`` per pair and st
 robots; ``unclear_changes``: changes with robots no order kept within the highest bound (moved one at a time);
 ``leg_changes``: changes whose movers drove in approach legs (``coordinator.legs``), ``staging_stops``: the legs driven
 to a staging point (one per robot and stop; their steps are in ``steps_added`` and ``steps_per_config``);
-``stopped_short``: robots the legs stopped short of their desired position (one per robot and change: no approach kept
-them within the contact budget there), ``stopped_short_changes``: changes with such a robot.
+``stopped_short``: robots the legs stopped short of their desired position (one per robot and change: their place is
+at risk even reached with no motion noise), ``stopped_short_changes``: changes with such a robot.
 """
 
 from __future__ import annotations
@@ -36,7 +36,6 @@ from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
-from coordinator.legs import CHANGE_BUDGET
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.options import RunOptions
@@ -161,8 +160,8 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
     lines.append(f"added: steps the body constraint added over all runs; raised: configuration changes where no order kept the contact "
                  f"bound {CONTACT_BOUND:g} per pair and step for some robots (raised for them); unclear: changes with robots no order "
                  f"kept within {max(BOUND_LEVELS):g} (moved one at a time); legs: changes whose movers drove in approach legs, stops: "
-                 f"approach legs driven to a staging point; short: robots stopped short of their targets (no approach kept them within "
-                 f"the contact budget {CHANGE_BUDGET:g} per pair and change there)")
+                 f"approach legs driven to a staging point; short: robots stopped short of their targets (at risk there even with no "
+                 f"motion noise)")
     public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
     return BenchResult(public, summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",

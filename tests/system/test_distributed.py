@@ -218,14 +218,12 @@ def test_coordinator_publishes_plans_estimates_and_configs(completed):
     commands = [m for _, m in heard if isinstance(m, MotionCommand)]
     ids = [int(i) for i in run.traj.ids]
     # no-anchors: everyone moves in the configuration's one step; robots 1 and 2 drive 0.2-0.34 m into places 5.3-6.3 cm
-    # apart, where their straight drives' ends touch with probability 1.7 % (configuration 1) and 5.5 % (2), over a
-    # leg's share of the change's budget (5e-4), so the farther driver stops at staging points and goes on in approach
-    # legs (the others standing): robot 1, one more leg, in configuration 1; in 2 both stop first (the first leg split in
-    # two sub-steps), robot 2 arrives in the next leg and robot 1 in one more
-    one = ((ids[1],),)
+    # apart, where their straight drives' ends touch with probability 1.7 % (configuration 1) and 5.5 % (2), so both
+    # stop at staging points and go on in approach legs (robot 0 standing): one more leg in configuration 1, three in 2
+    legs = (tuple(ids[1:]),)
     assert [(p.config, p.step, p.n_anchors, p.groups, p.leg) for p in plans] == [
-        (1, 1, 0, (tuple(ids),), 0), (1, 2, 2, one, 1), (2, 3, 2, ((ids[0], ids[2]), (ids[1],)), 0),
-        (2, 5, 1, (tuple(ids[1:]),), 1), (2, 6, 2, one, 2)]
+        (1, 1, 0, (tuple(ids),), 0), (1, 2, 1, legs, 1), (2, 3, 0, (tuple(ids),), 0), (2, 4, 1, legs, 1), (2, 5, 1, legs, 2),
+        (2, 6, 1, legs, 3)]
     assert sorted(m.step for m in estimates) == list(range(7))  # the initial estimate, then one per step
     by_step = {m.step: m for m in estimates}
     np.testing.assert_array_equal(by_step[0].to_estimate().poses, np.array(got["initial_estimate"]))
@@ -246,18 +244,18 @@ def test_coordinator_records_the_run(completed):
     run_channels = [c for c in info["channels"] if c["topic"].startswith("swarm/")]  # not derived views (/foxglove/...)
     counts = {c["topic"]: c["messages"] for c in run_channels}
     types = {c["topic"]: c["type"] for c in run_channels}
-    # no-anchors, 3 robots, 2 configurations: 6 steps, everyone moves in the configurations' first leg (the second's in
-    # two sub-steps), robot 1 in its 3 approach legs, robot 2 in 1 (test_coordinator_publishes_plans_estimates_and_configs)
-    assert counts[coord_key(r, "plan")] == 5 and counts[coord_key(r, "estimate")] == 7
+    # no-anchors, 3 robots, 2 configurations: 6 steps, everyone moves at the configurations' first, robots 1 and 2 at
+    # their approach legs' (test_coordinator_publishes_plans_estimates_and_configs)
+    assert counts[coord_key(r, "plan")] == 6 and counts[coord_key(r, "estimate")] == 7
     for robot in ids:
         for leaf in ("observe", "obs"):
             assert counts[robot_key(r, robot, leaf)] == 6, leaf
-        assert counts[robot_key(r, robot, "cmd")] == {ids[0]: 2, ids[1]: 5, ids[2]: 3}[robot]
+        assert counts[robot_key(r, robot, "cmd")] == (2 if robot == ids[0] else 6)
         assert types[robot_key(r, robot, "cmd")] == "MotionCommand" and types[robot_key(r, robot, "observe")] == "ObserveRequest"
         assert counts[robot_key(r, robot, "status")] >= 2  # accepted + done per command
         assert counts[truth_key(r, robot)] >= 7  # steps 0 to 6
     assert counts[truths_key(r)] == 6  # one truth set per motion step
-    assert counts[coord_key(r, "checkpoint")] == 13  # the start, each plan and leg (5), each step (6), the end
+    assert counts[coord_key(r, "checkpoint")] == 14  # the start, each plan and leg (6), each step (6), the end
     assert set(counts) == {coord_key(r, "plan"), coord_key(r, "estimate"), coord_key(r, "checkpoint"), truths_key(r),
                            *[robot_key(r, i, leaf) for i in ids for leaf in ("cmd", "observe", "status", "obs")],
                            *[truth_key(r, i) for i in ids]}
@@ -302,12 +300,12 @@ def _kill_an_agent_mid_run(tmp_path: Path, extra: tuple[str, ...] = ("--on-lost=
     return run
 
 
-def test_a_target_no_approach_keeps_within_budget_is_stopped_short_as_in_process(tmp_path):
+def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path):
     """Robot 0 drives to 27 mm behind robot 1, which stands in its way: one-at-a-time is regrouped (robot 1 first, then
     robot 0), and robot 0's target is at risk even reached with no motion noise (5 mm of position error against 5 mm of
-    room), so robot 0 stops short of it at a safe distance (before the change's budget it drove in and, with seed 4, the
-    true bodies touched at the end of its step and stood touching through the last: 2 contacts). The summary, the JSON
-    and the recording say so, exactly as the in-process run: no contact, robot 0 stopped short."""
+    room), so robots 0 and 1 stop short of their places at a safe distance (robot 0 first, the longer way; before, it
+    drove in and, with seed 4, the true bodies touched at the end of its step and stood touching through the last: 2
+    contacts). The summary, the JSON and the recording say so, exactly as the in-process run: no contact."""
     traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [0.327, 0.0], [0.05, 0.25]]]))
     run = Run(tmp_path, traj, "one-at-a-time", 4, extra=("--json",))
     try:
@@ -318,12 +316,12 @@ def test_a_target_no_approach_keeps_within_budget_is_stopped_short_as_in_process
     assert run.coordinator.returncode == 0, "".join(run.stderr)
     _assert_same_as_in_process(run)
     ref = _in_process(traj, "one-at-a-time", 4)
-    assert ref.contacts(0.011) == [] and ref.stopped_short() == [[0]]
+    assert ref.contacts(0.011) == [] and ref.stopped_short() == [[0, 1]]
     assert "config 1: steps regrouped for bodies (still 3)" in out and "contacts (bodies of radius 0.011 m): 0" in out
-    assert "robots [0] stopped short of their targets" in out
+    assert "robots [0, 1] stopped short of their targets" in out
     doc = json.loads(out.strip().splitlines()[-1])
-    assert doc["robot_radius_m"] == 0.011 and doc["contacts"] == [] and doc["stopped_short"] == 1
-    assert [leg["stopped_short"] for leg in doc["legs"]] == [[0]]
+    assert doc["robot_radius_m"] == 0.011 and doc["contacts"] == [] and doc["stopped_short"] == 2
+    assert [leg["stopped_short"] for leg in doc["legs"]] == [[0, 1]]
     assert not [topic for topic, _, _, _ in read_messages(run.recording) if topic.endswith("/sim/contact")]
 
 

@@ -50,9 +50,8 @@ def test_check_reproduces_the_recorded_run(recording, capsys):
     out = capsys.readouterr().out
     result = json.loads(out.strip().splitlines()[-1])
     # initial estimate + 2 configurations x 2 steps + 1 step of an approach leg (configuration 2: robots 1 and 2 drive
-    # 0.41 and 0.28 m into places 9.6 cm apart, where their straight drives' ends touch with probability 4e-3, over a
-    # leg's share of the change's budget, so robot 1, the farther driver, stops at a staging point and drives on); 2
-    # plans from the seeded anchor search and the leg's
+    # 0.41 and 0.28 m into places 9.6 cm apart, where their straight drives' ends touch with probability 4e-3, so both
+    # stop at a staging point and drive on together); 2 plans from the seeded anchor search and the leg's
     assert "check passed: 6 estimates, 3 plans reproduced" in out
     assert result["passed"] and result["estimates"] == 6 and result["plans"] == 3 and result["skipped"] == []
     assert result["exact"] is True  # recorded on this machine: compared bit for bit
