@@ -16,6 +16,11 @@ regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instan
 of the pair's Gaussian relative position in the disc (``runtime.models.contact_risk.disc_probability``), not the
 half-plane bound the steps need (``instant_bound``: 2.3-2.6x the probability in the median at the default noise,
 10-27x at x5.58 for pairs at 1-3 %): a leg is driven only where the straight drive's end really is over the bound.
+
+A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
+now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
+the robot ends the change **stopped short** of its desired position instead of driving into contact, and the run says
+so (``RunResult.stopped_short``).
 """
 
 from __future__ import annotations
@@ -34,19 +39,22 @@ from runtime.models.state import SwarmEstimate
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
 MAX_LEGS = 6  # legs of one robot in a change at most (the last drives straight to its target)
 MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
+STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path by this fraction of it at a time
 
 
 @dataclass(frozen=True)
 class Leg:
     """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
-    not move in it); ``staged`` (n,) the robots whose target is a staging point short of their desired position."""
+    not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal; ``short`` (n,) the
+    robots whose goal is short of their desired position (``safe_goals``: stopped short)."""
 
     targets: np.ndarray
     staged: np.ndarray
+    short: np.ndarray
 
     @property
     def any(self) -> bool:
-        return bool(self.staged.any())
+        return bool(self.staged.any() or self.short.any())
 
 
 def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,28 +83,66 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     return i, j, p
 
 
+def _yielding(i: np.ndarray, j: np.ndarray, can_i: np.ndarray, can_j: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """The robot of each pair (i, j) over the bound that gives way: of the two that can (``can_i``, ``can_j``, per
+    pair), the one that would drive farther (``length``, m; ties: the higher index); -1 where neither can."""
+    j_first = can_j & (~can_i | (length[j] > length[i]) | ((length[j] == length[i]) & (j > i)))
+    return np.where(j_first, j, np.where(can_i, i, -1))
+
+
+def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``goals`` (n, 2) of the robots ``rows`` pulled back along their straight way where a pair would be at risk even
+    standing there with the position uncertainty they have now (no motion: no approach helps it), and which were.
+    A pair's robot with the longer way left (``_yielding``) steps back ``STOP_STEP`` of its way at a time until every
+    pair of goals keeps ``CONTACT_BOUND`` or it is back where it stands (the pair's risk is then the start's own)."""
+    current = estimate.positions
+    path = goals - current
+    length = np.hypot(*path.T)
+    movable = np.zeros(len(current), bool)
+    movable[rows] = length[rows] >= cfg.robot_radius_m  # a way shorter than a radius (a correction) is not pulled back
+    fraction = np.ones(len(current))
+    while True:  # fractions only fall, to 0 at most: this ends
+        there = estimate.poses.copy()
+        there[:, :2] = current + fraction[:, None] * path
+        i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), there[:, :2], rows)
+        i, j = i[p > CONTACT_BOUND], j[p > CONTACT_BOUND]
+        can = movable & (fraction > 0)
+        back = np.unique(_yielding(i, j, can[i], can[j], fraction * length))
+        back = back[back >= 0]
+        if not len(back):
+            pulled = fraction < 1.0
+            return np.where(pulled[:, None], there[:, :2], goals), pulled
+        fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
+
+
 def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
-    every robot drives straight to its target. Robots not ``going`` stand where they are estimated.
+    every robot drives straight to its goal. Robots not ``going`` stand where they are estimated.
 
-    The leg's end configuration (every robot of ``going`` arrived at its leg's end, with that drive's noise, the others
-    where they stand) must keep every pair within ``CONTACT_BOUND``: both robots of a pair over it that drive stop
-    shorter (the next of ``LEG_FRACTIONS`` of their path), until none is over or they are at the shortest. Pairs whose
-    targets are at risk even reached with no motion noise are left out: no leg helps them."""
+    Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
+    (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
+    arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
+    ``CONTACT_BOUND``: both robots of a pair over it that drive stop shorter (the next of ``LEG_FRACTIONS`` of their
+    path), until none is over or they are at the shortest. Pairs whose goals are still at risk reached with no motion
+    noise (pulled back to where they stand) are left out: no leg helps them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
     targets = np.where(going[:, None], desired, current)
-    staged = np.zeros(len(current), bool)
+    none = np.zeros(len(current), bool)
+    rows = np.flatnonzero(going & (np.hypot(*(targets - current).T) >= MIN_LEG_M))
+    if cfg.robot_radius_m <= 0 or not len(rows):
+        return Leg(targets, none, none)
+    targets, short = safe_goals(cfg, estimate, targets, rows)
     path = targets - current
-    rows = np.flatnonzero(going & (np.hypot(*path.T) >= MIN_LEG_M))
-    if cfg.robot_radius_m <= 0 or last or not len(rows):
-        return Leg(targets, staged)
-    there = estimate.poses.copy()  # every robot standing at its target with its position's uncertainty now, no motion
+    rows = rows[np.hypot(*path[rows].T) >= MIN_LEG_M]
+    if last or not len(rows):
+        return Leg(targets, none, short)
+    there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
     there[:, :2] = targets
     i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
     hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
-    level = np.zeros(len(current), np.int64)  # 0: straight to the target, k: LEG_FRACTIONS[k - 1] of the path
+    level = np.zeros(len(current), np.int64)  # 0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the path
     fractions = np.array((1.0, *LEG_FRACTIONS))
     movable = np.zeros(len(current), bool)
     movable[rows] = True
@@ -110,7 +156,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         level[shorter] += 1
     staged = level > 0
     targets[staged] = (current + fractions[level][:, None] * path)[staged]
-    return Leg(targets, staged)
+    return Leg(targets, staged, short)
 
 
 @dataclass(frozen=True)

@@ -178,6 +178,23 @@ class RunResult:
         """Approach legs driven to a staging point over the run (``coordinator.legs``)."""
         return sum(c.staging_stops for c in self.configs)
 
+    def stopped_short(self) -> list[list[int]]:
+        """Per completed configuration, the robots its approach legs stopped short of their desired position on purpose
+        (``coordinator.legs.safe_goals``: at risk there even with no motion noise), ids in order."""
+        out: list[list[int]] = []
+        for rec in self.configs:
+            final: dict[int, np.ndarray] = {}
+            for leg in rec.legs:  # a robot's last leg holds where it was sent in the end
+                final.update((int(r), t) for r, t in zip(leg.ids, leg.targets, strict=True))
+            ids = np.array(sorted(final), np.int64)
+            if not len(ids):
+                out.append([])
+                continue
+            desired = self.trajectory.configurations[rec.config][index_of(self.trajectory.ids, ids, "trajectory")]
+            sent = np.array([final[int(r)] for r in ids])
+            out.append(ids[np.hypot(*(sent - desired[:, :2]).T) > 0.0].tolist())
+        return out
+
     def contacts(self, radius: float) -> list[ContactEvent]:
         """Contacts of bodies of ``radius`` (m) in the true motion of every step (``runtime.models.bodies.step_contacts``):
         each pair of robots whose bodies overlapped at some time of a step (a mover's, or two still robots standing

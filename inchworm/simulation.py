@@ -190,15 +190,20 @@ def config_table(result: RunResult) -> str:
         else:
             lines.append(f"{c + 1:>6} {anchors[c]:>4} {rec.n_steps:>5} {'-':>9} {'-':>11} {'-':>13}")
     lines += [f"config {c + 1}: {rec.regrouped.describe(rec.plan.n_steps)}" for c, rec in enumerate(result.configs) if rec.regrouped]
-    lines += [f"config {c + 1}: {legs_text(rec)}" for c, rec in enumerate(result.configs) if rec.legs]
+    short = result.stopped_short()
+    lines += [f"config {c + 1}: {legs_text(rec, short[c])}" for c, rec in enumerate(result.configs) if rec.legs]
     lines += [f"config {s.config + 1} step {s.step + 1}: kept dead reckoning ({s.fallback})" for s in fallback_steps(result)]
     return "\n".join([*lines, *anchor_choices(result)])
 
 
-def legs_text(rec: ConfigRecord) -> str:
-    """How a configuration's movers drove in approach legs (``coordinator.legs``)."""
-    return (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point, "
+def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
+    """How a configuration's movers drove in approach legs (``coordinator.legs``), and the robots they stopped short of
+    their desired positions (``RunResult.stopped_short``)."""
+    text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
+    if stopped_short:
+        text += f"; robots {stopped_short} stopped short of their targets (at risk there even with no motion noise)"
+    return text
 
 
 def _robots(ids: list[int], most: int = 20) -> str:
@@ -258,10 +263,14 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     whose plan the chance constraint split: ``config`` 1-based, ``planned_steps``, ``steps``, ``contact_bound`` the
     highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time),
     ``staging_stops`` (approach legs driven to a staging point, ``coordinator.legs``) and ``legs`` (each configuration
-    whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``)."""
+    whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``, ``stopped_short``
+    the robots the legs stopped short of their desired positions, at risk there even with no motion noise) and
+    ``stopped_short`` (those robots over the run, one per robot and configuration)."""
+    short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
-            "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps}
-                     for k, c in enumerate(result.configs) if c.legs],
+            "stopped_short": sum(len(s) for s in short),
+            "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps,
+                      "stopped_short": short[k]} for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],
             "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}

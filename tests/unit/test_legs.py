@@ -21,7 +21,7 @@ from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
 from runtime.models.bodies import CONTACT_BOUND
 from runtime.models.config import ModelConfig
-from runtime.models.contact_risk import MotionMoments, instant_bound
+from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.simulation import SimulatedSwarm
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import Trajectory
@@ -53,6 +53,13 @@ def end_risk(cfg: ModelConfig, est: SwarmEstimate, ends: np.ndarray, i: int, j: 
     return float(instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)[0])
 
 
+def end_probability(cfg: ModelConfig, est: SwarmEstimate, ends: np.ndarray, i: int, j: int) -> float:
+    """The contact probability of robots i and j arrived at ``ends`` (n, 2) from their estimates (no drive: standing)."""
+    m = MotionMoments(cfg, est.positions, ends, est.cov)
+    mu, _, sigma, _, _ = m.pairs(np.array([i]), np.array([j]), np.ones(1), np.zeros(1), np.ones(1), np.zeros(1))
+    return float(disc_probability(mu, sigma, 2.0 * cfg.robot_radius_m)[0])
+
+
 def test_a_drive_ending_near_a_still_neighbour_stops_short_on_its_way():
     going = np.array([True, False, False])
     assert end_risk(X3, NEAR, NEAR_DESIRED, 0, 1) > 0.01  # straight in: far over the bound
@@ -76,10 +83,19 @@ def test_a_clear_drive_gets_no_leg_and_the_plan_is_clear_plans():
     assert not leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True).any
 
 
-def test_no_leg_where_the_target_itself_is_at_risk():
+def test_a_target_at_risk_even_reached_without_noise_stops_short_at_a_safe_distance():
     tight = NEAR_DESIRED.copy()
-    tight[0] = [0.3, 0.04]  # 2 cm from the neighbour with 5-6 mm of position error: even standing there is over the bound
-    assert not leg_targets(X3, NEAR, tight, np.ones(3, bool)).any
+    tight[0] = [0.3, 0.035]  # 2.5 cm from the neighbour with 5-6 mm of position error: even standing there is over the bound
+    there = NEAR.poses.copy()
+    there[:, :2] = tight
+    assert end_probability(X3, SwarmEstimate(NEAR.ids, there, NEAR.cov), tight, 0, 1) > 0.1
+    leg = leg_targets(X3, NEAR, tight, np.ones(3, bool))
+    assert leg.short.tolist() == [True, False, False]  # its goal is pulled back along its way
+    goal = tight[0] * (np.hypot(*leg.targets[0]) / np.hypot(*tight[0]))
+    assert leg.targets[0, 0] * tight[0, 1] - leg.targets[0, 1] * tight[0, 0] == pytest.approx(0.0, abs=1e-12)  # on its way
+    there[0, :2] = goal
+    assert end_probability(X3, SwarmEstimate(NEAR.ids, there, NEAR.cov), there[:, :2], 0, 1) <= CONTACT_BOUND
+    assert not leg_targets(ModelConfig(robot_radius_m=0.0), NEAR, tight, np.ones(3, bool)).any  # point robots: never at risk
 
 
 def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
@@ -208,3 +224,24 @@ def test_the_fault_bench_finds_a_run_with_legs_identical_to_its_own_json():
     assert same_table(summary, result)
     summary["configs"][0]["steps"] = config.plan.n_steps
     assert not same_table(summary, result)
+
+
+# robot 0 drives to a place 2.5 cm from the still robot 1 (bodies need 2.2 cm): at risk even without motion
+TIGHT = Trajectory(np.arange(3), np.array([[0.0, 0.0, math.pi - 1e-3], [0.3, 0.06, -math.pi + 1e-3], [0.35, 0.2, 0.0]]),
+                   np.array([[[0.3, 0.035], [0.3, 0.06], [0.35, 0.2]]]))
+
+
+def test_a_target_at_risk_without_motion_is_stopped_short_and_reported():
+    from inchworm.simulation import contacts_json, summary_text
+
+    loc = make_localizer("paper", X3)
+    ex = InchwormExecutor(SimulatedSwarm(TIGHT.ids, TIGHT.initial_poses, X3, 3), loc,
+                          make_strategy("one-at-a-time", TIGHT.n, X3, loc, SelectionConfig(), 3), X3)
+    result = ex.run(TIGHT, initial_estimate(TIGHT, 3, 0.005, math.radians(1.0)))
+    assert result.stopped_short() == [[0]] and not result.contacts(X3.robot_radius_m)
+    final = result.configs[0].legs[-1].targets[0]
+    assert 0.2 < np.hypot(*final) < np.hypot(0.3, 0.035)  # short of its target on its way, at a safe distance
+    assert np.hypot(*(result.configs[0].truth[0, :2] - result.configs[0].truth[1, :2])) > 2 * X3.robot_radius_m
+    keys = contacts_json(result, X3.robot_radius_m)
+    assert keys["stopped_short"] == 1 and keys["legs"][0]["stopped_short"] == [0]
+    assert "robots [0] stopped short of their targets" in summary_text(result, "one-at-a-time", "paper", X3.robot_radius_m)
