@@ -49,8 +49,8 @@ class Run:
     coordinator process."""
 
     def __init__(self, tmp: Path, traj: Trajectory, method: str, seed: int, motion_time: float = 0.0, out: Path | None = None,
-                 extra: tuple[str, ...] = (), hosted: tuple[int, ...] = ()) -> None:
-        self.traj, self.method, self.seed = traj, method, seed
+                 extra: tuple[str, ...] = (), hosted: tuple[int, ...] = (), model: tuple[str, ...] = ()) -> None:
+        self.traj, self.method, self.seed, self.model = traj, method, seed, model
         self.run_id = f"t{uuid.uuid4().hex[:10]}"
         self.traj_file = tmp / "traj.json"
         traj.save(self.traj_file)
@@ -74,7 +74,7 @@ class Run:
         for key_expr in (coord_key(self.run_id, "plan"), coord_key(self.run_id, "estimate"), robot_wildcard(self.run_id, "cmd")):
             subscribe(self.session, key_expr, self._hear)
         ids = ",".join(str(int(i)) for i in self.traj.ids)
-        common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}"]
+        common = [f"--run={self.run_id}", f"--hub={self.hub}", f"--seed={self.seed}", *self.model]  # model: agents' and coordinator's
         for robot, pose in zip(self.traj.ids, self.traj.initial_poses, strict=True):
             if int(robot) in self.hosted:
                 continue
@@ -164,14 +164,14 @@ def _alive_with(run_id: str) -> list[int]:
     return pids
 
 
-def _in_process(traj: Trajectory, method: str, seed: int):
-    args = build_parser().parse_args(["coordinator", "--trajectory=x", "--run=x", "--hub=tcp/127.0.0.1:1"])
+def _in_process(traj: Trajectory, method: str, seed: int, model: tuple[str, ...] = ()):
+    args = build_parser().parse_args(["coordinator", "--trajectory=x", "--run=x", "--hub=tcp/127.0.0.1:1", *model])
     return simulate(traj, method, model_config(args), localizer=args.localizer, seed=seed)
 
 
 def _assert_same_as_in_process(run: Run) -> None:
     got = json.loads(run.result_file.read_text())
-    ref = _in_process(run.traj, run.method, run.seed)
+    ref = _in_process(run.traj, run.method, run.seed, run.model)
     assert len(got["steps"]) == len(ref.steps) > 0
     np.testing.assert_allclose(got["initial_truth"], ref.initial_truth, rtol=0, atol=1e-9)
     for s, r in zip(got["steps"], ref.steps, strict=True):
@@ -335,6 +335,33 @@ def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path
     assert doc["robot_radius_m"] == 0.011 and doc["contacts"] == [] and doc["stopped_short"] == 2
     assert [leg["stopped_short"] for leg in doc["legs"]] == [[0, 1]]
     assert not [topic for topic, _, _, _ in read_messages(run.recording) if topic.endswith("/sim/contact")]
+
+
+NOISY = ("--turn-sigma-deg=16.74", "--drive-sigma-frac=0.279")  # motion noise x5.58 (the calibrated robots')
+
+
+def test_contacts_of_noisy_robots_are_the_in_process_ones_and_recorded(tmp_path):
+    """Robot 0 drives to 6 cm behind robot 1 at motion noise x5.58, where contacts remain (docs/bodies.md): with seed 17
+    the true bodies touch (5.9 mm between centres) at the last step. The summary, the JSON and
+    the recording's ContactMessages (and their Foxglove view) say so, exactly as the in-process run."""
+    traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [0.36, 0.0], [0.05, 0.25]]]))
+    run = Run(tmp_path, traj, "one-at-a-time", 17, extra=("--json",), model=NOISY)
+    try:
+        run.start()
+        out = run.finish(60)
+    finally:
+        run.stop()
+    assert run.coordinator.returncode == 0, "".join(run.stderr)
+    _assert_same_as_in_process(run)
+    ref = _in_process(traj, "one-at-a-time", 17, NOISY).contacts(0.011)
+    assert [(c.step, c.a, c.b) for c in ref] == [(len(json.loads(run.result_file.read_text())["steps"]), 0, 1)]
+    assert f"contacts (bodies of radius 0.011 m): {len(ref)}" in out
+    doc = json.loads(out.strip().splitlines()[-1])
+    assert doc["contacts"] == [{"step": c.step, "config": 1, "robots": [0, 1], "distance_m": c.distance} for c in ref]
+    msgs = [decode(payload) for topic, payload, _, _ in read_messages(run.recording) if topic.endswith("/sim/contact")]
+    assert [(m.step, m.config, m.a, m.b, m.radius_m) for m in msgs] == [(c.step, 1, 0, 1, 0.011) for c in ref]
+    assert [(m.distance_m, tuple(m.point)) for m in msgs] == [(c.distance, c.point) for c in ref]
+    assert "/foxglove/contacts" in [t for t, _, _, _ in read_messages(run.recording, derived=True)]
 
 
 def test_killed_agent_is_stopped_dropped_and_the_run_goes_on(tmp_path):
