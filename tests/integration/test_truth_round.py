@@ -7,12 +7,15 @@ request comes; the coordinator never publishes a step's truth set before that st
 
 from __future__ import annotations
 
+import contextlib
 import queue
 import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
+import zenoh
 
 from coordinator.node.zenoh_backend import RunStopped, Timeouts, ZenohSwarmBackend
 from robot_agent.agent import Agent
@@ -128,14 +131,28 @@ def test_a_truth_set_for_a_step_the_agent_has_no_truth_of_is_still_dropped(agent
     assert [type(m) for m in got] == [TruthMessage] and _published_by_agent(seen) == []  # ... and it waits for a real set
 
 
-def test_the_coordinator_sends_a_steps_truth_set_only_after_its_requests():
+@contextlib.contextmanager
+def two_agents() -> Iterator[tuple[zenoh.Session, zenoh.Session, list[Agent]]]:
+    """A loopback hub, the coordinator's session and robots 0 and 1's simulated agents running on threads (stopped
+    at the end)."""
     hub, member, _ = open_loopback_hub()
     with hub, open_session(member) as coordinator_session:
         agents = [Agent(member, RUN, r, [0, 1], SimDriver(r, [0, 1], np.array(ROBOT_POSES[r]), ModelConfig(), seed=3)) for r in (0, 1)]
         threads = [threading.Thread(target=a.run, daemon=True) for a in agents]
         for t in threads:
             t.start()
-        _wait_alive(hub, 2)
+        try:
+            _wait_alive(hub, 2)
+            yield hub, coordinator_session, agents
+        finally:
+            for a in agents:
+                a.stop()
+            for t in threads:
+                t.join(timeout=5)
+
+
+def test_the_coordinator_sends_a_steps_truth_set_only_after_its_requests():
+    with two_agents() as (hub, coordinator_session, agents):
         _, seen = subscribe_queue(hub, run_wildcard(RUN))
         backend = ZenohSwarmBackend(coordinator_session, RUN, [0, 1], Timeouts(10.0, 4.0))
         try:
@@ -147,10 +164,6 @@ def test_the_coordinator_sends_a_steps_truth_set_only_after_its_requests():
                 assert len(observations.observer) == 2  # each sees the other
         finally:
             backend.close()
-            for a in agents:
-                a.stop()
-            for t in threads:
-                t.join(timeout=5)
         stamped = []  # by publish time (one wall clock): Zenoh does not keep the order of different keys
         while not seen.empty():
             msg = decode(seen.get()[1])
@@ -168,13 +181,7 @@ def test_a_refusal_for_the_runs_emergency_stop_ends_the_run_as_stopped_and_loses
     """The launcher's run-wide stop reaches the agents before the coordinator (Zenoh keeps no order across keys):
     the agents refuse the next command for it, and the coordinator ends the run as stopped by whoever stopped it,
     declaring no robot lost."""
-    hub, member, _ = open_loopback_hub()
-    with hub, open_session(member) as coordinator_session:
-        agents = [Agent(member, RUN, r, [0, 1], SimDriver(r, [0, 1], np.array(ROBOT_POSES[r]), ModelConfig(), seed=3)) for r in (0, 1)]
-        threads = [threading.Thread(target=a.run, daemon=True) for a in agents]
-        for t in threads:
-            t.start()
-        _wait_alive(hub, 2)
+    with two_agents() as (hub, coordinator_session, agents):
         publish(hub, estop_key(RUN), encode(EmergencyStop(run=RUN, step=0, source="swarm launch (pid 7)", reason="interrupted")))
         deadline = time.monotonic() + 5
         while not all(a.estopped for a in agents):
@@ -191,9 +198,5 @@ def test_a_refusal_for_the_runs_emergency_stop_ends_the_run_as_stopped_and_loses
             assert backend.take_lost() == {}
         finally:
             backend.close()
-            for a in agents:
-                a.stop()
-            for t in threads:
-                t.join(timeout=5)
         refusal = decode(seen.get(timeout=3)[1], Status)
         assert refusal.state == "refused" and refusal.reason == f"{RUN_STOPPED_REFUSAL} by swarm launch (pid 7) (interrupted)"

@@ -312,14 +312,11 @@ def _kill_an_agent_mid_run(tmp_path: Path, extra: tuple[str, ...] = ("--on-lost=
     return run
 
 
-def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path):
-    """Robot 0 drives to 27 mm behind robot 1, which stands in its way: one-at-a-time is regrouped (robot 1 first, then
-    robot 0), and robot 0's target is at risk even reached with no motion noise (5 mm of position error against 5 mm of
-    room), so robots 0 and 1 stop short of their places at a safe distance (robot 0 first, the longer way; before, it
-    drove in and, with seed 4, the true bodies touched at the end of its step and stood touching through the last: 2
-    contacts). The summary, the JSON and the recording say so, exactly as the in-process run: no contact."""
-    traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [0.327, 0.0], [0.05, 0.25]]]))
-    run = Run(tmp_path, traj, "one-at-a-time", 4, extra=("--json",))
+def _behind_robot_1(tmp_path: Path, x: float, seed: int, model: tuple[str, ...] = ()) -> tuple[Trajectory, Run, str]:
+    """A distributed one-at-a-time run (``--json``) of robot 0 driving from (0, 0) to (0.3, 0), behind robot 1 going
+    from (0.1, 0) to (``x``, 0), robot 2 aside, checked against the in-process run: (trajectory, run, its stdout)."""
+    traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [x, 0.0], [0.05, 0.25]]]))
+    run = Run(tmp_path, traj, "one-at-a-time", seed, extra=("--json",), model=model)
     try:
         run.start()
         out = run.finish(60)
@@ -327,6 +324,16 @@ def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path
         run.stop()
     assert run.coordinator.returncode == 0, "".join(run.stderr)
     _assert_same_as_in_process(run)
+    return traj, run, out
+
+
+def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path):
+    """Robot 0 drives to 27 mm behind robot 1, which stands in its way: one-at-a-time is regrouped (robot 1 first, then
+    robot 0), and robot 0's target is at risk even reached with no motion noise (5 mm of position error against 5 mm of
+    room), so robots 0 and 1 stop short of their places at a safe distance (robot 0 first, the longer way; before, it
+    drove in and, with seed 4, the true bodies touched at the end of its step and stood touching through the last: 2
+    contacts). The summary, the JSON and the recording say so, exactly as the in-process run: no contact."""
+    traj, run, out = _behind_robot_1(tmp_path, 0.327, 4)
     ref = _in_process(traj, "one-at-a-time", 4)
     assert ref.contacts(0.011) == [] and ref.stopped_short() == [[0, 1]]
     assert "config 1: steps regrouped for bodies (still 3)" in out and "contacts (bodies of radius 0.011 m): 0" in out
@@ -344,15 +351,7 @@ def test_contacts_of_noisy_robots_are_the_in_process_ones_and_recorded(tmp_path)
     """Robot 0 drives to 6 cm behind robot 1 at motion noise x5.58, where contacts remain (docs/bodies.md): with seed 17
     the true bodies touch (5.9 mm between centres) at the last step. The summary, the JSON and
     the recording's ContactMessages (and their Foxglove view) say so, exactly as the in-process run."""
-    traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [0.36, 0.0], [0.05, 0.25]]]))
-    run = Run(tmp_path, traj, "one-at-a-time", 17, extra=("--json",), model=NOISY)
-    try:
-        run.start()
-        out = run.finish(60)
-    finally:
-        run.stop()
-    assert run.coordinator.returncode == 0, "".join(run.stderr)
-    _assert_same_as_in_process(run)
+    traj, run, out = _behind_robot_1(tmp_path, 0.36, 17, NOISY)
     ref = _in_process(traj, "one-at-a-time", 17, NOISY).contacts(0.011)
     assert [(c.step, c.a, c.b) for c in ref] == [(len(json.loads(run.result_file.read_text())["steps"]), 0, 1)]
     assert f"contacts (bodies of radius 0.011 m): {len(ref)}" in out
