@@ -208,7 +208,7 @@ class LiveRun:
 
 def live_run(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> LiveRun:
     """The tokens of ``run`` alive at the hub, agents' and coordinators' (``hub_view`` of ``swarm/<run>/**``; ``own``:
-    the coordinator epoch whose token this session declared)."""
+    the coordinator epoch whose token ``session`` declared)."""
     keys, complete = hub_view(session, run_wildcard(run), own, timeout_s)
     robots: set[int] = set()
     coordinators: dict[int, int] = {}
@@ -228,7 +228,7 @@ def live_run(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int 
 
 def live_coordinators(session: zenoh.Session, run: str, timeout_s: float = 1.0, own: int | None = None) -> dict[int, int]:
     """The coordinators of ``run`` whose tokens are alive: ``{epoch: parent}``, ``hub_view``'s answer (``own``: the
-    epoch whose token this session declared; without, a spurious empty answer is asked past too)."""
+    epoch whose token ``session`` declared; without, a spurious empty answer is asked past too)."""
     keys = hub_view(session, coord_alive_key(run), own, timeout_s)[0]
     tokens = (parse_coord_token(key) for key in keys)
     return dict(t for t in tokens if t is not None)

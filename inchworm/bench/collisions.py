@@ -83,7 +83,7 @@ def run_one(job: Job) -> dict[str, Any]:
     traj = random_trajectory(robots, configs, np.random.default_rng([seed, t]), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     planned = cfg if bodies else replace(cfg, robot_radius_m=0.0)
     result = simulate(traj, method, planned, localizer=localizer, selection=selection, seed=seed + t)
-    contacts = result.contacts(radius)
+    contacts, short = result.contacts(radius), result.stopped_short()
     return {
         "method": method, "localizer": localizer, "bodies": bodies, "noise_scale": scale, "contacts": len(contacts),
         "configs_with_contact": len({c.config for c in contacts}), "configs": len(result.configs),
@@ -92,8 +92,7 @@ def run_one(job: Job) -> dict[str, Any]:
         "raised": sum(1 for c in result.configs if c.regrouped is not None and c.regrouped.bound > CONTACT_BOUND),
         "min_distance": min((c.distance for c in contacts), default=float("nan")), "pf": result.pf(),
         "staging_stops": result.staging_stops(), "leg_changes": sum(1 for c in result.configs if c.legs),
-        "stopped_short": sum(len(s) for s in result.stopped_short()),
-        "stopped_short_changes": sum(1 for s in result.stopped_short() if s),
+        "stopped_short": sum(len(s) for s in short), "stopped_short_changes": sum(1 for s in short if s),
     }
 
 
