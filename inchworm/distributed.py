@@ -44,12 +44,15 @@ def run_distributed(
     (``AgentLost``, ``RunAborted``, ...) when the agents do not come up or the run is aborted."""
     from coordinator.node.process import CoordinatorOptions, run_coordinator  # noqa: PLC0415
     from coordinator.node.stop import StopSignals  # noqa: PLC0415
+    from inchworm.launcher import check_writable  # noqa: PLC0415
     from inchworm.processes import agents_per_process as per_process_for, start_agents, stop_all  # noqa: PLC0415
     from inchworm.specs import AgentHostSpec  # noqa: PLC0415
     from runtime.wire.transport import open_loopback_hub  # noqa: PLC0415
 
     cfg = model or ModelConfig()
     traj = resolve_trajectory(trajectory, robots, configs, seed, cfg)
+    if record is not None:
+        check_writable(as_path(record).parent, "record", record)
     run_id = f"api-{uuid.uuid4().hex[:8]}"
     procs: list[subprocess.Popen[bytes]] = []
     signals = StopSignals()
