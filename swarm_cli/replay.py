@@ -84,7 +84,7 @@ def run_check(args: argparse.Namespace) -> int:
                            {name: getattr(args, name) for name in MODEL_OPTIONS},
                            {name: getattr(args, name) for name in SELECTION_OPTIONS}, args.what_if)
     outcome = check_recording(options, warn=_warn)
-    result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against
+    result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against_flags
     s = result.settings
     print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"
           + (f", overriding {', '.join(sorted({**model, **selection}))}" if model or selection else ""), flush=True)
