@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.strategies import METHODS
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, default_selection
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
@@ -66,6 +67,7 @@ class SwarmOptions:
             check_at_least(self, "configs", 1)
         check_at_least(self, "min_robots", 2)
         check_at_least(self, "motion_time", 0.0)
+        check_option_limits(self, launched=True)
 
 
 @dataclass(frozen=True, kw_only=True)

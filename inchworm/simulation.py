@@ -14,6 +14,7 @@ import numpy as np
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.strategies import METHODS
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, check_localizers, default_selection
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
@@ -73,6 +74,7 @@ class SimOptions:
         if self.physics is not None and self.world != "physics":
             raise OptionError("physics", "sets the physical world: it needs `world` physics", self)
         check_at_least(self, "seed", 0)
+        check_option_limits(self)
         for name in ("initial_delta_m", "initial_heading_sigma_rad"):
             if not getattr(self, name) >= 0:
                 raise OptionError(name, f"must be >= 0, got {getattr(self, name)}", self)

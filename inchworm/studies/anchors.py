@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import trajectory_rng
@@ -351,6 +352,7 @@ class AnchorsOptions:
         check_at_least(self, "experiments", 1)
         check_at_least(self, "samples", 1)
         check_localizers(self, "localizer")
+        check_option_limits(self)
 
     def note(self) -> str | None:
         """Why Fig. 5 is skipped, if it is."""

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from inchworm.limits import check_option_limits
 from inchworm.noise import scaled
 from inchworm.options import check_among, check_at_least, check_localizers, check_numbers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -65,6 +66,7 @@ class ConsistencyOptions:
         check_at_least(self, "trajectories", 1)
         check_numbers(self, "motion_scales")
         check_numbers(self, "sensing_scales")
+        check_option_limits(self)
 
     def settings(self) -> list[tuple[float, float]]:
         """(motion scale, sensing scale) of every noise setting."""
