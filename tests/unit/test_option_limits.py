@@ -13,7 +13,8 @@ from runtime.errors import OptionError, SwarmInputError
 CASES = [  # options class, field, value beyond its limit, the problem
     ("SimOptions", "robots", MAX_ROBOTS + 1, f"{MAX_ROBOTS + 1}: at most {MAX_ROBOTS} (simulated robots)"),
     ("SimOptions", "seed", MAX_SEED + 1, f"{MAX_SEED + 1}: must be between 0 and 2^63 - 1 (numpy seeds are >= 0 and int64)"),
-    ("CompareOptions", "trajectories", MAX_TRAJECTORIES + 1, f"{MAX_TRAJECTORIES + 1}: must be between 1 and {MAX_TRAJECTORIES} (random trajectories)"),
+    ("CompareOptions", "trajectories", MAX_TRAJECTORIES + 1,
+     f"{MAX_TRAJECTORIES + 1}: must be between 1 and {MAX_TRAJECTORIES} (random trajectories)"),
     ("CompareOptions", "configs", MAX_CONFIGS + 1, f"{MAX_CONFIGS + 1}: at most {MAX_CONFIGS} (configurations of a random trajectory)"),
     ("AnchorsOptions", "seed", -3, "-3: must be between 0 and 2^63 - 1 (numpy seeds are >= 0 and int64)"),
     ("NoiseOptions", "trajectories", MAX_TRAJECTORIES + 1, f"{MAX_TRAJECTORIES + 1}: must be between 1 and {MAX_TRAJECTORIES} (random trajectories)"),
