@@ -92,7 +92,7 @@ def run_one(task: RunTask) -> Row:
 
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CompareOptions:
     """A paired comparison: ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
 

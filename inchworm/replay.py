@@ -27,7 +27,7 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import KW_ONLY, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
@@ -55,6 +55,7 @@ class PublishOptions:
     """What ``publish`` sends and where (module doc); ``speed``: time scale, ``wait``: seconds."""
 
     file: Path
+    _: KW_ONLY  # the file positional, the rest by keyword
     speed: float = 1.0
     hub: str | None = None
     wait: float = 10.0
@@ -226,6 +227,7 @@ class CheckOptions:
     typed (degrees for angles), ``selection``: ``SELECTION_OPTIONS`` dest -> value."""
 
     file: Path
+    _: KW_ONLY  # the file positional, the rest by keyword
     localizer: str | None = None
     seed: int | None = None
     trajectory: Path | None = None

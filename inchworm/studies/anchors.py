@@ -336,7 +336,7 @@ def _save_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, hea
 # ---------------------------------------------------------------------------- the study
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AnchorsOptions:
     """``experiments`` random experiments of ``robots`` robots, ``samples`` Monte Carlo samples per plan; experiment e uses the seed [seed, e]."""
 

@@ -36,7 +36,7 @@ PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
 CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED + t
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 

@@ -37,7 +37,7 @@ if TYPE_CHECKING:
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with methods
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConsistencyOptions:
     """Every (noise setting, localizer, method) on the same ``trajectories`` random trajectories of ``robots`` robots and
     ``configs`` configurations; a noise setting is ``model`` with its motion sigmas times a motion scale and its

@@ -30,7 +30,7 @@ if TYPE_CHECKING:
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NoiseOptions:
     """The sweep: factors on the motion and sensing sigmas of ``run.model``, localizers, and the trajectories of every setting."""
 

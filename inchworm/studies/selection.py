@@ -252,7 +252,7 @@ def read_rows(path: Path) -> list[Row]:
     return rows
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SelectionStudyOptions:
     """``configs`` random configuration changes of ``robots`` robots; configuration c uses the seed [seed, c]."""
 
