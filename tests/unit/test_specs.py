@@ -193,7 +193,8 @@ def test_a_launch_spec_is_the_launch_options_by_concern():
 
 
 LIBRARY = ("inchworm", "runtime", "coordinator", "robot_agent")
-COMMAND_LINE = re.compile(r'"-m",\s*"swarm_cli|\bf"--[a-z][a-z0-9-]*=\{')  # a swarm_cli module started, a --flag={value} assembled
+# a swarm_cli module started, a --flag={value} assembled, a "--flag" in the argument list of a Python child
+COMMAND_LINE = re.compile(r'"-m",\s*"swarm_cli|\bf"--[a-z][a-z0-9-]*=\{|sys\.executable\b.*"--[a-z]')
 
 
 def test_no_library_module_assembles_a_command_line():
@@ -203,3 +204,4 @@ def test_no_library_module_assembles_a_command_line():
     assert not found, "\n".join(found)
     assert COMMAND_LINE.search('[sys.executable, "-m", "swarm_cli.agent", f"--id={robot}"]')  # the pattern finds what it is for
     assert COMMAND_LINE.search('cmd = [f"--seed={seed}"]') and not COMMAND_LINE.search('raise SwarmInputError(f"--seed {seed}: bad")')
+    assert COMMAND_LINE.search('Popen([sys.executable, "-m", "inchworm.lifeline", "--remove", str(folder)])')
