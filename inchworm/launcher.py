@@ -346,7 +346,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
         per_process = -(-traj.n // processes)
     port_hosts = o.driver.name == "gateway" and o.swarm.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.swarm.run_id or f"launch-{os.getpid()}"
-    out = o.outputs.out or Path("out") / o.outputs.command
+    out = Path(o.outputs.out or Path("out") / o.outputs.command)
     check_before_start(o, traj, run_id, out)
     procs: list[subprocess.Popen[Any]] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)

@@ -28,12 +28,11 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, cast
 
 from inchworm.limits import MODEL_FLAGS
 from runtime.errors import OptionError, SwarmInputError, mentions
-from runtime.paths import coerce_paths
+from runtime.paths import StrPath, as_path, coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
 if TYPE_CHECKING:
@@ -54,7 +53,7 @@ def _quiet(_text: str) -> None:
 class PublishOptions:
     """What ``publish`` sends and where (module doc); ``speed``: time scale, ``wait``: seconds."""
 
-    file: Path
+    file: StrPath
     _: KW_ONLY  # the file positional, the rest by keyword
     speed: float = 1.0
     hub: str | None = None
@@ -226,12 +225,12 @@ class CheckOptions:
     """Settings of ``check_recording``; None: the recorded one. ``model_flags``: ``MODEL_OPTIONS`` dest -> value as
     typed (degrees for angles), ``selection``: ``SELECTION_OPTIONS`` dest -> value."""
 
-    file: Path
+    file: StrPath
     _: KW_ONLY  # the file positional, the rest by keyword
     localizer: str | None = None
     seed: int | None = None
-    trajectory: Path | None = None
-    model_file: Path | None = field(default=None, metadata={"flag": "--model"})
+    trajectory: StrPath | None = None
+    model_file: StrPath | None = field(default=None, metadata={"flag": "--model"})
     model_flags: dict[str, float] = field(default_factory=dict)
     selection: dict[str, Any] = field(default_factory=dict)
     what_if: bool = False
@@ -347,5 +346,5 @@ def check_recording(options: CheckOptions, *, warn: Say = _quiet) -> CheckOutcom
     if against:
         warn(f"swarm replay: what-if: {', '.join(flags)}: the recorded results are not expected to be reproduced")
     result = check(rec, localizer=options.localizer, model=model, selection=selection, seed=options.seed,
-                   trajectory=options.trajectory)
+                   trajectory=as_path(options.trajectory) if options.trajectory is not None else None)
     return CheckOutcome(result, model, selection, [mentions(text) for text in against], flags)
