@@ -64,3 +64,12 @@ def test_the_command_line_says_a_system_io_error_as_file_and_reason(a_file):
     assert exit_code(caught.value) == 2
     assert cli_message(OSError("no strerror")) == "no strerror"
     assert cli_message(OutputError("cannot write x: Disk full")) == "cannot write x: Disk full"
+
+
+def test_a_distributed_runs_plots_that_cannot_be_written_are_one_line_among_its_output_errors(a_file):
+    """``write_run_outputs`` (the coordinator's end of a run) keeps going when a figure cannot be written: the file and
+    the reason are one line of its errors (the coordinator then exits 5), not an exception."""
+    from inchworm.simulation import simulate, write_run_outputs
+
+    run = simulate(robots=3, configs=1, method="no-anchors", seed=1)
+    assert write_run_outputs(run, None, a_file / "plots") == ([], [f"cannot write {a_file}/plots/trajectory.png: Not a directory"])
