@@ -51,6 +51,7 @@ from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import StepCommands, SwarmEstimate, index_of
 from runtime.models.trajectory import Trajectory
+from runtime.paths import StrPath
 from runtime.recording.mcap_log import float_platform, read_messages, recording_info
 from runtime.wire.keys import ROOT
 from runtime.wire.messages import (
@@ -103,7 +104,7 @@ class RecordedRun:
         raise SwarmInputError(f"{self.path}: no initial estimate (step 0) and no trajectory: the robots are unknown")
 
 
-def load_recording(path: str | Path) -> RecordedRun:
+def load_recording(path: StrPath) -> RecordedRun:
     """Decode a recording (``SwarmInputError`` for files that are not readable MCAP recordings)."""
     path = Path(path)
     info = recording_info(path)  # validates the whole file first: a damaged file fails here, before anything is used

@@ -3,6 +3,8 @@
     import inchworm
     run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult (or simulate(SimOptions(...)))
     same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
+    with inchworm.DistributedRun(run.trajectory, seed=0) as live:       # the same run as an object: status(), estop()
+        live.status(); same = live.wait()
     table = inchworm.compare(inchworm.CompareOptions(robots=6, trajectories=4, configs=3))
     table.summary["methods"]["ref57"]["pf_mean"]; table.plot(ax); table.to_json()
     check = inchworm.check_recording(inchworm.CheckOptions(Path("recordings/sample.mcap")))  # swarm replay --check
@@ -39,7 +41,7 @@ if TYPE_CHECKING:
     from coordinator.run_result import RunResult as RunResult
     from coordinator.selection.selector import SelectionConfig as SelectionConfig
     from inchworm.comparison import CompareOptions as CompareOptions, CompareResult as CompareResult, compare as compare
-    from inchworm.distributed import run_distributed as run_distributed
+    from inchworm.distributed import DistributedRun as DistributedRun, run_distributed as run_distributed
     from inchworm.launch_options import (
         DriverOptions as DriverOptions,
         FaultOptions as FaultOptions,
@@ -77,7 +79,7 @@ if TYPE_CHECKING:
 
 _WHERE = {
     "simulate": "inchworm.simulation", "SimOptions": "inchworm.simulation",
-    "run_distributed": "inchworm.distributed",
+    "run_distributed": "inchworm.distributed", "DistributedRun": "inchworm.distributed",
     "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",
     "SelectionConfig": "coordinator.selection.selector",

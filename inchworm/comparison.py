@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.strategies import METHODS
+from inchworm.limits import check_option_limits
 from inchworm.options import RunOptions, check_among, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import paired_trajectory, run_seed
@@ -91,7 +92,7 @@ def run_one(task: RunTask) -> Row:
 
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CompareOptions:
     """A paired comparison: ``trajectories`` random trajectories of ``robots`` robots and ``configs`` configurations."""
 
@@ -111,6 +112,7 @@ class CompareOptions:
         check_at_least(self, "configs", 1)
         if self.selections is not None:
             check_among(self, "selections", RANKINGS)
+        check_option_limits(self)
 
     def variants(self) -> list[tuple[str, str, SelectionConfig]]:
         """(method, label, selection) of every compared variant, in output order."""

@@ -35,8 +35,13 @@ def exit_code(exc: BaseException) -> int | None:
 
 
 def cli_message(exc: BaseException) -> str:
-    """The error's one line as a command says it: an option out of range is named by its flag (``OptionError``)."""
-    return exc.flag_message() if isinstance(exc, OptionError) else str(exc)
+    """The error's one line as a command says it: an option out of range is named by its flag (``OptionError``), an
+    I/O error of the system by its file and reason (``out/x: Not a directory``, not ``[Errno 20] ...``)."""
+    if isinstance(exc, OptionError):
+        return exc.flag_message()
+    if isinstance(exc, OSError) and not isinstance(exc, SwarmError) and exc.strerror:
+        return f"{exc.filename}: {exc.strerror}" if exc.filename is not None else exc.strerror
+    return str(exc)
 
 
 def on_stop_signals(callback: Callable[[], object]) -> None:

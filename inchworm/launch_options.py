@@ -7,15 +7,15 @@ launch`` builds its parser from these declarations (``swarm_cli.schema``) withou
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.strategies import METHODS
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, default_selection
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
-from runtime.paths import coerce_paths
+from runtime.paths import StrPath, coerce_paths
 
 if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
@@ -31,14 +31,14 @@ class SwarmOptions:
     processes in their specs (``inchworm.specs``; ``model_file``: the file ``model`` was read from, for the
     recording's metadata)."""
 
-    trajectory: Path | None = field(default=None, metadata={"help": "trajectory JSON (docs/trajectory.md); default: a random one"})
+    trajectory: StrPath | None = field(default=None, metadata={"help": "trajectory JSON (docs/trajectory.md); default: a random one"})
     robots: int = field(default=10, metadata={"flag": "-n", "help": "robots of the random trajectory"})
     configs: int = field(default=3, metadata={"help": "configurations of the random trajectory"})
     trajectory_seed: int = 0
     method: str = field(default="inchworm", metadata={"help": "motion strategy", "choices": METHODS})
     seed: int = field(default=0, metadata={"help": "seed of the noise, initial estimate and search"})
     model: ModelConfig = field(default_factory=ModelConfig)
-    model_file: Path | None = None
+    model_file: StrPath | None = None
     localizer: str = DEFAULT_LOCALIZER
     selection: SelectionConfig = field(default_factory=default_selection)
     run_id: str | None = field(default=None, metadata={"flag": "--run", "help": "run id (default launch-<pid>)"})
@@ -66,6 +66,7 @@ class SwarmOptions:
             check_at_least(self, "configs", 1)
         check_at_least(self, "min_robots", 2)
         check_at_least(self, "motion_time", 0.0)
+        check_option_limits(self, launched=True)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -80,9 +81,9 @@ class DriverOptions:
     command_timeout: float | None = field(default=None, metadata={"metavar": "S", "help": (
         "with a lab's own driver: seconds each command or observation may take before the agent stops the robot and reports it "
         "lost (default: swarm agent's)")})
-    gateway_config: Path | None = field(default=None, metadata={
+    gateway_config: StrPath | None = field(default=None, metadata={
         "help": "with --driver gateway: the gateway config to emulate (default: ports of 5 robots each)"})
-    emulator_events: Path | None = field(default=None, metadata={"help": "with --driver gateway: the emulator's JSON-lines event log"})
+    emulator_events: StrPath | None = field(default=None, metadata={"help": "with --driver gateway: the emulator's JSON-lines event log"})
     ros2_robots: bool = field(default=False, metadata={
         "help": "with --driver ros2: also start simulated ROS 2 robots of the trajectory (swarm ros2 robots) to drive"})
 
@@ -137,9 +138,9 @@ class OutputOptions:
     ``command`` is how the launcher names itself (``launch`` / ``demo``)."""
 
     command: str = "launch"
-    out: Path | None = field(default=None, metadata={"help": "folder for the plots (default out/demo, or out/launch for swarm launch)"})
-    result: Path | None = field(default=None, metadata={"help": "the coordinator writes every step's estimate to this JSON file"})
-    record: Path | None = None
+    out: StrPath | None = field(default=None, metadata={"help": "folder for the plots (default out/demo, or out/launch for swarm launch)"})
+    result: StrPath | None = field(default=None, metadata={"help": "the coordinator writes every step's estimate to this JSON file"})
+    record: StrPath | None = None
     no_record: bool = False
     on_record_error: str = "continue"  # or "stop"
     foxglove: int | None = None

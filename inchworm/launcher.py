@@ -94,6 +94,7 @@ from robot_agent.plugins import BUILT_IN, driver_class
 from runtime.errors import OptionError, SwarmInputError
 from runtime.gateway.config import GatewayConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory, validate_connected, validate_passable
+from runtime.paths import StrPath
 from runtime.recording.mcap_log import is_finished
 from runtime.wire.keys import estop_ack_key, validate_run
 from runtime.wire.messages import EmergencyStop
@@ -180,17 +181,18 @@ def _forward_output(stream: Iterable[str], last_json: list[str]) -> None:
         last_json.append(held)
 
 
-def _check_writable(folder: Path, flag: str, value: Path) -> None:
-    """``SwarmInputError`` naming ``flag value`` unless a file can be created in ``folder`` (created if missing)."""
+def check_writable(folder: Path, parameter: str, value: StrPath, options: object | None = None) -> None:
+    """``OptionError`` naming ``parameter`` and its ``value`` (the command line: its flag, from ``options``) unless a
+    file can be created in ``folder`` (created if missing)."""
     folder = folder if folder != Path("") else Path(".")
     if folder.exists() and not folder.is_dir():
-        raise SwarmInputError(f"{flag} {value}: {folder} is not a folder")
+        raise OptionError(parameter, f"{value}: {folder} is not a folder", options)
     try:
         folder.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=folder):
             pass
     except OSError as exc:
-        raise SwarmInputError(f"{flag} {value}: cannot write in {folder}: {exc.strerror or exc}") from None
+        raise OptionError(parameter, f"{value}: cannot write in {folder}: {exc.strerror or exc}", options) from None
 
 
 def launch_trajectory(o: LaunchOptions) -> Trajectory:
@@ -220,10 +222,10 @@ def check_before_start(o: LaunchOptions, traj: Trajectory, run_id: str, out: Pat
     make_strategy(o.swarm.method, traj.n, o.swarm.model, make_localizer(o.swarm.localizer, o.swarm.model), o.swarm.selection, o.swarm.seed)
     if not o.outputs.no_record:
         record = Path(o.outputs.record or default_recording(run_id))
-        _check_writable(record.parent, "--record", record)
-    _check_writable(out, "--out", out)
+        check_writable(record.parent, "record", record, o.outputs)
+    check_writable(out, "out", out, o.outputs)
     if o.outputs.result:
-        _check_writable(Path(o.outputs.result).parent, "--result", o.outputs.result)
+        check_writable(Path(o.outputs.result).parent, "result", o.outputs.result, o.outputs)
     if o.outputs.foxglove is not None:
         require_foxglove()
         with socket.socket() as probe:
@@ -344,7 +346,7 @@ def launch(o: LaunchOptions, *, say: Say = _stderr, emit_json: Callable[[object]
         per_process = -(-traj.n // processes)
     port_hosts = o.driver.name == "gateway" and o.swarm.agents_per_process is None  # the gateway PC's layout (``start_port_hosts``)
     run_id = o.swarm.run_id or f"launch-{os.getpid()}"
-    out = o.outputs.out or Path("out") / o.outputs.command
+    out = Path(o.outputs.out or Path("out") / o.outputs.command)
     check_before_start(o, traj, run_id, out)
     procs: list[subprocess.Popen[Any]] = []
     gateway_procs = 0  # procs[0] the emulator, then one link per port (--driver gateway)

@@ -10,7 +10,7 @@ child takes its own clean stop path (a coordinator publishes the run-wide stop a
 its recording) within milliseconds of the launcher's death.
 
 The launcher's temporary folder is removed by a small guardian process
-(``python -m inchworm.lifeline --remove DIR``) that also holds the read end and removes the
+(``python -m inchworm.lifeline DIR``) that also holds the read end and removes the
 folder when it reads end-of-file; it ignores the stop signals, which a terminal sends to the
 whole process group, so it outlives the launcher by as long as the removal takes.
 """
@@ -47,7 +47,7 @@ class Lifeline:
 
     def guard(self, folder: Path) -> None:
         """Start the guardian that removes ``folder`` once this process is gone."""
-        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", "--remove", str(folder)], **self.child_options())
+        self.guardian = subprocess.Popen([sys.executable, "-m", "inchworm.lifeline", str(folder)], **self.child_options())
 
     def close(self) -> None:
         """Let go of the children (they read end-of-file) and reap the guardian."""
@@ -101,9 +101,9 @@ def hold_lifeline() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """The guardian: wait for the launcher to be gone, then remove ``--remove DIR``."""
-    parser = argparse.ArgumentParser(prog="swarm lifeline")
-    parser.add_argument("--remove", type=Path, required=True, help="folder to remove once the launcher is gone")
+    """The guardian: wait for the launcher to be gone, then remove ``DIR``."""
+    parser = argparse.ArgumentParser(prog="python -m inchworm.lifeline")
+    parser.add_argument("remove", type=Path, metavar="DIR", help="folder to remove once the launcher is gone")
     args = parser.parse_args(argv)
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)

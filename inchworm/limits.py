@@ -3,6 +3,7 @@ made from the values a user gave. Cheap to import: ``swarm --help`` loads it."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import replace
@@ -36,21 +37,45 @@ MODEL_FLAGS = {  # option dest -> (ModelConfig field, to SI, flag)
 }
 
 
+def _limits(launched: bool) -> dict[str, tuple[str, int | None, int, str]]:
+    limits = dict(LIMITS)
+    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
+                        "robots launched as agent processes on one host" if launched else "simulated robots")
+    limits["trajectory_seed"] = LIMITS["seed"]
+    return limits
+
+
+def _beyond(dest: str, value: object, launched: bool) -> str | None:
+    """What is wrong with ``value`` of the option ``dest`` (``value: must be between ...``), None if it is within its limits
+    (or not a limited integer)."""
+    limit = _limits(launched).get(dest)
+    if limit is None or not isinstance(value, int) or isinstance(value, bool):
+        return None
+    _, least, most, what = limit
+    if (least is None or value >= least) and value <= most:
+        return None
+    shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
+    return f"{value}: at most {shown} ({what})" if least is None else f"{value}: must be between {least} and {shown} ({what})"
+
+
 def check_limits(values: Mapping[str, Any], *, launched: bool = False) -> None:
     """``SwarmInputError`` naming the flag and its limits for a negative seed or an absurd size among ``values``
     (option dest -> value). ``robots``: at most ``MAX_ROBOTS`` simulated or ``MAX_LAUNCHED_ROBOTS`` launched as
     agent processes (``launched``; the least, 2, is checked where the swarm is made)."""
-    limits = dict(LIMITS)
-    limits["robots"] = ("-n/--robots" if launched else "--robots", None, MAX_LAUNCHED_ROBOTS if launched else MAX_ROBOTS,
-                        "robots launched as agent processes on one host" if launched else "simulated robots")
-    for dest, (flag, least, most, what) in limits.items():
-        value = values.get(dest)
-        if not isinstance(value, int) or isinstance(value, bool) or (least is None or value >= least) and value <= most:
-            continue
-        shown = "2^63 - 1" if most == MAX_SEED else f"{most}"
-        if least is None:
-            raise SwarmInputError(f"{flag} {value}: at most {shown} ({what})")
-        raise SwarmInputError(f"{flag} {value}: must be between {least} and {shown} ({what})")
+    for dest, (flag, _, _, _) in _limits(launched).items():
+        problem = _beyond(dest, values.get(dest), launched)
+        if problem is not None:
+            raise SwarmInputError(f"{flag} {problem}")
+
+
+def check_option_limits(options: Any, *, launched: bool = False) -> None:
+    """In an options dataclass's ``__post_init__``: ``OptionError`` naming the field for a negative seed or an absurd
+    size among its fields ``robots``, ``configs``, ``trajectories``, ``seed``, ``trajectory_seed`` (``check_limits``'s
+    limits)."""
+    for f in dataclasses.fields(options):
+        problem = _beyond(f.name, getattr(options, f.name), launched)
+        if problem is not None:
+            raise OptionError(f.name, problem, options)
 
 
 def check_swarm_size(n: int, source: str, *, launched: bool = False, parameter: str | None = None) -> None:

@@ -21,7 +21,7 @@ def default_selection() -> SelectionConfig:
     return SelectionConfig()
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RunOptions:
     """How every run of a study simulates: noise and sensing (``model``), localizer and anchor search."""
 

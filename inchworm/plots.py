@@ -13,6 +13,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from runtime.errors import OutputError
+from runtime.paths import StrPath
+
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
 
@@ -29,7 +32,7 @@ def title(ax: Axes, text: str, fontsize: float = 11) -> None:
     ax.set_title("\n".join(textwrap.wrap(text, chars)), fontsize=fontsize)
 
 
-def save_figure(draw: Callable[..., Any], path: str | Path, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
+def save_figure(draw: Callable[..., Any], path: StrPath, size: tuple[float, float], panels: tuple[int, int] = (1, 1), **kw: Any) -> Path:
     """A new figure of ``size`` inches with ``panels`` (rows, columns) of axes (``kw``: to ``Figure.subplots``),
     ``draw(axes)`` on it, saved as ``path``."""
     from matplotlib.figure import Figure  # noqa: PLC0415
@@ -38,8 +41,11 @@ def save_figure(draw: Callable[..., Any], path: str | Path, size: tuple[float, f
     axes = fig.subplots(*panels, **kw)
     draw(axes)
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=110)
+    except OSError as exc:
+        raise OutputError(f"cannot write {path}: {exc.strerror or exc}") from None
     return path
 
 
@@ -127,7 +133,7 @@ def plot_errors(runs: RunResult | Mapping[str, RunResult], axes: Sequence[Axes])
     return axes
 
 
-def write_run_plots(run: RunResult, out: str | Path, compared: Mapping[str, RunResult] | None = None) -> list[str]:
+def write_run_plots(run: RunResult, out: StrPath, compared: Mapping[str, RunResult] | None = None) -> list[str]:
     """``trajectory.png`` (Fig. 13/14) and, with ground truth, ``errors.png`` (Fig. 17; with ``compared`` runs beside it)."""
     out = Path(out)
     plots = [str(save_figure(lambda ax: plot_trajectory(run, ax), out / "trajectory.png", (7.5, 7.5)))]

@@ -1,7 +1,7 @@
 """The main function of every process kind, from its spec (``inchworm.specs``): what ``swarm agent``, ``swarm link``,
-``swarm coordinator``, ``swarm emulate-robots``, ``swarm ros2 robots|bridge``, ``swarm router`` and ``swarm launch`` run once their flags
-are a spec, and what ``python -m inchworm.spawn`` runs for a spec it reads. Each returns the command's exit status;
-bad input raises ``SwarmInputError`` naming the option, a connection that cannot be made ``SwarmConnectionError``
+``swarm coordinator``, ``swarm emulate-robots``, ``swarm ros2 robots|bridge``, ``swarm router``, ``swarm record`` and
+``swarm launch`` run once their flags are a spec, and what ``python -m inchworm.spawn`` runs for a spec it reads. Each
+returns the command's exit status; bad input raises ``SwarmInputError`` naming the option, a connection that cannot be made ``SwarmConnectionError``
 (``inchworm.entry.guarded`` prints it and gives the exit code of its class, ``EXIT_CODES``).
 Heavy modules (zenoh, scipy, ROS 2) are imported by the function that needs them.
 """
@@ -27,6 +27,7 @@ from inchworm.specs import (
     LaunchSpec,
     LinkSpec,
     PortProcessSpec,
+    RecorderSpec,
     Ros2BridgeSpec,
     Ros2RobotsSpec,
     RouterSpec,
@@ -43,6 +44,7 @@ if TYPE_CHECKING:
     from robot_agent.ros2_physics import PhysicsRecorder
     from runtime.models.trajectory import Trajectory
     from runtime.models.world import World
+    from runtime.recording.mcap_log import McapRecorder
     from runtime.wire.transport import ZenohSettings
     from runtime.world.params import PhysicsParams
     from runtime.world.velocity import PhysicsWorld
@@ -354,6 +356,30 @@ def run_ros2_bridge(spec: Ros2BridgeSpec) -> int:
         finally:
             bridge.close()
     print(f"swarm ros2 bridge: run {spec.run_id} over, {bridge.published} estimates published", file=sys.stderr, flush=True)
+    return 0
+
+
+def run_recorder(spec: RecorderSpec) -> int:
+    """``swarm record``: record every message of the run until SIGINT/SIGTERM/SIGHUP, then print the file and its counts."""
+    from runtime.recording.mcap_log import counts_text, record_run, run_metadata  # noqa: PLC0415 - zenoh, mcap when it runs
+    from runtime.wire.keys import run_wildcard, validate_run  # noqa: PLC0415
+
+    validate_run(spec.run_id)
+    settings, label = connection(spec.hub, spec.zenoh_config, spec.run_id)
+    assert settings is not None, "required"
+    out = Path(spec.out) if spec.out is not None else Path("recordings") / f"{spec.run_id}.mcap"
+    meta = run_metadata(label, spec.command, spec.seed, None if spec.trajectory is None else Path(spec.trajectory), spec.params)
+    stop = threading.Event()
+    on_stop_signals(stop.set)
+
+    def ready(rec: McapRecorder) -> None:
+        print(f"swarm record: recording {run_wildcard(spec.run_id)} from {label} to {rec.path}", file=sys.stderr, flush=True)
+
+    result = record_run(settings, spec.run_id, out, meta, stop, on_ready=ready)
+    print(f"wrote {result['path']}: {counts_text(result)}" + (f" ({result['undecodable']} undecodable)" if result["undecodable"] else ""),
+          flush=True)
+    if spec.json:
+        print_json(result)
     return 0
 
 

@@ -27,13 +27,12 @@ import contextlib
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from pathlib import Path
+from dataclasses import KW_ONLY, dataclass, field
 from typing import TYPE_CHECKING, Any, cast
 
 from inchworm.limits import MODEL_FLAGS
-from runtime.errors import OptionError, SwarmInputError
-from runtime.paths import coerce_paths
+from runtime.errors import OptionError, SwarmInputError, mentions
+from runtime.paths import StrPath, as_path, coerce_paths
 from runtime.wire.keys import ROOT, KeyspaceError, validate_run
 
 if TYPE_CHECKING:
@@ -54,7 +53,8 @@ def _quiet(_text: str) -> None:
 class PublishOptions:
     """What ``publish`` sends and where (module doc); ``speed``: time scale, ``wait``: seconds."""
 
-    file: Path
+    file: StrPath
+    _: KW_ONLY  # the file positional, the rest by keyword
     speed: float = 1.0
     hub: str | None = None
     wait: float = 10.0
@@ -225,11 +225,12 @@ class CheckOptions:
     """Settings of ``check_recording``; None: the recorded one. ``model_flags``: ``MODEL_OPTIONS`` dest -> value as
     typed (degrees for angles), ``selection``: ``SELECTION_OPTIONS`` dest -> value."""
 
-    file: Path
+    file: StrPath
+    _: KW_ONLY  # the file positional, the rest by keyword
     localizer: str | None = None
     seed: int | None = None
-    trajectory: Path | None = None
-    model_file: Path | None = None
+    trajectory: StrPath | None = None
+    model_file: StrPath | None = field(default=None, metadata={"flag": "--model"})
     model_flags: dict[str, float] = field(default_factory=dict)
     selection: dict[str, Any] = field(default_factory=dict)
     what_if: bool = False
@@ -240,12 +241,15 @@ class CheckOptions:
 
 @dataclass(frozen=True)
 class CheckOutcome:
-    """A ``coordinator.replay_check`` result, with the overrides used and the options that contradict the recording."""
+    """A ``coordinator.replay_check`` result, with the overrides used and the options that contradict the recording
+    (``against``: ``localizer joint (recorded: paper)``; ``against_flags``: the same as the command line says it,
+    ``--localizer joint (recorded: paper)``)."""
 
     result: Any  # coordinator.replay_check.CheckResult
     model: dict[str, float]
     selection: dict[str, Any]
     against: list[str]
+    against_flags: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict[str, Any]:
         r, d = self.result, self.result.divergence
@@ -280,7 +284,8 @@ def _recorded_selection_values(meta: dict[str, Any]) -> dict[str, Any]:
 
 
 def contradictions(rec: RecordedRun, options: CheckOptions, model: dict[str, Any], selection: dict[str, Any]) -> list[str]:
-    """The options given that differ from what the recording's metadata states, as ``--flag VALUE (recorded: X)``;
+    """The options given that differ from what the recording's metadata states, as ```name` VALUE (recorded: X)`` (the
+    option in backquotes: ``runtime.errors.mentions`` gives its Python name or its flag);
     model options equal to the recorded value up to rounding are removed from ``model`` (the recorded value is used)."""
     meta, found = rec.meta, []
     typed = {"localizer": options.localizer, "seed": options.seed, **options.model_flags, **options.selection}
@@ -294,8 +299,8 @@ def contradictions(rec: RecordedRun, options: CheckOptions, model: dict[str, Any
         if differs(given, recorded):
             shown_recorded = recorded if shown is None else shown
             value = typed.get(dest)
-            flag = f"--{dest.replace('_', '-')} {value}" if value is not None else f"--model {options.model_file}: {dest} {shown_given(dest, given)}"
-            found.append(f"{flag} (recorded: {shown_recorded})")
+            named = f"`{dest}` {value}" if value is not None else f"`model_file` {options.model_file}: {dest} {shown_given(dest, given)}"
+            found.append(f"{named} (recorded: {shown_recorded})")
 
     def shown_given(dest: str, value: float) -> str:
         return f"{math.degrees(value):g}" if MODEL_OPTIONS.get(dest, (None, None))[1] is math.radians else f"{value:g}"
@@ -319,7 +324,7 @@ def contradictions(rec: RecordedRun, options: CheckOptions, model: dict[str, Any
         from runtime.models.trajectory import Trajectory  # noqa: PLC0415
 
         if Trajectory.load(options.trajectory).to_json() != meta["trajectory"]:
-            found.append(f"--trajectory {options.trajectory} (the recording has another trajectory in its metadata)")
+            found.append(f"`trajectory` {options.trajectory} (the recording has another trajectory in its metadata)")
     return found
 
 
@@ -337,8 +342,9 @@ def check_recording(options: CheckOptions, *, warn: Say = _quiet) -> CheckOutcom
             "what_if", f"is not set and {', '.join(against)} contradicts {options.file}: the check reproduces the recorded run "
             f"with its own settings, so leave these options out (they are for recordings whose metadata lacks them), or set "
             f"`what_if` to re-run the recorded inputs with them (the check then reports where the results part)", options)
+    flags = [mentions(text, options, flags=True) for text in against]
     if against:
-        warn(f"swarm replay: what-if: {', '.join(against)}: the recorded results are not expected to be reproduced")
+        warn(f"swarm replay: what-if: {', '.join(flags)}: the recorded results are not expected to be reproduced")
     result = check(rec, localizer=options.localizer, model=model, selection=selection, seed=options.seed,
-                   trajectory=options.trajectory)
-    return CheckOutcome(result, model, selection, against)
+                   trajectory=as_path(options.trajectory) if options.trajectory is not None else None)
+    return CheckOutcome(result, model, selection, [mentions(text) for text in against], flags)

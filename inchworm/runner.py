@@ -129,8 +129,11 @@ class StudyLog:
         if resume and self.jsonl.exists():
             self._read()
         else:
-            folder.mkdir(parents=True, exist_ok=True)
-            self.jsonl.write_text("")
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+                self.jsonl.write_text("")
+            except OSError as exc:
+                raise OutputError(f"cannot write the study log {self.jsonl}: {exc.strerror or exc}") from None
             self._write({"options": self.options})
 
     def _read(self) -> None:
@@ -226,10 +229,10 @@ def write_rows(path: Path, rows: list[Row]) -> Path:
     """``rows`` as a CSV file with a header (the union of their keys, in order; missing cells empty)."""
     import csv  # noqa: PLC0415
 
-    path.parent.mkdir(parents=True, exist_ok=True)
     keys = list(dict.fromkeys(k for r in rows for k in r))
     tmp = path.with_name(path.name + ".tmp")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         with open(tmp, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=keys)
             writer.writeheader()

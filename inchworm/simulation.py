@@ -14,8 +14,9 @@ import numpy as np
 
 from coordinator.localization.registry import DEFAULT_LOCALIZER
 from coordinator.strategies import METHODS
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, check_localizers, default_selection
-from runtime.errors import OptionError
+from runtime.errors import OptionError, OutputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 from runtime.paths import StrPath, coerce_paths
@@ -73,6 +74,7 @@ class SimOptions:
         if self.physics is not None and self.world != "physics":
             raise OptionError("physics", "sets the physical world: it needs `world` physics", self)
         check_at_least(self, "seed", 0)
+        check_option_limits(self)
         for name in ("initial_delta_m", "initial_heading_sigma_rad"):
             if not getattr(self, name) >= 0:
                 raise OptionError(name, f"must be >= 0, got {getattr(self, name)}", self)
@@ -307,8 +309,8 @@ def write_run_outputs(result: RunResult, result_path: Path | None, plots_dir: Pa
     if plots_dir and result.configs:
         try:
             plots = write_run_plots(result, plots_dir)
-        except OSError as exc:
-            errors.append(f"cannot write the plots to {plots_dir}: {exc.strerror or exc}")
+        except OutputError as exc:  # a figure that could not be written (inchworm.plots.save_figure): the file and why
+            errors.append(str(exc))
     return plots, errors
 
 

@@ -34,6 +34,7 @@ RUNNERS = {  # kind -> (the command it is, "module:function" that runs its spec)
     "ros2-robots": ("swarm ros2 robots", "inchworm.process_mains:run_ros2_robots"),
     "ros2-bridge": ("swarm ros2 bridge", "inchworm.process_mains:run_ros2_bridge"),
     "router": ("swarm router", "inchworm.process_mains:run_router"),
+    "recorder": ("swarm record", "inchworm.process_mains:run_recorder"),
     "launch": ("swarm launch", "inchworm.process_mains:run_launch"),
 }
 

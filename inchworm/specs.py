@@ -1,8 +1,8 @@
 """Typed, versioned descriptions of the processes of a run: what each process kind needs to start.
 
 Every process the library starts (an agent host, a port process, a link, a coordinator or its standby, the robot
-emulator, simulated ROS 2 robots, the ROS 2 bridge, a Zenoh router, a whole ``swarm launch``) is one of these ``msgspec`` Structs, serialized
-once as JSON (``encode_spec``) and read back by the child (``decode_spec``; ``python -m inchworm.spawn``). The
+emulator, simulated ROS 2 robots, the ROS 2 bridge, a Zenoh router, a recorder, a whole ``swarm launch``) is one of these
+``msgspec`` Structs, serialized once as JSON (``encode_spec``) and read back by the child (``decode_spec``; ``python -m inchworm.spawn``). The
 ``swarm`` commands build the same Structs from their flags and run the same function (``inchworm.process_mains``),
 so a spec and the command line it stands for behave alike. Units SI (angles in radians, times in seconds); paths
 are strings; the model is ``ModelConfig`` itself, encoded as ``ModelConfig.to_dict()`` (read back: ``model_from_dict``).
@@ -202,6 +202,22 @@ class RouterSpec(ProcessSpec, frozen=True, tag="router"):
     json: bool = False
 
 
+class RecorderSpec(ProcessSpec, frozen=True, tag="recorder"):
+    """``swarm record``: every message of run ``run_id`` to the MCAP file ``out`` (None: ``recordings/<run>.mcap``) until
+    SIGINT/SIGTERM; ``seed``, ``trajectory`` (its JSON) and ``params`` (KEY=VALUE, as --param takes them) go into the run
+    metadata, with ``command``, the command line."""
+
+    run_id: str
+    hub: str | None = None
+    zenoh_config: str | None = None
+    out: str | None = None
+    seed: int | None = None
+    trajectory: str | None = None
+    params: tuple[str, ...] = ()
+    json: bool = False
+    command: str = "swarm record"
+
+
 class LaunchSpec(ProcessSpec, frozen=True, tag="launch"):
     """``swarm launch`` / ``swarm demo`` (``command``): a whole run on this host, as ``inchworm.launcher.LaunchOptions``
     holds it (its fields and defaults; ``kill_robot``: every (ID, STEP) pair)."""
@@ -253,7 +269,7 @@ class LaunchSpec(ProcessSpec, frozen=True, tag="launch"):
 
 
 SPECS: tuple[type[ProcessSpec], ...] = (AgentHostSpec, PortProcessSpec, LinkSpec, CoordinatorSpec, EmulatorSpec, Ros2RobotsSpec,
-                                        Ros2BridgeSpec, RouterSpec, LaunchSpec)
+                                        Ros2BridgeSpec, RouterSpec, RecorderSpec, LaunchSpec)
 KINDS: dict[str, type[ProcessSpec]] = {c.__struct_config__.tag: c for c in SPECS}  # type: ignore[misc] # tags are str
 
 

@@ -59,26 +59,35 @@ class OptionError(SwarmInputError):
     (``"sim needs `pose` or `trajectory`"``): the message shows their names, the command line their flags."""
 
     def __init__(self, parameter: str, problem: str, options: object | None = None) -> None:
-        named = _MENTION.sub(r"\1", problem)
-        super().__init__(f"{parameter}{_joined(named)}")
+        super().__init__(f"{parameter}{_joined(mentions(problem))}")
         self.parameter, self.problem, self.options = parameter, problem, options
 
     def flag(self, parameter: str | None = None) -> str:
-        """The command-line flag of ``parameter`` (default: this error's): the ``flag`` metadata of the options'
-        dataclass field (or the options mapping's entry), else ``--`` and the name with dashes."""
-        name = self.parameter if parameter is None else parameter
-        if isinstance(self.options, Mapping) and name in self.options:
-            return str(self.options[name])
-        fields = {f.name: f for f in dataclasses.fields(self.options)} if dataclasses.is_dataclass(self.options) else {}
-        found = fields.get(name)
-        return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + name.replace("_", "-")
+        """The command-line flag of ``parameter`` (default: this error's): ``option_flag`` of this error's options."""
+        return option_flag(self.parameter if parameter is None else parameter, self.options)
 
     def flag_message(self) -> str:
         """The message as the command line says it: the flags instead of the parameters (its own and those in backquotes)."""
-        return f"{self.flag()}{_joined(_MENTION.sub(lambda m: self.flag(m.group(1)), self.problem))}"
+        return f"{self.flag()}{_joined(mentions(self.problem, self.options, flags=True))}"
 
 
 _MENTION = re.compile(r"`([a-z][a-z0-9_]*)`")  # another option named in a problem
+
+
+def option_flag(name: str, options: object | None = None) -> str:
+    """The command-line flag of the option ``name`` of ``options``: the ``flag`` metadata of the options' dataclass
+    field (or the options mapping's entry), else ``--`` and the name with dashes."""
+    if isinstance(options, Mapping) and name in options:
+        return str(options[name])
+    fields = {f.name: f for f in dataclasses.fields(options)} if dataclasses.is_dataclass(options) else {}
+    found = fields.get(name)
+    return str(found.metadata["flag"]) if found is not None and "flag" in found.metadata else "--" + name.replace("_", "-")
+
+
+def mentions(text: str, options: object | None = None, *, flags: bool = False) -> str:
+    """``text`` with the options it names in backquotes (``"`seed` 3"``) as their Python names (``seed 3``), or with
+    ``flags`` as their command-line flags (``--seed 3``; ``option_flag`` of ``options``)."""
+    return _MENTION.sub(lambda m: option_flag(m.group(1), options) if flags else m.group(1), text)
 
 
 def _joined(problem: str) -> str:

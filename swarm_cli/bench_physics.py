@@ -42,5 +42,6 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.progress import Progress  # noqa: PLC0415
 
     options = PhysicsBenchOptions(args.robots, args.trajectories, args.configs, args.method, args.seed, args.workers,
-                                  RunOptions(model_config(args), args.localizer, selection_config(args)), tuple(args.physics_param))
+                                  RunOptions(model=model_config(args), localizer=args.localizer, selection=selection_config(args)),
+                                  tuple(args.physics_param))
     return print_result(bench_physics(options, Progress(2 * options.trajectories, "bench physics")), args.json)

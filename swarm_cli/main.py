@@ -59,13 +59,32 @@ ZENOH_PROCESSES = ("agent", "coordinator", "ros2")  # long-lived processes whose
 def parse(argv: list[str]) -> argparse.Namespace:
     """The command line; a study's ``--config FILE`` gives the defaults of its options, the flags override them."""
     parser = build_parser(argv)
-    args = parser.parse_args(argv)
+    args = _parsed(parser, argv)
     if getattr(args, "_study_parser", None) is not None and args.config is not None:
         code = guarded("swarm", lambda: apply_config(args._study_parser, args.config))
         if code:
             sys.exit(code)
-        args = parser.parse_args(argv)
+        args = _parsed(parser, argv)
     return args
+
+
+def _parsed(parser: argparse.ArgumentParser, argv: list[str]) -> argparse.Namespace:
+    """``parser.parse_args(argv)``, but arguments no command takes are the error of the command they were given to
+    (``swarm sim: error: unrecognized arguments: -n 3 (see swarm sim --help)``), not of ``swarm``."""
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        _chosen(parser, args).error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
+def _chosen(parser: argparse.ArgumentParser, args: argparse.Namespace) -> argparse.ArgumentParser:
+    """The (sub)command parser ``args`` were parsed by: the parser of each chosen subcommand, down to the last."""
+    while True:
+        subs = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = None if subs is None else getattr(args, subs.dest, None)
+        if subs is None or name not in subs.choices:
+            return parser
+        parser = subs.choices[name]
 
 
 def main(argv: list[str] | None = None) -> int:

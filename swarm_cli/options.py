@@ -152,7 +152,7 @@ def run_options(args: argparse.Namespace) -> RunOptions:
     """The model, localizer and anchor search of ``add_simulation_options``."""
     from inchworm.options import RunOptions  # noqa: PLC0415
 
-    return RunOptions(model_config(args), args.localizer, selection_config(args))
+    return RunOptions(model=model_config(args), localizer=args.localizer, selection=selection_config(args))
 
 
 def names(text: str) -> tuple[str, ...]:

@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import threading
 from pathlib import Path
 
-from runtime.recording.mcap_log import counts_text, record_run, run_metadata
-from runtime.wire.keys import run_wildcard, validate_run
-from swarm_cli.entry import on_stop_signals, portable_command, run_standalone
-from swarm_cli.options import add_connection_options, connection_label, connection_settings, print_json
+from inchworm.specs import RecorderSpec
+from swarm_cli.entry import portable_command, run_standalone
+from swarm_cli.options import add_connection_options
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -38,22 +36,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
 
 
+def spec_of(args: argparse.Namespace) -> RecorderSpec:
+    """The ``RecorderSpec`` of the parsed flags."""
+    return RecorderSpec(run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config, out=None if args.out is None else str(args.out),
+                        seed=args.seed, trajectory=None if args.trajectory is None else str(args.trajectory), params=tuple(args.param),
+                        json=args.json, command=portable_command("swarm record", sys.argv[1:]))
+
+
 def run(args: argparse.Namespace) -> int:
-    validate_run(args.run_id)
-    settings = connection_settings(args)
-    assert settings is not None, "add_connection_options(p): required"
-    out = args.out or Path("recordings") / f"{args.run_id}.mcap"
-    meta = run_metadata(connection_label(args), portable_command("swarm record", sys.argv[1:]), args.seed, args.trajectory, args.param)
-    stop = threading.Event()
-    on_stop_signals(stop.set)
-    ready = lambda rec: print(f"swarm record: recording {run_wildcard(args.run_id)} from {connection_label(args)} to {rec.path}",  # noqa: E731
-                              file=sys.stderr, flush=True)
-    result = record_run(settings, args.run_id, out, meta, stop, on_ready=ready)
-    print(f"wrote {result['path']}: {counts_text(result)}"
-          + (f" ({result['undecodable']} undecodable)" if result["undecodable"] else ""), flush=True)
-    if args.json:
-        print_json(result)
-    return 0
+    from inchworm.process_mains import run_recorder  # noqa: PLC0415 - zenoh, mcap when it runs
+
+    return run_recorder(spec_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

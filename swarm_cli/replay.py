@@ -67,7 +67,8 @@ def run_publish(args: argparse.Namespace) -> int:
     from inchworm.replay import PublishOptions, publish  # noqa: PLC0415 - zenoh only when publishing
     from runtime.wire.keys import ROOT  # noqa: PLC0415
 
-    r = publish(PublishOptions(args.file, args.speed, args.hub, args.wait, args.run_id, args.same_run), say=_say, warn=_warn)
+    r = publish(PublishOptions(args.file, speed=args.speed, hub=args.hub, wait=args.wait, run_id=args.run_id, same_run=args.same_run),
+                say=_say, warn=_warn)
     print(f"replayed {r.messages} messages on {r.keys} keys in {r.elapsed_s:.3f} s "
           f"(recorded span {r.recorded_s:.3f} s, speed {'max' if r.fast else f'{args.speed:g}'})"
           + (f"; {r.skipped} messages of derived channels (outside {ROOT}/) not published" if r.skipped else ""), flush=True)
@@ -80,11 +81,11 @@ def run_check(args: argparse.Namespace) -> int:
     from coordinator.replay_check import CROSS_PLATFORM_RTOL  # noqa: PLC0415 - scipy when checking, not for --help
     from inchworm.replay import CheckOptions, check_recording  # noqa: PLC0415
 
-    options = CheckOptions(args.file, args.localizer, args.seed, args.trajectory, args.model,
-                           {name: getattr(args, name) for name in MODEL_OPTIONS},
-                           {name: getattr(args, name) for name in SELECTION_OPTIONS}, args.what_if)
+    options = CheckOptions(args.file, localizer=args.localizer, seed=args.seed, trajectory=args.trajectory, model_file=args.model,
+                           model_flags={name: getattr(args, name) for name in MODEL_OPTIONS},
+                           selection={name: getattr(args, name) for name in SELECTION_OPTIONS}, what_if=args.what_if)
     outcome = check_recording(options, warn=_warn)
-    result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against
+    result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against_flags
     s = result.settings
     print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"
           + (f", overriding {', '.join(sorted({**model, **selection}))}" if model or selection else ""), flush=True)

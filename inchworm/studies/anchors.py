@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inchworm.limits import check_option_limits
 from inchworm.options import check_at_least, check_localizers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.seeding import trajectory_rng
@@ -335,7 +336,7 @@ def _save_panels(panels: list[tuple[str, np.ndarray]], distance: np.ndarray, hea
 # ---------------------------------------------------------------------------- the study
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AnchorsOptions:
     """``experiments`` random experiments of ``robots`` robots, ``samples`` Monte Carlo samples per plan; experiment e uses the seed [seed, e]."""
 
@@ -351,6 +352,7 @@ class AnchorsOptions:
         check_at_least(self, "experiments", 1)
         check_at_least(self, "samples", 1)
         check_localizers(self, "localizer")
+        check_option_limits(self)
 
     def note(self) -> str | None:
         """Why Fig. 5 is skipped, if it is."""

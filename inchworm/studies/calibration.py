@@ -24,6 +24,7 @@ import numpy as np
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.strategies import METHODS
 from inchworm.comparison import REFERENCE, RunTask, run_one, summarise
+from inchworm.limits import check_option_limits
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_among, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -35,7 +36,7 @@ PAPER_REF57_PF = 0.0673  # Table I, ref. [57]
 CALIBRATION_SEED = 10**6  # calibration trajectories use seeds CALIBRATION_SEED + t
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CalibrationOptions:
     """The calibration (``target``, bisection budget) and the comparison run at the calibrated noise."""
 
@@ -67,6 +68,7 @@ class CalibrationOptions:
         check_numbers(self, "seeds")
         check_numbers(self, "sensing_scales")
         check_at_least(self, "robots", 2)
+        check_option_limits(self)
 
 
 @dataclass

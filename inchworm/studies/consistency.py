@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
+from inchworm.limits import check_option_limits
 from inchworm.noise import scaled
 from inchworm.options import check_among, check_at_least, check_localizers, check_numbers, default_selection, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -36,7 +37,7 @@ if TYPE_CHECKING:
 METHODS = ("no-anchors", "ref57", "heuristic-fixed", "one-at-a-time")  # fixed plans; add inchworm with methods
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConsistencyOptions:
     """Every (noise setting, localizer, method) on the same ``trajectories`` random trajectories of ``robots`` robots and
     ``configs`` configurations; a noise setting is ``model`` with its motion sigmas times a motion scale and its
@@ -65,6 +66,7 @@ class ConsistencyOptions:
         check_at_least(self, "trajectories", 1)
         check_numbers(self, "motion_scales")
         check_numbers(self, "sensing_scales")
+        check_option_limits(self)
 
     def settings(self) -> list[tuple[float, float]]:
         """(motion scale, sensing scale) of every noise setting."""

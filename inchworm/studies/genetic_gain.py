@@ -33,7 +33,7 @@ BEYOND_NOISE = 2.0  # standard errors of the paired difference on the evaluation
 EVAL_SAMPLES = 256
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GeneticGainOptions:
     robots: int = 10
     configs: int = 8

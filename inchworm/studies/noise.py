@@ -18,6 +18,7 @@ import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.comparison import RunTask, anchors_along, contact_stats, run_one
+from inchworm.limits import check_option_limits
 from inchworm.noise import scaled
 from inchworm.options import RunOptions, check_at_least, check_localizers, check_numbers, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 METHODS = ("inchworm", "inchworm-equal-speed", "ref57")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class NoiseOptions:
     """The sweep: factors on the motion and sensing sigmas of ``run.model``, localizers, and the trajectories of every setting."""
 
@@ -49,6 +50,7 @@ class NoiseOptions:
         check_at_least(self, "robots", 2)
         check_at_least(self, "trajectories", 1)
         check_at_least(self, "configs", 1)
+        check_option_limits(self)
 
     def settings(self) -> list[tuple[str, float, float]]:
         return [(loc, ms, ss) for loc in self.localizers for ms in self.motion_scales for ss in self.sensing_scales]

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from inchworm.limits import check_option_limits
 from inchworm.options import RunOptions, check_at_least, options_dict
 from inchworm.runner import Executor, Row, StudyLog, run_tasks
 from inchworm.studies.anchors import CHUNK, Job, experiment_setup
@@ -251,7 +252,7 @@ def read_rows(path: Path) -> list[Row]:
     return rows
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SelectionStudyOptions:
     """``configs`` random configuration changes of ``robots`` robots; configuration c uses the seed [seed, c]."""
 
@@ -270,6 +271,7 @@ class SelectionStudyOptions:
         check_at_least(self, "configs", 1)
         for name in ("screen_samples", "pick_samples", "eval_samples"):
             check_at_least(self, name, 1)
+        check_option_limits(self)
 
     def budget(self) -> Budget:
         return Budget(self.screen_samples, self.pick_samples, self.eval_samples)

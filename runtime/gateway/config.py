@@ -28,6 +28,7 @@ import numpy as np
 
 from runtime.errors import SwarmInputError
 from runtime.models.geometry import wrap_angle
+from runtime.paths import StrPath
 from runtime.wire.keys import KeyspaceError, validate_port
 
 TRANSPORTS = ("serial", "ant")
@@ -184,7 +185,7 @@ class GatewayConfig:
         Path(path).write_text(json.dumps(self.to_json(), indent=2) + "\n")
 
     @classmethod
-    def load(cls, path: str | Path) -> GatewayConfig:
+    def load(cls, path: StrPath) -> GatewayConfig:
         """Read and validate a gateway config file."""
         try:
             text = Path(path).read_text()

@@ -30,6 +30,7 @@ from typing import Any
 
 from runtime.errors import OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
+from runtime.paths import StrPath
 
 # key -> (ModelConfig field, to SI, from SI, lowest value allowed, whether the lowest value is allowed, upper bound exclusive)
 KEYS: dict[str, tuple[str, Any, Any, float, bool, float]] = {
@@ -75,7 +76,7 @@ def parse_model(doc: Mapping[str, Any], source: str, base: ModelConfig = ModelCo
     return replace(base, **changes)
 
 
-def load_model(path: str | Path, base: ModelConfig = ModelConfig()) -> ModelConfig:
+def load_model(path: StrPath, base: ModelConfig = ModelConfig()) -> ModelConfig:
     """The model of the TOML file ``path`` (missing keys from ``base``); ``SwarmInputError`` naming the file and key."""
     path = Path(path)
     try:

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.errors import OptionError, SwarmInputError
+from runtime.errors import OptionError, OutputError, SwarmInputError
 from runtime.models.bodies import check_apart, impassable_pairs
 from runtime.models.config import ModelConfig
 from runtime.models.graph import component_labels
@@ -91,13 +91,19 @@ class Trajectory:
                 "move_mean_m": float(moves.mean()), "move_max_m": float(moves.max())}
 
     def save(self, path: StrPath) -> None:
-        Path(path).write_text(json.dumps(self.to_json()))
+        """Write the trajectory as JSON to ``path``; ``OutputError`` naming the file if it cannot be written."""
+        try:
+            Path(path).write_text(json.dumps(self.to_json()))
+        except OSError as exc:
+            raise OutputError(f"cannot write the trajectory {path}: {exc.strerror or exc}") from None
 
     @classmethod
     def load(cls, path: StrPath) -> Trajectory:
         """The trajectory in the JSON file ``path``; ``SwarmInputError`` naming the file and what is wrong."""
         try:
             data = json.loads(Path(path).read_text())
+        except OSError as exc:
+            raise SwarmInputError(f"{path}: cannot read it: {exc.strerror or exc}") from None
         except json.JSONDecodeError as exc:
             raise SwarmInputError(f"{path} is not valid JSON: {exc}") from None
         except UnicodeDecodeError:

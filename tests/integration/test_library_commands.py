@@ -17,10 +17,16 @@ def test_check_recording_reproduces_the_sample_and_refuses_a_contradiction() -> 
     outcome = inchworm.check_recording(inchworm.CheckOptions(SAMPLE))
     assert outcome.result.passed and outcome.against == []
     assert outcome.to_json()["estimates"] == 9 and outcome.to_json()["plans"] == 4
-    with pytest.raises(SwarmInputError, match=r"--localizer joint \(recorded: paper\)"):
-        inchworm.check_recording(inchworm.CheckOptions(SAMPLE, localizer="joint"))
+    with pytest.raises(inchworm.OptionError, match=r"^what_if is not set and localizer joint \(recorded: paper\), seed 3 "
+                                                    r"\(recorded: 0\) contradicts .* or set what_if to re-run") as caught:
+        inchworm.check_recording(inchworm.CheckOptions(SAMPLE, localizer="joint", seed=3))
+    assert "--" not in str(caught.value)  # Python names; the command line's flags:
+    assert caught.value.flag_message().startswith("--what-if is not set and --localizer joint (recorded: paper), --seed 3 (recorded: 0)")
+    model = inchworm.check_recording(inchworm.CheckOptions(SAMPLE, model_flags={"turn_sigma_deg": 4.0}, what_if=True))
+    assert model.against == ["turn_sigma_deg 4.0 (recorded: 3)"] and model.against_flags == ["--turn-sigma-deg 4.0 (recorded: 3)"]
     what_if = inchworm.check_recording(inchworm.CheckOptions(SAMPLE, localizer="joint", what_if=True))
-    assert not what_if.result.passed and what_if.against == ["--localizer joint (recorded: paper)"]
+    assert not what_if.result.passed and what_if.against == ["localizer joint (recorded: paper)"]
+    assert what_if.against_flags == ["--localizer joint (recorded: paper)"]
 
 
 def test_check_recording_keeps_a_recorded_model_value_given_in_degrees() -> None:

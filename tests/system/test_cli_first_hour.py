@@ -153,6 +153,8 @@ def test_info_into_a_closed_pipe_is_quiet() -> None:
     (["export", "x.mcap", "--distro", "rolling"], "argument --distro: invalid choice: 'rolling'"),
     (["replay"], "the following arguments are required"),
     (["bogus"], "argument COMMAND: invalid choice: 'bogus'"),
+    (["sim", "-n", "3"], "swarm sim: error: unrecognized arguments: -n 3 (see swarm sim --help)"),  # the command's own error
+    (["study", "anchors", "--nope", "1"], "swarm study anchors: error: unrecognized arguments: --nope 1 (see swarm study anchors --help)"),
 ])
 def test_a_value_argparse_refuses_is_one_line_without_the_usage(argv, named, capsys) -> None:
     """argparse's own refusals (types, choices, missing values) are one line like every other bad input, not the

@@ -19,6 +19,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 import pytest
+from waiting import wait_for
 
 from coordinator.simulate import simulate
 from inchworm.processes import stop_all
@@ -496,3 +497,20 @@ def test_the_api_distributed_run_equals_the_in_process_one(tmp_path):
     assert distributed.pf() == run.pf()
     assert all(np.array_equal(a.estimate.poses, b.estimate.poses) for a, b in zip(run.steps, distributed.steps, strict=True))
 
+
+
+def test_a_distributed_run_as_an_object_with_a_lifecycle():
+    """``inchworm.DistributedRun``: its agents' liveliness in ``status()``, the run-wide stop acknowledged by every agent,
+    the stopped run a ``SwarmRunError`` and status 3, every agent process ended when the block is left."""
+    import inchworm
+
+    with inchworm.DistributedRun(robots=4, configs=2, seed=5, method="ref57") as run:
+        assert run.status().state == "running" and run.status().hub == run.hub
+        wait_for(lambda: run.status().agents == (0, 1, 2, 3), 30.0, "the four agents' liveliness")
+        assert sorted(run.estop("a test").agents) == [0, 1, 2, 3]
+        with pytest.raises(inchworm.SwarmRunError, match="the run was stopped by inchworm.DistributedRun .* \\(a test\\)"):
+            run.wait()
+        assert run.status().state == "ended" and run.status().status == 3
+        with pytest.raises(inchworm.SwarmInputError, match="has no result"):
+            run.result()
+    assert run._procs and all(p.poll() is not None for p in run._procs)

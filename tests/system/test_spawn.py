@@ -8,9 +8,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+from inchworm.output import last_json
 from inchworm.spawn import Spawned, run_process
-from inchworm.specs import LinkSpec, RouterSpec, encode_spec
-from runtime.wire.transport import free_tcp_port
+from inchworm.specs import LinkSpec, RecorderSpec, RouterSpec, encode_spec
+from runtime.recording.mcap_log import read_messages, recording_info
+from runtime.wire.messages import EmergencyStop, encode, message_key
+from runtime.wire.transport import free_tcp_port, open_loopback_hub, publish
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -50,3 +53,26 @@ def test_a_spawned_router_stops_cleanly_on_sigint_and_a_bad_one_is_its_commands_
         router.wait()
     bad = run_process(RouterSpec(listen=("nonsense",)), timeout=60)
     assert bad.returncode == 2 and bad.stderr.startswith("swarm router: error: ") and bad.stderr.count("\n") == 1, bad.stderr
+
+
+def test_a_spawned_recorder_records_the_run_until_it_is_stopped(tmp_path):
+    """``RecorderSpec`` (``swarm record``) in a real child: it records what the run's hub carries until ``stop()`` (SIGINT:
+    the file finished, exit 0, the command's JSON line), its spec's metadata in the file."""
+    out = tmp_path / "rec.mcap"
+    hub_session, _member, hub = open_loopback_hub()
+    with hub_session:
+        recorder = Spawned(RecorderSpec(run_id="rec", hub=hub, out=str(out), seed=7, params=("lab=\"west\"",), json=True),
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            assert recorder.stderr is not None and recorder.stderr.readline().startswith(f"swarm record: recording swarm/rec/** from {hub}")
+            stop = EmergencyStop(run="rec", step=0, source="test", reason="recorded")
+            publish(hub_session, message_key(stop), encode(stop))
+            assert recorder.stop(grace_s=20.0) == 0
+            assert recorder.stdout is not None and last_json(recorder.stdout.read())["messages"] >= 1
+        finally:
+            recorder.kill()
+            recorder.wait()
+    info = recording_info(out)
+    run = next(iter(info["metadata"].values()))
+    assert info["complete"] and run["seed"] == 7 and run["parameters"] == {"lab": "west"} and run["hub"] == hub, info["metadata"]
+    assert any(topic == message_key(stop) for topic, *_ in read_messages(out))

@@ -24,6 +24,7 @@ from inchworm.specs import (
     LinkSpec,
     PortProcessSpec,
     ProcessSpec,
+    RecorderSpec,
     Ros2BridgeSpec,
     Ros2RobotsSpec,
     RouterSpec,
@@ -63,6 +64,8 @@ FULL: dict[type[ProcessSpec], ProcessSpec] = {
         no_ground_truth=True, no_odom=(1, 3), silent={2: 3}, sightings_twice=True, late_sightings=0.25),
     Ros2BridgeSpec: Ros2BridgeSpec(run_id="lab", trajectory="t.json", robot_radius=0.05, wait=3.0, hub="tcp/h:3", zenoh_config="z"),
     RouterSpec: RouterSpec(listen=("tcp/0.0.0.0:7447", "tls/0.0.0.0:7448"), config="router.json5", json=True),
+    RecorderSpec: RecorderSpec(run_id="lab", hub="tcp/h:5", zenoh_config="z.json5", out="r.mcap", seed=2**63 - 1, trajectory="t.json",
+                               params=("site=\"west\"", "n=3"), json=True, command="swarm record --run=lab"),
     LaunchSpec: LaunchSpec(
         model=MODEL, model_file="m.toml", localizer="joint", selection=SelectionSpec(samples=4), command="demo", trajectory="t.json",
         robots=500, configs=7, trajectory_seed=3, method="ref57", seed=11, run_id="lab", out="o", result="r.json", motion_time=0.1,
@@ -148,6 +151,12 @@ def test_the_commands_build_the_specs_from_their_flags():
     spec = coordinator_cmd.spec_of(args)
     assert spec.selection == SelectionSpec(w_v=0.3, method="crlb", genetic="off") and spec.no_record and spec.standby and not spec.rejoin
     assert spec.model.robot_radius_m == 0.0 and spec.label == "standby"
+    from swarm_cli import record
+
+    args = _parsed("swarm_cli.record", ["--run=lab", "--zenoh-config=z.json5", "--out=r.mcap", "--seed=4", "--param=a=1", "--param=b=x", "--json"])
+    spec = record.spec_of(args)
+    assert spec == RecorderSpec(run_id="lab", zenoh_config="z.json5", out="r.mcap", seed=4, params=("a=1", "b=x"), json=True,
+                                command=spec.command) and spec.command.startswith("swarm record")
     from swarm_cli.launch import spec_of
     from swarm_cli.main import build_parser
 
@@ -193,7 +202,8 @@ def test_a_launch_spec_is_the_launch_options_by_concern():
 
 
 LIBRARY = ("inchworm", "runtime", "coordinator", "robot_agent")
-COMMAND_LINE = re.compile(r'"-m",\s*"swarm_cli|\bf"--[a-z][a-z0-9-]*=\{')  # a swarm_cli module started, a --flag={value} assembled
+# a swarm_cli module started, a --flag={value} assembled, a "--flag" in the argument list of a Python child
+COMMAND_LINE = re.compile(r'"-m",\s*"swarm_cli|\bf"--[a-z][a-z0-9-]*=\{|sys\.executable\b.*"--[a-z]')
 
 
 def test_no_library_module_assembles_a_command_line():
@@ -203,3 +213,4 @@ def test_no_library_module_assembles_a_command_line():
     assert not found, "\n".join(found)
     assert COMMAND_LINE.search('[sys.executable, "-m", "swarm_cli.agent", f"--id={robot}"]')  # the pattern finds what it is for
     assert COMMAND_LINE.search('cmd = [f"--seed={seed}"]') and not COMMAND_LINE.search('raise SwarmInputError(f"--seed {seed}: bad")')
+    assert COMMAND_LINE.search('Popen([sys.executable, "-m", "inchworm.lifeline", "--remove", str(folder)])')

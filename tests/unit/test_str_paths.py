@@ -25,3 +25,20 @@ def test_recording_options_take_str_paths():
     assert (check.file, check.trajectory, check.model_file) == (Path(SAMPLE), Path("t.json"), Path("m.toml"))
     assert inchworm.PublishOptions(SAMPLE).file == Path(SAMPLE)
     assert inchworm.SimOptions(trajectory="t.json").trajectory == Path("t.json")
+
+
+def test_the_declared_types_of_path_options_take_a_str_too():
+    """A type checker accepts a ``str`` wherever the library takes a path: every path field of the public options classes
+    and every path parameter of the public functions is declared ``StrPath`` (``str | os.PathLike``), not ``Path``."""
+    import dataclasses
+    import inspect
+
+    narrow = []
+    for name in inchworm.__all__:
+        obj = getattr(inchworm, name)
+        if name.endswith("Options") and dataclasses.is_dataclass(obj):
+            narrow += [f"{name}.{f.name}: {f.type}" for f in dataclasses.fields(obj) if "Path" in str(f.type) and "StrPath" not in str(f.type)]
+        elif inspect.isfunction(obj):
+            narrow += [f"{name}({p.name}: {p.annotation})" for p in inspect.signature(obj).parameters.values()
+                       if "Path" in str(p.annotation) and "StrPath" not in str(p.annotation)]
+    assert narrow == []
