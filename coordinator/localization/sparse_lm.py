@@ -406,7 +406,8 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     acceptance, convergence, next damping and giving up are ``step_outcome``'s; with ``ptol`` a problem whose
     step predicts a negligible decrease (``settled``) stops where it is, without evaluating the step; a problem
     fails after ``max_iter`` accepted steps or when it gives up, and never starts where its cost is not finite.
-    A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active.
+    A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active (checked
+    before each step and before each trial point is evaluated: the problems a step settled are not evaluated there).
 
     Returns (x, converged, iterations, state): iterations counts the iterations started (accepted steps, plus
     one when the last trial was not accepted), state is the final point's (of one problem; batched, of every
@@ -438,6 +439,14 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
             active = active & xp.logical_not(early)
             if not xp.any(active):
                 break
+            if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # most settled: no trial point for them
+                full_x[work], full_converged[work] = x, converged
+                full_st = _scatter_state(full_st, st, work)
+                keep = np.flatnonzero(active)
+                work, x, dx, mu, active, iterations, converged, accepted = (
+                    a[keep] for a in (work, x, dx, mu, active, iterations, converged, accepted))
+                problem = problem.subset(keep)
+                st = {key: value[keep] for key, value in st.items()}
         x_new = x + xp.keep(active, dx, 0.0)
         new = problem.evaluate(x_new, slot)
         with xp.quiet():

@@ -97,6 +97,7 @@ def block_errors(cfg: ModelConfig, localizer: Localizer, start: str, blocks: lis
             localizer, cfg,
             e.reshape(m * s, n, 3), v.reshape(m * s, n, 3, 3), commands.reshape(m * s, n, 2),
             moving.reshape(m * s, n), seen.reshape(m * s, n, n), rho.reshape(m * s, n, n), phi.reshape(m * s, n, n),
+            covariances=bool((k_steps[live] > k + 1).any()),  # e_l reads the poses: none after every plan's last step
         )
         if every:
             truth, est, cov = t, out.poses.reshape(c, s, n, 3), out.cov.reshape(c, s, n, 3, 3)
