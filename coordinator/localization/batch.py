@@ -158,8 +158,8 @@ def localize_batch(
     values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
 
     ``covariances=False``: the caller reads only poses and ``ok`` (the Monte Carlo's last step of a plan); the joint
-    method then skips the covariances of its update (the poses are the same bits) and ``cov`` holds NaN where it
-    solved a sample.
+    method then skips the covariances of its update (the same flags; the same poses to rounding: the constrained
+    update solves for them instead of inverting) and ``cov`` holds NaN where it solved a sample.
     """
     retain_freed_memory()  # thousands of 0.1-1 MB arrays a selection: no page faults on each (``allocator``)
     prior_poses = np.asarray(prior_poses, dtype=float)
@@ -365,17 +365,18 @@ def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndar
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve a (B, k, k) x = rhs (B, k); samples with a singular matrix get NaN (their step is then rejected)."""
+    """Solve a (B, k, k) x = rhs (B, k) or (B, k, c); samples with a singular matrix get NaN (their step is then rejected)."""
+    columns = rhs if rhs.ndim == 3 else rhs[..., None]
     try:
-        return np.linalg.solve(a, rhs[..., None])[..., 0]
+        out = np.linalg.solve(a, columns)
     except np.linalg.LinAlgError:
-        out = np.full(rhs.shape, np.nan)
+        out = np.full(columns.shape, np.nan)
         for k in range(len(a)):  # rare path: find the singular samples
             try:
-                out[k] = np.linalg.solve(a[k], rhs[k])
+                out[k] = np.linalg.solve(a[k], columns[k])
             except np.linalg.LinAlgError:
                 pass
-        return out
+    return out if rhs.ndim == 3 else out[..., 0]
 
 
 def _diagonal(a: np.ndarray) -> np.ndarray:
@@ -641,7 +642,7 @@ def _localize_joint(cfg: ModelConfig, dr_poses: np.ndarray, dr_cov: np.ndarray, 
                     covariances: bool = True) -> _Solved:
     """``JointLocalizer._solve`` of every sample: the least-squares solution and its covariances, or with ``constrain``
     the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all).
-    ``covariances=False``: the poses alone (the same bits), the covariances NaN."""
+    ``covariances=False``: the poses alone (to rounding), the covariances NaN."""
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, st = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)  # st: every sample's state at x
@@ -699,17 +700,23 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
     ``lap``, ``ct``, ``d`` J^T J in the batch's order (x of every robot, then y, then headings:
     ``_JointProblem.normal``); the gauge's (N, Pi) and the prior's gradient are moved from their robot-by-robot order
-    (x_0, y_0, heading_0, x_1, ...) into it, and the results back. ``covariances=False``: the poses alone (the same
-    bits), the covariances None.
+    (x_0, y_0, heading_0, x_1, ...) into it, and the results back. ``covariances=False``: the poses alone (S^-1 U and
+    m g by solves instead of S^-1 and m: the same poses to rounding), the covariances None.
     """
     b, n, n2 = ct.shape
     k = 3 * n
-    parts = _schur_parts(lap, ct, d)
-    ctd, s_inv, _ = parts
+    if covariances:
+        parts = _schur_parts(lap, ct, d)
+        ctd, s_inv, _ = parts
+    else:  # the poses need S^-1 applied to U's six columns only: solved, not inverted
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ctd = ct / d[:, :, None]
+            schur = lap - np.matmul(ct.swapaxes(1, 2), ctd)
     to_robots, to_batch = _orders(n)
 
     def inverse_times(m: np.ndarray) -> np.ndarray:  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
-        y = s_inv @ (m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:])
+        rhs = m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:]
+        y = s_inv @ rhs if covariances else _solve_stack(schur, rhs)
         return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
 
     def batch_order(frame: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # (N, Pi) in the batch's order
@@ -723,21 +730,25 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
     small = _EYE6 + kmat @ (u.swapaxes(1, 2) @ low)
+    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
+    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
+    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
+    dense = _ill_conditioned(small)
+    if not covariances:  # m g alone: (I + K U^T L)^-1 K L^T g, one right-hand side
+        with np.errstate(invalid="ignore"):
+            mg = _solve_stack(small, (kmat @ (low.swapaxes(1, 2) @ g[:, :, None]))[:, :, 0])
+        step = (low[:, :, 3:] @ along[:, :, None])[:, :, 0] - (low @ mg[:, :, None])[:, :, 0]
+        poses = x - step[:, to_robots].reshape(b, n, 3)
+        for s in dense:  # the single-swarm localizer's dense update
+            poses[s] = _dense_update(prior_info[s], prior_gradient[s], lap[s], ct[s], d[s], x[s], mean[s], None if keep is None else keep[s])[0]
+        return poses, None
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
             m = np.linalg.solve(small, kmat @ low.swapaxes(1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
-    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
-    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
-    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
     step = (low[:, :, 3:] @ along[:, :, None] - low @ (m @ g[:, :, None]))[:, :, 0]
     poses = x - step[:, to_robots].reshape(b, n, 3)
-    dense = _ill_conditioned(small)
-    if not covariances:
-        for s in dense:  # the single-swarm localizer's dense update
-            poses[s] = _dense_update(prior_info[s], prior_gradient[s], lap[s], ct[s], d[s], x[s], mean[s], None if keep is None else keep[s])[0]
-        return poses, None
     low_a = low[:, to_robots].reshape(b, n, 3, 6)
     blocks = _joint_covariances(lap, ct, d, parts) - low_a @ np.swapaxes(m[:, :, to_robots].reshape(b, 6, n, 3), 1, 2)
     if keep is None:
