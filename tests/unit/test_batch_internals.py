@@ -138,13 +138,19 @@ def test_observable_by_hand():
 
 
 def test_solve_stack_marks_singular_samples_with_nan():
-    """diag(2, 4) x = (2, 4) gives x = (1, 1); a zero matrix has no solution: NaN, the others unaffected."""
+    """diag(2, 4) x = (2, 4) gives x = (1, 1); a zero matrix has no solution: NaN, the others unaffected; the same with
+    several right-hand sides a sample."""
     a = np.stack([np.diag([2.0, 4.0]), np.zeros((2, 2)), np.diag([1.0, 0.5])])
     rhs = np.array([[2.0, 4.0], [1.0, 1.0], [3.0, 1.0]])
     out = _solve_stack(a, rhs)
     np.testing.assert_allclose(out[[0, 2]], [[1, 1], [3, 2]])
     assert np.isnan(out[1]).all()
     np.testing.assert_allclose(_solve_stack(a[[0, 2]], rhs[[0, 2]]), [[1, 1], [3, 2]])
+    columns = np.stack([rhs, 2 * rhs], axis=2)  # two right-hand sides a sample: (3, 2, 2)
+    many = _solve_stack(a, columns)
+    assert many.shape == (3, 2, 2)
+    np.testing.assert_allclose(many[[0, 2]], [[[1, 2], [1, 2]], [[3, 6], [2, 4]]])
+    assert np.isnan(many[1]).all()
 
 
 def test_inv_stack_marks_singular_matrices_with_nan():
