@@ -423,14 +423,24 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     if xp.batched:
         full_x, full_converged, work = x, converged.copy(), np.arange(len(x))
         full_st: dict[str, np.ndarray] | None = None
+
+    def sparse() -> bool:  # batched, and fewer than ``COMPACT_BELOW`` of the work set active
+        return bool(xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work))
+
+    def compact(dx: np.ndarray | None = None) -> np.ndarray | None:
+        """Drop the finished problems from the work set (their rows stay in the full arrays); ``dx`` restricted alike."""
+        nonlocal work, x, mu, active, iterations, converged, accepted, problem, st, full_st
+        full_x[work], full_converged[work] = x, converged
+        full_st = _scatter_state(full_st, st, work)
+        keep = np.flatnonzero(active)
+        work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
+        problem = problem.subset(keep)
+        st = {key: value[keep] for key, value in st.items()}
+        return None if dx is None else dx[keep]
+
     while xp.any(active):
-        if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # drop finished problems
-            full_x[work], full_converged[work] = x, converged
-            full_st = _scatter_state(full_st, st, work)
-            keep = np.flatnonzero(active)
-            work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
-            problem = problem.subset(keep)
-            st = {key: value[keep] for key, value in st.items()}
+        if sparse():
+            compact()
         dx, predicted = problem.step(st, mu, iterations > 0)
         if ptol is not None:  # converged before the step
             early = active & settled(predicted, st["cost"], mu, ptol, xp)
@@ -439,14 +449,8 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
             active = active & xp.logical_not(early)
             if not xp.any(active):
                 break
-            if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # most settled: no trial point for them
-                full_x[work], full_converged[work] = x, converged
-                full_st = _scatter_state(full_st, st, work)
-                keep = np.flatnonzero(active)
-                work, x, dx, mu, active, iterations, converged, accepted = (
-                    a[keep] for a in (work, x, dx, mu, active, iterations, converged, accepted))
-                problem = problem.subset(keep)
-                st = {key: value[keep] for key, value in st.items()}
+            if sparse():  # most settled: no trial point for them
+                dx = compact(dx)
         x_new = x + xp.keep(active, dx, 0.0)
         new = problem.evaluate(x_new, slot)
         with xp.quiet():
