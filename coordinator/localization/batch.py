@@ -145,6 +145,7 @@ def localize_batch(
     seen: np.ndarray,
     ranges: np.ndarray,
     bearings: np.ndarray,
+    covariances: bool = True,
 ) -> BatchEstimate:
     """Localize B swarms: ``localizer.localize`` applied to every sample.
 
@@ -155,6 +156,10 @@ def localize_batch(
     (unobservable, degenerate, no convergence) ``ok`` is False and its poses/covariances are
     the runtime's partial localization (``partial.localize_observable``); where it holds
     values the single-swarm input types reject, ``ok`` is False and they are dead reckoning.
+
+    ``covariances=False``: the caller reads only poses and ``ok`` (the Monte Carlo's last step of a plan); the joint
+    method then skips the covariances of its update (the same flags; the same poses to rounding: the constrained
+    update solves for them instead of inverting) and ``cov`` holds NaN where it solved a sample.
     """
     retain_freed_memory()  # thousands of 0.1-1 MB arrays a selection: no page faults on each (``allocator``)
     prior_poses = np.asarray(prior_poses, dtype=float)
@@ -179,7 +184,8 @@ def localize_batch(
                             bearings, poses, cov)
         return BatchEstimate(poses, cov, valid & ok)
     ok = valid & observable(seen)
-    solve: _Solver = _localize_paper if method == "paper" else functools.partial(_localize_joint, constrain=_constrained(localizer, n))
+    solve: _Solver = (_localize_paper if method == "paper"
+                      else functools.partial(_localize_joint, constrain=_constrained(localizer, n), covariances=covariances))
     todo = np.flatnonzero(ok)
     chunk = max(MIN_CHUNK, CHUNK_PAIRS // (n * n))
     ws = _Workspace()  # shared by the chunks
@@ -187,7 +193,8 @@ def localize_batch(
         _solve_chunks(solve, cfg, todo, chunk, dr_poses, dr_cov, seen, ranges, bearings, poses, cov, ok, ws)
         partial = np.flatnonzero(valid & ~ok)
         if partial.size:
-            _localize_partial(localizer, method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws)
+            _localize_partial(localizer, method, cfg, partial, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov, ws,
+                              covariances)
     return BatchEstimate(poses, cov, ok)
 
 
@@ -210,8 +217,9 @@ def _constrained(localizer: Localizer, n: int) -> bool:
 
 def _localize_partial(localizer: Localizer, method: str, cfg: ModelConfig, index: np.ndarray, prior_poses: np.ndarray,
                       prior_cov: np.ndarray, commands: np.ndarray, moving: np.ndarray, seen: np.ndarray, ranges: np.ndarray,
-                      bearings: np.ndarray, poses: np.ndarray, cov: np.ndarray, ws: _Workspace) -> None:
-    """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov."""
+                      bearings: np.ndarray, poses: np.ndarray, cov: np.ndarray, ws: _Workspace, covariances: bool = True) -> None:
+    """The runtime's partial localization (``partial.localize_observable``) of samples ``index``, into poses/cov
+    (``covariances=False``: the batched joint solve's covariances are NaN, as ``localize_batch``'s)."""
     n = seen.shape[1]
     rest = index
     if method == "joint":
@@ -222,7 +230,8 @@ def _localize_partial(localizer: Localizer, method: str, cfg: ModelConfig, index
             masked[k] &= keep[:, None] & keep[None, :] if keep.sum() >= 2 else False
         dr_poses, dr_cov = poses[index], cov[index]  # dead reckoning at this point
         keep = masked.any(axis=1) | masked.any(axis=2)  # the robots localized (the others keep their dead reckoning)
-        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws, _constrained(localizer, n), keep)
+        est, est_cov, good = _localize_joint(cfg, dr_poses, dr_cov, masked, ranges[index], bearings[index], ws, _constrained(localizer, n), keep,
+                                             covariances)
         poses[index[good]], cov[index[good]] = est[good], est_cov[good]
         rest = index[~good]
     _localize_each(localizer, cfg, rest, prior_poses, prior_cov, commands, moving, seen, ranges, bearings, poses, cov)
@@ -356,17 +365,18 @@ def _newton_step(lap: np.ndarray, diag_x: np.ndarray, ct: np.ndarray, d: np.ndar
 
 
 def _solve_stack(a: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Solve a (B, k, k) x = rhs (B, k); samples with a singular matrix get NaN (their step is then rejected)."""
+    """Solve a (B, k, k) x = rhs (B, k) or (B, k, c); samples with a singular matrix get NaN (their step is then rejected)."""
+    columns = rhs if rhs.ndim == 3 else rhs[..., None]
     try:
-        return np.linalg.solve(a, rhs[..., None])[..., 0]
+        out = np.linalg.solve(a, columns)
     except np.linalg.LinAlgError:
-        out = np.full(rhs.shape, np.nan)
+        out = np.full(columns.shape, np.nan)
         for k in range(len(a)):  # rare path: find the singular samples
             try:
-                out[k] = np.linalg.solve(a[k], rhs[k])
+                out[k] = np.linalg.solve(a[k], columns[k])
             except np.linalg.LinAlgError:
                 pass
-        return out
+    return out if rhs.ndim == 3 else out[..., 0]
 
 
 def _diagonal(a: np.ndarray) -> np.ndarray:
@@ -628,22 +638,28 @@ class _JointProblem(_Batched):
 
 
 def _localize_joint(cfg: ModelConfig, dr_poses: np.ndarray, dr_cov: np.ndarray, seen: np.ndarray, ranges: np.ndarray,
-                    bearings: np.ndarray, ws: _Workspace, constrain: bool, keep: np.ndarray | None = None) -> _Solved:
+                    bearings: np.ndarray, ws: _Workspace, constrain: bool, keep: np.ndarray | None = None,
+                    covariances: bool = True) -> _Solved:
     """``JointLocalizer._solve`` of every sample: the least-squares solution and its covariances, or with ``constrain``
-    the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all)."""
+    the observability-constrained update's (``gauge``; ``keep`` (B, n): the robots localized where not all).
+    ``covariances=False``: the poses alone (to rounding), the covariances NaN."""
     s_r, _ = sensor_sigmas(cfg)
     problem = _JointProblem(seen, ranges, bearings, dr_poses, prior_information(dr_cov), s_r, cfg, ws)
     x, good, _, st = drive(problem, dr_poses, *JOINT_TOL, xp=BatchOps)  # st: every sample's state at x
     wrong = np.flatnonzero(good & implausible(st["cost"], seen.sum(axis=(1, 2))))
     if wrong.size and _rescue(cfg, problem, x, st["cost"], wrong, seen, ranges, bearings, dr_poses, dr_cov):
         st = problem.evaluate(x)
+    cov: np.ndarray | None
     if constrain:
-        x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep)
+        x, cov = _constrained_update(problem.info, st["gp"], *problem.normal(st), x, dr_poses, keep, covariances)
     else:
-        cov = _joint_covariances(*problem.normal(st))
-    cov = psd(cov)
+        cov = _joint_covariances(*problem.normal(st)) if covariances else None
     x[:, :, 2] = wrap_angle(x[:, :, 2])
-    good &= np.isfinite(cov).all(axis=(1, 2, 3)) & np.isfinite(x).all(axis=(1, 2))
+    good &= np.isfinite(x).all(axis=(1, 2))
+    if cov is None:  # the poses alone: every quantity the covariances come from is finite where the poses are
+        return x, np.full(dr_cov.shape, np.nan), good
+    cov = psd(cov)
+    good &= np.isfinite(cov).all(axis=(1, 2, 3))
     return x, cov, good
 
 
@@ -672,7 +688,8 @@ def _rescue(cfg: ModelConfig, problem: _JointProblem, x: np.ndarray, cost: np.nd
 
 
 def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap: np.ndarray, ct: np.ndarray, d: np.ndarray,
-                        x: np.ndarray, mean: np.ndarray, keep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+                        x: np.ndarray, mean: np.ndarray, keep: np.ndarray | None,
+                        covariances: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
     """Poses (B, n, 3) and covariances (B, n, 3, 3) of the observability-constrained update (``gauge``, as
     ``JointLocalizer``), without any (3n, 3n) matrix: the correction U K U^T of ``gauge_correction`` (of the robots
     ``keep``, None: all) enters the inverse of J^T J = A by the Woodbury identity,
@@ -683,16 +700,23 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     ``prior_info`` (B, n, 3, 3) and ``prior_gradient`` (B, n, 3) are the prior's share of J^T J and J^T r at ``x``;
     ``lap``, ``ct``, ``d`` J^T J in the batch's order (x of every robot, then y, then headings:
     ``_JointProblem.normal``); the gauge's (N, Pi) and the prior's gradient are moved from their robot-by-robot order
-    (x_0, y_0, heading_0, x_1, ...) into it, and the results back.
+    (x_0, y_0, heading_0, x_1, ...) into it, and the results back. ``covariances=False``: the poses alone (S^-1 U and
+    m g by solves instead of S^-1 and m: the same poses to rounding), the covariances None.
     """
     b, n, n2 = ct.shape
     k = 3 * n
-    parts = _schur_parts(lap, ct, d)
-    ctd, s_inv, _ = parts
+    if covariances:
+        parts = _schur_parts(lap, ct, d)
+        ctd, s_inv, _ = parts
+    else:  # the poses need S^-1 applied to U's six columns only: solved, not inverted
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ctd = ct / d[:, :, None]
+            schur = lap - np.matmul(ct.swapaxes(1, 2), ctd)
     to_robots, to_batch = _orders(n)
 
     def inverse_times(m: np.ndarray) -> np.ndarray:  # A^-1 m (m (B, 3n, c) in the batch's order) through the Schur complement S = lap - C D^-1 C^T
-        y = s_inv @ (m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:])
+        rhs = m[:, :n2] - ctd.swapaxes(1, 2) @ m[:, n2:]
+        y = s_inv @ rhs if covariances else _solve_stack(schur, rhs)
         return np.concatenate([y, m[:, n2:] / d[:, :, None] - ctd @ y], axis=1)
 
     def batch_order(frame: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:  # (N, Pi) in the batch's order
@@ -706,14 +730,23 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     u, kmat = gauge_correction(sn - prior_n, frame)  # the correction U K U^T
     low = inverse_times(u)  # L = A^-1 U
     small = _EYE6 + kmat @ (u.swapaxes(1, 2) @ low)
+    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
+    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
+    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
+    dense = _ill_conditioned(small)
+    if not covariances:  # m g alone: (I + K U^T L)^-1 K L^T g, one right-hand side
+        with np.errstate(invalid="ignore"):
+            mg = _solve_stack(small, (kmat @ (low.swapaxes(1, 2) @ g[:, :, None]))[:, :, 0])
+        step = (low[:, :, 3:] @ along[:, :, None])[:, :, 0] - (low @ mg[:, :, None])[:, :, 0]
+        poses = x - step[:, to_robots].reshape(b, n, 3)
+        for s in dense:  # the single-swarm localizer's dense update
+            poses[s] = _dense_update(prior_info[s], prior_gradient[s], lap[s], ct[s], d[s], x[s], mean[s], None if keep is None else keep[s])[0]
+        return poses, None
     with np.errstate(invalid="ignore"):
         try:  # m = (K^-1 + U^T L)^-1 L^T = (I + K U^T L)^-1 K L^T, (B, 6, 3n)
             m = np.linalg.solve(small, kmat @ low.swapaxes(1, 2))
         except np.linalg.LinAlgError:
             m = np.full((b, 6, k), np.nan)
-    # C = A^-1 - L m: the estimate (``constrained_solution``: x - C Pi^T N^T g, A^-1 Pi^T = L's last three columns)
-    along = gauge_gradient(prior_gradient.reshape(b, k)[:, to_batch], frame)  # N^T g
-    g = (along[:, None, :] @ proj)[:, 0]  # Pi^T N^T g
     step = (low[:, :, 3:] @ along[:, :, None] - low @ (m @ g[:, :, None]))[:, :, 0]
     poses = x - step[:, to_robots].reshape(b, n, 3)
     low_a = low[:, to_robots].reshape(b, n, 3, 6)
@@ -727,17 +760,25 @@ def _constrained_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap:
     pc = inv_pt.swapaxes(1, 2) - (proj @ low) @ m  # Pi C = Pi A^-1 - Pi L m
     pcp = pc @ proj.swapaxes(1, 2)
     blocks = transported_blocks(blocks, transport_offset(mean, poses, whole), pc[:, :, to_robots], pcp)
-    dense = _ill_conditioned(small)
     for s in dense:  # the Woodbury identity has lost the digits: the single-swarm localizer's dense update
-        full = np.block([[lap[s], ct[s].swapaxes(0, 1)], [ct[s], np.diag(d[s])]])[np.ix_(to_robots, to_robots)]
-        observed = full - block_diagonal(prior_info[s])
-        own = gauge_frame(mean[s], None if keep is None else keep[s])
-        cov = constrained_covariance(full, observed, mean[s], own)
-        poses[s] = constrained_solution(x[s], mean[s], cov, prior_gradient[s].ravel(), own)
-        cov = transport(cov, mean[s], poses[s], gauge_frame(mean[s]))
-        idx = np.arange(k).reshape(n, 3)
-        blocks[s] = cov[idx[:, :, None], idx[:, None, :]]
+        poses[s], blocks[s] = _dense_update(prior_info[s], prior_gradient[s], lap[s], ct[s], d[s], x[s], mean[s], None if keep is None else keep[s])
     return poses, blocks
+
+
+def _dense_update(prior_info: np.ndarray, prior_gradient: np.ndarray, lap: np.ndarray, ct: np.ndarray, d: np.ndarray, x: np.ndarray,
+                  mean: np.ndarray, keep: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """One sample's observability-constrained update as the single-swarm localizer does it, with the whole (3n, 3n)
+    covariance: (poses (n, 3), covariance blocks (n, 3, 3)); arguments as ``_constrained_update``'s, of one sample."""
+    n = len(d)
+    to_robots = _orders(n)[0]
+    full = np.block([[lap, ct.swapaxes(0, 1)], [ct, np.diag(d)]])[np.ix_(to_robots, to_robots)]
+    observed = full - block_diagonal(prior_info)
+    own = gauge_frame(mean, keep)
+    cov = constrained_covariance(full, observed, mean, own)
+    poses = constrained_solution(x, mean, cov, prior_gradient.ravel(), own)
+    cov = transport(cov, mean, poses, gauge_frame(mean))
+    idx = np.arange(3 * n).reshape(n, 3)
+    return poses, cov[idx[:, :, None], idx[:, None, :]]
 
 
 def _ill_conditioned(small: np.ndarray) -> np.ndarray:

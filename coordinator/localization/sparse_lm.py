@@ -406,7 +406,8 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     acceptance, convergence, next damping and giving up are ``step_outcome``'s; with ``ptol`` a problem whose
     step predicts a negligible decrease (``settled``) stops where it is, without evaluating the step; a problem
     fails after ``max_iter`` accepted steps or when it gives up, and never starts where its cost is not finite.
-    A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active.
+    A batched problem that finished leaves the work set once fewer than ``COMPACT_BELOW`` of it are active (checked
+    before each step and before each trial point is evaluated: the problems a step settled are not evaluated there).
 
     Returns (x, converged, iterations, state): iterations counts the iterations started (accepted steps, plus
     one when the last trial was not accepted), state is the final point's (of one problem; batched, of every
@@ -422,14 +423,24 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
     if xp.batched:
         full_x, full_converged, work = x, converged.copy(), np.arange(len(x))
         full_st: dict[str, np.ndarray] | None = None
+
+    def sparse() -> bool:  # batched, and fewer than ``COMPACT_BELOW`` of the work set active
+        return bool(xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work))
+
+    def compact(dx: np.ndarray | None = None) -> np.ndarray | None:
+        """Drop the finished problems from the work set (their rows stay in the full arrays); ``dx`` restricted alike."""
+        nonlocal work, x, mu, active, iterations, converged, accepted, problem, st, full_st
+        full_x[work], full_converged[work] = x, converged
+        full_st = _scatter_state(full_st, st, work)
+        keep = np.flatnonzero(active)
+        work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
+        problem = problem.subset(keep)
+        st = {key: value[keep] for key, value in st.items()}
+        return None if dx is None else dx[keep]
+
     while xp.any(active):
-        if xp.batched and np.count_nonzero(active) < COMPACT_BELOW * len(work):  # drop finished problems
-            full_x[work], full_converged[work] = x, converged
-            full_st = _scatter_state(full_st, st, work)
-            keep = np.flatnonzero(active)
-            work, x, mu, active, iterations, converged, accepted = (a[keep] for a in (work, x, mu, active, iterations, converged, accepted))
-            problem = problem.subset(keep)
-            st = {key: value[keep] for key, value in st.items()}
+        if sparse():
+            compact()
         dx, predicted = problem.step(st, mu, iterations > 0)
         if ptol is not None:  # converged before the step
             early = active & settled(predicted, st["cost"], mu, ptol, xp)
@@ -438,6 +449,8 @@ def drive(problem: Any, x0: np.ndarray, xtol: float, ftol: float, ptol: float | 
             active = active & xp.logical_not(early)
             if not xp.any(active):
                 break
+            if sparse():  # most settled: no trial point for them
+                dx = compact(dx)
         x_new = x + xp.keep(active, dx, 0.0)
         new = problem.evaluate(x_new, slot)
         with xp.quiet():

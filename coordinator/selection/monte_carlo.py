@@ -65,7 +65,7 @@ def block_errors(cfg: ModelConfig, localizer: Localizer, start: str, blocks: lis
     """e_l (m) per plan and sample (plans, samples of every block) of ``plans`` simulated on the sample sets ``blocks``
     at once, each block's samples drawn as ``MonteCarlo(samples, seed)`` draws them, so every sample's e_l is the one
     that block alone gives. Plans may have different step counts: a plan's samples stop at its last step (the
-    batched localization of a step takes the plans that have it)."""
+    batched localization of a step takes the plans that have it; those for which it is the last, poses alone, apart)."""
     k_steps = np.array([p.n_steps for p in plans])
     masks = np.zeros((len(plans), int(k_steps.max()), estimate.n), bool)  # (c, k, n)
     for p, plan in enumerate(plans):
@@ -82,26 +82,33 @@ def block_errors(cfg: ModelConfig, localizer: Localizer, start: str, blocks: lis
     eye = np.eye(n, dtype=bool)
     for k in range(masks.shape[1]):
         live = np.flatnonzero(k_steps > k)
-        every = len(live) == c
-        m = len(live)
-        t, e, v = (truth, est, cov) if every else (truth[live], est[live], cov[live])
-        moving = np.broadcast_to(masks[live, k, None, :], (m, s, n))
-        commands = np.where(moving[..., None], command_towards(e, desired), 0.0)
-        t = np.where(moving[..., None], apply_motion(t, commands, turn, drive), t)
-        true_rho, true_phi = measure(t[..., :, None, :], t[..., None, :, :2])  # (m, s, n, n)
-        step_draws = [_step_draws(seed, count, n, k) for count, seed in blocks]
-        uniform, z_range, z_bearing = (np.concatenate(parts) for parts in zip(*step_draws, strict=True))
-        rho, phi, keep = add_sensing_noise(true_rho, true_phi, uniform, z_range, z_bearing, cfg)
-        seen = keep & (true_rho <= cfg.sensing_range_m) & ~eye
-        out = localize_batch(
-            localizer, cfg,
-            e.reshape(m * s, n, 3), v.reshape(m * s, n, 3, 3), commands.reshape(m * s, n, 2),
-            moving.reshape(m * s, n), seen.reshape(m * s, n, n), rho.reshape(m * s, n, n), phi.reshape(m * s, n, n),
-        )
-        if every:
-            truth, est, cov = t, out.poses.reshape(c, s, n, 3), out.cov.reshape(c, s, n, 3, 3)
-        else:
-            truth[live], est[live], cov[live] = t, out.poses.reshape(m, s, n, 3), out.cov.reshape(m, s, n, 3, 3)
+        last = k_steps[live] == k + 1
+        # a plan's last step is localized for its poses alone (e_l reads nothing else), in a batch of its own where
+        # other plans go on: every plan's samples take the same arithmetic whatever it is simulated with
+        for part, covariances in ((live[~last], True), (live[last], False)):
+            if not part.size:
+                continue
+            every = len(part) == c
+            m = len(part)
+            t, e, v = (truth, est, cov) if every else (truth[part], est[part], cov[part])
+            moving = np.broadcast_to(masks[part, k, None, :], (m, s, n))
+            commands = np.where(moving[..., None], command_towards(e, desired), 0.0)
+            t = np.where(moving[..., None], apply_motion(t, commands, turn, drive), t)
+            true_rho, true_phi = measure(t[..., :, None, :], t[..., None, :, :2])  # (m, s, n, n)
+            step_draws = [_step_draws(seed, count, n, k) for count, seed in blocks]
+            uniform, z_range, z_bearing = (np.concatenate(parts) for parts in zip(*step_draws, strict=True))
+            rho, phi, keep = add_sensing_noise(true_rho, true_phi, uniform, z_range, z_bearing, cfg)
+            seen = keep & (true_rho <= cfg.sensing_range_m) & ~eye
+            out = localize_batch(
+                localizer, cfg,
+                e.reshape(m * s, n, 3), v.reshape(m * s, n, 3, 3), commands.reshape(m * s, n, 2),
+                moving.reshape(m * s, n), seen.reshape(m * s, n, n), rho.reshape(m * s, n, n), phi.reshape(m * s, n, n),
+                covariances=covariances,
+            )
+            if every:
+                truth, est, cov = t, out.poses.reshape(c, s, n, 3), out.cov.reshape(c, s, n, 3, 3)
+            else:
+                truth[part], est[part], cov[part] = t, out.poses.reshape(m, s, n, 3), out.cov.reshape(m, s, n, 3, 3)
     return cast(np.ndarray, np.mean(np.linalg.norm(truth[..., :2] - est[..., :2], axis=-1), axis=-1))  # Eq. 8, (c, s)
 
 

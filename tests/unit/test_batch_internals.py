@@ -138,13 +138,19 @@ def test_observable_by_hand():
 
 
 def test_solve_stack_marks_singular_samples_with_nan():
-    """diag(2, 4) x = (2, 4) gives x = (1, 1); a zero matrix has no solution: NaN, the others unaffected."""
+    """diag(2, 4) x = (2, 4) gives x = (1, 1); a zero matrix has no solution: NaN, the others unaffected; the same with
+    several right-hand sides a sample."""
     a = np.stack([np.diag([2.0, 4.0]), np.zeros((2, 2)), np.diag([1.0, 0.5])])
     rhs = np.array([[2.0, 4.0], [1.0, 1.0], [3.0, 1.0]])
     out = _solve_stack(a, rhs)
     np.testing.assert_allclose(out[[0, 2]], [[1, 1], [3, 2]])
     assert np.isnan(out[1]).all()
     np.testing.assert_allclose(_solve_stack(a[[0, 2]], rhs[[0, 2]]), [[1, 1], [3, 2]])
+    columns = np.stack([rhs, 2 * rhs], axis=2)  # two right-hand sides a sample: (3, 2, 2)
+    many = _solve_stack(a, columns)
+    assert many.shape == (3, 2, 2)
+    np.testing.assert_allclose(many[[0, 2]], [[[1, 2], [1, 2]], [[3, 6], [2, 4]]])
+    assert np.isnan(many[1]).all()
 
 
 def test_inv_stack_marks_singular_matrices_with_nan():
@@ -352,6 +358,32 @@ def test_lm_finished_samples_leave_the_work_set():
     assert float(log[-1][1][0]) == 1e-12
 
 
+def test_lm_evaluates_no_trial_point_for_samples_a_step_settled():
+    """Four samples of cost 1 everywhere, step +0.1: the first step of samples 0-2 predicts 1e-9 (below ptol x cost),
+    sample 3's 1.0. Fewer than COMPACT_BELOW of the work set are then active, so the work set is sample 3 before its
+    trial point is evaluated: the evaluations are the start (all four) and sample 3's trial alone; each sample ends
+    where it would without the compaction (0-2 where they started, 3 one step on)."""
+    evaluated = []
+
+    class Logged(ToyProblem):
+        def evaluate(self, x, slot=0):
+            evaluated.append(self.index.tolist())
+            return super().evaluate(x, slot)
+
+        def subset(self, keep):
+            return Logged(self.costs, self.steps, self.log, self.index[keep], self.predicted)
+
+    costs = [lambda x: 1.0] * 4
+    steps = [[[0.1, 0.0, 0.0]]] * 4
+    x0 = np.arange(12.0).reshape(4, 1, 3)
+    x, converged, _, _ = drive(Logged(costs, steps, [], predicted=[1e-9, 1e-9, 1e-9, 1.0]), x0, 1e-8, 1e-8, 1e-6, xp=BatchOps)
+    assert evaluated == [[0, 1, 2, 3], [3]]
+    assert converged.tolist() == [True] * 4
+    want = x0.copy()
+    want[3, 0, 0] += 0.1
+    np.testing.assert_array_equal(x, want)
+
+
 class ScalarToy:
     """Sample ``s`` of a ``ToyProblem`` as one problem for ``drive`` with ``ScalarOps`` (floats, a (1, 3) x)."""
 
@@ -471,7 +503,8 @@ def test_a_single_robot_is_dead_reckoning(method):
 def test_an_ill_conditioned_constrained_update_is_done_densely():
     """Noise-free sensing (whitening 1e9) and a prior that disagrees with it by 0.1 mm: the Woodbury identity's 6x6
     system has a condition number ~1e28 and gave poses 3e7 m off; the batch then does the dense update of the
-    single-swarm localizer, and both put every robot within 0.3 mm of the truth (the prior's disagreement)."""
+    single-swarm localizer, and both put every robot within 0.3 mm of the truth (the prior's disagreement); so do the
+    poses alone (``covariances=False``)."""
     from runtime.models.motion import apply_motion
     from runtime.models.rng import Stream, robot_rngs
     from runtime.models.scenarios import grid_configuration
@@ -492,8 +525,9 @@ def test_an_ill_conditioned_constrained_update_is_done_densely():
     seen[obs.observer, obs.observed] = True
     ranges, bearings = np.zeros((n, n)), np.zeros((n, n))
     ranges[obs.observer, obs.observed], bearings[obs.observer, obs.observed] = obs.range_m, obs.bearing_rad
-    out = localize_batch(make_localizer("joint", cfg), cfg, prior.poses[None], prior.cov[None], commands[None], moving[None],
-                         seen[None], ranges[None], bearings[None])
+    arrays = prior.poses[None], prior.cov[None], commands[None], moving[None], seen[None], ranges[None], bearings[None]
+    out = localize_batch(make_localizer("joint", cfg), cfg, *arrays)
+    np.testing.assert_allclose(localize_batch(make_localizer("joint", cfg), cfg, *arrays, covariances=False).poses, out.poses, rtol=0, atol=1e-12)
     observations = Observations(*np.nonzero(seen), ranges[seen], bearings[seen])
     single = make_localizer("joint", cfg).localize(prior, StepCommands(ids, commands, moving), observations)
     assert out.ok[0]

@@ -150,6 +150,25 @@ def test_chunks_give_the_same_answer(method, monkeypatch):
     np.testing.assert_allclose(chunked.cov, whole.cov, rtol=1e-10, atol=0)
 
 
+@pytest.mark.parametrize(("method", "constrain"), [("joint", True), ("joint", False), ("paper", True)])
+def test_poses_alone_are_the_same_poses(method, constrain):
+    """``covariances=False`` (the Monte Carlo's last step of a plan): the same flags and the same poses to rounding
+    (the constrained update solves for them instead of inverting the Schur complement; measured <= 9e-16 m), with
+    unobservable samples in the batch; the joint method leaves the covariances of what it solved NaN."""
+    cfg = ModelConfig(dropout_prob=0.15)
+    arrays = random_batch(8, 16, cfg, seed=8).arrays()
+    localizer = make_localizer(method, cfg) if method == "paper" else make_localizer(method, cfg, constrain_gauge=constrain)
+    full = localize_batch(localizer, cfg, *arrays)
+    alone = localize_batch(localizer, cfg, *arrays, covariances=False)
+    np.testing.assert_allclose(alone.poses, full.poses, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(alone.ok, full.ok)
+    assert full.ok.sum() >= 8 and not full.ok.all()
+    if method == "joint":
+        assert np.isnan(alone.cov[full.ok]).all()
+    else:
+        np.testing.assert_array_equal(alone.cov, full.cov)
+
+
 def test_joint_block_covariances_above_the_exact_limit(monkeypatch):
     """Above EXACT_COV_LIMIT robots both compute conditional covariances from the 3x3 information blocks."""
     monkeypatch.setattr(joint_module, "EXACT_COV_LIMIT", 4)
