@@ -110,14 +110,14 @@ def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
     moved = NEAR.poses.copy()
     moved[0, :2] = first.targets[0]
     after = SwarmEstimate(NEAR.ids, moved, NEAR.cov)
-    leg = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
-    again = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
+    leg = next_leg(X3, (first,), after, NEAR_DESIRED, 1)
+    again = next_leg(X3, (first,), after, NEAR_DESIRED, 1)
     assert leg is not None and again is not None
     assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
     np.testing.assert_array_equal(leg.targets, again.targets)
-    last = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, MAX_LEGS - 1)
+    last = next_leg(X3, (first,) * (MAX_LEGS - 1), after, NEAR_DESIRED, MAX_LEGS - 1)  # its MAX_LEGS-th driven leg
     assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
-    assert next_leg(X3, first, after.select(np.array([False, True, True])), NEAR_DESIRED[1:], first.staged_ids, 1) is None  # lost
+    assert next_leg(X3, (first,), after.select(np.array([False, True, True])), NEAR_DESIRED[1:], 1) is None  # lost
 
 
 # robots 0 and 1 drive 0.3 m side by side into places 0.07 m apart next to the still robot 2
@@ -160,13 +160,15 @@ def test_the_executor_drives_the_legs_and_counts_their_steps():
 
 def test_a_staging_point_is_checked_against_the_others_again():
     # at x3 robot 0 drives 0.4 m along y = 0 past the still robots 2, 3 and 4 (6 cm beside its target and its 0.75 and
-    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: robot 1
-    # then stops at its own shortest staging point too, although the end of its 3 cm drive was clear of robot 0's others
+    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: both
+    # at their shortest staging points are still over the bound, so they are separated in time: robot 0 (the longer
+    # way) waits where it stands and robot 1 drives its short way straight to its goal (clear of robot 0 standing)
     est = estimate([[0.0, 0.0], [0.1, 0.06], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]], [0.0, -math.pi + 1e-3, 1.0, 2.0, 3.0])
     desired = np.array([[0.4, 0.0], [0.1, 0.03], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]])
     leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
-    assert leg.staged.tolist() == [True, True, False, False, False]
-    assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
+    assert leg.held.tolist() == [True, False, False, False, False] and not leg.staged.any()
+    assert leg.targets[0].tolist() == [0.0, 0.0] and leg.targets[1].tolist() == pytest.approx([0.1, 0.03])
+    assert end_probability(X3, est, leg.targets, 0, 1) <= CONTACT_BOUND
 
 
 class Died(Exception):
