@@ -142,13 +142,14 @@ def _pair_probability(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarra
 
 
 def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.ndarray, j: np.ndarray, p: np.ndarray,
-             length: np.ndarray) -> list[int]:
-    """Of each pair (i, j) of driving robots over the bound at their ``ends`` (both at their shortest staging point,
-    contact probability ``p``), the robot that waits where it stands for the leg: the one with the longer way left
-    (``length``; ties: the higher index), unless the other waiting keeps the pair within the bound and this does not
-    (the other's way leads through where this one stands) or keeps it lower. Pairs by falling ``p``; a robot is
-    decided once (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
-    first = (length[i] > length[j]) | ((length[i] == length[j]) & (i > j))
+             rank: np.ndarray) -> list[int]:
+    """Of each pair (i, j) of robots that could wait, over the bound at their ``ends`` (contact probability ``p``), the
+    robot that waits where it stands for the leg: the one of higher ``rank`` (n,) (a robot that could still stage
+    before one on its last leg, then the longer way left, then the higher index), unless the other waiting keeps the
+    pair within the bound and this does not (the other's way leads through where this one stands) or keeps it lower.
+    Pairs by falling ``p``; a robot is decided once (a pair with a robot already waiting or driving on for another
+    pair is left to the next round)."""
+    first = rank[i] > rank[j]
     wait, go = np.where(first, i, j), np.where(first, j, i)
     ones = np.ones(len(i))
     mine = _pair_probability(cfg, estimate, ends, wait, go, 0 * ones, ones)
@@ -166,25 +167,27 @@ def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.
 
 
 def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray,
-                last: bool | np.ndarray = False) -> Leg:
+                last: bool | np.ndarray = False, final: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``
-    (all or per robot, (n,)): the robot drives straight to its goal. Robots not ``going`` stand where they are estimated.
+    (all or per robot, (n,)): the robot drives straight to its goal unless it waits; ``final``: every robot drives
+    straight to its goal, none waits. Robots not ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
-    ``CONTACT_BOUND``: both robots of a pair over it that drive stop shorter (the next of ``LEG_FRACTIONS`` of their
-    path), until none is over or they are at the shortest. A pair still over is separated in time: of two such robots
-    at their shortest one waits where it stands (``_waiting``, ``Leg.held``), and a robot at its shortest over against a
-    neighbour that waits or drives its last leg (straight to its goal) waits too; the others' stops are then decided
-    again from the start, until no such pair is left (a robot waits at most once: this ends). Against a robot that
-    stands for the whole change it does not wait (it approaches it: the rest of its way shrinks leg by leg). If nobody
-    would drive, the robot with the shortest way does. Pairs whose goals are still at risk reached with no motion noise
-    (pulled back to where they stand) are left out: no leg helps them."""
+    ``CONTACT_BOUND``: both robots of a pair over it that can stage stop shorter (the next of ``LEG_FRACTIONS`` of
+    their path), until none is over or they are at the shortest. A pair still over is separated in time: of two robots
+    that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``, ``Leg.held``), and
+    one over against a neighbour that waits waits too; the others' stops are then decided again from the start, until
+    no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the shortest
+    way does. A robot still over at its shortest against a robot that stands (for the whole change) takes the stop of
+    the leg whose end is the least at risk (the shortest on ties: the rest of its way shrinks leg by leg). Pairs whose
+    goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
+    them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
-    last = np.broadcast_to(np.asarray(last, bool), going.shape)
+    last = np.broadcast_to(np.asarray(last, bool) | final, going.shape)
     targets = np.where(going[:, None], desired, current)
     none = np.zeros(len(current), bool)
     rows = np.flatnonzero(going & (np.hypot(*(targets - current).T) >= MIN_LEG_M))
@@ -193,52 +196,78 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     targets, short = safe_goals(cfg, estimate, targets, rows)
     path = targets - current
     length = np.hypot(*path.T)
-    rows = rows[(length[rows] >= MIN_LEG_M) & ~last[rows]]
-    if not len(rows):
+    drives = going & (length >= MIN_LEG_M)
+    rows = np.flatnonzero(drives & ~last)
+    waitable = drives & (not final)
+    if not len(rows) and not waitable.any():
         return Leg(targets, none, short, none)
     there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
     there[:, :2] = targets
-    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, np.flatnonzero(drives))
     hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
     fractions = np.array((1.0, *LEG_FRACTIONS))
     shortest = len(LEG_FRACTIONS)
     movable = np.zeros(len(current), bool)
     movable[rows] = True
     held = np.zeros(len(current), bool)
+    order = np.lexsort((np.arange(len(current)), length, movable))  # a stager before a last leg, the longer way, the higher index
+    rank = np.empty(len(current), np.int64)
+    rank[order] = np.arange(len(current))
 
     def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
         """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends, and the pairs
         over the bound at them (not hopeless), with the robots in ``held`` standing."""
         level = np.zeros(len(current), np.int64)
         while True:  # levels only grow, to ``shortest`` at most: this ends
-            fraction = np.where(held, 0.0, fractions[level])
-            ends = current + fraction[:, None] * path
-            i, j, p = _end_pairs(cfg, estimate, ends, rows)
+            ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
+            i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
             over = [(int(a), int(b), float(q)) for a, b, q in zip(i, j, p, strict=True) if q > CONTACT_BOUND and (int(a), int(b)) not in hopeless]
             shorter = sorted({r for a, b, _ in over for r in (a, b) if movable[r] and not held[r] and level[r] < shortest})
             if not shorter:
                 return level, ends, over
             level[shorter] += 1
 
-    later = going & last & (length >= MIN_LEG_M)  # drives straight to its goal in this leg, then stands
     while True:  # a robot waits at most once in a leg: this ends
         level, ends, over = stops()
-        free = movable & ~held  # at its shortest staging point in every pair left over
+        free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
         pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
-        alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and (held | later)[b if free[a] else a]})
+        alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
         if not pairs and not alone:
             break
-        held[alone] = True  # its neighbour waits or arrives in this leg: it approaches that one standing, later
+        held[alone] = True  # its neighbour waits: it approaches that one standing, later
         if pairs:
             a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
-            held[_waiting(cfg, estimate, ends, a, b, q, length)] = True
-    if not (going & (length >= MIN_LEG_M) & ~held).any():  # nobody would drive: the robot with the shortest way does
-        held[rows[np.lexsort((rows, length[rows]))[0]]] = False
-        level, ends, _ = stops()
+            held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
+    if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
+        held[order[np.flatnonzero(held[order])[0]]] = False
+        level, ends, over = stops()
+    level = _least_at_risk(cfg, estimate, current, path, level, ends, over, movable & ~held & (level == shortest), rows)
+    ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
     staged = (level > 0) & ~held
     targets[staged] = ends[staged]
     targets[held] = current[held]
     return Leg(targets, staged, short, held)
+
+
+def _least_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, current: np.ndarray, path: np.ndarray, level: np.ndarray,
+                   ends: np.ndarray, over: list[tuple[int, int, float]], choose: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``level`` with each robot of ``choose`` still over the bound at its ``ends`` moved to the level whose end is the
+    least at risk (its largest pair probability, the others at their ``ends``; the shortest on ties)."""
+    mine = np.array(sorted({r for a, b, _ in over for r in (a, b) if choose[r]}), np.int64)
+    if not len(mine):
+        return level
+    fractions = np.array((1.0, *LEG_FRACTIONS))
+    worst = np.zeros((len(fractions), len(current)))
+    for k, f in enumerate(fractions):
+        trial = ends.copy()
+        trial[mine] = current[mine] + f * path[mine]
+        i, j, p = _end_pairs(cfg, estimate, trial, np.union1d(rows, mine))
+        np.maximum.at(worst[k], i, p)
+        np.maximum.at(worst[k], j, p)
+    best = len(fractions) - 1 - np.argmin(worst[::-1, mine], axis=0)  # the shortest of the least at risk
+    out = level.copy()
+    out[mine] = best
+    return out
 
 
 @dataclass(frozen=True)
@@ -303,8 +332,8 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
     mask = np.isin(estimate.ids, legs[-1].going_on)
     if not mask.any():
         return None
-    last = mask & ((driven_legs(legs, estimate.ids) >= MAX_LEGS - 1) | (index >= LEG_CAP - 1))
-    leg = leg_targets(cfg, estimate, desired, mask, last)
+    last = mask & (driven_legs(legs, estimate.ids) >= MAX_LEGS - 1)
+    leg = leg_targets(cfg, estimate, desired, mask, last, final=index >= LEG_CAP - 1)
     drive = mask & ~leg.held
     ids = estimate.ids[drive]
     rows = np.flatnonzero(drive)
