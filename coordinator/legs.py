@@ -146,9 +146,8 @@ def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.
     """Of each pair (i, j) of robots that could wait, over the bound at their ``ends`` (contact probability ``p``), the
     robot that waits where it stands for the leg: the one of higher ``rank`` (n,) (a robot that could still stage
     before one on its last leg, then the longer way left, then the higher index), unless the other waiting keeps the
-    pair within the bound and this does not (the other's way leads through where this one stands) or keeps it lower.
-    Pairs by falling ``p``; a robot is decided once (a pair with a robot already waiting or driving on for another
-    pair is left to the next round)."""
+    pair's end within the bound and this does not, or keeps it lower. Pairs by falling ``p``; a robot is decided once
+    (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
     first = rank[i] > rank[j]
     wait, go = np.where(first, i, j), np.where(first, j, i)
     ones = np.ones(len(i))
@@ -176,14 +175,14 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
     ``CONTACT_BOUND``: both robots of a pair over it that can stage stop shorter (the next of ``LEG_FRACTIONS`` of
-    their path), until none is over or they are at the shortest. A pair still over is separated in time: of two robots
-    that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``, ``Leg.held``), and
-    one over against a neighbour that waits waits too; the others' stops are then decided again from the start, until
-    no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the shortest
-    way does. A robot still over at its shortest against a robot that stands (for the whole change) takes the stop of
-    the leg whose end is the least at risk (the shortest on ties: the rest of its way shrinks leg by leg). Pairs whose
-    goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
-    them."""
+    their path), until none is over or they are at the shortest; against a robot that waits, an end is kept within the
+    bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
+    robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
+    ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
+    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the
+    shortest way does. A robot over at its shortest against a robot that stands for the whole change drives to its
+    shortest staging point (it approaches that one: the rest of its way shrinks leg by leg). Pairs whose goals are
+    still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
@@ -216,13 +215,15 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
 
     def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
         """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends, and the pairs
-        over the bound at them (not hopeless), with the robots in ``held`` standing."""
+        over the bound at them (not hopeless), with the robots in ``held`` standing; a robot's end is also kept within
+        the bound against a waiting robot standing at its goal (``_near_goals``)."""
         level = np.zeros(len(current), np.int64)
         while True:  # levels only grow, to ``shortest`` at most: this ends
             ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
             i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
             over = [(int(a), int(b), float(q)) for a, b, q in zip(i, j, p, strict=True) if q > CONTACT_BOUND and (int(a), int(b)) not in hopeless]
-            shorter = sorted({r for a, b, _ in over for r in (a, b) if movable[r] and not held[r] and level[r] < shortest})
+            near = {r for a, b, _ in over for r in (a, b)} | _near_goals(cfg, estimate, ends, targets, held, drives)
+            shorter = sorted(r for r in near if movable[r] and not held[r] and level[r] < shortest)
             if not shorter:
                 return level, ends, over
             level[shorter] += 1
@@ -240,34 +241,27 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
     if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
         held[order[np.flatnonzero(held[order])[0]]] = False
-        level, ends, over = stops()
-    level = _least_at_risk(cfg, estimate, current, path, level, ends, over, movable & ~held & (level == shortest), rows)
-    ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
+        level, ends, _ = stops()
     staged = (level > 0) & ~held
     targets[staged] = ends[staged]
     targets[held] = current[held]
     return Leg(targets, staged, short, held)
 
 
-def _least_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, current: np.ndarray, path: np.ndarray, level: np.ndarray,
-                   ends: np.ndarray, over: list[tuple[int, int, float]], choose: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``level`` with each robot of ``choose`` still over the bound at its ``ends`` moved to the level whose end is the
-    least at risk (its largest pair probability, the others at their ``ends``; the shortest on ties)."""
-    mine = np.array(sorted({r for a, b, _ in over for r in (a, b) if choose[r]}), np.int64)
-    if not len(mine):
-        return level
-    fractions = np.array((1.0, *LEG_FRACTIONS))
-    worst = np.zeros((len(fractions), len(current)))
-    for k, f in enumerate(fractions):
-        trial = ends.copy()
-        trial[mine] = current[mine] + f * path[mine]
-        i, j, p = _end_pairs(cfg, estimate, trial, np.union1d(rows, mine))
-        np.maximum.at(worst[k], i, p)
-        np.maximum.at(worst[k], j, p)
-    best = len(fractions) - 1 - np.argmin(worst[::-1, mine], axis=0)  # the shortest of the least at risk
-    out = level.copy()
-    out[mine] = best
-    return out
+def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,
+                drives: np.ndarray) -> set[int]:
+    """Robots of ``drives`` not ``held`` whose ``ends`` are over the bound against a ``held`` robot standing at its goal
+    (of ``goals``) with the position uncertainty it has now: it goes there later, and an end that only keeps clear of
+    where it waits may stand in its way or at its place (driven straight in while it waits, with the long drive's
+    error)."""
+    if not held.any():
+        return set()
+    there = estimate.poses.copy()
+    there[held, :2] = goals[held]
+    at = np.where(held[:, None], goals, ends)
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), at, np.flatnonzero(drives & ~held))
+    over = (p > CONTACT_BOUND) & (held[i] != held[j])
+    return {int(r) for r in np.where(held[i[over]], j[over], i[over])}
 
 
 @dataclass(frozen=True)
