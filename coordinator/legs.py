@@ -5,11 +5,12 @@ with a large position error, and where its target stands close to a neighbour's 
 end of the change exceeds ``CONTACT_BOUND`` whatever the order of the moves (``BodyCheck``'s floor lets it through).
 Such a mover drives in legs: first to a **staging point** on its straight way (a fraction of its remaining path,
 ``LEG_FRACTIONS``), the swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter
-and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs were driven: the last goes
-straight to the target, as without legs).
+and so more precise, until the rest of the way ends within the bound (or the robot drives its ``MAX_LEGS``-th leg: it
+goes straight to the target, as without legs).
 
-``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
-configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
+``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start, the desired
+configuration and which robots waited in the change's earlier legs (``next_leg``), nothing else, so the executor and
+``swarm replay --check`` compute the same legs: the leg's end
 configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
 pair's contact probability within ``CONTACT_BOUND``; the motion of the legs' steps is kept within it by the
 regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instant, so the criterion is the probability
@@ -21,11 +22,12 @@ half-plane bound the steps need (``instant_bound``: 2.3-2.6x the probability in 
 staging points: driving both there (as before) is where almost every contact at motion noise x5.58 came from. One of
 them **waits** where it stands for the leg instead (``Leg.held``; the one with the longer way left, ties the higher
 index, unless only the other order keeps the pair within the bound), the other approaches the standing, re-localized
-robot over short legs and arrives; then the waiting one approaches. The choice is a function of the leg's start alone
-and consistent from leg to leg: the waiting robot's way stays as long while the other's shrinks, so the same robot
-keeps waiting until the pair is clear, no alternation. Waiting legs do not count against a robot's ``MAX_LEGS`` (its
-last leg, straight to its goal, is its ``MAX_LEGS``-th driven one), a change ends after ``LEG_CAP`` legs at most (every
-robot still on its way drives straight in the last), and every leg drives at least one robot (``leg_targets``).
+robot over short legs, its ends kept within the bound also against the waiting robot's goal; then the waiting one
+approaches. The choice is a function of the leg's start alone and consistent from leg to leg: the waiting robot's way
+stays as long while the other's shrinks, so the same robot keeps waiting until the pair is clear, no alternation.
+Waiting legs do not count against a robot's ``MAX_LEGS`` (its last leg, straight to its goal, is its ``MAX_LEGS``-th
+driven one), a change ends after ``LEG_CAP`` legs at most (every robot still on its way drives straight in the last),
+and every leg drives at least one robot (``leg_targets``).
 
 A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
 now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
