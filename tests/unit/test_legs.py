@@ -270,7 +270,7 @@ def test_a_converging_pair_is_separated_in_time_the_longer_way_waits():
     assert end_probability(X558, SwarmEstimate(CONVERGE.ids, there, CONVERGE.cov), ends, 0, 1) <= CONTACT_BOUND
 
 
-def test_the_same_robot_keeps_waiting_until_the_other_arrived_and_the_change_ends():
+def test_the_same_robot_keeps_waiting_until_the_pair_is_clear_and_the_change_ends():
     """Legs driven exactly (each robot arrives at its leg's target, its covariance as before): robot 0 waits in a first
     run of legs (until robot 1 is far enough ahead) and never again, robot 1 never waits, somebody drives in every leg,
     and both end at their goals within LEG_CAP legs."""
