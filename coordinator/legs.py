@@ -223,7 +223,8 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         while True:  # levels only grow, to ``shortest`` at most: this ends
             ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
             i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
-            over = [(int(a), int(b), float(q)) for a, b, q in zip(i, j, p, strict=True) if q > CONTACT_BOUND and (int(a), int(b)) not in hopeless]
+            k = p > CONTACT_BOUND
+            over = [(int(a), int(b), float(q)) for a, b, q in zip(i[k], j[k], p[k], strict=True) if (int(a), int(b)) not in hopeless]
             near = {r for a, b, _ in over for r in (a, b)} | _near_goals(cfg, estimate, ends, targets, held, drives)
             shorter = sorted(r for r in near if movable[r] and not held[r] and level[r] < shortest)
             if not shorter:
