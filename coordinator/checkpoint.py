@@ -200,9 +200,11 @@ def _from_regrouping(d: dict[str, Any] | None) -> Regrouping | None:
 def _legs_json(legs: tuple[LegRecord, ...]) -> dict[str, Any]:
     """The approach legs as an additive ``legs`` key (none without legs: a state without them is written as before)."""
     return {"legs": [{"plan": _plan(x.plan), "ids": x.ids.tolist(), "targets": _array(x.targets), "staged": x.staged.tolist(),
-                      "regrouped": _regrouping(x.regrouped)} for x in legs]} if legs else {}
+                      "regrouped": _regrouping(x.regrouped), **({"held": x.held.tolist()} if len(x.held) else {})}
+                     for x in legs]} if legs else {}
 
 
 def _from_legs(d: dict[str, Any]) -> tuple[LegRecord, ...]:
     return tuple(LegRecord(_from_plan(x["plan"]), np.array(x["ids"], dtype=np.int64), _from_array(x["targets"]),
-                           np.array(x["staged"], dtype=bool), _from_regrouping(x["regrouped"])) for x in d.get("legs", ()))
+                           np.array(x["staged"], dtype=bool), _from_regrouping(x["regrouped"]),
+                           np.array(x.get("held", []), dtype=np.int64)) for x in d.get("legs", ()))

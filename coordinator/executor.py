@@ -52,7 +52,7 @@ import numpy as np
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping
-from coordinator.legs import MAX_LEGS, LegRecord, first_leg, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, first_leg, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -204,11 +204,11 @@ class InchwormExecutor:
                     if moving.any():  # a group whose robots were all lost is skipped
                         estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
                     self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped, legs=legs)
-                if not legs or not legs[-1].staged.any() or len(legs) >= MAX_LEGS:
+                if not legs or not len(legs[-1].going_on) or len(legs) >= LEG_CAP:
                     break
                 done += plan.n_steps
                 estimate = self._drop_lost(result, c, estimate)[0]
-                leg = next_leg(self.cfg, legs[0], estimate, self._desired(trajectory, c, estimate.ids), legs[-1].staged_ids, len(legs))
+                leg = next_leg(self.cfg, legs, estimate, self._desired(trajectory, c, estimate.ids), len(legs))
                 if leg is None:
                     break
                 legs, plan, planned_ids, regrouped, group = (*legs, leg), leg.plan, leg.ids, leg.regrouped, 0

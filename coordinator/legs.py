@@ -5,17 +5,29 @@ with a large position error, and where its target stands close to a neighbour's 
 end of the change exceeds ``CONTACT_BOUND`` whatever the order of the moves (``BodyCheck``'s floor lets it through).
 Such a mover drives in legs: first to a **staging point** on its straight way (a fraction of its remaining path,
 ``LEG_FRACTIONS``), the swarm re-localizes as after any step, and the next leg starts from the new estimate, shorter
-and so more precise, until the rest of the way ends within the bound (or ``MAX_LEGS`` legs were driven: the last goes
-straight to the target, as without legs).
+and so more precise, until the rest of the way ends within the bound (or the robot drives its ``MAX_LEGS``-th leg: it
+goes straight to the target, as without legs).
 
-``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start and the desired
-configuration, nothing else, so the executor and ``swarm replay --check`` compute the same legs: the leg's end
+``leg_targets`` decides one leg of every robot still on its way from the estimate at the leg's start, the desired
+configuration and which robots waited in the change's earlier legs (``next_leg``), nothing else, so the executor and
+``swarm replay --check`` compute the same legs: the leg's end
 configuration (each robot arrived at its leg's end with that drive's noise, the others where they stand) keeps every
 pair's contact probability within ``CONTACT_BOUND``; the motion of the legs' steps is kept within it by the
 regrouping, as for any step (``first_leg``, ``next_leg``). The end is one instant, so the criterion is the probability
 of the pair's Gaussian relative position in the disc (``runtime.models.contact_risk.disc_probability``), not the
 half-plane bound the steps need (``instant_bound``: 2.3-2.6x the probability in the median at the default noise,
 10-27x at x5.58 for pairs at 1-3 %): a leg is driven only where the straight drive's end really is over the bound.
+
+**Separated in time.** Two robots of a leg whose ways converge can be over the bound even both at their shortest
+staging points: driving both there (as before) is where almost every contact at motion noise x5.58 came from. One of
+them **waits** where it stands for the leg instead (``Leg.held``; the one with the longer way left, ties the higher
+index, unless only the other order keeps the pair within the bound), the other approaches the standing, re-localized
+robot over short legs, its ends kept within the bound also against the waiting robot's goal; then the waiting one
+approaches. The choice is a function of the leg's start alone and consistent from leg to leg: the waiting robot's way
+stays as long while the other's shrinks, so the same robot keeps waiting until the pair is clear, no alternation.
+Waiting legs do not count against a robot's ``MAX_LEGS`` (its last leg, straight to its goal, is its ``MAX_LEGS``-th
+driven one), a change ends after ``LEG_CAP`` legs at most (every robot still on its way drives straight in the last),
+and every leg drives at least one robot (``leg_targets``).
 
 A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
 now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
@@ -25,7 +37,7 @@ so (``RunResult.stopped_short``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -37,7 +49,8 @@ from runtime.models.contact_risk import MotionMoments, disc_probability, instant
 from runtime.models.state import SwarmEstimate
 
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
-MAX_LEGS = 6  # legs of one robot in a change at most (the last drives straight to its target)
+MAX_LEGS = 6  # legs one robot drives in a change at most (the last drives straight to its target; waiting legs not counted)
+LEG_CAP = 2 * MAX_LEGS  # legs of a change at most (every robot still on its way drives straight in the last)
 MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
 STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path by this fraction of it at a time
 
@@ -46,15 +59,17 @@ STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path b
 class Leg:
     """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
     not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal; ``short`` (n,) the
-    robots whose goal is short of their desired position (``safe_goals``: stopped short)."""
+    robots whose goal is short of their desired position (``safe_goals``: stopped short); ``held`` (n,) the robots that
+    wait where they stand in this leg for a neighbour (their target is their place; they go on in the next leg)."""
 
     targets: np.ndarray
     staged: np.ndarray
     short: np.ndarray
+    held: np.ndarray
 
     @property
     def any(self) -> bool:
-        return bool(self.staged.any() or self.short.any())
+        return bool(self.staged.any() or self.short.any() or self.held.any())
 
 
 def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -115,65 +130,165 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
 
 
-def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray, last: bool = False) -> Leg:
-    """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``:
-    every robot drives straight to its goal. Robots not ``going`` stand where they are estimated.
+def _pair_probability(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.ndarray, j: np.ndarray,
+                      at_i: np.ndarray, at_j: np.ndarray) -> np.ndarray:
+    """Contact probabilities of pairs (i, j), each robot standing where it is (``at`` 0) or arrived at its end of
+    ``ends`` (``at`` 1) with that drive's noise, as ``_end_pairs`` computes them."""
+    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
+    zeros = np.zeros(len(i))
+    mu, _, sigma, _, _ = moments.pairs(i, j, at_i, zeros, at_j, zeros)
+    p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
+    over = np.flatnonzero(p > CONTACT_BOUND)
+    p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
+    return np.asarray(p)
+
+
+def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.ndarray, j: np.ndarray, p: np.ndarray,
+             rank: np.ndarray) -> list[int]:
+    """Of each pair (i, j) of robots that could wait, over the bound at their ``ends`` (contact probability ``p``), the
+    robot that waits where it stands for the leg: the one of higher ``rank`` (n,) (a robot that could still stage
+    before one on its last leg, then the longer way left, then the higher index), unless the other waiting keeps the
+    pair's end within the bound and this does not, or keeps it lower. Pairs by falling ``p``; a robot is decided once
+    (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
+    first = rank[i] > rank[j]
+    wait, go = np.where(first, i, j), np.where(first, j, i)
+    ones = np.ones(len(i))
+    mine = _pair_probability(cfg, estimate, ends, wait, go, 0 * ones, ones)
+    other = _pair_probability(cfg, estimate, ends, wait, go, ones, 0 * ones)
+    swap = (other < mine) & ((other <= CONTACT_BOUND) | (mine > CONTACT_BOUND))
+    wait, go = np.where(swap, go, wait), np.where(swap, wait, go)
+    decided: set[int] = set()
+    out = []
+    for k in np.argsort(-p, kind="stable"):
+        a, b = int(wait[k]), int(go[k])
+        if a not in decided and b not in decided:
+            out.append(a)
+            decided |= {a, b}
+    return out
+
+
+def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray,
+                last: bool | np.ndarray = False, final: bool = False) -> Leg:
+    """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``
+    (all or per robot, (n,)): the robot drives straight to its goal unless it waits; ``final``: every robot drives
+    straight to its goal, none waits. Robots not ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
-    ``CONTACT_BOUND``: both robots of a pair over it that drive stop shorter (the next of ``LEG_FRACTIONS`` of their
-    path), until none is over or they are at the shortest. Pairs whose goals are still at risk reached with no motion
-    noise (pulled back to where they stand) are left out: no leg helps them."""
+    ``CONTACT_BOUND``: both robots of a pair over it that can stage stop shorter (the next of ``LEG_FRACTIONS`` of
+    their path), until none is over or they are at the shortest; against a robot that waits, an end is kept within the
+    bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
+    robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
+    ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
+    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the
+    shortest way does. A robot over at its shortest against a robot that stands for the whole change drives to its
+    shortest staging point (it approaches that one: the rest of its way shrinks leg by leg). Pairs whose goals are
+    still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
+    last = np.broadcast_to(np.asarray(last, bool) | final, going.shape)
     targets = np.where(going[:, None], desired, current)
     none = np.zeros(len(current), bool)
     rows = np.flatnonzero(going & (np.hypot(*(targets - current).T) >= MIN_LEG_M))
     if cfg.robot_radius_m <= 0 or not len(rows):
-        return Leg(targets, none, none)
+        return Leg(targets, none, none, none)
     targets, short = safe_goals(cfg, estimate, targets, rows)
     path = targets - current
-    rows = rows[np.hypot(*path[rows].T) >= MIN_LEG_M]
-    if last or not len(rows):
-        return Leg(targets, none, short)
+    length = np.hypot(*path.T)
+    drives = going & (length >= MIN_LEG_M)
+    rows = np.flatnonzero(drives & ~last)
+    waitable = drives & (not final)
+    if not len(rows) and not waitable.any():
+        return Leg(targets, none, short, none)
     there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
     there[:, :2] = targets
-    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, rows)
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, np.flatnonzero(drives))
     hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
-    level = np.zeros(len(current), np.int64)  # 0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the path
     fractions = np.array((1.0, *LEG_FRACTIONS))
+    shortest = len(LEG_FRACTIONS)
     movable = np.zeros(len(current), bool)
     movable[rows] = True
-    while True:  # levels only grow, to len(LEG_FRACTIONS) at most: this ends
-        ends = current + fractions[level][:, None] * path
-        i, j, p = _end_pairs(cfg, estimate, ends, rows)
-        over = [(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)]
-        shorter = sorted({r for a, b in over if (a, b) not in hopeless for r in (a, b) if movable[r] and level[r] < len(LEG_FRACTIONS)})
-        if not shorter:
+    held = np.zeros(len(current), bool)
+    order = np.lexsort((np.arange(len(current)), length, movable))  # a stager before a last leg, the longer way, the higher index
+    rank = np.empty(len(current), np.int64)
+    rank[order] = np.arange(len(current))
+
+    def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
+        """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends, and the pairs
+        over the bound at them (not hopeless), with the robots in ``held`` standing; a robot's end is also kept within
+        the bound against a waiting robot standing at its goal (``_near_goals``)."""
+        level = np.zeros(len(current), np.int64)
+        while True:  # levels only grow, to ``shortest`` at most: this ends
+            ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
+            i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
+            k = p > CONTACT_BOUND
+            over = [(int(a), int(b), float(q)) for a, b, q in zip(i[k], j[k], p[k], strict=True) if (int(a), int(b)) not in hopeless]
+            near = {r for a, b, _ in over for r in (a, b)} | _near_goals(cfg, estimate, ends, targets, held, drives)
+            shorter = sorted(r for r in near if movable[r] and not held[r] and level[r] < shortest)
+            if not shorter:
+                return level, ends, over
+            level[shorter] += 1
+
+    while True:  # a robot waits at most once in a leg: this ends
+        level, ends, over = stops()
+        free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
+        pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
+        alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
+        if not pairs and not alone:
             break
-        level[shorter] += 1
-    staged = level > 0
-    targets[staged] = (current + fractions[level][:, None] * path)[staged]
-    return Leg(targets, staged, short)
+        held[alone] = True  # its neighbour waits: it approaches that one standing, later
+        if pairs:
+            a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
+            held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
+    if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
+        held[order[np.flatnonzero(held[order])[0]]] = False
+        level, ends, _ = stops()
+    staged = (level > 0) & ~held
+    targets[staged] = ends[staged]
+    targets[held] = current[held]
+    return Leg(targets, staged, short, held)
+
+
+def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,
+                drives: np.ndarray) -> set[int]:
+    """Robots of ``drives`` not ``held`` whose ``ends`` are over the bound against a ``held`` robot standing at its goal
+    (of ``goals``) with the position uncertainty it has now: it goes there later, and an end that only keeps clear of
+    where it waits may stand in its way or at its place (driven straight in while it waits, with the long drive's
+    error)."""
+    if not held.any():
+        return set()
+    there = estimate.poses.copy()
+    there[held, :2] = goals[held]
+    at = np.where(held[:, None], goals, ends)
+    i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), at, np.flatnonzero(drives & ~held))
+    over = (p > CONTACT_BOUND) & (held[i] != held[j])
+    return {int(r) for r in np.where(held[i[over]], j[over], i[over])}
 
 
 @dataclass(frozen=True)
 class LegRecord:
     """A leg as run: ``plan`` (its sub-steps; indices into ``ids``, the robots that drive in it), each robot's
-    ``targets`` (len(ids), 2) m, which of them ``staged`` short of their desired position, and how the body constraint
-    split it (``regrouped``, None: clear as planned)."""
+    ``targets`` (len(ids), 2) m, which of them ``staged`` short of their desired position, how the body constraint
+    split it (``regrouped``, None: clear as planned), and ``held``: ids of the robots that wait where they stand in
+    it (``Leg.held``; in a configuration's first leg they are in ``ids`` with their place as target: a zero command)."""
 
     plan: Plan
     ids: np.ndarray
     targets: np.ndarray
     staged: np.ndarray
     regrouped: Regrouping | None = None
+    held: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def staged_ids(self) -> np.ndarray:
         return np.asarray(self.ids[self.staged])
+
+    @property
+    def going_on(self) -> np.ndarray:
+        """Ids of the robots that go on in the next leg: staged short of their goal or waiting, sorted."""
+        return np.union1d(self.staged_ids, self.held).astype(np.int64)
 
     @property
     def base(self) -> Plan:
@@ -188,27 +303,37 @@ class LegRecord:
 def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np.ndarray) -> tuple[Plan, Regrouping | None, LegRecord | None]:
     """The strategy's ``plan`` (indices into ``estimate.ids``) cleared for bodies (``clear_plan``) towards the first
     leg's targets, how it was split, and the leg (None: every robot drives straight to ``desired``, and the plan is
-    ``clear_plan``'s, bit for bit)."""
+    ``clear_plan``'s, bit for bit). Robots that wait in it keep their place in the plan with their place as target."""
     leg = leg_targets(cfg, estimate, desired, np.ones(len(estimate.ids), bool))
     if not leg.any:
         return (*clear_plan(cfg, plan, estimate, desired), None)
     cleared, regrouped = clear_plan(cfg, plan, estimate, leg.targets)
-    return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped)
+    return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped, estimate.ids[leg.held])
 
 
-def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray,
+def driven_legs(legs: tuple[LegRecord, ...], ids: np.ndarray) -> np.ndarray:
+    """(len(ids),) the legs of ``legs`` each robot of ``ids`` drove in (was in and did not wait)."""
+    return np.asarray(sum((np.isin(ids, leg.ids) & ~np.isin(ids, leg.held)).astype(np.int64) for leg in legs))
+
+
+def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstimate, desired: np.ndarray,
              index: int) -> LegRecord | None:
-    """Leg ``index`` (>= 1) of the robots ``going`` (ids; those lost since are left out) from ``estimate`` towards
-    ``desired`` (rows of ``estimate.ids``): the strategy's plan (``first.base``, the first leg's) kept to them, in its
-    order, consecutive groups merged while they move at most as many robots as its largest group (so every step keeps
-    at least the plan's anchors), its targets from ``leg_targets`` (the last, ``MAX_LEGS`` - 1, straight to the targets), the groups
-    cleared for bodies (``BodyCheck.regroup``). None when none of them is left."""
-    mask = np.isin(estimate.ids, going)
-    ids = estimate.ids[mask]
-    if not len(ids):
+    """Leg ``index`` (>= 1) of the robots that go on after ``legs`` (the change's legs so far; those lost since are
+    left out) from ``estimate`` towards ``desired`` (rows of ``estimate.ids``): the strategy's plan (the first leg's
+    ``base``) kept to the robots that drive in it, in its order, consecutive groups merged while they move at most as
+    many robots as its largest group (so every step keeps at least the plan's anchors), its targets from
+    ``leg_targets`` (a robot's ``MAX_LEGS``-th driven leg and the change's ``LEG_CAP``-th leg straight to the targets),
+    the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``). None
+    when none of them is left."""
+    first = legs[0]
+    mask = np.isin(estimate.ids, legs[-1].going_on)
+    if not mask.any():
         return None
-    leg = leg_targets(cfg, estimate, desired, mask, last=index >= MAX_LEGS - 1)
-    rows = np.flatnonzero(mask)
+    last = mask & (driven_legs(legs, estimate.ids) >= MAX_LEGS - 1)
+    leg = leg_targets(cfg, estimate, desired, mask, last, final=index >= LEG_CAP - 1)
+    drive = mask & ~leg.held
+    ids = estimate.ids[drive]
+    rows = np.flatnonzero(drive)
     base, base_ids = first.base, first.ids
     row_of = {int(r): k for k, r in zip(rows, ids, strict=True)}
     kept = [np.array([row_of[int(r)] for r in base_ids[g] if int(r) in row_of], np.int64) for g in base.groups]
@@ -224,6 +349,4 @@ def next_leg(cfg: ModelConfig, first: LegRecord, estimate: SwarmEstimate, desire
     planned = Plan(np.searchsorted(ids, estimate.ids[np.concatenate(groups)]), tuple(len(g) for g in groups))
     same = len(out.groups) == len(groups) and all(np.array_equal(a, b) for a, b in zip(out.groups, groups, strict=True))
     regrouped = None if same else Regrouping(planned, tuple(int(r) for r in estimate.ids[out.unclear]), out.bound)
-    return LegRecord(plan, ids, leg.targets[rows], leg.staged[rows], regrouped)
-
-
+    return LegRecord(plan, ids, leg.targets[rows], leg.staged[rows], regrouped, estimate.ids[leg.held])

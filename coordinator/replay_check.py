@@ -363,7 +363,7 @@ def _check_leg(msg: PlanMessage, step: int, legs: list[LegRecord], before: Swarm
     if before is None or msg.config != config or len(legs) != msg.leg:
         return None
     desired = traj.configurations[msg.config - 1][index_of(traj.ids, before.ids, "trajectory")]
-    leg = next_leg(cfg, legs[0], before, desired, legs[-1].staged_ids, msg.leg) if legs[-1].staged.any() else None
+    leg = next_leg(cfg, tuple(legs), before, desired, msg.leg)
     where = f"approach leg {msg.leg} of configuration {msg.config}"
     if leg is None:
         return Divergence(step, where, None, "groups", [list(g) for g in msg.groups], [])

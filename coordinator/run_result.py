@@ -92,6 +92,11 @@ class ConfigRecord:
         """Approach legs driven to a staging point (one per robot and stop)."""
         return int(sum(int(leg.staged.sum()) for leg in self.legs))
 
+    @property
+    def holds(self) -> int:
+        """Approach legs a robot waited where it stood for a neighbour (one per robot and leg, ``coordinator.legs``)."""
+        return int(sum(len(leg.held) for leg in self.legs))
+
     def anchor_ids(self, step: int = 0) -> np.ndarray:
         """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
         ids = self.estimate.ids if self.planned_ids is None else self.planned_ids
@@ -177,6 +182,10 @@ class RunResult:
     def staging_stops(self) -> int:
         """Approach legs driven to a staging point over the run (``coordinator.legs``)."""
         return sum(c.staging_stops for c in self.configs)
+
+    def holds(self) -> int:
+        """Approach legs a robot waited in for a neighbour over the run (``coordinator.legs``)."""
+        return sum(c.holds for c in self.configs)
 
     def stopped_short(self) -> list[list[int]]:
         """Per completed configuration, the robots its approach legs stopped short of their desired position on purpose

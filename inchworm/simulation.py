@@ -201,7 +201,8 @@ def config_table(result: RunResult) -> str:
 def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
     """How a configuration's movers drove in approach legs (``coordinator.legs``), and the robots they stopped short of
     their desired positions (``RunResult.stopped_short``)."""
-    text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point, "
+    waits = f", {rec.holds} waits for a neighbour" if rec.holds else ""
+    text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point{waits}, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
     if stopped_short:
         text += f"; robots {stopped_short} stopped short of their targets (at risk there even with no motion noise)"
@@ -266,13 +267,14 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time),
     ``staging_stops`` (approach legs driven to a staging point, ``coordinator.legs``) and ``legs`` (each configuration
     whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``, ``stopped_short``
-    the robots the legs stopped short of their desired positions, at risk there even with no motion noise) and
-    ``stopped_short`` (those robots over the run, one per robot and configuration)."""
+    the robots the legs stopped short of their desired positions, at risk there even with no motion noise, ``holds``
+    the legs a robot waited in for a neighbour), ``stopped_short`` (those robots over the run, one per robot and
+    configuration) and ``holds`` (the waits over the run)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
-            "stopped_short": sum(len(s) for s in short),
+            "stopped_short": sum(len(s) for s in short), "holds": result.holds(),
             "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps,
-                      "stopped_short": short[k]} for k, c in enumerate(result.configs) if c.legs],
+                      "stopped_short": short[k], "holds": c.holds} for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],
             "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}

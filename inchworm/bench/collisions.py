@@ -16,7 +16,7 @@ steps per configuration (speed, Eq. 6-7) and the mean P_f (Eq. 24). ``to_json()`
      "bodies": true|false, "contacts_per_100": X, "configs_with_contact_pct": Y,
      "steps_per_config": S, "pf_mean": P, "noise_scale": K, "steps_added": A, "unclear_changes": U,
      "raised_bound_changes": B, "leg_changes": G, "staging_stops": S, "stopped_short": H,
-     "stopped_short_changes": J}, ...]}
+     "stopped_short_changes": J, "holds": W}, ...]}
 
 ``steps_added``: steps the chance constraint added over all runs of the row; ``raised_bound_changes``: configuration
 changes where no order kept the contact bound (``CONTACT_BOUND`` per pair and step) and it was raised for some
@@ -24,7 +24,8 @@ robots; ``unclear_changes``: changes with robots no order kept within the highes
 ``leg_changes``: changes whose movers drove in approach legs (``coordinator.legs``), ``staging_stops``: the legs driven
 to a staging point (one per robot and stop; their steps are in ``steps_added`` and ``steps_per_config``);
 ``stopped_short``: robots the legs stopped short of their desired position (one per robot and change: their place is
-at risk even reached with no motion noise), ``stopped_short_changes``: changes with such a robot.
+at risk even reached with no motion noise), ``stopped_short_changes``: changes with such a robot; ``holds``: legs a
+robot waited where it stood for a neighbour (one per robot and leg: a pair separated in time, ``coordinator.legs``).
 """
 
 from __future__ import annotations
@@ -93,6 +94,7 @@ def run_one(job: Job) -> dict[str, Any]:
         "min_distance": min((c.distance for c in contacts), default=float("nan")), "pf": result.pf(),
         "staging_stops": result.staging_stops(), "leg_changes": sum(1 for c in result.configs if c.legs),
         "stopped_short": sum(len(s) for s in short), "stopped_short_changes": sum(1 for s in short if s),
+        "holds": result.holds(),
     }
 
 
@@ -113,6 +115,7 @@ def summarise(runs: list[dict[str, Any]], keys: list[tuple[str, str, bool, float
             "leg_changes": sum(r["leg_changes"] for r in mine), "staging_stops": sum(r["staging_stops"] for r in mine),
             "stopped_short": sum(r["stopped_short"] for r in mine),
             "stopped_short_changes": sum(r["stopped_short_changes"] for r in mine),
+            "holds": sum(r["holds"] for r in mine),
         })
     return rows
 
@@ -149,18 +152,18 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
     lines = [f"radius {cfg.robot_radius_m:g} m, {o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}; "
              f"noise: motion noise x the model's ({np.degrees(cfg.turn_sigma_rad):g} deg, {cfg.drive_sigma_frac:g})",
              f"{'noise':>5} {'method':<22} {'localizer':<9} {'planned':<7} {'contacts/100':>12} {'changes %':>9} {'steps':>6} {'added':>6} "
-             f"{'unclear':>7} {'raised':>6} {'legs':>5} {'stops':>6} {'short':>5} {'P_f':>8}"]
+             f"{'unclear':>7} {'raised':>6} {'legs':>5} {'stops':>6} {'waits':>6} {'short':>5} {'P_f':>8}"]
     for r in rows:
         lines.append(f"{r['noise_scale']:>5g} {r['method']:<22} {r['localizer']:<9} {'bodies' if r['bodies'] else 'points':<7} "
                      f"{r['contacts_per_100']:>12.2f} "
                      f"{r['configs_with_contact_pct']:>9.2f} {r['steps_per_config']:>6.2f} {r['steps_added']:>6} "
-                     f"{r['unclear_changes']:>7} {r['raised_bound_changes']:>6} {r['leg_changes']:>5} {r['staging_stops']:>6} "
+                     f"{r['unclear_changes']:>7} {r['raised_bound_changes']:>6} {r['leg_changes']:>5} {r['staging_stops']:>6} {r['holds']:>6} "
                      f"{r['stopped_short']:>5} {r['pf_mean']:>8.4f}")
     lines.append(f"added: steps the body constraint added over all runs; raised: configuration changes where no order kept the contact "
                  f"bound {CONTACT_BOUND:g} per pair and step for some robots (raised for them); unclear: changes with robots no order "
                  f"kept within {max(BOUND_LEVELS):g} (moved one at a time); legs: changes whose movers drove in approach legs, stops: "
-                 f"approach legs driven to a staging point; short: robots stopped short of their targets (at risk there even with no "
-                 f"motion noise)")
+                 f"approach legs driven to a staging point; waits: legs a robot waited in for a neighbour; short: robots stopped "
+                 f"short of their targets (at risk there even with no motion noise)")
     public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
     return BenchResult(public, summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",

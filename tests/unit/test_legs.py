@@ -13,7 +13,7 @@ import pytest
 from coordinator.checkpoint import RunState
 from coordinator.clearance import clear_plan
 from coordinator.executor import InchwormExecutor
-from coordinator.legs import LEG_FRACTIONS, MAX_LEGS, first_leg, leg_targets, next_leg
+from coordinator.legs import LEG_CAP, LEG_FRACTIONS, MAX_LEGS, LegRecord, driven_legs, first_leg, leg_targets, next_leg
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan
 from coordinator.selection.selector import SelectionConfig
@@ -27,6 +27,7 @@ from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import Trajectory
 
 X3 = ModelConfig(turn_sigma_rad=math.radians(9.0), drive_sigma_frac=0.15)
+X558 = ModelConfig(turn_sigma_rad=math.radians(16.74), drive_sigma_frac=0.279)
 
 
 def estimate(positions: list[list[float]], headings: list[float]) -> SwarmEstimate:
@@ -110,14 +111,14 @@ def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
     moved = NEAR.poses.copy()
     moved[0, :2] = first.targets[0]
     after = SwarmEstimate(NEAR.ids, moved, NEAR.cov)
-    leg = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
-    again = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, 1)
+    leg = next_leg(X3, (first,), after, NEAR_DESIRED, 1)
+    again = next_leg(X3, (first,), after, NEAR_DESIRED, 1)
     assert leg is not None and again is not None
     assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
     np.testing.assert_array_equal(leg.targets, again.targets)
-    last = next_leg(X3, first, after, NEAR_DESIRED, first.staged_ids, MAX_LEGS - 1)
+    last = next_leg(X3, (first,) * (MAX_LEGS - 1), after, NEAR_DESIRED, MAX_LEGS - 1)  # its MAX_LEGS-th driven leg
     assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
-    assert next_leg(X3, first, after.select(np.array([False, True, True])), NEAR_DESIRED[1:], first.staged_ids, 1) is None  # lost
+    assert next_leg(X3, (first,), after.select(np.array([False, True, True])), NEAR_DESIRED[1:], 1) is None  # lost
 
 
 # robots 0 and 1 drive 0.3 m side by side into places 0.07 m apart next to the still robot 2
@@ -160,13 +161,15 @@ def test_the_executor_drives_the_legs_and_counts_their_steps():
 
 def test_a_staging_point_is_checked_against_the_others_again():
     # at x3 robot 0 drives 0.4 m along y = 0 past the still robots 2, 3 and 4 (6 cm beside its target and its 0.75 and
-    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: robot 1
-    # then stops at its own shortest staging point too, although the end of its 3 cm drive was clear of robot 0's others
+    # 0.5 staging points), so only its shortest leg keeps clear of them, and that one ends next to robot 1's way: both
+    # at their shortest staging points are still over the bound, so they are separated in time: robot 0 (the longer
+    # way) waits where it stands and robot 1 drives its short way straight to its goal (clear of robot 0 standing)
     est = estimate([[0.0, 0.0], [0.1, 0.06], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]], [0.0, -math.pi + 1e-3, 1.0, 2.0, 3.0])
     desired = np.array([[0.4, 0.0], [0.1, 0.03], [0.4, 0.06], [0.3, 0.06], [0.2, 0.06]])
     leg = leg_targets(X3, est, desired, np.array([True, True, False, False, False]))
-    assert leg.staged.tolist() == [True, True, False, False, False]
-    assert leg.targets[0].tolist() == pytest.approx([0.1, 0.0]) and leg.targets[1].tolist() == pytest.approx([0.1, 0.0525])
+    assert leg.held.tolist() == [True, False, False, False, False] and not leg.staged.any()
+    assert leg.targets[0].tolist() == [0.0, 0.0] and leg.targets[1].tolist() == pytest.approx([0.1, 0.03])
+    assert end_probability(X3, est, leg.targets, 0, 1) <= CONTACT_BOUND
 
 
 class Died(Exception):
@@ -245,3 +248,94 @@ def test_a_target_at_risk_without_motion_is_stopped_short_and_reported():
     keys = contacts_json(result, X3.robot_radius_m)
     assert keys["stopped_short"] == 1 and keys["legs"][0]["stopped_short"] == [0]
     assert "robots [0] stopped short of their targets" in summary_text(result, "one-at-a-time", "paper", X3.robot_radius_m)
+
+
+# at x5.58 robots 0 and 1 drive 0.30 and 0.20 m on converging ways into places 9 cm apart: even both at their shortest
+# staging points (a quarter of the way) the pair is over the bound (1.3e-3), which is where they used to drive anyway
+CONVERGE = estimate([[0.0, 0.0], [0.05, 0.1]], [-1.0, -0.7])
+CONVERGE_DESIRED = np.array([[0.3, 0.05], [0.25, 0.13]])
+
+
+def test_a_converging_pair_is_separated_in_time_the_longer_way_waits():
+    shortest = CONVERGE.positions + LEG_FRACTIONS[-1] * (CONVERGE_DESIRED - CONVERGE.positions)
+    assert end_probability(X558, CONVERGE, shortest, 0, 1) > CONTACT_BOUND
+    leg = leg_targets(X558, CONVERGE, CONVERGE_DESIRED, np.ones(2, bool))
+    assert leg.held.tolist() == [True, False] and leg.staged.tolist() == [False, True]
+    assert leg.targets[0].tolist() == CONVERGE.positions[0].tolist()  # it waits where it stands
+    assert end_probability(X558, CONVERGE, leg.targets, 0, 1) <= CONTACT_BOUND
+    there = CONVERGE.poses.copy()  # and the leg's end keeps the bound at the waiting robot's goal, where it goes later
+    there[0, :2] = CONVERGE_DESIRED[0]
+    ends = leg.targets.copy()
+    ends[0] = CONVERGE_DESIRED[0]
+    assert end_probability(X558, SwarmEstimate(CONVERGE.ids, there, CONVERGE.cov), ends, 0, 1) <= CONTACT_BOUND
+
+
+def test_the_same_robot_keeps_waiting_until_the_pair_is_clear_and_the_change_ends():
+    """Legs driven exactly (each robot arrives at its leg's target, its covariance as before): robot 0 waits in a first
+    run of legs (until robot 1 is far enough ahead) and never again, robot 1 never waits, somebody drives in every leg,
+    and both end at their goals within LEG_CAP legs."""
+    plan = Plan(np.array([0, 1]), (2,))
+    _, _, first = first_leg(X558, plan, CONVERGE, CONVERGE_DESIRED)
+    assert first is not None and first.held.tolist() == [0] and first.plan.n_robots == 2  # waiting in the first leg: a zero move
+    legs, poses = (first,), CONVERGE.poses.copy()
+    while len(legs[-1].going_on):
+        poses[np.searchsorted(CONVERGE.ids, legs[-1].ids), :2] = legs[-1].targets
+        leg = next_leg(X558, legs, SwarmEstimate(CONVERGE.ids, poses.copy(), CONVERGE.cov), CONVERGE_DESIRED, len(legs))
+        assert leg is not None and not np.isin(leg.held, leg.ids).any() and len(leg.ids)  # somebody drives in every leg
+        legs += (leg,)
+    poses[np.searchsorted(CONVERGE.ids, legs[-1].ids), :2] = legs[-1].targets
+    waits = [0 in leg.held for leg in legs]
+    assert 1 <= sum(waits) and waits == sorted(waits, reverse=True)  # a first run of legs, no alternation
+    assert not any(1 in leg.held for leg in legs)
+    np.testing.assert_allclose(poses[:, :2], CONVERGE_DESIRED)
+    assert len(legs) <= LEG_CAP and driven_legs(legs, CONVERGE.ids).max() <= MAX_LEGS
+
+
+def test_a_robot_over_against_a_waiting_one_waits_too_not_against_a_still_one():
+    # robot 2 drives 0.32 m along y = -0.06 from behind robot 0: its shortest staging point is over against robot 0
+    # standing there; robot 3 stands still beside robot 1's goal: robot 1 approaches it and does not wait for it
+    est = estimate([[0.0, 0.0], [0.05, 0.1], [-0.12, -0.06], [0.25, 0.2]], [-1.0, -0.7, 0.4, 2.0])
+    desired = np.array([[0.3, 0.05], [0.25, 0.13], [0.2, -0.06], [0.25, 0.2]])
+    leg = leg_targets(X558, est, desired, np.array([True, True, True, False]))
+    assert leg.held.tolist() == [True, False, True, False] and leg.staged.tolist() == [False, True, False, False]
+    np.testing.assert_array_equal(leg.targets[[0, 2, 3]], est.positions[[0, 2, 3]])
+
+
+def test_correlated_positions_decide_who_waits():
+    """The pair's relative position reads the joint covariance's cross terms: ends 9 cm apart after 7.5 cm drives are
+    within the bound for uncorrelated robots (both stage), over it for anti-correlated ones (one waits)."""
+    est = estimate([[0.0, 0.0], [0.0, 0.12]], [-1.0, -0.7])
+    desired = np.array([[0.3, 0.03], [0.3, 0.12]])
+    got = []
+    for rho in (0.0, 0.9, -0.9):
+        joint = np.kron(np.array([[1.0, rho], [rho, 1.0]]), est.cov[0])
+        leg = leg_targets(X558, SwarmEstimate(est.ids, est.poses, est.cov, joint), desired, np.ones(2, bool))
+        got.append((leg.held.tolist(), leg.staged.tolist()))
+    assert got[0] == got[1] == ([False, False], [True, True])
+    assert sorted(got[2][0]) == [False, True] and got[2][1] == [not h for h in got[2][0]]
+
+
+def test_a_head_on_pair_with_clear_ends_drives_straight_and_the_last_leg_never_waits():
+    # robots 0 and 1 pass each other 4 cm apart on their ways: their staging points would be close, their goals are not
+    est = estimate([[0.0, 0.0], [0.12, 0.03]], [0.1, math.pi - 0.1])
+    desired = np.array([[0.3, 0.0], [-0.1, 0.04]])
+    leg = leg_targets(X558, est, desired, np.ones(2, bool))
+    assert not leg.any and leg.targets.tolist() == desired.tolist()
+    _, _, first = first_leg(X558, Plan(np.array([0, 1]), (2,)), CONVERGE, CONVERGE_DESIRED)
+    assert first is not None and first.held.tolist() == [0]
+    final = next_leg(X558, (first,) * (LEG_CAP - 1), CONVERGE, CONVERGE_DESIRED, LEG_CAP - 1)
+    assert final is not None and not len(final.held) and not final.staged.any()
+    np.testing.assert_array_equal(final.targets, CONVERGE_DESIRED)
+
+
+def test_a_checkpoint_carries_the_waiting_robots():
+    _, _, first = first_leg(X558, Plan(np.array([0, 1]), (2,)), CONVERGE, CONVERGE_DESIRED)
+    assert first is not None
+    from coordinator.checkpoint import _from_legs, _legs_json
+
+    data = json.loads(json.dumps(_legs_json((first,))))
+    assert data["legs"][0]["held"] == [0]
+    [back] = _from_legs(data)
+    assert back.held.tolist() == [0] and back.going_on.tolist() == first.going_on.tolist() == [0, 1]
+    plain = LegRecord(first.plan, first.ids, first.targets, first.staged, first.regrouped)
+    assert "held" not in _legs_json((plain,))["legs"][0]  # no waiting robot: the state is written as before
