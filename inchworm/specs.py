@@ -14,12 +14,15 @@ unknown kind or field, or a value of the wrong type is one ``SpecError`` naming 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import msgspec
 
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
+
+if TYPE_CHECKING:
+    from coordinator.selection.selector import SelectionConfig
 
 SPEC_VERSION = 1  # every kind is at version 1
 MODEL_FIELDS = frozenset(f.name for f in dataclasses.fields(ModelConfig))
@@ -85,7 +88,11 @@ class LinkSpec(ProcessSpec, frozen=True, tag="link"):
 
 
 class SelectionSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=True):
-    """The anchor search as the options set it (``inchworm.limits.selection_from``)."""
+    """The anchor search, every field of ``coordinator.selection.selector.SelectionConfig``: those the options set
+    (``w_v``, ``samples``, ``population`` and ``generations`` of its ``genetic``, ``method``, ``mc_start``, ``mc_emax``,
+    ``genetic``: its ``genetic_gate``), then the rest under their own names (``w_l`` None: ``1 - w_v``; ``patience``,
+    ``elite``, ``mutation``, ``swaps`` and ``screened``: its ``GeneticConfig``'s). ``selection_spec`` makes it of a
+    ``SelectionConfig``, ``config()`` the ``SelectionConfig`` back."""
 
     w_v: float = 0.5
     samples: int = 16
@@ -95,6 +102,36 @@ class SelectionSpec(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_
     mc_start: str = "known"
     mc_emax: str = "mean"
     genetic: str = "auto"
+    w_l: float | None = None
+    anchor_counts: tuple[int, ...] | None = None
+    final_samples: int = 256
+    contenders: int = 8
+    screened_contenders: int = 2
+    final_looks: int = 4
+    prune_gain: float = 0.25
+    window: int = 100
+    max_steps: int = 10
+    patience: int = 3
+    elite: int = 2
+    mutation: float = 0.4
+    swaps: int = 6
+    screened: int = 2
+
+    def config(self) -> SelectionConfig:
+        """The ``SelectionConfig`` (checked: ``OptionError`` naming a field the options set, ``SwarmInputError``)."""
+        from coordinator.selection.genetic import GeneticConfig  # noqa: PLC0415 - scipy, only when a run starts
+        from inchworm.limits import selection_from  # noqa: PLC0415
+
+        base = selection_from(self.w_v, self.samples, self.population, self.generations, self.method, self.mc_start, self.mc_emax,
+                              self.genetic)
+        genetic = GeneticConfig(population=self.population, generations=self.generations,
+                                **{name: getattr(self, name) for name in GENETIC_REST})
+        return dataclasses.replace(base, w_l=base.w_l if self.w_l is None else self.w_l, genetic=genetic,
+                                   **{name: getattr(self, name) for name in SELECTION_REST})
+
+
+SELECTION_REST = ("anchor_counts", "final_samples", "contenders", "screened_contenders", "final_looks", "prune_gain", "window", "max_steps")
+GENETIC_REST = ("patience", "elite", "mutation", "swaps", "screened")
 
 
 class CoordinatorSpec(ProcessSpec, frozen=True, tag="coordinator"):
@@ -326,8 +363,10 @@ def model_from_dict(values: dict[str, Any]) -> ModelConfig:
         raise SpecError(f"model: {exc}") from None
 
 
-def selection_spec(selection: Any) -> SelectionSpec:
-    """The ``SelectionSpec`` of a ``coordinator.selection.selector.SelectionConfig`` (the fields the options set)."""
-    return SelectionSpec(w_v=selection.w_v, samples=selection.samples, population=selection.genetic.population,
-                         generations=selection.genetic.generations, method=selection.method, mc_start=selection.mc_start,
-                         mc_emax=selection.mc_emax, genetic=selection.genetic_gate)
+def selection_spec(selection: SelectionConfig) -> SelectionSpec:
+    """The ``SelectionSpec`` of a ``SelectionConfig``, every field (``w_l`` None when it is ``1 - w_v``)."""
+    g = selection.genetic
+    return SelectionSpec(w_v=selection.w_v, samples=selection.samples, population=g.population, generations=g.generations,
+                         method=selection.method, mc_start=selection.mc_start, mc_emax=selection.mc_emax, genetic=selection.genetic_gate,
+                         w_l=None if selection.w_l == 1.0 - selection.w_v else selection.w_l,
+                         **{name: getattr(selection, name) for name in SELECTION_REST}, **{name: getattr(g, name) for name in GENETIC_REST})
