@@ -14,7 +14,7 @@ unknown kind or field, or a value of the wrong type is one ``SpecError`` naming 
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import msgspec
 
@@ -28,6 +28,13 @@ SPEC_VERSION = 1  # every kind is at version 1
 MODEL_FIELDS = frozenset(f.name for f in dataclasses.fields(ModelConfig))
 # the flags of the spec fields whose flag is not ``--`` and the name with dashes (``OptionError``'s options for a spec)
 FLAGS = {"run_id": "--run", "physics_params": "--physics-param"}
+
+
+def cli(help: str, **form: Any) -> msgspec.Meta:
+    """A spec field's command-line form, declared beside it (``Annotated[int, cli("help")]``; ``swarm_cli.schema`` makes
+    the flag of its command): its ``help`` and, where they differ from the defaults, ``flag``, ``metavar``, ``choices``,
+    ``repeat`` (the flag is given once per member of the tuple) and ``own_default`` (the help words the default)."""
+    return msgspec.Meta(extra={"help": help, **form})
 
 
 class SpecError(SwarmInputError):
@@ -80,9 +87,9 @@ class PortProcessSpec(AgentHostSpec, frozen=True, tag="port"):
 class LinkSpec(ProcessSpec, frozen=True, tag="link"):
     """``swarm link``: the link process of port ``port`` of the gateway config ``config``."""
 
-    config: str
-    port: str
-    run_id: str
+    config: Annotated[str, cli("gateway config JSON (docs/gateway.md)")]
+    port: Annotated[str, cli("name of the port in the config to serve")]
+    run_id: Annotated[str, cli("run id (the key space swarm/<run>/...)", flag="--run")]
     hub: str | None = None
     zenoh_config: str | None = None
 
@@ -234,9 +241,11 @@ class Ros2BridgeSpec(ProcessSpec, frozen=True, tag="ros2-bridge"):
 class RouterSpec(ProcessSpec, frozen=True, tag="router"):
     """``swarm router``: a Zenoh router listening on ``listen`` (empty: the config file's, else the default)."""
 
-    listen: tuple[str, ...] = ()
-    config: str | None = None
-    json: bool = False
+    listen: Annotated[tuple[str, ...], cli("endpoint to listen on, repeatable (default: the config file's, else tcp/0.0.0.0:7447)",
+                                           repeat=True, metavar="ENDPOINT")] = ()
+    config: Annotated[str | None, cli("Zenoh JSON5 config file, e.g. deploy/zenoh-router-tls-acl.json5 (TLS, access control)",
+                                      metavar="FILE")] = None
+    json: Annotated[bool, cli("print one JSON object on stdout once listening")] = False
 
 
 class RecorderSpec(ProcessSpec, frozen=True, tag="recorder"):
@@ -244,14 +253,15 @@ class RecorderSpec(ProcessSpec, frozen=True, tag="recorder"):
     SIGINT/SIGTERM; ``seed``, ``trajectory`` (its JSON) and ``params`` (KEY=VALUE, as --param takes them) go into the run
     metadata, with ``command``, the command line."""
 
-    run_id: str
+    run_id: Annotated[str, cli("run id (records swarm/<run>/**)", flag="--run")]
     hub: str | None = None
     zenoh_config: str | None = None
-    out: str | None = None
-    seed: int | None = None
-    trajectory: str | None = None
-    params: tuple[str, ...] = ()
-    json: bool = False
+    out: Annotated[str | None, cli("MCAP file to write (default recordings/<run>.mcap)")] = None
+    seed: Annotated[int | None, cli("seed of the run, stored in the run metadata")] = None
+    trajectory: Annotated[str | None, cli("trajectory JSON of the run, stored in the run metadata")] = None
+    params: Annotated[tuple[str, ...], cli("extra run metadata (repeatable; VALUE parsed as JSON when it is JSON)", flag="--param",
+                                           repeat=True, metavar="KEY=VALUE")] = ()
+    json: Annotated[bool, cli("print one JSON object as the last line")] = False
     command: str = "swarm record"
 
 
