@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, Annotated, Any, ClassVar
 
 import msgspec
 
+from coordinator.strategies import METHODS
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 
@@ -146,31 +147,38 @@ class CoordinatorSpec(ProcessSpec, frozen=True, tag="coordinator"):
     default recording (``recordings/<run>.mcap``), unless ``no_record``. ``command``: the command line for the
     recording's metadata."""
 
-    trajectory: str
-    run_id: str
+    trajectory: Annotated[str, cli("trajectory JSON (docs/trajectory.md)")]
+    run_id: Annotated[str, cli("run id (the key space swarm/<run>/...)", flag="--run")]
     hub: str | None = None
     zenoh_config: str | None = None
-    method: str = "inchworm"
-    seed: int = 0
+    method: Annotated[str, cli("motion strategy", choices=METHODS)] = "inchworm"
+    seed: Annotated[int, cli("seed of the run: initial estimate and search")] = 0
     localizer: str = "paper"
     model: ModelConfig = msgspec.field(default_factory=ModelConfig)
     model_file: str | None = None  # the file ``model`` was read from (its name goes into the metadata)
     selection: SelectionSpec = msgspec.field(default_factory=SelectionSpec)
-    start_timeout: float = 30.0
-    step_timeout: float = 5.0
-    on_lost: str = "continue"
-    min_robots: int = 2
-    truth: bool = True
-    result: str | None = None
-    out: str | None = None
-    rejoin: bool = True
-    standby: bool = False
-    resume: str | None = None
-    record: str | None = None
-    no_record: bool = False
-    on_record_error: str = "continue"
-    foxglove: int | None = None
-    linger: float | None = None
+    start_timeout: Annotated[float, cli("seconds to wait for all agents")] = 30.0
+    step_timeout: Annotated[float, cli("seconds to wait for the answers of a step")] = 5.0
+    on_lost: Annotated[str, cli("when a robot is lost: stop it and go on without it, or end the run", choices=("continue", "abort"))] = "continue"
+    min_robots: Annotated[int, cli("end the run when fewer robots than this are left (default 2, the least localization needs)",
+                                   own_default=True)] = 2
+    truth: Annotated[bool, cli("no ground truth comes with this run (hardware without motion capture): do not wait for TruthMessages",
+                               flag="--no-truth")] = True
+    result: Annotated[str | None, cli("write the estimates of every step (and the truth) to this JSON file")] = None
+    out: Annotated[str | None, cli("folder for the PNG plots trajectory.png and errors.png (default: no plots)")] = None
+    rejoin: bool = True  # --rejoin yes|no
+    standby: Annotated[bool, cli("follow the run's live coordinator and take the run over from its last checkpoint if it dies "
+                                 "(same options as the coordinator it stands by for)")] = False
+    resume: Annotated[str | None, cli("take over the run from the last checkpoint in this MCAP recording (its coordinator is gone)",
+                                      metavar="RECORDING")] = None
+    record: Annotated[str | None, cli("MCAP file recording every message of the run (default recordings/<run>.mcap)", metavar="PATH")] = None
+    no_record: Annotated[bool, cli("do not record the run")] = False
+    on_record_error: Annotated[str, cli("when writing the recording fails (disk full ...): go on unrecorded, or stop the run",
+                                        choices=("continue", "stop"))] = "continue"
+    foxglove: Annotated[int | None, cli("serve the live swarm view on a Foxglove WebSocket (default port 8765; needs pip install -e "
+                                        "'.[foxglove]')", const=8765, metavar="PORT")] = None
+    linger: Annotated[float | None, cli("with --foxglove: keep serving the live view this long after the run (default: until Ctrl-C; "
+                                        "0: exit at once)", metavar="SECONDS")] = None
     json: bool = False
     command: str = ""
 

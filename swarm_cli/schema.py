@@ -18,9 +18,10 @@ prints the error with the flag (``OptionError.flag_message``).
 A process spec (``inchworm.specs``, a ``msgspec`` Struct) declares the command-line form of a field beside it, in its
 annotation: ``Annotated[int, cli("help", ...)]`` (``inchworm.specs.cli``: ``msgspec.Meta(extra=...)``, the same keys as
 a dataclass field's ``metadata``, and ``repeat``: a flag given once per member of a ``tuple[str, ...]``, and
-``own_default``: the help words the default itself). Only those fields get flags; a field without a flag (the model,
-the anchor search, a flag whose value is converted, such as ``--id 0-4``) is made apart and passed to ``options_of``
-by name, or keeps the spec's default. A field without a default is a required flag.
+``own_default``: the help words the default itself; ``const``: the value of the flag given without one). Only those
+fields get flags; a field without a flag (the model, the anchor search, a flag whose value is converted, such as
+``--id 0-4``) is made apart and passed to ``options_of`` by name, or keeps the spec's default. A field without a
+default is a required flag.
 """
 
 from __future__ import annotations
@@ -189,7 +190,9 @@ def add_fields(parser: argparse._ActionsContainer, cls: type, *, exclude: Collec
             text = text.replace("%(default)s", _shown(default))
         elif default is not None and not isinstance(default, (bool, list)) and not f.metadata.get("own_default"):
             text = f"{text} (default {_shown(default)})"
-        extra: dict[str, Any] = {key: f.metadata[key] for key in ("metavar", "choices") if key in f.metadata}
+        extra: dict[str, Any] = {key: f.metadata[key] for key in ("metavar", "choices", "const") if key in f.metadata}
+        if "const" in extra:  # the flag alone gives ``const``
+            extra["nargs"] = "?"
         if _required(f):
             extra["required"] = True
         if kind.scalar is bool and not kind.many:
