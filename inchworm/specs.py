@@ -59,20 +59,24 @@ class AgentHostSpec(ProcessSpec, frozen=True, tag="agent"):
     are ``run_robots`` (None: the trajectory's). Simulated robots start at ``pose`` (one robot) or the initial poses
     of ``trajectory``. ``max_drive_m`` / ``max_turn_rad`` / ``ready_timeout`` None: the agent's defaults."""
 
-    run_id: str
-    robots: tuple[int, ...]
-    run_robots: tuple[int, ...] | None = None
+    run_id: Annotated[str, cli("run id (the key space swarm/<run>/...)", flag="--run")]
+    robots: tuple[int, ...]  # --id 0-4
+    run_robots: tuple[int, ...] | None = None  # --ids
     hub: str | None = None
     zenoh_config: str | None = None
-    trajectory: str | None = None
-    pose: tuple[float, float, float] | None = None
-    seed: int = 0
+    trajectory: Annotated[str | None, cli("trajectory JSON (docs/trajectory.md): the initial poses of simulated robots")] = None
+    pose: tuple[float, float, float] | None = None  # --pose x,y,heading
+    seed: Annotated[int, cli("seed of the run (motion and sensing noise; default 0)", own_default=True)] = 0
     model: ModelConfig = msgspec.field(default_factory=ModelConfig)
-    motion_time: float = 0.0
-    driver: str = "sim"
-    driver_options: tuple[str, ...] = ()  # KEY=VALUE, as --driver-option takes them
+    motion_time: Annotated[float, cli("seconds a simulated motion takes")] = 0.0
+    driver: Annotated[str, cli("sim (simulated robot, default), gateway (a robot behind a link process), ros2 (a robot speaking ROS 2, "
+                               "docs/ros2.md), or a lab's own driver: package.module:Class, file.py:Class or an inchworm_swarm.drivers "
+                               "entry point name (docs/drivers.md)", metavar="DRIVER", own_default=True)] = "sim"
+    driver_options: Annotated[tuple[str, ...], cli("an option for a lab's own driver (its DriverContext.options) or the ROS 2 driver "
+                                                   "(config=FILE, settings), repeatable", flag="--driver-option", repeat=True,
+                                                   metavar="KEY=VALUE")] = ()
     command_timeout: float | None = None
-    gateway_config: str | None = None
+    gateway_config: Annotated[str | None, cli("gateway config JSON (docs/gateway.md), required with --driver gateway")] = None
     max_drive_m: float | None = None
     max_turn_rad: float | None = None
     ready_timeout: float | None = None
