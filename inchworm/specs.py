@@ -194,27 +194,31 @@ class CoordinatorSpec(ProcessSpec, frozen=True, tag="coordinator"):
 class EmulatorSpec(ProcessSpec, frozen=True, tag="emulator"):
     """``swarm emulate-robots``: the robots of the gateway config ``config`` on ptys; radio faults per port."""
 
-    config: str
-    trajectory: str
-    seed: int = 0
-    motion_time: float = 0.0
-    miscalibrate: bool = False
+    config: Annotated[str, cli("gateway config JSON: its ports and robots are emulated (docs/gateway.md)")]
+    trajectory: Annotated[str, cli("trajectory JSON: the robots' initial true poses (docs/trajectory.md)")]
+    seed: Annotated[int, cli("seed of the run: motion and sensing noise as simulated agents, and random faults")] = 0
+    motion_time: Annotated[float, cli("seconds a motion takes; it is applied at its end")] = 0.0
+    miscalibrate: Annotated[bool, cli("give each robot the config's calibration as true deviations (drive x motion_scale, range + bias, "
+                                      "bearing + offset)")] = False
     model: ModelConfig = msgspec.field(default_factory=ModelConfig)
-    physics: bool = False
-    physics_params: tuple[str, ...] = ()
-    physics_speed: float = 0.0
-    drop: float = 0.0
-    corrupt: float = 0.0
-    delay: float = 0.0
-    drop_rx: tuple[int, ...] = ()
-    drop_tx: tuple[int, ...] = ()
-    blackout: tuple[int, float] | None = None  # (step, seconds)
-    events: str | None = None
-    write_config: str | None = None
+    physics: Annotated[bool, cli("the robots drive in a rigid-body world (they collide, push, stall; sensing with occlusion) instead of the "
+                                 "noise model; needs pip install 'inchworm-swarm[physics]'")] = False
+    physics_params: Annotated[tuple[str, ...], cli("with --physics: a parameter of the world (runtime.world.params.PhysicsParams), repeatable",
+                                                   flag="--physics-param", repeat=True, metavar="NAME=VALUE")] = ()
+    physics_speed: Annotated[float, cli("with --physics: world seconds per wall-clock second (0: as fast as it computes, the default)",
+                                        metavar="X", own_default=True)] = 0.0
+    drop: Annotated[float, cli("probability a frame is lost, both directions", metavar="P")] = 0.0
+    corrupt: Annotated[float, cli("probability one byte of an outgoing frame is flipped", metavar="P")] = 0.0
+    delay: Annotated[float, cli("seconds every outgoing frame is delayed", metavar="S")] = 0.0
+    drop_rx: tuple[int, ...] = ()  # --drop-rx I,J
+    drop_tx: tuple[int, ...] = ()  # --drop-tx I,J
+    blackout: tuple[int, float] | None = None  # (step, seconds): --blackout STEP:SECONDS
+    events: Annotated[str | None, cli("write every notable event as a JSON line (flushed per line)", metavar="FILE")] = None
+    write_config: Annotated[str | None, cli("write the config with the pty device paths here, atomically", metavar="OUT")] = None
     hub: str | None = None
     zenoh_config: str | None = None
-    run_id: str | None = None
-    json: bool = False
+    run_id: Annotated[str | None, cli("run id: with --hub/--zenoh-config, publish the true poses (TruthMessage)", flag="--run")] = None
+    json: Annotated[bool, cli('print {"ports": {name: device}, "config": OUT} as one JSON line when ready')] = False
 
 
 class Ros2RobotsSpec(ProcessSpec, frozen=True, tag="ros2-robots"):
@@ -222,30 +226,37 @@ class Ros2RobotsSpec(ProcessSpec, frozen=True, tag="ros2-robots"):
     In the physical world (``world`` "physics", ``physics_params``) with ``run_id`` its physics events go to that run
     (``hub``, else the run file of a run on this host)."""
 
-    trajectory: str
-    seed: int = 0
+    trajectory: Annotated[str, cli("trajectory JSON: the robots and their initial poses")]
+    seed: Annotated[int, cli("seed of the motion and sensing noise")] = 0
     model: ModelConfig = msgspec.field(default_factory=ModelConfig)
-    world: str = "kinematic"
-    physics_params: tuple[str, ...] = ()
-    run_id: str | None = None
-    hub: str | None = None
-    driver_options: tuple[str, ...] = ()
-    rate: float = 50.0
-    sensing_rate: float = 10.0
-    no_ground_truth: bool = False
-    no_odom: tuple[int, ...] = ()
-    silent: dict[int, int] = msgspec.field(default_factory=dict)
-    sightings_twice: bool = False
-    late_sightings: float = 0.0
+    world: Annotated[str, cli("the world the robots move in: kinematic (the project's noise model, the default) or physics (a rigid-body "
+                              "world: wheels within their limits that slip, bodies that push; pip install 'inchworm-swarm[physics]')",
+                              own_default=True)] = "kinematic"
+    physics_params: Annotated[tuple[str, ...], cli("with --world physics: a parameter of the physical world (docs/physics.md), repeatable",
+                                                   flag="--physics-param", repeat=True, metavar="NAME=VALUE")] = ()
+    run_id: Annotated[str | None, cli("with --world physics: the run whose record gets the world's contacts, stalls and poses (PhysicsEvent)",
+                                      flag="--run")] = None
+    hub: Annotated[str | None, cli("with --run: the run's Zenoh endpoint (default: the run file of a run on this host)")] = None
+    driver_options: Annotated[tuple[str, ...], cli("the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, "
+                                                   "topic names (docs/ros2.md); repeatable", flag="--driver-option", repeat=True,
+                                                   metavar="KEY=VALUE")] = ()
+    rate: Annotated[float, cli("world steps and odometry per second")] = 50.0
+    sensing_rate: Annotated[float, cli("sensor frames per second on neighbors")] = 10.0
+    no_ground_truth: Annotated[bool, cli("publish no true pose (default: on the settings' ground_truth topic, else ground_truth)")] = False
+    no_odom: tuple[int, ...] = ()  # --no-odom IDS
+    silent: dict[int, int] = msgspec.field(default_factory=dict)  # --silent ID@N
+    sightings_twice: Annotated[bool, cli("fault: every sighting is published twice")] = False
+    late_sightings: Annotated[float, cli("fault: every sighting is published again S seconds later with its original stamp", metavar="S",
+                                         own_default=True)] = 0.0
 
 
 class Ros2BridgeSpec(ProcessSpec, frozen=True, tag="ros2-bridge"):
     """``swarm ros2 bridge``: the run live in ROS 2 (``robot_radius`` None: the model's default)."""
 
-    run_id: str
-    trajectory: str | None = None
-    robot_radius: float | None = None
-    wait: float = 0.0
+    run_id: Annotated[str, cli("run id", flag="--run")]
+    trajectory: Annotated[str | None, cli("the run's trajectory JSON, for the desired configuration markers")] = None
+    robot_radius: Annotated[float | None, cli("body radius of the markers in m (default the model's)")] = None
+    wait: Annotated[float, cli("wait up to S seconds for the run to start", metavar="S")] = 0.0
     hub: str | None = None
     zenoh_config: str | None = None
 

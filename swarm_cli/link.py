@@ -33,7 +33,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_link  # noqa: PLC0415 - zenoh when it runs
 
-    return run_link(options_of(args, LinkSpec, **connection_of(args)))
+    return run_link(spec_of(args))
+
+
+def spec_of(args: argparse.Namespace) -> LinkSpec:
+    """The link spec of the flags."""
+    return options_of(args, LinkSpec, **connection_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -46,7 +46,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_router  # noqa: PLC0415 - zenoh when it runs
 
-    return run_router(options_of(args, RouterSpec))
+    return run_router(spec_of(args))
+
+
+def spec_of(args: argparse.Namespace) -> RouterSpec:
+    """The router spec of the flags."""
+    return options_of(args, RouterSpec)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -170,6 +170,48 @@ def test_the_commands_build_the_specs_from_their_flags():
     assert decode_spec(encode_spec(spec)) == spec
 
 
+# the process commands whose flags their spec declares (inchworm.specs.cli): the least flags, how the command makes the
+# spec, the spec those make (every other field its default), and the fields the command makes apart (shared groups,
+# converted flags) or leaves to the library
+SPEC_COMMANDS = [
+    (["router"], "swarm_cli.router:spec_of", RouterSpec(), ()),
+    (["link", "--config=gw.json", "--port=radio0", "--run=lab"], "swarm_cli.link:spec_of", LinkSpec(config="gw.json", port="radio0", run_id="lab"),
+     ("hub", "zenoh_config")),
+    (["record", "--run=lab"], "swarm_cli.record:spec_of", RecorderSpec(run_id="lab"), ("hub", "zenoh_config", "command")),
+    (["coordinator", "--trajectory=t.json", "--run=lab"], "swarm_cli.coordinator_cmd:spec_of", CoordinatorSpec(trajectory="t.json", run_id="lab"),
+     ("hub", "zenoh_config", "localizer", "model", "model_file", "selection", "rejoin", "json", "command")),
+    (["agent", "--id=0", "--run=lab"], "swarm_cli.agent:spec_of", None,
+     ("robots", "run_robots", "hub", "zenoh_config", "pose", "model", "command_timeout", "max_drive_m", "max_turn_rad", "ready_timeout", "world",
+      "physics_params", "physics_speed")),
+    (["emulate-robots", "--config=gw.json", "--trajectory=t.json"], "swarm_cli.emulate:spec_of", EmulatorSpec(config="gw.json", trajectory="t.json"),
+     ("hub", "zenoh_config", "model", "drop_rx", "drop_tx", "blackout")),
+    (["ros2", "robots", "--trajectory=t.json"], "swarm_cli.ros2:robots_spec", Ros2RobotsSpec(trajectory="t.json"), ("model", "no_odom", "silent")),
+    (["ros2", "bridge", "--run=lab"], "swarm_cli.ros2:bridge_spec", Ros2BridgeSpec(run_id="lab"), ("hub", "zenoh_config")),
+]
+
+
+@pytest.mark.parametrize(("argv", "maker", "expected", "apart"), SPEC_COMMANDS,
+                         ids=[" ".join(w for w in c[0][:2] if not w.startswith("-")) for c in SPEC_COMMANDS])
+def test_a_process_commands_flags_are_its_specs_fields(argv, maker, expected, apart):
+    """The command's defaults make the spec's defaults, and every field of the spec declares its flag or is made apart
+    (a new field without either fails here)."""
+    import importlib
+
+    from robot_agent.agent import READY_TIMEOUT_S
+    from runtime.wire.messages import CommandLimits
+    from swarm_cli.main import build_parser
+    from swarm_cli.schema import spec_fields
+
+    module, name = maker.split(":")
+    made = getattr(importlib.import_module(module), name)(build_parser(argv).parse_args(argv))
+    if expected is None:  # swarm agent: its limits' defaults are the agent's, in the flags' units
+        expected = AgentHostSpec(run_id="lab", robots=(0,), max_drive_m=CommandLimits().max_drive_m, ready_timeout=READY_TIMEOUT_S,
+                                 max_turn_rad=math.radians(math.degrees(CommandLimits().max_turn_rad)))
+    assert made == (msgspec.structs.replace(expected, command=made.command) if hasattr(expected, "command") else expected)
+    flagged = {f.name for f in spec_fields(type(expected))}
+    assert flagged.isdisjoint(apart) and {f.name for f in msgspec.structs.fields(type(expected))} - {"version"} == flagged | set(apart)
+
+
 def test_the_selection_spec_names_what_the_search_options_set():
     from coordinator.selection.selector import SelectionConfig
     from inchworm.limits import selection_from
