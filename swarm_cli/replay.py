@@ -56,11 +56,23 @@ def _warn(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def publish_options(args: argparse.Namespace) -> PublishOptions:
+    """``--publish``'s options of the flags."""
+    return options_of(args, PublishOptions, file=args.file)
+
+
+def check_options(args: argparse.Namespace) -> CheckOptions:
+    """``--check``'s options of the flags (None, the recorded value, for each flag not given)."""
+    return options_of(args, CheckOptions, file=args.file, localizer=args.localizer, model_file=args.model,
+                      model_flags={name: getattr(args, name) for name in MODEL_OPTIONS},
+                      selection={name: getattr(args, name) for name in SELECTION_OPTIONS})
+
+
 def run_publish(args: argparse.Namespace) -> int:
     from inchworm.replay import publish  # noqa: PLC0415 - zenoh only when publishing
     from runtime.wire.keys import ROOT  # noqa: PLC0415
 
-    r = publish(options_of(args, PublishOptions, file=args.file), say=_say, warn=_warn)
+    r = publish(publish_options(args), say=_say, warn=_warn)
     print(f"replayed {r.messages} messages on {r.keys} keys in {r.elapsed_s:.3f} s "
           f"(recorded span {r.recorded_s:.3f} s, speed {'max' if r.fast else f'{args.speed:g}'})"
           + (f"; {r.skipped} messages of derived channels (outside {ROOT}/) not published" if r.skipped else ""), flush=True)
@@ -73,10 +85,7 @@ def run_check(args: argparse.Namespace) -> int:
     from coordinator.replay_check import CROSS_PLATFORM_RTOL  # noqa: PLC0415 - scipy when checking, not for --help
     from inchworm.replay import check_recording  # noqa: PLC0415
 
-    options = options_of(args, CheckOptions, file=args.file, localizer=args.localizer, model_file=args.model,
-                         model_flags={name: getattr(args, name) for name in MODEL_OPTIONS},
-                         selection={name: getattr(args, name) for name in SELECTION_OPTIONS})
-    outcome = check_recording(options, warn=_warn)
+    outcome = check_recording(check_options(args), warn=_warn)
     result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against_flags
     s = result.settings
     print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"

@@ -82,6 +82,20 @@ def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str,
     assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
 
 
+def test_replays_flags_are_its_options_fields() -> None:
+    """``swarm replay``: the flags of ``PublishOptions`` and ``CheckOptions`` make their defaults (the file positional,
+    the shared groups' overrides None: the recorded values)."""
+    from inchworm.replay import CheckOptions, PublishOptions
+    from swarm_cli.replay import MODEL_OPTIONS, SELECTION_OPTIONS, check_options, publish_options
+
+    parse = build_parser(["replay"]).parse_args
+    assert publish_options(parse(["replay", "r.mcap", "--publish"])) == PublishOptions("r.mcap")
+    assert publish_options(parse(["replay", "r.mcap", "--publish", "--run=lab", "--wait=0"])) == PublishOptions("r.mcap", run_id="lab", wait=0.0)
+    none = {"model_flags": dict.fromkeys(MODEL_OPTIONS), "selection": dict.fromkeys(SELECTION_OPTIONS)}
+    assert check_options(parse(["replay", "r.mcap", "--check"])) == CheckOptions("r.mcap", **none)
+    assert check_options(parse(["replay", "r.mcap", "--check", "--seed=4", "--what-if"])) == CheckOptions("r.mcap", seed=4, what_if=True, **none)
+
+
 def test_the_genetic_gain_evaluates_on_its_own_samples_unless_given(tmp_path) -> None:
     """``--genetic-gain`` without ``--eval-samples`` evaluates on the gain's 256 samples (docs/selection.md's grid), the
     selection study on its own 512; ``--eval-samples`` (or a ``--config`` file's) sets both."""
