@@ -217,7 +217,7 @@ def value_of(args: argparse.Namespace, f: dataclasses.Field[Any] | SpecField) ->
         return value
     if kind.scalar is str:
         return names(value)
-    return tuple(parse_list(value, flag_of(f), kind.scalar))
+    return tuple(parse_list(value, flag_of(f), kind.scalar, f.metadata.get("minimum", 0)))
 
 
 def options_of(args: argparse.Namespace, cls: Callable[..., T], *, keep: Collection[str] = (), **given: Any) -> T:

@@ -51,6 +51,9 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
                                    "inchworm.launch_options:OutputOptions"),
      ("swarm", "driver", "faults", "outputs", "model", "model_file", "selection", "trajectory_seed", "rejoin", "physics_params",
       "options", "command")),
+    ("bench localize", "swarm_cli.bench_localize:options", ("inchworm.bench.options:LocalizeBenchOptions",), ("model",)),
+    # bench select: --all-cores is one_core off
+    ("bench select", "swarm_cli.bench_select:options", ("inchworm.bench.options:SelectBenchOptions",), ("one_core", "run")),
 ]
 
 
