@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from inchworm.bench import BenchResult
-from inchworm.bench.runtime import RuntimeBenchOptions, measure
+from inchworm.bench.options import RuntimeBenchOptions
+from inchworm.bench.runtime import measure
 from robot_agent.link import SerialLink
 from runtime.errors import OptionError
 from runtime.gateway.config import GatewayConfig, Port

@@ -1,6 +1,6 @@
-"""The options of ``swarm bench localize`` and ``swarm bench select`` (``inchworm.bench.localize``,
-``inchworm.bench.select``), in a module light to import: the commands make their flags from these fields
-(``swarm_cli.schema``) before anything runs."""
+"""The options of ``swarm bench localize``, ``select``, ``record`` and ``runtime`` (``inchworm.bench.localize``, ...),
+in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
+runs."""
 
 from __future__ import annotations
 
@@ -37,3 +37,37 @@ class SelectBenchOptions:
     run: RunOptions = field(default_factory=RunOptions)
     search_all: bool = field(default=False, metadata={
         "help": "search every count (no outer-loop bound), to time searched selections"})  # every count through the inner loop
+
+
+@dataclass(frozen=True)
+class RecordBenchOptions:
+    sizes: tuple[int, ...] = field(default=(10, 50), metadata={"flag": "--robots", "metavar": "ROBOTS", "help": "comma-separated swarm sizes",
+                                                               "minimum": 1})
+    steps: int = field(default=40, metadata={"help": "steps of messages recorded per run"})
+    steps_per_config: int = field(default=4, metadata={"help": "steps per configuration: one PlanMessage each"})
+    repeats: int = field(default=3, metadata={"help": "recordings per size and mode, median reported"})
+    step_ms: tuple[float, ...] = field(default=(20.0, 100.0), metadata={  # coordination time of a step without recording (ms)
+        "help": "coordination time of one step without recording, ms: one value or one per size "
+                "(default 20,100: the runtime's targets for 10 and 50 agents)", "own_default": True})
+    seed: int = field(default=0, metadata={"help": "seed of the positions and measurements"})
+
+
+RUNTIME_METHODS = ("no-anchors", "ref57")  # the fixed plans ``swarm bench runtime`` times
+
+
+@dataclass(frozen=True)
+class RuntimeBenchOptions:
+    agents: tuple[int, ...] = field(default=(10, 50), metadata={"help": "comma-separated numbers of robot agents", "minimum": 2})
+    agents_per_process: int | None = field(default=None, metadata={  # None: as swarm launch
+        "help": "robot agents hosted by one process (default as swarm launch: 1 up to 50 robots, else up to 50)"})
+    steps: int = field(default=20, metadata={"help": "steps timed per swarm size"})
+    method: str = field(default="no-anchors", metadata={  # a fixed plan: no-anchors (all move each step) or ref57
+        "help": "fixed plan (default no-anchors: all move each step)", "own_default": True, "choices": RUNTIME_METHODS})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectory and the noise"})
+    rtt_count: int = field(default=200, metadata={"help": "pings of the raw Zenoh round trip"})
+    start_timeout_s: float = field(default=120.0, metadata={"flag": "--start-timeout", "metavar": "START_TIMEOUT",
+                                                            "help": "seconds to wait for all agents"})
+    step_timeout_s: float = field(default=10.0, metadata={"flag": "--step-timeout", "metavar": "STEP_TIMEOUT",
+                                                          "help": "seconds to wait for a step's answers"})
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)

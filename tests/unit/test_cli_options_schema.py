@@ -54,6 +54,8 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("bench localize", "swarm_cli.bench_localize:options", ("inchworm.bench.options:LocalizeBenchOptions",), ("model",)),
     # bench select: --all-cores is one_core off
     ("bench select", "swarm_cli.bench_select:options", ("inchworm.bench.options:SelectBenchOptions",), ("one_core", "run")),
+    ("bench record", "swarm_cli.bench_record:options", ("inchworm.bench.options:RecordBenchOptions",), ()),
+    ("bench runtime", "swarm_cli.bench_runtime:options", ("inchworm.bench.options:RuntimeBenchOptions",), ("localizer", "model")),
 ]
 
 
