@@ -1,4 +1,5 @@
-"""The options of ``swarm bench localize``, ``select``, ``record`` and ``runtime`` (``inchworm.bench.localize``, ...),
+"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway`` and ``faults``
+(``inchworm.bench.localize``, ...),
 in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
 runs."""
 
@@ -71,3 +72,25 @@ class RuntimeBenchOptions:
                                                           "help": "seconds to wait for a step's answers"})
     localizer: str = "paper"
     model: ModelConfig = field(default_factory=ModelConfig)
+
+
+@dataclass(frozen=True)
+class GatewayBenchOptions:
+    robots: int = field(default=10, metadata={"help": "agents of the step-time comparison"})
+    steps: int = field(default=60, metadata={"help": "steps timed per driver and round"})
+    rounds: int = field(default=2, metadata={"help": "rounds of sim then gateway, steps pooled per driver"})
+    frames: int = field(default=200_000, metadata={"help": "frames through the codec"})
+    commands: int = field(default=300, metadata={"help": "commands of the pty round trip"})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectory and noise"})
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+
+@dataclass(frozen=True)
+class FaultsBenchOptions:
+    seeds: int = field(default=10, metadata={"help": "seeds (runs) per lost-robot and gateway row"})
+    fuzz: int = field(default=10_000, metadata={"help": "hostile messages sent during the fuzz run"})
+    gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
+    flood: int = field(default=3000, metadata={"help": "idle TCP connections held on the TLS router's public listener during the stops"})
+    flood_s: float = field(default=60.0, metadata={  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
+        "help": "seconds the flood lasts; a stop a second during it and min(FLOOD_S, 60) s after it"})

@@ -56,6 +56,9 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("bench select", "swarm_cli.bench_select:options", ("inchworm.bench.options:SelectBenchOptions",), ("one_core", "run")),
     ("bench record", "swarm_cli.bench_record:options", ("inchworm.bench.options:RecordBenchOptions",), ()),
     ("bench runtime", "swarm_cli.bench_runtime:options", ("inchworm.bench.options:RuntimeBenchOptions",), ("localizer", "model")),
+    ("bench gateway", "swarm_cli.bench_gateway:options", ("inchworm.bench.options:GatewayBenchOptions",), ("localizer", "model")),
+    # bench faults: --gateway-rows is 'drop,corrupt,delay_s;...'
+    ("bench faults", "swarm_cli.bench_faults:options", ("inchworm.bench.options:FaultsBenchOptions",), ("gateway_rows",)),
 ]
 
 
