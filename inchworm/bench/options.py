@@ -1,4 +1,4 @@
-"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway`` and ``faults``
+"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway``, ``faults`` and ``physics``
 (``inchworm.bench.localize``, ...),
 in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
 runs."""
@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from coordinator.strategies import METHODS
 from inchworm.options import RunOptions
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
@@ -94,3 +95,17 @@ class FaultsBenchOptions:
     flood: int = field(default=3000, metadata={"help": "idle TCP connections held on the TLS router's public listener during the stops"})
     flood_s: float = field(default=60.0, metadata={  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
         "help": "seconds the flood lasts; a stop a second during it and min(FLOOD_S, 60) s after it"})
+
+
+@dataclass(frozen=True)
+class PhysicsBenchOptions:
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    trajectories: int = field(default=10, metadata={"help": "random trajectories"})
+    configs: int = field(default=10, metadata={"help": "configurations per trajectory"})
+    method: str = field(default="inchworm", metadata={"help": "motion strategy", "choices": METHODS})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    workers: int = 1
+    run: RunOptions = field(default_factory=RunOptions)
+    physics: tuple[str, ...] = field(default=(), metadata={  # NAME=VALUE
+        "flag": "--physics-param", "repeat": True, "metavar": "NAME=VALUE",
+        "help": "a parameter of the physical world (runtime.world.params.PhysicsParams), repeatable"})

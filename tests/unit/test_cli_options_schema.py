@@ -27,6 +27,14 @@ def _launch_options(args: argparse.Namespace) -> Any:
     return launch_options(spec_of(args))
 
 
+def _bench_physics_options(args: argparse.Namespace) -> Any:
+    """``swarm bench physics``'s options, ``--workers`` aside (the command's default: every core; the library's: 1)."""
+    from swarm_cli.bench_physics import options
+
+    assert args.workers >= 1
+    return dataclasses.replace(options(args), workers=1)
+
+
 # command, what makes its options from the parsed flags, the options classes (the first: what the defaults make), and
 # the fields whose flags shared groups make or whose command-line form differs (checked through the options made)
 COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
@@ -59,6 +67,7 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("bench gateway", "swarm_cli.bench_gateway:options", ("inchworm.bench.options:GatewayBenchOptions",), ("localizer", "model")),
     # bench faults: --gateway-rows is 'drop,corrupt,delay_s;...'
     ("bench faults", "swarm_cli.bench_faults:options", ("inchworm.bench.options:FaultsBenchOptions",), ("gateway_rows",)),
+    ("bench physics", "_bench_physics_options", ("inchworm.bench.options:PhysicsBenchOptions",), ("workers", "run")),
 ]
 
 
