@@ -4,11 +4,12 @@ A field of an options dataclass (``inchworm.simulation.SimOptions``, ``inchworm.
 ``inchworm.studies`` options, those of ``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes,
 or its ``metadata["flag"]`` (a short flag such as ``-n`` goes before the long one), the field's default,
 ``metadata["help"]``, to which `` (default X)`` is added unless the help places the default itself with
-``%(default)s`` or has no default to show, and ``metadata["choices"]`` and ``["metavar"]`` if declared. The annotation
-gives the argparse type: ``int``, ``float``, ``str``, ``Path`` (or ``StrPath``), ``bool`` (``--name`` sets True; a
-field that defaults to True and whose flag is ``--no-name`` sets False) and ``tuple[int | float | str, ...]``, a
-comma-separated value (``--methods a,b``) that stays text in the namespace (``--config`` files and ``study.toml`` keep
-it as typed) and that ``options_of`` splits. A union takes the flag of its one member of these types (``str |
+``%(default)s`` or words it (``metadata["own_default"]``) or has no default to show, and ``metadata["choices"]`` and
+``["metavar"]`` if declared. The annotation gives the argparse type: ``int``, ``float``, ``str``, ``Path`` (or
+``StrPath``), ``bool`` (``--name`` sets True; a field that defaults to True and whose flag is ``--no-name`` sets
+False) and ``tuple[int | float | str, ...]``, a comma-separated value (``--methods a,b``) that stays text in the
+namespace (``--config`` files and ``study.toml`` keep it as typed) and that ``options_of`` splits (each member at
+least ``metadata["minimum"]``, default 0). A union takes the flag of its one member of these types (``str |
 Strategy``: a name on the command line, an object from Python). A field of another type (a nested options object: the
 model, the localizer, the anchor search, added by ``swarm_cli.options``'s groups) is passed to ``add_fields`` in
 ``exclude`` and to ``options_of`` by name; a field with no command-line form at all is left out of both (``only``,
