@@ -1,7 +1,7 @@
 """``inchworm``: the Python API of the inchworm swarm runtime (runs, the paper's comparison, studies, benchmarks).
 
     import inchworm
-    run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a RunResult (or simulate(SimOptions(...)))
+    run = inchworm.simulate(robots=10, configs=5, method="inchworm", seed=0)   # a SimResult (a RunResult; or simulate(SimOptions(...)))
     same = inchworm.run_distributed(run.trajectory, method="inchworm", seed=0)  # agent processes over Zenoh
     with inchworm.DistributedRun(run.trajectory, seed=0) as live:       # the same run as an object: status(), estop()
         live.status(); same = live.wait()
@@ -55,6 +55,7 @@ if TYPE_CHECKING:
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
     from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
+    from inchworm.sim_result import SimResult as SimResult
     from inchworm.simulation import SimOptions as SimOptions, simulate as simulate
     from inchworm.studies.anchors import AnchorsOptions as AnchorsOptions, AnchorsResult as AnchorsResult, study_anchors as study_anchors
     from inchworm.studies.calibration import (
@@ -78,7 +79,7 @@ if TYPE_CHECKING:
     from runtime.models.trajectory import Trajectory as Trajectory
 
 _WHERE = {
-    "simulate": "inchworm.simulation", "SimOptions": "inchworm.simulation",
+    "simulate": "inchworm.simulation", "SimOptions": "inchworm.simulation", "SimResult": "inchworm.sim_result",
     "run_distributed": "inchworm.distributed", "DistributedRun": "inchworm.distributed",
     "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",

@@ -31,6 +31,7 @@ from inchworm.specs import (
     Ros2BridgeSpec,
     Ros2RobotsSpec,
     RouterSpec,
+    selection_spec,
 )
 from runtime.errors import OptionError, SwarmConnectionError
 from runtime.models.config import ModelConfig
@@ -151,14 +152,12 @@ def run_coordinator(spec: CoordinatorSpec) -> int:
 
     signals = StopSignals()  # SIGINT/SIGTERM end the run; never an exception inside the recording's finish
     from coordinator.node.process import CoordinatorOptions, default_recording, recording_line, run_coordinator as run_it, say  # noqa: PLC0415
-    from inchworm.limits import selection_from  # noqa: PLC0415
     from inchworm.simulation import run_json, summary_text, write_run_outputs  # noqa: PLC0415
     from runtime.models.trajectory import Trajectory  # noqa: PLC0415
 
     settings, label = connection(spec.hub, spec.zenoh_config, spec.run_id)
     assert settings is not None, "required"
-    s = spec.selection
-    selection = selection_from(s.w_v, s.samples, s.population, s.generations, s.method, s.mc_start, s.mc_emax, s.genetic)
+    selection = spec.selection.config()
     record = None if spec.no_record else Path(spec.record) if spec.record else default_recording(
         spec.run_id, "standby" if spec.standby else "resume" if spec.resume else "")
     options = CoordinatorOptions(
@@ -429,18 +428,16 @@ def run_launch(spec: LaunchSpec) -> int:
 def launch_options(spec: LaunchSpec) -> LaunchOptions:
     """The ``LaunchOptions`` of a launch spec, by concern (the spec's fields are theirs, flat)."""
     from inchworm.launcher import DriverOptions, FaultOptions, LaunchOptions, OutputOptions, SwarmOptions  # noqa: PLC0415
-    from inchworm.limits import selection_from  # noqa: PLC0415
 
 
     def path(text: str | None) -> Path | None:
         return None if text is None else Path(text)
 
-    s = spec.selection
     return LaunchOptions(
         swarm=SwarmOptions(
             trajectory=path(spec.trajectory), robots=spec.robots, configs=spec.configs, trajectory_seed=spec.trajectory_seed,
             method=spec.method, seed=spec.seed, model=spec.model, model_file=path(spec.model_file), localizer=spec.localizer,
-            selection=selection_from(s.w_v, s.samples, s.population, s.generations, s.method, s.mc_start, s.mc_emax, s.genetic),
+            selection=spec.selection.config(),
             run_id=spec.run_id, min_robots=spec.min_robots, on_lost=spec.on_lost, rejoin=spec.rejoin, motion_time=spec.motion_time,
             step_timeout=spec.step_timeout, agents_per_process=spec.agents_per_process, world=spec.world,
             physics_params=spec.physics_params, physics_speed=spec.physics_speed),
@@ -453,3 +450,24 @@ def launch_options(spec: LaunchSpec) -> LaunchOptions:
         outputs=OutputOptions(command=spec.command, out=path(spec.out), result=path(spec.result), record=path(spec.record),
                               no_record=spec.no_record, on_record_error=spec.on_record_error, foxglove=spec.foxglove,
                               linger=spec.linger, ros2=spec.ros2, json=spec.json))
+
+
+def launch_spec(options: LaunchOptions) -> LaunchSpec:
+    """The launch spec of ``options``, every field (``launch_options`` of it gives them back; ``inchworm.Swarm``'s child
+    process runs it)."""
+    s, d, f, o = options.swarm, options.driver, options.faults, options.outputs
+
+    def text(path: object) -> str | None:
+        return None if path is None else str(path)
+
+    return LaunchSpec(
+        model=s.model, model_file=text(s.model_file), localizer=s.localizer, selection=selection_spec(s.selection), trajectory=text(s.trajectory),
+        robots=s.robots, configs=s.configs, trajectory_seed=s.trajectory_seed, method=s.method, seed=s.seed, run_id=s.run_id,
+        min_robots=s.min_robots, on_lost=s.on_lost, rejoin=s.rejoin, motion_time=s.motion_time, step_timeout=s.step_timeout,
+        agents_per_process=s.agents_per_process, world=s.world, physics_params=s.physics_params, physics_speed=s.physics_speed,
+        driver=d.name, driver_options=d.options, command_timeout=d.command_timeout, gateway_config=text(d.gateway_config),
+        emulator_events=text(d.emulator_events), ros2_robots=d.ros2_robots,
+        kill_robot=tuple(f.kills), standby=f.standby, kill_coordinator=f.kill_coordinator, stall_coordinator=f.stall_coordinator,
+        stall_link=f.stall_link, drop=f.drop, corrupt=f.corrupt, delay=f.delay,
+        command=o.command, out=text(o.out), result=text(o.result), record=text(o.record), no_record=o.no_record,
+        on_record_error=o.on_record_error, foxglove=o.foxglove, linger=o.linger, ros2=o.ros2, json=o.json)

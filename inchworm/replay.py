@@ -55,11 +55,13 @@ class PublishOptions:
 
     file: StrPath
     _: KW_ONLY  # the file positional, the rest by keyword
-    speed: float = 1.0
-    hub: str | None = None
-    wait: float = 10.0
-    run_id: str | None = field(default=None, metadata={"flag": "--run"})
-    same_run: bool = False
+    speed: float = field(default=1.0, metadata={"help": "time scale (default 1 = recorded timing; 0 or inf: as fast as possible)",
+                                                 "own_default": True})
+    hub: str | None = field(default=None, metadata={"help": "Zenoh endpoint of a hub to join (default: the hub of the recorded run if it "
+                                                            "is live on this host, else a loopback hub of its own, printed)"})
+    wait: float = field(default=10.0, metadata={"help": "seconds to wait for a subscriber before publishing"})
+    run_id: str | None = field(default=None, metadata={"flag": "--run", "help": "run id to publish under (default <run>-replay-<hex>)"})
+    same_run: bool = field(default=False, metadata={"help": "publish under the recorded run id, bytes unchanged"})
 
     def __post_init__(self) -> None:
         coerce_paths(self, "file")
@@ -228,12 +230,13 @@ class CheckOptions:
     file: StrPath
     _: KW_ONLY  # the file positional, the rest by keyword
     localizer: str | None = None
-    seed: int | None = None
-    trajectory: StrPath | None = None
+    seed: int | None = field(default=None, metadata={"help": "seed of the initial estimate and the anchor search"})
+    trajectory: StrPath | None = field(default=None, metadata={"help": "trajectory JSON, if the recording has none in its metadata"})
     model_file: StrPath | None = field(default=None, metadata={"flag": "--model"})
     model_flags: dict[str, float] = field(default_factory=dict)
     selection: dict[str, Any] = field(default_factory=dict)
-    what_if: bool = False
+    what_if: bool = field(default=False, metadata={"help": "allow options that contradict the recording's metadata (refused otherwise): "
+                                                           "re-run with them and report where the results part"})
 
     def __post_init__(self) -> None:
         coerce_paths(self, "file", "trajectory", "model_file")

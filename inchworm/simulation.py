@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, overload
 
@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from coordinator.run_result import ConfigRecord, RunResult, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
+    from inchworm.sim_result import SimResult
     from runtime.world.params import PhysicsParams
 
 WORLDS = ("model", "physics")  # the noise model's world, the rigid-body world (runtime.world)
@@ -85,7 +86,7 @@ class SimOptions:
 
 
 @overload
-def simulate(options: SimOptions, *, progress: OnProgress | None = None) -> RunResult: ...
+def simulate(options: SimOptions, *, progress: OnProgress | None = None) -> SimResult: ...
 @overload
 def simulate(
     trajectory: Trajectory | StrPath | None = None,
@@ -102,17 +103,19 @@ def simulate(
     progress: OnProgress | None = None,
     world: str = ...,
     physics: PhysicsParams | None = ...,
-) -> RunResult: ...
-def simulate(options: SimOptions | Trajectory | StrPath | None = None, /, *, progress: OnProgress | None = None, **keywords: Any) -> RunResult:
+) -> SimResult: ...
+def simulate(options: SimOptions | Trajectory | StrPath | None = None, /, *, progress: OnProgress | None = None, **keywords: Any) -> SimResult:
     """Run the ``SimOptions`` ``options`` in the in-process simulator, or, as keywords, the ``SimOptions`` they make
     (the first argument then is the ``trajectory``; ``model=None`` and ``selection=None`` are the defaults):
     ``simulate(SimOptions(robots=6, method="ref57"))`` is ``simulate(robots=6, method="ref57")``. ``progress`` is told
     ``(configurations done, of total)``. Everything random derives from ``seed``; the result holds every step's
-    estimate and the truth, and in the physical world its contacts and stalls (``result.world_events``)."""
+    estimate and the truth, and in the physical world its contacts and stalls (``result.world_events``): a ``SimResult``
+    (a ``RunResult`` with the options it ran; ``to_json()`` is the ``swarm sim --json`` object)."""
     from coordinator.executor import InchwormExecutor  # noqa: PLC0415
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
+    from inchworm.sim_result import SimResult  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
@@ -134,8 +137,9 @@ def simulate(options: SimOptions | Trajectory | StrPath | None = None, /, *, pro
         finally:
             physical.close()
         result.world_events = physical.events
-        return result
-    return InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, o.seed), loc, strategy, cfg, progress).run(traj, start)
+    else:
+        result = InchwormExecutor(SimulatedSwarm(traj.ids, traj.initial_poses, cfg, o.seed), loc, strategy, cfg, progress).run(traj, start)
+    return SimResult.of(result, replace(o, trajectory=traj))
 
 
 def _options_of(options: SimOptions | Trajectory | StrPath | None, keywords: dict[str, Any]) -> SimOptions:

@@ -2,7 +2,9 @@
 
 ``Swarm(options)`` (``inchworm.launcher.LaunchOptions``) runs ``launcher.launch`` in a child process of its own
 (``python -m inchworm.swarm``, tied to this process by ``inchworm.lifeline``: it ends with it, however this process
-ends), so the launcher keeps its signal handling and this process stays free:
+ends), so the launcher keeps its signal handling and this process stays free. The child gets the options as their
+launch spec (``inchworm.specs.LaunchSpec``, every field: ``inchworm.process_mains.launch_spec``), the JSON that
+``swarm launch`` runs too:
 
 * ``start()`` (or entering ``with``) starts it; ``running()`` says whether it still runs.
 * ``status()``: the run's live state, read from the run itself: its run file (the hub) and the liveliness tokens of
@@ -24,7 +26,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
-import pickle
 import signal
 import subprocess
 import sys
@@ -37,12 +38,15 @@ from typing import TYPE_CHECKING, Any
 
 from inchworm.launcher import LaunchOptions, LaunchResult
 from inchworm.lifeline import Lifeline
+from inchworm.process_mains import launch_spec
+from inchworm.specs import encode_spec
 from runtime import errors
 from runtime.errors import SwarmError, SwarmInputError
 
 if TYPE_CHECKING:
     from coordinator.node.stop import EstopOutcome
 
+SPEC_FILE = "launch.json"  # the child's launch spec, in its folder
 STOP_GRACE_S = 60.0  # s the launcher gets to stop its run after SIGTERM (its coordinator alone may take 20 s to finish a recording)
 
 
@@ -83,7 +87,7 @@ class Swarm:
             raise SwarmInputError(f"run {self.run_id} was already started")
         self._folder = tempfile.TemporaryDirectory(prefix="inchworm-swarm-")
         folder = Path(self._folder.name)
-        (folder / "options.pickle").write_bytes(pickle.dumps(self.options))
+        (folder / SPEC_FILE).write_bytes(encode_spec(launch_spec(self.options)))
         self._lifeline = Lifeline()
         self._process = subprocess.Popen([sys.executable, "-m", "inchworm.swarm", str(folder)], **self._lifeline.child_options())
         return self
@@ -188,15 +192,20 @@ def _error(data: dict[str, Any]) -> SwarmError:
 
 
 def _child(folder: Path) -> int:
-    """The launcher's process: run ``launch`` on the pickled options and write its result (or error) as JSON."""
+    """The launcher's process: run ``launch`` on the options of the launch spec in ``folder`` and write its result (or
+    error) there as JSON."""
     from inchworm.launcher import launch  # noqa: PLC0415
     from inchworm.lifeline import hold_lifeline  # noqa: PLC0415
+    from inchworm.process_mains import launch_options  # noqa: PLC0415
+    from inchworm.spawn import read_spec  # noqa: PLC0415
+    from inchworm.specs import LaunchSpec  # noqa: PLC0415
 
     hold_lifeline()
-    options: LaunchOptions = pickle.loads((folder / "options.pickle").read_bytes())
     answer: dict[str, Any]
     try:
-        result = launch(options, capture=True)
+        spec = read_spec(str(folder / SPEC_FILE), "launch")
+        assert isinstance(spec, LaunchSpec), "read_spec checked its kind"
+        result = launch(launch_options(spec), capture=True)
         answer = {"status": result.status, "recording": None if result.recording is None else str(result.recording),
                   "summary": result.summary}
     except SwarmError as exc:

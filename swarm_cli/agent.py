@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from inchworm.specs import AgentHostSpec, PortProcessSpec
 from robot_agent.agent import READY_TIMEOUT_S
@@ -38,7 +37,8 @@ from robot_agent.assembly import PLUGIN_COMMAND_TIMEOUT_S, parse_ids
 from runtime.errors import SwarmInputError
 from runtime.wire.messages import CommandLimits
 from swarm_cli.entry import leave, run_standalone
-from swarm_cli.options import add_connection_options, add_model_options, add_world_options, model_config, parse_list, positive
+from swarm_cli.options import add_connection_options, add_model_options, add_world_options, connection_of, model_config, parse_list, positive
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -48,30 +48,25 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The flags of the spec's fields (``AgentHostSpec``), and apart those it holds converted: the robots (``--id``,
+    ``--ids``), the pose, the agent's limits in their units and defaults, ``--link`` (a ``PortProcessSpec``)."""
     p.add_argument("--id", required=True, help="this process's robot id, or ids and ranges for one process hosting many (e.g. 0-49)")
     p.add_argument("--ids", help="every robot id of the run, comma-separated, ranges allowed (e.g. 0,1,2 or 0-499); "
                                  "default with --trajectory: its robots")
-    p.add_argument("--trajectory", type=Path, help="trajectory JSON (docs/trajectory.md): the initial poses of simulated robots")
-    p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
+    add_fields(p, AgentHostSpec, only=("trajectory",))
+    add_fields(p, AgentHostSpec, only=("run_id",))
     add_connection_options(p)
-    p.add_argument("--seed", type=int, default=0, help="seed of the run (motion and sensing noise; default 0)")
-    p.add_argument("--driver", default="sim", metavar="DRIVER",
-                   help="sim (simulated robot, default), gateway (a robot behind a link process), ros2 (a robot speaking ROS 2, "
-                        "docs/ros2.md), or a lab's own driver: "
-                        "package.module:Class, file.py:Class or an inchworm_swarm.drivers entry point name (docs/drivers.md)")
-    p.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="an option for a lab's own driver (its DriverContext.options) or the ROS 2 driver (config=FILE, settings), "
-                        "repeatable")
+    add_fields(p, AgentHostSpec, only=("seed", "driver", "driver_options"))
     p.add_argument("--command-timeout", type=positive, default=None, metavar="S",
                    help=f"a lab's own driver must finish each command and observation within this many seconds, else the robot "
                         f"is stopped and reported lost (default {PLUGIN_COMMAND_TIMEOUT_S:g}; not applied to sim and gateway unless given)")
-    p.add_argument("--gateway-config", type=Path, help="gateway config JSON (docs/gateway.md), required with --driver gateway")
+    add_fields(p, AgentHostSpec, only=("gateway_config",))
     p.add_argument("--link", action="store_true", help="also run the link of the hosted robots' port in this process, instead of "
                                                          "`swarm link` (host every robot of the port: --id; docs/gateway.md)")
     p.add_argument("--ready-timeout", type=float, default=READY_TIMEOUT_S,
                    help=f"seconds to wait for the robot's link process before declaring this agent alive (default {READY_TIMEOUT_S:g})")
     p.add_argument("--pose", help="initial true pose x,y,heading (m, m, rad) of one simulated robot (or give --trajectory)")
-    p.add_argument("--motion-time", type=float, default=0.0, help="seconds a simulated motion takes (default 0)")
+    add_fields(p, AgentHostSpec, only=("motion_time",))
     p.add_argument("--max-drive", type=float, default=CommandLimits().max_drive_m, help="refuse drives longer than this (m, default 1)")
     p.add_argument("--max-turn-deg", type=float, default=math.degrees(CommandLimits().max_turn_rad),
                    help="refuse turns larger than this (default 180)")
@@ -92,14 +87,11 @@ def initial_pose(args: argparse.Namespace) -> list[float] | None:
 def spec_of(args: argparse.Namespace) -> AgentHostSpec:
     """The agent host (``--link``: port process) spec of the options."""
     pose = initial_pose(args)
-    return (PortProcessSpec if args.link else AgentHostSpec)(
-        run_id=args.run_id, robots=tuple(parse_ids(args.id, "--id")), run_robots=None if args.ids is None else tuple(parse_ids(args.ids, "--ids")),
-        hub=args.hub, zenoh_config=args.zenoh_config, trajectory=None if args.trajectory is None else str(args.trajectory),
-        pose=None if pose is None else (pose[0], pose[1], pose[2]), seed=args.seed, model=model_config(args), motion_time=args.motion_time,
-        driver=args.driver, driver_options=tuple(args.driver_option), command_timeout=args.command_timeout,
-        gateway_config=None if args.gateway_config is None else str(args.gateway_config), max_drive_m=args.max_drive,
-        max_turn_rad=math.radians(args.max_turn_deg), ready_timeout=args.ready_timeout, world=args.world,
-        physics_params=tuple(args.physics_param), physics_speed=args.physics_speed)
+    return options_of(
+        args, PortProcessSpec if args.link else AgentHostSpec, **connection_of(args), robots=tuple(parse_ids(args.id, "--id")),
+        run_robots=None if args.ids is None else tuple(parse_ids(args.ids, "--ids")), pose=None if pose is None else (pose[0], pose[1], pose[2]),
+        model=model_config(args), command_timeout=args.command_timeout, max_drive_m=args.max_drive, max_turn_rad=math.radians(args.max_turn_deg),
+        ready_timeout=args.ready_timeout, world=args.world, physics_params=tuple(args.physics_param), physics_speed=args.physics_speed)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,18 +8,15 @@ from __future__ import annotations
 import argparse
 import sys
 
+from inchworm.bench.options import FaultsBenchOptions
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_json_option, print_json
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("faults", help="lost robots, hostile messages and radio faults: does every run complete, unchanged?")
-    p.add_argument("--seeds", type=int, default=10, help="seeds (runs) per lost-robot and gateway row (default 10)")
-    p.add_argument("--fuzz", type=int, default=10_000, help="hostile messages sent during the fuzz run (default 10000)")
-    p.add_argument("--flood", type=int, default=3000,
-                   help="idle TCP connections held on the TLS router's public listener during the stops (default 3000)")
-    p.add_argument("--flood-s", type=float, default=60.0,
-                   help="seconds the flood lasts; a stop a second during it and min(FLOOD_S, 60) s after it (default 60)")
+    add_fields(p, FaultsBenchOptions, exclude=("gateway_rows",))
     p.add_argument("--gateway-rows", default="0.05,0.05,0.05;0.2,0,0",
                    help="radio faults as 'drop,corrupt,delay_s;...' (default '0.05,0.05,0.05;0.2,0,0'; '' for none)")
     add_json_option(p)
@@ -37,11 +34,15 @@ def gateway_rows(spec: str) -> tuple[tuple[float, float, float], ...]:
     return tuple(rows)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.bench.faults import FaultsBenchOptions, bench_faults  # noqa: PLC0415
+def options(args: argparse.Namespace) -> FaultsBenchOptions:
+    """The benchmark the flags ask for."""
+    return options_of(args, FaultsBenchOptions, gateway_rows=gateway_rows(args.gateway_rows))
 
-    options = FaultsBenchOptions(args.seeds, args.fuzz, gateway_rows(args.gateway_rows), args.flood, args.flood_s)
-    result = bench_faults(options, lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
+
+def run(args: argparse.Namespace) -> int:
+    from inchworm.bench.faults import bench_faults  # noqa: PLC0415
+
+    result = bench_faults(options(args), lambda text: print(f"bench faults: {text}", file=sys.stderr, flush=True))
     if args.json:
         print_json(result.to_json())
     return 0

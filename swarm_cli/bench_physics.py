@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import argparse
 
-from coordinator.strategies import METHODS
+from inchworm.bench.options import PhysicsBenchOptions
 from swarm_cli.options import (
     add_json_option,
     add_localizer_option,
@@ -17,17 +17,12 @@ from swarm_cli.options import (
     print_result,
     selection_config,
 )
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("physics", help="the noise model's prediction against the physical world: P_f, e_l, contacts")
-    p.add_argument("--robots", type=int, default=10, help="n_r (default 10)")
-    p.add_argument("--trajectories", type=int, default=10, help="random trajectories (default 10)")
-    p.add_argument("--configs", type=int, default=10, help="configurations per trajectory (default 10)")
-    p.add_argument("--method", choices=METHODS, default="inchworm", help="motion strategy (default inchworm)")
-    p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
-    p.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
-                   help="a parameter of the physical world (runtime.world.params.PhysicsParams), repeatable")
+    add_fields(p, PhysicsBenchOptions, exclude=("workers", "run"))
     add_workers_option(p)
     add_localizer_option(p)
     add_selection_options(p)
@@ -36,12 +31,17 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.bench.physics import PhysicsBenchOptions, bench_physics  # noqa: PLC0415
+def options(args: argparse.Namespace) -> PhysicsBenchOptions:
+    """The benchmark the flags ask for (the run's options from the shared groups)."""
     from inchworm.options import RunOptions  # noqa: PLC0415
+
+    return options_of(args, PhysicsBenchOptions, workers=args.workers,
+                      run=RunOptions(model=model_config(args), localizer=args.localizer, selection=selection_config(args)))
+
+
+def run(args: argparse.Namespace) -> int:
+    from inchworm.bench.physics import bench_physics  # noqa: PLC0415
     from inchworm.progress import Progress  # noqa: PLC0415
 
-    options = PhysicsBenchOptions(args.robots, args.trajectories, args.configs, args.method, args.seed, args.workers,
-                                  RunOptions(model=model_config(args), localizer=args.localizer, selection=selection_config(args)),
-                                  tuple(args.physics_param))
-    return print_result(bench_physics(options, Progress(2 * options.trajectories, "bench physics")), args.json)
+    chosen = options(args)
+    return print_result(bench_physics(chosen, Progress(2 * chosen.trajectories, "bench physics")), args.json)

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from inchworm.specs import LinkSpec
 from swarm_cli.entry import run_standalone
-from swarm_cli.options import add_connection_options
+from swarm_cli.options import add_connection_options, connection_of
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -26,16 +26,19 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", type=Path, required=True, help="gateway config JSON (docs/gateway.md)")
-    p.add_argument("--port", required=True, help="name of the port in the config to serve")
-    p.add_argument("--run", dest="run_id", required=True, help="run id (the key space swarm/<run>/...)")
+    add_fields(p, LinkSpec)
     add_connection_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_link  # noqa: PLC0415 - zenoh when it runs
 
-    return run_link(LinkSpec(config=str(args.config), port=args.port, run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config))
+    return run_link(spec_of(args))
+
+
+def spec_of(args: argparse.Namespace) -> LinkSpec:
+    """The link spec of the flags."""
+    return options_of(args, LinkSpec, **connection_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -249,6 +249,11 @@ def add_connection_options(parser: argparse.ArgumentParser, *, required: bool = 
     parser.set_defaults(_connection_required=required)
 
 
+def connection_of(args: argparse.Namespace) -> dict[str, Any]:
+    """``--hub`` and ``--zenoh-config`` as a spec's fields (``hub``, ``zenoh_config``)."""
+    return {"hub": args.hub, "zenoh_config": args.zenoh_config}
+
+
 def connection_settings(args: argparse.Namespace) -> ZenohSettings | None:
     """The client ``ZenohSettings`` of ``--hub`` / ``--zenoh-config``; None if neither is given and not required."""
     from runtime.wire.transport import ZenohSettings  # noqa: PLC0415 - zenoh, only when a command runs

@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from inchworm.specs import RecorderSpec
 from swarm_cli.entry import portable_command, run_standalone
-from swarm_cli.options import add_connection_options
+from swarm_cli.options import add_connection_options, connection_of
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -26,21 +26,14 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--run", dest="run_id", required=True, help="run id (records swarm/<run>/**)")
+    add_fields(p, RecorderSpec, only=("run_id",))
     add_connection_options(p)
-    p.add_argument("--out", type=Path, default=None, help="MCAP file to write (default recordings/<run>.mcap)")
-    p.add_argument("--seed", type=int, default=None, help="seed of the run, stored in the run metadata")
-    p.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON of the run, stored in the run metadata")
-    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                   help="extra run metadata (repeatable; VALUE parsed as JSON when it is JSON)")
-    p.add_argument("--json", action="store_true", help="print one JSON object as the last line")
+    add_fields(p, RecorderSpec, exclude=("run_id",))
 
 
 def spec_of(args: argparse.Namespace) -> RecorderSpec:
     """The ``RecorderSpec`` of the parsed flags."""
-    return RecorderSpec(run_id=args.run_id, hub=args.hub, zenoh_config=args.zenoh_config, out=None if args.out is None else str(args.out),
-                        seed=args.seed, trajectory=None if args.trajectory is None else str(args.trajectory), params=tuple(args.param),
-                        json=args.json, command=portable_command("swarm record", sys.argv[1:]))
+    return options_of(args, RecorderSpec, **connection_of(args), command=portable_command("swarm record", sys.argv[1:]))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -17,7 +17,9 @@ import sys
 from pathlib import Path
 
 from inchworm.limits import MODEL_FLAGS
+from inchworm.replay import CheckOptions, PublishOptions
 from swarm_cli.options import add_json_option, add_localizer_option, add_model_options, add_selection_options, print_json
+from swarm_cli.schema import add_fields, options_of
 
 EXIT_DIVERGED = 1
 MODEL_OPTIONS = tuple(MODEL_FLAGS)  # the model flags' dests
@@ -31,19 +33,10 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     mode.add_argument("--publish", action="store_true", help="publish every recorded message again with its timing")
     mode.add_argument("--check", action="store_true", help="re-run localization and anchor selection, compare bit for bit")
     g = p.add_argument_group("--publish")
-    g.add_argument("--speed", type=float, default=1.0, help="time scale (default 1 = recorded timing; 0 or inf: as fast as possible)")
-    g.add_argument("--hub", default=None, help="Zenoh endpoint of a hub to join (default: the hub of the recorded run if it is live "
-                                               "on this host, else a loopback hub of its own, printed)")
-    g.add_argument("--wait", type=float, default=10.0, help="seconds to wait for a subscriber before publishing (default 10)")
-    target = g.add_mutually_exclusive_group()
-    target.add_argument("--run", dest="run_id", default=None, help="run id to publish under (default <run>-replay-<hex>)")
-    target.add_argument("--same-run", action="store_true", help="publish under the recorded run id, bytes unchanged")
+    add_fields(g, PublishOptions, only=("speed", "hub", "wait"))
+    add_fields(g.add_mutually_exclusive_group(), PublishOptions, only=("run_id", "same_run"))
     c = p.add_argument_group("--check (options given override the recorded ones)")
-    c.add_argument("--seed", type=int, default=None, help="seed of the initial estimate and the anchor search")
-    c.add_argument("--trajectory", type=Path, default=None, help="trajectory JSON, if the recording has none in its metadata")
-    c.add_argument("--what-if", action="store_true",
-                   help="allow options that contradict the recording's metadata (refused otherwise): re-run with them and report "
-                        "where the results part")
+    add_fields(c, CheckOptions, only=("seed", "trajectory", "what_if"))
     add_localizer_option(p)
     add_selection_options(p)
     add_model_options(p)
@@ -63,12 +56,23 @@ def _warn(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def publish_options(args: argparse.Namespace) -> PublishOptions:
+    """``--publish``'s options of the flags."""
+    return options_of(args, PublishOptions, file=args.file)
+
+
+def check_options(args: argparse.Namespace) -> CheckOptions:
+    """``--check``'s options of the flags (None, the recorded value, for each flag not given)."""
+    return options_of(args, CheckOptions, file=args.file, localizer=args.localizer, model_file=args.model,
+                      model_flags={name: getattr(args, name) for name in MODEL_OPTIONS},
+                      selection={name: getattr(args, name) for name in SELECTION_OPTIONS})
+
+
 def run_publish(args: argparse.Namespace) -> int:
-    from inchworm.replay import PublishOptions, publish  # noqa: PLC0415 - zenoh only when publishing
+    from inchworm.replay import publish  # noqa: PLC0415 - zenoh only when publishing
     from runtime.wire.keys import ROOT  # noqa: PLC0415
 
-    r = publish(PublishOptions(args.file, speed=args.speed, hub=args.hub, wait=args.wait, run_id=args.run_id, same_run=args.same_run),
-                say=_say, warn=_warn)
+    r = publish(publish_options(args), say=_say, warn=_warn)
     print(f"replayed {r.messages} messages on {r.keys} keys in {r.elapsed_s:.3f} s "
           f"(recorded span {r.recorded_s:.3f} s, speed {'max' if r.fast else f'{args.speed:g}'})"
           + (f"; {r.skipped} messages of derived channels (outside {ROOT}/) not published" if r.skipped else ""), flush=True)
@@ -79,12 +83,9 @@ def run_publish(args: argparse.Namespace) -> int:
 
 def run_check(args: argparse.Namespace) -> int:
     from coordinator.replay_check import CROSS_PLATFORM_RTOL  # noqa: PLC0415 - scipy when checking, not for --help
-    from inchworm.replay import CheckOptions, check_recording  # noqa: PLC0415
+    from inchworm.replay import check_recording  # noqa: PLC0415
 
-    options = CheckOptions(args.file, localizer=args.localizer, seed=args.seed, trajectory=args.trajectory, model_file=args.model,
-                           model_flags={name: getattr(args, name) for name in MODEL_OPTIONS},
-                           selection={name: getattr(args, name) for name in SELECTION_OPTIONS}, what_if=args.what_if)
-    outcome = check_recording(options, warn=_warn)
+    outcome = check_recording(check_options(args), warn=_warn)
     result, model, selection, against = outcome.result, outcome.model, outcome.selection, outcome.against_flags
     s = result.settings
     print(f"checking {args.file}: method {s['method']}, {s['localizer']} localizer, seed {s['seed']}"

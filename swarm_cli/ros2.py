@@ -22,12 +22,12 @@ discovery range and middleware (``ROS_DOMAIN_ID``, ``ROS_AUTOMATIC_DISCOVERY_RAN
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from inchworm.specs import Ros2BridgeSpec, Ros2RobotsSpec
 from runtime.errors import SwarmInputError
 from swarm_cli.entry import OneLineParser, guarded, leave, limit_blas_threads
-from swarm_cli.options import add_connection_options, add_model_options, model_config, positive
+from swarm_cli.options import add_connection_options, add_model_options, connection_of, model_config, positive
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -39,36 +39,15 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 def add_arguments(p: argparse.ArgumentParser) -> None:
     what = p.add_subparsers(dest="ros2_command", required=True, metavar="{robots,bridge}")
     r = what.add_parser("robots", help="simulated robots of a trajectory speaking the ROS 2 driver's topics, until Ctrl-C")
-    r.add_argument("--trajectory", type=Path, required=True, help="trajectory JSON: the robots and their initial poses")
-    r.add_argument("--seed", type=int, default=0, help="seed of the motion and sensing noise (default 0)")
-    r.add_argument("--world", default="kinematic",
-                   help="the world the robots move in: kinematic (the project's noise model, the default) or physics (a rigid-body "
-                        "world: wheels within their limits that slip, bodies that push; pip install 'inchworm-swarm[physics]')")
-    r.add_argument("--physics-param", action="append", default=[], metavar="NAME=VALUE",
-                   help="with --world physics: a parameter of the physical world (docs/physics.md), repeatable")
-    r.add_argument("--run", dest="run_id", default=None,
-                   help="with --world physics: the run whose record gets the world's contacts, stalls and poses (PhysicsEvent)")
-    r.add_argument("--hub", default=None, help="with --run: the run's Zenoh endpoint (default: the run file of a run on this host)")
-    r.add_argument("--driver-option", action="append", default=[], metavar="KEY=VALUE",
-                   help="the ROS 2 driver's settings the robots share with it: config=FILE, namespace, frame, topic names "
-                        "(docs/ros2.md); repeatable")
-    r.add_argument("--rate", type=positive, default=50.0, help="world steps and odometry per second (default 50)")
-    r.add_argument("--sensing-rate", type=positive, default=10.0, help="sensor frames per second on neighbors (default 10)")
-    r.add_argument("--no-ground-truth", action="store_true",
-                   help="publish no true pose (default: on the settings' ground_truth topic, else ground_truth)")
+    add_fields(r, Ros2RobotsSpec, exclude=("sightings_twice", "late_sightings"), types={"rate": positive, "sensing_rate": positive})
     r.add_argument("--no-odom", default="", metavar="IDS", help="robots that publish no odometry (e.g. 1,3)")
     r.add_argument("--silent", action="append", default=[], metavar="ID@N",
                    help="fault: robot ID stops publishing (and moving) when its N-th motion starts; repeatable")
-    r.add_argument("--sightings-twice", action="store_true", help="fault: every sighting is published twice")
-    r.add_argument("--late-sightings", type=float, default=0.0, metavar="S",
-                   help="fault: every sighting is published again S seconds later with its original stamp")
+    add_fields(r, Ros2RobotsSpec, only=("sightings_twice", "late_sightings"))
     add_model_options(r)
     r.set_defaults(run=run_robots)
     b = what.add_parser("bridge", help="publish a run's estimates and markers in ROS 2 and serve /swarm/estop")
-    b.add_argument("--run", dest="run_id", required=True, help="run id")
-    b.add_argument("--trajectory", type=Path, default=None, help="the run's trajectory JSON, for the desired configuration markers")
-    b.add_argument("--robot-radius", type=float, default=None, help="body radius of the markers in m (default the model's)")
-    b.add_argument("--wait", type=float, default=0.0, metavar="S", help="wait up to S seconds for the run to start (default 0)")
+    add_fields(b, Ros2BridgeSpec)
     add_connection_options(b, required=False)
     b.set_defaults(run=run_bridge)
 
@@ -85,20 +64,27 @@ def _silent(specs: list[str]) -> dict[int, int]:
 
 def run_robots(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_ros2_robots  # noqa: PLC0415 - numpy and ROS 2 only when a command runs
+
+    return run_ros2_robots(robots_spec(args))
+
+
+def robots_spec(args: argparse.Namespace) -> Ros2RobotsSpec:
+    """The spec of ``swarm ros2 robots``'s flags."""
     from robot_agent.assembly import parse_ids  # noqa: PLC0415
 
-    return run_ros2_robots(Ros2RobotsSpec(
-        trajectory=str(args.trajectory), seed=args.seed, model=model_config(args), world=args.world, physics_params=tuple(args.physics_param),
-        run_id=args.run_id, hub=args.hub, driver_options=tuple(args.driver_option), rate=args.rate, sensing_rate=args.sensing_rate,
-        no_ground_truth=args.no_ground_truth, no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else (),
-        silent=_silent(args.silent), sightings_twice=args.sightings_twice, late_sightings=args.late_sightings))
+    return options_of(args, Ros2RobotsSpec, model=model_config(args), silent=_silent(args.silent),
+                      no_odom=tuple(parse_ids(args.no_odom, "--no-odom")) if args.no_odom else ())
 
 
 def run_bridge(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_ros2_bridge  # noqa: PLC0415 - ROS 2 and zenoh only when bridging
 
-    return run_ros2_bridge(Ros2BridgeSpec(run_id=args.run_id, trajectory=None if args.trajectory is None else str(args.trajectory),
-                                          robot_radius=args.robot_radius, wait=args.wait, hub=args.hub, zenoh_config=args.zenoh_config))
+    return run_ros2_bridge(bridge_spec(args))
+
+
+def bridge_spec(args: argparse.Namespace) -> Ros2BridgeSpec:
+    """The spec of ``swarm ros2 bridge``'s flags."""
+    return options_of(args, Ros2BridgeSpec, **connection_of(args))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -30,8 +30,7 @@ import sys
 
 from inchworm.specs import RouterSpec
 from swarm_cli.entry import run_standalone
-
-DEFAULT_LISTEN = "tcp/0.0.0.0:7447"  # as runtime.wire.router
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -41,17 +40,18 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
-                   help=f"endpoint to listen on, repeatable (default: the config file's, else {DEFAULT_LISTEN})")
-    p.add_argument("--config", default=None, metavar="FILE",
-                   help="Zenoh JSON5 config file, e.g. deploy/zenoh-router-tls-acl.json5 (TLS, access control)")
-    p.add_argument("--json", action="store_true", help="print one JSON object on stdout once listening")
+    add_fields(p, RouterSpec)  # every flag is a field of the spec
 
 
 def run(args: argparse.Namespace) -> int:
     from inchworm.process_mains import run_router  # noqa: PLC0415 - zenoh when it runs
 
-    return run_router(RouterSpec(listen=tuple(args.listen), config=args.config, json=args.json))
+    return run_router(spec_of(args))
+
+
+def spec_of(args: argparse.Namespace) -> RouterSpec:
+    """The router spec of the flags."""
+    return options_of(args, RouterSpec)
 
 
 def main(argv: list[str] | None = None) -> int:

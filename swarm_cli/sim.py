@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     from inchworm import simulate  # noqa: PLC0415 - scipy and matplotlib when it runs, not for --help
     from inchworm.plots import write_run_plots  # noqa: PLC0415
     from inchworm.runner import write_rows  # noqa: PLC0415
-    from inchworm.simulation import config_rows, config_table, contacts_json, contacts_text, fallback_steps, world_json, world_text  # noqa: PLC0415
+    from inchworm.simulation import config_rows, config_table, contacts_text, world_text  # noqa: PLC0415
 
     chosen = options(args)
     cfg, method, localizer = chosen.model, str(chosen.method), str(chosen.localizer)
@@ -79,8 +79,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"P_f = {result.pf():.4f} ({method}, {localizer} localizer{world}); wrote {used}, {args.out / 'configs.csv'}, "
           f"{', '.join(plots)}")
     if args.json:
-        print_json({"method": method, "localizer": localizer, "seed": chosen.seed, "pf": result.pf(),
-                    "mc_start": chosen.selection.mc_start, "mc_emax": chosen.selection.mc_emax, "configs": rows,
-                    "fallback_steps": len(fallback_steps(result)), "plots": plots,
-                    **contacts_json(result, cfg.robot_radius_m), **world_json(result, chosen.world)})
+        print_json(result.to_json(plots))
     return 0

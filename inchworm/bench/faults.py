@@ -49,7 +49,6 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +56,7 @@ import msgpack
 import numpy as np
 
 from inchworm.bench import BenchResult
+from inchworm.bench.options import FaultsBenchOptions
 from inchworm.output import last_json
 from inchworm.progress import Progress
 from inchworm.spawn import Spawned, run_process
@@ -69,15 +69,6 @@ from runtime.wire.messages import MotionCommand, ObservationReport, ObserveReque
 
 if TYPE_CHECKING:
     from coordinator.run_result import RunResult
-
-
-@dataclass(frozen=True)
-class FaultsBenchOptions:
-    seeds: int = 10  # runs per lost-robot and gateway row
-    fuzz: int = 10_000  # hostile messages sent during the fuzz run
-    gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
-    flood: int = 3000  # idle TCP connections held on the TLS router's public listener
-    flood_s: float = 60.0  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
 
 
 # -- lost robot ------------------------------------------------------------------------------
@@ -254,15 +245,15 @@ def same_table(summary: dict[str, Any], ref: RunResult) -> bool:
 # -- the command ----------------------------------------------------------------------------------
 
 
-def bench_faults(options: FaultsBenchOptions = FaultsBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
+def bench_faults(options: FaultsBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
     """The gateway rows, the lost robot, the fuzz run, the coordinator takeover and the stop under a connection flood;
-    ``say`` is told each part's result as it ends."""
+    ``say`` is told each part's result as it ends (``options`` None: the defaults)."""
     from inchworm.bench.estop_flood import estop_under_flood  # noqa: PLC0415
     from inchworm.bench.faults_gateway import gateway_fault_rows  # noqa: PLC0415
     from inchworm.bench.faults_stalls import coordinator_stall, rejoin  # noqa: PLC0415
     from inchworm.bench.forged_links import forged_link_requests  # noqa: PLC0415
 
-    o = options
+    o = options or FaultsBenchOptions()
     _say = say or (lambda _text: None)
     for name, low in (("seeds", 1), ("fuzz", 0), ("flood", 1)):
         if getattr(o, name) < low:

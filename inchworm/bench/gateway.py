@@ -24,35 +24,22 @@ import subprocess
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from inchworm.bench import BenchResult
-from inchworm.bench.runtime import RuntimeBenchOptions, measure
+from inchworm.bench.options import GatewayBenchOptions, RuntimeBenchOptions
+from inchworm.bench.runtime import measure
 from robot_agent.link import SerialLink
 from runtime.errors import OptionError
 from runtime.gateway.config import GatewayConfig, Port
-from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
 
 TARGET_CODEC = 100_000
 TARGET_RTT_MS = 2.0
 TARGET_RATIO = 1.5
-
-
-@dataclass(frozen=True)
-class GatewayBenchOptions:
-    robots: int = 10  # agents of the step-time comparison
-    steps: int = 60  # steps timed per driver and round
-    rounds: int = 2  # rounds of sim then gateway, steps pooled per driver
-    frames: int = 200_000  # frames through the codec
-    commands: int = 300  # commands of the pty round trip
-    seed: int = 0
-    localizer: str = "paper"
-    model: ModelConfig = field(default_factory=ModelConfig)
 
 
 def codec_frames_per_s(count: int) -> float:
@@ -115,9 +102,10 @@ def pty_roundtrip_ms(commands: int, seed: int) -> list[float]:
     return times[10:] if len(times) > 20 else times  # without the warm-up
 
 
-def bench_gateway(options: GatewayBenchOptions = GatewayBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """Codec throughput, pty round trip, and the step time of the gateway against the simulated driver."""
-    args = options
+def bench_gateway(options: GatewayBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
+    """Codec throughput, pty round trip, and the step time of the gateway against the simulated driver (``options``
+    None: the defaults)."""
+    args = options or GatewayBenchOptions()
     _say = say or (lambda _text: None)
     for name, low in (("robots", 2), ("steps", 1), ("frames", 1000), ("commands", 1), ("rounds", 1)):
         if getattr(args, name) < low:

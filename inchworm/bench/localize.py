@@ -23,6 +23,7 @@ import numpy as np
 
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from inchworm.bench import BenchResult
+from inchworm.bench.options import LocalizeBenchOptions
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 
@@ -34,17 +35,6 @@ METHODS = BUILTIN_LOCALIZERS  # the built-in localizers: the keys of the JSON re
 CRLB_LIMIT = 1000  # robots; the bound is a dense (3n x 3n) inverse
 SPACING_M = 0.25
 GAUSSIAN_FLOOR = 1e-12  # variance added to the GTSAM prior covariances (exact anchors)
-
-
-@dataclass(frozen=True)
-class LocalizeBenchOptions:
-    sizes: tuple[int, ...] = (10, 100, 1000)
-    trials: int = 5  # random steps per size
-    repeats: int = 5  # timing repetitions per step
-    seed: int = 0  # trial t uses seed + t
-    gtsam: bool = True  # the GTSAM reference, when it is installed
-    model: ModelConfig = field(default_factory=ModelConfig)
-    still_prior_m: float | None = None  # prior position std of the robots that do not move (anchors); None: the movers' 0.02 m
 
 
 def load_gtsam() -> Any | None:
@@ -227,9 +217,9 @@ def table(results: list[dict[str, Any]], gtsam_used: bool) -> str:
     return "\n".join(lines)
 
 
-def bench_localize(options: LocalizeBenchOptions = LocalizeBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """Time and accuracy per swarm size; ``say`` is told each trial as it starts."""
-    o = options
+def bench_localize(options: LocalizeBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
+    """Time and accuracy per swarm size (``options`` None: the defaults); ``say`` is told each trial as it starts."""
+    o = options or LocalizeBenchOptions()
     for name in ("trials", "repeats"):
         if getattr(o, name) < 1:
             raise OptionError(name, f"must be >= 1, got {getattr(o, name)}", o)

@@ -19,30 +19,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
-from inchworm.options import RunOptions
+from inchworm.bench.options import PhysicsBenchOptions
 from runtime.errors import OptionError
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 WORLDS = ("model", "physics")
-
-
-@dataclass(frozen=True)
-class PhysicsBenchOptions:
-    robots: int = 10
-    trajectories: int = 10
-    configs: int = 10
-    method: str = "inchworm"
-    seed: int = 0  # trajectory t uses seed + t
-    workers: int = 1
-    run: RunOptions = field(default_factory=RunOptions)
-    physics: tuple[str, ...] = ()  # --physics-param NAME=VALUE
 
 
 def run_one(job: tuple[int, str, PhysicsBenchOptions]) -> dict[str, Any]:
@@ -82,9 +69,9 @@ def check(o: PhysicsBenchOptions) -> None:
     parse_physics_params(list(o.physics), o.run.model)
 
 
-def bench_physics(options: PhysicsBenchOptions = PhysicsBenchOptions(), progress: Callable[[int], None] | None = None) -> BenchResult:
-    """Run every trajectory in both worlds; ``progress`` is told the runs done."""
-    o = options
+def bench_physics(options: PhysicsBenchOptions | None = None, progress: Callable[[int], None] | None = None) -> BenchResult:
+    """Run every trajectory in both worlds (``options`` None: the defaults); ``progress`` is told the runs done."""
+    o = options or PhysicsBenchOptions()
     check(o)
     jobs = [(t, w, o) for t in range(o.trajectories) for w in WORLDS]
     runs: list[dict[str, Any]] = []

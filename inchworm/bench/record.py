@@ -33,13 +33,13 @@ import statistics
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from inchworm.bench import BenchResult
+from inchworm.bench.options import RecordBenchOptions
 from runtime.errors import OptionError
 from runtime.recording.mcap_log import McapRecorder
 from runtime.wire.messages import (
@@ -61,16 +61,6 @@ SPACING_M = 0.25
 SENSING_M = 0.5
 TARGET_PCT = 5.0
 MB = 2**20
-
-
-@dataclass(frozen=True)
-class RecordBenchOptions:
-    sizes: tuple[int, ...] = field(default=(10, 50), metadata={"flag": "--robots"})
-    steps: int = 40  # steps of messages recorded per run
-    steps_per_config: int = 4  # one PlanMessage per configuration
-    repeats: int = 3  # recordings per size and mode, median reported
-    step_ms: tuple[float, ...] = (20.0, 100.0)  # coordination time of a step without recording (ms): one value or one per size
-    seed: int = 0
 
 
 def step_messages(n: int, step: int, rng: np.random.Generator, *, plan: bool) -> list[tuple[str, bytes]]:
@@ -121,9 +111,10 @@ def record_once(messages: list[tuple[str, bytes]], trajectory: dict[str, Any], f
     return out
 
 
-def bench_record(options: RecordBenchOptions = RecordBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """Record ``steps`` steps of messages per size, with and without the derived channels; ``say`` gets each table line."""
-    args = options
+def bench_record(options: RecordBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
+    """Record ``steps`` steps of messages per size, with and without the derived channels (``options`` None: the
+    defaults); ``say`` gets each table line."""
+    args = options or RecordBenchOptions()
     sizes = list(args.sizes)
     step_ms = list(args.step_ms)
     if not sizes or min(sizes) < 1:

@@ -50,7 +50,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -58,8 +57,8 @@ import msgspec
 import numpy as np
 
 from inchworm.bench import BenchResult
+from inchworm.bench.options import RuntimeBenchOptions
 from runtime.errors import OptionError, SwarmRunError
-from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 if TYPE_CHECKING:
@@ -72,20 +71,6 @@ if TYPE_CHECKING:
     from runtime.models.state import Observations, StepCommands, SwarmEstimate
 
 METHODS = ("no-anchors", "ref57")
-
-
-@dataclass(frozen=True)
-class RuntimeBenchOptions:
-    agents: tuple[int, ...] = (10, 50)  # swarm sizes
-    agents_per_process: int | None = None  # None: as swarm launch (1 up to 50 robots, else up to 50)
-    steps: int = 20  # steps timed per swarm size
-    method: str = "no-anchors"  # a fixed plan: no-anchors (all move each step) or ref57
-    seed: int = 0
-    rtt_count: int = 200  # pings of the raw Zenoh round trip
-    start_timeout_s: float = 120.0
-    step_timeout_s: float = 10.0
-    localizer: str = "paper"
-    model: ModelConfig = field(default_factory=ModelConfig)
 
 
 class EnoughSteps(Exception):
@@ -293,11 +278,12 @@ def _p90(values: list[float]) -> float:
     return round(statistics.quantiles(values, n=10)[-1], 3) if len(values) >= 2 else round(values[0], 3)
 
 
-def bench_runtime(options: RuntimeBenchOptions = RuntimeBenchOptions()) -> BenchResult:
-    """Time the steps of a distributed run per swarm size; ``AgentError`` if agents did not come up or died."""
+def bench_runtime(options: RuntimeBenchOptions | None = None) -> BenchResult:
+    """Time the steps of a distributed run per swarm size (``options`` None: the defaults); ``AgentError`` if agents
+    did not come up or died."""
     from coordinator.node.zenoh_backend import AgentError  # noqa: PLC0415
 
-    args = options
+    args = options or RuntimeBenchOptions()
     sizes = list(args.agents)
     if not sizes or min(sizes) < 2:
         raise OptionError("agents", f"must list integers >= 2, got {args.agents}", args)

@@ -17,33 +17,23 @@ import os
 import statistics
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from inchworm.bench import BenchResult
-from inchworm.options import RunOptions
+from inchworm.bench.options import SelectBenchOptions
 from runtime.errors import OptionError
 from runtime.models.state import SwarmEstimate
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 
-@dataclass(frozen=True)
-class SelectBenchOptions:
-    sizes: tuple[int, ...] = (10, 30, 100)
-    repeats: int = 3  # selections per size, each on a new random step
-    seed: int = 0
-    one_core: bool = True
-    run: RunOptions = field(default_factory=RunOptions)
-    search_all: bool = False  # every count through the inner loop (no outer-loop bound)
-
-
-def bench_select(options: SelectBenchOptions = SelectBenchOptions(), say: Callable[[str], None] | None = None) -> BenchResult:
-    """Time ``repeats`` selections per size; ``say`` is told each selection as it starts."""
+def bench_select(options: SelectBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
+    """Time ``repeats`` selections per size (``options`` None: the defaults); ``say`` is told each selection as it starts."""
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.selection.selector import AnchorSelector  # noqa: PLC0415
 
-    o = options
+    o = options or SelectBenchOptions()
     if o.repeats < 1:
         raise OptionError("repeats", f"must be >= 1, got {o.repeats}", o)
     if not o.sizes or min(o.sizes) < 2:

@@ -70,6 +70,22 @@ def test_estop_stops_the_run_and_leaving_the_block_leaves_no_process(tmp_path):
     assert alive(started) == []
 
 
+def test_the_whole_anchor_search_reaches_the_coordinator(tmp_path):
+    """The launcher's child gets every field of the options (its launch spec), the search's fields that no flag sets too:
+    the coordinator records them."""
+    from coordinator.selection.genetic import GeneticConfig
+    from coordinator.selection.selector import SelectionConfig
+    from runtime.recording.mcap_log import recording_info
+
+    selection = SelectionConfig(final_samples=64, genetic=GeneticConfig(patience=5), mc_start="estimate")
+    options = LaunchOptions(swarm=SwarmOptions(robots=3, configs=1, method="no-anchors", selection=selection),
+                            outputs=OutputOptions(record=tmp_path / "run.mcap", out=tmp_path))
+    with inchworm.Swarm(options) as run:
+        assert run.wait(timeout=120).status == 0
+    recorded = recording_info(tmp_path / "run.mcap")["metadata"]["run"]["selection"]
+    assert (recorded["final_samples"], recorded["genetic"]["patience"], recorded["mc_start"]) == (64, 5, "estimate")
+
+
 def test_a_run_that_cannot_start_raises_the_launchers_error(tmp_path):
     options = LaunchOptions(swarm=SwarmOptions(robots=3, min_robots=5), outputs=OutputOptions(no_record=True, out=tmp_path),
                             faults=FaultOptions())

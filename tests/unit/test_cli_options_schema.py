@@ -27,6 +27,14 @@ def _launch_options(args: argparse.Namespace) -> Any:
     return launch_options(spec_of(args))
 
 
+def _bench_physics_options(args: argparse.Namespace) -> Any:
+    """``swarm bench physics``'s options, ``--workers`` aside (the command's default: every core; the library's: 1)."""
+    from swarm_cli.bench_physics import options
+
+    assert args.workers >= 1
+    return dataclasses.replace(options(args), workers=1)
+
+
 # command, what makes its options from the parsed flags, the options classes (the first: what the defaults make), and
 # the fields whose flags shared groups make or whose command-line form differs (checked through the options made)
 COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
@@ -51,6 +59,15 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
                                    "inchworm.launch_options:OutputOptions"),
      ("swarm", "driver", "faults", "outputs", "model", "model_file", "selection", "trajectory_seed", "rejoin", "physics_params",
       "options", "command")),
+    ("bench localize", "swarm_cli.bench_localize:options", ("inchworm.bench.options:LocalizeBenchOptions",), ("model",)),
+    # bench select: --all-cores is one_core off
+    ("bench select", "swarm_cli.bench_select:options", ("inchworm.bench.options:SelectBenchOptions",), ("one_core", "run")),
+    ("bench record", "swarm_cli.bench_record:options", ("inchworm.bench.options:RecordBenchOptions",), ()),
+    ("bench runtime", "swarm_cli.bench_runtime:options", ("inchworm.bench.options:RuntimeBenchOptions",), ("localizer", "model")),
+    ("bench gateway", "swarm_cli.bench_gateway:options", ("inchworm.bench.options:GatewayBenchOptions",), ("localizer", "model")),
+    # bench faults: --gateway-rows is 'drop,corrupt,delay_s;...'
+    ("bench faults", "swarm_cli.bench_faults:options", ("inchworm.bench.options:FaultsBenchOptions",), ("gateway_rows",)),
+    ("bench physics", "_bench_physics_options", ("inchworm.bench.options:PhysicsBenchOptions",), ("workers", "run")),
 ]
 
 
@@ -80,6 +97,20 @@ def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str,
             assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
     made: Callable[[argparse.Namespace], Any] = globals()[maker] if ":" not in maker else _named(maker)
     assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
+
+
+def test_replays_flags_are_its_options_fields() -> None:
+    """``swarm replay``: the flags of ``PublishOptions`` and ``CheckOptions`` make their defaults (the file positional,
+    the shared groups' overrides None: the recorded values)."""
+    from inchworm.replay import CheckOptions, PublishOptions
+    from swarm_cli.replay import MODEL_OPTIONS, SELECTION_OPTIONS, check_options, publish_options
+
+    parse = build_parser(["replay"]).parse_args
+    assert publish_options(parse(["replay", "r.mcap", "--publish"])) == PublishOptions("r.mcap")
+    assert publish_options(parse(["replay", "r.mcap", "--publish", "--run=lab", "--wait=0"])) == PublishOptions("r.mcap", run_id="lab", wait=0.0)
+    none = {"model_flags": dict.fromkeys(MODEL_OPTIONS), "selection": dict.fromkeys(SELECTION_OPTIONS)}
+    assert check_options(parse(["replay", "r.mcap", "--check"])) == CheckOptions("r.mcap", **none)
+    assert check_options(parse(["replay", "r.mcap", "--check", "--seed=4", "--what-if"])) == CheckOptions("r.mcap", seed=4, what_if=True, **none)
 
 
 def test_the_genetic_gain_evaluates_on_its_own_samples_unless_given(tmp_path) -> None:

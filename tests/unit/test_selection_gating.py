@@ -13,7 +13,8 @@ from coordinator.selection.heuristic import heuristic_plan
 from coordinator.selection.monte_carlo import MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.repair import conflicts, repair
 from coordinator.selection.selector import AnchorSelector, SelectionConfig, genetic_pays, samples_for
-from inchworm.bench.select import SelectBenchOptions, bench_select
+from inchworm.bench.options import SelectBenchOptions
+from inchworm.bench.select import bench_select
 from inchworm.options import RunOptions
 from runtime.errors import SwarmInputError
 from runtime.models.bodies import BodyCheck

@@ -43,14 +43,17 @@ AGENT = dict(run_id="r-1", robots=(3, 7), run_robots=(0, 3, 7, 499), hub="tcp/12
              pose=(-1.5, 2.25, -math.pi + 1e-12), seed=2**63 - 1, model=MODEL, motion_time=0.4, driver="pkg.mod:Bot",
              driver_options=("a=1", "b=x=y"), command_timeout=2.5, gateway_config="gw.json", max_drive_m=0.7, max_turn_rad=3.0,
              ready_timeout=11.0, world="physics", physics_params=("max_wheel_speed_m_s=0.1",), physics_speed=2.0)
+SELECTION = SelectionSpec(  # every field off its default but mc_emax ("worst" needs the mc method)
+    w_v=0.25, samples=5, population=4, generations=2, method="crlb", mc_start="estimate", mc_emax="mean", genetic="off",
+    w_l=0.75 + 1e-12, anchor_counts=(1, 3), final_samples=64, contenders=5, screened_contenders=3, final_looks=2, prune_gain=0.5, window=40,
+    max_steps=6, patience=5, elite=1, mutation=0.2, swaps=3, screened=4)
 FULL: dict[type[ProcessSpec], ProcessSpec] = {
     AgentHostSpec: AgentHostSpec(**AGENT),
     PortProcessSpec: PortProcessSpec(**AGENT),
     LinkSpec: LinkSpec(config="live.json", port="radio1", run_id="lab", hub="tcp/10.0.0.1:7447", zenoh_config="tls.json5"),
     CoordinatorSpec: CoordinatorSpec(
         trajectory="t.json", run_id="lab", hub="tcp/h:1", zenoh_config="c.json5", method="ref57", seed=9, localizer="joint", model=MODEL,
-        model_file="m.toml", selection=SelectionSpec(w_v=0.25, samples=5, population=4, generations=2, method="crlb", mc_start="estimate",
-                                                     mc_emax="mean", genetic="off"),
+        model_file="m.toml", selection=SELECTION,
         start_timeout=61.0, step_timeout=7.5, on_lost="abort", min_robots=3, truth=False, result="r.json", out="o", rejoin=False,
         standby=True, resume="old.mcap", record="x.mcap", no_record=True, on_record_error="stop", foxglove=8766, linger=0.5, json=True,
         command="swarm coordinator --run=lab"),
@@ -167,6 +170,48 @@ def test_the_commands_build_the_specs_from_their_flags():
     assert decode_spec(encode_spec(spec)) == spec
 
 
+# the process commands whose flags their spec declares (inchworm.specs.cli): the least flags, how the command makes the
+# spec, the spec those make (every other field its default), and the fields the command makes apart (shared groups,
+# converted flags) or leaves to the library
+SPEC_COMMANDS = [
+    (["router"], "swarm_cli.router:spec_of", RouterSpec(), ()),
+    (["link", "--config=gw.json", "--port=radio0", "--run=lab"], "swarm_cli.link:spec_of", LinkSpec(config="gw.json", port="radio0", run_id="lab"),
+     ("hub", "zenoh_config")),
+    (["record", "--run=lab"], "swarm_cli.record:spec_of", RecorderSpec(run_id="lab"), ("hub", "zenoh_config", "command")),
+    (["coordinator", "--trajectory=t.json", "--run=lab"], "swarm_cli.coordinator_cmd:spec_of", CoordinatorSpec(trajectory="t.json", run_id="lab"),
+     ("hub", "zenoh_config", "localizer", "model", "model_file", "selection", "rejoin", "json", "command")),
+    (["agent", "--id=0", "--run=lab"], "swarm_cli.agent:spec_of", None,
+     ("robots", "run_robots", "hub", "zenoh_config", "pose", "model", "command_timeout", "max_drive_m", "max_turn_rad", "ready_timeout", "world",
+      "physics_params", "physics_speed")),
+    (["emulate-robots", "--config=gw.json", "--trajectory=t.json"], "swarm_cli.emulate:spec_of", EmulatorSpec(config="gw.json", trajectory="t.json"),
+     ("hub", "zenoh_config", "model", "drop_rx", "drop_tx", "blackout")),
+    (["ros2", "robots", "--trajectory=t.json"], "swarm_cli.ros2:robots_spec", Ros2RobotsSpec(trajectory="t.json"), ("model", "no_odom", "silent")),
+    (["ros2", "bridge", "--run=lab"], "swarm_cli.ros2:bridge_spec", Ros2BridgeSpec(run_id="lab"), ("hub", "zenoh_config")),
+]
+
+
+@pytest.mark.parametrize(("argv", "maker", "expected", "apart"), SPEC_COMMANDS,
+                         ids=[" ".join(w for w in c[0][:2] if not w.startswith("-")) for c in SPEC_COMMANDS])
+def test_a_process_commands_flags_are_its_specs_fields(argv, maker, expected, apart):
+    """The command's defaults make the spec's defaults, and every field of the spec declares its flag or is made apart
+    (a new field without either fails here)."""
+    import importlib
+
+    from robot_agent.agent import READY_TIMEOUT_S
+    from runtime.wire.messages import CommandLimits
+    from swarm_cli.main import build_parser
+    from swarm_cli.schema import spec_fields
+
+    module, name = maker.split(":")
+    made = getattr(importlib.import_module(module), name)(build_parser(argv).parse_args(argv))
+    if expected is None:  # swarm agent: its limits' defaults are the agent's, in the flags' units
+        expected = AgentHostSpec(run_id="lab", robots=(0,), max_drive_m=CommandLimits().max_drive_m, ready_timeout=READY_TIMEOUT_S,
+                                 max_turn_rad=math.radians(math.degrees(CommandLimits().max_turn_rad)))
+    assert made == (msgspec.structs.replace(expected, command=made.command) if hasattr(expected, "command") else expected)
+    flagged = {f.name for f in spec_fields(type(expected))}
+    assert flagged.isdisjoint(apart) and {f.name for f in msgspec.structs.fields(type(expected))} - {"version"} == flagged | set(apart)
+
+
 def test_the_selection_spec_names_what_the_search_options_set():
     from coordinator.selection.selector import SelectionConfig
     from inchworm.limits import selection_from
@@ -175,6 +220,39 @@ def test_the_selection_spec_names_what_the_search_options_set():
     s = SelectionSpec(w_v=0.2, samples=7, population=5, generations=3, method="mc", mc_start="estimate", mc_emax="worst", genetic="on")
     config = selection_from(s.w_v, s.samples, s.population, s.generations, s.method, s.mc_start, s.mc_emax, s.genetic)
     assert selection_spec(config) == s and selection_spec(SelectionConfig()) == SelectionSpec()
+
+
+def test_the_selection_spec_carries_every_field_of_the_search():
+    """``SelectionSpec`` names every field of ``SelectionConfig`` and its ``GeneticConfig`` (a new one fails here),
+    with their defaults, and each reaches the ``SelectionConfig`` it makes and comes back."""
+    from coordinator.selection.genetic import GeneticConfig
+    from coordinator.selection.selector import SelectionConfig
+    from inchworm.specs import GENETIC_REST, SELECTION_REST, selection_spec
+
+    flagged = {"w_v", "samples", "method", "mc_start", "mc_emax", "w_l"}
+    assert {f.name for f in dataclasses.fields(SelectionConfig)} == flagged | set(SELECTION_REST) | {"genetic", "genetic_gate"}
+    assert {f.name for f in dataclasses.fields(GeneticConfig)} == {"population", "generations", *GENETIC_REST}
+    for f in msgspec.structs.fields(SelectionSpec):
+        assert f.name == "mc_emax" or getattr(SELECTION, f.name) != f.default, f"SelectionSpec.{f.name} is not set by the example"
+    config = SELECTION.config()
+    assert selection_spec(config) == SELECTION and SelectionSpec().config() == SelectionConfig()
+    default, genetic = SelectionConfig(), GeneticConfig()
+    for name in (*SELECTION_REST, "w_l"):
+        assert getattr(config, name) != getattr(default, name), name
+    for name in GENETIC_REST:
+        assert getattr(config.genetic, name) != getattr(genetic, name), name
+    assert selection_spec(SelectionConfig(w_v=0.3, w_l=0.7)).w_l is None  # 1 - w_v: not carried apart
+
+
+def test_launch_options_survive_their_spec():
+    """``inchworm.Swarm``'s child gets its ``LaunchOptions`` as their launch spec, every field (the whole anchor search)."""
+    from inchworm.process_mains import launch_options, launch_spec
+
+    spec = msgspec.structs.replace(FULL[LaunchSpec], driver="gateway", selection=SELECTION)  # the radio's faults need the gateway
+    options = launch_options(spec)
+    assert launch_spec(options) == spec
+    back = decode_spec(encode_spec(launch_spec(options)), LaunchSpec)
+    assert isinstance(back, LaunchSpec) and launch_options(back) == options
 
 
 def test_a_launch_spec_is_the_launch_options_by_concern():

@@ -1,0 +1,111 @@
+"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway``, ``faults`` and ``physics``
+(``inchworm.bench.localize``, ...),
+in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
+runs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from coordinator.strategies import METHODS
+from inchworm.options import RunOptions
+from runtime.errors import OptionError
+from runtime.models.config import ModelConfig
+
+
+@dataclass(frozen=True)
+class LocalizeBenchOptions:
+    sizes: tuple[int, ...] = field(default=(10, 100, 1000), metadata={"help": "comma-separated swarm sizes", "minimum": 2})
+    trials: int = field(default=5, metadata={"help": "random steps per size"})
+    repeats: int = field(default=5, metadata={"help": "timing repetitions per step"})
+    seed: int = field(default=0, metadata={"help": "trial t uses seed + t"})
+    gtsam: bool = field(default=True, metadata={"flag": "--no-gtsam", "help": "skip the GTSAM reference even if it is installed"})
+    model: ModelConfig = field(default_factory=ModelConfig)
+    still_prior_m: float | None = field(default=None, metadata={  # None: the movers' 0.02 m
+        "flag": "--still-prior", "metavar": "M",
+        "help": "prior position std in m of the robots that do not move (anchors); default: the movers' 0.02 m"})
+
+    def __post_init__(self) -> None:
+        if self.still_prior_m is not None and not self.still_prior_m > 0:
+            raise OptionError("still_prior_m", f"must be > 0 m, got {self.still_prior_m}", self)
+
+
+@dataclass(frozen=True)
+class SelectBenchOptions:
+    sizes: tuple[int, ...] = field(default=(10, 30, 100), metadata={"help": "comma-separated swarm sizes", "minimum": 2})
+    repeats: int = field(default=3, metadata={"help": "selections per size, each on a new random step"})
+    seed: int = field(default=0, metadata={"help": "seed of the random steps"})
+    one_core: bool = True  # --all-cores: False
+    run: RunOptions = field(default_factory=RunOptions)
+    search_all: bool = field(default=False, metadata={
+        "help": "search every count (no outer-loop bound), to time searched selections"})  # every count through the inner loop
+
+
+@dataclass(frozen=True)
+class RecordBenchOptions:
+    sizes: tuple[int, ...] = field(default=(10, 50), metadata={"flag": "--robots", "metavar": "ROBOTS", "help": "comma-separated swarm sizes",
+                                                               "minimum": 1})
+    steps: int = field(default=40, metadata={"help": "steps of messages recorded per run"})
+    steps_per_config: int = field(default=4, metadata={"help": "steps per configuration: one PlanMessage each"})
+    repeats: int = field(default=3, metadata={"help": "recordings per size and mode, median reported"})
+    step_ms: tuple[float, ...] = field(default=(20.0, 100.0), metadata={  # coordination time of a step without recording (ms)
+        "help": "coordination time of one step without recording, ms: one value or one per size "
+                "(default 20,100: the runtime's targets for 10 and 50 agents)", "own_default": True})
+    seed: int = field(default=0, metadata={"help": "seed of the positions and measurements"})
+
+
+RUNTIME_METHODS = ("no-anchors", "ref57")  # the fixed plans ``swarm bench runtime`` times
+
+
+@dataclass(frozen=True)
+class RuntimeBenchOptions:
+    agents: tuple[int, ...] = field(default=(10, 50), metadata={"help": "comma-separated numbers of robot agents", "minimum": 2})
+    agents_per_process: int | None = field(default=None, metadata={  # None: as swarm launch
+        "help": "robot agents hosted by one process (default as swarm launch: 1 up to 50 robots, else up to 50)"})
+    steps: int = field(default=20, metadata={"help": "steps timed per swarm size"})
+    method: str = field(default="no-anchors", metadata={  # a fixed plan: no-anchors (all move each step) or ref57
+        "help": "fixed plan (default no-anchors: all move each step)", "own_default": True, "choices": RUNTIME_METHODS})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectory and the noise"})
+    rtt_count: int = field(default=200, metadata={"help": "pings of the raw Zenoh round trip"})
+    start_timeout_s: float = field(default=120.0, metadata={"flag": "--start-timeout", "metavar": "START_TIMEOUT",
+                                                            "help": "seconds to wait for all agents"})
+    step_timeout_s: float = field(default=10.0, metadata={"flag": "--step-timeout", "metavar": "STEP_TIMEOUT",
+                                                          "help": "seconds to wait for a step's answers"})
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+
+@dataclass(frozen=True)
+class GatewayBenchOptions:
+    robots: int = field(default=10, metadata={"help": "agents of the step-time comparison"})
+    steps: int = field(default=60, metadata={"help": "steps timed per driver and round"})
+    rounds: int = field(default=2, metadata={"help": "rounds of sim then gateway, steps pooled per driver"})
+    frames: int = field(default=200_000, metadata={"help": "frames through the codec"})
+    commands: int = field(default=300, metadata={"help": "commands of the pty round trip"})
+    seed: int = field(default=0, metadata={"help": "seed of the trajectory and noise"})
+    localizer: str = "paper"
+    model: ModelConfig = field(default_factory=ModelConfig)
+
+
+@dataclass(frozen=True)
+class FaultsBenchOptions:
+    seeds: int = field(default=10, metadata={"help": "seeds (runs) per lost-robot and gateway row"})
+    fuzz: int = field(default=10_000, metadata={"help": "hostile messages sent during the fuzz run"})
+    gateway_rows: tuple[tuple[float, float, float], ...] = ((0.05, 0.05, 0.05), (0.2, 0.0, 0.0))  # radio faults (drop, corrupt, delay_s)
+    flood: int = field(default=3000, metadata={"help": "idle TCP connections held on the TLS router's public listener during the stops"})
+    flood_s: float = field(default=60.0, metadata={  # how long the flood lasts (stops sampled during it and min(flood_s, 60) s after it)
+        "help": "seconds the flood lasts; a stop a second during it and min(FLOOD_S, 60) s after it"})
+
+
+@dataclass(frozen=True)
+class PhysicsBenchOptions:
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    trajectories: int = field(default=10, metadata={"help": "random trajectories"})
+    configs: int = field(default=10, metadata={"help": "configurations per trajectory"})
+    method: str = field(default="inchworm", metadata={"help": "motion strategy", "choices": METHODS})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    workers: int = 1
+    run: RunOptions = field(default_factory=RunOptions)
+    physics: tuple[str, ...] = field(default=(), metadata={  # NAME=VALUE
+        "flag": "--physics-param", "repeat": True, "metavar": "NAME=VALUE",
+        "help": "a parameter of the physical world (runtime.world.params.PhysicsParams), repeatable"})
