@@ -5,11 +5,16 @@ reckoning is their prior. Solving Eq. B3 for every robot again (``topology.estim
 30,000 unknowns, ~n^1.8) is then most of the step. Here the least squares is solved for the *region* alone: the
 movers and the robots within ``RING_HOPS`` observation hops of them (observations taken in both directions), over
 every observation a region robot made or received, with the robots one hop further (the *boundary*) held at their
-priors. The boundary fixes the gauge, so the topology comes out in the global frame and the superimposition
-(Eq. 21-22) is the identity. Every other robot is turned by the weighted circular mean of its bearings' misfit to the
-robots it saw (``topology.heading_turn``: Eq. B3 for its heading alone, the positions held), and then every robot's cluster
-(Eq. B4-B6) is formed from all the step's observations, each placed by its observer's pose: the region's solved,
-the others' priors so turned. Eq. 23 fuses the clusters with the dead reckoning as for the whole swarm.
+priors. The boundary fixes the gauge, so the topology comes out in the global frame. Every other robot is turned by
+the weighted circular mean of its bearings' misfit to the robots it saw (``topology.heading_turn``: Eq. B3 for its
+heading alone, the positions held), and then every robot's cluster (Eq. B4-B6) is formed from all the step's
+observations, each placed by its observer's pose: the region's solved, the others' priors so turned. The clusters are
+superimposed onto the dead reckoning (Eq. 21-22) and fused with it (Eq. 23) as the whole swarm's topology is. The
+superimposition is nearly the identity, but not to be skipped: the clusters of the robots outside the region carry
+the step's observation noise, and its mean over the swarm moves the swarm's common translation and rotation a little
+every step, which nothing pulls back (a random walk: without it, 200-robot swarms with one mover a step drifted to
+2-2.5 x the whole solve's mean position error in 300 steps, docs/localization.md); weighted by every robot's prior,
+Eq. 21-22 ties them to the dead reckoning as for the whole swarm.
 
 The answer is not the whole swarm's solve: a still robot outside the region is placed by its neighbours' priors, not
 by a solve of everyone, and the boundary carries its priors' errors. Against the whole swarm's solve of the same
@@ -41,7 +46,7 @@ LOCAL_MAX_FRACTION = 0.25  # largest share of the swarm in the region; more: the
 
 @dataclass(frozen=True)
 class GlobalTopology:
-    """A topology already in the global frame (``Topology``'s fields): Eq. 23 fuses it with dead reckoning as it is."""
+    """A topology in the global frame (``Topology``'s fields, no reference robot)."""
 
     positions: np.ndarray  # (n, 2) cluster centroids (m)
     headings: np.ndarray  # (n,) (rad), NaN for robots observing nobody

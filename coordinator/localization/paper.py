@@ -20,7 +20,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
-from coordinator.localization.movers import LOCAL_MIN, region_topology
+from coordinator.localization.movers import LOCAL_MIN, GlobalTopology, region_topology
 from coordinator.localization.superimpose import fusion_weights, superimpose
 from coordinator.localization.topology import Topology, estimate_topology
 from runtime.models.config import ModelConfig
@@ -58,17 +58,14 @@ class PaperLocalizer:
         """Post-step estimate (Eq. 23) from the pre-step estimate, the commands and the observations; from
         ``local_min`` robots the topology of the movers' region where it is small (``movers``)."""
         dr = dead_reckon(prior, step, self.cfg)  # Phase 1.1
+        topo: Topology | GlobalTopology
         if prior.n < self.local_min:
             topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
-        else:
+        else:  # in the global frame, and superimposed all the same (``movers``: else the swarm's pose drifts)
             i, j = self._observable(prior.ids, obs)
             local = region_topology(dr.poses, step.moving, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)
-            if local is not None:  # already in the global frame: Eq. 23 without a superimposition
-                poses, cov = fuse(local.positions, local.headings, local.delta_p, local.heading_sigma, np.zeros(()),
-                                  np.zeros(2), dr.poses, dr.cov, dr.delta)
-                return SwarmEstimate(prior.ids, poses, cov)
-            topo = estimate_topology(prior.n, i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=dr.poses,
-                                     huber=self.huber)
+            topo = local if local is not None else estimate_topology(
+                prior.n, i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=dr.poses, huber=self.huber)
         delta_u = dr.delta
         theta, t = superimpose(topo.positions, dr.positions, fusion_weights(topo.delta_p, delta_u))  # Eq. 21-22
         poses, cov = fuse(topo.positions, topo.headings, topo.delta_p, topo.heading_sigma, theta, t, dr.poses, dr.cov, delta_u)
