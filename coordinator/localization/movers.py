@@ -9,12 +9,13 @@ priors. The boundary fixes the gauge, so the topology comes out in the global fr
 the weighted circular mean of its bearings' misfit to the robots it saw (``topology.heading_turn``: Eq. B3 for its
 heading alone, the positions held), and then every robot's cluster (Eq. B4-B6) is formed from all the step's
 observations, each placed by its observer's pose: the region's solved, the others' priors so turned. The clusters are
-superimposed onto the dead reckoning (Eq. 21-22) and fused with it (Eq. 23) as the whole swarm's topology is. The
-superimposition is nearly the identity, but not to be skipped: the clusters of the robots outside the region carry
-the step's observation noise, and its mean over the swarm moves the swarm's common translation and rotation a little
-every step, which nothing pulls back (a random walk: without it, 200-robot swarms with one mover a step drifted to
-2-2.5 x the whole solve's mean position error in 300 steps, docs/localization.md); weighted by every robot's prior,
-Eq. 21-22 ties them to the dead reckoning as for the whole swarm.
+superimposed (Eq. 21-22) onto the still robots' dead reckoning, their priors, and fused with it (Eq. 23) as the whole
+swarm's topology is. The superimposition is nearly the identity, but not to be skipped: the clusters of the robots
+outside the region carry the step's observation noise, and its mean over the swarm moves the swarm's common
+translation and rotation a little every step, which nothing pulls back (a random walk: without it, 70-robot swarms
+with one mover a step drifted to 1.5-2 x the whole solve's mean position error in 100 steps, docs/localization.md).
+Relative observations say nothing of that common pose, so it is taken from the still robots' priors alone; the whole
+swarm's Eq. 22 weights the movers' dead reckoning in as well, and with it their motion noise.
 
 The answer is not the whole swarm's solve: a still robot outside the region is placed by its neighbours' priors, not
 by a solve of everyone, and the boundary carries its priors' errors. Against the whole swarm's solve of the same
