@@ -104,8 +104,9 @@ def per_config(result: RunResult, paired: Paired) -> list[dict[str, Any]]:
 
 
 def run(robots: int, configs: int, local_min: int, seed: int, method: str, motion_scale: float,
-        max_fraction: float = movers.LOCAL_MAX_FRACTION) -> tuple[list[dict[str, Any]], Paired]:
-    """The paired run (module docstring): its rows and the ``Paired`` localizer (resyncs, failures); ``max_fraction``
+        max_fraction: float = movers.LOCAL_MAX_FRACTION) -> tuple[list[dict[str, Any]], Paired, float]:
+    """The paired run (module docstring): its rows, the ``Paired`` localizer (resyncs, failures) and the run's P_f (the
+    whole solve's: it drove the robots); ``max_fraction``
     the largest region, as a share of the swarm, localized around its movers (``movers.LOCAL_MAX_FRACTION``: raised,
     a mid-size swarm takes that path as often as a large one)."""
     import inchworm  # noqa: PLC0415
@@ -130,7 +131,7 @@ def run(robots: int, configs: int, local_min: int, seed: int, method: str, motio
     finally:
         setattr(paper, "region_topology", solved)  # noqa: B010
         movers.LOCAL_MAX_FRACTION = fraction
-    return per_config(result, paired), paired
+    return per_config(result, paired), paired, float(result.pf())
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -144,9 +145,9 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--max-fraction", type=float, default=movers.LOCAL_MAX_FRACTION)
     p.add_argument("--json", action="store_true")
     a = p.parse_args(argv)
-    rows, paired = run(a.robots, a.configs, a.local_min, a.seed, a.method, a.motion_scale, a.max_fraction)
+    rows, paired, pf = run(a.robots, a.configs, a.local_min, a.seed, a.method, a.motion_scale, a.max_fraction)
     print(f"steps {paired.steps}, around the movers {paired.region_steps}, resyncs {paired.resyncs}, "
-          f"shadow failures {paired.shadow_failures}")
+          f"shadow failures {paired.shadow_failures}, P_f {pf:.4f}")
     print("config step | mean mm whole local ratio | p99 mm whole local | NEES whole local | heading mrad whole local | shape mm whole local")
     for r in rows:
         w, lo = r["whole"], r["local"]
@@ -158,7 +159,7 @@ def main(argv: list[str] | None = None) -> None:
                           "method": a.method, "motion_scale": a.motion_scale,
                           "max_fraction": a.max_fraction, "steps": paired.steps,
                           "region_steps": paired.region_steps, "resyncs": paired.resyncs,
-                          "shadow_failures": paired.shadow_failures, "rows": rows}))
+                          "shadow_failures": paired.shadow_failures, "pf": pf, "rows": rows}))
 
 
 if __name__ == "__main__":
