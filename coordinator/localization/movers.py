@@ -21,7 +21,8 @@ The answer is not the whole swarm's solve: a still robot outside the region is p
 by a solve of everyone, and the boundary carries its priors' errors. Against the whole swarm's solve of the same
 steps of 2048-10,000 robots (docs/localization.md, "Speed"): the movers within 0.17 of their own sigma, everyone's
 positions 0.05-0.07 sigma at the median, headings 0.11-0.16; at the end of a run P_f the same within 0.0003, the
-mean position error -1 to +15 % of the whole solve's.
+mean position error -1 to +15 % of the whole solve's; over 8-20 configurations of 500-2048 robots, 0.93-1.11 x the
+whole solve's at every configuration (docs/benchmarks.md).
 ``PaperLocalizer`` asks for it from ``LOCAL_MIN`` robots (below, the results the tests pin stay bit for bit);
 ``region_topology`` returns None, and the whole swarm is solved, when nobody moved (a stationary step localizes from
 scratch, e.g. a rejoin), when the region holds more than ``LOCAL_MAX_FRACTION`` of the swarm, or when the region's
