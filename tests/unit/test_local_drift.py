@@ -8,9 +8,8 @@ import numpy as np
 import pytest
 
 from coordinator.localization.paper import PaperLocalizer
-from coordinator.localization.superimpose import weighted_procrustes
 from runtime.models.config import ModelConfig
-from runtime.models.geometry import rotate, wrap_angle
+from runtime.models.geometry import wrap_angle
 from runtime.models.motion import apply_motion, command_towards
 from runtime.models.rng import Stream, robot_rngs
 from runtime.models.sensing import sense_swarm
@@ -18,14 +17,13 @@ from runtime.models.state import StepCommands, SwarmEstimate
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 N = 70  # robots, each seeing ~10 others within the short sensing range: one mover's region is ~1/6 of the swarm
-CHUNKS, STEPS = 10, 10  # "configurations" of steps, one mover a step: every step is localized around its mover
+CHUNKS, STEPS = 10, 10  # "configurations" of steps, one mover a step, localized around it
 WANDER = 0.04  # m: a mover drives to a point this far at most from its start, so the swarm keeps its shape
 
 
 def drift_run(seed: int, motion_scale: float) -> dict[str, np.ndarray]:
     """Per chunk (CHUNKS,), of the whole swarm's solve and of the localization around the movers: the mean position
-    error (m), the mean position NEES and the swarm's common error (m: the mean length of the shift of the rigid motion
-    that best puts the estimate onto the truth)."""
+    error (m) and the mean position NEES."""
     base = ModelConfig()
     cfg = replace(base, sensing_range_m=0.3, turn_sigma_rad=motion_scale * base.turn_sigma_rad,
                   drive_sigma_frac=motion_scale * base.drive_sigma_frac)
@@ -40,7 +38,7 @@ def drift_run(seed: int, motion_scale: float) -> dict[str, np.ndarray]:
     localizers = {"whole": PaperLocalizer(cfg, local_min=10**9), "local": PaperLocalizer(cfg, local_min=16)}
     estimate = dict.fromkeys(localizers, start)
     sensing = robot_rngs(seed, traj.ids, Stream.SENSING)
-    out = {f"{k}_{m}": np.empty(CHUNKS) for k in localizers for m in ("error", "nees", "common")}
+    out = {f"{k}_{m}": np.empty(CHUNKS) for k in localizers for m in ("error", "nees")}
     for chunk in range(CHUNKS):
         for _ in range(STEPS):
             moving = np.zeros(N, bool)
@@ -57,9 +55,6 @@ def drift_run(seed: int, motion_scale: float) -> dict[str, np.ndarray]:
             e = est.positions - truth[:, :2]
             out[f"{name}_error"][chunk] = np.hypot(*e.T).mean()
             out[f"{name}_nees"][chunk] = np.einsum("ni,nij,nj->n", e, np.linalg.inv(est.cov[:, :2, :2]), e).mean()
-            theta, t, _ = weighted_procrustes(est.positions, truth[:, :2], np.ones(N))  # the estimate onto the truth
-            rigid = rotate(theta, est.positions) + t - est.positions
-            out[f"{name}_common"][chunk] = np.hypot(*rigid.T).mean()
     return out
 
 
