@@ -5,17 +5,24 @@ reckoning is their prior. Solving Eq. B3 for every robot again (``topology.estim
 30,000 unknowns, ~n^1.8) is then most of the step. Here the least squares is solved for the *region* alone: the
 movers and the robots within ``RING_HOPS`` observation hops of them (observations taken in both directions), over
 every observation a region robot made or received, with the robots one hop further (the *boundary*) held at their
-priors. The boundary fixes the gauge, so the topology comes out in the global frame and the superimposition
-(Eq. 21-22) is the identity. Every other robot is turned by the weighted circular mean of its bearings' misfit to the
-robots it saw (``topology.heading_turn``: Eq. B3 for its heading alone, the positions held), and then every robot's cluster
-(Eq. B4-B6) is formed from all the step's observations, each placed by its observer's pose: the region's solved,
-the others' priors so turned. Eq. 23 fuses the clusters with the dead reckoning as for the whole swarm.
+priors. The boundary fixes the gauge, so the topology comes out in the global frame. Every other robot is turned by
+the weighted circular mean of its bearings' misfit to the robots it saw (``topology.heading_turn``: Eq. B3 for its
+heading alone, the positions held), and then every robot's cluster (Eq. B4-B6) is formed from all the step's
+observations, each placed by its observer's pose: the region's solved, the others' priors so turned. The clusters are
+superimposed (Eq. 21-22) onto the still robots' dead reckoning, their priors, and fused with it (Eq. 23) as the whole
+swarm's topology is. The superimposition is nearly the identity, but not to be skipped: the clusters of the robots
+outside the region carry the step's observation noise, and its mean over the swarm moves the swarm's common
+translation and rotation a little every step, which nothing pulls back (a random walk: without it, 70-robot swarms
+with one mover a step drifted to 1.5-2 x the whole solve's mean position error in 100 steps, docs/localization.md).
+Relative observations say nothing of that common pose, so it is taken from the still robots' priors alone; the whole
+swarm's Eq. 22 weights the movers' dead reckoning in as well, and with it their motion noise.
 
 The answer is not the whole swarm's solve: a still robot outside the region is placed by its neighbours' priors, not
 by a solve of everyone, and the boundary carries its priors' errors. Against the whole swarm's solve of the same
 steps of 2048-10,000 robots (docs/localization.md, "Speed"): the movers within 0.17 of their own sigma, everyone's
 positions 0.05-0.07 sigma at the median, headings 0.11-0.16; at the end of a run P_f the same within 0.0003, the
-mean position error -1 to +15 % of the whole solve's.
+mean position error -1 to +15 % of the whole solve's; over 8-20 configurations of 500-2048 robots, 0.93-1.11 x the
+whole solve's at every configuration (docs/benchmarks.md).
 ``PaperLocalizer`` asks for it from ``LOCAL_MIN`` robots (below, the results the tests pin stay bit for bit);
 ``region_topology`` returns None, and the whole swarm is solved, when nobody moved (a stationary step localizes from
 scratch, e.g. a rejoin), when the region holds more than ``LOCAL_MAX_FRACTION`` of the swarm, or when the region's
@@ -41,7 +48,7 @@ LOCAL_MAX_FRACTION = 0.25  # largest share of the swarm in the region; more: the
 
 @dataclass(frozen=True)
 class GlobalTopology:
-    """A topology already in the global frame (``Topology``'s fields): Eq. 23 fuses it with dead reckoning as it is."""
+    """A topology in the global frame (``Topology``'s fields, no reference robot)."""
 
     positions: np.ndarray  # (n, 2) cluster centroids (m)
     headings: np.ndarray  # (n,) (rad), NaN for robots observing nobody

@@ -20,7 +20,7 @@ import numpy as np
 
 from coordinator.localization.dead_reckoning import dead_reckon
 from coordinator.localization.graph import require_observable
-from coordinator.localization.movers import LOCAL_MIN, region_topology
+from coordinator.localization.movers import LOCAL_MIN, GlobalTopology, region_topology
 from coordinator.localization.superimpose import fusion_weights, superimpose
 from coordinator.localization.topology import Topology, estimate_topology
 from runtime.models.config import ModelConfig
@@ -58,19 +58,21 @@ class PaperLocalizer:
         """Post-step estimate (Eq. 23) from the pre-step estimate, the commands and the observations; from
         ``local_min`` robots the topology of the movers' region where it is small (``movers``)."""
         dr = dead_reckon(prior, step, self.cfg)  # Phase 1.1
+        delta_u = dr.delta
+        topo: Topology | GlobalTopology
+        held: np.ndarray | slice = slice(None)  # the robots whose dead reckoning places the topology (Eq. 21-22)
         if prior.n < self.local_min:
             topo = self.topology(prior.ids, obs, initial_poses=dr.poses)  # Phase 1.2
         else:
             i, j = self._observable(prior.ids, obs)
             local = region_topology(dr.poses, step.moving, i, j, obs.range_m, obs.bearing_rad, self.cfg, self.huber)
-            if local is not None:  # already in the global frame: Eq. 23 without a superimposition
-                poses, cov = fuse(local.positions, local.headings, local.delta_p, local.heading_sigma, np.zeros(()),
-                                  np.zeros(2), dr.poses, dr.cov, dr.delta)
-                return SwarmEstimate(prior.ids, poses, cov)
-            topo = estimate_topology(prior.n, i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=dr.poses,
-                                     huber=self.huber)
-        delta_u = dr.delta
-        theta, t = superimpose(topo.positions, dr.positions, fusion_weights(topo.delta_p, delta_u))  # Eq. 21-22
+            if local is not None:  # in the global frame, superimposed onto the still robots (``movers``: no drift)
+                topo, held = local, ~step.moving
+            else:
+                topo = estimate_topology(prior.n, i, j, obs.range_m, obs.bearing_rad, self.cfg, initial_poses=dr.poses,
+                                         huber=self.huber)
+        weights = fusion_weights(topo.delta_p, delta_u)
+        theta, t = superimpose(topo.positions[held], dr.positions[held], weights[held])  # Eq. 21-22
         poses, cov = fuse(topo.positions, topo.headings, topo.delta_p, topo.heading_sigma, theta, t, dr.poses, dr.cov, delta_u)
         return SwarmEstimate(prior.ids, poses, cov)
 
