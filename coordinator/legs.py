@@ -244,11 +244,41 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
     if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
         held[order[np.flatnonzero(held[order])[0]]] = False
-        level, ends, _ = stops()
+        level, ends, over = stops()
     staged = (level > 0) & ~held
     targets[staged] = ends[staged]
     targets[held] = current[held]
+    blocked = sorted({b if drives[b] else a for a, b, _ in over if drives[a] != drives[b] and not held[b if drives[b] else a]})
+    if blocked:  # over at its shortest (or on its last leg) against a robot standing for the rest of the change
+        rows = np.array(blocked, np.int64)
+        fraction = _short_of_standing(cfg, estimate, ends, path, rows, np.where(movable[rows], fractions[shortest], 1.0), drives)
+        targets[rows] = current[rows] + fraction[:, None] * path[rows]
+        stop = rows[~movable[rows] | (fraction == 0.0)]  # its last leg, or no step keeps the bound: it ends the change there
+        staged[rows] = movable[rows] & (fraction > 0.0)
+        short = short.copy()
+        short[stop] = True
     return Leg(targets, staged, short, held)
+
+
+def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, path: np.ndarray, rows: np.ndarray,
+                       start: np.ndarray, drives: np.ndarray) -> np.ndarray:
+    """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
+    steps of ``STOP_STEP``, whose end keeps ``CONTACT_BOUND`` against every robot not of ``drives`` (standing for the
+    rest of the change); 0 where none does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
+    fraction = np.zeros(len(rows))
+    todo = np.ones(len(rows), bool)
+    step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
+    while todo.any() and (step[todo] > 0).any():  # steps only fall: this ends
+        trying = todo & (step > 0)
+        there = ends.copy()
+        there[rows] = estimate.positions[rows] + (step * STOP_STEP)[:, None] * path[rows]
+        i, j, p = _end_pairs(cfg, estimate, there, rows[trying])
+        over = (p > CONTACT_BOUND) & ~drives[j]
+        clear = trying & ~np.isin(rows, i[over])
+        fraction[clear] = step[clear] * STOP_STEP
+        todo &= ~clear
+        step[todo] -= 1
+    return fraction
 
 
 def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,
