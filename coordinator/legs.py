@@ -242,8 +242,15 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         if pairs:
             a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
             held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
-    if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
-        held[order[np.flatnonzero(held[order])[0]]] = False
+    if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
+        risk = []
+        for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives
+            held[r] = False
+            risk.append((max((q for a, b, q in stops()[2] if r in (a, b)), default=0.0), r))
+            held[r] = True
+            if not risk[-1][0]:
+                break
+        held[min(risk, key=lambda x: x[0])[1]] = False
         level, ends, over = stops()
     staged = (level > 0) & ~held
     targets[staged] = ends[staged]

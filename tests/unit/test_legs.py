@@ -369,6 +369,21 @@ def test_a_head_on_pair_with_clear_ends_drives_straight_and_the_last_leg_never_w
     np.testing.assert_array_equal(final.targets, CONVERGE_DESIRED)
 
 
+def test_when_every_robot_would_wait_the_one_least_at_risk_drives():
+    """Robot 0 waits for robot 1 (its way passes 4 cm from robot 1's place), robot 2 on its last leg for robot 1 (its
+    goal is robot 1's place), robot 1 against the waiting robot 0: nobody would drive. Not the robot with the shortest
+    way (robot 2, into robot 1 standing: 0.76) drives, but robot 1, away from robot 2, at the least risk of the three."""
+    est = estimate([[-0.086, -0.716], [-0.128, -0.738], [-0.114, -0.77]], [2.8, 1.5, 1.6])
+    desired = np.array([[-0.244, -0.656], [-0.13, -0.478], [-0.124, -0.738]])
+    leg = leg_targets(X558, est, desired, np.ones(3, bool), last=np.array([False, False, True]))
+    assert leg.held.tolist() == [True, False, True] and leg.staged.tolist() == [False, True, False]
+    assert end_probability(X558, est, leg.targets, 1, 2) <= CONTACT_BOUND
+    assert end_probability(X558, est, leg.targets, 0, 1) < 0.02
+    straight = est.positions.copy()
+    straight[2] = desired[2]
+    assert end_probability(X558, est, straight, 1, 2) > 0.5
+
+
 def test_a_checkpoint_carries_the_waiting_robots():
     _, _, first = first_leg(X558, Plan(np.array([0, 1]), (2,)), CONVERGE, CONVERGE_DESIRED)
     assert first is not None
