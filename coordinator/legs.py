@@ -32,7 +32,12 @@ and every leg drives at least one robot (``leg_targets``).
 A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
 now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
 the robot ends the change **stopped short** of its desired position instead of driving into contact, and the run says
-so (``RunResult.stopped_short``).
+so (``RunResult.stopped_short``). Against a robot that **stands for the rest of the change** (arrived, or not moving in
+it) nobody waits: a mover over the bound against it even at its shortest staging point takes a shorter leg, the
+farthest of its way in ``STOP_STEP`` steps whose end keeps the bound, and re-plans from there; where no such step is
+left, or on its last leg, it ends the change there, stopped short (``_short_of_standing``: ways are straight, and one
+that passes a standing robot closer than the bound allows is not driven). When every robot of a leg would wait, the
+one whose leg's end is least at risk drives.
 """
 
 from __future__ import annotations
@@ -60,7 +65,9 @@ class Leg:
     """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
     not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal; ``short`` (n,) the
     robots whose goal is short of their desired position (``safe_goals``: stopped short); ``held`` (n,) the robots that
-    wait where they stand in this leg for a neighbour (their target is their place; they go on in the next leg)."""
+    wait where they stand in this leg for a neighbour (their target is their place; they go on in the next leg).
+    A robot blocked by one standing for the rest of the change (``_short_of_standing``) and ending the change short is
+    in ``short`` too."""
 
     targets: np.ndarray
     staged: np.ndarray
@@ -181,10 +188,13 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
     robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
     ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
-    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the
-    shortest way does. A robot over at its shortest against a robot that stands for the whole change drives to its
-    shortest staging point (it approaches that one: the rest of its way shrinks leg by leg). Pairs whose goals are
-    still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps them."""
+    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot whose
+    leg's end is least at risk does (its highest pair probability; ties: a last leg, then the shorter way). A robot over
+    at its shortest (or on its last leg) against a robot that stands for the whole change drives the farthest part of
+    its way, in ``STOP_STEP`` steps, whose end keeps the bound against every standing robot and goes on from there
+    (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``). Pairs whose
+    goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
+    them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
