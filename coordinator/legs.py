@@ -225,13 +225,15 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     rank = np.empty(len(current), np.int64)
     rank[order] = np.arange(len(current))
 
+    cap = np.ones(len(current))  # the farthest fraction of its way a robot blocked by a standing one may drive
+
     def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
-        """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends, and the pairs
-        over the bound at them (not hopeless), with the robots in ``held`` standing; a robot's end is also kept within
-        the bound against a waiting robot standing at its goal (``_near_goals``)."""
+        """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends (at most ``cap``
+        of the way), and the pairs over the bound at them (not hopeless), with the robots in ``held`` standing; a
+        robot's end is also kept within the bound against a waiting robot standing at its goal (``_near_goals``)."""
         level = np.zeros(len(current), np.int64)
         while True:  # levels only grow, to ``shortest`` at most: this ends
-            ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
+            ends = current + np.where(held, 0.0, np.minimum(fractions[level], cap))[:, None] * path
             i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
             k = p > CONTACT_BOUND
             over = [(int(a), int(b), float(q)) for a, b, q in zip(i[k], j[k], p[k], strict=True) if (int(a), int(b)) not in hopeless]
@@ -241,39 +243,42 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
                 return level, ends, over
             level[shorter] += 1
 
-    while True:  # a robot waits at most once in a leg: this ends
-        level, ends, over = stops()
-        free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
-        pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
-        alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
-        if not pairs and not alone:
-            break
-        held[alone] = True  # its neighbour waits: it approaches that one standing, later
-        if pairs:
-            a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
-            held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
-    if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
-        risk = []
-        for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives
-            held[r] = False
-            risk.append((max((q for a, b, q in stops()[2] if r in (a, b)), default=0.0), r))
-            held[r] = True
-            if not risk[-1][0]:
+    while True:  # caps only fall, ``STOP_STEP`` at a time, and a robot waits at most once a round: this ends
+        held[:] = False
+        while True:
+            level, ends, over = stops()
+            free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
+            pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
+            alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
+            if not pairs and not alone:
                 break
-        held[min(risk, key=lambda x: x[0])[1]] = False
-        level, ends, over = stops()
-    staged = (level > 0) & ~held
-    targets[staged] = ends[staged]
+            held[alone] = True  # its neighbour waits: it approaches that one standing, later
+            if pairs:
+                a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
+                held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
+        if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
+            risk = []
+            for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives
+                held[r] = False
+                risk.append((max((q for a, b, q in stops()[2] if r in (a, b)), default=0.0), r))
+                held[r] = True
+                if not risk[-1][0]:
+                    break
+            held[min(risk, key=lambda x: x[0])[1]] = False
+            level, ends, over = stops()
+        # over at its shortest (or on its last leg) against a robot standing for the rest of the change: a shorter leg
+        blocked = sorted({b if drives[b] else a for a, b, _ in over if drives[a] != drives[b]})
+        rows = np.array([r for r in blocked if not held[r] and cap[r] > 0], np.int64)
+        if not len(rows):
+            break
+        reach = np.minimum(cap[rows], np.where(movable[rows], fractions[shortest], 1.0))
+        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, drives)
+    capped = (cap < 1.0) & ~held
+    stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
+    staged = ((level > 0) | capped) & ~held & ~stop
+    targets[staged | stop] = ends[staged | stop]
     targets[held] = current[held]
-    blocked = sorted({b if drives[b] else a for a, b, _ in over if drives[a] != drives[b] and not held[b if drives[b] else a]})
-    if blocked:  # over at its shortest (or on its last leg) against a robot standing for the rest of the change
-        rows = np.array(blocked, np.int64)
-        fraction = _short_of_standing(cfg, estimate, ends, path, rows, np.where(movable[rows], fractions[shortest], 1.0), drives)
-        targets[rows] = current[rows] + fraction[:, None] * path[rows]
-        stop = rows[~movable[rows] | (fraction == 0.0)]  # its last leg, or no step keeps the bound: it ends the change there
-        staged[rows] = movable[rows] & (fraction > 0.0)
-        short = short.copy()
-        short[stop] = True
+    short = short | stop
     return Leg(targets, staged, short, held)
 
 
