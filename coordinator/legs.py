@@ -32,7 +32,12 @@ and every leg drives at least one robot (``leg_targets``).
 A goal at risk even reached with no motion noise (the targets too close for the position uncertainty the robots have
 now: no approach helps) is pulled back along the robot's way until every pair of goals keeps the bound (``safe_goals``):
 the robot ends the change **stopped short** of its desired position instead of driving into contact, and the run says
-so (``RunResult.stopped_short``).
+so (``RunResult.stopped_short``). Against a robot that **stands for the rest of the change** (arrived, or not moving in
+it) nobody waits: a mover over the bound against it even at its shortest staging point takes a shorter leg, the
+farthest of its way in ``STOP_STEP`` steps whose end keeps the bound, and re-plans from there; where no such step is
+left, or on its last leg, it ends the change there, stopped short (``_short_of_standing``: ways are straight, and one
+that passes a standing robot closer than the bound allows is not driven). When every robot of a leg would wait, the
+one whose leg's end is least at risk drives.
 """
 
 from __future__ import annotations
@@ -60,7 +65,9 @@ class Leg:
     """One leg of a configuration change: ``targets`` (n, 2) m the robots drive to (their place for robots that do
     not move in it); ``staged`` (n,) the robots whose target is a staging point short of their goal; ``short`` (n,) the
     robots whose goal is short of their desired position (``safe_goals``: stopped short); ``held`` (n,) the robots that
-    wait where they stand in this leg for a neighbour (their target is their place; they go on in the next leg)."""
+    wait where they stand in this leg for a neighbour (their target is their place; they go on in the next leg).
+    A robot blocked by one standing for the rest of the change (``_short_of_standing``) and ending the change short is
+    in ``short`` too."""
 
     targets: np.ndarray
     staged: np.ndarray
@@ -181,10 +188,13 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
     robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
     ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
-    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot with the
-    shortest way does. A robot over at its shortest against a robot that stands for the whole change drives to its
-    shortest staging point (it approaches that one: the rest of its way shrinks leg by leg). Pairs whose goals are
-    still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps them."""
+    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot whose
+    leg's end is least at risk does (its highest pair probability; ties: a last leg, then the shorter way). A robot over
+    at its shortest (or on its last leg) against a robot that stands for the whole change drives the farthest part of
+    its way, in ``STOP_STEP`` steps, whose end keeps the bound against every standing robot and goes on from there
+    (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``). Pairs whose
+    goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
+    them."""
     current = estimate.positions
     desired = np.asarray(desired, float)[:, :2]
     going = np.asarray(going, bool)
@@ -215,13 +225,15 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     rank = np.empty(len(current), np.int64)
     rank[order] = np.arange(len(current))
 
+    cap = np.ones(len(current))  # the farthest fraction of its way a robot blocked by a standing one may drive
+
     def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
-        """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends, and the pairs
-        over the bound at them (not hopeless), with the robots in ``held`` standing; a robot's end is also kept within
-        the bound against a waiting robot standing at its goal (``_near_goals``)."""
+        """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends (at most ``cap``
+        of the way), and the pairs over the bound at them (not hopeless), with the robots in ``held`` standing; a
+        robot's end is also kept within the bound against a waiting robot standing at its goal (``_near_goals``)."""
         level = np.zeros(len(current), np.int64)
         while True:  # levels only grow, to ``shortest`` at most: this ends
-            ends = current + np.where(held, 0.0, fractions[level])[:, None] * path
+            ends = current + np.where(held, 0.0, np.minimum(fractions[level], cap))[:, None] * path
             i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
             k = p > CONTACT_BOUND
             over = [(int(a), int(b), float(q)) for a, b, q in zip(i[k], j[k], p[k], strict=True) if (int(a), int(b)) not in hopeless]
@@ -231,24 +243,64 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
                 return level, ends, over
             level[shorter] += 1
 
-    while True:  # a robot waits at most once in a leg: this ends
-        level, ends, over = stops()
-        free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
-        pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
-        alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
-        if not pairs and not alone:
+    while True:  # caps only fall, ``STOP_STEP`` at a time, and a robot waits at most once a round: this ends
+        held[:] = False
+        while True:
+            level, ends, over = stops()
+            free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
+            pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
+            alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
+            if not pairs and not alone:
+                break
+            held[alone] = True  # its neighbour waits: it approaches that one standing, later
+            if pairs:
+                a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
+                held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
+        if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
+            risk = []
+            for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives
+                held[r] = False
+                risk.append((max((q for a, b, q in stops()[2] if r in (a, b)), default=0.0), r))
+                held[r] = True
+                if not risk[-1][0]:
+                    break
+            held[min(risk, key=lambda x: x[0])[1]] = False
+            level, ends, over = stops()
+        # over at its shortest (or on its last leg) against a robot standing for the rest of the change: a shorter leg
+        blocked = sorted({b if drives[b] else a for a, b, _ in over if drives[a] != drives[b]})
+        rows = np.array([r for r in blocked if not held[r] and cap[r] > 0], np.int64)
+        if not len(rows):
             break
-        held[alone] = True  # its neighbour waits: it approaches that one standing, later
-        if pairs:
-            a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
-            held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
-    if held.any() and not (drives & ~held).any():  # nobody would drive: the robot with the shortest way does
-        held[order[np.flatnonzero(held[order])[0]]] = False
-        level, ends, _ = stops()
-    staged = (level > 0) & ~held
-    targets[staged] = ends[staged]
+        reach = np.minimum(cap[rows], np.where(movable[rows], fractions[shortest], 1.0))
+        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, drives)
+    capped = (cap < 1.0) & ~held
+    stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
+    staged = ((level > 0) | capped) & ~held & ~stop
+    targets[staged | stop] = ends[staged | stop]
     targets[held] = current[held]
+    short = short | stop
     return Leg(targets, staged, short, held)
+
+
+def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, path: np.ndarray, rows: np.ndarray,
+                       start: np.ndarray, drives: np.ndarray) -> np.ndarray:
+    """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
+    steps of ``STOP_STEP``, whose end keeps ``CONTACT_BOUND`` against every robot not of ``drives`` (standing for the
+    rest of the change); 0 where none does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
+    fraction = np.zeros(len(rows))
+    todo = np.ones(len(rows), bool)
+    step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
+    while todo.any() and (step[todo] > 0).any():  # steps only fall: this ends
+        trying = todo & (step > 0)
+        there = ends.copy()
+        there[rows] = estimate.positions[rows] + (step * STOP_STEP)[:, None] * path[rows]
+        i, j, p = _end_pairs(cfg, estimate, there, rows[trying])
+        over = (p > CONTACT_BOUND) & ~drives[j]
+        clear = trying & ~np.isin(rows, i[over])
+        fraction[clear] = step[clear] * STOP_STEP
+        todo &= ~clear
+        step[todo] -= 1
+    return fraction
 
 
 def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,

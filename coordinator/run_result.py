@@ -189,7 +189,8 @@ class RunResult:
 
     def stopped_short(self) -> list[list[int]]:
         """Per completed configuration, the robots its approach legs stopped short of their desired position on purpose
-        (``coordinator.legs.safe_goals``: at risk there even with no motion noise), ids in order."""
+        (``coordinator.legs``: at risk there even with no motion noise, or the way blocked by a robot standing for the
+        rest of the change), ids in order."""
         out: list[list[int]] = []
         for rec in self.configs:
             final: dict[int, np.ndarray] = {}

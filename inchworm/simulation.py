@@ -209,7 +209,7 @@ def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
     text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point{waits}, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
     if stopped_short:
-        text += f"; robots {stopped_short} stopped short of their targets (at risk there even with no motion noise)"
+        text += f"; robots {stopped_short} stopped short of their targets (at risk there even with no motion noise, or blocked by a standing robot)"
     return text
 
 
@@ -271,9 +271,10 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     highest bound per pair and step kept, ``unclear`` the robots no order kept within the highest, moved one at a time),
     ``staging_stops`` (approach legs driven to a staging point, ``coordinator.legs``) and ``legs`` (each configuration
     whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``, ``stopped_short``
-    the robots the legs stopped short of their desired positions, at risk there even with no motion noise, ``holds``
-    the legs a robot waited in for a neighbour), ``stopped_short`` (those robots over the run, one per robot and
-    configuration) and ``holds`` (the waits over the run)."""
+    the robots the legs stopped short of their desired positions, at risk there even with no motion noise or blocked by
+    a robot standing for the rest of the change, ``holds`` the legs a robot waited in for a neighbour),
+    ``stopped_short`` (those robots over the run, one per robot and configuration) and ``holds`` (the waits over the
+    run)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
             "stopped_short": sum(len(s) for s in short), "holds": result.holds(),

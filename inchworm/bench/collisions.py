@@ -24,7 +24,8 @@ robots; ``unclear_changes``: changes with robots no order kept within the highes
 ``leg_changes``: changes whose movers drove in approach legs (``coordinator.legs``), ``staging_stops``: the legs driven
 to a staging point (one per robot and stop; their steps are in ``steps_added`` and ``steps_per_config``);
 ``stopped_short``: robots the legs stopped short of their desired position (one per robot and change: their place is
-at risk even reached with no motion noise), ``stopped_short_changes``: changes with such a robot; ``holds``: legs a
+at risk even reached with no motion noise, or their way is blocked by a robot standing for the rest of the change),
+``stopped_short_changes``: changes with such a robot; ``holds``: legs a
 robot waited where it stood for a neighbour (one per robot and leg: a pair separated in time, ``coordinator.legs``).
 """
 
@@ -163,7 +164,7 @@ def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
                  f"bound {CONTACT_BOUND:g} per pair and step for some robots (raised for them); unclear: changes with robots no order "
                  f"kept within {max(BOUND_LEVELS):g} (moved one at a time); legs: changes whose movers drove in approach legs, stops: "
                  f"approach legs driven to a staging point; waits: legs a robot waited in for a neighbour; short: robots stopped "
-                 f"short of their targets (at risk there even with no motion noise)")
+                 f"short of their targets (at risk there even with no motion noise, or blocked by a standing robot)")
     public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
     return BenchResult(public, summary, "\n".join(lines), "method", "contacts_per_100", "contacts per 100 changes",

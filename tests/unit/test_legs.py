@@ -79,9 +79,44 @@ def test_a_clear_drive_gets_no_leg_and_the_plan_is_clear_plans():
     plan = Plan(np.array([0, 1, 2]), (1, 1, 1))
     cleared, regrouped, leg = first_leg(X3, plan, NEAR, far)
     assert leg is None and (cleared, regrouped) == clear_plan(X3, plan, NEAR, far)
-    # point robots and the last leg drive straight too
+    # point robots drive straight too
     assert not leg_targets(ModelConfig(robot_radius_m=0.0, turn_sigma_rad=X3.turn_sigma_rad), NEAR, NEAR_DESIRED, np.ones(3, bool)).any
-    assert not leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True).any
+
+
+def test_a_last_leg_over_against_a_still_neighbour_stops_short_where_the_bound_holds():
+    """Its last leg does not drive into a robot that stands for the rest of the change: the robot ends the change at
+    the farthest point of its way (in 1/16 steps) whose end keeps the bound, reported as stopped short."""
+    leg = leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), last=True)
+    assert leg.short.tolist() == [True, False, False] and not leg.staged.any() and not leg.held.any()
+    f = leg.targets[0, 0] / 0.3
+    assert leg.targets[0, 1] == pytest.approx(0.0, abs=1e-12) and 0.0 < f < 1.0 and (16 * f) == pytest.approx(round(16 * f))
+    assert end_risk(X3, NEAR, leg.targets, 0, 1) <= CONTACT_BOUND
+    farther = leg.targets.copy()
+    farther[0, 0] += 0.3 / 16  # the next point of its way is over
+    assert end_probability(X3, NEAR, farther, 0, 1) > CONTACT_BOUND
+
+
+def test_a_way_past_a_still_neighbour_never_ends_a_leg_over_the_bound_and_stops_short_before_it():
+    """Robot 0 drives 0.4 m past robot 1, which stands 3 cm beside its way for the rest of the change, at x5.58, the
+    legs driven exactly: where every staging point walks into robot 1 it takes a shorter leg that keeps the bound and
+    re-plans, and ends the change stopped short where the next step would be over (the way is straight)."""
+    est = estimate([[0.0, 0.0], [0.2, 0.03]], [0.1, 2.0])
+    desired = np.array([[0.4, 0.0], [0.2, 0.03]])
+    _, _, first = first_leg(X558, Plan(np.array([0, 1]), (1, 1)), est, desired)
+    assert first is not None
+    legs, poses = (first,), est.poses.copy()
+    while True:
+        ends = poses[:, :2].copy()
+        ends[np.searchsorted(est.ids, legs[-1].ids)] = legs[-1].targets
+        assert end_probability(X558, SwarmEstimate(est.ids, poses.copy(), est.cov), ends, 0, 1) <= CONTACT_BOUND
+        poses[:, :2] = ends
+        if not len(legs[-1].going_on):
+            break
+        leg = next_leg(X558, legs, SwarmEstimate(est.ids, poses.copy(), est.cov), desired, len(legs))
+        assert leg is not None
+        legs += (leg,)
+    assert 0.05 < poses[0, 0] < 0.2 - 2 * X558.robot_radius_m and poses[0, 1] == 0.0
+    assert len(legs) <= LEG_CAP
 
 
 def test_a_target_at_risk_even_reached_without_noise_stops_short_at_a_safe_distance():
@@ -117,7 +152,13 @@ def test_legs_are_deterministic_and_the_next_starts_from_the_new_estimate():
     assert leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
     np.testing.assert_array_equal(leg.targets, again.targets)
     last = next_leg(X3, (first,) * (MAX_LEGS - 1), after, NEAR_DESIRED, MAX_LEGS - 1)  # its MAX_LEGS-th driven leg
-    assert last is not None and not last.staged.any() and last.targets[0].tolist() == NEAR_DESIRED[0].tolist()
+    assert last is not None and not last.staged.any() and not len(last.going_on)
+    # the rest of the way still ends over the bound against the still robot 1: it ends the change short, on its way
+    assert end_probability(X3, after, NEAR_DESIRED, 0, 1) > CONTACT_BOUND
+    assert first.targets[0, 0] < last.targets[0, 0] < NEAR_DESIRED[0, 0] and last.targets[0, 1] == 0.0
+    ends = after.positions.copy()
+    ends[0] = last.targets[0]
+    assert end_probability(X3, after, ends, 0, 1) <= CONTACT_BOUND
     assert next_leg(X3, (first,), after.select(np.array([False, True, True])), NEAR_DESIRED[1:], 1) is None  # lost
 
 
@@ -326,6 +367,21 @@ def test_a_head_on_pair_with_clear_ends_drives_straight_and_the_last_leg_never_w
     final = next_leg(X558, (first,) * (LEG_CAP - 1), CONVERGE, CONVERGE_DESIRED, LEG_CAP - 1)
     assert final is not None and not len(final.held) and not final.staged.any()
     np.testing.assert_array_equal(final.targets, CONVERGE_DESIRED)
+
+
+def test_when_every_robot_would_wait_the_one_least_at_risk_drives():
+    """Robot 0 waits for robot 1 (its way passes 4 cm from robot 1's place), robot 2 on its last leg for robot 1 (its
+    goal is robot 1's place), robot 1 against the waiting robot 0: nobody would drive. Not the robot with the shortest
+    way (robot 2, into robot 1 standing: 0.76) drives, but robot 1, away from robot 2, at the least risk of the three."""
+    est = estimate([[-0.086, -0.716], [-0.128, -0.738], [-0.114, -0.77]], [2.8, 1.5, 1.6])
+    desired = np.array([[-0.244, -0.656], [-0.13, -0.478], [-0.124, -0.738]])
+    leg = leg_targets(X558, est, desired, np.ones(3, bool), last=np.array([False, False, True]))
+    assert leg.held.tolist() == [True, False, True] and leg.staged.tolist() == [False, True, False]
+    assert end_probability(X558, est, leg.targets, 1, 2) <= CONTACT_BOUND
+    assert end_probability(X558, est, leg.targets, 0, 1) < 0.02
+    straight = est.positions.copy()
+    straight[2] = desired[2]
+    assert end_probability(X558, est, straight, 1, 2) > 0.5
 
 
 def test_a_checkpoint_carries_the_waiting_robots():
