@@ -73,7 +73,7 @@ from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, block_errors, plan_keeps_connectivity
+from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import EARLY_MARGIN, best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
@@ -355,6 +355,17 @@ class AnchorSelector:
                 return False
             p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max()
             return bool(p_s.mean() + EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)) < other)
+
+        def decided(n_a: int, e_l: np.ndarray, e_l_max: float, other: float, undecided_rivals: bool) -> bool:
+            """Whether a plan of ``n_a`` anchors with e_l per sample ``e_l`` on the fresh set is decided against ``other``, the
+            best P_s (Eq. 3) of the other counts: below it by more than ``EARLY_MARGIN`` standard errors, or (unless other
+            counts' fresh checks are still to come, ``undecided_rivals``) above it by as much, or no other count has a plan."""
+            if len(e_l) < 2:
+                return False
+            p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max
+            se = EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s))
+            return bool(p_s.mean() + se < other or (not undecided_rivals and p_s.mean() - se > other))
+        pending: list[int] = []  # seedless counts whose race winner waits for its fresh check (after every count's search)
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar():
@@ -387,8 +398,14 @@ class AnchorSelector:
             if count_samples != samples:  # many plans compared: more samples (the seed's screened e_l is not on them)
                 known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
-            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
-            evaluations += k
+            settled: list[Plan] | None = None  # the race's contenders when the search is not run
+            plan: Plan | None
+            if sel.method != "crlb" and clear and len(starts) <= sel.contenders and {p.key() for p in clear} <= {p.key() for p in starts}:
+                # every feasible plan of the count is a start and the race takes them all: the search can find nothing new
+                plan, e_l, settled = starts[0], np.nan, list(starts)
+            else:
+                plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
+                evaluations += k
             found: list[Plan] | None = None  # every clear plan of the count, evaluated when the search met none
             if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
                 found = self._clear_plans(n, n_a, pairs, connected) if clear is None else clear
@@ -425,13 +442,13 @@ class AnchorSelector:
                 per = each_sample([*plans, all_move], count, seed)
                 race_no_anchor[(count, seed)] = per[-1]
                 return per[:-1]
-            raced = race(best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless)
+            raced = race(settled or best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless)
             champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
             if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
                 scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
                 continue
             if seed is not None and (raced.stopped or champion.key() == seed.key()):  # the seed, scored as screened, no final check
-                if seed is seeds[n_a] or count_samples == samples:
+                if seed is seeds[n_a] or (count_samples == samples and seed.key() in known):
                     e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
                 else:
                     e_seed = float(evaluate([seed])[0])
@@ -439,21 +456,16 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
                 raise_bar(n_a, scores[n_a].p_s)
                 continue
-            if seed is None:  # no feasible seed: the race winner on the fresh set, block by block until it cannot win
-                each: list[np.ndarray] = []
-                if not np.isfinite(bar(other_than=n_a)):  # no other count to lose to: every block, with e_l(0), in one pass
-                    per = block_errors(self.cfg, self.localizer, sel.mc_start, blocks, estimate, desired, [champion, all_move])
-                    cuts = np.cumsum([count for count, _ in blocks])[:-1]
-                    each = np.split(per[0], cuts)
-                    no_anchor_blocks[len(no_anchor_blocks):] = np.split(per[1], cuts)[len(no_anchor_blocks):]
-                for b in blocks[len(each):]:
-                    each.append(each_sample([champion], *b)[0])
-                    if cannot_win(n_a, np.concatenate(each), partial(fresh_emax, len(each))):
-                        break
-                looked = len(each)
-                kept, e_fresh, e_seed = champion, float(np.concatenate(each).mean()), np.nan
-            else:
-                kept, e_fresh, e_seed, looked = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks)
+            if seed is None:  # no feasible seed: the race winner's fresh check waits until every count has its plan
+                pending.append(n_a)
+                on_screen = known.get(champion.key()) if count_samples == samples else None
+                if on_screen is None:
+                    on_screen = float(evaluate([champion])[0])
+                    evaluations += 1
+                scores[n_a] = score(n_a, champion, on_screen, e_max, searched=True, genetic=True)
+                raise_bar(n_a, scores[n_a].p_s)
+                continue
+            kept, e_fresh, e_seed, looked = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks)
             evaluations += 2 * looked
             scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
@@ -461,6 +473,16 @@ class AnchorSelector:
                 on_screen = float(evaluate([kept])[0])
                 evaluations += 1
             raise_bar(n_a, score(n_a, kept, on_screen, e_max).p_s)
+        for i, n_a in enumerate(pending):  # the seedless race winners on the fresh set, block by block until decided
+            winner, each = scores[n_a].plan, []
+            assert winner is not None  # a race winner
+            rest = [scores[j].p_s for j in scores if j != n_a and j not in pending[i + 1:] and scores[j].plan is not None]
+            for b in blocks:
+                each.append(fresh_look([winner], *b)[0])
+                if decided(n_a, np.concatenate(each), fresh_emax(len(each)), max(rest, default=-np.inf), i + 1 < len(pending)):
+                    break
+            evaluations += 2 * len(each)
+            scores[n_a] = score(n_a, winner, float(np.concatenate(each).mean()), fresh_emax(len(each)), searched=True, genetic=True)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:
