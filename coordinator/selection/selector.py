@@ -94,6 +94,7 @@ MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row 
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)
+RACE_LOOKS = 8  # a race's round of at least 2 x final samples / this is seen in two halves (``racing.race``'s ``look``)
 ENUMERATED_RACE = 4  # a race among enumerated clear plans starts at final samples / this (8 contenders: the last 2 get all of them)
 
 
@@ -442,12 +443,22 @@ class AnchorSelector:
                 per = each_sample([*plans, all_move], count, seed)
                 race_no_anchor[(count, seed)] = per[-1]
                 return per[:-1]
-            raced = race(settled or best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless)
+            raced = race(settled or best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless,
+                         look=-(-final_samples // RACE_LOOKS))
             champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
             if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
                 scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
                 continue
-            if seed is not None and (raced.stopped or champion.key() == seed.key()):  # the seed, scored as screened, no final check
+            decision: tuple[Plan, float, float, int] | None = None  # a final check's (kept, e_l, seed e_l, looks)
+            futile: list[int] = []  # the looks of a final check stopped because neither plan can win
+            if seed is not None and not raced.stopped and champion.key() != seed.key():
+
+                def neither(e_l: np.ndarray, looked: int, n_a: int = n_a, futile: list[int] = futile) -> bool:
+                    futile[:] = [looked] if cannot_win(n_a, e_l, partial(fresh_emax, looked)) else []
+                    return bool(futile)
+                decision = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks, hopeless=neither)
+                evaluations += 2 * decision[3]
+            if seed is not None and (decision is None or futile):  # the seed, scored as screened (no final check or a futile one)
                 if seed is seeds[n_a] or (count_samples == samples and seed.key() in known):
                     e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
                 else:
@@ -465,8 +476,8 @@ class AnchorSelector:
                 scores[n_a] = score(n_a, champion, on_screen, e_max, searched=True, genetic=True)
                 raise_bar(n_a, scores[n_a].p_s)
                 continue
-            kept, e_fresh, e_seed, looked = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks)
-            evaluations += 2 * looked
+            assert decision is not None  # a seed, and a final check that decided
+            kept, e_fresh, e_seed, looked = decision
             scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
             if on_screen is None:
