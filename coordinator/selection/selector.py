@@ -23,16 +23,21 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
    screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
    generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
-   (successive halving on fresh samples, clearly worse contenders dropped early) among its ``contenders``
+   (successive halving on fresh samples, clearly worse contenders dropped early, a large round judged after
+   its first half too, ``RACE_LOOKS``) among its ``contenders``
    (screened: ``screened_contenders``) best distinct plans (a race won by the seed ends there: the seed keeps
    its screened score; so does a count whose race leader's P_s is clearly below the best of the other
    counts, ``cannot_win``: it cannot win, so no final check is spent on it), then
    the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
-   difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
+   difference is decided, ``racing.final_check``, or once neither plan can win: the seed is kept as screened):
+   the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
    e_l(0) on the same samples give P_l. So the search never returns a plan that is worse
-   than its seed on those samples, and P_s is not biased by the search. Every budget is a
+   than its seed on those samples, and P_s is not biased by the search. A count without a seed has its race
+   winner scored on the fresh set after every count's search, look by look until its P_s is decided against
+   the other counts' (``decided``). A count whose every feasible plan is a start of the search and a contender
+   of the race is raced without the search (it could find nothing new). Every budget is a
    number of evaluations, never a time: a selection is a function of its seed.
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
@@ -357,15 +362,13 @@ class AnchorSelector:
             p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max()
             return bool(p_s.mean() + EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)) < other)
 
-        def decided(n_a: int, e_l: np.ndarray, e_l_max: float, other: float, undecided_rivals: bool) -> bool:
+        def decided(n_a: int, e_l: np.ndarray, e_l_max: float, other: float) -> bool:
             """Whether a plan of ``n_a`` anchors with e_l per sample ``e_l`` on the fresh set is decided against ``other``, the
-            best P_s (Eq. 3) of the other counts: below it by more than ``EARLY_MARGIN`` standard errors, or (unless other
-            counts' fresh checks are still to come, ``undecided_rivals``) above it by as much, or no other count has a plan."""
+            best P_s (Eq. 3) of the other counts: more than ``EARLY_MARGIN`` standard errors below or above it."""
             if len(e_l) < 2:
                 return False
             p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max
-            se = EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s))
-            return bool(p_s.mean() + se < other or (not undecided_rivals and p_s.mean() - se > other))
+            return bool(abs(p_s.mean() - other) > EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)))
         pending: list[int] = []  # seedless counts whose race winner waits for its fresh check (after every count's search)
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
@@ -484,13 +487,14 @@ class AnchorSelector:
                 on_screen = float(evaluate([kept])[0])
                 evaluations += 1
             raise_bar(n_a, score(n_a, kept, on_screen, e_max).p_s)
-        for i, n_a in enumerate(pending):  # the seedless race winners on the fresh set, block by block until decided
+        for n_a in pending:  # the seedless race winners on the fresh set, block by block until decided against the others'
+            # P_s (a seedless count not yet looked at: its winner on the screening samples)
             winner, each = scores[n_a].plan, []
             assert winner is not None  # a race winner
-            rest = [scores[j].p_s for j in scores if j != n_a and j not in pending[i + 1:] and scores[j].plan is not None]
+            other = max((scores[j].p_s for j in scores if j != n_a and scores[j].plan is not None), default=-np.inf)
             for b in blocks:
                 each.append(fresh_look([winner], *b)[0])
-                if decided(n_a, np.concatenate(each), fresh_emax(len(each)), max(rest, default=-np.inf), i + 1 < len(pending)):
+                if decided(n_a, np.concatenate(each), fresh_emax(len(each)), other):
                     break
             evaluations += 2 * len(each)
             scores[n_a] = score(n_a, winner, float(np.concatenate(each).mean()), fresh_emax(len(each)), searched=True, genetic=True)
