@@ -45,7 +45,8 @@ class RaceResult(NamedTuple):
 
 
 def race(plans: list[Plan], evaluate: SampleEvaluator, samples: int, rng: np.random.Generator,
-         margin: float = EARLY_MARGIN, hopeless: Callable[[np.ndarray, list[tuple[int, int]]], bool] | None = None) -> RaceResult:
+         margin: float = EARLY_MARGIN, hopeless: Callable[[np.ndarray, list[tuple[int, int]]], bool] | None = None,
+         look: int | None = None) -> RaceResult:
     """Successive halving over ``plans``.
 
     Round r evaluates the survivors on ``samples`` x 2^r fresh samples (one new seed per round,
@@ -54,22 +55,32 @@ def race(plans: list[Plan], evaluate: SampleEvaluator, samples: int, rng: np.ran
     standard errors of their paired per-sample difference is clearly worse and drops out (at most
     the worse half stays out too: plain halving); the race ends when one is left, or as soon as
     ``hopeless`` (the leader's e_l per sample, the blocks seen) says even the leader cannot win.
+    With ``look``, a round of at least 2 x ``look`` samples is seen in two halves (the second from a seed derived
+    from the round's): the clearly worse drop out and ``hopeless`` is asked after the first half too.
     """
     alive = list(range(len(plans)))
     seen = np.zeros((len(plans), 0))  # e_l per sample of every round so far (the survivors' rows are filled)
     blocks: list[tuple[int, int]] = []
     spent, budget = 0, samples
     while len(alive) > 1:
-        blocks.append((budget, int(rng.integers(2**63))))
-        each = evaluate([plans[k] for k in alive], *blocks[-1])
-        seen = np.concatenate([seen, np.zeros((len(plans), budget))], axis=1)
-        seen[alive, -budget:] = each
-        spent += len(alive)
-        alive = sorted(alive, key=lambda k: (seen[k].mean(), k))[: max(1, len(alive) // 2)]
-        alive = [k for k in alive if not clearly_worse(seen[k], seen[alive[0]], margin)]
+        round_seed = int(rng.integers(2**63))
+        halves = look is not None and budget >= 2 * look
+        parts = [(budget // 2, round_seed), (budget - budget // 2, int(np.random.default_rng([round_seed, 1]).integers(2**63)))]
+        for part, block in enumerate(parts if halves else [(budget, round_seed)]):
+            blocks.append(block)
+            each = evaluate([plans[k] for k in alive], *block)
+            seen = np.concatenate([seen, np.zeros((len(plans), block[0]))], axis=1)
+            seen[alive, -block[0]:] = each
+            spent += len(alive)
+            alive = sorted(alive, key=lambda k: (seen[k].mean(), k))
+            if part == 1 or not halves:  # the end of a round: the better half goes on
+                alive = alive[: max(1, len(alive) // 2)]
+            alive = [k for k in alive if not clearly_worse(seen[k], seen[alive[0]], margin)]
+            if hopeless is not None and hopeless(seen[alive[0]], blocks):
+                return RaceResult(plans[alive[0]], spent, True, seen[alive[0]], blocks)
+            if len(alive) == 1:
+                break
         budget *= 2
-        if hopeless is not None and hopeless(seen[alive[0]], blocks):
-            return RaceResult(plans[alive[0]], spent, True, seen[alive[0]], blocks)
     return RaceResult(plans[alive[0]], spent, False, seen[alive[0]], blocks)
 
 
@@ -96,13 +107,15 @@ def fresh_blocks(samples: int, fresh: int, looks: int = 1) -> list[tuple[int, in
 
 
 def final_check(champion: Plan, seed: Plan, evaluate: SampleEvaluator, samples: int, fresh: int,
-                margin: float = MARGIN, looks: int = 1) -> tuple[Plan, float, float, int]:
+                margin: float = MARGIN, looks: int = 1,
+                hopeless: Callable[[np.ndarray, int], bool] | None = None) -> tuple[Plan, float, float, int]:
     """(kept plan, its e_l, the seed's e_l, blocks seen) on the fresh set of ``samples`` drawn from ``fresh``.
 
     The champion is kept only if its mean e_l is below the seed's by more than ``margin``
     standard errors of the per-sample difference (common random numbers pair the samples).
     With ``looks`` > 1 the blocks of ``fresh_blocks`` are evaluated one after the other and the
-    check stops early once the difference is beyond ``EARLY_MARGIN`` standard errors either way.
+    check stops early once the difference is beyond ``EARLY_MARGIN`` standard errors either way, or, undecided, once
+    ``hopeless`` (the better plan's e_l per sample, the blocks seen) says neither plan can win: then the seed is kept.
     """
     blocks = fresh_blocks(samples, fresh, looks)
     if champion.key() == seed.key():
@@ -120,6 +133,8 @@ def final_check(champion: Plan, seed: Plan, evaluate: SampleEvaluator, samples: 
         if diff.mean() + z * se < 0:
             return champion, float(each[0].mean()), float(each[1].mean()), b + 1
         if last or diff.mean() - z * se > 0:
+            break
+        if hopeless is not None and hopeless(each[int(diff.mean() > 0)], b + 1):
             break
     e_seed = float(each[1].mean())
     return seed, e_seed, e_seed, b + 1  # blocks is never empty

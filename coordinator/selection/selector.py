@@ -23,16 +23,21 @@ Search, per selection (``docs/selection.md`` has the budgets and the measurement
    for a count with more than 252 plans, ``search_samples``), with the joint localizer its new plans
    screened by the Cramer-Rao prediction (``screens``: only the best-predicted few of each
    generation are evaluated by Monte Carlo, ``GeneticConfig.screened``), then a race
-   (successive halving on fresh samples, clearly worse contenders dropped early) among its ``contenders``
+   (successive halving on fresh samples, clearly worse contenders dropped early, a large round judged after
+   its first half too, ``RACE_LOOKS``) among its ``contenders``
    (screened: ``screened_contenders``) best distinct plans (a race won by the seed ends there: the seed keeps
    its screened score; so does a count whose race leader's P_s is clearly below the best of the other
    counts, ``cannot_win``: it cannot win, so no final check is spent on it), then
    the race winner and the seed on one more fresh set
    (``samples_for(final_samples)``, seen in ``final_looks`` looks that stop once the paired
-   difference is decided, ``racing.final_check``): the winner replaces the seed only if it is better by
+   difference is decided, ``racing.final_check``, or once neither plan can win: the seed is kept as screened):
+   the winner replaces the seed only if it is better by
    more than one standard error of the paired difference; the kept plan's fresh e_l and
    e_l(0) on the same samples give P_l. So the search never returns a plan that is worse
-   than its seed on those samples, and P_s is not biased by the search. Every budget is a
+   than its seed on those samples, and P_s is not biased by the search. A count without a seed has its race
+   winner scored on the fresh set after every count's search, look by look until its P_s is decided against
+   the other counts' (``decided``). A count whose every feasible plan is a start of the search and a contender
+   of the race is raced without the search (it could find nothing new). Every budget is a
    number of evaluations, never a time: a selection is a function of its seed.
 
 Bodies (constraint g of Eq. 4, ``docs/bodies.md``): a plan is feasible only if it also keeps
@@ -73,7 +78,7 @@ from coordinator.selection.clear_pairs import PairTable
 from coordinator.selection.crlb_rank import predicted_error, predicted_errors
 from coordinator.selection.genetic import GeneticConfig, genetic_search
 from coordinator.selection.heuristic import heuristic_plan
-from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, block_errors, plan_keeps_connectivity
+from coordinator.selection.monte_carlo import MC_STARTS, MonteCarlo, plan_keeps_connectivity
 from coordinator.selection.racing import EARLY_MARGIN, best_distinct, final_check, fresh_blocks, race
 from coordinator.selection.repair import repair
 from runtime.errors import SwarmInputError
@@ -94,6 +99,7 @@ MEASURED_SIZES = (10, 30, 100)  # n_r of the measurement; a swarm takes the row 
 SCREENED_LOCALIZERS = ("joint",)  # the genetic search screens its plans by the Cramer-Rao prediction (``screens``)
 MC_EMAX = ("mean", "worst")  # e_l,max: mean over the samples of e_l(0), or their largest
 ENUMERATED = 5040  # plans of a count enumerated for a clear one when the genetic search met none (n_r = 8: n_a = 4, 6)
+RACE_LOOKS = 8  # a race's round of at least 2 x final samples / this is seen in two halves (``racing.race``'s ``look``)
 ENUMERATED_RACE = 4  # a race among enumerated clear plans starts at final samples / this (8 contenders: the last 2 get all of them)
 
 
@@ -355,6 +361,15 @@ class AnchorSelector:
                 return False
             p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max()
             return bool(p_s.mean() + EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)) < other)
+
+        def decided(n_a: int, e_l: np.ndarray, e_l_max: float, other: float) -> bool:
+            """Whether a plan of ``n_a`` anchors with e_l per sample ``e_l`` on the fresh set is decided against ``other``, the
+            best P_s (Eq. 3) of the other counts: more than ``EARLY_MARGIN`` standard errors below or above it."""
+            if len(e_l) < 2:
+                return False
+            p_s = sel.w_v * speed_performance(n, n_a) - sel.w_l * e_l / e_l_max
+            return bool(abs(p_s.mean() - other) > EARLY_MARGIN * p_s.std(ddof=1) / np.sqrt(len(p_s)))
+        pending: list[int] = []  # seedless counts whose race winner waits for its fresh check (after every count's search)
         # 2. bound and 3. inner loop, most promising count first; the bar rises with each count's kept plan
         for n_a in sorted((k for k in scores if k != 0), key=lambda k: (-self._optimistic(screened[k], scores[k].p_v), k)):
             if self._optimistic(screened[n_a], scores[n_a].p_v) < bar():
@@ -387,8 +402,14 @@ class AnchorSelector:
             if count_samples != samples:  # many plans compared: more samples (the seed's screened e_l is not on them)
                 known, search = {}, partial(sampled, count=count_samples, seed=screen_seed)
             predict = partial(predicted_errors, self.cfg, estimate, desired) if screen else None
-            plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
-            evaluations += k
+            settled: list[Plan] | None = None  # the race's contenders when the search is not run
+            plan: Plan | None
+            if sel.method != "crlb" and clear and len(starts) <= sel.contenders and {p.key() for p in clear} <= {p.key() for p in starts}:
+                # every feasible plan of the count is a start and the race takes them all: the search can find nothing new
+                plan, e_l, settled = starts[0], np.nan, list(starts)
+            else:
+                plan, e_l, k = genetic_search(search, starts, feasible, rng, sel.genetic, known, predict)
+                evaluations += k
             found: list[Plan] | None = None  # every clear plan of the count, evaluated when the search met none
             if plan is None:  # no clear plan met: every clear plan of a small count, or an order of single moves
                 found = self._clear_plans(n, n_a, pairs, connected) if clear is None else clear
@@ -425,13 +446,23 @@ class AnchorSelector:
                 per = each_sample([*plans, all_move], count, seed)
                 race_no_anchor[(count, seed)] = per[-1]
                 return per[:-1]
-            raced = race(best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless)
+            raced = race(settled or best_distinct(known, contenders), race_round, race_samples, rng, hopeless=hopeless,
+                         look=-(-final_samples // RACE_LOOKS))
             champion, evaluations = raced.winner, evaluations + raced.spent + len(race_no_anchor) - no_anchor_seen
             if raced.stopped and seed is None:  # cannot win: scored on the race's samples, no final check
                 scores[n_a] = score(n_a, champion, float(raced.e_l.mean()), race_emax(raced.blocks), searched=True, genetic=True)
                 continue
-            if seed is not None and (raced.stopped or champion.key() == seed.key()):  # the seed, scored as screened, no final check
-                if seed is seeds[n_a] or count_samples == samples:
+            decision: tuple[Plan, float, float, int] | None = None  # a final check's (kept, e_l, seed e_l, looks)
+            futile: list[int] = []  # the looks of a final check stopped because neither plan can win
+            if seed is not None and not raced.stopped and champion.key() != seed.key():
+
+                def neither(e_l: np.ndarray, looked: int, n_a: int = n_a, futile: list[int] = futile) -> bool:
+                    futile[:] = [looked] if cannot_win(n_a, e_l, partial(fresh_emax, looked)) else []
+                    return bool(futile)
+                decision = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks, hopeless=neither)
+                evaluations += 2 * decision[3]
+            if seed is not None and (decision is None or futile):  # the seed, scored as screened (no final check or a futile one)
+                if seed is seeds[n_a] or (count_samples == samples and seed.key() in known):
                     e_seed = scores[n_a].seed_e_l if seed is seeds[n_a] else known[seed.key()]
                 else:
                     e_seed = float(evaluate([seed])[0])
@@ -439,28 +470,34 @@ class AnchorSelector:
                 scores[n_a] = replace(score(n_a, seed, e_seed, e_max, e_seed, searched=True, genetic=True), seed=seed)
                 raise_bar(n_a, scores[n_a].p_s)
                 continue
-            if seed is None:  # no feasible seed: the race winner on the fresh set, block by block until it cannot win
-                each: list[np.ndarray] = []
-                if not np.isfinite(bar(other_than=n_a)):  # no other count to lose to: every block, with e_l(0), in one pass
-                    per = block_errors(self.cfg, self.localizer, sel.mc_start, blocks, estimate, desired, [champion, all_move])
-                    cuts = np.cumsum([count for count, _ in blocks])[:-1]
-                    each = np.split(per[0], cuts)
-                    no_anchor_blocks[len(no_anchor_blocks):] = np.split(per[1], cuts)[len(no_anchor_blocks):]
-                for b in blocks[len(each):]:
-                    each.append(each_sample([champion], *b)[0])
-                    if cannot_win(n_a, np.concatenate(each), partial(fresh_emax, len(each))):
-                        break
-                looked = len(each)
-                kept, e_fresh, e_seed = champion, float(np.concatenate(each).mean()), np.nan
-            else:
-                kept, e_fresh, e_seed, looked = final_check(champion, seed, fresh_look, final_samples, final_seed, looks=sel.final_looks)
-            evaluations += 2 * looked
+            if seed is None:  # no feasible seed: the race winner's fresh check waits until every count has its plan
+                pending.append(n_a)
+                on_screen = known.get(champion.key()) if count_samples == samples else None
+                if on_screen is None:
+                    on_screen = float(evaluate([champion])[0])
+                    evaluations += 1
+                scores[n_a] = score(n_a, champion, on_screen, e_max, searched=True, genetic=True)
+                raise_bar(n_a, scores[n_a].p_s)
+                continue
+            assert decision is not None  # a seed, and a final check that decided
+            kept, e_fresh, e_seed, looked = decision
             scores[n_a] = replace(score(n_a, kept, e_fresh, fresh_emax(looked), e_seed, searched=True, genetic=True), seed=seed)
             on_screen = known.get(kept.key()) if count_samples == samples else None
             if on_screen is None:
                 on_screen = float(evaluate([kept])[0])
                 evaluations += 1
             raise_bar(n_a, score(n_a, kept, on_screen, e_max).p_s)
+        for n_a in pending:  # the seedless race winners on the fresh set, block by block until decided against the others'
+            # P_s (a seedless count not yet looked at: its winner on the screening samples)
+            winner, each = scores[n_a].plan, []
+            assert winner is not None  # a race winner
+            other = max((scores[j].p_s for j in scores if j != n_a and scores[j].plan is not None), default=-np.inf)
+            for b in blocks:
+                each.append(fresh_look([winner], *b)[0])
+                if decided(n_a, np.concatenate(each), fresh_emax(len(each)), other):
+                    break
+            evaluations += 2 * len(each)
+            scores[n_a] = score(n_a, winner, float(np.concatenate(each).mean()), fresh_emax(len(each)), searched=True, genetic=True)
         ordered = [scores[k] for k in sorted(scores)]
         best = max((s for s in ordered if s.plan is not None), key=lambda s: s.p_s, default=None)
         if best is None:

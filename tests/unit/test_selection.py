@@ -199,6 +199,37 @@ def test_a_race_whose_leader_cannot_win_stops_and_says_so():
     assert len(result.e_l) == 48 and [b[0] for b in result.blocks] == [16, 32]
 
 
+@pytest.mark.parametrize("seed", range(3))
+def test_a_round_seen_in_halves_drops_the_clearly_worse_after_the_first(seed):
+    """Eight plans 5 % apart, decided by common random numbers within 16 samples: with ``look`` = 16 the first round
+    (32 samples) stops after its first half; a race within the noise sees every round in full, in two halves each."""
+    plans, evaluate, seen = race_case(gap=0.05, own=0.02, count=8)
+    result = race(plans, evaluate, 32, np.random.default_rng(seed), look=16)
+    assert result.winner.key() == plans[0].key() and seen == [(8, 16)] and result.spent == 8
+    plans, evaluate, seen = race_case(gap=0.003)
+    result = race(plans, evaluate, 32, np.random.default_rng(seed), look=16)
+    assert [m for _, m in seen] == [16, 16, 32, 32][: len(seen)] and seen[0][0] == 4 and len(result.e_l) == sum(m for _, m in seen)
+    assert len({b[1] for b in result.blocks}) == len(result.blocks)  # each half its own samples
+
+
+def test_a_final_check_stops_keeping_the_seed_once_neither_plan_can_win():
+    a, b = Plan.equal(np.arange(4), 2), Plan.equal(np.array([2, 3, 0, 1]), 2)
+
+    def evaluate(plans, samples, seed):  # b 0.2 % better than a, within the noise of every look
+        noise = np.random.default_rng(seed).normal(0, 0.2, samples)
+        return np.stack([1.0 + noise + (0.0 if p.key() == a.key() else -0.002 + 0.3 * noise[::-1]) for p in plans])
+
+    told: list[tuple[float, int]] = []
+
+    def hopeless(e_l, looked):
+        told.append((float(e_l.mean()), looked))
+        return looked == 2
+
+    kept, _, _, looked = final_check(b, a, evaluate, 64, 5, looks=4, hopeless=hopeless)
+    assert kept.key() == a.key() and looked == 2 and [k for _, k in told] == [1, 2]
+    assert final_check(b, a, evaluate, 64, 5, looks=4)[3] == 4  # undecided without it: every look
+
+
 def test_a_contender_is_clearly_worse_only_beyond_the_margin():
     leader = np.array([1.0, 2.0, 3.0, 4.0])
     assert clearly_worse(leader + np.array([0.3, 0.1, 0.2, 0.2]), leader, 2.0)  # mean 0.2, standard error 0.041

@@ -67,7 +67,7 @@ def test_a_count_that_cannot_win_stops_its_race_and_the_choice_stays(monkeypatch
     localizer = make_localizer("joint", CFG)
     stopping = AnchorSelector(CFG, localizer, SelectionConfig(), seed=0).select(estimate, traj.configurations[0])
     original = selector_module.race
-    monkeypatch.setattr(selector_module, "race", lambda *args, hopeless=None: original(*args))
+    monkeypatch.setattr(selector_module, "race", lambda *args, hopeless=None, **options: original(*args, **options))
     full = AnchorSelector(CFG, localizer, SelectionConfig(), seed=0).select(estimate, traj.configurations[0])
     assert stopping.n_anchors == full.n_anchors == 0 and stopping.plan.key() == full.plan.key()
     assert [s.searched for s in stopping.scores] == [s.searched for s in full.scores]
