@@ -55,8 +55,8 @@ if TYPE_CHECKING:
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
     from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
-    from inchworm.sim_result import SimResult as SimResult
-    from inchworm.simulation import SimOptions as SimOptions, simulate as simulate
+    from inchworm.sim_options import SimOptions as SimOptions
+    from inchworm.simulation import SimResult as SimResult, simulate as simulate
     from inchworm.studies.anchors import AnchorsOptions as AnchorsOptions, AnchorsResult as AnchorsResult, study_anchors as study_anchors
     from inchworm.studies.calibration import (
         CalibrationOptions as CalibrationOptions,
@@ -79,7 +79,7 @@ if TYPE_CHECKING:
     from runtime.models.trajectory import Trajectory as Trajectory
 
 _WHERE = {
-    "simulate": "inchworm.simulation", "SimOptions": "inchworm.simulation", "SimResult": "inchworm.sim_result",
+    "simulate": "inchworm.simulation", "SimOptions": "inchworm.sim_options", "SimResult": "inchworm.simulation",
     "run_distributed": "inchworm.distributed", "DistributedRun": "inchworm.distributed",
     "RunResult": "coordinator.run_result",
     "ModelConfig": "runtime.models.config",

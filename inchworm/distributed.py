@@ -28,7 +28,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING, Any
 
-from inchworm.simulation import resolve_trajectory
+from inchworm.sim_options import resolve_trajectory
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.paths import StrPath, as_path

@@ -1,88 +1,57 @@
-"""One simulated run from Python: ``simulate`` and its options (``SimOptions``, what ``swarm sim`` parses its flags
-from: ``swarm_cli.schema``), and the per-configuration table of a run."""
+"""One simulated run from Python: ``simulate`` runs ``SimOptions`` (``inchworm.sim_options``) and returns a ``SimResult``
+(the run with its options; ``to_json()`` is ``swarm sim --json``'s object), and the per-configuration table of a run."""
 
 from __future__ import annotations
 
-import math
-import os
-from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, overload
 
-import numpy as np
-
-from coordinator.localization.registry import DEFAULT_LOCALIZER
-from coordinator.strategies import METHODS
-from inchworm.limits import check_option_limits
-from inchworm.options import check_at_least, check_localizers, default_selection
-from runtime.errors import OptionError, OutputError
+from coordinator.run_result import RunResult
+from inchworm.sim_options import OnProgress, SimOptions
+from runtime.errors import OutputError
 from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
-from runtime.paths import StrPath, coerce_paths
+from runtime.models.trajectory import Trajectory
+from runtime.paths import StrPath
 
 if TYPE_CHECKING:
     from coordinator.localization import Localizer
-    from coordinator.run_result import ConfigRecord, RunResult, StepRecord
+    from coordinator.run_result import ConfigRecord, StepRecord
     from coordinator.selection.selector import SelectionConfig
     from coordinator.strategies import Strategy
-    from inchworm.sim_result import SimResult
     from runtime.world.params import PhysicsParams
 
-WORLDS = ("model", "physics")  # the noise model's world, the rigid-body world (runtime.world)
-OnProgress = Callable[[int, int], None]  # told (configurations done, of total)
+
+@dataclass(eq=False)
+class SimResult(RunResult):
+    """A simulated run (every ``RunResult`` field and method) and the ``SimOptions`` it ran (``options``, its
+    trajectory the ``Trajectory`` followed)."""
+
+    options: SimOptions | None = None
+
+    @classmethod
+    def of(cls, result: RunResult, options: SimOptions) -> SimResult:
+        """``result``, the run of ``options``, with them."""
+        return cls(**{f.name: getattr(result, f.name) for f in fields(RunResult)}, options=options)
+
+    def to_json(self, plots: Sequence[str] = ()) -> dict[str, Any]:
+        """The object ``swarm sim --json`` prints: ``method``, ``localizer``, ``seed``, ``pf``, ``mc_start`` and
+        ``mc_emax`` (the anchor search's), ``configs`` (the rows of ``configs.csv``), ``fallback_steps``, ``plots``
+        (the figures written of the run: ``inchworm.plots.write_run_plots``), the bodies' keys
+        (``inchworm.simulation.contacts_json``) and the world's (``world_json``)."""
+        o = self.options
+        if o is None:
+            raise ValueError("SimResult.to_json needs the options of the run (SimResult.of(result, options))")
+        return {"method": o.method if isinstance(o.method, str) else self.method, "localizer": _name(o.localizer), "seed": o.seed,
+                "pf": self.pf(), "mc_start": o.selection.mc_start, "mc_emax": o.selection.mc_emax, "configs": config_rows(self),
+                "fallback_steps": len(fallback_steps(self)), "plots": list(plots),
+                **contacts_json(self, o.model.robot_radius_m), **world_json(self, o.world)}
 
 
-@dataclass(frozen=True, kw_only=True)
-class SimOptions:
-    """One simulated run: ``method`` (a name of ``coordinator.strategies.METHODS`` or your own ``Strategy``) along
-    ``trajectory`` (a ``Trajectory``, a trajectory JSON file, or None: a random one of ``robots`` robots and ``configs``
-    configurations drawn with ``seed``); the noise ``model``, the ``localizer`` (a registered name or your own
-    ``Localizer``, which a searching method's Monte Carlo simulates too), the anchor search (``selection``); the
-    ``world`` (``"model"``: the robots move and sense by the noise model, as the planner assumes; ``"physics"``: a
-    rigid-body world of ``physics`` parameters, default ``PhysicsParams.for_model(model)``, the ``physics`` extra) and
-    the start estimate's uncertainty (``initial_delta_m``, ``initial_heading_sigma_rad``). Checked when made
-    (``OptionError`` naming the field)."""
-
-    trajectory: Trajectory | StrPath | None = field(default=None, metadata={"help": "trajectory JSON (docs/trajectory.md); default: a random one"})
-    robots: int = field(default=10, metadata={"help": "robots of the random trajectory"})
-    configs: int = field(default=5, metadata={"help": "configurations of the random trajectory"})
-    method: str | Strategy = field(default="inchworm", metadata={"help": "motion strategy", "choices": METHODS})
-    seed: int = field(default=0, metadata={"help": "seed of the trajectory, noise and search"})
-    model: ModelConfig = field(default_factory=ModelConfig)
-    localizer: str | Localizer = DEFAULT_LOCALIZER
-    selection: SelectionConfig = field(default_factory=default_selection)
-    world: str = "model"
-    physics: PhysicsParams | None = field(default=None, metadata={"flag": "--physics-param"})
-    initial_delta_m: float = 0.01
-    initial_heading_sigma_rad: float = math.radians(2.0)
-
-    def __post_init__(self) -> None:
-        if self.trajectory is None:
-            for name, least in (("robots", 2), ("configs", 1)):
-                if getattr(self, name) < least:
-                    raise OptionError(name, f"must be >= {least} for a random trajectory, got {getattr(self, name)}", self)
-        elif not isinstance(self.trajectory, Trajectory):
-            if not isinstance(self.trajectory, (str, os.PathLike)):
-                raise OptionError("trajectory", f"must be a Trajectory or a trajectory JSON file, got {type(self.trajectory).__name__}", self)
-            coerce_paths(self, "trajectory")
-        if isinstance(self.method, str) and self.method not in METHODS:
-            raise OptionError("method", f"must be one of {', '.join(METHODS)} (or a Strategy), got {self.method!r}", self)
-        if isinstance(self.localizer, str):
-            check_localizers(self, "localizer")
-        if self.world not in WORLDS:
-            raise OptionError("world", f"must be 'model' or 'physics', got {self.world!r}", self)
-        if self.physics is not None and self.world != "physics":
-            raise OptionError("physics", "sets the physical world: it needs `world` physics", self)
-        check_at_least(self, "seed", 0)
-        check_option_limits(self)
-        for name in ("initial_delta_m", "initial_heading_sigma_rad"):
-            if not getattr(self, name) >= 0:
-                raise OptionError(name, f"must be >= 0, got {getattr(self, name)}", self)
-
-    def run_trajectory(self) -> Trajectory:
-        """The trajectory the run follows: ``trajectory``, loaded if it is a file, or the random one it draws."""
-        return resolve_trajectory(self.trajectory, self.robots, self.configs, self.seed, self.model)
+def _name(localizer: object) -> str:
+    """A localizer's name: the registered name given, or its object's ``name`` (else its class's)."""
+    return localizer if isinstance(localizer, str) else str(getattr(localizer, "name", type(localizer).__name__))
 
 
 @overload
@@ -115,7 +84,6 @@ def simulate(options: SimOptions | Trajectory | StrPath | None = None, /, *, pro
     from coordinator.localization import make_localizer  # noqa: PLC0415
     from coordinator.simulate import initial_estimate  # noqa: PLC0415
     from coordinator.strategies import make_strategy  # noqa: PLC0415
-    from inchworm.sim_result import SimResult  # noqa: PLC0415
     from runtime.models.simulation import SimulatedSwarm  # noqa: PLC0415
     from runtime.models.trajectory import validate_connected, validate_passable  # noqa: PLC0415
 
@@ -157,13 +125,6 @@ def _options_of(options: SimOptions | Trajectory | StrPath | None, keywords: dic
             raise TypeError("simulate() got the trajectory twice: as its first argument and as trajectory=")
         keywords = {**keywords, "trajectory": options}
     return SimOptions(**{k: v for k, v in keywords.items() if v is not None or k not in ("model", "selection")})
-
-
-def resolve_trajectory(trajectory: Trajectory | StrPath | None, robots: int, configs: int, seed: int, model: ModelConfig) -> Trajectory:
-    """``trajectory``, loaded if it is a file name, or (None) the random one of ``simulate``."""
-    if trajectory is None:
-        return random_trajectory(robots, configs, np.random.default_rng(seed), sensing_range=model.sensing_range_m, **body_spacing(model))
-    return trajectory if isinstance(trajectory, Trajectory) else Trajectory.load(Path(trajectory))
 
 
 def config_rows(result: RunResult) -> list[dict[str, Any]]:

@@ -1,6 +1,6 @@
 """Command-line flags generated from an options dataclass, so each option's name, default and help are declared once.
 
-A field of an options dataclass (``inchworm.simulation.SimOptions``, ``inchworm.comparison.CompareOptions``, the
+A field of an options dataclass (``inchworm.sim_options.SimOptions``, ``inchworm.comparison.CompareOptions``, the
 ``inchworm.studies`` options, those of ``inchworm.launch_options``) becomes a flag: ``--`` and its name with dashes,
 or its ``metadata["flag"]`` (a short flag such as ``-n`` goes before the long one), the field's default,
 ``metadata["help"]``, to which `` (default X)`` is added unless the help places the default itself with

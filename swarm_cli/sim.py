@@ -1,6 +1,6 @@
 """``swarm sim``: one simulated run of a trajectory: a summary, ``configs.csv``, Fig. 13/14/17-style plots and
 ``trajectory.json``, the trajectory it followed (docs/trajectory.md; ``--trajectory`` runs it again). Its options are
-``inchworm.simulation.SimOptions`` (flags made from the fields, ``swarm_cli.schema``); ``--baseline`` and ``--out``
+``inchworm.sim_options.SimOptions`` (flags made from the fields, ``swarm_cli.schema``); ``--baseline`` and ``--out``
 are the command's own: what else it runs for ``errors.png`` and where it writes."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from pathlib import Path
 from coordinator.strategies import HALF_ANCHORED, METHODS
 from inchworm.limits import check_swarm_size
 from inchworm.progress import Progress
-from inchworm.simulation import SimOptions
+from inchworm.sim_options import SimOptions
 from runtime.errors import SwarmInputError
 from swarm_cli.options import add_simulation_options, add_world_options, model_config, physics_params, print_json, selection_config
 from swarm_cli.schema import add_fields, options_of

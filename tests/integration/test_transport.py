@@ -5,13 +5,13 @@ from __future__ import annotations
 import errno
 import queue
 import socket
-import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 import zenoh
+from waiting import matched_publisher
 
 from runtime.errors import SwarmConnectionError, SwarmInputError
 from runtime.wire.transport import (
@@ -42,23 +42,11 @@ def hub() -> Iterator[tuple[zenoh.Session, ZenohSettings]]:
         yield session, member
 
 
-def _matched_publisher(session: zenoh.Session, key: str, timeout_s: float = 10.0) -> zenoh.Publisher:
-    """A publisher on ``key`` once a subscriber matches it (the subscription has propagated): an event, not a sleep."""
-    publisher = session.declare_publisher(key)
-    matched = threading.Event()
-    listener = publisher.declare_matching_listener(lambda status: matched.set() if status.matching else None)
-    try:
-        assert publisher.matching_status.matching or matched.wait(timeout_s), f"no subscriber matched {key} within {timeout_s} s"
-    finally:
-        listener.undeclare()
-    return publisher
-
-
 def _send_when_matched(
     session: zenoh.Session, key: str, payload: bytes, inbox: queue.Queue[tuple[str, bytes]], timeout_s: float = 10.0
 ) -> tuple[str, bytes]:
     """Publish ``payload`` once, when a subscriber matches ``key``; what ``inbox`` then receives."""
-    publisher = _matched_publisher(session, key, timeout_s)
+    publisher = matched_publisher(session, key, timeout_s)
     try:
         publisher.put(payload)
         return inbox.get(timeout=timeout_s)

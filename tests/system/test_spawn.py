@@ -8,12 +8,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+from waiting import matched_publisher
+
 from inchworm.output import last_json
 from inchworm.spawn import Spawned, run_process
 from inchworm.specs import LinkSpec, RecorderSpec, RouterSpec, encode_spec
 from runtime.recording.mcap_log import read_messages, recording_info
 from runtime.wire.messages import EmergencyStop, encode, message_key
-from runtime.wire.transport import free_tcp_port, open_loopback_hub, publish
+from runtime.wire.transport import free_tcp_port, open_loopback_hub
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -66,7 +68,7 @@ def test_a_spawned_recorder_records_the_run_until_it_is_stopped(tmp_path):
         try:
             assert recorder.stderr is not None and recorder.stderr.readline().startswith(f"swarm record: recording swarm/rec/** from {hub}")
             stop = EmergencyStop(run="rec", step=0, source="test", reason="recorded")
-            publish(hub_session, message_key(stop), encode(stop))
+            matched_publisher(hub_session, message_key(stop)).put(encode(stop))  # once the recorder subscribes
             assert recorder.stop(grace_s=20.0) == 0
             assert recorder.stdout is not None and last_json(recorder.stdout.read())["messages"] >= 1
         finally:

@@ -50,7 +50,7 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     ("study calibration", "swarm_cli.study_calibration:options", ("inchworm.studies.calibration:CalibrationOptions",), ("run",)),
     # sim: --model FILE and the noise flags give model, the selection group selection; --physics-param repeats (a list)
     # and gives physics; the start estimate's uncertainty has no flag (swarm_cli.sim.NO_FLAG: from Python only)
-    ("sim", "swarm_cli.sim:options", ("inchworm.simulation:SimOptions",),
+    ("sim", "swarm_cli.sim:options", ("inchworm.sim_options:SimOptions",),
      ("model", "selection", "physics", "initial_delta_m", "initial_heading_sigma_rad")),
     # launch: --model FILE gives model_file and model; --driver-option and --physics-param repeat (a list); --rejoin
     # is yes/no; trajectory_seed is the seed (demo: 0) and command the command's name; record options are the coordinator's

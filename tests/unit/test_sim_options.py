@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from coordinator.localization.registry import localizer_names
-from inchworm.simulation import SimOptions
+from inchworm.sim_options import SimOptions
 from runtime.errors import OptionError
 from runtime.models.config import ModelConfig
 from runtime.world.params import PhysicsParams
