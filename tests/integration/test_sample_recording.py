@@ -28,7 +28,7 @@ def test_the_sample_is_small_finished_and_indexed() -> None:
 def test_replay_check_passes_on_the_sample(capsys) -> None:
     assert main(["replay", str(SAMPLE), "--check", "--json"]) == 0
     result = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert result["passed"] and result["plans"] == 4 and result["estimates"] == 9  # 4 configurations x 2 steps + step 0
+    assert result["passed"] and result["plans"] == 6 and result["estimates"] == 13  # 4 configurations x 2 steps, 2 approach legs of 2 steps, step 0
 
 
 def _paths(node) -> list[str]:
@@ -69,7 +69,7 @@ def test_the_layout_shows_topics_and_fields_of_a_run() -> None:
 
 def test_the_sample_carries_no_machine_paths() -> None:
     """Nothing in the shipped file (metadata, schemas, every message decompressed) names a folder of the machine
-    that made it; the command line in its metadata shows file names only."""
+    that made it; its metadata names the command that made it, without paths."""
     import re
 
     from mcap.reader import make_reader
@@ -84,4 +84,4 @@ def test_the_sample_carries_no_machine_paths() -> None:
         blobs += [json.dumps(m.metadata).encode() for m in make_reader(f).iter_metadata()]
     found = [b[:120] for b in blobs if machine.search(b)]
     assert found == []
-    assert recording_info(SAMPLE)["metadata"]["run"]["command"].startswith("swarm coordinator --trajectory=trajectory.json ")
+    assert recording_info(SAMPLE)["metadata"]["run"]["command"] == "swarm launch (run sample, 10 robots, method inchworm-equal-speed, seed 0)"
