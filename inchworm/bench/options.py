@@ -1,5 +1,5 @@
 """The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway``, ``faults``, ``physics`` and
-``collisions`` (``inchworm.bench.localize``, ...),
+``collisions`` and ``envelope`` (``inchworm.bench.localize``, ...),
 in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
 runs."""
 
@@ -141,3 +141,36 @@ class CollisionsBenchOptions:
             raise OptionError("localizers", f"must list {' and/or '.join(COLLISION_LOCALIZERS)}, got {','.join(self.localizers)!r}", self)
         if not self.noise_scales or not all(math.isfinite(k) and k > 0 for k in self.noise_scales):
             raise OptionError("noise_scales", f"must list factors > 0, got {','.join(map(str, self.noise_scales))!r}", self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnvelopeBenchOptions:
+    """The matrix (every combination of the four axes) and the sizes of each row's runs."""
+
+    noise_scales: tuple[float, ...] = field(default=(1.0, 3.0, 5.58), metadata={"help": "motion noise multiples"})
+    robots: tuple[int, ...] = field(default=(10, 30), metadata={"help": "swarm sizes"})
+    localizers: tuple[str, ...] = field(default=("paper", "joint"), metadata={"help": "comma-separated localizers"})
+    sensing_ranges_m: tuple[float, ...] = field(default=(0.5, 3.0), metadata={"flag": "--sensing-ranges", "metavar": "SENSING_RANGES",
+                                                                              "help": "sensing ranges in m"})
+    trajectories: int = field(default=4, metadata={"help": "in-process runs per row"})
+    configs: int = field(default=8, metadata={"help": "configurations per in-process run"})
+    distributed_configs: int = field(default=3, metadata={"help": "configurations of each row's distributed run"})
+    distributed: bool = field(default=True, metadata={  # False: in-process rows only (replay/takeover None)
+        "flag": "--no-distributed", "help": "in-process rows only (replay and takeover not measured)"})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    workers: int = 1  # processes for the in-process runs
+
+    def __post_init__(self) -> None:
+        from coordinator.localization.registry import localizer_names  # noqa: PLC0415
+
+        for name in ("trajectories", "configs", "distributed_configs", "workers"):
+            if getattr(self, name) < 1:
+                raise OptionError(name, f"must be >= 1, got {getattr(self, name)}", self)
+        for name in ("noise_scales", "sensing_ranges_m"):
+            if not getattr(self, name) or not all(math.isfinite(v) and v > 0 for v in getattr(self, name)):
+                raise OptionError(name, f"must list numbers > 0, got {','.join(map(str, getattr(self, name)))!r}", self)
+        if not self.robots or any(n < 2 for n in self.robots):
+            raise OptionError("robots", f"must list sizes >= 2, got {','.join(map(str, self.robots))!r}", self)
+        unknown = [name for name in self.localizers if name not in localizer_names()]
+        if not self.localizers or unknown:
+            raise OptionError("localizers", f"unknown {','.join(unknown)!r}; choose from {', '.join(localizer_names())}", self)
