@@ -9,46 +9,26 @@ from __future__ import annotations
 import argparse
 import sys
 
+from inchworm.bench.options import EnvelopeBenchOptions
 from swarm_cli.options import add_json_option, add_workers_option, print_result
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-
-
-def _ints(text: str) -> tuple[int, ...]:
-    try:
-        return tuple(int(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from None
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("envelope", help="replay, takeover, NEES, contacts and speed across noise, size, localizer and sensing range")
-    p.add_argument("--noise-scales", type=_floats, default=(1.0, 3.0, 5.58), help="motion noise multiples (default 1,3,5.58)")
-    p.add_argument("--robots", type=_ints, default=(10, 30), help="swarm sizes (default 10,30)")
-    p.add_argument("--localizers", default="paper,joint", help="comma-separated localizers (default paper,joint)")
-    p.add_argument("--sensing-ranges", type=_floats, default=(0.5, 3.0), help="sensing ranges in m (default 0.5,3)")
-    p.add_argument("--trajectories", type=int, default=4, help="in-process runs per row (default 4)")
-    p.add_argument("--configs", type=int, default=8, help="configurations per in-process run (default 8)")
-    p.add_argument("--distributed-configs", type=int, default=3, help="configurations of each row's distributed run (default 3)")
-    p.add_argument("--no-distributed", action="store_true", help="in-process rows only (replay and takeover not measured)")
-    p.add_argument("--seed", type=int, default=0, help="trajectory t uses seed + t (default 0)")
+    add_fields(p, EnvelopeBenchOptions, exclude=("workers",))
     add_workers_option(p)
     add_json_option(p)
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.bench.envelope import EnvelopeBenchOptions, bench_envelope  # noqa: PLC0415
-    from swarm_cli.options import names  # noqa: PLC0415
+def options(args: argparse.Namespace) -> EnvelopeBenchOptions:
+    """The benchmark the flags ask for."""
+    return options_of(args, EnvelopeBenchOptions, workers=args.workers)
 
-    options = EnvelopeBenchOptions(noise_scales=args.noise_scales, robots=args.robots, localizers=names(args.localizers),
-                                   sensing_ranges_m=args.sensing_ranges, trajectories=args.trajectories, configs=args.configs,
-                                   distributed_configs=args.distributed_configs, distributed=not args.no_distributed,
-                                   seed=args.seed, workers=args.workers)
-    result = bench_envelope(options, lambda text: print(f"bench envelope: {text}", file=sys.stderr, flush=True))
+
+def run(args: argparse.Namespace) -> int:
+    from inchworm.bench.envelope import bench_envelope  # noqa: PLC0415
+
+    result = bench_envelope(options(args), lambda text: print(f"bench envelope: {text}", file=sys.stderr, flush=True))
     return print_result(result, args.json)

@@ -33,38 +33,19 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any, TypeAlias
 
 import numpy as np
 
-from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
-from inchworm.options import RunOptions
-from runtime.errors import OptionError
+from inchworm.bench.options import CollisionsBenchOptions
 from runtime.models.bodies import BOUND_LEVELS, CONTACT_BOUND
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
 
 if TYPE_CHECKING:
     from coordinator.selection.selector import SelectionConfig
-
-LOCALIZERS = ("paper", "joint")
-NOISE_SCALES = (1.0, 3.0, 5.58)  # motion noise x1, x3 (9 deg, 0.15) and x5.58 (16.74 deg, 0.279)
-
-
-@dataclass(frozen=True)
-class CollisionsBenchOptions:
-    robots: int = 10
-    trajectories: int = 20
-    configs: int = 20
-    methods: tuple[str, ...] = METHODS
-    localizers: tuple[str, ...] = ("paper",)
-    seed: int = 0  # trajectory t uses seed + t
-    workers: int = 1
-    noise_scales: tuple[float, ...] = NOISE_SCALES  # factors of the model's turn and drive noise
-    run: RunOptions = field(default_factory=RunOptions)  # its localizer is not used: ``localizers`` are
-
 
 # (trajectory, method, localizer, planned with bodies, robots, configs, seed, model, selection, noise scale)
 Job: TypeAlias = tuple[int, str, str, bool, int, int, int, ModelConfig, "SelectionConfig", float]
@@ -121,25 +102,10 @@ def summarise(runs: list[dict[str, Any]], keys: list[tuple[str, str, bool, float
     return rows
 
 
-def check(o: CollisionsBenchOptions) -> None:
-    if o.run.model.robot_radius_m <= 0:
-        raise OptionError("robot_radius_m", "must be > 0 for counting contacts between bodies", o.run.model)
-    for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2)):
-        if getattr(o, name) < low:
-            raise OptionError(name, f"must be >= {low}, got {getattr(o, name)}", o)
-    if not o.methods or any(m not in METHODS for m in o.methods):
-        raise OptionError("methods", f"must list methods of {', '.join(METHODS)}, got {','.join(o.methods)!r}", o)
-    if not o.localizers or any(v not in LOCALIZERS for v in o.localizers):
-        raise OptionError("localizers", f"must list {' and/or '.join(LOCALIZERS)}, got {','.join(o.localizers)!r}", o)
-    if not o.noise_scales or not all(np.isfinite(k) and k > 0 for k in o.noise_scales):
-        raise OptionError("noise_scales", f"must list factors > 0, got {','.join(map(str, o.noise_scales))!r}", o)
-
-
-def bench_collisions(options: CollisionsBenchOptions = CollisionsBenchOptions(),
-                     progress: Callable[[int], None] | None = None) -> BenchResult:
-    """Run every (method, localizer, bodies or points) on every trajectory; ``progress`` is told the runs done."""
-    o = options
-    check(o)
+def bench_collisions(options: CollisionsBenchOptions | None = None, progress: Callable[[int], None] | None = None) -> BenchResult:
+    """Run every (method, localizer, bodies or points) on every trajectory (``options`` None: the defaults); ``progress``
+    is told the runs done."""
+    o = options or CollisionsBenchOptions()
     cfg = o.run.model
     keys = [(m, v, b, k) for k in o.noise_scales for v in o.localizers for m in o.methods for b in (True, False)]
     jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection, k) for m, v, b, k in keys for t in range(o.trajectories)]

@@ -29,7 +29,6 @@ model's default radius). Per operating point (a row):
 
 from __future__ import annotations
 
-import math
 import tempfile
 import time
 from collections.abc import Callable, Iterator
@@ -42,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from inchworm.bench import BenchResult
+from inchworm.bench.options import EnvelopeBenchOptions
 from inchworm.output import last_json
 from inchworm.spawn import run_process
 from inchworm.specs import LaunchSpec
@@ -49,48 +49,7 @@ from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import Trajectory, body_spacing, random_trajectory
 
-NOISE_SCALES = (1.0, 3.0, 5.58)
-ROBOTS = (10, 30)
-LOCALIZERS = ("paper", "joint")
-SENSING_RANGES_M = (0.5, 3.0)
 METHOD = "inchworm"
-
-
-@dataclass(frozen=True)
-class EnvelopeBenchOptions:
-    """The matrix (every combination of the four axes) and the sizes of each row's runs."""
-
-    noise_scales: tuple[float, ...] = NOISE_SCALES
-    robots: tuple[int, ...] = ROBOTS
-    localizers: tuple[str, ...] = LOCALIZERS
-    sensing_ranges_m: tuple[float, ...] = SENSING_RANGES_M
-    trajectories: int = 4  # in-process runs per row
-    configs: int = 8  # configurations per in-process run
-    distributed_configs: int = 3  # configurations of the distributed run per row
-    distributed: bool = True  # False: in-process rows only (replay/takeover None)
-    seed: int = 0
-    workers: int = 1  # processes for the in-process runs
-
-    def validate(self) -> None:
-        from coordinator.localization.registry import localizer_names  # noqa: PLC0415
-
-        if min(self.trajectories, self.configs, self.distributed_configs) < 1:
-            raise SwarmInputError(f"trajectories, configs and distributed_configs must be >= 1, got "
-                                  f"{self.trajectories}, {self.configs} and {self.distributed_configs}")
-        if not self.noise_scales or any(not (math.isfinite(s) and s > 0) for s in self.noise_scales):
-            raise SwarmInputError(f"noise_scales must be positive numbers, got {list(self.noise_scales)}")
-        if not self.robots or any(n < 2 for n in self.robots):
-            raise SwarmInputError(f"robots must be sizes >= 2, got {list(self.robots)}")
-        if not self.sensing_ranges_m or any(not (math.isfinite(r) and r > 0) for r in self.sensing_ranges_m):
-            raise SwarmInputError(f"sensing_ranges_m must be positive lengths, got {list(self.sensing_ranges_m)}")
-        unknown = [name for name in self.localizers if name not in localizer_names()]
-        if not self.localizers or unknown:
-            raise SwarmInputError(f"localizers: unknown {unknown or []}; choose from {', '.join(localizer_names())}")
-        if self.workers < 1:
-            raise SwarmInputError(f"workers must be >= 1, got {self.workers}")
-
-    def points(self) -> list[Point]:
-        return [Point(s, n, loc, r) for s, n, loc, r in product(self.noise_scales, self.robots, self.localizers, self.sensing_ranges_m)]
 
 
 @dataclass(frozen=True)
@@ -190,15 +149,19 @@ def _in_process_rows(o: EnvelopeBenchOptions, points: list[Point], tick: Callabl
         yield in_process_figures(runs[k * o.trajectories:(k + 1) * o.trajectories])
 
 
-def bench_envelope(options: EnvelopeBenchOptions = EnvelopeBenchOptions(),
-                   say: Callable[[str], None] | None = None) -> BenchResult:
-    """Every point of the matrix (module doc); ``say`` is told each stage and each finished row."""
+def operating_points(o: EnvelopeBenchOptions) -> list[Point]:
+    """The operating points of the matrix, noise scale outermost."""
+    return [Point(s, n, loc, r) for s, n, loc, r in product(o.noise_scales, o.robots, o.localizers, o.sensing_ranges_m)]
+
+
+def bench_envelope(options: EnvelopeBenchOptions | None = None, say: Callable[[str], None] | None = None) -> BenchResult:
+    """Every point of the matrix (module doc; ``options`` None: the defaults); ``say`` is told each stage and each
+    finished row."""
     from inchworm.progress import Progress  # noqa: PLC0415
 
-    o = options
-    o.validate()
+    o = options or EnvelopeBenchOptions()
     _say = say or (lambda _text: None)
-    points = o.points()
+    points = operating_points(o)
     _say(f"in process: {len(points)} points x {o.trajectories} runs of {o.configs} configurations ({METHOD}, bodies on)")
     progress, done = Progress(len(points) * o.trajectories, "bench envelope, in process"), [0]
 

@@ -1,10 +1,11 @@
-"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway``, ``faults`` and ``physics``
-(``inchworm.bench.localize``, ...),
+"""The options of ``swarm bench localize``, ``select``, ``record``, ``runtime``, ``gateway``, ``faults``, ``physics`` and
+``collisions`` and ``envelope`` (``inchworm.bench.localize``, ...),
 in a module light to import: the commands make their flags from these fields (``swarm_cli.schema``) before anything
 runs."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from coordinator.strategies import METHODS
@@ -109,3 +110,67 @@ class PhysicsBenchOptions:
     physics: tuple[str, ...] = field(default=(), metadata={  # NAME=VALUE
         "flag": "--physics-param", "repeat": True, "metavar": "NAME=VALUE",
         "help": "a parameter of the physical world (runtime.world.params.PhysicsParams), repeatable"})
+
+
+COLLISION_LOCALIZERS = ("paper", "joint")  # the localizers ``swarm bench collisions`` runs
+COLLISION_NOISE_SCALES = (1.0, 3.0, 5.58)  # motion noise x1, x3 (9 deg, 0.15) and x5.58 (16.74 deg, 0.279)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CollisionsBenchOptions:
+    robots: int = field(default=10, metadata={"help": "n_r"})
+    trajectories: int = field(default=20, metadata={"help": "random trajectories"})
+    configs: int = field(default=20, metadata={"help": "configurations per trajectory"})
+    methods: tuple[str, ...] = field(default=METHODS, metadata={"help": "comma-separated methods (default: all)", "own_default": True})
+    localizers: tuple[str, ...] = field(default=("paper",), metadata={"help": "comma-separated localizers: paper, joint"})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    workers: int = 1
+    noise_scales: tuple[float, ...] = field(default=COLLISION_NOISE_SCALES, metadata={  # factors of the model's turn and drive noise
+        "help": "comma-separated factors of the motion noise (turn and drive sigma) run in turn"})
+    run: RunOptions = field(default_factory=RunOptions)  # its localizer is not used: ``localizers`` are
+
+    def __post_init__(self) -> None:
+        if self.run.model.robot_radius_m <= 0:
+            raise OptionError("robot_radius_m", "must be > 0 for counting contacts between bodies", self.run.model)
+        for name, low in (("trajectories", 1), ("configs", 1), ("robots", 2), ("workers", 1)):
+            if getattr(self, name) < low:
+                raise OptionError(name, f"must be >= {low}, got {getattr(self, name)}", self)
+        if not self.methods or any(m not in METHODS for m in self.methods):
+            raise OptionError("methods", f"must list methods of {', '.join(METHODS)}, got {','.join(self.methods)!r}", self)
+        if not self.localizers or any(v not in COLLISION_LOCALIZERS for v in self.localizers):
+            raise OptionError("localizers", f"must list {' and/or '.join(COLLISION_LOCALIZERS)}, got {','.join(self.localizers)!r}", self)
+        if not self.noise_scales or not all(math.isfinite(k) and k > 0 for k in self.noise_scales):
+            raise OptionError("noise_scales", f"must list factors > 0, got {','.join(map(str, self.noise_scales))!r}", self)
+
+
+@dataclass(frozen=True, kw_only=True)
+class EnvelopeBenchOptions:
+    """The matrix (every combination of the four axes) and the sizes of each row's runs."""
+
+    noise_scales: tuple[float, ...] = field(default=(1.0, 3.0, 5.58), metadata={"help": "motion noise multiples"})
+    robots: tuple[int, ...] = field(default=(10, 30), metadata={"help": "swarm sizes"})
+    localizers: tuple[str, ...] = field(default=("paper", "joint"), metadata={"help": "comma-separated localizers"})
+    sensing_ranges_m: tuple[float, ...] = field(default=(0.5, 3.0), metadata={"flag": "--sensing-ranges", "metavar": "SENSING_RANGES",
+                                                                              "help": "sensing ranges in m"})
+    trajectories: int = field(default=4, metadata={"help": "in-process runs per row"})
+    configs: int = field(default=8, metadata={"help": "configurations per in-process run"})
+    distributed_configs: int = field(default=3, metadata={"help": "configurations of each row's distributed run"})
+    distributed: bool = field(default=True, metadata={  # False: in-process rows only (replay/takeover None)
+        "flag": "--no-distributed", "help": "in-process rows only (replay and takeover not measured)"})
+    seed: int = field(default=0, metadata={"help": "trajectory t uses seed + t"})
+    workers: int = 1  # processes for the in-process runs
+
+    def __post_init__(self) -> None:
+        from coordinator.localization.registry import localizer_names  # noqa: PLC0415
+
+        for name in ("trajectories", "configs", "distributed_configs", "workers"):
+            if getattr(self, name) < 1:
+                raise OptionError(name, f"must be >= 1, got {getattr(self, name)}", self)
+        for name in ("noise_scales", "sensing_ranges_m"):
+            if not getattr(self, name) or not all(math.isfinite(v) and v > 0 for v in getattr(self, name)):
+                raise OptionError(name, f"must list numbers > 0, got {','.join(map(str, getattr(self, name)))!r}", self)
+        if not self.robots or any(n < 2 for n in self.robots):
+            raise OptionError("robots", f"must list sizes >= 2, got {','.join(map(str, self.robots))!r}", self)
+        unknown = [name for name in self.localizers if name not in localizer_names()]
+        if not self.localizers or unknown:
+            raise OptionError("localizers", f"unknown {','.join(unknown)!r}; choose from {', '.join(localizer_names())}", self)

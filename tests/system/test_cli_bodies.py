@@ -90,7 +90,7 @@ def test_bench_collisions_json_contract():
     bad = swarm("bench", "collisions", "--robot-radius", "0")
     assert bad.returncode == 2 and "--robot-radius must be > 0" in bad.stderr
     bad = swarm("bench", "collisions", "--noise-scales", "1,x")
-    assert bad.returncode == 2 and "--noise-scales must list numbers" in bad.stderr and "Traceback" not in bad.stderr
+    assert bad.returncode == 2 and "--noise-scales must be comma-separated numbers" in bad.stderr and "Traceback" not in bad.stderr
 
 
 def test_a_gateway_whose_robots_have_other_bodies_is_refused_before_anything_starts(tmp_path):

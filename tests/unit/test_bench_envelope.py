@@ -41,8 +41,9 @@ def test_figures_pool_the_runs_of_a_row():
 
 
 @pytest.mark.parametrize(("argv", "named"), [
-    (["--noise-scales", "0,1"], "noise_scales"), (["--robots", "1"], "robots"), (["--localizers", "nope"], "nope"),
-    (["--sensing-ranges", "-1"], "sensing_ranges_m"), (["--trajectories", "0"], "trajectories"),
+    (["--noise-scales", "0,1"], "--noise-scales"), (["--robots", "1"], "--robots"), (["--localizers", "nope"], "nope"),
+    (["--sensing-ranges", "-1"], "--sensing-ranges"), (["--trajectories", "0"], "--trajectories"),
+    (["--distributed-configs", "0"], "--distributed-configs"),
 ])
 def test_bad_options_are_one_line_naming_them(argv, named, capsys):
     assert main(["bench", "envelope", "--no-distributed", *argv]) == 2
@@ -52,4 +53,4 @@ def test_bad_options_are_one_line_naming_them(argv, named, capsys):
 
 def test_validation_names_the_parameter():
     with pytest.raises(SwarmInputError, match="distributed_configs"):
-        EnvelopeBenchOptions(distributed_configs=0).validate()
+        EnvelopeBenchOptions(distributed_configs=0)

@@ -35,6 +35,22 @@ def _bench_physics_options(args: argparse.Namespace) -> Any:
     return dataclasses.replace(options(args), workers=1)
 
 
+def _bench_collisions_options(args: argparse.Namespace) -> Any:
+    """``swarm bench collisions``' options, ``--workers`` aside (the command's default: every core; the library's: 1)."""
+    from swarm_cli.bench_collisions import options
+
+    assert args.workers >= 1
+    return dataclasses.replace(options(args), workers=1)
+
+
+def _bench_envelope_options(args: argparse.Namespace) -> Any:
+    """``swarm bench envelope``'s options, ``--workers`` aside (the command's default: every core; the library's: 1)."""
+    from swarm_cli.bench_envelope import options
+
+    assert args.workers >= 1
+    return dataclasses.replace(options(args), workers=1)
+
+
 # command, what makes its options from the parsed flags, the options classes (the first: what the defaults make), and
 # the fields whose flags shared groups make or whose command-line form differs (checked through the options made)
 COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
@@ -68,6 +84,8 @@ COMMANDS: list[tuple[str, str, tuple[str, ...], tuple[str, ...]]] = [
     # bench faults: --gateway-rows is 'drop,corrupt,delay_s;...'
     ("bench faults", "swarm_cli.bench_faults:options", ("inchworm.bench.options:FaultsBenchOptions",), ("gateway_rows",)),
     ("bench physics", "_bench_physics_options", ("inchworm.bench.options:PhysicsBenchOptions",), ("workers", "run")),
+    ("bench collisions", "_bench_collisions_options", ("inchworm.bench.options:CollisionsBenchOptions",), ("workers", "run")),
+    ("bench envelope", "_bench_envelope_options", ("inchworm.bench.options:EnvelopeBenchOptions",), ("workers",)),
 ]
 
 
