@@ -50,7 +50,12 @@ if TYPE_CHECKING:
         SwarmOptions as SwarmOptions,
     )
     from inchworm.launcher import LaunchResult as LaunchResult, launch as launch
-    from inchworm.localize_data import LocalizeResult as LocalizeResult, localize as localize, localize_document as localize_document
+    from inchworm.localize_data import (
+        LocalizeOptions as LocalizeOptions,
+        LocalizeResult as LocalizeResult,
+        localize as localize,
+        localize_document as localize_document,
+    )
     from inchworm.noise_calibration import NoiseCalibration as NoiseCalibration, calibrate_noise as calibrate_noise
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
@@ -96,6 +101,7 @@ _WHERE = {
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
+    "LocalizeOptions": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
     "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launch_options", "LaunchResult": "inchworm.launcher",

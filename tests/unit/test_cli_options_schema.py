@@ -254,3 +254,15 @@ def test_a_union_takes_the_flag_of_its_one_command_line_member_and_kept_fields_t
     args = parser.parse_args(["--file", "x.json", "--how", "slow"])
     assert options_of(args, Run, keep=("start",), either=2.5) == Run(file=Path("x.json"), how="slow", either=2.5)
     assert options_of(parser.parse_args([]), Run, keep=("start",), either=1) == Run()
+
+
+def test_localizes_flags_are_its_options_fields() -> None:
+    """``swarm localize``: the flags of ``LocalizeOptions`` make its defaults (the file positional, the model group's
+    model and ``--localizer`` made apart), ``--strict`` and ``--no-robust`` their fields."""
+    from inchworm.localize_data import LocalizeOptions
+    from swarm_cli.localize import options
+
+    parse = build_parser(["localize"]).parse_args
+    assert options(parse(["localize", "in.json"])) == LocalizeOptions(source="in.json")
+    assert options(parse(["localize", "in.json", "--strict", "--no-robust", "--localizer", "joint"])) == LocalizeOptions(
+        source=Path("in.json"), localizer="joint", strict=True, robust=False)
