@@ -56,7 +56,11 @@ if TYPE_CHECKING:
         localize as localize,
         localize_document as localize_document,
     )
-    from inchworm.noise_calibration import NoiseCalibration as NoiseCalibration, calibrate_noise as calibrate_noise
+    from inchworm.noise_calibration import (
+        CalibrateOptions as CalibrateOptions,
+        NoiseCalibration as NoiseCalibration,
+        calibrate_noise as calibrate_noise,
+    )
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
     from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
@@ -103,6 +107,7 @@ _WHERE = {
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
     "LocalizeOptions": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
+    "CalibrateOptions": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
     "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launch_options", "LaunchResult": "inchworm.launcher",
     "SwarmOptions": "inchworm.launch_options", "DriverOptions": "inchworm.launch_options", "FaultOptions": "inchworm.launch_options",

@@ -266,3 +266,22 @@ def test_localizes_flags_are_its_options_fields() -> None:
     assert options(parse(["localize", "in.json"])) == LocalizeOptions(source="in.json")
     assert options(parse(["localize", "in.json", "--strict", "--no-robust", "--localizer", "joint"])) == LocalizeOptions(
         source=Path("in.json"), localizer="joint", strict=True, robust=False)
+
+
+def test_calibrates_flags_are_its_options_fields() -> None:
+    """``swarm calibrate``: the flags of ``CalibrateOptions`` make its defaults (the recording: the file positional;
+    ``--truth`` required); a bad confidence names the field, and on the command line its flag."""
+    from inchworm.noise_calibration import CalibrateOptions
+    from swarm_cli.calibrate import options
+
+    parse = build_parser(["calibrate"]).parse_args
+    assert options(parse(["calibrate", "r.mcap", "--truth", "t.csv"])) == CalibrateOptions(recording="r.mcap", truth="t.csv")
+    made = options(parse(["calibrate", "r.mcap", "--truth=t.csv", "--out=m.toml", "--confidence=0.9"]))
+    assert made == CalibrateOptions(recording=Path("r.mcap"), truth=Path("t.csv"), out=Path("m.toml"), confidence=0.9)
+    assert made.model_file == Path("m.toml") and CalibrateOptions(recording="a/r.mcap", truth="t.csv").model_file == Path("a/r.model.toml")
+    for bad in (1.0, float("nan"), True):
+        with pytest.raises(OptionError, match=r"^confidence must be in \[0.5, 1\)") as caught:
+            CalibrateOptions(recording="r.mcap", truth="t.csv", confidence=bad)
+        assert caught.value.flag_message().startswith("--confidence must be")
+    with pytest.raises(SystemExit):
+        parse(["calibrate", "r.mcap"])  # --truth is required
