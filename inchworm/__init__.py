@@ -84,6 +84,13 @@ if TYPE_CHECKING:
         study_selection as study_selection,
     )
     from inchworm.swarm import Swarm as Swarm, SwarmStatus as SwarmStatus
+    from inchworm.trajectory_files import (
+        CheckTrajectoryOptions as CheckTrajectoryOptions,
+        NewTrajectoryOptions as NewTrajectoryOptions,
+        TrajectoryFile as TrajectoryFile,
+        check_trajectory as check_trajectory,
+        new_trajectory as new_trajectory,
+    )
     from runtime.models.config import ModelConfig as ModelConfig
     from runtime.models.trajectory import Trajectory as Trajectory
 
@@ -114,6 +121,9 @@ _WHERE = {
     "OutputOptions": "inchworm.launch_options", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
+    "new_trajectory": "inchworm.trajectory_files", "check_trajectory": "inchworm.trajectory_files",
+    "NewTrajectoryOptions": "inchworm.trajectory_files", "CheckTrajectoryOptions": "inchworm.trajectory_files",
+    "TrajectoryFile": "inchworm.trajectory_files",
 }
 
 __all__ = ["LocalizationError", "OptionError", "OutputError", "RecordingError", "RunConflictError", "SwarmConnectionError",
