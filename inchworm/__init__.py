@@ -50,8 +50,17 @@ if TYPE_CHECKING:
         SwarmOptions as SwarmOptions,
     )
     from inchworm.launcher import LaunchResult as LaunchResult, launch as launch
-    from inchworm.localize_data import LocalizeResult as LocalizeResult, localize as localize, localize_document as localize_document
-    from inchworm.noise_calibration import NoiseCalibration as NoiseCalibration, calibrate_noise as calibrate_noise
+    from inchworm.localize_data import (
+        LocalizeOptions as LocalizeOptions,
+        LocalizeResult as LocalizeResult,
+        localize as localize,
+        localize_document as localize_document,
+    )
+    from inchworm.noise_calibration import (
+        CalibrateOptions as CalibrateOptions,
+        NoiseCalibration as NoiseCalibration,
+        calibrate_noise as calibrate_noise,
+    )
     from inchworm.options import RunOptions as RunOptions
     from inchworm.replay import CheckOptions as CheckOptions, PublishOptions as PublishOptions, check_recording as check_recording, publish as publish
     from inchworm.runner import Executor as Executor, ProcessExecutor as ProcessExecutor, SerialExecutor as SerialExecutor
@@ -75,6 +84,13 @@ if TYPE_CHECKING:
         study_selection as study_selection,
     )
     from inchworm.swarm import Swarm as Swarm, SwarmStatus as SwarmStatus
+    from inchworm.trajectory_files import (
+        CheckTrajectoryOptions as CheckTrajectoryOptions,
+        NewTrajectoryOptions as NewTrajectoryOptions,
+        TrajectoryFile as TrajectoryFile,
+        check_trajectory as check_trajectory,
+        new_trajectory as new_trajectory,
+    )
     from runtime.models.config import ModelConfig as ModelConfig
     from runtime.models.trajectory import Trajectory as Trajectory
 
@@ -96,13 +112,18 @@ _WHERE = {
     "study_consistency": "inchworm.studies.consistency", "ConsistencyOptions": "inchworm.studies.consistency",
     "ConsistencyResult": "inchworm.studies.consistency",
     "localize": "inchworm.localize_data", "localize_document": "inchworm.localize_data", "LocalizeResult": "inchworm.localize_data",
+    "LocalizeOptions": "inchworm.localize_data",
     "calibrate_noise": "inchworm.noise_calibration", "NoiseCalibration": "inchworm.noise_calibration",
+    "CalibrateOptions": "inchworm.noise_calibration",
     "Executor": "inchworm.runner", "ProcessExecutor": "inchworm.runner", "SerialExecutor": "inchworm.runner",
     "launch": "inchworm.launcher", "LaunchOptions": "inchworm.launch_options", "LaunchResult": "inchworm.launcher",
     "SwarmOptions": "inchworm.launch_options", "DriverOptions": "inchworm.launch_options", "FaultOptions": "inchworm.launch_options",
     "OutputOptions": "inchworm.launch_options", "Swarm": "inchworm.swarm", "SwarmStatus": "inchworm.swarm",
     "publish": "inchworm.replay", "PublishOptions": "inchworm.replay",
     "check_recording": "inchworm.replay", "CheckOptions": "inchworm.replay",
+    "new_trajectory": "inchworm.trajectory_files", "check_trajectory": "inchworm.trajectory_files",
+    "NewTrajectoryOptions": "inchworm.trajectory_files", "CheckTrajectoryOptions": "inchworm.trajectory_files",
+    "TrajectoryFile": "inchworm.trajectory_files",
 }
 
 __all__ = ["LocalizationError", "OptionError", "OutputError", "RecordingError", "RunConflictError", "SwarmConnectionError",

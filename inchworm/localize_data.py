@@ -16,14 +16,15 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+import os
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, cast
+from typing import TYPE_CHECKING, Any, cast, overload
 
 import numpy as np
 
 from inchworm.localize_checks import duplicate_rows, observation_checks
-from runtime.errors import LocalizationError, SwarmInputError
+from runtime.errors import LocalizationError, OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
 from runtime.paths import StrPath
@@ -210,18 +211,69 @@ def _finite(x: float) -> float | None:
     return float(x) if np.isfinite(x) else None
 
 
-def localize(source: StrPath | dict[str, Any], model: ModelConfig | None = None, localizer: str = "paper", *,
-             strict: bool = False, robust: bool = True) -> LocalizeResult:
+@dataclass(frozen=True, kw_only=True)
+class LocalizeOptions:
+    """Settings of ``localize`` (``swarm localize``'s flags): the JSON file or its decoded document ``source``, the noise
+    ``model``, the ``localizer``'s registered name, ``strict`` (fail rather than leave out robots) and ``robust`` (the
+    Huber loss against outliers)."""
+
+    source: StrPath | dict[str, Any]
+    model: ModelConfig = field(default_factory=ModelConfig)
+    localizer: str = "paper"
+    strict: bool = field(default=False, metadata={"help": "fail instead of leaving out robots that cannot be localized"})
+    robust: bool = field(default=True, metadata={"flag": "--no-robust", "help": "plain least squares (no Huber loss against outliers)"})
+
+    def __post_init__(self) -> None:
+        if isinstance(self.source, (str, os.PathLike)):
+            object.__setattr__(self, "source", Path(self.source))
+        elif not isinstance(self.source, dict):
+            raise OptionError("source", f"must be a JSON file's path or its decoded document (a dict), got {self.source!r}", self)
+        if not isinstance(self.model, ModelConfig):
+            raise OptionError("model", f"must be a ModelConfig, got {self.model!r}", self)
+        if not isinstance(self.localizer, str) or not self.localizer:
+            raise OptionError("localizer", f"must be a registered localizer's name, got {self.localizer!r}", self)
+        for name in ("strict", "robust"):
+            if not isinstance(getattr(self, name), bool):
+                raise OptionError(name, f"must be True or False, got {getattr(self, name)!r}", self)
+
+
+@overload
+def localize(options: LocalizeOptions, /) -> LocalizeResult: ...
+@overload
+def localize(source: StrPath | dict[str, Any], model: ModelConfig | None = None, localizer: str = ..., /, *,
+             strict: bool = ..., robust: bool = ...) -> LocalizeResult: ...
+def localize(options: LocalizeOptions | StrPath | dict[str, Any], /, *args: Any, **keywords: Any) -> LocalizeResult:
     """Localize the robots of a JSON file (or its decoded document): the ``swarm localize`` answer
     (frame, poses in m and rad with their uncertainties, the robots left out with why, and the checks of
-    the rows: residuals, suspects, duplicates, ranges beyond the sensing range, ``localize_checks``)."""
-    if isinstance(source, dict):
-        data = source
+    the rows: residuals, suspects, duplicates, ranges beyond the sensing range, ``localize_checks``).
+    ``localize(LocalizeOptions(source=file, localizer="joint"))`` is ``localize(file, None, "joint")``
+    (``model=None``: the default model)."""
+    o = _options_of(options, args, keywords)
+    if isinstance(o.source, dict):
+        data = o.source
     else:
         try:
-            data = json.loads(Path(source).read_text(encoding="utf-8"))
+            data = json.loads(Path(o.source).read_text(encoding="utf-8"))
         except (OSError, UnicodeDecodeError) as exc:
-            raise SwarmInputError(f"{source}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
+            raise SwarmInputError(f"{o.source}: cannot read it: {getattr(exc, 'strerror', None) or exc}") from None
         except json.JSONDecodeError as exc:
-            raise SwarmInputError(f"{source} is not valid JSON: {exc}") from None
-    return localize_document(data, model or ModelConfig(), localizer, strict=strict, robust=robust)
+            raise SwarmInputError(f"{o.source} is not valid JSON: {exc}") from None
+    return localize_document(data, o.model, o.localizer, strict=o.strict, robust=o.robust)
+
+
+def _options_of(options: LocalizeOptions | StrPath | dict[str, Any], args: tuple[Any, ...], keywords: dict[str, Any]) -> LocalizeOptions:
+    """``localize``'s options: the ``LocalizeOptions`` given, or those of the source, ``model`` and ``localizer``
+    (positional or keywords) and the keywords."""
+    if isinstance(options, LocalizeOptions):
+        if args or keywords:
+            raise TypeError("localize() takes LocalizeOptions or the source and keywords, not both: "
+                            "dataclasses.replace(options, ...) changes some")
+        return options
+    if len(args) > 2:
+        raise TypeError(f"localize() takes at most 3 positional arguments (source, model, localizer), got {1 + len(args)}")
+    named = dict(zip(("model", "localizer"), args, strict=False))
+    twice = sorted(set(named) & set(keywords))
+    if twice:
+        raise TypeError(f"localize() got {', '.join(twice)} twice: as positional and keyword arguments")
+    given = {**named, **keywords}
+    return LocalizeOptions(source=options, **{k: v for k, v in given.items() if v is not None or k != "model"})

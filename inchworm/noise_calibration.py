@@ -9,12 +9,13 @@ writes the model file (TOML) that ``--model FILE`` reads.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from runtime.errors import OptionError
-from runtime.paths import StrPath, as_path
+from runtime.paths import StrPath, coerce_paths
 
 
 @dataclass
@@ -53,21 +54,67 @@ def _fmt(v: float | None) -> str:
     return "-" if v is None else f"{v:.4g}"
 
 
-def calibrate_noise(recording: StrPath, truth: StrPath, out: StrPath | None = None, confidence: float = 0.95) -> NoiseCalibration:
-    """Fit the noise of ``recording`` against the tracker CSV ``truth``; write the model file ``out``
-    (default: the recording's name with ``.model.toml``)."""
+@dataclass(frozen=True, kw_only=True)
+class CalibrateOptions:
+    """Settings of ``calibrate_noise`` (``swarm calibrate``'s flags): the MCAP ``recording``, the tracker CSV ``truth``,
+    the model file ``out`` to write (None: the recording's name with ``.model.toml``) and the ``confidence`` level of
+    the intervals."""
+
+    recording: StrPath
+    truth: StrPath = field(metadata={"metavar": "CSV", "help": "true poses at step ends: robot,step,x,y,heading (m, rad), or "
+                                                               "robot,time,x,y,heading (docs/calibration.md)"})
+    out: StrPath | None = field(default=None, metadata={"metavar": "FILE",
+                                                        "help": "model file to write (TOML; default: the recording's name with .model.toml)"})
+    confidence: float = field(default=0.95, metadata={"help": "level of the confidence intervals"})
+
+    def __post_init__(self) -> None:
+        coerce_paths(self, "recording", "truth", "out")
+        if isinstance(self.confidence, bool) or not isinstance(self.confidence, (int, float)) or not (
+                math.isfinite(self.confidence) and 0.5 <= self.confidence < 1):
+            raise OptionError("confidence", f"must be in [0.5, 1), got {self.confidence}", self)
+
+    @property
+    def model_file(self) -> Path:
+        """The model file written: ``out``, or the recording's name with ``.model.toml``."""
+        return Path(self.out) if self.out is not None else Path(self.recording).with_suffix(".model.toml")
+
+
+@overload
+def calibrate_noise(options: CalibrateOptions, /) -> NoiseCalibration: ...
+@overload
+def calibrate_noise(recording: StrPath, truth: StrPath, out: StrPath | None = None, confidence: float = ..., /) -> NoiseCalibration: ...
+def calibrate_noise(options: CalibrateOptions | StrPath, /, *args: Any, **keywords: Any) -> NoiseCalibration:
+    """Fit the noise of the recording against the tracker CSV ``truth``; write the model file ``out``
+    (default: the recording's name with ``.model.toml``). ``calibrate_noise(CalibrateOptions(recording=r, truth=t))``
+    is ``calibrate_noise(r, t)``."""
     from runtime.models.noise_fit import fit_noise  # noqa: PLC0415 - scipy only when fitting
     from runtime.recording.run_log import load_run_log  # noqa: PLC0415
     from runtime.recording.truth_csv import read_truth_csv  # noqa: PLC0415
 
-    if not 0.5 <= confidence < 1:
-        raise OptionError("confidence", f"must be in [0.5, 1), got {confidence}")
-    recording, truth = Path(recording), Path(truth)
-    out = as_path(out) or recording.with_suffix(".model.toml")
+    o = _options_of(options, args, keywords)
+    recording, truth, out = Path(o.recording), Path(o.truth), o.model_file
     log = load_run_log(recording)
     truths = read_truth_csv(truth, log.ids, log.step_end_times())
-    fit = fit_noise(log.commands, log.observations, truths, confidence)
+    fit = fit_noise(log.commands, log.observations, truths, o.confidence)
     if fit.turn is None and fit.range is None:
-        raise OptionError("truth", f"{truth}: no step of the recording has true poses for its robots (steps 0, 1, ... of robots {log.ids})")
+        raise OptionError("truth", f"{truth}: no step of the recording has true poses for its robots (steps 0, 1, ... of robots {log.ids})", o)
     out.write_text(fit.to_toml(f"noise model of {recording.name} fitted by swarm calibrate (truth {truth.name})"), encoding="utf-8")
     return NoiseCalibration(recording, truth, out, fit.to_json())
+
+
+def _options_of(options: CalibrateOptions | StrPath, args: tuple[Any, ...], keywords: dict[str, Any]) -> CalibrateOptions:
+    """``calibrate_noise``'s options: the ``CalibrateOptions`` given, or those of the recording and the ``truth``,
+    ``out`` and ``confidence`` (positional or keywords)."""
+    if isinstance(options, CalibrateOptions):
+        if args or keywords:
+            raise TypeError("calibrate_noise() takes CalibrateOptions or the recording and keywords, not both: "
+                            "dataclasses.replace(options, ...) changes some")
+        return options
+    names = ("truth", "out", "confidence")
+    if len(args) > len(names):
+        raise TypeError(f"calibrate_noise() takes at most 4 positional arguments (recording, truth, out, confidence), got {1 + len(args)}")
+    named = dict(zip(names, args, strict=False))
+    twice = sorted(set(named) & set(keywords))
+    if twice:
+        raise TypeError(f"calibrate_noise() got {', '.join(twice)} twice: as positional and keyword arguments")
+    return CalibrateOptions(recording=options, **named, **keywords)

@@ -16,23 +16,24 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from inchworm.noise_calibration import CalibrateOptions, calibrate_noise  # light: scipy and numpy only when fitting
 from swarm_cli.options import add_json_option, print_result
+from swarm_cli.schema import add_fields, options_of
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("calibrate", help="fit the noise model (motion, sensing) to a recorded run and a tracker's true poses")
     p.add_argument("file", type=Path, help="MCAP recording of the run (swarm coordinator / swarm record)")
-    p.add_argument("--truth", type=Path, required=True, metavar="CSV",
-                   help="true poses at step ends: robot,step,x,y,heading (m, rad), or robot,time,x,y,heading (docs/calibration.md)")
-    p.add_argument("--out", type=Path, default=None, metavar="FILE",
-                   help="model file to write (TOML; default: the recording's name with .model.toml)")
-    p.add_argument("--confidence", type=float, default=0.95, help="level of the confidence intervals (default 0.95)")
+    add_fields(p, CalibrateOptions, exclude=("recording",))
     add_json_option(p)
     p.set_defaults(run=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    from inchworm.noise_calibration import calibrate_noise  # noqa: PLC0415 - scipy and numpy only when a command runs
+def options(args: argparse.Namespace) -> CalibrateOptions:
+    """The ``CalibrateOptions`` of the flags (the recording: the file positional)."""
+    return options_of(args, CalibrateOptions, recording=args.file)
 
-    result = calibrate_noise(args.file, args.truth, args.out, args.confidence)
+
+def run(args: argparse.Namespace) -> int:
+    result = calibrate_noise(options(args))
     return print_result(result, args.json, f"wrote {result.model_file}")

@@ -12,22 +12,35 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from runtime.errors import LocalizationError
 from swarm_cli.options import add_localizer_option, add_model_options, model_config, print_json
+from swarm_cli.schema import add_fields, options_of
+
+if TYPE_CHECKING:
+    from inchworm.localize_data import LocalizeOptions
 
 EXIT_NOT_LOCALIZED = 3  # the solver failed for some or all robots (bad input is 2)
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from inchworm.localize_data import LocalizeOptions  # noqa: PLC0415 - numpy, as --localizer's registry
+
     p = sub.add_parser("localize", help="localize robots from range/bearing observations in a JSON file")
     p.add_argument("file", type=Path, help="input JSON (see docs/localize-input.md)")
     add_localizer_option(p)
-    p.add_argument("--strict", action="store_true", help="fail instead of leaving out robots that cannot be localized")
-    p.add_argument("--no-robust", action="store_true", help="plain least squares (no Huber loss against outliers)")
+    add_fields(p, LocalizeOptions, exclude=("source", "model", "localizer"))
     p.add_argument("--json", action="store_true", help="accepted for uniformity: the output is always one JSON object")
     add_model_options(p)
     p.set_defaults(run=run)
+
+
+def options(args: argparse.Namespace) -> LocalizeOptions:
+    """The ``LocalizeOptions`` of the flags: the file positional, the model group's model, ``--localizer``."""
+    from inchworm.localize_data import LocalizeOptions  # noqa: PLC0415
+
+    return options_of(args, LocalizeOptions, source=args.file, model=model_config(args), localizer=args.localizer)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -35,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     from inchworm.localize_data import localize  # noqa: PLC0415
 
     try:
-        result = localize(args.file, model_config(args), args.localizer, strict=args.strict, robust=not args.no_robust)
+        result = localize(options(args))
     except LocalizationError as exc:
         if exc.reason not in SOLVER_FAILURES:
             raise  # unobserved / disconnected under --strict: an input problem (exit 2)

@@ -17,12 +17,11 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
-from runtime.errors import SwarmInputError
-from runtime.models.config import ModelConfig
-from runtime.models.trajectory import Trajectory, random_trajectory, validate_connected
+from inchworm.trajectory_files import CheckTrajectoryOptions, NewTrajectoryOptions, TrajectoryFile, check_trajectory, new_trajectory
 from swarm_cli.options import add_json_option, positive, print_json
+from swarm_cli.schema import add_fields, options_of
+
+POSITIVE = {"step": positive, "sensing_range": positive}  # refused as typed, naming the flag
 
 
 def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -30,40 +29,39 @@ def register(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     inner = p.add_subparsers(dest="action", required=True, metavar="ACTION")
     new = inner.add_parser("new", help="write a random trajectory (the one swarm sim would make for these options)")
     new.add_argument("file", type=Path, help="trajectory JSON file to write")
-    new.add_argument("--robots", type=int, default=10, help="robots (default 10)")
-    new.add_argument("--configs", type=int, default=5, help="desired configurations (default 5)")
-    new.add_argument("--seed", type=int, default=0, help="seed of the random trajectory (default 0)")
-    new.add_argument("--step", type=positive, default=0.3, help="how far the swarm moves per configuration, m (default 0.3)")
+    add_fields(new, NewTrajectoryOptions, exclude=("file",), types=POSITIVE)
     check = inner.add_parser("check", help="check a trajectory file: format, robots, connectivity within the sensing range")
     check.add_argument("file", type=Path, help="trajectory JSON file (docs/trajectory.md)")
+    add_fields(check, CheckTrajectoryOptions, exclude=("file",), types=POSITIVE)
     for q in (new, check):
-        q.add_argument("--sensing-range", type=positive, default=ModelConfig().sensing_range_m,
-                       help="sensing range in m every configuration must stay connected within (default 0.5)")
         add_json_option(q)
     new.set_defaults(run=run_new)
     check.set_defaults(run=run_check)
 
 
-def _report(verb: str, path: Path, summary: dict[str, float], as_json: bool) -> int:
-    print(f"{verb} {path}: {summary['robots']} robots, {summary['configs']} configurations, connected within "
+def new_options(args: argparse.Namespace) -> NewTrajectoryOptions:
+    """``swarm trajectory new``'s options (the file: its positional)."""
+    return options_of(args, NewTrajectoryOptions, file=args.file)
+
+
+def check_options(args: argparse.Namespace) -> CheckTrajectoryOptions:
+    """``swarm trajectory check``'s options (the file: its positional)."""
+    return options_of(args, CheckTrajectoryOptions, file=args.file)
+
+
+def _report(verb: str, done: TrajectoryFile, as_json: bool) -> int:
+    summary = done.summary
+    print(f"{verb} {done.file}: {summary['robots']} robots, {summary['configs']} configurations, connected within "
           f"{summary['sensing_range_m']:g} m; robots move {summary['move_mean_m']:.3f} m per configuration on average "
           f"(at most {summary['move_max_m']:.3f} m)", flush=True)
     if as_json:
-        print_json({"file": str(path), **summary})
+        print_json(done.to_json())
     return 0
 
 
 def run_new(args: argparse.Namespace) -> int:
-    traj = random_trajectory(args.robots, args.configs, np.random.default_rng(args.seed), sensing_range=args.sensing_range, step=args.step)
-    args.file.parent.mkdir(parents=True, exist_ok=True)
-    traj.save(args.file)
-    return _report("wrote", args.file, traj.describe(args.sensing_range), args.json)
+    return _report("wrote", new_trajectory(new_options(args)), args.json)
 
 
 def run_check(args: argparse.Namespace) -> int:
-    traj = Trajectory.load(args.file)
-    try:
-        validate_connected(traj, args.sensing_range)
-    except SwarmInputError as exc:
-        raise SwarmInputError(f"trajectory {args.file}: {exc}") from None
-    return _report("ok", args.file, traj.describe(args.sensing_range), args.json)
+    return _report("ok", check_trajectory(check_options(args)), args.json)

@@ -24,6 +24,10 @@ def test_calibrate_noise_takes_str_paths(tmp_path):
     assert fit.to_json()["recording"] == recording and fit.to_json()["truth"] == truth
     default = inchworm.calibrate_noise(recording, truth)  # no out: beside the recording
     assert default.model_file == tmp_path / "run.model.toml" and default.model_file.exists()
+    options = inchworm.CalibrateOptions(recording=recording, truth=truth, out=model, confidence=0.9)
+    assert inchworm.calibrate_noise(options).fit == inchworm.calibrate_noise(recording, truth, out=model, confidence=0.9).fit
+    with pytest.raises(TypeError, match="not both"):
+        inchworm.calibrate_noise(options, confidence=0.8)
 
 
 def test_trajectories_and_runs_take_str_paths(tmp_path):

@@ -117,6 +117,36 @@ def test_every_field_is_a_flag_with_the_fields_default(command: str, maker: str,
     assert made(build_parser(argv).parse_args(argv)) == _named(classes[0])()  # the shared groups' defaults too
 
 
+# commands whose options hold a required positional: command, its positionals, what makes its options from the parsed
+# flags, the options class, the fields the positionals give, and the fields shared groups make (as COMMANDS)
+POSITIONAL_COMMANDS: list[tuple[str, tuple[str, ...], str, str, dict[str, Any], tuple[str, ...]]] = [
+    ("localize", ("in.json",), "swarm_cli.localize:options", "inchworm.localize_data:LocalizeOptions", {"source": "in.json"},
+     ("model", "localizer")),
+    ("calibrate", ("r.mcap", "--truth=t.csv"), "swarm_cli.calibrate:options", "inchworm.noise_calibration:CalibrateOptions",
+     {"recording": "r.mcap", "truth": "t.csv"}, ()),
+    ("trajectory new", ("t.json",), "swarm_cli.trajectory_cmd:new_options", "inchworm.trajectory_files:NewTrajectoryOptions",
+     {"file": "t.json"}, ()),
+    ("trajectory check", ("t.json",), "swarm_cli.trajectory_cmd:check_options", "inchworm.trajectory_files:CheckTrajectoryOptions",
+     {"file": "t.json"}, ()),
+]
+
+
+@pytest.mark.parametrize(("command", "given", "maker", "cls", "positional", "shared"), POSITIONAL_COMMANDS,
+                         ids=[c[0] for c in POSITIONAL_COMMANDS])
+def test_every_field_of_a_command_with_positionals_is_a_flag_with_its_default(
+        command: str, given: tuple[str, ...], maker: str, cls: str, positional: dict[str, Any], shared: tuple[str, ...]) -> None:
+    argv = command.split()
+    actions = {s: a for a in _subparser(argv)._actions for s in a.option_strings}
+    options_class = _named(cls)
+    for f in (f for f in dataclasses.fields(options_class) if f.name not in {*shared, *positional}):
+        action = actions.get(flag_of(f))
+        assert action is not None, f"swarm {command}: field {options_class.__name__}.{f.name} has no flag {flag_of(f)}"
+        if action.nargs != 0 and not action.required:
+            assert action.default == default_of(f), f"swarm {command} {flag_of(f)}: default {action.default!r}, field {default_of(f)!r}"
+        assert action.help and not action.help.startswith(" (default"), f"swarm {command} {flag_of(f)}: no help declared"
+    assert _named(maker)(build_parser(argv).parse_args([*argv, *given])) == options_class(**positional)
+
+
 def test_replays_flags_are_its_options_fields() -> None:
     """``swarm replay``: the flags of ``PublishOptions`` and ``CheckOptions`` make their defaults (the file positional,
     the shared groups' overrides None: the recorded values)."""
@@ -254,3 +284,32 @@ def test_a_union_takes_the_flag_of_its_one_command_line_member_and_kept_fields_t
     args = parser.parse_args(["--file", "x.json", "--how", "slow"])
     assert options_of(args, Run, keep=("start",), either=2.5) == Run(file=Path("x.json"), how="slow", either=2.5)
     assert options_of(parser.parse_args([]), Run, keep=("start",), either=1) == Run()
+
+
+def test_localizes_flags_are_its_options_fields() -> None:
+    """``swarm localize``: the flags of ``LocalizeOptions`` make its defaults (the file positional, the model group's
+    model and ``--localizer`` made apart), ``--strict`` and ``--no-robust`` their fields."""
+    from inchworm.localize_data import LocalizeOptions
+    from swarm_cli.localize import options
+
+    parse = build_parser(["localize"]).parse_args
+    assert options(parse(["localize", "in.json", "--strict", "--no-robust", "--localizer", "joint"])) == LocalizeOptions(
+        source=Path("in.json"), localizer="joint", strict=True, robust=False)
+
+
+def test_calibrates_flags_are_its_options_fields() -> None:
+    """``swarm calibrate``: the flags of ``CalibrateOptions`` make its defaults (the recording: the file positional;
+    ``--truth`` required); a bad confidence names the field, and on the command line its flag."""
+    from inchworm.noise_calibration import CalibrateOptions
+    from swarm_cli.calibrate import options
+
+    parse = build_parser(["calibrate"]).parse_args
+    made = options(parse(["calibrate", "r.mcap", "--truth=t.csv", "--out=m.toml", "--confidence=0.9"]))
+    assert made == CalibrateOptions(recording=Path("r.mcap"), truth=Path("t.csv"), out=Path("m.toml"), confidence=0.9)
+    assert made.model_file == Path("m.toml") and CalibrateOptions(recording="a/r.mcap", truth="t.csv").model_file == Path("a/r.model.toml")
+    for bad in (1.0, float("nan"), True):
+        with pytest.raises(OptionError, match=r"^confidence must be in \[0.5, 1\)") as caught:
+            CalibrateOptions(recording="r.mcap", truth="t.csv", confidence=bad)
+        assert caught.value.flag_message().startswith("--confidence must be")
+    with pytest.raises(SystemExit):
+        parse(["calibrate", "r.mcap"])  # --truth is required

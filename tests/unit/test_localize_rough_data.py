@@ -15,7 +15,7 @@ import pytest
 import inchworm
 from coordinator.localization.registry import BUILTIN_LOCALIZERS
 from coordinator.localization.topology import to_reference_frame
-from runtime.errors import LocalizationError
+from runtime.errors import LocalizationError, OptionError
 from runtime.models.config import ModelConfig
 from runtime.models.sensing import measure
 
@@ -92,6 +92,25 @@ def test_what_cannot_be_fixed_is_named_and_only_that():
     assert [o["used"] for o in doc["observations"]] == [True, True, True, False]
     with pytest.raises(LocalizationError, match=r"^unobserved: robots \[5\] \(cannot be localized; also undetermined 3\)$"):
         inchworm.localize({"robots": [0, 1, 2, 3, 5], "observations": rows(pairs, seed=3)}, CFG, strict=True)
+
+
+def test_options_and_keywords_localize_alike_and_bad_options_name_their_field():
+    """``localize(LocalizeOptions(...))`` is ``localize(source, model, localizer, strict=..., robust=...)``; a bad value
+    raises ``OptionError`` naming the field (the command line: its flag), both forms at once a ``TypeError``."""
+    doc = {"robots": list(range(6)), "observations": rows([(a, b) for a in range(6) for b in range(6) if a != b], seed=4)}
+    options = inchworm.LocalizeOptions(source=doc, model=CFG, localizer="joint", robust=False)
+    assert inchworm.localize(options).to_json() == inchworm.localize(doc, CFG, "joint", robust=False).to_json()
+    with pytest.raises(OptionError, match="^localizer must be a registered localizer's name, got 3$") as caught:
+        inchworm.localize(doc, CFG, 3)
+    assert caught.value.flag_message() == "--localizer must be a registered localizer's name, got 3"
+    with pytest.raises(OptionError, match="^strict must be True or False, got 'yes'$") as caught:
+        inchworm.localize(doc, strict="yes")
+    assert caught.value.flag() == "--strict"
+    with pytest.raises(OptionError) as caught:
+        inchworm.LocalizeOptions(source=doc, robust=1)
+    assert caught.value.flag() == "--no-robust"
+    with pytest.raises(TypeError, match="not both"):
+        inchworm.localize(options, strict=True)
 
 
 @pytest.mark.parametrize("localizer", BUILTIN_LOCALIZERS)
