@@ -98,11 +98,7 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
     once = ~inside[j] | (j > i)
     i, j = i[once], j[once]
     ones = np.ones(len(i))
-    mu, _, sigma, _, _ = moments.pairs(i, j, ones, 0.0 * ones, ones, 0.0 * ones)
-    p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
-    over = np.flatnonzero(p > CONTACT_BOUND)  # one instant: its probability itself where the bound says it may be over
-    p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
-    return i, j, p
+    return i, j, _pair_probability(cfg, moments, i, j, ones, ones)
 
 
 def _yielding(i: np.ndarray, j: np.ndarray, can_i: np.ndarray, can_j: np.ndarray, length: np.ndarray) -> np.ndarray:
@@ -137,11 +133,11 @@ def safe_goals(cfg: ModelConfig, estimate: SwarmEstimate, goals: np.ndarray, row
         fraction[back] = np.maximum(fraction[back] - STOP_STEP, 0.0)
 
 
-def _pair_probability(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.ndarray, j: np.ndarray,
-                      at_i: np.ndarray, at_j: np.ndarray) -> np.ndarray:
-    """Contact probabilities of pairs (i, j), each robot standing where it is (``at`` 0) or arrived at its end of
-    ``ends`` (``at`` 1) with that drive's noise, as ``_end_pairs`` computes them."""
-    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
+def _pair_probability(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndarray, at_i: np.ndarray,
+                      at_j: np.ndarray) -> np.ndarray:
+    """Contact probabilities of pairs (i, j) at one instant, each robot standing where it is (``at`` 0) or arrived at
+    the end of its drive of ``moments`` (``at`` 1) with that drive's noise: the half-plane bound, and the Gaussian's
+    disc probability itself where the bound says it may be over ``CONTACT_BOUND``."""
     zeros = np.zeros(len(i))
     mu, _, sigma, _, _ = moments.pairs(i, j, at_i, zeros, at_j, zeros)
     p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
@@ -159,9 +155,10 @@ def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.
     (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
     first = rank[i] > rank[j]
     wait, go = np.where(first, i, j), np.where(first, j, i)
-    ones = np.ones(len(i))
-    mine = _pair_probability(cfg, estimate, ends, wait, go, 0 * ones, ones)
-    other = _pair_probability(cfg, estimate, ends, wait, go, ones, 0 * ones)
+    ones, zeros = np.ones(len(i)), np.zeros(len(i))
+    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
+    mine = _pair_probability(cfg, moments, wait, go, zeros, ones)
+    other = _pair_probability(cfg, moments, wait, go, ones, zeros)
     swap = (other < mine) & ((other <= CONTACT_BOUND) | (mine > CONTACT_BOUND))
     wait, go = np.where(swap, go, wait), np.where(swap, wait, go)
     decided: set[int] = set()
