@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any, cast, overload
 import numpy as np
 
 from inchworm.localize_checks import duplicate_rows, observation_checks
+from inchworm.options import call_keywords
 from runtime.errors import LocalizationError, OptionError, SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.state import Observations, StepCommands, SwarmEstimate, robot_ids
@@ -263,17 +264,8 @@ def localize(options: LocalizeOptions | StrPath | dict[str, Any], /, *args: Any,
 
 def _options_of(options: LocalizeOptions | StrPath | dict[str, Any], args: tuple[Any, ...], keywords: dict[str, Any]) -> LocalizeOptions:
     """``localize``'s options: the ``LocalizeOptions`` given, or those of the source, ``model`` and ``localizer``
-    (positional or keywords) and the keywords."""
-    if isinstance(options, LocalizeOptions):
-        if args or keywords:
-            raise TypeError("localize() takes LocalizeOptions or the source and keywords, not both: "
-                            "dataclasses.replace(options, ...) changes some")
-        return options
-    if len(args) > 2:
-        raise TypeError(f"localize() takes at most 3 positional arguments (source, model, localizer), got {1 + len(args)}")
-    named = dict(zip(("model", "localizer"), args, strict=False))
-    twice = sorted(set(named) & set(keywords))
-    if twice:
-        raise TypeError(f"localize() got {', '.join(twice)} twice: as positional and keyword arguments")
-    given = {**named, **keywords}
-    return LocalizeOptions(source=options, **{k: v for k, v in given.items() if v is not None or k != "model"})
+    (positional or keywords) and the keywords (``model=None``: the default model)."""
+    given = call_keywords("localize", LocalizeOptions, options, "source", ("model", "localizer"), args, keywords)
+    if given is None:
+        return cast(LocalizeOptions, options)
+    return LocalizeOptions(**{k: v for k, v in given.items() if v is not None or k != "model"})

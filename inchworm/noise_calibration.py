@@ -12,8 +12,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, overload
+from typing import Any, cast, overload
 
+from inchworm.options import call_keywords
 from runtime.errors import OptionError
 from runtime.paths import StrPath, coerce_paths
 
@@ -105,16 +106,5 @@ def calibrate_noise(options: CalibrateOptions | StrPath, /, *args: Any, **keywor
 def _options_of(options: CalibrateOptions | StrPath, args: tuple[Any, ...], keywords: dict[str, Any]) -> CalibrateOptions:
     """``calibrate_noise``'s options: the ``CalibrateOptions`` given, or those of the recording and the ``truth``,
     ``out`` and ``confidence`` (positional or keywords)."""
-    if isinstance(options, CalibrateOptions):
-        if args or keywords:
-            raise TypeError("calibrate_noise() takes CalibrateOptions or the recording and keywords, not both: "
-                            "dataclasses.replace(options, ...) changes some")
-        return options
-    names = ("truth", "out", "confidence")
-    if len(args) > len(names):
-        raise TypeError(f"calibrate_noise() takes at most 4 positional arguments (recording, truth, out, confidence), got {1 + len(args)}")
-    named = dict(zip(names, args, strict=False))
-    twice = sorted(set(named) & set(keywords))
-    if twice:
-        raise TypeError(f"calibrate_noise() got {', '.join(twice)} twice: as positional and keyword arguments")
-    return CalibrateOptions(recording=options, **named, **keywords)
+    given = call_keywords("calibrate_noise", CalibrateOptions, options, "recording", ("truth", "out", "confidence"), args, keywords)
+    return cast(CalibrateOptions, options) if given is None else CalibrateOptions(**given)

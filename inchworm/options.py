@@ -72,3 +72,23 @@ def options_dict(options: Any) -> dict[str, Any]:
         value = getattr(options, f.name)
         out[f.name] = asdict(value) if hasattr(value, "__dataclass_fields__") else value
     return out
+
+
+def call_keywords(function: str, cls: type, given: object, first: str, names: tuple[str, ...], args: tuple[Any, ...],
+                  keywords: dict[str, Any]) -> dict[str, Any] | None:
+    """The keywords of a library function that takes its options object (``cls``) or its ``first`` argument, then
+    ``names`` positionally or as keywords: None when ``given`` is the options object (a ``TypeError`` with arguments
+    beside it), else ``first`` and the arguments by name (a ``TypeError`` for too many, or one given twice)."""
+    if isinstance(given, cls):
+        if args or keywords:
+            raise TypeError(f"{function}() takes {cls.__name__} or the {first} and keywords, not both: "
+                            "dataclasses.replace(options, ...) changes some")
+        return None
+    if len(args) > len(names):
+        raise TypeError(f"{function}() takes at most {1 + len(names)} positional arguments ({', '.join((first, *names))}), "
+                        f"got {1 + len(args)}")
+    named = dict(zip(names, args, strict=False))
+    twice = sorted(set(named) & set(keywords))
+    if twice:
+        raise TypeError(f"{function}() got {', '.join(twice)} twice: as positional and keyword arguments")
+    return {first: given, **named, **keywords}
