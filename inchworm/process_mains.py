@@ -360,7 +360,7 @@ def run_ros2_bridge(spec: Ros2BridgeSpec) -> int:
 
 def run_recorder(spec: RecorderSpec) -> int:
     """``swarm record``: record every message of the run until SIGINT/SIGTERM/SIGHUP, then print the file and its counts."""
-    from runtime.recording.mcap_log import counts_text, record_run, run_metadata  # noqa: PLC0415 - zenoh, mcap when it runs
+    from runtime.recording.mcap_log import STOP_DRAIN_S, counts_text, record_run, run_metadata  # noqa: PLC0415 - zenoh, mcap when it runs
     from runtime.wire.keys import run_wildcard, validate_run  # noqa: PLC0415
 
     validate_run(spec.run_id)
@@ -374,7 +374,7 @@ def run_recorder(spec: RecorderSpec) -> int:
     def ready(rec: McapRecorder) -> None:
         print(f"swarm record: recording {run_wildcard(spec.run_id)} from {label} to {rec.path}", file=sys.stderr, flush=True)
 
-    result = record_run(settings, spec.run_id, out, meta, stop, on_ready=ready)
+    result = record_run(settings, spec.run_id, out, meta, stop, on_ready=ready, drain_s=STOP_DRAIN_S)
     print(f"wrote {result['path']}: {counts_text(result)}" + (f" ({result['undecodable']} undecodable)" if result["undecodable"] else ""),
           flush=True)
     if spec.json:

@@ -135,8 +135,7 @@ WATCHDOG_REFUSAL = f"({RefusalCode.NO_HEARTBEAT.name})"  # in a refusal's reason
 HUB_GRACE_S = 3.0  # s without the hub after which the run ends (HubLost): a stalled coordinator's session is back in ms
 SETTLE_S = 0.02  # s a token gone waits before its robot is judged: the time a closing session takes to drop its hub
 RESYNC_S = 1.0  # s a view is unsettled after its session lost the hub or this process stalled (the hub re-sends its tokens in ms)
-VIEW_TRIES = 6  # liveliness queries at most for a view without a token of its own (a run with nothing live asks them all)
-VIEW_TRIES_OWN = 9  # ... and for a complete view (answers holding this coordinator's own token, which is there: ~0.26 s)
+VIEW_TRIES = 9  # liveliness queries at most for a view (a run with nothing live, asked without a token of its own, asks them all: ~0.26 s)
 VIEW_ANSWERS = 2  # complete answers united into the view (one may still miss a token of the hub's)
 VIEW_PAUSE_S = 0.001  # s before the second query, doubling before each later one (empty answers come in runs of ms)
 OTHER_MASTER = re.compile(r"refused: robot \d+ obeys ")  # an agent's refusal: another coordinator holds (or held) the run
@@ -175,14 +174,14 @@ def hub_view(session: zenoh.Session, key_expr: str, own: int | None = None, time
     session declared the token of coordinator epoch ``own``), an answer shows it if it holds that token; without
     (a session that declared none there: the check before a coordinator starts, a replay's, a status), if it is not
     empty, and every answer is united. A liveliness query on a session that also watches the tokens sometimes answers
-    empty, in runs of a few ms (tens under load), or without some of the hub's tokens (Zenoh 1.10): asked at most
-    ``VIEW_TRIES_OWN`` times with ``own``, ``VIEW_TRIES`` without, pausing ``VIEW_PAUSE_S``, doubled each time, between
-    the queries (an empty view without ``own`` takes them all: about 31 ms).
+    empty, in runs of a few ms (tens, more than 31 ms, under load), or without some of the hub's tokens (Zenoh 1.10):
+    asked at most ``VIEW_TRIES`` times, pausing ``VIEW_PAUSE_S``, doubled each time, between the queries (an empty view
+    without ``own`` takes them all: about 0.26 s).
     Without an answer that shows the hub's view: (the last answer, False), without ``own`` (the union, False)."""
     keys: set[str] = set()
     last: set[str] = set()
     complete = 0
-    for k in range(VIEW_TRIES if own is None else VIEW_TRIES_OWN):
+    for k in range(VIEW_TRIES):
         if k:
             time.sleep(VIEW_PAUSE_S * 2 ** (k - 1))
         last = alive_now(session, key_expr, timeout_s)

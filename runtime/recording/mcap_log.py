@@ -82,6 +82,8 @@ MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
 PROFILE = ""  # no MCAP profile (the well-known ones are ROS)
 MAGIC = b"\x89MCAP0\r\n"
+STOP_DRAIN_S = 0.2  # s without a message after SIGINT/SIGTERM before ``swarm record`` closes its file (``drain``)
+DRAIN_LIMIT = 10  # a drain waits at most this many times its quiet time (a run still publishing does not hold the stop)
 MAX_RECORD_BYTES = 2**31  # a record claiming more is treated as corruption, not as a truncated tail
 _KNOWN_OPCODES = {int(op) for op in Opcode}
 # What mcap and its decompressors raise on damaged data (zstandard.ZstdError is a plain Exception,
@@ -417,8 +419,9 @@ class RecordingFailed(RecordingError):
 
 def record_run(settings: ZenohSettings, run: str, path: str | os.PathLike[str], metadata: dict[str, Any] | None,
                stop_event: threading.Event, on_ready: Callable[[McapRecorder], object] | None = None,
-               on_error: Callable[[BaseException], object] | None = None) -> dict[str, Any]:
-    """Record ``swarm/<run>/**`` through a session opened with ``settings`` until ``stop_event`` is set.
+               on_error: Callable[[BaseException], object] | None = None, drain_s: float = 0.0) -> dict[str, Any]:
+    """Record ``swarm/<run>/**`` through a Zenoh session opened with ``settings`` until ``stop_event`` is set, then
+    until ``drain_s`` seconds pass without a new message (``drain``: what was in flight at the stop is kept).
 
     ``on_ready(recorder)`` is called once the subscription is declared, ``on_error(error)`` once if
     writing fails (the recording then goes on counting, ``close`` raises ``RecordingFailed``). Returns ``{"path",
@@ -435,6 +438,7 @@ def record_run(settings: ZenohSettings, run: str, path: str | os.PathLike[str], 
                 on_ready(recorder)
             while not stop_event.wait(0.1):
                 pass
+            drain(recorder, drain_s)
             sub.undeclare()
         finally:
             recorder.close()
@@ -442,6 +446,20 @@ def record_run(settings: ZenohSettings, run: str, path: str | os.PathLike[str], 
     return {"path": str(recorder.path), "messages": sum(raw.values()) + sum(derived.values()), "channels": len(raw) + len(derived),
             "raw_messages": sum(raw.values()), "raw_channels": len(raw), "derived_messages": sum(derived.values()),
             "derived_channels": len(derived), "undecodable": sum(recorder.bad_counts().values())}
+
+
+def drain(recorder: McapRecorder, quiet_s: float) -> None:
+    """Wait until ``quiet_s`` seconds pass without a message written by ``recorder``, at most ``DRAIN_LIMIT``
+    times ``quiet_s`` in all: messages published before a stop but still in flight then are recorded."""
+    if quiet_s <= 0:
+        return
+    deadline = time.monotonic() + DRAIN_LIMIT * quiet_s
+    seen = recorder.count
+    while time.monotonic() < deadline:
+        time.sleep(quiet_s)
+        if recorder.count == seen:
+            return
+        seen = recorder.count
 
 
 def run_metadata(hub: str, command: str, seed: int | None = None, trajectory: Path | None = None,

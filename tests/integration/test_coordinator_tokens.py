@@ -1,6 +1,6 @@
 """The coordinator's questions to the hub about the run's tokens, on a real loopback hub: answered completely on a
 session that also watches those tokens (as every coordinator's does), where a bare liveliness query sometimes
-answers empty (Zenoh 1.x; coordinator/node/zenoh_backend.py, ``VIEW_TRIES``, ``VIEW_TRIES_OWN``)."""
+answers empty (Zenoh 1.x; coordinator/node/zenoh_backend.py, ``VIEW_TRIES``)."""
 
 from __future__ import annotations
 

@@ -216,3 +216,36 @@ def test_record_run_over_zenoh(tmp_path):
     assert got == sent
     assert result["messages"] >= len(sent) + 1 and result["undecodable"] == 0
     assert recording_info(path)["metadata"]["run"]["seed"] == 5
+
+
+def test_a_stopped_recording_keeps_what_arrives_until_it_is_quiet_and_no_longer_than_its_limit(tmp_path):
+    """``drain`` after a stop (``swarm record``'s SIGINT): a message arriving 0.25 s after another, within the 0.5 s
+    quiet time, is kept and the drain ends once quiet; a run that goes on publishing holds it at most
+    ``DRAIN_LIMIT`` times the quiet time."""
+    from runtime.recording.mcap_log import DRAIN_LIMIT, drain
+
+    status = Status(run=RUN, step=0, robot=1, state="done", reason="")
+    with McapRecorder(tmp_path / "late.mcap", RUN, {}) as rec:
+        late = [threading.Timer(delay, rec.write, (message_key(status), encode(status))) for delay in (0.05, 0.3)]
+        for timer in late:
+            timer.start()
+        drain(rec, 0.5)
+        assert rec.count == 2
+        for timer in late:
+            timer.join()
+
+    with McapRecorder(tmp_path / "busy.mcap", RUN, {}) as rec:
+        busy = threading.Event()
+
+        def publish() -> None:
+            while not busy.wait(0.01):
+                rec.write(message_key(status), encode(status))
+
+        writer = threading.Thread(target=publish)
+        writer.start()
+        start = time.monotonic()
+        drain(rec, 0.05)
+        held = time.monotonic() - start
+        busy.set()
+        writer.join()
+    assert DRAIN_LIMIT * 0.05 <= held < DRAIN_LIMIT * 0.05 + 1.0
