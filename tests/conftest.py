@@ -17,6 +17,7 @@ Each test gets the marker of its level; ``slow`` marks integration and system te
 from __future__ import annotations
 
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -24,6 +25,7 @@ import pytest
 from hypothesis import HealthCheck, settings
 
 from runtime.models.config import ModelConfig
+from runtime.wire.run_file import ENV_DIR
 
 # Behaviour, not speed: no per-example deadline and no "input generation is slow" failure
 # (a busy 2-core machine can stall any draw for a second).
@@ -31,6 +33,7 @@ settings.register_profile("behaviour", deadline=None, suppress_health_check=[Hea
 settings.load_profile("behaviour")
 
 LEVELS = ("unit", "integration", "system")
+_made_run_dir: list[str] = []  # the run-file folder pytest_configure made in this process
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -42,6 +45,19 @@ def pytest_configure(config: pytest.Config) -> None:
     if os.environ.get("PYTHONDONTWRITEBYTECODE") and not os.environ.get("PYTHONPYCACHEPREFIX"):
         os.environ.pop("PYTHONDONTWRITEBYTECODE")
         os.environ["PYTHONPYCACHEPREFIX"] = str(Path(tempfile.gettempdir()) / f"inchworm-swarm-tests-pycache-{os.getuid()}")
+    if not os.environ.get(ENV_DIR) or os.environ.get("PYTEST_XDIST_WORKER"):
+        # The run files of the launches of this process's tests (``runtime.wire.run_file``) in a folder of its own (a worker
+        # too, not its controller's): a run id that another worker or another run of the suite on this host had live was
+        # refused ("that run is already live").
+        _made_run_dir.append(tempfile.mkdtemp(prefix="inchworm-swarm-tests-runs-"))
+        os.environ[ENV_DIR] = _made_run_dir[0]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """Remove the run-file folder ``pytest_configure`` made."""
+    while _made_run_dir:
+        os.environ.pop(ENV_DIR, None)
+        shutil.rmtree(_made_run_dir.pop(), ignore_errors=True)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

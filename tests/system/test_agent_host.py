@@ -25,9 +25,10 @@ from robot_agent.host import AgentHost
 from runtime.errors import SwarmInputError
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import random_trajectory
-from runtime.wire.keys import alive_wildcard, coord_alive_key, parse_key, robot_key, robot_wildcard
+from runtime.wire.keys import alive_wildcard, parse_key, robot_key, robot_wildcard
 from runtime.wire.messages import MotionCommand, Status, decode, encode
-from runtime.wire.transport import alive_now, declare_token, open_loopback_hub, publish, subscribe_queue
+from runtime.wire.transport import alive_now, open_loopback_hub, publish, subscribe_queue
+from tests.agent_hub import declare_coordinator
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
@@ -84,8 +85,7 @@ def hosted_run(motion_time_s: float):
                 assert time.monotonic() < deadline, "the hosted agents did not come up"
                 time.sleep(0.02)
             _, statuses = subscribe_queue(hub, robot_wildcard(RUN, "status"))
-            token = declare_token(hub, coord_alive_key(RUN, 5))
-            time.sleep(0.3)
+            token = declare_coordinator(hub, RUN, 5, [1, 2, 3])
             yield hub, agents, host, thread, statuses, done
             token.undeclare()
         finally:

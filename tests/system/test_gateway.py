@@ -382,8 +382,9 @@ def test_a_forged_lost_reply_for_another_step_is_ignored_and_counted():
 def test_a_lost_done_after_a_long_motion_costs_one_retry_interval():
     """The link re-sends the COMMAND every ack_timeout_s while the robot moves; the robot answers ACCEPTED,
     then DONE from memory, so losing the DONE (and whatever else in 0.5 s around it) delays the step by
-    about one interval, not a motion timeout, and the robot moves once."""
-    timing = dataclasses.replace(FAST, ack_timeout_s=0.05, max_retries=15, motion_timeout_s=5.0)
+    about one interval, not a motion timeout, and the robot moves once. The retry budget (2 s) leaves a loaded
+    machine's late wake-up room before the silence would count as a lost robot."""
+    timing = dataclasses.replace(FAST, ack_timeout_s=0.05, max_retries=39, motion_timeout_s=5.0)
     with rig(timing=timing, motion_time_s=0.5) as r:
         failed: list[BaseException] = []
         start = time.monotonic()
@@ -393,7 +394,7 @@ def test_a_lost_done_after_a_long_motion_costs_one_retry_interval():
         accepted = time.monotonic()
         time.sleep(max(0.0, accepted + 0.3 - time.monotonic()))
         r.emulator.faults = FaultPlan(drop_prob=1.0)  # the radio is dead around the end of the motion: DONE lost
-        time.sleep(0.5)  # within the retry budget, 16 x 0.05 s
+        time.sleep(0.5)  # within the retry budget, 40 x 0.05 s
         r.emulator.faults = FaultPlan()
         worker.join(timeout=10)
         took = time.monotonic() - start

@@ -23,7 +23,6 @@ from runtime.wire.keys import alive_wildcard, coord_alive_key, coord_key, robot_
 from runtime.wire.messages import MotionCommand, PlanMessage, Status, decode, encode
 from runtime.wire.transport import (
     alive_now,
-    declare_token,
     free_tcp_port,
     loopback_hub,
     open_loopback_hub,
@@ -32,6 +31,7 @@ from runtime.wire.transport import (
     subscribe,
     subscribe_queue,
 )
+from tests.agent_hub import declare_coordinator
 from tests.waiting import wait_for
 
 REPO = Path(__file__).resolve().parents[2]
@@ -112,7 +112,8 @@ def test_replay_refuses_a_live_run_and_publishes_under_a_new_run_id(tmp_path):
             moved = subprocess.run([sys.executable, "-m", "swarm_cli.main", "replay", str(recording), "--publish", "--speed=0",
                                     f"--hub={hub}", "--wait=0"],
                                    capture_output=True, text=True, cwd=tmp_path, env=ENV, timeout=60)
-            time.sleep(0.3)
+            if moved.returncode == 0:
+                wait_for(lambda: heard, 10, "the replayed messages")
         finally:
             stop_all(procs)
     assert refused.returncode == 2, refused.stderr
@@ -144,12 +145,10 @@ def test_a_command_of_a_gone_coordinator_epoch_is_refused(tmp_path):
                     got.append(decode(statuses.get(timeout=5)[1], Status))
                 return got
 
-            old = declare_token(hub, coord_alive_key("stale", 11))
-            time.sleep(0.3)
+            old = declare_coordinator(hub, "stale", 11, [0])
             assert [s.state for s in command(11, 1)] == ["done"]
             old.undeclare()
-            new = declare_token(hub, coord_alive_key("stale", 12))
-            time.sleep(0.3)
+            new = declare_coordinator(hub, "stale", 12, [0])  # after 11's token went: the agent saw both, in order
             stale = command(11, 2)
             assert [s.state for s in stale] == ["refused"]
             assert "coordinator epoch 11, which is gone" in stale[0].reason

@@ -1,16 +1,21 @@
 """ROS 2 for real: ``swarm launch --driver ros2`` against ``swarm ros2 robots`` (separate processes, rclpy, DDS discovery),
 rough robots included, the live bridge subscribed and its emergency stop called mid-run, and a namespace without a robot.
 
-Each test has a ROS domain of its own and localhost-only discovery, so parallel tests and other runs do not cross-talk.
+Each test holds a ROS domain of its own (``ros_domain``) and discovers on localhost only, so parallel tests and other
+runs of the suite on this host do not cross-talk.
 """
 
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import random
 import subprocess
 import sys
+import tempfile
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -31,10 +36,33 @@ REPO = Path(__file__).resolve().parents[2]
 FAST = ["max_linear_speed=1.5", "max_angular_speed=6", "linear_accel=6", "angular_accel=30", "sensing_window_s=0.25", "silence_s=0.6"]
 
 
-def ros_env(offset: int) -> dict[str, str]:
-    """This test's own ROS domain (10-99), localhost discovery only."""
-    return {**os.environ, "PYTHONPATH": str(REPO), "ROS_DOMAIN_ID": str(10 + (os.getpid() * 7 + offset) % 90),
-            "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+@pytest.fixture
+def ros_domain() -> Iterator[str]:
+    """A ROS domain (10-99) that no other test on this host holds meanwhile: the first free of an exclusive lock on its
+    file in the temporary directory, held until the test ends (the kernel drops it if the process dies). A domain
+    drawn from the process id alone was shared, now and then, by two runs of these tests at once (the robots of one
+    then drove to the other's goals)."""
+    domains = list(range(10, 100))
+    random.shuffle(domains)
+    for domain in domains:
+        # read-only: another user's lock file (mode 644) locks as well
+        fd = os.open(Path(tempfile.gettempdir()) / f"inchworm-swarm-ros-domain-{domain}.lock", os.O_RDONLY | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            continue
+        try:
+            yield str(domain)
+        finally:
+            os.close(fd)
+        return
+    pytest.fail("every ROS domain 10-99 is held by other tests on this host")
+
+
+def ros_env(domain: str) -> dict[str, str]:
+    """The environment of this test's processes: its ROS domain, localhost discovery only."""
+    return {**os.environ, "PYTHONPATH": str(REPO), "ROS_DOMAIN_ID": domain, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
 
 
 @pytest.fixture
@@ -131,11 +159,11 @@ class Listener:
         RosProcess.remove(self.node)
 
 
-def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_path, trajectory, monkeypatch):
+def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_path, trajectory, monkeypatch, ros_domain):
     """Robot 1 publishes no odometry, every sighting comes twice and again 0.4 s late, robot 3 goes silent when its second
     motion starts: the run finishes with P_f and contacts, robot 3 lost as silent, the bridge publishes it all, and the
     recording replays."""
-    env = ros_env(1)
+    env = ros_env(ros_domain)
     listener = Listener(monkeypatch, env)
     sim = robots(trajectory, env, "--no-odom=1", "--sightings-twice", "--late-sightings=0.4", "--silent=3@2")
     run_id = f"ros2-rough-{os.getpid()}"
@@ -173,8 +201,9 @@ def test_a_launched_run_drives_rough_ros2_robots_to_the_end_live_in_ros2(tmp_pat
     assert check.returncode == 0 and "check passed" in check.stdout, check.stdout + check.stderr
 
 
-def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_says_there_is_none(tmp_path, trajectory, monkeypatch):
-    env = ros_env(2)
+def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_says_there_is_none(tmp_path, trajectory, monkeypatch,
+                                                                                                     ros_domain):
+    env = ros_env(ros_domain)
     run_id = f"ros2-estop-{os.getpid()}"
     bridge = subprocess.Popen([sys.executable, "-m", "swarm_cli.ros2", "bridge", f"--run={run_id}", "--wait=60"], env=env, cwd=REPO,
                               stderr=subprocess.PIPE, text=True)
@@ -206,9 +235,9 @@ def test_the_bridge_started_before_a_run_stops_it_mid_run_and_one_started_after_
         f"swarm ros2 bridge: no live run {run_id!r} on this host (give --hub ENDPOINT, or --wait S to wait for it)"]
 
 
-def test_robots_without_a_ground_truth_are_driven_to_the_end_without_truths(tmp_path, trajectory):
+def test_robots_without_a_ground_truth_are_driven_to_the_end_without_truths(tmp_path, trajectory, ros_domain):
     """Real robots: no tracker, so the agents publish no truths and the coordinator runs without them."""
-    env = ros_env(4)
+    env = ros_env(ros_domain)
     sim = robots(trajectory, env, "--no-ground-truth")
     run_id = f"ros2-lab-{os.getpid()}"
     try:
@@ -223,8 +252,8 @@ def test_robots_without_a_ground_truth_are_driven_to_the_end_without_truths(tmp_
     assert not any("/sim/truth" in t for t in topics) and sum(t.endswith("/obs") for t in topics) == 8  # 4 robots, 2 steps
 
 
-def test_a_namespace_without_a_robot_is_not_ready_and_its_command_is_lost(monkeypatch):
-    monkeypatch.setenv("ROS_DOMAIN_ID", ros_env(3)["ROS_DOMAIN_ID"])
+def test_a_namespace_without_a_robot_is_not_ready_and_its_command_is_lost(monkeypatch, ros_domain):
+    monkeypatch.setenv("ROS_DOMAIN_ID", ros_domain)
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     driver = Ros2Driver(DriverContext(robot=1, ids=(0, 1), run="r", options={"namespace": "/nobody{id}", "silence_s": "0.3"}))
     try:
@@ -237,15 +266,19 @@ def test_a_namespace_without_a_robot_is_not_ready_and_its_command_is_lost(monkey
         driver.detach()
 
 
-def test_ros2_robots_in_the_physical_world_push_a_robot_off_its_place_and_the_run_is_recorded(tmp_path):
+def test_ros2_robots_in_the_physical_world_push_a_robot_off_its_place_and_the_run_is_recorded(tmp_path, ros_domain):
     """``swarm launch --driver ros2 --ros2-robots --world physics``: bodies larger than the planner's (a rough case) so robot 0,
     driving up to robot 1, pushes it away after robot 1's own motion ended; the run finishes with P_f, the world's contact
-    is on the record with the still poses of each step, and the recording replays."""
+    is on the record with the still poses of each step, and the recording replays.
+
+    In step 2 robots 0 and 1, left touching by the push, drive apart (their goals 0.25 m apart, the bodies 0.1 m wide),
+    so nothing pushes a robot after its truth was taken whatever the order their motions run in. (Goals 0.08 m apart
+    made them touch again in 4 of 10 runs, a robot finished first then pushed by the other off its recorded truth.)"""
     poses = [[0.0, 0.0, 0.0], [0.3, 0.0, 3.1], [0.0, 0.3, 0.0], [0.3, 0.3, -3.1]]
-    configs = [[[0.25, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]], [[0.22, 0.1], [0.3, 0.1], [0.0, 0.4], [0.3, 0.4]]]
+    configs = [[[0.25, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]], [[0.15, 0.1], [0.4, 0.1], [0.0, 0.4], [0.3, 0.4]]]
     traj = tmp_path / "push.json"
     Trajectory(np.arange(4), np.array(poses), np.array(configs)).save(traj)
-    env = ros_env(5)
+    env = ros_env(ros_domain)
     run_id = f"ros2-physics-{os.getpid()}"
     world = ["radius_m=0.05", "max_wheel_speed_m_s=0.15", "max_wheel_accel_m_s2=1"]
     driver = ["rate_hz=50", "max_angular_speed=3", "angular_accel=20", "sensing_window_s=0.25"]  # linear: the wheels' (launcher)

@@ -28,6 +28,7 @@ from runtime.wire.transport import (
 )
 from tests.integration.test_transport import _wait_for
 from tests.routers import start_router
+from tests.waiting import matched_publisher
 
 REPO = Path(__file__).resolve().parents[2]
 CHILD = """
@@ -92,7 +93,7 @@ def test_oversized_payloads_on_a_command_key_are_dropped_by_the_router_and_its_m
         member = ZenohSettings("client", connect=(endpoint,))
         with open_session(member) as forger, open_session(member) as agent:
             _sub, inbox = subscribe_queue(agent, "swarm/flood/robot/3/cmd")
-            time.sleep(0.5)
+            matched_publisher(forger, "swarm/flood/robot/3/cmd").undeclare()  # the router routes the key to the subscriber
             before = _rss_mb(router.pid)
             for _ in range(5):
                 publish(forger, "swarm/flood/robot/3/cmd", bytes(20_000_000))
