@@ -44,8 +44,12 @@ steps (a robot driven in, a neighbour standing), and a staging point is cheap: a
 probability at the end is over ``END_BOUND`` = 1e-4 (a tenth of the steps' bound; a pair whose goals are at risk p
 even reached with no motion may reach ``FLOOR_FACTOR`` x p, at most ``CONTACT_BOUND``), and of two robots still over it
 at their shortest one waits; a robot stops short of its goal against a robot standing for the rest of the change only
-over ``CONTACT_BOUND``, as before, and so does every robot of the change's ``LEG_CAP``-th leg (it drove straight in
-before, past and into standing robots).
+over ``CONTACT_BOUND``, as before. A robot that stands at risk where it is now (over ``CONTACT_BOUND`` against a
+neighbour, by the estimate) does not wait there. **The way, too**: a drive whose straight way passes a robot standing for
+the rest of the change over the steps' bound (``BodyCheck.step_conflicts``; no order helps it, and the regrouping would
+have moved it anyway) is blocked like one whose end is over: it stops short before (``_passing_standing``). **The
+change's last leg** (``LEG_CAP``): a robot that would wait ends the change where it stands, and the others stop short of
+it and of every standing robot as on a last leg (it drove straight in before, past and into standing robots).
 
 **Corrections.** After a leg, a robot that has arrived (or stands) but whose pair with a neighbour is over
 ``CONTACT_BOUND`` by the new estimate, both standing, and would be at most half as much at risk at its goal, drives back
@@ -191,8 +195,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
                 last: bool | np.ndarray = False, final: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``
     (all or per robot, (n,)): the robot drives straight to its goal unless it waits; ``final``: every robot drives
-    straight to its goal, none waits (a robot over ``CONTACT_BOUND`` against one standing for the rest of the change
-    stops short, as on a last leg). Robots not ``going`` stand where they are estimated.
+    straight to its goal, none waits (one that would, over ``CONTACT_BOUND``, stops where it stands, and a robot over
+    ``CONTACT_BOUND`` against one standing for the rest of the change stops short, as on a last leg). Robots not
+    ``going`` stand where they are estimated; a robot at risk where it stands now does not wait.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
@@ -205,9 +210,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
     start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot whose
     leg's end is least at risk does (its highest pair probability; ties: a last leg, then the shorter way). A robot over
-    at its shortest (or on its last leg) over ``CONTACT_BOUND`` against a robot that stands for the whole change drives
-    the farthest part of its way, in ``STOP_STEP`` steps, whose end keeps that bound against every standing robot and
-    goes on from there
+    at its shortest (or on its last leg) over ``CONTACT_BOUND`` against a robot that stands for the whole change, or
+    whose way passes one over the steps' bound, drives the farthest part of its way, in ``STOP_STEP`` steps, whose end
+    and way keep those bounds against every standing robot and goes on from there
     (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``). Pairs whose
     goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
     them."""
@@ -225,7 +230,10 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     length = np.hypot(*path.T)
     drives = going & (length >= MIN_LEG_M)
     rows = np.flatnonzero(drives & ~last)
-    waitable = drives & (not final)
+    i, j, p = _end_pairs(cfg, estimate, current, np.flatnonzero(drives))  # standing where they are now
+    touching = np.zeros(len(current), bool)
+    touching[np.concatenate([i[p > CONTACT_BOUND], j[p > CONTACT_BOUND]])] = True
+    waitable = drives & ~touching  # a robot at risk where it stands now does not wait there
     if not drives.any():
         return Leg(targets, none, short, none)
     there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
@@ -273,8 +281,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         while True:
             level, ends, over = stops()
             free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
-            pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
-            alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
+            waits = [x for x in over if not final or x[2] > CONTACT_BOUND]  # in the last leg: over CONTACT_BOUND only
+            pairs = [(a, b, q) for a, b, q in waits if free[a] and free[b]]
+            alone = sorted({a if free[a] else b for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]})
             if not pairs and not alone:
                 break
             held[alone] = True  # its neighbour waits: it approaches that one standing, later
@@ -292,14 +301,19 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             held[min(risk, key=lambda x: x[0])[1]] = False
             level, ends, over = stops()
         # over at its shortest (or on its last leg) against a robot standing for the rest of the change: a shorter leg
-        blocked = sorted({b if drives[b] else a for a, b, q in over if drives[a] != drives[b] and q > CONTACT_BOUND})
-        rows = np.array([r for r in blocked if not held[r] and cap[r] > 0], np.int64)
+        on = drives & ~held if final else drives  # in the last leg a robot that would wait stands for good
+        blocked = {b if on[b] else a for a, b, q in over if on[a] != on[b] and q > CONTACT_BOUND}
+        blocked |= _passing_standing(cfg, estimate, ends, drives & ~held, on)  # its way passes one: the same
+        rows = np.array(sorted(r for r in blocked if not held[r] and cap[r] > 0), np.int64)
         if not len(rows):
             break
-        reach = np.minimum(cap[rows], np.where(movable[rows], fractions[shortest], 1.0))
-        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, drives)
+        reach = np.minimum(cap[rows], fractions[level[rows]])
+        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on)
     capped = (cap < 1.0) & ~held
     stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
+    if final:  # a robot that would wait in the change's last leg ends the change where it stands
+        stop |= held
+        held[:] = False
     staged = ((level > 0) | capped) & ~held & ~stop
     targets[staged | stop] = ends[staged | stop]
     targets[held] = current[held]
@@ -311,7 +325,8 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
                        start: np.ndarray, drives: np.ndarray) -> np.ndarray:
     """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
     steps of ``STOP_STEP``, whose end keeps ``CONTACT_BOUND`` against every robot not of ``drives`` (standing for the
-    rest of the change); 0 where none does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
+    rest of the change), and so does its way there (``_passing_standing``); 0 where none does (it stays where it
+    stands). The others stand at ``ends`` (n, 2)."""
     fraction = np.zeros(len(rows))
     todo = np.ones(len(rows), bool)
     step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
@@ -321,11 +336,27 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
         there[rows] = estimate.positions[rows] + (step * STOP_STEP)[:, None] * path[rows]
         i, j, p = _end_pairs(cfg, estimate, there, rows[trying])
         over = (p > CONTACT_BOUND) & ~drives[j]
-        clear = trying & ~np.isin(rows, i[over])
+        moving = np.zeros(len(there), bool)
+        moving[rows[trying]] = True
+        passing = np.array(sorted(_passing_standing(cfg, estimate, there, moving, drives)), np.int64)
+        clear = trying & ~np.isin(rows, i[over]) & ~np.isin(rows, passing)
         fraction[clear] = step[clear] * STOP_STEP
         todo &= ~clear
         step[todo] -= 1
     return fraction
+
+
+def _passing_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, moving: np.ndarray,
+                      drives: np.ndarray) -> set[int]:
+    """Robots of ``moving`` (n,) whose straight drive from where they stand to ``ends`` (n, 2), all of them driving at
+    once, is over the steps' bound against a robot not of ``drives`` (standing for the rest of the change, where it
+    stands): ``BodyCheck.step_conflicts``, the regrouping's verdict. No order helps such a drive (the other robot does
+    not move again), and the regrouping would move it anyway, one at a time."""
+    movers = moving & (np.hypot(*(ends - estimate.positions).T) >= MIN_LEG_M)
+    if not movers.any():
+        return set()
+    conflicts = BodyCheck.of_estimate(cfg, estimate, ends).step_conflicts(estimate.positions, movers)
+    return {c.a if movers[c.a] else c.b for c in conflicts if drives[c.a] != drives[c.b]}
 
 
 def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,
@@ -430,8 +461,9 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
     ``base``) kept to the robots that drive in it, in its order, consecutive groups merged while they move at most as
     many robots as its largest group (so every step keeps at least the plan's anchors), its targets from
     ``leg_targets`` (a robot's ``MAX_LEGS``-th driven leg and the change's ``LEG_CAP``-th leg straight to the targets),
-    the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``). None
-    when none of them is left."""
+    the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``), nor
+    robots it stops where they stand (``Leg.short``). Robots that stand at risk after the legs so far drive a correction
+    (``corrections``). None when none of them is left to drive."""
     first = legs[0]
     going = np.isin(estimate.ids, legs[-1].going_on)
     fix = corrections(cfg, estimate, desired, going)
@@ -440,8 +472,8 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
         return None
     last = mask & (driven_legs(legs, estimate.ids) >= MAX_LEGS - 1)
     leg = leg_targets(cfg, estimate, desired, mask, last, final=index >= LEG_CAP - 1)
-    moved = np.hypot(*(leg.targets - estimate.positions).T) >= MIN_LEG_M
-    drive = mask & ~leg.held & (going | moved)  # a correction its leg would not move (stopped where it stands) is left out
+    moved = (leg.targets != estimate.positions).any(axis=1)
+    drive = mask & ~leg.held & (moved | leg.staged)  # a robot its leg stops where it stands is left out of the leg
     if not drive.any():
         return None
     ids = estimate.ids[drive]

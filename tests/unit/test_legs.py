@@ -32,7 +32,7 @@ from coordinator.run_result import ConfigRecord
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.models.bodies import CONTACT_BOUND
+from runtime.models.bodies import CONTACT_BOUND, BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.simulation import SimulatedSwarm
@@ -126,7 +126,8 @@ def test_a_way_past_a_still_neighbour_never_ends_a_leg_over_the_bound_and_stops_
         if not len(legs[-1].going_on):
             break
         leg = next_leg(X558, legs, SwarmEstimate(est.ids, poses.copy(), est.cov), desired, len(legs))
-        assert leg is not None
+        if leg is None:  # it stops where it stands: no leg drives it
+            break
         legs += (leg,)
     assert 0.05 < poses[0, 0] < 0.2 - 2 * X558.robot_radius_m and poses[0, 1] == 0.0
     assert len(legs) <= LEG_CAP
@@ -384,14 +385,18 @@ def test_a_head_on_pair_with_clear_ends_drives_straight_and_the_last_leg_never_w
     assert first is not None and first.held.tolist() == [0]
     final = next_leg(X558, (first,) * (LEG_CAP - 1), CONVERGE, CONVERGE_DESIRED, LEG_CAP - 1)
     assert final is not None and not len(final.held) and not final.staged.any()
-    np.testing.assert_array_equal(final.targets, CONVERGE_DESIRED)
+    # robot 0, which would wait, ends the change where it stands (stopped short); robot 1 drives to its goal
+    assert final.ids.tolist() == [1] and final.targets.tolist() == [CONVERGE_DESIRED[1].tolist()]
+    last = leg_targets(X558, CONVERGE, CONVERGE_DESIRED, np.ones(2, bool), final=True)
+    assert last.short.tolist() == [True, False] and last.targets[0].tolist() == CONVERGE.positions[0].tolist()
 
 
 def test_when_every_robot_would_wait_the_one_least_at_risk_drives():
     """Robot 0 waits for robot 1 (its way passes 4 cm from robot 1's place), robot 2 on its last leg for robot 1 (its
     goal is robot 1's place), robot 1 against the waiting robot 0: nobody would drive. Not the robot with the shortest
-    way (robot 2, into robot 1 standing: 0.76) drives, but robot 1, away from robot 2, at the least risk of the three."""
-    est = estimate([[-0.086, -0.716], [-0.128, -0.738], [-0.114, -0.77]], [2.8, 1.5, 1.6])
+    way (robot 2, into robot 1 standing) drives, but robot 1, away from robot 2, at the least risk of the three. (No two
+    of them stand at risk where they are: such a robot does not wait, below.)"""
+    est = estimate([[-0.07, -0.716], [-0.128, -0.738], [-0.114, -0.78]], [2.8, 1.5, 1.6])
     desired = np.array([[-0.244, -0.656], [-0.13, -0.478], [-0.124, -0.738]])
     leg = leg_targets(X558, est, desired, np.ones(3, bool), last=np.array([False, False, True]))
     assert leg.held.tolist() == [True, False, True] and leg.staged.tolist() == [False, True, False]
@@ -493,3 +498,30 @@ def test_a_correction_is_counted_per_robot_and_leg():
     assert rec.corrections == 1 and rec.holds == 0
     staged = LegRecord(first.plan, first.ids, first.targets, np.array([True, False, False]))
     assert ConfigRecord(0, first.plan, None, TOUCHING, None, legs=(staged, leg)).corrections == 0  # it went on: no correction
+
+
+def test_a_robot_at_risk_where_it_stands_does_not_wait_there():
+    """Robots 0 and 2 of the scenario above stand 4.7 cm and 3.5 cm from robot 1 (0.75 % and 0.13 % by their estimates):
+    waiting would leave them standing at risk, so nobody waits; they stage on their ways instead."""
+    est = estimate([[-0.086, -0.716], [-0.128, -0.738], [-0.114, -0.77]], [2.8, 1.5, 1.6])
+    desired = np.array([[-0.244, -0.656], [-0.13, -0.478], [-0.124, -0.738]])
+    assert end_probability(X558, est, est.positions, 0, 1) > CONTACT_BOUND and end_probability(X558, est, est.positions, 1, 2) > CONTACT_BOUND
+    leg = leg_targets(X558, est, desired, np.ones(3, bool), last=np.array([False, False, True]))
+    assert not leg.held.any() and leg.staged.tolist() == [True, True, False]
+
+
+def test_a_way_through_a_standing_robot_stops_short_before_it_though_its_end_is_clear():
+    """Robot 0's last leg drives 0.3 m along y = 0 to a goal 15 cm past robot 1, which stands 1 cm beside the way for
+    the rest of the change: the end keeps the bound (7.8e-4), the way does not (the regrouping would have moved it
+    anyway, alone): it stops short before robot 1, where its way keeps the steps' bound."""
+    est = estimate([[0.0, 0.0], [0.15, 0.01], [-0.3, 0.3]], [0.0, 1.0, 0.5])
+    desired = np.array([[0.3, 0.0], [0.15, 0.01], [-0.3, 0.3]])
+    going = np.array([True, False, False])
+    assert end_probability(X3, est, desired, 0, 1) < CONTACT_BOUND
+    check = BodyCheck.of_estimate(X3, est, desired)
+    assert [(c.a, c.b) for c in check.step_conflicts(est.positions, going)] == [(0, 1)]
+    leg = leg_targets(X3, est, desired, going, last=True)
+    assert leg.short.tolist() == [True, False, False] and 0.0 < leg.targets[0, 0] < 0.15 - 2 * X3.robot_radius_m
+    ends = est.positions.copy()
+    ends[0] = leg.targets[0]
+    assert not BodyCheck.of_estimate(X3, est, ends).step_conflicts(est.positions, going)
