@@ -44,8 +44,7 @@ steps (a robot driven in, a neighbour standing), and a staging point is cheap: a
 probability at the end is over ``END_BOUND`` = 1e-4 (a tenth of the steps' bound; a pair whose goals are at risk p
 even reached with no motion may reach ``FLOOR_FACTOR`` x p, at most ``CONTACT_BOUND``), and of two robots still over it
 at their shortest one waits; a robot stops short of its goal against a robot standing for the rest of the change only
-over ``CONTACT_BOUND``, as before. A robot that stands at risk where it is now (over ``CONTACT_BOUND`` against a
-neighbour, by the estimate) does not wait there. **The way, too**: a drive whose straight way passes a robot standing for
+over ``CONTACT_BOUND``, as before. **The way, too**: a drive whose straight way passes a robot standing for
 the rest of the change over the steps' bound (``BodyCheck.step_conflicts``; no order helps it, and the regrouping would
 have moved it anyway) is blocked like one whose end is over: it stops short before (``_passing_standing``). **The
 change's last leg** (``LEG_CAP``): a robot that would wait ends the change where it stands, and the others stop short of
@@ -197,7 +196,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     (all or per robot, (n,)): the robot drives straight to its goal unless it waits; ``final``: every robot drives
     straight to its goal, none waits (one that would, over ``CONTACT_BOUND``, stops where it stands, and a robot over
     ``CONTACT_BOUND`` against one standing for the rest of the change stops short, as on a last leg). Robots not
-    ``going`` stand where they are estimated; a robot at risk where it stands now does not wait.
+    ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
@@ -230,10 +229,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     length = np.hypot(*path.T)
     drives = going & (length >= MIN_LEG_M)
     rows = np.flatnonzero(drives & ~last)
-    i, j, p = _end_pairs(cfg, estimate, current, np.flatnonzero(drives))  # standing where they are now
-    touching = np.zeros(len(current), bool)
-    touching[np.concatenate([i[p > CONTACT_BOUND], j[p > CONTACT_BOUND]])] = True
-    waitable = drives & ~touching  # a robot at risk where it stands now does not wait there
+    waitable = drives
     if not drives.any():
         return Leg(targets, none, short, none)
     there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
