@@ -204,7 +204,7 @@ class InchwormExecutor:
                     if moving.any():  # a group whose robots were all lost is skipped
                         estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
                     self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped, legs=legs)
-                if not legs or not len(legs[-1].going_on) or len(legs) >= LEG_CAP:
+                if not legs or len(legs) >= LEG_CAP:  # next_leg: None when nobody goes on or needs a correction
                     break
                 done += plan.n_steps
                 estimate = self._drop_lost(result, c, estimate)[0]

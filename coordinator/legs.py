@@ -38,26 +38,45 @@ farthest of its way in ``STOP_STEP`` steps whose end keeps the bound, and re-pla
 left, or on its last leg, it ends the change there, stopped short (``_short_of_standing``: ways are straight, and one
 that passes a standing robot closer than the bound allows is not driven). When every robot of a leg would wait, the
 one whose leg's end is least at risk drives.
+
+**A stricter bound at the leg ends.** A leg's end is where a pair that touches has been left by the motion of the
+steps (a robot driven in, a neighbour standing), and a staging point is cheap: a robot stops shorter while a pair's
+probability at the end is over ``END_BOUND`` = 1e-4 (a tenth of the steps' bound; a pair whose goals are at risk p
+even reached with no motion may reach ``FLOOR_FACTOR`` x p, at most ``CONTACT_BOUND``), and of two robots still over it
+at their shortest one waits; a robot stops short of its goal against a robot standing for the rest of the change only
+over ``CONTACT_BOUND``, as before. **The way, too**: a drive whose straight way passes a robot standing for
+the rest of the change over the steps' bound (``BodyCheck.step_conflicts``; no order helps it, and the regrouping would
+have moved it anyway) is blocked like one whose end is over: it stops short before (``_passing_standing``). **The
+change's last leg** (``LEG_CAP``): a robot that would wait ends the change where it stands, and the others stop short of
+it and of every standing robot as on a last leg (it drove straight in before, past and into standing robots).
+
+**Corrections.** After a leg, a robot that has arrived (or stands) but whose pair with a neighbour is over
+``CONTACT_BOUND`` by the new estimate, both standing, and would be at most half as much at risk at its goal, drives back
+towards its goal in the next leg (``corrections``): a pair the drive's error left touching is separated at once, instead
+of standing so for the rest of the change (a contact at every step). A change whose legs are done ends only when no such
+robot is left, or after ``LEG_CAP`` legs.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.plan import Plan
-from runtime.models.bodies import CONTACT_BOUND, INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
+from runtime.models.bodies import CONTACT_BOUND, FLOOR_FACTOR, INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.state import SwarmEstimate
 
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
 MAX_LEGS = 6  # legs one robot drives in a change at most (the last drives straight to its target; waiting legs not counted)
-LEG_CAP = 2 * MAX_LEGS  # legs of a change at most (every robot still on its way drives straight in the last)
+LEG_CAP = 2 * MAX_LEGS  # legs of a change at most (in the last every robot still on its way drives to its goal, or stops short)
 MIN_LEG_M = 1e-3  # a remaining path shorter than this (m) is driven in one leg
 STOP_STEP = 1.0 / 16.0  # a goal at risk is pulled back along the robot's path by this fraction of it at a time
+END_BOUND = 1e-4  # contact probability a pair may have at a leg's end (at most FLOOR_FACTOR x its goals' own, <= CONTACT_BOUND)
 
 
 @dataclass(frozen=True)
@@ -90,7 +109,7 @@ def _end_pairs(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, rows
         i, j = all_pairs(rows, n)
     else:  # a pair whose mean positions are more than 2R + z (sd_i + sd_j) apart keeps the bound (``BodyCheck``)
         sd = moments.spread()
-        pad = cfg.robot_radius_m + reach_sigmas(CONTACT_BOUND) * sd
+        pad = cfg.robot_radius_m + reach_sigmas(END_BOUND) * sd
         arrive = estimate.positions + moments.step
         i, j = near_pairs(rows, arrive, pad, arrive, pad)
     inside = np.zeros(n, bool)
@@ -141,7 +160,7 @@ def _pair_probability(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j
     zeros = np.zeros(len(i))
     mu, _, sigma, _, _ = moments.pairs(i, j, at_i, zeros, at_j, zeros)
     p = instant_bound(mu, sigma, 2.0 * cfg.robot_radius_m)
-    over = np.flatnonzero(p > CONTACT_BOUND)
+    over = np.flatnonzero(p > END_BOUND)
     p[over] = disc_probability(mu[over], sigma[over], 2.0 * cfg.robot_radius_m)
     return np.asarray(p)
 
@@ -175,20 +194,24 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
                 last: bool | np.ndarray = False, final: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``
     (all or per robot, (n,)): the robot drives straight to its goal unless it waits; ``final``: every robot drives
-    straight to its goal, none waits. Robots not ``going`` stand where they are estimated.
+    straight to its goal, none waits (one that would, over ``CONTACT_BOUND``, stops where it stands, and a robot over
+    ``CONTACT_BOUND`` against one standing for the rest of the change stops short, as on a last leg). Robots not
+    ``going`` stand where they are estimated.
 
     Each robot's goal is its desired position, pulled back where a pair is at risk there even with no motion
     (``safe_goals``: the robot stops short, ``Leg.short``). The leg's end configuration (every robot of ``going``
     arrived at its leg's end, with that drive's noise, the others where they stand) must keep every pair within
-    ``CONTACT_BOUND``: both robots of a pair over it that can stage stop shorter (the next of ``LEG_FRACTIONS`` of
+    ``END_BOUND`` (or ``FLOOR_FACTOR`` x the pair's own at its goals, at most ``CONTACT_BOUND``: ``limit``): both robots
+    of a pair over it that can stage stop shorter (the next of ``LEG_FRACTIONS`` of
     their path), until none is over or they are at the shortest; against a robot that waits, an end is kept within the
     bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
     robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
     ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
     start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot whose
     leg's end is least at risk does (its highest pair probability; ties: a last leg, then the shorter way). A robot over
-    at its shortest (or on its last leg) against a robot that stands for the whole change drives the farthest part of
-    its way, in ``STOP_STEP`` steps, whose end keeps the bound against every standing robot and goes on from there
+    at its shortest (or on its last leg) over ``CONTACT_BOUND`` against a robot that stands for the whole change, or
+    whose way passes one over the steps' bound, drives the farthest part of its way, in ``STOP_STEP`` steps, whose end
+    and way keep those bounds against every standing robot and goes on from there
     (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``). Pairs whose
     goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
     them."""
@@ -206,13 +229,21 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     length = np.hypot(*path.T)
     drives = going & (length >= MIN_LEG_M)
     rows = np.flatnonzero(drives & ~last)
-    waitable = drives & (not final)
-    if not len(rows) and not waitable.any():
+    waitable = drives
+    if not drives.any():
         return Leg(targets, none, short, none)
     there = estimate.poses.copy()  # every robot standing at its goal with its position's uncertainty now, no motion
     there[:, :2] = targets
     i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), targets, np.flatnonzero(drives))
     hopeless = {(int(a), int(b)) for a, b in zip(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND], strict=True)}
+    own = p > END_BOUND / FLOOR_FACTOR
+    allowed = {(min(a, b), max(a, b)): min(CONTACT_BOUND, FLOOR_FACTOR * q)
+               for a, b, q in zip(i[own].tolist(), j[own].tolist(), p[own].tolist(), strict=True)}
+
+    def limit(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The contact probability pairs (a, b) may have at a leg's end: ``END_BOUND``, or up to ``FLOOR_FACTOR`` x
+        their goals' own (no motion), at most ``CONTACT_BOUND``."""
+        return np.array([allowed.get((min(x, y), max(x, y)), END_BOUND) for x, y in zip(a.tolist(), b.tolist(), strict=True)])
     fractions = np.array((1.0, *LEG_FRACTIONS))
     shortest = len(LEG_FRACTIONS)
     movable = np.zeros(len(current), bool)
@@ -232,9 +263,10 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         while True:  # levels only grow, to ``shortest`` at most: this ends
             ends = current + np.where(held, 0.0, np.minimum(fractions[level], cap))[:, None] * path
             i, j, p = _end_pairs(cfg, estimate, ends, np.flatnonzero(drives))
-            k = p > CONTACT_BOUND
+            k = np.flatnonzero(p > END_BOUND)
+            k = k[p[k] > limit(i[k], j[k])]  # a staging point is cheap: stop shorter over END_BOUND
             over = [(int(a), int(b), float(q)) for a, b, q in zip(i[k], j[k], p[k], strict=True) if (int(a), int(b)) not in hopeless]
-            near = {r for a, b, _ in over for r in (a, b)} | _near_goals(cfg, estimate, ends, targets, held, drives)
+            near = {r for a, b, _ in over for r in (a, b)} | _near_goals(cfg, estimate, ends, targets, held, drives, limit)
             shorter = sorted(r for r in near if movable[r] and not held[r] and level[r] < shortest)
             if not shorter:
                 return level, ends, over
@@ -245,8 +277,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         while True:
             level, ends, over = stops()
             free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
-            pairs = [(a, b, q) for a, b, q in over if free[a] and free[b]]
-            alone = sorted({a if free[a] else b for a, b, _ in over if free[a] != free[b] and held[b if free[a] else a]})
+            waits = [x for x in over if not final or x[2] > CONTACT_BOUND]  # in the last leg: over CONTACT_BOUND only
+            pairs = [(a, b, q) for a, b, q in waits if free[a] and free[b]]
+            alone = sorted({a if free[a] else b for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]})
             if not pairs and not alone:
                 break
             held[alone] = True  # its neighbour waits: it approaches that one standing, later
@@ -264,14 +297,19 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             held[min(risk, key=lambda x: x[0])[1]] = False
             level, ends, over = stops()
         # over at its shortest (or on its last leg) against a robot standing for the rest of the change: a shorter leg
-        blocked = sorted({b if drives[b] else a for a, b, _ in over if drives[a] != drives[b]})
-        rows = np.array([r for r in blocked if not held[r] and cap[r] > 0], np.int64)
+        on = drives & ~held if final else drives  # in the last leg a robot that would wait stands for good
+        blocked = {b if on[b] else a for a, b, q in over if on[a] != on[b] and q > CONTACT_BOUND}
+        blocked |= _passing_standing(cfg, estimate, ends, drives & ~held, on)  # its way passes one: the same
+        rows = np.array(sorted(r for r in blocked if not held[r] and cap[r] > 0), np.int64)
         if not len(rows):
             break
-        reach = np.minimum(cap[rows], np.where(movable[rows], fractions[shortest], 1.0))
-        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, drives)
+        reach = np.minimum(cap[rows], fractions[level[rows]])
+        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on)
     capped = (cap < 1.0) & ~held
     stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
+    if final:  # a robot that would wait in the change's last leg ends the change where it stands
+        stop |= held
+        held[:] = False
     staged = ((level > 0) | capped) & ~held & ~stop
     targets[staged | stop] = ends[staged | stop]
     targets[held] = current[held]
@@ -283,7 +321,8 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
                        start: np.ndarray, drives: np.ndarray) -> np.ndarray:
     """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
     steps of ``STOP_STEP``, whose end keeps ``CONTACT_BOUND`` against every robot not of ``drives`` (standing for the
-    rest of the change); 0 where none does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
+    rest of the change), and so does its way there (``_passing_standing``); 0 where none does (it stays where it
+    stands). The others stand at ``ends`` (n, 2)."""
     fraction = np.zeros(len(rows))
     todo = np.ones(len(rows), bool)
     step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
@@ -293,15 +332,31 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
         there[rows] = estimate.positions[rows] + (step * STOP_STEP)[:, None] * path[rows]
         i, j, p = _end_pairs(cfg, estimate, there, rows[trying])
         over = (p > CONTACT_BOUND) & ~drives[j]
-        clear = trying & ~np.isin(rows, i[over])
+        moving = np.zeros(len(there), bool)
+        moving[rows[trying]] = True
+        passing = np.array(sorted(_passing_standing(cfg, estimate, there, moving, drives)), np.int64)
+        clear = trying & ~np.isin(rows, i[over]) & ~np.isin(rows, passing)
         fraction[clear] = step[clear] * STOP_STEP
         todo &= ~clear
         step[todo] -= 1
     return fraction
 
 
+def _passing_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, moving: np.ndarray,
+                      drives: np.ndarray) -> set[int]:
+    """Robots of ``moving`` (n,) whose straight drive from where they stand to ``ends`` (n, 2), all of them driving at
+    once, is over the steps' bound against a robot not of ``drives`` (standing for the rest of the change, where it
+    stands): ``BodyCheck.step_conflicts``, the regrouping's verdict. No order helps such a drive (the other robot does
+    not move again), and the regrouping would move it anyway, one at a time."""
+    movers = moving & (np.hypot(*(ends - estimate.positions).T) >= MIN_LEG_M)
+    if not movers.any():
+        return set()
+    conflicts = BodyCheck.of_estimate(cfg, estimate, ends).step_conflicts(estimate.positions, movers)
+    return {c.a if movers[c.a] else c.b for c in conflicts if drives[c.a] != drives[c.b]}
+
+
 def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,
-                drives: np.ndarray) -> set[int]:
+                drives: np.ndarray, limit: Callable[[np.ndarray, np.ndarray], np.ndarray]) -> set[int]:
     """Robots of ``drives`` not ``held`` whose ``ends`` are over the bound against a ``held`` robot standing at its goal
     (of ``goals``) with the position uncertainty it has now: it goes there later, and an end that only keeps clear of
     where it waits may stand in its way or at its place (driven straight in while it waits, with the long drive's
@@ -312,7 +367,8 @@ def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goa
     there[held, :2] = goals[held]
     at = np.where(held[:, None], goals, ends)
     i, j, p = _end_pairs(cfg, SwarmEstimate(estimate.ids, there, estimate.cov, estimate.joint), at, np.flatnonzero(drives & ~held))
-    over = (p > CONTACT_BOUND) & (held[i] != held[j])
+    over = (p > END_BOUND) & (held[i] != held[j])
+    over[over] = p[over] > limit(i[over], j[over])
     return {int(r) for r in np.where(held[i[over]], j[over], i[over])}
 
 
@@ -360,6 +416,35 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
     return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped, estimate.ids[leg.held])
 
 
+def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray) -> np.ndarray:
+    """(n,) the robots not ``going`` on that stand over ``CONTACT_BOUND`` against a neighbour by ``estimate`` (both
+    where they stand now, no motion) and would be at most half as much at risk at their goal (``desired`` (n, 2),
+    pulled back as ``safe_goals`` does; the drive's noise counted, the neighbour where it stands): they drive a
+    **correction** towards it in the next leg instead of standing there for the rest of the change. Pairs of two
+    robots going on are left to their legs."""
+    n = len(estimate.ids)
+    out = np.zeros(n, bool)
+    if cfg.robot_radius_m <= 0:
+        return out
+    current = estimate.positions
+    i, j, p = _end_pairs(cfg, estimate, current, np.arange(n))
+    over = (p > CONTACT_BOUND) & ~(going[i] & going[j])
+    if not over.any():
+        return out
+    i, j, p = i[over], j[over], p[over]
+    rows = np.setdiff1d(np.concatenate([i, j]), np.flatnonzero(going))
+    goals = current.copy()
+    goals[rows] = np.asarray(desired, float)[rows, :2]
+    goals, _ = safe_goals(cfg, estimate, goals, rows)
+    away = np.hypot(*(goals - current).T) >= MIN_LEG_M
+    moments = MotionMoments(cfg, current, np.where(away[:, None], goals, current), estimate.cov, estimate.joint)
+    ones, zeros = np.ones(len(i)), np.zeros(len(i))
+    for a, b in ((i, j), (j, i)):  # each robot of a pair at its goal, the other where it stands
+        better = _pair_probability(cfg, moments, a, b, ones, zeros) <= 0.5 * p
+        out[a[better & away[a] & ~going[a]]] = True
+    return out
+
+
 def driven_legs(legs: tuple[LegRecord, ...], ids: np.ndarray) -> np.ndarray:
     """(len(ids),) the legs of ``legs`` each robot of ``ids`` drove in (was in and did not wait)."""
     return np.asarray(sum((np.isin(ids, leg.ids) & ~np.isin(ids, leg.held)).astype(np.int64) for leg in legs))
@@ -372,15 +457,21 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
     ``base``) kept to the robots that drive in it, in its order, consecutive groups merged while they move at most as
     many robots as its largest group (so every step keeps at least the plan's anchors), its targets from
     ``leg_targets`` (a robot's ``MAX_LEGS``-th driven leg and the change's ``LEG_CAP``-th leg straight to the targets),
-    the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``). None
-    when none of them is left."""
+    the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``), nor
+    robots it stops where they stand (``Leg.short``). Robots that stand at risk after the legs so far drive a correction
+    (``corrections``). None when none of them is left to drive."""
     first = legs[0]
-    mask = np.isin(estimate.ids, legs[-1].going_on)
+    going = np.isin(estimate.ids, legs[-1].going_on)
+    fix = corrections(cfg, estimate, desired, going)
+    mask = going | fix
     if not mask.any():
         return None
     last = mask & (driven_legs(legs, estimate.ids) >= MAX_LEGS - 1)
     leg = leg_targets(cfg, estimate, desired, mask, last, final=index >= LEG_CAP - 1)
-    drive = mask & ~leg.held
+    moved = (leg.targets != estimate.positions).any(axis=1)
+    drive = mask & ~leg.held & (moved | leg.staged)  # a robot its leg stops where it stands is left out of the leg
+    if not drive.any():
+        return None
     ids = estimate.ids[drive]
     rows = np.flatnonzero(drive)
     base, base_ids = first.base, first.ids

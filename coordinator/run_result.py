@@ -97,6 +97,12 @@ class ConfigRecord:
         """Approach legs a robot waited where it stood for a neighbour (one per robot and leg, ``coordinator.legs``)."""
         return int(sum(len(leg.held) for leg in self.legs))
 
+    @property
+    def corrections(self) -> int:
+        """Approach legs a robot drove as a correction (one per robot and leg, ``coordinator.legs.corrections``): in a
+        leg after the first without having gone on from the leg before (it had arrived, or stood, at risk)."""
+        return int(sum(len(np.setdiff1d(leg.ids, before.going_on)) for before, leg in zip(self.legs, self.legs[1:], strict=False)))
+
     def anchor_ids(self, step: int = 0) -> np.ndarray:
         """Ids of the anchors of the plan's ``step`` (robots lost since are included)."""
         ids = self.estimate.ids if self.planned_ids is None else self.planned_ids
@@ -186,6 +192,10 @@ class RunResult:
     def holds(self) -> int:
         """Approach legs a robot waited in for a neighbour over the run (``coordinator.legs``)."""
         return sum(c.holds for c in self.configs)
+
+    def corrections(self) -> int:
+        """Correction legs driven over the run (``ConfigRecord.corrections``)."""
+        return sum(c.corrections for c in self.configs)
 
     def stopped_short(self) -> list[list[int]]:
         """Per completed configuration, the robots its approach legs stopped short of their desired position on purpose

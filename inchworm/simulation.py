@@ -167,6 +167,7 @@ def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
     """How a configuration's movers drove in approach legs (``coordinator.legs``), and the robots they stopped short of
     their desired positions (``RunResult.stopped_short``)."""
     waits = f", {rec.holds} waits for a neighbour" if rec.holds else ""
+    waits += f", {rec.corrections} corrections of a robot left at risk" if rec.corrections else ""
     text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point{waits}, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
     if stopped_short:
@@ -234,13 +235,15 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     whose movers drove in approach legs: ``config`` 1-based, ``legs``, ``staging_stops``, ``steps``, ``stopped_short``
     the robots the legs stopped short of their desired positions, at risk there even with no motion noise or blocked by
     a robot standing for the rest of the change, ``holds`` the legs a robot waited in for a neighbour),
-    ``stopped_short`` (those robots over the run, one per robot and configuration) and ``holds`` (the waits over the
-    run)."""
+    ``stopped_short`` (those robots over the run, one per robot and configuration), ``holds`` (the waits over the
+    run) and ``corrections`` (legs a robot drove as a correction after standing at risk, ``coordinator.legs``; also per
+    configuration with legs)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
-            "stopped_short": sum(len(s) for s in short), "holds": result.holds(),
+            "stopped_short": sum(len(s) for s in short), "holds": result.holds(), "corrections": result.corrections(),
             "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps,
-                      "stopped_short": short[k], "holds": c.holds} for k, c in enumerate(result.configs) if c.legs],
+                      "stopped_short": short[k], "holds": c.holds, "corrections": c.corrections}
+                     for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],
             "regrouped": [{"config": k + 1, **c.regrouped.to_json(c.plan.n_steps)} for k, c in enumerate(result.configs) if c.regrouped]}

@@ -16,7 +16,7 @@ SAMPLE = Path(__file__).resolve().parents[2] / "recordings" / "sample.mcap"
 def test_check_recording_reproduces_the_sample_and_refuses_a_contradiction() -> None:
     outcome = inchworm.check_recording(inchworm.CheckOptions(SAMPLE))
     assert outcome.result.passed and outcome.against == []
-    assert outcome.to_json()["estimates"] == 13 and outcome.to_json()["plans"] == 6
+    assert outcome.to_json()["estimates"] == 16 and outcome.to_json()["plans"] == 9
     with pytest.raises(inchworm.OptionError, match=r"^what_if is not set and localizer joint \(recorded: paper\), seed 3 "
                                                     r"\(recorded: 0\) contradicts .* or set what_if to re-run") as caught:
         inchworm.check_recording(inchworm.CheckOptions(SAMPLE, localizer="joint", seed=3))

@@ -151,13 +151,13 @@ def test_replay_publish_says_where_and_a_recorder_finds_it_by_run_id(tmp_path):
     recorder = None
     try:
         first = replay.stdout.readline()
-        assert first.startswith("swarm replay: publishing 519 messages of run sample on tcp/127.0.0.1:"), first
+        assert first.startswith("swarm replay: publishing 660 messages of run sample on tcp/127.0.0.1:"), first
         assert "`--run sample` finds it" in first
         recorder = subprocess.Popen([sys.executable, "-m", "swarm_cli.main", "record", "--run", "sample", "--out", "again.mcap",
                                      "--json"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         rest, _err = replay.communicate(timeout=60)
         assert replay.returncode == 0
-        assert last_json(rest)["messages"] == 519
+        assert last_json(rest)["messages"] == 660
         time.sleep(1.0)
         recorder.send_signal(signal.SIGINT)
         out, err = recorder.communicate(timeout=30)
@@ -167,7 +167,7 @@ def test_replay_publish_says_where_and_a_recorder_finds_it_by_run_id(tmp_path):
                 p.kill()
                 p.wait()
     assert recorder.returncode == 0, err
-    assert last_json(out)["messages"] >= 519  # every raw message (and the derived views the recorder adds)
+    assert last_json(out)["messages"] >= 660  # every raw message (and the derived views the recorder adds)
     assert not list((tmp_path / "runs").glob("*.json"))
 
 

@@ -29,8 +29,8 @@ from tests.routers import start_router
 
 REPO = Path(__file__).resolve().parents[2]
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
-# bytes: this run's recording (~540 kB with its checkpoints, ~220 kB when the second configuration starts: the first has
-# an approach leg, below) outgrows it in the second configuration; its result (~75 kB) and plots (~93 kB) do not
+# bytes: this run's recording (~825 kB with its checkpoints; the first configuration, 19 steps with its approach legs,
+# below, fits) outgrows it in the second configuration; its result (~98 kB) and plots (~139 kB) do not
 RECORD_LIMIT = 350_000
 
 
@@ -58,10 +58,11 @@ def test_a_recording_that_fails_mid_run_loses_nothing_else(tmp_path: Path, polic
     assert len(summary["configs"]) == (2 if policy == "continue" else 1)  # stop: the run ends halfway
     assert all(Path(p).stat().st_size > 0 for p in summary["plots"])
     result = json.loads((tmp_path / "result.json").read_text())
-    # every step done is kept: 10 robots x 2 configurations one at a time, and 6 steps of an approach leg (configuration
-    # 1: robots 0/9, 1/3 and 4/7 drive 0.25-0.37 m into places 8.9-9.3 cm apart, where their straight drives' ends touch
-    # with probability 1.2e-3-5.3e-3, so the six stop at staging points and then drive on, one at a time)
-    assert len(result["steps"]) == 26 if policy == "continue" else len(result["steps"]) < 26
+    # every step done is kept: 10 robots x 2 configurations one at a time, and 15 steps of approach legs (robots 0/9,
+    # 1/3 and 4/7 drive 0.25-0.37 m into places 8.9-9.3 cm apart, where their straight drives' ends touch with probability
+    # 1.2e-3-5.3e-3, and other ends are over the legs' END_BOUND, 1e-4: 9 robots of configuration 1 and 6 of
+    # configuration 2 stop at staging points and then drive on, one at a time)
+    assert len(result["steps"]) == 35 if policy == "continue" else len(result["steps"]) < 35
     assert "recording failed: recording to" in proc.stdout and "P_f = " in proc.stdout
     info = recording_info(tmp_path / "run.mcap")  # kept as far as it got, readable
     assert info["messages"] > 100 and not info["complete"]
@@ -79,7 +80,7 @@ def test_a_recording_that_fails_mid_run_loses_nothing_else(tmp_path: Path, polic
 
 
 def test_a_run_ended_by_lost_robots_exits_3_naming_them_with_the_completed_configurations(tmp_path: Path) -> None:
-    proc = _launch(tmp_path, "-n", "4", "--configs", "3", "--run=lostend", "--kill-robot=2@2", "--min-robots=4")
+    proc = _launch(tmp_path, "-n", "4", "--configs", "3", "--run=lostend", "--kill-robot=2@3", "--min-robots=4")  # config 1: 2 steps
     assert proc.returncode == 3, proc.stderr[-3000:]
     assert "robot 2" in proc.stderr and "fewer than the minimum 4" in proc.stderr
     assert "lost robot 2 after step" in proc.stdout and "Traceback" not in proc.stderr

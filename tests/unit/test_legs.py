@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -13,13 +14,25 @@ import pytest
 from coordinator.checkpoint import RunState
 from coordinator.clearance import clear_plan
 from coordinator.executor import InchwormExecutor
-from coordinator.legs import LEG_CAP, LEG_FRACTIONS, MAX_LEGS, LegRecord, driven_legs, first_leg, leg_targets, next_leg
+from coordinator.legs import (
+    END_BOUND,
+    LEG_CAP,
+    LEG_FRACTIONS,
+    MAX_LEGS,
+    LegRecord,
+    corrections,
+    driven_legs,
+    first_leg,
+    leg_targets,
+    next_leg,
+)
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan
+from coordinator.run_result import ConfigRecord
 from coordinator.selection.selector import SelectionConfig
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
-from runtime.models.bodies import CONTACT_BOUND
+from runtime.models.bodies import CONTACT_BOUND, BodyCheck
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
 from runtime.models.simulation import SimulatedSwarm
@@ -113,7 +126,8 @@ def test_a_way_past_a_still_neighbour_never_ends_a_leg_over_the_bound_and_stops_
         if not len(legs[-1].going_on):
             break
         leg = next_leg(X558, legs, SwarmEstimate(est.ids, poses.copy(), est.cov), desired, len(legs))
-        assert leg is not None
+        if leg is None:  # it stops where it stands: no leg drives it
+            break
         legs += (leg,)
     assert 0.05 < poses[0, 0] < 0.2 - 2 * X558.robot_radius_m and poses[0, 1] == 0.0
     assert len(legs) <= LEG_CAP
@@ -195,8 +209,12 @@ def test_the_executor_drives_the_legs_and_counts_their_steps():
         np.array_equal(a.targets, b.targets) and np.array_equal(a.staged, b.staged) and np.array_equal(a.ids, b.ids)
         and a.plan.key() == b.plan.key() for a, b in zip(back.legs, inside.legs, strict=True))
     assert back.to_json() == inside.to_json()
-    # default noise: every drive clears, no legs, and the state is written as before (no ``legs`` key)
-    calm = run(ModelConfig())
+    # default noise: the straight drives end at 2.9e-4, within the steps' bound but over END_BOUND: one staging stop
+    # each; at 0.7 x the default noise (4.4e-6) every drive clears, no legs, and the state is written as before
+    default = ModelConfig()
+    assert END_BOUND < end_probability(default, result.initial_estimate, SIDE.configurations[0], 0, 1) < CONTACT_BOUND
+    assert run(default).staging_stops() == 2
+    calm = run(replace(default, turn_sigma_rad=0.7 * default.turn_sigma_rad, drive_sigma_frac=0.7 * default.drive_sigma_frac))
     assert calm.staging_stops() == 0 and not calm.configs[0].legs and calm.steps_added() == 0
 
 
@@ -343,10 +361,11 @@ def test_a_robot_over_against_a_waiting_one_waits_too_not_against_a_still_one():
 
 
 def test_correlated_positions_decide_who_waits():
-    """The pair's relative position reads the joint covariance's cross terms: ends 9 cm apart after 7.5 cm drives are
-    within the bound for uncorrelated robots (both stage), over it for anti-correlated ones (one waits)."""
-    est = estimate([[0.0, 0.0], [0.0, 0.12]], [-1.0, -0.7])
-    desired = np.array([[0.3, 0.03], [0.3, 0.12]])
+    """The pair's relative position reads the joint covariance's cross terms: ends 13 cm apart after 7.5 cm drives are
+    within END_BOUND for uncorrelated robots (9.6e-5: both stage) and correlated ones (6.4e-5), over it for
+    anti-correlated ones (1.3e-4: one waits)."""
+    est = estimate([[0.0, 0.0], [0.0, 0.14]], [-1.0, -0.7])
+    desired = np.array([[0.3, 0.03], [0.3, 0.14]])
     got = []
     for rho in (0.0, 0.9, -0.9):
         joint = np.kron(np.array([[1.0, rho], [rho, 1.0]]), est.cov[0])
@@ -366,7 +385,10 @@ def test_a_head_on_pair_with_clear_ends_drives_straight_and_the_last_leg_never_w
     assert first is not None and first.held.tolist() == [0]
     final = next_leg(X558, (first,) * (LEG_CAP - 1), CONVERGE, CONVERGE_DESIRED, LEG_CAP - 1)
     assert final is not None and not len(final.held) and not final.staged.any()
-    np.testing.assert_array_equal(final.targets, CONVERGE_DESIRED)
+    # robot 0, which would wait, ends the change where it stands (stopped short); robot 1 drives to its goal
+    assert final.ids.tolist() == [1] and final.targets.tolist() == [CONVERGE_DESIRED[1].tolist()]
+    last = leg_targets(X558, CONVERGE, CONVERGE_DESIRED, np.ones(2, bool), final=True)
+    assert last.short.tolist() == [True, False] and last.targets[0].tolist() == CONVERGE.positions[0].tolist()
 
 
 def test_when_every_robot_would_wait_the_one_least_at_risk_drives():
@@ -395,3 +417,100 @@ def test_a_checkpoint_carries_the_waiting_robots():
     assert back.held.tolist() == [0] and back.going_on.tolist() == first.going_on.tolist() == [0, 1]
     plain = LegRecord(first.plan, first.ids, first.targets, first.staged, first.regrouped)
     assert "held" not in _legs_json((plain,))["legs"][0]  # no waiting robot: the state is written as before
+
+
+# robot 0 stands 2.5 cm from robot 1 by its estimate (the bodies need 2.2 cm) after the change's last leg, 6.5 cm short
+# of its goal on the far side: touching, or nearly, and standing so for the rest of the change unless it is corrected
+TOUCHING = estimate([[0.0, 0.0], [0.025, 0.0], [0.4, 0.4]], [0.3, -2.0, 1.0])
+TOUCHING_DESIRED = np.array([[-0.04, 0.0], [0.025, 0.0], [0.4, 0.4]])
+
+
+def arrived(est: SwarmEstimate, desired: np.ndarray) -> LegRecord:
+    """A change's leg after which every robot of ``est`` has arrived (nobody goes on)."""
+    n = len(est.ids)
+    return LegRecord(Plan(np.arange(n), (n,)), est.ids, desired, np.zeros(n, bool))
+
+
+def test_a_pair_left_standing_over_the_bound_gets_a_correction_leg_towards_the_goal():
+    """After the change's last leg nobody goes on, but robot 0 stands over the bound against robot 1 by the new
+    estimate: it drives back towards its goal in one more leg (robot 1, at its goal, and robot 2, far, do not)."""
+    assert end_probability(X3, TOUCHING, TOUCHING.positions, 0, 1) > 0.1
+    going = np.zeros(3, bool)
+    assert corrections(X3, TOUCHING, TOUCHING_DESIRED, going).tolist() == [True, False, False]
+    first = arrived(TOUCHING, TOUCHING_DESIRED)
+    assert not len(first.going_on)
+    leg = next_leg(X3, (first,), TOUCHING, TOUCHING_DESIRED, 1)
+    assert leg is not None and leg.ids.tolist() == [0] and leg.plan.groups[0].tolist() == [0]
+    ends = TOUCHING.positions.copy()
+    ends[0] = leg.targets[0]
+    assert leg.targets[0, 0] < 0.0 and leg.targets[0, 1] == pytest.approx(0.0, abs=1e-12)  # on its way, away from robot 1
+    assert end_probability(X3, TOUCHING, ends, 0, 1) <= CONTACT_BOUND
+    # nobody at risk, or point robots: the change ends as before
+    apart = SwarmEstimate(TOUCHING.ids, np.vstack([[-0.04, 0.0, 0.3], TOUCHING.poses[1:]]), TOUCHING.cov)
+    assert next_leg(X3, (first,), apart, TOUCHING_DESIRED, 1) is None
+    assert next_leg(ModelConfig(robot_radius_m=0.0), (first,), TOUCHING, TOUCHING_DESIRED, 1) is None
+    assert not corrections(ModelConfig(robot_radius_m=0.0), TOUCHING, TOUCHING_DESIRED, going).any()
+
+
+def test_no_correction_where_moving_to_the_goal_does_not_help():
+    """A pair over the bound whose robots stand at their goals (a correction has nowhere to go), or a robot whose goal
+    is no farther from the neighbour than where it stands, is left standing: no leg that drives nobody."""
+    at_goals = TOUCHING_DESIRED.copy()
+    at_goals[0] = TOUCHING.positions[0]
+    first = arrived(TOUCHING, at_goals)
+    assert not corrections(X3, TOUCHING, at_goals, np.zeros(3, bool)).any()
+    assert next_leg(X3, (first,), TOUCHING, at_goals, 1) is None
+    closer = at_goals.copy()
+    closer[0] = [0.004, 0.0]  # 4 mm towards robot 1
+    assert not corrections(X3, TOUCHING, closer, np.zeros(3, bool)).any()
+
+
+def test_a_leg_end_within_the_contact_bound_but_over_the_end_bound_stages_first():
+    """Robot 0 drives 0.3 m to a place 16.5 cm beside robot 1's: the straight drive ends at 4.5e-4 at x3, within the
+    steps' bound but over END_BOUND: it stops at a staging point first (cheap); on its last leg it drives in (no wait,
+    not stopped short: the end keeps CONTACT_BOUND)."""
+    est = estimate([[0.0, 0.0], [0.3, 0.165], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
+    desired = np.array([[0.3, 0.0], [0.3, 0.165], [-0.3, 0.3]])
+    assert END_BOUND < end_probability(X3, est, desired, 0, 1) <= CONTACT_BOUND
+    leg = leg_targets(X3, est, desired, np.ones(3, bool))
+    assert leg.staged.tolist() == [True, False, False] and not leg.short.any() and not leg.held.any()
+    last = leg_targets(X3, est, desired, np.ones(3, bool), last=True)
+    assert not last.any and last.targets.tolist() == desired.tolist()
+    farther = desired.copy()
+    farther[1, 1] = 0.19  # 7.5e-5 at the end: straight in
+    assert not leg_targets(X3, est, farther, np.ones(3, bool)).any
+
+
+def test_the_change_s_last_leg_stops_short_of_a_standing_robot_instead_of_driving_in():
+    """In the LEG_CAP-th leg nobody waits and every robot drives to its goal, but not into a robot that stands for the
+    rest of the change: over CONTACT_BOUND against it, it stops short where the bound holds (as on its last leg)."""
+    leg = leg_targets(X3, NEAR, NEAR_DESIRED, np.ones(3, bool), final=True)
+    assert leg.short.tolist() == [True, False, False] and not leg.staged.any() and not leg.held.any()
+    assert 0.0 < leg.targets[0, 0] < NEAR_DESIRED[0, 0] and end_probability(X3, NEAR, leg.targets, 0, 1) <= CONTACT_BOUND
+
+
+def test_a_correction_is_counted_per_robot_and_leg():
+    first = arrived(TOUCHING, TOUCHING_DESIRED)
+    leg = next_leg(X3, (first,), TOUCHING, TOUCHING_DESIRED, 1)
+    assert leg is not None
+    rec = ConfigRecord(0, first.plan, None, TOUCHING, None, legs=(first, leg))
+    assert rec.corrections == 1 and rec.holds == 0
+    staged = LegRecord(first.plan, first.ids, first.targets, np.array([True, False, False]))
+    assert ConfigRecord(0, first.plan, None, TOUCHING, None, legs=(staged, leg)).corrections == 0  # it went on: no correction
+
+
+def test_a_way_through_a_standing_robot_stops_short_before_it_though_its_end_is_clear():
+    """Robot 0's last leg drives 0.3 m along y = 0 to a goal 15 cm past robot 1, which stands 1 cm beside the way for
+    the rest of the change: the end keeps the bound (7.8e-4), the way does not (the regrouping would have moved it
+    anyway, alone): it stops short before robot 1, where its way keeps the steps' bound."""
+    est = estimate([[0.0, 0.0], [0.15, 0.01], [-0.3, 0.3]], [0.0, 1.0, 0.5])
+    desired = np.array([[0.3, 0.0], [0.15, 0.01], [-0.3, 0.3]])
+    going = np.array([True, False, False])
+    assert end_probability(X3, est, desired, 0, 1) < CONTACT_BOUND
+    check = BodyCheck.of_estimate(X3, est, desired)
+    assert [(c.a, c.b) for c in check.step_conflicts(est.positions, going)] == [(0, 1)]
+    leg = leg_targets(X3, est, desired, going, last=True)
+    assert leg.short.tolist() == [True, False, False] and 0.0 < leg.targets[0, 0] < 0.15 - 2 * X3.robot_radius_m
+    ends = est.positions.copy()
+    ends[0] = leg.targets[0]
+    assert not BodyCheck.of_estimate(X3, est, ends).step_conflicts(est.positions, going)
