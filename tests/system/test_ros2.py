@@ -271,16 +271,18 @@ def test_ros2_robots_in_the_physical_world_push_a_robot_off_its_place_and_the_ru
     driving up to robot 1, pushes it away after robot 1's own motion ended; the run finishes with P_f, the world's contact
     is on the record with the still poses of each step, and the recording replays.
 
-    In step 2 robots 0 and 1, left touching by the push, drive apart (their goals 0.25 m apart, the bodies 0.1 m wide),
-    so nothing pushes a robot after its truth was taken whatever the order their motions run in. (Goals 0.08 m apart
-    made them touch again in 4 of 10 runs, a robot finished first then pushed by the other off its recorded truth.)"""
+    The world's bodies (0.16 m wide) touch at goals 0.12 m apart, which the planner's (0.022 m) keep clear of with room to
+    spare: each configuration is one step, no approach legs. In step 2 robots 0 and 1, left touching by the push, drive
+    apart (their goals 0.35 m apart), so nothing pushes a robot after its truth was taken whatever the order their
+    motions run in. (Goals 0.08 m apart made them touch again in 4 of 10 runs, a robot finished first then pushed by
+    the other off its recorded truth.)"""
     poses = [[0.0, 0.0, 0.0], [0.3, 0.0, 3.1], [0.0, 0.3, 0.0], [0.3, 0.3, -3.1]]
-    configs = [[[0.25, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]], [[0.15, 0.1], [0.4, 0.1], [0.0, 0.4], [0.3, 0.4]]]
+    configs = [[[0.18, 0.0], [0.3, 0.0], [0.0, 0.3], [0.3, 0.3]], [[0.1, 0.1], [0.45, 0.1], [0.0, 0.45], [0.35, 0.45]]]
     traj = tmp_path / "push.json"
     Trajectory(np.arange(4), np.array(poses), np.array(configs)).save(traj)
     env = ros_env(ros_domain)
     run_id = f"ros2-physics-{os.getpid()}"
-    world = ["radius_m=0.05", "max_wheel_speed_m_s=0.15", "max_wheel_accel_m_s2=1"]
+    world = ["radius_m=0.08", "max_wheel_speed_m_s=0.15", "max_wheel_accel_m_s2=1"]
     driver = ["rate_hz=50", "max_angular_speed=3", "angular_accel=20", "sensing_window_s=0.25"]  # linear: the wheels' (launcher)
     cmd = [sys.executable, "-m", "swarm_cli.main", "launch", "--driver", "ros2", "--ros2-robots", "--world", "physics", "--trajectory",
            str(traj), "--run", run_id, "--method", "no-anchors", "--record", str(tmp_path / "run.mcap"), "--out", str(tmp_path / "plots"),
@@ -303,7 +305,7 @@ def test_ros2_robots_in_the_physical_world_push_a_robot_off_its_place_and_the_ru
     contacts = [e for e in physics if e.kind == "contact"]
     assert any(e.step == 1 and e.robots == (0, 1) and e.impulse_n_s > 0 for e in contacts), contacts
     pushed = np.hypot(*(still[1][1, :2] - truths[1, 1][:2]))  # robot 1: where the world left it against where its motion ended
-    assert pushed > 0.02 and np.hypot(*(still[1][1, :2] - still[1][0, :2])) > 2 * 0.05 - 0.005, (pushed, still[1])
+    assert pushed > 0.02 and np.hypot(*(still[1][1, :2] - still[1][0, :2])) > 2 * 0.08 - 0.005, (pushed, still[1])
     assert np.allclose([truths[2, r][:2] for r in range(4)], still[2][:, :2], atol=0.011)  # no push in step 2: the truths are the world's
     check = subprocess.run([sys.executable, "-m", "swarm_cli.main", "replay", str(tmp_path / "run.mcap"), "--check"], env=env,
                            cwd=REPO, capture_output=True, text=True, timeout=60)
