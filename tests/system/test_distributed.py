@@ -318,7 +318,12 @@ def _behind_robot_1(tmp_path: Path, x: float, seed: int, model: tuple[str, ...] 
     """A distributed one-at-a-time run (``--json``) of robot 0 driving from (0, 0) to (0.3, 0), behind robot 1 going
     from (0.1, 0) to (``x``, 0), robot 2 aside, checked against the in-process run: (trajectory, run, its stdout)."""
     traj = Trajectory(np.arange(3), np.array([[0, 0, 0], [0.1, 0, 0], [0.0, 0.2, 0.0]]), np.array([[[0.3, 0.0], [x, 0.0], [0.05, 0.25]]]))
-    run = Run(tmp_path, traj, "one-at-a-time", seed, extra=("--json",), model=model)
+    return (traj, *_finished_as_in_process(tmp_path, traj, "one-at-a-time", seed, model))
+
+
+def _finished_as_in_process(tmp_path: Path, traj: Trajectory, method: str, seed: int, model: tuple[str, ...]) -> tuple[Run, str]:
+    """A distributed run of ``traj`` (``--json``) to its end, checked against the in-process run: (run, its stdout)."""
+    run = Run(tmp_path, traj, method, seed, extra=("--json",), model=model)
     try:
         run.start()
         out = run.finish(60)
@@ -326,7 +331,7 @@ def _behind_robot_1(tmp_path: Path, x: float, seed: int, model: tuple[str, ...] 
         run.stop()
     assert run.coordinator.returncode == 0, "".join(run.stderr)
     _assert_same_as_in_process(run)
-    return traj, run, out
+    return run, out
 
 
 def test_a_target_at_risk_without_motion_is_stopped_short_as_in_process(tmp_path):
@@ -359,14 +364,7 @@ def test_contacts_of_noisy_robots_are_the_in_process_ones_and_recorded(tmp_path)
     args = build_parser().parse_args(["coordinator", "--trajectory=x", "--run=x", "--hub=tcp/127.0.0.1:1", *NOISY])
     cfg = model_config(args)
     traj = random_trajectory(4, 2, np.random.default_rng(18), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
-    run = Run(tmp_path, traj, "no-anchors", 18, extra=("--json",), model=NOISY)
-    try:
-        run.start()
-        out = run.finish(60)
-    finally:
-        run.stop()
-    assert run.coordinator.returncode == 0, "".join(run.stderr)
-    _assert_same_as_in_process(run)
+    run, out = _finished_as_in_process(tmp_path, traj, "no-anchors", 18, NOISY)
     ref = _in_process(traj, "no-anchors", 18, NOISY).contacts(0.011)
     assert [(c.step, c.config, c.a, c.b) for c in ref] == [(len(json.loads(run.result_file.read_text())["steps"]), 1, 1, 3)]
     assert f"contacts (bodies of radius 0.011 m): {len(ref)}" in out
