@@ -54,7 +54,9 @@ it and of every standing robot as on a last leg (it drove straight in before, pa
 ``CONTACT_BOUND`` by the new estimate, both standing, and would be at most half as much at risk at its goal, drives back
 towards its goal in the next leg (``corrections``): a pair the drive's error left touching is separated at once, instead
 of standing so for the rest of the change (a contact at every step). A change whose legs are done ends only when no such
-robot is left, or after ``LEG_CAP`` legs.
+robot is left, or after ``LEG_CAP`` legs. For the same reason a robot over the bound against one that waits waits too only
+where waiting helps: not where their pair is at least as much at risk standing where they are as with it at its leg's
+end (``_waits_too``: two robots left touching waited side by side, leg after leg).
 """
 
 from __future__ import annotations
@@ -190,6 +192,19 @@ def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.
     return out
 
 
+def _waits_too(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, pairs: list[tuple[int, int]]) -> list[int]:
+    """Of the pairs (r, h), robot r over the bound at its end against h, which waits: the robots r that wait too (they
+    approach h standing, later), sorted; not one whose pair is at least as much at risk where both stand now as with r
+    at its end (two robots the drives' error left touching both waiting stand touching: r drives)."""
+    if not pairs:
+        return []
+    r, h = (np.array(x, np.int64) for x in zip(*pairs, strict=True))
+    ones, zeros = np.ones(len(r)), np.zeros(len(r))
+    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
+    helps = _pair_probability(cfg, moments, r, h, ones, zeros) < _pair_probability(cfg, moments, r, h, zeros, zeros)
+    return sorted(set(r[~helps].tolist()))
+
+
 def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray,
                 last: bool | np.ndarray = False, final: bool = False) -> Leg:
     """The next leg of the robots ``going`` (n,) from ``estimate`` towards ``desired`` (n, 2) (module doc); ``last``
@@ -206,9 +221,10 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     their path), until none is over or they are at the shortest; against a robot that waits, an end is kept within the
     bound both where that one stands and at its goal (``_near_goals``). A pair still over is separated in time: of two
     robots that can wait (at their shortest or on their last leg) one waits where it stands (``_waiting``,
-    ``Leg.held``), and one over against a neighbour that waits waits too; the stops are then decided again from the
-    start, until no such pair is left (a robot waits at most once: this ends). If nobody would drive, the robot whose
-    leg's end is least at risk does (its highest pair probability; ties: a last leg, then the shorter way). A robot over
+    ``Leg.held``), and one over against a neighbour that waits waits too (unless their pair is as much at risk
+    standing: ``_waits_too``); the stops are then decided again from the start, until no such pair is left (a robot
+    waits at most once: this ends). If nobody would drive, the robot whose leg's end is least at risk does (its highest
+    pair probability; ties: a last leg, then the shorter way). A robot over
     at its shortest (or on its last leg) over ``CONTACT_BOUND`` against a robot that stands for the whole change, or
     whose way passes one over the steps' bound, drives the farthest part of its way, in ``STOP_STEP`` steps, whose end
     and way keep those bounds against every standing robot and goes on from there
@@ -279,7 +295,8 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             free = waitable & ~held  # at its shortest staging point or on its last leg, in every pair left over
             waits = [x for x in over if not final or x[2] > CONTACT_BOUND]  # in the last leg: over CONTACT_BOUND only
             pairs = [(a, b, q) for a, b, q in waits if free[a] and free[b]]
-            alone = sorted({a if free[a] else b for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]})
+            beside = [(a, b) if free[a] else (b, a) for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]]
+            alone = _waits_too(cfg, estimate, ends, beside)
             if not pairs and not alone:
                 break
             held[alone] = True  # its neighbour waits: it approaches that one standing, later

@@ -514,3 +514,17 @@ def test_a_way_through_a_standing_robot_stops_short_before_it_though_its_end_is_
     ends = est.positions.copy()
     ends[0] = leg.targets[0]
     assert not BodyCheck.of_estimate(X3, est, ends).step_conflicts(est.positions, going)
+
+
+def test_two_robots_left_touching_never_both_wait_there():
+    """Robot 1 stands touching robot 0 (2.1 mm of overlap between the 2.2 cm bodies); robot 0 waits for robot 2, whose
+    way converges with its own, and robot 1's shortest staging point is still over the bound against robot 0 standing:
+    it waited too before, the two standing touching for the whole leg (their pair at 0.49 at its end). Waiting helps
+    nobody where the pair is at risk already: robot 1 drives away (or robot 0 does), the pair's end far lower."""
+    est = estimate([[0.0, 0.0], [0.0, 0.021], [0.35, 0.25]], [0.0, 1.5, -1.5])
+    desired = np.array([[0.35, 0.0], [0.05, 0.08], [0.38, 0.03]])
+    standing = end_probability(X558, est, est.positions, 0, 1)
+    assert standing > 0.4
+    leg = leg_targets(X558, est, desired, np.ones(3, bool))
+    assert leg.held.sum() == 1 and not leg.held[[0, 1]].all()
+    assert end_probability(X558, est, leg.targets, 0, 1) < 0.01 * standing
