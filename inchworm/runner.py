@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import multiprocessing
 import os
 import signal
 import threading
@@ -53,6 +54,13 @@ class SerialExecutor:
             yield i, fn(item)
 
 
+def process_context() -> multiprocessing.context.SpawnContext:
+    """The start method of every worker pool of the library: ``spawn``. A forked worker inherits the parent's Zenoh
+    objects without the threads of their runtime, and the first garbage collection that drops one blocks forever (a
+    study or bench run after a Zenoh session in the same process hung so); a spawned worker starts clean."""
+    return multiprocessing.get_context("spawn")
+
+
 def _worker_init() -> None:
     """A worker process: one BLAS thread (the pool already uses every core), Ctrl-C handled by the parent only."""
     from threadpoolctl import threadpool_limits  # noqa: PLC0415
@@ -76,9 +84,7 @@ class ProcessExecutor:
         if self.workers == 1 or len(items) <= 1:
             yield from SerialExecutor().imap(fn, items)
             return
-        import multiprocessing  # noqa: PLC0415
-
-        pool = multiprocessing.Pool(min(self.workers, len(items)), initializer=_worker_init)
+        pool = process_context().Pool(min(self.workers, len(items)), initializer=_worker_init)
         try:
             yield from pool.imap_unordered(_call, [(fn, i, item) for i, item in enumerate(items)])
             pool.close()
