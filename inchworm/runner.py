@@ -61,12 +61,39 @@ def process_context() -> multiprocessing.context.SpawnContext:
     return multiprocessing.get_context("spawn")
 
 
-def _worker_init() -> None:
-    """A worker process: one BLAS thread (the pool already uses every core), Ctrl-C handled by the parent only."""
+def register_localizers(localizers: dict[str, Any]) -> None:
+    """A spawned worker process: the localizers registered in its parent (``pool_localizers``), registered here."""
+    from coordinator.localization.registry import register_localizer  # noqa: PLC0415
+
+    for name, factory in localizers.items():
+        register_localizer(name, factory)
+
+
+def pool_localizers() -> dict[str, Any]:
+    """The localizers registered in this process (``register_localizer``), for a pool's workers (``register_localizers``);
+    ``SwarmInputError`` naming one whose factory cannot be sent to another process (a lambda, a local class)."""
+    import pickle  # noqa: PLC0415
+
+    from coordinator.localization.registry import registered_localizers  # noqa: PLC0415
+
+    localizers = registered_localizers()
+    for name, factory in localizers.items():
+        try:
+            pickle.dumps(factory)
+        except (pickle.PicklingError, AttributeError, TypeError) as exc:
+            raise SwarmInputError(f"localizer {name!r} is registered with a factory worker processes cannot receive ({exc}): "
+                                  "define it at the top level of a module, or use one worker") from None
+    return localizers
+
+
+def _worker_init(localizers: dict[str, Any]) -> None:
+    """A worker process: the parent's registered localizers, one BLAS thread (the pool already uses every core), Ctrl-C
+    handled by the parent only."""
     from threadpoolctl import threadpool_limits  # noqa: PLC0415
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     threadpool_limits(1)
+    register_localizers(localizers)
 
 
 def _call(job: tuple[Callable[[T], Row], int, T]) -> tuple[int, Row]:
@@ -84,7 +111,7 @@ class ProcessExecutor:
         if self.workers == 1 or len(items) <= 1:
             yield from SerialExecutor().imap(fn, items)
             return
-        pool = process_context().Pool(min(self.workers, len(items)), initializer=_worker_init)
+        pool = process_context().Pool(min(self.workers, len(items)), initializer=_worker_init, initargs=(pool_localizers(),))
         try:
             yield from pool.imap_unordered(_call, [(fn, i, item) for i, item in enumerate(items)])
             pool.close()

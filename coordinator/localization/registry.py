@@ -4,7 +4,9 @@ A localizer factory is called as ``factory(cfg, **options)`` and returns an obje
 ``Localizer`` interface (``coordinator.localization``). Three ways to make one known by name:
 
 * the built-ins ``paper`` (Section 5) and ``joint`` (Section 5.3);
-* ``register_localizer(name, factory)`` from Python (a notebook, a study script, a test);
+* ``register_localizer(name, factory)`` from Python (a notebook, a study script, a test); a local worker pool's
+  processes receive it (``inchworm.runner.pool_localizers``), so its factory must be picklable: a class or function
+  at the top level of a module;
 * an installed package declaring an entry point in the group ``inchworm_swarm.localizers``
   (``[project.entry-points."inchworm_swarm.localizers"] name = "package.module:factory"``): every
   ``swarm`` command, its worker processes and the processes of a distributed run see it.
@@ -60,6 +62,11 @@ def unregister_localizer(name: str) -> None:
     _registered.pop(name, None)
 
 
+def registered_localizers() -> dict[str, LocalizerFactory]:
+    """The localizers registered with ``register_localizer`` in this process, by name (a worker pool passes them on)."""
+    return dict(_registered)
+
+
 def _plugins() -> dict[str, Any]:
     """Entry points of the ``inchworm_swarm.localizers`` group by name (not loaded)."""
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
@@ -106,5 +113,6 @@ __all__ = [
     "localizer_names",
     "make_localizer",
     "register_localizer",
+    "registered_localizers",
     "unregister_localizer",
 ]

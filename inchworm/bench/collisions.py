@@ -42,7 +42,7 @@ import numpy as np
 
 from inchworm.bench import BenchResult
 from inchworm.bench.options import CollisionsBenchOptions
-from inchworm.runner import process_context
+from inchworm.runner import pool_localizers, process_context, register_localizers
 from runtime.models.bodies import BOUND_LEVELS, CONTACT_BOUND
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
@@ -113,7 +113,8 @@ def bench_collisions(options: CollisionsBenchOptions | None = None, progress: Ca
     keys = [(m, v, b, k) for k in o.noise_scales for v in o.localizers for m in o.methods for b in (True, False)]
     jobs = [(t, m, v, b, o.robots, o.configs, o.seed, cfg, o.run.selection, k) for m, v, b, k in keys for t in range(o.trajectories)]
     runs: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=max(1, o.workers), mp_context=process_context()) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, o.workers), mp_context=process_context(),
+                             initializer=register_localizers, initargs=(pool_localizers(),)) as pool:
         for run_row in pool.map(run_one, jobs):
             runs.append(run_row)
             if progress:

@@ -43,7 +43,7 @@ import numpy as np
 from inchworm.bench import BenchResult
 from inchworm.bench.options import EnvelopeBenchOptions
 from inchworm.output import last_json
-from inchworm.runner import process_context
+from inchworm.runner import pool_localizers, process_context, register_localizers
 from inchworm.spawn import run_process
 from inchworm.specs import LaunchSpec
 from runtime.errors import SwarmInputError
@@ -142,7 +142,8 @@ def distributed_row(point: Point, configs: int, seed: int) -> dict[str, bool]:
 def _in_process_rows(o: EnvelopeBenchOptions, points: list[Point], tick: Callable[[], None]) -> Iterator[dict[str, Any]]:
     jobs = [(p, o.configs, o.seed + t) for p in points for t in range(o.trajectories)]
     runs: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=o.workers, mp_context=process_context()) as pool:
+    with ProcessPoolExecutor(max_workers=o.workers, mp_context=process_context(),
+                             initializer=register_localizers, initargs=(pool_localizers(),)) as pool:
         for run in pool.map(in_process_run, jobs):
             runs.append(run)
             tick()

@@ -26,7 +26,7 @@ import numpy as np
 from coordinator.strategies import METHODS
 from inchworm.bench import BenchResult
 from inchworm.bench.options import PhysicsBenchOptions
-from inchworm.runner import process_context
+from inchworm.runner import pool_localizers, process_context, register_localizers
 from runtime.errors import OptionError
 from runtime.models.trajectory import body_spacing, random_trajectory
 
@@ -76,7 +76,8 @@ def bench_physics(options: PhysicsBenchOptions | None = None, progress: Callable
     check(o)
     jobs = [(t, w, o) for t in range(o.trajectories) for w in WORLDS]
     runs: list[dict[str, Any]] = []
-    with ProcessPoolExecutor(max_workers=max(1, o.workers), mp_context=process_context()) as pool:
+    with ProcessPoolExecutor(max_workers=max(1, o.workers), mp_context=process_context(),
+                             initializer=register_localizers, initargs=(pool_localizers(),)) as pool:
         for row in pool.map(run_one, jobs):
             runs.append(row)
             if progress:

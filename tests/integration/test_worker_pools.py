@@ -39,3 +39,23 @@ def test_a_pool_started_after_a_zenoh_session_left_objects_for_the_collector_fin
             gc.enable()
             gc.collect()
     assert process_context().get_start_method() == "spawn"
+
+
+def test_a_localizer_registered_with_a_lambda_is_named_before_a_pool_starts():
+    """A spawned worker receives the parent's registered localizers by pickle: a lambda cannot go, and the pool says
+    which localizer and what to do instead of failing in a worker."""
+    import pytest
+
+    from coordinator.localization.registry import register_localizer, unregister_localizer
+    from inchworm.runner import pool_localizers
+    from runtime.errors import SwarmInputError
+
+    register_localizer("inline", lambda cfg: None)
+    try:
+        with pytest.raises(SwarmInputError, match="localizer 'inline' is registered with a factory worker processes cannot receive"):
+            pool_localizers()
+        with pytest.raises(SwarmInputError, match="'inline'"):
+            list(ProcessExecutor(2).imap(_collect, [1, 2]))
+    finally:
+        unregister_localizer("inline")
+    assert "inline" not in pool_localizers()
