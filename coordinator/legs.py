@@ -167,17 +167,16 @@ def _pair_probability(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j
     return np.asarray(p)
 
 
-def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.ndarray, j: np.ndarray, p: np.ndarray,
-             rank: np.ndarray) -> list[int]:
-    """Of each pair (i, j) of robots that could wait, over the bound at their ``ends`` (contact probability ``p``), the
-    robot that waits where it stands for the leg: the one of higher ``rank`` (n,) (a robot that could still stage
-    before one on its last leg, then the longer way left, then the higher index), unless the other waiting keeps the
-    pair's end within the bound and this does not, or keeps it lower. Pairs by falling ``p``; a robot is decided once
+def _waiting(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndarray, p: np.ndarray, rank: np.ndarray) -> list[int]:
+    """Of each pair (i, j) of robots that could wait, over the bound at their leg's ends (contact probability ``p``;
+    ``moments``: the leg's drives from where the robots stand to those ends), the robot that waits where it stands for
+    the leg: the one of higher ``rank`` (n,) (a robot that could still stage before one on its last leg, then the longer
+    way left, then the higher index), unless the other waiting keeps the pair's end within the bound and this does not,
+    or keeps it lower. Pairs by falling ``p``; a robot is decided once
     (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
     first = rank[i] > rank[j]
     wait, go = np.where(first, i, j), np.where(first, j, i)
     ones, zeros = np.ones(len(i)), np.zeros(len(i))
-    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
     mine = _pair_probability(cfg, moments, wait, go, zeros, ones)
     other = _pair_probability(cfg, moments, wait, go, ones, zeros)
     swap = (other < mine) & ((other <= CONTACT_BOUND) | (mine > CONTACT_BOUND))
@@ -192,15 +191,15 @@ def _waiting(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, i: np.
     return out
 
 
-def _waits_too(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, pairs: list[tuple[int, int]]) -> list[int]:
-    """Of the pairs (r, h), robot r over the bound at its end against h, which waits: the robots r that wait too (they
+def _waits_too(cfg: ModelConfig, moments: MotionMoments, pairs: list[tuple[int, int]]) -> list[int]:
+    """Of the pairs (r, h), robot r over the bound at its leg's end (``moments``: the leg's drives) against h, which
+    waits: the robots r that wait too (they
     approach h standing, later), sorted; not one whose pair is at least as much at risk where both stand now as with r
     at its end (two robots the drives' error left touching both waiting stand touching: r drives)."""
     if not pairs:
         return []
     r, h = (np.array(x, np.int64) for x in zip(*pairs, strict=True))
     ones, zeros = np.ones(len(r)), np.zeros(len(r))
-    moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)
     helps = _pair_probability(cfg, moments, r, h, ones, zeros) < _pair_probability(cfg, moments, r, h, zeros, zeros)
     return sorted(set(r[~helps].tolist()))
 
@@ -296,13 +295,16 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             waits = [x for x in over if not final or x[2] > CONTACT_BOUND]  # in the last leg: over CONTACT_BOUND only
             pairs = [(a, b, q) for a, b, q in waits if free[a] and free[b]]
             beside = [(a, b) if free[a] else (b, a) for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]]
-            alone = _waits_too(cfg, estimate, ends, beside)
+            if not pairs and not beside:
+                break
+            moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)  # the leg's drives to ``ends``
+            alone = _waits_too(cfg, moments, beside)
             if not pairs and not alone:
                 break
             held[alone] = True  # its neighbour waits: it approaches that one standing, later
             if pairs:
                 a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
-                held[_waiting(cfg, estimate, ends, a, b, q, rank)] = True
+                held[_waiting(cfg, moments, a, b, q, rank)] = True
         if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
             risk = []
             for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives
