@@ -269,6 +269,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     rank[order] = np.arange(len(current))
 
     cap = np.ones(len(current))  # the farthest fraction of its way a robot blocked by a standing one may drive
+    tried = np.zeros(len(current), bool)  # robots whose staging point was sought within the end's bound against standing ones
 
     def stops() -> tuple[np.ndarray, np.ndarray, list[tuple[int, int, float]]]:
         """Each robot's level (0: straight to the goal, k: LEG_FRACTIONS[k - 1] of the way), the ends (at most ``cap``
@@ -320,10 +321,20 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         blocked = {b if on[b] else a for a, b, q in over if on[a] != on[b] and q > CONTACT_BOUND}
         blocked |= _passing_standing(cfg, estimate, ends, drives & ~held, on)  # its way passes one: the same
         rows = np.array(sorted(r for r in blocked if not held[r] and cap[r] > 0), np.int64)
-        if not len(rows):
+        # over the end's bound (within CONTACT_BOUND) at its shortest staging point against a standing robot: a shorter
+        # staging point within it, where one is (tried once a robot; none: it stages there, as before)
+        near = {b if on[b] else a for a, b, _ in over if on[a] != on[b]} - set(rows.tolist())
+        strict = np.array(sorted(r for r in near if movable[r] and not held[r] and cap[r] > 0 and not tried[r]), np.int64)
+        if not len(rows) and not len(strict):
             break
-        reach = np.minimum(cap[rows], fractions[level[rows]])
-        cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on)
+        if len(rows):
+            reach = np.minimum(cap[rows], fractions[level[rows]])
+            cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on, contact_limit)
+        if len(strict):
+            tried[strict] = True
+            reach = np.minimum(cap[strict], fractions[level[strict]])
+            fraction = _short_of_standing(cfg, estimate, ends, path, strict, reach, on, limit)
+            cap[strict] = np.where(fraction > 0, fraction, cap[strict])
     capped = (cap < 1.0) & ~held
     stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
     if final:  # a robot that would wait in the change's last leg ends the change where it stands
@@ -336,12 +347,18 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     return Leg(targets, staged, short, held)
 
 
+def contact_limit(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``CONTACT_BOUND`` for every pair (a, b): the bound a robot's end keeps against one standing for the change."""
+    return np.full(len(a), CONTACT_BOUND)
+
+
 def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, path: np.ndarray, rows: np.ndarray,
-                       start: np.ndarray, drives: np.ndarray) -> np.ndarray:
+                       start: np.ndarray, drives: np.ndarray,
+                       bound: Callable[[np.ndarray, np.ndarray], np.ndarray] = contact_limit) -> np.ndarray:
     """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
-    steps of ``STOP_STEP``, whose end keeps ``CONTACT_BOUND`` against every robot not of ``drives`` (standing for the
-    rest of the change), and so does its way there (``_passing_standing``); 0 where none does (it stays where it
-    stands). The others stand at ``ends`` (n, 2)."""
+    steps of ``STOP_STEP``, whose end keeps ``bound`` (per pair; ``CONTACT_BOUND``) against every robot not of
+    ``drives`` (standing for the rest of the change), and so does its way there (``_passing_standing``); 0 where none
+    does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
     fraction = np.zeros(len(rows))
     todo = np.ones(len(rows), bool)
     step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
@@ -350,7 +367,8 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
         there = ends.copy()
         there[rows] = estimate.positions[rows] + (step * STOP_STEP)[:, None] * path[rows]
         i, j, p = _end_pairs(cfg, estimate, there, rows[trying])
-        over = (p > CONTACT_BOUND) & ~drives[j]
+        over = ~drives[j]
+        over[over] = p[over] > bound(i[over], j[over])
         moving = np.zeros(len(there), bool)
         moving[rows[trying]] = True
         passing = np.array(sorted(_passing_standing(cfg, estimate, there, moving, drives)), np.int64)

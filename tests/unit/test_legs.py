@@ -528,3 +528,32 @@ def test_two_robots_left_touching_never_both_wait_there():
     leg = leg_targets(X558, est, desired, np.ones(3, bool))
     assert leg.held.sum() == 1 and not leg.held[[0, 1]].all()
     assert end_probability(X558, est, leg.targets, 0, 1) < 0.01 * standing
+
+
+def test_a_staging_point_over_the_end_bound_against_a_standing_robot_is_taken_shorter_where_one_keeps_it():
+    """Robot 0 drives 0.4 m along y = 0 past robot 1, which stands 3 cm beside the way 0.2 m ahead for the rest of the
+    change, at x5.58: its shortest staging point (a quarter of the way) ends at 5.9e-4, within the steps' bound but over
+    END_BOUND. It stages shorter, at the farthest 1/16 of its way whose end keeps END_BOUND, as it would against a
+    robot that drives on. Where no shorter point keeps it (robot 1 4.5 cm beside the way, 6 cm ahead, at x3), it stages
+    where CONTACT_BOUND holds, as before: a staging point never ends the change."""
+    est = estimate([[0.0, 0.0], [0.2, 0.03], [-0.3, 0.3]], [0.1, 2.0, 0.5])
+    desired = np.array([[0.4, 0.0], [0.2, 0.03], [-0.3, 0.3]])
+    going = np.array([True, False, False])
+    quarter = desired.copy()
+    quarter[0] = [0.1, 0.0]
+    assert END_BOUND < end_probability(X558, est, quarter, 0, 1) <= CONTACT_BOUND
+    leg = leg_targets(X558, est, desired, going)
+    assert leg.staged.tolist() == [True, False, False] and not leg.short.any() and not leg.held.any()
+    f = leg.targets[0, 0] / 0.4
+    assert leg.targets[0, 1] == 0.0 and 0.0 < f < 0.25 and 16 * f == pytest.approx(round(16 * f))
+    assert end_probability(X558, est, leg.targets, 0, 1) <= END_BOUND
+    farther = leg.targets.copy()
+    farther[0, 0] += 0.4 / 16
+    assert end_probability(X558, est, farther, 0, 1) > END_BOUND
+    # no shorter point keeps END_BOUND: the first 1/16 of the way, within CONTACT_BOUND, as before
+    est = estimate([[0.0, 0.0], [0.06, 0.045], [-0.3, 0.3]], [0.1, 2.0, 0.5])
+    desired[1] = [0.06, 0.045]
+    leg = leg_targets(X3, est, desired, going)
+    assert leg.staged.tolist() == [True, False, False] and not leg.short.any()
+    assert leg.targets[0].tolist() == [0.4 / 16, 0.0]
+    assert END_BOUND < end_probability(X3, est, leg.targets, 0, 1) <= CONTACT_BOUND
