@@ -319,7 +319,7 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
         # over at its shortest (or on its last leg) against a robot standing for the rest of the change: a shorter leg
         on = drives & ~held if final else drives  # in the last leg a robot that would wait stands for good
         blocked = {b if on[b] else a for a, b, q in over if on[a] != on[b] and q > CONTACT_BOUND}
-        blocked |= _passing_standing(cfg, estimate, ends, drives & ~held, on)  # its way passes one: the same
+        blocked |= _passing_standing(cfg, estimate, ends, drives & ~held, on, drives & ~held)  # its way passes one: the same
         rows = np.array(sorted(r for r in blocked if not held[r] and cap[r] > 0), np.int64)
         # over the end's bound (within CONTACT_BOUND) at its shortest staging point against a standing robot: a shorter
         # staging point within it, where one is (tried once a robot; none: it stages there, as before)
@@ -329,11 +329,11 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             break
         if len(rows):
             reach = np.minimum(cap[rows], fractions[level[rows]])
-            cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on, contact_limit)
+            cap[rows] = _short_of_standing(cfg, estimate, ends, path, rows, reach, on, drives & ~held)
         if len(strict):
             tried[strict] = True
             reach = np.minimum(cap[strict], fractions[level[strict]])
-            fraction = _short_of_standing(cfg, estimate, ends, path, strict, reach, on, limit)
+            fraction = _short_of_standing(cfg, estimate, ends, path, strict, reach, on, drives & ~held, limit)
             cap[strict] = np.where(fraction > 0, fraction, cap[strict])
     capped = (cap < 1.0) & ~held
     stop = capped & (~movable | (cap == 0.0))  # its last leg, or no step keeps the bound: it ends the change there
@@ -353,12 +353,12 @@ def contact_limit(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, path: np.ndarray, rows: np.ndarray,
-                       start: np.ndarray, drives: np.ndarray,
+                       start: np.ndarray, drives: np.ndarray, going: np.ndarray,
                        bound: Callable[[np.ndarray, np.ndarray], np.ndarray] = contact_limit) -> np.ndarray:
     """(len(rows),) the farthest fraction of its ``path`` (n, 2) each robot of ``rows`` may drive, below ``start`` in
     steps of ``STOP_STEP``, whose end keeps ``bound`` (per pair; ``CONTACT_BOUND``) against every robot not of
-    ``drives`` (standing for the rest of the change), and so does its way there (``_passing_standing``); 0 where none
-    does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
+    ``drives`` (standing for the rest of the change), and so does its way there (``_passing_standing``, against them and the robots of ``going``,
+    which drive in the leg); 0 where none does (it stays where it stands). The others stand at ``ends`` (n, 2)."""
     fraction = np.zeros(len(rows))
     todo = np.ones(len(rows), bool)
     step = np.floor(start / STOP_STEP - 1e-9).astype(np.int64)  # the first fraction tried is below ``start``
@@ -371,7 +371,7 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
         over[over] = p[over] > bound(i[over], j[over])
         moving = np.zeros(len(there), bool)
         moving[rows[trying]] = True
-        passing = np.array(sorted(_passing_standing(cfg, estimate, there, moving, drives)), np.int64)
+        passing = np.array(sorted(_passing_standing(cfg, estimate, there, moving, drives, going)), np.int64)
         clear = trying & ~np.isin(rows, i[over]) & ~np.isin(rows, passing)
         fraction[clear] = step[clear] * STOP_STEP
         todo &= ~clear
@@ -380,16 +380,26 @@ def _short_of_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarr
 
 
 def _passing_standing(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, moving: np.ndarray,
-                      drives: np.ndarray) -> set[int]:
-    """Robots of ``moving`` (n,) whose straight drive from where they stand to ``ends`` (n, 2), all of them driving at
-    once, is over the steps' bound against a robot not of ``drives`` (standing for the rest of the change, where it
-    stands): ``BodyCheck.step_conflicts``, the regrouping's verdict. No order helps such a drive (the other robot does
-    not move again), and the regrouping would move it anyway, one at a time."""
-    movers = moving & (np.hypot(*(ends - estimate.positions).T) >= MIN_LEG_M)
+                      drives: np.ndarray, going: np.ndarray) -> set[int]:
+    """Robots of ``moving`` (n,) whose straight drive from where they stand to ``ends`` (n, 2) no order of the leg's
+    steps keeps within the steps' bound: over it, all of them driving at once, against a robot not of ``drives``
+    (standing for the rest of the change, where it stands: ``BodyCheck.step_conflicts``, the regrouping's verdict), or,
+    driving alone, against a robot of ``going`` that drives less than a body radius in the leg (a correction: it all
+    but stands) both where it stands and where it arrives (``BodyCheck.pair_risks``): whichever moves first, the drive
+    passes it. The regrouping would move such a drive anyway, one at a time."""
+    length = np.hypot(*(ends - estimate.positions).T)
+    movers = moving & (length >= MIN_LEG_M)
     if not movers.any():
         return set()
-    conflicts = BodyCheck.of_estimate(cfg, estimate, ends).step_conflicts(estimate.positions, movers)
-    return {c.a if movers[c.a] else c.b for c in conflicts if drives[c.a] != drives[c.b]}
+    check = BodyCheck.of_estimate(cfg, estimate, ends)
+    conflicts = check.step_conflicts(estimate.positions, movers)
+    out = {c.a if movers[c.a] else c.b for c in conflicts if drives[c.a] != drives[c.b]}
+    nearly = going & (length < cfg.robot_radius_m)
+    if nearly.any():
+        risks = check.pair_risks(np.flatnonzero(movers))
+        start, end, _ = risks.over(check.robot_levels())
+        out |= set(risks.i[start & end & nearly[risks.j]].tolist())
+    return out
 
 
 def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goals: np.ndarray, held: np.ndarray,

@@ -557,3 +557,29 @@ def test_a_staging_point_over_the_end_bound_against_a_standing_robot_is_taken_sh
     assert leg.staged.tolist() == [True, False, False] and not leg.short.any()
     assert leg.targets[0].tolist() == [0.4 / 16, 0.0]
     assert END_BOUND < end_probability(X3, est, leg.targets, 0, 1) <= CONTACT_BOUND
+
+
+def test_a_way_through_a_robot_that_only_corrects_its_place_waits_for_it():
+    """Robot 0's last leg drives 17.9 cm to its goal, its straight way passing robot 1, which drives a 7.7 mm correction
+    in the same leg: robot 0's drive is over the steps' bound against robot 1 both where it stands and where it
+    arrives, so no order of the steps helps (the regrouping moved it anyway: a contact at x3, a configuration of the
+    collisions bench). It does not drive there in this leg: it waits, robot 1 corrects, and the next leg judges its way
+    against robot 1 standing for the rest of the change."""
+    est = estimate([[0.0878, 0.0152], [0.1175, -0.0157], [-0.3, 0.3]], [-0.4, 1.0, 0.5])
+    desired = np.array([[0.2531, -0.0528], [0.1203, -0.0229], [-0.3, 0.3]])
+    going = np.array([True, True, False])
+    check = BodyCheck.of_estimate(X3, est, desired)
+    risks = check.pair_risks(np.array([0]))
+    start, end, _ = risks.over(check.robot_levels())
+    assert (start & end).tolist() == [True, False] and risks.j.tolist() == [1, 2]
+    leg = leg_targets(X3, est, desired, going, last=np.array([True, True, False]))
+    assert leg.held.tolist() == [True, False, False] and not leg.short.any()
+    assert leg.targets[1].tolist() == desired[1].tolist()
+    # robot 1 corrected and standing for the rest of the change: robot 0's way past it is judged as any standing robot's
+    poses = est.poses.copy()
+    poses[1, :2] = desired[1]
+    there = SwarmEstimate(est.ids, poses, est.cov)
+    after = leg_targets(X3, there, desired, np.array([True, False, False]), last=True)
+    ends = there.positions.copy()
+    ends[0] = after.targets[0]
+    assert not BodyCheck.of_estimate(X3, there, ends).step_conflicts(there.positions, np.array([True, False, False]))
