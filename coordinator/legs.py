@@ -43,10 +43,13 @@ one whose leg's end is least at risk drives.
 steps (a robot driven in, a neighbour standing), and a staging point is cheap: a robot stops shorter while a pair's
 probability at the end is over ``END_BOUND`` = 1e-4 (a tenth of the steps' bound; a pair whose goals are at risk p
 even reached with no motion may reach ``FLOOR_FACTOR`` x p, at most ``CONTACT_BOUND``), and of two robots still over it
-at their shortest one waits; a robot stops short of its goal against a robot standing for the rest of the change only
-over ``CONTACT_BOUND``, as before. **The way, too**: a drive whose straight way passes a robot standing for
-the rest of the change over the steps' bound (``BodyCheck.step_conflicts``; no order helps it, and the regrouping would
-have moved it anyway) is blocked like one whose end is over: it stops short before (``_passing_standing``). **The
+at their shortest one waits; against a robot standing for the rest of the change a robot still over it at its shortest
+staging point stages shorter, at the farthest ``STOP_STEP`` of its way whose end keeps it, where one does (else there,
+within ``CONTACT_BOUND``), and it stops short of its goal against such a robot only over ``CONTACT_BOUND``.
+**The way, too**: a drive whose straight way passes a robot standing for the rest of the change over the steps' bound
+(``BodyCheck.step_conflicts``; no order helps it, and the regrouping would have moved it anyway) is blocked like one
+whose end is over: it stops short before (``_passing_standing``); so is one past a robot that only corrects its place
+in the same leg (a drive shorter than a body radius), judged where that robot stands and where it arrives. **The
 change's last leg** (``LEG_CAP``): a robot that would wait ends the change where it stands, and the others stop short of
 it and of every standing robot as on a last leg (it drove straight in before, past and into standing robots).
 
@@ -227,7 +230,9 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
     at its shortest (or on its last leg) over ``CONTACT_BOUND`` against a robot that stands for the whole change, or
     whose way passes one over the steps' bound, drives the farthest part of its way, in ``STOP_STEP`` steps, whose end
     and way keep those bounds against every standing robot and goes on from there
-    (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``). Pairs whose
+    (staged), or ends the change there (on its last leg, or no step keeps it: it stays, ``Leg.short``); one over
+    ``limit`` only (within ``CONTACT_BOUND``) at its shortest staging point against such a robot stages at the farthest
+    such step whose end keeps ``limit``, where one does (``tried``: sought once a robot). Pairs whose
     goals are still at risk reached with no motion noise (pulled back to where they stand) are left out: no leg helps
     them."""
     current = estimate.positions
