@@ -468,6 +468,20 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
     return cleared, regrouped, LegRecord(cleared, estimate.ids, leg.targets, leg.staged, regrouped, estimate.ids[leg.held])
 
 
+def step_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, targets: np.ndarray, moving: np.ndarray,
+                 moved: np.ndarray) -> bool:
+    """Whether the step about to drive ``moving`` (n,) from ``estimate`` towards ``targets`` (n, 2) is over the steps'
+    bound (``BodyCheck.step_conflicts``) against a robot of ``moved`` (n,), driven earlier in the same leg and now where
+    the new estimate puts it: the leg's regrouping judged the step with that robot at its planned end, and its drive's
+    error may have left it elsewhere, in the way. The leg then ends before the step (the executor), and the next leg is
+    planned from the new estimate."""
+    moving, moved = np.asarray(moving, bool), np.asarray(moved, bool) & ~np.asarray(moving, bool)
+    if cfg.robot_radius_m <= 0 or not moving.any() or not moved.any():
+        return False
+    conflicts = BodyCheck.of_estimate(cfg, estimate, targets).step_conflicts(estimate.positions, moving)
+    return any(moved[c.a] or moved[c.b] for c in conflicts)
+
+
 def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray) -> np.ndarray:
     """(n,) the robots not ``going`` on that stand over ``CONTACT_BOUND`` against a neighbour by ``estimate`` (both
     where they stand now, no motion) and would be at most half as much at risk at their goal (``desired`` (n, 2),

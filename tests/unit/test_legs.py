@@ -25,6 +25,7 @@ from coordinator.legs import (
     first_leg,
     leg_targets,
     next_leg,
+    step_at_risk,
 )
 from coordinator.localization import make_localizer
 from coordinator.plan import Plan
@@ -583,3 +584,18 @@ def test_a_way_through_a_robot_that_only_corrects_its_place_waits_for_it():
     ends = there.positions.copy()
     ends[0] = after.targets[0]
     assert not BodyCheck.of_estimate(X3, there, ends).step_conflicts(there.positions, np.array([True, False, False]))
+
+
+def test_a_step_is_judged_again_against_robots_its_leg_moved_before_it():
+    """Robot 1 drives 0.2 m along y = 0 in the leg's second step; robot 0 drove in its first and was planned 15 cm
+    beside the way, but its drive's error left it 2.5 cm from it (angles near +-pi): the step is over the bound against
+    robot 0 where the new estimate puts it. Not where robot 0 did not move in the leg (the regrouping judged it where
+    it stands), nor far from the way, nor for point robots."""
+    est = estimate([[0.1, 0.025], [0.0, 0.0], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
+    targets = np.array([[0.1, 0.15], [0.2, 0.0], [-0.3, 0.3]])
+    moving, moved = np.array([False, True, False]), np.array([True, False, False])
+    assert step_at_risk(X3, est, targets, moving, moved)
+    assert not step_at_risk(X3, est, targets, moving, np.zeros(3, bool))
+    far = estimate([[0.1, 0.15], [0.0, 0.0], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
+    assert not step_at_risk(X3, far, targets, moving, moved)
+    assert not step_at_risk(ModelConfig(robot_radius_m=0.0), est, targets, moving, moved)
