@@ -57,6 +57,11 @@ of standing so for the rest of the change (a contact at every step). A change wh
 robot is left, or after ``LEG_CAP`` legs. For the same reason a robot over the bound against one that waits waits too only
 where waiting helps: not where their pair is at least as much at risk standing where they are as with it at its leg's
 end (``_waits_too``: two robots left touching waited side by side, leg after leg).
+
+**A touch ends the leg.** After every step of a change, a pair the step left touching (``new_touches``) ends the leg
+there: its remaining groups are not run (``LegRecord.groups_run``), their robots go on in the next leg, planned at once,
+whose groups with a robot standing over ``CONTACT_BOUND`` go first (``next_leg``); a change without legs becomes a
+first leg ending there (``coordinator.executor``).
 """
 
 from __future__ import annotations

@@ -17,7 +17,7 @@ import pytest
 from coordinator.checkpoint import RunState
 from coordinator.executor import InchwormExecutor
 from coordinator.localization import make_localizer
-from coordinator.replay_check import RecordedRun, check, rebuild_run, recorded_selection
+from coordinator.replay_check import RecordedRun, check, rebuild_run
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
 from inchworm.sim_options import SimOptions
@@ -112,7 +112,8 @@ def test_replay_check_recomputes_the_cut_and_refuses_leg_messages_that_disagree(
     late = replace(rec, legs={**rec.legs, (config, leg): PlanMessage(run="m", step=121, config=config, n_anchors=msg.n_anchors,
                                                                        groups=msg.groups, leg=leg)})
     bad = check(late)
-    assert bad.divergence is not None and bad.divergence.step == 120 and bad.divergence.field.startswith("groups (step 119 left robots 4 and 8 touching"), bad.divergence
+    assert bad.divergence is not None and bad.divergence.step == 120, bad.divergence
+    assert bad.divergence.field.startswith("groups (step 119 left robots 4 and 8 touching")
     early = replace(rec, legs={**rec.legs, (config, leg): PlanMessage(run="m", step=119, config=config, n_anchors=msg.n_anchors,
                                                                         groups=msg.groups, leg=leg)})
     bad = check(early)
