@@ -25,7 +25,8 @@ first command under the nominal motion of its steps; a step whose movers would c
 close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
 so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``). A mover whose straight drive
 would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
-first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``).
+first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching
+ends its leg there and the next is planned at once (``coordinator.legs.new_touches``, ``_touched``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing
@@ -86,7 +87,8 @@ class ExecutorListener(Protocol):
     """Observer of a run (see the module doc); called on the executor's thread."""
 
     def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
-        """Configuration ``config_index`` (0-based) is planned; its steps are ``first_step`` .. ``first_step + plan.n_steps - 1``."""
+        """Configuration ``config_index`` (0-based) is planned; its steps are ``first_step`` .. ``first_step + plan.n_steps - 1``
+        (fewer where a touch ends it: the next approach leg's ``on_leg`` then follows the step that ended it)."""
         ...
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
