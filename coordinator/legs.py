@@ -530,7 +530,8 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
              index: int) -> LegRecord | None:
     """Leg ``index`` (>= 1) of the robots that go on after ``legs`` (the change's legs so far; those lost since are
     left out) from ``estimate`` towards ``desired`` (rows of ``estimate.ids``): the strategy's plan (the first leg's
-    ``base``) kept to the robots that drive in it, in its order, consecutive groups merged while they move at most as
+    ``base``) kept to the robots that drive in it, in its order (but groups with a robot of a pair standing over
+    ``CONTACT_BOUND`` now first, so the pair parts in the leg's first steps), consecutive groups merged while they move at most as
     many robots as its largest group (so every step keeps at least the plan's anchors), its targets from
     ``leg_targets`` (a robot's ``MAX_LEGS``-th driven leg and the change's ``LEG_CAP``-th leg straight to the targets),
     the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``), nor
