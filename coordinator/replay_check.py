@@ -367,13 +367,14 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
         before = chain.prior(step)
         if chain.localize(step, ids):
             return result
-        if track is not None and plans_ok and track.start <= step <= track.end:
-            if before is None or chain.at != step:
-                result.skipped.append(f"approach legs of configuration {track.config} from step {step} on (the estimates "
-                                      "around the step were not checked: whether it left robots touching is not known)")
+        if track is not None and plans_ok and cfg.robot_radius_m > 0 and track.start <= step <= track.end:
+            after = chain.prior(step + 1)  # recomputed, or recorded where that is all there is to carry
+            if before is None or after is None:
+                result.skipped.append(f"approach legs of configuration {track.config} from step {step} on ({chain.why(step + 1)}: "
+                                      "whether the step left robots touching is not known)")
                 plans_ok = False
             else:
-                legs = track.after_step(cfg, legs, step, before, chain.estimate, sorted(rec.commands.get(step, {})))
+                legs = track.after_step(cfg, legs, step, before, after, sorted(rec.commands.get(step, {})))
         if chain.rejoin(step):
             return result
     if chain.gaps:
