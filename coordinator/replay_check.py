@@ -369,10 +369,8 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
             return result
         if track is not None and plans_ok and cfg.robot_radius_m > 0 and track.start <= step <= track.end:
             after = chain.prior(step + 1)  # recomputed, or recorded where that is all there is to carry
-            if before is None or after is None:
-                result.skipped.append(f"approach legs of configuration {track.config} from step {step} on ({chain.why(step + 1)}: "
-                                      "whether the step left robots touching is not known)")
-                plans_ok = False
+            if before is None or after is None:  # the chain broke (a localizer's carried state): no later leg is
+                track = None                      # checkable either, and the plans and legs say so when they come
             else:
                 legs = track.after_step(cfg, legs, step, before, after, sorted(rec.commands.get(step, {})))
         if chain.rejoin(step):
