@@ -25,7 +25,8 @@ first command under the nominal motion of its steps; a step whose movers would c
 close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
 so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``). A mover whose straight drive
 would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
-first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``).
+first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching
+ends its leg there and the next is planned at once (``coordinator.legs.new_touches``, ``_touched``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing
@@ -45,6 +46,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import replace
 from typing import Protocol, cast
 
 import numpy as np
@@ -52,7 +54,7 @@ import numpy as np
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping
-from coordinator.legs import LEG_CAP, LegRecord, first_leg, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -85,7 +87,8 @@ class ExecutorListener(Protocol):
     """Observer of a run (see the module doc); called on the executor's thread."""
 
     def on_plan(self, config_index: int, first_step: int, plan: Plan, selection: Selection | None) -> None:
-        """Configuration ``config_index`` (0-based) is planned; its steps are ``first_step`` .. ``first_step + plan.n_steps - 1``."""
+        """Configuration ``config_index`` (0-based) is planned; its steps are ``first_step`` .. ``first_step + plan.n_steps - 1``
+        (fewer where a touch ends it: the next approach leg's ``on_leg`` then follows the step that ended it)."""
         ...
 
     def on_estimate(self, step: int, estimate: SwarmEstimate) -> None:
@@ -194,19 +197,24 @@ class InchwormExecutor:
                     self.listener.on_plan(c, len(result.steps) + 1, plan, selection)
                 planned_ids, group = estimate.ids, 0
                 self._checkpoint(result, c, 0, estimate, plan, planned_ids, regrouped, legs=legs)
-            done = sum(leg.plan.n_steps for leg in legs[:-1])  # steps of this configuration's earlier legs
+            done = sum(leg.n_steps for leg in legs[:-1])  # steps of this configuration's earlier legs
             while True:
                 assert plan is not None and planned_ids is not None  # set with the plan (and checkpointed with it)
                 current = legs[-1] if legs else None
-                for k in range(group, len(plan.groups)):
+                for k in range(group, len(plan.groups) if current is None else current.n_steps):
                     estimate = self._drop_lost(result, c, estimate)[0]
                     moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
                     if moving.any():  # a group whose robots were all lost is skipped
+                        before = estimate
                         estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
+                        legs = self._touched(trajectory, c, legs, k, before, estimate, before.ids[moving], plan,
+                                             planned_ids, regrouped)
                     self._checkpoint(result, c, k + 1, estimate, plan, planned_ids, regrouped, legs=legs)
+                    if legs and legs[-1].n_steps == k + 1:  # the leg's last group, or a touch ended it
+                        break
                 if not legs or len(legs) >= LEG_CAP:  # next_leg: None when nobody goes on or needs a correction
                     break
-                done += plan.n_steps
+                done += legs[-1].n_steps
                 estimate = self._drop_lost(result, c, estimate)[0]
                 leg = next_leg(self.cfg, legs, estimate, self._desired(trajectory, c, estimate.ids), len(legs))
                 if leg is None:
@@ -223,6 +231,28 @@ class InchwormExecutor:
             if self.progress:
                 self.progress(c + 1, total)
         self._checkpoint(result, total, 0, estimate, None, None, finished=True)
+
+    def _touched(self, trajectory: Trajectory, config: int, legs: tuple[LegRecord, ...], k: int, before: SwarmEstimate,
+                 after: SwarmEstimate, moved: np.ndarray, plan: Plan, planned_ids: np.ndarray,
+                 regrouped: Regrouping | None) -> tuple[LegRecord, ...]:
+        """The change's legs after group ``k`` of ``plan`` ran (robots ``moved``, the estimates ``before`` and
+        ``after`` the step): where the step left two robots touching (``new_touches``), the leg ends there (its
+        ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; a change without legs
+        becomes a first leg to the desired positions that ends there, also after its last group, so that ``next_leg``
+        separates the pair at once. Else ``legs`` unchanged."""
+        last = k + 1 == len(plan.groups)
+        if self.cfg.robot_radius_m <= 0 or len(legs) >= LEG_CAP or (legs and last):
+            return legs
+        a, b, p = new_touches(self.cfg, before, after, moved)
+        if not len(a):
+            return legs
+        _log.info("configuration %d: step %d left robots %s touching (contact probability %s): the leg ends there",
+                  config + 1, self._executed, list(zip(a.tolist(), b.tolist(), strict=True)), np.round(p, 3).tolist())
+        run = None if last else k + 1
+        if legs:
+            return (*legs[:-1], replace(legs[-1], groups_run=run))
+        targets = np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2]
+        return (LegRecord(plan, planned_ids, targets, np.zeros(len(planned_ids), bool), regrouped, groups_run=run),)
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
                     planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False,

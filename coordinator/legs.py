@@ -60,6 +60,11 @@ of standing so for the rest of the change (a contact at every step). A change wh
 robot is left, or after ``LEG_CAP`` legs. For the same reason a robot over the bound against one that waits waits too only
 where waiting helps: not where their pair is at least as much at risk standing where they are as with it at its leg's
 end (``_waits_too``: two robots left touching waited side by side, leg after leg).
+
+**A touch ends the leg.** After every step of a change, a pair the step left touching (``new_touches``) ends the leg
+there: its remaining groups are not run (``LegRecord.groups_run``), their robots go on in the next leg, planned at once,
+whose groups with a robot standing over ``CONTACT_BOUND`` go first (``next_leg``); a change without legs becomes a
+first leg ending there (``coordinator.executor``).
 """
 
 from __future__ import annotations
@@ -428,8 +433,10 @@ def _near_goals(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, goa
 class LegRecord:
     """A leg as run: ``plan`` (its sub-steps; indices into ``ids``, the robots that drive in it), each robot's
     ``targets`` (len(ids), 2) m, which of them ``staged`` short of their desired position, how the body constraint
-    split it (``regrouped``, None: clear as planned), and ``held``: ids of the robots that wait where they stand in
-    it (``Leg.held``; in a configuration's first leg they are in ``ids`` with their place as target: a zero command)."""
+    split it (``regrouped``, None: clear as planned), ``held``: ids of the robots that wait where they stand in
+    it (``Leg.held``; in a configuration's first leg they are in ``ids`` with their place as target: a zero command),
+    and ``groups_run``: the groups of ``plan`` executed (None: all; fewer when a step left two robots touching and
+    the leg ended there, ``new_touches``). ``plan`` stays the leg as planned and published."""
 
     plan: Plan
     ids: np.ndarray
@@ -437,15 +444,34 @@ class LegRecord:
     staged: np.ndarray
     regrouped: Regrouping | None = None
     held: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    groups_run: int | None = None
 
     @property
     def staged_ids(self) -> np.ndarray:
         return np.asarray(self.ids[self.staged])
 
     @property
+    def n_steps(self) -> int:
+        """Steps the leg ran (its plan's, or fewer where a touch ended it)."""
+        return self.plan.n_steps if self.groups_run is None else self.groups_run
+
+    @property
+    def cut(self) -> bool:
+        """The leg ended at a touch before its plan's last group (``new_touches``)."""
+        return self.n_steps < self.plan.n_steps
+
+    @property
+    def ran(self) -> np.ndarray:
+        """(len(ids),) the robots of the groups the leg ran (every robot of a leg not cut)."""
+        out = np.zeros(len(self.ids), bool)
+        out[self.plan.order[:sum(self.plan.sizes[:self.n_steps])]] = True
+        return out
+
+    @property
     def going_on(self) -> np.ndarray:
-        """Ids of the robots that go on in the next leg: staged short of their goal or waiting, sorted."""
-        return np.union1d(self.staged_ids, self.held).astype(np.int64)
+        """Ids of the robots that go on in the next leg: staged short of their goal, waiting, or in a group the leg did
+        not run (it ended at a touch), sorted."""
+        return np.union1d(np.union1d(self.staged_ids, self.held), self.ids[~self.ran]).astype(np.int64)
 
     @property
     def base(self) -> Plan:
@@ -512,15 +538,47 @@ def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
 
 
 def driven_legs(legs: tuple[LegRecord, ...], ids: np.ndarray) -> np.ndarray:
-    """(len(ids),) the legs of ``legs`` each robot of ``ids`` drove in (was in and did not wait)."""
-    return np.asarray(sum((np.isin(ids, leg.ids) & ~np.isin(ids, leg.held)).astype(np.int64) for leg in legs))
+    """(len(ids),) the legs of ``legs`` each robot of ``ids`` drove in (was in a group the leg ran and did not wait)."""
+    return np.asarray(sum((np.isin(ids, leg.ids[leg.ran]) & ~np.isin(ids, leg.held)).astype(np.int64) for leg in legs))
+
+
+def new_touches(cfg: ModelConfig, before: SwarmEstimate, after: SwarmEstimate,
+                moved: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs a step left touching, at which the leg ends (``coordinator.executor``; ``swarm replay --check``
+    recomputes it): ids (a, b), a < b, sorted, and their contact probability, of every pair whose standing contact
+    probability by the estimate ``after`` the step (both where they stand, no motion: ``_end_pairs``, as
+    ``corrections``) is over ``CONTACT_BOUND``, at least one of whose robots moved in the step (``moved``: ids), and
+    which was not over it by the estimate ``before`` the step (a pair left at risk by design, e.g. goals too close,
+    is no new touch). Robots not in both estimates are left out; none for point robots."""
+    none = np.zeros(0, np.int64)
+    if cfg.robot_radius_m <= 0:
+        return none, none, np.zeros(0)
+    after = after.select(np.isin(after.ids, before.ids))
+    rows = np.flatnonzero(np.isin(after.ids, moved))
+    if not len(rows):
+        return none, none, np.zeros(0)
+    i, j, p = _end_pairs(cfg, after, after.positions, rows)
+    over = p > CONTACT_BOUND
+    a, b = np.minimum(after.ids[i[over]], after.ids[j[over]]), np.maximum(after.ids[i[over]], after.ids[j[over]])
+    p = p[over]
+    if not len(p):
+        return none, none, np.zeros(0)
+    prior = before.select(np.isin(before.ids, np.union1d(a, b)))  # the pairs' robots: a pair's risk is its own
+    k, m, q = _end_pairs(cfg, prior, prior.positions, np.arange(len(prior.ids)))
+    ids = prior.ids
+    was = q > CONTACT_BOUND
+    width = int(max(a.max(), b.max())) + 1
+    fresh = ~np.isin(a * width + b, np.minimum(ids[k[was]], ids[m[was]]) * width + np.maximum(ids[k[was]], ids[m[was]]))
+    order = np.lexsort((b[fresh], a[fresh]))
+    return a[fresh][order], b[fresh][order], p[fresh][order]
 
 
 def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstimate, desired: np.ndarray,
              index: int) -> LegRecord | None:
     """Leg ``index`` (>= 1) of the robots that go on after ``legs`` (the change's legs so far; those lost since are
     left out) from ``estimate`` towards ``desired`` (rows of ``estimate.ids``): the strategy's plan (the first leg's
-    ``base``) kept to the robots that drive in it, in its order, consecutive groups merged while they move at most as
+    ``base``) kept to the robots that drive in it, in its order (but groups with a robot of a pair standing over
+    ``CONTACT_BOUND`` now first, so the pair parts in the leg's first steps), consecutive groups merged while they move at most as
     many robots as its largest group (so every step keeps at least the plan's anchors), its targets from
     ``leg_targets`` (a robot's ``MAX_LEGS``-th driven leg and the change's ``LEG_CAP``-th leg straight to the targets),
     the groups cleared for bodies (``BodyCheck.regroup``); robots that wait in it are not in its plan (``held``), nor
@@ -543,6 +601,9 @@ def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstim
     base, base_ids = first.base, first.ids
     row_of = {int(r): k for k, r in zip(rows, ids, strict=True)}
     kept = [np.array([row_of[int(r)] for r in base_ids[g] if int(r) in row_of], np.int64) for g in base.groups]
+    i, j, p = _end_pairs(cfg, estimate, estimate.positions, rows)  # pairs with a robot of the leg standing at risk now
+    touching = np.union1d(i[p > CONTACT_BOUND], j[p > CONTACT_BOUND])
+    kept.sort(key=lambda g: not np.isin(g, touching).any())  # stable: their groups first, so the pair parts at once
     groups: list[np.ndarray] = []  # consecutive groups merged while they move no more robots than the plan's largest group
     for g in (g for g in kept if len(g)):
         if groups and len(groups[-1]) + len(g) <= max(base.sizes):

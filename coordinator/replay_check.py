@@ -37,8 +37,9 @@ from typing import Any, cast
 import numpy as np
 
 from coordinator.checkpoint import carried_fields
+from coordinator.clearance import Regrouping
 from coordinator.executor import among, localize_rejoined, rejoin_priors
-from coordinator.legs import LegRecord, first_leg, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_leg
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -298,6 +299,7 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
     plan_at_step = {p.step: p for p in rec.plans.values()}
     leg_at_step = {p.step: p for p in rec.legs.values()}
     legs: list[LegRecord] = []  # the approach legs of the configuration being checked, as recomputed
+    track: _Change | None = None  # where its current leg's steps end (a touch may end one early)
     expected_config = 1
 
     last = max(rec.estimates)
@@ -318,8 +320,9 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                     strategy = _restricted(full, strategy, ids, strategy_ids, estimate.ids)
                     strategy_ids = estimate.ids
                 desired = traj.configurations[plan_msg.config - 1][index_of(traj.ids, estimate.ids, "trajectory")]
-                plan, _, leg = first_leg(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
+                plan, regrouped, leg = first_leg(cfg, strategy.plan(estimate, desired)[0], estimate, desired)
                 legs = [] if leg is None else [leg]
+                track = _Change(plan_msg.config, plan, estimate.ids, regrouped, desired, step)
                 groups = _plan_groups(plan, estimate.ids)
                 if groups != plan_msg.groups:
                     result.divergence = Divergence(step, f"plan of configuration {plan_msg.config}", None, "groups",
@@ -332,7 +335,20 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
                 result.plans += 1
                 expected_config += 1
         leg_msg = leg_at_step.get(step)
+        if track is not None and plans_ok and step == track.end + 1 and track.touch and leg_msg is None:
+            missing = track.missing_leg(cfg, legs, chain.prior(step), step)
+            if missing is not None:
+                result.divergence = missing
+                return result
         if leg_msg is not None and plans_ok and traj is not None:
+            before = chain.prior(step)
+            lost = before is None or len(before.ids) < len(track.ids if track is not None else before.ids)
+            if track is not None and leg_msg.config == track.config and leg_msg.step != track.end + 1 and not lost:
+                result.divergence = Divergence(
+                    step, f"approach leg {leg_msg.leg} of configuration {leg_msg.config}", None,
+                    "first step (the leg before ends after its last group, or after a step that left two robots touching)",
+                    leg_msg.step, track.end + 1)
+                return result
             divergence = _check_leg(leg_msg, step, legs, chain.prior(step), cfg, traj, expected_config - 1)
             if isinstance(divergence, Divergence):
                 result.divergence = divergence
@@ -344,15 +360,85 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
             else:
                 legs.append(divergence)
                 result.plans += 1
+                if track is not None:
+                    track.start, track.plan, track.touch, track.groups_run = step, divergence.plan, None, None
         if step == 0 or step not in rec.estimates:
             continue
+        before = chain.prior(step)
         if chain.localize(step, ids):
             return result
+        if track is not None and plans_ok and cfg.robot_radius_m > 0 and track.start <= step <= track.end:
+            after = chain.prior(step + 1)  # recomputed, or recorded where that is all there is to carry
+            if before is None or after is None:  # the chain broke (a localizer's carried state): no later leg is
+                track = None                      # checkable either, and the plans and legs say so when they come
+            else:
+                legs = track.after_step(cfg, legs, step, before, after, sorted(rec.commands.get(step, {})))
         if chain.rejoin(step):
             return result
     if chain.gaps:
         result.skipped.append(chain.gaps_text())
     return result
+
+
+@dataclass
+class _Change:
+    """The configuration change being checked (``config`` 1-based): its strategy's ``plan`` cleared for bodies (rows of
+    ``ids``), how it was split (``regrouped``), the ``desired`` positions (rows of ``ids``), and of its current leg (the
+    plan, for a change without legs) the first step ``start`` and the ``plan``; ``touch`` says why that leg ended
+    before its planned end (``coordinator.legs.new_touches``), None while it did not."""
+
+    config: int
+    first: Plan
+    ids: np.ndarray
+    regrouped: Regrouping | None
+    desired: np.ndarray
+    start: int
+    plan: Plan | None = None
+    touch: str | None = None
+    groups_run: int | None = None
+
+    def __post_init__(self) -> None:
+        self.plan = self.first if self.plan is None else self.plan
+
+    @property
+    def end(self) -> int:
+        """The last step of the current leg: its plan's last, or the step a touch ended it at."""
+        assert self.plan is not None
+        return self.start + (self.plan.n_steps if self.groups_run is None else self.groups_run) - 1
+
+    def after_step(self, cfg: ModelConfig, legs: list[LegRecord], step: int, before: SwarmEstimate, after: SwarmEstimate,
+                   moved: list[int]) -> list[LegRecord]:
+        """The change's legs after ``step`` as the executor has them (``InchwormExecutor._touched``): where the step
+        left two robots touching, the leg ends there if groups of it are left (a change without legs becomes a first
+        leg to the desired positions, also after its last group)."""
+        assert self.plan is not None
+        k = step - self.start
+        last = k + 1 == self.plan.n_steps
+        if len(legs) >= LEG_CAP or (legs and last):
+            return legs
+        a, b, p = new_touches(cfg, before, after, np.array(moved, np.int64))
+        if not len(a):
+            return legs
+        run = None if last else k + 1
+        self.touch = ", ".join(f"robots {x} and {y} touching ({q:.3g})" for x, y, q in zip(a.tolist(), b.tolist(), p.tolist(), strict=True))
+        self.groups_run = run
+        if legs:
+            return [*legs[:-1], replace(legs[-1], groups_run=run)]
+        targets = np.asarray(self.desired, float)[:, :2]
+        return [LegRecord(self.first, self.ids, targets, np.zeros(len(self.ids), bool), self.regrouped, groups_run=run)]
+
+    def missing_leg(self, cfg: ModelConfig, legs: list[LegRecord], before: SwarmEstimate | None, step: int) -> Divergence | None:
+        """After a touch ended a leg at ``step`` - 1, the recording has no leg from ``step``: the divergence if the
+        executor would have planned one (``next_leg`` from ``before``, the estimate after step - 1), else None."""
+        if before is None:
+            return None
+        desired = self.desired[np.isin(self.ids, before.ids)]
+        leg = next_leg(cfg, tuple(legs), before, desired, len(legs))
+        if leg is None:
+            return None
+        return Divergence(step, f"approach leg {len(legs)} of configuration {self.config}", None,
+                          f"groups (step {step - 1} left {self.touch}: the leg ends there and the next starts)",
+                          [], [list(g) for g in _plan_groups(leg.plan, leg.ids)])
 
 
 def _check_leg(msg: PlanMessage, step: int, legs: list[LegRecord], before: SwarmEstimate | None, cfg: ModelConfig,
@@ -548,8 +634,10 @@ def rebuild_run(rec: RecordedRun, trajectory: Path | None = None) -> RunResult:
             raise SwarmInputError(f"{rec.path}: the plan of configuration {config} does not move every robot once")
         plan = Plan(np.array(order), tuple(len(g) for g in msg.groups))
         legs = _recorded_legs(rec, config, msg, ids)
-        groups = [g for m in [msg, *(rec.legs[(config, k)] for k in range(1, len(legs)))] for g in m.groups]
-        steps = [s for m in [msg, *(rec.legs[(config, k)] for k in range(1, len(legs)))] for s in range(m.step, m.step + len(m.groups))]
+        msgs = [msg, *(rec.legs[(config, k)] for k in range(1, len(legs)))]
+        runs = _groups_run(msgs)
+        groups = [g for m, n in zip(msgs, runs, strict=True) for g in m.groups[:n]]
+        steps = [s for m, n in zip(msgs, runs, strict=True) for s in range(m.step, m.step + n)]
         if not all(s in rec.estimates for s in steps):
             break  # the recording ends inside this configuration
         records = []
@@ -580,10 +668,17 @@ def _recorded_legs(rec: RecordedRun, config: int, msg: PlanMessage, ids: np.ndar
     if len(msgs) == 1:
         return ()
     out = []
-    for k, m in enumerate(msgs):
+    for k, (m, run) in enumerate(zip(msgs, _groups_run(msgs), strict=True)):
         robots = np.array(sorted(r for g in m.groups for r in g), dtype=np.int64) if k else ids
         order = np.searchsorted(robots, [r for g in m.groups for r in g])
         nxt = {r for g in msgs[k + 1].groups for r in g} if k + 1 < len(msgs) else set()
         out.append(LegRecord(Plan(order, tuple(len(g) for g in m.groups)), robots, np.full((len(robots), 2), np.nan),
-                             np.isin(robots, list(nxt))))
+                             np.isin(robots, list(nxt)), groups_run=None if run == len(m.groups) else run))
     return tuple(out)
+
+
+def _groups_run(msgs: list[PlanMessage]) -> list[int]:
+    """The groups each of a change's plan and leg messages ran: all, or up to the next leg's first step (a touch ended
+    the leg there, ``coordinator.legs.new_touches``)."""
+    ends = [m.step for m in msgs[1:]]
+    return [len(m.groups) if k == len(ends) else max(0, min(len(m.groups), ends[k] - m.step)) for k, m in enumerate(msgs)]

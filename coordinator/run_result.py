@@ -79,8 +79,8 @@ class ConfigRecord:
 
     @property
     def n_steps(self) -> int:
-        """Steps taken: the plan's and its approach legs'."""
-        return self.plan.n_steps + sum(leg.plan.n_steps for leg in self.legs[1:])
+        """Steps taken: the plan's, or its approach legs' (each the steps it ran: a touch may end one early)."""
+        return sum(leg.n_steps for leg in self.legs) if self.legs else self.plan.n_steps
 
     @property
     def planned_steps(self) -> int:
@@ -89,8 +89,14 @@ class ConfigRecord:
 
     @property
     def staging_stops(self) -> int:
-        """Approach legs driven to a staging point (one per robot and stop)."""
-        return int(sum(int(leg.staged.sum()) for leg in self.legs))
+        """Approach legs driven to a staging point (one per robot and stop; not where a touch ended the leg before the
+        robot's group)."""
+        return int(sum(int((leg.staged & leg.ran).sum()) for leg in self.legs))
+
+    @property
+    def touch_ends(self) -> int:
+        """Approach legs a touch ended before their last group (``coordinator.legs.new_touches``)."""
+        return sum(leg.cut for leg in self.legs)
 
     @property
     def holds(self) -> int:

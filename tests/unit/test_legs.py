@@ -24,6 +24,7 @@ from coordinator.legs import (
     driven_legs,
     first_leg,
     leg_targets,
+    new_touches,
     next_leg,
     step_at_risk,
 )
@@ -599,3 +600,37 @@ def test_a_step_is_judged_again_against_robots_its_leg_moved_before_it():
     far = estimate([[0.1, 0.15], [0.0, 0.0], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
     assert not step_at_risk(X3, far, targets, moving, moved)
     assert not step_at_risk(ModelConfig(robot_radius_m=0.0), est, targets, moving, moved)
+
+
+def test_a_new_touch_is_a_pair_a_mover_left_touching_not_one_at_risk_before():
+    # robots 0 and 1 stand 1.9 cm apart (bodies need 2.2 cm) before and after: at risk by design, no new touch; robot 2
+    # drove from 10 cm to 2.0 cm beside the still robot 3: a new touch; headings near +-pi do not matter
+    before = estimate([[0.0, 0.0], [0.019, 0.0], [0.3, 0.1], [0.3, 0.0]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5, -0.5])
+    after = estimate([[0.0, 0.0], [0.019, 0.0], [0.3, 0.02], [0.3, 0.0]], [-math.pi + 1e-3, math.pi - 1e-3, 0.5, -0.5])
+    a, b, p = new_touches(X3, before, after, np.array([0, 2]))
+    assert (a.tolist(), b.tolist()) == ([2], [3]) and p[0] > CONTACT_BOUND
+    turned = SwarmEstimate(after.ids, after.poses + [0.0, 0.0, 2 * math.pi - 2e-3], after.cov)
+    assert new_touches(X3, before, turned, np.array([0, 2]))[2].tolist() == p.tolist()
+    assert not len(new_touches(X3, before, after, np.array([0, 1]))[0])  # nobody of the new pair moved
+    assert not len(new_touches(replace(X3, robot_radius_m=0.0), before, after, np.array([2]))[0])  # point robots
+    # robot 3 lost during the step: left out
+    assert not len(new_touches(X3, before, after.select(np.array([True, True, True, False])), np.array([2]))[0])
+
+
+def test_a_leg_cut_by_a_touch_counts_the_steps_run_and_its_other_robots_go_on():
+    from coordinator.checkpoint import _from_legs, _legs_json
+
+    ids = np.array([3, 5, 7, 9])
+    plan = Plan(np.array([2, 0, 3, 1]), (1, 2, 1))  # groups [7], [3, 9], [5]
+    leg = LegRecord(plan, ids, np.zeros((4, 2)), np.array([False, True, False, False]), held=np.array([9]), groups_run=2)
+    assert leg.cut and leg.n_steps == 2 and leg.ran.tolist() == [True, False, True, True]
+    assert leg.going_on.tolist() == [5, 9]  # staged and not run, waiting
+    assert driven_legs((leg,), ids).tolist() == [1, 0, 1, 0]  # 5's group was not run, 9 waited
+    whole = replace(leg, groups_run=None)
+    assert not whole.cut and whole.n_steps == 3 and whole.going_on.tolist() == [5, 9]
+    rec = ConfigRecord(0, plan, None, SwarmEstimate.isotropic(ids, np.zeros((4, 3)), 0.01, 0.1), None, ids, None, (leg,))
+    assert rec.n_steps == 2 and rec.touch_ends == 1 and rec.staging_stops == 0  # robot 5 never drove to its stop
+    [back] = _from_legs(json.loads(json.dumps(_legs_json((leg,)))))
+    assert back.groups_run == 2 and back.plan.key() == plan.key() and back.held.tolist() == [9]
+    old = _legs_json((whole,))
+    assert "groups_run" not in old["legs"][0] and _from_legs(old)[0].groups_run is None  # as written before the cut
