@@ -54,7 +54,7 @@ import numpy as np
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping
-from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_group_at_risk, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -236,22 +236,29 @@ class InchwormExecutor:
                  after: SwarmEstimate, moved: np.ndarray, plan: Plan, planned_ids: np.ndarray,
                  regrouped: Regrouping | None) -> tuple[LegRecord, ...]:
         """The change's legs after group ``k`` of ``plan`` ran (robots ``moved``, the estimates ``before`` and
-        ``after`` the step): where the step left two robots touching (``new_touches``), the leg ends there (its
-        ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; a change without legs
-        becomes a first leg to the desired positions that ends there, also after its last group, so that ``next_leg``
-        separates the pair at once. Else ``legs`` unchanged."""
+        ``after`` the step): where the step left two robots touching (``new_touches``), or the leg's next group is
+        over the bound against robots that drove earlier in it, where they are now (``next_group_at_risk``), the leg
+        ends there (its ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; a change
+        without legs becomes a first leg to the desired positions that ends there (after a touch also after its last
+        group), so that ``next_leg`` separates the pair at once, or plans the rest from the new estimate. Else
+        ``legs`` unchanged."""
         last = k + 1 == len(plan.groups)
         if self.cfg.robot_radius_m <= 0 or len(legs) >= LEG_CAP or (legs and last):
             return legs
+        targets = legs[-1].targets if legs else np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2]
         a, b, p = new_touches(self.cfg, before, after, moved)
-        if not len(a):
-            return legs
-        _log.info("configuration %d: step %d left robots %s touching (contact probability %s): the leg ends there",
-                  config + 1, self._executed, list(zip(a.tolist(), b.tolist(), strict=True)), np.round(p, 3).tolist())
+        if len(a):
+            _log.info("configuration %d: step %d left robots %s touching (contact probability %s): the leg ends there",
+                      config + 1, self._executed, list(zip(a.tolist(), b.tolist(), strict=True)), np.round(p, 3).tolist())
+        else:
+            risk = next_group_at_risk(self.cfg, after, plan, planned_ids, targets, k, regrouped)
+            if not risk:
+                return legs
+            _log.info("configuration %d: after step %d the leg's next step is over the bound for robots %s where the "
+                      "estimate puts them: the leg ends there", config + 1, self._executed, risk)
         run = None if last else k + 1
         if legs:
             return (*legs[:-1], replace(legs[-1], groups_run=run))
-        targets = np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2]
         return (LegRecord(plan, planned_ids, targets, np.zeros(len(planned_ids), bool), regrouped, groups_run=run),)
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,

@@ -79,7 +79,7 @@ from coordinator.plan import Plan
 from runtime.models.bodies import CONTACT_BOUND, FLOOR_FACTOR, INDEX_MIN, BodyCheck, all_pairs, near_pairs, reach_sigmas
 from runtime.models.config import ModelConfig
 from runtime.models.contact_risk import MotionMoments, disc_probability, instant_bound
-from runtime.models.state import SwarmEstimate
+from runtime.models.state import SwarmEstimate, index_of
 
 LEG_FRACTIONS = (0.75, 0.5, 0.25)  # staging points tried, as fractions of the remaining path, farthest first
 MAX_LEGS = 6  # legs one robot drives in a change at most (the last drives straight to its target; waiting legs not counted)
@@ -495,17 +495,37 @@ def first_leg(cfg: ModelConfig, plan: Plan, estimate: SwarmEstimate, desired: np
 
 
 def step_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, targets: np.ndarray, moving: np.ndarray,
-                 moved: np.ndarray) -> bool:
-    """Whether the step about to drive ``moving`` (n,) from ``estimate`` towards ``targets`` (n, 2) is over the steps'
-    bound (``BodyCheck.step_conflicts``) against a robot of ``moved`` (n,), driven earlier in the same leg and now where
-    the new estimate puts it: the leg's regrouping judged the step with that robot at its planned end, and its drive's
-    error may have left it elsewhere, in the way. The leg then ends before the step (the executor), and the next leg is
-    planned from the new estimate."""
+                 moved: np.ndarray, known: np.ndarray | None = None) -> list[tuple[int, int]]:
+    """The pairs (ids, sorted) over the steps' bound (``BodyCheck.step_conflicts``) when the step about to drive
+    ``moving`` (n,) from ``estimate`` towards ``targets`` (n, 2) is judged against the robots of ``moved`` (n,), driven
+    earlier in the same leg, where the new estimate puts them: the leg's regrouping judged the step with them at their
+    planned ends, and a drive's error may have left one elsewhere, in the way. Pairs of two robots of ``known`` (n,;
+    those the regrouping already could not clear) are left out. [] for point robots."""
     moving, moved = np.asarray(moving, bool), np.asarray(moved, bool) & ~np.asarray(moving, bool)
     if cfg.robot_radius_m <= 0 or not moving.any() or not moved.any():
-        return False
+        return []
+    known = np.zeros(len(moving), bool) if known is None else np.asarray(known, bool)
     conflicts = BodyCheck.of_estimate(cfg, estimate, targets).step_conflicts(estimate.positions, moving)
-    return any(moved[c.a] or moved[c.b] for c in conflicts)
+    ids = estimate.ids
+    return sorted((int(ids[c.a]), int(ids[c.b])) for c in conflicts
+                  if (moved[c.a] or moved[c.b]) and not (known[c.a] and known[c.b]))
+
+
+def next_group_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, plan: Plan, ids: np.ndarray, targets: np.ndarray,
+                       k: int, regrouped: Regrouping | None) -> list[tuple[int, int]]:
+    """``step_at_risk`` of group k + 1 of a leg's ``plan`` (rows of ``ids``, driving to ``targets`` (len(ids), 2)), from
+    ``estimate`` after its group k (``moved``: the robots of groups 0 .. k; ``known``: the regrouping's ``unclear``),
+    the robots not in ``ids`` standing; [] after its last group. Where it is not [], the leg ends after group k
+    (``coordinator.executor``; ``swarm replay --check`` recomputes it) and the next is planned from ``estimate``."""
+    if k + 1 >= len(plan.groups):
+        return []
+    present = np.isin(ids, estimate.ids)
+    ends = estimate.positions.copy()
+    ends[index_of(estimate.ids, ids[present], "leg")] = np.asarray(targets, float)[present, :2]
+    moving = np.isin(estimate.ids, ids[plan.groups[k + 1]])
+    moved = np.isin(estimate.ids, ids[np.concatenate(plan.groups[:k + 1])])
+    known = np.isin(estimate.ids, () if regrouped is None else regrouped.unclear)
+    return step_at_risk(cfg, estimate, ends, moving, moved, known)
 
 
 def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray) -> np.ndarray:

@@ -94,8 +94,9 @@ class ConfigRecord:
         return int(sum(int((leg.staged & leg.ran).sum()) for leg in self.legs))
 
     @property
-    def touch_ends(self) -> int:
-        """Approach legs a touch ended before their last group (``coordinator.legs.new_touches``)."""
+    def legs_cut(self) -> int:
+        """Approach legs that ended before their last group: a step left two robots touching (``coordinator.legs.new_touches``)
+        or the next step was at risk (``next_group_at_risk``)."""
         return sum(leg.cut for leg in self.legs)
 
     @property

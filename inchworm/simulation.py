@@ -168,7 +168,7 @@ def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
     their desired positions (``RunResult.stopped_short``)."""
     waits = f", {rec.holds} waits for a neighbour" if rec.holds else ""
     waits += f", {rec.corrections} corrections of a robot left at risk" if rec.corrections else ""
-    waits += f", {rec.touch_ends} legs ended at a touch" if rec.touch_ends else ""
+    waits += f", {rec.legs_cut} legs cut short (a touch, or the next step at risk)" if rec.legs_cut else ""
     text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point{waits}, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
     if stopped_short:
@@ -238,14 +238,14 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     a robot standing for the rest of the change, ``holds`` the legs a robot waited in for a neighbour),
     ``stopped_short`` (those robots over the run, one per robot and configuration), ``holds`` (the waits over the
     run) and ``corrections`` (legs a robot drove as a correction after standing at risk, ``coordinator.legs``; also per
-    configuration with legs), ``touch_ends`` (legs a step that left two robots touching ended before their last group,
-    ``coordinator.legs.new_touches``; also per configuration with legs)."""
+    configuration with legs), ``legs_cut`` (legs ended before their last group: a step left two robots touching, or the next
+    step was at risk, ``coordinator.legs.new_touches``, ``next_group_at_risk``; also per configuration with legs)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
             "stopped_short": sum(len(s) for s in short), "holds": result.holds(), "corrections": result.corrections(),
-            "touch_ends": sum(c.touch_ends for c in result.configs),
+            "legs_cut": sum(c.legs_cut for c in result.configs),
             "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps,
-                      "stopped_short": short[k], "holds": c.holds, "corrections": c.corrections, "touch_ends": c.touch_ends}
+                      "stopped_short": short[k], "holds": c.holds, "corrections": c.corrections, "legs_cut": c.legs_cut}
                      for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],

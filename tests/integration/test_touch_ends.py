@@ -21,8 +21,11 @@ from coordinator.localization import make_localizer
 from coordinator.replay_check import RecordedRun, check, rebuild_run
 from coordinator.simulate import initial_estimate
 from coordinator.strategies import make_strategy
+from inchworm.bench.collisions import scaled
+from inchworm.bench.options import CollisionsBenchOptions
 from inchworm.sim_options import SimOptions
 from runtime.models.config import ModelConfig
+from runtime.models.trajectory import body_spacing, random_trajectory
 from runtime.wire.messages import PlanMessage
 from tests.integration.test_replay_chain import RecordingSwarm
 
@@ -68,12 +71,12 @@ def clean():
     return execute(swarm, keep), rec, states, robots
 
 
-def test_the_touch_ends_the_leg_and_the_next_step_parts_the_pair(clean):
+def test_a_touch_ends_the_leg_and_the_next_step_parts_the_pair(clean):
     result, rec, _, _ = clean
     assert [(c.step, c.a, c.b) for c in result.contacts(X558.robot_radius_m)] == [(119, 4, 8), (120, 4, 8)]
     config = result.configs[4]
     [(k, cut)] = [(k, leg) for k, leg in enumerate(config.legs) if leg.cut]
-    assert cut.n_steps < cut.plan.n_steps and config.touch_ends == 1
+    assert cut.n_steps < cut.plan.n_steps and config.legs_cut == 1
     assert sum(c.n_steps for c in result.configs[:4]) + sum(leg.n_steps for leg in config.legs[:k + 1]) == 119  # ends at the touch
     assert sorted(result.steps[119].estimate.ids[result.steps[119].moving].tolist()) == [8]  # the next leg parts them
     assert len(result.steps) == sum(c.n_steps for c in result.configs) == result.steps_added() + sum(c.planned_steps for c in result.configs)
@@ -119,3 +122,29 @@ def test_replay_check_recomputes_the_cut_and_refuses_leg_messages_that_disagree(
     bad = check(early)
     assert bad.divergence is not None and bad.divergence.step == 119 and bad.divergence.field.startswith("first step")
     assert (bad.divergence.recorded, bad.divergence.recomputed) == (119, 124)  # no touch before step 119: the leg runs on
+
+
+def test_a_leg_whose_next_step_is_at_risk_ends_before_it_and_replay_check_recomputes_it():
+    """Trajectory 30 of the collisions bench at x5.58 (heuristic-fixed, joint localizer): robot 6 drives in a leg's
+    first step and ends 5 cm from robot 8's way instead of where the leg planned it; robot 8's step, next, is over the
+    bound against it where the estimate now puts it (0.19). The leg ends before that step and the next is planned from
+    the new estimate: no contact (one, robots 6 and 8, when the leg ran on); ``swarm replay --check`` recomputes it."""
+    o = CollisionsBenchOptions()
+    cfg = scaled(o.run.model, 5.58)
+    traj = random_trajectory(o.robots, 6, np.random.default_rng([o.seed, 30]), sensing_range=cfg.sensing_range_m,
+                             **body_spacing(cfg))
+    seed = o.seed + 30
+    rec = RecordedRun(Path("memory"), {}, {"localizer": "joint", "method": "heuristic-fixed", "seed": seed,
+                                            "trajectory": traj.to_json(), "initial_delta_m": 0.01,
+                                            "initial_heading_sigma_rad": math.radians(2.0), "model": cfg.to_dict(),
+                                            "selection": asdict(o.run.selection)})
+    swarm = RecordingSwarm(traj, rec, None, cfg, seed)
+    loc = make_localizer("joint", cfg)
+    strategy = make_strategy("heuristic-fixed", traj.n, cfg, loc, o.run.selection, seed)
+    result = InchwormExecutor(swarm, loc, strategy, cfg, listener=swarm).run(traj, initial_estimate(traj, seed, 0.01, math.radians(2.0)))
+    assert result.contacts(cfg.robot_radius_m) == []
+    legs = result.configs[0].legs
+    [cut] = [leg for leg in legs if leg.cut]
+    assert 8 in cut.ids[~cut.ran] and 6 in cut.ids[cut.ran]  # robot 6 drove in it, robot 8 had not yet
+    checked = check(rec)
+    assert checked.passed and checked.skipped == [], (checked.divergence, checked.skipped)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from coordinator.checkpoint import RunState
-from coordinator.clearance import clear_plan
+from coordinator.clearance import Regrouping, clear_plan
 from coordinator.executor import InchwormExecutor
 from coordinator.legs import (
     END_BOUND,
@@ -25,6 +25,7 @@ from coordinator.legs import (
     first_leg,
     leg_targets,
     new_touches,
+    next_group_at_risk,
     next_leg,
     step_at_risk,
 )
@@ -600,6 +601,13 @@ def test_a_step_is_judged_again_against_robots_its_leg_moved_before_it():
     far = estimate([[0.1, 0.15], [0.0, 0.0], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
     assert not step_at_risk(X3, far, targets, moving, moved)
     assert not step_at_risk(ModelConfig(robot_radius_m=0.0), est, targets, moving, moved)
+    # as a leg's plan: group 1 (robot 1) after group 0 (robot 0); after the last group nothing is left to judge, and a
+    # pair the leg's regrouping already could not clear is no news
+    plan = Plan(np.array([0, 1]), (1, 1))
+    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 0, None) == [(0, 1)]
+    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 1, None) == []
+    known = Regrouping(plan, (0, 1), 0.1)
+    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 0, known) == []
 
 
 def test_a_new_touch_is_a_pair_a_mover_left_touching_not_one_at_risk_before():
@@ -629,7 +637,7 @@ def test_a_leg_cut_by_a_touch_counts_the_steps_run_and_its_other_robots_go_on():
     whole = replace(leg, groups_run=None)
     assert not whole.cut and whole.n_steps == 3 and whole.going_on.tolist() == [5, 9]
     rec = ConfigRecord(0, plan, None, SwarmEstimate.isotropic(ids, np.zeros((4, 3)), 0.01, 0.1), None, ids, None, (leg,))
-    assert rec.n_steps == 2 and rec.touch_ends == 1 and rec.staging_stops == 0  # robot 5 never drove to its stop
+    assert rec.n_steps == 2 and rec.legs_cut == 1 and rec.staging_stops == 0  # robot 5 never drove to its stop
     [back] = _from_legs(json.loads(json.dumps(_legs_json((leg,)))))
     assert back.groups_run == 2 and back.plan.key() == plan.key() and back.held.tolist() == [9]
     old = _legs_json((whole,))
