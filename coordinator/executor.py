@@ -25,8 +25,9 @@ first command under the nominal motion of its steps; a step whose movers would c
 close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
 so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``). A mover whose straight drive
 would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
-first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching
-ends its leg there and the next is planned at once (``coordinator.legs.new_touches``, ``_touched``).
+first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching,
+or after which the leg's next step is at risk, ends its leg there and the next is planned at once
+(``coordinator.legs.new_touches``, ``next_group_at_risk``, ``_touched``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing

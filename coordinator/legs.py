@@ -64,7 +64,10 @@ end (``_waits_too``: two robots left touching waited side by side, leg after leg
 **A touch ends the leg.** After every step of a change, a pair the step left touching (``new_touches``) ends the leg
 there: its remaining groups are not run (``LegRecord.groups_run``), their robots go on in the next leg, planned at once,
 whose groups with a robot standing over ``CONTACT_BOUND`` go first (``next_leg``); a change without legs becomes a
-first leg ending there (``coordinator.executor``).
+first leg ending there (``coordinator.executor``). **So does a next step at risk**: the leg's steps were judged at its
+start with every robot at its planned end; where the leg's next step is over the steps' bound against a robot an
+earlier step of it moved, where the estimate now puts it (``next_group_at_risk``: the drive's error left it in the
+way), the leg ends before that step and the next leg is planned from the estimate.
 """
 
 from __future__ import annotations
