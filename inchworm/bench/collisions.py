@@ -16,7 +16,7 @@ steps per configuration (speed, Eq. 6-7) and the mean P_f (Eq. 24). ``to_json()`
      "bodies": true|false, "contacts_per_100": X, "configs_with_contact_pct": Y,
      "steps_per_config": S, "pf_mean": P, "noise_scale": K, "steps_added": A, "unclear_changes": U,
      "raised_bound_changes": B, "leg_changes": G, "staging_stops": S, "stopped_short": H,
-     "stopped_short_changes": J, "holds": W, "corrections": K}, ...]}
+     "stopped_short_changes": J, "holds": W, "corrections": K, "legs_cut": Q}, ...]}
 
 ``steps_added``: steps the chance constraint added over all runs of the row; ``raised_bound_changes``: configuration
 changes where no order kept the contact bound (``CONTACT_BOUND`` per pair and step) and it was raised for some
@@ -28,7 +28,8 @@ at risk even reached with no motion noise, or their way is blocked by a robot st
 ``stopped_short_changes``: changes with such a robot; ``holds``: legs a
 robot waited where it stood for a neighbour (one per robot and leg: a pair separated in time, ``coordinator.legs``);
 ``corrections``: legs a robot drove back towards its goal after standing at risk by the new estimate (one per robot and
-leg, ``coordinator.legs.corrections``).
+leg, ``coordinator.legs.corrections``); ``legs_cut``: legs that ended before their last group, at a touch or before a
+step at risk (``coordinator.legs.new_touches``, ``next_group_at_risk``).
 """
 
 from __future__ import annotations
@@ -79,7 +80,7 @@ def run_one(job: Job) -> dict[str, Any]:
         "min_distance": min((c.distance for c in contacts), default=float("nan")), "pf": result.pf(),
         "staging_stops": result.staging_stops(), "leg_changes": sum(1 for c in result.configs if c.legs),
         "stopped_short": sum(len(s) for s in short), "stopped_short_changes": sum(1 for s in short if s),
-        "holds": result.holds(), "corrections": result.corrections(),
+        "holds": result.holds(), "corrections": result.corrections(), "legs_cut": sum(c.legs_cut for c in result.configs),
     }
 
 
@@ -101,6 +102,7 @@ def summarise(runs: list[dict[str, Any]], keys: list[tuple[str, str, bool, float
             "stopped_short": sum(r["stopped_short"] for r in mine),
             "stopped_short_changes": sum(r["stopped_short_changes"] for r in mine),
             "holds": sum(r["holds"] for r in mine), "corrections": sum(r["corrections"] for r in mine),
+            "legs_cut": sum(r["legs_cut"] for r in mine),
         })
     return rows
 
@@ -123,19 +125,19 @@ def bench_collisions(options: CollisionsBenchOptions | None = None, progress: Ca
     lines = [f"radius {cfg.robot_radius_m:g} m, {o.trajectories} trajectories x {o.configs} configurations, n_r = {o.robots}; "
              f"noise: motion noise x the model's ({np.degrees(cfg.turn_sigma_rad):g} deg, {cfg.drive_sigma_frac:g})",
              f"{'noise':>5} {'method':<22} {'localizer':<9} {'planned':<7} {'contacts/100':>12} {'changes %':>9} {'steps':>6} {'added':>6} "
-             f"{'unclear':>7} {'raised':>6} {'legs':>5} {'stops':>6} {'waits':>6} {'fixes':>5} {'short':>5} {'P_f':>8}"]
+             f"{'unclear':>7} {'raised':>6} {'legs':>5} {'stops':>6} {'waits':>6} {'fixes':>5} {'cut':>4} {'short':>5} {'P_f':>8}"]
     for r in rows:
         lines.append(f"{r['noise_scale']:>5g} {r['method']:<22} {r['localizer']:<9} {'bodies' if r['bodies'] else 'points':<7} "
                      f"{r['contacts_per_100']:>12.2f} "
                      f"{r['configs_with_contact_pct']:>9.2f} {r['steps_per_config']:>6.2f} {r['steps_added']:>6} "
                      f"{r['unclear_changes']:>7} {r['raised_bound_changes']:>6} {r['leg_changes']:>5} {r['staging_stops']:>6} "
-                     f"{r['holds']:>6} {r['corrections']:>5} "
+                     f"{r['holds']:>6} {r['corrections']:>5} {r['legs_cut']:>4} "
                      f"{r['stopped_short']:>5} {r['pf_mean']:>8.4f}")
     lines.append(f"added: steps the body constraint added over all runs; raised: configuration changes where no order kept the contact "
                  f"bound {CONTACT_BOUND:g} per pair and step for some robots (raised for them); unclear: changes with robots no order "
                  f"kept within {max(BOUND_LEVELS):g} (moved one at a time); legs: changes whose movers drove in approach legs, stops: "
                  f"approach legs driven to a staging point; waits: legs a robot waited in for a neighbour; fixes: correction legs of a "
-                 f"robot left at risk; short: robots stopped "
+                 f"robot left at risk; cut: legs cut short (a touch, or the next step at risk); short: robots stopped "
                  f"short of their targets (at risk there even with no motion noise, or blocked by a standing robot)")
     public = [{k: v for k, v in r.items() if not k.startswith("_")} for r in rows]
     summary = {"radius_m": cfg.robot_radius_m, "trajectories": o.trajectories, "configs": o.configs, "rows": public}
