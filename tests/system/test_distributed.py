@@ -356,8 +356,8 @@ NOISY = ("--turn-sigma-deg=60", "--drive-sigma-frac=1.0")  # motion noise x20 (x
 
 
 def test_contacts_of_noisy_robots_are_the_in_process_ones_and_recorded(tmp_path):
-    """no-anchors on 4 robots at motion noise x20, 2 configurations (seed 18): the true bodies of robots 1 and 3 touch
-    (7 mm between centres) at the last step. (At x10 the runs tried no longer touch: 4 robots, seeds 19-89, and robot 0
+    """no-anchors on 4 robots at motion noise x20, 2 configurations (seed 18): the true bodies of robots 0 and 2, and 1
+    and 3, touch at the last step (the second configuration's). (At x10 the runs tried no longer touch: 4 robots, seeds 19-89, and robot 0
     driving past robot 2 standing 5 cm beside its way, behind robot 1: leg ends within 1e-4, ways past standing robots
     and corrections, docs/bodies.md "Corrections, a stricter leg end and ways past standing robots".) The summary, the
     JSON and the recording's ContactMessages (and their Foxglove view) say so, exactly as the in-process run."""
@@ -366,12 +366,13 @@ def test_contacts_of_noisy_robots_are_the_in_process_ones_and_recorded(tmp_path)
     traj = random_trajectory(4, 2, np.random.default_rng(18), sensing_range=cfg.sensing_range_m, **body_spacing(cfg))
     run, out = _finished_as_in_process(tmp_path, traj, "no-anchors", 18, NOISY)
     ref = _in_process(traj, "no-anchors", 18, NOISY).contacts(0.011)
-    assert [(c.step, c.config, c.a, c.b) for c in ref] == [(len(json.loads(run.result_file.read_text())["steps"]), 1, 1, 3)]
+    last = len(json.loads(run.result_file.read_text())["steps"])
+    assert [(c.step, c.config, c.a, c.b) for c in ref] == [(last, 1, 0, 2), (last, 1, 1, 3)]
     assert f"contacts (bodies of radius 0.011 m): {len(ref)}" in out
     doc = json.loads(out.strip().splitlines()[-1])
-    assert doc["contacts"] == [{"step": c.step, "config": 2, "robots": [1, 3], "distance_m": c.distance} for c in ref]
+    assert doc["contacts"] == [{"step": c.step, "config": 2, "robots": [c.a, c.b], "distance_m": c.distance} for c in ref]
     msgs = [decode(payload) for topic, payload, _, _ in read_messages(run.recording) if topic.endswith("/sim/contact")]
-    assert [(m.step, m.config, m.a, m.b, m.radius_m) for m in msgs] == [(c.step, 2, 1, 3, 0.011) for c in ref]
+    assert [(m.step, m.config, m.a, m.b, m.radius_m) for m in msgs] == [(c.step, 2, c.a, c.b, 0.011) for c in ref]
     assert [(m.distance_m, tuple(m.point)) for m in msgs] == [(c.distance, c.point) for c in ref]
     assert "/foxglove/contacts" in [t for t, _, _, _ in read_messages(run.recording, derived=True)]
 
