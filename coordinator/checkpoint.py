@@ -199,10 +199,12 @@ def _from_regrouping(d: dict[str, Any] | None) -> Regrouping | None:
 
 def _legs_json(legs: tuple[LegRecord, ...]) -> dict[str, Any]:
     """The approach legs as an additive ``legs`` key (none without legs: a state without them is written as before);
-    ``held`` only where a robot waits, ``groups_run`` only where a touch ended the leg (``LegRecord``)."""
+    ``held`` only where a robot waits, ``groups_run`` only where the leg was cut short, ``deferred`` only where robots
+    stood in their step (``LegRecord``)."""
     return {"legs": [{"plan": _plan(x.plan), "ids": x.ids.tolist(), "targets": _array(x.targets), "staged": x.staged.tolist(),
                       "regrouped": _regrouping(x.regrouped), **({"held": x.held.tolist()} if len(x.held) else {}),
-                      **({} if x.groups_run is None else {"groups_run": x.groups_run})}
+                      **({} if x.groups_run is None else {"groups_run": x.groups_run}),
+                      **({"deferred": x.deferred.tolist()} if len(x.deferred) else {})}
                      for x in legs]} if legs else {}
 
 
@@ -210,4 +212,5 @@ def _from_legs(d: dict[str, Any]) -> tuple[LegRecord, ...]:
     return tuple(LegRecord(_from_plan(x["plan"]), np.array(x["ids"], dtype=np.int64), _from_array(x["targets"]),
                            np.array(x["staged"], dtype=bool), _from_regrouping(x["regrouped"]),
                            np.array(x.get("held", []), dtype=np.int64),
-                           None if x.get("groups_run") is None else int(x["groups_run"])) for x in d.get("legs", ()))
+                           None if x.get("groups_run") is None else int(x["groups_run"]),
+                           np.array(x.get("deferred", []), dtype=np.int64)) for x in d.get("legs", ()))

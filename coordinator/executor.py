@@ -25,9 +25,9 @@ first command under the nominal motion of its steps; a step whose movers would c
 close to each other or to a still robot is split into sub-steps (``coordinator.clearance.clear_plan``),
 so every strategy runs collision-free and the record says so (``ConfigRecord.regrouped``). A mover whose straight drive
 would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
-first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching,
-or after which the leg's next step is at risk, ends its leg there and the next is planned at once
-(``coordinator.legs.new_touches``, ``next_group_at_risk``, ``_touched``).
+first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching
+ends its leg there and the next is planned at once, and robots whose next step in the leg is at risk stand in it
+and go on in the next (``coordinator.legs.new_touches``, ``deferred_movers``, ``_touched``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing
@@ -55,7 +55,7 @@ import numpy as np
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping
-from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_group_at_risk, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, deferred_movers, first_leg, new_touches, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -205,6 +205,8 @@ class InchwormExecutor:
                 for k in range(group, len(plan.groups) if current is None else current.n_steps):
                     estimate = self._drop_lost(result, c, estimate)[0]
                     moving = np.isin(estimate.ids, planned_ids[plan.groups[k]])
+                    if legs:  # robots whose step was at risk stand (``LegRecord.deferred``)
+                        moving &= ~np.isin(estimate.ids, legs[-1].deferred)
                     if moving.any():  # a group whose robots were all lost is skipped
                         before = estimate
                         estimate = self._step(result, c, done + k, moving, estimate, trajectory, current)  # (ii)-(v)
@@ -237,30 +239,34 @@ class InchwormExecutor:
                  after: SwarmEstimate, moved: np.ndarray, plan: Plan, planned_ids: np.ndarray,
                  regrouped: Regrouping | None) -> tuple[LegRecord, ...]:
         """The change's legs after group ``k`` of ``plan`` ran (robots ``moved``, the estimates ``before`` and
-        ``after`` the step): where the step left two robots touching (``new_touches``), or the leg's next group is
-        over the bound against robots that drove earlier in it, where they are now (``next_group_at_risk``), the leg
-        ends there (its ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; a change
-        without legs becomes a first leg to the desired positions that ends there (after a touch also after its last
-        group), so that ``next_leg`` separates the pair at once, or plans the rest from the new estimate. Else
+        ``after`` the step): where the step left two robots touching (``new_touches``), the leg ends there (its
+        ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; where robots of the next
+        group are at risk against robots the leg moved earlier, where they are now (``deferred_movers``), they stand
+        in it and go on in the next leg (``LegRecord.deferred``), and where that is the whole group the leg ends
+        there. A change without legs becomes a first leg to the desired positions for it (after a touch also after
+        its last group), so that ``next_leg`` separates the pair at once, or drives the robots that stood. Else
         ``legs`` unchanged."""
         last = k + 1 == len(plan.groups)
         if self.cfg.robot_radius_m <= 0 or len(legs) >= LEG_CAP or (legs and last):
             return legs
-        targets = legs[-1].targets if legs else np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2]
+        leg = legs[-1] if legs else LegRecord(plan, planned_ids, np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2],
+                                              np.zeros(len(planned_ids), bool), regrouped)
         a, b, p = new_touches(self.cfg, before, after, moved)
         if len(a):
             _log.info("configuration %d: step %d left robots %s touching (contact probability %s): the leg ends there",
                       config + 1, self._executed, list(zip(a.tolist(), b.tolist(), strict=True)), np.round(p, 3).tolist())
-        else:
-            risk = next_group_at_risk(self.cfg, after, plan, planned_ids, targets, k, regrouped)
-            if not risk:
-                return legs
-            _log.info("configuration %d: after step %d the leg's next step is over the bound for robots %s where the "
-                      "estimate puts them: the leg ends there", config + 1, self._executed, risk)
-        run = None if last else k + 1
-        if legs:
-            return (*legs[:-1], replace(legs[-1], groups_run=run))
-        return (LegRecord(plan, planned_ids, targets, np.zeros(len(planned_ids), bool), regrouped, groups_run=run),)
+            return (*legs[:-1], replace(leg, groups_run=None if last else k + 1))
+        deferred = deferred_movers(self.cfg, after, leg, k)
+        if not len(deferred):
+            return legs
+        group = np.intersect1d(planned_ids[plan.groups[k + 1]], after.ids)
+        if np.isin(group, deferred).all():
+            _log.info("configuration %d: after step %d the leg's next step is at risk for all its robots %s: the leg "
+                      "ends there", config + 1, self._executed, group.tolist())
+            return (*legs[:-1], replace(leg, groups_run=k + 1))
+        _log.info("configuration %d: after step %d robots %s stand in the next step (at risk there): they go on in the "
+                  "next leg", config + 1, self._executed, deferred.tolist())
+        return (*legs[:-1], replace(leg, deferred=np.union1d(leg.deferred, deferred).astype(np.int64)))
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
                     planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False,

@@ -64,10 +64,11 @@ end (``_waits_too``: two robots left touching waited side by side, leg after leg
 **A touch ends the leg.** After every step of a change, a pair the step left touching (``new_touches``) ends the leg
 there: its remaining groups are not run (``LegRecord.groups_run``), their robots go on in the next leg, planned at once,
 whose groups with a robot standing over ``CONTACT_BOUND`` go first (``next_leg``); a change without legs becomes a
-first leg ending there (``coordinator.executor``). **So does a next step at risk**: the leg's steps were judged at its
-start with every robot at its planned end; where the leg's next step is over the steps' bound against a robot an
-earlier step of it moved, where the estimate now puts it (``next_group_at_risk``: the drive's error left it in the
-way), the leg ends before that step and the next leg is planned from the estimate.
+first leg ending there (``coordinator.executor``). **A step at risk is not driven**: the leg's steps were judged at its
+start with every robot at its planned end; a robot whose step in the leg is over the steps' bound against a robot an
+earlier step of it moved, where the estimate now puts it (the drive's error left it in the way), stands in that step
+and goes on in the next leg, planned from the estimate (``deferred_movers``, ``LegRecord.deferred``; the others of its
+group drive, kept clear of it standing); where that is the whole group, the leg ends before it.
 """
 
 from __future__ import annotations
@@ -438,8 +439,10 @@ class LegRecord:
     ``targets`` (len(ids), 2) m, which of them ``staged`` short of their desired position, how the body constraint
     split it (``regrouped``, None: clear as planned), ``held``: ids of the robots that wait where they stand in
     it (``Leg.held``; in a configuration's first leg they are in ``ids`` with their place as target: a zero command),
-    and ``groups_run``: the groups of ``plan`` executed (None: all; fewer when a step left two robots touching and
-    the leg ended there, ``new_touches``). ``plan`` stays the leg as planned and published."""
+    ``groups_run``: the groups of ``plan`` executed (None: all; fewer when a step left two robots touching and
+    the leg ended there, ``new_touches``, or its next step was at risk for all its robots), and ``deferred``: ids of
+    robots whose group ran without them (their step was at risk, ``deferred_movers``: they go on in the next leg).
+    ``plan`` stays the leg as planned and published."""
 
     plan: Plan
     ids: np.ndarray
@@ -448,6 +451,7 @@ class LegRecord:
     regrouped: Regrouping | None = None
     held: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     groups_run: int | None = None
+    deferred: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def staged_ids(self) -> np.ndarray:
@@ -465,10 +469,11 @@ class LegRecord:
 
     @property
     def ran(self) -> np.ndarray:
-        """(len(ids),) the robots of the groups the leg ran (every robot of a leg not cut)."""
+        """(len(ids),) the robots that drove in the leg: those of the groups it ran (every group of a leg not cut) but
+        the ``deferred`` ones."""
         out = np.zeros(len(self.ids), bool)
         out[self.plan.order[:sum(self.plan.sizes[:self.n_steps])]] = True
-        return out
+        return out & ~np.isin(self.ids, self.deferred)
 
     @property
     def going_on(self) -> np.ndarray:
@@ -514,21 +519,34 @@ def step_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, targets: np.ndarray,
                   if (moved[c.a] or moved[c.b]) and not (known[c.a] and known[c.b]))
 
 
-def next_group_at_risk(cfg: ModelConfig, estimate: SwarmEstimate, plan: Plan, ids: np.ndarray, targets: np.ndarray,
-                       k: int, regrouped: Regrouping | None) -> list[tuple[int, int]]:
-    """``step_at_risk`` of group k + 1 of a leg's ``plan`` (rows of ``ids``, driving to ``targets`` (len(ids), 2)), from
-    ``estimate`` after its group k (``moved``: the robots of groups 0 .. k; ``known``: the regrouping's ``unclear``),
-    the robots not in ``ids`` standing; [] after its last group. Where it is not [], the leg ends after group k
-    (``coordinator.executor``; ``swarm replay --check`` recomputes it) and the next is planned from ``estimate``."""
-    if k + 1 >= len(plan.groups):
-        return []
+def deferred_movers(cfg: ModelConfig, estimate: SwarmEstimate, leg: LegRecord, k: int) -> np.ndarray:
+    """Ids (sorted) of the robots of group k + 1 of ``leg``'s plan that do not drive in it: from ``estimate`` after its
+    group k, their step towards the leg's targets is over the steps' bound against a robot the leg moved earlier, where
+    the estimate now puts it (``step_at_risk``; ``known``: the leg's regrouping's ``unclear`` robots), or, the others of
+    the group driving, against one of them standing where it is (until none is left: the leg's regrouping judged the
+    group driving together). They stand and go on in the next leg (``LegRecord.deferred``). Empty after the leg's last
+    group; the robots not in the leg stand."""
+    plan, ids = leg.plan, leg.ids
+    if k + 1 >= len(plan.groups) or cfg.robot_radius_m <= 0:
+        return np.zeros(0, np.int64)
     present = np.isin(ids, estimate.ids)
     ends = estimate.positions.copy()
-    ends[index_of(estimate.ids, ids[present], "leg")] = np.asarray(targets, float)[present, :2]
-    moving = np.isin(estimate.ids, ids[plan.groups[k + 1]])
-    moved = np.isin(estimate.ids, ids[np.concatenate(plan.groups[:k + 1])])
-    known = np.isin(estimate.ids, () if regrouped is None else regrouped.unclear)
-    return step_at_risk(cfg, estimate, ends, moving, moved, known)
+    ends[index_of(estimate.ids, ids[present], "leg")] = np.asarray(leg.targets, float)[present, :2]
+    group = np.isin(estimate.ids, ids[plan.groups[k + 1]])
+    moved = np.isin(estimate.ids, ids[leg.ran & np.isin(np.arange(len(ids)), np.concatenate(plan.groups[:k + 1]))])
+    known = np.isin(estimate.ids, () if leg.regrouped is None else leg.regrouped.unclear)
+    members = set(estimate.ids[group].tolist())
+    held = {r for pair in step_at_risk(cfg, estimate, ends, group, moved, known) for r in pair if r in members}
+    check = BodyCheck.of_estimate(cfg, estimate, ends)
+    while held:  # grows to the whole group at most: this ends
+        standing = np.isin(estimate.ids, list(held))
+        driving = group & ~standing
+        more = {int(estimate.ids[c.a if driving[c.a] else c.b]) for c in check.step_conflicts(estimate.positions, driving)
+                if standing[c.a] or standing[c.b]} - held if driving.any() else set()
+        if not more:
+            break
+        held |= more
+    return np.array(sorted(held), np.int64)
 
 
 def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray) -> np.ndarray:

@@ -39,7 +39,7 @@ import numpy as np
 from coordinator.checkpoint import carried_fields
 from coordinator.clearance import Regrouping
 from coordinator.executor import among, localize_rejoined, rejoin_priors
-from coordinator.legs import LEG_CAP, LegRecord, first_leg, new_touches, next_group_at_risk, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, deferred_movers, first_leg, new_touches, next_leg
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -385,7 +385,7 @@ class _Change:
     """The configuration change being checked (``config`` 1-based): its strategy's ``plan`` cleared for bodies (rows of
     ``ids``), how it was split (``regrouped``), the ``desired`` positions (rows of ``ids``), and of its current leg (the
     plan, for a change without legs) the first step ``start`` and the ``plan``; ``touch`` says why that leg ended
-    before its planned end (``coordinator.legs.new_touches``, ``next_group_at_risk``), None while it did not."""
+    before its planned end (``coordinator.legs.new_touches``, ``deferred_movers``), None while it did not."""
 
     config: int
     first: Plan
@@ -409,29 +409,30 @@ class _Change:
     def after_step(self, cfg: ModelConfig, legs: list[LegRecord], step: int, before: SwarmEstimate, after: SwarmEstimate,
                    moved: list[int]) -> list[LegRecord]:
         """The change's legs after ``step`` as the executor has them (``InchwormExecutor._touched``): where the step
-        left two robots touching, or the leg's next group is at risk against robots that drove earlier in it
-        (``next_group_at_risk``), the leg ends there if groups of it are left (a change without legs becomes a first
-        leg to the desired positions, after a touch also after its last group)."""
+        left two robots touching, the leg ends there if groups of it are left (a change without legs becomes a first
+        leg to the desired positions, also after its last group); robots of the next group at risk against robots the
+        leg moved earlier (``deferred_movers``) stand in it (``LegRecord.deferred``), and where that is the whole
+        group the leg ends there."""
         assert self.plan is not None
         k = step - self.start
         last = k + 1 == self.plan.n_steps
         if len(legs) >= LEG_CAP or (legs and last):
             return legs
-        ids, targets = (legs[-1].ids, legs[-1].targets) if legs else (self.ids, np.asarray(self.desired, float)[:, :2])
-        regrouped = legs[-1].regrouped if legs else self.regrouped
+        leg = legs[-1] if legs else LegRecord(self.first, self.ids, np.asarray(self.desired, float)[:, :2],
+                                              np.zeros(len(self.ids), bool), self.regrouped)
         a, b, p = new_touches(cfg, before, after, np.array(moved, np.int64))
         if len(a):
             self.touch = ", ".join(f"robots {x} and {y} touching ({q:.3g})" for x, y, q in zip(a.tolist(), b.tolist(), p.tolist(), strict=True))
-        else:
-            risk = next_group_at_risk(cfg, after, self.plan, ids, targets, k, regrouped)
-            if not risk:
-                return legs
-            self.touch = f"robots {risk} at risk in its next step"
-        run = None if last else k + 1
-        self.groups_run = run
-        if legs:
-            return [*legs[:-1], replace(legs[-1], groups_run=run)]
-        return [LegRecord(self.first, self.ids, targets, np.zeros(len(self.ids), bool), self.regrouped, groups_run=run)]
+            self.groups_run = None if last else k + 1
+            return [*legs[:-1], replace(leg, groups_run=self.groups_run)]
+        deferred = deferred_movers(cfg, after, leg, k)
+        if not len(deferred):
+            return legs
+        group = np.intersect1d(leg.ids[self.plan.groups[k + 1]], after.ids)
+        if np.isin(group, deferred).all():
+            self.touch, self.groups_run = f"robots {group.tolist()} at risk in its next step", k + 1
+            return [*legs[:-1], replace(leg, groups_run=k + 1)]
+        return [*legs[:-1], replace(leg, deferred=np.union1d(leg.deferred, deferred).astype(np.int64))]
 
     def missing_leg(self, cfg: ModelConfig, legs: list[LegRecord], before: SwarmEstimate | None, step: int) -> Divergence | None:
         """After a touch ended a leg at ``step`` - 1, the recording has no leg from ``step``: the divergence if the

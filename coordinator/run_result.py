@@ -96,7 +96,7 @@ class ConfigRecord:
     @property
     def legs_cut(self) -> int:
         """Approach legs that ended before their last group: a step left two robots touching (``coordinator.legs.new_touches``)
-        or the next step was at risk (``next_group_at_risk``)."""
+        or the next step was at risk for all its robots (``deferred_movers``)."""
         return sum(leg.cut for leg in self.legs)
 
     @property

@@ -239,7 +239,7 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     ``stopped_short`` (those robots over the run, one per robot and configuration), ``holds`` (the waits over the
     run) and ``corrections`` (legs a robot drove as a correction after standing at risk, ``coordinator.legs``; also per
     configuration with legs), ``legs_cut`` (legs ended before their last group: a step left two robots touching, or the next
-    step was at risk, ``coordinator.legs.new_touches``, ``next_group_at_risk``; also per configuration with legs)."""
+    step was at risk, ``coordinator.legs.new_touches``, ``deferred_movers``; also per configuration with legs)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
             "stopped_short": sum(len(s) for s in short), "holds": result.holds(), "corrections": result.corrections(),

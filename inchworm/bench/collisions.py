@@ -29,7 +29,7 @@ at risk even reached with no motion noise, or their way is blocked by a robot st
 robot waited where it stood for a neighbour (one per robot and leg: a pair separated in time, ``coordinator.legs``);
 ``corrections``: legs a robot drove back towards its goal after standing at risk by the new estimate (one per robot and
 leg, ``coordinator.legs.corrections``); ``legs_cut``: legs that ended before their last group, at a touch or before a
-step at risk (``coordinator.legs.new_touches``, ``next_group_at_risk``).
+step at risk (``coordinator.legs.new_touches``, ``deferred_movers``).
 """
 
 from __future__ import annotations

@@ -124,11 +124,12 @@ def test_replay_check_recomputes_the_cut_and_refuses_leg_messages_that_disagree(
     assert (bad.divergence.recorded, bad.divergence.recomputed) == (119, 124)  # no touch before step 119: the leg runs on
 
 
-def test_a_leg_whose_next_step_is_at_risk_ends_before_it_and_replay_check_recomputes_it():
+def test_a_robot_whose_step_is_at_risk_stands_in_it_and_replay_check_recomputes_it():
     """Trajectory 30 of the collisions bench at x5.58 (heuristic-fixed, joint localizer): robot 6 drives in a leg's
     first step and ends 5 cm from robot 8's way instead of where the leg planned it; robot 8's step, next, is over the
-    bound against it where the estimate now puts it (0.19). The leg ends before that step and the next is planned from
-    the new estimate: no contact (one, robots 6 and 8, when the leg ran on); ``swarm replay --check`` recomputes it."""
+    bound against it where the estimate now puts it (0.19). Robot 8 stands in that step (the others of its group
+    drive) and drives in the next leg, planned from the new estimate: no contact (one, robots 6 and 8, when it drove);
+    ``swarm replay --check`` recomputes it."""
     o = CollisionsBenchOptions()
     cfg = scaled(o.run.model, 5.58)
     traj = random_trajectory(o.robots, 6, np.random.default_rng([o.seed, 30]), sensing_range=cfg.sensing_range_m,
@@ -144,7 +145,8 @@ def test_a_leg_whose_next_step_is_at_risk_ends_before_it_and_replay_check_recomp
     result = InchwormExecutor(swarm, loc, strategy, cfg, listener=swarm).run(traj, initial_estimate(traj, seed, 0.01, math.radians(2.0)))
     assert result.contacts(cfg.robot_radius_m) == []
     legs = result.configs[0].legs
-    [cut] = [leg for leg in legs if leg.cut]
-    assert 8 in cut.ids[~cut.ran] and 6 in cut.ids[cut.ran]  # robot 6 drove in it, robot 8 had not yet
+    [(k, leg)] = [(k, leg) for k, leg in enumerate(legs) if len(leg.deferred)]
+    assert leg.deferred.tolist() == [8] and not leg.cut and 6 in leg.ids[leg.ran]  # robot 6 drove in it, robot 8 stood
+    assert 8 in np.union1d(legs[k + 1].ids, legs[k + 1].held)  # and goes on in the next
     checked = check(rec)
     assert checked.passed and checked.skipped == [], (checked.divergence, checked.skipped)

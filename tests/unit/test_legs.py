@@ -21,11 +21,11 @@ from coordinator.legs import (
     MAX_LEGS,
     LegRecord,
     corrections,
+    deferred_movers,
     driven_legs,
     first_leg,
     leg_targets,
     new_touches,
-    next_group_at_risk,
     next_leg,
     step_at_risk,
 )
@@ -601,13 +601,21 @@ def test_a_step_is_judged_again_against_robots_its_leg_moved_before_it():
     far = estimate([[0.1, 0.15], [0.0, 0.0], [-0.3, 0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5])
     assert not step_at_risk(X3, far, targets, moving, moved)
     assert not step_at_risk(ModelConfig(robot_radius_m=0.0), est, targets, moving, moved)
-    # as a leg's plan: group 1 (robot 1) after group 0 (robot 0); after the last group nothing is left to judge, and a
-    # pair the leg's regrouping already could not clear is no news
-    plan = Plan(np.array([0, 1]), (1, 1))
-    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 0, None) == [(0, 1)]
-    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 1, None) == []
-    known = Regrouping(plan, (0, 1), 0.1)
-    assert next_group_at_risk(X3, est, plan, est.ids[:2], targets[:2], 0, known) == []
+    # as a leg's plan: group 1 (robots 1 and 3) after group 0 (robot 0): robot 1 stands in it (robot 3, far from both,
+    # drives); after the last group nothing is left to judge, and a pair the leg's regrouping already could not clear
+    # is no news
+    est4 = estimate([[0.1, 0.025], [0.0, 0.0], [-0.3, 0.3], [0.4, -0.3]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5, 0.0])
+    targets4 = np.array([[0.1, 0.15], [0.2, 0.0], [-0.3, 0.3], [0.5, -0.3]])
+    plan = Plan(np.array([0, 1, 2]), (1, 2))  # rows of the leg's ids [0, 1, 3]
+    leg = LegRecord(plan, np.array([0, 1, 3]), targets4[[0, 1, 3]], np.zeros(3, bool))
+    assert deferred_movers(X3, est4, leg, 0).tolist() == [1]
+    assert deferred_movers(X3, est4, leg, 1).tolist() == []
+    assert deferred_movers(X3, est4, replace(leg, regrouped=Regrouping(plan, (0, 1), 0.1)), 0).tolist() == []
+    # robot 3 right beside robot 1's place: driving, it would pass robot 1 standing there: it stands too
+    est4 = estimate([[0.1, 0.025], [0.0, 0.0], [-0.3, 0.3], [0.0, 0.08]], [math.pi - 1e-3, -math.pi + 1e-3, 0.5, 0.0])
+    targets4[3] = [0.0, -0.08]
+    leg = LegRecord(plan, np.array([0, 1, 3]), targets4[[0, 1, 3]], np.zeros(3, bool))
+    assert deferred_movers(X3, est4, leg, 0).tolist() == [1, 3]
 
 
 def test_a_new_touch_is_a_pair_a_mover_left_touching_not_one_at_risk_before():
