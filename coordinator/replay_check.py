@@ -365,6 +365,12 @@ def check(rec: RecordedRun, *, localizer: str | None = None, model: dict[str, fl
         if step == 0 or step not in rec.estimates:
             continue
         before = chain.prior(step)
+        stood = sorted(set(rec.commands.get(step, {})) & set(legs[-1].deferred.tolist())) if legs and track is not None else []
+        if stood and plans_ok and track is not None and track.start <= step <= track.end:
+            result.divergence = Divergence(step, f"step {step} of configuration {track.config}", None,
+                                           "robots commanded (a robot whose step was at risk stands in it: deferred_movers)",
+                                           sorted(rec.commands.get(step, {})), sorted(set(rec.commands.get(step, {})) - set(stood)))
+            return result
         if chain.localize(step, ids):
             return result
         if track is not None and plans_ok and cfg.robot_radius_m > 0 and track.start <= step <= track.end:

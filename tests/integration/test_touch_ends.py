@@ -26,7 +26,7 @@ from inchworm.bench.options import CollisionsBenchOptions
 from inchworm.sim_options import SimOptions
 from runtime.models.config import ModelConfig
 from runtime.models.trajectory import body_spacing, random_trajectory
-from runtime.wire.messages import PlanMessage
+from runtime.wire.messages import MotionCommand, PlanMessage
 from tests.integration.test_replay_chain import RecordingSwarm
 
 X558 = ModelConfig(turn_sigma_rad=math.radians(16.74), drive_sigma_frac=0.279)
@@ -150,3 +150,8 @@ def test_a_robot_whose_step_is_at_risk_stands_in_it_and_replay_check_recomputes_
     assert 8 in np.union1d(legs[k + 1].ids, legs[k + 1].held)  # and goes on in the next
     checked = check(rec)
     assert checked.passed and checked.skipped == [], (checked.divergence, checked.skipped)
+    stood = next(s for s in sorted(rec.commands) if set(rec.commands[s]) == {0, 2, 3, 4} and s > 1)  # robot 8's group, without it
+    moved = {**rec.commands, stood: {**rec.commands[stood], 8: MotionCommand(run="m", step=stood, robot=8, config=1, turn_rad=0.3,
+                                                                          drive_m=0.05)}}
+    bad = check(replace(rec, commands=moved))
+    assert bad.divergence is not None and bad.divergence.step == stood and bad.divergence.field.startswith("robots commanded")
