@@ -94,6 +94,12 @@ class ConfigRecord:
         return int(sum(int((leg.staged & leg.ran).sum()) for leg in self.legs))
 
     @property
+    def deferred(self) -> int:
+        """Robots that stood in their step of a leg because it was at risk (one per robot and leg,
+        ``coordinator.legs.deferred_movers``)."""
+        return sum(len(leg.deferred) for leg in self.legs)
+
+    @property
     def legs_cut(self) -> int:
         """Approach legs that ended before their last group: a step left two robots touching (``coordinator.legs.new_touches``)
         or the next step was at risk for all its robots (``deferred_movers``)."""

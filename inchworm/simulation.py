@@ -169,6 +169,7 @@ def legs_text(rec: ConfigRecord, stopped_short: list[int] | None = None) -> str:
     waits = f", {rec.holds} waits for a neighbour" if rec.holds else ""
     waits += f", {rec.corrections} corrections of a robot left at risk" if rec.corrections else ""
     waits += f", {rec.legs_cut} legs cut short (a touch, or the next step at risk)" if rec.legs_cut else ""
+    waits += f", {rec.deferred} robots stood in a step at risk" if rec.deferred else ""
     text = (f"approach legs for bodies: {len(rec.legs)} legs, {rec.staging_stops} stops at a staging point{waits}, "
             f"steps {rec.plan.n_steps} -> {rec.n_steps}")
     if stopped_short:
@@ -239,13 +240,15 @@ def contacts_json(result: RunResult, radius: float) -> dict[str, Any]:
     ``stopped_short`` (those robots over the run, one per robot and configuration), ``holds`` (the waits over the
     run) and ``corrections`` (legs a robot drove as a correction after standing at risk, ``coordinator.legs``; also per
     configuration with legs), ``legs_cut`` (legs ended before their last group: a step left two robots touching, or the next
-    step was at risk, ``coordinator.legs.new_touches``, ``deferred_movers``; also per configuration with legs)."""
+    step was at risk, ``coordinator.legs.new_touches``, ``deferred_movers``; also per configuration with legs) and
+    ``deferred`` (robots that stood in their step of a leg because it was at risk; also per configuration with legs)."""
     short = result.stopped_short()
     return {"robot_radius_m": radius, "steps_added": result.steps_added(), "staging_stops": result.staging_stops(),
             "stopped_short": sum(len(s) for s in short), "holds": result.holds(), "corrections": result.corrections(),
-            "legs_cut": sum(c.legs_cut for c in result.configs),
+            "legs_cut": sum(c.legs_cut for c in result.configs), "deferred": sum(c.deferred for c in result.configs),
             "legs": [{"config": k + 1, "legs": len(c.legs), "staging_stops": c.staging_stops, "steps": c.n_steps,
-                      "stopped_short": short[k], "holds": c.holds, "corrections": c.corrections, "legs_cut": c.legs_cut}
+                      "stopped_short": short[k], "holds": c.holds, "corrections": c.corrections, "legs_cut": c.legs_cut,
+                      "deferred": c.deferred}
                      for k, c in enumerate(result.configs) if c.legs],
             "contacts": [{"step": c.step, "config": c.config + 1, "robots": [c.a, c.b], "distance_m": c.distance}
                          for c in result.contacts(radius)],

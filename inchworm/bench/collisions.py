@@ -16,7 +16,7 @@ steps per configuration (speed, Eq. 6-7) and the mean P_f (Eq. 24). ``to_json()`
      "bodies": true|false, "contacts_per_100": X, "configs_with_contact_pct": Y,
      "steps_per_config": S, "pf_mean": P, "noise_scale": K, "steps_added": A, "unclear_changes": U,
      "raised_bound_changes": B, "leg_changes": G, "staging_stops": S, "stopped_short": H,
-     "stopped_short_changes": J, "holds": W, "corrections": K, "legs_cut": Q}, ...]}
+     "stopped_short_changes": J, "holds": W, "corrections": K, "legs_cut": Q, "deferred": D}, ...]}
 
 ``steps_added``: steps the chance constraint added over all runs of the row; ``raised_bound_changes``: configuration
 changes where no order kept the contact bound (``CONTACT_BOUND`` per pair and step) and it was raised for some
@@ -29,7 +29,8 @@ at risk even reached with no motion noise, or their way is blocked by a robot st
 robot waited where it stood for a neighbour (one per robot and leg: a pair separated in time, ``coordinator.legs``);
 ``corrections``: legs a robot drove back towards its goal after standing at risk by the new estimate (one per robot and
 leg, ``coordinator.legs.corrections``); ``legs_cut``: legs that ended before their last group, at a touch or before a
-step at risk (``coordinator.legs.new_touches``, ``deferred_movers``).
+step at risk (``coordinator.legs.new_touches``, ``deferred_movers``); ``deferred``: robots that stood in their step of a
+leg because it was at risk (one per robot and leg).
 """
 
 from __future__ import annotations
@@ -81,6 +82,7 @@ def run_one(job: Job) -> dict[str, Any]:
         "staging_stops": result.staging_stops(), "leg_changes": sum(1 for c in result.configs if c.legs),
         "stopped_short": sum(len(s) for s in short), "stopped_short_changes": sum(1 for s in short if s),
         "holds": result.holds(), "corrections": result.corrections(), "legs_cut": sum(c.legs_cut for c in result.configs),
+        "deferred": sum(c.deferred for c in result.configs),
     }
 
 
@@ -102,7 +104,7 @@ def summarise(runs: list[dict[str, Any]], keys: list[tuple[str, str, bool, float
             "stopped_short": sum(r["stopped_short"] for r in mine),
             "stopped_short_changes": sum(r["stopped_short_changes"] for r in mine),
             "holds": sum(r["holds"] for r in mine), "corrections": sum(r["corrections"] for r in mine),
-            "legs_cut": sum(r["legs_cut"] for r in mine),
+            "legs_cut": sum(r["legs_cut"] for r in mine), "deferred": sum(r["deferred"] for r in mine),
         })
     return rows
 

@@ -76,11 +76,12 @@ def test_bench_collisions_json_contract():
     for row in doc["rows"]:
         assert list(row) == ["method", "localizer", "bodies", "contacts_per_100", "configs_with_contact_pct", "steps_per_config", "pf_mean",
                              "noise_scale", "steps_added", "unclear_changes", "raised_bound_changes", "leg_changes",
-                             "staging_stops", "stopped_short", "stopped_short_changes", "holds", "corrections", "legs_cut"]  # the last ten: additions
+                             "staging_stops", "stopped_short", "stopped_short_changes", "holds", "corrections", "legs_cut",
+                             "deferred"]  # the last eleven: additions
         assert row["unclear_changes"] <= row["raised_bound_changes"] <= 2 * 2 and (row["bodies"] or row["steps_added"] == 0)
-        legged = row["staging_stops"] + row["stopped_short"] + row["holds"] + row["legs_cut"] > 0
+        legged = row["staging_stops"] + row["stopped_short"] + row["holds"] + row["legs_cut"] + row["deferred"] > 0
         assert row["leg_changes"] <= 2 * 2 and (row["leg_changes"] > 0) == legged
-        assert row["bodies"] or row["leg_changes"] + row["holds"] + row["corrections"] + row["legs_cut"] == 0
+        assert row["bodies"] or row["leg_changes"] + row["holds"] + row["corrections"] + row["legs_cut"] + row["deferred"] == 0
         assert row["stopped_short_changes"] <= min(row["stopped_short"], 2 * 2)
         assert row["contacts_per_100"] >= row["configs_with_contact_pct"] >= 0 and row["pf_mean"] > 0
     by = {(r["method"], r["bodies"], r["noise_scale"]): r for r in doc["rows"]}
