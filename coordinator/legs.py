@@ -179,15 +179,13 @@ def _pair_probability(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j
     return np.asarray(p)
 
 
-def _waiting(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndarray, p: np.ndarray, rank: np.ndarray,
-             check: BodyCheck) -> list[int]:
+def _waiting(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndarray, p: np.ndarray, rank: np.ndarray) -> list[int]:
     """Of each pair (i, j) of robots that could wait, over the bound at their leg's ends (contact probability ``p``;
     ``moments``: the leg's drives from where the robots stand to those ends), the robot that waits where it stands for
     the leg: the one of higher ``rank`` (n,) (a robot that could still stage before one on its last leg, then the longer
     way left, then the higher index), unless the other waiting keeps the pair's end within the bound and this does not,
-    or keeps it lower; but never one the other's drive passes where it stands, over the steps' bound (``check``: the
-    leg's drives, ``_drives_through``), where the other way round keeps it. Pairs by falling ``p``; a robot is decided
-    once (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
+    or keeps it lower. Pairs by falling ``p``; a robot is decided once
+    (a pair with a robot already waiting or driving on for another pair is left to the next round)."""
     first = rank[i] > rank[j]
     wait, go = np.where(first, i, j), np.where(first, j, i)
     ones, zeros = np.ones(len(i)), np.zeros(len(i))
@@ -195,8 +193,6 @@ def _waiting(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndar
     other = _pair_probability(cfg, moments, wait, go, ones, zeros)
     swap = (other < mine) & ((other <= CONTACT_BOUND) | (mine > CONTACT_BOUND))
     wait, go = np.where(swap, go, wait), np.where(swap, wait, go)
-    through = _drives_through(check, go, wait) & ~_drives_through(check, wait, go)
-    wait, go = np.where(through, go, wait), np.where(through, wait, go)
     decided: set[int] = set()
     out = []
     for k in np.argsort(-p, kind="stable"):
@@ -205,31 +201,6 @@ def _waiting(cfg: ModelConfig, moments: MotionMoments, i: np.ndarray, j: np.ndar
             out.append(a)
             decided |= {a, b}
     return out
-
-
-def _drives_through(check: BodyCheck, go: np.ndarray, stand: np.ndarray) -> np.ndarray:
-    """(len(go),) whether robot go[k]'s drive of ``check`` is over the steps' bound against robot stand[k] standing
-    where it is (``BodyCheck.pair_risks``: no order of the leg's steps helps such a pair if stand[k] waits)."""
-    if not len(go):
-        return np.zeros(0, bool)
-    risks = check.pair_risks(np.unique(go))
-    start, _, _ = risks.over(check.robot_levels())
-    bad = set(zip(risks.i[start].tolist(), risks.j[start].tolist(), strict=True))
-    return np.array([(a, b) in bad for a, b in zip(go.tolist(), stand.tolist(), strict=True)], bool)
-
-
-def _through_held(cfg: ModelConfig, estimate: SwarmEstimate, ends: np.ndarray, moving: np.ndarray,
-                  held: np.ndarray) -> list[int]:
-    """Robots of ``moving`` (n,) whose drive from where they stand to ``ends`` (n, 2) is over the steps' bound against a
-    robot of ``held`` (n,) waiting where it stands in the leg (``BodyCheck.pair_risks``): no order of the leg's steps
-    helps them (the waiting robot does not move in it), so they wait too, sorted."""
-    movers = moving & (np.hypot(*(ends - estimate.positions).T) >= MIN_LEG_M)
-    if not movers.any() or not held.any():
-        return []
-    check = BodyCheck.of_estimate(cfg, estimate, ends)
-    risks = check.pair_risks(np.flatnonzero(movers))
-    start, _, _ = risks.over(check.robot_levels())
-    return sorted(set(risks.i[start & held[risks.j]].tolist()))
 
 
 def _waits_too(cfg: ModelConfig, moments: MotionMoments, pairs: list[tuple[int, int]]) -> list[int]:
@@ -339,18 +310,16 @@ def leg_targets(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, 
             waits = [x for x in over if not final or x[2] > CONTACT_BOUND]  # in the last leg: over CONTACT_BOUND only
             pairs = [(a, b, q) for a, b, q in waits if free[a] and free[b]]
             beside = [(a, b) if free[a] else (b, a) for a, b, _ in waits if free[a] != free[b] and held[b if free[a] else a]]
-            through = _through_held(cfg, estimate, ends, drives & ~held, held)  # its way passes a waiting robot
-            if not pairs and not beside and not through:
+            if not pairs and not beside:
                 break
             moments = MotionMoments(cfg, estimate.positions, ends, estimate.cov, estimate.joint)  # the leg's drives to ``ends``
-            alone = _waits_too(cfg, moments, beside) if beside else []
-            if not pairs and not alone and not through:
+            alone = _waits_too(cfg, moments, beside)
+            if not pairs and not alone:
                 break
             held[alone] = True  # its neighbour waits: it approaches that one standing, later
-            held[through] = True  # it passes where a robot waits: it goes on once that one has moved
             if pairs:
                 a, b, q = (np.array(x) for x in zip(*pairs, strict=True))
-                held[_waiting(cfg, moments, a, b, q, rank, BodyCheck.of_estimate(cfg, estimate, ends))] = True
+                held[_waiting(cfg, moments, a, b, q, rank)] = True
         if held.any() and not (drives & ~held).any():  # nobody would drive: the one whose leg's end is least at risk does
             risk = []
             for r in order[held[order]]:  # a last leg first, then the shorter way: the first of equal risk drives

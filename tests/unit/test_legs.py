@@ -11,7 +11,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import inchworm
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping, clear_plan
 from coordinator.executor import InchwormExecutor
@@ -21,7 +20,6 @@ from coordinator.legs import (
     LEG_FRACTIONS,
     MAX_LEGS,
     LegRecord,
-    _through_held,
     corrections,
     deferred_movers,
     driven_legs,
@@ -652,18 +650,3 @@ def test_a_leg_cut_by_a_touch_counts_the_steps_run_and_its_other_robots_go_on():
     assert back.groups_run == 2 and back.plan.key() == plan.key() and back.held.tolist() == [9]
     old = _legs_json((whole,))
     assert "groups_run" not in old["legs"][0] and _from_legs(old)[0].groups_run is None  # as written before the cut
-
-
-def test_a_robot_whose_way_passes_a_waiting_robot_waits_too():
-    """Robot 0 waits in the leg (for another pair); robot 2 drives 0.4 m along y = 0 through its place: over the steps'
-    bound against it whatever the order of the leg's steps (it does not move in the leg), so robot 2 waits too; robot 1,
-    whose way passes 30 cm away, drives. In a recorded run (one-at-a-time, paper, 10 robots, seed 6, the 5th
-    configuration) a robot drove through a waiting one: 3 mm between the centres of the 2.2 cm bodies."""
-    est = estimate([[0.0, 0.0], [-0.2, 0.3], [-0.2, 0.0]], [-1.0, 0.0, 0.0])
-    ends = np.array([[0.0, 0.0], [0.2, 0.3], [0.2, 0.0]])
-    held = np.array([True, False, False])
-    assert _through_held(X3, est, ends, ~held, held) == [2]
-    assert _through_held(X3, est, ends, ~held, np.zeros(3, bool)) == []
-    result = inchworm.simulate(robots=10, configs=5, seed=6, method="one-at-a-time", localizer="paper")
-    assert result.contacts(result.options.model.robot_radius_m) == []
-    assert 4 in result.configs[4].legs[0].held and 9 in result.configs[4].legs[0].held  # robot 4 waits with robot 9
