@@ -417,7 +417,8 @@ class PlanMessage(Message):
         "id", "ordered mobile groups, at least one, each non-empty, no robot twice", shape=(None, None)
     )
     leg: int = _wire("int", "optional: 0 = the configuration's plan; k >= 1 = its k-th approach leg, whose groups move only "
-                     "the robots that stopped at a staging point in leg k - 1 (docs/bodies.md)", default=0)
+                     "the robots that go on from leg k - 1 (stopped at a staging point, waited, or in a group a cut leg left "
+                     "unrun) or drive a correction (docs/bodies.md)", default=0)
 
     def _check(self) -> None:
         seen: set[int] = set()
