@@ -27,7 +27,7 @@ so every strategy runs collision-free and the record says so (``ConfigRecord.reg
 would end too close to a neighbour for the bound drives in approach legs (``coordinator.legs``): to a staging point
 first, then, after the swarm re-localized, on from there (``ConfigRecord.legs``); a step that leaves two robots touching
 ends its leg there and the next is planned at once, and robots whose next step in the leg is at risk stand in it
-and go on in the next (``coordinator.legs.new_touches``, ``deferred_movers``, ``_touched``).
+and go on in the next (``coordinator.legs.after_step``, ``_touched``).
 ``RunResult.contacts`` finds where the true motion brought bodies into contact.
 
 An optional ``ExecutorListener`` is told what the executor decided, without changing
@@ -47,7 +47,6 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import replace
 from typing import Protocol, cast
 
 import numpy as np
@@ -55,7 +54,7 @@ import numpy as np
 from coordinator.backend import BackendEnded, SwarmBackend
 from coordinator.checkpoint import RunState
 from coordinator.clearance import Regrouping
-from coordinator.legs import LEG_CAP, LegRecord, deferred_movers, first_leg, new_touches, next_leg
+from coordinator.legs import LEG_CAP, LegRecord, after_step, first_leg, next_leg
 from coordinator.localization import Localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -238,35 +237,17 @@ class InchwormExecutor:
     def _touched(self, trajectory: Trajectory, config: int, legs: tuple[LegRecord, ...], k: int, before: SwarmEstimate,
                  after: SwarmEstimate, moved: np.ndarray, plan: Plan, planned_ids: np.ndarray,
                  regrouped: Regrouping | None) -> tuple[LegRecord, ...]:
-        """The change's legs after group ``k`` of ``plan`` ran (robots ``moved``, the estimates ``before`` and
-        ``after`` the step): where the step left two robots touching (``new_touches``), the leg ends there (its
-        ``groups_run``) if groups of it are left and it is not the change's ``LEG_CAP``-th; where robots of the next
-        group are at risk against robots the leg moved earlier, where they are now (``deferred_movers``), they stand
-        in it and go on in the next leg (``LegRecord.deferred``), and where that is the whole group the leg ends
-        there. A change without legs becomes a first leg to the desired positions for it (after a touch also after
-        its last group), so that ``next_leg`` separates the pair at once, or drives the robots that stood. Else
-        ``legs`` unchanged."""
-        last = k + 1 == len(plan.groups)
-        if self.cfg.robot_radius_m <= 0 or len(legs) >= LEG_CAP or (legs and last):
-            return legs
+        """The change's legs after group ``k`` of ``plan`` ran (``coordinator.legs.after_step``; a change without legs
+        as a first leg to the desired positions), logged where the leg ended or robots stand in its next step."""
         leg = legs[-1] if legs else LegRecord(plan, planned_ids, np.asarray(self._desired(trajectory, config, planned_ids), float)[:, :2],
                                               np.zeros(len(planned_ids), bool), regrouped)
-        a, b, p = new_touches(self.cfg, before, after, moved)
-        if len(a):
-            _log.info("configuration %d: step %d left robots %s touching (contact probability %s): the leg ends there",
-                      config + 1, self._executed, list(zip(a.tolist(), b.tolist(), strict=True)), np.round(p, 3).tolist())
-            return (*legs[:-1], replace(leg, groups_run=None if last else k + 1))
-        deferred = deferred_movers(self.cfg, after, leg, k)
-        if not len(deferred):
-            return legs
-        group = np.intersect1d(planned_ids[plan.groups[k + 1]], after.ids)
-        if np.isin(group, deferred).all():
-            _log.info("configuration %d: after step %d the leg's next step is at risk for all its robots %s: the leg "
-                      "ends there", config + 1, self._executed, group.tolist())
-            return (*legs[:-1], replace(leg, groups_run=k + 1))
-        _log.info("configuration %d: after step %d robots %s stand in the next step (at risk there): they go on in the "
-                  "next leg", config + 1, self._executed, deferred.tolist())
-        return (*legs[:-1], replace(leg, deferred=np.union1d(leg.deferred, deferred).astype(np.int64)))
+        out, why = after_step(self.cfg, legs, leg, k, before, after, moved)
+        if why is not None:
+            _log.info("configuration %d: after step %d (%s) the leg ends there", config + 1, self._executed, why)
+        elif out and len(out[-1].deferred) > len(leg.deferred):
+            _log.info("configuration %d: after step %d robots %s stand in the next step (at risk there): they go on in "
+                      "the next leg", config + 1, self._executed, np.setdiff1d(out[-1].deferred, leg.deferred).tolist())
+        return out
 
     def _checkpoint(self, result: RunResult, config: int, group: int, estimate: SwarmEstimate, plan: Plan | None,
                     planned_ids: np.ndarray | None, regrouped: Regrouping | None = None, finished: bool = False,

@@ -74,7 +74,7 @@ group drive, kept clear of it standing); where that is the whole group, the leg 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -459,12 +459,13 @@ class LegRecord:
 
     @property
     def n_steps(self) -> int:
-        """Steps the leg ran (its plan's, or fewer where a touch ended it)."""
+        """Steps the leg ran (its plan's, or fewer where it was cut short: ``after_step``)."""
         return self.plan.n_steps if self.groups_run is None else self.groups_run
 
     @property
     def cut(self) -> bool:
-        """The leg ended at a touch before its plan's last group (``new_touches``)."""
+        """The leg ended before its plan's last group (at a touch, or before a step at risk for all its robots:
+        ``after_step``)."""
         return self.n_steps < self.plan.n_steps
 
     @property
@@ -612,6 +613,32 @@ def new_touches(cfg: ModelConfig, before: SwarmEstimate, after: SwarmEstimate,
     fresh = ~np.isin(a * width + b, np.minimum(ids[k[was]], ids[m[was]]) * width + np.maximum(ids[k[was]], ids[m[was]]))
     order = np.lexsort((b[fresh], a[fresh]))
     return a[fresh][order], b[fresh][order], p[fresh][order]
+
+
+def after_step(cfg: ModelConfig, legs: tuple[LegRecord, ...], leg: LegRecord, k: int, before: SwarmEstimate,
+               after: SwarmEstimate, moved: np.ndarray) -> tuple[tuple[LegRecord, ...], str | None]:
+    """The change's legs after group ``k`` of ``leg``'s plan ran, and why that leg ended there (None: it did not);
+    ``legs``: the change's legs so far, ``leg`` the last of them, or, for a change without legs (``legs`` = ()), its
+    plan as a first leg to the desired positions; ``moved``: ids of the robots the step drove, ``before`` and ``after``
+    its estimates. Where the step left two robots touching (``new_touches``) the leg ends there (after its last group
+    too for a change without legs, so that ``next_leg`` parts them); where robots of the next group are at risk against
+    robots the leg moved earlier (``deferred_movers``) they stand in it (``LegRecord.deferred``), and where that is the
+    whole group the leg ends there. Nothing for point robots, after a leg's last group, or in the change's
+    ``LEG_CAP``-th leg. The executor and ``swarm replay --check`` both decide here."""
+    last = k + 1 == len(leg.plan.groups)
+    if cfg.robot_radius_m <= 0 or len(legs) >= LEG_CAP or (legs and last):
+        return legs, None
+    a, b, p = new_touches(cfg, before, after, moved)
+    if len(a):
+        why = ", ".join(f"robots {x} and {y} touching ({q:.3g})" for x, y, q in zip(a.tolist(), b.tolist(), p.tolist(), strict=True))
+        return (*legs[:-1], replace(leg, groups_run=None if last else k + 1)), why
+    deferred = deferred_movers(cfg, after, leg, k)
+    if not len(deferred):
+        return legs, None
+    group = np.intersect1d(leg.ids[leg.plan.groups[k + 1]], after.ids)
+    if np.isin(group, deferred).all():
+        return (*legs[:-1], replace(leg, groups_run=k + 1)), f"robots {group.tolist()} at risk in its next step"
+    return (*legs[:-1], replace(leg, deferred=np.union1d(leg.deferred, deferred).astype(np.int64))), None
 
 
 def next_leg(cfg: ModelConfig, legs: tuple[LegRecord, ...], estimate: SwarmEstimate, desired: np.ndarray,

@@ -39,7 +39,7 @@ import numpy as np
 from coordinator.checkpoint import carried_fields
 from coordinator.clearance import Regrouping
 from coordinator.executor import among, localize_rejoined, rejoin_priors
-from coordinator.legs import LEG_CAP, LegRecord, deferred_movers, first_leg, new_touches, next_leg
+from coordinator.legs import LegRecord, after_step, first_leg, next_leg
 from coordinator.localization import Localizer, make_localizer
 from coordinator.localization.partial import localize_observable
 from coordinator.plan import Plan
@@ -391,7 +391,7 @@ class _Change:
     """The configuration change being checked (``config`` 1-based): its strategy's ``plan`` cleared for bodies (rows of
     ``ids``), how it was split (``regrouped``), the ``desired`` positions (rows of ``ids``), and of its current leg (the
     plan, for a change without legs) the first step ``start`` and the ``plan``; ``touch`` says why that leg ended
-    before its planned end (``coordinator.legs.new_touches``, ``deferred_movers``), None while it did not."""
+    before its planned end (``coordinator.legs.after_step``), None while it did not."""
 
     config: int
     first: Plan
@@ -414,31 +414,15 @@ class _Change:
 
     def after_step(self, cfg: ModelConfig, legs: list[LegRecord], step: int, before: SwarmEstimate, after: SwarmEstimate,
                    moved: list[int]) -> list[LegRecord]:
-        """The change's legs after ``step`` as the executor has them (``InchwormExecutor._touched``): where the step
-        left two robots touching, the leg ends there if groups of it are left (a change without legs becomes a first
-        leg to the desired positions, also after its last group); robots of the next group at risk against robots the
-        leg moved earlier (``deferred_movers``) stand in it (``LegRecord.deferred``), and where that is the whole
-        group the leg ends there."""
+        """The change's legs after ``step`` as the executor has them (``coordinator.legs.after_step``; a change without
+        legs as a first leg to the desired positions); where the leg ended there, ``touch`` says why."""
         assert self.plan is not None
-        k = step - self.start
-        last = k + 1 == self.plan.n_steps
-        if len(legs) >= LEG_CAP or (legs and last):
-            return legs
         leg = legs[-1] if legs else LegRecord(self.first, self.ids, np.asarray(self.desired, float)[:, :2],
                                               np.zeros(len(self.ids), bool), self.regrouped)
-        a, b, p = new_touches(cfg, before, after, np.array(moved, np.int64))
-        if len(a):
-            self.touch = ", ".join(f"robots {x} and {y} touching ({q:.3g})" for x, y, q in zip(a.tolist(), b.tolist(), p.tolist(), strict=True))
-            self.groups_run = None if last else k + 1
-            return [*legs[:-1], replace(leg, groups_run=self.groups_run)]
-        deferred = deferred_movers(cfg, after, leg, k)
-        if not len(deferred):
-            return legs
-        group = np.intersect1d(leg.ids[self.plan.groups[k + 1]], after.ids)
-        if np.isin(group, deferred).all():
-            self.touch, self.groups_run = f"robots {group.tolist()} at risk in its next step", k + 1
-            return [*legs[:-1], replace(leg, groups_run=k + 1)]
-        return [*legs[:-1], replace(leg, deferred=np.union1d(leg.deferred, deferred).astype(np.int64))]
+        out, why = after_step(cfg, tuple(legs), leg, step - self.start, before, after, np.array(moved, np.int64))
+        if why is not None:
+            self.touch, self.groups_run = why, out[-1].groups_run
+        return list(out)
 
     def missing_leg(self, cfg: ModelConfig, legs: list[LegRecord], before: SwarmEstimate | None, step: int) -> Divergence | None:
         """After a touch ended a leg at ``step`` - 1, the recording has no leg from ``step``: the divergence if the
