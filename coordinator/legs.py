@@ -538,16 +538,17 @@ def deferred_movers(cfg: ModelConfig, estimate: SwarmEstimate, leg: LegRecord, k
     known = np.isin(estimate.ids, () if leg.regrouped is None else leg.regrouped.unclear)
     members = set(estimate.ids[group].tolist())
     held = {r for pair in step_at_risk(cfg, estimate, ends, group, moved, known) for r in pair if r in members}
+    if not held:  # the common case: nothing more to judge
+        return np.zeros(0, np.int64)
     check = BodyCheck.of_estimate(cfg, estimate, ends)
-    while held:  # grows to the whole group at most: this ends
+    while True:  # held grows to the whole group at most: this ends
         standing = np.isin(estimate.ids, list(held))
         driving = group & ~standing
         more = {int(estimate.ids[c.a if driving[c.a] else c.b]) for c in check.step_conflicts(estimate.positions, driving)
                 if standing[c.a] or standing[c.b]} - held if driving.any() else set()
         if not more:
-            break
+            return np.array(sorted(held), np.int64)
         held |= more
-    return np.array(sorted(held), np.int64)
 
 
 def corrections(cfg: ModelConfig, estimate: SwarmEstimate, desired: np.ndarray, going: np.ndarray) -> np.ndarray:
